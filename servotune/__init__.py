@@ -1,0 +1,57 @@
+"""servotune: control design and tuning workbench for synchronised position servos.
+
+Identify axis models from logs, synthesise PI and fuzzy-PID tables, verify them in a bit-true
+4 ms closed loop, and export them to the runtime.
+"""
+
+from servotune.engine import Batch, BatchResult, Loop, Trace, prepare_batch, run_batch, simulate
+from servotune.errors import (
+    ExportError,
+    IdentificationError,
+    LogFormatError,
+    RigError,
+    ServotuneError,
+    SimulationError,
+    SpecError,
+)
+from servotune.fixed import Fixed, quantize
+from servotune.laws import AxisController, PIGains, lock_holding_band
+from servotune.metrics import StepInfo, TrackingMetrics, step_info, tracking_metrics
+from servotune.plant import Plant, discretize
+from servotune.rig import Rig, load_rig
+from servotune.scenarios import Inputs, build_scenario
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "AxisController",
+    "Batch",
+    "BatchResult",
+    "ExportError",
+    "Fixed",
+    "IdentificationError",
+    "Inputs",
+    "LogFormatError",
+    "Loop",
+    "PIGains",
+    "Plant",
+    "Rig",
+    "RigError",
+    "ServotuneError",
+    "SimulationError",
+    "SpecError",
+    "StepInfo",
+    "Trace",
+    "TrackingMetrics",
+    "__version__",
+    "build_scenario",
+    "discretize",
+    "load_rig",
+    "lock_holding_band",
+    "prepare_batch",
+    "quantize",
+    "run_batch",
+    "simulate",
+    "step_info",
+    "tracking_metrics",
+]

@@ -1,0 +1,691 @@
+"""The closed-loop tick engine (SPEC §4): one trajectory or a batch of candidates.
+
+Tick ``k`` starts at ``t_k = k · period_s`` (the achieved timer period). For every axis the
+counter latches the encoder count (``floor`` of position plus noise), the runtime reads and
+unwraps it (:func:`servotune.laws.axis.axis_read`); then every axis runs its control step
+(:func:`servotune.laws.axis.axis_control`) in the runtime's integer arithmetic, giving the D/A
+code written at ``t_k + compute_s``; the motor sees it ``delay_s`` later and moves with the exact
+solution of the axis model between input changes (:func:`servotune.plant.advance`).
+
+Candidates of a batch (plant variants, gain sets) run in parallel (numba ``prange``), each with
+its own noise stream (splitmix64 seeded per candidate), so a candidate gives the same codes run
+alone or in a batch. No fast-math: results are bit-reproducible.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numba as nb
+import numpy as np
+
+from servotune.errors import SimulationError
+from servotune.laws.axis import (
+    FLAG_SATURATED,
+    MODE_LOCK,
+    MODE_TASK,
+    N_STATE,
+    S_MODE,
+    AxisController,
+    axis_control,
+    axis_read,
+)
+from servotune.laws.pi import pi_ideal_step
+from servotune.plant import Plant, advance, lag_split, step_coefficients, tick_coefficients
+from servotune.rig import Rig
+from servotune.scenarios import Inputs
+
+__all__ = [
+    "METRIC_NAMES",
+    "Batch",
+    "BatchResult",
+    "Loop",
+    "Trace",
+    "prepare_batch",
+    "run_batch",
+    "simulate",
+]
+
+# plant parameter layout (float64, per candidate and axis)
+_P_GAIN, _P_TAU, _P_OFFSET, _P_COULOMB, _P_VMAX, _P_NOISE = 0, 1, 2, 3, 4, 5
+_P_A1, _P_B1, _P_A2, _P_B2, _P_H1, _P_H2 = 6, 7, 8, 9, 10, 11
+# exact one-tick linear map (used while no nonlinearity can act), see plant.tick_coefficients
+_P_PHI_B, _P_PHI_A, _P_GO_P, _P_GO_V, _P_GN_P, _P_GN_V, _P_LINEAR = 12, 13, 14, 15, 16, 17, 18
+_NPF = 19
+# integer parameters: whole ticks of lag, counter register at start
+_I_LAG, _I_INIT = 0, 1
+_NPI = 2
+# ideal-law gains (float64): lock, kp, ki*T
+_G_LOCK, _G_KP, _G_KIT = 0, 1, 2
+
+METRIC_NAMES = (
+    "max_abs_err_counts",
+    "rms_err_counts",
+    "itae_counts_s2",
+    "saturated_ticks",
+    "first_fault_tick",
+    "final_err_counts",
+    "task_ticks",
+)
+"""Per-candidate, per-axis metrics (over task ticks from ``metric_from_tick``)."""
+_NM = len(METRIC_NAMES)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Loop:
+    """A rig with its controllers: what the engine closes the loop around.
+
+    Parameters
+    ----------
+    rig : Rig
+        Hardware and axes (plants in rig axis order).
+    controllers : tuple of AxisController
+        One per rig axis, in rig order.
+    ref_source : tuple of int
+        Per axis, ``-1`` if its task reference comes from the scenario, else the index of the
+        axis whose position (read in the same tick) is its reference: a slave following its
+        master (SPEC §6). Default: external for the master, the master for slaves.
+    """
+
+    rig: Rig
+    controllers: tuple[AxisController, ...]
+    ref_source: tuple[int, ...] = ()
+
+    def __post_init__(self) -> None:
+        n = len(self.rig.axes)
+        if len(self.controllers) != n:
+            raise SimulationError(
+                f"need one controller per axis ({n}), got {len(self.controllers)}"
+            )
+        if not self.ref_source:
+            master = next((i for i, a in enumerate(self.rig.axes) if a.role == "master"), -1)
+            src = tuple(
+                -1 if (a.role == "master" or master < 0) else master for a in self.rig.axes
+            )
+            object.__setattr__(self, "ref_source", src)
+        if len(self.ref_source) != n:
+            raise SimulationError(f"ref_source needs {n} entries, got {len(self.ref_source)}")
+        for i, s in enumerate(self.ref_source):
+            if s != -1 and not (0 <= s < n and s != i):
+                raise SimulationError(
+                    f"ref_source[{i}] must be -1 or another axis index, got {s}"
+                )
+
+    @classmethod
+    def from_rig(cls, rig: Rig, pi_gains: Sequence[object | None] | None = None) -> Loop:
+        """Loop with each axis's lock gain and following-error limit from the rig.
+
+        ``pi_gains``: per axis a :class:`~servotune.laws.pi.PIGains` or None (lock only).
+        """
+        gains = list(pi_gains) if pi_gains is not None else [None] * len(rig.axes)
+        if len(gains) != len(rig.axes):
+            raise SimulationError(f"need one pi_gains entry per axis ({len(rig.axes)})")
+        ctl = tuple(
+            AxisController.from_gains(
+                lock_gain_codes_per_count=a.lock_gain_codes_per_count,
+                pi_gains=g,
+                period_s=rig.period_s,
+                following_error_limit_counts=a.following_error_limit_counts,
+            )
+            for a, g in zip(rig.axes, gains, strict=True)
+        )
+        return cls(rig=rig, controllers=ctl)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Trace:
+    """One simulated trajectory, arrays of shape (ticks, axes).
+
+    Attributes
+    ----------
+    period_s : float
+        Tick period [s].
+    axis_names : tuple of str
+    code : ndarray of int32
+        D/A code written each tick (0 in ideal mode).
+    volts : ndarray
+        D/A output [V] (the ideal law's unquantised output in ideal mode).
+    counter : ndarray of int64
+        Raw counter register read each tick (0 in ideal mode).
+    pos_counts : ndarray of int64
+        Runtime's extended position (relative to its first read) [counts].
+    err_counts : ndarray of int64
+        The law's error ``r − y`` [counts].
+    ref_counts : ndarray of int64
+        Task reference relative to the start [counts].
+    mode : ndarray of int8
+        Mode the runtime ran (``MODE_*``).
+    flags : ndarray of int16
+        ``FLAG_*`` bits.
+    true_pos_counts : ndarray
+        Plant position at the tick start, no noise, not quantised [counts].
+    speed_cps : ndarray
+        Plant speed at the tick start [counts/s].
+    """
+
+    period_s: float
+    axis_names: tuple[str, ...]
+    code: np.ndarray
+    volts: np.ndarray
+    counter: np.ndarray
+    pos_counts: np.ndarray
+    err_counts: np.ndarray
+    ref_counts: np.ndarray
+    mode: np.ndarray
+    flags: np.ndarray
+    true_pos_counts: np.ndarray
+    speed_cps: np.ndarray
+
+    @property
+    def n_ticks(self) -> int:
+        """Number of ticks."""
+        return int(self.code.shape[0])
+
+    @property
+    def time_s(self) -> np.ndarray:
+        """Tick start times ``k · period_s`` [s]."""
+        return np.arange(self.n_ticks, dtype=np.int64) * self.period_s
+
+    def axis(self, name: str) -> int:
+        """Column index of an axis."""
+        try:
+            return self.axis_names.index(name)
+        except ValueError:
+            raise SimulationError(f"no axis {name!r}; axes: {list(self.axis_names)}") from None
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Batch:
+    """Discretised candidates ready to run (:func:`prepare_batch`)."""
+
+    loop: Loop
+    pf: np.ndarray
+    pi: np.ndarray
+    consts: np.ndarray
+    gains_f: np.ndarray
+    seeds: np.ndarray
+    ring: int
+    ref_source: np.ndarray = field(repr=False)
+
+    @property
+    def n_candidates(self) -> int:
+        """Number of candidates."""
+        return int(self.pf.shape[0])
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class BatchResult:
+    """Per-candidate results.
+
+    Attributes
+    ----------
+    metrics : ndarray, shape (candidates, axes, len(METRIC_NAMES))
+    traces : dict of ndarray or None
+        With ``metrics_only=False``: arrays of shape (candidates, ticks, axes) as in Trace.
+    """
+
+    metrics: np.ndarray
+    traces: dict[str, np.ndarray] | None = None
+
+    def metric(self, name: str) -> np.ndarray:
+        """One metric, shape (candidates, axes)."""
+        return self.metrics[:, :, METRIC_NAMES.index(name)]
+
+
+# --- preparation ---------------------------------------------------------------------------
+
+
+def _plant_rows(rig: Rig, plants: Sequence[Plant]) -> tuple[np.ndarray, np.ndarray]:
+    period = rig.period_s
+    pf = np.zeros((len(plants), _NPF))
+    pi = np.zeros((len(plants), _NPI), dtype=np.int64)
+    for i, (axis, pl) in enumerate(zip(rig.axes, plants, strict=True)):
+        m, lam = lag_split(rig.timer.compute_s + pl.delay_s, period)
+        a1, b1 = step_coefficients(lam, pl.tau_s)
+        a2, b2 = step_coefficients(period - lam, pl.tau_s)
+        pf[i] = (
+            pl.gain_cps_per_v,
+            pl.tau_s,
+            pl.offset_v,
+            pl.coulomb_v,
+            pl.max_speed_cps(rig.counts_per_rev),
+            pl.noise_counts,
+            a1,
+            b1,
+            a2,
+            b2,
+            lam,
+            period - lam,
+            *tick_coefficients(period, lam, pl.gain_cps_per_v, pl.tau_s),
+            1.0 if pl.coulomb_v == 0.0 else 0.0,
+        )
+        pi[i] = (m, axis.counter_init)
+    return pf, pi
+
+
+def _consts_rows(rig: Rig, controllers: Sequence[AxisController]) -> tuple[np.ndarray, np.ndarray]:
+    rows = np.stack(
+        [
+            c.consts(
+                counter_bits=rig.counter.bits, dac_bits=rig.dac.bits, dac_zero=rig.dac.zero_code
+            )
+            for c in controllers
+        ]
+    )
+    gains = np.zeros((len(controllers), 3))
+    for i, c in enumerate(controllers):
+        gains[i, _G_LOCK] = c.lock_gain.value
+        if c.pi is not None:
+            gains[i, _G_KP] = c.pi.kp.value
+            gains[i, _G_KIT] = c.pi.ki_t.value
+    return rows, gains
+
+
+def prepare_batch(
+    loop: Loop,
+    *,
+    plants: Sequence[Sequence[Plant]] | None = None,
+    controllers: Sequence[Sequence[AxisController]] | None = None,
+    seeds: Sequence[int] | int = 0,
+    n_candidates: int | None = None,
+) -> Batch:
+    """Discretise candidates: plant variants and/or controller variants of one loop.
+
+    Parameters
+    ----------
+    loop : Loop
+        The nominal loop.
+    plants : sequence of sequences of Plant, optional
+        Per candidate, one plant per axis; default the rig's plants.
+    controllers : sequence of sequences of AxisController, optional
+        Per candidate, one controller per axis; default the loop's.
+    seeds : int or sequence of int
+        Per-candidate noise stream seeds, or one base seed from which they are derived
+        (``numpy.random.SeedSequence(seed).generate_state``).
+    n_candidates : int, optional
+        Number of candidates when neither plants nor controllers vary.
+
+    Returns
+    -------
+    Batch
+    """
+    rig = loop.rig
+    sizes = {len(x) for x in (plants, controllers) if x is not None}
+    if n_candidates is not None:
+        sizes.add(n_candidates)
+    if len(sizes) > 1:
+        raise SimulationError(f"plants, controllers and n_candidates disagree on the count: {sizes}")
+    n = sizes.pop() if sizes else 1
+    if n < 1:
+        raise SimulationError("a batch needs at least one candidate")
+    plant_sets = plants if plants is not None else [tuple(a.plant for a in rig.axes)] * n
+    ctl_sets = controllers if controllers is not None else [loop.controllers] * n
+    n_ax = len(rig.axes)
+    pf = np.zeros((n, n_ax, _NPF))
+    pi = np.zeros((n, n_ax, _NPI), dtype=np.int64)
+    consts = np.zeros((n, n_ax, len(loop.controllers[0].consts(counter_bits=24, dac_bits=12, dac_zero=2048))), dtype=np.int64)
+    gains = np.zeros((n, n_ax, 3))
+    cache_p: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    cache_c: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    for b in range(n):
+        ps, cs = plant_sets[b], ctl_sets[b]
+        if len(ps) != n_ax or len(cs) != n_ax:
+            raise SimulationError(f"candidate {b}: need {n_ax} plants and controllers")
+        key_p, key_c = id(ps), id(cs)
+        if key_p not in cache_p:
+            cache_p[key_p] = _plant_rows(rig, ps)
+        if key_c not in cache_c:
+            cache_c[key_c] = _consts_rows(rig, cs)
+        pf[b], pi[b] = cache_p[key_p]
+        consts[b], gains[b] = cache_c[key_c]
+    if isinstance(seeds, int | np.integer):
+        seed_arr = (
+            np.array([int(seeds)], dtype=np.uint64)
+            if n == 1
+            else np.random.SeedSequence(int(seeds)).generate_state(n, dtype=np.uint64)
+        )
+    else:
+        seed_arr = np.asarray([int(s) for s in seeds], dtype=np.uint64)
+        if seed_arr.shape != (n,):
+            raise SimulationError(f"need {n} seeds, got {seed_arr.size}")
+    ring = int(pi[:, :, _I_LAG].max()) + 2
+    return Batch(
+        loop=loop,
+        pf=pf,
+        pi=pi,
+        consts=consts,
+        gains_f=gains,
+        seeds=seed_arr,
+        ring=ring,
+        ref_source=np.asarray(loop.ref_source, dtype=np.int64),
+    )
+
+
+def _check_inputs(loop: Loop, inputs: Inputs) -> None:
+    n_ax = len(loop.rig.axes)
+    if inputs.n_axes != n_ax:
+        raise SimulationError(f"inputs have {inputs.n_axes} axes, the rig has {n_ax}")
+    for i, c in enumerate(loop.controllers):
+        if c.pi is None and np.any(inputs.mode[:, i] == MODE_TASK):
+            raise SimulationError(
+                f"axis {loop.rig.axes[i].name!r} has task ticks but no task law (give PI gains)"
+            )
+
+
+def run_batch(
+    batch: Batch,
+    inputs: Inputs,
+    *,
+    metrics_only: bool = True,
+    ideal: bool = False,
+    metric_from_tick: int = 0,
+    threads: int | None = None,
+) -> BatchResult:
+    """Run every candidate of a batch through the same scenario inputs.
+
+    Parameters
+    ----------
+    batch : Batch
+        From :func:`prepare_batch`.
+    inputs : Inputs
+        Per-tick references, modes, resets, added commands and loads.
+    metrics_only : bool
+        Return only per-candidate metrics (for optimisers); else also full traces.
+    ideal : bool
+        Ideal floating-point laws, no encoder or D/A quantisation, no counter (design checks).
+    metric_from_tick : int
+        First tick counted in the metrics.
+    threads : int, optional
+        Number of threads (default: numba's default).
+
+    Returns
+    -------
+    BatchResult
+    """
+    loop = batch.loop
+    _check_inputs(loop, inputs)
+    n, n_ax = batch.n_candidates, len(loop.rig.axes)
+    nt = inputs.n_ticks
+    rec = 0 if metrics_only else nt
+    out_i = np.zeros((6, n, rec, n_ax), dtype=np.int64)
+    out_f = np.zeros((3, n, rec, n_ax))
+    metrics = np.zeros((n, n_ax, _NM))
+    rig = loop.rig
+    old_threads = nb.get_num_threads()
+    if threads is not None:
+        nb.set_num_threads(max(1, min(int(threads), nb.config.NUMBA_NUM_THREADS)))
+    try:
+        _kernel(
+            batch.pf,
+            batch.pi,
+            batch.consts,
+            batch.gains_f,
+            batch.seeds,
+            batch.ref_source,
+            inputs.ref_counts,
+            inputs.mode,
+            inputs.reset,
+            inputs.dac_add_codes,
+            inputs.load_v,
+            int(rig.counter.bits),
+            bool(rig.counter.latched),
+            float(rig.counter.read_skew_s),
+            float(rig.dac.range_v[0]),
+            float(rig.dac.lsb_v),
+            bool(ideal),
+            int(batch.ring),
+            int(metric_from_tick),
+            float(rig.period_s),
+            out_i,
+            out_f,
+            metrics,
+        )
+    finally:
+        nb.set_num_threads(old_threads)
+    traces = None
+    if not metrics_only:
+        traces = {
+            "code": out_i[0].astype(np.int32),
+            "counter": out_i[1],
+            "pos_counts": out_i[2],
+            "err_counts": out_i[3],
+            "mode": out_i[4].astype(np.int8),
+            "flags": out_i[5].astype(np.int16),
+            "volts": out_f[0],
+            "true_pos_counts": out_f[1],
+            "speed_cps": out_f[2],
+        }
+    return BatchResult(metrics=metrics, traces=traces)
+
+
+def simulate(
+    loop: Loop,
+    inputs: Inputs,
+    *,
+    seed: int = 0,
+    ideal: bool = False,
+    plants: Sequence[Plant] | None = None,
+) -> Trace:
+    """Simulate one trajectory.
+
+    Parameters
+    ----------
+    loop : Loop
+    inputs : Inputs
+    seed : int
+        Noise stream seed (the same as this candidate's seed in a batch gives the same codes).
+    ideal : bool
+        Ideal laws and converters (see :func:`run_batch`).
+    plants : sequence of Plant, optional
+        Plants to use instead of the rig's.
+
+    Returns
+    -------
+    Trace
+    """
+    batch = prepare_batch(
+        loop, plants=None if plants is None else [tuple(plants)], seeds=[int(seed)]
+    )
+    res = run_batch(batch, inputs, metrics_only=False, ideal=ideal, threads=1)
+    t = res.traces
+    assert t is not None
+    return Trace(
+        period_s=loop.rig.period_s,
+        axis_names=loop.rig.axis_names,
+        code=t["code"][0],
+        volts=t["volts"][0],
+        counter=t["counter"][0],
+        pos_counts=t["pos_counts"][0],
+        err_counts=t["err_counts"][0],
+        ref_counts=np.asarray(inputs.ref_counts),
+        mode=t["mode"][0],
+        flags=t["flags"][0],
+        true_pos_counts=t["true_pos_counts"][0],
+        speed_cps=t["speed_cps"][0],
+    )
+
+
+# --- the kernel ----------------------------------------------------------------------------
+
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+_MIX1 = np.uint64(0xBF58476D1CE4E5B9)
+_MIX2 = np.uint64(0x94D049BB133111EB)
+
+
+@nb.njit(cache=True)
+def _splitmix(state: np.uint64) -> tuple[np.uint64, np.uint64]:
+    state = state + _GOLDEN
+    z = state
+    z = (z ^ (z >> np.uint64(30))) * _MIX1
+    z = (z ^ (z >> np.uint64(27))) * _MIX2
+    return state, z ^ (z >> np.uint64(31))
+
+
+@nb.njit(cache=True)
+def _normal(state: np.uint64) -> tuple[np.uint64, float]:
+    state, z1 = _splitmix(state)
+    state, z2 = _splitmix(state)
+    u1 = (float(z1 >> np.uint64(11)) + 0.5) * (1.0 / 9007199254740992.0)
+    u2 = float(z2 >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+    return state, math.sqrt(-2.0 * math.log(u1)) * math.cos(2.0 * math.pi * u2)
+
+
+@nb.njit(cache=True)
+def _run_one(
+    b, pf, pi, consts, gains, seeds, src, ref, mode, reset, u_add, load,
+    bits, latched, skew, dac_lo, lsb, ideal, ring, m_from, period, out_i, out_f, metrics,
+):  # fmt: skip
+    n_ax = pf.shape[1]
+    nt = ref.shape[0]
+    rec = out_i.shape[2] > 0
+    mask = (np.int64(1) << bits) - 1
+    nbytes = bits // 8
+    st = np.zeros((n_ax, N_STATE), dtype=np.int64)
+    hist = np.zeros((n_ax, ring))
+    pos = np.zeros(n_ax)
+    spd = np.zeros(n_ax)
+    y = np.zeros(n_ax, dtype=np.int64)
+    yf = np.zeros(n_ax)
+    integ_f = np.zeros(n_ax)
+    target_f = np.zeros(n_ax)
+    mode_f = np.zeros(n_ax, dtype=np.int64)
+    rng = seeds[b]
+    pfb = pf[b].copy()
+    pib = pi[b].copy()
+    cb = consts[b].copy()
+    gb = gains[b].copy()
+    mt = np.zeros((n_ax, metrics.shape[2]))
+    for a in range(n_ax):
+        mt[a, 4] = -1.0
+    slot = ring - 1
+    for k in range(nt):
+        slot += 1
+        if slot == ring:
+            slot = 0
+        # 1-2. sample and unwrap, every axis
+        for a in range(n_ax):
+            p = pos[a]
+            nz = 0.0
+            if pfb[a, _P_NOISE] > 0.0:
+                rng, g = _normal(rng)
+                nz = g * pfb[a, _P_NOISE]
+            if ideal:
+                yf[a] = p + nz
+                continue
+            if latched:
+                cnt = np.int64(math.floor(p + nz))
+                raw = (pib[a, _I_INIT] + cnt) & mask
+            else:
+                raw = np.int64(0)
+                for j in range(nbytes):
+                    cj = np.int64(math.floor(p + spd[a] * (j * skew) + nz))
+                    rj = (pib[a, _I_INIT] + cj) & mask
+                    raw |= rj & (np.int64(0xFF) << (8 * j))
+            y[a] = axis_read(st, cb, a, raw, reset[k, a])
+            if rec:
+                out_i[1, b, k, a] = raw
+        # 3-4. control law and D/A, every axis
+        for a in range(n_ax):
+            s = src[a]
+            if ideal:
+                r = float(ref[k, a]) if s < 0 else yf[s]
+                md = mode[k, a]
+                if md == MODE_LOCK:
+                    if mode_f[a] != MODE_LOCK or k == 0:
+                        target_f[a] = yf[a]
+                    e_f = target_f[a] - yf[a]
+                    u = gb[a, _G_LOCK] * e_f
+                elif md == MODE_TASK:
+                    e_f = r - yf[a]
+                    u, integ_f[a] = pi_ideal_step(
+                        gb[a, _G_KP], gb[a, _G_KIT], integ_f[a], e_f
+                    )
+                else:
+                    e_f = 0.0
+                    u = float(u_add[k, a])
+                mode_f[a] = md
+                volts = u * lsb
+                code = 0
+                flags = 0
+                e = np.int64(math.floor(e_f + 0.5))
+                cur_mode = md
+            else:
+                r = ref[k, a] if s < 0 else y[s]
+                code, flags, e = axis_control(
+                    st, cb, a, r, mode[k, a], reset[k, a], u_add[k, a]
+                )
+                volts = dac_lo + code * lsb
+                cur_mode = st[a, S_MODE]
+            hist[a, slot] = volts
+            if rec:
+                out_i[0, b, k, a] = code
+                out_i[2, b, k, a] = y[a]
+                out_i[3, b, k, a] = e
+                out_i[4, b, k, a] = cur_mode
+                out_i[5, b, k, a] = flags
+                out_f[0, b, k, a] = volts
+                out_f[1, b, k, a] = pos[a]
+                out_f[2, b, k, a] = spd[a]
+            # metrics
+            if flags & 3 and mt[a, 4] < 0.0:
+                mt[a, 4] = k
+            if flags & FLAG_SATURATED:
+                mt[a, 3] += 1.0
+            if k >= m_from and cur_mode == MODE_TASK:
+                ae = abs(float(e))
+                if ae > mt[a, 0]:
+                    mt[a, 0] = ae
+                mt[a, 1] += ae * ae
+                mt[a, 2] += (k - m_from) * period * ae * period
+                mt[a, 6] += 1.0
+            mt[a, 5] = e
+        # 5-6. hold the writes and move the plants to the next tick
+        for a in range(n_ax):
+            m = pib[a, _I_LAG]
+            w_off = pfb[a, _P_OFFSET] + load[k, a]
+            j_new = slot - m
+            if j_new < 0:
+                j_new += ring
+            v_new = hist[a, j_new] if k >= m else 0.0
+            j_old = j_new - 1
+            if j_old < 0:
+                j_old += ring
+            v_old = hist[a, j_old] if k >= m + 1 else 0.0
+            p, v = pos[a], spd[a]
+            w_new = v_new + w_off
+            w_old = (v_old + w_off) if pfb[a, _P_H1] > 0.0 else w_new
+            vmax = pfb[a, _P_VMAX]
+            g = pfb[a, _P_GAIN]
+            if pfb[a, _P_LINEAR] > 0.0 and abs(w_new) * g <= vmax and abs(w_old) * g <= vmax:
+                # no friction and the speed limit cannot bind: the exact linear one-tick map
+                p = p + pfb[a, _P_PHI_B] * v + pfb[a, _P_GO_P] * w_old + pfb[a, _P_GN_P] * w_new
+                v = pfb[a, _P_PHI_A] * v + pfb[a, _P_GO_V] * w_old + pfb[a, _P_GN_V] * w_new
+            else:
+                if pfb[a, _P_H1] > 0.0:
+                    p, v = advance(
+                        p, v, w_old, pfb[a, _P_H1], pfb[a, _P_A1], pfb[a, _P_B1],
+                        pfb[a, _P_GAIN], pfb[a, _P_TAU], pfb[a, _P_COULOMB], pfb[a, _P_VMAX],
+                    )  # fmt: skip
+                p, v = advance(
+                    p, v, w_new, pfb[a, _P_H2], pfb[a, _P_A2], pfb[a, _P_B2],
+                    pfb[a, _P_GAIN], pfb[a, _P_TAU], pfb[a, _P_COULOMB], pfb[a, _P_VMAX],
+                )  # fmt: skip
+            pos[a], spd[a] = p, v
+    for a in range(n_ax):
+        cnt = mt[a, 6]
+        mt[a, 1] = math.sqrt(mt[a, 1] / cnt) if cnt > 0 else 0.0
+    metrics[b] = mt
+
+
+@nb.njit(cache=True, parallel=True)
+def _kernel(
+    pf, pi, consts, gains, seeds, src, ref, mode, reset, u_add, load,
+    bits, latched, skew, dac_lo, lsb, ideal, ring, m_from, period, out_i, out_f, metrics,
+):  # fmt: skip
+    for b in nb.prange(pf.shape[0]):
+        _run_one(
+            b, pf, pi, consts, gains, seeds, src, ref, mode, reset, u_add, load,
+            bits, latched, skew, dac_lo, lsb, ideal, ring, m_from, period, out_i, out_f, metrics,
+        )  # fmt: skip

@@ -1,0 +1,50 @@
+"""Exception and warning classes of servotune.
+
+Every error servotune raises on purpose derives from :class:`ServotuneError` and also from the
+built-in exception it resembles, so callers may catch either.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "CounterFaultWarning",
+    "ExportError",
+    "IdentificationError",
+    "LogFormatError",
+    "RigError",
+    "ServotuneError",
+    "SimulationError",
+    "SpecError",
+]
+
+
+class ServotuneError(Exception):
+    """Base class of all servotune errors."""
+
+
+class RigError(ServotuneError, ValueError):
+    """A rig file or rig object is invalid (wrong field, value or unit)."""
+
+
+class LogFormatError(ServotuneError, ValueError):
+    """A log file does not follow the log format (SPEC §5)."""
+
+
+class IdentificationError(ServotuneError, ValueError):
+    """The data do not allow the requested identification."""
+
+
+class SpecError(ServotuneError, ValueError):
+    """A specification or scenario request is invalid or impossible."""
+
+
+class SimulationError(ServotuneError, ValueError):
+    """A simulation request is inconsistent (shapes, timebases, options)."""
+
+
+class ExportError(ServotuneError, ValueError):
+    """A table or runtime export cannot be produced."""
+
+
+class CounterFaultWarning(UserWarning):
+    """A counter read violated the high-byte rule (a jump the unwrap cannot explain)."""

@@ -1,0 +1,151 @@
+"""PI position control (the master axis of seed 000), integer and ideal.
+
+Design terms: ``u = Kp·e + I``, ``I(k) = I(k−1) + Ki·T·e(k)`` (backward Euler, so the discrete
+controller is ``Kp + Ki·T·z/(z−1)``), ``u`` in D/A LSB, ``e = r − y`` in counts.
+At run time the period is folded into ``Ki·T``, so there is no division (SPEC §6).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numba as nb
+
+from servotune.fixed import F_U, Fixed, align, clamp_e, quantize, sat_add, shift_round
+
+__all__ = ["PIConstants", "PIGains", "pi_enter", "pi_ideal_step", "pi_step"]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class PIGains:
+    """PI gains in design units.
+
+    Parameters
+    ----------
+    kp : float
+        Proportional gain [codes/count].
+    ki : float
+        Integral gain [codes/(count·s)].
+    """
+
+    kp: float
+    ki: float
+
+    def __post_init__(self) -> None:
+        for name in ("kp", "ki"):
+            v = getattr(self, name)
+            if not isinstance(v, int | float) or not math.isfinite(v) or v < 0:
+                unit = "codes/count" if name == "kp" else "codes/(count·s)"
+                raise ValueError(f"{name} must be a finite number >= 0 [{unit}], got {v!r}")
+
+    def quantize(self, period_s: float) -> PIConstants:
+        """Fold the period in and quantise: ``Kp`` and ``Ki·T`` as (q, f) pairs."""
+        if not period_s > 0:
+            raise ValueError(f"period_s must be > 0 [s], got {period_s!r}")
+        return PIConstants(kp=quantize(self.kp), ki_t=quantize(self.ki * period_s))
+
+    def to_dict(self) -> dict[str, float]:
+        """Plain dict."""
+        return {"ki": self.ki, "kp": self.kp}
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class PIConstants:
+    """PI constants as the runtime holds them.
+
+    Parameters
+    ----------
+    kp : Fixed
+        Proportional gain [D/A LSB per count].
+    ki_t : Fixed
+        Integral gain times the period [D/A LSB per count per tick].
+    """
+
+    kp: Fixed
+    ki_t: Fixed
+
+    def to_dict(self) -> dict[str, dict[str, int]]:
+        """Plain dict of (q, f) pairs."""
+        return {"ki_t": self.ki_t.to_dict(), "kp": self.kp.to_dict()}
+
+
+@nb.njit(cache=True, inline="always")
+def pi_step(
+    kp_q: int,
+    kp_f: int,
+    kit_q: int,
+    kit_f: int,
+    integ: int,
+    e: int,
+    u_add: int,
+    zero: int,
+    code_max: int,
+) -> tuple[int, int]:
+    """One PI tick in the runtime arithmetic.
+
+    Parameters
+    ----------
+    kp_q, kp_f, kit_q, kit_f : int
+        ``Kp`` and ``Ki·T`` as (q, f).
+    integ : int
+        Integrator ``I(k−1)`` [D/A LSB, F_U fraction bits].
+    e : int
+        Error ``r − y`` [counts] (int64; clamped here).
+    u_add : int
+        Term added to the output before the D/A [D/A LSB, F_U fraction bits] (excitation).
+    zero, code_max : int
+        D/A code of 0 V and largest code (the rails).
+
+    Returns
+    -------
+    u_q : int
+        Output [D/A LSB, F_U fraction bits], before the D/A.
+    integ : int
+        ``I(k)``: not integrated on a tick where the unclamped output is past a rail and the
+        increment pushes further past it (conditional integration); clamped to the D/A span.
+    """
+    ec = clamp_e(e)
+    p_term = align(kp_q * ec, F_U - kp_f)
+    d_i = align(kit_q * ec, F_U - kit_f)
+    # I is bounded by the D/A span (2**11 * 2**32 = 2**43), p_term and d_i are saturated, so
+    # only the saturating adds below can overflow and they saturate.
+    u_pre = sat_add(sat_add(sat_add(p_term, integ), d_i), u_add)
+    raw = shift_round(u_pre, F_U) + zero
+    if not ((raw > code_max and d_i > 0) or (raw < 0 and d_i < 0)):
+        integ = sat_add(integ, d_i)
+        i_max = (code_max - zero) * (1 << F_U)
+        i_min = -zero * (1 << F_U)
+        if integ > i_max:
+            integ = i_max
+        elif integ < i_min:
+            integ = i_min
+    return sat_add(sat_add(p_term, integ), u_add), integ
+
+
+@nb.njit(cache=True, inline="always")
+def pi_enter(
+    kp_q: int, kp_f: int, u_last: int, e: int, u_add: int, zero: int, code_max: int
+) -> tuple[int, int]:
+    """Bumpless entry into PI: ``I := (u_last − u_add) − Kp·e``, clamped to the D/A span.
+
+    Returns ``(u_q, I)``; unless the clamp binds, ``u_q = Kp·e + I + u_add = u_last``: the first
+    task output equals the previous law's last output. No integration on the entry tick.
+    """
+    p_term = align(kp_q * clamp_e(e), F_U - kp_f)
+    integ = sat_add(sat_add(u_last, -u_add), -p_term)
+    i_max = (code_max - zero) * (1 << F_U)
+    i_min = -zero * (1 << F_U)
+    if integ > i_max:
+        integ = i_max
+    elif integ < i_min:
+        integ = i_min
+    return sat_add(sat_add(p_term, integ), u_add), integ
+
+
+@nb.njit(cache=True)
+def pi_ideal_step(kp: float, ki_t: float, integ: float, e: float) -> tuple[float, float]:
+    """Ideal floating-point PI (design and comparison only): ``u = Kp·e + I(k)`` [D/A LSB]."""
+    integ = integ + ki_t * e
+    return kp * e + integ, integ
+

@@ -1,0 +1,277 @@
+"""The axis model (SPEC §5): D/A volts → encoder counts, with its exact integration.
+
+A speed-command drive and motor, position ``p`` [counts], speed ``v = dp/dt`` [counts/s]::
+
+    tau_s · dv/dt + v = gain_cps_per_v · (u(t − delay_s) + offset_v + load_v(t) − coulomb_v · sign(v))
+
+The speed the drive aims at is limited to ``±max_speed`` (the drive's speed limit), and at rest
+the motor stays at rest while ``|u + offset_v + load_v| <= coulomb_v`` (no chattering through
+zero). Between input changes the input is constant, so position and speed have a closed form;
+the only events are zero crossings of the speed, which are solved exactly. The same formulas
+give the exact ZOH discretisation of the linear part (:func:`discretize`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import control
+import numba as nb
+import numpy as np
+
+__all__ = ["Plant", "advance", "discretize", "lag_split", "step_coefficients", "tick_coefficients"]
+
+
+def _check_finite_ge(name: str, value: float, lo: float, unit: str, strict: bool = False) -> None:
+    if not isinstance(value, int | float) or isinstance(value, bool) or not math.isfinite(value):
+        raise ValueError(f"{name} must be a finite number [{unit}], got {value!r}")
+    if (value <= lo) if strict else (value < lo):
+        op = ">" if strict else ">="
+        raise ValueError(f"{name} must be {op} {lo:g} [{unit}], got {value!r}")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Plant:
+    """Dynamics of one axis (SPEC §5), volts at the D/A output → encoder counts.
+
+    Parameters
+    ----------
+    gain_cps_per_v : float
+        Steady-state speed per volt [counts/s/V] (counts after the counter's multiplication).
+    tau_s : float
+        Drive + mechanical time constant [s], > 0.
+    delay_s : float
+        Pure input delay (drive dead time) [s], may be a fraction of a tick.
+    offset_v : float
+        Analog zero drift [V]: the motor responds to ``u + offset_v``.
+    coulomb_v : float
+        Coulomb friction as equivalent drive input [V], >= 0.
+    max_speed_rpm : float or None
+        Drive speed limit [r/min]; None for no limit. Converting it to counts/s needs the rig's
+        counts per revolution (:meth:`max_speed_cps`).
+    noise_counts : float
+        Standard deviation of encoder measurement noise [counts], added before the floor.
+    """
+
+    gain_cps_per_v: float
+    tau_s: float
+    delay_s: float = 0.0
+    offset_v: float = 0.0
+    coulomb_v: float = 0.0
+    max_speed_rpm: float | None = None
+    noise_counts: float = 0.0
+
+    def __post_init__(self) -> None:
+        _check_finite_ge("gain_cps_per_v", self.gain_cps_per_v, 0.0, "counts/s/V", strict=True)
+        _check_finite_ge("tau_s", self.tau_s, 0.0, "s", strict=True)
+        _check_finite_ge("delay_s", self.delay_s, 0.0, "s")
+        _check_finite_ge("offset_v", self.offset_v, -math.inf, "V")
+        _check_finite_ge("coulomb_v", self.coulomb_v, 0.0, "V")
+        _check_finite_ge("noise_counts", self.noise_counts, 0.0, "counts")
+        if self.max_speed_rpm is not None:
+            _check_finite_ge("max_speed_rpm", self.max_speed_rpm, 0.0, "r/min", strict=True)
+
+    def max_speed_cps(self, counts_per_rev: float) -> float:
+        """Drive speed limit in counts/s (``inf`` if none) [counts/s]."""
+        if self.max_speed_rpm is None:
+            return math.inf
+        return self.max_speed_rpm / 60.0 * counts_per_rev
+
+    def to_tf(self) -> control.TransferFunction:
+        """Linear part without the delay: ``gain / (s (tau s + 1))`` [counts/V].
+
+        The delay ``exp(-delay_s s)`` is not rational; :func:`discretize` includes it exactly.
+        """
+        return control.tf([self.gain_cps_per_v], [self.tau_s, 1.0, 0.0])
+
+    @classmethod
+    def from_tf(cls, tf: control.TransferFunction, **extra: float) -> Plant:
+        """Build from a continuous ``K / (s (tau s + 1))`` transfer function.
+
+        Raises
+        ------
+        ValueError
+            If ``tf`` is discrete or not of that form.
+        """
+        if not tf.isctime():
+            raise ValueError("from_tf needs a continuous-time transfer function (dt=0)")
+        num = np.atleast_1d(np.squeeze(tf.num[0][0])).astype(float)
+        den = np.atleast_1d(np.squeeze(tf.den[0][0])).astype(float)
+        num = np.trim_zeros(num, "f")
+        den = np.trim_zeros(den, "f")
+        if num.size != 1 or den.size != 3 or den[2] != 0.0 or den[0] <= 0 or den[1] <= 0:
+            raise ValueError("from_tf expects gain / (s (tau s + 1)): numerator K, denominator [a, b, 0]")
+        return cls(gain_cps_per_v=float(num[0] / den[1]), tau_s=float(den[0] / den[1]), **extra)
+
+    def to_dict(self) -> dict[str, float | None]:
+        """Plain dict with the SPEC parameter names."""
+        return {
+            "coulomb_v": self.coulomb_v,
+            "delay_s": self.delay_s,
+            "gain_cps_per_v": self.gain_cps_per_v,
+            "max_speed_rpm": self.max_speed_rpm,
+            "noise_counts": self.noise_counts,
+            "offset_v": self.offset_v,
+            "tau_s": self.tau_s,
+        }
+
+
+def step_coefficients(h_s: float, tau_s: float) -> tuple[float, float]:
+    """``a = exp(-h/tau)`` and ``b = tau (1 - a)`` for a constant-input interval of ``h_s``."""
+    a = math.exp(-h_s / tau_s)
+    return a, -tau_s * math.expm1(-h_s / tau_s)
+
+
+@nb.njit(cache=True)
+def advance(
+    p: float,
+    v: float,
+    w: float,
+    h: float,
+    a: float,
+    b: float,
+    gain: float,
+    tau: float,
+    coulomb: float,
+    vmax: float,
+) -> tuple[float, float]:
+    """Advance position and speed exactly over ``h`` seconds of constant drive input ``w``.
+
+    Parameters
+    ----------
+    p, v : float
+        Position [counts] and speed [counts/s] at the start.
+    w : float
+        Net drive input ``u + offset + load`` [V], constant over the interval.
+    h : float
+        Interval [s]; ``a = exp(-h/tau)`` and ``b = tau (1 - a)`` precomputed for it.
+    gain, tau, coulomb, vmax : float
+        Plant parameters [counts/s/V], [s], [V], [counts/s].
+
+    Returns
+    -------
+    p, v : float
+        Position and speed at the end.
+    """
+    if h <= 0.0:
+        return p, v
+    if v == 0.0:
+        if abs(w) <= coulomb:
+            return p, 0.0
+        s = 1.0 if w > 0.0 else -1.0
+    else:
+        s = 1.0 if v > 0.0 else -1.0
+    vinf = gain * (w - coulomb * s)
+    if vinf > vmax:
+        vinf = vmax
+    elif vinf < -vmax:
+        vinf = -vmax
+    vend = vinf + (v - vinf) * a
+    if coulomb > 0.0 and v != 0.0 and vinf * s < 0.0 and vend * s <= 0.0:
+        # speed reaches zero inside the interval: solve the crossing time exactly
+        t0 = tau * math.log((v - vinf) / (-vinf))
+        if t0 > h:
+            t0 = h
+        p += vinf * t0 - (v - vinf) * tau * math.expm1(-t0 / tau)
+        hr = h - t0
+        if abs(w) <= coulomb or hr <= 0.0:
+            return p, 0.0
+        s = 1.0 if w > 0.0 else -1.0
+        vinf = gain * (w - coulomb * s)
+        if vinf > vmax:
+            vinf = vmax
+        elif vinf < -vmax:
+            vinf = -vmax
+        ar = math.exp(-hr / tau)
+        p += vinf * hr + vinf * tau * math.expm1(-hr / tau)
+        return p, vinf * (1.0 - ar)
+    return p + vinf * h + (v - vinf) * b, vend
+
+
+def discretize(plant: Plant, period_s: float, lag_s: float = 0.0) -> control.StateSpace:
+    """Exact ZOH discretisation of the linear part, with a total input lag.
+
+    The input (volts) is written every ``period_s`` and reaches the motor ``lag_s`` later
+    (compute time + ``delay_s``); with ``lag_s = m·T + λ`` the input changes inside each tick at
+    ``λ`` (modified z-transform). Offset, friction and speed limit are left out.
+
+    Parameters
+    ----------
+    plant : Plant
+    period_s : float
+        Sample period [s] (the achieved timer period).
+    lag_s : float
+        Total lag from the tick start to the motor input [s], >= 0.
+
+    Returns
+    -------
+    control.StateSpace
+        Discrete system (``dt=period_s``), input volts, output position [counts]; states are
+        position, speed and the ``m + 1`` (or ``m``, if λ = 0) held past inputs.
+    """
+    if period_s <= 0:
+        raise ValueError(f"period_s must be > 0 [s], got {period_s!r}")
+    if lag_s < 0:
+        raise ValueError(f"lag_s must be >= 0 [s], got {lag_s!r}")
+    m, lam = lag_split(lag_s, period_s)
+    phi_b, phi_a, go_p, go_v, gn_p, gn_v = tick_coefficients(
+        period_s, lam, plant.gain_cps_per_v, plant.tau_s
+    )
+    phi_t = np.array([[1.0, phi_b], [0.0, phi_a]])
+    g_old = np.array([go_p, go_v])  # input from write k-m-1, acting for λ at the tick start
+    g_new = np.array([gn_p, gn_v])  # input from write k-m, acting for T-λ
+    n_hist = m + 1 if lam > 0.0 else m  # past inputs held in the state
+    n = 2 + n_hist
+    a_mat = np.zeros((n, n))
+    b_mat = np.zeros((n, 1))
+    a_mat[:2, :2] = phi_t
+    # history states: h_1 = u(k-1), ..., h_j = u(k-j)
+    if n_hist == 0:
+        b_mat[:2, 0] = g_new
+    else:
+        if m == 0:
+            b_mat[:2, 0] = g_new
+        else:
+            a_mat[:2, 2 + m - 1] += g_new
+        if lam > 0.0:
+            a_mat[:2, 2 + m] += g_old
+        b_mat[2, 0] = 1.0
+        for j in range(1, n_hist):
+            a_mat[2 + j, 2 + j - 1] = 1.0
+    c_mat = np.zeros((1, n))
+    c_mat[0, 0] = 1.0
+    return control.ss(a_mat, b_mat, c_mat, np.zeros((1, 1)), dt=period_s)
+
+
+def tick_coefficients(
+    period_s: float, lam_s: float, gain: float, tau_s: float
+) -> tuple[float, float, float, float, float, float]:
+    """Exact one-tick map of the linear part with the input switching at ``lam_s``.
+
+    ``p' = p + phi_b·v + go_p·w_old + gn_p·w_new`` and ``v' = phi_a·v + go_v·w_old + gn_v·w_new``,
+    ``w_old`` acting on [0, λ) and ``w_new`` on [λ, T) (ZOH with a fractional lag).
+
+    Returns
+    -------
+    phi_b, phi_a, go_p, go_v, gn_p, gn_v : float
+    """
+    a_t, b_t = step_coefficients(period_s, tau_s)
+    a1, b1 = step_coefficients(lam_s, tau_s)
+    a2, b2 = step_coefficients(period_s - lam_s, tau_s)
+    g1_p, g1_v = gain * (lam_s - b1), gain * (1.0 - a1)
+    gn_p, gn_v = gain * (period_s - lam_s - b2), gain * (1.0 - a2)
+    return b_t, a_t, g1_p + b2 * g1_v, a2 * g1_v, gn_p, gn_v
+
+
+def lag_split(lag_s: float, period_s: float) -> tuple[int, float]:
+    """Split a lag into whole ticks and a remainder: ``lag_s = m·period_s + λ``, 0 <= λ < T.
+
+    Uses a relative tolerance of 1e-12 so that a lag of exactly m ticks gives λ = 0.
+    """
+    ratio = lag_s / period_s
+    m = math.floor(ratio + 1e-12)
+    lam = lag_s - m * period_s
+    if lam < period_s * 1e-12:
+        lam = 0.0
+    return int(m), float(lam)

@@ -1,0 +1,75 @@
+"""Figures (the only module besides report.py that imports matplotlib)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from servotune.engine import Trace  # noqa: E402
+
+__all__ = ["plot_lock_hold", "plot_tracking", "save_figure"]
+
+_PNG_META = {"Software": None}
+
+
+def save_figure(fig: plt.Figure, path: str | Path) -> None:
+    """Save a figure as PNG without a software stamp (same input → same bytes), then close it."""
+    p = Path(path)
+    tmp = p.with_name(f".{p.name}.tmp.png")
+    fig.savefig(tmp, dpi=110, metadata=_PNG_META)
+    plt.close(fig)
+    tmp.replace(p)
+
+
+def plot_tracking(trace: Trace, title: str = "") -> plt.Figure:
+    """Positions, errors, D/A codes and modes of a trace (one column per axis)."""
+    t = trace.time_s
+    fig, axs = plt.subplots(3, 1, figsize=(9, 8), sharex=True)
+    for i, name in enumerate(trace.axis_names):
+        axs[0].plot(t, trace.pos_counts[:, i], label=f"{name} position")
+        axs[1].plot(t, trace.err_counts[:, i], label=f"{name} error (r − y)")
+        axs[2].step(t, trace.code[:, i], where="post", label=f"{name} D/A code")
+    if trace.ref_counts.shape[1] and np.any(trace.ref_counts):
+        axs[0].plot(t, trace.ref_counts[:, 0], "k--", lw=0.8, label="reference")
+    axs[0].set_ylabel("counts")
+    axs[1].set_ylabel("counts")
+    axs[2].set_ylabel("code")
+    axs[2].set_xlabel("time [s]")
+    for a in axs:
+        a.grid(True, alpha=0.3)
+        a.legend(loc="best", fontsize=8)
+    if title:
+        axs[0].set_title(title)
+    fig.tight_layout()
+    return fig
+
+
+def plot_lock_hold(
+    trace: Trace, bands: dict[str, tuple[int, int]], settle_s: float, title: str = ""
+) -> plt.Figure:
+    """Lock-module hold: noiseless position error vs the predicted band, per axis."""
+    t = trace.time_s
+    fig, axs = plt.subplots(len(trace.axis_names), 1, figsize=(9, 2.8 * len(trace.axis_names)),
+                            sharex=True, squeeze=False)  # fmt: skip
+    for i, name in enumerate(trace.axis_names):
+        ax = axs[i, 0]
+        e = -np.floor(trace.true_pos_counts[:, i])
+        ax.step(t, e, where="post", lw=0.8, label=f"{name}: target − position (noiseless)")
+        lo, hi = bands[name]
+        ax.axhspan(lo - 0.5, hi + 0.5, color="C2", alpha=0.2, label=f"predicted band [{lo}, {hi}]")
+        ax.axhline(4, color="C3", ls=":", lw=0.8)
+        ax.axhline(-4, color="C3", ls=":", lw=0.8, label="±1 pulse (±4 counts)")
+        ax.axvline(settle_s, color="k", ls="--", lw=0.6)
+        ax.set_ylabel("counts")
+        ax.grid(True, alpha=0.3)
+        ax.legend(loc="upper right", fontsize=8)
+    axs[-1, 0].set_xlabel("time [s]")
+    if title:
+        axs[0, 0].set_title(title)
+    fig.tight_layout()
+    return fig

@@ -1,0 +1,470 @@
+"""The rig: timer, counter, D/A, encoder and axes; loading and validating ``plants/*.toml``.
+
+A rig file (SPEC §5) describes the hardware around the loop and one ``[axis.<name>]`` table per
+axis with its plant under ``[axis.<name>.plant]``. Every field is validated on load; an error
+names the field, the value and the unit. Unknown keys are errors (a misspelt key would otherwise
+be silently ignored).
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any
+
+from servotune.errors import RigError
+from servotune.hw import counter as hw_counter
+from servotune.hw import dac as hw_dac
+from servotune.hw import timer as hw_timer
+from servotune.laws.lock import lock_holding_band
+from servotune.plant import Plant
+
+__all__ = [
+    "Axis",
+    "Counter",
+    "Dac",
+    "Encoder",
+    "Rig",
+    "Timer",
+    "describe_rig",
+    "load_rig",
+    "rig_from_dict",
+]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Timer:
+    """Interrupt timer (8253 PIT).
+
+    Parameters
+    ----------
+    period_s : float
+        Requested tick period [s].
+    clock_hz : float
+        Timer input clock [Hz].
+    compute_s : float
+        Time from the tick start to the D/A write (interrupt compute time) [s], < the period.
+    """
+
+    period_s: float
+    clock_hz: float = hw_timer.PC_PIT_CLOCK_HZ
+    compute_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        _positive("timer.period_s", self.period_s, "s")
+        _positive("timer.clock_hz", self.clock_hz, "Hz")
+        _nonneg("timer.compute_s", self.compute_s, "s")
+        try:
+            d = hw_timer.divisor(self.period_s, self.clock_hz)
+        except ValueError as exc:
+            raise RigError(f"timer.period_s: {exc}") from None
+        if self.compute_s >= hw_timer.achieved_period_s(d, self.clock_hz):
+            raise RigError(
+                f"timer.compute_s must be shorter than the tick period, got {self.compute_s!r} s"
+            )
+
+    @property
+    def divisor(self) -> int:
+        """Timer divisor (round to nearest)."""
+        return int(hw_timer.divisor(self.period_s, self.clock_hz))
+
+    @property
+    def achieved_period_s(self) -> float:
+        """Period the timer produces [s]."""
+        return float(hw_timer.achieved_period_s(self.divisor, self.clock_hz))
+
+    @property
+    def period_error_ppm(self) -> float:
+        """Achieved vs requested period [ppm]."""
+        return (self.achieved_period_s - self.period_s) / self.period_s * 1e6
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Counter:
+    """Quadrature up/down counter card.
+
+    Parameters
+    ----------
+    bits : int
+        Register width (24 on the PCL833).
+    multiplier : int
+        Quadrature multiplication x1, x2 or x4.
+    latched : bool
+        True if the three bytes are latched together; False models reads that can tear.
+    max_input_hz : float
+        Largest encoder pulse frequency per channel before multiplication [Hz].
+    read_skew_s : float
+        Time between two byte reads, used when not latched [s].
+    """
+
+    bits: int = 24
+    multiplier: int = 4
+    latched: bool = True
+    max_input_hz: float = 2.4e6
+    read_skew_s: float = 2e-6
+
+    def __post_init__(self) -> None:
+        if self.bits not in (16, 24, 32):
+            raise RigError(f"counter.bits must be 16, 24 or 32, got {self.bits!r}")
+        if self.multiplier not in hw_counter.MULTIPLIERS:
+            raise RigError(f"counter.multiplier must be 1, 2 or 4, got {self.multiplier!r}")
+        _positive("counter.max_input_hz", self.max_input_hz, "Hz")
+        _nonneg("counter.read_skew_s", self.read_skew_s, "s")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Dac:
+    """D/A converter.
+
+    Parameters
+    ----------
+    bits : int
+        Resolution (12 on the PCL728).
+    range_v : tuple of float
+        Output range [V], e.g. (-10, 10); 0 V must fall exactly on a code.
+    """
+
+    bits: int = 12
+    range_v: tuple[float, float] = (-10.0, 10.0)
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.bits, int) or not 8 <= self.bits <= 16:
+            raise RigError(f"dac.bits must be an integer in 8..16, got {self.bits!r}")
+        lo, hi = self.range_v
+        if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+            raise RigError(f"dac.range_v must be [low, high] with low < high [V], got {self.range_v!r}")
+        try:
+            hw_dac.zero_code(self.bits, self.range_v)
+        except ValueError as exc:
+            raise RigError(f"dac.range_v: {exc}") from None
+
+    @property
+    def lsb_v(self) -> float:
+        """One D/A step [V]."""
+        return hw_dac.lsb_v(self.bits, self.range_v)
+
+    @property
+    def zero_code(self) -> int:
+        """Code for 0 V."""
+        return hw_dac.zero_code(self.bits, self.range_v)
+
+    @property
+    def code_max(self) -> int:
+        """Largest code."""
+        return 2**self.bits - 1
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Encoder:
+    """Encoder.
+
+    Parameters
+    ----------
+    pulses_per_rev : float
+        Quadrature cycles per motor revolution [pulses/rev].
+    counts_per_mm : float or None
+        For a linear axis, counts per millimetre of travel [counts/mm].
+    """
+
+    pulses_per_rev: float
+    counts_per_mm: float | None = None
+
+    def __post_init__(self) -> None:
+        _positive("encoder.pulses_per_rev", self.pulses_per_rev, "pulses/rev")
+        if self.counts_per_mm is not None:
+            _positive("encoder.counts_per_mm", self.counts_per_mm, "counts/mm")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Axis:
+    """One axis: its role, runtime limits and plant.
+
+    Parameters
+    ----------
+    name : str
+        Axis name (the key of ``[axis.<name>]``).
+    role : str
+        ``"master"`` or ``"slave"``.
+    plant : Plant
+        Axis model.
+    lock_gain_codes_per_count : float
+        Position-lock P gain [codes/count].
+    speed_limit_rpm : float
+        Largest speed the axis may be commanded to [r/min].
+    following_error_limit_counts : int
+        Following-error trip threshold [counts] (0 disables the trip).
+    travel_counts : tuple of int or None
+        Allowed travel relative to the start position [counts]; None for a rotary axis.
+    counter_init : int
+        Counter register value at the start (lets logs wrap within travel).
+    counter_channel, dac_channel : int
+        Card channels.
+    """
+
+    name: str
+    role: str
+    plant: Plant
+    lock_gain_codes_per_count: float = 0.4
+    speed_limit_rpm: float = 600.0
+    following_error_limit_counts: int = 0
+    travel_counts: tuple[int, int] | None = None
+    counter_init: int = 0
+    counter_channel: int = 0
+    dac_channel: int = 0
+
+    def __post_init__(self) -> None:
+        p = f"axis.{self.name}"
+        if self.role not in ("master", "slave"):
+            raise RigError(f"{p}.role must be 'master' or 'slave', got {self.role!r}")
+        _positive(f"{p}.lock_gain_codes_per_count", self.lock_gain_codes_per_count, "codes/count")
+        _positive(f"{p}.speed_limit_rpm", self.speed_limit_rpm, "r/min")
+        if not isinstance(self.following_error_limit_counts, int) or self.following_error_limit_counts < 0:
+            raise RigError(
+                f"{p}.following_error_limit_counts must be an integer >= 0 [counts], "
+                f"got {self.following_error_limit_counts!r}"
+            )
+        if self.travel_counts is not None:
+            lo, hi = self.travel_counts
+            if not lo < 0 < hi:
+                raise RigError(
+                    f"{p}.travel_counts must be [low, high] with low < 0 < high [counts], "
+                    f"got {list(self.travel_counts)!r}"
+                )
+        if not isinstance(self.counter_init, int) or self.counter_init < 0:
+            raise RigError(f"{p}.counter_init must be an integer >= 0, got {self.counter_init!r}")
+        for ch in ("counter_channel", "dac_channel"):
+            val = getattr(self, ch)
+            if not isinstance(val, int) or val < 0:
+                raise RigError(f"{p}.{ch} must be an integer >= 0, got {val!r}")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Rig:
+    """The hardware around the loop and its axes.
+
+    Use :func:`load_rig` to read a rig file; derive variants with ``dataclasses.replace``.
+    """
+
+    name: str
+    timer: Timer
+    counter: Counter
+    dac: Dac
+    encoder: Encoder
+    axes: tuple[Axis, ...]
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        if not self.axes:
+            raise RigError("a rig needs at least one [axis.<name>] table")
+        names = [a.name for a in self.axes]
+        if len(set(names)) != len(names):
+            raise RigError(f"axis names must be unique, got {names!r}")
+        masters = [a.name for a in self.axes if a.role == "master"]
+        if len(self.axes) > 1 and len(masters) != 1:
+            raise RigError(f"a multi-axis rig needs exactly one role = 'master' axis, got {masters!r}")
+        for a in self.axes:
+            if a.counter_init > (1 << self.counter.bits) - 1:
+                raise RigError(
+                    f"axis.{a.name}.counter_init must fit the {self.counter.bits}-bit counter "
+                    f"(0..{(1 << self.counter.bits) - 1}), got {a.counter_init}"
+                )
+        for ch in ("counter_channel", "dac_channel"):
+            used = [getattr(a, ch) for a in self.axes]
+            if len(set(used)) != len(used):
+                raise RigError(f"two axes share one {ch}: {used!r}")
+
+    @property
+    def period_s(self) -> float:
+        """The tick period the loop runs at: the achieved timer period [s]."""
+        return self.timer.achieved_period_s
+
+    @property
+    def counts_per_rev(self) -> float:
+        """Counts per motor revolution after multiplication [counts/rev]."""
+        return self.encoder.pulses_per_rev * self.counter.multiplier
+
+    def axis(self, name: str) -> Axis:
+        """The axis called ``name``.
+
+        Raises
+        ------
+        RigError
+            If there is no such axis (the message lists the ones there are).
+        """
+        for a in self.axes:
+            if a.name == name:
+                return a
+        raise RigError(f"no axis {name!r} in rig {self.name!r}; axes: {[a.name for a in self.axes]}")
+
+    @property
+    def axis_names(self) -> tuple[str, ...]:
+        """Axis names in file order (the master first is not required)."""
+        return tuple(a.name for a in self.axes)
+
+
+# --- loading -------------------------------------------------------------------------------
+
+
+def _positive(name: str, value: Any, unit: str) -> None:
+    if not _is_number(value) or not math.isfinite(value) or value <= 0:
+        raise RigError(f"{name} must be a number > 0 [{unit}], got {value!r}")
+
+
+def _nonneg(name: str, value: Any, unit: str) -> None:
+    if not _is_number(value) or not math.isfinite(value) or value < 0:
+        raise RigError(f"{name} must be a number >= 0 [{unit}], got {value!r}")
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def _table(data: Mapping[str, Any], key: str, path: str, required: bool = True) -> Mapping[str, Any]:
+    if key not in data:
+        if required:
+            raise RigError(f"missing table [{path}]")
+        return {}
+    t = data[key]
+    if not isinstance(t, Mapping):
+        raise RigError(f"[{path}] must be a table, got {type(t).__name__}")
+    return t
+
+
+def _build(cls: type, table: Mapping[str, Any], path: str, **fixed: Any) -> Any:
+    allowed = {f.name for f in fields(cls)} - set(fixed)
+    unknown = sorted(set(table) - allowed)
+    if unknown:
+        raise RigError(f"unknown key {path}.{unknown[0]} (allowed: {', '.join(sorted(allowed))})")
+    kwargs = dict(table)
+    for k, v in kwargs.items():
+        if isinstance(v, list):
+            kwargs[k] = tuple(v)
+    try:
+        return cls(**kwargs, **fixed)
+    except RigError:
+        raise
+    except TypeError as exc:
+        raise RigError(f"[{path}]: {exc}") from None
+    except ValueError as exc:
+        raise RigError(f"{path}.{exc}") from None
+
+
+def rig_from_dict(data: Mapping[str, Any], default_name: str = "rig") -> Rig:
+    """Build and validate a :class:`Rig` from the parsed contents of a rig file.
+
+    Raises
+    ------
+    RigError
+        Naming the first invalid field, its value and unit.
+    """
+    allowed_top = {"rig", "timer", "counter", "dac", "encoder", "axis"}
+    unknown = sorted(set(data) - allowed_top)
+    if unknown:
+        raise RigError(f"unknown table [{unknown[0]}] (allowed: {', '.join(sorted(allowed_top))})")
+    meta = _table(data, "rig", "rig", required=False)
+    bad = sorted(set(meta) - {"name", "description"})
+    if bad:
+        raise RigError(f"unknown key rig.{bad[0]} (allowed: description, name)")
+    timer = _build(Timer, _table(data, "timer", "timer"), "timer")
+    ctr = _build(Counter, _table(data, "counter", "counter"), "counter")
+    dac = _build(Dac, _table(data, "dac", "dac"), "dac")
+    enc = _build(Encoder, _table(data, "encoder", "encoder"), "encoder")
+    axes_t = _table(data, "axis", "axis")
+    axes = []
+    for name, at in axes_t.items():
+        if not isinstance(at, Mapping):
+            raise RigError(f"[axis.{name}] must be a table")
+        at = dict(at)
+        if "plant" not in at:
+            raise RigError(f"missing table [axis.{name}.plant]")
+        pt = at.pop("plant")
+        if not isinstance(pt, Mapping):
+            raise RigError(f"[axis.{name}.plant] must be a table")
+        plant = _build(Plant, pt, f"axis.{name}.plant")
+        axes.append(_build(Axis, at, f"axis.{name}", name=name, plant=plant))
+    return Rig(
+        name=str(meta.get("name", default_name)),
+        description=str(meta.get("description", "")),
+        timer=timer,
+        counter=ctr,
+        dac=dac,
+        encoder=enc,
+        axes=tuple(axes),
+    )
+
+
+def load_rig(path: str | Path) -> Rig:
+    """Read and validate a rig file (TOML).
+
+    Parameters
+    ----------
+    path : str or Path
+        The rig file, e.g. ``plants/pc-dual-servo.toml``.
+
+    Returns
+    -------
+    Rig
+
+    Raises
+    ------
+    RigError
+        If the file is missing, not TOML, or any field is invalid.
+    """
+    p = Path(path)
+    try:
+        raw = p.read_bytes()
+    except OSError as exc:
+        raise RigError(f"cannot read rig file {str(p)!r}: {exc.strerror or exc}") from None
+    try:
+        data = tomllib.loads(raw.decode("utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise RigError(f"rig file {str(p)!r} is not valid TOML: {exc}") from None
+    return rig_from_dict(data, default_name=p.stem)
+
+
+def describe_rig(rig: Rig) -> dict[str, Any]:
+    """Derived facts of a rig (what ``servotune rig`` prints).
+
+    Returns
+    -------
+    dict
+        Timer divisor, achieved period and its error, counts per revolution, D/A LSB, the
+        counter's speed limits (high-byte unwrap and input frequency) against each axis's speed
+        limit, the time to wrap the counter at that speed, and the lock module's predicted
+        holding band (SPEC §1a) for each axis's drift and friction.
+    """
+    t, c = rig.timer, rig.counter
+    unwrap_rpm = hw_counter.unwrap_speed_limit_rpm(c.bits, rig.counts_per_rev, rig.period_s)
+    input_rpm = hw_counter.input_speed_limit_rpm(c.max_input_hz, rig.encoder.pulses_per_rev)
+    axes = {}
+    for a in rig.axes:
+        v_cps = a.speed_limit_rpm / 60.0 * rig.counts_per_rev
+        lo, hi = lock_holding_band(
+            a.lock_gain_codes_per_count, a.plant.offset_v, rig.dac.lsb_v, a.plant.coulomb_v
+        )
+        axes[a.name] = {
+            "counts_per_tick_at_speed_limit": v_cps * rig.period_s,
+            "lock_band_counts": [lo, hi],
+            "lock_band_within_one_pulse": max(abs(lo), abs(hi)) <= c.multiplier,
+            "role": a.role,
+            "speed_limit_ok": a.speed_limit_rpm < min(unwrap_rpm, input_rpm),
+            "speed_limit_rpm": a.speed_limit_rpm,
+            "time_to_wrap_at_speed_limit_s": (1 << c.bits) / v_cps,
+        }
+    return {
+        "achieved_period_s": rig.period_s,
+        "axes": axes,
+        "binding_speed_limit": "input_frequency" if input_rpm < unwrap_rpm else "unwrap",
+        "counts_per_rev": rig.counts_per_rev,
+        "dac_lsb_mv": rig.dac.lsb_v * 1e3,
+        "input_frequency_speed_limit_rpm": input_rpm,
+        "period_error_ppm": t.period_error_ppm,
+        "requested_period_s": t.period_s,
+        "rig": rig.name,
+        "timer_divisor": t.divisor,
+        "unwrap_max_counts_per_tick": hw_counter.max_counts_per_tick(c.bits),
+        "unwrap_speed_limit_rpm": unwrap_rpm,
+    }
