@@ -119,8 +119,11 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--axis", help="axis to excite or move (default: the master)")
     s.add_argument("--seconds", type=float, default=10.0, help="duration [s] (default 10)")
     s.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
-    s.add_argument("--closed-loop", action="store_true",
-                   help="excite with the lock module active (identification in closed loop)")
+    s.add_argument(
+        "--closed-loop",
+        action="store_true",
+        help="excite with the lock module active (identification in closed loop)",
+    )
     s.add_argument("--no-noise", action="store_true", help="switch the encoder noise off")
     s.add_argument("-o", "--output", required=True, help="log file to write ('-' for stdout)")
     s.set_defaults(func=_cmd_simulate)

@@ -101,17 +101,13 @@ class Loop:
             )
         if not self.ref_source:
             master = next((i for i, a in enumerate(self.rig.axes) if a.role == "master"), -1)
-            src = tuple(
-                -1 if (a.role == "master" or master < 0) else master for a in self.rig.axes
-            )
+            src = tuple(-1 if (a.role == "master" or master < 0) else master for a in self.rig.axes)
             object.__setattr__(self, "ref_source", src)
         if len(self.ref_source) != n:
             raise SimulationError(f"ref_source needs {n} entries, got {len(self.ref_source)}")
         for i, s in enumerate(self.ref_source):
             if s != -1 and not (0 <= s < n and s != i):
-                raise SimulationError(
-                    f"ref_source[{i}] must be -1 or another axis index, got {s}"
-                )
+                raise SimulationError(f"ref_source[{i}] must be -1 or another axis index, got {s}")
 
     @classmethod
     def from_rig(cls, rig: Rig, pi_gains: Sequence[object | None] | None = None) -> Loop:
@@ -316,7 +312,9 @@ def prepare_batch(
     if n_candidates is not None:
         sizes.add(n_candidates)
     if len(sizes) > 1:
-        raise SimulationError(f"plants, controllers and n_candidates disagree on the count: {sizes}")
+        raise SimulationError(
+            f"plants, controllers and n_candidates disagree on the count: {sizes}"
+        )
     n = sizes.pop() if sizes else 1
     if n < 1:
         raise SimulationError("a batch needs at least one candidate")
@@ -325,7 +323,10 @@ def prepare_batch(
     n_ax = len(rig.axes)
     pf = np.zeros((n, n_ax, _NPF))
     pi = np.zeros((n, n_ax, _NPI), dtype=np.int64)
-    consts = np.zeros((n, n_ax, len(loop.controllers[0].consts(counter_bits=24, dac_bits=12, dac_zero=2048))), dtype=np.int64)
+    consts = np.zeros(
+        (n, n_ax, len(loop.controllers[0].consts(counter_bits=24, dac_bits=12, dac_zero=2048))),
+        dtype=np.int64,
+    )
     gains = np.zeros((n, n_ax, 3))
     cache_p: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     cache_c: dict[int, tuple[np.ndarray, np.ndarray]] = {}
@@ -599,9 +600,7 @@ def _run_one(
                     u = gb[a, _G_LOCK] * e_f
                 elif md == MODE_TASK:
                     e_f = r - yf[a]
-                    u, integ_f[a] = pi_ideal_step(
-                        gb[a, _G_KP], gb[a, _G_KIT], integ_f[a], e_f
-                    )
+                    u, integ_f[a] = pi_ideal_step(gb[a, _G_KP], gb[a, _G_KIT], integ_f[a], e_f)
                 else:
                     e_f = 0.0
                     u = float(u_add[k, a])
@@ -613,9 +612,7 @@ def _run_one(
                 cur_mode = md
             else:
                 r = ref[k, a] if s < 0 else y[s]
-                code, flags, e = axis_control(
-                    st, cb, a, r, mode[k, a], reset[k, a], u_add[k, a]
-                )
+                code, flags, e = axis_control(st, cb, a, r, mode[k, a], reset[k, a], u_add[k, a])
                 volts = dac_lo + code * lsb
                 cur_mode = st[a, S_MODE]
             hist[a, slot] = volts

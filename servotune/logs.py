@@ -300,11 +300,12 @@ def read_log(
     axes: dict[str, AxisLog] = {}
     for ax, cols in axes_cols.items():
         label = f"{ax}." if ax else ""
+        who = repr(ax) if ax else "(unprefixed)"
         if ("dac_code" in cols) == ("cmd_v" in cols):
-            raise LogFormatError(f"axis {ax or '(unprefixed)'!r} needs exactly one of {label}dac_code, {label}cmd_v")
+            raise LogFormatError(f"axis {who} needs exactly one of {label}dac_code, {label}cmd_v")
         if ("counter" in cols) == ("pos_counts" in cols):
             raise LogFormatError(
-                f"axis {ax or '(unprefixed)'!r} needs exactly one of {label}counter, {label}pos_counts"
+                f"axis {who} needs exactly one of {label}counter, {label}pos_counts"
             )
         dac_code = counter = None
         if "dac_code" in cols:
@@ -334,7 +335,9 @@ def read_log(
             faults = np.flatnonzero(fault)
         else:
             pos = column(cols["pos_counts"], f"{label}pos_counts", True)
-        ref = column(cols["ref_counts"], f"{label}ref_counts", True) if "ref_counts" in cols else None
+        ref = (
+            column(cols["ref_counts"], f"{label}ref_counts", True) if "ref_counts" in cols else None
+        )
         mode = None
         if "mode" in cols:
             names = [r[cols["mode"]].strip() for r in body]
@@ -362,7 +365,7 @@ def _parse_int(s: str) -> int:
     raise ValueError(s)
 
 
-def _period(time_cols, column, header, meta, period_s, header_row) -> float:  # noqa: ANN001
+def _period(time_cols, column, header, meta, period_s, header_row) -> float:
     if "time_s" in time_cols:
         t = column(time_cols["time_s"], "time_s", False)
         dt = np.diff(t)
@@ -370,8 +373,7 @@ def _period(time_cols, column, header, meta, period_s, header_row) -> float:  # 
         if bad.any():
             k = int(np.argmax(bad))
             raise LogFormatError(
-                f"time_s is not increasing at row {header_row + 2 + k} "
-                f"({t[k]!r} then {t[k + 1]!r})"
+                f"time_s is not increasing at row {header_row + 2 + k} ({t[k]!r} then {t[k + 1]!r})"
             )
         med = float(np.median(dt))
         off = np.abs(dt - med) > 1e-3 * med

@@ -99,10 +99,10 @@ class LockHoldResult:
 def lock_hold(rig: Rig, *, seconds: float = 60.0, settle_s: float = 2.0, seed: int = 0,
               plants: list | None = None) -> LockHoldResult:  # fmt: skip
     """Run the lock module alone on every axis and compare the hold with the prediction."""
-    n = int(math.floor(seconds / rig.period_s + 0.5))
+    n = math.floor(seconds / rig.period_s + 0.5)
     loop = Loop.from_rig(rig)
     trace = simulate(loop, Inputs.hold(n, len(rig.axes)), seed=seed, plants=plants)
-    k0 = int(math.ceil(settle_s / rig.period_s))
+    k0 = math.ceil(settle_s / rig.period_s)
     observed, predicted = {}, {}
     facts = describe_rig(rig)
     use = plants or [a.plant for a in rig.axes]
@@ -165,8 +165,10 @@ def run_demo(rig_path: str | Path, out_dir: str | Path, *, seed: int = 0) -> dic
         }
     summary = {
         "lock_hold": {
-            name: {"observed_counts": list(hold.observed[name]),
-                   "predicted_counts": list(hold.predicted[name])}  # fmt: skip
+            name: {
+                "observed_counts": list(hold.observed[name]),
+                "predicted_counts": list(hold.predicted[name]),
+            }
             for name in hold.observed
         },
         "rig": facts,
@@ -175,5 +177,7 @@ def run_demo(rig_path: str | Path, out_dir: str | Path, *, seed: int = 0) -> dic
         "track": track,
         "version": __version__,
     }
-    atomic_write_text(out / "demo_summary.json", json.dumps(summary, indent=2, sort_keys=True) + "\n")
+    atomic_write_text(
+        out / "demo_summary.json", json.dumps(summary, indent=2, sort_keys=True) + "\n"
+    )
     return summary

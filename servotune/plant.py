@@ -2,7 +2,8 @@
 
 A speed-command drive and motor, position ``p`` [counts], speed ``v = dp/dt`` [counts/s]::
 
-    tau_s · dv/dt + v = gain_cps_per_v · (u(t − delay_s) + offset_v + load_v(t) − coulomb_v · sign(v))
+    tau_s · dv/dt + v = gain_cps_per_v · (u(t − delay_s) + offset_v + load_v(t)
+                                          − coulomb_v · sign(v))
 
 The speed the drive aims at is limited to ``±max_speed`` (the drive's speed limit), and at rest
 the motor stays at rest while ``|u + offset_v + load_v| <= coulomb_v`` (no chattering through
@@ -20,7 +21,14 @@ import control
 import numba as nb
 import numpy as np
 
-__all__ = ["Plant", "advance", "discretize", "lag_split", "step_coefficients", "tick_coefficients"]
+__all__ = [
+    "Plant",
+    "advance",
+    "discretize",
+    "lag_split",
+    "step_coefficients",
+    "tick_coefficients",
+]
 
 
 def _check_finite_ge(name: str, value: float, lo: float, unit: str, strict: bool = False) -> None:
@@ -101,7 +109,9 @@ class Plant:
         num = np.trim_zeros(num, "f")
         den = np.trim_zeros(den, "f")
         if num.size != 1 or den.size != 3 or den[2] != 0.0 or den[0] <= 0 or den[1] <= 0:
-            raise ValueError("from_tf expects gain / (s (tau s + 1)): numerator K, denominator [a, b, 0]")
+            raise ValueError(
+                "from_tf expects gain / (s (tau s + 1)): numerator K, denominator [a, b, 0]"
+            )
         return cls(gain_cps_per_v=float(num[0] / den[1]), tau_s=float(den[0] / den[1]), **extra)
 
     def to_dict(self) -> dict[str, float | None]:

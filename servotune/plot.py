@@ -7,10 +7,10 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from servotune.engine import Trace  # noqa: E402
+from servotune.engine import Trace
 
 __all__ = ["plot_lock_hold", "plot_tracking", "save_figure"]
 

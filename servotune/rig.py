@@ -135,7 +135,9 @@ class Dac:
             raise RigError(f"dac.bits must be an integer in 8..16, got {self.bits!r}")
         lo, hi = self.range_v
         if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
-            raise RigError(f"dac.range_v must be [low, high] with low < high [V], got {self.range_v!r}")
+            raise RigError(
+                f"dac.range_v must be [low, high] with low < high [V], got {self.range_v!r}"
+            )
         try:
             hw_dac.zero_code(self.bits, self.range_v)
         except ValueError as exc:
@@ -221,7 +223,10 @@ class Axis:
             raise RigError(f"{p}.role must be 'master' or 'slave', got {self.role!r}")
         _positive(f"{p}.lock_gain_codes_per_count", self.lock_gain_codes_per_count, "codes/count")
         _positive(f"{p}.speed_limit_rpm", self.speed_limit_rpm, "r/min")
-        if not isinstance(self.following_error_limit_counts, int) or self.following_error_limit_counts < 0:
+        if (
+            not isinstance(self.following_error_limit_counts, int)
+            or self.following_error_limit_counts < 0
+        ):
             raise RigError(
                 f"{p}.following_error_limit_counts must be an integer >= 0 [counts], "
                 f"got {self.following_error_limit_counts!r}"
@@ -264,7 +269,9 @@ class Rig:
             raise RigError(f"axis names must be unique, got {names!r}")
         masters = [a.name for a in self.axes if a.role == "master"]
         if len(self.axes) > 1 and len(masters) != 1:
-            raise RigError(f"a multi-axis rig needs exactly one role = 'master' axis, got {masters!r}")
+            raise RigError(
+                f"a multi-axis rig needs exactly one role = 'master' axis, got {masters!r}"
+            )
         for a in self.axes:
             if a.counter_init > (1 << self.counter.bits) - 1:
                 raise RigError(
@@ -297,7 +304,9 @@ class Rig:
         for a in self.axes:
             if a.name == name:
                 return a
-        raise RigError(f"no axis {name!r} in rig {self.name!r}; axes: {[a.name for a in self.axes]}")
+        raise RigError(
+            f"no axis {name!r} in rig {self.name!r}; axes: {[a.name for a in self.axes]}"
+        )
 
     @property
     def axis_names(self) -> tuple[str, ...]:
@@ -322,7 +331,9 @@ def _is_number(value: Any) -> bool:
     return isinstance(value, int | float) and not isinstance(value, bool)
 
 
-def _table(data: Mapping[str, Any], key: str, path: str, required: bool = True) -> Mapping[str, Any]:
+def _table(
+    data: Mapping[str, Any], key: str, path: str, required: bool = True
+) -> Mapping[str, Any]:
     if key not in data:
         if required:
             raise RigError(f"missing table [{path}]")

@@ -124,11 +124,13 @@ def excitation_amplitude_codes(rig: Rig, axis: str, speed_fraction: float = 0.3)
     lsb = rig.dac.lsb_v
     v_lim = ax.speed_limit_rpm / 60.0 * rig.counts_per_rev
     volts = speed_fraction * v_lim / ax.plant.gain_cps_per_v + ax.plant.coulomb_v
-    codes = int(math.floor(volts / lsb))
+    codes = math.floor(volts / lsb)
     return max(1, min(codes, rig.dac.zero_code - 1, rig.dac.code_max - rig.dac.zero_code))
 
 
-def prbs_codes(n_ticks: int, amplitude_codes: int, hold_ticks: int = 5, order: int = 9) -> np.ndarray:
+def prbs_codes(
+    n_ticks: int, amplitude_codes: int, hold_ticks: int = 5, order: int = 9
+) -> np.ndarray:
     """Maximum-length PRBS (Fibonacci LFSR) of ±amplitude, each bit held ``hold_ticks``.
 
     Parameters
@@ -252,7 +254,7 @@ def _excitation(
     i = rig.axis_names.index(axis)
     inp = Inputs.hold(n, len(rig.axes))
     # the first 0.2 s the lock holds, then the excitation plays
-    lead = min(n // 10, int(round(0.2 / rig.period_s)))
+    lead = min(n // 10, math.floor(0.2 / rig.period_s + 0.5))
     col = np.zeros(n, dtype=np.int64)
     col[lead:] = codes[: n - lead]
     mode = np.full(n, MODE_LOCK if closed_loop else MODE_OPEN, dtype=np.int64)
@@ -263,13 +265,13 @@ def _excitation(
 def _prbs(rig: Rig, axis: str, n: int, closed_loop: bool) -> Scenario:
     amp = excitation_amplitude_codes(rig, axis)
     tau = rig.axis(axis).plant.tau_s
-    hold = max(1, int(round(tau / rig.period_s)))
+    hold = max(1, math.floor(tau / rig.period_s + 0.5))
     return _excitation(rig, axis, n, prbs_codes(n, amp, hold_ticks=hold), closed_loop, "prbs")
 
 
 def _steps(rig: Rig, axis: str, n: int, closed_loop: bool) -> Scenario:
     amp = excitation_amplitude_codes(rig, axis)
-    per = max(2, int(round(0.25 / rig.period_s)))
+    per = max(2, math.floor(0.25 / rig.period_s + 0.5))
     return _excitation(rig, axis, n, step_codes(n, amp, per), closed_loop, "steps")
 
 
@@ -289,7 +291,7 @@ def _track(rig: Rig, axis: str, n: int, closed_loop: bool) -> Scenario:
     dist = v * t_move
     if ax.travel_counts is not None:
         dist = min(dist, 0.8 * ax.travel_counts[1])
-    start = min(n // 10, int(round(0.2 / rig.period_s)))
+    start = min(n // 10, math.floor(0.2 / rig.period_s + 0.5))
     ref = trapezoid_ref(n, rig.period_s, dist, v, acc, start_tick=start)
     mode = np.full(n, MODE_TASK, dtype=np.int64)
     mode[:start] = MODE_LOCK
@@ -328,7 +330,7 @@ def build_scenario(
     rig.axis(axis)
     if not (seconds > 0 and math.isfinite(seconds)):
         raise SpecError(f"seconds must be > 0 [s], got {seconds!r}")
-    n = int(math.floor(seconds / rig.period_s + 0.5))
+    n = math.floor(seconds / rig.period_s + 0.5)
     if n < 10:
         raise SpecError(f"seconds={seconds!r} gives only {n} ticks; need at least 10")
     return SCENARIOS[name](rig, axis, n, closed_loop)

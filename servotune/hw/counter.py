@@ -204,7 +204,9 @@ def unwrap(raw: np.ndarray, bits: int = 24) -> tuple[np.ndarray, np.ndarray]:
         raise ValueError(f"raw must be 1-D, got shape {r.shape}")
     if r.size and (r.min() < 0 or r.max() > (1 << bits) - 1):
         bad = int(np.argmax((r < 0) | (r > (1 << bits) - 1)))
-        raise ValueError(f"counter value {int(r[bad])} at index {bad} is outside 0..{(1 << bits) - 1}")
+        raise ValueError(
+            f"counter value {int(r[bad])} at index {bad} is outside 0..{(1 << bits) - 1}"
+        )
     return _unwrap_kernel(r, bits)
 
 

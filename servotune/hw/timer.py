@@ -59,7 +59,9 @@ def divisor(period_s: float | np.ndarray, clock_hz: float = PC_PIT_CLOCK_HZ) -> 
     return int(out) if out.ndim == 0 else out
 
 
-def achieved_period_s(div: int | np.ndarray, clock_hz: float = PC_PIT_CLOCK_HZ) -> float | np.ndarray:
+def achieved_period_s(
+    div: int | np.ndarray, clock_hz: float = PC_PIT_CLOCK_HZ
+) -> float | np.ndarray:
     """Period the timer actually produces for a divisor [s].
 
     Examples

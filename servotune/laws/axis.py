@@ -251,7 +251,15 @@ def axis_control(
             )
         else:
             u, st[a, S_INTEG] = pi_step(
-                c[a, C_KP_Q], c[a, C_KP_F], c[a, C_KIT_Q], c[a, C_KIT_F], st[a, S_INTEG], e, u_add_q, zero, cmax
+                c[a, C_KP_Q],
+                c[a, C_KP_F],
+                c[a, C_KIT_Q],
+                c[a, C_KIT_F],
+                st[a, S_INTEG],
+                e,
+                u_add_q,
+                zero,
+                cmax,
             )
     else:
         u = u_add_q
@@ -269,4 +277,3 @@ def axis_control(
     if raw_code > cmax or raw_code < 0:
         flags |= FLAG_SATURATED
     return code, flags, e
-

@@ -92,4 +92,3 @@ def _lock_codes(kl_q: int, kl_f: int, e: np.ndarray) -> np.ndarray:
     for i in range(e.shape[0]):
         out[i] = shift_round(lock_step(kl_q, kl_f, e[i]), F_U)
     return out
-

@@ -148,4 +148,3 @@ def pi_ideal_step(kp: float, ki_t: float, integ: float, e: float) -> tuple[float
     """Ideal floating-point PI (design and comparison only): ``u = Kp·e + I(k)`` [D/A LSB]."""
     integ = integ + ki_t * e
     return kp * e + integ, integ
-

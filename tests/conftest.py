@@ -1,0 +1,43 @@
+"""Shared fixtures: the example rig and simple variants of it."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import pytest
+
+import servotune as st
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLE_RIG = ROOT / "plants" / "pc-dual-servo.toml"
+
+
+@pytest.fixture(scope="session")
+def rig() -> st.Rig:
+    """The example rig of seed 000 (plants/pc-dual-servo.toml)."""
+    return st.load_rig(EXAMPLE_RIG)
+
+
+def one_axis(rig: st.Rig, name: str = "master", **plant_changes: object) -> st.Rig:
+    """A single-axis rig from one axis of ``rig``, its plant changed as given."""
+    ax = rig.axis(name)
+    plant = dataclasses.replace(ax.plant, **plant_changes)
+    return dataclasses.replace(rig, axes=(dataclasses.replace(ax, plant=plant, role="master"),))
+
+
+def linear_one_axis(rig: st.Rig, compute_s: float = 0.0, **plant_changes: object) -> st.Rig:
+    """Single-axis rig with only the linear dynamics: no drift, friction, noise or speed limit."""
+    base = {
+        "offset_v": 0.0,
+        "coulomb_v": 0.0,
+        "noise_counts": 0.0,
+        "max_speed_rpm": None,
+        "delay_s": 0.0,
+    }
+    base.update(plant_changes)
+    r = one_axis(rig, **base)
+    ax = dataclasses.replace(r.axes[0], following_error_limit_counts=0, travel_counts=None)
+    return dataclasses.replace(
+        r, axes=(ax,), timer=dataclasses.replace(r.timer, compute_s=compute_s)
+    )
