@@ -340,7 +340,7 @@ def _sweep(start_ext: np.ndarray, d: int, direction: int):
 def _crossing_starts(d: int, direction: int) -> np.ndarray:
     """Every extended start from which a tick of ``d`` counts crosses the 2**24 wrap."""
     j = np.arange(1, d + 1, dtype=np.int64)
-    # up: start = 2**24 − j reaches 2**24 − j + d >= 2**24; down: start = j − 1 reaches j − 1 − d < 0
+    # up: start 2**24 − j reaches 2**24 − j + d >= 2**24; down: start j − 1 reaches j − 1 − d < 0
     return 2**24 - j if direction > 0 else j - 1
 
 

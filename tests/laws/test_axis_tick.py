@@ -1,0 +1,113 @@
+"""The runtime's per-axis tick functions (servotune.laws.axis), driven tick by tick."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from servotune.fixed import F_U, quantize, shift_round
+from servotune.laws.axis import (
+    FLAG_COUNTER_FAULT,
+    FLAG_FOLLOWING_ERROR,
+    FLAG_SATURATED,
+    MODE_LOCK,
+    MODE_OPEN,
+    MODE_TASK,
+    N_STATE,
+    S_INTEG,
+    AxisController,
+    axis_control,
+    axis_read,
+)
+from servotune.laws.pi import PIGains, pi_step
+
+
+def _axis(pi: PIGains | None = None, fe: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    ctl = AxisController.from_gains(
+        lock_gain_codes_per_count=0.4, pi_gains=pi, period_s=0.004, following_error_limit_counts=fe
+    )
+    c = ctl.consts(counter_bits=24, dac_bits=12, dac_zero=2048)[None, :].copy()
+    return np.zeros((1, N_STATE), dtype=np.int64), c
+
+
+def _tick(st, c, raw, ref=0, mode=MODE_LOCK, reset=False, u_add=0):
+    y = axis_read(st, c, 0, raw, reset)
+    code, flags, e = axis_control(st, c, 0, ref, mode, reset, u_add)
+    return y, code, flags, e
+
+
+def test_first_read_is_home_and_lock_pulls_back() -> None:
+    st, c = _axis()
+    y, code, flags, e = _tick(st, c, 0xFFFFF0)
+    assert (y, code, flags, e) == (0, 2048, 0, 0)
+    # 16 counts upward through the wrap: high byte 0xFF → 0x00 is an overflow, not a fault
+    y, code, flags, e = _tick(st, c, 0x000000)
+    assert y == 16 and flags == 0
+    assert code == 2048 + round(0.4 * -16)  # lock: u = 0.4 codes/count · (0 − 16) = −6.4 → −6
+
+
+def test_counter_fault_latches_mid_scale_until_reset() -> None:
+    st, c = _axis()
+    _tick(st, c, 0x100000)
+    # the high byte jumps by 2 (0x10 → 0x12): more motion than the rule can explain
+    y, code, flags, _ = _tick(st, c, 0x120000)
+    assert flags & FLAG_COUNTER_FAULT and code == 2048
+    for raw in (0x120001, 0x120002, 0x11FFFF):
+        _, code, flags, _ = _tick(st, c, raw)
+        assert flags & FLAG_COUNTER_FAULT and code == 2048  # latched: 0 V, flag kept
+    y, code, flags, e = _tick(st, c, 0x11FFFF, reset=True)
+    assert flags == 0 and code == 2048 and e == 0  # lock at the current position
+    y2, code, flags, e = _tick(st, c, 0x120009)
+    assert flags == 0 and y2 - y == 10 and e == -10
+
+
+def test_following_error_trip_in_lock_too() -> None:
+    st, c = _axis(fe=20)
+    _tick(st, c, 1000)
+    _, code, flags, _ = _tick(st, c, 1020)
+    assert flags == 0 and code == 2048 - 8
+    _, code, flags, e = _tick(st, c, 1021)
+    assert flags & FLAG_FOLLOWING_ERROR and code == 2048 and e == -21
+
+
+def test_open_mode_outputs_the_added_command_and_clamps() -> None:
+    st, c = _axis()
+    _tick(st, c, 0)
+    _, code, flags, e = _tick(st, c, 5, mode=MODE_OPEN, u_add=300)
+    assert (code, flags, e) == (2348, 0, 0)
+    _, code, flags, _ = _tick(st, c, 9, mode=MODE_OPEN, u_add=-5000)
+    assert code == 0 and flags & FLAG_SATURATED
+    # back to lock: the target latches at the switch position
+    _, code, flags, e = _tick(st, c, 12, mode=MODE_LOCK)
+    assert (code, e) == (2048, 0)
+
+
+def test_entering_task_is_bumpless_and_integrator_is_stored_as_output() -> None:
+    st, c = _axis(PIGains(kp=1.3, ki=25.0))
+    _tick(st, c, 0)
+    _, lock_code, _, _ = _tick(st, c, 7)  # lock output −2.8 → −3 codes
+    _, code, _, e = _tick(st, c, 7, ref=100, mode=MODE_TASK)
+    assert e == 93 and code == lock_code  # first task output = lock's last
+    # the stored integrator is that output minus the P term: I = u_lock − Kp·e
+    kp = quantize(1.3)
+    u_lock = shift_round(st[0, S_INTEG], F_U) + round(kp.value * 93)
+    assert abs(u_lock - (lock_code - 2048)) <= 1
+
+
+def test_conditional_integration_at_the_rails() -> None:
+    g = PIGains(kp=2.0, ki=50.0).quantize(0.004)
+    kp, kit = g.kp, g.ki_t
+    integ0 = 1000 * 2**F_U  # the integrator already holds 1000 codes
+    integ = integ0
+    # a large error drives the output past the upper rail: no integration while it pushes on
+    for _ in range(50):
+        u, new = pi_step(kp.q, kp.f, kit.q, kit.f, integ, 5000, 0, 2048, 4095)
+        assert shift_round(u, F_U) + 2048 > 4095
+        assert new == integ
+        integ = new
+    assert integ == integ0
+    # an error back toward the span integrates again at once
+    u, new = pi_step(kp.q, kp.f, kit.q, kit.f, integ, -10, 0, 2048, 4095)
+    assert new == integ0 + kit.q * -10 * 2 ** (F_U - kit.f)
+    # below the rail the integrator accumulates Ki·T·e exactly (in F_U fraction bits)
+    u, new = pi_step(kp.q, kp.f, kit.q, kit.f, 0, 100, 0, 2048, 4095)
+    assert new == kit.q * 100 * 2 ** (F_U - kit.f)
