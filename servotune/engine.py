@@ -328,13 +328,14 @@ def prepare_batch(
         dtype=np.int64,
     )
     gains = np.zeros((n, n_ax, 3))
-    cache_p: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-    cache_c: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    # identical candidates (frozen, hashable dataclasses) are discretised once
+    cache_p: dict[tuple[Plant, ...], tuple[np.ndarray, np.ndarray]] = {}
+    cache_c: dict[tuple[AxisController, ...], tuple[np.ndarray, np.ndarray]] = {}
     for b in range(n):
-        ps, cs = plant_sets[b], ctl_sets[b]
+        ps, cs = tuple(plant_sets[b]), tuple(ctl_sets[b])
         if len(ps) != n_ax or len(cs) != n_ax:
             raise SimulationError(f"candidate {b}: need {n_ax} plants and controllers")
-        key_p, key_c = id(ps), id(cs)
+        key_p, key_c = ps, cs
         if key_p not in cache_p:
             cache_p[key_p] = _plant_rows(rig, ps)
         if key_c not in cache_c:

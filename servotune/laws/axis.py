@@ -22,7 +22,6 @@ import numpy as np
 
 from servotune.fixed import F_U, Fixed, align, quantize, sat_add, shift_round
 from servotune.hw.counter import unwrap_step
-from servotune.hw.dac import code_from_uq
 from servotune.laws.lock import lock_step
 from servotune.laws.pi import PIConstants, pi_enter, pi_step
 
@@ -271,9 +270,12 @@ def axis_control(
     st[a, S_U_LAST] = u
     st[a, S_E_PREV] = e
     st[a, S_R_PREV] = ref
-    raw_code = shift_round(u, F_U) + zero
-    code = code_from_uq(u, F_U, zero, cmax)
+    code = shift_round(u, F_U) + zero  # code_from_uq, with the rail flag on the way
     flags = st[a, S_FAULT]
-    if raw_code > cmax or raw_code < 0:
+    if code > cmax:
+        code = cmax
+        flags |= FLAG_SATURATED
+    elif code < 0:
+        code = 0
         flags |= FLAG_SATURATED
     return code, flags, e

@@ -1,0 +1,930 @@
+"""Benchmarks of the servotune engine.
+
+Usage::
+
+    python bench/bench.py [--out reports/bench.json] [--only NAME ...] [--quick]
+
+Each benchmark is a function registered in :data:`BENCHES` (name → function returning a list
+of :class:`Figure`). Every figure is printed on stdout as one line ``bench: NAME VALUE UNIT``;
+with ``--out`` the figures and the environment are also written to a JSON report (schema
+``servotune.bench/1``). Progress goes to stderr. ``--quick`` runs smaller sizes through the same
+code paths (a smoke test).
+
+The machine may be a noisy VM: every timing is the median of several runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import gc
+import json
+import math
+import os
+import platform
+import statistics
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Sequence
+from importlib import metadata
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import control
+import numba
+import numpy as np
+
+import servotune
+from servotune.engine import METRIC_NAMES
+from servotune.fixed import F_U
+from servotune.hw.counter import unwrap_step
+from servotune.hw.dac import code_from_uq
+from servotune.laws.axis import FLAG_SATURATED
+from servotune.laws.pi import pi_enter, pi_step
+from servotune.plant import lag_split
+
+SCHEMA = "servotune.bench/1"
+ROOT = Path(__file__).resolve().parents[1]
+RIG_PATH = ROOT / "plants" / "pc-dual-servo.toml"
+PI_GAINS = servotune.PIGains(kp=0.5, ki=5.0)
+"""PI of the benchmark loop: 31° phase margin, gain margin 8.3 on the master's linear plant."""
+CANDIDATE_SEED = 2024
+"""Seed of ``numpy.random.default_rng`` drawing the batched plant candidates."""
+PC_RUN_BUDGET_S = 60.0
+"""Above this total, the python-control loop is timed over 3 runs instead of 5."""
+
+
+class Figure(NamedTuple):
+    """One benchmark figure.
+
+    Attributes
+    ----------
+    name : str
+        Figure name (a key of the report's ``figures``).
+    value : float
+        The measured value.
+    unit : str
+        Its unit.
+    note : str or None
+        Optional remark stored with the figure in the report.
+    """
+
+    name: str
+    value: float
+    unit: str
+    note: str | None = None
+
+
+@dataclasses.dataclass(frozen=True, slots=True, kw_only=True)
+class Sizes:
+    """Problem sizes and repetitions of the benchmarks.
+
+    Attributes
+    ----------
+    one_axis_ticks : int
+        Ticks of the one-axis loop (engine and python-control).
+    engine_runs : int
+        Timed runs of the engine (median).
+    pc_runs : int
+        Timed runs of the python-control loop (median), if they fit ``PC_RUN_BUDGET_S``.
+    batch_candidates : int
+        Candidates of the batched run.
+    batch_ticks : int
+        Ticks per candidate of the batched run.
+    batch_runs : int
+        Timed runs of the batched run (median), per thread count.
+    """
+
+    one_axis_ticks: int
+    engine_runs: int
+    pc_runs: int
+    batch_candidates: int
+    batch_ticks: int
+    batch_runs: int
+
+
+FULL = Sizes(
+    one_axis_ticks=100_000,
+    engine_runs=5,
+    pc_runs=5,
+    batch_candidates=1_000,
+    batch_ticks=10_000,
+    batch_runs=5,
+)
+QUICK = Sizes(
+    one_axis_ticks=2_000,
+    engine_runs=3,
+    pc_runs=3,
+    batch_candidates=40,
+    batch_ticks=2_000,
+    batch_runs=3,
+)
+
+
+@dataclasses.dataclass(frozen=True, slots=True, kw_only=True)
+class Options:
+    """What every benchmark function receives.
+
+    Attributes
+    ----------
+    quick : bool
+        Smoke-test sizes.
+    rig_path : Path
+        The rig file the benchmarks build their loops from.
+    """
+
+    quick: bool = False
+    rig_path: Path = RIG_PATH
+
+    @property
+    def sizes(self) -> Sizes:
+        """The sizes for this run (:data:`QUICK` or :data:`FULL`)."""
+        return QUICK if self.quick else FULL
+
+
+BenchFn = Callable[[Options], list[Figure]]
+BENCHES: dict[str, BenchFn] = {}
+"""The registry: benchmark name → function. Add entries with :func:`register`."""
+
+
+def register(name: str) -> Callable[[BenchFn], BenchFn]:
+    """Decorator adding a benchmark function to :data:`BENCHES` under ``name``.
+
+    Parameters
+    ----------
+    name : str
+        The name ``--only`` selects it by.
+
+    Returns
+    -------
+    callable
+        The decorator (it returns the function unchanged).
+    """
+
+    def deco(fn: BenchFn) -> BenchFn:
+        if name in BENCHES:
+            raise ValueError(f"benchmark {name!r} registered twice")
+        BENCHES[name] = fn
+        return fn
+
+    return deco
+
+
+class BenchMismatchError(RuntimeError):
+    """Two implementations that must agree bit for bit did not."""
+
+
+# --- helpers ---------------------------------------------------------------------------------
+
+
+def progress(msg: str) -> None:
+    """Print a progress line on stderr."""
+    print(f"[bench] {msg}", file=sys.stderr, flush=True)
+
+
+def timed_runs(fn: Callable[[], Any], runs: int) -> tuple[list[float], Any]:
+    """Call ``fn`` ``runs`` times and time each call.
+
+    Parameters
+    ----------
+    fn : callable
+        The work, without arguments.
+    runs : int
+        Number of calls.
+
+    Returns
+    -------
+    times : list of float
+        Wall time of each call [s].
+    result : object
+        What the last call returned.
+    """
+    times = []
+    result = None
+    for _ in range(runs):
+        gc.collect()
+        t0 = time.perf_counter()
+        result = fn()
+        times.append(time.perf_counter() - t0)
+    return times, result
+
+
+def one_axis_rig(path: Path = RIG_PATH) -> servotune.Rig:
+    """The rig reduced to its master axis with a linear, noise-free plant.
+
+    Parameters
+    ----------
+    path : Path
+        Rig file.
+
+    Returns
+    -------
+    Rig
+        One axis: no Coulomb friction, no encoder noise, no drive speed limit (so the exact ZOH
+        model is the whole plant); gain, time constant, delay and offset are kept, and the
+        following-error trip is disabled.
+    """
+    rig = servotune.load_rig(path)
+    master = rig.axis("master")
+    plant = dataclasses.replace(master.plant, coulomb_v=0.0, noise_counts=0.0, max_speed_rpm=None)
+    axis = dataclasses.replace(master, plant=plant, following_error_limit_counts=0)
+    return dataclasses.replace(rig, axes=(axis,))
+
+
+def reference_counts(n_ticks: int, period_s: float) -> np.ndarray:
+    """Task reference with holds, steps and ramps, relative to the start [counts].
+
+    One cycle (about 12.6 s) holds 0, steps to +6,000 (the D/A saturates), ramps at 50,000
+    counts/s to +46,000 (the master's counter, starting at 0xFFC000, wraps upward at +16,384),
+    steps back to +40,000, ramps at 80,000 counts/s to −20,000 (wrapping downward) and steps
+    to 0 (saturating for several ticks). Cycles repeat until ``n_ticks``.
+
+    Parameters
+    ----------
+    n_ticks : int
+        Length [ticks].
+    period_s : float
+        Tick period [s]; ramp samples are at integer tick index × period.
+
+    Returns
+    -------
+    ndarray of int64, shape (n_ticks,)
+    """
+    parts: list[np.ndarray] = []
+    level = 0
+    total = 0
+
+    def hold(ticks: int) -> None:
+        parts.append(np.full(ticks, level, dtype=np.int64))
+
+    def ramp(target: int, rate_cps: float) -> None:
+        nonlocal level
+        dist = target - level
+        ticks = math.ceil(abs(dist) / (rate_cps * period_s))
+        k = np.arange(1, ticks + 1, dtype=np.int64)
+        moved = np.floor(rate_cps * (k * period_s) + 0.5).astype(np.int64)
+        parts.append(level + np.sign(dist) * np.minimum(moved, abs(dist)))
+        level = target
+
+    while total < n_ticks:
+        start = len(parts)
+        hold(250)
+        level = 6_000
+        hold(500)
+        ramp(46_000, 50_000.0)
+        hold(500)
+        level = 40_000
+        hold(500)
+        ramp(-20_000, 80_000.0)
+        hold(500)
+        level = 0
+        hold(500)
+        total += sum(p.size for p in parts[start:])
+    return np.concatenate(parts)[:n_ticks]
+
+
+def one_axis_setup(opts: Options) -> tuple[servotune.Loop, servotune.Inputs]:
+    """The one-axis PI loop and its task-mode inputs.
+
+    Parameters
+    ----------
+    opts : Options
+
+    Returns
+    -------
+    loop : Loop
+    inputs : Inputs
+        Task mode from tick 0 on the reference of :func:`reference_counts`.
+    """
+    rig = one_axis_rig(opts.rig_path)
+    loop = servotune.Loop.from_rig(rig, [PI_GAINS])
+    n = opts.sizes.one_axis_ticks
+    ref = reference_counts(n, rig.period_s)
+    inputs = servotune.Inputs.hold(n, 1).replace_axis(0, mode=1, ref_counts=ref)
+    return loop, inputs
+
+
+# --- the one-axis loop in python-control ------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True, slots=True, kw_only=True)
+class PlantMap:
+    """The exact one-tick map of :func:`servotune.discretize` in the engine's evaluation order.
+
+    ``p' = p + phi_b·v + go_p·w_old + gn_p·w_new``, ``v' = phi_a·v + go_v·w_old + gn_v·w_new``,
+    with ``w_new`` the drive input written ``m`` ticks ago and ``w_old`` the one before it (it
+    acts for the first λ of the tick). Coefficients are read from the state-space matrices.
+    """
+
+    phi_b: float
+    phi_a: float
+    go_p: float
+    go_v: float
+    gn_p: float
+    gn_v: float
+    m: int
+    n_hist: int
+    has_old: bool
+
+    @classmethod
+    def from_plant(cls, plant: servotune.Plant, period_s: float, lag_s: float) -> PlantMap:
+        """Read the coefficients off ``discretize(plant, period_s, lag_s)``.
+
+        Parameters
+        ----------
+        plant : Plant
+        period_s : float
+            Tick period [s].
+        lag_s : float
+            Tick start → motor input [s] (compute time + drive delay).
+
+        Returns
+        -------
+        PlantMap
+        """
+        ss = servotune.discretize(plant, period_s, lag_s)
+        a, b = np.asarray(ss.A), np.asarray(ss.B)
+        m, lam = lag_split(lag_s, period_s)
+        has_old = lam > 0.0
+        g_new = b[:2, 0] if m == 0 else a[:2, 1 + m]
+        g_old = a[:2, 2 + m] if has_old else np.zeros(2)
+        return cls(
+            phi_b=float(a[0, 1]),
+            phi_a=float(a[1, 1]),
+            go_p=float(g_old[0]),
+            go_v=float(g_old[1]),
+            gn_p=float(g_new[0]),
+            gn_v=float(g_new[1]),
+            m=m,
+            n_hist=a.shape[0] - 2,
+            has_old=has_old,
+        )
+
+
+def plant_system(rig: servotune.Rig) -> tuple[control.NonlinearIOSystem, list[float]]:
+    """The axis model as a discrete python-control system: D/A volts → counter register.
+
+    The drive input is the D/A volts plus the plant's offset; the state is position, speed and
+    the held past drive inputs; the output is the latched register
+    ``(counter_init + floor(position)) & (2**bits − 1)``.
+
+    Parameters
+    ----------
+    rig : Rig
+        One-axis rig with a linear plant.
+
+    Returns
+    -------
+    sys : NonlinearIOSystem
+        Inputs ``volts``, outputs ``raw``, ``dt`` = the tick period.
+    x0 : list of float
+        Initial state: at rest, and every past drive input the offset alone (the engine's D/A
+        history starts at 0 V).
+    """
+    axis = rig.axes[0]
+    plant = axis.plant
+    pm = PlantMap.from_plant(plant, rig.period_s, rig.timer.compute_s + plant.delay_s)
+    offset = plant.offset_v
+    init = axis.counter_init
+    mask = (1 << rig.counter.bits) - 1
+
+    def update(t: float, x: np.ndarray, u: np.ndarray, params: dict) -> list[float]:
+        w_now = u[0] + offset
+        hist = x[2:]
+        w_new = w_now if pm.m == 0 else hist[pm.m - 1]
+        w_old = hist[pm.m] if pm.has_old else w_new
+        p = x[0] + pm.phi_b * x[1] + pm.go_p * w_old + pm.gn_p * w_new
+        v = pm.phi_a * x[1] + pm.go_v * w_old + pm.gn_v * w_new
+        return [p, v, *([w_now, *hist[: pm.n_hist - 1]] if pm.n_hist else [])]
+
+    def output(t: float, x: np.ndarray, u: np.ndarray, params: dict) -> list[int]:
+        return [(init + math.floor(x[0])) & mask]
+
+    sys_ = control.nlsys(
+        update,
+        output,
+        inputs=["volts"],
+        outputs=["raw"],
+        states=["pos", "speed", *(f"w{j}" for j in range(1, pm.n_hist + 1))],
+        dt=rig.period_s,
+        name="plant",
+    )
+    return sys_, [0.0, 0.0] + [offset] * pm.n_hist
+
+
+def controller_system(loop: servotune.Loop) -> tuple[control.NonlinearIOSystem, list[float]]:
+    """The runtime's task-mode PI tick as a discrete python-control system.
+
+    Reads the counter register, unwraps it (:func:`~servotune.hw.counter.unwrap_step`), forms
+    ``e = (y0 + ref) − y`` with ``y0`` the first read, runs the integer PI
+    (:func:`~servotune.laws.pi.pi_enter` on the first tick, as ``axis_control`` does for an axis
+    entering task mode from lock with ``u_last = 0``, then :func:`~servotune.laws.pi.pi_step`)
+    and codes the D/A (:func:`~servotune.hw.dac.code_from_uq`). A counter fault latches 0 V.
+    Direct feedthrough: the code of tick k uses the register latched at tick k.
+
+    Parameters
+    ----------
+    loop : Loop
+        One-axis loop with PI gains.
+
+    Returns
+    -------
+    sys : NonlinearIOSystem
+        Inputs ``raw``, ``ref``; outputs ``code``, ``volts``; states integrator, previous high
+        byte, wraps, first read, started flag, fault flag.
+    x0 : list of float
+        Initial state (all zero).
+    """
+    rig = loop.rig
+    pi = loop.controllers[0].pi
+    if pi is None:
+        raise ValueError("the benchmark loop needs PI gains on its axis")
+    kp_q, kp_f, kit_q, kit_f = pi.kp.q, pi.kp.f, pi.ki_t.q, pi.ki_t.f
+    bits = rig.counter.bits
+    zero, cmax = rig.dac.zero_code, rig.dac.code_max
+    lo_v, lsb_v = rig.dac.range_v[0], rig.dac.lsb_v
+
+    def tick(x: np.ndarray, u: np.ndarray) -> tuple[int, list[int]]:
+        integ, hi, wraps, y0, started, fault = (int(s) for s in x)
+        raw, ref = int(u[0]), int(u[1])
+        if not started:
+            hi = (raw >> (bits - 8)) & 0xFF
+            y = y0 = raw
+            u_q, integ = pi_enter(kp_q, kp_f, 0, y0 + ref - y, 0, zero, cmax)
+        else:
+            y, hi, wraps, bad = unwrap_step(raw, hi, wraps, bits)
+            fault = fault or int(bad)
+            u_q, integ = pi_step(kp_q, kp_f, kit_q, kit_f, integ, y0 + ref - y, 0, zero, cmax)
+        code = zero if fault else code_from_uq(u_q, F_U, zero, cmax)
+        return code, [integ, hi, wraps, y0, 1, fault]
+
+    def update(t: float, x: np.ndarray, u: np.ndarray, params: dict) -> list[int]:
+        return tick(x, u)[1]
+
+    def output(t: float, x: np.ndarray, u: np.ndarray, params: dict) -> list[float]:
+        code = tick(x, u)[0]
+        return [code, lo_v + code * lsb_v]
+
+    sys_ = control.nlsys(
+        update,
+        output,
+        inputs=["raw", "ref"],
+        outputs=["code", "volts"],
+        states=["integ", "hi_prev", "wraps", "y0", "started", "fault"],
+        dt=rig.period_s,
+        name="ctl",
+    )
+    return sys_, [0.0] * 6
+
+
+def python_control_loop(loop: servotune.Loop) -> tuple[control.InterconnectedSystem, list[float]]:
+    """Controller and plant joined with :func:`control.interconnect`.
+
+    Parameters
+    ----------
+    loop : Loop
+        One-axis loop.
+
+    Returns
+    -------
+    sys : InterconnectedSystem
+        Input ``ref`` [counts]; outputs ``code`` and ``raw`` (the counter register).
+    x0 : list of float
+        Initial state (controller states first).
+    """
+    ctl, x0_ctl = controller_system(loop)
+    plant, x0_plant = plant_system(loop.rig)
+    sys_ = control.interconnect(
+        [ctl, plant],
+        connections=[["plant.volts", "ctl.volts"], ["ctl.raw", "plant.raw"]],
+        inplist=["ctl.ref"],
+        inputs=["ref"],
+        outlist=["ctl.code", "plant.raw"],
+        outputs=["code", "raw"],
+        dt=loop.rig.period_s,
+        name="one_axis",
+    )
+    return sys_, x0_ctl + x0_plant
+
+
+def run_python_control(
+    sys_: control.InterconnectedSystem, x0: Sequence[float], ref: np.ndarray, period_s: float
+) -> control.TimeResponseData:
+    """Simulate the python-control loop over a reference.
+
+    Parameters
+    ----------
+    sys_ : InterconnectedSystem
+        From :func:`python_control_loop`.
+    x0 : sequence of float
+        Initial state.
+    ref : ndarray of int64
+        Reference per tick [counts].
+    period_s : float
+        Tick period [s].
+
+    Returns
+    -------
+    TimeResponseData
+    """
+    timepts = np.arange(ref.size, dtype=np.int64) * period_s
+    return control.input_output_response(sys_, timepts, ref.astype(np.float64), list(x0))
+
+
+def check_same(label: str, got: np.ndarray, want: np.ndarray) -> None:
+    """Raise :class:`BenchMismatchError` at the first tick where two sequences differ.
+
+    Parameters
+    ----------
+    label : str
+        What is compared (for the message).
+    got, want : ndarray
+        Sequences of equal length.
+    """
+    got, want = np.asarray(got), np.asarray(want)
+    if got.shape != want.shape:
+        raise BenchMismatchError(f"{label}: shapes differ, {got.shape} vs {want.shape}")
+    bad = np.flatnonzero(got != want)
+    if bad.size:
+        k = int(bad[0])
+        raise BenchMismatchError(
+            f"{label}: {bad.size} ticks differ, first at tick {k}: "
+            f"python-control {got[k].item()!r}, engine {want[k].item()!r}"
+        )
+
+
+def check_python_control(resp: control.TimeResponseData, trace: servotune.Trace) -> float:
+    """Check the python-control run against the engine's trace, tick for tick.
+
+    Parameters
+    ----------
+    resp : TimeResponseData
+        From :func:`run_python_control`.
+    trace : Trace
+        From :func:`servotune.simulate` of the same loop and inputs.
+
+    Returns
+    -------
+    float
+        Largest |position difference| of the plant states [counts] (0 if bit-exact).
+
+    Raises
+    ------
+    BenchMismatchError
+        If a D/A code or a counter register differs.
+    """
+    out = np.asarray(resp.outputs)
+    check_same("D/A code", out[0].astype(np.int64), trace.code[:, 0].astype(np.int64))
+    check_same("counter register", out[1].astype(np.int64), trace.counter[:, 0])
+    pos = np.asarray(resp.states)[resp.state_labels.index("plant_pos")]
+    return float(np.max(np.abs(pos - trace.true_pos_counts[:, 0])))
+
+
+def warm_runtime_functions() -> None:
+    """Compile (or load from cache) the numba runtime functions the controller calls."""
+    unwrap_step(0, 0, 0, 24)
+    pi_enter(1, 0, 0, 0, 0, 2048, 4095)
+    pi_step(1, 0, 1, 0, 0, 0, 0, 2048, 4095)
+    code_from_uq(0, F_U, 2048, 4095)
+
+
+# --- benchmarks ------------------------------------------------------------------------------
+
+
+def time_engine(
+    loop: servotune.Loop, inputs: servotune.Inputs, runs: int
+) -> tuple[float, list[float], servotune.Trace]:
+    """Time :func:`servotune.simulate`: the first call apart, then ``runs`` calls.
+
+    Parameters
+    ----------
+    loop : Loop
+    inputs : Inputs
+    runs : int
+        Timed calls after the first.
+
+    Returns
+    -------
+    first_s : float
+        Wall time of the first call (numba compile or cache load included) [s].
+    times : list of float
+        Wall time of each later call [s].
+    trace : Trace
+        The trajectory.
+    """
+    t0 = time.perf_counter()
+    trace = servotune.simulate(loop, inputs, seed=0)
+    first_s = time.perf_counter() - t0
+    sat = int(np.count_nonzero(trace.flags[:, 0] & FLAG_SATURATED))
+    progress(
+        f"one_axis: codes {int(trace.code.min())}..{int(trace.code.max())}, "
+        f"{sat} saturated ticks, max |e| {int(np.abs(trace.err_counts).max())} counts"
+    )
+    times, _ = timed_runs(lambda: servotune.simulate(loop, inputs, seed=0), runs)
+    return first_s, times, trace
+
+
+def time_python_control(
+    loop: servotune.Loop, inputs: servotune.Inputs, trace: servotune.Trace, runs: int
+) -> list[float]:
+    """Time the python-control loop, checking every run against the engine's trace.
+
+    Parameters
+    ----------
+    loop : Loop
+    inputs : Inputs
+    trace : Trace
+        The engine's trajectory for the same loop and inputs.
+    runs : int
+        Timed runs wanted; 3 if that many would exceed ``PC_RUN_BUDGET_S``.
+
+    Returns
+    -------
+    list of float
+        Wall time of each run [s].
+
+    Raises
+    ------
+    BenchMismatchError
+        If a run's codes or counter registers differ from the engine's.
+    """
+    sys_, x0 = python_control_loop(loop)
+    ref = np.asarray(inputs.ref_counts[:, 0])
+    period = loop.rig.period_s
+    n = ref.size
+    warm_runtime_functions()
+    times: list[float] = []
+    dpos = 0.0
+    while len(times) < runs:
+        progress(f"one_axis: python-control run {len(times) + 1}/{runs} ({n} ticks)")
+        t, resp = timed_runs(lambda: run_python_control(sys_, x0, ref, period), 1)
+        times += t
+        dpos = max(dpos, check_python_control(resp, trace))
+        if len(times) == 1 and runs > 3 and t[0] * runs > PC_RUN_BUDGET_S:
+            runs = 3
+            progress(f"one_axis: {t[0]:.1f} s per run, timing python-control over {runs} runs")
+    progress(f"one_axis: python-control codes and counter equal the engine's over {n} ticks")
+    progress(f"one_axis: largest plant position difference {dpos:.3g} counts")
+    return times
+
+
+@register("one_axis")
+def bench_one_axis(opts: Options) -> list[Figure]:
+    """One-axis loop: engine vs the same loop in python-control (bit-exact check, timings).
+
+    Parameters
+    ----------
+    opts : Options
+
+    Returns
+    -------
+    list of Figure
+        ``engine_first_call_s``, ``engine_one_axis_us_per_tick``,
+        ``python_control_one_axis_us_per_tick``, ``engine_speedup_vs_python_control``.
+    """
+    sz = opts.sizes
+    loop, inputs = one_axis_setup(opts)
+    n = inputs.n_ticks
+    progress(f"one_axis: engine, {n} ticks (first call includes compile or cache load)")
+    first_s, times, trace = time_engine(loop, inputs, sz.engine_runs)
+    eng_us = statistics.median(times) / n * 1e6
+    progress(f"one_axis: engine {eng_us:.4g} us/tick (runs {[f'{t:.4f}' for t in times]} s)")
+    pc_times = time_python_control(loop, inputs, trace, sz.pc_runs)
+    pc_us = statistics.median(pc_times) / n * 1e6
+    note = None
+    if len(pc_times) < sz.pc_runs:
+        note = (
+            f"median of {len(pc_times)} runs, not {sz.pc_runs}: one run of {n} ticks took "
+            f"{pc_times[0]:.1f} s"
+        )
+    return [
+        Figure("engine_first_call_s", first_s, "s"),
+        Figure("engine_one_axis_us_per_tick", eng_us, "us/tick"),
+        Figure("python_control_one_axis_us_per_tick", pc_us, "us/tick", note),
+        Figure("engine_speedup_vs_python_control", pc_us / eng_us, "x"),
+    ]
+
+
+def candidate_plants(
+    nominal: servotune.Plant, n: int, seed: int = CANDIDATE_SEED
+) -> list[tuple[servotune.Plant]]:
+    """Plant candidates: gain within ±20 %, time constant within ±30 % (uniform).
+
+    Parameters
+    ----------
+    nominal : Plant
+    n : int
+        Number of candidates.
+    seed : int
+        Seed of ``numpy.random.default_rng``.
+
+    Returns
+    -------
+    list of 1-tuples of Plant
+        Per candidate, the plants of the one-axis rig.
+    """
+    rng = np.random.default_rng(seed)
+    gain = nominal.gain_cps_per_v * rng.uniform(0.8, 1.2, n)
+    tau = nominal.tau_s * rng.uniform(0.7, 1.3, n)
+    return [
+        (dataclasses.replace(nominal, gain_cps_per_v=float(g), tau_s=float(t)),)
+        for g, t in zip(gain, tau, strict=True)
+    ]
+
+
+@register("batched")
+def bench_batched(opts: Options) -> list[Figure]:
+    """Batched candidates: the one-axis loop for many plant variants, metrics only.
+
+    Parameters
+    ----------
+    opts : Options
+
+    Returns
+    -------
+    list of Figure
+        ``batch_setup_s``, ``batched_candidate_ticks_per_s`` (2 threads) and
+        ``batched_candidate_ticks_per_s_1thread``.
+    """
+    sz = opts.sizes
+    rig = one_axis_rig(opts.rig_path)
+    loop = servotune.Loop.from_rig(rig, [PI_GAINS])
+    n_c, n_t = sz.batch_candidates, sz.batch_ticks
+    ref = reference_counts(n_t, rig.period_s)
+    inputs = servotune.Inputs.hold(n_t, 1).replace_axis(0, mode=1, ref_counts=ref)
+    plants = candidate_plants(rig.axes[0].plant, n_c)
+    progress(f"batched: prepare_batch for {n_c} candidates")
+    setup_times, batch = timed_runs(
+        lambda: servotune.prepare_batch(loop, plants=plants, seeds=1), sz.batch_runs
+    )
+    setup_s = statistics.median(setup_times)
+    servotune.run_batch(batch, inputs, metrics_only=True, threads=2)  # warm-up
+    figures = [Figure("batch_setup_s", setup_s, "s")]
+    metrics = {}
+    rate_name = "batched_candidate_ticks_per_s"
+    for threads, name in ((2, rate_name), (1, f"{rate_name}_1thread")):
+        progress(f"batched: {n_c} candidates x {n_t} ticks, {threads} thread(s)")
+        times, res = timed_runs(
+            lambda th=threads: servotune.run_batch(batch, inputs, metrics_only=True, threads=th),
+            sz.batch_runs,
+        )
+        metrics[threads] = res.metrics
+        rate = n_c * n_t / statistics.median(times)
+        progress(f"batched: {rate:.4g} ticks/s (runs {[f'{t:.3f}' for t in times]} s)")
+        figures.append(Figure(name, rate, "ticks/s"))
+    check_batch_metrics(metrics[2], metrics[1])
+    return figures
+
+
+def check_batch_metrics(m2: np.ndarray, m1: np.ndarray) -> None:
+    """Check batched metrics: finite, and the same with 2 threads as with 1.
+
+    Parameters
+    ----------
+    m2, m1 : ndarray, shape (candidates, axes, metrics)
+        Metrics of the 2-thread and the 1-thread runs.
+
+    Raises
+    ------
+    BenchMismatchError
+        If a metric is not finite or the thread counts disagree.
+    """
+    if not np.all(np.isfinite(m2)):
+        raise BenchMismatchError("batched: non-finite metrics")
+    if not np.array_equal(m2, m1):
+        raise BenchMismatchError("batched: metrics differ between 2 threads and 1 thread")
+    worst = m2.max(axis=(0, 1))
+    progress(
+        "batched: worst over candidates: "
+        + ", ".join(f"{k} {v:.4g}" for k, v in zip(METRIC_NAMES, worst, strict=True))
+    )
+
+
+# --- report ----------------------------------------------------------------------------------
+
+
+def cpu_model() -> str:
+    """CPU model name from ``/proc/cpuinfo`` (else :func:`platform.processor`)."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            key, _, value = line.partition(":")
+            if key.strip() in ("model name", "Model", "cpu model"):
+                return value.strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
+
+
+def environment() -> dict[str, Any]:
+    """Versions and machine the figures were measured on."""
+
+    def version(dist: str) -> str:
+        try:
+            return metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            return "unknown"
+
+    return {
+        "control": control.__version__,
+        "cpu_model": cpu_model(),
+        "logical_cpus": os.cpu_count(),
+        "numba": numba.__version__,
+        "numba_threads": numba.config.NUMBA_NUM_THREADS,
+        "numpy": np.__version__,
+        "platform": platform.platform(),
+        "python": platform.python_version(),
+        "scipy": version("scipy"),
+        "servotune": servotune.__version__,
+    }
+
+
+def report(figures: Sequence[Figure], quick: bool) -> dict[str, Any]:
+    """The JSON report (schema ``servotune.bench/1``).
+
+    Parameters
+    ----------
+    figures : sequence of Figure
+    quick : bool
+        Whether the figures come from ``--quick`` sizes.
+
+    Returns
+    -------
+    dict
+    """
+    figs: dict[str, dict[str, Any]] = {}
+    for f in figures:
+        entry: dict[str, Any] = {"unit": f.unit, "value": float(f.value)}
+        if f.note:
+            entry["note"] = f.note
+        figs[f.name] = entry
+    return {"environment": environment(), "figures": figs, "quick": quick, "schema": SCHEMA}
+
+
+def write_json(path: Path, data: dict[str, Any]) -> None:
+    """Write JSON atomically (a temporary file in the same folder, then :func:`os.replace`).
+
+    Parameters
+    ----------
+    path : Path
+    data : dict
+    """
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            json.dump(data, fh, indent=2, sort_keys=True)
+            fh.write("\n")
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.chmod(tmp, 0o644)  # mkstemp creates the file private (0600)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    """Command-line arguments."""
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", type=Path, help="write the JSON report here (e.g. reports/bench.json)")
+    ap.add_argument(
+        "--only", nargs="+", choices=sorted(BENCHES), metavar="NAME",
+        help=f"run only these benchmarks ({', '.join(BENCHES)})",
+    )  # fmt: skip
+    ap.add_argument("--quick", action="store_true", help="small sizes (smoke test)")
+    return ap.parse_args(argv)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the selected benchmarks, print the figures, write the report.
+
+    Parameters
+    ----------
+    argv : sequence of str, optional
+        Arguments (default ``sys.argv[1:]``).
+
+    Returns
+    -------
+    int
+        Exit status.
+    """
+    args = parse_args(argv)
+    opts = Options(quick=args.quick)
+    names = [n for n in BENCHES if args.only is None or n in args.only]
+    figures: list[Figure] = []
+    for name in names:
+        progress(f"{name} ...")
+        t0 = time.perf_counter()
+        for fig in BENCHES[name](opts):
+            print(f"bench: {fig.name} {fig.value:.6g} {fig.unit}", flush=True)
+            figures.append(fig)
+        progress(f"{name} done in {time.perf_counter() - t0:.1f} s")
+    if args.out is not None:
+        write_json(args.out, report(figures, args.quick))
+        progress(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
