@@ -443,6 +443,7 @@ def run_batch(
             out_i,
             out_f,
             metrics,
+            LANES,
         )
     finally:
         nb.set_num_threads(old_threads)
@@ -534,156 +535,177 @@ def _normal(state: np.uint64) -> tuple[np.uint64, float]:
     return state, math.sqrt(-2.0 * math.log(u1)) * math.cos(2.0 * math.pi * u2)
 
 
+LANES = 2
+"""Candidates interleaved per thread: independent lanes let the CPU overlap their tick chains."""
+
+
 @nb.njit(cache=True)
-def _run_one(
-    b, pf, pi, consts, gains, seeds, src, ref, mode, reset, u_add, load,
+def _run_group(
+    b0, n_group, pf, pi, consts, gains, seeds, src, ref, mode, reset, u_add, load,
     bits, latched, skew, dac_lo, lsb, ideal, ring, m_from, period, out_i, out_f, metrics,
 ):  # fmt: skip
+    # lane ln = g * n_ax + a runs axis a of candidate b0 + g; lanes never interact across
+    # candidates and each candidate draws its own noise stream, so grouping changes no result
     n_ax = pf.shape[1]
+    n_l = n_group * n_ax
     nt = ref.shape[0]
     rec = out_i.shape[2] > 0
     mask = (np.int64(1) << bits) - 1
     nbytes = bits // 8
-    st = np.zeros((n_ax, N_STATE), dtype=np.int64)
-    hist = np.zeros((n_ax, ring))
-    pos = np.zeros(n_ax)
-    spd = np.zeros(n_ax)
-    y = np.zeros(n_ax, dtype=np.int64)
-    yf = np.zeros(n_ax)
-    integ_f = np.zeros(n_ax)
-    target_f = np.zeros(n_ax)
-    mode_f = np.zeros(n_ax, dtype=np.int64)
-    rng = seeds[b]
-    pfb = pf[b].copy()
-    pib = pi[b].copy()
-    cb = consts[b].copy()
-    gb = gains[b].copy()
-    mt = np.zeros((n_ax, metrics.shape[2]))
-    for a in range(n_ax):
-        mt[a, 4] = -1.0
+    st = np.zeros((n_l, N_STATE), dtype=np.int64)
+    hist = np.zeros((n_l, ring))
+    pos = np.zeros(n_l)
+    spd = np.zeros(n_l)
+    y = np.zeros(n_l, dtype=np.int64)
+    yf = np.zeros(n_l)
+    integ_f = np.zeros(n_l)
+    target_f = np.zeros(n_l)
+    mode_f = np.zeros(n_l, dtype=np.int64)
+    rng = seeds[b0 : b0 + n_group].copy()
+    pfb = pf[b0 : b0 + n_group].copy().reshape(n_l, pf.shape[2])
+    pib = pi[b0 : b0 + n_group].copy().reshape(n_l, pi.shape[2])
+    cb = consts[b0 : b0 + n_group].copy().reshape(n_l, consts.shape[2])
+    gb = gains[b0 : b0 + n_group].copy().reshape(n_l, gains.shape[2])
+    mt = np.zeros((n_l, metrics.shape[2]))
+    lane_ax = np.empty(n_l, dtype=np.int64)
+    lane_g = np.empty(n_l, dtype=np.int64)
+    for ln in range(n_l):
+        lane_g[ln] = ln // n_ax
+        lane_ax[ln] = ln - lane_g[ln] * n_ax
+        mt[ln, 4] = -1.0
     slot = ring - 1
     for k in range(nt):
         slot += 1
         if slot == ring:
             slot = 0
         # 1-2. sample and unwrap, every axis
-        for a in range(n_ax):
-            p = pos[a]
+        for ln in range(n_l):
+            a = lane_ax[ln]
+            p = pos[ln]
             nz = 0.0
-            if pfb[a, _P_NOISE] > 0.0:
-                rng, g = _normal(rng)
-                nz = g * pfb[a, _P_NOISE]
+            if pfb[ln, _P_NOISE] > 0.0:
+                g_l = lane_g[ln]
+                rng[g_l], g = _normal(rng[g_l])
+                nz = g * pfb[ln, _P_NOISE]
             if ideal:
-                yf[a] = p + nz
+                yf[ln] = p + nz
                 continue
             if latched:
                 cnt = np.int64(math.floor(p + nz))
-                raw = (pib[a, _I_INIT] + cnt) & mask
+                raw = (pib[ln, _I_INIT] + cnt) & mask
             else:
                 raw = np.int64(0)
                 for j in range(nbytes):
-                    cj = np.int64(math.floor(p + spd[a] * (j * skew) + nz))
-                    rj = (pib[a, _I_INIT] + cj) & mask
+                    cj = np.int64(math.floor(p + spd[ln] * (j * skew) + nz))
+                    rj = (pib[ln, _I_INIT] + cj) & mask
                     raw |= rj & (np.int64(0xFF) << (8 * j))
-            y[a] = axis_read(st, cb, a, raw, reset[k, a])
+            y[ln] = axis_read(st, cb, ln, raw, reset[k, a])
             if rec:
-                out_i[1, b, k, a] = raw
+                out_i[1, b0 + lane_g[ln], k, a] = raw
         # 3-4. control law and D/A, every axis
-        for a in range(n_ax):
+        for ln in range(n_l):
+            a = lane_ax[ln]
             s = src[a]
+            base = ln - a
             if ideal:
-                r = float(ref[k, a]) if s < 0 else yf[s]
+                r = float(ref[k, a]) if s < 0 else yf[base + s]
                 md = mode[k, a]
                 if md == MODE_LOCK:
-                    if mode_f[a] != MODE_LOCK or k == 0:
-                        target_f[a] = yf[a]
-                    e_f = target_f[a] - yf[a]
-                    u = gb[a, _G_LOCK] * e_f
+                    if mode_f[ln] != MODE_LOCK or k == 0:
+                        target_f[ln] = yf[ln]
+                    e_f = target_f[ln] - yf[ln]
+                    u = gb[ln, _G_LOCK] * e_f
                 elif md == MODE_TASK:
-                    e_f = r - yf[a]
-                    u, integ_f[a] = pi_ideal_step(gb[a, _G_KP], gb[a, _G_KIT], integ_f[a], e_f)
+                    e_f = r - yf[ln]
+                    u, integ_f[ln] = pi_ideal_step(gb[ln, _G_KP], gb[ln, _G_KIT], integ_f[ln], e_f)
                 else:
                     e_f = 0.0
                     u = float(u_add[k, a])
-                mode_f[a] = md
+                mode_f[ln] = md
                 volts = u * lsb
                 code = 0
                 flags = 0
                 e = np.int64(math.floor(e_f + 0.5))
                 cur_mode = md
             else:
-                r = ref[k, a] if s < 0 else y[s]
-                code, flags, e = axis_control(st, cb, a, r, mode[k, a], reset[k, a], u_add[k, a])
+                r = ref[k, a] if s < 0 else y[base + s]
+                code, flags, e = axis_control(st, cb, ln, r, mode[k, a], reset[k, a], u_add[k, a])
                 volts = dac_lo + code * lsb
-                cur_mode = st[a, S_MODE]
-            hist[a, slot] = volts
+                cur_mode = st[ln, S_MODE]
+            hist[ln, slot] = volts
             if rec:
+                b = b0 + lane_g[ln]
                 out_i[0, b, k, a] = code
-                out_i[2, b, k, a] = y[a]
+                out_i[2, b, k, a] = y[ln]
                 out_i[3, b, k, a] = e
                 out_i[4, b, k, a] = cur_mode
                 out_i[5, b, k, a] = flags
                 out_f[0, b, k, a] = volts
-                out_f[1, b, k, a] = pos[a]
-                out_f[2, b, k, a] = spd[a]
+                out_f[1, b, k, a] = pos[ln]
+                out_f[2, b, k, a] = spd[ln]
             # metrics
-            if flags & 3 and mt[a, 4] < 0.0:
-                mt[a, 4] = k
+            if flags & 3 and mt[ln, 4] < 0.0:
+                mt[ln, 4] = k
             if flags & FLAG_SATURATED:
-                mt[a, 3] += 1.0
+                mt[ln, 3] += 1.0
             if k >= m_from and cur_mode == MODE_TASK:
                 ae = abs(float(e))
-                if ae > mt[a, 0]:
-                    mt[a, 0] = ae
-                mt[a, 1] += ae * ae
-                mt[a, 2] += (k - m_from) * period * ae * period
-                mt[a, 6] += 1.0
-            mt[a, 5] = e
+                if ae > mt[ln, 0]:
+                    mt[ln, 0] = ae
+                mt[ln, 1] += ae * ae
+                mt[ln, 2] += (k - m_from) * period * ae * period
+                mt[ln, 6] += 1.0
+            mt[ln, 5] = e
         # 5-6. hold the writes and move the plants to the next tick
-        for a in range(n_ax):
-            m = pib[a, _I_LAG]
-            w_off = pfb[a, _P_OFFSET] + load[k, a]
+        for ln in range(n_l):
+            a = lane_ax[ln]
+            m = pib[ln, _I_LAG]
+            w_off = pfb[ln, _P_OFFSET] + load[k, a]
             j_new = slot - m
             if j_new < 0:
                 j_new += ring
-            v_new = hist[a, j_new] if k >= m else 0.0
+            v_new = hist[ln, j_new] if k >= m else 0.0
             j_old = j_new - 1
             if j_old < 0:
                 j_old += ring
-            v_old = hist[a, j_old] if k >= m + 1 else 0.0
-            p, v = pos[a], spd[a]
+            v_old = hist[ln, j_old] if k >= m + 1 else 0.0
+            p, v = pos[ln], spd[ln]
             w_new = v_new + w_off
-            w_old = (v_old + w_off) if pfb[a, _P_H1] > 0.0 else w_new
-            vmax = pfb[a, _P_VMAX]
-            g = pfb[a, _P_GAIN]
-            if pfb[a, _P_LINEAR] > 0.0 and abs(w_new) * g <= vmax and abs(w_old) * g <= vmax:
+            w_old = (v_old + w_off) if pfb[ln, _P_H1] > 0.0 else w_new
+            vmax = pfb[ln, _P_VMAX]
+            gain = pfb[ln, _P_GAIN]
+            if pfb[ln, _P_LINEAR] > 0.0 and abs(w_new) * gain <= vmax and abs(w_old) * gain <= vmax:
                 # no friction and the speed limit cannot bind: the exact linear one-tick map
-                p = p + pfb[a, _P_PHI_B] * v + pfb[a, _P_GO_P] * w_old + pfb[a, _P_GN_P] * w_new
-                v = pfb[a, _P_PHI_A] * v + pfb[a, _P_GO_V] * w_old + pfb[a, _P_GN_V] * w_new
+                p = p + pfb[ln, _P_PHI_B] * v + pfb[ln, _P_GO_P] * w_old + pfb[ln, _P_GN_P] * w_new
+                v = pfb[ln, _P_PHI_A] * v + pfb[ln, _P_GO_V] * w_old + pfb[ln, _P_GN_V] * w_new
             else:
-                if pfb[a, _P_H1] > 0.0:
+                if pfb[ln, _P_H1] > 0.0:
                     p, v = advance(
-                        p, v, w_old, pfb[a, _P_H1], pfb[a, _P_A1], pfb[a, _P_B1],
-                        pfb[a, _P_GAIN], pfb[a, _P_TAU], pfb[a, _P_COULOMB], pfb[a, _P_VMAX],
+                        p, v, w_old, pfb[ln, _P_H1], pfb[ln, _P_A1], pfb[ln, _P_B1],
+                        gain, pfb[ln, _P_TAU], pfb[ln, _P_COULOMB], vmax,
                     )  # fmt: skip
                 p, v = advance(
-                    p, v, w_new, pfb[a, _P_H2], pfb[a, _P_A2], pfb[a, _P_B2],
-                    pfb[a, _P_GAIN], pfb[a, _P_TAU], pfb[a, _P_COULOMB], pfb[a, _P_VMAX],
+                    p, v, w_new, pfb[ln, _P_H2], pfb[ln, _P_A2], pfb[ln, _P_B2],
+                    gain, pfb[ln, _P_TAU], pfb[ln, _P_COULOMB], vmax,
                 )  # fmt: skip
-            pos[a], spd[a] = p, v
-    for a in range(n_ax):
-        cnt = mt[a, 6]
-        mt[a, 1] = math.sqrt(mt[a, 1] / cnt) if cnt > 0 else 0.0
-    metrics[b] = mt
+            pos[ln], spd[ln] = p, v
+    for ln in range(n_l):
+        cnt = mt[ln, 6]
+        mt[ln, 1] = math.sqrt(mt[ln, 1] / cnt) if cnt > 0 else 0.0
+        metrics[b0 + lane_g[ln], lane_ax[ln]] = mt[ln]
 
 
 @nb.njit(cache=True, parallel=True)
 def _kernel(
     pf, pi, consts, gains, seeds, src, ref, mode, reset, u_add, load,
-    bits, latched, skew, dac_lo, lsb, ideal, ring, m_from, period, out_i, out_f, metrics,
+    bits, latched, skew, dac_lo, lsb, ideal, ring, m_from, period, out_i, out_f, metrics, lanes,
 ):  # fmt: skip
-    for b in nb.prange(pf.shape[0]):
-        _run_one(
-            b, pf, pi, consts, gains, seeds, src, ref, mode, reset, u_add, load,
-            bits, latched, skew, dac_lo, lsb, ideal, ring, m_from, period, out_i, out_f, metrics,
+    n = pf.shape[0]
+    n_groups = (n + lanes - 1) // lanes
+    for gi in nb.prange(n_groups):
+        b0 = gi * lanes
+        _run_group(
+            b0, min(lanes, n - b0), pf, pi, consts, gains, seeds, src, ref, mode, reset, u_add,
+            load, bits, latched, skew, dac_lo, lsb, ideal, ring, m_from, period, out_i, out_f,
+            metrics,
         )  # fmt: skip

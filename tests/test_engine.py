@@ -252,3 +252,25 @@ def test_non_latched_reads_tear_and_latched_do_not(rig: st.Rig) -> None:
     d_torn = np.abs(torn.pos_counts[:, 0] - np.floor(torn.true_pos_counts[:, 0]))
     assert d_latched.max() == 0
     assert d_torn.max() >= 200  # a byte carry missed
+
+
+@pytest.mark.parametrize("lanes", [1, 3])
+def test_lane_grouping_changes_no_result(
+    rig: st.Rig, lanes: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # candidates are interleaved per thread (engine.LANES); 5 candidates leave a partial group
+    import servotune.engine as engine
+
+    loop = st.Loop.from_rig(rig, default_pi_gains(rig))
+    scen = st.build_scenario(rig, "track", axis="master", seconds=1.0)
+    p = rig.axes[0].plant
+    variants = [
+        (dataclasses.replace(p, tau_s=p.tau_s * (1 + 0.1 * i)), rig.axes[1].plant) for i in range(5)
+    ]
+    batch = st.prepare_batch(loop, plants=variants, seeds=[3, 1, 4, 1, 5])
+    ref = st.run_batch(batch, scen.inputs, metrics_only=False)
+    monkeypatch.setattr(engine, "LANES", lanes)
+    got = st.run_batch(batch, scen.inputs, metrics_only=False)
+    for key in ("code", "counter", "flags"):
+        np.testing.assert_array_equal(got.traces[key], ref.traces[key])
+    np.testing.assert_array_equal(got.metrics, ref.metrics)
