@@ -33,7 +33,7 @@ from servotune.laws.axis import (
     axis_read,
 )
 from servotune.laws.pi import pi_ideal_step
-from servotune.plant import Plant, advance, lag_split, step_coefficients, tick_coefficients
+from servotune.plant import NROW, R_NOISE, R_OFFSET, Plant, advance_tick, plant_row
 from servotune.rig import Rig
 from servotune.scenarios import Inputs
 
@@ -48,13 +48,8 @@ __all__ = [
     "simulate",
 ]
 
-# plant parameter layout (float64, per candidate and axis)
-_P_GAIN, _P_TAU, _P_OFFSET, _P_COULOMB, _P_VMAX, _P_NOISE = 0, 1, 2, 3, 4, 5
-_P_A1, _P_B1, _P_A2, _P_B2, _P_H1, _P_H2 = 6, 7, 8, 9, 10, 11
-# exact one-tick linear map (used while no nonlinearity can act), see plant.tick_coefficients
-_P_PHI_B, _P_PHI_A, _P_GO_P, _P_GO_V, _P_GN_P, _P_GN_V, _P_LINEAR = 12, 13, 14, 15, 16, 17, 18
-_NPF = 19
-# integer parameters: whole ticks of lag, counter register at start
+# plant rows (float64, per candidate and axis): servotune.plant.plant_row; integer parameters:
+# whole ticks of lag, counter register at start
 _I_LAG, _I_INIT = 0, 1
 _NPI = 2
 # ideal-law gains (float64): lock, kp, ki*T
@@ -234,29 +229,10 @@ class BatchResult:
 
 
 def _plant_rows(rig: Rig, plants: Sequence[Plant]) -> tuple[np.ndarray, np.ndarray]:
-    period = rig.period_s
-    pf = np.zeros((len(plants), _NPF))
+    pf = np.zeros((len(plants), NROW))
     pi = np.zeros((len(plants), _NPI), dtype=np.int64)
     for i, (axis, pl) in enumerate(zip(rig.axes, plants, strict=True)):
-        m, lam = lag_split(rig.timer.compute_s + pl.delay_s, period)
-        a1, b1 = step_coefficients(lam, pl.tau_s)
-        a2, b2 = step_coefficients(period - lam, pl.tau_s)
-        pf[i] = (
-            pl.gain_cps_per_v,
-            pl.tau_s,
-            pl.offset_v,
-            pl.coulomb_v,
-            pl.max_speed_cps(rig.counts_per_rev),
-            pl.noise_counts,
-            a1,
-            b1,
-            a2,
-            b2,
-            lam,
-            period - lam,
-            *tick_coefficients(period, lam, pl.gain_cps_per_v, pl.tau_s),
-            1.0 if pl.coulomb_v == 0.0 else 0.0,
-        )
+        pf[i], m = plant_row(pl, rig.period_s, rig.timer.compute_s, rig.counts_per_rev)
         pi[i] = (m, axis.counter_init)
     return pf, pi
 
@@ -321,7 +297,7 @@ def prepare_batch(
     plant_sets = plants if plants is not None else [tuple(a.plant for a in rig.axes)] * n
     ctl_sets = controllers if controllers is not None else [loop.controllers] * n
     n_ax = len(rig.axes)
-    pf = np.zeros((n, n_ax, _NPF))
+    pf = np.zeros((n, n_ax, NROW))
     pi = np.zeros((n, n_ax, _NPI), dtype=np.int64)
     consts = np.zeros(
         (n, n_ax, len(loop.controllers[0].consts(counter_bits=24, dac_bits=12, dac_zero=2048))),
@@ -583,10 +559,10 @@ def _run_group(
             a = lane_ax[ln]
             p = pos[ln]
             nz = 0.0
-            if pfb[ln, _P_NOISE] > 0.0:
+            if pfb[ln, R_NOISE] > 0.0:
                 g_l = lane_g[ln]
                 rng[g_l], g = _normal(rng[g_l])
-                nz = g * pfb[ln, _P_NOISE]
+                nz = g * pfb[ln, R_NOISE]
             if ideal:
                 yf[ln] = p + nz
                 continue
@@ -660,7 +636,7 @@ def _run_group(
         for ln in range(n_l):
             a = lane_ax[ln]
             m = pib[ln, _I_LAG]
-            w_off = pfb[ln, _P_OFFSET] + load[k, a]
+            w_off = pfb[ln, R_OFFSET] + load[k, a]
             j_new = slot - m
             if j_new < 0:
                 j_new += ring
@@ -669,26 +645,9 @@ def _run_group(
             if j_old < 0:
                 j_old += ring
             v_old = hist[ln, j_old] if k >= m + 1 else 0.0
-            p, v = pos[ln], spd[ln]
             w_new = v_new + w_off
-            w_old = (v_old + w_off) if pfb[ln, _P_H1] > 0.0 else w_new
-            vmax = pfb[ln, _P_VMAX]
-            gain = pfb[ln, _P_GAIN]
-            if pfb[ln, _P_LINEAR] > 0.0 and abs(w_new) * gain <= vmax and abs(w_old) * gain <= vmax:
-                # no friction and the speed limit cannot bind: the exact linear one-tick map
-                p = p + pfb[ln, _P_PHI_B] * v + pfb[ln, _P_GO_P] * w_old + pfb[ln, _P_GN_P] * w_new
-                v = pfb[ln, _P_PHI_A] * v + pfb[ln, _P_GO_V] * w_old + pfb[ln, _P_GN_V] * w_new
-            else:
-                if pfb[ln, _P_H1] > 0.0:
-                    p, v = advance(
-                        p, v, w_old, pfb[ln, _P_H1], pfb[ln, _P_A1], pfb[ln, _P_B1],
-                        gain, pfb[ln, _P_TAU], pfb[ln, _P_COULOMB], vmax,
-                    )  # fmt: skip
-                p, v = advance(
-                    p, v, w_new, pfb[ln, _P_H2], pfb[ln, _P_A2], pfb[ln, _P_B2],
-                    gain, pfb[ln, _P_TAU], pfb[ln, _P_COULOMB], vmax,
-                )  # fmt: skip
-            pos[ln], spd[ln] = p, v
+            w_old = v_old + w_off
+            pos[ln], spd[ln] = advance_tick(pos[ln], spd[ln], w_old, w_new, pfb[ln])
     for ln in range(n_l):
         cnt = mt[ln, 6]
         mt[ln, 1] = math.sqrt(mt[ln, 1] / cnt) if cnt > 0 else 0.0

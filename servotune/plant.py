@@ -22,10 +22,13 @@ import numba as nb
 import numpy as np
 
 __all__ = [
+    "NROW",
     "Plant",
     "advance",
+    "advance_tick",
     "discretize",
     "lag_split",
+    "plant_row",
     "step_coefficients",
     "tick_coefficients",
 ]
@@ -285,3 +288,82 @@ def lag_split(lag_s: float, period_s: float) -> tuple[int, float]:
     if lam < period_s * 1e-12:
         lam = 0.0
     return int(m), float(lam)
+
+
+# --- the discretised plant of one tick (shared by the engine and the identifier) -----------
+
+R_GAIN, R_TAU, R_OFFSET, R_COULOMB, R_VMAX, R_NOISE = 0, 1, 2, 3, 4, 5
+R_A1, R_B1, R_A2, R_B2, R_H1, R_H2 = 6, 7, 8, 9, 10, 11
+R_PHI_B, R_PHI_A, R_GO_P, R_GO_V, R_GN_P, R_GN_V, R_LINEAR = 12, 13, 14, 15, 16, 17, 18
+NROW = 19
+"""Length of a plant row (:func:`plant_row`)."""
+
+
+def plant_row(
+    plant: Plant, period_s: float, compute_s: float = 0.0, counts_per_rev: float = math.inf
+) -> tuple[np.ndarray, int]:
+    """Everything :func:`advance_tick` needs for one plant, and the whole ticks of lag.
+
+    Parameters
+    ----------
+    plant : Plant
+    period_s : float
+        Tick period [s].
+    compute_s : float
+        Tick start → D/A write [s]; the motor input lags ``compute_s + delay_s``.
+    counts_per_rev : float
+        For the drive speed limit [counts/rev] (``inf``: no limit applies).
+
+    Returns
+    -------
+    row : ndarray, shape (NROW,)
+    lag_ticks : int
+        ``m`` in ``lag = m·T + λ``: the write of tick ``k − m`` acts from ``λ`` into tick ``k``.
+    """
+    m, lam = lag_split(compute_s + plant.delay_s, period_s)
+    a1, b1 = step_coefficients(lam, plant.tau_s)
+    a2, b2 = step_coefficients(period_s - lam, plant.tau_s)
+    vmax = plant.max_speed_cps(counts_per_rev) if math.isfinite(counts_per_rev) else math.inf
+    row = np.array(
+        [
+            plant.gain_cps_per_v,
+            plant.tau_s,
+            plant.offset_v,
+            plant.coulomb_v,
+            vmax,
+            plant.noise_counts,
+            a1,
+            b1,
+            a2,
+            b2,
+            lam,
+            period_s - lam,
+            *tick_coefficients(period_s, lam, plant.gain_cps_per_v, plant.tau_s),
+            1.0 if plant.coulomb_v == 0.0 else 0.0,
+        ]
+    )
+    return row, m
+
+
+@nb.njit(cache=True, inline="always")
+def advance_tick(
+    p: float, v: float, w_old: float, w_new: float, row: np.ndarray
+) -> tuple[float, float]:
+    """Move a plant over one tick: input ``w_old`` for ``λ``, then ``w_new`` [V, net of offset].
+
+    Uses the exact linear one-tick map while no nonlinearity can act (no friction, and the
+    speed limit cannot bind for either input), else :func:`advance` on both sub-intervals.
+    """
+    vmax = row[R_VMAX]
+    gain = row[R_GAIN]
+    if row[R_LINEAR] > 0.0 and abs(w_new) * gain <= vmax and abs(w_old) * gain <= vmax:
+        p_n = p + row[R_PHI_B] * v + row[R_GO_P] * w_old + row[R_GN_P] * w_new
+        v_n = row[R_PHI_A] * v + row[R_GO_V] * w_old + row[R_GN_V] * w_new
+        return p_n, v_n
+    if row[R_H1] > 0.0:
+        p, v = advance(
+            p, v, w_old, row[R_H1], row[R_A1], row[R_B1], gain, row[R_TAU], row[R_COULOMB], vmax
+        )
+    return advance(
+        p, v, w_new, row[R_H2], row[R_A2], row[R_B2], gain, row[R_TAU], row[R_COULOMB], vmax
+    )
