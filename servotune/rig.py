@@ -8,12 +8,21 @@ be silently ignored).
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import math
+import os
+import secrets
+import stat
 import tomllib
-from collections.abc import Mapping
+from collections.abc import Mapping, MutableMapping
 from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
+
+import tomlkit
+import tomlkit.exceptions
+import tomlkit.items
 
 from servotune.errors import RigError
 from servotune.hw import counter as hw_counter
@@ -23,6 +32,7 @@ from servotune.laws.lock import lock_holding_band
 from servotune.plant import Plant
 
 __all__ = [
+    "EXAMPLE_RIG_PATH",
     "Axis",
     "Counter",
     "Dac",
@@ -32,6 +42,7 @@ __all__ = [
     "describe_rig",
     "load_rig",
     "rig_from_dict",
+    "write_plant",
 ]
 
 
@@ -479,3 +490,266 @@ def describe_rig(rig: Rig) -> dict[str, Any]:
         "unwrap_max_counts_per_tick": hw_counter.max_counts_per_tick(c.bits),
         "unwrap_speed_limit_rpm": unwrap_rpm,
     }
+
+
+# --- writing a plant section ---------------------------------------------------------------
+
+EXAMPLE_RIG_PATH = Path(__file__).resolve().parents[1] / "plants" / "pc-dual-servo.toml"
+"""The example rig of seed 000, the template :func:`write_plant` starts a new rig file from."""
+
+FLOAT_SIGNIFICANT_DIGITS = 7
+"""Significant digits :func:`write_plant` keeps of each parameter (relative error <= 5e-7)."""
+
+_FITTED_KEYS = ("gain_cps_per_v", "tau_s", "delay_s", "offset_v", "coulomb_v")
+# Settings of the hardware that a fit does not estimate: written only when the plant sets them
+# (differs from the Plant default), otherwise the file's values stay.
+_KEPT_KEYS = ("max_speed_rpm", "noise_counts")
+
+
+def _toml_float(value: float) -> str:
+    """TOML text of ``value`` rounded to :data:`FLOAT_SIGNIFICANT_DIGITS` significant digits.
+
+    The rounded number is written with ``repr``, the shortest text that reads back as exactly
+    that float: ``12288.049999999999`` → ``12288.05``, ``0.0008`` → ``0.0008``, ``12288`` →
+    ``12288.0``, ``1.5e-05`` → ``1.5e-05`` (valid TOML). ``-0.0`` is written as ``0.0``.
+    """
+    x = float(f"{float(value):.{FLOAT_SIGNIFICANT_DIGITS}g}")
+    if x == 0.0:
+        x = 0.0
+    return repr(x)
+
+
+def _set_float(table: MutableMapping[str, Any], key: str, value: float) -> float:
+    """Set ``table[key]`` to ``value`` (rounded, see :func:`_toml_float`); return what is written.
+
+    An existing entry that already holds that value keeps its text (``0.030`` stays ``0.030``).
+    A replaced entry keeps its trailing comment, at the same column where the new value allows.
+    """
+    text = _toml_float(value)
+    number = float(text)
+    old = table.get(key)
+    if _is_number(old) and float(old) == number:
+        return float(old)
+    item = tomlkit.value(text)
+    if isinstance(old, tomlkit.items.Item) and old.trivia.comment:
+        ws = old.trivia.comment_ws
+        column = len(old.as_string()) + len(ws)
+        item.trivia.comment_ws = " " * max(column - len(text), min(len(ws), 2), 1)
+        item.trivia.comment = old.trivia.comment
+    table[key] = item
+    return number
+
+
+def _one_line(provenance: str) -> str:
+    line = provenance.strip()
+    bad = [c for c in line if (ord(c) < 0x20 and c != "\t") or ord(c) == 0x7F]
+    if bad:
+        raise RigError(
+            f"provenance must be one line of text without control characters, got {provenance!r}"
+        )
+    return line
+
+
+def _plant_section(
+    text: str, source: Path, axis: str, plant: Plant, provenance: str | None
+) -> tuple[str, dict[str, float]]:
+    """``text`` with the plant table of ``axis`` rewritten, and the values written."""
+    try:
+        doc = tomlkit.parse(text)
+    except tomlkit.exceptions.TOMLKitError as exc:
+        raise RigError(f"rig file {str(source)!r} is not valid TOML: {exc}") from None
+    axes = doc.get("axis")
+    names = list(axes) if isinstance(axes, Mapping) else []
+    if not isinstance(axes, MutableMapping) or axis not in axes:
+        raise RigError(
+            f"no axis {axis!r} in rig file {str(source)!r}; axes: {names}. "
+            f"Choose one of these or add an [axis.{axis}] table first."
+        )
+    axis_table = axes[axis]
+    if not isinstance(axis_table, MutableMapping):
+        raise RigError(f"[axis.{axis}] in {str(source)!r} must be a table")
+    if "plant" not in axis_table:
+        axis_table["plant"] = tomlkit.table()
+    table = axis_table["plant"]
+    if not isinstance(table, MutableMapping):
+        raise RigError(f"[axis.{axis}.plant] in {str(source)!r} must be a table")
+
+    written = {key: _set_float(table, key, getattr(plant, key)) for key in _FITTED_KEYS}
+    defaults = {f.name: f.default for f in fields(Plant)}
+    for key in _KEPT_KEYS:
+        value = getattr(plant, key)
+        if value != defaults[key]:
+            written[key] = _set_float(table, key, value)
+
+    if provenance is not None:
+        line = _one_line(provenance)
+        trivia = getattr(table, "trivia", None)
+        if trivia is None:
+            raise RigError(
+                f"[axis.{axis}.plant] in {str(source)!r} is written with dotted keys "
+                f"(plant.tau_s = ...), which leaves no header for the provenance comment; "
+                f"write it as an [axis.{axis}.plant] table or pass provenance=None"
+            )
+        if line:
+            trivia.comment_ws = trivia.comment_ws or "  "
+            trivia.comment = f"# {line}"
+        else:
+            trivia.comment_ws = ""
+            trivia.comment = ""
+    return doc.as_string(), written
+
+
+def _write_atomic(target: Path, data: bytes) -> None:
+    """Write ``data`` to a new file next to ``target`` and move it over ``target``.
+
+    The file keeps the mode of the file it replaces (a new file gets 0o666 less the umask).
+    On any error the temporary file is removed and ``target`` is untouched.
+    """
+    try:
+        mode: int | None = stat.S_IMODE(target.stat().st_mode)
+    except FileNotFoundError:
+        mode = None
+    while True:
+        tmp = target.with_name(f".{target.name}.{secrets.token_hex(6)}.tmp")
+        try:
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        except FileExistsError:
+            continue
+        break
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        if mode is not None:
+            os.chmod(tmp, mode)
+        os.replace(tmp, target)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def write_plant(
+    path: str | Path,
+    axis: str,
+    plant: Plant,
+    *,
+    template: str | Path = EXAMPLE_RIG_PATH,
+    provenance: str | None = None,
+) -> None:
+    """Write one axis's model into the ``[axis.<axis>.plant]`` table of a rig file.
+
+    What ``servotune fit LOG -o RIG.toml`` does with the fitted plant. The file is edited, not
+    regenerated: every comment and the layout of the rest of the file stay byte for byte; only
+    the entries of that one table change.
+
+    - The fitted parameters ``gain_cps_per_v`` [counts/s/V], ``tau_s`` [s], ``delay_s`` [s],
+      ``offset_v`` [V] and ``coulomb_v`` [V] are always written (added if missing).
+    - ``max_speed_rpm`` [r/min] and ``noise_counts`` [counts] describe the drive and the encoder
+      rather than the fit: the file's values stay unless ``plant`` sets them (differs from the
+      :class:`~servotune.plant.Plant` default, ``None`` and ``0.0``); then they are replaced.
+    - Numbers are rounded to 7 significant digits (:data:`FLOAT_SIGNIFICANT_DIGITS`, relative
+      error <= 5e-7) and written as the shortest text that reads back exactly as the rounded
+      number (``12288.049999999999`` → ``12288.05``). An entry that already holds the rounded
+      value keeps its text; a replaced entry keeps its trailing comment.
+    - Same inputs, same bytes.
+
+    Parameters
+    ----------
+    path : str or Path
+        The rig file to write. If it does not exist it is created from ``template``; its
+        directory must exist.
+    axis : str
+        Axis name, the ``<axis>`` of ``[axis.<axis>]``; the axis must already be in the file.
+    plant : Plant
+        The model to write (units as in :class:`~servotune.plant.Plant`).
+    template : str or Path
+        Rig file a new ``path`` starts from; default the example rig
+        ``plants/pc-dual-servo.toml`` (:data:`EXAMPLE_RIG_PATH`).
+    provenance : str or None
+        One line saying where the numbers come from, e.g. ``"fitted by servotune 0.1.0 from
+        log.csv, fit 98.1 %"``. It becomes the trailing comment of the table header
+        (``[axis.master.plant]  # fitted by ...``), replacing whatever comment was there, so
+        repeated writes do not accumulate lines. ``""`` removes that comment; ``None`` (default)
+        leaves it as it is.
+
+    Raises
+    ------
+    FileNotFoundError
+        If the directory of ``path`` does not exist (it is named in the message; nothing is
+        created).
+    RigError
+        If the file or the template cannot be read or is not TOML, if ``axis`` is not in it
+        (the message lists the axes there are), if ``provenance`` is not one line, or if the
+        result would not load with :func:`load_rig` (then nothing is written).
+    OSError
+        If writing fails; ``path`` is then unchanged and no temporary file is left.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from servotune.plant import Plant
+    >>> rig_file = Path(tempfile.mkdtemp()) / "my-rig.toml"
+    >>> fitted = Plant(gain_cps_per_v=12288.049999999999, tau_s=0.0262, delay_s=0.0009,
+    ...                offset_v=0.0048, coulomb_v=0.0021)
+    >>> write_plant(rig_file, "master", fitted, provenance="fitted by servotune from log.csv")
+    >>> p = load_rig(rig_file).axis("master").plant
+    >>> p.gain_cps_per_v, p.tau_s, p.max_speed_rpm  # max_speed_rpm kept from the template
+    (12288.05, 0.0262, 700)
+    >>> [line for line in rig_file.read_text().splitlines() if "fitted by" in line]
+    ['[axis.master.plant]  # fitted by servotune from log.csv']
+    """
+    if not isinstance(plant, Plant):
+        raise TypeError(f"plant must be a servotune.plant.Plant, got {type(plant).__name__}")
+    target = Path(path)
+    directory = target.parent
+    if not directory.is_dir():
+        raise FileNotFoundError(
+            errno.ENOENT,
+            f"cannot write rig file {str(target)!r}: its directory does not exist "
+            f"(create it first)",
+            str(directory),
+        )
+    source = target
+    try:
+        raw = target.read_bytes()
+    except FileNotFoundError:
+        source = Path(template)
+        try:
+            raw = source.read_bytes()
+        except OSError as exc:
+            raise RigError(
+                f"cannot read template rig file {str(source)!r}: {exc.strerror or exc}"
+            ) from None
+    except OSError as exc:
+        raise RigError(f"cannot read rig file {str(target)!r}: {exc.strerror or exc}") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise RigError(f"rig file {str(source)!r} is not valid TOML: {exc}") from None
+
+    new_text, written = _plant_section(text, source, axis, plant, provenance)
+
+    # The result must load as a rig, with the values just written, before anything is written.
+    try:
+        data = tomllib.loads(new_text)
+    except tomllib.TOMLDecodeError as exc:
+        raise RigError(
+            f"writing [axis.{axis}.plant] would make {str(target)!r} invalid TOML ({exc}); "
+            f"nothing written"
+        ) from None
+    try:
+        loaded = rig_from_dict(data, default_name=target.stem).axis(axis).plant
+    except RigError as exc:
+        raise RigError(
+            f"{str(target)!r} would not load after writing [axis.{axis}.plant] ({exc}); "
+            f"nothing written"
+        ) from None
+    wrong = sorted(k for k, v in written.items() if getattr(loaded, k) != v)
+    if wrong:
+        raise RigError(
+            f"[axis.{axis}.plant] in {str(target)!r} reads back different values for "
+            f"{', '.join(wrong)} (duplicate or dotted keys?); nothing written"
+        )
+    _write_atomic(target, new_text.encode("utf-8"))

@@ -263,10 +263,15 @@ def _excitation(
 
 
 def _prbs(rig: Rig, axis: str, n: int, closed_loop: bool) -> Scenario:
+    # multi-level PRBS: a two-level one has constant |u|, which confounds Coulomb friction
+    # with the gain; the level steps through 100, 40, 70, 25 % every 31 PRBS bits
     amp = excitation_amplitude_codes(rig, axis)
     tau = rig.axis(axis).plant.tau_s
     hold = max(1, math.floor(tau / rig.period_s + 0.5))
-    return _excitation(rig, axis, n, prbs_codes(n, amp, hold_ticks=hold), closed_loop, "prbs")
+    levels = np.array([1.0, 0.4, 0.7, 0.25])
+    scale = levels[(np.arange(n, dtype=np.int64) // (31 * hold)) % levels.size]
+    codes = np.floor(prbs_codes(n, amp, hold_ticks=hold) * scale + 0.5).astype(np.int64)
+    return _excitation(rig, axis, n, codes, closed_loop, "prbs")
 
 
 def _steps(rig: Rig, axis: str, n: int, closed_loop: bool) -> Scenario:

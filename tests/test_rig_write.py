@@ -1,0 +1,250 @@
+"""Writing a fitted plant into a rig file (``write_plant``): comments, layout, atomicity."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import stat
+import tomllib
+from pathlib import Path
+
+import pytest
+from conftest import EXAMPLE_RIG
+
+import servotune as st
+from servotune.plant import Plant
+from servotune.rig import EXAMPLE_RIG_PATH, write_plant
+
+# Awkward numbers, as a fit produces them (not the example rig's values).
+FITTED = Plant(
+    gain_cps_per_v=12288.049999999999,
+    tau_s=0.026234567891,
+    delay_s=0.00091234567,
+    offset_v=-0.0048123456,
+    coulomb_v=0.00213,
+)
+FITTED_KEYS = ("gain_cps_per_v", "tau_s", "delay_s", "offset_v", "coulomb_v")
+PROVENANCE = "fitted by servotune 0.1.0 from log.csv, structure delay+coulomb, fit 98.1 %"
+
+
+def _copy_example(tmp_path: Path, name: str = "rig.toml") -> Path:
+    p = tmp_path / name
+    p.write_bytes(EXAMPLE_RIG.read_bytes())
+    return p
+
+
+def _comments(text: str) -> list[str]:
+    # the example rig has no '#' inside strings, so everything from '#' on is a comment
+    return [line[line.index("#") :] for line in text.splitlines() if "#" in line]
+
+
+def _split_at_table(text: str, header: str) -> tuple[str, str, str]:
+    """(lines before the table header, the table, lines from the next header on)."""
+    lines = text.splitlines(keepends=True)
+    start = next(i for i, line in enumerate(lines) if line.startswith(header))
+    end = next((i for i in range(start + 1, len(lines)) if lines[i].startswith("[")), len(lines))
+    return "".join(lines[:start]), "".join(lines[start:end]), "".join(lines[end:])
+
+
+def test_example_template_is_the_example_rig() -> None:
+    assert EXAMPLE_RIG_PATH == EXAMPLE_RIG
+
+
+def test_comments_survive(tmp_path: Path) -> None:
+    p = _copy_example(tmp_path)
+    before = p.read_text()
+    assert len(_comments(before)) > 10  # full-line and trailing comments of the example rig
+    write_plant(p, "master", FITTED)
+    assert _comments(p.read_text()) == _comments(before)
+
+
+def test_only_the_target_table_changes(tmp_path: Path) -> None:
+    p = _copy_example(tmp_path)
+    before = p.read_text()
+    write_plant(p, "master", FITTED, provenance=PROVENANCE)
+    after = p.read_text()
+    assert after != before
+    # every other table holds the same data
+    old, new = tomllib.loads(before), tomllib.loads(after)
+    old_plant = old["axis"]["master"].pop("plant")
+    new_plant = new["axis"]["master"].pop("plant")
+    assert new == old
+    assert new_plant["max_speed_rpm"] == old_plant["max_speed_rpm"] == 700  # kept
+    assert new_plant["noise_counts"] == old_plant["noise_counts"] == 0.3  # kept
+    # and every line outside [axis.master.plant] is byte-identical
+    head_old, table_old, tail_old = _split_at_table(before, "[axis.master.plant]")
+    head_new, table_new, tail_new = _split_at_table(after, "[axis.master.plant]")
+    assert (head_new, tail_new) == (head_old, tail_old)
+    assert table_new != table_old
+    # the replaced entries keep their trailing comments, at the same column where they fit
+    assert "gain_cps_per_v = 12288.05  # 600 r/min at 10 V with 12288 counts/rev\n" in table_new
+    assert "offset_v = -0.004812346   # analog zero drift\n" in table_new  # same column as
+    assert "offset_v = 0.005          # analog zero drift\n" in table_old  # before
+
+
+def test_round_trip_through_load_rig(tmp_path: Path) -> None:
+    p = _copy_example(tmp_path)
+    write_plant(p, "master", FITTED)
+    rig = st.load_rig(p)
+    got = rig.axis("master").plant
+    for key in FITTED_KEYS:
+        assert getattr(got, key) == pytest.approx(getattr(FITTED, key), rel=1e-6), key
+    assert got.max_speed_rpm == 700  # hardware settings the fit does not estimate stay
+    assert got.noise_counts == 0.3
+    assert rig.axis("slave").plant == st.load_rig(EXAMPLE_RIG).axis("slave").plant
+
+
+def test_floats_are_rounded_to_seven_significant_digits(tmp_path: Path) -> None:
+    p = _copy_example(tmp_path)
+    write_plant(p, "master", FITTED)
+    _, table, _ = _split_at_table(p.read_text(), "[axis.master.plant]")
+    assert "gain_cps_per_v = 12288.05 " in table  # not 12288.049999999999
+    assert "tau_s = 0.02623457\n" in table
+    assert "delay_s = 0.0009123457\n" in table
+    assert "coulomb_v = 0.00213\n" in table
+    # an entry that already holds the value keeps its text (0.030, not 0.03)
+    write_plant(p, "slave", dataclasses.replace(FITTED, tau_s=0.03))
+    _, table, _ = _split_at_table(p.read_text(), "[axis.slave.plant]")
+    assert "tau_s = 0.030\n" in table
+
+
+def test_plant_settings_replace_kept_values_when_set(tmp_path: Path) -> None:
+    p = _copy_example(tmp_path)
+    write_plant(p, "master", dataclasses.replace(FITTED, max_speed_rpm=650.0, noise_counts=0.5))
+    got = st.load_rig(p).axis("master").plant
+    assert (got.max_speed_rpm, got.noise_counts) == (650.0, 0.5)
+
+
+def test_missing_file_is_created_from_the_template(tmp_path: Path) -> None:
+    new = tmp_path / "new-rig.toml"
+    write_plant(new, "slave", FITTED, provenance=PROVENANCE)
+    copy = _copy_example(tmp_path)
+    write_plant(copy, "slave", FITTED, provenance=PROVENANCE)
+    assert new.read_bytes() == copy.read_bytes()
+    rig = st.load_rig(new)
+    assert rig.name == "pc-dual-servo"  # the template's [rig] name
+    assert rig.axis("slave").plant.tau_s == pytest.approx(FITTED.tau_s, rel=1e-6)
+
+
+def test_explicit_template(tmp_path: Path) -> None:
+    template = tmp_path / "template.toml"
+    template.write_text(EXAMPLE_RIG.read_text().replace('name = "pc-dual-servo"', 'name = "lab"'))
+    out = tmp_path / "out.toml"
+    write_plant(out, "master", FITTED, template=template)
+    assert st.load_rig(out).name == "lab"
+    with pytest.raises(st.RigError, match="cannot read template rig file"):
+        write_plant(tmp_path / "other.toml", "master", FITTED, template=tmp_path / "nope.toml")
+    assert not (tmp_path / "other.toml").exists()
+
+
+def test_unknown_axis_names_the_axes_there_are(tmp_path: Path) -> None:
+    p = _copy_example(tmp_path)
+    before = p.read_bytes()
+    with pytest.raises(st.RigError, match=r"no axis 'spindle' .*axes: \['master', 'slave'\]"):
+        write_plant(p, "spindle", FITTED)
+    assert p.read_bytes() == before
+    with pytest.raises(st.RigError, match="no axis 'spindle'"):
+        write_plant(tmp_path / "new.toml", "spindle", FITTED)
+    assert sorted(os.listdir(tmp_path)) == ["rig.toml"]
+
+
+def test_missing_directory_raises_and_creates_nothing(tmp_path: Path) -> None:
+    missing = tmp_path / "no" / "such"
+    with pytest.raises(FileNotFoundError, match="directory does not exist") as info:
+        write_plant(missing / "rig.toml", "master", FITTED)
+    assert str(missing) in str(info.value)
+    assert info.value.filename == str(missing)
+    assert os.listdir(tmp_path) == []
+
+
+def test_provenance_is_replaced_not_accumulated(tmp_path: Path) -> None:
+    p = _copy_example(tmp_path)
+    write_plant(p, "master", FITTED, provenance="fitted from first.csv")
+    first = p.read_text()
+    assert "[axis.master.plant]  # fitted from first.csv\n" in first
+    write_plant(p, "master", FITTED, provenance="fitted from second.csv")
+    second = p.read_text()
+    assert "first.csv" not in second
+    assert second.count("fitted from") == 1
+    assert len(second.splitlines()) == len(first.splitlines())
+    # the same bytes as a single write with the second provenance
+    once = _copy_example(tmp_path, "once.toml")
+    write_plant(once, "master", FITTED, provenance="fitted from second.csv")
+    assert once.read_text() == second
+    # "" removes it, None leaves it as it is
+    write_plant(p, "master", FITTED, provenance=None)
+    assert p.read_text() == second
+    write_plant(p, "master", FITTED, provenance="")
+    assert "fitted from" not in p.read_text()
+    assert "[axis.master.plant]\n" in p.read_text()
+
+
+def test_provenance_must_be_one_line(tmp_path: Path) -> None:
+    p = _copy_example(tmp_path)
+    before = p.read_bytes()
+    with pytest.raises(st.RigError, match="provenance must be one line"):
+        write_plant(p, "master", FITTED, provenance="fitted\n[timer]")
+    assert p.read_bytes() == before
+
+
+def test_same_inputs_same_bytes(tmp_path: Path) -> None:
+    a = _copy_example(tmp_path, "a.toml")
+    b = _copy_example(tmp_path, "b.toml")
+    write_plant(a, "master", FITTED, provenance=PROVENANCE)
+    write_plant(b, "master", FITTED, provenance=PROVENANCE)
+    assert a.read_bytes() == b.read_bytes()
+    once = a.read_bytes()
+    write_plant(a, "master", FITTED, provenance=PROVENANCE)  # idempotent
+    assert a.read_bytes() == once
+
+
+def test_result_that_would_not_load_is_not_written(tmp_path: Path) -> None:
+    p = tmp_path / "rig.toml"
+    p.write_text(EXAMPLE_RIG.read_text().replace("period_s = 0.004 ", "period_s = -0.004 ", 1))
+    before = p.read_bytes()
+    with pytest.raises(st.RigError, match=r"would not load .*timer\.period_s.*nothing written"):
+        write_plant(p, "master", FITTED)
+    assert p.read_bytes() == before
+    assert os.listdir(tmp_path) == ["rig.toml"]
+
+
+def test_not_toml_is_a_rig_error(tmp_path: Path) -> None:
+    p = tmp_path / "rig.toml"
+    p.write_text("[timer\n")
+    with pytest.raises(st.RigError, match="not valid TOML"):
+        write_plant(p, "master", FITTED)
+    assert p.read_text() == "[timer\n"
+
+
+def test_failed_replace_leaves_file_and_no_temp_file(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    p = _copy_example(tmp_path)
+    before = p.read_bytes()
+
+    def fail(src: object, dst: object) -> None:
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(os, "replace", fail)
+    with pytest.raises(OSError, match="No space left"):
+        write_plant(p, "master", FITTED)
+    assert p.read_bytes() == before
+    assert os.listdir(tmp_path) == ["rig.toml"]
+
+
+def test_file_mode_is_kept(tmp_path: Path) -> None:
+    p = _copy_example(tmp_path)
+    p.chmod(0o640)
+    write_plant(p, "master", FITTED)
+    assert stat.S_IMODE(p.stat().st_mode) == 0o640
+
+
+def test_inline_plant_table(tmp_path: Path) -> None:
+    text = EXAMPLE_RIG.read_text()
+    head, _, tail = _split_at_table(text, "[axis.slave.plant]")
+    p = tmp_path / "rig.toml"
+    inline = "dac_channel = 1\nplant = { tau_s = 0.03, gain_cps_per_v = 11700.0 }\n"
+    p.write_text(head.replace("dac_channel = 1\n", inline) + tail)
+    write_plant(p, "slave", FITTED, provenance=PROVENANCE)
+    assert st.load_rig(p).axis("slave").plant.gain_cps_per_v == 12288.05
+    assert p.read_text().startswith(head[: head.index("[axis.slave]")])
