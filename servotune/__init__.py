@@ -15,10 +15,12 @@ from servotune.errors import (
     SpecError,
 )
 from servotune.fixed import Fixed, quantize
+from servotune.identify import FitResult, PoorFitWarning, fit, fit_arrays
 from servotune.laws import AxisController, PIGains, lock_holding_band
+from servotune.logs import Log, read_log, write_log
 from servotune.metrics import StepInfo, TrackingMetrics, step_info, tracking_metrics
 from servotune.plant import Plant, discretize
-from servotune.rig import Rig, load_rig
+from servotune.rig import Rig, load_rig, write_plant
 from servotune.scenarios import Inputs, build_scenario
 
 __version__ = "0.1.0"
@@ -28,13 +30,16 @@ __all__ = [
     "Batch",
     "BatchResult",
     "ExportError",
+    "FitResult",
     "Fixed",
     "IdentificationError",
     "Inputs",
+    "Log",
     "LogFormatError",
     "Loop",
     "PIGains",
     "Plant",
+    "PoorFitWarning",
     "Rig",
     "RigError",
     "ServotuneError",
@@ -46,12 +51,17 @@ __all__ = [
     "__version__",
     "build_scenario",
     "discretize",
+    "fit",
+    "fit_arrays",
     "load_rig",
     "lock_holding_band",
     "prepare_batch",
     "quantize",
+    "read_log",
     "run_batch",
     "simulate",
     "step_info",
     "tracking_metrics",
+    "write_log",
+    "write_plant",
 ]

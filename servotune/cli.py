@@ -60,29 +60,110 @@ def _format_facts(f: dict) -> str:
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
-    from servotune.logs import write_log
+    from servotune.logs import format_log, write_log
     from servotune.pipeline import log_metadata, run_scenario, trace_log_columns
     from servotune.rig import load_rig
-    from servotune.scenarios import build_scenario
+    from servotune.scenarios import Scenario, build_scenario
 
+    _check_dirs(args.output)
     rig = load_rig(args.rig)
-    axis = args.axis or next(a.name for a in rig.axes if a.role == "master")
-    scen = build_scenario(
-        rig, args.scenario, axis=axis, seconds=args.seconds, closed_loop=args.closed_loop
-    )
+    if (args.scenario is None) == (args.input is None):
+        raise ServotuneError("give exactly one of --scenario NAME or --input EXCITATION.csv")
+    if args.input:
+        from servotune.excite import excitation_inputs, read_excitation
+
+        axis, codes = read_excitation(args.input, rig)
+        inputs = excitation_inputs(rig, axis, codes, closed_loop=args.closed_loop)
+        scen = Scenario(name="input", axis=axis, inputs=inputs)
+    else:
+        axis = args.axis or next(a.name for a in rig.axes if a.role == "master")
+        scen = build_scenario(
+            rig, args.scenario, axis=axis, seconds=args.seconds, closed_loop=args.closed_loop
+        )
     trace = run_scenario(rig, scen, seed=args.seed, noise=not args.no_noise)
     meta = log_metadata(
-        rig, scenario=args.scenario, axis=axis, closed_loop=str(args.closed_loop).lower(),
+        rig, scenario=scen.name, axis=scen.axis, closed_loop=str(args.closed_loop).lower(),
         seed=args.seed,
     )  # fmt: skip
     kwargs = {"period_s": rig.period_s, "columns": trace_log_columns(trace), "metadata": meta}
     if args.output == "-":
-        from servotune.logs import format_log
-
         sys.stdout.write(format_log(**kwargs))
     else:
         write_log(args.output, **kwargs)
         print(f"wrote {trace.n_ticks} ticks to {args.output}", file=sys.stderr)
+    return EXIT_OK
+
+
+def _cmd_fit(args: argparse.Namespace) -> int:
+    from servotune.pipeline import fit_log
+    from servotune.rig import load_rig, write_plant
+
+    _check_dirs(args.output, args.plot)
+    rig = load_rig(args.rig) if args.rig else None
+    dac_range = _range(args.dac_range_v) if args.dac_range_v else None
+    result, log, axis = fit_log(
+        args.log, axis=args.axis, rig=rig, structure=args.structure,
+        counter_bits=args.counter_bits, dac_bits=args.dac_bits, dac_range_v=dac_range,
+        period_s=args.period_s, compute_s=args.compute_s,
+    )  # fmt: skip
+    print(f"axis {axis or '(unprefixed)'}: " + result.summary(), file=sys.stderr)
+    if args.plot:
+        from servotune.identify import simulate_fit, validation_split
+        from servotune.plot import plot_fit, save_figure
+
+        ax = log.axis(None if list(log.axes) == [""] else axis)
+        sim = simulate_fit(result, ax.cmd_v, ax.pos_counts)
+        save_figure(plot_fit(ax.pos_counts, sim, log.period_s, validation_split(sim.size),
+                             f"fit of {axis or 'axis'}"), args.plot)  # fmt: skip
+    if args.output:
+        if not axis:
+            raise ServotuneError("-o needs --axis NAME for an unprefixed log")
+        vel = result.fit_pct["velocity"]["validation"]
+        prov = (
+            f"fitted by servotune {__version__} from {Path(args.log).name}: "
+            f"{'+'.join(result.structure)}, velocity fit {vel:.1f} %"
+        )
+        write_plant(args.output, axis, result.plant, provenance=prov)
+        print(f"wrote [axis.{axis}.plant] to {args.output}", file=sys.stderr)
+    if args.json:
+        out = {"axis": axis, "schema": "servotune.fit/1", "version": __version__}
+        out.update(result.to_dict())
+        print(json.dumps(out, indent=2, sort_keys=True))
+    return EXIT_OK
+
+
+def _check_dirs(*paths: str | None) -> None:
+    """Fail before any work when an output's directory is missing (nothing gets written)."""
+    for p in paths:
+        if p and p != "-" and not Path(p).resolve().parent.is_dir():
+            raise FileNotFoundError(
+                2, f"the directory of {p!r} does not exist (create it first)", p
+            )
+
+
+def _range(text: str) -> tuple[float, float]:
+    try:
+        lo, hi = (float(x) for x in text.split(","))
+    except ValueError:
+        raise ServotuneError(f"--dac-range-v must be LOW,HIGH in volts, got {text!r}") from None
+    return lo, hi
+
+
+def _cmd_excite(args: argparse.Namespace) -> int:
+    from servotune.excite import design_excitation, write_excitation
+    from servotune.rig import load_rig
+
+    _check_dirs(args.output)
+    rig = load_rig(args.rig)
+    axis = args.axis or next(a.name for a in rig.axes if a.role == "master")
+    exc = design_excitation(rig, axis, args.kind, args.seconds, seed=args.seed,
+                            amplitude_codes=args.amplitude_codes)  # fmt: skip
+    write_excitation(args.output, exc, rig)
+    lo, hi = exc.predicted_travel_counts
+    print(f"wrote {exc.n_ticks} ticks of {args.kind} on {axis} to {args.output}: amplitude "
+          f"{exc.amplitude_codes} codes (limited by {exc.limited_by}), predicted max speed "
+          f"{exc.predicted_max_speed_rpm:.0f} r/min, travel {lo:.0f} … {hi:.0f} counts",
+          file=sys.stderr)  # fmt: skip
     return EXIT_OK
 
 
@@ -115,7 +196,8 @@ def _parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("simulate", help="run a scenario on the virtual rig and write a log")
     s.add_argument("rig", help="rig file (TOML)")
-    s.add_argument("--scenario", required=True, help="prbs, steps, chirp or track")
+    s.add_argument("--scenario", help="prbs, steps, chirp or track")
+    s.add_argument("--input", help="excitation CSV to play (from servotune excite)")
     s.add_argument("--axis", help="axis to excite or move (default: the master)")
     s.add_argument("--seconds", type=float, default=10.0, help="duration [s] (default 10)")
     s.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
@@ -127,6 +209,33 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--no-noise", action="store_true", help="switch the encoder noise off")
     s.add_argument("-o", "--output", required=True, help="log file to write ('-' for stdout)")
     s.set_defaults(func=_cmd_simulate)
+
+    s = sub.add_parser("fit", help="identify an axis model (SPEC §5) from a log")
+    s.add_argument("log", help="log CSV (SPEC §5)")
+    s.add_argument("--axis", help="axis to fit (needed for multi-axis logs)")
+    s.add_argument("--rig", help="rig file: D/A, counter, period and compute time fallbacks")
+    s.add_argument(
+        "--structure", default=None, help="auto (default: BIC) or a list from delay,offset,coulomb"
+    )
+    s.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
+    s.add_argument("-o", "--output", help="write the axis's plant section into this rig file")
+    s.add_argument("--plot", help="PNG: measured vs simulated position, velocity, residuals")
+    s.add_argument("--counter-bits", type=int, help="counter width for raw counter columns")
+    s.add_argument("--dac-bits", type=int, help="D/A resolution for dac_code columns")
+    s.add_argument("--dac-range-v", help="D/A range LOW,HIGH [V]")
+    s.add_argument("--period-s", type=float, help="sample period [s] when there is no time_s")
+    s.add_argument("--compute-s", type=float, help="known compute time [s]")
+    s.set_defaults(func=_cmd_fit)
+
+    s = sub.add_parser("excite", help="design an identification excitation (D/A codes)")
+    s.add_argument("--rig", required=True, help="rig file (TOML)")
+    s.add_argument("--axis", help="axis (default: the master)")
+    s.add_argument("--kind", required=True, choices=["prbs", "multisine", "steps"])
+    s.add_argument("--seconds", type=float, required=True, help="duration [s]")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--amplitude-codes", type=int, help="requested amplitude [D/A codes]")
+    s.add_argument("-o", "--output", required=True, help="excitation CSV to write")
+    s.set_defaults(func=_cmd_excite)
 
     s = sub.add_parser("demo", help="run the whole job on a rig and write into a directory")
     s.add_argument("rig", help="rig file (TOML)")

@@ -51,6 +51,7 @@ __all__ = [
     "PoorFitWarning",
     "fit",
     "fit_arrays",
+    "simulate_fit",
 ]
 
 PARAMS = ("gain_cps_per_v", "tau_s", "delay_s", "offset_v", "coulomb_v")
@@ -118,6 +119,35 @@ class FitResult:
     def discrete_model(self) -> control.StateSpace:
         """Exact ZOH model at the log's period with the total lag (compute + delay)."""
         return discretize(self.plant, self.period_s, self.compute_s + self.params["delay_s"])
+
+    def summary(self) -> str:
+        """A readable multi-line summary (what ``servotune fit`` prints on stderr)."""
+        units = {"gain_cps_per_v": "counts/s/V", "tau_s": "s", "delay_s": "s",
+                 "offset_v": "V", "coulomb_v": "V"}  # fmt: skip
+        lines = [f"structure: {' + '.join(self.structure)} ({self.reason})"]
+        for p in PARAMS:
+            if p in self.structure:
+                lo, hi = self.ci95[p]
+                lines.append(
+                    f"  {p:15s} {self.params[p]:12.6g} ± {self.std[p]:.2g} {units[p]} "
+                    f"(95 %: {lo:.6g} … {hi:.6g})"
+                )
+            else:
+                lines.append(f"  {p:15s} {'left out':>12s}")
+        f = self.fit_pct
+        lines.append(
+            f"fit (MATLAB compare) velocity {f['velocity']['estimation']:.1f} % estimation, "
+            f"{f['velocity']['validation']:.1f} % validation; position "
+            f"{f['position']['estimation']:.1f} % / {f['position']['validation']:.1f} %"
+        )
+        w = self.whiteness
+        lines.append(
+            f"position residual whiteness (Ljung-Box, {w['lags']} lags): p = {w['p_value']:.3g}"
+            f" ({'white' if w['white'] else 'not white'})"
+        )
+        lines.append(f"period {self.period_s * 1e3:.6g} ms, {self.n_samples} samples, "
+                     f"delay counted beyond compute_s = {self.compute_s * 1e3:g} ms")  # fmt: skip
+        return "\n".join(lines)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict for JSON (sorted keys when dumped with ``sort_keys``)."""
@@ -332,6 +362,36 @@ def _long_run_factor(r: np.ndarray, lags: int = 10) -> float:
 # --- the public API -----------------------------------------------------------------------
 
 
+def _simulate_positions(
+    u: np.ndarray, y: np.ndarray, x: np.ndarray, period_s: float, compute_s: float, k0: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Model increments, and positions simulated from the log's start, restarted at ``k0 − 1``."""
+    dy = np.diff(y).astype(float)
+    dp = _Problem(u[:-1], dy, period_s, compute_s, 0).simulate(x).copy()
+    pos = np.empty(y.size)
+    pos[:k0] = y[0] + np.concatenate([[0.0], np.cumsum(dp[: k0 - 1])])
+    pos[k0 - 1 :] = y[k0 - 1] + np.concatenate([[0.0], np.cumsum(dp[k0 - 1 :])])
+    return dp, pos
+
+
+def simulate_fit(result: FitResult, cmd_v: np.ndarray, pos_counts: np.ndarray) -> np.ndarray:
+    """Position the fitted model gives for a logged command [counts], as ``fit_pct`` uses it.
+
+    The simulation starts at the first measured position and restarts at the first validation
+    sample (the estimation/validation split of the fit).
+    """
+    y = np.asarray(pos_counts)
+    x = np.array([result.params[p] for p in PARAMS])
+    k0 = validation_split(y.size)
+    return _simulate_positions(np.asarray(cmd_v, float), y, x, result.period_s,
+                               result.compute_s, k0)[1]  # fmt: skip
+
+
+def validation_split(n_samples: int) -> int:
+    """First sample of the validation part for a log of ``n_samples``."""
+    return max(MIN_SAMPLES, int(ESTIMATION_FRACTION * (n_samples - 1)))
+
+
 def _parse_structure(structure: str | tuple[str, ...] | list[str] | None) -> np.ndarray | None:
     if structure is None or structure == "auto":
         return None
@@ -414,7 +474,7 @@ def fit_arrays(
             f"the motor never moved (position range {int(np.ptp(y))} counts): not identifiable"
         )
     dy = np.diff(y).astype(float)
-    n_est = max(MIN_SAMPLES, int(ESTIMATION_FRACTION * (n - 1)))
+    n_est = validation_split(n)
     skip = min(50, n_est // 10)
     given = _parse_structure(structure)
     selection: list[dict[str, Any]] = []
@@ -470,12 +530,11 @@ def fit_arrays(
     std = {p: float(s) for p, s in zip(names, sd, strict=True)}
     ci95 = {p: (params[p] - 1.96 * std[p], params[p] + 1.96 * std[p]) for p in names}
     # quality on the whole log with the final model
-    full = _Problem(u[: n - 1], dy, period_s, compute_s, 0)
-    dp = full.simulate(x).copy()
     k0 = n_est
+    dp, pos_sim = _simulate_positions(u, y, x, period_s, compute_s, k0)
     vel_m, vel_s = dy / period_s, dp / period_s
-    pos_est = y[0] + np.concatenate([[0.0], np.cumsum(dp[: k0 - 1])])
-    pos_val = y[k0 - 1] + np.concatenate([[0.0], np.cumsum(dp[k0 - 1 :])])
+    pos_est, pos_val = pos_sim[:k0], pos_sim[k0 - 1 :].copy()
+    pos_val[0] = y[k0 - 1]
     fit_pct = {
         "position": {
             "estimation": _fit_pct(y[:k0].astype(float), pos_est),
@@ -544,12 +603,7 @@ def fit(
             f"(first at sample {int(ax.counter_faults[0])}): the unwrapped position is unreliable"
         )
     if compute_s is None:
-        try:
-            compute_s = float(log.metadata.get("compute_s", 0.0))
-        except ValueError:
-            raise IdentificationError(
-                f"metadata compute_s must be a number, got {log.metadata['compute_s']!r}"
-            ) from None
+        compute_s = log.compute_s if log.compute_s is not None else 0.0
     return fit_arrays(
         ax.cmd_v, ax.pos_counts, period_s=log.period_s, compute_s=compute_s, structure=structure
     )

@@ -24,7 +24,14 @@ from servotune.rig import Rig, describe_rig, load_rig
 from servotune.scenarios import Inputs, Scenario, build_scenario
 from servotune.tune.pi import pi_loop_shaping
 
-__all__ = ["default_pi_gains", "lock_hold", "run_demo", "run_scenario", "trace_log_columns"]
+__all__ = [
+    "default_pi_gains",
+    "fit_log",
+    "lock_hold",
+    "run_demo",
+    "run_scenario",
+    "trace_log_columns",
+]
 
 
 def default_pi_gains(rig: Rig) -> list:
@@ -181,3 +188,54 @@ def run_demo(rig_path: str | Path, out_dir: str | Path, *, seed: int = 0) -> dic
         out / "demo_summary.json", json.dumps(summary, indent=2, sort_keys=True) + "\n"
     )
     return summary
+
+
+def fit_log(
+    log_path: str | Path,
+    *,
+    axis: str | None = None,
+    rig: Rig | None = None,
+    structure: str | None = None,
+    counter_bits: int | None = None,
+    dac_bits: int | None = None,
+    dac_range_v: tuple[float, float] | None = None,
+    period_s: float | None = None,
+    compute_s: float | None = None,
+) -> tuple[Any, Any, str]:
+    """Read a log and identify one axis (what ``servotune fit`` runs).
+
+    Settings come from the keyword options, then the log's metadata, then the rig (SPEC §5).
+
+    Returns
+    -------
+    result : FitResult
+    log : Log
+    axis : str
+        The axis name (for an unprefixed log: ``axis`` if given, else ``""``).
+    """
+    from servotune.identify import fit
+    from servotune.logs import read_log, read_metadata
+
+    meta = read_metadata(log_path)
+    if rig is not None:
+        if counter_bits is None and "counter_bits" not in meta:
+            counter_bits = rig.counter.bits
+        if dac_bits is None and "dac_bits" not in meta:
+            dac_bits = rig.dac.bits
+        if dac_range_v is None and "dac_range_v" not in meta:
+            dac_range_v = rig.dac.range_v
+        if period_s is None and "period_s" not in meta:
+            period_s = rig.period_s
+        if compute_s is None and "compute_s" not in meta:
+            compute_s = rig.timer.compute_s
+    log = read_log(
+        log_path,
+        counter_bits=counter_bits,
+        dac_bits=dac_bits,
+        dac_range_v=dac_range_v,
+        period_s=period_s,
+    )
+    log_axis = None if list(log.axes) == [""] else axis
+    result = fit(log, axis=log_axis, structure=structure, compute_s=compute_s)
+    name = axis if axis is not None else (log_axis or next(iter(log.axes)))
+    return result, log, name

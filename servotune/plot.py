@@ -73,3 +73,44 @@ def plot_lock_hold(
         axs[0, 0].set_title(title)
     fig.tight_layout()
     return fig
+
+
+def plot_fit(
+    pos_counts: np.ndarray,
+    sim_pos_counts: np.ndarray,
+    period_s: float,
+    split_index: int,
+    title: str = "",
+) -> plt.Figure:
+    """Measured vs simulated position and velocity, and the residuals, of an identification.
+
+    Parameters
+    ----------
+    pos_counts, sim_pos_counts : ndarray
+        Measured and simulated position [counts] (the simulation restarts at the split).
+    period_s : float
+        Sample period [s].
+    split_index : int
+        First sample of the validation part.
+    """
+    time_s = np.arange(len(pos_counts), dtype=np.int64) * period_s
+    fig, axs = plt.subplots(3, 1, figsize=(9, 8), sharex=True)
+    v_m = np.diff(pos_counts) / period_s
+    v_s = np.diff(sim_pos_counts) / period_s
+    t_v = time_s[:-1]
+    axs[0].plot(time_s, pos_counts, lw=0.8, label="measured")
+    axs[0].plot(time_s, sim_pos_counts, lw=0.8, ls="--", label="simulated")
+    axs[0].set_ylabel("position [counts]")
+    axs[1].plot(t_v, v_m, lw=0.5, label="measured (Δcounts/T)")
+    axs[1].plot(t_v, v_s, lw=0.8, label="simulated")
+    axs[1].set_ylabel("speed [counts/s]")
+    axs[2].plot(time_s, pos_counts - sim_pos_counts, lw=0.6, label="position residual")
+    axs[2].set_ylabel("residual [counts]")
+    axs[2].set_xlabel("time [s]")
+    for a in axs:
+        a.axvline(time_s[split_index], color="k", ls=":", lw=0.8)
+        a.grid(True, alpha=0.3)
+        a.legend(loc="upper right", fontsize=8)
+    axs[0].set_title(title or "identification: estimation | validation")
+    fig.tight_layout()
+    return fig

@@ -1,0 +1,819 @@
+"""Experiment design: D/A excitations an axis can play safely, and their files.
+
+An *excitation* is a sequence of D/A code offsets (what is added to the 0 V code, one per tick)
+for one axis, designed for identification: ``prbs`` (a maximum-length binary sequence held about
+one time constant per bit), ``multisine`` (a Schroeder-phased sum of sines on a log-spaced grid
+from about 0.2 Hz to 0.4 · Nyquist) or ``steps`` (+A, −A/2, +A/2, −A, ... with reversals).
+
+:func:`design_excitation` scales the amplitude down until the sequence fits the D/A range and
+the motion the rig's nominal plant predicts for it stays within 90 % of the axis speed limit and
+of its travel (10 % margin for friction, drift and model error). The prediction is the exact
+response of the linear axis model (SPEC §5) to the held codes, with the analog drift
+``offset_v`` acting from the start and Coulomb friction left out (it only slows the axis).
+
+Files (:func:`write_excitation`, :func:`read_excitation`) are log-format CSV (SPEC §5) with the
+columns ``tick,time_s,<axis>.dac_code`` (absolute codes); :func:`excitation_inputs` turns codes
+into engine inputs, open loop or with the lock module active.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy import signal
+
+from servotune.errors import LogFormatError, SpecError
+from servotune.fixed import round_half_away
+from servotune.laws.axis import MODE_LOCK, MODE_OPEN
+from servotune.logs import atomic_write_text, format_log
+from servotune.rig import Axis, Rig
+from servotune.scenarios import Inputs, prbs_codes, step_codes
+
+__all__ = [
+    "KINDS",
+    "MARGIN",
+    "MIN_TICKS",
+    "Excitation",
+    "design_excitation",
+    "excitation_inputs",
+    "multisine_bins",
+    "multisine_codes",
+    "read_excitation",
+    "write_excitation",
+]
+
+KINDS = ("multisine", "prbs", "steps")
+"""Excitation kinds :func:`design_excitation` makes."""
+
+MARGIN = 0.10
+"""Fraction of the speed limit and of the travel kept free by design [-]."""
+
+MIN_TICKS = 10
+"""Shortest excitation [ticks]."""
+
+_PERIOD_RTOL = 1e-3  # a file's period may differ from the rig's by 0.1 % (SPEC §5 uniformity)
+_MULTISINE_F_LO_HZ = 0.2
+_MULTISINE_F_HI_NYQ = 0.4
+_STEP_LEVEL_S = 0.25  # step level duration, as the ``steps`` scenario
+_STEP_LEVEL_TAUS = 8.0  # ... but at least this many time constants, to settle
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Excitation:
+    """A designed excitation for one axis (what :func:`design_excitation` returns).
+
+    Parameters
+    ----------
+    codes : ndarray of int64
+        Per tick, the offset added to the 0 V code [D/A codes]; the runtime writes
+        ``zero_code + codes[k]`` at tick ``k``.
+    zero_code : int
+        The rig's 0 V code [D/A code].
+    period_s : float
+        Tick period the codes are played at (the rig's achieved period) [s].
+    axis : str
+        Axis the excitation is for.
+    kind : str
+        ``"prbs"``, ``"multisine"`` or ``"steps"``.
+    seed : int
+        Seed of the design (it draws the PRBS windows; multisine and steps do not use it).
+    amplitude_codes : int
+        Largest ``|codes|`` [D/A codes].
+    limited_by : str
+        What set the amplitude: ``"requested"``, ``"dac"``, ``"speed"`` or ``"travel"``.
+    predicted_max_speed_rpm : float
+        Largest speed the nominal plant predicts (drift included, friction left out) [r/min].
+    predicted_travel_counts : tuple of float
+        (min, max) position the nominal plant predicts, relative to the start, including the
+        coast-down after the last tick [counts].
+    """
+
+    codes: np.ndarray
+    zero_code: int
+    period_s: float
+    axis: str
+    kind: str
+    seed: int = 0
+    amplitude_codes: int
+    limited_by: str
+    predicted_max_speed_rpm: float
+    predicted_travel_counts: tuple[float, float]
+
+    def __post_init__(self) -> None:
+        codes = np.asarray(self.codes)
+        if codes.ndim != 1 or codes.size < MIN_TICKS:
+            raise SpecError(
+                f"codes must be a 1-D array of at least {MIN_TICKS} ticks, got shape {codes.shape}"
+            )
+        if not np.issubdtype(codes.dtype, np.integer):
+            raise SpecError(f"codes must be integers [D/A codes], got dtype {codes.dtype}")
+        codes = np.array(codes, dtype=np.int64)
+        codes.setflags(write=False)
+        object.__setattr__(self, "codes", codes)
+        if not (isinstance(self.period_s, float | int) and self.period_s > 0):
+            raise SpecError(f"period_s must be > 0 [s], got {self.period_s!r}")
+        if self.kind not in KINDS:
+            raise SpecError(f"kind must be one of {', '.join(KINDS)}, got {self.kind!r}")
+        if self.limited_by not in ("requested", "dac", "speed", "travel"):
+            raise SpecError(
+                f"limited_by must be requested, dac, speed or travel, got {self.limited_by!r}"
+            )
+        if int(np.max(np.abs(codes))) != self.amplitude_codes:
+            raise SpecError(
+                f"amplitude_codes must equal max |codes| = {int(np.max(np.abs(codes)))}, "
+                f"got {self.amplitude_codes!r}"
+            )
+        lo, hi = self.predicted_travel_counts
+        if not lo <= hi:
+            raise SpecError(
+                f"predicted_travel_counts must be (min, max), got {self.predicted_travel_counts!r}"
+            )
+        object.__setattr__(self, "predicted_travel_counts", (float(lo), float(hi)))
+
+    @property
+    def n_ticks(self) -> int:
+        """Length [ticks]."""
+        return int(self.codes.size)
+
+    @property
+    def absolute_codes(self) -> np.ndarray:
+        """The D/A codes the runtime writes, ``zero_code + codes`` [D/A codes]."""
+        return self.codes + self.zero_code
+
+    def to_columns(self) -> dict[str, np.ndarray]:
+        """Log columns (SPEC §5): ``{"<axis>.dac_code": absolute codes}`` (int64)."""
+        return {f"{self.axis}.dac_code": self.absolute_codes}
+
+    def to_dict(self) -> dict[str, Any]:
+        """Summary as a plain dict (JSON-ready; the codes themselves are left out)."""
+        return {
+            "amplitude_codes": self.amplitude_codes,
+            "axis": self.axis,
+            "kind": self.kind,
+            "limited_by": self.limited_by,
+            "n_ticks": self.n_ticks,
+            "period_s": self.period_s,
+            "predicted_max_speed_rpm": self.predicted_max_speed_rpm,
+            "predicted_travel_counts": list(self.predicted_travel_counts),
+            "seed": self.seed,
+        }
+
+
+# --- signals -------------------------------------------------------------------------------
+
+
+def multisine_codes(
+    n_ticks: int,
+    period_s: float,
+    amplitude_codes: float,
+    f_lo_hz: float = _MULTISINE_F_LO_HZ,
+    f_hi_hz: float | None = None,
+    lines_per_decade: int = 10,
+) -> np.ndarray:
+    """Schroeder-phased multisine on a log-spaced grid [D/A codes, rounded half away from zero].
+
+    The lines are whole periods of the record (frequencies ``k / (n_ticks · period_s)``, so the
+    signal is periodic in the record and has no DC), about ``lines_per_decade`` per decade from
+    ``f_lo_hz`` to ``f_hi_hz``, equal amplitudes, Schroeder phases
+    ``φ_i = −π i (i − 1) / M`` for line ``i`` of ``M`` (M. R. Schroeder, "Synthesis of low-peak-
+    factor signals and binary sequences with low autocorrelation", IEEE Trans. Inf. Theory 16,
+    1970), normalised so the peak is ``amplitude_codes``.
+
+    Parameters
+    ----------
+    n_ticks : int
+        Length [ticks], >= 2.
+    period_s : float
+        Tick period [s].
+    amplitude_codes : float
+        Peak [D/A codes].
+    f_lo_hz : float
+        Lowest line [Hz] (raised to the record's resolution ``1 / (n_ticks · period_s)``).
+    f_hi_hz : float, optional
+        Highest line [Hz]; default 0.4 · Nyquist.
+    lines_per_decade : int
+        Grid density.
+
+    Returns
+    -------
+    ndarray of int64
+
+    Examples
+    --------
+    >>> c = multisine_codes(1000, 0.004, 100)
+    >>> int(np.max(np.abs(c)))
+    100
+    """
+    if n_ticks < 2:
+        raise SpecError(f"a multisine needs at least 2 ticks, got {n_ticks}")
+    bins = multisine_bins(n_ticks, period_s, f_lo_hz, f_hi_hz, lines_per_decade)
+    m = bins.size
+    phases = -math.pi * np.arange(1, m + 1) * np.arange(0, m) / m
+    k = np.arange(n_ticks, dtype=np.int64)
+    x = np.zeros(n_ticks)
+    for b, ph in zip(bins.tolist(), phases.tolist(), strict=True):
+        # the argument (b·k mod n) / n is exact, so the record is exactly periodic
+        x += np.cos(2.0 * math.pi * ((b * k) % n_ticks) / n_ticks + ph)
+    x *= amplitude_codes / np.max(np.abs(x))
+    return round_half_away(x).astype(np.int64)
+
+
+def multisine_bins(
+    n_ticks: int,
+    period_s: float,
+    f_lo_hz: float = _MULTISINE_F_LO_HZ,
+    f_hi_hz: float | None = None,
+    lines_per_decade: int = 10,
+) -> np.ndarray:
+    """DFT bins (whole periods per record) of the multisine lines, ascending, unique.
+
+    Line ``b`` has frequency ``b / (n_ticks · period_s)`` [Hz]; see :func:`multisine_codes`.
+    """
+    if not period_s > 0:
+        raise SpecError(f"period_s must be > 0 [s], got {period_s!r}")
+    if f_hi_hz is None:
+        f_hi_hz = _MULTISINE_F_HI_NYQ * 0.5 / period_s
+    if not 0 < f_lo_hz < f_hi_hz:
+        raise SpecError(f"multisine needs 0 < f_lo_hz < f_hi_hz, got {f_lo_hz!r}, {f_hi_hz!r}")
+    if lines_per_decade < 1:
+        raise SpecError(f"lines_per_decade must be >= 1, got {lines_per_decade!r}")
+    f_res = 1.0 / (n_ticks * period_s)
+    b_lo = max(1, math.floor(f_lo_hz / f_res + 0.5))
+    b_hi = max(b_lo, min(math.floor(f_hi_hz / f_res), (n_ticks - 1) // 2))
+    b_hi = max(b_hi, b_lo)
+    n_lines = max(2, math.ceil(lines_per_decade * math.log10(b_hi / b_lo)) + 1)
+    grid = np.floor(np.geomspace(b_lo, b_hi, n_lines) + 0.5).astype(np.int64)
+    return np.unique(grid)
+
+
+_PRBS_CANDIDATES = 8  # seeded window starts tried; the best balanced one is used
+
+
+def _unit_pattern(kind: str, n: int, rig: Rig, ax: Axis, seed: int) -> tuple[Any, np.ndarray]:
+    """A maker ``amplitude -> codes`` and the unit-amplitude pattern (float, peak 1).
+
+    The patterns are balanced so the position swings about the start: the PRBS window (of
+    ``_PRBS_CANDIDATES`` drawn from ``seed``) whose running sum strays least, the multisine
+    rotated (it is periodic in the record) to start where its position is mid-range, the steps
+    started half-way through the first level.
+    """
+    period = rig.period_s
+    if kind == "prbs":
+        hold = max(1, math.floor(ax.plant.tau_s / period + 0.5))
+        n_bits = -(-n // hold)
+        order = next((o for o in range(5, 12) if 2**o - 1 >= n_bits), 11)
+        # SeedSequence hashes the seed the same on every platform and numpy version
+        starts = np.random.SeedSequence(seed).generate_state(_PRBS_CANDIDATES, dtype=np.uint64)
+        best, best_walk = np.zeros(0, dtype=np.int64), math.inf
+        for st in starts.tolist():
+            skip = int(st % (2**order - 1)) * hold
+            cand = prbs_codes(n + skip, 1, hold_ticks=hold, order=order)[skip:]
+            walk = float(np.max(np.abs(np.cumsum(cand))))
+            if walk < best_walk:
+                best, best_walk = cand, walk
+        return (lambda a: best * a), best.astype(float)
+    if kind == "steps":
+        level = max(
+            math.floor(_STEP_LEVEL_S / period + 0.5),
+            math.ceil(_STEP_LEVEL_TAUS * ax.plant.tau_s / period),
+        )
+        level = max(1, min(level, n // 4))
+        skip = level // 2
+
+        def make(a: int) -> np.ndarray:
+            return step_codes(n + skip, a, level)[skip:]
+
+        unit = np.array([1.0, -0.5, 0.5, -1.0])[((np.arange(n) + skip) // level) % 4]
+        return make, unit
+    x = multisine_codes(n, period, 1_000_000) / 1_000_000.0
+    pos = np.concatenate(([0.0], np.cumsum(x)[:-1]))  # position at each tick start, periodic
+    shift = int(np.argmin(np.abs(pos - 0.5 * (pos.max() + pos.min()))))
+    return (lambda a: np.roll(multisine_codes(n, period, a), -shift)), np.roll(x, -shift)
+
+
+# --- prediction ----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class _Motion:
+    speed_cps: np.ndarray  # at every input change (and the start) [counts/s]
+    pos_counts: np.ndarray  # same instants, plus the coast-down point after the end [counts]
+
+
+def _predict(rig: Rig, ax: Axis, codes: np.ndarray, offset_v: float) -> _Motion:
+    """Exact response of the linear axis model to held codes, drift from t = 0, no friction.
+
+    The code of tick ``j`` reaches the motor at ``d + j·T`` (``d = compute_s + delay_s``) and is
+    held for ``T``; before ``d`` the motor sees 0 V. On every interval the net input is constant,
+    so the speed moves monotonically: its extremes are at the input changes, where it is
+    sampled here. Position extremes between samples (where the speed crosses zero) exceed the
+    samples by well under a count per tick at these speeds.
+    """
+    pl = ax.plant
+    period, tau, gain = rig.period_s, pl.tau_s, pl.gain_cps_per_v
+    d = rig.timer.compute_s + pl.delay_s
+    # state when the first code arrives: drift alone for d seconds
+    e_d = math.expm1(-d / tau)
+    v0 = gain * offset_v * -e_d
+    p0 = gain * offset_v * (d + tau * e_d)
+    a = math.exp(-period / tau)
+    one_minus_a = -math.expm1(-period / tau)
+    w = codes.astype(float) * rig.dac.lsb_v + offset_v  # net input per interval [V]
+    b_v = gain * one_minus_a
+    zi = signal.lfiltic([b_v], [1.0, -a], y=[v0])
+    v_next, _ = signal.lfilter([b_v], [1.0, -a], w, zi=zi)
+    v = np.concatenate(([0.0, v0], v_next))  # t = 0, d, d + T, ...
+    c1 = tau * one_minus_a
+    c2 = gain * (period - tau * one_minus_a)
+    p_next = p0 + np.cumsum(c1 * v[1:-1] + c2 * w)
+    coast = p_next[-1] + tau * v[-1]  # where the axis stops if the command returns to 0 V
+    p = np.concatenate(([0.0, p0], p_next, [coast]))
+    return _Motion(speed_cps=v, pos_counts=p)
+
+
+def _limit_amplitude(
+    unit: _Motion, drift: _Motion, bound_lo: float, bound_hi: float, pos: bool
+) -> float:
+    """Largest amplitude A with bound_lo <= A·unit + drift <= bound_hi at every sample."""
+    x1 = unit.pos_counts if pos else unit.speed_cps
+    x0 = drift.pos_counts if pos else drift.speed_cps
+    with np.errstate(divide="ignore", invalid="ignore"):
+        up = np.where(x1 > 0, (bound_hi - x0) / x1, np.inf)
+        dn = np.where(x1 < 0, (bound_lo - x0) / x1, np.inf)
+    return float(min(np.min(up), np.min(dn)))
+
+
+# --- design --------------------------------------------------------------------------------
+
+
+def design_excitation(
+    rig: Rig,
+    axis: str,
+    kind: str,
+    seconds: float,
+    *,
+    seed: int = 0,
+    amplitude_codes: int | None = None,
+) -> Excitation:
+    """Design a D/A excitation the axis can play within its D/A range, speed limit and travel.
+
+    The amplitude starts at ``amplitude_codes`` (default: the largest symmetric D/A swing) and
+    is scaled down until the nominal plant's predicted speed stays within 90 % of the axis speed
+    limit and its predicted position (drift included, plus the coast-down after the last tick)
+    within 90 % of the axis travel (a rotary axis, ``travel_counts = None``, has no travel
+    limit). Every kind is zero-mean or nearly so by construction and reverses direction.
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig (period, D/A, axis limits and nominal plant).
+    axis : str
+        Axis name.
+    kind : str
+        ``"prbs"``: maximum-length PRBS (:func:`servotune.scenarios.prbs_codes`), each bit held
+        about ``tau_s / period_s`` ticks; of 8 windows of the m-sequence drawn from ``seed``, the
+        one whose running sum strays least from zero;
+        ``"multisine"``: :func:`multisine_codes` from 0.2 Hz to 0.4 · Nyquist, rotated to
+        start where its (periodic) position is mid-range;
+        ``"steps"``: :func:`servotune.scenarios.step_codes`, levels of
+        max(0.25 s, 8 · tau_s), starting half-way through the first level.
+    seconds : float
+        Duration [s]; rounded to whole ticks of the achieved period, at least 10 ticks.
+    seed : int
+        Design seed (>= 0); same inputs and seed give the same codes.
+    amplitude_codes : int, optional
+        Largest amplitude wanted [D/A codes]; reduced if a limit requires it.
+
+    Returns
+    -------
+    Excitation
+
+    Raises
+    ------
+    SpecError
+        Unknown kind, fewer than 10 ticks, a bad amplitude or seed, a D/A without both
+        polarities, drift alone leaving 90 % of the travel, or no amplitude of at least one code
+        (and enough to overcome drift and friction both ways) fits the limits.
+    RigError
+        If the rig has no such axis.
+    """
+    if kind not in KINDS:
+        raise SpecError(f"unknown excitation kind {kind!r}; choose one of {', '.join(KINDS)}")
+    ax = rig.axis(axis)
+    if not isinstance(seed, int | np.integer) or isinstance(seed, bool) or seed < 0:
+        raise SpecError(f"seed must be an integer >= 0, got {seed!r}")
+    if not (isinstance(seconds, int | float) and math.isfinite(seconds) and seconds > 0):
+        raise SpecError(f"seconds must be > 0 [s], got {seconds!r}")
+    period = rig.period_s
+    n = math.floor(seconds / period + 0.5)
+    if n < MIN_TICKS:
+        raise SpecError(
+            f"seconds={seconds!r} gives only {n} ticks of {period * 1e3:.6f} ms; "
+            f"an excitation needs at least {MIN_TICKS}"
+        )
+    zero, cmax = rig.dac.zero_code, rig.dac.code_max
+    dac_amp = min(zero, cmax - zero)
+    if dac_amp < 1:
+        raise SpecError(
+            f"the D/A range {rig.dac.range_v!r} V has no room on one side of 0 V; "
+            "an excitation needs both polarities"
+        )
+    if amplitude_codes is not None:
+        if (
+            not isinstance(amplitude_codes, int | np.integer)
+            or isinstance(amplitude_codes, bool)
+            or amplitude_codes < 1
+        ):
+            raise SpecError(
+                f"amplitude_codes must be an integer >= 1 [D/A codes], got {amplitude_codes!r}"
+            )
+        amp, limited_by = min(int(amplitude_codes), dac_amp), "requested"
+        if amplitude_codes > dac_amp:
+            limited_by = "dac"
+    else:
+        amp, limited_by = dac_amp, "dac"
+
+    v_lim = ax.speed_limit_rpm / 60.0 * rig.counts_per_rev
+    v_ok = (1.0 - MARGIN) * v_lim
+    travel = ax.travel_counts
+    p_lo, p_hi = -math.inf, math.inf
+    if travel is not None:
+        p_lo, p_hi = (1.0 - MARGIN) * travel[0], (1.0 - MARGIN) * travel[1]
+    offset = ax.plant.offset_v
+    make, unit = _unit_pattern(kind, n, rig, ax, seed)
+    drift = _predict(rig, ax, np.zeros(n, dtype=np.int64), offset)
+    p_drift = drift.pos_counts
+    if travel is not None and (p_drift.min() < p_lo or p_drift.max() > p_hi):
+        raise SpecError(
+            f"axis {axis!r}: the drift offset_v={offset!r} V alone moves the axis "
+            f"{p_drift[np.argmax(np.abs(p_drift))]:.0f} counts in {seconds!r} s, beyond 90 % of "
+            f"the travel {list(travel)!r} counts; shorten the excitation"
+        )
+    unit_m = _predict(rig, ax, unit, 0.0)
+    bounds = {"speed": _limit_amplitude(unit_m, drift, -v_ok, v_ok, pos=False)}
+    if travel is not None:
+        bounds["travel"] = _limit_amplitude(unit_m, drift, p_lo, p_hi, pos=True)
+    binding = min(bounds, key=bounds.__getitem__)
+    if bounds[binding] < amp:
+        amp, limited_by = math.floor(bounds[binding]), binding
+    # the linear bound ignores rounding to whole codes: check the real codes, shrink if needed
+    while True:
+        if amp < 1:
+            what = (
+                f"speed limit {ax.speed_limit_rpm!r} r/min"
+                if limited_by == "speed"
+                else f"travel {list(travel) if travel else None!r} counts"
+            )
+            raise SpecError(
+                f"axis {axis!r}: even 1 D/A code of {kind} for {seconds!r} s goes beyond 90 % "
+                f"of the {what}; shorten the excitation"
+            )
+        codes = make(amp)
+        m = _predict(rig, ax, codes, offset)
+        ratios = {"speed": float(np.max(np.abs(m.speed_cps))) / v_ok}
+        if travel is not None:
+            ratios["travel"] = max(m.pos_counts.max() / p_hi, m.pos_counts.min() / p_lo)
+        worst = max(ratios, key=ratios.__getitem__)
+        if ratios[worst] <= 1.0:
+            break
+        amp, limited_by = min(amp - 1, math.floor(amp / ratios[worst])), worst
+
+    lsb, coulomb = rig.dac.lsb_v, ax.plant.coulomb_v
+    up_v, down_v = int(codes.max()) * lsb + offset, int(codes.min()) * lsb + offset
+    if not (up_v > coulomb and down_v < -coulomb and m.speed_cps.max() > 0 > m.speed_cps.min()):
+        which = "requested" if limited_by == "requested" else "largest admissible"
+        fix = "ask for a larger amplitude_codes" if limited_by == "requested" else "shorten it"
+        raise SpecError(
+            f"axis {axis!r}: the {which} {kind} amplitude, {amp} codes "
+            f"({amp * lsb * 1e3:.2f} mV), cannot reverse the axis against the drift "
+            f"({offset * 1e3:g} mV) and friction ({coulomb * 1e3:g} mV); {fix}"
+        )
+    return Excitation(
+        codes=codes,
+        zero_code=zero,
+        period_s=period,
+        axis=axis,
+        kind=kind,
+        seed=int(seed),
+        amplitude_codes=int(np.max(np.abs(codes))),
+        limited_by=limited_by,
+        predicted_max_speed_rpm=float(np.max(np.abs(m.speed_cps))) / rig.counts_per_rev * 60.0,
+        predicted_travel_counts=(float(m.pos_counts.min()), float(m.pos_counts.max())),
+    )
+
+
+# --- files ---------------------------------------------------------------------------------
+
+
+def _check_period(period_s: float, rig: Rig, where: str, error: type[Exception]) -> None:
+    if not abs(period_s - rig.period_s) <= _PERIOD_RTOL * rig.period_s:
+        raise error(
+            f"{where} period {period_s!r} s differs from rig {rig.name!r}'s achieved period "
+            f"{rig.period_s!r} s by more than 0.1 %"
+        )
+
+
+def write_excitation(path: str | Path, excitation: Excitation, rig: Rig) -> None:
+    """Write an excitation as a log-format CSV (atomic; same inputs give the same bytes).
+
+    Metadata lines ``rig``, ``period_s`` (repr of the achieved period), ``axis``, ``kind``,
+    ``seed``, ``amplitude_codes``, ``dac_bits``, ``dac_range_v``, the predictions and the
+    servotune version; columns ``tick,time_s,<axis>.dac_code`` with absolute D/A codes.
+
+    Parameters
+    ----------
+    path : str or Path
+        File to write.
+    excitation : Excitation
+    rig : Rig
+        The rig it was designed for.
+
+    Raises
+    ------
+    SpecError
+        If the excitation does not fit the rig (axis, period, 0 V code, code range).
+    OSError
+        If the file cannot be written.
+    """
+    from servotune import __version__  # here: servotune/__init__ may import this module
+
+    rig.axis(excitation.axis)
+    _check_period(excitation.period_s, rig, "the excitation's", SpecError)
+    if excitation.zero_code != rig.dac.zero_code:
+        raise SpecError(
+            f"the excitation's zero_code {excitation.zero_code} is not rig {rig.name!r}'s "
+            f"0 V code {rig.dac.zero_code}"
+        )
+    absolute = excitation.absolute_codes
+    if absolute.min() < 0 or absolute.max() > rig.dac.code_max:
+        raise SpecError(f"excitation codes leave the D/A range 0..{rig.dac.code_max}")
+    lo, hi = rig.dac.range_v
+    t_lo, t_hi = excitation.predicted_travel_counts
+    meta = {
+        "rig": rig.name,
+        "period_s": repr(rig.period_s),
+        "axis": excitation.axis,
+        "kind": excitation.kind,
+        "seed": excitation.seed,
+        "amplitude_codes": excitation.amplitude_codes,
+        "limited_by": excitation.limited_by,
+        "dac_bits": rig.dac.bits,
+        "dac_range_v": f"{lo:g},{hi:g}",
+        "predicted_max_speed_rpm": f"{excitation.predicted_max_speed_rpm:.6g}",
+        "predicted_travel_counts": f"{t_lo:.6g},{t_hi:.6g}",
+        "servotune_version": __version__,
+    }
+    atomic_write_text(
+        path, format_log(period_s=rig.period_s, columns=excitation.to_columns(), metadata=meta)
+    )
+
+
+def read_excitation(path: str | Path, rig: Rig) -> tuple[str, np.ndarray]:
+    """Read and validate an excitation file for playing on ``rig``.
+
+    The file is a log (SPEC §5) with time columns (``tick`` and/or ``time_s``) and exactly one
+    ``<axis>.dac_code`` column (``dac_code`` alone on a one-axis rig); nothing else.
+
+    Parameters
+    ----------
+    path : str or Path
+    rig : Rig
+
+    Returns
+    -------
+    axis : str
+        Axis the codes are for.
+    codes : ndarray of int64
+        Absolute D/A codes, one per tick.
+
+    Raises
+    ------
+    LogFormatError
+        Naming the first problem: missing or unreadable file, no header, no or more than one
+        ``dac_code`` column, any other column, an axis not in the rig or not the metadata's,
+        a row with the wrong number of fields, a code that is not an integer or outside
+        ``0..code_max``, ticks that do not step by 1, irregular ``time_s``, a period (``time_s``
+        or ``period_s`` metadata) more than 0.1 % off the rig's, D/A metadata that disagrees
+        with the rig, fewer than 10 rows.
+    """
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise LogFormatError(f"excitation file {str(p)!r} does not exist") from None
+    except OSError as exc:
+        raise LogFormatError(f"cannot read excitation file {str(p)!r}: {exc.strerror}") from None
+    except UnicodeDecodeError:
+        raise LogFormatError(f"excitation file {str(p)!r} is not UTF-8 text") from None
+    lines = text.splitlines()
+    meta: dict[str, str] = {}
+    i = 0
+    while i < len(lines) and (lines[i].startswith("#") or not lines[i].strip()):
+        body = lines[i][1:].strip() if lines[i].startswith("#") else ""
+        if ":" in body:
+            k, v = body.split(":", 1)
+            meta[k.strip()] = v.strip()
+        i += 1
+    if i >= len(lines):
+        raise LogFormatError(f"excitation file {str(p)!r} has no header row")
+    header_line = i + 1  # 1-based line numbers in messages
+    header = [h.strip() for h in next(csv.reader([lines[i]]))]
+
+    code_cols = [j for j, h in enumerate(header) if h.rpartition(".")[2] == "dac_code"]
+    for h in header:
+        if h not in ("tick", "time_s") and h.rpartition(".")[2] != "dac_code":
+            raise LogFormatError(
+                f"unexpected column {h!r} (line {header_line}); an excitation has only "
+                "tick, time_s and one <axis>.dac_code"
+            )
+    if len(set(header)) != len(header):
+        dup = next(h for h in header if header.count(h) > 1)
+        raise LogFormatError(f"duplicate column {dup!r} (line {header_line})")
+    if not code_cols:
+        raise LogFormatError(f"no <axis>.dac_code column in the header (line {header_line})")
+    if len(code_cols) > 1:
+        raise LogFormatError(
+            f"more than one dac_code column ({', '.join(header[j] for j in code_cols)}); "
+            "an excitation drives one axis"
+        )
+    if "tick" not in header and "time_s" not in header:
+        raise LogFormatError(f"the excitation needs a tick or time_s column (line {header_line})")
+    code_j = code_cols[0]
+    axis = header[code_j].rpartition(".")[0]
+    if not axis:
+        if len(rig.axes) != 1:
+            raise LogFormatError(
+                f"column 'dac_code' has no axis prefix; rig {rig.name!r} has axes "
+                f"{list(rig.axis_names)}: name it <axis>.dac_code"
+            )
+        axis = rig.axes[0].name
+    if axis not in rig.axis_names:
+        raise LogFormatError(
+            f"column {header[code_j]!r}: no axis {axis!r} in rig {rig.name!r} "
+            f"(axes: {list(rig.axis_names)})"
+        )
+    if "axis" in meta and meta["axis"] != axis:
+        raise LogFormatError(
+            f"metadata axis {meta['axis']!r} disagrees with column {header[code_j]!r}"
+        )
+    _check_dac_meta(meta, rig)
+
+    rows: list[tuple[int, list[str]]] = []
+    for ln, line in enumerate(lines[i + 1 :], start=header_line + 1):
+        if not line.strip():
+            continue
+        fields_ = next(csv.reader([line]))
+        if len(fields_) != len(header):
+            raise LogFormatError(
+                f"line {ln} has {len(fields_)} fields, the header has {len(header)}"
+            )
+        rows.append((ln, [f.strip() for f in fields_]))
+    if len(rows) < MIN_TICKS:
+        raise LogFormatError(
+            f"excitation file {str(p)!r} has {len(rows)} rows; need at least {MIN_TICKS}"
+        )
+
+    def ints(j: int) -> np.ndarray:
+        out = np.empty(len(rows), dtype=np.int64)
+        for r, (ln, f) in enumerate(rows):
+            s = f[j]
+            if not s.lstrip("+-").isdigit():
+                raise LogFormatError(f"column {header[j]!r} line {ln}: {s!r} is not an integer")
+            out[r] = int(s)
+        return out
+
+    codes = ints(code_j)
+    bad = (codes < 0) | (codes > rig.dac.code_max)
+    if bad.any():
+        r = int(np.argmax(bad))
+        raise LogFormatError(
+            f"column {header[code_j]!r} line {rows[r][0]}: code {int(codes[r])} outside the "
+            f"D/A range 0..{rig.dac.code_max}"
+        )
+    if "tick" in header:
+        ticks = ints(header.index("tick"))
+        jump = np.diff(ticks) != 1
+        if jump.any():
+            r = int(np.argmax(jump)) + 1
+            raise LogFormatError(f"column 'tick' line {rows[r][0]}: ticks must step by 1")
+    checked = False
+    if "time_s" in header:
+        j = header.index("time_s")
+        t = np.empty(len(rows))
+        for r, (ln, f) in enumerate(rows):
+            try:
+                t[r] = float(f[j])
+            except ValueError:
+                raise LogFormatError(
+                    f"column 'time_s' line {ln}: {f[j]!r} is not a number"
+                ) from None
+            if not math.isfinite(t[r]):
+                raise LogFormatError(f"column 'time_s' line {ln}: {f[j]!r} is not finite")
+        dt = np.diff(t)
+        med = float(np.median(dt))
+        off = ~(np.abs(dt - med) <= _PERIOD_RTOL * abs(med))
+        if not med > 0 or off.any():
+            r = int(np.argmax(off)) + 1 if off.any() else 1
+            raise LogFormatError(
+                f"column 'time_s' line {rows[r][0]}: irregular or non-increasing time "
+                f"(interval {dt[r - 1]!r} s vs median {med!r} s)"
+            )
+        _check_period(med, rig, "the file's time_s", LogFormatError)
+        checked = True
+    if "period_s" in meta:
+        try:
+            p_meta = float(meta["period_s"])
+        except ValueError:
+            raise LogFormatError(
+                f"metadata period_s must be a number, got {meta['period_s']!r}"
+            ) from None
+        _check_period(p_meta, rig, "the file's metadata", LogFormatError)
+        checked = True
+    if not checked:
+        raise LogFormatError(
+            "the excitation has no time_s column and no period_s metadata; "
+            "its period cannot be checked against the rig"
+        )
+    return axis, codes
+
+
+def _check_dac_meta(meta: dict[str, str], rig: Rig) -> None:
+    if "dac_bits" in meta:
+        try:
+            bits = int(meta["dac_bits"])
+        except ValueError:
+            raise LogFormatError(
+                f"metadata dac_bits must be an integer, got {meta['dac_bits']!r}"
+            ) from None
+        if bits != rig.dac.bits:
+            raise LogFormatError(
+                f"metadata dac_bits {bits} disagrees with rig {rig.name!r} ({rig.dac.bits} bits)"
+            )
+    if "dac_range_v" in meta:
+        try:
+            lo, hi = (float(x) for x in meta["dac_range_v"].split(","))
+        except ValueError:
+            raise LogFormatError(
+                f"metadata dac_range_v must be 'low,high', got {meta['dac_range_v']!r}"
+            ) from None
+        r_lo, r_hi = rig.dac.range_v
+        if not (math.isclose(lo, r_lo, abs_tol=1e-9) and math.isclose(hi, r_hi, abs_tol=1e-9)):
+            raise LogFormatError(
+                f"metadata dac_range_v {lo:g},{hi:g} V disagrees with rig {rig.name!r} "
+                f"({r_lo:g},{r_hi:g} V)"
+            )
+
+
+# --- playing -------------------------------------------------------------------------------
+
+
+def excitation_inputs(
+    rig: Rig, axis: str, codes: np.ndarray, *, closed_loop: bool = False
+) -> Inputs:
+    """Engine inputs that play absolute D/A ``codes`` on ``axis``, one per tick.
+
+    Parameters
+    ----------
+    rig : Rig
+    axis : str
+        Axis to excite; every other axis is held by the lock module.
+    codes : array of int
+        Absolute D/A codes (as :func:`read_excitation` returns), in ``0..code_max``.
+    closed_loop : bool
+        False: open loop (``MODE_OPEN``), the D/A writes exactly ``codes``. True: the lock
+        module stays active (``MODE_LOCK``) and ``codes − zero_code`` is added to its output.
+
+    Returns
+    -------
+    Inputs
+        ``dac_add_codes = codes − zero_code`` on the axis, shape (len(codes), n_axes).
+
+    Raises
+    ------
+    SpecError
+        If ``codes`` is not a non-empty 1-D integer array within the D/A range.
+    RigError
+        If the rig has no such axis.
+    """
+    rig.axis(axis)
+    c = np.asarray(codes)
+    if c.ndim != 1 or c.size < 1 or not np.issubdtype(c.dtype, np.integer):
+        raise SpecError(
+            f"codes must be a non-empty 1-D integer array [D/A codes], got shape {c.shape} "
+            f"dtype {c.dtype}"
+        )
+    if c.min() < 0 or c.max() > rig.dac.code_max:
+        raise SpecError(
+            f"codes must be within the D/A range 0..{rig.dac.code_max}, "
+            f"got {int(c.min())}..{int(c.max())}"
+        )
+    i = rig.axis_names.index(axis)
+    mode = MODE_LOCK if closed_loop else MODE_OPEN
+    return Inputs.hold(c.size, len(rig.axes)).replace_axis(
+        i, dac_add_codes=c.astype(np.int64) - rig.dac.zero_code, mode=mode
+    )
