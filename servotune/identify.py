@@ -2,8 +2,9 @@
 
 Method (what runs when):
 
-1. **Start** — inverse-dynamics least squares on Savitzky–Golay filtered derivatives of the
-   position: ``v = K·u(t − lag) − tau·a + K·offset − K·coulomb·sign(v)`` is linear in
+1. **Start** — inverse-dynamics least squares on filtered derivatives of the position
+   (moving average, then central differences):
+   ``v = K·u(t − lag) − tau·a + K·offset − K·coulomb·sign(v)`` is linear in
    ``(K, tau, K·offset, K·coulomb)`` for a given lag, so it is solved on a grid of delays
    (quarter ticks up to :data:`MAX_DELAY_TICKS`) and the best grid point is kept. Samples at
    near-zero speed are left out of this step (the sign of the speed is unknown there).
@@ -30,18 +31,19 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import control
 import numba as nb
 import numpy as np
 from scipy.optimize import least_squares
-from scipy.signal import savgol_filter
-from scipy.stats import chi2
+from scipy.special import gammaincc
 
 from servotune.errors import IdentificationError
 from servotune.logs import AxisLog, Log
 from servotune.plant import Plant, advance_tick, discretize, plant_row
+
+if TYPE_CHECKING:
+    import control
 
 __all__ = [
     "MAX_FIT_SAMPLES",
@@ -58,8 +60,8 @@ PARAMS = ("gain_cps_per_v", "tau_s", "delay_s", "offset_v", "coulomb_v")
 """Parameter names (SPEC §5), in the order of the internal vector."""
 OPTIONAL_PARAMS = ("delay_s", "offset_v", "coulomb_v")
 MAX_DELAY_TICKS = 4.0
-MAX_FIT_SAMPLES = 200_000
-SELECTION_SAMPLES = 50_000
+MAX_FIT_SAMPLES = 100_000
+SELECTION_SAMPLES = 20_000
 MIN_SAMPLES = 100
 ESTIMATION_FRACTION = 0.7
 
@@ -267,11 +269,20 @@ def _oe_fit(prob: _Problem, x0: np.ndarray, free: np.ndarray, max_nfev: int) -> 
 # --- the least-squares start -------------------------------------------------------------
 
 
-def _savgol_window(period_s: float, n: int) -> int:
-    w = max(5, math.floor(0.02 / period_s + 0.5))
-    if w % 2 == 0:
-        w += 1
-    return min(w, n if n % 2 else n - 1)
+def _derivatives(y: np.ndarray, period_s: float) -> tuple[np.ndarray, np.ndarray, int]:
+    """Speed and acceleration from a moving-average-smoothed position (central differences).
+
+    Only the least-squares start uses them; the output-error step does not differentiate.
+    Returns the speed [counts/s], the acceleration [counts/s²] and the edge to leave out.
+    """
+    h = max(2, math.floor(0.01 / period_s + 0.5))  # about 10 ms each side
+    box = np.ones(2 * h + 1) / (2 * h + 1)
+    ys = np.convolve(y.astype(float), box, mode="same")
+    v = np.zeros_like(ys)
+    a = np.zeros_like(ys)
+    v[h:-h] = (ys[2 * h :] - ys[: -2 * h]) / (2 * h * period_s)
+    a[h:-h] = (ys[2 * h :] - 2 * ys[h:-h] + ys[: -2 * h]) / (h * period_s) ** 2
+    return v, a, 3 * h
 
 
 def _ls_start(
@@ -279,10 +290,7 @@ def _ls_start(
 ) -> np.ndarray:
     """Inverse-dynamics least squares on filtered derivatives, best delay on a grid."""
     n = y.size
-    w = _savgol_window(period_s, n)
-    yf = y.astype(float)
-    v = savgol_filter(yf, w, 3, deriv=1, delta=period_s, mode="interp")
-    a = savgol_filter(yf, w, 3, deriv=2, delta=period_s, mode="interp")
+    v, a, w = _derivatives(y, period_s)
     keep = np.abs(v) > 2.0 / period_s  # moving: more than 2 counts per tick
     keep[:w] = keep[-w:] = False
     if keep.sum() < 20:
@@ -339,7 +347,7 @@ def _ljung_box(r: np.ndarray, lags: int = 20) -> dict[str, Any]:
         return {"lags": lags, "p_value": float("nan"), "statistic": float("nan"), "white": False}
     rho = np.array([np.dot(r[:-j], r[j:]) / den for j in range(1, lags + 1)])
     q = float(n * (n + 2) * np.sum(rho**2 / (n - np.arange(1, lags + 1))))
-    p = float(chi2.sf(q, lags))
+    p = float(gammaincc(lags / 2.0, q / 2.0))  # chi-square survival function, `lags` dof
     return {
         "lag1_autocorrelation": float(rho[0]),
         "lags": lags,

@@ -16,10 +16,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-import control
 import numba as nb
 import numpy as np
+
+if TYPE_CHECKING:  # python-control is imported where it is used (it is slow to import)
+    import control
 
 __all__ = [
     "NROW",
@@ -94,6 +97,8 @@ class Plant:
 
         The delay ``exp(-delay_s s)`` is not rational; :func:`discretize` includes it exactly.
         """
+        import control
+
         return control.tf([self.gain_cps_per_v], [self.tau_s, 1.0, 0.0])
 
     @classmethod
@@ -223,6 +228,8 @@ def discretize(plant: Plant, period_s: float, lag_s: float = 0.0) -> control.Sta
         Discrete system (``dt=period_s``), input volts, output position [counts]; states are
         position, speed and the ``m + 1`` (or ``m``, if λ = 0) held past inputs.
     """
+    import control
+
     if period_s <= 0:
         raise ValueError(f"period_s must be > 0 [s], got {period_s!r}")
     if lag_s < 0:
