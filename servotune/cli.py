@@ -175,8 +175,12 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     for name, h in summary["lock_hold"].items():
         print(f"lock hold {name}: observed {h['observed_counts']} "
               f"predicted {h['predicted_counts']} counts", file=sys.stderr)  # fmt: skip
-    print(f"wrote demo_summary.json, lock_hold.png, track.png, track_log.csv to {args.out}",
-          file=sys.stderr)  # fmt: skip
+    for name, f in summary["identification"].items():
+        err = f["relative_error"]
+        print(f"fit {name}: {'+'.join(f['structure'])}; gain {err['gain_cps_per_v']:+.2%}, "
+              f"tau {err['tau_s']:+.2%} vs the virtual rig's truth", file=sys.stderr)  # fmt: skip
+    print(f"wrote demo_summary.json, lock_hold.png, track.png, fit_*.png, fitted-rig.toml and "
+          f"logs to {args.out}", file=sys.stderr)  # fmt: skip
     return EXIT_OK
 
 

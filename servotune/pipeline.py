@@ -130,7 +130,9 @@ def lock_hold(rig: Rig, *, seconds: float = 60.0, settle_s: float = 2.0, seed: i
 def run_demo(rig_path: str | Path, out_dir: str | Path, *, seed: int = 0) -> dict[str, Any]:
     """Run the demo job and write its products into ``out_dir``.
 
-    Writes ``demo_summary.json``, ``lock_hold.png``, ``track.png`` and ``track_log.csv``.
+    Writes ``demo_summary.json``, ``lock_hold.png``, ``track.png``, ``track_log.csv``, and for
+    the identification step ``ident_log.csv`` (a closed-loop multi-level PRBS per axis),
+    ``fit_<axis>.png`` and ``fitted-rig.toml`` (the rig with the fitted plants).
 
     Returns
     -------
@@ -170,7 +172,43 @@ def run_demo(rig_path: str | Path, out_dir: str | Path, *, seed: int = 0) -> dic
             "faults": int(np.any(trace.flags[:, i] & 3)),
             "tracking": None if m is None else m.to_dict(),
         }
+    identification = {}
+    from servotune.identify import simulate_fit, validation_split
+    from servotune.plot import plot_fit
+    from servotune.rig import write_plant
+
+    fitted_rig = out / "fitted-rig.toml"
+    for name in rig.axis_names:
+        scen_id = build_scenario(rig, "prbs", axis=name, seconds=40.0, closed_loop=True)
+        id_trace = run_scenario(rig, scen_id, seed=seed)
+        log_path = out / f"ident_log_{name}.csv"
+        write_log(log_path, period_s=rig.period_s, columns=trace_log_columns(id_trace),
+                  metadata=log_metadata(rig, scenario="prbs", axis=name, closed_loop="true",
+                                        seed=seed))  # fmt: skip
+        result, log, _ = fit_log(log_path, axis=name, rig=rig)
+        ax = log.axis(name)
+        sim = simulate_fit(result, ax.cmd_v, ax.pos_counts)
+        save_figure(plot_fit(ax.pos_counts, sim, log.period_s, validation_split(sim.size),
+                             f"fit of {name}"), out / f"fit_{name}.png")  # fmt: skip
+        write_plant(
+            fitted_rig,
+            name,
+            result.plant,
+            template=rig_path,
+            provenance=f"fitted by servotune {__version__} from {log_path.name}",
+        )
+        truth = rig.axis(name).plant
+        identification[name] = {
+            "fit_pct": result.fit_pct,
+            "params": result.params,
+            "relative_error": {
+                "gain_cps_per_v": result.params["gain_cps_per_v"] / truth.gain_cps_per_v - 1,
+                "tau_s": result.params["tau_s"] / truth.tau_s - 1,
+            },
+            "structure": list(result.structure),
+        }
     summary = {
+        "identification": identification,
         "lock_hold": {
             name: {
                 "observed_counts": list(hold.observed[name]),
