@@ -733,6 +733,18 @@ def _parse_body(body: str, header_line: int, header: list[str]) -> tuple[np.ndar
     )
 
 
+def _check_range(
+    values: np.ndarray, bits: int, rows: Callable[[int], int], name: str, what: str
+) -> None:
+    """Raise naming the first row whose value is outside 0 .. 2**bits − 1."""
+    top = (1 << bits) - 1
+    bad = (values < 0) | (values > top)
+    if bad.any():
+        k = int(np.argmax(bad))
+        msg = what.format(v=values[k], bits=bits, top=top)
+        raise LogFormatError(f"row {rows(k)}, column {name!r}: {msg}")
+
+
 def _base(h: str) -> str:
     return h.rpartition(".")[2]
 
@@ -859,28 +871,16 @@ def _axis_log(
     if "dac_code" in names:
         name = names["dac_code"]
         dac_code = col[name]
-        top = (1 << dac_bits) - 1
-        bad = (dac_code < 0) | (dac_code > top)
-        if bad.any():
-            k = int(np.argmax(bad))
-            raise LogFormatError(
-                f"row {rows(k)}, column {name!r}: code {dac_code[k]} is outside the "
-                f"{dac_bits}-bit D/A range 0..{top}"
-            )
+        _check_range(dac_code, dac_bits, rows, name, "code {v} is outside the {bits}-bit D/A "
+                     "range 0..{top}")  # fmt: skip
         cmd_v = hw_dac.volts_from_code(dac_code, dac_bits, dac_range_v)
     else:
         cmd_v = col[names["cmd_v"]]
     if "counter" in names:
         name = names["counter"]
         counter = col[name]
-        top = (1 << counter_bits) - 1
-        bad = (counter < 0) | (counter > top)
-        if bad.any():
-            k = int(np.argmax(bad))
-            raise LogFormatError(
-                f"row {rows(k)}, column {name!r}: {counter[k]} is outside the {counter_bits}-bit "
-                f"counter register 0..{top} (set counter_bits if the register is wider)"
-            )
+        _check_range(counter, counter_bits, rows, name, "{v} is outside the {bits}-bit counter "
+                     "register 0..{top} (set counter_bits if the register is wider)")  # fmt: skip
         pos, fault = hw_counter.unwrap(counter, counter_bits)
         pos = pos - pos[0]
         faults = np.flatnonzero(fault).astype(np.int64)
