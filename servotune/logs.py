@@ -15,6 +15,7 @@ that fails are the rows scanned one by one to find the first bad one.
 
 from __future__ import annotations
 
+import contextlib
 import difflib
 import io
 import math
@@ -22,7 +23,7 @@ import os
 import re
 import tempfile
 import warnings
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -436,35 +437,45 @@ def read_metadata(path: str | Path) -> dict[str, str]:
     """
     src = str(path)
     meta: dict[str, str] = {}
-    try:
-        with open(path, encoding="utf-8-sig", newline=None) as fh:
-            for raw in fh:
-                line = raw.strip()
-                if line and not line.startswith("#"):
-                    break
-                if ":" in line:
-                    key, value = (x.strip() for x in line[1:].split(":", 1))
-                    meta.setdefault(key, value)
-    except FileNotFoundError:
-        raise LogFormatError(f"log file {src!r} does not exist") from None
-    except IsADirectoryError:
-        raise LogFormatError(f"log {src!r} is a directory, not a file") from None
-    except UnicodeDecodeError:
-        raise LogFormatError(f"log {src!r} is not UTF-8 text") from None
-    except OSError as exc:
-        raise LogFormatError(f"cannot read log {src!r}: {exc.strerror or exc}") from None
+    with _read_errors(src):
+        try:
+            with open(path, encoding="utf-8-sig", newline=None) as fh:
+                for raw in fh:
+                    line = raw.strip()
+                    if line and not line.startswith("#"):
+                        break
+                    kv = _meta_pair(line)
+                    if kv is not None:
+                        meta.setdefault(*kv)
+        except UnicodeDecodeError:
+            raise LogFormatError(f"log {src!r} is not UTF-8 text") from None
     return meta
 
 
-def _read_text(p: Path, src: str) -> str:
+def _meta_pair(line: str) -> tuple[str, str] | None:
+    """``(key, value)`` of a stripped ``# key: value`` line, None for any other comment."""
+    if ":" not in line:
+        return None
+    key, value = (x.strip() for x in line[1:].split(":", 1))
+    return key, value
+
+
+@contextlib.contextmanager
+def _read_errors(src: str) -> Iterator[None]:
+    """Turn the OS errors of opening a log into one-line LogFormatErrors."""
     try:
-        data = p.read_bytes()
+        yield
     except FileNotFoundError:
         raise LogFormatError(f"log file {src!r} does not exist") from None
     except IsADirectoryError:
         raise LogFormatError(f"log {src!r} is a directory, not a file") from None
     except OSError as exc:
         raise LogFormatError(f"cannot read log {src!r}: {exc.strerror or exc}") from None
+
+
+def _read_text(p: Path, src: str) -> str:
+    with _read_errors(src):
+        data = p.read_bytes()
     try:
         text = data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
@@ -495,8 +506,9 @@ def _split_text(text: str, src: str) -> tuple[dict[str, str], dict[str, int], in
         line_no += 1
         if line and not line.startswith("#"):
             return meta, meta_line, line_no, text[pos:end], text[end + 1 :]
-        if ":" in line:
-            key, value = (s.strip() for s in line[1:].split(":", 1))
+        kv = _meta_pair(line)
+        if kv is not None:
+            key, value = kv
             if key in meta and meta[key] != value:
                 raise LogFormatError(
                     f"line {line_no}: metadata {key!r} given twice with different values "
