@@ -447,7 +447,7 @@ def controller_system(loop: servotune.Loop) -> tuple[control.NonlinearIOSystem, 
         Initial state (all zero).
     """
     rig = loop.rig
-    pi = loop.controllers[0].pi
+    pi = loop.controllers[0].task
     if pi is None:
         raise ValueError("the benchmark loop needs PI gains on its axis")
     kp_q, kp_f, kit_q, kit_f = pi.kp.q, pi.kp.f, pi.ki_t.q, pi.ki_t.f

@@ -167,6 +167,28 @@ def _cmd_excite(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_tune(args: argparse.Namespace) -> int:
+    from servotune.tune.slave import SlaveTuneSpec
+    from servotune.tune.workflow import tune_rig
+    from servotune.tuning import current_tuning_path, tuning_to_string, write_tuning
+
+    _check_dirs(args.output)
+    spec = SlaveTuneSpec(generations=args.generations, population=args.population)
+    tuning = tune_rig(args.rig, seed=args.seed, spec=spec, rule_base=args.rule_base,
+                      progress=lambda msg: print(msg, file=sys.stderr))  # fmt: skip
+    if args.output and args.output != "-":
+        write_tuning(tuning, args.output)
+        print(f"wrote the tuning to {args.output}", file=sys.stderr)
+    else:
+        sys.stdout.write(tuning_to_string(tuning))
+    if not args.no_current:
+        current = current_tuning_path()
+        current.parent.mkdir(parents=True, exist_ok=True)
+        write_tuning(tuning, current)
+        print(f"recorded it as the current tuning ({current})", file=sys.stderr)
+    return EXIT_OK
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     from servotune.pipeline import run_demo
 
@@ -240,6 +262,20 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--amplitude-codes", type=int, help="requested amplitude [D/A codes]")
     s.add_argument("-o", "--output", required=True, help="excitation CSV to write")
     s.set_defaults(func=_cmd_excite)
+
+    s = sub.add_parser("tune", help="tune the master's PI and the slave's fuzzy-PID tables")
+    s.add_argument("rig", help="rig file (TOML)")
+    s.add_argument("-o", "--output", help="tuning file to write (default: stdout)")
+    s.add_argument("--seed", type=int, default=0, help="optimiser and noise seed (default 0)")
+    s.add_argument("--rule-base", default="default", choices=["default", "classic"])
+    s.add_argument("--generations", type=int, default=30, help="optimiser budget (default 30)")
+    s.add_argument("--population", type=int, default=24, help="candidates per generation")
+    s.add_argument(
+        "--no-current",
+        action="store_true",
+        help="do not record the result as the workbench's current tuning",
+    )
+    s.set_defaults(func=_cmd_tune)
 
     s = sub.add_parser("demo", help="run the whole job on a rig and write into a directory")
     s.add_argument("rig", help="rig file (TOML)")

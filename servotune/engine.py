@@ -24,6 +24,7 @@ import numpy as np
 from servotune.errors import SimulationError
 from servotune.laws.axis import (
     FLAG_SATURATED,
+    LAW_FUZZY_PID,
     MODE_LOCK,
     MODE_TASK,
     N_STATE,
@@ -63,8 +64,11 @@ METRIC_NAMES = (
     "first_fault_tick",
     "final_err_counts",
     "task_ticks",
+    "max_err_counts",
+    "min_err_counts",
 )
-"""Per-candidate, per-axis metrics (over task ticks from ``metric_from_tick``)."""
+"""Per-candidate, per-axis metrics (over task ticks from ``metric_from_tick``; the signed
+extremes ``max_err_counts``/``min_err_counts`` of ``e = r − y`` show overshoot)."""
 _NM = len(METRIC_NAMES)
 
 
@@ -105,18 +109,19 @@ class Loop:
                 raise SimulationError(f"ref_source[{i}] must be -1 or another axis index, got {s}")
 
     @classmethod
-    def from_rig(cls, rig: Rig, pi_gains: Sequence[object | None] | None = None) -> Loop:
+    def from_rig(cls, rig: Rig, task_gains: Sequence[object | None] | None = None) -> Loop:
         """Loop with each axis's lock gain and following-error limit from the rig.
 
-        ``pi_gains``: per axis a :class:`~servotune.laws.pi.PIGains` or None (lock only).
+        ``task_gains``: per axis a :class:`~servotune.laws.pi.PIGains`, a
+        :class:`~servotune.laws.fuzzy_pid.FuzzyPIDGains`, or None (lock only).
         """
-        gains = list(pi_gains) if pi_gains is not None else [None] * len(rig.axes)
+        gains = list(task_gains) if task_gains is not None else [None] * len(rig.axes)
         if len(gains) != len(rig.axes):
-            raise SimulationError(f"need one pi_gains entry per axis ({len(rig.axes)})")
+            raise SimulationError(f"need one task_gains entry per axis ({len(rig.axes)})")
         ctl = tuple(
             AxisController.from_gains(
                 lock_gain_codes_per_count=a.lock_gain_codes_per_count,
-                pi_gains=g,
+                task_gains=g,
                 period_s=rig.period_s,
                 following_error_limit_counts=a.following_error_limit_counts,
             )
@@ -237,21 +242,19 @@ def _plant_rows(rig: Rig, plants: Sequence[Plant]) -> tuple[np.ndarray, np.ndarr
     return pf, pi
 
 
-def _consts_rows(rig: Rig, controllers: Sequence[AxisController]) -> tuple[np.ndarray, np.ndarray]:
-    rows = np.stack(
-        [
-            c.consts(
-                counter_bits=rig.counter.bits, dac_bits=rig.dac.bits, dac_zero=rig.dac.zero_code
-            )
-            for c in controllers
-        ]
-    )
+def _consts_rows(
+    rig: Rig, controllers: Sequence[AxisController]
+) -> tuple[list[np.ndarray], np.ndarray]:
+    rows = [
+        c.consts(counter_bits=rig.counter.bits, dac_bits=rig.dac.bits, dac_zero=rig.dac.zero_code)
+        for c in controllers
+    ]
     gains = np.zeros((len(controllers), 3))
     for i, c in enumerate(controllers):
         gains[i, _G_LOCK] = c.lock_gain.value
-        if c.pi is not None:
-            gains[i, _G_KP] = c.pi.kp.value
-            gains[i, _G_KIT] = c.pi.ki_t.value
+        if c.task is not None:
+            gains[i, _G_KP] = c.task.kp.value
+            gains[i, _G_KIT] = c.task.ki_t.value
     return rows, gains
 
 
@@ -299,25 +302,29 @@ def prepare_batch(
     n_ax = len(rig.axes)
     pf = np.zeros((n, n_ax, NROW))
     pi = np.zeros((n, n_ax, _NPI), dtype=np.int64)
-    consts = np.zeros(
-        (n, n_ax, len(loop.controllers[0].consts(counter_bits=24, dac_bits=12, dac_zero=2048))),
-        dtype=np.int64,
-    )
     gains = np.zeros((n, n_ax, 3))
     # identical candidates (frozen, hashable dataclasses) are discretised once
     cache_p: dict[tuple[Plant, ...], tuple[np.ndarray, np.ndarray]] = {}
-    cache_c: dict[tuple[AxisController, ...], tuple[np.ndarray, np.ndarray]] = {}
+    cache_c: dict[tuple[AxisController, ...], tuple[list[np.ndarray], np.ndarray]] = {}
+    rows_c: list[list[np.ndarray]] = []
     for b in range(n):
         ps, cs = tuple(plant_sets[b]), tuple(ctl_sets[b])
         if len(ps) != n_ax or len(cs) != n_ax:
             raise SimulationError(f"candidate {b}: need {n_ax} plants and controllers")
-        key_p, key_c = ps, cs
-        if key_p not in cache_p:
-            cache_p[key_p] = _plant_rows(rig, ps)
+        key_c = cs
+        if ps not in cache_p:
+            cache_p[ps] = _plant_rows(rig, ps)
         if key_c not in cache_c:
             cache_c[key_c] = _consts_rows(rig, cs)
-        pf[b], pi[b] = cache_p[key_p]
-        consts[b], gains[b] = cache_c[key_c]
+        pf[b], pi[b] = cache_p[ps]
+        rows_c.append(cache_c[key_c][0])
+        gains[b] = cache_c[key_c][1]
+    # constants vectors differ in length (tables); pad to the longest
+    width = max(len(r) for rows in rows_c for r in rows)
+    consts = np.zeros((n, n_ax, width), dtype=np.int64)
+    for b, rows in enumerate(rows_c):
+        for i, r in enumerate(rows):
+            consts[b, i, : len(r)] = r
     if isinstance(seeds, int | np.integer):
         seed_arr = (
             np.array([int(seeds)], dtype=np.uint64)
@@ -346,7 +353,7 @@ def _check_inputs(loop: Loop, inputs: Inputs) -> None:
     if inputs.n_axes != n_ax:
         raise SimulationError(f"inputs have {inputs.n_axes} axes, the rig has {n_ax}")
     for i, c in enumerate(loop.controllers):
-        if c.pi is None and np.any(inputs.mode[:, i] == MODE_TASK):
+        if c.task is None and np.any(inputs.mode[:, i] == MODE_TASK):
             raise SimulationError(
                 f"axis {loop.rig.axes[i].name!r} has task ticks but no task law (give PI gains)"
             )
@@ -384,6 +391,8 @@ def run_batch(
     """
     loop = batch.loop
     _check_inputs(loop, inputs)
+    if ideal and any(c.law == LAW_FUZZY_PID for c in loop.controllers):
+        raise SimulationError("ideal mode runs lock and PI only, not the fuzzy-PID law")
     n, n_ax = batch.n_candidates, len(loop.rig.axes)
     nt = inputs.n_ticks
     rec = 0 if metrics_only else nt
@@ -631,6 +640,10 @@ def _run_group(
                 mt[ln, 1] += ae * ae
                 mt[ln, 2] += (k - m_from) * period * ae * period
                 mt[ln, 6] += 1.0
+                if e > mt[ln, 7]:
+                    mt[ln, 7] = e
+                if e < mt[ln, 8]:
+                    mt[ln, 8] = e
             mt[ln, 5] = e
         # 5-6. hold the writes and move the plants to the next tick
         for ln in range(n_l):

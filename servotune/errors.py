@@ -15,6 +15,7 @@ __all__ = [
     "ServotuneError",
     "SimulationError",
     "SpecError",
+    "TuningError",
 ]
 
 
@@ -40,6 +41,10 @@ class SpecError(ServotuneError, ValueError):
 
 class SimulationError(ServotuneError, ValueError):
     """A simulation request is inconsistent (shapes, timebases, options)."""
+
+
+class TuningError(ServotuneError, ValueError):
+    """A tuning file is malformed or does not belong to the rig it is used with."""
 
 
 class ExportError(ServotuneError, ValueError):

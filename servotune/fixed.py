@@ -105,6 +105,24 @@ class Fixed:
         """Plain dict ``{"q": q, "f": f}`` for JSON."""
         return {"f": int(self.f), "q": int(self.q)}
 
+    @classmethod
+    def from_dict(cls, d: object, *, bits: int = 32, f_max: int = F_U) -> Fixed:
+        """Inverse of :meth:`to_dict`: integers only, ``f <= f_max`` (no re-quantising).
+
+        Raises
+        ------
+        ValueError
+            If ``d`` is not ``{"q": int, "f": int}`` or a value is out of range.
+        """
+        if not isinstance(d, dict) or set(d) != {"q", "f"}:
+            raise ValueError(f"a fixed-point constant must be {{'q': int, 'f': int}}, got {d!r}")
+        q, f = d["q"], d["f"]
+        if type(q) is not int or type(f) is not int:
+            raise ValueError(f"q and f must be integers, got q={q!r}, f={f!r}")
+        if f > f_max:
+            raise ValueError(f"f must be <= {f_max} fraction bits, got {f}")
+        return cls(q=q, f=f, bits=bits)
+
 
 def _choose_f(xmax: float, bits: int, f_max: int) -> int:
     lim = 2 ** (bits - 1) - 1

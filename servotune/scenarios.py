@@ -27,6 +27,7 @@ __all__ = [
     "excitation_amplitude_codes",
     "prbs_codes",
     "step_codes",
+    "sync_move",
     "trapezoid_ref",
 ]
 
@@ -311,10 +312,78 @@ def _track(rig: Rig, axis: str, n: int, closed_loop: bool) -> Scenario:
     return Scenario(name="track", axis=axis, inputs=inp, needs_task_law=True)
 
 
+def sync_move(
+    rig: Rig,
+    *,
+    seconds: float = 2.4,
+    speed_fraction: float = 0.5,
+    accel_s: float = 0.1,
+    load_step_v: float = 0.3,
+) -> Scenario:
+    """The slave-tuning run: master start, constant speed, stop; a load step on the slave.
+
+    The master moves a trapezoid at ``speed_fraction`` of its speed limit, reaching it in
+    ``accel_s``; every slave follows it (task mode) over the same window; halfway through the
+    constant-speed part a load of ``load_step_v`` (equivalent drive input) steps onto each slave
+    and stays. The first 0.1 s and the last 10 % of the run the axes are in lock.
+
+    Parameters
+    ----------
+    rig : Rig
+    seconds : float
+        Run length [s].
+    speed_fraction : float
+        Cruise speed as a fraction of the master's speed limit, in (0, 1].
+    accel_s : float
+        Time to reach the cruise speed [s].
+    load_step_v : float
+        Load step on the slaves [V].
+
+    Returns
+    -------
+    Scenario
+        ``axis`` is the master.
+    """
+    if not 0 < speed_fraction <= 1:
+        raise SpecError(f"speed_fraction must be in (0, 1], got {speed_fraction!r}")
+    if not accel_s > 0:
+        raise SpecError(f"accel_s must be > 0 [s], got {accel_s!r}")
+    n = math.floor(seconds / rig.period_s + 0.5)
+    if n < 50:
+        raise SpecError(f"seconds={seconds!r} gives only {n} ticks; need at least 50")
+    i_m = next((i for i, a in enumerate(rig.axes) if a.role == "master"), None)
+    if i_m is None:
+        raise SpecError(f"rig {rig.name!r} has no master axis")
+    master = rig.axes[i_m]
+    start = math.floor(0.1 / rig.period_s + 0.5)
+    end = n - max(1, n // 10)
+    v = speed_fraction * master.speed_limit_rpm / 60.0 * rig.counts_per_rev
+    acc = v / accel_s
+    t_move = (end - start) * rig.period_s * 0.8  # stop well before the lock takes over
+    dist = v * (t_move - accel_s)
+    ref = trapezoid_ref(n, rig.period_s, dist, v, acc, start_tick=start)
+    mode = np.full(n, MODE_TASK, dtype=np.int64)
+    mode[:start] = MODE_LOCK
+    mode[end:] = MODE_LOCK
+    t_cruise_mid = start + math.floor((accel_s + 0.5 * (t_move - 2 * accel_s)) / rig.period_s)
+    load = np.zeros(n)
+    load[t_cruise_mid:] = load_step_v
+    inp = Inputs.hold(n, len(rig.axes)).replace_axis(i_m, ref_counts=ref, mode=mode)
+    for j, other in enumerate(rig.axes):
+        if other.role == "slave":
+            inp = inp.replace_axis(j, mode=mode, load_v=load)
+    return Scenario(name="sync", axis=master.name, inputs=inp, needs_task_law=True)
+
+
+def _sync(rig: Rig, axis: str, n: int, closed_loop: bool) -> Scenario:
+    return sync_move(rig, seconds=n * rig.period_s)
+
+
 SCENARIOS: dict[str, Callable[[Rig, str, int, bool], Scenario]] = {
     "chirp": _chirp,
     "prbs": _prbs,
     "steps": _steps,
+    "sync": _sync,
     "track": _track,
 }
 """Named scenarios of the virtual rig."""

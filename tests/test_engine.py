@@ -26,7 +26,7 @@ def _python_control_closed_loop(loop: st.Loop, lag_s: float, ref: np.ndarray) ->
     """Closed loop built and simulated by python-control: ZOH plant, discrete PI, feedback."""
     rig = loop.rig
     period = rig.period_s
-    pi = loop.controllers[0].pi
+    pi = loop.controllers[0].task
     kp, kit = pi.kp.value, pi.ki_t.value
     # backward-Euler PI, as servotune.laws.pi: Kp + Ki·T·z/(z − 1)
     controller = control.ss(control.tf([kp + kit, -kp], [1.0, -1.0], dt=period))
@@ -130,7 +130,7 @@ def test_mode_switches_are_bumpless(rig: st.Rig) -> None:
     hold = tr.pos_counts[k_out:, 0] - tr.pos_counts[k_out, 0]
     assert np.max(np.abs(hold)) <= 4
     # control: without the bumpless entry the first task code would differ by Kp·e
-    kp = loop.controllers[0].pi.kp.value
+    kp = loop.controllers[0].task.kp.value
     assert abs(kp * tr.err_counts[k_in, 0]) >= 1.0
 
 

@@ -16,12 +16,20 @@ Faults (counter fault, following-error trip) latch: the code goes to 0 V until a
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numba as nb
 import numpy as np
 
 from servotune.fixed import F_U, Fixed, align, quantize, sat_add, shift_round
 from servotune.hw.counter import unwrap_step
+from servotune.laws.fuzzy_pid import (
+    TABLE_NAMES,
+    FuzzyPIDConstants,
+    feed_terms,
+    fuzzy_level,
+    scheduled_gain,
+)
 from servotune.laws.lock import lock_step
 from servotune.laws.pi import PIConstants, pi_enter, pi_step
 
@@ -29,6 +37,7 @@ __all__ = [
     "FLAG_COUNTER_FAULT",
     "FLAG_FOLLOWING_ERROR",
     "FLAG_SATURATED",
+    "LAW_FUZZY_PID",
     "LAW_NONE",
     "LAW_PI",
     "MODE_LOCK",
@@ -48,6 +57,8 @@ MODE_NAMES = ("lock", "task", "open")
 # task laws
 LAW_NONE = 0
 LAW_PI = 1
+LAW_FUZZY_PID = 2
+LAW_NAMES = ("none", "pi", "fuzzy_pid")
 
 # flags (faults latch; SATURATED is per tick)
 FLAG_COUNTER_FAULT = 1
@@ -82,7 +93,19 @@ C_FE_LIMIT = 7
 C_COUNTER_BITS = 8
 C_DAC_ZERO = 9
 C_DAC_MAX = 10
-N_CONST = 16
+C_KDT_Q = 11
+C_KDT_F = 12
+C_K1T_Q = 13
+C_K1T_F = 14
+C_KE_Q = 15
+C_KE_F = 16
+C_KEC_Q = 17
+C_KEC_F = 18
+C_N = 19
+C_TF = 20  # 4 table fraction bits, TABLE_NAMES order
+C_TAB = 24  # 4 tables of (2n+1)^2 entries, row-major (row E, column EC), TABLE_NAMES order
+N_CONST = C_TAB
+"""Length of the constants vector without tables (the fuzzy-PID law appends its tables)."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -93,14 +116,15 @@ class AxisController:
     ----------
     lock_gain : Fixed
         Position-lock gain [D/A LSB per count].
-    pi : PIConstants or None
-        Task law (PI); None for an axis that only locks or runs open loop.
+    task : PIConstants or FuzzyPIDConstants or None
+        Task law: PI, or the composite fuzzy-PID + feedforward law; None for an axis that only
+        locks or runs open loop.
     following_error_limit_counts : int
         Trip threshold on |e| [counts]; 0 disables it.
     """
 
     lock_gain: Fixed
-    pi: PIConstants | None = None
+    task: PIConstants | FuzzyPIDConstants | None = None
     following_error_limit_counts: int = 0
 
     def __post_init__(self) -> None:
@@ -115,25 +139,87 @@ class AxisController:
         cls,
         *,
         lock_gain_codes_per_count: float,
-        pi_gains: object | None = None,
+        task_gains: object | None = None,
         period_s: float,
         following_error_limit_counts: int = 0,
     ) -> AxisController:
-        """Quantise design gains (``pi_gains`` a :class:`~servotune.laws.pi.PIGains`)."""
+        """Quantise design gains.
+
+        ``task_gains``: a :class:`~servotune.laws.pi.PIGains` or a
+        :class:`~servotune.laws.fuzzy_pid.FuzzyPIDGains` (anything with ``quantize(period_s)``),
+        or None for lock only.
+        """
         return cls(
             lock_gain=quantize(lock_gain_codes_per_count),
-            pi=None if pi_gains is None else pi_gains.quantize(period_s),  # type: ignore[attr-defined]
+            task=None if task_gains is None else task_gains.quantize(period_s),  # type: ignore[attr-defined]
             following_error_limit_counts=int(following_error_limit_counts),
         )
 
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dict: the law's name and every constant as its (q, f) pair."""
+        return {
+            "following_error_limit_counts": self.following_error_limit_counts,
+            "law": LAW_NAMES[self.law],
+            "lock_gain": self.lock_gain.to_dict(),
+            "task": None if self.task is None else self.task.to_dict(),
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> AxisController:
+        """Inverse of :meth:`to_dict` (no re-quantising).
+
+        Raises
+        ------
+        ValueError
+            If a field is missing or malformed (the message names it).
+        """
+        try:
+            law = d["law"]
+            if law not in LAW_NAMES:
+                raise ValueError(f"law must be one of {', '.join(LAW_NAMES)}, got {law!r}")
+            task_d = d["task"]
+            task: PIConstants | FuzzyPIDConstants | None = None
+            if law == "pi":
+                task = PIConstants.from_dict(task_d)
+            elif law == "fuzzy_pid":
+                task = FuzzyPIDConstants.from_dict(task_d)
+            fe = d["following_error_limit_counts"]
+            if type(fe) is not int:
+                raise ValueError(f"following_error_limit_counts must be an integer, got {fe!r}")
+            return cls(lock_gain=Fixed.from_dict(d["lock_gain"]), task=task,
+                       following_error_limit_counts=fe)  # fmt: skip
+        except KeyError as exc:
+            raise ValueError(f"controller is missing the field {exc.args[0]!r}") from None
+        except TypeError as exc:
+            raise ValueError(f"controller is malformed: {exc}") from None
+
+    @property
+    def law(self) -> int:
+        """The task law (``LAW_*``)."""
+        if self.task is None:
+            return LAW_NONE
+        return LAW_PI if isinstance(self.task, PIConstants) else LAW_FUZZY_PID
+
     def consts(self, *, counter_bits: int, dac_bits: int, dac_zero: int) -> np.ndarray:
-        """The constants vector (``C_*`` layout) the tick functions read."""
-        c = np.zeros(N_CONST, dtype=np.int64)
-        c[C_LAW] = LAW_NONE if self.pi is None else LAW_PI
+        """The constants vector (``C_*`` layout, then the tables) the tick functions read."""
+        t = self.task
+        n_tab = 0 if not isinstance(t, FuzzyPIDConstants) else len(TABLE_NAMES) * (2 * t.n + 1) ** 2
+        c = np.zeros(N_CONST + n_tab, dtype=np.int64)
+        c[C_LAW] = self.law
         c[C_LOCK_Q], c[C_LOCK_F] = self.lock_gain.q, self.lock_gain.f
-        if self.pi is not None:
-            c[C_KP_Q], c[C_KP_F] = self.pi.kp.q, self.pi.kp.f
-            c[C_KIT_Q], c[C_KIT_F] = self.pi.ki_t.q, self.pi.ki_t.f
+        if t is not None:
+            c[C_KP_Q], c[C_KP_F] = t.kp.q, t.kp.f
+            c[C_KIT_Q], c[C_KIT_F] = t.ki_t.q, t.ki_t.f
+        if isinstance(t, FuzzyPIDConstants):
+            c[C_KDT_Q], c[C_KDT_F] = t.kd_t.q, t.kd_t.f
+            c[C_K1T_Q], c[C_K1T_F] = t.k1_t.q, t.k1_t.f
+            c[C_KE_Q], c[C_KE_F] = t.ke.q, t.ke.f
+            c[C_KEC_Q], c[C_KEC_F] = t.kec.q, t.kec.f
+            c[C_N] = t.n
+            size = (2 * t.n + 1) ** 2
+            for i, (q, f_t) in enumerate(t.tables):
+                c[C_TF + i] = f_t
+                c[C_TAB + i * size : C_TAB + (i + 1) * size] = q.reshape(-1)
         c[C_FE_LIMIT] = self.following_error_limit_counts
         c[C_COUNTER_BITS] = counter_bits
         c[C_DAC_ZERO] = dac_zero
@@ -244,15 +330,36 @@ def axis_control(
         u = sat_add(lock_step(c[a, C_LOCK_Q], c[a, C_LOCK_F], e), u_add_q)
     elif mode_cmd == MODE_TASK:
         e = ref - y
+        kp_q = c[a, C_KP_Q]
+        kit_q = c[a, C_KIT_Q]
+        if c[a, C_LAW] == LAW_FUZZY_PID:
+            # composite law: schedule the gains from the query tables at (E, EC), then the PI
+            # core with the derivative and feedforward terms added to its output
+            ec = 0 if entering else e - st[a, S_E_PREV]
+            dr = 0 if entering else ref - st[a, S_R_PREV]
+            n = c[a, C_N]
+            size = 2 * n + 1
+            lv_e = fuzzy_level(e, c[a, C_KE_Q], c[a, C_KE_F], n)
+            lv_ec = fuzzy_level(ec, c[a, C_KEC_Q], c[a, C_KEC_F], n)
+            cell = C_TAB + (lv_e + n) * size + lv_ec + n
+            kp_q = scheduled_gain(kp_q, c[a, C_KP_F], c[a, cell], c[a, C_TF])
+            kit_q = scheduled_gain(kit_q, c[a, C_KIT_F], c[a, cell + size * size], c[a, C_TF + 1])
+            kd_q = scheduled_gain(
+                c[a, C_KDT_Q], c[a, C_KDT_F], c[a, cell + 2 * size * size], c[a, C_TF + 2]
+            )
+            k1_q = scheduled_gain(
+                c[a, C_K1T_Q], c[a, C_K1T_F], c[a, cell + 3 * size * size], c[a, C_TF + 3]
+            )
+            u_add_q = sat_add(u_add_q, feed_terms(kd_q, c[a, C_KDT_F], k1_q, c[a, C_K1T_F], ec, dr))
         if entering:
             u, st[a, S_INTEG] = pi_enter(
-                c[a, C_KP_Q], c[a, C_KP_F], st[a, S_U_LAST], e, u_add_q, zero, cmax
+                kp_q, c[a, C_KP_F], st[a, S_U_LAST], e, u_add_q, zero, cmax
             )
         else:
             u, st[a, S_INTEG] = pi_step(
-                c[a, C_KP_Q],
+                kp_q,
                 c[a, C_KP_F],
-                c[a, C_KIT_Q],
+                kit_q,
                 c[a, C_KIT_F],
                 st[a, S_INTEG],
                 e,

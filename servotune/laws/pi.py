@@ -69,6 +69,11 @@ class PIConstants:
         """Plain dict of (q, f) pairs."""
         return {"ki_t": self.ki_t.to_dict(), "kp": self.kp.to_dict()}
 
+    @classmethod
+    def from_dict(cls, d: dict[str, dict[str, int]]) -> PIConstants:
+        """Inverse of :meth:`to_dict` (no re-quantising)."""
+        return cls(kp=Fixed.from_dict(d["kp"]), ki_t=Fixed.from_dict(d["ki_t"]))
+
 
 @nb.njit(cache=True, inline="always")
 def pi_step(

@@ -23,7 +23,10 @@ from servotune.laws.pi import PIGains, pi_step
 
 def _axis(pi: PIGains | None = None, fe: int = 0) -> tuple[np.ndarray, np.ndarray]:
     ctl = AxisController.from_gains(
-        lock_gain_codes_per_count=0.4, pi_gains=pi, period_s=0.004, following_error_limit_counts=fe
+        lock_gain_codes_per_count=0.4,
+        task_gains=pi,
+        period_s=0.004,
+        following_error_limit_counts=fe,
     )
     c = ctl.consts(counter_bits=24, dac_bits=12, dac_zero=2048)[None, :].copy()
     return np.zeros((1, N_STATE), dtype=np.int64), c

@@ -1,0 +1,449 @@
+"""Slave-axis tuning: composite fuzzy-PID + feedforward by optimisation over batched runs.
+
+The slave follows the master (its reference is the master's position read in the same tick).
+Its law's parameters are tuned by differential evolution
+(:func:`scipy.optimize.differential_evolution`, vectorised: one generation is one batch of the
+engine) on the :func:`~servotune.scenarios.sync_move` run (master start, constant speed, stop;
+a load step on the slave) over plant variants of the slave (gain ±20 %, tau ±30 %: the nominal
+and the four corners). Every candidate runs in the runtime's integer arithmetic, so what is
+tuned is what runs.
+
+Objective: the mean over variants of the ITAE of the sync error (master − slave) [counts·s²].
+Constraints, on every variant: no fault (following-error trip), D/A saturation at most
+``max_saturation_pct`` of the task ticks, overshoot of the sync error (its largest swing past
+zero, the slave ahead of the master, as a share of its largest lag) at most
+``max_overshoot_pct``. A candidate that breaks a constraint ranks behind every one that keeps
+them, by how much it breaks them.
+
+Three structures share the optimiser and its budget (the paper's Figure 4 comparison):
+``pid`` (conventional PID: zero tables, no feedforward), ``pid_ff`` (PID + the feedforward
+differential) and ``composite`` (fuzzy-PID + feedforward: the query tables scaled by tuned output
+scales, the level scalings ``Ke``, ``Kec`` tuned too).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.optimize import differential_evolution
+from scipy.stats import qmc
+
+from servotune.engine import Loop, prepare_batch, run_batch
+from servotune.errors import SpecError
+from servotune.laws.axis import AxisController
+from servotune.laws.fuzzy_pid import TABLE_NAMES, FuzzyPIDGains
+from servotune.laws.pi import PIGains
+from servotune.plant import Plant
+from servotune.rig import Rig
+from servotune.scenarios import Scenario, sync_move
+
+__all__ = [
+    "STRUCTURES",
+    "SlaveTuneSpec",
+    "SlaveTuning",
+    "ideal_feedforward",
+    "plant_variants",
+    "tune_slave",
+]
+
+STRUCTURES = ("pid", "pid_ff", "composite")
+"""Slave law structures the tuner can tune."""
+
+_BIG = 1.0e12  # objective of a candidate that breaks a constraint, before its violation
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SlaveTuneSpec:
+    """What the slave tuner optimises and under which constraints.
+
+    Parameters
+    ----------
+    max_saturation_pct : float
+        Largest share of task ticks with the D/A on a rail, on any variant [%].
+    max_overshoot_pct : float
+        Largest lead of the slave over the master (sync error opposite to the motion) as a share
+        of the largest lag, on any variant [%].
+    gain_spread : float
+        Relative spread of the slave's gain in the variants (0.2: ±20 %).
+    tau_spread : float
+        Relative spread of the slave's time constant (0.3: ±30 %).
+    seconds : float
+        Length of the tuning run [s].
+    speed_fraction : float
+        Master cruise speed as a fraction of its speed limit.
+    accel_s : float
+        Master acceleration time [s].
+    load_step_v : float
+        Load step on the slave [V] (negative: opposing the motion, as a cutting force).
+    population : int
+        Candidates per generation.
+    generations : int
+        Generations of differential evolution after the initial population (the budget).
+    """
+
+    max_saturation_pct: float = 2.0
+    max_overshoot_pct: float = 30.0
+    gain_spread: float = 0.2
+    tau_spread: float = 0.3
+    seconds: float = 2.4
+    speed_fraction: float = 0.5
+    accel_s: float = 0.1
+    load_step_v: float = -0.3
+    population: int = 24
+    generations: int = 30
+
+    def __post_init__(self) -> None:
+        checks = {
+            "max_saturation_pct": (0.0, 100.0, "%"),
+            "max_overshoot_pct": (0.0, math.inf, "%"),
+            "gain_spread": (0.0, 0.9, "1"),
+            "tau_spread": (0.0, 0.9, "1"),
+        }
+        for name, (lo, hi, unit) in checks.items():
+            v = getattr(self, name)
+            if not isinstance(v, int | float) or not lo <= v <= hi:
+                raise SpecError(f"{name} must be in [{lo}, {hi}] [{unit}], got {v!r}")
+        if not self.seconds > 0:
+            raise SpecError(f"seconds must be > 0 [s], got {self.seconds!r}")
+        if not isinstance(self.population, int) or self.population < 5:
+            raise SpecError(f"population must be an integer >= 5, got {self.population!r}")
+        if not isinstance(self.generations, int) or self.generations < 0:
+            raise SpecError(f"generations must be an integer >= 0, got {self.generations!r}")
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dict."""
+        return dataclasses.asdict(self)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SlaveTuning:
+    """Result of :func:`tune_slave` (fitted quantities).
+
+    Attributes
+    ----------
+    structure : str
+    gains : FuzzyPIDGains
+        The tuned law in design units (quantise with the rig's period to run it).
+    objective : float
+        Mean ITAE of the sync error over the variants [counts·s²] (``inf`` if infeasible).
+    start_objective : float
+        The same for the start point.
+    feasible : bool
+        All constraints hold on every variant.
+    evaluations : int
+        Candidate evaluations (each over every variant).
+    history : tuple of float
+        Best objective after the initial population and each generation.
+    worst : dict
+        Worst case over variants of the constrained quantities.
+    """
+
+    structure: str
+    gains: FuzzyPIDGains
+    objective: float
+    start_objective: float
+    feasible: bool
+    evaluations: int
+    history: tuple[float, ...] = field(repr=False)
+    worst: Mapping[str, float] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dict (``inf`` as None)."""
+
+        def num(x: float) -> float | None:
+            return None if not math.isfinite(x) else float(x)
+
+        return {
+            "evaluations": self.evaluations,
+            "feasible": self.feasible,
+            "gains": self.gains.to_dict(),
+            "history": [num(h) for h in self.history],
+            "objective": num(self.objective),
+            "start_objective": num(self.start_objective),
+            "structure": self.structure,
+            "worst": {k: float(v) for k, v in sorted(self.worst.items())},
+        }
+
+
+def ideal_feedforward(plant: Plant, lsb_v: float) -> float:
+    """Ideal velocity feedforward ``K1 = 1 / (gain_cps_per_v · lsb_v)`` [codes per count/s]."""
+    return 1.0 / (plant.gain_cps_per_v * lsb_v)
+
+
+def plant_variants(plant: Plant, gain_spread: float, tau_spread: float) -> tuple[Plant, ...]:
+    """The nominal plant and the four corners of gain ``±gain_spread``, tau ``±tau_spread``."""
+    out = [plant]
+    for g in (1 - gain_spread, 1 + gain_spread):
+        for t in (1 - tau_spread, 1 + tau_spread):
+            out.append(
+                dataclasses.replace(
+                    plant, gain_cps_per_v=plant.gain_cps_per_v * g, tau_s=plant.tau_s * t
+                )
+            )
+    return tuple(out)
+
+
+# --- parameter vector -----------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class _Space:
+    names: tuple[str, ...]
+    lo: np.ndarray
+    hi: np.ndarray
+    start: np.ndarray
+
+
+def _space(structure: str, start: PIGains, n: int) -> _Space:
+    kp, ki = max(start.kp, 1e-6), max(start.ki, 1e-6)
+    # name: (lower, upper, start); log10 for gains and scalings, linear for fractions
+    p: dict[str, tuple[float, float, float]] = {
+        "log_kp0": (math.log10(kp / 5), math.log10(kp * 5), math.log10(kp)),
+        "log_ki0": (math.log10(ki / 20), math.log10(ki * 20), math.log10(ki)),
+        "log_kd0": (math.log10(kp * 1e-5), math.log10(kp * 0.03), math.log10(kp * 1e-4)),
+    }
+    if structure in ("pid_ff", "composite"):
+        p["k1_ratio"] = (0.0, 1.3, 1.0)
+    if structure == "composite":
+        p["log_ke"] = (math.log10(n / 2000), math.log10(n / 5), math.log10(n / 200))
+        p["log_kec"] = (math.log10(n / 200), math.log10(float(n)), math.log10(n / 20))
+        for t in ("kp", "ki", "kd"):
+            p["scale_" + t] = (0.0, 0.95, 0.3)
+    names = tuple(p)
+    arr = np.array([p[k] for k in names])
+    return _Space(names=names, lo=arr[:, 0], hi=arr[:, 1], start=arr[:, 2])
+
+
+def _gains_from(
+    x: np.ndarray, space: _Space, k1_ideal: float, tables: Mapping[str, np.ndarray], n: int
+) -> FuzzyPIDGains:
+    v = dict(zip(space.names, (float(t) for t in x), strict=True))
+    kp0, ki0, kd0 = 10 ** v["log_kp0"], 10 ** v["log_ki0"], 10 ** v["log_kd0"]
+    k10 = v.get("k1_ratio", 0.0) * k1_ideal
+    if "log_ke" not in v:
+        return FuzzyPIDGains(kp0=kp0, ki0=ki0, kd0=kd0, k10=k10, ke=1.0, kec=1.0, n=n)
+    # output scales as fractions of the base gain keep Kx0 + min ΔKx >= 0 (tables in [−1, 1])
+    base = {"kp": kp0, "ki": ki0, "kd": kd0}
+    d = {"d" + t: v["scale_" + t] * base[t] * np.asarray(tables[t]) for t in ("kp", "ki", "kd")}
+    d["dk1"] = k10 * np.asarray(tables["k1"])
+    return FuzzyPIDGains(
+        kp0=kp0, ki0=ki0, kd0=kd0, k10=k10, ke=10 ** v["log_ke"], kec=10 ** v["log_kec"], n=n, **d
+    )
+
+
+# --- evaluation -----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class _Problem:
+    loop: Loop
+    scenario: Scenario
+    slave: int
+    variants: tuple[tuple[Plant, ...], ...]
+    seeds: tuple[int, ...]
+    master_ctl: AxisController
+    spec: SlaveTuneSpec
+
+
+def _evaluate(prob: _Problem, gains: Sequence[FuzzyPIDGains]) -> tuple[np.ndarray, np.ndarray]:
+    """Objective and worst-case quantities (saturation %, overshoot, fault) per candidate."""
+    rig = prob.loop.rig
+    n_v = len(prob.variants)
+    ctls = []
+    for g in gains:
+        slave_ctl = AxisController.from_gains(
+            lock_gain_codes_per_count=rig.axes[prob.slave].lock_gain_codes_per_count,
+            task_gains=g,
+            period_s=rig.period_s,
+            following_error_limit_counts=rig.axes[prob.slave].following_error_limit_counts,
+        )
+        row = [prob.master_ctl] * len(rig.axes)
+        row[prob.slave] = slave_ctl
+        ctls.extend([tuple(row)] * n_v)
+    plants = list(prob.variants) * len(gains)
+    seeds = list(prob.seeds) * len(gains)
+    batch = prepare_batch(prob.loop, plants=plants, controllers=ctls, seeds=seeds)
+    res = run_batch(batch, prob.scenario.inputs, metrics_only=True)
+    s = prob.slave
+    itae = res.metric("itae_counts_s2")[:, s].reshape(len(gains), n_v)
+    sat = res.metric("saturated_ticks")[:, s] / np.maximum(res.metric("task_ticks")[:, s], 1.0)
+    lead = np.maximum(-res.metric("min_err_counts")[:, s], 0.0)
+    over = 100.0 * lead / np.maximum(res.metric("max_err_counts")[:, s], 1.0)
+    fault = (res.metric("first_fault_tick") >= 0).any(axis=1)
+    worst = np.stack(
+        [
+            100.0 * sat.reshape(len(gains), n_v).max(axis=1),
+            over.reshape(len(gains), n_v).max(axis=1),
+            fault.reshape(len(gains), n_v).any(axis=1).astype(float),
+        ],
+        axis=1,
+    )
+    return itae.mean(axis=1), worst
+
+
+def _penalised(prob: _Problem, itae: np.ndarray, worst: np.ndarray) -> np.ndarray:
+    spec = prob.spec
+    viol = (
+        np.maximum(worst[:, 0] - spec.max_saturation_pct, 0.0) / max(spec.max_saturation_pct, 1.0)
+        + np.maximum(worst[:, 1] - spec.max_overshoot_pct, 0.0) / max(spec.max_overshoot_pct, 1.0)
+        + worst[:, 2] * 10.0
+    )
+    return np.where(viol > 0, _BIG * (1.0 + viol), itae)
+
+
+def tune_slave(
+    rig: Rig,
+    master_gains: PIGains,
+    *,
+    structure: str = "composite",
+    tables: Mapping[str, np.ndarray] | None = None,
+    start: PIGains,
+    spec: SlaveTuneSpec | None = None,
+    seed: int = 0,
+    progress: Callable[[str], None] | None = None,
+) -> SlaveTuning:
+    """Tune the slave's law by differential evolution over batched closed-loop runs.
+
+    Parameters
+    ----------
+    rig : Rig
+        Needs one master and one slave axis.
+    master_gains : PIGains
+        The master's PI (fixed during the slave's tuning).
+    structure : {"pid", "pid_ff", "composite"}
+        Law structure (see the module docstring).
+    tables : mapping of str to ndarray, optional
+        Normalised query tables ``kp``, ``ki``, ``kd``, ``k1`` (values in [−1, 1], shape
+        (2n+1, 2n+1)) for ``composite``; they set ``n``.
+    start : PIGains
+        Start point's base ``Kp0``, ``Ki0`` (e.g. from :func:`~servotune.tune.pi.tune_pi`); the
+        start has ``K1`` the ideal feedforward (``pid_ff``, ``composite``), output scales 0.3.
+    spec : SlaveTuneSpec, optional
+        Constraints, run and budget; defaults as documented there.
+    seed : int
+        Seeds the optimiser and the variants' noise: same seed, same result.
+    progress : callable, optional
+        Called with one line per generation (the CLI prints it on stderr).
+
+    Returns
+    -------
+    SlaveTuning
+
+    Raises
+    ------
+    SpecError
+        Unknown structure, missing tables, or a rig without master and slave.
+    """
+    spec = spec or SlaveTuneSpec()
+    if structure not in STRUCTURES:
+        raise SpecError(f"structure must be one of {', '.join(STRUCTURES)}, got {structure!r}")
+    roles = [a.role for a in rig.axes]
+    if "master" not in roles or "slave" not in roles:
+        raise SpecError(f"rig {rig.name!r} needs a master and a slave axis, has roles {roles}")
+    i_m, i_s = roles.index("master"), roles.index("slave")
+    if structure == "composite":
+        if tables is None:
+            raise SpecError("the composite structure needs query tables")
+        n = (np.asarray(tables["kp"]).shape[0] - 1) // 2
+        for t in TABLE_NAMES:
+            a = np.asarray(tables[t])
+            if a.shape != (2 * n + 1, 2 * n + 1) or np.max(np.abs(a)) > 1.0 + 1e-12:
+                raise SpecError(f"query table {t} must be (2n+1, 2n+1) with values in [-1, 1]")
+    else:
+        n = 1
+    loop = Loop.from_rig(rig, [master_gains if i == i_m else start for i in range(len(rig.axes))])
+    scenario = sync_move(
+        rig,
+        seconds=spec.seconds,
+        speed_fraction=spec.speed_fraction,
+        accel_s=spec.accel_s,
+        load_step_v=spec.load_step_v,
+    )
+    variants = tuple(
+        tuple(v if j == i_s else rig.axes[j].plant for j in range(len(rig.axes)))
+        for v in plant_variants(rig.axes[i_s].plant, spec.gain_spread, spec.tau_spread)
+    )
+    seeds = tuple(
+        int(s) for s in np.random.SeedSequence(seed).generate_state(len(variants), np.uint64)
+    )
+    prob = _Problem(
+        loop=loop,
+        scenario=scenario,
+        slave=i_s,
+        variants=variants,
+        seeds=seeds,
+        master_ctl=loop.controllers[i_m],
+        spec=spec,
+    )
+    space = _space(structure, start, n)
+    k1_ideal = ideal_feedforward(rig.axes[i_s].plant, rig.dac.lsb_v)
+    tab = tables or {}
+
+    def to_gains(x: np.ndarray) -> FuzzyPIDGains:
+        return _gains_from(x, space, k1_ideal, tab, n)
+
+    def objective(xs: np.ndarray) -> np.ndarray:
+        # vectorised: xs has shape (parameters, candidates)
+        cols = np.atleast_2d(xs.T) if xs.ndim == 2 else xs[None, :]
+        itae, worst = _evaluate(prob, [to_gains(x) for x in cols])
+        return _penalised(prob, itae, worst)
+
+    start_val = float(objective(space.start[:, None])[0])
+    unit = (space.start - space.lo) / (space.hi - space.lo)
+    rng = np.random.default_rng(seed)
+    sampler = qmc.LatinHypercube(d=len(space.names), rng=rng)
+    init_u = sampler.random(spec.population)
+    init_u[0] = unit  # the start is a member of the first population
+    init = space.lo + init_u * (space.hi - space.lo)
+    history: list[float] = []
+
+    def callback(intermediate_result: Any) -> None:
+        history.append(float(intermediate_result.fun))
+        if progress is not None:
+            best = intermediate_result.fun
+            shown = f"{best:.4g}" if best < _BIG else "infeasible"
+            progress(
+                f"tune {structure}: generation {len(history)}/{spec.generations}, best {shown}"
+            )
+
+    if spec.generations > 0:
+        res = differential_evolution(
+            objective,
+            list(zip(space.lo, space.hi, strict=True)),
+            maxiter=spec.generations,
+            init=init,
+            rng=np.random.default_rng(seed + 1),
+            polish=False,
+            tol=0.0,
+            atol=0.0,
+            updating="deferred",
+            vectorized=True,
+            callback=callback,
+        )
+        x_best, evaluations = res.x, int(res.nfev)
+    else:
+        vals = objective(init.T)
+        x_best, evaluations = init[int(np.argmin(vals))], spec.population
+    gains = to_gains(x_best)
+    itae, worst = _evaluate(prob, [gains])
+    val = float(_penalised(prob, itae, worst)[0])
+    feasible = val < _BIG
+    return SlaveTuning(
+        structure=structure,
+        gains=gains,
+        objective=val if feasible else math.inf,
+        start_objective=start_val if start_val < _BIG else math.inf,
+        feasible=feasible,
+        evaluations=evaluations + 1,
+        history=tuple(history),
+        worst={
+            "saturation_pct": float(worst[0, 0]),
+            "overshoot_pct": float(worst[0, 1]),
+            "fault": float(worst[0, 2]),
+        },
+    )
