@@ -955,6 +955,37 @@ def bench_fit(opts: Options) -> list[Figure]:
     return [Figure(name, statistics.median(times), "s")]
 
 
+@register("tune")
+def bench_tune(opts: Options) -> list[Figure]:
+    """``servotune tune`` end to end on the example rig (default budget, fresh process).
+
+    Each run is ``servotune tune RIG -o FILE --no-current``: start-up, PI synthesis of both
+    axes, query tables, the slave's optimisation over batched runs, the tuning file.
+
+    Returns
+    -------
+    list of Figure
+        ``tune_example_rig_s``; goal under 60 s.
+    """
+    import subprocess
+
+    exe = str(Path(sys.executable).parent / "servotune")
+    times = []
+    with tempfile.TemporaryDirectory() as d:
+        out = Path(d) / "tuning.json"
+        cmd = [exe, "tune", str(opts.rig_path), "-o", str(out), "--no-current"]
+        subprocess.run(cmd, check=True, capture_output=True)  # warm the numba cache
+        first = out.read_bytes()
+        for i in range(opts.sizes.fit_runs):
+            t0 = time.perf_counter()
+            subprocess.run(cmd, check=True, capture_output=True)
+            times.append(time.perf_counter() - t0)
+            progress(f"tune: run {i + 1}: {times[-1]:.2f} s")
+            if out.read_bytes() != first:
+                raise RuntimeError("servotune tune gave different bytes for the same seed")
+    return [Figure("tune_example_rig_s", statistics.median(times), "s", "goal < 60 s")]
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the selected benchmarks, print the figures, write the report.
 

@@ -173,7 +173,9 @@ def _cmd_tune(args: argparse.Namespace) -> int:
     from servotune.tuning import current_tuning_path, tuning_to_string, write_tuning
 
     _check_dirs(args.output)
-    spec = SlaveTuneSpec(generations=args.generations, population=args.population)
+    spec = SlaveTuneSpec(generations=args.generations, population=args.population,
+                         max_overshoot_pct=args.max_overshoot_pct,
+                         max_saturation_pct=args.max_saturation_pct)  # fmt: skip
     tuning = tune_rig(args.rig, seed=args.seed, spec=spec, rule_base=args.rule_base,
                       progress=lambda msg: print(msg, file=sys.stderr))  # fmt: skip
     if args.output and args.output != "-":
@@ -190,7 +192,7 @@ def _cmd_tune(args: argparse.Namespace) -> int:
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    from servotune.pipeline import run_demo
+    from servotune.pipeline import comparison_table_text, run_demo
 
     Path(args.out).mkdir(parents=True, exist_ok=True)
     summary = run_demo(args.rig, args.out, seed=args.seed)
@@ -201,8 +203,10 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         err = f["relative_error"]
         print(f"fit {name}: {'+'.join(f['structure'])}; gain {err['gain_cps_per_v']:+.2%}, "
               f"tau {err['tau_s']:+.2%} vs the virtual rig's truth", file=sys.stderr)  # fmt: skip
-    print(f"wrote demo_summary.json, lock_hold.png, track.png, fit_*.png, fitted-rig.toml and "
-          f"logs to {args.out}", file=sys.stderr)  # fmt: skip
+    print("Figure 4 (slave tracking, each structure tuned with the same budget):\n"
+          + comparison_table_text(summary["comparison"]), file=sys.stderr)  # fmt: skip
+    print(f"wrote demo_summary.json, lock_hold.png, track.png, fit_*.png, fitted-rig.toml, "
+          f"tuning.json, figure4.png and logs to {args.out}", file=sys.stderr)  # fmt: skip
     return EXIT_OK
 
 
@@ -268,8 +272,20 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("-o", "--output", help="tuning file to write (default: stdout)")
     s.add_argument("--seed", type=int, default=0, help="optimiser and noise seed (default 0)")
     s.add_argument("--rule-base", default="default", choices=["default", "classic"])
-    s.add_argument("--generations", type=int, default=30, help="optimiser budget (default 30)")
-    s.add_argument("--population", type=int, default=24, help="candidates per generation")
+    s.add_argument("--generations", type=int, default=40, help="optimiser budget (default 40)")
+    s.add_argument("--population", type=int, default=32, help="candidates per generation")
+    s.add_argument(
+        "--max-overshoot-pct",
+        type=float,
+        default=50.0,
+        help="largest sync-error overshoot, %% of the largest lag (default 50)",
+    )
+    s.add_argument(
+        "--max-saturation-pct",
+        type=float,
+        default=2.0,
+        help="largest share of task ticks on a D/A rail, %% (default 2)",
+    )
     s.add_argument(
         "--no-current",
         action="store_true",

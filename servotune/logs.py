@@ -21,7 +21,8 @@ import io
 import math
 import os
 import re
-import tempfile
+import secrets
+import stat
 import warnings
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
@@ -201,27 +202,49 @@ class Log:
         return self.axes[name]
 
 
-def atomic_write_text(path: str | Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temp file in the same directory and a rename.
+def atomic_write_bytes(path: str | Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` through a new file in the same directory and a rename.
+
+    The file keeps the mode of the file it replaces (a new file gets 0o666 less the umask).
+    On any error the temporary file is removed and ``path`` is untouched.
 
     Raises
     ------
     OSError
         If the directory does not exist or is not writable (nothing is left behind).
     """
-    p = Path(path)
-    d = p.parent if str(p.parent) else Path(".")
+    target = Path(path)
+    d = target.parent if str(target.parent) else Path(".")
     if not d.is_dir():
         raise FileNotFoundError(f"directory {str(d)!r} does not exist")
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=d)
     try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
-            fh.write(text)
-        os.replace(tmp, p)
+        mode: int | None = stat.S_IMODE(target.stat().st_mode)
+    except FileNotFoundError:
+        mode = None
+    while True:
+        tmp = target.with_name(f".{target.name}.{secrets.token_hex(6)}.tmp")
+        try:
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        except FileExistsError:
+            continue
+        break
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        if mode is not None:
+            os.chmod(tmp, mode)
+        os.replace(tmp, target)
     except BaseException:
-        if os.path.exists(tmp):
+        with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
+
+
+def atomic_write_text(path: str | Path, text: str) -> None:
+    """Write UTF-8 text atomically (:func:`atomic_write_bytes`), newlines as given."""
+    atomic_write_bytes(path, text.encode("utf-8"))
 
 
 def format_log(

@@ -1,9 +1,10 @@
 """The end-to-end job on a rig (what ``make demo`` runs).
 
-Today: the virtual rig and the closed loop — the lock module holding both axes against their
-drift, and a PI move of the master with the slave following, wrapping the 24-bit counter — with
-a plot and a summary written into the output directory. Fit, tune, verify and export join this
-pipeline as they land.
+Today: the virtual rig and the closed loop (the lock module holding both axes against their
+drift, a PI move of the master with the slave following, wrapping the 24-bit counter),
+identification of both axes from simulated logs, tuning from the fitted models, and the
+Figure-4 comparison, with plots and a summary written into the output directory. Verify and
+export join this pipeline as they land.
 """
 
 from __future__ import annotations
@@ -25,10 +26,12 @@ from servotune.scenarios import Inputs, Scenario, build_scenario
 from servotune.tune.pi import pi_loop_shaping
 
 __all__ = [
+    "comparison_table_text",
     "default_pi_gains",
     "fit_log",
     "lock_hold",
     "run_demo",
+    "run_comparison",
     "run_scenario",
     "trace_log_columns",
 ]
@@ -130,9 +133,11 @@ def lock_hold(rig: Rig, *, seconds: float = 60.0, settle_s: float = 2.0, seed: i
 def run_demo(rig_path: str | Path, out_dir: str | Path, *, seed: int = 0) -> dict[str, Any]:
     """Run the demo job and write its products into ``out_dir``.
 
-    Writes ``demo_summary.json``, ``lock_hold.png``, ``track.png``, ``track_log.csv``, and for
+    Writes ``demo_summary.json``, ``lock_hold.png``, ``track.png``, ``track_log.csv``; for
     the identification step ``ident_log.csv`` (a closed-loop multi-level PRBS per axis),
-    ``fit_<axis>.png`` and ``fitted-rig.toml`` (the rig with the fitted plants).
+    ``fit_<axis>.png`` and ``fitted-rig.toml`` (the rig with the fitted plants); for tuning
+    ``tuning.json`` (tuned on the fitted rig) and the Figure-4 comparison ``figure4.png``,
+    ``figure4.json``.
 
     Returns
     -------
@@ -207,8 +212,21 @@ def run_demo(rig_path: str | Path, out_dir: str | Path, *, seed: int = 0) -> dic
             },
             "structure": list(result.structure),
         }
+    # tune from the identified models (what a user has), then Figure 4 on the example rig
+    from servotune.tune.workflow import tune_rig
+    from servotune.tuning import write_tuning
+
+    tuning = tune_rig(fitted_rig, seed=seed)
+    write_tuning(tuning, out / "tuning.json")
+    cmp = run_comparison(rig, out, seed=seed)
     summary = {
+        "comparison": cmp.to_dict()["table"],
         "identification": identification,
+        "tuning": {
+            "master_pi": tuning.design["master"]["pi"],
+            "slave_itae": tuning.design["slave"]["tuning"]["objective"],
+            "slave_start_itae": tuning.design["slave"]["tuning"]["start_objective"],
+        },
         "lock_hold": {
             name: {
                 "observed_counts": list(hold.observed[name]),
@@ -277,3 +295,54 @@ def fit_log(
     result = fit(log, axis=log_axis, structure=structure, compute_s=compute_s)
     name = axis if axis is not None else (log_axis or next(iter(log.axes)))
     return result, log, name
+
+
+_COMPARISON_COLUMNS = (
+    ("max_sync_counts", "max sync [counts]", "{:.0f}"),
+    ("rms_sync_counts", "RMS sync [counts]", "{:.1f}"),
+    ("rise_s", "rise [ms]", "{:.0f}"),
+    ("settling_s", "settling [ms]", "{:.0f}"),
+    ("itae", "ITAE [counts·s²]", "{:.4g}"),
+)
+
+
+def comparison_table_text(table: dict[str, dict[str, float]]) -> str:
+    """The Figure-4 table as aligned text (rise and settling in ms)."""
+    head = ["structure"] + [c[1] for c in _COMPARISON_COLUMNS]
+    rows = [head]
+    for name, row in table.items():
+        cells = [name]
+        for key, _, fmt in _COMPARISON_COLUMNS:
+            v = row[key] * (1000.0 if key in ("rise_s", "settling_s") else 1.0)
+            cells.append("n/a" if not math.isfinite(v) else fmt.format(v))
+        rows.append(cells)
+    widths = [max(len(r[i]) for r in rows) for i in range(len(head))]
+    return "\n".join("  ".join(c.rjust(w) for c, w in zip(r, widths, strict=True)) for r in rows)
+
+
+def run_comparison(
+    rig: Rig,
+    out_dir: str | Path,
+    *,
+    seed: int = 0,
+    spec: Any = None,
+    progress: Any = None,
+) -> Any:
+    """Figure 4 on ``rig``: tune the three structures, write ``figure4.png`` and ``figure4.json``.
+
+    Returns
+    -------
+    Comparison
+        See :func:`servotune.tune.workflow.compare_structures`.
+    """
+    from servotune.plot import plot_comparison, save_figure
+    from servotune.tune.workflow import compare_structures
+
+    out = Path(out_dir)
+    cmp = compare_structures(rig, spec=spec, seed=seed, progress=progress)
+    slave = [a.role for a in rig.axes].index("slave")
+    save_figure(plot_comparison(dict(cmp.traces), slave), out / "figure4.png")
+    data = {"schema": "servotune.figure4/1", "seed": seed, "version": __version__}
+    data.update(cmp.to_dict())
+    atomic_write_text(out / "figure4.json", json.dumps(data, indent=2, sort_keys=True) + "\n")
+    return cmp

@@ -12,7 +12,14 @@ import numpy as np
 
 from servotune.engine import Trace
 
-__all__ = ["plot_lock_hold", "plot_tracking", "save_figure"]
+__all__ = [
+    "plot_comparison",
+    "plot_fit",
+    "plot_lock_hold",
+    "plot_query_tables",
+    "plot_tracking",
+    "save_figure",
+]
 
 _PNG_META = {"Software": None}
 
@@ -112,5 +119,54 @@ def plot_fit(
         a.grid(True, alpha=0.3)
         a.legend(loc="upper right", fontsize=8)
     axs[0].set_title(title or "identification: estimation | validation")
+    fig.tight_layout()
+    return fig
+
+
+def plot_comparison(traces: dict[str, Trace], slave: int, title: str = "") -> plt.Figure:
+    """Figure 4: the slave's speed and sync error under each tuned structure.
+
+    Parameters
+    ----------
+    traces : dict of str to Trace
+        Per structure (``pid``, ``pid_ff``, ``composite``), the same scenario.
+    slave : int
+        The slave's axis column.
+    """
+    fig, axs = plt.subplots(2, 1, figsize=(9, 6.5), sharex=True)
+    labels = {"pid": "PID", "pid_ff": "PID + feedforward", "composite": "fuzzy-PID + feedforward"}
+    master_drawn = False
+    for name, tr in traces.items():
+        t = tr.time_s
+        master = 1 - slave if len(tr.axis_names) == 2 else 0
+        if not master_drawn:
+            axs[0].plot(t, tr.speed_cps[:, master], "k--", lw=0.8, label="master")
+            master_drawn = True
+        axs[0].plot(t, tr.speed_cps[:, slave], lw=0.9, label=labels.get(name, name))
+        axs[1].plot(t, tr.err_counts[:, slave], lw=0.9, label=labels.get(name, name))
+    axs[0].set_ylabel("slave speed [counts/s]")
+    axs[1].set_ylabel("sync error [counts]")
+    axs[1].set_xlabel("time [s]")
+    for a in axs:
+        a.grid(True, alpha=0.3)
+        a.legend(loc="best", fontsize=8)
+    axs[0].set_title(title or "slave tracking: PID, PID + feedforward, composite (Figure 4)")
+    fig.tight_layout()
+    return fig
+
+
+def plot_query_tables(tables: dict[str, np.ndarray], n: int, title: str = "") -> plt.Figure:
+    """Heat maps of query tables (row E, column EC, levels −n…n)."""
+    names = list(tables)
+    fig, axs = plt.subplots(1, len(names), figsize=(3.2 * len(names), 3.2), squeeze=False)
+    ext = (-n - 0.5, n + 0.5, n + 0.5, -n - 0.5)
+    for ax, name in zip(axs[0], names, strict=True):
+        im = ax.imshow(np.asarray(tables[name], dtype=float), extent=ext, cmap="coolwarm")
+        ax.set_title(name, fontsize=9)
+        ax.set_xlabel("EC level")
+        ax.set_ylabel("E level")
+        fig.colorbar(im, ax=ax, fraction=0.046)
+    if title:
+        fig.suptitle(title)
     fig.tight_layout()
     return fig

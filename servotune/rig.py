@@ -8,12 +8,8 @@ be silently ignored).
 
 from __future__ import annotations
 
-import contextlib
 import errno
 import math
-import os
-import secrets
-import stat
 import tomllib
 from collections.abc import Mapping, MutableMapping
 from dataclasses import dataclass, fields
@@ -29,6 +25,7 @@ from servotune.hw import counter as hw_counter
 from servotune.hw import dac as hw_dac
 from servotune.hw import timer as hw_timer
 from servotune.laws.lock import lock_holding_band
+from servotune.logs import atomic_write_bytes
 from servotune.plant import Plant
 
 __all__ = [
@@ -599,37 +596,6 @@ def _plant_section(
     return doc.as_string(), written
 
 
-def _write_atomic(target: Path, data: bytes) -> None:
-    """Write ``data`` to a new file next to ``target`` and move it over ``target``.
-
-    The file keeps the mode of the file it replaces (a new file gets 0o666 less the umask).
-    On any error the temporary file is removed and ``target`` is untouched.
-    """
-    try:
-        mode: int | None = stat.S_IMODE(target.stat().st_mode)
-    except FileNotFoundError:
-        mode = None
-    while True:
-        tmp = target.with_name(f".{target.name}.{secrets.token_hex(6)}.tmp")
-        try:
-            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-        except FileExistsError:
-            continue
-        break
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        if mode is not None:
-            os.chmod(tmp, mode)
-        os.replace(tmp, target)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
-
-
 def write_plant(
     path: str | Path,
     axis: str,
@@ -752,4 +718,4 @@ def write_plant(
             f"[axis.{axis}.plant] in {str(target)!r} reads back different values for "
             f"{', '.join(wrong)} (duplicate or dotted keys?); nothing written"
         )
-    _write_atomic(target, new_text.encode("utf-8"))
+    atomic_write_bytes(target, new_text.encode("utf-8"))

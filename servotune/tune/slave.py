@@ -87,15 +87,15 @@ class SlaveTuneSpec:
     """
 
     max_saturation_pct: float = 2.0
-    max_overshoot_pct: float = 30.0
+    max_overshoot_pct: float = 50.0
     gain_spread: float = 0.2
     tau_spread: float = 0.3
     seconds: float = 2.4
     speed_fraction: float = 0.5
     accel_s: float = 0.1
     load_step_v: float = -0.3
-    population: int = 24
-    generations: int = 30
+    population: int = 32
+    generations: int = 40
 
     def __post_init__(self) -> None:
         checks = {
@@ -132,7 +132,9 @@ class SlaveTuning:
     objective : float
         Mean ITAE of the sync error over the variants [counts·s²] (``inf`` if infeasible).
     start_objective : float
-        The same for the start point.
+        The same for the start point (whether or not it keeps the constraints).
+    start_feasible : bool
+        The start point keeps the constraints.
     feasible : bool
         All constraints hold on every variant.
     evaluations : int
@@ -147,6 +149,7 @@ class SlaveTuning:
     gains: FuzzyPIDGains
     objective: float
     start_objective: float
+    start_feasible: bool
     feasible: bool
     evaluations: int
     history: tuple[float, ...] = field(repr=False)
@@ -164,6 +167,7 @@ class SlaveTuning:
             "gains": self.gains.to_dict(),
             "history": [num(h) for h in self.history],
             "objective": num(self.objective),
+            "start_feasible": self.start_feasible,
             "start_objective": num(self.start_objective),
             "structure": self.structure,
             "worst": {k: float(v) for k, v in sorted(self.worst.items())},
@@ -393,7 +397,8 @@ def tune_slave(
         itae, worst = _evaluate(prob, [to_gains(x) for x in cols])
         return _penalised(prob, itae, worst)
 
-    start_val = float(objective(space.start[:, None])[0])
+    itae0, worst0 = _evaluate(prob, [to_gains(space.start)])
+    start_feasible = bool(_penalised(prob, itae0, worst0)[0] < _BIG)
     unit = (space.start - space.lo) / (space.hi - space.lo)
     rng = np.random.default_rng(seed)
     sampler = qmc.LatinHypercube(d=len(space.names), rng=rng)
@@ -437,7 +442,8 @@ def tune_slave(
         structure=structure,
         gains=gains,
         objective=val if feasible else math.inf,
-        start_objective=start_val if start_val < _BIG else math.inf,
+        start_objective=float(itae0[0]),
+        start_feasible=start_feasible,
         feasible=feasible,
         evaluations=evaluations + 1,
         history=tuple(history),

@@ -130,7 +130,9 @@ def tune_rig(
     gains: list[object | None] = [None] * len(rig.axes)
     gains[i_m], gains[i_s] = master_pi.gains, slave.gains
     ctls = Loop.from_rig(rig, gains).controllers
-    say(f"tune: ITAE {slave.start_objective:.4g} at the start, {slave.objective:.4g} tuned")
+    kept = "keeps" if slave.start_feasible else "breaks"
+    say(f"tune: sync-error ITAE {slave.start_objective:.4g} counts·s² at the start (which {kept} "
+        f"the constraints), {slave.objective:.4g} tuned")  # fmt: skip
     return Tuning(
         rig_name=rig.name,
         rig_sha256=file_sha256(rig_path),
