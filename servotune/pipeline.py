@@ -30,8 +30,8 @@ __all__ = [
     "default_pi_gains",
     "fit_log",
     "lock_hold",
-    "run_demo",
     "run_comparison",
+    "run_demo",
     "run_scenario",
     "trace_log_columns",
 ]
