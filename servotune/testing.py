@@ -70,7 +70,7 @@ def step_response(
     seconds: float = 2.0,
     seed: int = 0,
 ) -> StepResponse:
-    """Step the master's reference by ``step_counts`` (every axis in task mode) and measure ``axis``.
+    """Step the master's reference by ``step_counts`` (all axes in task mode); measure ``axis``.
 
     A slave's response is to the master's move (its reference is the master's position).
     """
