@@ -191,6 +191,31 @@ def _cmd_tune(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_verify(args: argparse.Namespace) -> int:
+    from servotune.verify import format_table, verify_files
+
+    result, record, path = verify_files(args.tuning, args.spec, args.rig, seed=args.seed,
+                                        progress=lambda m: print(m, file=sys.stderr))  # fmt: skip
+    if args.json:
+        print(json.dumps(record, indent=2, sort_keys=True))
+    else:
+        print(format_table(result))
+    if not record["rig_matches_tuning"]:
+        print("note: the rig file differs from the one the tuning was made for", file=sys.stderr)
+    print(f"wrote the verification record to {path}", file=sys.stderr)
+    if args.report:
+        from servotune.report import write_report
+        from servotune.tuning import read_tuning
+        from servotune.verify import default_rig_path
+
+        Path(args.report).mkdir(parents=True, exist_ok=True)
+        rig_path = args.rig or default_rig_path(read_tuning(args.tuning))
+        out = write_report(args.report, tuning_path=args.tuning, rig_path=rig_path,
+                           verification=result)  # fmt: skip
+        print(f"wrote the report to {out}", file=sys.stderr)
+    return EXIT_OK if result.passed else EXIT_FAILED
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     from servotune.pipeline import comparison_table_text, run_demo
 
@@ -292,6 +317,15 @@ def _parser() -> argparse.ArgumentParser:
         help="do not record the result as the workbench's current tuning",
     )
     s.set_defaults(func=_cmd_tune)
+
+    s = sub.add_parser("verify", help="verify a tuning against a spec in the bit-true loop")
+    s.add_argument("tuning", help="tuning file (from servotune tune)")
+    s.add_argument("--spec", required=True, help="spec file (TOML)")
+    s.add_argument("--rig", help="rig file (default: plants/<rig name>.toml)")
+    s.add_argument("--seed", type=int, default=None, help="Monte-Carlo seed (default: the spec's)")
+    s.add_argument("--json", action="store_true", help="the verification record as JSON on stdout")
+    s.add_argument("--report", help="also write the HTML report into this directory")
+    s.set_defaults(func=_cmd_verify)
 
     s = sub.add_parser("demo", help="run the whole job on a rig and write into a directory")
     s.add_argument("rig", help="rig file (TOML)")

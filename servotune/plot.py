@@ -13,6 +13,7 @@ import numpy as np
 from servotune.engine import Trace
 
 __all__ = [
+    "plot_bode",
     "plot_comparison",
     "plot_fit",
     "plot_lock_hold",
@@ -168,5 +169,24 @@ def plot_query_tables(tables: dict[str, np.ndarray], n: int, title: str = "") ->
         fig.colorbar(im, ax=ax, fraction=0.046)
     if title:
         fig.suptitle(title)
+    fig.tight_layout()
+    return fig
+
+
+def plot_bode(responses: dict[str, tuple[np.ndarray, np.ndarray]], title: str = "") -> plt.Figure:
+    """Open-loop Bode plots: per name ``(omega [rad/s], L(e^{jωT}) complex)``."""
+    fig, axs = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
+    for name, (w, resp) in responses.items():
+        axs[0].semilogx(w, 20 * np.log10(np.abs(resp)), label=name)
+        axs[1].semilogx(w, np.degrees(np.unwrap(np.angle(resp))), label=name)
+    axs[0].axhline(0.0, color="k", lw=0.6)
+    axs[1].axhline(-180.0, color="k", lw=0.6)
+    axs[0].set_ylabel("|L| [dB]")
+    axs[1].set_ylabel("phase [deg]")
+    axs[1].set_xlabel("frequency [rad/s]")
+    for a in axs:
+        a.grid(True, which="both", alpha=0.3)
+        a.legend(loc="best", fontsize=8)
+    axs[0].set_title(title or "open loop L = C · LSB · P (discrete, as the engine runs it)")
     fig.tight_layout()
     return fig

@@ -27,6 +27,7 @@ __all__ = [
     "excitation_amplitude_codes",
     "prbs_codes",
     "step_codes",
+    "step_inputs",
     "sync_move",
     "trapezoid_ref",
 ]
@@ -373,6 +374,29 @@ def sync_move(
         if other.role == "slave":
             inp = inp.replace_axis(j, mode=mode, load_v=load)
     return Scenario(name="sync", axis=master.name, inputs=inp, needs_task_law=True)
+
+
+def step_inputs(rig: Rig, *, step_counts: int, seconds: float = 2.0) -> Inputs:
+    """A step of the master's reference by ``step_counts`` after 0.1 s of lock; all axes in task.
+
+    Raises
+    ------
+    SpecError
+        If the run is too short.
+    """
+    n = math.floor(seconds / rig.period_s + 0.5)
+    lead = math.floor(0.1 / rig.period_s + 0.5)
+    if n <= lead + 10:
+        raise SpecError(f"seconds must exceed 0.15 s [s], got {seconds!r}")
+    master = next((i for i, a in enumerate(rig.axes) if a.role == "master"), 0)
+    mode = np.full(n, MODE_TASK, dtype=np.int64)
+    mode[:lead] = MODE_LOCK
+    ref = np.zeros(n, dtype=np.int64)
+    ref[lead:] = int(step_counts)
+    inp = Inputs.hold(n, len(rig.axes)).replace_axis(master, ref_counts=ref)
+    for i in range(len(rig.axes)):
+        inp = inp.replace_axis(i, mode=mode)
+    return inp
 
 
 def _sync(rig: Rig, axis: str, n: int, closed_loop: bool) -> Scenario:

@@ -20,7 +20,6 @@ The fixtures ``servotune_rig`` and ``servotune_tuning`` load the files named by 
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -29,10 +28,10 @@ import numpy as np
 
 from servotune.engine import simulate
 from servotune.errors import SpecError
-from servotune.laws.axis import MODE_LOCK, MODE_TASK
+from servotune.laws.axis import MODE_TASK
 from servotune.metrics import StepInfo, step_info
 from servotune.rig import Rig, load_rig
-from servotune.scenarios import Inputs
+from servotune.scenarios import step_inputs
 from servotune.tuning import Tuning, read_tuning
 
 __all__ = ["StepResponse", "assert_step_response", "step_response"]
@@ -78,19 +77,8 @@ def step_response(
     names = rig.axis_names
     if axis not in names:
         raise SpecError(f"no axis {axis!r}; axes: {list(names)}")
-    n = math.floor(seconds / rig.period_s + 0.5)
-    lead = math.floor(0.1 / rig.period_s + 0.5)
-    if n <= lead + 10:
-        raise SpecError(f"seconds must exceed 0.15 s [s], got {seconds!r}")
-    master = next((i for i, a in enumerate(rig.axes) if a.role == "master"), 0)
-    inp = Inputs.hold(n, len(names))
-    mode = np.full(n, MODE_TASK, dtype=np.int64)
-    mode[:lead] = MODE_LOCK
-    ref = np.zeros(n, dtype=np.int64)
-    ref[lead:] = int(step_counts)
-    inp = inp.replace_axis(master, ref_counts=ref)
-    for i in range(len(names)):
-        inp = inp.replace_axis(i, mode=mode)
+    inp = step_inputs(rig, step_counts=step_counts, seconds=seconds)
+    lead = int(np.argmax(inp.mode[:, 0] == MODE_TASK))
     tr = simulate(loop, inp, seed=seed)
     i = names.index(axis)
     t = tr.time_s[lead:] - tr.time_s[lead]

@@ -1,0 +1,384 @@
+"""servotune.verify: specs, verification on the bit-true loop, checks, and the record."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from servotune.errors import SpecError
+from servotune.fixed import E_MAX, INT64_MAX, Fixed
+from servotune.laws.fuzzy_pid import FuzzyPIDGains
+from servotune.laws.pi import PIConstants
+from servotune.rig import EXAMPLE_RIG_PATH, load_rig
+from servotune.tune.workflow import tune_rig
+from servotune.tuning import Tuning, file_sha256, read_tuning, write_tuning
+from servotune.verify import (
+    ScenarioSpec,
+    Spec,
+    check_overflow,
+    check_speed,
+    check_timer,
+    format_table,
+    load_spec,
+    max_safe_gain_q,
+    plant_variants,
+    record_path,
+    trusted_record,
+    verification_record,
+    verify,
+    verify_files,
+    write_record,
+)
+
+SPEC_PATH = EXAMPLE_RIG_PATH.with_name("pc-dual-servo.spec.toml")
+
+
+@pytest.fixture(scope="module")
+def rig():
+    return load_rig(EXAMPLE_RIG_PATH)
+
+
+@pytest.fixture(scope="module")
+def spec() -> Spec:
+    return load_spec(SPEC_PATH)
+
+
+@pytest.fixture(scope="module")
+def tuning_file(tmp_path_factory) -> Path:
+    """A good tuning: default-budget ``tune_rig`` of the example rig (seed 0), on disk."""
+    path = tmp_path_factory.mktemp("verify") / "tuning.json"
+    write_tuning(tune_rig(EXAMPLE_RIG_PATH, seed=0), path)
+    return path
+
+
+@pytest.fixture(scope="module")
+def good(tuning_file) -> Tuning:
+    return read_tuning(tuning_file)
+
+
+@pytest.fixture(scope="module")
+def good_result(good, rig, spec):
+    return verify(good, rig, spec)
+
+
+def small(spec: Spec, count: int = 4, **scenario_changes: float) -> Spec:
+    """The shipped spec with fewer variants, its sync scenario only (changed as given)."""
+    sync = dataclasses.replace(spec.scenario("sync"), **scenario_changes)
+    mc = dataclasses.replace(spec.montecarlo, count=count)
+    return dataclasses.replace(spec, scenarios=(sync,), montecarlo=mc)
+
+
+def with_slave_task(tuning: Tuning, task) -> Tuning:
+    i = tuning.axis_names.index("slave")
+    ctls = list(tuning.controllers)
+    ctls[i] = dataclasses.replace(ctls[i], task=task)
+    return dataclasses.replace(tuning, controllers=tuple(ctls))
+
+
+# --- the spec file -------------------------------------------------------------------------
+
+
+def test_shipped_spec_loads(spec) -> None:
+    assert spec.name == "pc-dual-servo" and spec.rig == "pc-dual-servo"
+    assert [s.name for s in spec.scenarios] == ["sync", "track", "lock"]
+    sync = spec.scenario("sync")
+    assert sync.kind == "sync" and sync.seconds == 2.4 and sync.load_step_v == -0.3
+    assert set(sync.limits) == {
+        "max_overshoot_pct",
+        "max_settling_time_s",
+        "max_sync_error_counts",
+        "max_rms_sync_error_counts",
+        "max_steady_lag_counts",
+        "max_saturation_pct",
+    }
+    # SPEC §1a: the lock holds each motor within ±1 pulse = ±4 counts at x4
+    assert spec.scenario("lock").limits == {"max_holding_band_counts": 4.0}
+    assert spec.montecarlo.count >= 32 and spec.max_period_error_ppm == 100.0
+
+
+def _write(tmp_path: Path, text: str) -> Path:
+    p = tmp_path / "bad.spec.toml"
+    p.write_text(text, encoding="utf-8")
+    return p
+
+
+SYNC = "[scenario.sync]\nmax_sync_error_counts = 600.0\n"
+
+
+@pytest.mark.parametrize(
+    ("text", "named"),
+    [
+        ("[scenario.sync]\nmax_overshot_pct = 5.0\n", "scenario.sync.max_overshot_pct"),
+        (SYNC + "[limits]\nx = 1\n", "limits"),
+        (SYNC + "[montecarlo]\ncont = 3\n", "montecarlo.cont"),
+        ("[scenario.sync]\nmax_sync_error_counts = -1.0\n", "scenario.sync.max_sync_error_counts"),
+        ("[scenario.sync]\nmax_overshoot_pct = -0.5\n", "scenario.sync.max_overshoot_pct"),
+        ("[scenario.sync]\nmax_saturation_pct = 120\n", "scenario.sync.max_saturation_pct"),
+        (SYNC + "max_rms_sync_error_counts = 700.0\n", "scenario.sync.max_rms_sync_error_counts"),
+        (SYNC + "max_steady_lag_counts = 601\n", "scenario.sync.max_steady_lag_counts"),
+        (SYNC + "max_settling_time_s = 3.0\n", "scenario.sync.max_settling_time_s"),
+        (SYNC + "speed_fraction = 1.5\n", "scenario.sync.speed_fraction"),
+        ('[scenario.sync]\nmax_overshoot_pct = "5"\n', "scenario.sync.max_overshoot_pct"),
+        ("[scenario.sync]\nseconds = 2.4\n", "scenario.sync"),  # no limit at all
+        ("[scenario.lock]\nmax_sync_error_counts = 3\n", "scenario.lock.max_sync_error_counts"),
+        ("[scenario.lock]\nmax_holding_band_counts = 4\nsettle_s = 12\n", "scenario.lock.settle_s"),
+        ("[scenario.mine]\nmax_saturation_pct = 1\n", "scenario.mine"),  # no such kind
+        ('[scenario.x]\nkind = "ramp"\nmax_saturation_pct = 1\n', "scenario.x.kind"),
+        (SYNC + "[montecarlo]\ngain_spread = 1.5\n", "montecarlo.gain_spread"),
+        (SYNC + "[montecarlo]\ncount = 2.5\n", "montecarlo.count"),
+        (SYNC + "[montecarlo]\noffset_spread_v = -0.001\n", "montecarlo.offset_spread_v"),
+        (SYNC + "[timer]\nmax_period_error_ppm = -3\n", "timer.max_period_error_ppm"),
+        ('[spec]\nname = "x"\n', "scenario"),  # no scenario
+    ],
+)
+def test_bad_spec_names_the_key(tmp_path, text, named) -> None:
+    with pytest.raises(SpecError) as info:
+        load_spec(_write(tmp_path, text))
+    msg = str(info.value)
+    assert named in msg and "\n" not in msg
+
+
+def test_bad_spec_values_carry_units(tmp_path) -> None:
+    with pytest.raises(SpecError, match=r"max_sync_error_counts must be >= 0 \[counts\], got -1"):
+        load_spec(_write(tmp_path, "[scenario.sync]\nmax_sync_error_counts = -1\n"))
+    with pytest.raises(SpecError, match=r"gain_spread must be in \[0, 0.9\] \[1\], got 1.5"):
+        load_spec(_write(tmp_path, SYNC + "[montecarlo]\ngain_spread = 1.5\n"))
+
+
+def test_parameters_of_other_kinds_are_not_judged() -> None:
+    # settle_s (a lock parameter, default 2 s) does not constrain a 1-s sync run
+    sc = ScenarioSpec(name="short", kind="sync", seconds=1.0, max_saturation_pct=2)
+    assert sc.limits == {"max_saturation_pct": 2.0} and "settle_s" not in sc.to_dict()
+    with pytest.raises(SpecError, match=r"scenario\.l\.speed_fraction does not apply"):
+        ScenarioSpec(name="l", kind="lock", speed_fraction=0.9, max_holding_band_counts=4)
+
+
+def test_spec_file_missing_or_not_toml(tmp_path) -> None:
+    missing = tmp_path / "nope.spec.toml"
+    with pytest.raises(SpecError, match=r"cannot read spec file .*nope\.spec\.toml"):
+        load_spec(missing)
+    with pytest.raises(SpecError, match="not valid TOML"):
+        load_spec(_write(tmp_path, "[scenario.sync\nmax_overshoot_pct = 5\n"))
+
+
+def test_spec_for_another_rig_or_axis_is_refused(good, rig, spec) -> None:
+    with pytest.raises(SpecError, match="written for rig 'other'"):
+        verify(good, rig, dataclasses.replace(small(spec), rig="other"))
+    mc = dataclasses.replace(spec.montecarlo, axes=("gantry",))
+    with pytest.raises(SpecError, match=r"montecarlo\.axes names 'gantry'"):
+        verify(good, rig, dataclasses.replace(small(spec), montecarlo=mc))
+
+
+def test_plant_variants_stay_in_their_ranges(rig, spec) -> None:
+    mc = dataclasses.replace(spec.montecarlo, count=50, axes=("slave",))
+    vs = plant_variants(rig, mc)
+    assert len(vs) == 51 and vs[0].label == "nominal" and vs[-1].label == "mc50"
+    assert vs[0].plants == tuple(a.plant for a in rig.axes)
+    m0, s0 = rig.axis("master").plant, rig.axis("slave").plant
+    g = np.array([v.plants[1].gain_cps_per_v / s0.gain_cps_per_v for v in vs[1:]])
+    tau = np.array([v.plants[1].tau_s / s0.tau_s for v in vs[1:]])
+    off = np.array([v.plants[1].offset_v - s0.offset_v for v in vs[1:]])
+    assert np.all(np.abs(g - 1) <= 0.2) and np.all(np.abs(tau - 1) <= 0.3)
+    assert np.all(np.abs(off) <= 0.002 + 1e-15)
+    assert np.ptp(g) > 0.2  # they do spread
+    assert all(v.plants[0] == m0 for v in vs)  # the master is not named: it stays nominal
+    assert plant_variants(rig, mc) == vs  # deterministic in the seed
+    assert plant_variants(rig, mc, seed=1) != vs
+
+
+# --- verification --------------------------------------------------------------------------
+
+
+def test_good_tuning_passes_shipped_spec_with_margin(good_result) -> None:
+    v = good_result
+    assert v.passed, v.failures
+    assert v.failures == []
+    assert len(v.variants) == 65  # nominal + 64
+    for r in v.rows:
+        if r.quantity in ("holding_band_counts", "fault_runs", "saturation_pct"):
+            continue
+        # the spec was set so that a default-budget tuning keeps >= 10 % on every limit
+        assert r.relative_margin >= 0.10, r
+    # the lock holds every axis within ±1 pulse (SPEC §1a), the physics of the quantised P loop
+    assert v.row("lock", "holding_band_counts", "master").worst <= 4
+    assert v.check("overflow").passed and v.check("timer_period").passed
+
+
+def test_fastest_motion_is_the_cruise(good_result, rig) -> None:
+    # the moves cruise at 300 r/min = 245.8 counts/tick; overshoots add a little
+    unwrap = good_result.check("counter_unwrap")
+    assert unwrap.limit == 2**16  # 24-bit counter: the high byte is right up to 65,536/tick
+    assert 245 < unwrap.value < 2 * 245.8
+    freq = good_result.check("counter_input_frequency")
+    assert freq.limit == pytest.approx(46875.0)  # 2.4 MHz / 3072 pulses/rev · 60
+    assert 300 < freq.value < 600 and freq.passed
+
+
+def test_timer_period_is_reported_and_judged_only_with_a_limit(rig) -> None:
+    # SPEC §1a: divisor 4773 gives 4.000235 ms, +58.7 ppm
+    c = check_timer(rig)
+    assert c.passed and c.limit is None and c.value == pytest.approx(58.7, abs=0.05)
+    assert not check_timer(rig, 50.0).passed and check_timer(rig, 60.0).passed
+
+
+def test_cut_slave_gains_fail_max_sync_error(good, rig, spec) -> None:
+    g = good.design["slave"]["tuning"]["gains"]
+    cut = FuzzyPIDGains(
+        kp0=0.1 * g["kp0"], ki0=0.1 * g["ki0"], kd0=0.1 * g["kd0"], k10=0.1 * g["k10"],
+        ke=g["ke"], kec=g["kec"], n=g["n"],
+        **{k: 0.1 * np.asarray(g[k]) for k in ("dkp", "dki", "dkd", "dk1")},
+    )  # fmt: skip
+    weak = with_slave_task(good, cut.quantize(good.period_s))
+    v = verify(weak, rig, dataclasses.replace(spec, montecarlo=small(spec).montecarlo))
+    assert not v.passed
+    row = v.row("sync", "max_sync_error_counts", "slave")
+    assert not row.passed and row.worst > 5 * row.limit and row.margin < 0
+    assert any("sync: max_sync_error_counts of slave" in f for f in v.failures)
+    assert "FAIL" in format_table(v) and "FAILED" in format_table(v)
+
+
+def test_too_tight_limit_fails_naming_it(good, rig, spec) -> None:
+    v = verify(good, rig, small(spec, max_overshoot_pct=1.0))
+    assert not v.passed
+    failed = [(r.scenario, r.quantity) for r in v.rows if not r.passed]
+    assert set(failed) == {("sync", "overshoot_pct")}
+    assert v.failures[0].startswith("sync: overshoot_pct of ")
+
+
+def test_same_seed_same_result(good, rig, spec) -> None:
+    a = verify(good, rig, small(spec), seed=7).to_dict()
+    b = verify(good, rig, small(spec), seed=7).to_dict()
+    assert json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)
+    assert a["seed"] == 7 and a != verify(good, rig, small(spec), seed=8).to_dict()
+
+
+def test_speed_above_the_counter_input_limit_is_flagged(good, rig, spec) -> None:
+    # a card counting at most 10 kHz: 10,000 / 3072 · 60 = 195 r/min, below the 300 r/min cruise
+    slow = dataclasses.replace(rig, counter=dataclasses.replace(rig.counter, max_input_hz=1e4))
+    v = verify(good, slow, small(spec, count=0))
+    c = v.check("counter_input_frequency")
+    assert not c.passed and c.limit == pytest.approx(1e4 / 3072 * 60) and c.value > 300
+    assert not v.passed and any("counter_input_frequency" in f for f in v.failures)
+    assert v.check("counter_unwrap").passed
+
+
+def test_unwrap_speed_limit_at_its_edge(rig) -> None:
+    # 24 bits: the high-byte rule is right up to 2**16 counts per tick, wrong above
+    ok, _ = check_speed(rig, 65536.0, 1000.0)
+    bad, _ = check_speed(rig, 65537.0, 1000.0)
+    assert ok.passed and not bad.passed
+    assert ok.facts["limit_rpm"] == pytest.approx(79995, abs=1)  # hw.counter docstring
+
+
+# --- the overflow bound --------------------------------------------------------------------
+
+
+def test_overflow_bound_on_known_numbers() -> None:
+    # |q · e| with |e| <= 2^31 − 1 fits int64 (<= 2^63 − 1) up to |q| = 2^32 + 2
+    q = max_safe_gain_q()
+    assert q == 2**32 + 2
+    assert q * int(E_MAX) <= int(INT64_MAX) < (q + 1) * int(E_MAX)
+
+
+def test_good_tuning_keeps_the_overflow_bound(good, rig) -> None:
+    c = check_overflow(good, rig)
+    assert c.passed and c.value < 63 and c.limit == 63
+    slave = c.facts["axes"]["slave"]
+    assert {"lock_gain", "scheduled kp", "scheduled ki_t", "scheduled kd_t", "scheduled k1_t",
+            "ke", "kec"} <= set(slave)  # fmt: skip
+    assert all(t["product_bound"] <= int(INT64_MAX) for t in slave.values())
+    assert c.facts["integrator_bound"] == 2**43  # 12-bit D/A: 2^11 LSB at F_U = 32 bits
+    assert c.facts["position_overflow_years"] > 1e6
+
+
+def test_overflow_flags_a_gain_needing_a_right_shift(good, rig, spec) -> None:
+    # f = 40 > F_U = 32: the product would have to be shifted right to align with u_q
+    master = good.axis_names.index("master")
+    ctls = list(good.controllers)
+    pi = ctls[master].task
+    ctls[master] = dataclasses.replace(
+        ctls[master], task=PIConstants(kp=Fixed(q=pi.kp.q, f=40), ki_t=pi.ki_t)
+    )
+    bad = dataclasses.replace(good, controllers=tuple(ctls))
+    c = check_overflow(bad, rig)
+    assert not c.passed and "master kp: f = 40" in c.detail
+    v = verify(bad, rig, small(spec))
+    assert not v.passed and v.rows == ()  # the runs are skipped, the check says why
+    assert any("overflow" in f for f in v.failures)
+
+
+def test_overflow_flags_a_scheduled_gain_beyond_the_bound(good, rig) -> None:
+    # constructed directly (the constructor refuses it): a kp table at f_t = 0 whose entry,
+    # aligned by 2^(f − 0), lifts the scheduled gain just past 2^32 + 2
+    i = good.axis_names.index("slave")
+    task = good.controllers[i].task
+    (q, _), *rest = task.tables
+    big = np.zeros_like(np.asarray(q), dtype=np.int64)
+    big[0, 0] = -(-(max_safe_gain_q() + 1 - task.kp.q) >> task.kp.f)  # ceil division
+    assert abs(big[0, 0]) < 2**15 and task.kp.q + int(big[0, 0]) * 2**task.kp.f > 2**32 + 2
+    broken = object.__new__(type(task))
+    for fld in dataclasses.fields(task):
+        object.__setattr__(broken, fld.name, getattr(task, fld.name))
+    object.__setattr__(broken, "tables", ((big, 0), *rest))
+    c = check_overflow(with_slave_task(good, broken), rig)
+    assert not c.passed and "slave scheduled kp" in c.detail and "> 2^63" in c.detail
+
+
+# --- the record ----------------------------------------------------------------------------
+
+
+def test_record_hashes_and_trust(tmp_path, tuning_file, good_result) -> None:
+    tuning = tmp_path / "tuning.json"
+    tuning.write_bytes(tuning_file.read_bytes())
+    record = verification_record(good_result, tuning, EXAMPLE_RIG_PATH, SPEC_PATH)
+    files = record["files"]
+    assert files["tuning"]["sha256"] == file_sha256(tuning)
+    assert files["rig"]["sha256"] == file_sha256(EXAMPLE_RIG_PATH)
+    assert files["spec"]["sha256"] == file_sha256(SPEC_PATH)
+    assert record["passed"] is True and record["schema"] == "servotune.verify/1"
+    assert record["rig_matches_tuning"] is True and record["summary"]["limits_failed"] == 0
+    path = write_record(record, tuning)
+    assert path == tmp_path / "tuning.json.verify.json" == record_path(tuning)
+    text = path.read_text()
+    assert text == json.dumps(json.loads(text), sort_keys=True, indent=2) + "\n"
+    assert trusted_record(tuning) == record
+    # one byte changes in the tuning: the record no longer vouches for it
+    raw = bytearray(tuning.read_bytes())
+    raw[-1:] = b" \n"
+    tuning.write_bytes(bytes(raw))
+    assert trusted_record(tuning) is None
+
+
+def test_failed_or_missing_record_is_not_trusted(tmp_path, tuning_file, good_result) -> None:
+    tuning = tmp_path / "t.json"
+    tuning.write_bytes(tuning_file.read_bytes())
+    assert trusted_record(tuning) is None
+    record = verification_record(good_result, tuning, EXAMPLE_RIG_PATH, SPEC_PATH)
+    write_record({**record, "passed": False}, tuning)
+    assert trusted_record(tuning) is None
+    record_path(tuning).write_text("{not json")
+    assert trusted_record(tuning) is None
+
+
+def test_verify_files_end_to_end(tmp_path, tuning_file, spec) -> None:
+    tuning = tmp_path / "tuning.json"
+    tuning.write_bytes(tuning_file.read_bytes())
+    quick = tmp_path / "quick.spec.toml"
+    text = SPEC_PATH.read_text().replace("count = 64", "count = 4")
+    quick.write_text(text)
+    lines: list[str] = []
+    v, record, path = verify_files(tuning, quick, EXAMPLE_RIG_PATH, progress=lines.append)
+    assert v.passed and path == record_path(tuning) and any("scenario sync" in s for s in lines)
+    assert json.loads(path.read_text()) == record
+    first = path.read_bytes()
+    verify_files(tuning, quick, EXAMPLE_RIG_PATH)
+    assert path.read_bytes() == first  # deterministic bytes: no timestamps
+    assert trusted_record(tuning)["files"]["spec"]["name"] == "quick.spec.toml"
+    table = format_table(v)
+    assert table.splitlines()[-1] == "PASSED" and "max_sync_error_counts" in table
+    assert not any(math.isnan(r.worst) for r in v.rows)
