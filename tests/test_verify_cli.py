@@ -1,0 +1,68 @@
+"""servotune verify: exit 0 pass, 1 fail (naming the limit), 3 bad input with nothing written."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from servotune.cli import main
+from servotune.tune.slave import SlaveTuneSpec
+from servotune.tune.workflow import tune_rig
+from servotune.tuning import write_tuning
+
+ROOT = Path(__file__).resolve().parents[1]
+RIG = ROOT / "plants" / "pc-dual-servo.toml"
+SPEC = ROOT / "plants" / "pc-dual-servo.spec.toml"
+
+
+@pytest.fixture(scope="module")
+def tunings(tmp_path_factory) -> dict[str, Path]:
+    d = tmp_path_factory.mktemp("tunings")
+    good, quick = d / "good.json", d / "quick.json"
+    write_tuning(tune_rig(RIG), good)
+    # a two-generation search: too little tuning for the shipped spec's sync-error limit
+    write_tuning(
+        tune_rig(RIG, spec=SlaveTuneSpec(generations=2, population=6, max_overshoot_pct=300.0)),
+        quick,
+    )
+    return {"good": good, "quick": quick}
+
+
+def test_passing_tuning_exits_0_and_records(tunings, capsys, tmp_path) -> None:
+    rc = main(["verify", str(tunings["good"]), "--spec", str(SPEC), "--rig", str(RIG),
+               "--report", str(tmp_path / "rep")])  # fmt: skip
+    out = capsys.readouterr().out
+    assert rc == 0 and out.rstrip().endswith("PASSED")
+    rec = json.loads(Path(str(tunings["good"]) + ".verify.json").read_text())
+    assert rec["passed"] is True
+    page = (tmp_path / "rep" / "report.html").read_text()
+    assert "Verification: PASSED" in page and "data:image/png;base64," in page
+
+
+def test_failing_tuning_exits_1_naming_the_limit(tunings, capsys) -> None:
+    rc = main(["verify", str(tunings["quick"]), "--spec", str(SPEC), "--rig", str(RIG)])
+    out = capsys.readouterr().out
+    assert rc == 1
+    assert "max_sync_error_counts" in out and "FAIL" in out
+
+
+def test_bad_inputs_exit_3_one_line_nothing_written(tunings, tmp_path, capsys) -> None:
+    bad_spec = tmp_path / "bad.toml"
+    bad_spec.write_text(SPEC.read_text() + "\n[scenario.sync.extra]\nfoo = 1\n")
+    cases = [
+        [str(tmp_path / "missing.json"), "--spec", str(SPEC)],
+        [str(tunings["good"]), "--spec", str(tmp_path / "absent.toml")],
+        [str(tunings["good"]), "--spec", str(bad_spec), "--rig", str(RIG)],
+    ]
+    wrong_schema = tmp_path / "wrong.json"
+    wrong_schema.write_text('{"schema": "servotune.tuning/9"}')
+    cases.append([str(wrong_schema), "--spec", str(SPEC), "--rig", str(RIG)])
+    for args in cases:
+        capsys.readouterr()
+        assert main(["verify", *args]) == 3, args
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("servotune verify: error:"), err
+    assert not (tmp_path / "missing.json.verify.json").exists()
+    assert not (tmp_path / "wrong.json.verify.json").exists()
