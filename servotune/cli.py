@@ -216,6 +216,37 @@ def _cmd_verify(args: argparse.Namespace) -> int:
     return EXIT_OK if result.passed else EXIT_FAILED
 
 
+def _cmd_export_table(args: argparse.Namespace) -> int:
+    from servotune.export import tables_to_string, write_c, write_tables
+    from servotune.rig import load_rig
+    from servotune.tuning import current_tuning_path, read_tuning
+    from servotune.verify import default_rig_path, trusted_record
+
+    path = Path(args.tuning) if args.tuning else current_tuning_path()
+    if args.format == "c" and not args.output:
+        raise ServotuneError("--format c needs -o DIR (the directory to write the C files into)")
+    _check_dirs(args.output if args.format == "json" else None)
+    tuning = read_tuning(path)
+    record = trusted_record(path)
+    if record is None and not args.unverified:
+        print(f"servotune export-table: refused: {path} has not passed `servotune verify` (or "
+              "changed since); verify it, or pass --unverified to export it marked so",
+              file=sys.stderr)  # fmt: skip
+        return EXIT_FAILED
+    rig = load_rig(args.rig or default_rig_path(tuning))
+    kw = {"rig": rig, "verification": record, "unverified": record is None}
+    if args.format == "c":
+        Path(args.output).mkdir(parents=True, exist_ok=True)
+        written = write_c(tuning, args.output, **kw)
+        print(f"wrote {', '.join(p.name for p in written)} to {args.output}", file=sys.stderr)
+    elif args.output and args.output != "-":
+        write_tables(tuning, args.output, **kw)
+        print(f"wrote the tables to {args.output}", file=sys.stderr)
+    else:
+        sys.stdout.write(tables_to_string(tuning, **kw))
+    return EXIT_OK
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     from servotune.pipeline import comparison_table_text, run_demo
 
@@ -326,6 +357,14 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--json", action="store_true", help="the verification record as JSON on stdout")
     s.add_argument("--report", help="also write the HTML report into this directory")
     s.set_defaults(func=_cmd_verify)
+
+    s = sub.add_parser("export-table", help="export a verified tuning's tables (JSON or C)")
+    s.add_argument("tuning", nargs="?", help="tuning file (default: the workbench's current one)")
+    s.add_argument("-o", "--output", help="file (JSON) or directory (C); default stdout (JSON)")
+    s.add_argument("--format", choices=["json", "c"], default="json")
+    s.add_argument("--rig", help="rig file (default: plants/<rig name>.toml)")
+    s.add_argument("--unverified", action="store_true", help="export without a passed verify")
+    s.set_defaults(func=_cmd_export_table)
 
     s = sub.add_parser("demo", help="run the whole job on a rig and write into a directory")
     s.add_argument("rig", help="rig file (TOML)")

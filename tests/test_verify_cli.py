@@ -66,3 +66,61 @@ def test_bad_inputs_exit_3_one_line_nothing_written(tunings, tmp_path, capsys) -
         assert len(err) == 1 and err[0].startswith("servotune verify: error:"), err
     assert not (tmp_path / "missing.json.verify.json").exists()
     assert not (tmp_path / "wrong.json.verify.json").exists()
+
+
+def test_export_table_trusts_only_a_passed_verify(tunings, tmp_path, capsys, monkeypatch) -> None:
+    from servotune.export import load_tables
+
+    good = tmp_path / "good.json"
+    good.write_bytes(tunings["good"].read_bytes())
+    assert main(["verify", str(good), "--spec", str(SPEC), "--rig", str(RIG)]) == 0
+    out = tmp_path / "fuzzy.json"
+    assert main(["export-table", str(good), "--rig", str(RIG), "-o", str(out)]) == 0
+    assert load_tables(out)["verified"] is True
+    # stdout carries the same bytes
+    capsys.readouterr()
+    assert main(["export-table", str(good), "--rig", str(RIG)]) == 0
+    assert capsys.readouterr().out == out.read_text()
+    # the quick tuning failed verify: refused, exit 1, nothing written
+    refused = tmp_path / "refused.json"
+    assert main(["export-table", str(tunings["quick"]), "--rig", str(RIG), "-o", str(refused)]) == 1
+    assert "has not passed" in capsys.readouterr().err and not refused.exists()
+    # a tuning changed after its verify is not trusted either
+    good.write_text(good.read_text().replace('"seed": 0', '"seed": 1'))
+    assert main(["export-table", str(good), "--rig", str(RIG), "-o", str(refused)]) == 1
+    # --unverified exports it, marked so
+    assert main(["export-table", str(good), "--rig", str(RIG), "-o", str(refused),
+                 "--unverified"]) == 0  # fmt: skip
+    assert load_tables(refused)["verified"] is False
+    # no argument: the workbench's current tuning
+    wb = tmp_path / "wb"
+    wb.mkdir()
+    (wb / "tuning.json").write_bytes(tunings["quick"].read_bytes())
+    monkeypatch.setenv("SERVOTUNE_WORKBENCH", str(wb))
+    capsys.readouterr()
+    assert main(["export-table", "--rig", str(RIG), "--unverified"]) == 0
+    assert '"verified": false' in capsys.readouterr().out
+
+
+def test_export_c_compiles(tunings, tmp_path) -> None:
+    import shutil
+    import subprocess
+
+    good = tmp_path / "good.json"
+    good.write_bytes(tunings["good"].read_bytes())
+    assert main(["verify", str(good), "--spec", str(SPEC), "--rig", str(RIG)]) == 0
+    out = tmp_path / "c"
+    assert (
+        main(["export-table", str(good), "--rig", str(RIG), "--format", "c", "-o", str(out)]) == 0
+    )
+    assert {p.name for p in out.iterdir()} == {"servotune_tables.h", "servotune_rt.c",
+                                                "servotune_rt.h"}  # fmt: skip
+    cc = shutil.which("cc")
+    if cc is None:
+        pytest.skip("no C compiler")
+    src = out / "check.c"
+    src.write_text(
+        '#include "servotune_tables.h"\n#include "servotune_rt.h"\nint main(void){return 0;}\n'
+    )
+    subprocess.run([cc, "-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-c",
+                    str(out / "servotune_rt.c"), str(src)], cwd=tmp_path, check=True)  # fmt: skip

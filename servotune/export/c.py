@@ -1,0 +1,306 @@
+"""The C export: ``servotune_tables.h`` and the reference runtime ``servotune_rt.c/.h``.
+
+:func:`write_c` writes three files into a directory:
+
+- ``servotune_tables.h``: the tuning's constants as the runtime runs them (the same numbers and
+  CRCs as the JSON export, :func:`servotune.export.json.tables_document`): include guard,
+  ``<stdint.h>`` types, the schema version, per axis every constant as an int32 ``q`` and its
+  fraction bits ``f``, the query tables as ``static const int16_t`` arrays (row ``E``, column
+  ``EC``), the CRCs as ``uint32_t`` constants, and ``SERVOTUNE_TABLES_INIT``, an initialiser
+  of the runtime's ``st_consts_t``;
+- ``servotune_rt.c`` / ``servotune_rt.h``: the reference runtime (C99, integer only, no I/O),
+  copied from the package data. It mirrors the Python laws line by line, so it produces the
+  simulator's D/A codes bit for bit.
+
+Usage on the target::
+
+    #include "servotune_tables.h"
+    static const st_consts_t consts = SERVOTUNE_TABLES_INIT;
+    static st_state_t state;            /* zero: power-up */
+    ...
+    if (st_check_consts(&consts) != 0 || st_consts_crc32(&consts) != ST_CONSTS_CRC32) halt();
+    st_tick(&consts, &state, in, out);  /* every tick: bytes, reference, mode -> codes, flags */
+
+The bytes are deterministic (no timestamps). Every file is rendered in memory first and then
+written atomically (temp file, then rename), so a failure leaves no half-written file.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from servotune.errors import ExportError
+from servotune.export.json import SCHEMA, Summary, tables_document
+from servotune.laws.fuzzy_pid import TABLE_NAMES
+from servotune.logs import atomic_write_text
+from servotune.rig import Rig
+from servotune.tuning import Tuning
+
+__all__ = [
+    "HEADER_NAME",
+    "RUNTIME_FILES",
+    "runtime_source",
+    "to_string",
+    "write_c",
+]
+
+HEADER_NAME = "servotune_tables.h"
+RUNTIME_FILES = ("servotune_rt.c", "servotune_rt.h")
+"""The reference runtime's sources (package data of ``servotune.export``)."""
+
+_MAX_AXES = 4  # ST_MAX_AXES default of servotune_rt.h
+_LAW_MACROS = {"none": "ST_LAW_NONE", "pi": "ST_LAW_PI", "fuzzy_pid": "ST_LAW_FUZZY_PID"}
+_TABLE_TITLES = {
+    "kp": "dKp [LSB/count]",
+    "ki": "d(Ki*T) [LSB/count/tick]",
+    "kd": "d(Kd/T) [LSB per count change per tick]",
+    "k1": "d(K1/T) [LSB per count change per tick]",
+}
+
+
+def runtime_source(name: str) -> str:
+    """Text of one reference-runtime file (``servotune_rt.c`` or ``servotune_rt.h``)."""
+    if name not in RUNTIME_FILES:
+        raise ExportError(f"no runtime file {name!r}; files: {', '.join(RUNTIME_FILES)}")
+    return resources.files("servotune.export").joinpath("runtime", name).read_text(encoding="utf-8")
+
+
+def _identifiers(names: tuple[str, ...]) -> list[str]:
+    out = []
+    for name in names:
+        ident = re.sub(r"[^0-9A-Za-z_]", "_", name).lower()
+        if not ident or ident[0].isdigit():
+            ident = "axis_" + ident
+        out.append(ident)
+    if len(set(out)) != len(out):
+        raise ExportError(
+            f"axis names {list(names)} give clashing C identifiers {out}; rename the axes"
+        )
+    return out
+
+
+def _comment_text(s: str) -> str:
+    """Text safe inside a C block comment, on one line."""
+    return s.replace("*/", "*\\/").replace("\n", " ")
+
+
+def _q(v: int) -> str:
+    return f"INT32_C({v})"
+
+
+def _table_lines(ident: str, name: str, tab: Mapping[str, Any]) -> list[str]:
+    n = tab["n"]
+    size = 2 * n + 1
+    up = f"ST_{ident.upper()}_TAB_{name.upper()}"
+    lines = [
+        f"/* query table {_TABLE_TITLES[name]}: value q * 2^-f, row E = -{n}..{n}, "
+        f"column EC = -{n}..{n} */",
+        f"#define {up}_F {tab['f']}",
+        f"#define {up}_CRC32 UINT32_C(0x{tab['crc32']:08x})",
+        f"static const int16_t st_{ident}_tab_{name}[{size * size}] = {{",
+    ]
+    for r, row in enumerate(tab["q"]):
+        lines.append(f"    /* E = {r - n:3d} */ " + ", ".join(str(v) for v in row) + ",")
+    lines.append("};")
+    return lines
+
+
+def _axis_lines(ax: Mapping[str, Any], ident: str) -> tuple[list[str], list[str]]:
+    """The axis's macros and tables, and its designated initialiser lines."""
+    up = f"ST_{ident.upper()}"
+    law = ax["law"]
+    src = "external reference" if ax["ref_source"] < 0 else f"follows axis {ax['ref_source']}"
+    lines = [
+        "",
+        f"/* axis {ax['index']}: {_comment_text(ax['name'])} (role {ax['role']}, law {law}, "
+        f"{src}) */",
+        f"#define ST_AXIS_{ident.upper()} {ax['index']}",
+        f"#define {up}_LOCK_Q {_q(ax['lock_gain']['q'])} /* lock gain [LSB/count] */",
+        f"#define {up}_LOCK_F {ax['lock_gain']['f']}",
+        f"#define {up}_FE_LIMIT {ax['following_error_limit_counts']} /* [counts], 0 = off */",
+    ]
+    init = [
+        f".law = {_LAW_MACROS[law]}",
+        f".lock_q = {up}_LOCK_Q",
+        f".lock_f = {up}_LOCK_F",
+        f".fe_limit = {up}_FE_LIMIT",
+        ".counter_bits = ST_COUNTER_BITS",
+        ".dac_zero = ST_DAC_ZERO",
+        ".dac_max = ST_DAC_MAX",
+        f".ref_source = {ax['ref_source']}",
+    ]
+    task = ax["task"]
+    consts: list[tuple[str, str, str]] = []
+    if law == "pi":
+        consts = [("kp", "KP", "Kp [LSB/count]"), ("ki_t", "KIT", "Ki*T [LSB/count/tick]")]
+    elif law == "fuzzy_pid":
+        consts = [
+            ("kp", "KP", "Kp0 [LSB/count]"),
+            ("ki_t", "KIT", "Ki0*T [LSB/count/tick]"),
+            ("kd_t", "KDT", "Kd0/T [LSB per count change per tick]"),
+            ("k1_t", "K1T", "K10/T, feedforward [LSB per count change per tick]"),
+            ("ke", "KE", "Ke [levels/count]"),
+            ("kec", "KEC", "Kec [levels per count/tick]"),
+        ]
+    for key, mac, title in consts:
+        lines.append(f"#define {up}_{mac}_Q {_q(task[key]['q'])} /* {title} */")
+        lines.append(f"#define {up}_{mac}_F {task[key]['f']}")
+        init.append(f".{mac.lower()}_q = {up}_{mac}_Q")
+        init.append(f".{mac.lower()}_f = {up}_{mac}_F")
+    if law == "fuzzy_pid":
+        lines.append(f"#define {up}_N {task['n']} /* levels -n..n */")
+        init.append(f".n = {up}_N")
+        for name in TABLE_NAMES:
+            lines.append("")
+            lines.extend(_table_lines(ident, name, task["tables"][name]))
+        tf = ", ".join(f"{up}_TAB_{t.upper()}_F" for t in TABLE_NAMES)
+        tab = ", ".join(f"st_{ident}_tab_{t}" for t in TABLE_NAMES)
+        init.append(f".tf = {{{tf}}}")
+        init.append(f".tab = {{{tab}}}")
+    return lines, init
+
+
+def _header(doc: Mapping[str, Any]) -> str:
+    data, prov = doc["data"], doc["provenance"]
+    axes = data["axes"]
+    idents = _identifiers(tuple(a["name"] for a in axes))
+    verification = prov["verification"]
+    if verification is None:
+        summary = "none"
+    else:
+        passed = verification.get("passed")
+        summary = {True: "passed", False: "failed"}.get(passed, "summary without a result")
+        if prov["spec_sha256"]:
+            summary += f" (spec sha256 {prov['spec_sha256']}); the summary is in the JSON export"
+    verified = (
+        "yes" if doc["verified"] else "NO -- exported unverified; verify before running a machine"
+    )
+    out = [
+        f"/* {HEADER_NAME} -- generated by servotune {prov['tool_version']} ({SCHEMA}).",
+        " * Do not edit: export the tuning again. The runtime is servotune_rt.c / servotune_rt.h.",
+        f" * rig: {_comment_text(prov['rig']['name'])} (sha256 {prov['rig']['sha256']})",
+        f" * tuning sha256: {prov['tuning_sha256']}",
+        f" * verified: {verified}",
+        f" * verification: {_comment_text(summary)}",
+        " *",
+        " * Every constant is (q, f): value q * 2^-f. Constants CRC order (st_consts_crc32):",
+        " * (n_axes, 0), (timer_divisor, 0), then per axis (law, 0), (lock_q, lock_f),",
+        " * (kp_q, kp_f), (kit_q, kit_f), (fe_limit, 0), (counter_bits, 0), (dac_zero, 0),",
+        " * (dac_max, 0), (kdt_q, kdt_f), (k1t_q, k1t_f), (ke_q, ke_f), (kec_q, kec_f), (n, 0),",
+        " * (ref_source, 0), as little-endian int32 q, int16 f. Table CRCs (st_table_crc32):",
+        " * int16 n, int16 f, then the int16 entries row-major, little-endian.",
+        " */",
+        "#ifndef SERVOTUNE_TABLES_H",
+        "#define SERVOTUNE_TABLES_H",
+        "",
+        "#include <stdint.h>",
+        "",
+        '#include "servotune_rt.h"',
+        "",
+        f'#define ST_TABLES_SCHEMA "{SCHEMA}"',
+        f"#define ST_TABLES_SCHEMA_VERSION {SCHEMA.rsplit('/', 1)[1]}",
+        f"#define ST_TABLES_VERIFIED {1 if doc['verified'] else 0}",
+        f"#define ST_N_AXES {len(axes)}",
+        f"#define ST_PERIOD_S {data['period_s']!r} /* achieved tick period [s] */",
+        f"#define ST_TIMER_DIVISOR {data['timer_divisor']} /* 8253 divisor */",
+        f"#define ST_COUNTER_BITS {data['counter_bits']}",
+        f"#define ST_DAC_BITS {data['dac']['bits']}",
+        f"#define ST_DAC_ZERO {data['dac']['zero_code']} /* code of 0 V */",
+        f"#define ST_DAC_MAX {data['dac']['code_max']}",
+        f"#define ST_CONSTS_CRC32 UINT32_C(0x{data['constants_crc32']:08x})",
+        "",
+        f"#if ST_MAX_AXES < {len(axes)}",
+        f'#error "compile servotune_rt.c and this file with -DST_MAX_AXES={len(axes)}"',
+        "#endif",
+    ]
+    inits = []
+    for ax, ident in zip(axes, idents, strict=True):
+        lines, init = _axis_lines(ax, ident)
+        out.extend(lines)
+        inits.append(init)
+    out += [
+        "",
+        "/* static const st_consts_t consts = SERVOTUNE_TABLES_INIT; */",
+        "#define SERVOTUNE_TABLES_INIT \\",
+        "    { \\",
+        "        .n_axes = ST_N_AXES, \\",
+        "        .timer_divisor = ST_TIMER_DIVISOR, \\",
+        "        .axis = { \\",
+    ]
+    for ident, init in zip(idents, inits, strict=True):
+        out.append(f"            {{ /* {ident} */ \\")
+        out.extend(f"                {item}, \\" for item in init)
+        out.append("            }, \\")
+    out += [
+        "        } \\",
+        "    }",
+        "",
+        "#endif /* SERVOTUNE_TABLES_H */",
+        "",
+    ]
+    return "\n".join(out)
+
+
+def to_string(
+    tuning: Tuning,
+    *,
+    rig: Rig | None = None,
+    verification: Mapping[str, Any] | Summary | None = None,
+    unverified: bool = False,
+) -> str:
+    """The text of ``servotune_tables.h`` (arguments as
+    :func:`servotune.export.json.tables_document`)."""
+    return _header(
+        tables_document(tuning, rig=rig, verification=verification, unverified=unverified)
+    )
+
+
+def write_c(
+    tuning: Tuning,
+    out_dir: str | Path,
+    *,
+    rig: Rig | None = None,
+    verification: Mapping[str, Any] | Summary | None = None,
+    unverified: bool = False,
+) -> tuple[Path, ...]:
+    """Write ``servotune_tables.h``, ``servotune_rt.c`` and ``servotune_rt.h`` into ``out_dir``.
+
+    Parameters
+    ----------
+    tuning : Tuning
+    out_dir : str or Path
+        An existing directory.
+    rig, verification, unverified
+        As :func:`servotune.export.json.tables_document`.
+
+    Returns
+    -------
+    tuple of Path
+        The files written.
+
+    Raises
+    ------
+    ExportError
+        As :func:`~servotune.export.json.tables_document`, or if ``out_dir`` is not a
+        directory. Nothing is written then.
+    """
+    d = Path(out_dir)
+    if not d.is_dir():
+        raise ExportError(f"{d}: not a directory (create it first)")
+    texts = {
+        HEADER_NAME: to_string(tuning, rig=rig, verification=verification, unverified=unverified)
+    }
+    for name in RUNTIME_FILES:
+        texts[name] = runtime_source(name)
+    written = []
+    for name, text in texts.items():
+        try:
+            atomic_write_text(d / name, text)
+        except OSError as exc:
+            raise ExportError(f"{d / name}: cannot write: {exc}") from None
+        written.append(d / name)
+    return tuple(written)

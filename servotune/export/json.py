@@ -1,0 +1,646 @@
+"""The tables export (JSON): a tuning's runtime constants, with CRCs, for the target.
+
+The document (``"schema": "servotune.tables/1"``) holds exactly the constants of the tuning
+file, as the runtime runs them: nothing is re-quantised (SPEC §6, verified = exported). It is
+JSON with sorted keys, two-space indent (the rows of a table and other lists of numbers on one
+line each) and a trailing newline; the same tuning, rig and verification give the same bytes.
+There is no timestamp anywhere::
+
+    {
+      "data": {
+        "axes": [                      rig order; the C runtime's axis index
+          {"index", "name", "role",
+           "law": "none" | "pi" | "fuzzy_pid",
+           "ref_source": -1 (external reference) or the index of the axis followed,
+           "lock_gain": {"q", "f"},    [D/A LSB per count]
+           "following_error_limit_counts": int (0 = off),
+           "task": null
+                 | {"kp", "ki_t"}                                    PI
+                 | {"kp", "ki_t", "kd_t", "k1_t", "ke", "kec", "n",  fuzzy-PID + feedforward
+                    "tables": {"kp"|"ki"|"kd"|"k1": {"n", "f", "q": rows, "crc32"}}}}
+        ],
+        "constants_crc32": int,
+        "counter_bits": int,
+        "dac": {"bits", "code_max", "range_v", "zero_code"},
+        "f_u": 32,                     fraction bits of the output u_q and the integrator
+        "period_s": float,             achieved tick period [s] (folded into the constants)
+        "rig_name": str,
+        "timer_divisor": int
+      },
+      "provenance": {"rig", "spec_sha256", "tool", "tool_version", "tuning", "tuning_sha256",
+                     "verification"},
+      "schema": "servotune.tables/1",
+      "verified": true | false
+    }
+
+Every fixed-point constant is ``{"q": int, "f": int}``, value ``q · 2**-f``: gains ``Kp``,
+``Ki·T``, ``Kd/T``, ``K1/T`` [LSB per count, per count per tick, per count change per tick],
+scalings ``Ke`` [levels/count] and ``Kec`` [levels per count/tick]. A table holds int16
+entries ``q`` with fraction bits ``f`` (value ``q · 2**-f``, in the units of its base gain),
+rows ``E = −n … n``, columns ``EC = −n … n``.
+
+Integrity (CRC-32 IEEE 802.3, as :func:`zlib.crc32`):
+
+- each table's ``crc32`` covers, little-endian, int16 ``n``, int16 ``f``, then the int16
+  entries row-major;
+- ``constants_crc32`` covers every other constant as (q int32, f int16) pairs, little-endian;
+  an integer is the pair ``(value, 0)``, a constant the law does not use ``(0, 0)``. Order::
+
+      (n_axes, 0), (timer_divisor, 0), then for each axis in order:
+      (law, 0), (lock_q, lock_f), (kp_q, kp_f), (kit_q, kit_f), (following_error_limit, 0),
+      (counter_bits, 0), (dac_zero, 0), (dac_max, 0), (kdt_q, kdt_f), (k1t_q, k1t_f),
+      (ke_q, ke_f), (kec_q, kec_f), (n, 0), (ref_source, 0)
+
+  that is, the runtime's constants vector (``servotune.laws.axis`` ``C_LAW`` … ``C_N``) and
+  the axis's reference source; ``law`` is 0 none, 1 PI, 2 fuzzy-PID. The C runtime computes
+  the same CRCs (``st_consts_crc32``, ``st_table_crc32`` in ``servotune_rt.c``).
+
+The verification summary, hashes and tool version are provenance, kept apart from ``data`` and
+outside every CRC. ``"verified": false`` marks an export made without a passing verification
+(``unverified=True``, the CLI's ``--unverified``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import re
+import struct
+import zlib
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from servotune.errors import ExportError
+from servotune.fixed import F_U
+from servotune.laws.axis import (
+    C_COUNTER_BITS,
+    C_DAC_MAX,
+    C_DAC_ZERO,
+    C_FE_LIMIT,
+    C_K1T_F,
+    C_K1T_Q,
+    C_KDT_F,
+    C_KDT_Q,
+    C_KE_F,
+    C_KE_Q,
+    C_KEC_F,
+    C_KEC_Q,
+    C_KIT_F,
+    C_KIT_Q,
+    C_KP_F,
+    C_KP_Q,
+    C_LAW,
+    C_LOCK_F,
+    C_LOCK_Q,
+    C_N,
+    LAW_FUZZY_PID,
+    LAW_NAMES,
+    AxisController,
+)
+from servotune.laws.fuzzy_pid import TABLE_NAMES, FuzzyPIDConstants
+from servotune.logs import atomic_write_text
+from servotune.rig import Counter, Dac, Rig
+from servotune.tuning import Tuning, tuning_to_string
+
+__all__ = [
+    "SCHEMA",
+    "Summary",
+    "constants_crc32",
+    "controllers_from_tables",
+    "load_tables",
+    "table_crc32",
+    "tables_document",
+    "to_file",
+    "to_string",
+]
+
+SCHEMA = "servotune.tables/1"
+
+
+class Summary(Protocol):
+    """A verification result that gives its summary as a plain dict
+    (:class:`servotune.verify.Verification`)."""
+
+    def to_dict(self) -> dict[str, Any]: ...
+
+
+_INT16 = (-(2**15), 2**15 - 1)
+_INT32 = (-(2**31 - 1), 2**31 - 1)
+
+# (q index, f index) in the constants vector; f index None: an integer, the pair (value, 0)
+_CONST_PAIRS: tuple[tuple[int, int | None], ...] = (
+    (C_LAW, None),
+    (C_LOCK_Q, C_LOCK_F),
+    (C_KP_Q, C_KP_F),
+    (C_KIT_Q, C_KIT_F),
+    (C_FE_LIMIT, None),
+    (C_COUNTER_BITS, None),
+    (C_DAC_ZERO, None),
+    (C_DAC_MAX, None),
+    (C_KDT_Q, C_KDT_F),
+    (C_K1T_Q, C_K1T_F),
+    (C_KE_Q, C_KE_F),
+    (C_KEC_Q, C_KEC_F),
+    (C_N, None),
+)
+
+
+# --- CRCs ------------------------------------------------------------------------------------
+
+
+def table_crc32(q: np.ndarray | Sequence[Sequence[int]], f: int) -> int:
+    """CRC-32 of one query table (SPEC §6).
+
+    Parameters
+    ----------
+    q : array_like of int, shape (2n+1, 2n+1)
+        Entries, row ``E = −n…n``, column ``EC = −n…n``; each must fit int16.
+    f : int
+        The table's fraction bits.
+
+    Returns
+    -------
+    int
+        ``zlib.crc32`` of int16 ``n``, int16 ``f`` and the entries row-major, little-endian.
+
+    Examples
+    --------
+    >>> hex(table_crc32([[0, 1, 2], [3, 4, 5], [6, 7, -8]], 3))
+    '0xd3d2eea4'
+    """
+    a = np.asarray(q, dtype=np.int64)
+    size = a.shape[0] if a.ndim == 2 else -1
+    if a.ndim != 2 or a.shape[1] != size or size % 2 != 1:
+        raise ValueError(f"a table must be square with an odd side (2n+1), got shape {a.shape}")
+    if a.size and (a.min() < _INT16[0] or a.max() > _INT16[1]):
+        raise ValueError("table entries must fit int16")
+    head = struct.pack("<hh", (size - 1) // 2, int(f))
+    return zlib.crc32(a.astype("<i2").tobytes(), zlib.crc32(head))
+
+
+def _pairs_crc(pairs: Sequence[tuple[int, int]]) -> int:
+    crc = 0
+    for q, f in pairs:
+        if not (_INT32[0] <= q <= _INT32[1]) or not (_INT16[0] <= f <= _INT16[1]):
+            raise ExportError(f"constant ({q}, {f}) does not fit the (int32 q, int16 f) pair")
+        crc = zlib.crc32(struct.pack("<ih", q, f), crc)
+    return crc
+
+
+def _constants_pairs(
+    controllers: Sequence[AxisController],
+    ref_source: Sequence[int],
+    *,
+    timer_divisor: int,
+    counter_bits: int,
+    dac_bits: int,
+    dac_zero: int,
+) -> list[tuple[int, int]]:
+    pairs = [(len(controllers), 0), (int(timer_divisor), 0)]
+    for ctl, src in zip(controllers, ref_source, strict=True):
+        c = ctl.consts(counter_bits=counter_bits, dac_bits=dac_bits, dac_zero=dac_zero)
+        for iq, jf in _CONST_PAIRS:
+            pairs.append((int(c[iq]), 0 if jf is None else int(c[jf])))
+        pairs.append((int(src), 0))
+    return pairs
+
+
+def constants_crc32(tuning: Tuning, *, rig: Rig | None = None) -> int:
+    """The constants CRC of a tuning's export (order in the module docstring).
+
+    Parameters
+    ----------
+    tuning : Tuning
+    rig : Rig, optional
+        The rig the tuning runs on (counter and D/A facts); default the hardware of seed 000
+        (24-bit counter, 12-bit ±10 V D/A).
+
+    Returns
+    -------
+    int
+    """
+    hw = _hardware(tuning, rig)
+    return _pairs_crc(
+        _constants_pairs(
+            tuning.controllers,
+            _ref_sources(tuning.roles),
+            timer_divisor=tuning.timer_divisor,
+            counter_bits=hw["counter_bits"],
+            dac_bits=hw["dac"]["bits"],
+            dac_zero=hw["dac"]["zero_code"],
+        )
+    )
+
+
+# --- building the document -------------------------------------------------------------------
+
+
+def _ref_sources(roles: Sequence[str]) -> list[int]:
+    """Per axis −1 (external reference) or the master's index: the engine's default Loop."""
+    master = next((i for i, r in enumerate(roles) if r == "master"), -1)
+    return [-1 if (r == "master" or master < 0) else master for r in roles]
+
+
+def _hardware(tuning: Tuning, rig: Rig | None) -> dict[str, Any]:
+    if rig is not None:
+        try:
+            tuning.check_rig(rig)
+        except ValueError as exc:
+            raise ExportError(str(exc)) from None
+        counter, dac = rig.counter, rig.dac
+    else:
+        counter, dac = Counter(), Dac()
+    return {
+        "counter_bits": int(counter.bits),
+        "dac": {
+            "bits": int(dac.bits),
+            "code_max": int(dac.code_max),
+            "range_v": [float(dac.range_v[0]), float(dac.range_v[1])],
+            "zero_code": int(dac.zero_code),
+        },
+    }
+
+
+def _plain(x: Any, where: str) -> Any:
+    """JSON-safe copy of a summary: finite floats (others None), numpy scalars as numbers."""
+    if isinstance(x, Mapping):
+        return {str(k): _plain(v, where) for k, v in x.items()}
+    if isinstance(x, list | tuple | np.ndarray):
+        return [_plain(v, where) for v in (x.tolist() if isinstance(x, np.ndarray) else x)]
+    if isinstance(x, bool) or x is None or isinstance(x, str | int):
+        return x
+    if hasattr(x, "item"):
+        return _plain(x.item(), where)
+    if isinstance(x, float):
+        return x if math.isfinite(x) else None
+    raise ExportError(f"{where}: cannot store a {type(x).__name__} in the export")
+
+
+def _axis_doc(i: int, name: str, role: str, ctl: AxisController, src: int) -> dict[str, Any]:
+    fe = ctl.following_error_limit_counts
+    if fe > _INT32[1]:
+        raise ExportError(
+            f"axis {name!r}: following_error_limit_counts {fe} does not fit int32 [counts]"
+        )
+    d = ctl.to_dict()
+    task = d["task"]
+    if isinstance(ctl.task, FuzzyPIDConstants):
+        n = ctl.task.n
+        task["tables"] = {
+            t: {"crc32": table_crc32(q, f_t), "f": int(f_t), "n": n, "q": q.astype(int).tolist()}
+            for t, (q, f_t) in zip(TABLE_NAMES, ctl.task.tables, strict=True)
+        }
+    return {
+        "following_error_limit_counts": int(fe),
+        "index": i,
+        "law": d["law"],
+        "lock_gain": d["lock_gain"],
+        "name": name,
+        "ref_source": src,
+        "role": role,
+        "task": task,
+    }
+
+
+def tables_document(
+    tuning: Tuning,
+    *,
+    rig: Rig | None = None,
+    verification: Mapping[str, Any] | Summary | None = None,
+    unverified: bool = False,
+) -> dict[str, Any]:
+    """The export as a plain dict (what :func:`to_string` serialises).
+
+    Parameters
+    ----------
+    tuning : Tuning
+        The tuning to export; its constants are copied, never re-quantised.
+    rig : Rig, optional
+        The rig (checked against the tuning) giving the counter width and the D/A coding;
+        default the hardware of seed 000 (24-bit counter, 12-bit ±10 V D/A).
+    verification : mapping or Verification, optional
+        The verification summary (a :class:`servotune.verify.Verification` or its
+        ``to_dict()``); it goes into the provenance whole. A key ``"passed"`` that is false
+        fails the export unless ``unverified``. The provenance's ``spec_sha256`` is the
+        summary's ``"spec_sha256"`` if it has one, else the SHA-256 of its ``"spec"`` as
+        canonical JSON (sorted keys, no spaces), else null.
+    unverified : bool
+        Export without a (passing) verification; the document is marked ``"verified": false``.
+
+    Returns
+    -------
+    dict
+
+    Raises
+    ------
+    ExportError
+        No verification (and not ``unverified``), a failed verification, a rig that does not
+        match the tuning, or a constant that does not fit the runtime's types.
+    """
+    if verification is not None and not isinstance(verification, Mapping):
+        verification = verification.to_dict()
+    if not unverified:
+        if verification is None:
+            raise ExportError(
+                "no verification summary: verify the tuning first, or export it marked "
+                "unverified (unverified=True, --unverified)"
+            )
+        passed = verification.get("passed", True)
+        if passed is not None and not bool(passed):
+            raise ExportError(
+                "the verification failed: fix the tuning, or export it marked unverified "
+                "(unverified=True, --unverified)"
+            )
+    hw = _hardware(tuning, rig)
+    refs = _ref_sources(tuning.roles)
+    axes = [
+        _axis_doc(i, name, role, ctl, src)
+        for i, (name, role, ctl, src) in enumerate(
+            zip(tuning.axis_names, tuning.roles, tuning.controllers, refs, strict=True)
+        )
+    ]
+    crc = _pairs_crc(
+        _constants_pairs(
+            tuning.controllers,
+            refs,
+            timer_divisor=tuning.timer_divisor,
+            counter_bits=hw["counter_bits"],
+            dac_bits=hw["dac"]["bits"],
+            dac_zero=hw["dac"]["zero_code"],
+        )
+    )
+    summary = None if verification is None else _plain(verification, "verification")
+    spec_sha = None
+    if summary is not None:
+        spec_sha = summary.get("spec_sha256")
+        if spec_sha is None and summary.get("spec") is not None:
+            canon = json.dumps(summary["spec"], sort_keys=True, separators=(",", ":"))
+            spec_sha = hashlib.sha256(canon.encode()).hexdigest()
+    return {
+        "data": {
+            "axes": axes,
+            "constants_crc32": crc,
+            "counter_bits": hw["counter_bits"],
+            "dac": hw["dac"],
+            "f_u": F_U,
+            "period_s": float(tuning.period_s),
+            "rig_name": tuning.rig_name,
+            "timer_divisor": int(tuning.timer_divisor),
+        },
+        "provenance": {
+            "rig": {"name": tuning.rig_name, "sha256": tuning.rig_sha256},
+            "spec_sha256": spec_sha,
+            "tool": "servotune",
+            "tool_version": _tool_version(),
+            "tuning": _plain(tuning.provenance, "tuning provenance"),
+            "tuning_sha256": hashlib.sha256(tuning_to_string(tuning).encode()).hexdigest(),
+            "verification": summary,
+        },
+        "schema": SCHEMA,
+        "verified": not unverified,
+    }
+
+
+def _tool_version() -> str:
+    from servotune import __version__
+
+    return __version__
+
+
+# rows of numbers on one line: a JSON list of numbers only (no string can hold a newline)
+_NUM = r"-?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?"
+_NUM_LIST = re.compile(r"\[\n\s*(" + _NUM + r"(?:,\n\s*" + _NUM + r")*)\n\s*\]")
+
+
+def _dumps(doc: Mapping[str, Any]) -> str:
+    text = json.dumps(doc, sort_keys=True, indent=2, allow_nan=False, ensure_ascii=False)
+    text = _NUM_LIST.sub(lambda m: "[" + re.sub(r",\n\s*", ", ", m.group(1)) + "]", text)
+    return text + "\n"
+
+
+def to_string(
+    tuning: Tuning,
+    *,
+    rig: Rig | None = None,
+    verification: Mapping[str, Any] | Summary | None = None,
+    unverified: bool = False,
+) -> str:
+    """The tables export as JSON text (deterministic bytes; see :func:`tables_document`).
+
+    Examples
+    --------
+    >>> text = to_string(tuning, verification=summary)  # doctest: +SKIP
+    >>> load_tables(text)["schema"]  # doctest: +SKIP
+    'servotune.tables/1'
+    """
+    return _dumps(
+        tables_document(tuning, rig=rig, verification=verification, unverified=unverified)
+    )
+
+
+def to_file(
+    tuning: Tuning,
+    path: str | Path,
+    *,
+    rig: Rig | None = None,
+    verification: Mapping[str, Any] | Summary | None = None,
+    unverified: bool = False,
+) -> None:
+    """Write the tables export atomically (temp file, then rename); arguments as
+    :func:`tables_document`.
+
+    Raises
+    ------
+    ExportError
+        As :func:`tables_document`, or if the file cannot be written (nothing is written then).
+    """
+    text = to_string(tuning, rig=rig, verification=verification, unverified=unverified)
+    try:
+        atomic_write_text(path, text)
+    except OSError as exc:
+        raise ExportError(f"{path}: cannot write: {exc}") from None
+
+
+# --- reading it back -------------------------------------------------------------------------
+
+
+def _is_int(x: Any) -> bool:
+    return type(x) is int
+
+
+def _need(d: Any, key: str, where: str) -> Any:
+    if not isinstance(d, dict):
+        raise ExportError(f"{where} must be a JSON object")
+    if key not in d:
+        raise ExportError(f"{where} is missing the field {key!r}")
+    return d[key]
+
+
+def _need_int(d: Any, key: str, where: str) -> int:
+    v = _need(d, key, where)
+    if not _is_int(v):
+        raise ExportError(f"{where}.{key} must be an integer, got {v!r}")
+    return v
+
+
+def _check_table(tab: Any, name: str, n: int, where: str) -> None:
+    w = f"{where} table {name}"
+    if _need_int(tab, "n", w) != n:
+        raise ExportError(f"{w}: n must be {n} (the axis's levels), got {tab['n']}")
+    f = _need_int(tab, "f", w)
+    stored = _need_int(tab, "crc32", w)
+    rows = _need(tab, "q", w)
+    size = 2 * n + 1
+    if not isinstance(rows, list) or len(rows) != size:
+        raise ExportError(f"{w}: q must have {size} rows (E = -{n}..{n})")
+    for r, row in enumerate(rows):
+        if not isinstance(row, list) or len(row) != size:
+            raise ExportError(f"{w}: row {r} must have {size} entries (EC = -{n}..{n})")
+        for c, v in enumerate(row):
+            if not _is_int(v):
+                raise ExportError(f"{w}: entry q[{r}][{c}] must be an integer, got {v!r}")
+            if not _INT16[0] <= v <= _INT16[1]:
+                raise ExportError(f"{w}: entry q[{r}][{c}] = {v} is outside int16")
+    if not _INT16[0] <= f <= _INT16[1]:
+        raise ExportError(f"{w}: f = {f} is outside int16")
+    computed = table_crc32(rows, f)
+    if computed != stored:
+        raise ExportError(
+            f"{w}: CRC mismatch (stored 0x{stored:08x}, computed 0x{computed:08x}); "
+            "the table was changed or damaged"
+        )
+
+
+def _controller(ax: Any, where: str) -> AxisController:
+    task = _need(ax, "task", where)
+    law = _need(ax, "law", where)
+    if law not in LAW_NAMES:
+        raise ExportError(f"{where}.law must be one of {', '.join(LAW_NAMES)}, got {law!r}")
+    if law == LAW_NAMES[LAW_FUZZY_PID]:
+        n = _need_int(task, "n", f"{where}.task")
+        tabs = _need(task, "tables", f"{where}.task")
+        for t in TABLE_NAMES:
+            _check_table(_need(tabs, t, f"{where}.task.tables"), t, n, where)
+        task = dict(task)
+        task["tables"] = {t: {"f": tabs[t]["f"], "q": tabs[t]["q"]} for t in TABLE_NAMES}
+    try:
+        return AxisController.from_dict(
+            {
+                "following_error_limit_counts": _need(ax, "following_error_limit_counts", where),
+                "law": law,
+                "lock_gain": _need(ax, "lock_gain", where),
+                "task": task,
+            }
+        )
+    except (ValueError, KeyError, TypeError) as exc:
+        raise ExportError(f"{where}: {exc}") from None
+
+
+def _check_document(doc: Any) -> tuple[AxisController, ...]:
+    if not isinstance(doc, dict):
+        raise ExportError("a tables export must hold a JSON object")
+    if doc.get("schema") != SCHEMA:
+        raise ExportError(f"schema must be {SCHEMA!r}, got {doc.get('schema')!r}")
+    if not isinstance(_need(doc, "verified", "document"), bool):
+        raise ExportError("verified must be true or false")
+    _need(doc, "provenance", "document")
+    data = _need(doc, "data", "document")
+    axes = _need(data, "axes", "data")
+    if not isinstance(axes, list) or not axes:
+        raise ExportError("data.axes must be a non-empty list")
+    bits = _need_int(data, "counter_bits", "data")
+    if bits not in (16, 24, 32):
+        raise ExportError(f"data.counter_bits must be 16, 24 or 32, got {bits}")
+    dac = _need(data, "dac", "data")
+    dac_bits = _need_int(dac, "bits", "data.dac")
+    dac_zero = _need_int(dac, "zero_code", "data.dac")
+    if _need_int(dac, "code_max", "data.dac") != 2**dac_bits - 1:
+        raise ExportError(f"data.dac.code_max must be 2**bits - 1 = {2**dac_bits - 1}")
+    if _need_int(data, "f_u", "data") != F_U:
+        raise ExportError(f"data.f_u must be {F_U}, got {data['f_u']}")
+    divisor = _need_int(data, "timer_divisor", "data")
+    period = _need(data, "period_s", "data")
+    if not isinstance(period, float) or not period > 0:
+        raise ExportError(f"data.period_s must be a number > 0 [s], got {period!r}")
+    stored = _need_int(data, "constants_crc32", "data")
+    ctls = []
+    refs = []
+    for i, ax in enumerate(axes):
+        where = f"axes[{i}]"
+        if isinstance(ax, dict) and isinstance(ax.get("name"), str):
+            where = f"axes[{i}] ({ax['name']})"
+        src = _need_int(ax, "ref_source", where)
+        if src != -1 and not (0 <= src < len(axes) and src != i):
+            raise ExportError(f"{where}.ref_source must be -1 or another axis's index, got {src}")
+        refs.append(src)
+        ctls.append(_controller(ax, where))
+    computed = _pairs_crc(
+        _constants_pairs(
+            ctls,
+            refs,
+            timer_divisor=divisor,
+            counter_bits=bits,
+            dac_bits=dac_bits,
+            dac_zero=dac_zero,
+        )
+    )
+    if computed != stored:
+        raise ExportError(
+            f"data.constants_crc32: CRC mismatch (stored 0x{stored:08x}, computed "
+            f"0x{computed:08x}); a constant was changed or damaged"
+        )
+    return tuple(ctls)
+
+
+def load_tables(path_or_text: str | Path) -> dict[str, Any]:
+    """Read a tables export and check it: schema, ranges, every table CRC, the constants CRC.
+
+    Parameters
+    ----------
+    path_or_text : str or Path
+        A file path, or the JSON text itself (a string starting with ``{``).
+
+    Returns
+    -------
+    dict
+        The document as loaded.
+
+    Raises
+    ------
+    ExportError
+        One line naming the file, table or field: unreadable or not JSON, wrong schema, a
+        missing or malformed field, an entry outside int16, a CRC mismatch.
+    """
+    src = "tables export"
+    if isinstance(path_or_text, str) and path_or_text.lstrip().startswith("{"):
+        text = path_or_text
+    else:
+        p = Path(path_or_text)
+        src = str(p)
+        try:
+            text = p.read_text(encoding="utf-8")
+        except FileNotFoundError:
+            raise ExportError(f"{p}: no such file") from None
+        except (OSError, UnicodeDecodeError) as exc:
+            raise ExportError(f"{p}: cannot read: {exc}") from None
+    try:
+        doc = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ExportError(f"{src}: not JSON ({exc.msg} at line {exc.lineno})") from None
+    try:
+        _check_document(doc)
+    except ExportError as exc:
+        raise ExportError(f"{src}: {exc}") from None
+    return doc
+
+
+def controllers_from_tables(doc: Mapping[str, Any]) -> tuple[AxisController, ...]:
+    """The runtime constants of a tables export, per axis (checked as by :func:`load_tables`).
+
+    With the tuning's controllers these compare equal: the export holds them exactly.
+    """
+    return _check_document(doc)

@@ -1,0 +1,573 @@
+/*
+ * servotune_rt.c -- reference runtime of servotune (C99, integer only, no I/O).
+ *
+ * Every function below mirrors one Python function line by line; the Python name is given
+ * above each. Arithmetic rules (SPEC section 6):
+ *   - no right shift of a negative value and no left shift of a negative value (shift_round
+ *     rounds the magnitude and restores the sign; align multiplies by 2^k);
+ *   - products are int64 of an int32-bounded gain and an error clamped to +-(2^31 - 1), so
+ *     they cannot overflow (scheduled gains are bounded by 2^32 - 1: st_check_consts);
+ *   - sums that could overflow saturate (st_sat_add);
+ *   - differences of positions and references (e, ec, dr, the unwrapped position) are formed
+ *     modulo 2^64 in unsigned arithmetic and converted back without implementation-defined
+ *     behaviour, which is what the Python (numba int64) code does; they only wrap for
+ *     positions beyond +-2^62 counts, never on a real axis.
+ * There is no undefined behaviour for any input once st_check_consts() accepted the constants.
+ */
+#include "servotune_rt.h"
+
+#define ST_INT64_MAX INT64_MAX
+#define ST_E_MAX ((int64_t)2147483647) /* fixed.E_MAX = 2^31 - 1 */
+
+/* --- modular int64 arithmetic (numba's int64 wraps) ----------------------------------- */
+
+static int64_t from_u64(uint64_t u)
+{
+    if (u <= (uint64_t)INT64_MAX) {
+        return (int64_t)u;
+    }
+    return -(int64_t)(UINT64_MAX - u) - 1;
+}
+
+static int64_t wrap_add(int64_t a, int64_t b)
+{
+    return from_u64((uint64_t)a + (uint64_t)b);
+}
+
+static int64_t wrap_sub(int64_t a, int64_t b)
+{
+    return from_u64((uint64_t)a - (uint64_t)b);
+}
+
+/* --- servotune/fixed.py ------------------------------------------------------------------ */
+
+/* fixed.shift_round: x * 2^-f rounded half away from zero, for f >= 1 and x > INT64_MIN. */
+int64_t st_shift_round(int64_t x, int f)
+{
+    int64_t m;
+    if (x >= 0) {
+        return (x >> f) + ((x >> (f - 1)) & 1);
+    }
+    m = -x;
+    return -((m >> f) + ((m >> (f - 1)) & 1));
+}
+
+/* fixed.sat_add: a + b saturated to +-INT64_MAX (INT64_MIN is never produced). */
+int64_t st_sat_add(int64_t a, int64_t b)
+{
+    int64_t s;
+    if (b > 0 && a > ST_INT64_MAX - b) {
+        return ST_INT64_MAX;
+    }
+    if (b < 0 && a < -ST_INT64_MAX - b) {
+        return -ST_INT64_MAX;
+    }
+    s = a + b;
+    if (s < -ST_INT64_MAX) {
+        return -ST_INT64_MAX;
+    }
+    return s;
+}
+
+/* fixed.align: x * 2^k for k >= 0, saturated to +-INT64_MAX; exact when it fits. */
+int64_t st_align(int64_t x, int k)
+{
+    int64_t lim;
+    if (k == 0) {
+        return x;
+    }
+    lim = ST_INT64_MAX >> k;
+    if (x > lim) {
+        return ST_INT64_MAX;
+    }
+    if (x < -lim) {
+        return -ST_INT64_MAX;
+    }
+    return x * ((int64_t)1 << k);
+}
+
+/* fixed.clamp_e: clamp an error, error change or reference change to +-(2^31 - 1). */
+int64_t st_clamp_e(int64_t x)
+{
+    if (x > ST_E_MAX) {
+        return ST_E_MAX;
+    }
+    if (x < -ST_E_MAX) {
+        return -ST_E_MAX;
+    }
+    return x;
+}
+
+/* --- servotune/hw/counter.py ------------------------------------------------------------ */
+
+/* counter.assemble: the register from its bytes, low first (counter_bits / 8 bytes). */
+int64_t st_assemble(const uint8_t *bytes, int counter_bits)
+{
+    int64_t raw = 0;
+    int j;
+    for (j = 0; j < counter_bits / 8; j++) {
+        raw |= (int64_t)bytes[j] << (8 * j);
+    }
+    return raw;
+}
+
+/* the high byte of a register value (never a shift of a negative value) */
+static int64_t high_byte(int64_t raw, int bits)
+{
+    return (int64_t)(((uint64_t)raw >> (bits - 8)) & 0xFFu);
+}
+
+/* wraps * 2^bits + raw, modulo 2^64 as in numba */
+static int64_t extend(int64_t wraps, int64_t raw, int bits)
+{
+    return from_u64((uint64_t)wraps * ((uint64_t)1 << bits) + (uint64_t)raw);
+}
+
+/* counter.unwrap_step: the high-byte rule. Returns 1 if the high byte moved by anything
+ * other than 0, +-1 or +-255 (a counter fault). */
+int st_unwrap_step(int64_t raw, int64_t *hi_prev, int64_t *wraps, int counter_bits,
+                   int64_t *position)
+{
+    const int64_t hi = high_byte(raw, counter_bits);
+    const int64_t dh = hi - *hi_prev;
+    int fault = 0;
+    if (dh == -255) {
+        *wraps = wrap_add(*wraps, 1);
+    } else if (dh == 255) {
+        *wraps = wrap_sub(*wraps, 1);
+    } else if (dh > 1 || dh < -1) {
+        fault = 1;
+    }
+    *position = extend(*wraps, raw, counter_bits);
+    *hi_prev = hi;
+    return fault;
+}
+
+/* --- servotune/laws/lock.py, pi.py, fuzzy_pid.py ---------------------------------------- */
+
+/* lock.lock_step: u_q = Kl * e [LSB, ST_F_U fraction bits]. */
+static int64_t lock_step(int64_t kl_q, int64_t kl_f, int64_t e)
+{
+    return st_align(kl_q * st_clamp_e(e), ST_F_U - (int)kl_f);
+}
+
+/* the integrator's span: the D/A span in ST_F_U fraction bits */
+static int64_t clamp_integ(int64_t integ, int64_t zero, int64_t code_max)
+{
+    const int64_t i_max = (code_max - zero) * ((int64_t)1 << ST_F_U);
+    const int64_t i_min = -zero * ((int64_t)1 << ST_F_U);
+    if (integ > i_max) {
+        return i_max;
+    }
+    if (integ < i_min) {
+        return i_min;
+    }
+    return integ;
+}
+
+/* pi.pi_step: one PI tick with conditional integration. Returns u_q; *integ := I(k). */
+static int64_t pi_step(int64_t kp_q, int64_t kp_f, int64_t kit_q, int64_t kit_f,
+                       int64_t *integ, int64_t e, int64_t u_add, int64_t zero,
+                       int64_t code_max)
+{
+    const int64_t ec = st_clamp_e(e);
+    const int64_t p_term = st_align(kp_q * ec, ST_F_U - (int)kp_f);
+    const int64_t d_i = st_align(kit_q * ec, ST_F_U - (int)kit_f);
+    /* I is bounded by the D/A span (2^11 * 2^32 = 2^43 for 12 bits), p_term and d_i are
+     * saturated, so only the saturating adds below can overflow and they saturate. */
+    const int64_t u_pre = st_sat_add(st_sat_add(st_sat_add(p_term, *integ), d_i), u_add);
+    const int64_t raw = st_shift_round(u_pre, ST_F_U) + zero;
+    if (!((raw > code_max && d_i > 0) || (raw < 0 && d_i < 0))) {
+        *integ = clamp_integ(st_sat_add(*integ, d_i), zero, code_max);
+    }
+    return st_sat_add(st_sat_add(p_term, *integ), u_add);
+}
+
+/* pi.pi_enter: bumpless entry, I := (u_last - u_add) - Kp*e, clamped. Returns u_q. */
+static int64_t pi_enter(int64_t kp_q, int64_t kp_f, int64_t u_last, int64_t e, int64_t u_add,
+                        int64_t zero, int64_t code_max, int64_t *integ)
+{
+    const int64_t p_term = st_align(kp_q * st_clamp_e(e), ST_F_U - (int)kp_f);
+    *integ = clamp_integ(st_sat_add(st_sat_add(u_last, -u_add), -p_term), zero, code_max);
+    return st_sat_add(st_sat_add(p_term, *integ), u_add);
+}
+
+/* fuzzy_pid.fuzzy_level: clamp(shift_round(clamp_e(x) * K_q, f_K), -n, n). */
+static int64_t fuzzy_level(int64_t x, int64_t k_q, int64_t k_f, int64_t n)
+{
+    const int64_t p = st_clamp_e(x) * k_q; /* |x| < 2^31, |K_q| < 2^31: fits int64 */
+    const int64_t lv = k_f > 0 ? st_shift_round(p, (int)k_f) : p;
+    if (lv > n) {
+        return n;
+    }
+    if (lv < -n) {
+        return -n;
+    }
+    return lv;
+}
+
+/* fuzzy_pid.scheduled_gain: Kx0 + dKx in q units at the base's f (entry aligned by 2^(f-f_t)).
+ * |entry * 2^(f - f_t)| <= 2^15 * 2^32 and |base| < 2^31: no overflow. */
+static int64_t scheduled_gain(int64_t base_q, int64_t base_f, int64_t t_q, int64_t t_f)
+{
+    return base_q + st_align(t_q, (int)(base_f - t_f));
+}
+
+/* fuzzy_pid.feed_terms: (Kd/T)*ec + (K1/T)*dr [LSB, ST_F_U fraction bits]. */
+static int64_t feed_terms(int64_t kd_q, int64_t kd_f, int64_t k1_q, int64_t k1_f, int64_t ec,
+                          int64_t dr)
+{
+    const int64_t d = st_align(kd_q * st_clamp_e(ec), ST_F_U - (int)kd_f);
+    const int64_t ff = st_align(k1_q * st_clamp_e(dr), ST_F_U - (int)k1_f);
+    return st_sat_add(d, ff);
+}
+
+/* --- servotune/laws/axis.py ------------------------------------------------------------- */
+
+/* axis.axis_read: unwrap one read with the high-byte rule, flag a counter fault. Returns the
+ * extended position relative to the first read (the power-up home). */
+int64_t st_axis_read(st_axis_state_t *s, const st_axis_consts_t *c, int64_t raw, int reset)
+{
+    const int bits = c->counter_bits;
+    int64_t ext;
+    int64_t y;
+    if (s->init == 0) {
+        s->origin = raw;
+        s->wraps = 0;
+        s->lock_target = 0;
+        s->r_prev = 0;
+        s->init = 1;
+        reset = 1;
+    }
+    if (reset) {
+        s->hi_prev = high_byte(raw, bits);
+        y = wrap_sub(extend(s->wraps, raw, bits), s->origin);
+        s->y = y;
+        return y;
+    }
+    if (st_unwrap_step(raw, &s->hi_prev, &s->wraps, bits, &ext)) {
+        s->fault |= ST_FLAG_COUNTER_FAULT;
+    }
+    y = wrap_sub(ext, s->origin);
+    s->y = y;
+    return y;
+}
+
+/* axis.axis_control: one axis's control step after st_axis_read. Writes the D/A code and the
+ * flags; returns the law's error e [counts] (0 in open mode or under a fault). */
+int64_t st_axis_control(st_axis_state_t *s, const st_axis_consts_t *c, int64_t ref,
+                        int64_t mode_cmd, int reset, int64_t u_add, int32_t *code_out,
+                        int32_t *flags_out)
+{
+    const int64_t zero = c->dac_zero;
+    const int64_t cmax = c->dac_max;
+    const int64_t y = s->y;
+    int entering;
+    int64_t u_add_q;
+    int64_t e = 0;
+    int64_t u;
+    int64_t fe;
+    int64_t code;
+    int64_t flags;
+    if (reset) {
+        s->fault = 0;
+        s->mode = ST_MODE_LOCK;
+        s->lock_target = y;
+        s->integ = 0;
+        s->u_last = 0;
+        s->e_prev = 0;
+        s->r_prev = ref;
+    }
+    if (s->fault != 0) {
+        s->u_last = 0;
+        *code_out = (int32_t)zero;
+        *flags_out = (int32_t)s->fault;
+        return 0;
+    }
+    if (mode_cmd == ST_MODE_TASK && c->law == ST_LAW_NONE) {
+        mode_cmd = ST_MODE_LOCK; /* no task law: the lock keeps the axis */
+    }
+    entering = mode_cmd == ST_MODE_TASK && s->mode != ST_MODE_TASK;
+    if (mode_cmd == ST_MODE_LOCK && s->mode != ST_MODE_LOCK) {
+        s->lock_target = y;
+    }
+    s->mode = mode_cmd;
+    u_add_q = st_align(u_add, ST_F_U);
+    if (mode_cmd == ST_MODE_LOCK) {
+        e = wrap_sub(s->lock_target, y);
+        u = st_sat_add(lock_step(c->lock_q, c->lock_f, e), u_add_q);
+    } else if (mode_cmd == ST_MODE_TASK) {
+        int64_t kp_q = c->kp_q;
+        int64_t kit_q = c->kit_q;
+        e = wrap_sub(ref, y);
+        if (c->law == ST_LAW_FUZZY_PID) {
+            /* composite law: schedule the gains from the query tables at (E, EC), then the PI
+             * core with the derivative and feedforward terms added to its output */
+            const int64_t ec = entering ? 0 : wrap_sub(e, s->e_prev);
+            const int64_t dr = entering ? 0 : wrap_sub(ref, s->r_prev);
+            const int64_t n = c->n;
+            const int64_t size = 2 * n + 1;
+            const int64_t lv_e = fuzzy_level(e, c->ke_q, c->ke_f, n);
+            const int64_t lv_ec = fuzzy_level(ec, c->kec_q, c->kec_f, n);
+            const int64_t cell = (lv_e + n) * size + lv_ec + n;
+            int64_t kd_q;
+            int64_t k1_q;
+            kp_q = scheduled_gain(kp_q, c->kp_f, c->tab[ST_TAB_KP][cell], c->tf[ST_TAB_KP]);
+            kit_q = scheduled_gain(kit_q, c->kit_f, c->tab[ST_TAB_KI][cell], c->tf[ST_TAB_KI]);
+            kd_q = scheduled_gain(c->kdt_q, c->kdt_f, c->tab[ST_TAB_KD][cell],
+                                  c->tf[ST_TAB_KD]);
+            k1_q = scheduled_gain(c->k1t_q, c->k1t_f, c->tab[ST_TAB_K1][cell],
+                                  c->tf[ST_TAB_K1]);
+            u_add_q = st_sat_add(u_add_q, feed_terms(kd_q, c->kdt_f, k1_q, c->k1t_f, ec, dr));
+        }
+        if (entering) {
+            u = pi_enter(kp_q, c->kp_f, s->u_last, e, u_add_q, zero, cmax, &s->integ);
+        } else {
+            u = pi_step(kp_q, c->kp_f, kit_q, c->kit_f, &s->integ, e, u_add_q, zero, cmax);
+        }
+    } else {
+        u = u_add_q;
+    }
+    fe = c->fe_limit;
+    if (fe > 0 && (e > fe || e < -fe)) {
+        s->fault |= ST_FLAG_FOLLOWING_ERROR;
+        s->u_last = 0;
+        *code_out = (int32_t)zero;
+        *flags_out = (int32_t)s->fault;
+        return e;
+    }
+    s->u_last = u;
+    s->e_prev = e;
+    s->r_prev = ref;
+    code = st_shift_round(u, ST_F_U) + zero; /* dac.code_from_uq, with the rail flag */
+    flags = s->fault;
+    if (code > cmax) {
+        code = cmax;
+        flags |= ST_FLAG_SATURATED;
+    } else if (code < 0) {
+        code = 0;
+        flags |= ST_FLAG_SATURATED;
+    }
+    *code_out = (int32_t)code;
+    *flags_out = (int32_t)flags;
+    return e;
+}
+
+/* --- the tick (engine._run_group, steps 1-4) ------------------------------------------- */
+
+void st_init(st_state_t *s)
+{
+    int a;
+    for (a = 0; a < ST_MAX_AXES; a++) {
+        st_axis_state_t *x = &s->axis[a];
+        x->init = 0;
+        x->hi_prev = 0;
+        x->wraps = 0;
+        x->y = 0;
+        x->mode = 0;
+        x->fault = 0;
+        x->lock_target = 0;
+        x->integ = 0;
+        x->u_last = 0;
+        x->e_prev = 0;
+        x->r_prev = 0;
+        x->origin = 0;
+    }
+}
+
+void st_tick(const st_consts_t *c, st_state_t *s, const st_axis_in_t *in, st_axis_out_t *out)
+{
+    int a;
+    /* 1-2. sample and unwrap, every axis (a slave uses its master's read of this tick) */
+    for (a = 0; a < c->n_axes; a++) {
+        const st_axis_consts_t *ca = &c->axis[a];
+        const int64_t raw = st_assemble(in[a].bytes, ca->counter_bits);
+        out[a].y = st_axis_read(&s->axis[a], ca, raw, in[a].reset != 0);
+    }
+    /* 3-4. control law and D/A code, every axis */
+    for (a = 0; a < c->n_axes; a++) {
+        const st_axis_consts_t *ca = &c->axis[a];
+        const int32_t src = ca->ref_source;
+        const int64_t ref = src < 0 ? in[a].ref : out[src].y;
+        out[a].e = st_axis_control(&s->axis[a], ca, ref, in[a].mode, in[a].reset != 0,
+                                   in[a].u_add, &out[a].code, &out[a].flags);
+        out[a].mode = (int32_t)s->axis[a].mode;
+    }
+}
+
+/* --- constants check -------------------------------------------------------------------- */
+
+/* field codes of st_check_consts (returned as 1 + 100 * axis + code) */
+enum {
+    CHK_N_AXES = 0,
+    CHK_LAW = 1,
+    CHK_LOCK_F = 2,
+    CHK_KP_F = 3,
+    CHK_KIT_F = 4,
+    CHK_FE_LIMIT = 5,
+    CHK_COUNTER_BITS = 6,
+    CHK_DAC = 7,
+    CHK_KDT_F = 8,
+    CHK_K1T_F = 9,
+    CHK_KE_F = 10,
+    CHK_KEC_F = 11,
+    CHK_N = 12,
+    CHK_TABLE = 13,
+    CHK_TABLE_F = 14,
+    CHK_SCHEDULED = 15,
+    CHK_REF_SOURCE = 16
+};
+
+static int f_ok(int64_t f)
+{
+    return f >= 0 && f <= ST_F_U;
+}
+
+int st_check_consts(const st_consts_t *c)
+{
+    int a;
+    if (c->n_axes < 1 || c->n_axes > ST_MAX_AXES) {
+        return 1 + CHK_N_AXES;
+    }
+    for (a = 0; a < c->n_axes; a++) {
+        const st_axis_consts_t *x = &c->axis[a];
+        const int err = 1 + 100 * a;
+        if (x->law < ST_LAW_NONE || x->law > ST_LAW_FUZZY_PID) {
+            return err + CHK_LAW;
+        }
+        if (!f_ok(x->lock_f)) {
+            return err + CHK_LOCK_F;
+        }
+        if (!f_ok(x->kp_f)) {
+            return err + CHK_KP_F;
+        }
+        if (!f_ok(x->kit_f)) {
+            return err + CHK_KIT_F;
+        }
+        if (x->fe_limit < 0) {
+            return err + CHK_FE_LIMIT;
+        }
+        if (x->counter_bits != 16 && x->counter_bits != 24 && x->counter_bits != 32) {
+            return err + CHK_COUNTER_BITS;
+        }
+        if (x->dac_zero < 0 || x->dac_max < x->dac_zero || x->dac_max > 65535) {
+            return err + CHK_DAC;
+        }
+        if (!f_ok(x->kdt_f)) {
+            return err + CHK_KDT_F;
+        }
+        if (!f_ok(x->k1t_f)) {
+            return err + CHK_K1T_F;
+        }
+        if (!f_ok(x->ke_f)) {
+            return err + CHK_KE_F;
+        }
+        if (!f_ok(x->kec_f)) {
+            return err + CHK_KEC_F;
+        }
+        if (x->ref_source != -1
+            && (x->ref_source < 0 || x->ref_source >= c->n_axes || x->ref_source == a)) {
+            return err + CHK_REF_SOURCE;
+        }
+        if (x->law == ST_LAW_FUZZY_PID) {
+            const int32_t base_q[ST_N_TABLES] = {x->kp_q, x->kit_q, x->kdt_q, x->k1t_q};
+            const int16_t base_f[ST_N_TABLES] = {x->kp_f, x->kit_f, x->kdt_f, x->k1t_f};
+            int i;
+            int64_t size;
+            int64_t j;
+            if (x->n < 1 || x->n > ST_MAX_LEVELS) {
+                return err + CHK_N;
+            }
+            size = (2 * (int64_t)x->n + 1) * (2 * (int64_t)x->n + 1);
+            for (i = 0; i < ST_N_TABLES; i++) {
+                if (x->tab[i] == NULL) {
+                    return err + CHK_TABLE;
+                }
+                if (x->tf[i] < 0 || x->tf[i] > base_f[i]) {
+                    return err + CHK_TABLE_F;
+                }
+                for (j = 0; j < size; j++) {
+                    /* the bound behind every product: 0 <= Kx0 + dKx <= 2^32 - 1 */
+                    const int64_t g = scheduled_gain(base_q[i], base_f[i], x->tab[i][j],
+                                                     x->tf[i]);
+                    if (g < 0 || g > (int64_t)4294967295) {
+                        return err + CHK_SCHEDULED;
+                    }
+                }
+            }
+        }
+    }
+    return 0;
+}
+
+/* --- integrity: CRC-32 (IEEE 802.3, reflected, as zlib's crc32) ------------------------- */
+
+uint32_t st_crc32(uint32_t crc, const uint8_t *p, size_t len)
+{
+    int k;
+    crc = ~crc;
+    while (len-- > 0) {
+        crc ^= *p++;
+        for (k = 0; k < 8; k++) {
+            crc = (crc >> 1) ^ ((uint32_t)0xEDB88320 & ((uint32_t)0 - (crc & (uint32_t)1)));
+        }
+    }
+    return ~crc;
+}
+
+static uint32_t crc_i16(uint32_t crc, int64_t v)
+{
+    const uint16_t u = (uint16_t)v;
+    uint8_t b[2];
+    b[0] = (uint8_t)(u & 0xFFu);
+    b[1] = (uint8_t)((u >> 8) & 0xFFu);
+    return st_crc32(crc, b, 2);
+}
+
+static uint32_t crc_pair(uint32_t crc, int64_t q, int64_t f)
+{
+    const uint32_t u = (uint32_t)q;
+    uint8_t b[4];
+    b[0] = (uint8_t)(u & 0xFFu);
+    b[1] = (uint8_t)((u >> 8) & 0xFFu);
+    b[2] = (uint8_t)((u >> 16) & 0xFFu);
+    b[3] = (uint8_t)((u >> 24) & 0xFFu);
+    return crc_i16(st_crc32(crc, b, 4), f);
+}
+
+/* The table CRC: int16 n, int16 f, then the (2n+1)^2 int16 entries row-major. */
+uint32_t st_table_crc32(int n, int f, const int16_t *q)
+{
+    const int64_t size = (2 * (int64_t)n + 1) * (2 * (int64_t)n + 1);
+    int64_t j;
+    uint32_t crc = crc_i16(crc_i16(0, n), f);
+    for (j = 0; j < size; j++) {
+        crc = crc_i16(crc, q[j]);
+    }
+    return crc;
+}
+
+/* The constants CRC, in the order of the header comment (servotune/export/json.py). */
+uint32_t st_consts_crc32(const st_consts_t *c)
+{
+    int a;
+    uint32_t crc = crc_pair(crc_pair(0, c->n_axes, 0), c->timer_divisor, 0);
+    for (a = 0; a < c->n_axes; a++) {
+        const st_axis_consts_t *x = &c->axis[a];
+        crc = crc_pair(crc, x->law, 0);
+        crc = crc_pair(crc, x->lock_q, x->lock_f);
+        crc = crc_pair(crc, x->kp_q, x->kp_f);
+        crc = crc_pair(crc, x->kit_q, x->kit_f);
+        crc = crc_pair(crc, x->fe_limit, 0);
+        crc = crc_pair(crc, x->counter_bits, 0);
+        crc = crc_pair(crc, x->dac_zero, 0);
+        crc = crc_pair(crc, x->dac_max, 0);
+        crc = crc_pair(crc, x->kdt_q, x->kdt_f);
+        crc = crc_pair(crc, x->k1t_q, x->k1t_f);
+        crc = crc_pair(crc, x->ke_q, x->ke_f);
+        crc = crc_pair(crc, x->kec_q, x->kec_f);
+        crc = crc_pair(crc, x->n, 0);
+        crc = crc_pair(crc, x->ref_source, 0);
+    }
+    return crc;
+}

@@ -1,0 +1,181 @@
+/*
+ * servotune_rt.h -- reference runtime of servotune (C99, integer only, no I/O).
+ *
+ * A line-by-line mirror of the Python laws (servotune/laws/axis.py, pi.py, fuzzy_pid.py,
+ * lock.py, servotune/fixed.py, servotune/hw/counter.py): the same integer arithmetic gives
+ * the same D/A codes and fault flags, bit for bit (SPEC section 6).
+ *
+ * One tick (st_tick): for every axis, assemble the latched counter bytes (low, mid, high),
+ * unwrap with the high-byte rule and flag a counter fault (st_axis_read); then for every axis,
+ * run the law of its mode -- position lock, PI, or fuzzy-PID + feedforward -- with bumpless
+ * lock/task handover, the following-error trip and latched faults (st_axis_control). A slave's
+ * reference is the position of the axis it follows, read in the same tick. The firmware reads
+ * the counter card, calls st_tick and writes the returned codes to the D/A itself.
+ *
+ * Constants come from servotune_tables.h (servotune export), whose SERVOTUNE_TABLES_INIT
+ * initialises an st_consts_t. Check them once at start-up with st_check_consts() and compare
+ * st_consts_crc32() / st_table_crc32() with the exported CRCs.
+ *
+ * Constants CRC (CRC-32 IEEE, as zlib's crc32): over (q int32, f int16) pairs, little-endian,
+ * in this order; integers are pairs (value, 0), unused constants (0, 0):
+ *   (n_axes, 0), (timer_divisor, 0), then for each axis a = 0 .. n_axes-1:
+ *   (law, 0), (lock_q, lock_f), (kp_q, kp_f), (kit_q, kit_f), (fe_limit, 0),
+ *   (counter_bits, 0), (dac_zero, 0), (dac_max, 0), (kdt_q, kdt_f), (k1t_q, k1t_f),
+ *   (ke_q, ke_f), (kec_q, kec_f), (n, 0), (ref_source, 0).
+ * Each table's CRC covers int16 n, int16 f, then its (2n+1)^2 int16 entries row-major
+ * (row E = -n..n, column EC = -n..n), little-endian.
+ */
+#ifndef SERVOTUNE_RT_H
+#define SERVOTUNE_RT_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+#define ST_RT_VERSION 1 /* servotune.tables/1 */
+
+#ifndef ST_MAX_AXES
+#define ST_MAX_AXES 4 /* a slave CPU drives 2 to 4 axes (seed 002) */
+#endif
+
+#define ST_F_U 32         /* fraction bits of u_q and of the integrator (fixed.F_U) */
+#define ST_MAX_LEVELS 64  /* largest n of the query tables */
+#define ST_N_TABLES 4     /* kp, ki, kd, k1 (fuzzy_pid.TABLE_NAMES order) */
+
+/* modes (laws/axis.py MODE_*) */
+#define ST_MODE_LOCK 0
+#define ST_MODE_TASK 1
+#define ST_MODE_OPEN 2
+
+/* task laws (LAW_*) */
+#define ST_LAW_NONE 0
+#define ST_LAW_PI 1
+#define ST_LAW_FUZZY_PID 2
+
+/* flags (FLAG_*): faults latch until a reset; SATURATED is per tick */
+#define ST_FLAG_COUNTER_FAULT 1
+#define ST_FLAG_FOLLOWING_ERROR 2
+#define ST_FLAG_SATURATED 4
+
+/* query tables (TABLE_NAMES order) */
+#define ST_TAB_KP 0
+#define ST_TAB_KI 1
+#define ST_TAB_KD 2
+#define ST_TAB_K1 3
+
+/* One axis's constants: the Python constants vector (laws/axis.py C_* layout). */
+typedef struct st_axis_consts {
+    int32_t law;             /* C_LAW: ST_LAW_* */
+    int32_t lock_q;          /* C_LOCK_Q: lock gain [D/A LSB per count] */
+    int16_t lock_f;          /* C_LOCK_F */
+    int32_t kp_q;            /* C_KP_Q: Kp (base Kp0 for fuzzy-PID) [LSB/count] */
+    int16_t kp_f;            /* C_KP_F */
+    int32_t kit_q;           /* C_KIT_Q: Ki*T [LSB/count/tick] */
+    int16_t kit_f;           /* C_KIT_F */
+    int32_t fe_limit;        /* C_FE_LIMIT: following-error trip [counts], 0 = off */
+    int16_t counter_bits;    /* C_COUNTER_BITS: 16, 24 or 32 */
+    int32_t dac_zero;        /* C_DAC_ZERO: code of 0 V */
+    int32_t dac_max;         /* C_DAC_MAX: largest code */
+    int32_t kdt_q;           /* C_KDT_Q: Kd/T [LSB per count change per tick] */
+    int16_t kdt_f;           /* C_KDT_F */
+    int32_t k1t_q;           /* C_K1T_Q: K1/T (feedforward differential) */
+    int16_t k1t_f;           /* C_K1T_F */
+    int32_t ke_q;            /* C_KE_Q: Ke [levels/count] */
+    int16_t ke_f;            /* C_KE_F */
+    int32_t kec_q;           /* C_KEC_Q: Kec [levels per count/tick] */
+    int16_t kec_f;           /* C_KEC_F */
+    int16_t n;               /* C_N: levels -n..n (0 unless fuzzy-PID) */
+    int16_t tf[ST_N_TABLES]; /* C_TF + i: fraction bits of table i */
+    const int16_t *tab[ST_N_TABLES]; /* C_TAB + i*(2n+1)^2: table i, row-major; NULL unless
+                                        fuzzy-PID */
+    int32_t ref_source;      /* engine Loop.ref_source[a]: -1 = external reference (master),
+                                else the index of the axis whose position is the reference */
+} st_axis_consts_t;
+
+/* All axes of one runtime. */
+typedef struct st_consts {
+    int32_t n_axes;          /* 1 .. ST_MAX_AXES */
+    int32_t timer_divisor;   /* 8253 divisor of the tick (for the firmware; not used here) */
+    st_axis_consts_t axis[ST_MAX_AXES];
+} st_consts_t;
+
+/* One axis's state: the Python state row (laws/axis.py S_* layout). Zero = power-up. */
+typedef struct st_axis_state {
+    int64_t init;        /* S_INIT: 0 until the first read */
+    int64_t hi_prev;     /* S_HI_PREV: high byte of the previous read */
+    int64_t wraps;       /* S_WRAPS: register wraps so far (signed) */
+    int64_t y;           /* S_Y: extended position [counts] relative to the first read */
+    int64_t mode;        /* S_MODE: mode run last tick (ST_MODE_*) */
+    int64_t fault;       /* S_FAULT: latched fault flags */
+    int64_t lock_target; /* S_LOCK_TARGET [counts] */
+    int64_t integ;       /* S_INTEG: integrator [LSB, ST_F_U fraction bits] */
+    int64_t u_last;      /* S_U_LAST: last output u_q [LSB, ST_F_U fraction bits] */
+    int64_t e_prev;      /* S_E_PREV [counts] */
+    int64_t r_prev;      /* S_R_PREV [counts] */
+    int64_t origin;      /* S_ORIGIN: register value of the first read */
+} st_axis_state_t;
+
+typedef struct st_state {
+    st_axis_state_t axis[ST_MAX_AXES];
+} st_state_t;
+
+/* Per-axis input of one tick. */
+typedef struct st_axis_in {
+    uint8_t bytes[4]; /* latched counter bytes, low first (counter_bits / 8 of them) */
+    int64_t ref;      /* task reference [counts] (used when ref_source == -1) */
+    int32_t mode;     /* requested mode (ST_MODE_*) */
+    int32_t reset;    /* nonzero: clear latched faults, lock at the current position */
+    int64_t u_add;    /* command added to the output [D/A codes] (0 normally) */
+} st_axis_in_t;
+
+/* Per-axis output of one tick. */
+typedef struct st_axis_out {
+    int32_t code;  /* D/A code to write */
+    int32_t flags; /* ST_FLAG_* */
+    int64_t e;     /* the law's error [counts] (0 in open mode or under a fault) */
+    int64_t y;     /* extended position [counts] */
+    int32_t mode;  /* mode run this tick */
+} st_axis_out_t;
+
+/* --- the tick ------------------------------------------------------------------------- */
+
+/* Power-up state (all zero). */
+void st_init(st_state_t *s);
+
+/* Check constants (ranges the no-overflow bounds rely on). 0 if valid, else
+ * 1 + 100 * axis + field code (see servotune_rt.c) for the first bad field. */
+int st_check_consts(const st_consts_t *c);
+
+/* One tick of every axis: in[a], out[a] for a < c->n_axes. */
+void st_tick(const st_consts_t *c, st_state_t *s, const st_axis_in_t *in, st_axis_out_t *out);
+
+/* The two halves of one axis's tick (laws/axis.py axis_read, axis_control). */
+int64_t st_axis_read(st_axis_state_t *s, const st_axis_consts_t *c, int64_t raw, int reset);
+int64_t st_axis_control(st_axis_state_t *s, const st_axis_consts_t *c, int64_t ref,
+                        int64_t mode_cmd, int reset, int64_t u_add, int32_t *code,
+                        int32_t *flags);
+
+/* --- primitives (servotune/fixed.py, hw/counter.py) ------------------------------------- */
+
+int64_t st_shift_round(int64_t x, int f);   /* f >= 1, x > INT64_MIN */
+int64_t st_sat_add(int64_t a, int64_t b);   /* saturated to +-INT64_MAX */
+int64_t st_align(int64_t x, int k);         /* x * 2^k, 0 <= k <= 62, saturated */
+int64_t st_clamp_e(int64_t x);              /* clamp to +-(2^31 - 1) */
+int64_t st_assemble(const uint8_t *bytes, int counter_bits);
+int st_unwrap_step(int64_t raw, int64_t *hi_prev, int64_t *wraps, int counter_bits,
+                   int64_t *position);      /* returns 1 on a counter fault */
+
+/* --- integrity ------------------------------------------------------------------------ */
+
+uint32_t st_crc32(uint32_t crc, const uint8_t *p, size_t len); /* zlib.crc32(p, crc) */
+uint32_t st_table_crc32(int n, int f, const int16_t *q);
+uint32_t st_consts_crc32(const st_consts_t *c);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif /* SERVOTUNE_RT_H */

@@ -1,0 +1,753 @@
+"""The reference C runtime (servotune/export/runtime) against the Python laws, bit for bit.
+
+The runtime and a tuning's exported ``servotune_tables.h`` are compiled with the system C
+compiler (strict C99 flags) into a shared library, together with a small harness (below) that
+initialises ``st_consts_t`` from ``SERVOTUNE_TABLES_INIT`` and drives ``st_tick``.
+
+- Golden run: the C runtime closes the loop around the simulator's plants (``plant_row`` and
+  ``advance_tick`` exactly as ``engine._run_group`` uses them, noise off) for 110,000 ticks,
+  and every tick's D/A codes and flags (and positions, errors, modes, counter registers) must
+  equal :func:`servotune.engine.simulate` on the same inputs. The scenario has counter wraps
+  both ways on both axes, D/A saturation, lock/task handovers both ways, a reset in task mode,
+  excitation in lock and open loop, a following-error trip of the master and a counter fault
+  (a load kick too fast for the high-byte rule) of the slave, and resets.
+- Replay: raw counter sequences with injected jumps, random modes (one invalid), resets,
+  extreme references and added commands, on constants at the edges of their ranges (three
+  axes, 16/24/32-bit counters, 8/12/16-bit D/As), fed to both the Python tick functions
+  (``axis_read``/``axis_control``) and the C runtime.
+- The golden run and the replays once more under ``-fsanitize=undefined
+  -fno-sanitize-recover``: any undefined behaviour aborts the harness.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import dataclasses
+import math
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from servotune.engine import Loop, Trace, simulate
+from servotune.export import constants_crc32, tables_document, write_c
+from servotune.fixed import Fixed, align, clamp_e, sat_add, shift_round
+from servotune.hw.counter import unwrap_step
+from servotune.laws.axis import (
+    FLAG_COUNTER_FAULT,
+    FLAG_FOLLOWING_ERROR,
+    FLAG_SATURATED,
+    MODE_LOCK,
+    MODE_OPEN,
+    MODE_TASK,
+    N_STATE,
+    S_MODE,
+    AxisController,
+    axis_control,
+    axis_read,
+)
+from servotune.laws.fuzzy_pid import FuzzyPIDConstants
+from servotune.laws.pi import PIConstants
+from servotune.plant import R_OFFSET, Plant, advance_tick, plant_row
+from servotune.rig import (
+    EXAMPLE_RIG_PATH,
+    Axis,
+    Counter,
+    Dac,
+    Encoder,
+    Rig,
+    Timer,
+    load_rig,
+)
+from servotune.scenarios import Inputs, trapezoid_ref
+from servotune.tune.slave import SlaveTuneSpec
+from servotune.tune.workflow import tune_rig
+from servotune.tuning import Tuning
+
+CC = shutil.which("cc")
+pytestmark = pytest.mark.skipif(
+    CC is None, reason="no C compiler: `cc` is not on PATH, so the C runtime cannot be built"
+)
+
+STRICT = ("-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic")
+UBSAN = ("-O1", "-g", "-fsanitize=undefined", "-fno-sanitize-recover=all")
+INT64_MAX = 2**63 - 1
+
+HARNESS = r"""
+/* test harness: the exported tables and the reference runtime, driven from Python (ctypes)
+ * or from a file (main, for the sanitizer runs) */
+#include <stdio.h>
+#include <stdlib.h>
+
+#include "servotune_tables.h"
+
+static const st_consts_t consts = SERVOTUNE_TABLES_INIT;
+static st_state_t state;
+
+int h_n_axes(void) { return consts.n_axes; }
+int h_check(void) { return st_check_consts(&consts); }
+uint32_t h_consts_crc32(void) { return st_consts_crc32(&consts); }
+uint32_t h_table_crc32(int a, int i)
+{
+    const st_axis_consts_t *x = &consts.axis[a];
+    return x->tab[i] != NULL ? st_table_crc32(x->n, x->tf[i], x->tab[i]) : 0;
+}
+void h_reset(void) { st_init(&state); }
+
+/* st_check_consts on a copy with one field broken */
+int h_check_broken(int what)
+{
+    st_consts_t c = consts;
+    if (what == 0) {
+        c.n_axes = ST_MAX_AXES + 1;
+    } else if (what == 1) {
+        c.axis[0].kp_f = 33;
+    } else if (what == 2) {
+        c.axis[1].tf[0] = (int16_t)(c.axis[1].kp_f + 1);
+    } else if (what == 3) {
+        c.axis[1].tf[0] = 0; /* scheduled gains out of 0 .. 2^32 - 1 */
+    } else if (what == 4) {
+        c.axis[1].ref_source = 1;
+    }
+    return st_check_consts(&c);
+}
+
+/* one tick; raw[a] is the register, handed to the runtime as its bytes, low first */
+void h_tick(const int64_t *raw, const int64_t *ref, const int64_t *mode, const int64_t *reset,
+            const int64_t *u_add, int64_t *out5)
+{
+    st_axis_in_t in[ST_MAX_AXES];
+    st_axis_out_t out[ST_MAX_AXES];
+    int a;
+    int j;
+    for (a = 0; a < consts.n_axes; a++) {
+        for (j = 0; j < 4; j++) {
+            in[a].bytes[j] = (uint8_t)(((uint64_t)raw[a] >> (8 * j)) & 0xFFu);
+        }
+        in[a].ref = ref[a];
+        in[a].mode = (int32_t)mode[a];
+        in[a].reset = reset[a] != 0;
+        in[a].u_add = u_add[a];
+    }
+    st_tick(&consts, &state, in, out);
+    for (a = 0; a < consts.n_axes; a++) {
+        out5[5 * a + 0] = out[a].code;
+        out5[5 * a + 1] = out[a].flags;
+        out5[5 * a + 2] = out[a].e;
+        out5[5 * a + 3] = out[a].y;
+        out5[5 * a + 4] = out[a].mode;
+    }
+}
+
+/* n ticks from arrays of shape (n, axes); out has shape (n, axes, 5) */
+void h_run(int64_t n, const int64_t *raw, const int64_t *ref, const int64_t *mode,
+           const int64_t *reset, const int64_t *u_add, int64_t *out)
+{
+    const int64_t m = consts.n_axes;
+    int64_t k;
+    for (k = 0; k < n; k++) {
+        h_tick(raw + k * m, ref + k * m, mode + k * m, reset + k * m, u_add + k * m,
+               out + k * m * 5);
+    }
+}
+
+/* primitives, for the edge tests */
+int64_t h_shift_round(int64_t x, int f) { return st_shift_round(x, f); }
+int64_t h_sat_add(int64_t a, int64_t b) { return st_sat_add(a, b); }
+int64_t h_align(int64_t x, int k) { return st_align(x, k); }
+int64_t h_clamp_e(int64_t x) { return st_clamp_e(x); }
+int h_unwrap_step(int64_t raw, int64_t hi_prev, int64_t wraps, int bits, int64_t *res)
+{
+    int64_t pos = 0;
+    const int fault = st_unwrap_step(raw, &hi_prev, &wraps, bits, &pos);
+    res[0] = pos;
+    res[1] = hi_prev;
+    res[2] = wraps;
+    return fault;
+}
+
+#ifdef H_MAIN
+/* file replay: in = n, axes, then raw, ref, mode, reset, u_add (int64, n * axes each);
+ * out = the (n, axes, 5) outputs */
+int main(int argc, char **argv)
+{
+    int64_t head[2];
+    int64_t *buf;
+    int64_t *out;
+    size_t cells;
+    FILE *f;
+    if (argc != 3) {
+        return 2;
+    }
+    f = fopen(argv[1], "rb");
+    if (f == NULL || fread(head, sizeof head[0], 2, f) != 2 || head[1] != consts.n_axes) {
+        return 3;
+    }
+    cells = (size_t)head[0] * (size_t)head[1];
+    buf = malloc(5 * cells * sizeof *buf);
+    out = malloc(5 * cells * sizeof *out);
+    if (buf == NULL || out == NULL || fread(buf, sizeof *buf, 5 * cells, f) != 5 * cells) {
+        return 4;
+    }
+    fclose(f);
+    if (h_check() != 0) {
+        return 5;
+    }
+    h_reset();
+    h_run(head[0], buf, buf + cells, buf + 2 * cells, buf + 3 * cells, buf + 4 * cells, out);
+    f = fopen(argv[2], "wb");
+    if (f == NULL || fwrite(out, sizeof *out, 5 * cells, f) != 5 * cells) {
+        return 6;
+    }
+    fclose(f);
+    free(buf);
+    free(out);
+    return 0;
+}
+#endif
+"""
+
+
+# --- building ---------------------------------------------------------------------------------
+
+
+def _export(tuning: Tuning, out_dir: Path, rig: Rig | None = None) -> Path:
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_c(tuning, out_dir, rig=rig, unverified=True)
+    (out_dir / "harness.c").write_text(HARNESS)
+    return out_dir
+
+
+def _cc(src_dir: Path, *args: str) -> None:
+    res = subprocess.run([CC, *args], cwd=src_dir, capture_output=True, text=True)
+    assert res.returncode == 0, f"cc {' '.join(args)} failed:\n{res.stderr}"
+
+
+class Runtime:
+    """The compiled harness (shared library) through ctypes."""
+
+    def __init__(self, src_dir: Path) -> None:
+        _cc(
+            src_dir,
+            *STRICT,
+            "-O2",
+            "-shared",
+            "-fPIC",
+            "harness.c",
+            "servotune_rt.c",
+            "-o",
+            "libharness.so",
+        )
+        lib = ctypes.CDLL(str(src_dir / "libharness.so"))
+        i64, p = ctypes.c_int64, ctypes.c_void_p
+        for name, res, args in (
+            ("h_tick", None, [p] * 6),
+            ("h_run", None, [i64] + [p] * 6),
+            ("h_consts_crc32", ctypes.c_uint32, []),
+            ("h_table_crc32", ctypes.c_uint32, [ctypes.c_int, ctypes.c_int]),
+            ("h_shift_round", i64, [i64, ctypes.c_int]),
+            ("h_sat_add", i64, [i64, i64]),
+            ("h_align", i64, [i64, ctypes.c_int]),
+            ("h_clamp_e", i64, [i64]),
+            ("h_unwrap_step", ctypes.c_int, [i64, i64, i64, ctypes.c_int, p]),
+            ("h_check_broken", ctypes.c_int, [ctypes.c_int]),
+        ):
+            fn = getattr(lib, name)
+            fn.restype = res
+            fn.argtypes = args
+        self.lib = lib
+        self.n_axes = lib.h_n_axes()
+
+    def run(self, raw, ref, mode, reset, u_add) -> np.ndarray:
+        """Replay per-tick inputs (arrays (ticks, axes)); outputs (ticks, axes, 5):
+        code, flags, e, y, mode."""
+        arrs = [np.ascontiguousarray(x, dtype=np.int64) for x in (raw, ref, mode, reset, u_add)]
+        n = arrs[0].shape[0]
+        out = np.zeros((n, self.n_axes, 5), dtype=np.int64)
+        self.lib.h_reset()
+        self.lib.h_run(n, *(a.ctypes.data for a in arrs), out.ctypes.data)
+        return out
+
+
+def _replay_python(controllers, refs, hw: dict, raw, ref, mode, reset, u_add) -> np.ndarray:
+    """The same replay through the Python tick functions (what the engine calls)."""
+    rows = [
+        c.consts(
+            counter_bits=hw["counter_bits"],
+            dac_bits=hw["dac"]["bits"],
+            dac_zero=hw["dac"]["zero_code"],
+        )
+        for c in controllers
+    ]
+    n_ax = len(rows)
+    c = np.zeros((n_ax, max(len(r) for r in rows)), dtype=np.int64)
+    for a, r in enumerate(rows):
+        c[a, : len(r)] = r
+    st = np.zeros((n_ax, N_STATE), dtype=np.int64)
+    n = raw.shape[0]
+    out = np.zeros((n, n_ax, 5), dtype=np.int64)
+    y = [0] * n_ax
+    for k in range(n):
+        for a in range(n_ax):
+            y[a] = axis_read(st, c, a, int(raw[k, a]), bool(reset[k, a]))
+        for a in range(n_ax):
+            r = int(ref[k, a]) if refs[a] < 0 else y[refs[a]]
+            code, flags, e = axis_control(
+                st, c, a, r, int(mode[k, a]), bool(reset[k, a]), int(u_add[k, a])
+            )
+            out[k, a] = (code, flags, e, y[a], st[a, S_MODE])
+    return out
+
+
+def _ubsan_replay(src_dir: Path, raw, ref, mode, reset, u_add) -> np.ndarray:
+    """Replay through the harness built with the undefined-behaviour sanitizer."""
+    exe = src_dir / "harness_ubsan"
+    if not exe.exists():
+        _cc(src_dir, *STRICT, *UBSAN, "-DH_MAIN", "harness.c", "servotune_rt.c", "-o", exe.name)
+    arrs = [np.ascontiguousarray(x, dtype=np.int64) for x in (raw, ref, mode, reset, u_add)]
+    n, n_ax = arrs[0].shape
+    (src_dir / "in.bin").write_bytes(
+        np.array([n, n_ax], dtype=np.int64).tobytes() + b"".join(a.tobytes() for a in arrs)
+    )
+    res = subprocess.run(
+        [str(exe), "in.bin", "out.bin"], cwd=src_dir, capture_output=True, text=True, timeout=120
+    )
+    assert res.returncode == 0 and "runtime error" not in res.stderr, res.stderr
+    return np.frombuffer((src_dir / "out.bin").read_bytes(), dtype=np.int64).reshape(n, n_ax, 5)
+
+
+# --- the tuning and the golden scenario -------------------------------------------------------
+
+N_GOLDEN = 110_000
+MASTER_FE_LIMIT = 20_000  # [counts]: trips on the 40,000-count reference step below
+
+
+@pytest.fixture(scope="module")
+def tuning() -> Tuning:
+    """A real tuning (tiny budget, seed 0: deterministic), the master's following-error limit
+    lowered so that a reference step can trip it."""
+    t = tune_rig(
+        EXAMPLE_RIG_PATH, spec=SlaveTuneSpec(generations=2, population=6, max_overshoot_pct=300)
+    )
+    ctl = list(t.controllers)
+    ctl[0] = dataclasses.replace(ctl[0], following_error_limit_counts=MASTER_FE_LIMIT)
+    return dataclasses.replace(t, controllers=tuple(ctl))
+
+
+def golden_rig() -> Rig:
+    """The example rig without encoder noise (reproducible); no drive speed limit on the slave
+    so that a load kick can move it faster than the high-byte rule can follow."""
+    r = load_rig(EXAMPLE_RIG_PATH)
+    m, s = r.axes
+    m = dataclasses.replace(m, plant=dataclasses.replace(m.plant, noise_counts=0.0))
+    s = dataclasses.replace(
+        s, plant=dataclasses.replace(s.plant, noise_counts=0.0, max_speed_rpm=None)
+    )
+    return dataclasses.replace(r, axes=(m, s))
+
+
+def golden_inputs(rig: Rig) -> Inputs:
+    """110,000 ticks (7.3 min): moves, steps, a trip, excitation, a counter fault, resets."""
+    n, period = N_GOLDEN, rig.period_s
+    v_max = rig.axes[0].speed_limit_rpm / 60.0 * rig.counts_per_rev  # [counts/s]
+    ref = np.zeros(n, dtype=np.int64)
+    mode = np.zeros((n, 2), dtype=np.int64)
+    reset = np.zeros((n, 2), dtype=bool)
+    u_add = np.zeros((n, 2), dtype=np.int64)
+    load = np.zeros((n, 2))
+
+    def move(t0: int, dist: int, speed_fraction: float, accel_s: float) -> None:
+        # both axes in task over the move (the slave follows the master), lock around it
+        v = speed_fraction * v_max
+        ref[:] += trapezoid_ref(n, period, dist, v, v / accel_s, start_tick=t0)
+        dur = math.ceil((abs(dist) / v + accel_s) / period)
+        mode[t0 - 100 : t0 + dur + 400, :] = MODE_TASK
+
+    # long moves back and forth across both registers' wraps (master starts at 0xFFC000,
+    # slave at 0x000400), some accelerating hard enough to saturate the D/A
+    pattern = [
+        (60_000, 0.5, 0.1),
+        (-100_000, 0.8, 0.05),
+        (45_000, 0.9, 0.02),
+        (-30_000, 0.3, 0.2),
+        (80_000, 0.7, 0.03),
+        (-55_000, 0.95, 0.02),
+    ]
+    t = 1000
+    while t < 70_000:
+        for dist, frac, acc in pattern:
+            move(t, dist, frac, acc)
+            t += 2500
+    # reference steps inside the following-error limit: the D/A saturates; a reset in task
+    for t0, step in ((75_000, 6000), (77_000, -6000)):
+        ref[t0:] += step
+        mode[t0 - 100 : t0 + 1000, :] = MODE_TASK
+    reset[76_000, 0] = True
+    # a step past the master's following-error limit trips it; reset in lock later
+    ref[80_000:] += 40_000
+    mode[79_900:80_300, :] = MODE_TASK
+    ref[80_500:] -= 40_000
+    reset[81_000, 0] = True
+    # excitation added to the lock, then open loop (the lock latches the new position after)
+    rng = np.random.default_rng(1)
+    u_add[85_000:87_000, 0] = np.repeat(rng.choice([-300, 300], 200), 10)
+    mode[88_000:88_500, 0] = MODE_OPEN
+    u_add[88_000:88_250, 0] = 250
+    u_add[88_250:88_500, 0] = -250
+    move(90_000, 70_000, 0.9, 0.02)
+    move(93_000, -70_000, 0.9, 0.02)
+    # a load kick on the slave (in lock): a following-error trip, then counter faults (the
+    # high byte jumps by more than one between reads); reset once it has stopped
+    load[100_000, 1] = 30_000.0
+    reset[101_000, 1] = True
+    reset[105_000, 1] = True
+    return Inputs(
+        ref_counts=np.stack([ref, np.zeros(n, dtype=np.int64)], axis=1),
+        mode=mode,
+        reset=reset,
+        dac_add_codes=u_add,
+        load_v=load,
+    )
+
+
+@pytest.fixture(scope="module")
+def golden(tuning: Tuning) -> tuple[Rig, Inputs, Trace]:
+    rig = golden_rig()
+    inputs = golden_inputs(rig)
+    return rig, inputs, simulate(Loop(rig=rig, controllers=tuning.controllers), inputs)
+
+
+@pytest.fixture(scope="module")
+def build(tuning: Tuning, tmp_path_factory) -> Path:
+    return _export(tuning, tmp_path_factory.mktemp("c_runtime"))
+
+
+@pytest.fixture(scope="module")
+def runtime(build: Path) -> Runtime:
+    return Runtime(build)
+
+
+def _closed_loop(rt: Runtime, rig: Rig, inputs: Inputs) -> tuple[np.ndarray, np.ndarray]:
+    """The C runtime in the loop with the simulator's plants, as engine._run_group does it
+    (latched counter, no noise): returns the outputs (ticks, axes, 5) and the registers read."""
+    n, n_ax = inputs.n_ticks, inputs.n_axes
+    rows, lags = zip(
+        *(
+            plant_row(ax.plant, rig.period_s, rig.timer.compute_s, rig.counts_per_rev)
+            for ax in rig.axes
+        ),
+        strict=True,
+    )
+    ring = max(lags) + 2
+    hist = [[0.0] * ring for _ in range(n_ax)]  # volts written, by slot
+    pos, spd = [0.0] * n_ax, [0.0] * n_ax
+    init = [ax.counter_init for ax in rig.axes]
+    offset = [float(r[R_OFFSET]) for r in rows]
+    mask = (1 << rig.counter.bits) - 1
+    dac_lo, lsb = rig.dac.range_v[0], rig.dac.lsb_v
+    load = inputs.load_v.tolist()
+    ins = [
+        np.ascontiguousarray(x, dtype=np.int64)
+        for x in (inputs.ref_counts, inputs.mode, inputs.reset, inputs.dac_add_codes)
+    ]
+    out = np.zeros((n, n_ax, 5), dtype=np.int64)
+    raw = np.zeros(n_ax, dtype=np.int64)
+    regs = np.zeros((n, n_ax), dtype=np.int64)
+    tick, p_raw, stride = rt.lib.h_tick, raw.ctypes.data, n_ax * 8
+    bases = [a.ctypes.data for a in ins]
+    p_out = out.ctypes.data
+    slot = ring - 1
+    for k in range(n):
+        slot = 0 if slot + 1 == ring else slot + 1
+        for a in range(n_ax):  # 1. the counter latches floor(position)
+            raw[a] = (init[a] + math.floor(pos[a] + 0.0)) & mask
+        regs[k] = raw
+        off = k * stride
+        tick(p_raw, bases[0] + off, bases[1] + off, bases[2] + off, bases[3] + off, p_out + 5 * off)
+        codes = out[k, :, 0].tolist()
+        for a in range(n_ax):  # 5-6. hold the writes, move the plants to the next tick
+            hist[a][slot] = dac_lo + codes[a] * lsb
+            m = lags[a]
+            w_off = offset[a] + load[k][a]
+            j_new = slot - m if slot >= m else slot - m + ring
+            v_new = hist[a][j_new] if k >= m else 0.0
+            j_old = j_new - 1 if j_new >= 1 else ring - 1
+            v_old = hist[a][j_old] if k >= m + 1 else 0.0
+            pos[a], spd[a] = advance_tick(pos[a], spd[a], v_old + w_off, v_new + w_off, rows[a])
+    return out, regs
+
+
+def _coverage(trace: Trace) -> dict[str, list[int]]:
+    """Per axis: counter wraps up and down, saturated ticks, handovers, fault onsets."""
+    hi = (trace.counter >> 16) & 0xFF
+    dh = np.diff(hi, axis=0)
+    to_task = (trace.mode[1:] == MODE_TASK) & (trace.mode[:-1] != MODE_TASK)
+    to_lock = (trace.mode[1:] == MODE_LOCK) & (trace.mode[:-1] == MODE_TASK)
+
+    def onsets(bit: int) -> np.ndarray:
+        on = (trace.flags & bit) != 0
+        return np.sum(on[1:] & ~on[:-1], axis=0)
+
+    return {
+        "wraps_up": np.sum(dh == -255, axis=0).tolist(),
+        "wraps_down": np.sum(dh == 255, axis=0).tolist(),
+        "saturated_ticks": np.sum((trace.flags & FLAG_SATURATED) != 0, axis=0).tolist(),
+        "lock_to_task": np.sum(to_task, axis=0).tolist(),
+        "task_to_lock": np.sum(to_lock, axis=0).tolist(),
+        "following_error_trips": onsets(FLAG_FOLLOWING_ERROR).tolist(),
+        "counter_faults": onsets(FLAG_COUNTER_FAULT).tolist(),
+    }
+
+
+# --- tests ------------------------------------------------------------------------------------
+
+
+def test_runtime_and_tables_compile_cleanly(build: Path) -> None:
+    # the runtime alone, and a unit including the tables without using them (no warnings)
+    _cc(build, *STRICT, "-O2", "-c", "servotune_rt.c", "-o", "rt.o")
+    (build / "only_tables.c").write_text('#include "servotune_tables.h"\nint unused_ok;\n')
+    _cc(build, *STRICT, "-c", "only_tables.c", "-o", "only_tables.o")
+
+
+def test_crcs_and_constants_check_agree_with_python(runtime: Runtime, tuning: Tuning) -> None:
+    doc = tables_document(tuning, unverified=True)
+    assert runtime.lib.h_check() == 0
+    assert runtime.lib.h_consts_crc32() == doc["data"]["constants_crc32"]
+    assert runtime.lib.h_consts_crc32() == constants_crc32(tuning)
+    tables = doc["data"]["axes"][1]["task"]["tables"]
+    for i, name in enumerate(("kp", "ki", "kd", "k1")):
+        assert runtime.lib.h_table_crc32(1, i) == tables[name]["crc32"]
+    # st_check_consts names the broken field: 1 + 100·axis + field code
+    assert [runtime.lib.h_check_broken(w) for w in range(5)] == [1, 4, 115, 116, 117]
+
+
+def test_primitives_match_python_at_the_edges(runtime: Runtime) -> None:
+    lib = runtime.lib
+    rng = np.random.default_rng(7)
+    edges = [
+        0,
+        1,
+        -1,
+        2,
+        -2,
+        3,
+        -3,
+        5,
+        -5,
+        2**31 - 1,
+        -(2**31 - 1),
+        2**31,
+        -(2**31),
+        2**32,
+        2**62,
+        -(2**62),
+        INT64_MAX,
+        -INT64_MAX,
+        INT64_MAX - 1,
+        0x7FFF_FFFF_8000_0000,
+        -0x7FFF_FFFF_8000_0000,
+        3 * 2**31,
+        -(3 * 2**31),
+    ]
+    values = edges + [int(v) for v in rng.integers(-(2**63) + 1, 2**63 - 1, 200)]
+    for x in values:
+        assert lib.h_clamp_e(x) == clamp_e(x)
+        for f in (1, 2, 16, 31, 32, 62):
+            assert lib.h_shift_round(x, f) == shift_round(x, f), (x, f)
+        for k in (0, 1, 16, 31, 32, 62):
+            assert lib.h_align(x, k) == align(x, k), (x, k)
+        for b in [*edges, -(2**63)]:
+            assert lib.h_sat_add(x, b) == sat_add(x, b), (x, b)
+    assert lib.h_sat_add(-(2**63), 0) == -INT64_MAX  # the most negative value is never produced
+    # round half away from zero: ±1.5 → ±2, ±2.5 → ±3 (SPEC §6)
+    assert [lib.h_shift_round(v, 1) for v in (3, -3, 5, -5)] == [2, -2, 3, -3]
+
+
+def test_unwrap_step_matches_python_at_the_edges(runtime: Runtime) -> None:
+    res = np.zeros(3, dtype=np.int64)
+    for bits in (16, 24, 32):
+        top = 1 << bits
+        lows = (0, 1, (1 << (bits - 8)) - 1)
+        for hi_prev in range(256):
+            for hi in (0, 1, 2, 127, 253, 254, 255, (hi_prev + 1) % 256, (hi_prev - 1) % 256):
+                for low in lows:
+                    raw = (hi << (bits - 8)) | low
+                    assert raw < top
+                    fault = runtime.lib.h_unwrap_step(raw, hi_prev, -3, bits, res.ctypes.data)
+                    py = unwrap_step(raw, hi_prev, -3, bits)
+                    assert (res.tolist(), bool(fault)) == ([py[0], py[1], py[2]], py[3])
+
+
+def test_golden_run_c_runtime_in_the_loop_equals_the_simulator(
+    runtime: Runtime, golden: tuple[Rig, Inputs, Trace]
+) -> None:
+    rig, inputs, trace = golden
+    assert inputs.n_ticks >= 100_000
+    cov = _coverage(trace)
+    # what the scenario must exercise (counts from the engine's trace; see the module docstring)
+    assert min(cov["wraps_up"]) >= 10 and min(cov["wraps_down"]) >= 10
+    assert min(cov["saturated_ticks"]) >= 100
+    assert min(cov["lock_to_task"]) >= 30 and min(cov["task_to_lock"]) >= 30
+    assert cov["following_error_trips"][0] >= 1 and cov["counter_faults"][1] >= 1
+    assert np.any(trace.mode == MODE_OPEN)
+    out, regs = _closed_loop(runtime, rig, inputs)
+    # bit for bit, every tick: D/A codes and flags, and the registers read (so the plants saw
+    # the same commands), positions, errors and modes
+    for i, (name, ref) in enumerate(
+        (
+            ("code", trace.code),
+            ("flags", trace.flags),
+            ("err_counts", trace.err_counts),
+            ("pos_counts", trace.pos_counts),
+            ("mode", trace.mode),
+        )
+    ):
+        bad = np.flatnonzero(np.any(out[:, :, i] != ref, axis=1))
+        assert bad.size == 0, f"{name} differs first at tick {bad[0]}"
+    assert np.array_equal(regs, trace.counter)
+
+
+# --- replays with injected faults and constants at their edges --------------------------------
+
+
+def _edge_tuning(bits: int, dac: Dac) -> tuple[Tuning, Rig]:
+    """Three axes at the edges of the constants' ranges: a PI master whose products saturate,
+    a fuzzy-PID slave whose scheduled gains span 0 … 2^32 − 1, a lock-only slave."""
+    rng = np.random.default_rng(bits)
+    n = 5
+    size = 2 * n + 1
+
+    def tab(lo: int, hi: int) -> np.ndarray:
+        return rng.integers(lo, hi + 1, (size, size)).astype(np.int16)
+
+    big = 2**31 - 1
+    fuzzy = FuzzyPIDConstants(
+        kp=Fixed(q=big, f=32),
+        ki_t=Fixed(q=big, f=32),
+        kd_t=Fixed(q=12345, f=10),
+        k1_t=Fixed(q=big, f=32),
+        ke=Fixed(q=1, f=0) if bits != 16 else Fixed(q=3, f=1),  # 1 or 1.5 levels/count
+        kec=Fixed(q=big, f=32),
+        n=n,
+        tables=(
+            (tab(-32767, 32767), 16),
+            (tab(-32767, 32767), 16),
+            (tab(-12, 32767), 0),
+            (tab(-32767, 32767), 16),
+        ),
+    )
+    ctls = (
+        AxisController(
+            lock_gain=Fixed(q=1717986918, f=32),
+            task=PIConstants(kp=Fixed(q=big, f=0), ki_t=Fixed(q=-big, f=5)),
+        ),
+        AxisController(lock_gain=Fixed(q=big, f=0), task=fuzzy, following_error_limit_counts=big),
+        AxisController(lock_gain=Fixed(q=-7, f=3), following_error_limit_counts=3),
+    )
+    plant = Plant(gain_cps_per_v=1000.0, tau_s=0.01)
+    rig = Rig(
+        name="edges",
+        timer=Timer(period_s=0.001),
+        counter=Counter(bits=bits),
+        dac=dac,
+        encoder=Encoder(pulses_per_rev=1000),
+        axes=tuple(
+            Axis(
+                name=f"a{i}",
+                role="master" if i == 0 else "slave",
+                plant=plant,
+                counter_channel=i,
+                dac_channel=i,
+            )
+            for i in range(3)
+        ),
+    )
+    tuning = Tuning(
+        rig_name=rig.name,
+        rig_sha256="0" * 64,
+        period_s=rig.period_s,
+        timer_divisor=rig.timer.divisor,
+        axis_names=rig.axis_names,
+        roles=tuple(a.role for a in rig.axes),
+        controllers=ctls,
+    )
+    return tuning, rig
+
+
+def _edge_inputs(bits: int, n: int = 12_000, n_ax: int = 3) -> tuple[np.ndarray, ...]:
+    """Counter walks with injected jumps (faults) and wraps, random modes (3 is not a mode:
+    treated as open), resets, extreme references and added commands."""
+    rng = np.random.default_rng(100 + bits)
+    unit = 1 << (bits - 8)  # the largest motion per tick the high-byte rule allows
+    steps = rng.integers(-unit // 2, unit // 2 + 1, (n, n_ax))
+    steps[rng.random((n, n_ax)) < 0.6] //= 64  # mostly slow
+    jumps = rng.random((n, n_ax)) < 0.004
+    steps[jumps] = rng.integers(2 * unit, 1 << bits, int(jumps.sum()))
+    # the lock-only axis creeps count by count: its following-error trip at exactly ±(limit + 1)
+    steps[:, 2] = np.where(jumps[:, 2], steps[:, 2], rng.integers(-1, 2, n))
+    start = rng.integers(0, 1 << bits, n_ax)
+    raw = (start + np.cumsum(steps, axis=0)) % (1 << bits)
+    seg = np.repeat(rng.choice([0, 1, 1, 2, 3], n // 50 + 1), 50)[:n]
+    mode = np.stack([np.roll(seg, 17 * a) for a in range(n_ax)], axis=1)
+    reset = rng.random((n, n_ax)) < 0.004
+    extreme = np.array([2**40, -(2**40), 2**62, -(2**62), INT64_MAX, -INT64_MAX, -(2**63)])
+    ref = np.cumsum(rng.integers(-3000, 3001, (n, n_ax)), axis=0)
+    pick = rng.random((n, n_ax)) < 0.01
+    ref[pick] = rng.choice(extreme, int(pick.sum()))
+    u_add = np.where(rng.random((n, n_ax)) < 0.1, rng.integers(-6000, 6001, (n, n_ax)), 0)
+    pick = rng.random((n, n_ax)) < 0.005
+    u_add[pick] = rng.choice(extreme, int(pick.sum()))
+    return raw, ref, mode, reset.astype(np.int64), u_add
+
+
+EDGE_CASES = [
+    pytest.param(24, Dac(bits=12, range_v=(-10.0, 10.0)), id="24bit-counter-12bit-dac"),
+    pytest.param(16, Dac(bits=16, range_v=(-10.0, 10.0)), id="16bit-counter-16bit-dac"),
+    pytest.param(32, Dac(bits=8, range_v=(0.0, 10.0)), id="32bit-counter-unipolar-8bit-dac"),
+]
+
+
+@pytest.mark.parametrize(("bits", "dac"), EDGE_CASES)
+def test_replay_with_injected_faults_matches_the_python_tick(bits, dac, tmp_path) -> None:
+    tuning, rig = _edge_tuning(bits, dac)
+    doc = tables_document(tuning, rig=rig, unverified=True)
+    src = _export(tuning, tmp_path, rig=rig)
+    rt = Runtime(src)
+    assert rt.lib.h_check() == 0 and rt.lib.h_consts_crc32() == doc["data"]["constants_crc32"]
+    ins = _edge_inputs(bits)
+    hw = {"counter_bits": bits, "dac": doc["data"]["dac"]}
+    refs = [ax["ref_source"] for ax in doc["data"]["axes"]]
+    py = _replay_python(tuning.controllers, refs, hw, *ins)
+    c = rt.run(*ins)
+    for i, name in enumerate(("code", "flags", "e", "y", "mode")):
+        bad = np.argwhere(c[:, :, i] != py[:, :, i])
+        assert bad.size == 0, f"{name} differs first at (tick, axis) {tuple(bad[0])}"
+    flags = py[:, :, 1]
+    assert np.any(flags & FLAG_COUNTER_FAULT) and np.any(flags & FLAG_FOLLOWING_ERROR)
+    assert np.any(flags & FLAG_SATURATED) and np.any(py[:, :, 0] == dac.code_max)
+    assert np.any(py[:, :, 0] == 0)
+    trip = (py[1:, 2, 1] & FLAG_FOLLOWING_ERROR) & ~py[:-1, 2, 1] != 0
+    assert set(py[1:, 2, 2][trip].tolist()) == {-4, 4}  # limit 3 counts: trips at ±4 exactly
+    # the same replay under the undefined-behaviour sanitizer
+    assert np.array_equal(_ubsan_replay(src, *ins), py)
+
+
+def test_golden_run_under_the_undefined_behaviour_sanitizer(
+    build: Path, golden: tuple[Rig, Inputs, Trace]
+) -> None:
+    # the whole golden run replayed from the engine's counter registers: with the same codes
+    # out, the plants see the same commands, so this is the closed loop tick for tick
+    _, inputs, trace = golden
+    out = _ubsan_replay(
+        build,
+        trace.counter,
+        inputs.ref_counts,
+        inputs.mode,
+        inputs.reset.astype(np.int64),
+        inputs.dac_add_codes,
+    )
+    assert np.array_equal(out[:, :, 0], trace.code)
+    assert np.array_equal(out[:, :, 1], trace.flags)
+    assert np.array_equal(out[:, :, 3], trace.pos_counts)

@@ -1,0 +1,334 @@
+"""The tables export (servotune.export.json) and the C header, against golden files.
+
+The golden files in ``golden/`` are exports of a fixed tuning built here from fixed gains and
+closed-form tables (no optimiser), so the bytes depend only on the exporter. They are rewritten
+only on request: ``SERVOTUNE_REGEN_GOLDEN=1 pytest tests/export``. The tool version is part of
+the provenance, so a version bump needs a regeneration too.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+import struct
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from servotune.errors import ExportError
+from servotune.export import (
+    RUNTIME_FILES,
+    SCHEMA,
+    c_header_to_string,
+    constants_crc32,
+    controllers_from_tables,
+    load_tables,
+    runtime_source,
+    table_crc32,
+    tables_to_string,
+    write_c,
+    write_tables,
+)
+from servotune.hw import timer
+from servotune.laws.axis import AxisController
+from servotune.laws.fuzzy_pid import FuzzyPIDGains
+from servotune.laws.pi import PIGains
+from servotune.rig import EXAMPLE_RIG_PATH, load_rig
+from servotune.tuning import Tuning
+
+GOLDEN = Path(__file__).resolve().parent / "golden"
+REGEN = os.environ.get("SERVOTUNE_REGEN_GOLDEN") == "1"
+
+SUMMARY = {
+    "passed": True,
+    "scenarios": {"sync": {"max_sync_err_counts": 41, "saturated_pct": 0.5}},
+    "spec_sha256": hashlib.sha256(b"golden spec").hexdigest(),
+}
+
+
+def fixed_tuning() -> Tuning:
+    """A deterministic two-axis tuning of the example rig's hardware: master PI, slave
+    fuzzy-PID + feedforward with 7 x 7 tables (n = 3) from closed-form rules."""
+    divisor = int(timer.divisor(0.004))
+    period_s = float(timer.achieved_period_s(divisor))
+    n = 3
+    lv = np.arange(-n, n + 1)
+    e, ec = np.meshgrid(lv, lv, indexing="ij")  # row E, column EC
+    s = np.clip((e + ec) / n, -1.0, 1.0)
+    slave = FuzzyPIDGains(
+        kp0=0.5,
+        ki0=2.0,
+        kd0=0.004,
+        k10=1.0 / (11700.0 * 20.0 / 4096),
+        ke=0.02,
+        kec=0.25,
+        n=n,
+        dkp=0.2 * np.abs(s),
+        dki=-0.5 * np.abs(s),
+        dkd=0.001 * s,
+        dk1=0.01 * s,
+    )
+    master = PIGains(kp=0.35, ki=1.4)
+    # seed 000: lock gain 0.4 codes/count; following-error limit one revolution (12288 counts)
+    ctls = tuple(
+        AxisController.from_gains(
+            lock_gain_codes_per_count=0.4,
+            task_gains=g,
+            period_s=period_s,
+            following_error_limit_counts=12288,
+        )
+        for g in (master, slave)
+    )
+    return Tuning(
+        rig_name="pc-dual-servo",
+        rig_sha256=hashlib.sha256(b"golden rig").hexdigest(),
+        period_s=period_s,
+        timer_divisor=divisor,
+        axis_names=("master", "slave"),
+        roles=("master", "slave"),
+        controllers=ctls,
+        design={"note": "golden tuning of tests/export"},
+        provenance={"seed": 0, "tool": "servotune"},
+    )
+
+
+@pytest.fixture(scope="module")
+def tuning() -> Tuning:
+    return fixed_tuning()
+
+
+def _golden(name: str, text: str) -> None:
+    path = GOLDEN / name
+    if REGEN:
+        path.write_bytes(text.encode("utf-8"))
+    assert path.exists(), f"{path} missing: regenerate with SERVOTUNE_REGEN_GOLDEN=1"
+    assert path.read_bytes() == text.encode("utf-8"), (
+        f"{name} differs from the golden file; if the change is intended, regenerate with "
+        "SERVOTUNE_REGEN_GOLDEN=1"
+    )
+
+
+# --- golden files and determinism -------------------------------------------------------------
+
+
+def test_json_export_matches_golden_file(tuning: Tuning) -> None:
+    _golden("tables.json", tables_to_string(tuning, verification=SUMMARY))
+
+
+def test_c_header_matches_golden_file(tuning: Tuning) -> None:
+    _golden("servotune_tables.h", c_header_to_string(tuning, verification=SUMMARY))
+
+
+def test_export_is_deterministic_and_written_atomically(tuning: Tuning, tmp_path) -> None:
+    a = tables_to_string(tuning, verification=SUMMARY)
+    b = tables_to_string(fixed_tuning(), verification=dict(SUMMARY))
+    assert a == b and a.endswith("}\n") and "\r" not in a
+    path = tmp_path / "fuzzy.json"
+    write_tables(tuning, path, verification=SUMMARY)
+    assert path.read_bytes() == a.encode()
+    assert [p.name for p in tmp_path.iterdir()] == ["fuzzy.json"]  # no temp file left over
+    json.loads(a)  # plain JSON
+
+
+def test_export_holds_the_tuning_exactly(tuning: Tuning) -> None:
+    doc = load_tables(tables_to_string(tuning, verification=SUMMARY))
+    assert doc["schema"] == SCHEMA and doc["verified"] is True
+    # no re-quantising: the controllers read back equal the tuning's, (q, f) for (q, f)
+    assert controllers_from_tables(doc) == tuning.controllers
+    slave = doc["data"]["axes"][1]
+    t = tuning.controllers[1].task
+    assert slave["task"]["kp"] == {"q": t.kp.q, "f": t.kp.f}
+    for name, (q, f_t) in zip(("kp", "ki", "kd", "k1"), t.tables, strict=True):
+        tab = slave["task"]["tables"][name]
+        assert tab["q"] == q.tolist() and tab["f"] == f_t and tab["n"] == 3
+    master = doc["data"]["axes"][0]
+    assert master["law"] == "pi" and master["ref_source"] == -1 and slave["ref_source"] == 0
+    assert doc["data"]["timer_divisor"] == 4773  # SPEC §1a: 4 ms → 4773
+    prov = doc["provenance"]
+    assert prov["verification"] == SUMMARY and prov["spec_sha256"] == SUMMARY["spec_sha256"]
+    assert len(prov["tuning_sha256"]) == 64 and prov["rig"]["name"] == "pc-dual-servo"
+
+
+def test_table_crc_is_zlib_crc32_of_the_documented_bytes() -> None:
+    q = np.array([[0, 1, -2], [32767, -32768, 5], [6, 7, -8]])
+    # SPEC §6: little-endian int16 n, int16 f, then the entries row-major
+    raw = struct.pack("<hh", 1, 9) + struct.pack("<9h", *q.reshape(-1).tolist())
+    assert table_crc32(q, 9) == zlib.crc32(raw)
+
+
+def test_constants_crc_follows_the_documented_order(tuning: Tuning) -> None:
+    doc = json.loads(tables_to_string(tuning, verification=SUMMARY))
+    data = doc["data"]
+    pairs = [(len(data["axes"]), 0), (data["timer_divisor"], 0)]
+    for ax in data["axes"]:
+        task = ax["task"] or {}
+
+        def fx(key: str, task: dict = task) -> tuple[int, int]:
+            c = task.get(key)
+            return (c["q"], c["f"]) if c else (0, 0)
+
+        pairs += [
+            ({"none": 0, "pi": 1, "fuzzy_pid": 2}[ax["law"]], 0),
+            (ax["lock_gain"]["q"], ax["lock_gain"]["f"]),
+            fx("kp"),
+            fx("ki_t"),
+            (ax["following_error_limit_counts"], 0),
+            (data["counter_bits"], 0),
+            (data["dac"]["zero_code"], 0),
+            (data["dac"]["code_max"], 0),
+            fx("kd_t"),
+            fx("k1_t"),
+            fx("ke"),
+            fx("kec"),
+            (task.get("n", 0), 0),
+            (ax["ref_source"], 0),
+        ]
+    raw = b"".join(struct.pack("<ih", q, f) for q, f in pairs)
+    assert data["constants_crc32"] == zlib.crc32(raw) == constants_crc32(tuning)
+
+
+# --- what load_tables rejects -----------------------------------------------------------------
+
+
+def _doc(tuning: Tuning) -> dict:
+    return json.loads(tables_to_string(tuning, verification=SUMMARY))
+
+
+def _reject(doc: dict, *fragments: str) -> None:
+    with pytest.raises(ExportError) as info:
+        load_tables(json.dumps(doc))
+    msg = str(info.value)
+    assert "\n" not in msg
+    for frag in fragments:
+        assert frag in msg, msg
+
+
+def test_a_changed_table_entry_is_rejected(tuning: Tuning) -> None:
+    doc = _doc(tuning)
+    doc["data"]["axes"][1]["task"]["tables"]["kd"]["q"][2][4] += 1
+    _reject(doc, "axes[1] (slave) table kd", "CRC mismatch")
+
+
+def test_a_changed_table_fraction_is_rejected(tuning: Tuning) -> None:
+    doc = _doc(tuning)
+    doc["data"]["axes"][1]["task"]["tables"]["ki"]["f"] -= 1
+    _reject(doc, "table ki", "CRC mismatch")
+
+
+def test_a_changed_constant_is_rejected(tuning: Tuning) -> None:
+    doc = _doc(tuning)
+    doc["data"]["axes"][0]["task"]["kp"]["q"] += 1
+    _reject(doc, "constants_crc32", "CRC mismatch")
+    doc = _doc(tuning)
+    doc["data"]["axes"][1]["following_error_limit_counts"] = 99
+    _reject(doc, "constants_crc32")
+
+
+def test_an_entry_outside_int16_is_rejected(tuning: Tuning) -> None:
+    doc = _doc(tuning)
+    doc["data"]["axes"][1]["task"]["tables"]["kp"]["q"][0][1] = 40000
+    _reject(doc, "table kp", "q[0][1] = 40000 is outside int16")
+
+
+def test_wrong_schema_and_malformed_documents_are_rejected(tuning: Tuning, tmp_path) -> None:
+    doc = _doc(tuning)
+    doc["schema"] = "servotune.tables/2"
+    _reject(doc, "schema must be 'servotune.tables/1'", "servotune.tables/2")
+    doc = _doc(tuning)
+    del doc["data"]["axes"][1]["task"]["tables"]["k1"]
+    _reject(doc, "missing the field 'k1'")
+    doc = _doc(tuning)
+    doc["data"]["axes"][1]["task"]["tables"]["kp"]["q"][3].pop()
+    _reject(doc, "table kp", "row 3 must have 7 entries")
+    doc = _doc(tuning)
+    doc["data"]["axes"][1]["ref_source"] = 1
+    _reject(doc, "axes[1] (slave).ref_source must be -1 or another axis's index, got 1")
+    with pytest.raises(ExportError, match="cannot write"):
+        write_tables(tuning, tmp_path / "missing" / "t.json", verification=SUMMARY)
+    bad = tmp_path / "bad.json"
+    bad.write_text("{not json")
+    with pytest.raises(ExportError, match=r"bad\.json: not JSON"):
+        load_tables(bad)
+    with pytest.raises(ExportError, match="no such file"):
+        load_tables(tmp_path / "missing.json")
+
+
+def test_load_tables_reads_a_path(tuning: Tuning, tmp_path) -> None:
+    path = tmp_path / "t.json"
+    write_tables(tuning, path, verification=SUMMARY)
+    assert load_tables(path) == load_tables(str(path)) == _doc(tuning)
+
+
+# --- verification marker, rig checks, C files --------------------------------------------------
+
+
+def test_export_needs_a_passing_verification_unless_marked_unverified(tuning: Tuning) -> None:
+    with pytest.raises(ExportError, match="no verification summary"):
+        tables_to_string(tuning)
+    with pytest.raises(ExportError, match="verification failed"):
+        tables_to_string(tuning, verification={"passed": False})
+    with pytest.raises(ExportError, match="verification failed"):
+        tables_to_string(tuning, verification={"passed": np.False_})
+    doc = load_tables(tables_to_string(tuning, unverified=True))
+    assert doc["verified"] is False and doc["provenance"]["verification"] is None
+    # the data and its CRCs do not depend on the marker or the provenance
+    assert doc["data"] == _doc(tuning)["data"]
+    header = c_header_to_string(tuning, unverified=True)
+    assert "#define ST_TABLES_VERIFIED 0" in header and "verified: NO" in header
+
+
+def test_a_verification_object_and_the_spec_hash(tuning: Tuning) -> None:
+    class Result:  # like servotune.verify.Verification: a to_dict() with the spec inside
+        def to_dict(self) -> dict:
+            return {"passed": True, "spec": {"name": "sync", "max_sync_err_counts": 50}}
+
+    doc = json.loads(tables_to_string(tuning, verification=Result()))
+    prov = doc["provenance"]
+    assert prov["verification"] == Result().to_dict()
+    canon = json.dumps(Result().to_dict()["spec"], sort_keys=True, separators=(",", ":"))
+    assert prov["spec_sha256"] == hashlib.sha256(canon.encode()).hexdigest()
+    header = c_header_to_string(tuning, verification=Result())
+    assert f" * verification: passed (spec sha256 {prov['spec_sha256']})" in header
+
+
+def test_the_rig_is_checked_and_gives_the_hardware(tuning: Tuning) -> None:
+    rig = load_rig(EXAMPLE_RIG_PATH)
+    doc = json.loads(tables_to_string(tuning, rig=rig, verification=SUMMARY))
+    assert doc["data"]["counter_bits"] == 24
+    assert doc["data"]["dac"] == {
+        "bits": 12,
+        "code_max": 4095,
+        "range_v": [-10.0, 10.0],
+        "zero_code": 2048,
+    }
+    other = dataclasses.replace(rig, axes=rig.axes[:1])
+    with pytest.raises(ExportError, match="tuning is for axes"):
+        tables_to_string(tuning, rig=other, verification=SUMMARY)
+
+
+def test_write_c_writes_header_and_runtime(tuning: Tuning, tmp_path) -> None:
+    files = write_c(tuning, tmp_path, verification=SUMMARY)
+    assert sorted(p.name for p in files) == sorted(["servotune_tables.h", *RUNTIME_FILES])
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(p.name for p in files)
+    assert (tmp_path / "servotune_tables.h").read_text() == c_header_to_string(
+        tuning, verification=SUMMARY
+    )
+    for name in RUNTIME_FILES:
+        assert (tmp_path / name).read_text() == runtime_source(name)
+    header = (tmp_path / "servotune_tables.h").read_text()
+    doc = _doc(tuning)
+    assert f"#define ST_CONSTS_CRC32 UINT32_C(0x{doc['data']['constants_crc32']:08x})" in header
+    kd = doc["data"]["axes"][1]["task"]["tables"]["kd"]
+    assert f"#define ST_SLAVE_TAB_KD_CRC32 UINT32_C(0x{kd['crc32']:08x})" in header
+
+
+def test_write_c_writes_nothing_when_the_export_fails(tuning: Tuning, tmp_path) -> None:
+    with pytest.raises(ExportError, match="no verification summary"):
+        write_c(tuning, tmp_path)
+    assert list(tmp_path.iterdir()) == []
+    with pytest.raises(ExportError, match="not a directory"):
+        write_c(tuning, tmp_path / "missing", verification=SUMMARY)
