@@ -261,8 +261,13 @@ def _cmd_demo(args: argparse.Namespace) -> int:
               f"tau {err['tau_s']:+.2%} vs the virtual rig's truth", file=sys.stderr)  # fmt: skip
     print("Figure 4 (slave tracking, each structure tuned with the same budget):\n"
           + comparison_table_text(summary["comparison"]), file=sys.stderr)  # fmt: skip
-    print(f"wrote demo_summary.json, lock_hold.png, track.png, fit_*.png, fitted-rig.toml, "
-          f"tuning.json, figure4.png and logs to {args.out}", file=sys.stderr)  # fmt: skip
+    v = summary["verification"]
+    print("verify: " + ("PASSED" if v["passed"] else "FAILED: " + "; ".join(v["failures"])),
+          file=sys.stderr)  # fmt: skip
+    print(f"wrote demo_summary.json, report.html, lock_hold.png, track.png, fit_*.png, "
+          f"fitted-rig.toml, tuning.json, figure4.png, "
+          f"{', '.join(summary['exported']) or 'no exports'} and logs to {args.out}",
+          file=sys.stderr)  # fmt: skip
     return EXIT_OK
 
 

@@ -3,8 +3,8 @@
 Today: the virtual rig and the closed loop (the lock module holding both axes against their
 drift, a PI move of the master with the slave following, wrapping the 24-bit counter),
 identification of both axes from simulated logs, tuning from the fitted models, and the
-Figure-4 comparison, with plots and a summary written into the output directory. Verify and
-export join this pipeline as they land.
+Figure-4 comparison, verification against the spec, export (JSON and C) and the HTML report,
+with plots and a summary written into the output directory.
 """
 
 from __future__ import annotations
@@ -137,7 +137,9 @@ def run_demo(rig_path: str | Path, out_dir: str | Path, *, seed: int = 0) -> dic
     the identification step ``ident_log.csv`` (a closed-loop multi-level PRBS per axis),
     ``fit_<axis>.png`` and ``fitted-rig.toml`` (the rig with the fitted plants); for tuning
     ``tuning.json`` (tuned on the fitted rig) and the Figure-4 comparison ``figure4.png``,
-    ``figure4.json``.
+    ``figure4.json``; the verification on the example rig against ``<rig>.spec.toml``
+    (``tuning.json.verify.json``), and if it passes the exports ``fuzzy.json`` and ``c/``;
+    ``report.html``.
 
     Returns
     -------
@@ -217,10 +219,28 @@ def run_demo(rig_path: str | Path, out_dir: str | Path, *, seed: int = 0) -> dic
     from servotune.tuning import write_tuning
 
     tuning = tune_rig(fitted_rig, seed=seed)
-    write_tuning(tuning, out / "tuning.json")
+    tuning_path = out / "tuning.json"
+    write_tuning(tuning, tuning_path)
     cmp = run_comparison(rig, out, seed=seed)
+    # verify on the example rig (the "real" machine, not the fitted models), export, report
+    from servotune.export import write_c, write_tables
+    from servotune.report import write_report
+    from servotune.verify import verify_files
+
+    spec_path = Path(rig_path).with_suffix(".spec.toml")
+    verification, record, _ = verify_files(tuning_path, spec_path, rig_path)
+    exported = []
+    if verification.passed:
+        write_tables(tuning, out / "fuzzy.json", rig=rig, verification=record)
+        (out / "c").mkdir(exist_ok=True)
+        write_c(tuning, out / "c", rig=rig, verification=record)
+        exported = ["fuzzy.json", "c/"]
+    write_report(out, tuning_path=tuning_path, rig_path=rig_path, verification=verification,
+                 seed=seed)  # fmt: skip
     summary = {
         "comparison": cmp.to_dict()["table"],
+        "exported": exported,
+        "verification": {"passed": verification.passed, "failures": verification.failures},
         "identification": identification,
         "tuning": {
             "master_pi": tuning.design["master"]["pi"],

@@ -9,14 +9,22 @@ import pytest
 from conftest import EXAMPLE_RIG
 
 import servotune as st
+import servotune.export
 from servotune.pipeline import run_demo
 
 
 def test_demo_writes_its_products(tmp_path: Path) -> None:
     summary = run_demo(EXAMPLE_RIG, tmp_path, seed=0)
     for name in ("demo_summary.json", "lock_hold.png", "track.png", "track_log.csv",
-                 "fit_master.png", "fit_slave.png", "fitted-rig.toml"):  # fmt: skip
+                 "fit_master.png", "fit_slave.png", "fitted-rig.toml", "tuning.json",
+                 "tuning.json.verify.json", "figure4.png", "figure4.json", "fuzzy.json",
+                 "c/servotune_tables.h", "c/servotune_rt.c", "report.html"):  # fmt: skip
         assert (tmp_path / name).stat().st_size > 0, name
+    # the whole chain: tuned on the fitted rig, verified on the example rig, exported
+    assert summary["verification"]["passed"], summary["verification"]["failures"]
+    assert st.export.load_tables(tmp_path / "fuzzy.json")["verified"] is True
+    table = summary["comparison"]
+    assert set(table) == {"pid", "pid_ff", "composite"}
     on_disk = json.loads((tmp_path / "demo_summary.json").read_text())
     assert on_disk["schema"] == "servotune.demo/1"
     for name, hold in summary["lock_hold"].items():
@@ -30,8 +38,10 @@ def test_demo_writes_its_products(tmp_path: Path) -> None:
         summary["identification"]["slave"]["params"]["tau_s"], rel=1e-6
     )
     first = (tmp_path / "demo_summary.json").read_bytes()
+    first_tables = (tmp_path / "fuzzy.json").read_bytes()
     run_demo(EXAMPLE_RIG, tmp_path, seed=0)
     assert (tmp_path / "demo_summary.json").read_bytes() == first  # same input + seed → same bytes
+    assert (tmp_path / "fuzzy.json").read_bytes() == first_tables
 
 
 def test_demo_needs_an_existing_directory(tmp_path: Path) -> None:
