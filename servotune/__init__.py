@@ -13,15 +13,19 @@ from servotune.errors import (
     ServotuneError,
     SimulationError,
     SpecError,
+    TuningError,
 )
 from servotune.fixed import Fixed, quantize
 from servotune.identify import FitResult, PoorFitWarning, fit, fit_arrays
 from servotune.laws import AxisController, PIGains, lock_holding_band
+from servotune.laws.fuzzy_pid import FuzzyPIDGains
 from servotune.logs import Log, read_log, write_log
 from servotune.metrics import StepInfo, TrackingMetrics, step_info, tracking_metrics
 from servotune.plant import Plant, discretize
 from servotune.rig import Rig, load_rig, write_plant
-from servotune.scenarios import Inputs, build_scenario
+from servotune.scenarios import Inputs, build_scenario, sync_move
+from servotune.tune.pi import PITuning, tune_pi, tune_pi_axis
+from servotune.tuning import Tuning, read_tuning, write_tuning
 
 __version__ = "0.1.0"
 
@@ -32,12 +36,14 @@ __all__ = [
     "ExportError",
     "FitResult",
     "Fixed",
+    "FuzzyPIDGains",
     "IdentificationError",
     "Inputs",
     "Log",
     "LogFormatError",
     "Loop",
     "PIGains",
+    "PITuning",
     "Plant",
     "PoorFitWarning",
     "Rig",
@@ -48,6 +54,8 @@ __all__ = [
     "StepInfo",
     "Trace",
     "TrackingMetrics",
+    "Tuning",
+    "TuningError",
     "__version__",
     "build_scenario",
     "discretize",
@@ -58,10 +66,15 @@ __all__ = [
     "prepare_batch",
     "quantize",
     "read_log",
+    "read_tuning",
     "run_batch",
     "simulate",
     "step_info",
+    "sync_move",
     "tracking_metrics",
+    "tune_pi",
+    "tune_pi_axis",
     "write_log",
     "write_plant",
+    "write_tuning",
 ]

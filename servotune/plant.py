@@ -30,6 +30,7 @@ __all__ = [
     "advance",
     "advance_tick",
     "discretize",
+    "discretize_lti",
     "lag_split",
     "plant_row",
     "step_coefficients",
@@ -374,3 +375,102 @@ def advance_tick(
     return advance(
         p, v, w_new, row[R_H2], row[R_A2], row[R_B2], gain, row[R_TAU], row[R_COULOMB], vmax
     )
+
+
+def discretize_lti(
+    sys: control.TransferFunction | control.StateSpace, period_s: float, lag_s: float = 0.0
+) -> control.StateSpace:
+    """Exact ZOH discretisation of any continuous SISO system, with a total input lag.
+
+    The generic form of :func:`discretize`: the input is written every ``period_s`` and reaches
+    the system ``lag_s`` later; with ``lag_s = m·T + λ`` (:func:`lag_split`) the held input
+    changes inside each tick at ``λ`` (modified z-transform). Over one tick
+    ``x' = Φ(T)·x + Φ(T−λ)·Γ(λ)·u_old + Γ(T−λ)·u_new`` with ``Φ(h) = exp(A h)`` and
+    ``Γ(h) = ∫₀ʰ exp(A s) ds · B`` (one matrix exponential each), ``u_old`` the write of tick
+    ``k−m−1`` and ``u_new`` that of tick ``k−m``.
+
+    Parameters
+    ----------
+    sys : control.TransferFunction or control.StateSpace
+        Continuous-time (``dt=0``) SISO system [output units per input unit].
+    period_s : float
+        Sample period [s].
+    lag_s : float
+        Total lag from the sample instant to the system input [s], >= 0.
+
+    Returns
+    -------
+    control.StateSpace
+        Discrete system (``dt=period_s``); states are those of ``control.ss(sys)`` followed by
+        the ``m + 1`` (or ``m``, if λ = 0) held past inputs. A direct feedthrough ``D`` acts on
+        the input held at the sample instant (``u_old`` if λ > 0).
+
+    Raises
+    ------
+    ValueError
+        If ``sys`` is not continuous-time SISO, or ``period_s``/``lag_s`` are out of range.
+
+    Examples
+    --------
+    >>> import control
+    >>> d = discretize_lti(control.tf([1.0], [1.0, 1.0]), 0.1, 0.05)
+    >>> d.dt, d.nstates
+    (0.1, 2)
+    """
+    import control
+    from scipy.linalg import expm
+
+    if not isinstance(sys, control.TransferFunction | control.StateSpace):
+        raise ValueError(
+            f"sys must be a control.TransferFunction or StateSpace, got {type(sys).__name__}"
+        )
+    if not sys.isctime(strict=True):
+        raise ValueError(f"sys must be continuous-time (dt=0), got dt={sys.dt!r}")
+    if sys.ninputs != 1 or sys.noutputs != 1:
+        raise ValueError(f"sys must be SISO, got {sys.noutputs} outputs x {sys.ninputs} inputs")
+    if not (isinstance(period_s, int | float) and math.isfinite(period_s) and period_s > 0):
+        raise ValueError(f"period_s must be > 0 [s], got {period_s!r}")
+    if not (isinstance(lag_s, int | float) and math.isfinite(lag_s) and lag_s >= 0):
+        raise ValueError(f"lag_s must be >= 0 [s], got {lag_s!r}")
+    ss = control.ss(sys)
+    a_c, b_c = np.asarray(ss.A, dtype=float), np.asarray(ss.B, dtype=float)
+    c_c, d_c = np.asarray(ss.C, dtype=float), float(np.asarray(ss.D, dtype=float)[0, 0])
+    nx = a_c.shape[0]
+    m, lam = lag_split(lag_s, period_s)
+
+    def phi_gamma(h: float) -> tuple[np.ndarray, np.ndarray]:
+        aug = np.zeros((nx + 1, nx + 1))
+        aug[:nx, :nx] = a_c * h
+        aug[:nx, nx:] = b_c * h
+        e = expm(aug)
+        return e[:nx, :nx], e[:nx, nx]
+
+    phi_t, _ = phi_gamma(period_s)
+    phi_2, g_new = phi_gamma(period_s - lam)  # u_new acts for T - λ
+    _, g_1 = phi_gamma(lam)
+    g_old = phi_2 @ g_1  # u_old acts for λ, then the state moves on for T - λ
+    n_hist = m + 1 if lam > 0.0 else m
+    n = nx + n_hist
+    a_mat = np.zeros((n, n))
+    b_mat = np.zeros((n, 1))
+    c_mat = np.zeros((1, n))
+    d_mat = np.zeros((1, 1))
+    a_mat[:nx, :nx] = phi_t
+    c_mat[0, :nx] = c_c[0]
+    # history states: h_1 = u(k-1), ..., h_j = u(k-j), at columns nx + j - 1
+    if m == 0:
+        b_mat[:nx, 0] = g_new
+    else:
+        a_mat[:nx, nx + m - 1] += g_new
+    if lam > 0.0:
+        a_mat[:nx, nx + m] += g_old
+        c_mat[0, nx + m] += d_c  # at the sample instant the old input still acts
+    elif m == 0:
+        d_mat[0, 0] = d_c
+    else:
+        c_mat[0, nx + m - 1] += d_c
+    if n_hist > 0:
+        b_mat[nx, 0] = 1.0
+        for j in range(1, n_hist):
+            a_mat[nx + j, nx + j - 1] = 1.0
+    return control.ss(a_mat, b_mat, c_mat, d_mat, dt=period_s)
