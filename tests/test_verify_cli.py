@@ -56,6 +56,11 @@ def test_bad_inputs_exit_3_one_line_nothing_written(tunings, tmp_path, capsys) -
         [str(tunings["good"]), "--spec", str(tmp_path / "absent.toml")],
         [str(tunings["good"]), "--spec", str(bad_spec), "--rig", str(RIG)],
     ]
+    impossible = tmp_path / "impossible.toml"
+    impossible.write_text(
+        SPEC.read_text().replace("max_sync_error_counts = ", "max_sync_error_counts = -")
+    )
+    cases.append([str(tunings["good"]), "--spec", str(impossible), "--rig", str(RIG)])
     wrong_schema = tmp_path / "wrong.json"
     wrong_schema.write_text('{"schema": "servotune.tuning/9"}')
     cases.append([str(wrong_schema), "--spec", str(SPEC), "--rig", str(RIG)])
@@ -64,6 +69,10 @@ def test_bad_inputs_exit_3_one_line_nothing_written(tunings, tmp_path, capsys) -
         assert main(["verify", *args]) == 3, args
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and err[0].startswith("servotune verify: error:"), err
+    assert (
+        main(["export-table", str(tmp_path / "missing.json"), "-o", str(tmp_path / "x.json")]) == 3
+    )
+    assert not (tmp_path / "x.json").exists()
     assert not (tmp_path / "missing.json.verify.json").exists()
     assert not (tmp_path / "wrong.json.verify.json").exists()
 
