@@ -23,6 +23,10 @@ def test_demo_writes_its_products(tmp_path: Path) -> None:
     # the whole chain: tuned on the fitted rig, verified on the example rig, exported
     assert summary["verification"]["passed"], summary["verification"]["failures"]
     assert st.export.load_tables(tmp_path / "fuzzy.json")["verified"] is True
+    page = (tmp_path / "report.html").read_text()
+    for section in ("Verification: PASSED", "Loops (Bode", "Query tables", "Identification",
+                    "Figure 4"):  # fmt: skip
+        assert section in page, section
     table = summary["comparison"]
     assert set(table) == {"pid", "pid_ff", "composite"}
     on_disk = json.loads((tmp_path / "demo_summary.json").read_text())
