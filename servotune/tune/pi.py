@@ -550,6 +550,28 @@ def _crossings(ctx: _Ctx, kp: float, ki: float) -> tuple[list[_Crossing], list[_
     return gains, phases
 
 
+def _modelled(
+    ctx: _Ctx, spec: _Spec, kp: float, ki: float
+) -> tuple[list[_Crossing], list[_Crossing]]:
+    """The crossings the NLP models: every gain crossover if a phase margin is asked; the
+    phase crossings if a gain margin is asked, except those with a margin 20 dB beyond the
+    target (the re-check watches them) and a touch at the Nyquist frequency (where ``L`` is
+    real; a constraint of its own)."""
+    xcs, x180s = _crossings(ctx, kp, ki)
+    if spec.pm_deg is None:
+        xcs = []
+    if spec.gm_db is None:
+        return xcs, []
+    t = ctx.period_s
+    x_last = math.log(ctx.w[-2])
+    om = np.exp(np.array([c.x for c in x180s]))
+    if om.size:
+        gm_db = -20 * np.log10(np.abs((kp + ki * (0.5 * t + 1j * _q_im(om, t))) * ctx.resp(om)))
+    keep = [c for c, g in zip(x180s, gm_db if om.size else [], strict=True)
+            if c.x < x_last and g < spec.gm_db + 20.0]  # fmt: skip
+    return xcs, keep
+
+
 class _NlpResult(NamedTuple):
     kp: float
     ki: float
@@ -560,7 +582,7 @@ class _NlpResult(NamedTuple):
     on_bracket: bool  # a crossing ended on an inner bracket bound: rebuild from here
 
 
-_N_EXTRA_MS, _N_EXTRA_WC = 24, 4  # parameter slots for frequencies added by the refinement
+_N_EXTRA_MS, _N_EXTRA_WC = 24, 16  # parameter slots for frequencies added by the refinement
 
 
 class _Nlp:
@@ -577,9 +599,7 @@ class _Nlp:
 
         t = ctx.period_s
         self.ctx, self.kp0, self.ki0 = ctx, gains[0], gains[1]
-        xcs, x180s = _crossings(ctx, *gains)
-        xcs = xcs if spec.pm_deg is not None else []
-        x180s = x180s if spec.gm_db is not None else []
+        xcs, x180s = _modelled(ctx, spec, *gains)
         self.structure = (len(xcs), tuple(c.level for c in x180s))
         lw = np.log(ctx.w)
         nv = 2 + len(xcs) + len(x180s)
@@ -604,8 +624,13 @@ class _Nlp:
             ubg.extend([hi] * expr.numel())
 
         if spec.ms is not None:
-            lr, li = loop(ca.DM(ctx.g.real), ca.DM(ctx.g.imag), ca.DM(ctx.q_im))
-            add(p_t[2] * ((1 + lr) ** 2 + li**2) - 1, 0.0, math.inf)
+            # only where |S| can get near the bound (|1 + L| >= 1 − |L|): |L| <= 2 with a
+            # factor 2 of room for the gains to move; the exchange step adds any peak outside
+            mag = np.abs((gains[0] + gains[1] * (0.5 * t + 1j * ctx.q_im)) * ctx.g)
+            near = (mag <= 4.0) & (mag >= 0.25 * (1.0 - 1.0 / spec.ms))
+            gw, qw = ctx.g[near], ctx.q_im[near]
+            lr, li = loop(ca.DM(gw.real), ca.DM(gw.imag), ca.DM(qw))
+            add(ca.log(p_t[2]) + ca.log((1 + lr) ** 2 + li**2), 0.0, math.inf)
             lr, li = loop(p_ms[0, :].T, p_ms[1, :].T, p_ms[2, :].T)
             add(p_t[2] * ((1 + lr) ** 2 + li**2) - 1, 0.0, math.inf)
         top = lw[-1]
@@ -616,8 +641,12 @@ class _Nlp:
                 gw, qw = ctx.g[above], ctx.q_im[above]
                 lr, li = loop(ca.DM(gw.real), ca.DM(gw.imag), ca.DM(qw))
                 add(1 - (lr**2 + li**2), 0.0, math.inf)
-            lr, li = loop(p_wc[0, :].T, p_wc[1, :].T, p_wc[2, :].T)
-            add(1 - (lr**2 + li**2), 0.0, math.inf)
+        if spec.gm_db is not None and ctx.g[-1].real < 0:
+            # at the Nyquist frequency L is real: a gain margin there, L(π/T) >= −1/GM
+            add(1 + (cr * ctx.g[-1].real) * ca.exp(p_t[1]), 0.0, math.inf)
+        # |L| <= 1 at added frequencies: the crossover bound, and guards against new crossovers
+        lr, li = loop(p_wc[0, :].T, p_wc[1, :].T, p_wc[2, :].T)
+        add(1 - (lr**2 + li**2), 0.0, math.inf)
         if xcs or x180s:
             f_ln = ca.interpolant("ln_g", "bspline", [lw], np.log(np.abs(ctx.g) + 1e-300))
             f_ph = ca.interpolant("ph_g", "bspline", [lw], ctx.ph)
@@ -648,22 +677,19 @@ class _Nlp:
         nlp = {"x": v, "p": params, "f": -v[1], "g": ca.vertcat(*g) if g else ca.SX(0, 1)}
         opts = {
             "print_time": False,
-            "ipopt.print_level": 0,
+            "ipopt.print_level": 5 if __import__("os").environ.get("TPDBG") else 0,
             "ipopt.sb": "yes",
             "ipopt.tol": 1e-10,
             "ipopt.constr_viol_tol": 1e-10,
-            "ipopt.max_iter": 300,
+            "ipopt.max_iter": 100,
         }
         self.solver = ca.nlpsol("tune_pi", "ipopt", nlp, opts)
 
     @staticmethod
     def structure_of(ctx: _Ctx, spec: _Spec, kp: float, ki: float) -> tuple[int, tuple]:
         """What the NLP models of a loop: the number of gain crossovers, the phase levels."""
-        xcs, x180s = _crossings(ctx, kp, ki)
-        return (
-            len(xcs) if spec.pm_deg is not None else 0,
-            tuple(c.level for c in x180s) if spec.gm_db is not None else (),
-        )
+        xcs, x180s = _modelled(ctx, spec, kp, ki)
+        return len(xcs), tuple(c.level for c in x180s)
 
     def _bound(self, k: int, c: _Crossing, hi_cap: float = math.inf) -> None:
         lw = np.log(self.ctx.w)
@@ -772,6 +798,20 @@ def _sensitivity_peak(
         if ms_i > best_ms:
             best_ms, best_w = ms_i, w_i
     return float(best_ms), float(best_w), np.asarray(found)
+
+
+def _new_peak(ctx: _Ctx, nlp: _Nlp, res: _NlpResult) -> float | None:
+    """Frequency of the largest ``|L| > 1`` above the NLP's top modelled gain crossover (or,
+    without one, anywhere) for the solution ``res``; None if there is none."""
+    t = ctx.period_s
+    mag = np.abs((res.kp + res.ki * (0.5 * t + 1j * ctx.q_im)) * ctx.g)
+    n_pm = nlp.structure[0]
+    lo = math.exp(res.x[2 + n_pm - 1]) * 1.02 if n_pm else 0.0
+    mag = np.where(ctx.w > lo, mag, 0.0)
+    i = int(np.argmax(mag))
+    if n_pm == 0 or mag[i] <= 1.0:
+        return None
+    return float(ctx.w[i])
 
 
 def _sens(ctx: _Ctx, kp: float, ki: float, w: np.ndarray) -> np.ndarray:
@@ -1044,6 +1084,12 @@ def tune_pi(
             designs.append((res.kp, res.ki, res.status))
         structure = _Nlp.structure_of(ctx, spec, res.kp, res.ki)
         if res.on_bracket or structure != nlp.structure:
+            guard = None if _acceptable(viol) else _new_peak(ctx, nlp, res)
+            if guard is not None:
+                # the NLP jumped to a loop with new crossovers above the ones it models, and
+                # that loop misses a target: keep |L| <= 1 there, and solve again as before
+                wc_w = np.union1d(wc_w, guard * _PEAK_STENCIL)
+                continue
             if builds >= _MAX_BUILDS:
                 break
             nlp, x0, builds = _Nlp(ctx, spec, (res.kp, res.ki)), None, builds + 1
