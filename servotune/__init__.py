@@ -21,7 +21,7 @@ from servotune.laws import AxisController, PIGains, lock_holding_band
 from servotune.laws.fuzzy_pid import FuzzyPIDGains
 from servotune.logs import Log, read_log, write_log
 from servotune.metrics import StepInfo, TrackingMetrics, step_info, tracking_metrics
-from servotune.plant import Plant, discretize
+from servotune.plant import Plant, discretize, discretize_lti
 from servotune.rig import Rig, load_rig, write_plant
 from servotune.scenarios import Inputs, build_scenario, sync_move
 from servotune.tune.pi import PITuning, tune_pi, tune_pi_axis
@@ -59,6 +59,7 @@ __all__ = [
     "__version__",
     "build_scenario",
     "discretize",
+    "discretize_lti",
     "fit",
     "fit_arrays",
     "load_rig",

@@ -1,5 +1,5 @@
-"""Controller synthesis: PI for the master axis (and, later, the slave's fuzzy-PID tables)."""
+"""Controller synthesis: PI for the master axis, the slave's fuzzy-PID + feedforward tuning."""
 
-from servotune.tune.pi import pi_loop_shaping
+from servotune.tune.pi import PITuning, pi_loop_shaping, tune_pi, tune_pi_axis
 
-__all__ = ["pi_loop_shaping"]
+__all__ = ["PITuning", "pi_loop_shaping", "tune_pi", "tune_pi_axis"]

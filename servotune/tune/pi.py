@@ -110,6 +110,7 @@ DECADES_BELOW = 3.0
 _TOL_PM_DEG, _TOL_GM_DB, _TOL_MS_REL, _TOL_WC_REL = 0.5, 0.1, 0.01, 0.01
 _REFINE_ROUNDS = 8  # NLP solves at most
 _MAX_BUILDS = 3  # NLP rebuilds for a changed crossing structure at most
+_GUARD_GAIN = 0.95  # |L| at a guard against a new gain crossover, at most
 _PEAK_STENCIL = np.array([0.995, 0.998, 1.0, 1.002, 1.005])  # added around a missed Ms peak
 _MAX_STABILITY_CHECKS = 64  # start-point candidates that pass the grid checks, at most
 _MAX_LAG_PHASE_STEP = 0.2  # [rad]: grid step times the lag (the delay's phase per step)
@@ -463,11 +464,12 @@ def _start_point(ctx: _Ctx, spec: _Spec) -> tuple[float, float] | None:
     On the locus of level φ every (kp, ki) puts ``L = −exp(jφ)`` at one grid frequency (on
     the first branch: the unwrapped loop phase there is ``−180° + φ``). The loci for φ from
     the lowest level the targets allow (the phase-margin target, and ``2·asin(1/(2·Ms))``,
-    which every loop with that peak sensitivity has) to 87.5° in steps of 2.5° cover the
-    designs. Candidates are checked, the largest Ki first, against the targets
-    on every other grid point (with the reporting tolerances as slack) and for stability (the
-    first 64 that pass the grid checks at most: past those, the plant is taken as not
-    stabilisable by the PI under the targets).
+    which every loop with that peak sensitivity has) to 87.5° in steps of 2.5°, and on to 175°
+    in steps of 5° (small gains on a plant without integrator), cover the designs. Candidates
+    are checked, the largest Ki first, against the targets on every other grid point (with
+    the reporting tolerances as slack) and for stability (the first 64 that pass the grid
+    checks at most: past those, the plant is taken as not stabilisable by the PI under the
+    targets).
     """
     t = ctx.period_s
     lo = 2.5
@@ -475,7 +477,12 @@ def _start_point(ctx: _Ctx, spec: _Spec) -> tuple[float, float] | None:
         lo = max(lo, spec.pm_deg)
     if spec.ms is not None:
         lo = max(lo, math.degrees(2 * math.asin(0.5 / spec.ms)) - 0.5)
-    levels = np.unique(np.concatenate([[lo], np.arange(2.5 * math.ceil(lo / 2.5), 88.0, 2.5)]))
+    # above 90° too: small gains on a plant without integrator give margins up to 180°
+    levels = np.unique(
+        np.concatenate(
+            [[lo], np.arange(2.5 * math.ceil(lo / 2.5), 90.0, 2.5), np.arange(90.0, 176.0, 5.0)]
+        )
+    )
     sel = np.arange(0, ctx.w.size - 1, 2)  # every other grid point, Nyquist excluded
     q = ctx.q_im[None, sel]
     c = -np.exp(1j * np.radians(levels))[:, None] / ctx.g[None, sel]  # the PI at that point
@@ -564,11 +571,13 @@ def _modelled(
         return xcs, []
     t = ctx.period_s
     x_last = math.log(ctx.w[-2])
-    om = np.exp(np.array([c.x for c in x180s]))
-    if om.size:
-        gm_db = -20 * np.log10(np.abs((kp + ki * (0.5 * t + 1j * _q_im(om, t))) * ctx.resp(om)))
-    keep = [c for c, g in zip(x180s, gm_db if om.size else [], strict=True)
-            if c.x < x_last and g < spec.gm_db + 20.0]  # fmt: skip
+    keep = []
+    for c in x180s:
+        om = np.array([math.exp(c.x)])
+        loop = (kp + ki * (0.5 * t + 1j * _q_im(om, t)[0])) * ctx.resp(om)[0]
+        gm_db = -20 * math.log10(abs(loop))
+        if c.x < x_last and gm_db < spec.gm_db + 20.0:
+            keep.append(c)
     return xcs, keep
 
 
@@ -608,6 +617,7 @@ class _Nlp:
         p_t = ca.SX.sym("p_t", 3)
         p_ms = ca.SX.sym("p_ms", 3, _N_EXTRA_MS)
         p_wc = ca.SX.sym("p_wc", 3, _N_EXTRA_WC)
+        p_gd = ca.SX.sym("p_gd", 3, _N_EXTRA_WC)
         kp, ki = self.kp0 * v[0], self.ki0 * v[1]
         cr = kp + 0.5 * t * ki
         g: list[Any] = []
@@ -624,12 +634,8 @@ class _Nlp:
             ubg.extend([hi] * expr.numel())
 
         if spec.ms is not None:
-            # only where |S| can get near the bound (|1 + L| >= 1 − |L|): |L| <= 2 with a
-            # factor 2 of room for the gains to move; the exchange step adds any peak outside
-            mag = np.abs((gains[0] + gains[1] * (0.5 * t + 1j * ctx.q_im)) * ctx.g)
-            near = (mag <= 4.0) & (mag >= 0.25 * (1.0 - 1.0 / spec.ms))
-            gw, qw = ctx.g[near], ctx.q_im[near]
-            lr, li = loop(ca.DM(gw.real), ca.DM(gw.imag), ca.DM(qw))
+            # in log form: |1 + L| spans decades over the grid
+            lr, li = loop(ca.DM(ctx.g.real), ca.DM(ctx.g.imag), ca.DM(ctx.q_im))
             add(ca.log(p_t[2]) + ca.log((1 + lr) ** 2 + li**2), 0.0, math.inf)
             lr, li = loop(p_ms[0, :].T, p_ms[1, :].T, p_ms[2, :].T)
             add(p_t[2] * ((1 + lr) ** 2 + li**2) - 1, 0.0, math.inf)
@@ -644,9 +650,12 @@ class _Nlp:
         if spec.gm_db is not None and ctx.g[-1].real < 0:
             # at the Nyquist frequency L is real: a gain margin there, L(π/T) >= −1/GM
             add(1 + (cr * ctx.g[-1].real) * ca.exp(p_t[1]), 0.0, math.inf)
-        # |L| <= 1 at added frequencies: the crossover bound, and guards against new crossovers
+        # |L| <= 1 at added frequencies (the crossover bound), |L| <= 0.95 at guards against
+        # new crossovers
         lr, li = loop(p_wc[0, :].T, p_wc[1, :].T, p_wc[2, :].T)
         add(1 - (lr**2 + li**2), 0.0, math.inf)
+        lr, li = loop(p_gd[0, :].T, p_gd[1, :].T, p_gd[2, :].T)
+        add(_GUARD_GAIN**2 - (lr**2 + li**2), 0.0, math.inf)
         if xcs or x180s:
             f_ln = ca.interpolant("ln_g", "bspline", [lw], np.log(np.abs(ctx.g) + 1e-300))
             f_ph = ca.interpolant("ph_g", "bspline", [lw], ctx.ph)
@@ -673,11 +682,11 @@ class _Nlp:
             self._bound(k, c)
             k += 1
         self.lbg, self.ubg = lbg, ubg
-        params = ca.vertcat(p_t, ca.vec(p_ms), ca.vec(p_wc))
+        params = ca.vertcat(p_t, ca.vec(p_ms), ca.vec(p_wc), ca.vec(p_gd))
         nlp = {"x": v, "p": params, "f": -v[1], "g": ca.vertcat(*g) if g else ca.SX(0, 1)}
         opts = {
             "print_time": False,
-            "ipopt.print_level": 5 if __import__("os").environ.get("TPDBG") else 0,
+            "ipopt.print_level": 0,
             "ipopt.sb": "yes",
             "ipopt.tol": 1e-10,
             "ipopt.constr_viol_tol": 1e-10,
@@ -701,6 +710,7 @@ class _Nlp:
         self.inner.append((k, lo if lo > lw[0] else -math.inf, hi if c.hi < lw[-1] else math.inf))
 
     def _slots(self, w: np.ndarray, n: int) -> np.ndarray:
+        """Parameter values for ``n`` slots: the last ``n`` frequencies of ``w``."""
         out = np.zeros((3, n))  # an empty slot has G = 0: a constraint that always holds
         w = np.asarray(w, dtype=float)[-n:]
         if w.size:
@@ -718,6 +728,7 @@ class _Nlp:
         ms: float,
         ms_w: np.ndarray,
         wc_w: np.ndarray,
+        guard_w: np.ndarray,
     ) -> _NlpResult:
         """Solve from ``x0`` (a previous solution; None: the build point)."""
         p = np.concatenate(
@@ -725,6 +736,7 @@ class _Nlp:
                 [math.radians(pm_deg), gm_db / 20 * math.log(10), ms**2],
                 self._slots(ms_w, _N_EXTRA_MS).ravel(order="F"),
                 self._slots(wc_w, _N_EXTRA_WC).ravel(order="F"),
+                self._slots(guard_w, _N_EXTRA_WC).ravel(order="F"),
             ]
         )
         x_start = self.x0 if x0 is None else x0
@@ -757,6 +769,40 @@ class _Check(NamedTuple):
     w_ms: float
     ms_peaks: np.ndarray
     rho: float
+    wgcs: np.ndarray = np.empty(0)  # every gain crossover [rad/s]
+    l_peaks: np.ndarray = np.empty(0)  # refined local maxima of |L| above 1 [rad/s]
+    w: np.ndarray = np.empty(0)  # the grid used, refined extrema included [rad/s]
+
+
+def _refine_grid(
+    loop_at: Callable[[np.ndarray], np.ndarray], w: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """``w`` plus the refined local extrema of ``|L|`` near 1 and of its phase near an odd
+    multiple of 180°, so that no pair of crossings hides between two grid points; and the
+    refined local maxima where ``|L| > 1``."""
+    lw = loop_at(w)
+    lnm = np.log(np.abs(lw) + 1e-300)
+    ph = np.unwrap(np.angle(lw))
+    near_pi = np.abs(np.remainder(ph, 2 * math.pi) - math.pi) < 0.3
+    found, peaks = [], []
+    for f, sel, sign, phase in (
+        (lnm, lnm > math.log(0.8), 1.0, False),  # maxima of |L|
+        (-lnm, lnm < math.log(1.25), -1.0, False),  # minima of |L|
+        (ph, near_pi, 1.0, True),  # maxima and minima of the phase
+        (-ph, near_pi, -1.0, True),
+    ):
+        idx = np.flatnonzero((f[1:-1] > f[:-2]) & (f[1:-1] >= f[2:]) & sel[1:-1])[:20] + 1
+        for j in idx:
+
+            def neg(x: float, ref: complex = lw[j], sign: float = sign, phase: bool = phase):
+                v = loop_at(np.array([x]))[0]
+                return -sign * (float(np.angle(v / ref)) if phase else math.log(abs(v) + 1e-300))
+
+            r = minimize_scalar(neg, bounds=(w[j - 1], w[j + 1]), method="bounded")
+            found.append(r.x)
+            if sign > 0 and not phase and -r.fun > 0.0:
+                peaks.append(r.x)
+    return np.union1d(w, found), np.asarray(peaks)
 
 
 def _select(pms: np.ndarray, wgcs: np.ndarray, gms: np.ndarray, wpcs: np.ndarray) -> tuple:
@@ -800,18 +846,14 @@ def _sensitivity_peak(
     return float(best_ms), float(best_w), np.asarray(found)
 
 
-def _new_peak(ctx: _Ctx, nlp: _Nlp, res: _NlpResult) -> float | None:
-    """Frequency of the largest ``|L| > 1`` above the NLP's top modelled gain crossover (or,
-    without one, anywhere) for the solution ``res``; None if there is none."""
-    t = ctx.period_s
-    mag = np.abs((res.kp + res.ki * (0.5 * t + 1j * ctx.q_im)) * ctx.g)
+def _new_peaks(nlp: _Nlp, res: _NlpResult, chk: _Check) -> np.ndarray:
+    """Where ``|L|`` peaks above 1 above the NLP's top modelled gain crossover, for a solution
+    that has more gain crossovers than the NLP models (empty if none)."""
     n_pm = nlp.structure[0]
-    lo = math.exp(res.x[2 + n_pm - 1]) * 1.02 if n_pm else 0.0
-    mag = np.where(ctx.w > lo, mag, 0.0)
-    i = int(np.argmax(mag))
-    if n_pm == 0 or mag[i] <= 1.0:
-        return None
-    return float(ctx.w[i])
+    if n_pm == 0 or chk.wgcs.size <= n_pm:
+        return np.empty(0)
+    top = math.exp(res.x[2 + n_pm - 1]) * 1.02
+    return chk.l_peaks[chk.l_peaks > top]
 
 
 def _sens(ctx: _Ctx, kp: float, ki: float, w: np.ndarray) -> np.ndarray:
@@ -834,6 +876,7 @@ def _fast_check(ctx: _Ctx, kp: float, ki: float, w: np.ndarray) -> _Check:
         gw = ctx.resp(om)
         return (kp + ki * (0.5 * t + 1j * _q_im(om, t))) * gw
 
+    w, l_peaks = _refine_grid(loop_at, w)
     lw = loop_at(w)
     mod = np.abs(lw) - 1.0
     i = np.flatnonzero(np.diff(np.sign(mod)))
@@ -852,7 +895,7 @@ def _fast_check(ctx: _Ctx, kp: float, ki: float, w: np.ndarray) -> _Check:
     pm, wgc, wc_top, gm_db, wpc = _select(pms, wgcs, gms, wpcs)
     ms, w_ms, found = _sensitivity_peak(loop_at, w, lw)
     rho = float(_spectral_radius(ctx, np.array([kp]), np.array([ki]))[0])
-    return _Check(pm, wgc, wc_top, float(gm_db), wpc, ms, w_ms, found, rho)
+    return _Check(pm, wgc, wc_top, float(gm_db), wpc, ms, w_ms, found, rho, wgcs, l_peaks, w)
 
 
 def _python_control_check(
@@ -872,6 +915,10 @@ def _python_control_check(
     t = p_scaled.dt
     ctrl = control.ss([[1.0]], [[ki * t]], [[1.0]], [[kp + ki * t]], dt=t)
     loop = control.series(ctrl, p_scaled)
+    w_top = math.pi / t
+    while w_top * t > math.pi:  # the Nyquist frequency, rounded so python-control accepts it
+        w_top = np.nextafter(w_top, 0.0)
+    w = np.unique(np.minimum(w, w_top))
     lw = control.frequency_response(loop, w).complex.ravel()
     frd = control.FRD(lw, w, smooth=True, dt=t)
     gms, pms, _sms, wpcs, wgcs, _wss = control.stability_margins(frd, returnall=True)
@@ -964,10 +1011,15 @@ def tune_pi(
     checked against all targets on the grid and for stability.
 
     Re-check and refinement: every NLP solution is checked on a verification grid (the design
-    grid's midpoints) with crossings solved on the exact loop; a target missed between grid
-    points is refined by an exchange step (the missed sensitivity peak's frequencies added as
-    constraints, or the target tightened by the miss) and the NLP solved again; if crossovers
-    appear or vanish, the NLP is rebuilt around the new loop. The final design is re-checked
+    grid's midpoints, plus the refined extrema of ``|L|`` near 1 and of its phase near −180°,
+    so that no pair of crossings hides between points) with crossings solved on the exact
+    loop. A target missed between grid points is refined by an exchange step (the missed
+    sensitivity peak's frequencies added as constraints, or the target tightened by the miss)
+    and the NLP solved again; if the solution has a gain crossover above those modelled and
+    misses a target, ``|L| <= 0.95`` is imposed at that peak of ``|L|`` (a design with a new
+    crossover there is not searched); if crossovers otherwise appear or vanish, the NLP is
+    rebuilt around the new loop. The start point stays a candidate. The final design is
+    re-checked
     with python-control, and every reported number is python-control's: margins from
     ``control.stability_margins`` on the loop's ``control.frequency_response`` (its FRD
     method; its polynomial method is ill-conditioned for short periods), the sensitivity peak
@@ -1066,14 +1118,14 @@ def tune_pi(
     pm_t = spec.pm_deg + 1e-6 if spec.pm_deg is not None else 0.0
     gm_t = spec.gm_db + 1e-6 if spec.gm_db is not None else 0.0
     ms_t = spec.ms * (1 - 1e-7) if spec.ms is not None else 2.0
-    ms_w = np.empty(0)
+    ms_w, guard_w = np.empty(0), np.empty(0)
     wc_w = np.array([spec.wc_max * (1 - 1e-7)]) if spec.wc_max is not None else np.empty(0)
     iterations, builds = 0, 0
-    designs: list[tuple[float, float, str]] = []  # acceptable designs, the best last
+    designs: list[tuple[float, float, str, bool]] = []  # acceptable: kp, ki, status, strictly
     nlp = _Nlp(ctx, spec, start)
     x0: np.ndarray | None = None
     for _ in range(_REFINE_ROUNDS):
-        res = nlp.solve(x0, pm_deg=pm_t, gm_db=gm_t, ms=ms_t, ms_w=ms_w, wc_w=wc_w)
+        res = nlp.solve(x0, pm_deg=pm_t, gm_db=gm_t, ms=ms_t, ms_w=ms_w, wc_w=wc_w, guard_w=guard_w)
         iterations += res.iterations
         if not (res.success and res.ki > 0):
             break
@@ -1081,15 +1133,15 @@ def tune_pi(
         viol = _violations(chk, spec)
         strict = _acceptable(viol, strict=True)
         if _acceptable(viol):
-            designs.append((res.kp, res.ki, res.status))
+            designs.append((res.kp, res.ki, res.status, strict))
+        guards = np.empty(0) if strict else _new_peaks(nlp, res, chk)
+        if guards.size:
+            # the NLP went to a loop with new crossovers above the ones it models, and that
+            # loop misses a target: keep |L| <= 1 there, and solve again as before
+            guard_w = np.append(guard_w, np.outer(guards, _PEAK_STENCIL))
+            continue
         structure = _Nlp.structure_of(ctx, spec, res.kp, res.ki)
         if res.on_bracket or structure != nlp.structure:
-            guard = None if _acceptable(viol) else _new_peak(ctx, nlp, res)
-            if guard is not None:
-                # the NLP jumped to a loop with new crossovers above the ones it models, and
-                # that loop misses a target: keep |L| <= 1 there, and solve again as before
-                wc_w = np.union1d(wc_w, guard * _PEAK_STENCIL)
-                continue
             if builds >= _MAX_BUILDS:
                 break
             nlp, x0, builds = _Nlp(ctx, spec, (res.kp, res.ki)), None, builds + 1
@@ -1102,18 +1154,22 @@ def tune_pi(
             hot = chk.ms_peaks[np.abs(_sens(ctx, res.kp, res.ki, chk.ms_peaks)) > ms_t]
             if ms_w.size:  # peaks were added already, yet the peak moved: tighten as well
                 ms_t /= 1.0 + viol["max_sensitivity"] + 1e-7
-            ms_w = np.union1d(ms_w, np.outer(hot, _PEAK_STENCIL).ravel())
+            ms_w = np.append(ms_w, np.outer(hot, _PEAK_STENCIL))
         if viol.get("crossover_rad_s", 0.0) > 0:
-            wc_w = np.union1d(wc_w, [chk.wc_top])
+            wc_w = np.append(wc_w, chk.wc_top)
         if viol.get("phase_margin_deg", 0.0) > 0:
             pm_t = min(89.99, pm_t + viol["phase_margin_deg"] + 1e-6)
         if viol.get("gain_margin_db", 0.0) > 0:
             gm_t += viol["gain_margin_db"] + 1e-6
-    # the re-check by python-control decides: the last refined design first, then the others
-    # (largest Ki first), then the start point
-    tried = designs[-1:] + sorted(designs[:-1], key=lambda d: -d[1]) + [(*start, "start point")]
+    viol = _violations(_fast_check(ctx, *start, w_check), spec)
+    designs.append((*start, "start point", _acceptable(viol, strict=True)))
+    # the re-check by python-control decides: designs that meet the targets, the largest Ki
+    # first, then those within the tolerances, the last refined first
+    tried = sorted((d for d in designs if d[3]), key=lambda d: -d[1])
+    tried += [d for d in designs[::-1] if not d[3]]
     for design in tried:
-        chk = _python_control_check(p_scaled, design[0], design[1], w_check)
+        w_design = _fast_check(ctx, design[0], design[1], w_check).w
+        chk = _python_control_check(p_scaled, design[0], design[1], w_design)
         viol = _violations(chk, spec)
         if _acceptable(viol):
             break
@@ -1123,7 +1179,7 @@ def tune_pi(
             f"cannot meet {spec.describe()} {where} with a PI (kp >= 0, ki > 0): "
             f"the best design found misses {worst}"
         )
-    kp, ki, status = design
+    kp, ki, status, _ = design
     viol = _violations(chk, spec)
     binding_tol = {
         "phase_margin_deg": -0.05,
