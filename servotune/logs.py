@@ -18,6 +18,7 @@ from __future__ import annotations
 import contextlib
 import difflib
 import io
+import json
 import math
 import os
 import re
@@ -240,6 +241,60 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
+
+
+def json_float(x: float) -> float | None:
+    """A float for JSON: finite values as ``float``, ``inf`` and NaN as None."""
+    return float(x) if math.isfinite(x) else None
+
+
+def json_safe(x: Any) -> Any:
+    """JSON-safe copy: mappings (keys as str), sequences and arrays as lists, numpy scalars as
+    Python numbers, floats through :func:`json_float`.
+
+    Raises
+    ------
+    TypeError
+        For a value JSON cannot hold.
+    """
+    if isinstance(x, Mapping):
+        return {str(k): json_safe(v) for k, v in x.items()}
+    if isinstance(x, np.ndarray):
+        return [json_safe(v) for v in x.tolist()]
+    if isinstance(x, list | tuple):
+        return [json_safe(v) for v in x]
+    if isinstance(x, bool) or x is None or isinstance(x, str):
+        return x
+    if isinstance(x, int):
+        return int(x)
+    if hasattr(x, "item"):
+        return json_safe(x.item())
+    if isinstance(x, float):
+        return json_float(x)
+    raise TypeError(f"cannot store a {type(x).__name__} as JSON")
+
+
+def parse_json(text: str, src: str, error: type[Exception]) -> Any:
+    """``json.loads`` with a one-line ``error`` naming ``src`` on malformed text."""
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise error(f"{src}: not JSON ({exc.msg} at line {exc.lineno})") from None
+
+
+def read_json(path: str | Path, error: type[Exception], missing: str = "no such file") -> Any:
+    """Read a JSON file; every failure is one line of ``error`` naming the file.
+
+    ``missing`` is the message for a file that does not exist.
+    """
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise error(f"{p}: {missing}") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise error(f"{p}: cannot read: {exc}") from None
+    return parse_json(text, str(p), error)
 
 
 def atomic_write_text(path: str | Path, text: str) -> None:

@@ -27,7 +27,7 @@ from typing import Any
 from servotune.engine import Loop
 from servotune.errors import TuningError
 from servotune.laws.axis import AxisController
-from servotune.logs import atomic_write_text
+from servotune.logs import atomic_write_text, json_safe, read_json
 from servotune.rig import Rig
 
 __all__ = [
@@ -53,23 +53,6 @@ def current_tuning_path() -> Path:
     """Where the workbench keeps its current tuning (see the module docstring)."""
     root = os.environ.get("SERVOTUNE_WORKBENCH")
     return (Path(root) if root else Path(".servotune")) / "tuning.json"
-
-
-def _plain(x: Any) -> Any:
-    """JSON-safe copy: floats finite or None, numpy scalars as Python numbers."""
-    if isinstance(x, Mapping):
-        return {str(k): _plain(v) for k, v in x.items()}
-    if isinstance(x, list | tuple):
-        return [_plain(v) for v in x]
-    if isinstance(x, bool) or x is None or isinstance(x, str):
-        return x
-    if isinstance(x, int):
-        return int(x)
-    if hasattr(x, "item"):
-        return _plain(x.item())
-    if isinstance(x, float):
-        return float(x) if math.isfinite(x) else None
-    raise TypeError(f"cannot store {type(x).__name__} in a tuning file")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -147,9 +130,9 @@ class Tuning:
                 {"controller": c.to_dict(), "name": name, "role": role}
                 for name, role, c in zip(self.axis_names, self.roles, self.controllers, strict=True)
             ],
-            "design": _plain(self.design),
+            "design": json_safe(self.design),
             "period_s": float(self.period_s),
-            "provenance": _plain(self.provenance),
+            "provenance": json_safe(self.provenance),
             "rig": {"name": self.rig_name, "sha256": self.rig_sha256},
             "schema": SCHEMA,
             "timer_divisor": int(self.timer_divisor),
@@ -218,16 +201,7 @@ def read_tuning(path: str | Path) -> Tuning:
         If the file is missing, not JSON, or not a valid tuning.
     """
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise TuningError(f"{p}: no such tuning file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise TuningError(f"{p}: cannot read: {exc}") from None
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise TuningError(f"{p}: not JSON ({exc.msg} at line {exc.lineno})") from None
+    data = read_json(p, TuningError, "no such tuning file")
     try:
         return Tuning.from_dict(data)
     except TuningError as exc:

@@ -87,7 +87,7 @@ from servotune.laws.axis import (
     AxisController,
 )
 from servotune.laws.fuzzy_pid import TABLE_NAMES, FuzzyPIDConstants
-from servotune.logs import atomic_write_text
+from servotune.logs import atomic_write_text, json_float
 from servotune.plant import Plant
 from servotune.rig import Rig, load_rig
 from servotune.scenarios import Inputs, build_scenario, sync_move
@@ -605,10 +605,6 @@ def _seed_seqs(seed: int) -> list[np.random.SeedSequence]:
 # --- results -------------------------------------------------------------------------------
 
 
-def _num(x: float) -> float | None:
-    return float(x) if math.isfinite(x) else None
-
-
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Row:
     """One limit of one scenario on one axis, judged over every variant.
@@ -657,14 +653,14 @@ class Row:
         return {
             "axis": self.axis,
             "limit": float(self.limit),
-            "margin": _num(self.margin),
+            "margin": json_float(self.margin),
             "passed": self.passed,
             "quantity": self.quantity,
-            "relative_margin": None if rel is None else _num(rel),
+            "relative_margin": None if rel is None else json_float(rel),
             "scenario": self.scenario,
             "unit": self.unit,
             "variant": self.variant,
-            "worst": _num(self.worst),
+            "worst": json_float(self.worst),
         }
 
 
@@ -701,11 +697,11 @@ class Check:
         return {
             "detail": self.detail,
             "facts": dict(self.facts),
-            "limit": None if self.limit is None else _num(self.limit),
+            "limit": None if self.limit is None else json_float(self.limit),
             "name": self.name,
             "passed": self.passed,
             "unit": self.unit,
-            "value": _num(self.value),
+            "value": json_float(self.value),
         }
 
 
@@ -1364,7 +1360,7 @@ def verification_record(
         else {
             "axis": tight[1].axis,
             "quantity": tight[1].quantity,
-            "relative_margin": _num(tight[0]),
+            "relative_margin": json_float(tight[0]),
             "scenario": tight[1].scenario,
         },
     }

@@ -64,7 +64,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import math
 import re
 import struct
 import zlib
@@ -102,7 +101,7 @@ from servotune.laws.axis import (
     AxisController,
 )
 from servotune.laws.fuzzy_pid import TABLE_NAMES, FuzzyPIDConstants
-from servotune.logs import atomic_write_text
+from servotune.logs import atomic_write_text, json_safe, parse_json, read_json
 from servotune.rig import Counter, Dac, Rig
 from servotune.tuning import Tuning, tuning_to_string
 
@@ -266,18 +265,11 @@ def _hardware(tuning: Tuning, rig: Rig | None) -> dict[str, Any]:
 
 
 def _plain(x: Any, where: str) -> Any:
-    """JSON-safe copy of a summary: finite floats (others None), numpy scalars as numbers."""
-    if isinstance(x, Mapping):
-        return {str(k): _plain(v, where) for k, v in x.items()}
-    if isinstance(x, list | tuple | np.ndarray):
-        return [_plain(v, where) for v in (x.tolist() if isinstance(x, np.ndarray) else x)]
-    if isinstance(x, bool) or x is None or isinstance(x, str | int):
-        return x
-    if hasattr(x, "item"):
-        return _plain(x.item(), where)
-    if isinstance(x, float):
-        return x if math.isfinite(x) else None
-    raise ExportError(f"{where}: cannot store a {type(x).__name__} in the export")
+    """JSON-safe copy of a summary (:func:`servotune.logs.json_safe`), as an ExportError."""
+    try:
+        return json_safe(x)
+    except TypeError as exc:
+        raise ExportError(f"{where}: {exc} in the export") from None
 
 
 def _axis_doc(i: int, name: str, role: str, ctl: AxisController, src: int) -> dict[str, Any]:
@@ -615,22 +607,12 @@ def load_tables(path_or_text: str | Path) -> dict[str, Any]:
         One line naming the file, table or field: unreadable or not JSON, wrong schema, a
         missing or malformed field, an entry outside int16, a CRC mismatch.
     """
-    src = "tables export"
     if isinstance(path_or_text, str) and path_or_text.lstrip().startswith("{"):
-        text = path_or_text
+        src = "tables export"
+        doc = parse_json(path_or_text, src, ExportError)
     else:
-        p = Path(path_or_text)
-        src = str(p)
-        try:
-            text = p.read_text(encoding="utf-8")
-        except FileNotFoundError:
-            raise ExportError(f"{p}: no such file") from None
-        except (OSError, UnicodeDecodeError) as exc:
-            raise ExportError(f"{p}: cannot read: {exc}") from None
-    try:
-        doc = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise ExportError(f"{src}: not JSON ({exc.msg} at line {exc.lineno})") from None
+        src = str(Path(path_or_text))
+        doc = read_json(path_or_text, ExportError)
     try:
         _check_document(doc)
     except ExportError as exc:

@@ -23,6 +23,7 @@ from scipy.optimize import brentq, minimize_scalar
 from servotune.errors import SpecError
 from servotune.hw import dac as hw_dac
 from servotune.laws.pi import PIGains
+from servotune.logs import json_float
 from servotune.plant import Plant, discretize, discretize_lti, lag_split
 
 if TYPE_CHECKING:  # python-control and casadi are imported where used (slow to import)
@@ -218,7 +219,7 @@ class PITuning:
         for name in sorted(self.__slots__):  # type: ignore[attr-defined]
             v = getattr(self, name)
             if isinstance(v, float):
-                v = v if math.isfinite(v) else None
+                v = json_float(v)
             elif isinstance(v, tuple):
                 v = list(v)
             out[name] = v

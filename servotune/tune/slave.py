@@ -38,6 +38,7 @@ from servotune.errors import SpecError
 from servotune.laws.axis import AxisController
 from servotune.laws.fuzzy_pid import TABLE_NAMES, FuzzyPIDGains
 from servotune.laws.pi import PIGains
+from servotune.logs import json_float
 from servotune.plant import Plant
 from servotune.rig import Rig
 from servotune.scenarios import Scenario, sync_move
@@ -157,18 +158,14 @@ class SlaveTuning:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict (``inf`` as None)."""
-
-        def num(x: float) -> float | None:
-            return None if not math.isfinite(x) else float(x)
-
         return {
             "evaluations": self.evaluations,
             "feasible": self.feasible,
             "gains": self.gains.to_dict(),
-            "history": [num(h) for h in self.history],
-            "objective": num(self.objective),
+            "history": [json_float(h) for h in self.history],
+            "objective": json_float(self.objective),
             "start_feasible": self.start_feasible,
-            "start_objective": num(self.start_objective),
+            "start_objective": json_float(self.start_objective),
             "structure": self.structure,
             "worst": {k: float(v) for k, v in sorted(self.worst.items())},
         }

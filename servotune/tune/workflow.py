@@ -13,7 +13,6 @@ and the start transient's rise and settling (of the slave's speed, 10–90 % and
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,6 +23,7 @@ import numpy as np
 from servotune import __version__
 from servotune.engine import Loop, Trace, simulate
 from servotune.errors import SpecError
+from servotune.logs import json_float
 from servotune.metrics import step_info
 from servotune.rig import Rig, load_rig
 from servotune.scenarios import sync_move
@@ -188,12 +188,10 @@ class Comparison:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict (the table and the tunings)."""
-
-        def num(x: float) -> float | None:
-            return float(x) if math.isfinite(x) else None
-
         return {
-            "table": {s: {k: num(v) for k, v in row.items()} for s, row in self.table.items()},
+            "table": {
+                s: {k: json_float(v) for k, v in row.items()} for s, row in self.table.items()
+            },
             "tunings": {s: t.to_dict() for s, t in self.tunings.items()},
         }
 
