@@ -51,5 +51,9 @@ class ExportError(ServotuneError, ValueError):
     """A table or runtime export cannot be produced."""
 
 
+class ConfigError(ServotuneError, ValueError):
+    """An architecture configuration (``servotune sync`` / ``linkage``) is invalid."""
+
+
 class CounterFaultWarning(UserWarning):
     """A counter read violated the high-byte rule (a jump the unwrap cannot explain)."""

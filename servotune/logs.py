@@ -297,6 +297,21 @@ def read_json(path: str | Path, error: type[Exception], missing: str = "no such 
     return parse_json(text, str(p), error)
 
 
+def read_toml(path: str | Path, error: type[Exception], what: str = "file") -> dict[str, Any]:
+    """Read a TOML file; every failure is one line of ``error`` naming ``what`` and the file."""
+    import tomllib
+
+    p = Path(path)
+    try:
+        raw = p.read_bytes()
+    except OSError as exc:
+        raise error(f"cannot read {what} {str(p)!r}: {exc.strerror or exc}") from None
+    try:
+        return tomllib.loads(raw.decode("utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise error(f"{what} {str(p)!r} is not valid TOML: {exc}") from None
+
+
 def atomic_write_text(path: str | Path, text: str) -> None:
     """Write UTF-8 text atomically (:func:`atomic_write_bytes`), newlines as given."""
     atomic_write_bytes(path, text.encode("utf-8"))

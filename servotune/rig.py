@@ -352,6 +352,23 @@ def _table(
     return t
 
 
+def build_section(
+    cls: type, table: Mapping[str, Any], path: str, error: type[Exception] = RigError, **fixed: Any
+) -> Any:
+    """Build the dataclass ``cls`` from one TOML table, errors naming ``path.field``.
+
+    Unknown keys are refused (the message lists the allowed ones); lists become tuples;
+    the dataclass's own validation message is prefixed with ``path``. Used for the rig file and
+    for the architecture configurations (``servotune.sync``, ``servotune.linkage``).
+    """
+    try:
+        return _build(cls, table, path, **fixed)
+    except RigError as exc:
+        if error is RigError:
+            raise
+        raise error(str(exc)) from None
+
+
 def _build(cls: type, table: Mapping[str, Any], path: str, **fixed: Any) -> Any:
     allowed = {f.name for f in fields(cls)} - set(fixed)
     unknown = sorted(set(table) - allowed)
@@ -432,16 +449,10 @@ def load_rig(path: str | Path) -> Rig:
     RigError
         If the file is missing, not TOML, or any field is invalid.
     """
+    from servotune.logs import read_toml
+
     p = Path(path)
-    try:
-        raw = p.read_bytes()
-    except OSError as exc:
-        raise RigError(f"cannot read rig file {str(p)!r}: {exc.strerror or exc}") from None
-    try:
-        data = tomllib.loads(raw.decode("utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise RigError(f"rig file {str(p)!r} is not valid TOML: {exc}") from None
-    return rig_from_dict(data, default_name=p.stem)
+    return rig_from_dict(read_toml(p, RigError, "rig file"), default_name=p.stem)
 
 
 def describe_rig(rig: Rig) -> dict[str, Any]:
