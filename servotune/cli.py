@@ -271,6 +271,27 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_sync(args: argparse.Namespace) -> int:
+    from servotune.sync import compare_topologies, format_comparison, load_gantry
+
+    cmp = compare_topologies(load_gantry(args.config), seed=args.seed)
+    if args.json:
+        print(json.dumps(cmp.to_dict(), indent=2, sort_keys=True))
+    else:
+        print(format_comparison(cmp))
+    if args.plot:
+        from servotune.plot import plot_sync_errors, save_figure
+        from servotune.sync import CASES
+
+        Path(args.plot).mkdir(parents=True, exist_ok=True)
+        for case in CASES:
+            save_figure(plot_sync_errors(cmp.traces, case), Path(args.plot) / f"sync_{case}.png")
+        print(f"wrote sync_{{{','.join(CASES)}}}.png to {args.plot}", file=sys.stderr)
+    for reason in cmp.failed:
+        print(f"servotune sync: check failed: {reason}", file=sys.stderr)
+    return EXIT_OK if cmp.passed else EXIT_FAILED
+
+
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="servotune",
@@ -376,6 +397,13 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--out", default="reports", help="output directory (default reports)")
     s.add_argument("--seed", type=int, default=0)
     s.set_defaults(func=_cmd_demo)
+
+    s = sub.add_parser("sync", help="compare gantry topologies (seed 003) on a gantry config")
+    s.add_argument("config", help="gantry config (TOML), e.g. plants/gantry.toml")
+    s.add_argument("--seed", type=int, default=0, help="noise and jitter seed (default 0)")
+    s.add_argument("--json", action="store_true", help="JSON on stdout")
+    s.add_argument("--plot", metavar="DIR", help="write sync-error plots (PNG) into DIR")
+    s.set_defaults(func=_cmd_sync)
     return p
 
 

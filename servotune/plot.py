@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import matplotlib
@@ -18,6 +19,7 @@ __all__ = [
     "plot_fit",
     "plot_lock_hold",
     "plot_query_tables",
+    "plot_sync_errors",
     "plot_tracking",
     "save_figure",
 ]
@@ -152,6 +154,25 @@ def plot_comparison(traces: dict[str, Trace], slave: int, title: str = "") -> pl
         a.grid(True, alpha=0.3)
         a.legend(loc="best", fontsize=8)
     axs[0].set_title(title or "slave tracking: PID, PID + feedforward, composite (Figure 4)")
+    fig.tight_layout()
+    return fig
+
+
+def plot_sync_errors(traces: Sequence[object], case: str, title: str = "") -> plt.Figure:
+    """Sync error over time, one line per topology, for one case of a gantry comparison
+    (:func:`servotune.sync.compare_topologies`' traces)."""
+    fig, ax = plt.subplots(figsize=(8, 4))
+    for tr in traces:
+        if tr.case != case:  # type: ignore[attr-defined]
+            continue
+        ax.plot(tr.time_s, tr.sync_error, lw=1, label=tr.topology)  # type: ignore[attr-defined]
+        if tr.trip_cycle >= 0:  # type: ignore[attr-defined]
+            ax.axvline(tr.trip_cycle * tr.cycle_s, color="k", ls=":", lw=0.8)  # type: ignore[attr-defined]
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("sync error y_master − y_slave [counts]")
+    ax.set_title(title or f"gantry sync error, {case} case")
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="best", fontsize="small")
     fig.tight_layout()
     return fig
 

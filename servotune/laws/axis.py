@@ -37,6 +37,7 @@ __all__ = [
     "FLAG_COUNTER_FAULT",
     "FLAG_FOLLOWING_ERROR",
     "FLAG_SATURATED",
+    "FLAG_SYNC_TRIP",
     "LAW_FUZZY_PID",
     "LAW_NONE",
     "LAW_PI",
@@ -64,7 +65,8 @@ LAW_NAMES = ("none", "pi", "fuzzy_pid")
 FLAG_COUNTER_FAULT = 1
 FLAG_FOLLOWING_ERROR = 2
 FLAG_SATURATED = 4
-FAULT_MASK = FLAG_COUNTER_FAULT | FLAG_FOLLOWING_ERROR
+FLAG_SYNC_TRIP = 8  # set by the synchronisation monitor (laws.sync): the axis stops
+FAULT_MASK = FLAG_COUNTER_FAULT | FLAG_FOLLOWING_ERROR | FLAG_SYNC_TRIP
 
 # state layout (int64)
 S_INIT = 0

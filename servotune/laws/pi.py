@@ -113,8 +113,9 @@ def pi_step(
     ec = clamp_e(e)
     p_term = align(kp_q * ec, F_U - kp_f)
     d_i = align(kit_q * ec, F_U - kit_f)
-    # I is bounded by the D/A span (2**11 * 2**32 = 2**43), p_term and d_i are saturated, so
-    # only the saturating adds below can overflow and they saturate.
+    # I is bounded by its rails (the D/A span, 2**11 * 2**32 = 2**43; for the sync law
+    # ±limit·2**32 < 2**63), p_term and d_i are saturated, so only the saturating adds below
+    # can overflow and they saturate.
     u_pre = sat_add(sat_add(sat_add(p_term, integ), d_i), u_add)
     raw = shift_round(u_pre, F_U) + zero
     if not ((raw > code_max and d_i > 0) or (raw < 0 and d_i < 0)):

@@ -321,13 +321,14 @@ def _plant_model(
         lag = compute_s + plant.delay_s
         return (lambda lag_s: discretize(plant, period_s, lag_s)), lag, 1.0 / plant.tau_s
     if isinstance(plant, control.TransferFunction | control.StateSpace):
-        if not plant.isctime(strict=True):
-            raise ValueError(
-                f"plant must be continuous-time (dt=0); got dt={plant.dt!r}. Pass the "
-                "continuous model: tune_pi discretises it at period_s with the compute lag"
-            )
         if not (plant.ninputs == 1 and plant.noutputs == 1):
             raise ValueError("plant must be SISO")
+        if plant.isdtime(strict=True):
+            return _discrete_plant_model(plant, period_s, compute_s)
+        if not plant.isctime(strict=True):
+            raise ValueError(
+                f"plant must be continuous-time (dt=0) or discrete at period_s; got dt={plant.dt!r}"
+            )
         roots = np.concatenate([np.atleast_1d(plant.poles()), np.atleast_1d(plant.zeros())])
         mags = np.abs(roots[np.isfinite(roots)])
         mags = mags[mags > 1e-12]
@@ -337,6 +338,38 @@ def _plant_model(
         "plant must be a servotune Plant or a continuous control.TransferFunction, "
         f"got {type(plant).__name__}"
     )
+
+
+def _discrete_plant_model(
+    plant: control.TransferFunction | control.StateSpace, period_s: float, compute_s: float
+) -> tuple[Callable[[float], control.StateSpace], float, float]:
+    """:func:`_plant_model` for a plant already discrete at ``period_s`` (e.g. a closed inner
+    loop): the lag must be whole periods and acts as ``z^-m``."""
+    import control
+
+    if not math.isclose(float(plant.dt), period_s, rel_tol=1e-9):
+        raise ValueError(
+            f"a discrete plant must have dt = period_s = {period_s!r}, got {plant.dt!r}"
+        )
+    ss = control.ss(plant)
+
+    def delayed(lag_s: float) -> control.StateSpace:
+        m = round(lag_s / period_s)
+        if abs(lag_s - m * period_s) > 1e-9 * period_s:
+            raise ValueError(
+                f"compute_s must be whole periods for a discrete plant, got {compute_s!r} s "
+                f"at period_s={period_s!r} s"
+            )
+        if m == 0:
+            return ss
+        return control.ss(control.series(ss, control.tf([1.0], [1.0] + [0.0] * m, period_s)))
+
+    poles = np.concatenate([np.atleast_1d(ss.poles()), np.atleast_1d(ss.zeros())])
+    poles = poles[np.isfinite(poles) & (np.abs(poles) > 1e-12)]
+    s_c = np.abs(np.log(poles.astype(complex))) / period_s
+    s_c = s_c[s_c > 1e-9]
+    feature = float(s_c.min()) if s_c.size else math.inf
+    return delayed, compute_s, feature
 
 
 def _grid(w_lo: float, nyq: float, lag_s: float, poles: np.ndarray) -> np.ndarray:

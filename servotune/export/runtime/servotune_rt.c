@@ -12,7 +12,8 @@
  *     modulo 2^64 in unsigned arithmetic and converted back without implementation-defined
  *     behaviour, which is what the Python (numba int64) code does; they only wrap for
  *     positions beyond +-2^62 counts, never on a real axis.
- * There is no undefined behaviour for any input once st_check_consts() accepted the constants.
+ * There is no undefined behaviour for any input once st_check_consts() (st_check_sync_consts()
+ * for the sync compensator) accepted the constants.
  */
 #include "servotune_rt.h"
 
@@ -173,8 +174,9 @@ static int64_t pi_step(int64_t kp_q, int64_t kp_f, int64_t kit_q, int64_t kit_f,
     const int64_t ec = st_clamp_e(e);
     const int64_t p_term = st_align(kp_q * ec, ST_F_U - (int)kp_f);
     const int64_t d_i = st_align(kit_q * ec, ST_F_U - (int)kit_f);
-    /* I is bounded by the D/A span (2^11 * 2^32 = 2^43 for 12 bits), p_term and d_i are
-     * saturated, so only the saturating adds below can overflow and they saturate. */
+    /* I is bounded by its rails (the D/A span, 2^11 * 2^32 = 2^43 for 12 bits; for the sync
+     * law +-limit * 2^32 < 2^63), p_term and d_i are saturated, so only the saturating adds
+     * below can overflow and they saturate. */
     const int64_t u_pre = st_sat_add(st_sat_add(st_sat_add(p_term, *integ), d_i), u_add);
     const int64_t raw = st_shift_round(u_pre, ST_F_U) + zero;
     if (!((raw > code_max && d_i > 0) || (raw < 0 && d_i < 0))) {
@@ -220,6 +222,80 @@ static int64_t feed_terms(int64_t kd_q, int64_t kd_f, int64_t k1_q, int64_t k1_f
     const int64_t d = st_align(kd_q * st_clamp_e(ec), ST_F_U - (int)kd_f);
     const int64_t ff = st_align(k1_q * st_clamp_e(dr), ST_F_U - (int)k1_f);
     return st_sat_add(d, ff);
+}
+
+/* --- servotune/laws/sync.py ------------------------------------------------------------- */
+/* Bounds (st_check_sync_consts): q in int32, 0 <= f <= ST_F_U, 0 <= dead_zone,
+ * 1 <= limit <= 2^31 - 1. Then every product is int32 x (error clamped to +-(2^31 - 1)), and
+ * the rails +-limit * 2^ST_F_U < 2^63 fit int64 (the bound that keeps the arithmetic exact);
+ * pi_step and feed_terms saturate the rest. */
+
+/* sync.dead_zone: e clamped to +-(2^31 - 1), then moved towards 0 by dz (0 inside +-dz). */
+int64_t st_dead_zone(int64_t e, int64_t dz)
+{
+    e = st_clamp_e(e);
+    if (e > dz) {
+        return e - dz; /* 0 <= dz < e < 2^31 */
+    }
+    if (e < -dz) {
+        return e + dz; /* -2^31 < e < -dz <= 0 */
+    }
+    return 0;
+}
+
+/* sync.sync_enter: bumpless enable, integ := -Kp*e_d (clamped to the rails), e_prev := e_d. */
+void st_sync_enter(const st_sync_consts_t *c, st_sync_state_t *s, int64_t e)
+{
+    const int64_t e_d = st_dead_zone(e, c->dead_zone);
+    /* |kp_q * e_d| <= 2^31 * (2^31 - 1) < 2^63; st_align never returns INT64_MIN, so the negation is exact */
+    int64_t integ = -st_align(c->kp_q * e_d, ST_F_U - (int)c->kp_f);
+    const int64_t i_max = c->limit * ((int64_t)1 << ST_F_U); /* limit < 2^31: < 2^63 */
+    if (integ > i_max) {
+        integ = i_max;
+    } else if (integ < -i_max) {
+        integ = -i_max;
+    }
+    s->integ = integ;
+    s->e_prev = e_d;
+}
+
+/* sync.sync_step: one tick; returns the compensation [counts] within +-limit. */
+int64_t st_sync_step(const st_sync_consts_t *c, st_sync_state_t *s, int64_t e)
+{
+    const int64_t e_d = st_dead_zone(e, c->dead_zone);
+    /* e_d - e_prev: |e_d| < 2^31 and e_prev is a previous e_d, so it never wraps; formed
+     * modulo 2^64 (as numba does) so that no state can make it undefined */
+    const int64_t d_term = feed_terms(c->kdt_q, c->kdt_f, 0, 0, wrap_sub(e_d, s->e_prev), 0);
+    /* the PI core with its rails at +-limit: pi_step's "zero code" is limit, its top 2*limit
+     * (2 * limit < 2^32; the integrator is clamped to +-limit * 2^ST_F_U < 2^63) */
+    const int64_t u_q = pi_step(c->kp_q, c->kp_f, c->kit_q, c->kit_f, &s->integ, e_d, d_term,
+                                c->limit, 2 * c->limit);
+    int64_t comp = st_shift_round(u_q, ST_F_U); /* u_q > INT64_MIN: st_sat_add's result */
+    if (comp > c->limit) {
+        comp = c->limit;
+    } else if (comp < -c->limit) {
+        comp = -c->limit;
+    }
+    s->e_prev = e_d;
+    return comp;
+}
+
+/* sync.sync_monitor: ST_SYNC_TRIP if |e| >= trip (trip > 0), ST_SYNC_WARN if |e| >= warn
+ * (warn > 0), else ST_SYNC_OK. |e| is formed modulo 2^64 as numba does: |INT64_MIN| stays
+ * INT64_MIN (negative), so that one value reads as ST_SYNC_OK, exactly as in the Python. */
+int st_sync_monitor(int64_t e, int64_t warn, int64_t trip)
+{
+    int64_t a = st_clamp_e(e); /* |e| of any int64 (INT64_MIN included), saturated */
+    if (a < 0) {
+        a = -a;
+    }
+    if (trip > 0 && a >= trip) {
+        return ST_SYNC_TRIP;
+    }
+    if (warn > 0 && a >= warn) {
+        return ST_SYNC_WARN;
+    }
+    return ST_SYNC_OK;
 }
 
 /* --- servotune/laws/axis.py ------------------------------------------------------------- */
@@ -496,6 +572,47 @@ int st_check_consts(const st_consts_t *c)
                 }
             }
         }
+    }
+    return 0;
+}
+
+/* st_check_sync_consts: 1 + the index of the first bad field (header), 0 if valid. */
+static int q_ok(int64_t q)
+{
+    return q >= INT32_MIN && q <= INT32_MAX; /* |q| <= 2^31, |e| < 2^31: |q * e| < 2^62 */
+}
+
+int st_check_sync_consts(const st_sync_consts_t *c)
+{
+    if (!q_ok(c->kp_q)) {
+        return 1;
+    }
+    if (!f_ok(c->kp_f)) {
+        return 2;
+    }
+    if (!q_ok(c->kit_q)) {
+        return 3;
+    }
+    if (!f_ok(c->kit_f)) {
+        return 4;
+    }
+    if (!q_ok(c->kdt_q)) {
+        return 5;
+    }
+    if (!f_ok(c->kdt_f)) {
+        return 6;
+    }
+    if (c->dead_zone < 0) {
+        return 7;
+    }
+    if (c->limit < 1 || c->limit > (int64_t)2147483647) {
+        return 8; /* sync.LIMIT_MAX_COUNTS: the rails +-limit * 2^ST_F_U fit int64 */
+    }
+    if (c->warn < 0) {
+        return 9;
+    }
+    if (c->trip < 0) {
+        return 10;
     }
     return 0;
 }

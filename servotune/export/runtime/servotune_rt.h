@@ -12,6 +12,13 @@
  * reference is the position of the axis it follows, read in the same tick. The firmware reads
  * the counter card, calls st_tick and writes the returned codes to the D/A itself.
  *
+ * The synchronisation compensator of a listening slave (servotune/laws/sync.py, SPEC 1c) is a
+ * separate set of calls (st_sync_enter, st_sync_step, st_sync_monitor) on its own constants
+ * and state: the firmware feeds it the sync error y_master - y_slave [counts], adds the
+ * returned compensation to the slave's position command, and on a monitor trip latches
+ * ST_FLAG_SYNC_TRIP into both axes' fault (st_state_t.axis[a].fault |= ST_FLAG_SYNC_TRIP):
+ * st_axis_control then holds them at mid-scale, as for any latched fault, until a reset.
+ *
  * Constants come from servotune_tables.h (servotune export), whose SERVOTUNE_TABLES_INIT
  * initialises an st_consts_t. Check them once at start-up with st_check_consts() and compare
  * st_consts_crc32() / st_table_crc32() with the exported CRCs.
@@ -55,10 +62,19 @@ extern "C" {
 #define ST_LAW_PI 1
 #define ST_LAW_FUZZY_PID 2
 
-/* flags (FLAG_*): faults latch until a reset; SATURATED is per tick */
+/* flags (FLAG_*): faults latch until a reset; SATURATED is per tick. The latched faults
+ * (FAULT_MASK) are COUNTER_FAULT | FOLLOWING_ERROR | SYNC_TRIP; st_axis_control stops an axis
+ * on any nonzero latched fault. */
 #define ST_FLAG_COUNTER_FAULT 1
 #define ST_FLAG_FOLLOWING_ERROR 2
 #define ST_FLAG_SATURATED 4
+#define ST_FLAG_SYNC_TRIP 8 /* set by the caller on an ST_SYNC_TRIP (laws/sync.py) */
+#define ST_FAULT_MASK (ST_FLAG_COUNTER_FAULT | ST_FLAG_FOLLOWING_ERROR | ST_FLAG_SYNC_TRIP)
+
+/* sync monitor levels (laws/sync.py SYNC_*) */
+#define ST_SYNC_OK 0
+#define ST_SYNC_WARN 1
+#define ST_SYNC_TRIP 2
 
 /* query tables (TABLE_NAMES order) */
 #define ST_TAB_KP 0
@@ -157,6 +173,52 @@ int64_t st_axis_read(st_axis_state_t *s, const st_axis_consts_t *c, int64_t raw,
 int64_t st_axis_control(st_axis_state_t *s, const st_axis_consts_t *c, int64_t ref,
                         int64_t mode_cmd, int reset, int64_t u_add, int32_t *code,
                         int32_t *flags);
+
+/* --- the sync compensator (servotune/laws/sync.py) -------------------------------------- */
+
+/* Sync compensator constants (laws/sync.py SyncConstants) and monitor thresholds. Gains are
+ * counts of compensation per count of sync error, as (q, f) pairs (value q * 2^-f). */
+typedef struct st_sync_consts {
+    int64_t kp_q;      /* Kp [counts per count]: int32 range */
+    int64_t kp_f;      /* 0 .. ST_F_U */
+    int64_t kit_q;     /* Ki*T [counts per count per tick] (0 for PD): int32 range */
+    int64_t kit_f;     /* 0 .. ST_F_U */
+    int64_t kdt_q;     /* Kd/T [counts per count change per tick] (0 for PI): int32 range */
+    int64_t kdt_f;     /* 0 .. ST_F_U */
+    int64_t dead_zone; /* sync errors within +-dead_zone give no correction [counts], >= 0 */
+    int64_t limit;     /* largest compensation either way [counts], 1 .. 2^31 - 1; also the
+                          integrator's clamp (+-limit * 2^ST_F_U) */
+    int64_t warn;      /* monitor warning threshold on |e| [counts], 0 = off */
+    int64_t trip;      /* monitor trip threshold on |e| [counts], 0 = off */
+} st_sync_consts_t;
+
+/* Sync compensator state. Zero = power-up; st_sync_enter on enable or after a reset. */
+typedef struct st_sync_state {
+    int64_t integ;  /* integrator [counts, ST_F_U fraction bits], within +-limit * 2^ST_F_U */
+    int64_t e_prev; /* the previous tick's dead-zoned sync error [counts] */
+} st_sync_state_t;
+
+/* Check sync constants (ranges the no-overflow bounds rely on). 0 if valid, else 1 + the
+ * index of the first bad field in st_sync_consts_t order: 1 kp_q, 2 kp_f, 3 kit_q, 4 kit_f,
+ * 5 kdt_q, 6 kdt_f, 7 dead_zone, 8 limit, 9 warn, 10 trip. */
+int st_check_sync_consts(const st_sync_consts_t *c);
+
+/* sync.dead_zone: e clamped to +-(2^31 - 1), then moved towards 0 by dz >= 0 (0 inside
+ * +-dz) [counts]. */
+int64_t st_dead_zone(int64_t e, int64_t dz);
+
+/* sync.sync_enter: bumpless enable (or after a reset) with sync error e [counts]:
+ * integ := -Kp*e_d clamped to +-limit * 2^ST_F_U, so Kp*e_d + integ = 0 (the compensation at
+ * entry is 0 unless the clamp binds), and e_prev := e_d (no derivative kick). */
+void st_sync_enter(const st_sync_consts_t *c, st_sync_state_t *s, int64_t e);
+
+/* sync.sync_step: one tick with sync error e = y_master - y_slave [counts]. Returns the
+ * compensation added to the slave's position command [counts], within +-limit. */
+int64_t st_sync_step(const st_sync_consts_t *c, st_sync_state_t *s, int64_t e);
+
+/* sync.sync_monitor: ST_SYNC_TRIP if |e| >= trip (trip > 0), ST_SYNC_WARN if |e| >= warn
+ * (warn > 0), else ST_SYNC_OK. */
+int st_sync_monitor(int64_t e, int64_t warn, int64_t trip);
 
 /* --- primitives (servotune/fixed.py, hw/counter.py) ------------------------------------- */
 
