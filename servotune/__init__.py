@@ -6,6 +6,7 @@ Identify axis models from logs, synthesise PI and fuzzy-PID tables, verify them 
 
 from servotune.engine import Batch, BatchResult, Loop, Trace, prepare_batch, run_batch, simulate
 from servotune.errors import (
+    ConfigError,
     ExportError,
     IdentificationError,
     LogFormatError,
@@ -24,6 +25,7 @@ from servotune.metrics import StepInfo, TrackingMetrics, step_info, tracking_met
 from servotune.plant import Plant, discretize, discretize_lti
 from servotune.rig import Rig, load_rig, write_plant
 from servotune.scenarios import Inputs, build_scenario, sync_move
+from servotune.sync import GantryConfig, compare_topologies, load_gantry, simulate_gantry
 from servotune.tune.pi import PITuning, tune_pi, tune_pi_axis
 from servotune.tuning import Tuning, read_tuning, write_tuning
 
@@ -33,10 +35,12 @@ __all__ = [
     "AxisController",
     "Batch",
     "BatchResult",
+    "ConfigError",
     "ExportError",
     "FitResult",
     "Fixed",
     "FuzzyPIDGains",
+    "GantryConfig",
     "IdentificationError",
     "Inputs",
     "Log",
@@ -58,10 +62,12 @@ __all__ = [
     "TuningError",
     "__version__",
     "build_scenario",
+    "compare_topologies",
     "discretize",
     "discretize_lti",
     "fit",
     "fit_arrays",
+    "load_gantry",
     "load_rig",
     "lock_holding_band",
     "prepare_batch",
@@ -70,6 +76,7 @@ __all__ = [
     "read_tuning",
     "run_batch",
     "simulate",
+    "simulate_gantry",
     "step_info",
     "sync_move",
     "tracking_metrics",
