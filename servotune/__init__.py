@@ -20,6 +20,14 @@ from servotune.fixed import Fixed, quantize
 from servotune.identify import FitResult, PoorFitWarning, fit, fit_arrays
 from servotune.laws import AxisController, PIGains, lock_holding_band
 from servotune.laws.fuzzy_pid import FuzzyPIDGains
+from servotune.linkage import (
+    LinkageCheckError,
+    LinkageConfig,
+    LinkageResult,
+    load_linkage,
+    recommended_resync_interval_s,
+    run_linkage,
+)
 from servotune.logs import Log, read_log, write_log
 from servotune.metrics import StepInfo, TrackingMetrics, step_info, tracking_metrics
 from servotune.plant import Plant, discretize, discretize_lti
@@ -43,6 +51,9 @@ __all__ = [
     "GantryConfig",
     "IdentificationError",
     "Inputs",
+    "LinkageCheckError",
+    "LinkageConfig",
+    "LinkageResult",
     "Log",
     "LogFormatError",
     "Loop",
@@ -68,13 +79,16 @@ __all__ = [
     "fit",
     "fit_arrays",
     "load_gantry",
+    "load_linkage",
     "load_rig",
     "lock_holding_band",
     "prepare_batch",
     "quantize",
     "read_log",
     "read_tuning",
+    "recommended_resync_interval_s",
     "run_batch",
+    "run_linkage",
     "simulate",
     "simulate_gantry",
     "step_info",

@@ -264,8 +264,11 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     v = summary["verification"]
     print("verify: " + ("PASSED" if v["passed"] else "FAILED: " + "; ".join(v["failures"])),
           file=sys.stderr)  # fmt: skip
+    for name, a in summary["architectures"].items():
+        print(f"{name}: {'checks passed' if a['passed'] else 'a check FAILED'}", file=sys.stderr)
     print(f"wrote demo_summary.json, report.html, lock_hold.png, track.png, fit_*.png, "
-          f"fitted-rig.toml, tuning.json, figure4.png, "
+          f"fitted-rig.toml, tuning.json, figure4.png, sync.json, sync_*.png, linkage.json, "
+          f"linkage_*.png, "
           f"{', '.join(summary['exported']) or 'no exports'} and logs to {args.out}",
           file=sys.stderr)  # fmt: skip
     return EXIT_OK
@@ -290,6 +293,37 @@ def _cmd_sync(args: argparse.Namespace) -> int:
     for reason in cmp.failed:
         print(f"servotune sync: check failed: {reason}", file=sys.stderr)
     return EXIT_OK if cmp.passed else EXIT_FAILED
+
+
+def _cmd_linkage(args: argparse.Namespace) -> int:
+    from servotune.linkage import (
+        LinkageCheckError,
+        format_linkage_summary,
+        load_linkage,
+        run_linkage,
+    )
+
+    config = load_linkage(args.config)
+    try:
+        result = run_linkage(config, seconds=args.seconds, seed=args.seed)
+    except LinkageCheckError as exc:
+        for check in exc.checks:
+            print(f"servotune linkage: check failed: {check.detail}", file=sys.stderr)
+        return EXIT_FAILED
+    if args.json:
+        print(json.dumps(result.to_dict(), indent=2, sort_keys=True))
+    else:
+        print(format_linkage_summary(result))
+    if args.plot:
+        from servotune.plot import plot_queue_levels, plot_radial_deviation, save_figure
+
+        Path(args.plot).mkdir(parents=True, exist_ok=True)
+        save_figure(plot_queue_levels(result), Path(args.plot) / "linkage_queues.png")
+        save_figure(plot_radial_deviation(result), Path(args.plot) / "linkage_circle.png")
+        print(f"wrote linkage_queues.png, linkage_circle.png to {args.plot}", file=sys.stderr)
+    for check in result.failed_checks:
+        print(f"servotune linkage: check failed: {check.detail}", file=sys.stderr)
+    return EXIT_OK if result.passed else EXIT_FAILED
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -404,6 +438,14 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--json", action="store_true", help="JSON on stdout")
     s.add_argument("--plot", metavar="DIR", help="write sync-error plots (PNG) into DIR")
     s.set_defaults(func=_cmd_sync)
+
+    s = sub.add_parser("linkage", help="simulate a multi-CPU linkage (seed 002) and check it")
+    s.add_argument("config", help="linkage config (TOML), e.g. plants/linkage-6axis.toml")
+    s.add_argument("--seconds", type=float, help="simulated time [s] (default: path + settle)")
+    s.add_argument("--seed", type=int, default=0, help="encoder-noise seed (default 0)")
+    s.add_argument("--json", action="store_true", help="the result as JSON on stdout")
+    s.add_argument("--plot", metavar="DIR", help="write queue and circular-test PNGs into DIR")
+    s.set_defaults(func=_cmd_linkage)
     return p
 
 

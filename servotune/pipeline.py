@@ -130,6 +130,45 @@ def lock_hold(rig: Rig, *, seconds: float = 60.0, settle_s: float = 2.0, seed: i
     return LockHoldResult(trace=trace, settle_s=settle_s, observed=observed, predicted=predicted)
 
 
+def run_architectures(plants_dir: str | Path, out_dir: str | Path, *, seed: int = 0) -> dict:
+    """Run the synchronisation architectures whose example configs sit in ``plants_dir``.
+
+    ``gantry.toml`` (seed 003): every topology in both cases → ``sync.json``,
+    ``sync_load.png``, ``sync_mismatch.png``; ``linkage-6axis.toml`` (seed 002) →
+    ``linkage.json``, ``linkage_queues.png``, ``linkage_circle.png``. Returns a summary per
+    architecture (whether it passed its checks, and its headline figures).
+    """
+    from servotune.plot import plot_sync_errors, save_figure
+    from servotune.sync import CASES, compare_topologies, load_gantry
+
+    plants, out = Path(plants_dir), Path(out_dir)
+    summary: dict[str, Any] = {}
+    gantry_path = plants / "gantry.toml"
+    if gantry_path.is_file():
+        cmp = compare_topologies(load_gantry(gantry_path), seed=seed)
+        doc = cmp.to_dict()
+        atomic_write_text(out / "sync.json", json.dumps(doc, indent=2, sort_keys=True) + "\n")
+        for case in CASES:
+            save_figure(plot_sync_errors(cmp.traces, case), out / f"sync_{case}.png")
+        summary["gantry"] = {"passed": cmp.passed, "results": doc["results"],
+                             "predicted_load": doc["predicted_load"]}  # fmt: skip
+    linkage_path = plants / "linkage-6axis.toml"
+    if linkage_path.is_file():
+        from servotune.linkage import load_linkage, run_linkage
+        from servotune.plot import plot_queue_levels, plot_radial_deviation
+
+        res = run_linkage(load_linkage(linkage_path), seed=seed)
+        doc = res.to_dict()
+        atomic_write_text(out / "linkage.json", json.dumps(doc, indent=2, sort_keys=True) + "\n")
+        save_figure(plot_queue_levels(res), out / "linkage_queues.png")
+        save_figure(plot_radial_deviation(res), out / "linkage_circle.png")
+        summary["linkage"] = {"passed": res.passed, "bus": doc["bus"],
+                              "contour_max_counts": doc["contour_max_counts"],
+                              "worst_underrun_margin": doc["worst_underrun_margin"],
+                              "arcs": doc["arcs"]}  # fmt: skip
+    return summary
+
+
 def run_demo(rig_path: str | Path, out_dir: str | Path, *, seed: int = 0) -> dict[str, Any]:
     """Run the demo job and write its products into ``out_dir``.
 
@@ -228,6 +267,7 @@ def run_demo(rig_path: str | Path, out_dir: str | Path, *, seed: int = 0) -> dic
     from servotune.verify import verify_files
 
     spec_path = Path(rig_path).with_suffix(".spec.toml")
+    architectures = run_architectures(Path(rig_path).parent, out, seed=seed)
     verification, record, _ = verify_files(tuning_path, spec_path, rig_path)
     exported = []
     if verification.passed:
@@ -238,6 +278,7 @@ def run_demo(rig_path: str | Path, out_dir: str | Path, *, seed: int = 0) -> dic
     write_report(out, tuning_path=tuning_path, rig_path=rig_path, verification=verification,
                  seed=seed)  # fmt: skip
     summary = {
+        "architectures": architectures,
         "comparison": cmp.to_dict()["table"],
         "exported": exported,
         "verification": {"passed": verification.passed, "failures": verification.failures},

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import matplotlib
 
@@ -13,12 +14,17 @@ import numpy as np
 
 from servotune.engine import Trace
 
+if TYPE_CHECKING:
+    from servotune.linkage import LinkageResult
+
 __all__ = [
     "plot_bode",
     "plot_comparison",
     "plot_fit",
     "plot_lock_hold",
     "plot_query_tables",
+    "plot_queue_levels",
+    "plot_radial_deviation",
     "plot_sync_errors",
     "plot_tracking",
     "save_figure",
@@ -209,5 +215,80 @@ def plot_bode(responses: dict[str, tuple[np.ndarray, np.ndarray]], title: str = 
         a.grid(True, which="both", alpha=0.3)
         a.legend(loc="best", fontsize=8)
     axs[0].set_title(title or "open loop L = C · LSB · P (discrete, as the engine runs it)")
+    fig.tight_layout()
+    return fig
+
+
+def plot_queue_levels(result: LinkageResult, ax: plt.Axes | None = None) -> plt.Figure:
+    """Queue level of every slave CPU before each pop over master time (seed 002 linkage).
+
+    Each slave's level (setpoints per axis) is drawn with its queue depth (dotted) and its
+    first underrun / overrun (dashed / dash-dot vertical line); the resync instants are grey.
+    """
+    if ax is None:
+        fig, ax = plt.subplots(figsize=(9, 3.8))
+    else:
+        fig = ax.figure
+    for i, c in enumerate(result.cpus):
+        color = f"C{i}"
+        ax.step(c.tick_time_s, c.queue_level, where="post", lw=0.8, color=color, alpha=0.8,
+                label=f"{c.name} ({c.clock_ppm:+g} ppm): {c.underruns} underruns, "
+                      f"{c.overruns} overruns")  # fmt: skip
+        ax.axhline(c.queue_depth, color=color, ls=":", lw=0.8)
+        if c.first_underrun_s is not None:
+            ax.axvline(c.first_underrun_s, color=color, ls="--", lw=0.8)
+        if c.first_overrun_s is not None:
+            ax.axvline(c.first_overrun_s, color=color, ls="-.", lw=0.8)
+    if result.resync_interval_s > 0:
+        end = result.time_s.size * result.period_s
+        n = int(end / result.resync_interval_s + 1e-9)
+        for r in range(1, n + 1):
+            ax.axvline(r * result.resync_interval_s, color="0.6", lw=0.5)
+    ax.axhline(0, color="k", lw=0.6)
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("queue level [setpoints]")
+    sync = (f"resync every {result.resync_interval_s:g} s" if result.resync_interval_s
+            else "start sync only")  # fmt: skip
+    ax.set_title(f"slave queues, {sync} (dotted: depth)")
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="best", fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+def plot_radial_deviation(result: LinkageResult, ax: plt.Axes | None = None) -> plt.Figure:
+    """Circular test as a ballbar plot: radial deviation against angle, magnified.
+
+    Polar plot of every arc of a linkage run: the programmed circle is the thin black circle
+    (zero deviation) and the actual radius − programmed radius [counts] is drawn about it on a
+    magnified radial scale (the centre of the plot is not the circle's centre). The constant-
+    feed part (where the circularity is read, ISO 230-4) is solid, the ramps are faint.
+    ``ax`` must be a polar axes if given.
+    """
+    if ax is None:
+        fig, ax = plt.subplots(figsize=(6, 6), subplot_kw={"projection": "polar"})
+    else:
+        fig = ax.figure
+    if not result.arcs:
+        ax.set_title("no arc in the path")
+        return fig
+    lo = min(0.0, *(float(a.radial_dev_counts.min()) for a in result.arcs))
+    hi = max(0.0, *(float(a.radial_dev_counts.max()) for a in result.arcs))
+    span = max(hi - lo, 1.0)
+    theta = np.linspace(0.0, 2.0 * np.pi, 361)
+    ax.plot(theta, np.zeros_like(theta), color="k", lw=0.8, label="programmed circle")
+    for i, a in enumerate(result.arcs):
+        color = f"C{i}"
+        ax.plot(a.angle_rad, a.radial_dev_counts, color=color, lw=0.5, alpha=0.35)
+        dev = np.where(a.cruise, a.radial_dev_counts, np.nan)
+        ax.plot(a.angle_rad, dev, color=color, lw=1.2,
+                label=f"move {a.move} ({'/'.join(a.plane)}, R {a.radius_counts:g}): "
+                      f"circularity {a.circularity_counts:.1f} counts")  # fmt: skip
+    ax.set_ylim(lo - 0.15 * span, hi + 0.15 * span)
+    ax.set_rorigin(lo - 1.0 * span)
+    ax.set_rlabel_position(90)
+    ax.tick_params(axis="y", labelsize=7)
+    ax.set_title("circular test: radial deviation [counts] (magnified)", fontsize=10)
+    ax.legend(loc="lower center", bbox_to_anchor=(0.5, -0.2), fontsize=8)
     fig.tight_layout()
     return fig

@@ -159,7 +159,9 @@ def _tables_section(tuning: Tuning) -> str:
 
 def _existing_images(out: Path) -> str:
     parts = []
-    for pattern, title in (("fit_*.png", "Identification"), ("figure4.png", "Figure 4")):
+    for pattern, title in (("fit_*.png", "Identification"), ("figure4.png", "Figure 4"),
+                           ("sync_*.png", "Gantry with a listening slave (seed 003)"),
+                           ("linkage_*.png", "Multi-CPU linkage (seed 002)")):  # fmt: skip
         files = sorted(out.glob(pattern))
         if files:
             parts.append(f"<h2>{title}</h2>")

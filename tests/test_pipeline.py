@@ -18,15 +18,20 @@ def test_demo_writes_its_products(tmp_path: Path) -> None:
     for name in ("demo_summary.json", "lock_hold.png", "track.png", "track_log.csv",
                  "fit_master.png", "fit_slave.png", "fitted-rig.toml", "tuning.json",
                  "tuning.json.verify.json", "figure4.png", "figure4.json", "fuzzy.json",
-                 "c/servotune_tables.h", "c/servotune_rt.c", "report.html"):  # fmt: skip
+                 "c/servotune_tables.h", "c/servotune_rt.c", "report.html", "sync.json",
+                 "sync_load.png", "sync_mismatch.png", "linkage.json", "linkage_queues.png",
+                 "linkage_circle.png"):  # fmt: skip
         assert (tmp_path / name).stat().st_size > 0, name
     # the whole chain: tuned on the fitted rig, verified on the example rig, exported
     assert summary["verification"]["passed"], summary["verification"]["failures"]
     assert st.export.load_tables(tmp_path / "fuzzy.json")["verified"] is True
     page = (tmp_path / "report.html").read_text()
     for section in ("Verification: PASSED", "Loops (Bode", "Query tables", "Identification",
-                    "Figure 4"):  # fmt: skip
+                    "Figure 4", "Gantry with a listening slave", "Multi-CPU linkage"):  # fmt: skip
         assert section in page, section
+    assert summary["architectures"]["gantry"]["passed"]
+    assert summary["architectures"]["linkage"]["passed"]
+    assert json.loads((tmp_path / "sync.json").read_text())["schema"] == "servotune.sync/1"
     table = summary["comparison"]
     assert set(table) == {"pid", "pid_ff", "composite"}
     on_disk = json.loads((tmp_path / "demo_summary.json").read_text())
