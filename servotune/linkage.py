@@ -82,6 +82,7 @@ from servotune.laws.pi import PIGains
 from servotune.logs import json_float, read_toml
 from servotune.plant import Plant, advance
 from servotune.rig import Rig, build_section, load_rig
+from servotune.validate import check_integer, check_number, is_number
 
 __all__ = [
     "SCHEMA",
@@ -139,20 +140,12 @@ class LinkageCheckError(ConfigError):
 # --- validation helpers --------------------------------------------------------------------
 
 
-def _is_number(v: object) -> bool:
-    return isinstance(v, int | float) and not isinstance(v, bool)
-
-
 def _number(name: str, v: object, unit: str, *, lo: float, strict: bool = True) -> None:
-    ok = _is_number(v) and math.isfinite(v) and (v > lo if strict else v >= lo)  # type: ignore[operator]
-    if not ok:
-        op = ">" if strict else ">="
-        raise ConfigError(f"{name} must be a number {op} {lo:g} [{unit}], got {v!r}")
+    check_number(name, v, unit, lo=lo, strict=strict, error=ConfigError)
 
 
 def _integer(name: str, v: object, unit: str, *, lo: int) -> None:
-    if not isinstance(v, int) or isinstance(v, bool) or v < lo:
-        raise ConfigError(f"{name} must be an integer >= {lo} [{unit}], got {v!r}")
+    check_integer(name, v, unit, lo=lo, error=ConfigError)
 
 
 # --- configuration -------------------------------------------------------------------------
@@ -382,7 +375,7 @@ class Move:
         if not isinstance(self.to, Mapping):
             raise ConfigError(f"to must be a table of axis = position [counts], got {self.to!r}")
         for k, v in self.to.items():
-            if not _is_number(v) or not math.isfinite(v):
+            if not is_number(v) or not math.isfinite(v):
                 raise ConfigError(f"to.{k} must be a finite number [counts], got {v!r}")
         if self.kind == "line":
             if not self.to:
@@ -401,7 +394,7 @@ class Move:
         if (
             not isinstance(self.centre, tuple)
             or len(self.centre) != 2
-            or not all(_is_number(c) and math.isfinite(c) for c in self.centre)
+            or not all(is_number(c) and math.isfinite(c) for c in self.centre)
         ):
             raise ConfigError(f"centre must be [first, second] in counts, got {self.centre!r}")
         if self.direction not in ("ccw", "cw"):

@@ -27,6 +27,7 @@ from servotune.hw import timer as hw_timer
 from servotune.laws.lock import lock_holding_band
 from servotune.logs import atomic_write_bytes
 from servotune.plant import Plant
+from servotune.validate import check_number, is_number
 
 __all__ = [
     "EXAMPLE_RIG_PATH",
@@ -326,17 +327,11 @@ class Rig:
 
 
 def _positive(name: str, value: Any, unit: str) -> None:
-    if not _is_number(value) or not math.isfinite(value) or value <= 0:
-        raise RigError(f"{name} must be a number > 0 [{unit}], got {value!r}")
+    check_number(name, value, unit, lo=0.0, strict=True, error=RigError)
 
 
 def _nonneg(name: str, value: Any, unit: str) -> None:
-    if not _is_number(value) or not math.isfinite(value) or value < 0:
-        raise RigError(f"{name} must be a number >= 0 [{unit}], got {value!r}")
-
-
-def _is_number(value: Any) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool)
+    check_number(name, value, unit, lo=0.0, error=RigError)
 
 
 def _table(
@@ -536,7 +531,7 @@ def _set_float(table: MutableMapping[str, Any], key: str, value: float) -> float
     text = _toml_float(value)
     number = float(text)
     old = table.get(key)
-    if _is_number(old) and float(old) == number:
+    if is_number(old) and float(old) == number:
         return float(old)
     item = tomlkit.value(text)
     if isinstance(old, tomlkit.items.Item) and old.trivia.comment:

@@ -69,6 +69,7 @@ from servotune.laws.sync import (
 )
 from servotune.plant import Plant, advance, lag_split, step_coefficients
 from servotune.rig import Rig, build_section, load_rig
+from servotune.validate import check_integer, check_number
 
 __all__ = [
     "CASES",
@@ -112,15 +113,11 @@ _MAX_SUBSTEPS = 64
 
 
 def _num(name: str, v: Any, unit: str, lo: float = 0.0, strict: bool = False) -> None:
-    ok = isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
-    if not ok or v < lo or (strict and v == lo):
-        rel = ">" if strict else ">="
-        raise ValueError(f"{name} must be a number {rel} {lo:g} [{unit}], got {v!r}")
+    check_number(name, v, unit, lo=lo, strict=strict)
 
 
 def _int(name: str, v: Any, unit: str, lo: int = 0) -> None:
-    if type(v) is not int or v < lo:
-        raise ValueError(f"{name} must be an integer >= {lo} [{unit}], got {v!r}")
+    check_integer(name, v, unit, lo=lo)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
