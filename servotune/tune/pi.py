@@ -1071,7 +1071,9 @@ def tune_pi(
     Parameters
     ----------
     plant : Plant or control.TransferFunction
-        Axis model (volts → counts, lag ``delay_s`` included) or any continuous SISO system.
+        Axis model (volts → counts, lag ``delay_s`` included), any continuous SISO system, or
+        a SISO system already discrete at ``period_s`` (e.g. a closed inner loop; then
+        ``compute_s`` must be whole periods and acts as ``z^-m``).
     period_s : float
         Sample period [s]: for a rig, the achieved timer period.
     phase_margin_deg : float, optional
