@@ -82,6 +82,7 @@ from servotune.laws.pi import PIGains
 from servotune.logs import json_float, read_toml
 from servotune.plant import Plant, advance
 from servotune.rig import Rig, build_section, load_rig
+from servotune.tune.pi import DEFAULT_TARGETS
 from servotune.validate import check_integer, check_number, is_number
 
 __all__ = [
@@ -118,7 +119,7 @@ SCHEMA = "servotune.linkage/1"
 MAX_CLOCK_PPM = 10_000.0
 """Largest clock error accepted [ppm] (1 %, beyond a ceramic resonator's tolerance)."""
 
-TUNE_TARGETS = {"phase_margin_deg": 50.0, "gain_margin_db": 8.0, "max_sensitivity": 1.6}
+TUNE_TARGETS = DEFAULT_TARGETS
 """Robustness targets of :func:`~servotune.tune.pi.tune_pi` for axes without explicit gains."""
 
 _RING = 64  # pending D/A writes per axis (the lag compute_s + delay_s must stay below this)

@@ -104,8 +104,6 @@ during the move; ``mismatch`` — each side with its own plant, no load."""
 
 T_PARALLEL, T_FOLLOWING, T_LISTENING, T_CROSS = range(4)
 OP_NONE, OP_ENTER, OP_STEP = 0, 1, 2
-MASTER, SLAVE = 0, 1
-_DRIVE_TARGETS = {"phase_margin_deg": 50.0, "gain_margin_db": 8.0, "max_sensitivity": 1.6}
 _MAX_SUBSTEPS = 64
 
 
@@ -485,6 +483,24 @@ def _pi_tf(kp: float, ki_t: float, dt: float) -> Any:
     return control.tf([kp + ki_t, -kp], [1.0, -1.0], dt)
 
 
+def _compensator_tf(g: SyncGains, dt: float) -> Any:
+    """The sync law as a discrete transfer function: the runtime PI, or ``Kp + Kd/T·(1 − z⁻¹)``."""
+    import control
+
+    if g.law == "pi":
+        return _pi_tf(g.kp, g.ki * dt, dt)
+    return control.tf([g.kp + g.kd / dt, -g.kd / dt], [1.0, 0.0], dt)
+
+
+def _sync_open_loop(comp: Any, t_slave: Any, cfg: GantryConfig) -> Any:
+    """``C(z)·z^-L·T_s(z)``: the compensator, the bus latency, the slave's closed drive loop."""
+    import control
+
+    dt = cfg.bus.cycle_s
+    delay = control.tf([1.0], [1.0] + [0.0] * cfg.bus.latency_cycles, dt)
+    return control.ss(comp) * control.ss(delay) * t_slave
+
+
 def sync_loop_models(cfg: GantryConfig) -> dict[str, Any]:
     """Linear discrete models of the sync loop (friction, quantisation and beam left out).
 
@@ -513,13 +529,8 @@ def sync_loop_models(cfg: GantryConfig) -> dict[str, Any]:
         p_d = control.ss(discretize(ax.plant, dt, 0.0))
         one = control.ss(control.tf([1.0], [1.0], dt))
         out[f"load_{key}"] = p_d * control.feedback(one, c * lsb * p_u)
-    g = cfg.sync.gains
-    if g.law == "pi":
-        comp = _pi_tf(g.kp, g.ki * dt, dt)
-    else:
-        comp = control.tf([g.kp + g.kd / dt, -g.kd / dt], [1.0, 0.0], dt)
-    delay = control.tf([1.0], [1.0] + [0.0] * cfg.bus.latency_cycles, dt)
-    loop = control.ss(comp) * control.ss(delay) * out["t_slave"]
+    comp = _compensator_tf(cfg.sync.gains, dt)
+    loop = _sync_open_loop(comp, out["t_slave"], cfg)
     out["compensator"] = comp
     out["loop"] = loop
     out["sensitivity"] = control.feedback(control.ss(control.tf([1.0], [1.0], dt)), loop)
@@ -553,11 +564,10 @@ def tune_sync(cfg: GantryConfig) -> SyncSettings:
                     max_sensitivity=s.max_sensitivity)  # fmt: skip
         return replace(s, kp=float(r.kp), ki=float(r.ki), kd=0.0)
     kd = s.kd or 0.0
-    delay = control.tf([1.0], [1.0] + [0.0] * cfg.bus.latency_cycles, dt)
 
     def meets(kp: float) -> bool:
-        comp = control.tf([kp + kd / dt, -kd / dt], [1.0, 0.0], dt)
-        loop = control.ss(comp) * control.ss(delay) * t_s
+        g = SyncGains(law="pd", kp=kp, kd=kd, limit_counts=s.limit_counts)
+        loop = _sync_open_loop(_compensator_tf(g, dt), t_s, cfg)
         cl = control.feedback(loop, 1)
         if np.any(np.abs(cl.poles()) >= 1.0):
             return False
@@ -584,14 +594,14 @@ def resolve_gains(cfg: GantryConfig) -> GantryConfig:
     """Fill in the gains the config leaves out: each drive's PI tuned at the bus cycle
     (:func:`~servotune.tune.pi.tune_pi`, PM 50°, GM 8 dB, Ms 1.6), then the compensator
     (:func:`tune_sync`)."""
-    from servotune.tune.pi import tune_pi
+    from servotune.tune.pi import DEFAULT_TARGETS, tune_pi
 
     lsb = hw_dac.lsb_v(cfg.rig.dac.bits, cfg.rig.dac.range_v)
     drives = []
     for ax in (cfg.master, cfg.slave):
         if ax.kp is None or ax.ki is None:
             r = tune_pi(ax.plant, period_s=cfg.bus.cycle_s, compute_s=cfg.bus.compute_s,
-                        lsb_v=lsb, **_DRIVE_TARGETS)  # fmt: skip
+                        lsb_v=lsb, **DEFAULT_TARGETS)  # fmt: skip
             ax = replace(ax, kp=float(r.kp) if ax.kp is None else ax.kp,
                          ki=float(r.ki) if ax.ki is None else ax.ki)  # fmt: skip
         drives.append(ax)
@@ -607,34 +617,12 @@ def resolve_gains(cfg: GantryConfig) -> GantryConfig:
 
 def move_profile(move: GantryMove, cycle_s: float, n_cycles: int) -> np.ndarray:
     """The CNC's command per cycle [counts]: a trapezoidal (or triangular) move of
-    ``distance_counts`` starting at ``start_s``, then held (rounded half away from zero)."""
-    from servotune.fixed import round_half_away
+    ``distance_counts`` starting at the cycle nearest ``start_s``, then held
+    (:func:`~servotune.scenarios.trapezoid_ref`)."""
+    from servotune.scenarios import trapezoid_ref
 
-    d = abs(move.distance_counts)
-    sign = 1.0 if move.distance_counts >= 0 else -1.0
-    v, a = move.speed_cps, move.accel_cps2
-    t_acc = v / a
-    if a * t_acc * t_acc > d:  # triangular
-        t_acc = math.sqrt(d / a)
-        v = a * t_acc
-    t_cruise = (d - a * t_acc * t_acc) / v if v > 0 else 0.0
-    t = np.arange(n_cycles, dtype=np.int64) * cycle_s - move.start_s
-    t1, t2 = t_acc, t_acc + t_cruise
-    t3 = t2 + t_acc
-    pos = np.where(
-        t <= 0,
-        0.0,
-        np.where(
-            t < t1,
-            0.5 * a * t * t,
-            np.where(
-                t < t2,
-                0.5 * a * t1 * t1 + v * (t - t1),
-                np.where(t < t3, d - 0.5 * a * (t3 - t) ** 2, d),
-            ),
-        ),
-    )
-    return np.asarray(round_half_away(sign * pos), dtype=np.int64)
+    return trapezoid_ref(n_cycles, cycle_s, move.distance_counts, move.speed_cps,
+                         move.accel_cps2, start_tick=round(move.start_s / cycle_s))  # fmt: skip
 
 
 def _substeps(cfg: GantryConfig, plants: tuple[Plant, Plant]) -> int:

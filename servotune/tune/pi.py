@@ -13,7 +13,7 @@ python-control. :func:`tune_pi_axis` does the same for one axis of a rig.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, NamedTuple
 
@@ -31,7 +31,15 @@ if TYPE_CHECKING:  # python-control and casadi are imported where used (slow to 
 
     from servotune.rig import Rig
 
-__all__ = ["PITuning", "pi_loop_shaping", "tune_pi", "tune_pi_axis"]
+__all__ = ["DEFAULT_TARGETS", "PITuning", "pi_loop_shaping", "tune_pi", "tune_pi_axis"]
+
+DEFAULT_TARGETS: Mapping[str, float] = {
+    "phase_margin_deg": 50.0,
+    "gain_margin_db": 8.0,
+    "max_sensitivity": 1.6,
+}
+"""Default robustness targets of a position-loop PI design (the master, the slave's start
+point, the gantry drives, the linkage axes)."""
 
 
 def pi_loop_shaping(

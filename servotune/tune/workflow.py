@@ -27,7 +27,7 @@ from servotune.logs import json_float
 from servotune.metrics import step_info
 from servotune.rig import Rig, load_rig
 from servotune.scenarios import sync_move
-from servotune.tune.pi import tune_pi_axis
+from servotune.tune.pi import DEFAULT_TARGETS, tune_pi_axis
 from servotune.tune.slave import STRUCTURES, SlaveTuneSpec, SlaveTuning, tune_slave
 from servotune.tuning import Tuning, file_sha256
 
@@ -39,11 +39,7 @@ __all__ = [
     "tune_rig",
 ]
 
-MASTER_TARGETS: Mapping[str, float] = {
-    "phase_margin_deg": 50.0,
-    "gain_margin_db": 8.0,
-    "max_sensitivity": 1.6,
-}
+MASTER_TARGETS: Mapping[str, float] = DEFAULT_TARGETS
 """Default robustness targets of the PI designs (master, and the slave's start point)."""
 
 
