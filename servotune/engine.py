@@ -9,17 +9,27 @@ solution of the axis model between input changes (:func:`servotune.plant.advance
 
 Candidates of a batch (plant variants, gain sets) run in parallel (numba ``prange``), each with
 its own noise stream (splitmix64 seeded per candidate), so a candidate gives the same codes run
-alone or in a batch. No fast-math: results are bit-reproducible.
+alone or in a batch. No fast-math: results are bit-reproducible. One-axis batches run for
+metrics only (candidate sweeps of one axis) take a leaner kernel with the same laws and results.
 """
 
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numba as nb
 import numpy as np
+from numba import types
+from numba.extending import intrinsic
+
+try:  # numba internals, used only by the lean kernel's intrinsics (see _try_lean)
+    from numba.core import cgutils
+    from numba.np.arrayobj import make_array, populate_array
+except ImportError:  # pragma: no cover - such a numba runs every batch in the general kernel
+    cgutils = make_array = populate_array = None
 
 from servotune.errors import SimulationError
 from servotune.laws.axis import (
@@ -388,6 +398,12 @@ def run_batch(
     Returns
     -------
     BatchResult
+
+    Notes
+    -----
+    A one-axis batch run for metrics only, not ideal, with lags of at most one whole tick runs
+    in a leaner kernel than the others (no traces, its state in registers); it calls the same
+    law and plant functions in the same order, so the metrics are the same bit for bit.
     """
     loop = batch.loop
     _check_inputs(loop, inputs)
@@ -403,33 +419,37 @@ def run_batch(
     old_threads = nb.get_num_threads()
     if threads is not None:
         nb.set_num_threads(max(1, min(int(threads), nb.config.NUMBA_NUM_THREADS)))
+    # one-axis metrics-only runs (candidate sweeps) take the lean kernel: same results, about
+    # twice as fast; it holds lags of at most one whole tick (ring = largest lag + 2)
+    lean = metrics_only and not ideal and n_ax == 1 and batch.ring <= 3
     try:
-        _kernel(
-            batch.pf,
-            batch.pi,
-            batch.consts,
-            batch.gains_f,
-            batch.seeds,
-            batch.ref_source,
-            inputs.ref_counts,
-            inputs.mode,
-            inputs.reset,
-            inputs.dac_add_codes,
-            inputs.load_v,
-            int(rig.counter.bits),
-            bool(rig.counter.latched),
-            float(rig.counter.read_skew_s),
-            float(rig.dac.range_v[0]),
-            float(rig.dac.lsb_v),
-            bool(ideal),
-            int(batch.ring),
-            int(metric_from_tick),
-            float(rig.period_s),
-            out_i,
-            out_f,
-            metrics,
-            LANES,
-        )
+        if not (lean and _try_lean(batch, inputs, metric_from_tick, metrics)):
+            _kernel(
+                batch.pf,
+                batch.pi,
+                batch.consts,
+                batch.gains_f,
+                batch.seeds,
+                batch.ref_source,
+                inputs.ref_counts,
+                inputs.mode,
+                inputs.reset,
+                inputs.dac_add_codes,
+                inputs.load_v,
+                int(rig.counter.bits),
+                bool(rig.counter.latched),
+                float(rig.counter.read_skew_s),
+                float(rig.dac.range_v[0]),
+                float(rig.dac.lsb_v),
+                bool(ideal),
+                int(batch.ring),
+                int(metric_from_tick),
+                float(rig.period_s),
+                out_i,
+                out_f,
+                metrics,
+                LANES,
+            )
     finally:
         nb.set_num_threads(old_threads)
     traces = None
@@ -520,6 +540,53 @@ def _normal(state: np.uint64) -> tuple[np.uint64, float]:
     return state, math.sqrt(-2.0 * math.log(u1)) * math.cos(2.0 * math.pi * u2)
 
 
+@nb.njit(cache=True, inline="always")
+def _sample(p, v, nz, init, mask, latched, nbytes, skew):
+    """The counter register read at the tick start: position ``p`` [counts] plus noise ``nz``.
+
+    Latched: one read of the whole register. Not latched: byte ``j`` is read ``j · skew`` later,
+    while the count moves at the speed ``v`` [counts/s].
+    """
+    if latched:
+        return (init + np.int64(math.floor(p + nz))) & mask
+    raw = np.int64(0)
+    for j in range(nbytes):
+        cj = np.int64(math.floor(p + v * (j * skew) + nz))
+        rj = (init + cj) & mask
+        raw |= rj & (np.int64(0xFF) << (8 * j))
+    return raw
+
+
+@nb.njit(cache=True, inline="always")
+def _accumulate(mt, ln, k, e, flags, cur_mode, m_from, period):
+    """Add tick ``k`` to the metrics row ``mt[ln]`` (``METRIC_NAMES`` order; rms as a sum)."""
+    if flags & 3 and mt[ln, 4] < 0.0:
+        mt[ln, 4] = k
+    if flags & FLAG_SATURATED:
+        mt[ln, 3] += 1.0
+    if k >= m_from and cur_mode == MODE_TASK:
+        ae = abs(float(e))
+        if ae > mt[ln, 0]:
+            mt[ln, 0] = ae
+        mt[ln, 1] += ae * ae
+        mt[ln, 2] += (k - m_from) * period * ae * period
+        mt[ln, 6] += 1.0
+        if e > mt[ln, 7]:
+            mt[ln, 7] = e
+        if e < mt[ln, 8]:
+            mt[ln, 8] = e
+    mt[ln, 5] = e
+
+
+@nb.njit(cache=True, inline="always")
+def _finish(mt, ln, metrics, b, a):
+    """Turn the sums of ``mt[ln]`` into the metrics of candidate ``b``, axis ``a``."""
+    cnt = mt[ln, 6]
+    mt[ln, 1] = math.sqrt(mt[ln, 1] / cnt) if cnt > 0 else 0.0
+    for j in range(_NM):
+        metrics[b, a, j] = mt[ln, j]
+
+
 LANES = 2
 """Candidates interleaved per thread: independent lanes let the CPU overlap their tick chains."""
 
@@ -575,15 +642,7 @@ def _run_group(
             if ideal:
                 yf[ln] = p + nz
                 continue
-            if latched:
-                cnt = np.int64(math.floor(p + nz))
-                raw = (pib[ln, _I_INIT] + cnt) & mask
-            else:
-                raw = np.int64(0)
-                for j in range(nbytes):
-                    cj = np.int64(math.floor(p + spd[ln] * (j * skew) + nz))
-                    rj = (pib[ln, _I_INIT] + cj) & mask
-                    raw |= rj & (np.int64(0xFF) << (8 * j))
+            raw = _sample(p, spd[ln], nz, pib[ln, _I_INIT], mask, latched, nbytes, skew)
             y[ln] = axis_read(st, cb, ln, raw, reset[k, a])
             if rec:
                 out_i[1, b0 + lane_g[ln], k, a] = raw
@@ -628,23 +687,7 @@ def _run_group(
                 out_f[0, b, k, a] = volts
                 out_f[1, b, k, a] = pos[ln]
                 out_f[2, b, k, a] = spd[ln]
-            # metrics
-            if flags & 3 and mt[ln, 4] < 0.0:
-                mt[ln, 4] = k
-            if flags & FLAG_SATURATED:
-                mt[ln, 3] += 1.0
-            if k >= m_from and cur_mode == MODE_TASK:
-                ae = abs(float(e))
-                if ae > mt[ln, 0]:
-                    mt[ln, 0] = ae
-                mt[ln, 1] += ae * ae
-                mt[ln, 2] += (k - m_from) * period * ae * period
-                mt[ln, 6] += 1.0
-                if e > mt[ln, 7]:
-                    mt[ln, 7] = e
-                if e < mt[ln, 8]:
-                    mt[ln, 8] = e
-            mt[ln, 5] = e
+            _accumulate(mt, ln, k, e, flags, cur_mode, m_from, period)
         # 5-6. hold the writes and move the plants to the next tick
         for ln in range(n_l):
             a = lane_ax[ln]
@@ -662,9 +705,7 @@ def _run_group(
             w_old = v_old + w_off
             pos[ln], spd[ln] = advance_tick(pos[ln], spd[ln], w_old, w_new, pfb[ln])
     for ln in range(n_l):
-        cnt = mt[ln, 6]
-        mt[ln, 1] = math.sqrt(mt[ln, 1] / cnt) if cnt > 0 else 0.0
-        metrics[b0 + lane_g[ln], lane_ax[ln]] = mt[ln]
+        _finish(mt, ln, metrics, b0 + lane_g[ln], lane_ax[ln])
 
 
 @nb.njit(cache=True, parallel=True)
@@ -681,3 +722,230 @@ def _kernel(
             load, bits, latched, skew, dac_lo, lsb, ideal, ring, m_from, period, out_i, out_f,
             metrics,
         )  # fmt: skip
+
+
+# --- the lean kernel: one axis, metrics only, integer runtime ------------------------------
+#
+# Sweeps of many candidates of a one-axis loop for metrics only run here rather than in
+# _run_group. It calls the same law and plant functions (axis_read, axis_control,
+# advance_tick) and the same counter and metric helpers, with the same float operations in the
+# same order, so its metrics equal _run_group's bit for bit (tests/test_engine.py checks it);
+# only the plumbing differs, each choice for speed (about 2x over _run_group here):
+# - one candidate per loop, its law state and metric sums in small function-local ("stack")
+#   arrays indexed by constants, which LLVM promotes to registers; _run_group's heap arrays are
+#   stored and reloaded every tick, as LLVM cannot prove they do not alias the other arrays.
+#   Interleaving two candidates per loop, as _run_group does, gained nothing here (measured):
+#   this loop is bound by instruction throughput, not by the latency of one candidate's tick
+#   chain, and two candidates' state overflows the registers. Neither did a volts table,
+#   packing the per-tick inputs, nor 1-D input views (all within +-3 %);
+# - compiled without reference counting (numba's ``_nrt=False``): passing arrays to the inlined
+#   law functions otherwise leaves NRT_incref/NRT_decref calls in the tick loop, and every such
+#   call spills the floating-point registers (about 25 % of the time);
+# - no trace, ideal-law or slave-reference branches, and no ring buffer: a lag of 0 or 1 whole
+#   ticks needs only the last two writes, kept in scalars;
+# - threads take candidates one at a time from a shared counter (_kernel_lean), so a thread
+#   slowed by other work on its core does not hold up the batch.
+
+
+@intrinsic
+def _stack_zeros(typingctx, shape, dtype):
+    """A zeroed C-contiguous array in the calling function's stack frame (jitted code only).
+
+    Parameters
+    ----------
+    shape : tuple of int
+        Dimensions, compile-time constants (literals or module constants).
+    dtype : numba dtype
+        Element type, e.g. ``np.int64``.
+
+    Returns
+    -------
+    ndarray
+        A view of stack memory without an NRT meminfo, so usable under ``_nrt=False``. It lives
+        as long as the frame of the function that calls ``_stack_zeros``: call it only from a
+        function that is never IR-inlined (``inline="always"``) into another, and never return
+        the array or store it where it outlives that call.
+    """
+    if not (
+        isinstance(shape, types.BaseTuple)
+        and all(isinstance(d, types.IntegerLiteral) for d in shape)
+        and isinstance(dtype, types.DTypeSpec)
+    ):
+        return None
+    dims = [d.literal_value for d in shape]
+    arrty = types.Array(dtype.dtype, len(dims), "C")
+
+    def codegen(context, builder, sig, args):
+        ll_ty = context.get_value_type(dtype.dtype)
+        itemsize = context.get_abi_sizeof(ll_ty)
+        strides = []
+        size = 1
+        for d in reversed(dims):
+            strides.insert(0, size * itemsize)
+            size *= d
+        intp = context.get_value_type(types.intp)
+        data = cgutils.alloca_once(builder, ll_ty, size=size)
+        cgutils.memset(builder, data, intp(size * itemsize), 0)
+        ary = make_array(arrty)(context, builder)
+        populate_array(
+            ary,
+            data=data,
+            shape=[intp(d) for d in dims],
+            strides=[intp(st) for st in strides],
+            itemsize=intp(itemsize),
+            meminfo=None,
+        )
+        return ary._getvalue()
+
+    return arrty(shape, dtype), codegen
+
+
+@nb.njit(cache=True, _nrt=False)
+def _run_lean(
+    b, pf, pi, consts, seeds, ref, mode, reset, u_add, load,
+    bits, latched, skew, dac_lo, lsb, m_from, period, metrics,
+):  # fmt: skip
+    """Run candidate ``b`` of a one-axis batch and write its metrics (arguments as _kernel).
+
+    Needs whole ticks of lag 0 or 1 (``Batch.ring <= 3``); integer runtime, no traces.
+    """
+    nt = ref.shape[0]
+    mask = (np.int64(1) << bits) - 1
+    nbytes = bits // 8
+    st = _stack_zeros((1, N_STATE), np.int64)
+    mt = _stack_zeros((1, _NM), np.float64)
+    mt[0, 4] = -1.0
+    cb = consts[b]  # (1, width): axis row 0 for the law functions
+    row = pf[b, 0]
+    noise = row[R_NOISE]
+    offset = row[R_OFFSET]
+    init = pi[b, 0, _I_INIT]
+    lag = pi[b, 0, _I_LAG]
+    rng = seeds[b]
+    pos = 0.0
+    spd = 0.0
+    v1 = 0.0  # volts written one tick ago
+    v2 = 0.0  # and two ticks ago
+    for k in range(nt):
+        nz = 0.0
+        if noise > 0.0:
+            rng, g = _normal(rng)
+            nz = g * noise
+        raw = _sample(pos, spd, nz, init, mask, latched, nbytes, skew)
+        rs = reset[k, 0]
+        axis_read(st, cb, 0, raw, rs)
+        code, flags, e = axis_control(st, cb, 0, ref[k, 0], mode[k, 0], rs, u_add[k, 0])
+        volts = dac_lo + code * lsb
+        _accumulate(mt, 0, k, e, flags, st[0, S_MODE], m_from, period)
+        # the writes of ticks k - lag (from λ on) and k - lag - 1 (before λ); 0 V before tick 0
+        if lag == 0:
+            v_new = volts
+            v_old = v1
+        else:
+            v_new = v1
+            v_old = v2
+        v2 = v1
+        v1 = volts
+        w_off = offset + load[k, 0]
+        pos, spd = advance_tick(pos, spd, v_old + w_off, v_new + w_off, row)
+    _finish(mt, 0, metrics, b, 0)
+
+
+@intrinsic
+def _take_next(typingctx, counter):
+    """Atomically increment ``counter[0]`` (int64) and return its previous value."""
+    if not (
+        isinstance(counter, types.Array) and counter.dtype == types.int64 and counter.ndim == 1
+    ):
+        return None
+
+    def codegen(context, builder, sig, args):
+        ary = make_array(sig.args[0])(context, builder, args[0])
+        zero = context.get_constant(types.intp, 0)
+        ptr = cgutils.get_item_pointer(context, builder, sig.args[0], ary, [zero])
+        one = context.get_constant(types.int64, 1)
+        return builder.atomic_rmw("add", ptr, one, "monotonic")
+
+    return types.int64(counter), codegen
+
+
+@nb.njit(cache=True, parallel=True)
+def _kernel_lean(
+    pf, pi, consts, seeds, ref, mode, reset, u_add, load,
+    bits, latched, skew, dac_lo, lsb, m_from, period, metrics, workers,
+):  # fmt: skip
+    """Every candidate of a one-axis batch through :func:`_run_lean`, in parallel.
+
+    Each of ``workers`` (the number of threads) takes the next candidate from a shared counter
+    until none is left (dynamic scheduling): prange alone splits the candidates evenly in
+    advance, so on a shared machine the run waits for the thread whose core is busiest. Each
+    candidate writes only its own metrics row, so which thread runs it changes no result.
+    ``workers`` is an argument because ``nb.get_num_threads()`` in jitted code would keep this
+    function out of numba's cache.
+    """
+    n = pf.shape[0]
+    counter = np.zeros(1, dtype=np.int64)
+    for _ in nb.prange(min(workers, n)):
+        b = _take_next(counter)
+        while b < n:
+            _run_lean(
+                b, pf, pi, consts, seeds, ref, mode, reset, u_add, load,
+                bits, latched, skew, dac_lo, lsb, m_from, period, metrics,
+            )  # fmt: skip
+            b = _take_next(counter)
+
+
+_lean_works: bool | None = None
+"""Whether the lean kernel compiled with this numba (None: not tried yet)."""
+_LEAN_BUILD_ERRORS = (nb.core.errors.NumbaError, KeyError, AttributeError, TypeError)
+"""What a numba without the internals the lean kernel uses raises when compiling it
+(``_nrt`` is a private option, ``_stack_zeros`` builds an array by hand)."""
+
+
+def _try_lean(batch: Batch, inputs: Inputs, metric_from_tick: int, metrics: np.ndarray) -> bool:
+    """Run a one-axis metrics-only batch in the lean kernel; False if it cannot compile here.
+
+    The lean kernel relies on numba internals; should a numba release drop them, the first
+    call warns once and every batch runs in the general kernel instead (same results,
+    slower). ``tests/test_engine.py`` fails on such a numba, so the fallback is not silent in CI.
+    """
+    global _lean_works
+    if _lean_works is False:
+        return False
+    rig = batch.loop.rig
+    args = (
+        batch.pf,
+        batch.pi,
+        batch.consts,
+        batch.seeds,
+        inputs.ref_counts,
+        inputs.mode,
+        inputs.reset,
+        inputs.dac_add_codes,
+        inputs.load_v,
+        int(rig.counter.bits),
+        bool(rig.counter.latched),
+        float(rig.counter.read_skew_s),
+        float(rig.dac.range_v[0]),
+        float(rig.dac.lsb_v),
+        int(metric_from_tick),
+        float(rig.period_s),
+        metrics,
+        nb.get_num_threads(),
+    )
+    if _lean_works is None:
+        try:
+            _kernel_lean(*args)
+        except _LEAN_BUILD_ERRORS as exc:
+            _lean_works = False
+            warnings.warn(
+                f"servotune: the lean one-axis kernel does not compile with numba "
+                f"{nb.__version__} ({type(exc).__name__}); batches run in the general kernel",
+                RuntimeWarning,
+                stacklevel=3,
+            )
+            return False
+        _lean_works = True
+        return True
+    _kernel_lean(*args)
+    return True

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import warnings
 
 import control
 import numpy as np
@@ -274,3 +275,124 @@ def test_lane_grouping_changes_no_result(
     for key in ("code", "counter", "flags"):
         np.testing.assert_array_equal(got.traces[key], ref.traces[key])
     np.testing.assert_array_equal(got.metrics, ref.metrics)
+
+
+@pytest.mark.parametrize("latched", [True, False])
+def test_one_axis_metrics_only_equal_traced_run(
+    rig: st.Rig, latched: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # one-axis metrics-only batches run in the lean kernel (engine._run_lean); its metrics must
+    # equal those of the traced kernel (engine._run_group) bit for bit, over noise, friction,
+    # the speed limit, lags of 0 and 1 whole ticks, every mode, a reset, a following-error
+    # trip, excitation, load and the three task laws
+    import servotune.engine as engine
+    from servotune.laws.axis import AxisController
+    from servotune.laws.fuzzy_pid import FuzzyPIDGains
+    from servotune.laws.pi import PIGains
+
+    r1 = one_axis(rig)
+    r1 = dataclasses.replace(
+        r1, counter=dataclasses.replace(r1.counter, latched=latched, read_skew_s=2e-4)
+    )
+    p = r1.axes[0].plant
+    lag1 = 1.3 * r1.period_s - r1.timer.compute_s  # compute + delay in [T, 2T): m = 1
+    plants = [
+        (p,),
+        (dataclasses.replace(p, delay_s=lag1, gain_cps_per_v=0.8 * p.gain_cps_per_v),),
+        (dataclasses.replace(p, noise_counts=0.0, coulomb_v=0.0, max_speed_rpm=None),),
+        (dataclasses.replace(p, delay_s=lag1, tau_s=1.3 * p.tau_s),),
+        (p,),
+        (p,),
+    ]
+    size = 7
+    gen = np.random.default_rng(5)
+    fuzzy = FuzzyPIDGains(
+        kp0=0.5, ki0=3.0, kd0=0.002, k10=0.0, ke=0.04, kec=0.4, n=3,
+        dkp=gen.uniform(-0.2, 0.2, (size, size)), dki=gen.uniform(-1, 1, (size, size)),
+    )  # fmt: skip
+
+    def ctl(gains: object, fe_limit: int = 0) -> tuple[AxisController]:
+        return (
+            AxisController.from_gains(
+                lock_gain_codes_per_count=r1.axes[0].lock_gain_codes_per_count,
+                task_gains=gains,
+                period_s=r1.period_s,
+                following_error_limit_counts=fe_limit,
+            ),
+        )
+
+    ctls = [
+        ctl(PIGains(kp=0.5, ki=5.0)),
+        ctl(PIGains(kp=0.3, ki=2.0)),
+        ctl(PIGains(kp=0.5, ki=5.0)),
+        ctl(fuzzy),
+        ctl(None),  # lock only: task ticks run the lock
+        ctl(PIGains(kp=0.5, ki=5.0), fe_limit=300),  # trips on the step, reset at tick 2200
+    ]
+    loop = st.Loop.from_rig(r1, [PIGains(kp=0.5, ki=5.0)])
+    n = 3000
+    ref = trapezoid_ref(n, r1.period_s, 40_000, 60_000.0, 400_000.0)
+    ref[2500:] += 2_000  # a step
+    mode = np.full(n, MODE_TASK, dtype=np.int64)
+    mode[:200] = MODE_LOCK
+    mode[1500:1700] = 2  # open loop
+    mode[2200:2400] = MODE_LOCK  # after the reset
+    reset = np.zeros(n, dtype=bool)
+    reset[2200] = True
+    u_add = np.zeros(n, dtype=np.int64)
+    u_add[1500:1800] = 300
+    load = np.zeros(n)
+    load[1000:1300] = -0.05
+    inputs = st.Inputs.hold(n, 1).replace_axis(
+        0, mode=mode, ref_counts=ref, reset=reset, dac_add_codes=u_add, load_v=load
+    )
+    batch = st.prepare_batch(loop, plants=plants, controllers=ctls, seeds=[1, 2, 3, 4, 5, 6])
+    assert batch.ring == 3  # lags of 0 and 1 whole ticks
+    traced = st.run_batch(batch, inputs, metrics_only=False, metric_from_tick=150)
+
+    def no_general_kernel(*args: object) -> None:
+        raise AssertionError("a one-axis metrics-only batch must run in the lean kernel")
+
+    monkeypatch.setattr(engine, "_kernel", no_general_kernel)
+    for threads in (1, 2):
+        lean = st.run_batch(batch, inputs, metrics_only=True, metric_from_tick=150, threads=threads)
+        np.testing.assert_array_equal(lean.metrics, traced.metrics)
+    # the scenario reaches what it is meant to: a trip, saturation, and a reset that clears it
+    assert traced.metric("first_fault_tick")[5, 0] > 0
+    assert traced.metric("saturated_ticks").max() > 0
+    assert not np.any(traced.traces["flags"][5, 2200:2400, 0] & FLAG_FOLLOWING_ERROR)
+
+
+def test_lean_kernel_that_cannot_compile_falls_back_to_the_general_kernel(
+    rig: st.Rig, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # the lean kernel uses numba internals (engine._try_lean); a numba release without them
+    # must cost speed only: one warning, then every batch runs in the general kernel
+    import numba
+
+    import servotune.engine as engine
+
+    r1 = one_axis(rig)
+    loop = st.Loop.from_rig(r1, [st.PIGains(kp=0.5, ki=5.0)])
+    n = 1500
+    ref = trapezoid_ref(n, r1.period_s, 20_000, 40_000.0, 300_000.0)
+    inputs = st.Inputs.hold(n, 1).replace_axis(0, mode=MODE_TASK, ref_counts=ref)
+    batch = st.prepare_batch(loop, n_candidates=3, seeds=7)
+    want = st.run_batch(batch, inputs, metrics_only=False).metrics
+    calls = []
+
+    def broken_lean(*args: object) -> None:
+        calls.append(1)
+        raise numba.core.errors.TypingError("no such internal")
+
+    monkeypatch.setattr(engine, "_kernel_lean", broken_lean)
+    monkeypatch.setattr(engine, "_lean_works", None)
+    with pytest.warns(RuntimeWarning, match="lean one-axis kernel does not compile"):
+        got = st.run_batch(batch, inputs)
+    np.testing.assert_array_equal(got.metrics, want)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no second attempt, no second warning
+        again = st.run_batch(batch, inputs)
+    np.testing.assert_array_equal(again.metrics, want)
+    assert calls == [1]
+    assert engine._lean_works is False
