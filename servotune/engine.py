@@ -736,8 +736,10 @@ def _kernel(
 #   stored and reloaded every tick, as LLVM cannot prove they do not alias the other arrays.
 #   Interleaving two candidates per loop, as _run_group does, gained nothing here (measured):
 #   this loop is bound by instruction throughput, not by the latency of one candidate's tick
-#   chain, and two candidates' state overflows the registers. Neither did a volts table,
-#   packing the per-tick inputs, nor 1-D input views (all within +-3 %);
+#   chain, and two candidates' state overflows the registers (paired timings: 4-8 % slower).
+#   Neither did a volts table or packing the per-tick inputs (within +-3 %). What did help a
+#   little: 1-D input columns with an unsigned tick index (+4 %), and the common tick (task
+#   mode, no reset, no excitation) called with those inputs as constants (+5 %);
 # - compiled without reference counting (numba's ``_nrt=False``): passing arrays to the inlined
 #   law functions otherwise leaves NRT_incref/NRT_decref calls in the tick loop, and every such
 #   call spills the floating-point registers (about 25 % of the time);
@@ -807,7 +809,8 @@ def _run_lean(
 ):  # fmt: skip
     """Run candidate ``b`` of a one-axis batch and write its metrics (arguments as _kernel).
 
-    Needs whole ticks of lag 0 or 1 (``Batch.ring <= 3``); integer runtime, no traces.
+    Needs whole ticks of lag 0 or 1 (``Batch.ring <= 3``); integer runtime, no traces. The
+    per-tick inputs ``ref`` … ``load`` are the axis's 1-D columns (contiguous: plain indexing).
     """
     nt = ref.shape[0]
     mask = (np.int64(1) << bits) - 1
@@ -827,14 +830,23 @@ def _run_lean(
     v1 = 0.0  # volts written one tick ago
     v2 = 0.0  # and two ticks ago
     for k in range(nt):
+        i = np.uint64(k)  # an unsigned index: no negative-index wraparound code per access
         nz = 0.0
         if noise > 0.0:
             rng, g = _normal(rng)
             nz = g * noise
         raw = _sample(pos, spd, nz, init, mask, latched, nbytes, skew)
-        rs = reset[k, 0]
-        axis_read(st, cb, 0, raw, rs)
-        code, flags, e = axis_control(st, cb, 0, ref[k, 0], mode[k, 0], rs, u_add[k, 0])
+        rs = reset[i]
+        md = mode[i]
+        ua = u_add[i]
+        if not rs and md == MODE_TASK and ua == 0:
+            # the common tick, with these inputs as constants: the same calls with the same
+            # values, which LLVM folds (no reset, lock or excitation paths); ~5 % faster
+            axis_read(st, cb, 0, raw, False)
+            code, flags, e = axis_control(st, cb, 0, ref[i], MODE_TASK, False, 0)
+        else:
+            axis_read(st, cb, 0, raw, rs)
+            code, flags, e = axis_control(st, cb, 0, ref[i], md, rs, ua)
         volts = dac_lo + code * lsb
         _accumulate(mt, 0, k, e, flags, st[0, S_MODE], m_from, period)
         # the writes of ticks k - lag (from λ on) and k - lag - 1 (before λ); 0 V before tick 0
@@ -846,7 +858,7 @@ def _run_lean(
             v_old = v2
         v2 = v1
         v1 = volts
-        w_off = offset + load[k, 0]
+        w_off = offset + load[i]
         pos, spd = advance_tick(pos, spd, v_old + w_off, v_new + w_off, row)
     _finish(mt, 0, metrics, b, 0)
 
@@ -918,11 +930,16 @@ def _try_lean(batch: Batch, inputs: Inputs, metric_from_tick: int, metrics: np.n
         batch.pi,
         batch.consts,
         batch.seeds,
-        inputs.ref_counts,
-        inputs.mode,
-        inputs.reset,
-        inputs.dac_add_codes,
-        inputs.load_v,
+        *(
+            np.ascontiguousarray(x[:, 0])
+            for x in (
+                inputs.ref_counts,
+                inputs.mode,
+                inputs.reset,
+                inputs.dac_add_codes,
+                inputs.load_v,
+            )
+        ),
         int(rig.counter.bits),
         bool(rig.counter.latched),
         float(rig.counter.read_skew_s),
