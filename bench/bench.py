@@ -782,7 +782,9 @@ def bench_batched(opts: Options) -> list[Figure]:
         metrics[threads] = res.metrics
         rate = n_c * n_t / statistics.median(times)
         progress(f"batched: {rate:.4g} ticks/s (runs {[f'{t:.3f}' for t in times]} s)")
-        figures.append(Figure(name, rate, "ticks/s"))
+        spread = f"median of {len(times)} runs; single runs {n_c * n_t / max(times):.3g}"
+        spread += f" to {n_c * n_t / min(times):.3g} ticks/s"
+        figures.append(Figure(name, rate, "ticks/s", spread))
     check_batch_metrics(metrics[2], metrics[1])
     return figures
 
