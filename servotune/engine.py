@@ -369,6 +369,22 @@ def _check_inputs(loop: Loop, inputs: Inputs) -> None:
             )
 
 
+def _input_arrays(inputs: Inputs) -> tuple[np.ndarray, ...]:
+    """The per-tick inputs in kernel argument order: ref, mode, reset, u_add, load."""
+    return (inputs.ref_counts, inputs.mode, inputs.reset, inputs.dac_add_codes, inputs.load_v)
+
+
+def _converter_args(rig: Rig) -> tuple[int, bool, float, float, float]:
+    """Counter and D/A scalars in kernel argument order: bits, latched, skew, dac_lo, lsb."""
+    return (
+        int(rig.counter.bits),
+        bool(rig.counter.latched),
+        float(rig.counter.read_skew_s),
+        float(rig.dac.range_v[0]),
+        float(rig.dac.lsb_v),
+    )
+
+
 def run_batch(
     batch: Batch,
     inputs: Inputs,
@@ -431,16 +447,8 @@ def run_batch(
                 batch.gains_f,
                 batch.seeds,
                 batch.ref_source,
-                inputs.ref_counts,
-                inputs.mode,
-                inputs.reset,
-                inputs.dac_add_codes,
-                inputs.load_v,
-                int(rig.counter.bits),
-                bool(rig.counter.latched),
-                float(rig.counter.read_skew_s),
-                float(rig.dac.range_v[0]),
-                float(rig.dac.lsb_v),
+                *_input_arrays(inputs),
+                *_converter_args(rig),
                 bool(ideal),
                 int(batch.ring),
                 int(metric_from_tick),
@@ -930,39 +938,25 @@ def _try_lean(batch: Batch, inputs: Inputs, metric_from_tick: int, metrics: np.n
         batch.pi,
         batch.consts,
         batch.seeds,
-        *(
-            np.ascontiguousarray(x[:, 0])
-            for x in (
-                inputs.ref_counts,
-                inputs.mode,
-                inputs.reset,
-                inputs.dac_add_codes,
-                inputs.load_v,
-            )
-        ),
-        int(rig.counter.bits),
-        bool(rig.counter.latched),
-        float(rig.counter.read_skew_s),
-        float(rig.dac.range_v[0]),
-        float(rig.dac.lsb_v),
+        *(np.ascontiguousarray(x[:, 0]) for x in _input_arrays(inputs)),
+        *_converter_args(rig),
         int(metric_from_tick),
         float(rig.period_s),
         metrics,
         nb.get_num_threads(),
     )
-    if _lean_works is None:
-        try:
-            _kernel_lean(*args)
-        except _LEAN_BUILD_ERRORS as exc:
-            _lean_works = False
-            warnings.warn(
-                f"servotune: the lean one-axis kernel does not compile with numba "
-                f"{nb.__version__} ({type(exc).__name__}); batches run in the general kernel",
-                RuntimeWarning,
-                stacklevel=3,
-            )
-            return False
-        _lean_works = True
-        return True
-    _kernel_lean(*args)
+    try:
+        _kernel_lean(*args)
+    except _LEAN_BUILD_ERRORS as exc:
+        if _lean_works:  # it compiled before: a real error, not a missing internal
+            raise
+        _lean_works = False
+        warnings.warn(
+            f"servotune: the lean one-axis kernel does not compile with numba "
+            f"{nb.__version__} ({type(exc).__name__}); batches run in the general kernel",
+            RuntimeWarning,
+            stacklevel=3,
+        )
+        return False
+    _lean_works = True
     return True
