@@ -8,6 +8,7 @@ At run time the period is folded into ``Ki·T``, so there is no division (SPEC �
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numba as nb
@@ -113,20 +114,54 @@ def pi_step(
     ec = clamp_e(e)
     p_term = align(kp_q * ec, F_U - kp_f)
     d_i = align(kit_q * ec, F_U - kit_f)
-    # I is bounded by its rails (the D/A span, 2**11 * 2**32 = 2**43; for the sync law
-    # ±limit·2**32 < 2**63), p_term and d_i are saturated, so only the saturating adds below
-    # can overflow and they saturate.
-    u_pre = sat_add(sat_add(sat_add(p_term, integ), d_i), u_add)
+    if _below_2_60(p_term) and _below_2_60(d_i) and _below_2_60(integ) and _below_2_60(u_add):
+        # the common case (e.g. |I| <= 2**43 on a 12-bit D/A): no sum of these four terms
+        # reaches 2**62, so every saturating add equals a plain add and the plain adds give the
+        # same integers (tests/laws/test_pi.py checks both paths against an exact model)
+        return _pi_core(_add, p_term, d_i, integ, u_add, zero, code_max)
+    return _pi_core(sat_add, p_term, d_i, integ, u_add, zero, code_max)
+
+
+_TWO_60 = 1 << 60
+
+
+@nb.njit(cache=True, inline="always")
+def _below_2_60(x: int) -> bool:
+    return -_TWO_60 < x < _TWO_60
+
+
+@nb.njit(cache=True, inline="always")
+def _add(a: int, b: int) -> int:
+    return a + b
+
+
+@nb.njit(cache=True, inline="always")
+def _pi_core(
+    add: Callable[[int, int], int],
+    p_term: int,
+    d_i: int,
+    integ: int,
+    u_add: int,
+    zero: int,
+    code_max: int,
+) -> tuple[int, int]:
+    """The PI tick after the products, its sums done by ``add`` (sat_add, or _add when safe).
+
+    I is bounded by its rails (the D/A span, 2**11 * 2**32 = 2**43; for the sync law
+    ±limit·2**32 < 2**63), p_term and d_i are saturated, so only the adds can overflow, and
+    with ``sat_add`` they saturate.
+    """
+    u_pre = add(add(add(p_term, integ), d_i), u_add)
     raw = shift_round(u_pre, F_U) + zero
     if not ((raw > code_max and d_i > 0) or (raw < 0 and d_i < 0)):
-        integ = sat_add(integ, d_i)
+        integ = add(integ, d_i)
         i_max = (code_max - zero) * (1 << F_U)
         i_min = -zero * (1 << F_U)
         if integ > i_max:
             integ = i_max
         elif integ < i_min:
             integ = i_min
-    return sat_add(sat_add(p_term, integ), u_add), integ
+    return add(add(p_term, integ), u_add), integ
 
 
 @nb.njit(cache=True, inline="always")
