@@ -4,38 +4,41 @@ Identify axis models from logs, synthesise PI and fuzzy-PID tables, verify them 
 4 ms closed loop, and export them to the runtime.
 """
 
-from servotune.engine import Batch, BatchResult, Loop, Trace, prepare_batch, run_batch, simulate
-from servotune.errors import (
-    ConfigError,
-    ExportError,
-    IdentificationError,
-    LogFormatError,
-    RigError,
-    ServotuneError,
-    SimulationError,
-    SpecError,
-    TuningError,
-)
-from servotune.fixed import Fixed, quantize
-from servotune.identify import FitResult, PoorFitWarning, fit, fit_arrays
-from servotune.laws import AxisController, PIGains, lock_holding_band
-from servotune.laws.fuzzy_pid import FuzzyPIDGains
-from servotune.linkage import (
-    LinkageCheckError,
-    LinkageConfig,
-    LinkageResult,
-    load_linkage,
-    recommended_resync_interval_s,
-    run_linkage,
-)
-from servotune.logs import Log, read_log, write_log
-from servotune.metrics import StepInfo, TrackingMetrics, step_info, tracking_metrics
-from servotune.plant import Plant, discretize, discretize_lti
-from servotune.rig import Rig, load_rig, write_plant
-from servotune.scenarios import Inputs, build_scenario, sync_move
-from servotune.sync import GantryConfig, compare_topologies, load_gantry, simulate_gantry
-from servotune.tune.pi import PITuning, tune_pi, tune_pi_axis
-from servotune.tuning import Tuning, read_tuning, write_tuning
+from servotune._numba_cache import keyed_by_sources
+
+with keyed_by_sources():  # numba's cache follows every source edit (see _numba_cache)
+    from servotune.engine import Batch, BatchResult, Loop, Trace, prepare_batch, run_batch, simulate
+    from servotune.errors import (
+        ConfigError,
+        ExportError,
+        IdentificationError,
+        LogFormatError,
+        RigError,
+        ServotuneError,
+        SimulationError,
+        SpecError,
+        TuningError,
+    )
+    from servotune.fixed import Fixed, quantize
+    from servotune.identify import FitResult, PoorFitWarning, fit, fit_arrays
+    from servotune.laws import AxisController, PIGains, lock_holding_band
+    from servotune.laws.fuzzy_pid import FuzzyPIDGains
+    from servotune.linkage import (
+        LinkageCheckError,
+        LinkageConfig,
+        LinkageResult,
+        load_linkage,
+        recommended_resync_interval_s,
+        run_linkage,
+    )
+    from servotune.logs import Log, read_log, write_log
+    from servotune.metrics import StepInfo, TrackingMetrics, step_info, tracking_metrics
+    from servotune.plant import Plant, discretize, discretize_lti
+    from servotune.rig import Rig, load_rig, write_plant
+    from servotune.scenarios import Inputs, build_scenario, sync_move
+    from servotune.sync import GantryConfig, compare_topologies, load_gantry, simulate_gantry
+    from servotune.tune.pi import PITuning, tune_pi, tune_pi_axis
+    from servotune.tuning import Tuning, read_tuning, write_tuning
 
 __version__ = "0.1.0"
 

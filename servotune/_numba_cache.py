@@ -1,0 +1,83 @@
+"""numba's on-disk cache for servotune, keyed by the package's sources.
+
+numba checks a cached function against its own source file only: a kernel in ``engine.py`` that
+inlines a law from ``laws/pi.py`` keeps running the old law after ``laws/pi.py`` is edited,
+until ``engine.py`` changes too. Bit-true results cannot rest on that, so while servotune's
+modules are imported (and their functions decorated), numba's cache directory is one named by
+a digest of every servotune source file: any edit compiles afresh, and an unchanged tree reuses
+its cache. ``NUMBA_CACHE_DIR``, when set, is left to rule.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import numba
+
+__all__ = ["cache_dir", "keyed_by_sources", "source_digest"]
+
+_PACKAGE = Path(__file__).resolve().parent
+_PREFIX = "numba-"
+
+
+def source_digest(root: Path = _PACKAGE) -> str:
+    """SHA-1 (16 hex digits) of the ``*.py`` files under ``root``: their paths and bytes."""
+    h = hashlib.sha1()
+    for path in sorted(root.rglob("*.py")):
+        h.update(path.relative_to(root).as_posix().encode())
+        h.update(b"\0")
+        h.update(path.read_bytes())
+        h.update(b"\0")
+    return h.hexdigest()[:16]
+
+
+def _usable(path: Path) -> bool:
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return False
+    return os.access(path, os.W_OK | os.X_OK)
+
+
+def cache_dir(root: Path = _PACKAGE) -> Path | None:
+    """The cache directory for the sources under ``root``; None if none is writable.
+
+    ``root/__pycache__/numba-<digest>`` (older ``numba-*`` siblings there are removed when it
+    is created), else ``$XDG_CACHE_HOME/servotune/numba-<digest>`` (default ``~/.cache``).
+    """
+    name = _PREFIX + source_digest(root)
+    in_tree = root / "__pycache__" / name
+    if in_tree.is_dir() and os.access(in_tree, os.W_OK | os.X_OK):
+        return in_tree
+    if _usable(in_tree):
+        for old in in_tree.parent.glob(_PREFIX + "*"):
+            if old != in_tree:
+                shutil.rmtree(old, ignore_errors=True)
+        return in_tree
+    user = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "servotune" / name
+    return user if _usable(user) else None
+
+
+@contextmanager
+def keyed_by_sources() -> Iterator[None]:
+    """Within the block, numba caches functions decorated there in :func:`cache_dir`.
+
+    numba picks a function's cache location when it is decorated, so wrapping the imports of
+    servotune's modules is enough; other packages' functions are left to numba's defaults.
+    """
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        yield
+        return
+    path = cache_dir()
+    previous = numba.config.CACHE_DIR
+    if path is not None:
+        numba.config.CACHE_DIR = str(path)
+    try:
+        yield
+    finally:
+        numba.config.CACHE_DIR = previous
