@@ -110,6 +110,13 @@ def pi_step(
     integ : int
         ``I(k)``: not integrated on a tick where the unclamped output is past a rail and the
         increment pushes further past it (conditional integration); clamped to the D/A span.
+
+    Notes
+    -----
+    The sums saturate (SPEC §6). When ``Kp·e``, ``Ki·T·e``, ``I`` and ``u_add`` are all below
+    2**60 in magnitude, which is every tick of an ordinary loop, no sum can reach 2**62, so
+    they are done as plain adds (the C runtime saturates every one; the integers are the same).
+    The saturating checks cost about a fifth of a batched one-axis run.
     """
     ec = clamp_e(e)
     p_term = align(kp_q * ec, F_U - kp_f)
