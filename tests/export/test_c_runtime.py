@@ -24,12 +24,11 @@ from __future__ import annotations
 import ctypes
 import dataclasses
 import math
-import shutil
-import subprocess
 from pathlib import Path
 
 import numpy as np
 import pytest
+from c_build import STRICT, cc, needs_cc, run_replay, shared_harness, ubsan_harness
 
 from servotune.engine import Loop, Trace, simulate
 from servotune.export import constants_crc32, tables_document, write_c
@@ -66,13 +65,8 @@ from servotune.tune.slave import SlaveTuneSpec
 from servotune.tune.workflow import tune_rig
 from servotune.tuning import Tuning
 
-CC = shutil.which("cc")
-pytestmark = pytest.mark.skipif(
-    CC is None, reason="no C compiler: `cc` is not on PATH, so the C runtime cannot be built"
-)
+pytestmark = needs_cc
 
-STRICT = ("-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic")
-UBSAN = ("-O1", "-g", "-fsanitize=undefined", "-fno-sanitize-recover=all")
 INT64_MAX = 2**63 - 1
 
 HARNESS = r"""
@@ -220,27 +214,11 @@ def _export(tuning: Tuning, out_dir: Path, rig: Rig | None = None) -> Path:
     return out_dir
 
 
-def _cc(src_dir: Path, *args: str) -> None:
-    res = subprocess.run([CC, *args], cwd=src_dir, capture_output=True, text=True)
-    assert res.returncode == 0, f"cc {' '.join(args)} failed:\n{res.stderr}"
-
-
 class Runtime:
     """The compiled harness (shared library) through ctypes."""
 
     def __init__(self, src_dir: Path) -> None:
-        _cc(
-            src_dir,
-            *STRICT,
-            "-O2",
-            "-shared",
-            "-fPIC",
-            "harness.c",
-            "servotune_rt.c",
-            "-o",
-            "libharness.so",
-        )
-        lib = ctypes.CDLL(str(src_dir / "libharness.so"))
+        lib = shared_harness(src_dir, "libharness.so")
         i64, p = ctypes.c_int64, ctypes.c_void_p
         for name, res, args in (
             ("h_tick", None, [p] * 6),
@@ -303,19 +281,11 @@ def _replay_python(controllers, refs, hw: dict, raw, ref, mode, reset, u_add) ->
 
 def _ubsan_replay(src_dir: Path, raw, ref, mode, reset, u_add) -> np.ndarray:
     """Replay through the harness built with the undefined-behaviour sanitizer."""
-    exe = src_dir / "harness_ubsan"
-    if not exe.exists():
-        _cc(src_dir, *STRICT, *UBSAN, "-DH_MAIN", "harness.c", "servotune_rt.c", "-o", exe.name)
     arrs = [np.ascontiguousarray(x, dtype=np.int64) for x in (raw, ref, mode, reset, u_add)]
     n, n_ax = arrs[0].shape
-    (src_dir / "in.bin").write_bytes(
-        np.array([n, n_ax], dtype=np.int64).tobytes() + b"".join(a.tobytes() for a in arrs)
-    )
-    res = subprocess.run(
-        [str(exe), "in.bin", "out.bin"], cwd=src_dir, capture_output=True, text=True, timeout=120
-    )
-    assert res.returncode == 0 and "runtime error" not in res.stderr, res.stderr
-    return np.frombuffer((src_dir / "out.bin").read_bytes(), dtype=np.int64).reshape(n, n_ax, 5)
+    payload = np.array([n, n_ax], dtype=np.int64).tobytes() + b"".join(a.tobytes() for a in arrs)
+    out = run_replay(ubsan_harness(src_dir, "harness_ubsan"), payload, timeout=120)
+    return np.frombuffer(out, dtype=np.int64).reshape(n, n_ax, 5)
 
 
 # --- the tuning and the golden scenario -------------------------------------------------------
@@ -506,9 +476,9 @@ def _coverage(trace: Trace) -> dict[str, list[int]]:
 
 def test_runtime_and_tables_compile_cleanly(build: Path) -> None:
     # the runtime alone, and a unit including the tables without using them (no warnings)
-    _cc(build, *STRICT, "-O2", "-c", "servotune_rt.c", "-o", "rt.o")
+    cc(build, *STRICT, "-O2", "-c", "servotune_rt.c", "-o", "rt.o")
     (build / "only_tables.c").write_text('#include "servotune_tables.h"\nint unused_ok;\n')
-    _cc(build, *STRICT, "-c", "only_tables.c", "-o", "only_tables.o")
+    cc(build, *STRICT, "-c", "only_tables.c", "-o", "only_tables.o")
 
 
 def test_crcs_and_constants_check_agree_with_python(runtime: Runtime, tuning: Tuning) -> None:

@@ -19,13 +19,12 @@ more with ``-fsanitize=undefined -fno-sanitize-recover`` into a program that rep
 from __future__ import annotations
 
 import ctypes
-import shutil
-import subprocess
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
+from c_build import UBSAN, needs_cc, run_cc, run_replay, shared_harness, ubsan_harness
 
 from servotune.export.c import RUNTIME_FILES, runtime_source
 from servotune.fixed import Fixed
@@ -50,14 +49,9 @@ from servotune.laws.sync import (
     sync_step,
 )
 
-CC = shutil.which("cc")
-pytestmark = pytest.mark.skipif(
-    CC is None, reason="no C compiler: `cc` is not on PATH, so the C runtime cannot be built"
-)
+pytestmark = needs_cc
 
 ROOT = Path(__file__).resolve().parents[2]
-STRICT = ("-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic")
-UBSAN = ("-O1", "-g", "-fsanitize=undefined", "-fno-sanitize-recover=all")
 INT64_MAX = 2**63 - 1
 INT64_MIN = -(2**63)
 E_MAX = 2**31 - 1
@@ -204,10 +198,6 @@ int main(int argc, char **argv)
 # --- building ---------------------------------------------------------------------------------
 
 
-def _cc(src_dir: Path, *args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([CC, *args], cwd=src_dir, capture_output=True, text=True)
-
-
 @pytest.fixture(scope="module")
 def src(tmp_path_factory) -> Path:
     d = tmp_path_factory.mktemp("c_sync")
@@ -219,10 +209,7 @@ def src(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def lib(src: Path) -> ctypes.CDLL:
-    args = (*STRICT, "-O2", "-shared", "-fPIC", "harness.c", "servotune_rt.c", "-o", "libh.so")
-    res = _cc(src, *args)
-    assert res.returncode == 0, f"cc failed:\n{res.stderr}"
-    lib = ctypes.CDLL(str(src / "libh.so"))
+    lib = shared_harness(src, "libh.so")
     i64, p, i = ctypes.c_int64, ctypes.c_void_p, ctypes.c_int
     for name, restype, argtypes in (
         ("h_check", i, [p]),
@@ -437,18 +424,13 @@ def test_edge_replay_under_the_undefined_behaviour_sanitizer(src: Path, replay) 
     seq, op, e, py = replay
     probe = src / "probe.c"
     probe.write_text("int main(void) { return 0; }\n")
-    res = _cc(src, *UBSAN, "probe.c", "-o", "probe")
+    res = run_cc(src, *UBSAN, "probe.c", "-o", "probe")
     if res.returncode != 0:
         pytest.skip(f"the compiler cannot link -fsanitize=undefined here:\n{res.stderr}")
-    res = _cc(src, *STRICT, *UBSAN, "-DH_MAIN", "harness.c", "servotune_rt.c", "-o", "h_ubsan")
-    assert res.returncode == 0, res.stderr
     head = np.array([len(seq), op.size], dtype=np.int64)
-    (src / "in.bin").write_bytes(b"".join(a.tobytes() for a in (head, seq, op, e)))
-    res = subprocess.run(
-        ["./h_ubsan", "in.bin", "out.bin"], cwd=src, capture_output=True, text=True, timeout=300
-    )
-    assert res.returncode == 0 and "runtime error" not in res.stderr, res.stderr
-    out = np.frombuffer((src / "out.bin").read_bytes(), dtype=np.int64).reshape(-1, N_OUT)
+    payload = b"".join(a.tobytes() for a in (head, seq, op, e))
+    out_bytes = run_replay(ubsan_harness(src, "h_ubsan"), payload, timeout=300)
+    out = np.frombuffer(out_bytes, dtype=np.int64).reshape(-1, N_OUT)
     _assert_equal(out, py, op, e)
 
 

@@ -1,0 +1,60 @@
+"""Building and running the exported C runtime with a test harness (the C runtime tests).
+
+A test directory holds ``servotune_rt.c`` (and its headers) and a ``harness.c``; the harness is
+built strictly (C99, every warning an error) as a shared library for ctypes, and with the
+undefined-behaviour sanitizer as a program (``-DH_MAIN``) that replays an input file.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+CC = shutil.which("cc")
+needs_cc = pytest.mark.skipif(
+    CC is None, reason="no C compiler: `cc` is not on PATH, so the C runtime cannot be built"
+)
+STRICT = ("-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic")
+UBSAN = ("-O1", "-g", "-fsanitize=undefined", "-fno-sanitize-recover=all")
+_HARNESS = ("harness.c", "servotune_rt.c")
+
+
+def run_cc(src_dir: Path, *args: str) -> subprocess.CompletedProcess:
+    """Run the compiler in ``src_dir``; the caller judges the result."""
+    return subprocess.run([CC, *args], cwd=src_dir, capture_output=True, text=True)
+
+
+def cc(src_dir: Path, *args: str) -> None:
+    """Compile in ``src_dir``; fail the test with the compiler's messages if it fails."""
+    res = run_cc(src_dir, *args)
+    assert res.returncode == 0, f"cc {' '.join(args)} failed:\n{res.stderr}"
+
+
+def shared_harness(src_dir: Path, name: str) -> ctypes.CDLL:
+    """The harness and runtime built strictly at -O2 as the shared library ``name``, loaded."""
+    cc(src_dir, *STRICT, "-O2", "-shared", "-fPIC", *_HARNESS, "-o", name)
+    return ctypes.CDLL(str(src_dir / name))
+
+
+def ubsan_harness(src_dir: Path, name: str) -> Path:
+    """The harness's file replay (``-DH_MAIN``) built with the sanitizer as program ``name``."""
+    exe = src_dir / name
+    if not exe.exists():
+        cc(src_dir, *STRICT, *UBSAN, "-DH_MAIN", *_HARNESS, "-o", name)
+    return exe
+
+
+def run_replay(exe: Path, payload: bytes, timeout: float) -> bytes:
+    """Run ``exe in.bin out.bin`` in its directory; no error and no sanitizer report allowed."""
+    src_dir = exe.parent
+    (src_dir / "in.bin").write_bytes(payload)
+    res = subprocess.run(
+        [str(exe), "in.bin", "out.bin"], cwd=src_dir, capture_output=True, text=True,
+        timeout=timeout,
+    )  # fmt: skip
+    assert res.returncode == 0 and "runtime error" not in res.stderr, res.stderr
+    return (src_dir / "out.bin").read_bytes()
