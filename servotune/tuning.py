@@ -99,6 +99,30 @@ class Tuning:
         if not (self.period_s > 0 and math.isfinite(self.period_s)):
             raise TuningError(f"period_s must be > 0 [s], got {self.period_s!r}")
 
+    @classmethod
+    def for_rig(
+        cls,
+        rig: Rig,
+        controllers: tuple[AxisController, ...],
+        *,
+        rig_sha256: str,
+        design: Mapping[str, Any] | None = None,
+        provenance: Mapping[str, Any] | None = None,
+    ) -> Tuning:
+        """A tuning of ``rig``: its name, period, timer divisor, axes and roles, these
+        controllers (rig order), and the hash of the rig file they were made for."""
+        return cls(
+            rig_name=rig.name,
+            rig_sha256=rig_sha256,
+            period_s=rig.period_s,
+            timer_divisor=rig.timer.divisor,
+            axis_names=rig.axis_names,
+            roles=tuple(a.role for a in rig.axes),
+            controllers=controllers,
+            design={} if design is None else design,
+            provenance={} if provenance is None else provenance,
+        )
+
     def check_rig(self, rig: Rig) -> None:
         """Raise :class:`TuningError` unless ``rig`` has the axes and period of this tuning."""
         if rig.axis_names != self.axis_names:

@@ -29,14 +29,10 @@ def _tuning(rig: st.Rig) -> Tuning:
         dkp=rng.uniform(-0.5, 0.5, (size, size)), dki=rng.uniform(-1, 1, (size, size)),
     )  # fmt: skip
     ctls = st.Loop.from_rig(rig, [PIGains(kp=0.5, ki=1.2), slave]).controllers
-    return Tuning(
-        rig_name=rig.name,
+    return Tuning.for_rig(
+        rig,
+        ctls,
         rig_sha256="0" * 64,
-        period_s=rig.period_s,
-        timer_divisor=rig.timer.divisor,
-        axis_names=rig.axis_names,
-        roles=tuple(a.role for a in rig.axes),
-        controllers=ctls,
         design={"note": "test", "values": [1.5, float("inf")]},
         provenance={"seed": 0},
     )

@@ -129,14 +129,11 @@ def tune_rig(
     kept = "keeps" if slave.start_feasible else "breaks"
     say(f"tune: sync-error ITAE {slave.start_objective:.4g} counts·s² at the start (which {kept} "
         f"the constraints), {slave.objective:.4g} tuned")  # fmt: skip
-    return Tuning(
-        rig_name=rig.name,
-        rig_sha256=file_sha256(rig_path),
-        period_s=rig.period_s,
-        timer_divisor=rig.timer.divisor,
-        axis_names=rig.axis_names,
-        roles=tuple(a.role for a in rig.axes),
-        controllers=ctls,
+    rig_sha256 = file_sha256(rig_path)
+    return Tuning.for_rig(
+        rig,
+        ctls,
+        rig_sha256=rig_sha256,
         design={
             "master": {"axis": rig.axes[i_m].name, "pi": master_pi.to_dict()},
             "slave": {
@@ -148,7 +145,7 @@ def tune_rig(
             "pi_targets": targets,
         },
         provenance={
-            "rig_sha256": file_sha256(rig_path),
+            "rig_sha256": rig_sha256,
             "rule_base": rule_base,
             "seed": seed,
             "tool": "servotune",

@@ -634,15 +634,7 @@ def _edge_tuning(bits: int, dac: Dac) -> tuple[Tuning, Rig]:
             for i in range(3)
         ),
     )
-    tuning = Tuning(
-        rig_name=rig.name,
-        rig_sha256="0" * 64,
-        period_s=rig.period_s,
-        timer_divisor=rig.timer.divisor,
-        axis_names=rig.axis_names,
-        roles=tuple(a.role for a in rig.axes),
-        controllers=ctls,
-    )
+    tuning = Tuning.for_rig(rig, ctls, rig_sha256="0" * 64)
     return tuning, rig
 
 
