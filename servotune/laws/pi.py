@@ -122,9 +122,7 @@ def pi_step(
     p_term = align(kp_q * ec, F_U - kp_f)
     d_i = align(kit_q * ec, F_U - kit_f)
     if _below_2_60(p_term) and _below_2_60(d_i) and _below_2_60(integ) and _below_2_60(u_add):
-        # the common case (e.g. |I| <= 2**43 on a 12-bit D/A): no sum of these four terms
-        # reaches 2**62, so every saturating add equals a plain add and the plain adds give the
-        # same integers (tests/laws/test_pi.py checks both paths against an exact model)
+        # plain adds, the same integers (Notes; tests/laws/test_pi.py checks both paths)
         return _pi_core(_add, p_term, d_i, integ, u_add, zero, code_max)
     return _pi_core(sat_add, p_term, d_i, integ, u_add, zero, code_max)
 
