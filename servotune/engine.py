@@ -31,6 +31,7 @@ try:  # numba internals, used only by the lean kernel's intrinsics (see _try_lea
 except ImportError:  # pragma: no cover - such a numba runs every batch in the general kernel
     cgutils = make_array = populate_array = None
 
+from servotune.budget import check_memory
 from servotune.errors import SimulationError
 from servotune.laws.axis import (
     FLAG_SATURATED,
@@ -428,6 +429,11 @@ def run_batch(
     n, n_ax = batch.n_candidates, len(loop.rig.axes)
     nt = inputs.n_ticks
     rec = 0 if metrics_only else nt
+    check_memory(  # before allocating the traces: 6 int64 and 3 float64 per tick and axis
+        n * rec * n_ax * 72,
+        f"simulating {n} candidate{'s' if n != 1 else ''} over {nt:,} ticks",
+        f"{n} × {rec:,} ticks × {n_ax} axes × 72 bytes",
+    )
     out_i = np.zeros((6, n, rec, n_ax), dtype=np.int64)
     out_f = np.zeros((3, n, rec, n_ax))
     metrics = np.zeros((n, n_ax, _NM))

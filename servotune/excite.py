@@ -18,8 +18,8 @@ into engine inputs, open loop or with the lock module active.
 
 from __future__ import annotations
 
-import csv
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -27,12 +27,14 @@ from typing import Any
 import numpy as np
 from scipy import signal
 
+from servotune.budget import check_memory, format_count
 from servotune.errors import LogFormatError, SpecError
 from servotune.fixed import round_half_away
 from servotune.laws.axis import MODE_LOCK, MODE_OPEN
-from servotune.logs import atomic_write_text, format_log
+from servotune.logs import MAX_NUMBER_CHARS, Table, atomic_write_text, format_log, read_table
 from servotune.rig import Axis, Rig
 from servotune.scenarios import Inputs, prbs_codes, step_codes
+from servotune.validate import show_value
 
 __all__ = [
     "KINDS",
@@ -61,6 +63,7 @@ _MULTISINE_F_LO_HZ = 0.2
 _MULTISINE_F_HI_NYQ = 0.4
 _STEP_LEVEL_S = 0.25  # step level duration, as the ``steps`` scenario
 _STEP_LEVEL_TAUS = 8.0  # ... but at least this many time constants, to settle
+_DESIGN_BYTES_PER_TICK = 512  # patterns, predictions, candidate codes and the file's text
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -410,6 +413,11 @@ def design_excitation(
     if not (isinstance(seconds, int | float) and math.isfinite(seconds) and seconds > 0):
         raise SpecError(f"seconds must be > 0 [s], got {seconds!r}")
     period = rig.period_s
+    check_memory(
+        seconds / period * _DESIGN_BYTES_PER_TICK,
+        f"an excitation of {seconds:g} s",
+        f"{format_count(seconds / period)} ticks × {_DESIGN_BYTES_PER_TICK} bytes",
+    )
     n = math.floor(seconds / period + 0.5)
     if n < MIN_TICKS:
         raise SpecError(
@@ -602,49 +610,41 @@ def read_excitation(path: str | Path, rig: Rig) -> tuple[str, np.ndarray]:
         with the rig, fewer than 10 rows.
     """
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise LogFormatError(f"excitation file {str(p)!r} does not exist") from None
-    except OSError as exc:
-        raise LogFormatError(f"cannot read excitation file {str(p)!r}: {exc.strerror}") from None
-    except UnicodeDecodeError:
-        raise LogFormatError(f"excitation file {str(p)!r} is not UTF-8 text") from None
-    lines = text.splitlines()
-    meta: dict[str, str] = {}
-    i = 0
-    while i < len(lines) and (lines[i].startswith("#") or not lines[i].strip()):
-        body = lines[i][1:].strip() if lines[i].startswith("#") else ""
-        if ":" in body:
-            k, v = body.split(":", 1)
-            meta[k.strip()] = v.strip()
-        i += 1
-    if i >= len(lines):
-        raise LogFormatError(f"excitation file {str(p)!r} has no header row")
-    header_line = i + 1  # 1-based line numbers in messages
-    header = [h.strip() for h in next(csv.reader([lines[i]]))]
+    src = str(p)
+    what = "excitation file"
 
-    code_cols = [j for j, h in enumerate(header) if h.rpartition(".")[2] == "dac_code"]
-    for h in header:
-        if h not in ("tick", "time_s") and h.rpartition(".")[2] != "dac_code":
+    def check_header(header: list[str], header_line: int) -> None:
+        for h in header:
+            if h not in ("tick", "time_s") and h.rpartition(".")[2] != "dac_code":
+                raise LogFormatError(
+                    f"unexpected column {h!r} (line {header_line}); an excitation has only "
+                    "tick, time_s and one <axis>.dac_code"
+                )
+        code_cols = [h for h in header if h.rpartition(".")[2] == "dac_code"]
+        if not code_cols:
+            raise LogFormatError(f"no <axis>.dac_code column in the header (line {header_line})")
+        if len(code_cols) > 1:
             raise LogFormatError(
-                f"unexpected column {h!r} (line {header_line}); an excitation has only "
-                "tick, time_s and one <axis>.dac_code"
+                f"more than one dac_code column ({', '.join(code_cols)}); an excitation drives "
+                "one axis"
             )
-    if len(set(header)) != len(header):
-        dup = next(h for h in header if header.count(h) > 1)
-        raise LogFormatError(f"duplicate column {dup!r} (line {header_line})")
-    if not code_cols:
-        raise LogFormatError(f"no <axis>.dac_code column in the header (line {header_line})")
-    if len(code_cols) > 1:
-        raise LogFormatError(
-            f"more than one dac_code column ({', '.join(header[j] for j in code_cols)}); "
-            "an excitation drives one axis"
-        )
-    if "tick" not in header and "time_s" not in header:
-        raise LogFormatError(f"the excitation needs a tick or time_s column (line {header_line})")
-    code_j = code_cols[0]
-    axis = header[code_j].rpartition(".")[0]
+        if "tick" not in header and "time_s" not in header:
+            raise LogFormatError(
+                f"the excitation needs a tick or time_s column (line {header_line})"
+            )
+
+    table = read_table(p, what=what, check_header=check_header)
+    try:
+        return _excitation_codes(table, rig)
+    except LogFormatError as exc:
+        raise LogFormatError(f"{what} {src!r}: {exc}") from None
+
+
+def _excitation_codes(table: Table, rig: Rig) -> tuple[str, np.ndarray]:
+    """The axis and codes of a parsed excitation file, checked against the rig."""
+    header, meta, rows = table.header, table.metadata, table.row_lines
+    code_name = next(h for h in header if h.rpartition(".")[2] == "dac_code")
+    axis = code_name.rpartition(".")[0]
     if not axis:
         if len(rig.axes) != 1:
             raise LogFormatError(
@@ -654,84 +654,48 @@ def read_excitation(path: str | Path, rig: Rig) -> tuple[str, np.ndarray]:
         axis = rig.axes[0].name
     if axis not in rig.axis_names:
         raise LogFormatError(
-            f"column {header[code_j]!r}: no axis {axis!r} in rig {rig.name!r} "
+            f"column {code_name!r}: no axis {axis!r} in rig {rig.name!r} "
             f"(axes: {list(rig.axis_names)})"
         )
     if "axis" in meta and meta["axis"] != axis:
-        raise LogFormatError(
-            f"metadata axis {meta['axis']!r} disagrees with column {header[code_j]!r}"
-        )
+        raise LogFormatError(f"metadata axis {meta['axis']!r} disagrees with column {code_name!r}")
     _check_dac_meta(meta, rig)
+    if table.n_rows < MIN_TICKS:
+        raise LogFormatError(f"{table.n_rows} rows; need at least {MIN_TICKS}")
 
-    rows: list[tuple[int, list[str]]] = []
-    for ln, line in enumerate(lines[i + 1 :], start=header_line + 1):
-        if not line.strip():
-            continue
-        fields_ = next(csv.reader([line]))
-        if len(fields_) != len(header):
-            raise LogFormatError(
-                f"line {ln} has {len(fields_)} fields, the header has {len(header)}"
-            )
-        rows.append((ln, [f.strip() for f in fields_]))
-    if len(rows) < MIN_TICKS:
-        raise LogFormatError(
-            f"excitation file {str(p)!r} has {len(rows)} rows; need at least {MIN_TICKS}"
-        )
-
-    def ints(j: int) -> np.ndarray:
-        out = np.empty(len(rows), dtype=np.int64)
-        for r, (ln, f) in enumerate(rows):
-            s = f[j]
-            if not s.lstrip("+-").isdigit():
-                raise LogFormatError(f"column {header[j]!r} line {ln}: {s!r} is not an integer")
-            out[r] = int(s)
-        return out
-
-    codes = ints(code_j)
+    codes = table.columns[code_name]
     bad = (codes < 0) | (codes > rig.dac.code_max)
     if bad.any():
         r = int(np.argmax(bad))
         raise LogFormatError(
-            f"column {header[code_j]!r} line {rows[r][0]}: code {int(codes[r])} outside the "
-            f"D/A range 0..{rig.dac.code_max}"
+            f"row {rows[r]}, column {code_name!r}: code {int(codes[r])} outside the D/A range "
+            f"0..{rig.dac.code_max}"
         )
     if "tick" in header:
-        ticks = ints(header.index("tick"))
+        ticks = table.columns["tick"]
         jump = np.diff(ticks) != 1
         if jump.any():
             r = int(np.argmax(jump)) + 1
-            raise LogFormatError(f"column 'tick' line {rows[r][0]}: ticks must step by 1")
+            raise LogFormatError(
+                f"row {rows[r]}, column 'tick': {ticks[r]} after {ticks[r - 1]}; ticks must step "
+                "by 1"
+            )
     checked = False
     if "time_s" in header:
-        j = header.index("time_s")
-        t = np.empty(len(rows))
-        for r, (ln, f) in enumerate(rows):
-            try:
-                t[r] = float(f[j])
-            except ValueError:
-                raise LogFormatError(
-                    f"column 'time_s' line {ln}: {f[j]!r} is not a number"
-                ) from None
-            if not math.isfinite(t[r]):
-                raise LogFormatError(f"column 'time_s' line {ln}: {f[j]!r} is not finite")
+        t = table.columns["time_s"]
         dt = np.diff(t)
         med = float(np.median(dt))
         off = ~(np.abs(dt - med) <= _PERIOD_RTOL * abs(med))
         if not med > 0 or off.any():
             r = int(np.argmax(off)) + 1 if off.any() else 1
             raise LogFormatError(
-                f"column 'time_s' line {rows[r][0]}: irregular or non-increasing time "
-                f"(interval {dt[r - 1]!r} s vs median {med!r} s)"
+                f"row {rows[r]}, column 'time_s': irregular or non-increasing time "
+                f"(interval {float(dt[r - 1])!r} s vs median {med!r} s)"
             )
         _check_period(med, rig, "the file's time_s", LogFormatError)
         checked = True
     if "period_s" in meta:
-        try:
-            p_meta = float(meta["period_s"])
-        except ValueError:
-            raise LogFormatError(
-                f"metadata period_s must be a number, got {meta['period_s']!r}"
-            ) from None
+        p_meta = _meta_number(meta, "period_s")
         _check_period(p_meta, rig, "the file's metadata", LogFormatError)
         checked = True
     if not checked:
@@ -742,24 +706,44 @@ def read_excitation(path: str | Path, rig: Rig) -> tuple[str, np.ndarray]:
     return axis, codes
 
 
+def _meta_number(meta: dict[str, str], key: str) -> float:
+    """A finite number from metadata (at most 64 characters), else a LogFormatError."""
+    text = meta[key]
+    try:
+        if len(text) > MAX_NUMBER_CHARS or "_" in text:
+            raise ValueError
+        v = float(text)
+        if not math.isfinite(v):
+            raise ValueError
+    except ValueError:
+        raise LogFormatError(
+            f"metadata {key} must be a finite number, got {show_value(text)}"
+        ) from None
+    return v
+
+
 def _check_dac_meta(meta: dict[str, str], rig: Rig) -> None:
     if "dac_bits" in meta:
-        try:
-            bits = int(meta["dac_bits"])
-        except ValueError:
+        text = meta["dac_bits"]
+        if len(text) > MAX_NUMBER_CHARS or not re.fullmatch(r"[+-]?[0-9]+", text):
             raise LogFormatError(
-                f"metadata dac_bits must be an integer, got {meta['dac_bits']!r}"
-            ) from None
+                f"metadata dac_bits must be an integer [bits], got {show_value(text)}"
+            )
+        bits = int(text)
         if bits != rig.dac.bits:
             raise LogFormatError(
                 f"metadata dac_bits {bits} disagrees with rig {rig.name!r} ({rig.dac.bits} bits)"
             )
     if "dac_range_v" in meta:
+        parts = meta["dac_range_v"].split(",")
         try:
-            lo, hi = (float(x) for x in meta["dac_range_v"].split(","))
-        except ValueError:
+            if len(parts) != 2:
+                raise ValueError
+            lo, hi = (_meta_number({"x": x.strip()}, "x") for x in parts)
+        except (ValueError, LogFormatError):
             raise LogFormatError(
-                f"metadata dac_range_v must be 'low,high', got {meta['dac_range_v']!r}"
+                f"metadata dac_range_v must be 'low,high' in volts, got "
+                f"{show_value(meta['dac_range_v'])}"
             ) from None
         r_lo, r_hi = rig.dac.range_v
         if not (math.isclose(lo, r_lo, abs_tol=1e-9) and math.isclose(hi, r_hi, abs_tol=1e-9)):

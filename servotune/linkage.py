@@ -66,6 +66,7 @@ from typing import Any
 import numba as nb
 import numpy as np
 
+from servotune.budget import check_memory, format_count
 from servotune.errors import ConfigError, RigError
 from servotune.hw import counter as hw_counter
 from servotune.laws.axis import (
@@ -81,9 +82,9 @@ from servotune.laws.axis import (
 from servotune.laws.pi import PIGains
 from servotune.logs import json_float, read_toml
 from servotune.plant import Plant, advance
-from servotune.rig import Rig, build_section, load_rig
+from servotune.rig import MAX_LOCK_GAIN, Rig, build_section, check_plant, load_rig
 from servotune.tune.pi import DEFAULT_TARGETS
-from servotune.validate import check_integer, check_number, is_number
+from servotune.validate import check_integer, check_number, is_number, show_value
 
 __all__ = [
     "SCHEMA",
@@ -141,12 +142,18 @@ class LinkageCheckError(ConfigError):
 # --- validation helpers --------------------------------------------------------------------
 
 
-def _number(name: str, v: object, unit: str, *, lo: float, strict: bool = True) -> None:
-    check_number(name, v, unit, lo=lo, strict=strict, error=ConfigError)
-
-
-def _integer(name: str, v: object, unit: str, *, lo: int) -> None:
-    check_integer(name, v, unit, lo=lo, error=ConfigError)
+# Bounds of the configuration's fields (a typo must not size the simulation's arrays); the
+# checks are servotune.validate's, raising ConfigError.
+MAX_COUNTS = 1e12
+"""Largest position, centre or distance magnitude [counts]."""
+MAX_FEED_CPS = 1e9
+"""Largest feed [counts/s]; accelerations up to 1e12 counts/s²."""
+MAX_SECONDS = 3600.0
+"""Longest dwell, settle or resync interval [s]."""
+MAX_GAIN = 1e6
+"""Largest PI gain [codes/count, codes/(count·s)]."""
+_TICK_BYTES_PER_AXIS = 64  # commands, path, noise, actual, error, contour per tick and axis
+_TICK_BYTES = 64  # queue traces, move index per tick (and CPU)
 
 
 # --- configuration -------------------------------------------------------------------------
@@ -184,18 +191,19 @@ class Bus:
     prefill_blocks: int = 1
 
     def __post_init__(self) -> None:
-        _number("baud", self.baud, "bits/s", lo=0.0)
-        _integer("block_size", self.block_size, "setpoints", lo=1)
-        _integer("bytes_per_setpoint", self.bytes_per_setpoint, "bytes", lo=1)
-        _integer("frame_overhead_bytes", self.frame_overhead_bytes, "bytes", lo=0)
-        _integer("bits_per_byte", self.bits_per_byte, "bits", lo=8)
-        _number("max_utilisation", self.max_utilisation, "-", lo=0.0)
-        if self.max_utilisation > 1.0:
-            raise ConfigError(
-                f"max_utilisation must be <= 1 (a frame cannot outlast its period) [-], "
-                f"got {self.max_utilisation!r}"
-            )
-        _integer("prefill_blocks", self.prefill_blocks, "blocks", lo=0)
+        check_number("baud", self.baud, "bits/s", strict=True, hi=1e9, error=ConfigError)
+        check_integer("block_size", self.block_size, "setpoints", lo=1, hi=10_000,
+                      error=ConfigError)  # fmt: skip
+        check_integer("bytes_per_setpoint", self.bytes_per_setpoint, "bytes", lo=1, hi=64,
+                      error=ConfigError)  # fmt: skip
+        check_integer("frame_overhead_bytes", self.frame_overhead_bytes, "bytes", hi=65_536,
+                      error=ConfigError)  # fmt: skip
+        check_integer("bits_per_byte", self.bits_per_byte, "bits", lo=8, hi=16, error=ConfigError)
+        # <= 1: a frame cannot outlast its period
+        check_number("max_utilisation", self.max_utilisation, "-", strict=True, hi=1.0,
+                     error=ConfigError)  # fmt: skip
+        check_integer("prefill_blocks", self.prefill_blocks, "blocks", hi=10_000,
+                      error=ConfigError)  # fmt: skip
 
     def frame_bytes(self, n_axes: int) -> int:
         """Bytes of one block frame for ``n_axes`` axes [bytes]."""
@@ -220,7 +228,8 @@ class Clock:
     resync_interval_s: float = 0.0
 
     def __post_init__(self) -> None:
-        _number("resync_interval_s", self.resync_interval_s, "s", lo=0.0, strict=False)
+        check_number("resync_interval_s", self.resync_interval_s, "s", hi=MAX_SECONDS,
+                     error=ConfigError)  # fmt: skip
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -258,12 +267,10 @@ class SlaveCpu:
             )
         if len(set(self.axes)) != len(self.axes):
             raise ConfigError(f"axes must not repeat an axis, got {list(self.axes)!r}")
-        _integer("queue_depth", self.queue_depth, "setpoints", lo=1)
-        _number("clock_ppm", self.clock_ppm, "ppm", lo=-math.inf)
-        if abs(self.clock_ppm) > MAX_CLOCK_PPM:
-            raise ConfigError(
-                f"clock_ppm must be within ±{MAX_CLOCK_PPM:g} [ppm], got {self.clock_ppm!r}"
-            )
+        check_integer("queue_depth", self.queue_depth, "setpoints", lo=1, hi=1_000_000,
+                      error=ConfigError)  # fmt: skip
+        check_number("clock_ppm", self.clock_ppm, "ppm", lo=-MAX_CLOCK_PPM, hi=MAX_CLOCK_PPM,
+                     error=ConfigError)  # fmt: skip
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -303,12 +310,14 @@ class LinkageAxis:
                 f"kp={self.kp!r}, ki={self.ki!r}"
             )
         if self.kp is not None:
-            _number("kp", self.kp, "codes/count", lo=0.0, strict=False)
-            _number("ki", self.ki, "codes/(count·s)", lo=0.0, strict=False)
-        _number("lock_gain_codes_per_count", self.lock_gain_codes_per_count, "codes/count", lo=0)
-        _integer("following_error_limit_counts", self.following_error_limit_counts, "counts",
-                 lo=0)  # fmt: skip
-        _integer("counter_init", self.counter_init, "counts", lo=0)
+            check_number("kp", self.kp, "codes/count", hi=MAX_GAIN, error=ConfigError)
+            check_number("ki", self.ki, "codes/(count·s)", hi=MAX_GAIN, error=ConfigError)
+        check_number("lock_gain_codes_per_count", self.lock_gain_codes_per_count, "codes/count",
+                     strict=True, hi=MAX_LOCK_GAIN, error=ConfigError)  # fmt: skip
+        check_integer("following_error_limit_counts", self.following_error_limit_counts,
+                      "counts", hi=2**31 - 1, error=ConfigError)  # fmt: skip
+        check_integer("counter_init", self.counter_init, "counts", hi=2**32 - 1,
+                      error=ConfigError)  # fmt: skip
 
     @property
     def gains(self) -> PIGains | None:
@@ -363,7 +372,8 @@ class Move:
         if self.kind not in ("line", "arc", "dwell"):
             raise ConfigError(f"kind must be 'line', 'arc' or 'dwell', got {self.kind!r}")
         if self.kind == "dwell":
-            _number("dwell_s", self.dwell_s, "s", lo=0.0)
+            check_number("dwell_s", self.dwell_s, "s", strict=True, hi=MAX_SECONDS,
+                         error=ConfigError)  # fmt: skip
             for k in ("feed_cps", "plane", "centre", "angle_deg"):
                 if getattr(self, k) is not None:
                     raise ConfigError(f"{k} is not for a dwell; a dwell takes kind, dwell_s")
@@ -372,12 +382,12 @@ class Move:
             return
         if self.dwell_s is not None:
             raise ConfigError(f"dwell_s is for dwells only, got it on a {self.kind}")
-        _number("feed_cps", self.feed_cps, "counts/s", lo=0.0)
+        check_number("feed_cps", self.feed_cps, "counts/s", strict=True, hi=MAX_FEED_CPS,
+                     error=ConfigError)  # fmt: skip
         if not isinstance(self.to, Mapping):
             raise ConfigError(f"to must be a table of axis = position [counts], got {self.to!r}")
         for k, v in self.to.items():
-            if not is_number(v) or not math.isfinite(v):
-                raise ConfigError(f"to.{k} must be a finite number [counts], got {v!r}")
+            check_number(f"to.{k}", v, "counts", lo=-MAX_COUNTS, hi=MAX_COUNTS, error=ConfigError)
         if self.kind == "line":
             if not self.to:
                 raise ConfigError("to must name at least one axis target for a line [counts]")
@@ -395,9 +405,12 @@ class Move:
         if (
             not isinstance(self.centre, tuple)
             or len(self.centre) != 2
-            or not all(is_number(c) and math.isfinite(c) for c in self.centre)
+            or not all(is_number(c) and abs(c) <= MAX_COUNTS for c in self.centre)  # NaN fails too
         ):
-            raise ConfigError(f"centre must be [first, second] in counts, got {self.centre!r}")
+            raise ConfigError(
+                f"centre must be [first, second], each within ±1e12 [counts], got "
+                f"{show_value(self.centre)}"
+            )
         if self.direction not in ("ccw", "cw"):
             raise ConfigError(f"direction must be 'ccw' or 'cw', got {self.direction!r}")
         in_to = [a in self.to for a in self.plane]
@@ -412,9 +425,8 @@ class Move:
                 "and not neither"
             )
         if self.angle_deg is not None:
-            _number("angle_deg", self.angle_deg, "deg", lo=0.0)
-            if self.angle_deg > 3600.0:
-                raise ConfigError(f"angle_deg must be <= 3600 [deg], got {self.angle_deg!r}")
+            check_number("angle_deg", self.angle_deg, "deg", strict=True, hi=3600.0,
+                         error=ConfigError)  # fmt: skip
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -438,8 +450,10 @@ class Toolpath:
     moves: tuple[Move, ...]
 
     def __post_init__(self) -> None:
-        _number("max_feed_cps", self.max_feed_cps, "counts/s", lo=0.0)
-        _number("max_accel_cps2", self.max_accel_cps2, "counts/s²", lo=0.0)
+        check_number("max_feed_cps", self.max_feed_cps, "counts/s", strict=True,
+                     hi=MAX_FEED_CPS, error=ConfigError)  # fmt: skip
+        check_number("max_accel_cps2", self.max_accel_cps2, "counts/s²", strict=True,
+                     hi=1e3 * MAX_FEED_CPS, error=ConfigError)  # fmt: skip
         if not self.moves:
             raise ConfigError("move: the path needs at least one [[path.move]]")
 
@@ -486,8 +500,8 @@ class LinkageConfig:
     description: str = ""
 
     def __post_init__(self) -> None:
-        _number("period_s", self.period_s, "s", lo=0.0)
-        _number("settle_s", self.settle_s, "s", lo=0.0, strict=False)
+        check_number("period_s", self.period_s, "s", lo=1e-6, hi=1.0, error=ConfigError)
+        check_number("settle_s", self.settle_s, "s", hi=MAX_SECONDS, error=ConfigError)
         compute_s = self.rig.timer.compute_s
         if compute_s >= self.period_s:
             raise ConfigError(
@@ -606,7 +620,7 @@ def linkage_from_dict(
         raise ConfigError(f"unknown key {unknown[0]} (allowed: {', '.join(_TOP_KEYS)})")
     rig_ref = data.get("rig")
     if not isinstance(rig_ref, str) or not rig_ref:
-        raise ConfigError(f"rig must be the path of a rig file (TOML), got {rig_ref!r}")
+        raise ConfigError(f"rig must be the path of a rig file (TOML), got {show_value(rig_ref)}")
     try:
         rig = load_rig(Path(base_dir) / rig_ref)
     except RigError as exc:
@@ -630,6 +644,7 @@ def linkage_from_dict(
         if not isinstance(pt, Mapping):
             raise ConfigError(f"missing table [axis.{name}.plant]")
         plant = build_section(Plant, pt, f"axis.{name}.plant", ConfigError)
+        check_plant(plant, f"axis.{name}.plant", rig.dac.range_v, error=ConfigError)
         axes.append(
             build_section(LinkageAxis, at, f"axis.{name}", ConfigError, name=name, plant=plant)
         )
@@ -651,7 +666,7 @@ def linkage_from_dict(
         raise ConfigError("missing key period_s (the nominal sampling period [s])")
     for key in ("name", "description"):
         if key in data and not isinstance(data[key], str):
-            raise ConfigError(f"{key} must be a string, got {data[key]!r}")
+            raise ConfigError(f"{key} must be a string, got {show_value(data[key])}")
     return LinkageConfig(
         name=str(data.get("name", default_name)),
         description=str(data.get("description", "")),
@@ -735,7 +750,11 @@ def load_linkage(path: str | Path) -> LinkageConfig:
         If the file (or its rig file) cannot be read, is not TOML, or any field is invalid.
     """
     p = Path(path)
-    return linkage_from_dict(read_toml(p, ConfigError, "linkage config"), p.parent, p.stem)
+    data = read_toml(p, ConfigError, "linkage config")
+    try:
+        return linkage_from_dict(data, p.parent, p.stem)
+    except ConfigError as exc:
+        raise ConfigError(f"linkage config {str(p)!r}: {exc}") from None
 
 
 # --- interpolation (the master, ahead of time) ---------------------------------------------
@@ -849,6 +868,17 @@ def _trapezoid(
     return np.clip(np.where(t >= dur, length, s), 0.0, length), dur, t_a, t_c
 
 
+def _check_ticks(config: LinkageConfig, ticks: float, where: str) -> None:
+    """Refuse a path whose interpolation up to ``where`` (``ticks`` long) exceeds the budget."""
+    n_ax = config.n_axes
+    per_tick = n_ax * _TICK_BYTES_PER_AXIS + _TICK_BYTES
+    check_memory(
+        ticks * per_tick,
+        f"linkage {config.name!r}: interpolating the path up to {where}",
+        f"{format_count(ticks)} ticks of {config.period_s:g} s × {per_tick} bytes",
+    )
+
+
 def interpolate(config: LinkageConfig) -> Interpolation:
     """Interpolate the path, as the master does before motion.
 
@@ -901,6 +931,7 @@ def interpolate(config: LinkageConfig) -> Interpolation:
         where = f"path.move[{m}]"
         if mv.kind == "dwell":
             assert mv.dwell_s is not None
+            _check_ticks(config, tick + mv.dwell_s / period, where)
             n = max(1, round(mv.dwell_s / period))
             rows.append(np.repeat(pos[None, :], n, axis=0))
             move_of.append(np.full(n, m, dtype=np.int64))
@@ -960,7 +991,9 @@ def interpolate(config: LinkageConfig) -> Interpolation:
             move_axes[m, [i, j]] = True
         if length <= 0.0:
             raise ConfigError(f"{where}: the move does not move any axis (length 0 counts)")
-        _, dur, t_a, t_c = _trapezoid(length, feed, accel, np.zeros(1))
+        with np.errstate(over="ignore", invalid="ignore"):  # an absurd move: refused below
+            _, dur, t_a, t_c = _trapezoid(length, feed, accel, np.zeros(1))
+        _check_ticks(config, tick + dur / period, where)
         n = max(1, math.ceil(dur / period - 1e-9))
         t = np.arange(1, n + 1, dtype=np.int64) * period
         s, *_ = _trapezoid(length, feed, accel, t)
@@ -1897,8 +1930,15 @@ def run_linkage(
         raise LinkageCheckError(failed)
     if seconds is None:
         seconds = ip.duration_s + config.settle_s
-    _number("seconds", seconds, "s", lo=0.0)
-    n_ticks = max(1, round(seconds / period))
+    check_number("seconds", seconds, "s", strict=True, hi=1e6, error=ConfigError)
+    per_tick = config.n_axes * _TICK_BYTES_PER_AXIS + len(config.cpus) * 3 * 8 + _TICK_BYTES
+    ticks_f = seconds / period
+    check_memory(
+        ticks_f * per_tick,
+        f"linkage {config.name!r}: simulating {seconds:g} s",
+        f"{format_count(ticks_f)} ticks × {per_tick} bytes",
+    )
+    n_ticks = max(1, round(ticks_f))
     if resync := config.clock.resync_interval_s:
         resync_ticks = max(1, round(resync / period))
     else:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import difflib
+import errno
 import io
 import json
 import math
@@ -32,19 +33,36 @@ from typing import Any
 
 import numpy as np
 
+from servotune.budget import check_memory, format_bytes
 from servotune.errors import LogFormatError
 from servotune.hw import counter as hw_counter
 from servotune.hw import dac as hw_dac
 from servotune.laws.axis import MODE_NAMES
 
 __all__ = [
+    "MAX_METADATA_CHARS",
+    "MAX_NAME_CHARS",
+    "MAX_NESTING",
+    "MAX_NUMBER_CHARS",
+    "MAX_STRING_CHARS",
+    "MAX_TEXT_FILE_BYTES",
+    "METADATA_KEYS",
     "MIN_ROWS",
+    "PERIOD_RANGE_S",
     "AxisLog",
     "Log",
+    "LogMetadataWarning",
+    "Table",
+    "atomic_write_bytes",
     "atomic_write_text",
     "format_log",
+    "parse_json",
+    "parse_toml",
+    "read_json",
     "read_log",
     "read_metadata",
+    "read_table",
+    "read_toml",
     "write_log",
 ]
 
@@ -217,17 +235,23 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
     target = Path(path)
     d = target.parent if str(target.parent) else Path(".")
     if not d.is_dir():
-        raise FileNotFoundError(f"directory {str(d)!r} does not exist")
+        raise FileNotFoundError(
+            errno.ENOENT, f"cannot write: directory {str(d)!r} does not exist", str(target)
+        )
     try:
         mode: int | None = stat.S_IMODE(target.stat().st_mode)
     except FileNotFoundError:
         mode = None
+    except OSError as exc:
+        raise _target_error(exc, target) from None
     while True:
         tmp = target.with_name(f".{target.name}.{secrets.token_hex(6)}.tmp")
         try:
             fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
         except FileExistsError:
             continue
+        except OSError as exc:  # e.g. the directory is not writable: name the user's file
+            raise _target_error(exc, target) from None
         break
     try:
         with os.fdopen(fd, "wb") as f:
@@ -237,10 +261,20 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
         if mode is not None:
             os.chmod(tmp, mode)
         os.replace(tmp, target)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
+        if isinstance(exc, OSError):
+            raise _target_error(exc, target) from None
         raise
+
+
+def _target_error(exc: OSError, target: Path) -> OSError:
+    """The same kind of OSError, naming the target file instead of the temporary one."""
+    why = exc.strerror or str(exc)
+    if exc.errno is None:
+        return OSError(f"cannot write {str(target)!r}: {why}")
+    return OSError(exc.errno, f"cannot write: {why}", str(target))
 
 
 def json_float(x: float) -> float | None:
@@ -274,47 +308,212 @@ def json_safe(x: Any) -> Any:
     raise TypeError(f"cannot store a {type(x).__name__} as JSON")
 
 
+MAX_TEXT_FILE_BYTES = 64 * 1024**2
+"""Largest JSON or TOML file read [bytes] (64 MiB); larger ones are refused unread."""
+
+MAX_NESTING = 64
+"""Deepest nesting of arrays and tables accepted in a JSON or TOML file."""
+
+MAX_NUMBER_CHARS = 64
+"""Longest number accepted in a file, as text [characters] (a log field, a JSON number)."""
+
+MAX_STRING_CHARS = 1024**2
+"""Longest string accepted in a JSON or TOML file [characters]."""
+
+_BOM = "\ufeff"
+
+
+def _json_number(kind: type) -> Callable[[str], Any]:
+    def parse(text: str) -> Any:
+        if len(text) > MAX_NUMBER_CHARS:
+            raise _JsonLimit(
+                f"a number of {len(text)} characters (at most {MAX_NUMBER_CHARS} are accepted)"
+            )
+        return kind(text)
+
+    return parse
+
+
+class _JsonLimit(Exception):
+    """A bound of :func:`parse_json` was exceeded (the message says which)."""
+
+
+def _json_constant(name: str) -> Any:
+    raise _JsonLimit(f"{name} is not a JSON number (JSON has no NaN or infinity)")
+
+
+def _nesting_depth(text: str) -> int:
+    """Deepest ``[``/``{`` nesting of JSON text (brackets inside strings are not counted)."""
+    if text.count("[") + text.count("{") <= MAX_NESTING:
+        return 0  # cannot be deeper than the bound
+    flat = re.sub(r'"(?:[^"\\]|\\.)*"', '""', text)
+    b = np.frombuffer(flat.encode("utf-8", "replace"), dtype=np.uint8)
+    step = np.zeros(b.shape, dtype=np.int32)
+    step[(b == ord("[")) | (b == ord("{"))] = 1
+    step[(b == ord("]")) | (b == ord("}"))] = -1
+    return int(np.cumsum(step).max(initial=0))
+
+
+def _check_tree(value: Any, src: str, error: type[Exception], what: str) -> None:
+    """Refuse nesting deeper than :data:`MAX_NESTING` and strings longer than
+    :data:`MAX_STRING_CHARS` in a parsed document (iteratively: no recursion)."""
+    stack: list[tuple[Any, int, str]] = [(value, 0, "")]
+    while stack:
+        v, depth, where = stack.pop()
+        if isinstance(v, str):
+            if len(v) > MAX_STRING_CHARS:
+                at = f" at {where}" if where else ""
+                raise error(
+                    f"{what} {src!r}: a string of {len(v)} characters{at} (at most "
+                    f"{MAX_STRING_CHARS} are accepted)"
+                )
+            continue
+        if isinstance(v, Mapping | list | tuple):
+            if depth >= MAX_NESTING:
+                raise error(
+                    f"{what} {src!r}: nested deeper than {MAX_NESTING} levels"
+                    + (f" at {where[:80]}" if where else "")
+                )
+            items = v.items() if isinstance(v, Mapping) else enumerate(v)
+            for k, x in items:
+                if isinstance(k, str) and len(k) > MAX_STRING_CHARS:
+                    raise error(f"{what} {src!r}: a key of {len(k)} characters")
+                key = f"{where}.{k}" if isinstance(k, str) else f"{where}[{k}]"
+                stack.append((x, depth + 1, key.lstrip(".")))
+
+
 def parse_json(text: str, src: str, error: type[Exception]) -> Any:
-    """``json.loads`` with a one-line ``error`` naming ``src`` on malformed text."""
+    """``json.loads`` with a one-line ``error`` naming ``src`` on malformed or unsafe text.
+
+    A leading UTF-8 byte-order mark is ignored. Refused, each in one line: text that is not
+    JSON, ``NaN``/``Infinity``/``-Infinity`` (not JSON numbers), more than
+    :data:`MAX_TEXT_FILE_BYTES` of text, nesting deeper than :data:`MAX_NESTING`, numbers
+    longer than :data:`MAX_NUMBER_CHARS` characters, strings longer than
+    :data:`MAX_STRING_CHARS`.
+    """
+    if text.startswith(_BOM):
+        text = text[1:]
+    if len(text) > MAX_TEXT_FILE_BYTES:
+        raise error(
+            f"{src}: {len(text)} characters of JSON is more than the {MAX_TEXT_FILE_BYTES} accepted"
+        )
+    depth = _nesting_depth(text)
+    if depth > MAX_NESTING:
+        raise error(f"{src}: JSON nested {depth} levels deep (at most {MAX_NESTING} are accepted)")
     try:
-        return json.loads(text)
+        doc = json.loads(
+            text,
+            parse_constant=_json_constant,
+            parse_int=_json_number(int),
+            parse_float=_json_number(float),
+        )
     except json.JSONDecodeError as exc:
         raise error(f"{src}: not JSON ({exc.msg} at line {exc.lineno})") from None
+    except _JsonLimit as exc:
+        raise error(f"{src}: not accepted JSON: {exc}") from None
+    except RecursionError:
+        raise error(f"{src}: JSON nested too deeply (at most {MAX_NESTING} levels)") from None
+    except ValueError as exc:  # e.g. a number beyond a conversion limit
+        raise error(f"{src}: not accepted JSON: {str(exc).splitlines()[0][:120]}") from None
+    _check_tree(doc, src, error, "JSON file")
+    return doc
+
+
+def read_bytes(
+    path: str | Path, error: type[Exception], what: str, missing: str | None = None
+) -> bytes:
+    """The bytes of a text file of at most :data:`MAX_TEXT_FILE_BYTES`, read once; a failure is
+    one line of ``error`` naming ``what`` and the path as given (``missing``: the message for a
+    file that does not exist)."""
+    p = Path(path)
+    try:
+        with open(p, "rb") as fh:
+            size = os.fstat(fh.fileno()).st_size
+            if size > MAX_TEXT_FILE_BYTES:
+                raise error(
+                    f"{what} {str(p)!r} is {size} bytes; at most {MAX_TEXT_FILE_BYTES} "
+                    f"(64 MiB) are read"
+                )
+            raw = fh.read(MAX_TEXT_FILE_BYTES + 1)
+    except FileNotFoundError:
+        if missing is not None:
+            raise error(f"{p}: {missing}") from None
+        raise error(f"cannot read {what} {str(p)!r}: no such file") from None
+    except OSError as exc:
+        raise error(f"cannot read {what} {str(p)!r}: {exc.strerror or exc}") from None
+    if len(raw) > MAX_TEXT_FILE_BYTES:  # grew while being read, or not a regular file
+        raise error(f"{what} {str(p)!r} is larger than {MAX_TEXT_FILE_BYTES} bytes (64 MiB)")
+    return raw
 
 
 def read_json(path: str | Path, error: type[Exception], missing: str = "no such file") -> Any:
     """Read a JSON file; every failure is one line of ``error`` naming the file.
 
-    ``missing`` is the message for a file that does not exist.
+    ``missing`` is the message for a file that does not exist. See :func:`parse_json` for what
+    is refused.
     """
     p = Path(path)
+    raw = read_bytes(p, error, "JSON file", missing)
     try:
-        text = p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise error(f"{p}: {missing}") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise error(f"{p}: cannot read: {exc}") from None
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise error(
+            f"{p}: cannot read: not UTF-8 text ({exc.reason} at byte {exc.start})"
+        ) from None
     return parse_json(text, str(p), error)
 
 
-def read_toml(path: str | Path, error: type[Exception], what: str = "file") -> dict[str, Any]:
-    """Read a TOML file; every failure is one line of ``error`` naming ``what`` and the file."""
+def parse_toml(
+    raw: bytes | str, src: str, error: type[Exception], what: str = "file"
+) -> dict[str, Any]:
+    """Parse TOML bytes or text; every failure is one line of ``error`` naming ``what`` and
+    ``src``.
+
+    A leading UTF-8 byte-order mark is ignored. Refused besides invalid TOML: more than
+    :data:`MAX_TEXT_FILE_BYTES`, nesting deeper than :data:`MAX_NESTING`, integers beyond
+    Python's conversion limit, strings longer than :data:`MAX_STRING_CHARS`.
+    """
     import tomllib
 
+    if len(raw) > MAX_TEXT_FILE_BYTES:
+        raise error(f"{what} {src!r} is larger than {MAX_TEXT_FILE_BYTES} bytes (64 MiB)")
+    try:
+        text = raw.decode("utf-8") if isinstance(raw, bytes) else raw
+    except UnicodeDecodeError as exc:
+        raise error(f"{what} {src!r} is not valid TOML: {exc}") from None
+    if text.startswith(_BOM):
+        text = text[1:]
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise error(f"{what} {src!r} is not valid TOML: {exc}") from None
+    except RecursionError:
+        raise error(
+            f"{what} {src!r} is not accepted TOML: nested too deeply (at most {MAX_NESTING} levels)"
+        ) from None
+    except ValueError as exc:  # e.g. an integer beyond Python's digit limit
+        raise error(
+            f"{what} {src!r} is not accepted TOML: {str(exc).splitlines()[0][:120]}"
+        ) from None
+    _check_tree(data, src, error, what)
+    return data
+
+
+def read_toml(path: str | Path, error: type[Exception], what: str = "file") -> dict[str, Any]:
+    """Read a TOML file; every failure is one line of ``error`` naming ``what`` and the file.
+
+    See :func:`parse_toml` for what is refused.
+    """
     p = Path(path)
-    try:
-        raw = p.read_bytes()
-    except OSError as exc:
-        raise error(f"cannot read {what} {str(p)!r}: {exc.strerror or exc}") from None
-    try:
-        return tomllib.loads(raw.decode("utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise error(f"{what} {str(p)!r} is not valid TOML: {exc}") from None
+    return parse_toml(read_bytes(p, error, what), str(p), error, what)
 
 
 def atomic_write_text(path: str | Path, text: str) -> None:
     """Write UTF-8 text atomically (:func:`atomic_write_bytes`), newlines as given."""
     atomic_write_bytes(path, text.encode("utf-8"))
+
+
+_FORMAT_BYTES_PER_VALUE = 80
 
 
 def format_log(
@@ -336,6 +535,12 @@ def format_log(
         ``# key: value`` lines.
     """
     n = len(next(iter(columns.values())))
+    width = len(columns) + 2
+    check_memory(  # every value is a Python string while the text is built
+        n * width * _FORMAT_BYTES_PER_VALUE,
+        f"formatting a log of {n:,} rows",
+        f"{n:,} rows × {width} columns × {_FORMAT_BYTES_PER_VALUE} bytes",
+    )
     out = io.StringIO()
     for k, v in metadata.items():
         out.write(f"# {k}: {v}\n")
@@ -385,6 +590,35 @@ _INT_RE = re.compile(r"[+-]?[0-9]+")
 _DEFAULT_COUNTER_BITS = 24
 _DEFAULT_DAC_BITS = 12
 _DEFAULT_DAC_RANGE_V = (-10.0, 10.0)
+PERIOD_RANGE_S = (1e-6, 60.0)
+"""Sample periods a log may have [s] (1 µs … 1 min)."""
+
+MAX_METADATA_CHARS = 1024
+"""Longest metadata value (``# key: value``) accepted [characters]."""
+
+MAX_NAME_CHARS = 64
+"""Longest metadata key or header column name accepted [characters]."""
+
+_DAC_RANGE_LIMIT_V = 1000.0  # |low|, |high| of a D/A range [V]
+METADATA_KEYS = frozenset(
+    {
+        # read (settings)
+        "counter_bits", "dac_bits", "dac_range_v", "period_s", "compute_s",
+        # written by servotune (simulate, excite) and declared provenance
+        "rig", "scenario", "axis", "closed_loop", "seed", "servotune_version", "kind",
+        "amplitude_codes", "limited_by", "predicted_max_speed_rpm", "predicted_travel_counts",
+        "machine_id", "date", "description", "operator", "units",
+    }
+)  # fmt: skip
+"""Metadata keys a log may declare; others draw a :class:`LogMetadataWarning` (not an error)."""
+
+_LONG_FIELD_RE = re.compile(rf"[^,\n]{{{MAX_NUMBER_CHARS + 1}}}")
+
+
+class LogMetadataWarning(UserWarning):
+    """A log declares a metadata key servotune does not know (a typo, or someone's note)."""
+
+
 _COLUMNS_HELP = (
     "expected tick and/or time_s, and per axis [axis.]dac_code or cmd_v, counter or pos_counts, "
     "optionally ref_counts and mode"
@@ -398,6 +632,7 @@ def read_log(
     dac_bits: int | None = None,
     dac_range_v: tuple[float, float] | None = None,
     period_s: float | None = None,
+    compute_s: float | None = None,
 ) -> Log:
     """Read and validate a log file (SPEC §5).
 
@@ -424,6 +659,10 @@ def read_log(
     period_s : float, optional
         Sample period [s]. Needed when the log has neither a ``time_s`` column nor ``period_s``
         metadata; when the log has ``time_s`` it must agree with its intervals within 0.1 %.
+        Periods must lie in :data:`PERIOD_RANGE_S` (1 µs … 60 s), whatever their source.
+    compute_s : float, optional
+        Compute time [s] (tick start → D/A write), overriding metadata ``compute_s``; a finite
+        number >= 0 and shorter than the period.
 
     Returns
     -------
@@ -438,7 +677,16 @@ def read_log(
         missing columns, wrong number of fields, text in a number, NaN or inf, a non-integer or
         out-of-range ``dac_code`` or ``counter``, an unknown ``mode``, time not increasing,
         irregular sampling, ``tick`` and ``time_s`` disagreeing, malformed metadata, fewer than
-        :data:`MIN_ROWS` rows; also invalid options.
+        :data:`MIN_ROWS` rows; also invalid options. Bounds: a field of more than
+        :data:`MAX_NUMBER_CHARS` characters, a metadata value of more than
+        :data:`MAX_METADATA_CHARS`, a key or column name of more than :data:`MAX_NAME_CHARS`,
+        a period outside :data:`PERIOD_RANGE_S`, a file whose reading would exceed the memory
+        budget (:mod:`servotune.budget`).
+
+    Warns
+    -----
+    LogMetadataWarning
+        For metadata keys not in :data:`METADATA_KEYS` (they are kept in ``Log.metadata``).
 
     Examples
     --------
@@ -455,6 +703,26 @@ def read_log(
     (0.001, [0, 1, 4], [0.0, 2.002, 2.002])
     """
     src = str(path)
+    try:
+        return _read_log(
+            path, src, counter_bits, dac_bits, dac_range_v, period_s=period_s, compute_s=compute_s
+        )
+    except LogFormatError as exc:
+        if src in str(exc):
+            raise
+        raise LogFormatError(f"log {src!r}: {exc}") from None
+
+
+def _read_log(
+    path: str | Path,
+    src: str,
+    counter_bits: int | None,
+    dac_bits: int | None,
+    dac_range_v: tuple[float, float] | None,
+    *,
+    period_s: float | None,
+    compute_s: float | None,
+) -> Log:
     text = _read_text(Path(path), src)
     meta, meta_line, header_line, header_text, body = _split_text(text, src)
     del text
@@ -471,12 +739,18 @@ def read_log(
     d_bits = setting("dac_bits", dac_bits, _parse_dac_bits, _DEFAULT_DAC_BITS)
     d_range = setting("dac_range_v", dac_range_v, _parse_range, _DEFAULT_DAC_RANGE_V)
     meta_period = _meta_setting("period_s", meta, meta_line, _parse_period)
-    compute_s = _meta_setting("compute_s", meta, meta_line, _parse_compute)
+    meta_compute = _meta_setting("compute_s", meta, meta_line, _parse_compute)
     if period_s is not None:
         period_s = _option("period_s", period_s, _parse_period)
+    if compute_s is not None:
+        compute_s = _option("compute_s", compute_s, _parse_compute)
+    else:
+        compute_s = meta_compute
+    _warn_unknown_metadata(meta, meta_line, src)
 
     if not body or body.isspace():
         raise LogFormatError(f"log {src!r} has a header (line {header_line}) but no data rows")
+    _check_field_lengths(body, header_line, header)
     table, rows = _parse_body(body, header_line, header)
     del body
     n = len(table)
@@ -501,6 +775,21 @@ def read_log(
         meta_source=f"metadata 'period_s' (line {meta_line.get('period_s')})",
         opt_period=period_s,
     )
+    lo_p, hi_p = PERIOD_RANGE_S
+    if not lo_p <= period <= hi_p:
+        raise LogFormatError(
+            f"log {src!r}: the sample period from the time_s column, {period:.6g} s, is outside "
+            f"{lo_p:g} … {hi_p:g} s"
+        )
+    if compute_s is not None and compute_s >= period:
+        where = (
+            "option compute_s"
+            if meta_compute is None or compute_s != meta_compute
+            else (f"metadata 'compute_s' (line {meta_line['compute_s']})")
+        )
+        raise LogFormatError(
+            f"{where} must be shorter than the sample period {period:.6g} s [s], got {compute_s!r}"
+        )
     axes = {
         ax: _axis_log(ax, names, col, rows, counter_bits=bits, dac_bits=d_bits, dac_range_v=d_range)
         for ax, names in axes_cols.items()
@@ -517,11 +806,122 @@ def read_log(
     )
 
 
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Table:
+    """A log-format CSV file (SPEC §5) parsed without the log's column-set rules.
+
+    What :func:`read_table` returns, for files that share the log format but not its columns
+    (the excitation files of :mod:`servotune.excite`).
+
+    Attributes
+    ----------
+    path : str
+    metadata : dict of str to str
+        The ``# key: value`` lines.
+    metadata_lines : dict of str to int
+        The 1-based line of each metadata key.
+    header : list of str
+        Column names.
+    header_line : int
+        1-based line of the header.
+    columns : dict of str to ndarray
+        Per column: int64 (tick, dac_code, counter, pos_counts, ref_counts), float64 (time_s,
+        cmd_v) or text (mode).
+    row_lines : ndarray of int64
+        The 1-based file line of each data row.
+    """
+
+    path: str
+    metadata: dict[str, str]
+    metadata_lines: dict[str, int]
+    header: list[str]
+    header_line: int
+    columns: dict[str, np.ndarray]
+    row_lines: np.ndarray
+
+    @property
+    def n_rows(self) -> int:
+        """Number of data rows."""
+        return int(self.row_lines.shape[0])
+
+
+def read_table(
+    path: str | Path,
+    *,
+    what: str = "log",
+    check_header: Callable[[list[str], int], None] | None = None,
+) -> Table:
+    """Read a log-format CSV file: metadata, header and typed columns, with the log's checks.
+
+    The file checks of :func:`read_log` apply (readable UTF-8 text, no NUL, a byte-order mark
+    ignored, the memory budget, metadata and field lengths), and every data row is parsed as
+    :func:`read_log` parses it (integers in integer columns, finite numbers, the right number
+    of fields); the first bad row is named with its line and column. Which columns a file may
+    have is left to ``check_header``.
+
+    Parameters
+    ----------
+    path : str or Path
+    what : str
+        What the file is, for the messages (``"excitation file"``).
+    check_header : callable, optional
+        Called with the header and its line before the rows are parsed; raises to refuse it.
+        Columns must be log columns (``tick``, ``time_s``, ``[axis.]dac_code``, ...) in any
+        case.
+
+    Returns
+    -------
+    Table
+
+    Raises
+    ------
+    LogFormatError
+        One line naming the file and the first problem.
+    """
+    src = str(path)
+    try:
+        text = _read_text(Path(path), src, what)
+        meta, meta_line, header_line, header_text, body = _split_text(text, src, what)
+        del text
+        header = _parse_header(header_text, header_line)
+        for h in header:
+            if _base(h) not in _KIND:
+                raise LogFormatError(f"line {header_line}: unknown column {h!r}; {_COLUMNS_HELP}")
+        if check_header is not None:
+            check_header(header, header_line)
+        if not body or body.isspace():
+            raise LogFormatError(f"the header (line {header_line}) is followed by no data rows")
+        _check_field_lengths(body, header_line, header)
+        table, rows = _parse_body(body, header_line, header)
+        del body
+        n = len(table)
+        cols = {h: np.ascontiguousarray(table[f"c{j}"]) for j, h in enumerate(header)}
+        for h, a in cols.items():
+            if a.dtype.kind == "f":
+                bad = ~np.isfinite(a)
+                if bad.any():
+                    k = int(np.argmax(bad))
+                    raise LogFormatError(f"row {rows(k)}, column {h!r}: {a[k]} is not finite")
+        lines = np.zeros(0, dtype=np.int64)
+        if n:
+            rows(0)  # works the line numbers out once
+            lines = np.asarray(rows._lines, dtype=np.int64)[:n]
+    except LogFormatError as exc:
+        if src in str(exc):
+            raise
+        raise LogFormatError(f"{what} {src!r}: {exc}") from None
+    return Table(path=src, metadata=meta, metadata_lines=meta_line, header=header,
+                 header_line=header_line, columns=cols, row_lines=lines)  # fmt: skip
+
+
 # --- file, metadata and header ---------------------------------------------------------------
 
 
 def read_metadata(path: str | Path) -> dict[str, str]:
     """The ``# key: value`` lines at the head of a log, without reading the rest.
+
+    Reading stops at the header row, or at a line too long to be metadata (:func:`read_log`
+    refuses such a file with the line named).
 
     Raises
     ------
@@ -533,7 +933,10 @@ def read_metadata(path: str | Path) -> dict[str, str]:
     with _read_errors(src):
         try:
             with open(path, encoding="utf-8-sig", newline=None) as fh:
-                for raw in fh:
+                limit = MAX_METADATA_CHARS + MAX_NAME_CHARS + 16
+                while raw := fh.readline(limit):
+                    if len(raw) >= limit and not raw.endswith("\n"):
+                        break  # an overlong line: read_log names it
                     line = raw.strip()
                     if line and not line.startswith("#"):
                         break
@@ -554,41 +957,53 @@ def _meta_pair(line: str) -> tuple[str, str] | None:
 
 
 @contextlib.contextmanager
-def _read_errors(src: str) -> Iterator[None]:
+def _read_errors(src: str, what: str = "log") -> Iterator[None]:
     """Turn the OS errors of opening a log into one-line LogFormatErrors."""
     try:
         yield
     except FileNotFoundError:
-        raise LogFormatError(f"log file {src!r} does not exist") from None
+        raise LogFormatError(f"{what} file {src!r} does not exist") from None
     except IsADirectoryError:
-        raise LogFormatError(f"log {src!r} is a directory, not a file") from None
+        raise LogFormatError(f"{what} {src!r} is a directory, not a file") from None
     except OSError as exc:
-        raise LogFormatError(f"cannot read log {src!r}: {exc.strerror or exc}") from None
+        raise LogFormatError(f"cannot read {what} {src!r}: {exc.strerror or exc}") from None
 
 
-def _read_text(p: Path, src: str) -> str:
-    with _read_errors(src):
-        data = p.read_bytes()
+_READ_BYTES_PER_BYTE = 4  # the bytes, the text, the row lines, the arrays: about 4x the file
+
+
+def _read_text(p: Path, src: str, what: str = "log") -> str:
+    with _read_errors(src, what):
+        with open(p, "rb") as fh:
+            size = os.fstat(fh.fileno()).st_size
+            check_memory(
+                _READ_BYTES_PER_BYTE * size,
+                f"reading {what} {src!r}",
+                f"{format_bytes(size)} × {_READ_BYTES_PER_BYTE}",
+            )
+            data = fh.read()
     try:
         text = data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         line = data.count(b"\n", 0, exc.start) + 1
         raise LogFormatError(
-            f"log {src!r} is not UTF-8 text (byte 0x{data[exc.start]:02x} at line {line})"
+            f"{what} {src!r} is not UTF-8 text (byte 0x{data[exc.start]:02x} at line {line})"
         ) from None
     nul = text.find("\x00")
     if nul >= 0:
         line = text.count("\n", 0, nul) + 1
-        raise LogFormatError(f"log {src!r} is not a text file (NUL byte at line {line})")
+        raise LogFormatError(f"{what} {src!r} is not a text file (NUL byte at line {line})")
     if "\r" in text:
         text = text.replace("\r\n", "\n").replace("\r", "\n")
     return text
 
 
-def _split_text(text: str, src: str) -> tuple[dict[str, str], dict[str, int], int, str, str]:
+def _split_text(
+    text: str, src: str, what: str = "log"
+) -> tuple[dict[str, str], dict[str, int], int, str, str]:
     """Metadata, their line numbers, the header's line number and text, and the body text."""
     if not text or text.isspace():
-        raise LogFormatError(f"log {src!r} is empty")
+        raise LogFormatError(f"{what} {src!r} is empty (no header row)")
     meta: dict[str, str] = {}
     meta_line: dict[str, int] = {}
     pos, line_no, end_of_text = 0, 0, len(text)
@@ -602,6 +1017,16 @@ def _split_text(text: str, src: str) -> tuple[dict[str, str], dict[str, int], in
         kv = _meta_pair(line)
         if kv is not None:
             key, value = kv
+            if len(key) > MAX_NAME_CHARS or len(value) > MAX_METADATA_CHARS:
+                item, n, most = (
+                    ("key", len(key), MAX_NAME_CHARS)
+                    if len(key) > MAX_NAME_CHARS
+                    else (f"{key!r} value", len(value), MAX_METADATA_CHARS)
+                )
+                raise LogFormatError(
+                    f"{what} {src!r}, line {line_no}: metadata {item} of {n} characters (at most "
+                    f"{most} are accepted)"
+                )
             if key in meta and meta[key] != value:
                 raise LogFormatError(
                     f"line {line_no}: metadata {key!r} given twice with different values "
@@ -610,11 +1035,17 @@ def _split_text(text: str, src: str) -> tuple[dict[str, str], dict[str, int], in
             meta[key] = value
             meta_line[key] = line_no
         pos = end + 1
-    raise LogFormatError(f"log {src!r} has no header row, only metadata or comment lines")
+    raise LogFormatError(f"{what} {src!r} has no header row, only metadata or comment lines")
 
 
 def _parse_header(header_text: str, line: int) -> list[str]:
     names = [h.strip().strip('"').strip() for h in header_text.split(",")]
+    for j, h in enumerate(names):
+        if len(h) > MAX_NAME_CHARS:
+            raise LogFormatError(
+                f"line {line}: header column {j + 1} has a name of {len(h)} characters (at most "
+                f"{MAX_NAME_CHARS} are accepted)"
+            )
     if all(_to_float(h) is not None for h in names):
         raise LogFormatError(
             f"line {line} looks like data, not a header; the first row after the metadata must "
@@ -688,6 +1119,11 @@ def _meta_setting(
 ) -> Any:
     if key not in meta:
         return None
+    if len(meta[key]) > MAX_NUMBER_CHARS:
+        raise LogFormatError(
+            f"line {meta_line[key]}: metadata {key!r} is {len(meta[key])} characters long; a "
+            f"setting has at most {MAX_NUMBER_CHARS}"
+        )
     try:
         return parse(meta[key])
     except ValueError as exc:
@@ -700,6 +1136,10 @@ def _option(key: str, value: Any, parse: Callable[[str], Any]) -> Any:
     text = ",".join(str(v) for v in value) if isinstance(value, tuple | list) else str(value)
     if isinstance(value, bool):
         text = "not a bool"
+    if len(text) > MAX_NUMBER_CHARS:
+        raise LogFormatError(
+            f"option {key} is {len(text)} characters long; a setting has at most {MAX_NUMBER_CHARS}"
+        )
     try:
         return parse(text)
     except ValueError as exc:
@@ -739,28 +1179,30 @@ def _parse_range(s: str) -> tuple[float, float]:
         raise ValueError("'low,high' in volts (e.g. -10,10)")
     lo, hi = parts
     assert lo is not None and hi is not None
-    if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
-        raise ValueError("'low,high' in volts with finite low < high")
+    lim = _DAC_RANGE_LIMIT_V
+    if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi and -lim <= lo and hi <= lim):
+        raise ValueError(f"'low,high' in volts with low < high, each within ±{lim:g} V")
     return (lo, hi)
 
 
 def _parse_period(s: str) -> float:
     v = _to_float(s.strip())
-    if v is None or not (math.isfinite(v) and v > 0):
-        raise ValueError("a number of seconds > 0")
+    lo, hi = PERIOD_RANGE_S
+    if v is None or not (math.isfinite(v) and lo <= v <= hi):
+        raise ValueError(f"a number of seconds > 0, within {lo:g} … {hi:g}")
     return v
 
 
 def _parse_compute(s: str) -> float:
     v = _to_float(s.strip())
     if v is None or not (math.isfinite(v) and v >= 0):
-        raise ValueError("a number of seconds >= 0")
+        raise ValueError("a finite number of seconds >= 0")
     return v
 
 
 def _to_float(s: str) -> float | None:
     """``float(s)``, or None if ``s`` is not a number (digit separators are not numbers)."""
-    if "_" in s:
+    if "_" in s or len(s) > MAX_NUMBER_CHARS:
         return None
     try:
         return float(s)
@@ -786,6 +1228,45 @@ class _RowLines:
             self._lines = np.asarray([k for k, s in enumerate(lines) if s.strip()]) + self._first
             self._body = None
         return int(self._lines[i])
+
+
+def _check_field_lengths(body: str, header_line: int, header: list[str]) -> None:
+    """Refuse a data field longer than :data:`MAX_NUMBER_CHARS` before parsing (one scan)."""
+    m = _LONG_FIELD_RE.search(body)
+    if m is None:
+        return
+    start = body.rfind("\n", 0, m.start()) + 1  # the row's first character
+    field_start = body.rfind(",", start, m.start()) + 1 or start
+    j = body.count(",", start, m.start())
+    stop = len(body)
+    for sep in (",", "\n"):
+        k = body.find(sep, m.end())
+        if k >= 0:
+            stop = min(stop, k)
+    row = header_line + 1 + body.count("\n", 0, start)
+    name = f", column {header[j]!r}" if j < len(header) else ""
+    raise LogFormatError(
+        f"row {row}{name}: a field of {stop - field_start} characters (a field has at most "
+        f"{MAX_NUMBER_CHARS})"
+    )
+
+
+def _warn_unknown_metadata(meta: Mapping[str, str], meta_line: Mapping[str, int], src: str) -> None:
+    unknown = [k for k in meta if k not in METADATA_KEYS]
+    if unknown:
+
+        def near(k: str) -> str:
+            close = difflib.get_close_matches(k, sorted(METADATA_KEYS), n=1)
+            return f", did you mean {close[0]!r}?" if close else ""
+
+        listed = ", ".join(f"{k!r} (line {meta_line[k]}{near(k)})" for k in unknown[:5])
+        more = f" and {len(unknown) - 5} more" if len(unknown) > 5 else ""
+        warnings.warn(
+            f"log {src!r}: unknown metadata {listed}{more}, kept but not used (a typo? see "
+            f"servotune.logs.METADATA_KEYS)",
+            LogMetadataWarning,
+            stacklevel=3,
+        )
 
 
 def _parse_body(body: str, header_line: int, header: list[str]) -> tuple[np.ndarray, _RowLines]:
@@ -876,6 +1357,8 @@ def _field_problem(s: str, kind: str) -> str | None:
     t = s.strip()
     if not t:
         return "empty value" + (" (an integer is expected)" if kind == "int" else "")
+    if len(t) > MAX_NUMBER_CHARS:
+        return f"a field of {len(t)} characters (a number has at most {MAX_NUMBER_CHARS})"
     if kind == "int":
         if _INT_RE.fullmatch(t):
             return None if -(2**63) <= int(t) < 2**63 else f"{t!r} is too large for int64"

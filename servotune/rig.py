@@ -12,7 +12,7 @@ import errno
 import math
 import tomllib
 from collections.abc import Mapping, MutableMapping
-from dataclasses import dataclass, fields
+from dataclasses import MISSING, dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -27,21 +27,53 @@ from servotune.hw import timer as hw_timer
 from servotune.laws.lock import lock_holding_band
 from servotune.logs import atomic_write_bytes
 from servotune.plant import Plant
-from servotune.validate import check_number, is_number
+from servotune.validate import check_integer, check_number, is_number, show_value
 
 __all__ = [
     "EXAMPLE_RIG_PATH",
+    "ROLES",
     "Axis",
     "Counter",
     "Dac",
     "Encoder",
     "Rig",
     "Timer",
+    "check_plant",
     "describe_rig",
     "load_rig",
     "rig_from_dict",
     "write_plant",
 ]
+
+
+ROLES = ("master", "slave")
+"""The roles an axis can have (rig file ``role``, tuning file ``axes[].role``)."""
+
+MAX_CLOCK_HZ = 1e10
+"""Largest timer clock and counter input frequency accepted [Hz]."""
+MAX_READ_SKEW_S = 1e-3
+"""Largest time between two counter byte reads [s]."""
+MAX_DAC_RANGE_V = 1000.0
+"""Largest magnitude of either end of a D/A range [V]."""
+MAX_PULSES = 1e9
+"""Largest encoder resolution [pulses/rev, counts/mm]."""
+MAX_LOCK_GAIN = 65536.0
+"""Largest position-lock gain [codes/count] (a 16-bit D/A's whole span per count)."""
+MAX_SPEED_RPM = 1e6
+MIN_SPEED_LIMIT_RPM = 1e-3  # below: no motion worth a limit (and counts/tick underflow)
+"""Largest speed limit [r/min]."""
+MAX_COUNTS = 2**62
+"""Largest travel or following-error bound [counts] (int64 arithmetic stays exact)."""
+MAX_CHANNEL = 255
+"""Largest card channel number."""
+MAX_PLANT_GAIN = 1e9
+"""Largest plant gain [counts/s/V]."""
+MIN_TAU_S, MAX_TAU_S = 1e-6, 1000.0
+"""Plant time-constant range [s]."""
+MAX_DELAY_S = 1.0
+"""Largest plant dead time [s] (the simulation keeps the pending D/A writes of that long)."""
+MAX_NOISE_COUNTS = 1e6
+"""Largest encoder noise [counts]."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -64,7 +96,7 @@ class Timer:
 
     def __post_init__(self) -> None:
         _positive("timer.period_s", self.period_s, "s")
-        _positive("timer.clock_hz", self.clock_hz, "Hz")
+        _positive("timer.clock_hz", self.clock_hz, "Hz", hi=MAX_CLOCK_HZ)
         _nonneg("timer.compute_s", self.compute_s, "s")
         try:
             d = hw_timer.divisor(self.period_s, self.clock_hz)
@@ -116,12 +148,19 @@ class Counter:
     read_skew_s: float = 2e-6
 
     def __post_init__(self) -> None:
-        if self.bits not in (16, 24, 32):
-            raise RigError(f"counter.bits must be 16, 24 or 32, got {self.bits!r}")
-        if self.multiplier not in hw_counter.MULTIPLIERS:
-            raise RigError(f"counter.multiplier must be 1, 2 or 4, got {self.multiplier!r}")
-        _positive("counter.max_input_hz", self.max_input_hz, "Hz")
-        _nonneg("counter.read_skew_s", self.read_skew_s, "s")
+        if type(self.bits) is not int or self.bits not in (16, 24, 32):
+            raise RigError(
+                f"counter.bits must be the integer 16, 24 or 32 [bits], got {show_value(self.bits)}"
+            )
+        if type(self.multiplier) is not int or self.multiplier not in hw_counter.MULTIPLIERS:
+            raise RigError(
+                f"counter.multiplier must be the integer 1, 2 or 4 [-], got "
+                f"{show_value(self.multiplier)}"
+            )
+        if not isinstance(self.latched, bool):
+            raise RigError(f"counter.latched must be true or false, got {show_value(self.latched)}")
+        _positive("counter.max_input_hz", self.max_input_hz, "Hz", hi=MAX_CLOCK_HZ)
+        _nonneg("counter.read_skew_s", self.read_skew_s, "s", hi=MAX_READ_SKEW_S)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -140,12 +179,18 @@ class Dac:
     range_v: tuple[float, float] = (-10.0, 10.0)
 
     def __post_init__(self) -> None:
-        if not isinstance(self.bits, int) or not 8 <= self.bits <= 16:
-            raise RigError(f"dac.bits must be an integer in 8..16, got {self.bits!r}")
-        lo, hi = self.range_v
-        if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+        check_integer("dac.bits", self.bits, "bits", lo=8, hi=16, error=RigError)
+        r = self.range_v
+        lim = MAX_DAC_RANGE_V
+        if (
+            not isinstance(r, tuple | list)
+            or len(r) != 2
+            or not all(is_number(x) and _finite(x) and abs(x) <= lim for x in r)
+            or not r[0] < r[1]
+        ):
             raise RigError(
-                f"dac.range_v must be [low, high] with low < high [V], got {self.range_v!r}"
+                f"dac.range_v must be [low, high] with low < high, each within ±{lim:g} [V], "
+                f"got {show_value(list(r) if isinstance(r, tuple) else r)}"
             )
         try:
             hw_dac.zero_code(self.bits, self.range_v)
@@ -184,9 +229,9 @@ class Encoder:
     counts_per_mm: float | None = None
 
     def __post_init__(self) -> None:
-        _positive("encoder.pulses_per_rev", self.pulses_per_rev, "pulses/rev")
+        _positive("encoder.pulses_per_rev", self.pulses_per_rev, "pulses/rev", hi=MAX_PULSES)
         if self.counts_per_mm is not None:
-            _positive("encoder.counts_per_mm", self.counts_per_mm, "counts/mm")
+            _positive("encoder.counts_per_mm", self.counts_per_mm, "counts/mm", hi=MAX_PULSES)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -228,31 +273,32 @@ class Axis:
 
     def __post_init__(self) -> None:
         p = f"axis.{self.name}"
-        if self.role not in ("master", "slave"):
-            raise RigError(f"{p}.role must be 'master' or 'slave', got {self.role!r}")
-        _positive(f"{p}.lock_gain_codes_per_count", self.lock_gain_codes_per_count, "codes/count")
-        _positive(f"{p}.speed_limit_rpm", self.speed_limit_rpm, "r/min")
-        if (
-            not isinstance(self.following_error_limit_counts, int)
-            or self.following_error_limit_counts < 0
-        ):
-            raise RigError(
-                f"{p}.following_error_limit_counts must be an integer >= 0 [counts], "
-                f"got {self.following_error_limit_counts!r}"
-            )
+        if self.role not in ROLES:
+            raise RigError(f"{p}.role must be 'master' or 'slave', got {show_value(self.role)}")
+        _positive(f"{p}.lock_gain_codes_per_count", self.lock_gain_codes_per_count,
+                  "codes/count", hi=MAX_LOCK_GAIN)  # fmt: skip
+        check_number(f"{p}.speed_limit_rpm", self.speed_limit_rpm, "r/min",
+                     lo=MIN_SPEED_LIMIT_RPM, hi=MAX_SPEED_RPM, error=RigError)  # fmt: skip
+        check_integer(f"{p}.following_error_limit_counts", self.following_error_limit_counts,
+                      "counts", lo=0, hi=MAX_COUNTS, error=RigError)  # fmt: skip
         if self.travel_counts is not None:
-            lo, hi = self.travel_counts
-            if not lo < 0 < hi:
+            t = self.travel_counts
+            if (
+                not isinstance(t, tuple | list)
+                or len(t) != 2
+                or not all(type(x) is int and abs(x) <= MAX_COUNTS for x in t)
+                or not t[0] < 0 < t[1]
+            ):
+                shown = show_value(list(t) if isinstance(t, tuple) else t)
                 raise RigError(
-                    f"{p}.travel_counts must be [low, high] with low < 0 < high [counts], "
-                    f"got {list(self.travel_counts)!r}"
+                    f"{p}.travel_counts must be [low, high], integers with low < 0 < high, each "
+                    f"within ±2**62 [counts], got {shown}"
                 )
-        if not isinstance(self.counter_init, int) or self.counter_init < 0:
-            raise RigError(f"{p}.counter_init must be an integer >= 0, got {self.counter_init!r}")
+        check_integer(f"{p}.counter_init", self.counter_init, "register value", lo=0,
+                      hi=2**32 - 1, error=RigError)  # fmt: skip
         for ch in ("counter_channel", "dac_channel"):
-            val = getattr(self, ch)
-            if not isinstance(val, int) or val < 0:
-                raise RigError(f"{p}.{ch} must be an integer >= 0, got {val!r}")
+            check_integer(f"{p}.{ch}", getattr(self, ch), "channel", lo=0, hi=MAX_CHANNEL,
+                          error=RigError)  # fmt: skip
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -326,12 +372,68 @@ class Rig:
 # --- loading -------------------------------------------------------------------------------
 
 
-def _positive(name: str, value: Any, unit: str) -> None:
-    check_number(name, value, unit, lo=0.0, strict=True, error=RigError)
+def _positive(name: str, value: Any, unit: str, hi: float | None = None) -> None:
+    check_number(name, value, unit, lo=0.0, strict=True, hi=hi, error=RigError)
 
 
-def _nonneg(name: str, value: Any, unit: str) -> None:
-    check_number(name, value, unit, lo=0.0, error=RigError)
+def _nonneg(name: str, value: Any, unit: str, hi: float | None = None) -> None:
+    check_number(name, value, unit, lo=0.0, hi=hi, error=RigError)
+
+
+def _finite(x: Any) -> bool:
+    try:
+        return math.isfinite(x)
+    except OverflowError:
+        return False
+
+
+def check_plant(
+    plant: Plant,
+    path: str,
+    dac_range_v: tuple[float, float] | None = None,
+    *,
+    error: type[Exception] = RigError,
+) -> None:
+    """Bounds of a plant read from a file, beyond :class:`~servotune.plant.Plant`'s own checks.
+
+    The plant's own validation keeps the values finite and of the right sign; this keeps them
+    within what a servo axis can be (so a typo such as ``offset_v = 1000`` or
+    ``delay_s = 1e300`` is refused instead of sizing the simulation's arrays): gain up to 1e9
+    counts/s/V, tau_s in 1 µs … 1000 s, delay_s up to 1 s, offset_v and coulomb_v within the
+    D/A range (``dac_range_v``; ±1000 V if not given), max_speed_rpm up to 1e6 r/min,
+    noise_counts up to 1e6 counts.
+
+    Parameters
+    ----------
+    plant : Plant
+    path : str
+        The plant's table for the messages (``"axis.master.plant"``).
+    dac_range_v : (float, float), optional
+        The D/A output range [V].
+    error : type of Exception
+        What to raise.
+
+    Raises
+    ------
+    error
+        ``"axis.master.plant.offset_v must be a number in [-10, 10] [V], got 1000.0"``.
+    """
+    lo_v, hi_v = dac_range_v if dac_range_v is not None else (-MAX_DAC_RANGE_V, MAX_DAC_RANGE_V)
+    span = max(abs(lo_v), abs(hi_v))
+    checks = (
+        ("gain_cps_per_v", "counts/s/V", 0.0, True, MAX_PLANT_GAIN),
+        ("tau_s", "s", MIN_TAU_S, False, MAX_TAU_S),
+        ("delay_s", "s", 0.0, False, MAX_DELAY_S),
+        ("offset_v", "V", -span, False, span),
+        ("coulomb_v", "V", 0.0, False, span),
+        ("noise_counts", "counts", 0.0, False, MAX_NOISE_COUNTS),
+    )
+    for name, unit, lo, strict, hi in checks:
+        check_number(f"{path}.{name}", getattr(plant, name), unit, lo=lo, strict=strict, hi=hi,
+                     error=error)  # fmt: skip
+    if plant.max_speed_rpm is not None:
+        check_number(f"{path}.max_speed_rpm", plant.max_speed_rpm, "r/min", lo=0.0, strict=True,
+                     hi=MAX_SPEED_RPM, error=error)  # fmt: skip
 
 
 def _table(
@@ -369,8 +471,21 @@ def _build(cls: type, table: Mapping[str, Any], path: str, **fixed: Any) -> Any:
     unknown = sorted(set(table) - allowed)
     if unknown:
         raise RigError(f"unknown key {path}.{unknown[0]} (allowed: {', '.join(sorted(allowed))})")
+    missing = [
+        f.name
+        for f in fields(cls)
+        if f.name not in table and f.name not in fixed and f.init
+        and f.default is MISSING and f.default_factory is MISSING
+    ]  # fmt: skip
+    if missing:
+        raise RigError(f"missing key {path}.{missing[0]}")
     kwargs = dict(table)
     for k, v in kwargs.items():
+        for x in v if isinstance(v, list) else (v,):
+            if type(x) is int and not -(2**63) <= x < 2**63:  # no field takes such a number
+                raise RigError(
+                    f"{path}.{k} must be a number within ±2**63 (int64), got {show_value(x)}"
+                )
         if isinstance(v, list):
             kwargs[k] = tuple(v)
     try:
@@ -415,7 +530,11 @@ def rig_from_dict(data: Mapping[str, Any], default_name: str = "rig") -> Rig:
         if not isinstance(pt, Mapping):
             raise RigError(f"[axis.{name}.plant] must be a table")
         plant = _build(Plant, pt, f"axis.{name}.plant")
+        check_plant(plant, f"axis.{name}.plant", dac.range_v)
         axes.append(_build(Axis, at, f"axis.{name}", name=name, plant=plant))
+    for key in ("name", "description"):
+        if key in meta and not isinstance(meta[key], str):
+            raise RigError(f"rig.{key} must be a string, got {show_value(meta[key])}")
     return Rig(
         name=str(meta.get("name", default_name)),
         description=str(meta.get("description", "")),
@@ -447,7 +566,11 @@ def load_rig(path: str | Path) -> Rig:
     from servotune.logs import read_toml
 
     p = Path(path)
-    return rig_from_dict(read_toml(p, RigError, "rig file"), default_name=p.stem)
+    data = read_toml(p, RigError, "rig file")
+    try:
+        return rig_from_dict(data, default_name=p.stem)
+    except RigError as exc:
+        raise RigError(f"rig file {str(p)!r}: {exc}") from None
 
 
 def describe_rig(rig: Rig) -> dict[str, Any]:
@@ -467,9 +590,15 @@ def describe_rig(rig: Rig) -> dict[str, Any]:
     axes = {}
     for a in rig.axes:
         v_cps = a.speed_limit_rpm / 60.0 * rig.counts_per_rev
-        lo, hi = lock_holding_band(
-            a.lock_gain_codes_per_count, a.plant.offset_v, rig.dac.lsb_v, a.plant.coulomb_v
-        )
+        try:
+            lo, hi = lock_holding_band(
+                a.lock_gain_codes_per_count, a.plant.offset_v, rig.dac.lsb_v, a.plant.coulomb_v
+            )
+        except ValueError as exc:
+            raise RigError(
+                f"axis.{a.name}: lock_gain_codes_per_count {a.lock_gain_codes_per_count!r} "
+                f"[codes/count] with plant.offset_v {a.plant.offset_v!r} [V]: {exc}"
+            ) from None
         axes[a.name] = {
             "counts_per_tick_at_speed_limit": v_cps * rig.period_s,
             "lock_band_counts": [lo, hi],
@@ -477,7 +606,8 @@ def describe_rig(rig: Rig) -> dict[str, Any]:
             "role": a.role,
             "speed_limit_ok": a.speed_limit_rpm < min(unwrap_rpm, input_rpm),
             "speed_limit_rpm": a.speed_limit_rpm,
-            "time_to_wrap_at_speed_limit_s": (1 << c.bits) / v_cps,
+            # a subnormal speed limit underflows to 0 counts/s: it never wraps (inf; JSON null)
+            "time_to_wrap_at_speed_limit_s": (1 << c.bits) / v_cps if v_cps > 0 else math.inf,
         }
     return {
         "achieved_period_s": rig.period_s,

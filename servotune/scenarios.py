@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from servotune.budget import check_memory, format_count
 from servotune.errors import SpecError
 from servotune.laws.axis import MODE_LOCK, MODE_OPEN, MODE_TASK
 from servotune.rig import Rig
@@ -23,6 +24,7 @@ __all__ = [
     "Inputs",
     "Scenario",
     "build_scenario",
+    "check_run_memory",
     "chirp_codes",
     "excitation_amplitude_codes",
     "prbs_codes",
@@ -229,6 +231,29 @@ def trapezoid_ref(
 
 # --- named scenarios -----------------------------------------------------------------------
 
+RUN_BYTES_PER_TICK_AXIS = 512
+"""Memory a simulated run takes per tick and axis [bytes], all told: the inputs (33 bytes and
+their copies), the engine's traces (72), the Trace, the log columns and their text (about 60
+characters per value, held as Python strings while the log is formatted)."""
+
+
+def check_run_memory(rig: Rig, n_ticks: float, what: str) -> None:
+    """Refuse a run of ``n_ticks`` on ``rig`` before allocating it if it exceeds the memory
+    budget (:func:`servotune.budget.check_memory`).
+
+    Raises
+    ------
+    BudgetError
+        ``"simulate 1e+12 s needs about 230 TiB (250,000,000,000,000 ticks × 2 axes × 512
+        bytes); over the memory budget of 2 GiB (...)"``.
+    """
+    n_ax = len(rig.axes)
+    check_memory(
+        float(n_ticks) * n_ax * RUN_BYTES_PER_TICK_AXIS,
+        what,
+        f"{format_count(n_ticks)} ticks × {n_ax} axes × {RUN_BYTES_PER_TICK_AXIS} bytes",
+    )
+
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Scenario:
@@ -349,6 +374,9 @@ def sync_move(
         raise SpecError(f"speed_fraction must be in (0, 1], got {speed_fraction!r}")
     if not accel_s > 0:
         raise SpecError(f"accel_s must be > 0 [s], got {accel_s!r}")
+    if not (isinstance(seconds, int | float) and math.isfinite(seconds) and seconds > 0):
+        raise SpecError(f"seconds must be a number > 0 [s], got {seconds!r}")
+    check_run_memory(rig, seconds / rig.period_s, f"a sync move of {seconds:g} s")
     n = math.floor(seconds / rig.period_s + 0.5)
     if n < 50:
         raise SpecError(f"seconds={seconds!r} gives only {n} ticks; need at least 50")
@@ -384,6 +412,9 @@ def step_inputs(rig: Rig, *, step_counts: int, seconds: float = 2.0) -> Inputs:
     SpecError
         If the run is too short.
     """
+    if not (isinstance(seconds, int | float) and math.isfinite(seconds) and seconds > 0):
+        raise SpecError(f"seconds must be a number > 0 [s], got {seconds!r}")
+    check_run_memory(rig, seconds / rig.period_s, f"a step run of {seconds:g} s")
     n = math.floor(seconds / rig.period_s + 0.5)
     lead = math.floor(0.1 / rig.period_s + 0.5)
     if n <= lead + 10:
@@ -422,12 +453,20 @@ def build_scenario(
     ------
     SpecError
         Unknown scenario or a duration shorter than one tick.
+    BudgetError
+        If the run would exceed the memory budget (:func:`check_run_memory`).
     """
     if name not in SCENARIOS:
         raise SpecError(f"unknown scenario {name!r}; choose one of {', '.join(sorted(SCENARIOS))}")
     rig.axis(axis)
-    if not (seconds > 0 and math.isfinite(seconds)):
+    if not (
+        isinstance(seconds, int | float)
+        and not isinstance(seconds, bool)
+        and math.isfinite(seconds)
+        and seconds > 0
+    ):
         raise SpecError(f"seconds must be > 0 [s], got {seconds!r}")
+    check_run_memory(rig, seconds / rig.period_s, f"simulate {seconds:g} s")
     n = math.floor(seconds / rig.period_s + 0.5)
     if n < 10:
         raise SpecError(f"seconds={seconds!r} gives only {n} ticks; need at least 10")

@@ -44,7 +44,8 @@ from typing import Any
 import numba as nb
 import numpy as np
 
-from servotune.errors import ConfigError
+from servotune.budget import check_memory
+from servotune.errors import ConfigError, RigError
 from servotune.fixed import shift_round
 from servotune.hw import dac as hw_dac
 from servotune.laws.axis import (
@@ -68,8 +69,8 @@ from servotune.laws.sync import (
     sync_step,
 )
 from servotune.plant import Plant, advance, lag_split, step_coefficients
-from servotune.rig import Rig, build_section, load_rig
-from servotune.validate import check_integer, check_number
+from servotune.rig import Rig, build_section, check_plant, load_rig
+from servotune.validate import check_integer, check_number, show_value
 
 __all__ = [
     "CASES",
@@ -110,12 +111,27 @@ _MAX_SUBSTEPS = 64
 # --- configuration --------------------------------------------------------------------------
 
 
-def _num(name: str, v: Any, unit: str, lo: float = 0.0, strict: bool = False) -> None:
-    check_number(name, v, unit, lo=lo, strict=strict)
-
-
-def _int(name: str, v: Any, unit: str, lo: int = 0) -> None:
-    check_integer(name, v, unit, lo=lo)
+# Bounds of the configuration's fields (a typo must not size the simulation's arrays)
+MAX_CYCLE_S = 0.01
+"""Longest bus cycle [s] (10 ms)."""
+MIN_CYCLE_S = 1e-6
+"""Shortest bus cycle [s]."""
+MAX_LATENCY_CYCLES = 1000
+"""Largest feedback latency [cycles]."""
+MAX_SECONDS = 3600.0
+"""Longest run [s] (also at most 5e6 cycles, and at least 100)."""
+MAX_GAIN = 1e6
+"""Largest drive or sync gain (any unit)."""
+MAX_COUNTS = 2**31 - 1
+"""Largest count threshold or move distance [counts]."""
+MAX_SPEED_CPS = 1e9
+"""Largest speed [counts/s]; acceleration up to 1e12 counts/s²."""
+MAX_BEAM = 1e3
+"""Largest beam stiffness [V/count] or damping [V·s/count]."""
+MAX_LOAD_V = 1000.0
+"""Largest load step magnitude [V]."""
+_MIN_CYCLES = 100
+_TRACE_BYTES_PER_CYCLE = 208  # a GantryTrace and its kernel inputs, per cycle
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -140,17 +156,13 @@ class GantryBus:
     compute_s: float = 0.0001
 
     def __post_init__(self) -> None:
-        _num("cycle_s", self.cycle_s, "s", strict=True)
-        _num("jitter_s", self.jitter_s, "s")
-        if self.jitter_s > 0.01 * self.cycle_s:
-            raise ValueError(
-                f"jitter_s must be <= 1 % of cycle_s [s], got {self.jitter_s!r} at cycle_s "
-                f"{self.cycle_s!r}"
-            )
-        _int("latency_cycles", self.latency_cycles, "cycles", lo=1)
-        _num("compute_s", self.compute_s, "s")
-        if self.compute_s >= self.cycle_s:
-            raise ValueError(f"compute_s must be < cycle_s [s], got {self.compute_s!r}")
+        check_number("cycle_s", self.cycle_s, "s", lo=MIN_CYCLE_S, hi=MAX_CYCLE_S,
+                     error=ConfigError)  # fmt: skip
+        check_number("jitter_s", self.jitter_s, "s", hi=0.01 * self.cycle_s, error=ConfigError)
+        check_integer("latency_cycles", self.latency_cycles, "cycles", lo=1,
+                      hi=MAX_LATENCY_CYCLES, error=ConfigError)  # fmt: skip
+        check_number("compute_s", self.compute_s, "s", hi=self.cycle_s, hi_strict=True,
+                     error=ConfigError)  # fmt: skip
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -169,8 +181,10 @@ class Beam:
     damping_v_s_per_count: float = 0.0
 
     def __post_init__(self) -> None:
-        _num("stiffness_v_per_count", self.stiffness_v_per_count, "V/count")
-        _num("damping_v_s_per_count", self.damping_v_s_per_count, "V·s/count")
+        check_number("stiffness_v_per_count", self.stiffness_v_per_count, "V/count", hi=MAX_BEAM,
+                     error=ConfigError)  # fmt: skip
+        check_number("damping_v_s_per_count", self.damping_v_s_per_count, "V·s/count",
+                     hi=MAX_BEAM, error=ConfigError)  # fmt: skip
 
     @property
     def coupled(self) -> bool:
@@ -204,9 +218,11 @@ class GantryAxis:
     def __post_init__(self) -> None:
         for name, unit in (("kp", "codes/count"), ("ki", "codes/(count·s)")):
             if getattr(self, name) is not None:
-                _num(name, getattr(self, name), unit)
-        _int("following_error_limit_counts", self.following_error_limit_counts, "counts")
-        _int("counter_init", self.counter_init, "register value")
+                check_number(name, getattr(self, name), unit, hi=MAX_GAIN, error=ConfigError)
+        check_integer("following_error_limit_counts", self.following_error_limit_counts,
+                      "counts", hi=MAX_COUNTS, error=ConfigError)  # fmt: skip
+        check_integer("counter_init", self.counter_init, "register value", hi=2**32 - 1,
+                      error=ConfigError)  # fmt: skip
 
     @property
     def gains(self) -> PIGains:
@@ -248,24 +264,28 @@ class SyncSettings:
     max_sensitivity: float = 1.6
 
     def __post_init__(self) -> None:
-        if self.law not in SYNC_LAWS:
-            raise ValueError(f"law must be one of {', '.join(SYNC_LAWS)}, got {self.law!r}")
+        if not isinstance(self.law, str) or self.law not in SYNC_LAWS:
+            raise ConfigError(
+                f"law must be one of {', '.join(SYNC_LAWS)}, got {show_value(self.law)}"
+            )
         for name, unit in (("kp", "-"), ("ki", "1/s"), ("kd", "s")):
             if getattr(self, name) is not None:
-                _num(name, getattr(self, name), unit)
+                check_number(name, getattr(self, name), unit, hi=MAX_GAIN, error=ConfigError)
         for name in ("dead_zone_counts", "warn_counts", "trip_counts"):
-            _int(name, getattr(self, name), "counts")
-        _int("limit_counts", self.limit_counts, "counts", lo=1)
+            check_integer(name, getattr(self, name), "counts", hi=MAX_COUNTS, error=ConfigError)
+        check_integer("limit_counts", self.limit_counts, "counts", lo=1, hi=MAX_COUNTS,
+                      error=ConfigError)  # fmt: skip
         if self.warn_counts and self.trip_counts and self.warn_counts >= self.trip_counts:
-            raise ValueError(
+            raise ConfigError(
                 f"warn_counts must be < trip_counts [counts], got {self.warn_counts} >= "
                 f"{self.trip_counts}"
             )
-        _num("phase_margin_deg", self.phase_margin_deg, "deg", strict=True)
-        if self.phase_margin_deg >= 90:
-            raise ValueError(f"phase_margin_deg must be < 90 [deg], got {self.phase_margin_deg!r}")
-        _num("gain_margin_db", self.gain_margin_db, "dB", strict=True)
-        _num("max_sensitivity", self.max_sensitivity, "-", lo=1.0, strict=True)
+        check_number("phase_margin_deg", self.phase_margin_deg, "deg", strict=True, hi=90.0,
+                     hi_strict=True, error=ConfigError)  # fmt: skip
+        check_number("gain_margin_db", self.gain_margin_db, "dB", strict=True, hi=60.0,
+                     error=ConfigError)  # fmt: skip
+        check_number("max_sensitivity", self.max_sensitivity, "-", lo=1.0, strict=True, hi=10.0,
+                     error=ConfigError)  # fmt: skip
 
     @property
     def gains(self) -> SyncGains:
@@ -299,13 +319,13 @@ class GantryMove:
     start_s: float = 0.05
 
     def __post_init__(self) -> None:
-        if type(self.distance_counts) is not int:
-            raise ValueError(
-                f"distance_counts must be an integer [counts], got {self.distance_counts!r}"
-            )
-        _num("speed_cps", self.speed_cps, "counts/s", strict=True)
-        _num("accel_cps2", self.accel_cps2, "counts/s²", strict=True)
-        _num("start_s", self.start_s, "s")
+        check_integer("distance_counts", self.distance_counts, "counts", lo=-MAX_COUNTS,
+                      hi=MAX_COUNTS, error=ConfigError)  # fmt: skip
+        check_number("speed_cps", self.speed_cps, "counts/s", strict=True, hi=MAX_SPEED_CPS,
+                     error=ConfigError)  # fmt: skip
+        check_number("accel_cps2", self.accel_cps2, "counts/s²", strict=True,
+                     hi=1e3 * MAX_SPEED_CPS, error=ConfigError)  # fmt: skip
+        check_number("start_s", self.start_s, "s", hi=MAX_SECONDS, error=ConfigError)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -328,10 +348,9 @@ class GantryLoad:
 
     def __post_init__(self) -> None:
         if self.axis not in ("master", "slave"):
-            raise ValueError(f"axis must be 'master' or 'slave', got {self.axis!r}")
-        _num("time_s", self.time_s, "s")
-        if not (isinstance(self.volts, int | float) and math.isfinite(self.volts)):
-            raise ValueError(f"volts must be a finite number [V], got {self.volts!r}")
+            raise ConfigError(f"axis must be 'master' or 'slave', got {show_value(self.axis)}")
+        check_number("time_s", self.time_s, "s", hi=MAX_SECONDS, error=ConfigError)
+        check_number("volts", self.volts, "V", lo=-MAX_LOAD_V, hi=MAX_LOAD_V, error=ConfigError)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -364,13 +383,19 @@ class GantryConfig:
     seconds: float = 2.0
 
     def __post_init__(self) -> None:
-        if self.topology not in TOPOLOGIES:
-            raise ValueError(
-                f"topology must be one of {', '.join(TOPOLOGIES)}, got {self.topology!r}"
+        if not isinstance(self.name, str):
+            raise ConfigError(f"name must be a string, got {show_value(self.name)}")
+        if not isinstance(self.topology, str) or self.topology not in TOPOLOGIES:
+            raise ConfigError(
+                f"topology must be one of {', '.join(TOPOLOGIES)}, got {show_value(self.topology)}"
             )
-        _num("seconds", self.seconds, "s", strict=True)
-        if self.seconds / self.bus.cycle_s > 5e6:
-            raise ValueError(f"seconds must be at most 5e6 cycles [s], got {self.seconds!r}")
+        cyc = self.bus.cycle_s
+        check_number("seconds", self.seconds, "s", strict=True, hi=MAX_SECONDS, error=ConfigError)
+        if not _MIN_CYCLES <= self.seconds / cyc <= 5e6:
+            raise ConfigError(
+                f"seconds must be {_MIN_CYCLES} to 5e6 bus cycles ({_MIN_CYCLES * cyc:g} … "
+                f"{5e6 * cyc:g} s at cycle_s {cyc:g}) [s], got {self.seconds!r}"
+            )
 
     @property
     def n_cycles(self) -> int:
@@ -423,10 +448,16 @@ def gantry_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".") -> Gan
     meta = dict(table("gantry", required=True))
     if "rig" not in meta:
         raise ConfigError("gantry.rig is missing: the rig file with the hardware facts")
-    rig_path = Path(base_dir) / str(meta.pop("rig"))
+    rig_ref = meta.pop("rig")
+    if not isinstance(rig_ref, str) or not 0 < len(rig_ref) <= 4096:
+        raise ConfigError(
+            f"gantry.rig must be the path of a rig file (at most 4096 characters), got "
+            f"{show_value(rig_ref)}"
+        )
+    rig_path = Path(base_dir) / rig_ref
     try:
         rig = load_rig(rig_path)
-    except Exception as exc:  # a RigError or OSError: one line naming the file
+    except (RigError, OSError) as exc:  # one line naming the file
         raise ConfigError(f"gantry.rig: {exc}") from None
     axes_t = table("axis", required=True)
     drives = {}
@@ -438,6 +469,7 @@ def gantry_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".") -> Gan
         if not isinstance(at.get("plant"), Mapping):
             raise ConfigError(f"missing table [axis.{name}.plant]")
         plant = build_section(Plant, at.pop("plant"), f"axis.{name}.plant", ConfigError)
+        check_plant(plant, f"axis.{name}.plant", rig.dac.range_v, error=ConfigError)
         drives[name] = build_section(GantryAxis, at, f"axis.{name}", ConfigError, plant=plant)
     extra = sorted(set(axes_t) - {"master", "slave"})
     if extra:
@@ -468,7 +500,11 @@ def load_gantry(path: str | Path, *, resolve: bool = True) -> GantryConfig:
     from servotune.logs import read_toml
 
     p = Path(path)
-    cfg = gantry_from_dict(read_toml(p, ConfigError, "gantry config"), base_dir=p.parent)
+    data = read_toml(p, ConfigError, "gantry config")
+    try:
+        cfg = gantry_from_dict(data, base_dir=p.parent)
+    except ConfigError as exc:
+        raise ConfigError(f"gantry config {str(p)!r}: {exc}") from None
     cfg = replace(cfg, name=cfg.name if cfg.name != "gantry" else p.stem.removesuffix(".sync"))
     return resolve_gains(cfg) if resolve else cfg
 
@@ -840,9 +876,11 @@ def simulate_gantry(
     topology = cfg.topology if topology is None else topology
     if topology not in TOPOLOGIES:
         raise ValueError(f"topology must be one of {', '.join(TOPOLOGIES)}, got {topology!r}")
+    n = cfg.n_cycles
+    check_memory(n * _TRACE_BYTES_PER_CYCLE, f"a gantry run of {cfg.seconds:g} s",
+                 f"{n:,} cycles × {_TRACE_BYTES_PER_CYCLE} bytes")  # fmt: skip
     cfg, load = _case_config(cfg, case)
     plants = (cfg.master.plant, cfg.slave.plant)
-    n = cfg.n_cycles
     rig = cfg.rig
     rng = np.random.default_rng(seed)
     noise = rng.standard_normal((n, 2)) * np.array([p.noise_counts for p in plants])
@@ -948,6 +986,12 @@ def compare_topologies(cfg: GantryConfig, *, seed: int = 0) -> SyncComparison:
 
     The check: the deployed topology (``cfg.topology``) must not trip in any case.
     """
+    n_runs = len(CASES) * len(TOPOLOGIES)  # every trace is kept
+    check_memory(
+        n_runs * cfg.n_cycles * _TRACE_BYTES_PER_CYCLE,
+        f"comparing the gantry topologies over {cfg.seconds:g} s",
+        f"{n_runs} runs × {cfg.n_cycles:,} cycles × {_TRACE_BYTES_PER_CYCLE} bytes",
+    )
     rows, traces, failed = [], [], []
     for case in CASES:
         for topo in TOPOLOGIES:

@@ -1,19 +1,57 @@
-"""Field checks shared by the data objects' ``__post_init__`` (rig, architectures).
+"""Field checks shared by the data objects' ``__post_init__`` (rig, architectures, logs).
 
 Every message names the field, the rule, the unit and the value, e.g.
-``"period_s must be a number > 0 [s], got -0.004"``.
+``"period_s must be a number > 0 [s], got -0.004"`` or
+``"latency_cycles must be an integer in 1..1000 [cycles], got 1e9"``. Numbers must be ``int``
+or ``float`` (a ``bool`` or a string is not a number), finite, and within the bounds; integers
+must be exact ``int`` values (``24.0`` and ``"24"`` are not integers). Values too long to show
+are shortened in the message (a 10**400 integer does not flood the terminal).
 """
 
 from __future__ import annotations
 
+import difflib
 import math
+from collections.abc import Mapping, Sequence
+from typing import Any
 
-__all__ = ["check_integer", "check_number", "is_number"]
+__all__ = ["check_integer", "check_keys", "check_number", "is_number", "show_value"]
+
+_SHOW_CHARS = 40
 
 
 def is_number(v: object) -> bool:
     """True for an int or float that is not a bool."""
     return isinstance(v, int | float) and not isinstance(v, bool)
+
+
+def show_value(v: object, limit: int = _SHOW_CHARS) -> str:
+    """``repr(v)`` for a message, at most about ``limit`` characters.
+
+    Huge integers are shown by their number of digits (their ``repr`` may even be refused by
+    Python's integer-string limit); long strings and other values are cut with ``…``.
+
+    Examples
+    --------
+    >>> show_value(10**400)
+    'an integer of 401 digits'
+    >>> show_value("x" * 100, limit=10)
+    "'xxxxxxxx…"
+    """
+    if isinstance(v, int) and not isinstance(v, bool) and v.bit_length() > 128:
+        return f"an integer of {len(str(abs(v))) if v.bit_length() < 14000 else 'over 4000'} digits"
+    try:
+        text = repr(v)
+    except ValueError:  # e.g. the int-to-str digit limit
+        return f"a {type(v).__name__}"
+    return text if len(text) <= limit else text[: limit - 1] + "…"
+
+
+def _finite(v: object) -> bool:
+    try:
+        return math.isfinite(v)  # type: ignore[arg-type]
+    except OverflowError:  # an int beyond the float range
+        return False
 
 
 def check_number(
@@ -23,18 +61,114 @@ def check_number(
     *,
     lo: float = 0.0,
     strict: bool = False,
+    hi: float | None = None,
+    hi_strict: bool = False,
     error: type[Exception] = ValueError,
 ) -> None:
-    """Raise ``error`` unless ``v`` is a finite number ``>= lo`` (``> lo`` if ``strict``)."""
-    ok = is_number(v) and math.isfinite(v) and (v > lo if strict else v >= lo)  # type: ignore[arg-type,operator]
+    """Raise ``error`` unless ``v`` is a finite number within the bounds.
+
+    Parameters
+    ----------
+    name : str
+        Field name for the message (e.g. ``"timer.period_s"``).
+    v : object
+        The value.
+    unit : str
+        Unit for the message (``"s"``, ``"V"``, ``"-"``).
+    lo : float
+        Lower bound; ``v >= lo`` (``v > lo`` if ``strict``). ``-math.inf`` for none.
+    strict : bool
+        Exclude ``lo``.
+    hi : float, optional
+        Upper bound; ``v <= hi`` (``v < hi`` if ``hi_strict``).
+    hi_strict : bool
+        Exclude ``hi``.
+    error : type of Exception
+        What to raise.
+
+    Raises
+    ------
+    error
+        ``"<name> must be a number > 0 [s], got -0.004"`` (with ``hi``:
+        ``"<name> must be a number in (0, 1] [s], got 10"``).
+    """
+    ok = is_number(v) and _finite(v)
+    if ok:
+        x = float(v)  # type: ignore[arg-type]
+        ok = (x > lo if strict else x >= lo) and (hi is None or (x < hi if hi_strict else x <= hi))
     if not ok:
-        rel = ">" if strict else ">="
-        raise error(f"{name} must be a number {rel} {lo:g} [{unit}], got {v!r}")
+        if hi is None:
+            rule = f"{'>' if strict else '>='} {lo:g}"
+        elif lo == -math.inf:
+            rule = f"{'<' if hi_strict else '<='} {hi:g}"
+        else:
+            rule = f"in {'(' if strict else '['}{lo:g}, {hi:g}{')' if hi_strict else ']'}"
+        raise error(f"{name} must be a number {rule} [{unit}], got {show_value(v)}")
 
 
 def check_integer(
-    name: str, v: object, unit: str, *, lo: int = 0, error: type[Exception] = ValueError
+    name: str,
+    v: object,
+    unit: str,
+    *,
+    lo: int = 0,
+    hi: int | None = None,
+    error: type[Exception] = ValueError,
 ) -> None:
-    """Raise ``error`` unless ``v`` is an int (not a bool) ``>= lo``."""
-    if type(v) is not int or v < lo:
-        raise error(f"{name} must be an integer >= {lo} [{unit}], got {v!r}")
+    """Raise ``error`` unless ``v`` is an ``int`` (not a bool, not ``24.0``) in ``lo..hi``.
+
+    Raises
+    ------
+    error
+        ``"<name> must be an integer >= 1 [cycles], got 0"`` (with ``hi``:
+        ``"<name> must be an integer in 1..1000 [cycles], got 1000000000.0"``).
+    """
+    if type(v) is not int or v < lo or (hi is not None and v > hi):
+        rule = f">= {lo}" if hi is None else f"in {lo}..{hi}"
+        raise error(f"{name} must be an integer {rule} [{unit}], got {show_value(v)}")
+
+
+def check_keys(
+    d: object,
+    path: str,
+    required: Sequence[str],
+    optional: Sequence[str] = (),
+    *,
+    error: type[Exception] = ValueError,
+) -> dict[str, Any]:
+    """Check that ``d`` is a table with every ``required`` key and no key outside
+    ``required`` + ``optional``; return it as a dict.
+
+    Parameters
+    ----------
+    d : object
+        The parsed table (JSON object, TOML table).
+    path : str
+        Its dotted path for the messages (``"task.tables"``; ``""`` for the top level).
+    required, optional : sequence of str
+        Keys that must be there, and keys that may be.
+    error : type of Exception
+        What to raise.
+
+    Raises
+    ------
+    error
+        ``"task must be a table, got list"``, ``"missing key task.kp"`` or
+        ``"unknown key task.kq (allowed: ki_t, kp)"``.
+    """
+    where = path or "the top level"
+    if not isinstance(d, Mapping):
+        raise error(f"{where} must be a table, got {type(d).__name__}")
+    prefix = f"{path}." if path else ""
+    missing = [k for k in required if k not in d]
+    if missing:
+        raise error(f"missing key {prefix}{missing[0]}")
+    allowed = set(required) | set(optional)
+    unknown = sorted((k for k in d if k not in allowed), key=str)
+    if unknown:
+        k = unknown[0]
+        name = k if isinstance(k, str) and len(k) <= _SHOW_CHARS else show_value(k)
+        near = difflib.get_close_matches(str(k), sorted(allowed), n=1) if len(str(k)) < 64 else []
+        hint = f"; did you mean {near[0]!r}?" if near else ""
+        raise error(f"unknown key {prefix}{name} (allowed: {', '.join(sorted(allowed))}){hint}")
+    return dict(d)

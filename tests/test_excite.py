@@ -283,8 +283,14 @@ READ_ERRORS = {
     "code_above_range": (lambda t: _set_row(t, 3, "4096"), "code 4096 outside the D/A range"),
     "code_below_range": (lambda t: _set_row(t, 3, "-1"), "code -1 outside the D/A range"),
     "fractional_code": (lambda t: _set_row(t, 4, "2048.5"), "'2048.5' is not an integer"),
-    "text_code": (lambda t: _set_row(t, 4, "abc"), "'abc' is not an integer"),
-    "missing_field": (lambda t: _set_row(t, 2, "2048,7"), "has 4 fields, the header has 3"),
+    "text_code": (
+        lambda t: _set_row(t, 4, "abc"),
+        "'abc' is not a number (an integer is expected)",
+    ),
+    "missing_field": (
+        lambda t: _set_row(t, 2, "2048,7"),
+        "row 16 has 4 fields; the header (line 13) has 3",
+    ),
     "metadata_period_mismatch": (
         lambda t: t.replace("# period_s: 0.0040002346670242545", "# period_s: 0.005"),
         "metadata period 0.005 s differs",
@@ -311,6 +317,13 @@ READ_ERRORS = {
     ),
     "too_few_rows": (lambda t: "\n".join(t.splitlines()[:20]) + "\n", "need at least 10"),
     "empty": (lambda t: "", "no header row"),
+    "superscript_digit": (lambda t: _set_row(t, 4, "2²"), "'2²' is not a number"),
+    "double_sign": (lambda t: _set_row(t, 4, "+-5"), "'+-5' is not a number"),
+    "huge_code": (lambda t: _set_row(t, 4, "9" * 400), "a field of 400 characters"),
+    "bom_ok_but_nan_time": (
+        lambda t: "\ufeff" + t.replace("\n5,0.020001173,", "\n5,nan,"),
+        "row 19, column 'time_s': nan is not finite",
+    ),
 }
 
 

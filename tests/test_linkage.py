@@ -366,13 +366,33 @@ def test_gains_absent_are_tuned_with_tune_pi() -> None:
     ("change", "message"),
     [
         (lambda d: d["bus"].update(bauds=1), r"unknown key bus\.bauds"),
-        (lambda d: d["bus"].update(baud=-1), r"bus\.baud must be a number > 0 \[bits/s\], got -1"),
+        (lambda d: d["bus"].update(baud=-1),
+         r"bus\.baud must be a number in \(0, 1e\+09\] \[bits/s\], got -1"),
+        (lambda d: d["bus"].update(block_size=5.0),
+         r"bus\.block_size must be an integer in 1\.\.10000 \[setpoints\], got 5\.0"),
+        (lambda d: d["bus"].update(baud=True), r"bus\.baud must be a number .*got True"),
+        (lambda d: d["bus"].update(baud="fast"), r"bus\.baud must be a number .*got 'fast'"),
+        (lambda d: d["bus"].update(prefill_blocks=10**400),
+         r"bus\.prefill_blocks must be a number within ±2\*\*63 \(int64\), got an integer of 401"),
+        (lambda d: d["path"]["move"][0]["to"].update(x=1e300),
+         r"path\.move\[0\]\.to\.x must be a number in \[-1e\+12, 1e\+12\] \[counts\]"),
+        (lambda d: d["path"]["move"][1].update(dwell_s=1e12),
+         r"path\.move\[1\]\.dwell_s must be a number in \(0, 3600\] \[s\], got 1000000000000\.0"),
+        (lambda d: d["path"]["move"][2].update(centre=[1e300, 0]),
+         r"path\.move\[2\]\.centre must be \[first, second\]"),
+        (lambda d: d["axis"]["x"]["plant"].update(delay_s=1e300),
+         r"axis\.x\.plant\.delay_s must be a number in \[0, 1\] \[s\]"),
+        (lambda d: d.update(settle_s=1e12), r"settle_s must be a number in \[0, 3600\]"),
+        (lambda d: d.update(period_s=0), r"period_s must be a number in \[1e-06, 1\]"),
+        (lambda d: d.update(rig=7), r"rig must be the path of a rig file \(TOML\), got 7"),
+        (lambda d: d.update(bus=[]), r"\[bus\] must be a table"),
         (lambda d: d["cpu"][0].update(axes=["x", "z", "a", "y", "b"]),
          r"cpu\[0\]\.axes must name 2 to 4 axes"),
         (lambda d: d["cpu"][1].update(axes=["y", "b"]), r"axis 'c' is on no CPU"),
         (lambda d: d["axis"]["x"]["plant"].update(tau_s=-0.01), r"axis\.x\.plant\.tau_s must be"),
         (lambda d: d["axis"]["y"].pop("ki"), r"axis\.y\.kp and ki must be given together"),
-        (lambda d: d["cpu"][0].update(clock_ppm=20000), r"cpu\[0\]\.clock_ppm must be within"),
+        (lambda d: d["cpu"][0].update(clock_ppm=20000),
+         r"cpu\[0\]\.clock_ppm must be a number in \[-10000, 10000\] \[ppm\]"),
         (lambda d: d["path"]["move"][0].update(kind="spline"), r"path\.move\[0\]\.kind must be"),
         (lambda d: d.update(rig="missing.toml"), r"rig: cannot read rig file"),
     ],
@@ -430,7 +450,8 @@ def test_cli_bad_input_exits_3_in_one_line(
     assert main(["linkage", str(cfg)]) == 3
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "Traceback" not in err
-    assert err.startswith("servotune linkage: error: bus.block_size must be an integer >= 1")
+    assert err.startswith(f"servotune linkage: error: linkage config {str(cfg)!r}: ")
+    assert "bus.block_size must be an integer in 1..10000 [setpoints], got 0" in err
     bad = tmp_path / "bad.toml"
     bad.write_text("period_s = [", encoding="utf-8")
     assert main(["linkage", str(bad)]) == 3

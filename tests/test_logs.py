@@ -547,3 +547,164 @@ def test_data_objects_validate_their_fields() -> None:
     short = AxisLog(cmd_v=np.zeros(2), pos_counts=np.zeros(2, dtype=np.int64))
     with pytest.raises(LogFormatError, match="same number of samples"):
         Log(period_s=0.004, axes={"a": ax, "b": short}, metadata={})
+
+
+# --- issue 15: bounds, options, JSON and TOML, atomic writes ----------------------------------
+
+
+@pytest.mark.parametrize(
+    ("options", "expected"),
+    [
+        ({"compute_s": float("nan")}, "option compute_s must be a finite number of seconds >= 0"),
+        ({"compute_s": -1.0}, "option compute_s must be a finite number of seconds >= 0"),
+        ({"compute_s": 0.004}, "option compute_s must be shorter than the sample period"),
+        ({"compute_s": True}, "option compute_s must be"),
+        ({"period_s": 1e-300}, "option period_s must be a number of seconds > 0, within 1e-06"),
+        ({"dac_range_v": (-1e308, 1e308)}, "each within ±1000 V"),
+    ],
+)
+def test_options_are_bounded(tmp_path: Path, options: dict, expected: str) -> None:
+    msg = _error(_log(tmp_path), **options)
+    assert expected in msg and str(tmp_path) in msg
+
+
+def test_compute_s_option_overrides_metadata(tmp_path: Path) -> None:
+    path = _log(tmp_path, meta=[("compute_s", "0.0002")])
+    assert read_log(path).compute_s == 0.0002
+    assert read_log(path, compute_s=0.001).compute_s == 0.001
+
+
+@pytest.mark.parametrize("dt", [1e304, 1e-300, 1e-7, 61.0])
+def test_period_from_time_s_is_bounded(tmp_path: Path, dt: float) -> None:
+    rows = [f"{k * dt!r},{2048 + k},{3 * k}" for k in range(6)]
+    msg = _error(_log(tmp_path, header="time_s,dac_code,counter", rows=rows))
+    assert "sample period" in msg and "outside 1e-06 … 60 s" in msg
+
+
+def test_long_fields_metadata_and_names(tmp_path: Path) -> None:
+    rows = _rows()
+    rows[2] = "2,0.008," + "7" * 65 + ",106"
+    assert "row 4, column 'dac_code': a field of 65 characters" in _error(_log(tmp_path, rows=rows))
+    long_meta = _log(tmp_path, meta=[("rig", "x" * 2000)])
+    assert "metadata 'rig' value of 2000 characters" in _error(long_meta)
+    assert "metadata key of 100 characters" in _error(_log(tmp_path, meta=[("k" * 100, "1")]))
+    long_name = _log(tmp_path, header=HEADER + "," + "m" * 80, rows=[r + ",0" for r in _rows()])
+    assert "header column 5 has a name of 80 characters" in _error(long_name)
+    assert "is 70 characters long" in _error(_log(tmp_path, meta=[("period_s", "0" * 70)]))
+
+
+def test_unknown_metadata_warns_declared_do_not(tmp_path: Path) -> None:
+    from servotune.logs import LogMetadataWarning
+
+    ok = _log(tmp_path, meta=[("machine_id", "m1"), ("date", "2024-01-01")])
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert read_log(ok).metadata["machine_id"] == "m1"
+    odd = _log(tmp_path, meta=[("colour", "blue")], name="odd.csv")
+    with pytest.warns(LogMetadataWarning, match=r"unknown metadata 'colour' \(line 1\)"):
+        assert read_log(odd).metadata["colour"] == "blue"
+
+
+def test_bom_csv(tmp_path: Path) -> None:
+    text = "\ufeff# period_s: 0.004\n" + HEADER + "\n" + "\n".join(_rows()) + "\n"
+    path = tmp_path / "bom.csv"
+    path.write_text(text, encoding="utf-8")
+    assert read_log(path).period_s == 0.004
+
+
+def test_parse_json_refuses_what_json_is_not() -> None:
+    from servotune.logs import parse_json
+
+    for text, expected in [
+        ('{"n": NaN}', "NaN is not a JSON number"),
+        ('{"n": Infinity}', "Infinity is not a JSON number"),
+        ("[-Infinity]", "-Infinity is not a JSON number"),
+        ("[" * 200_000 + "]" * 200_000, "nested 200000 levels deep"),
+        ("[" * 65 + "]" * 65, "nested 65 levels deep"),
+        ('{"n": 1' + "0" * 64 + "}", "a number of 65 characters"),
+        ('{"s": "' + "x" * (1024**2 + 1) + '"}', "a string of 1048577 characters"),
+        ("{", "not JSON"),
+    ]:
+        with pytest.raises(ServotuneError, match=expected) as info:
+            parse_json(text, "t.json", LogFormatError)
+        assert str(info.value).count("t.json") == 1 and "\n" not in str(info.value)
+    assert parse_json('\ufeff{"a": "[[[[", "b": [[1]]}', "t.json", LogFormatError) == {
+        "a": "[[[[",
+        "b": [[1]],
+    }
+
+
+def test_read_json_bounds_the_file(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import servotune.logs as logs
+
+    path = tmp_path / "big.json"
+    path.write_text("[" + "1," * 100 + "1]")
+    monkeypatch.setattr(logs, "MAX_TEXT_FILE_BYTES", 64)
+    with pytest.raises(LogFormatError, match="is 203 bytes; at most 64"):
+        logs.read_json(path, LogFormatError)
+
+
+def test_parse_toml_bom_depth_and_huge_integers() -> None:
+    from servotune.logs import parse_toml
+
+    assert parse_toml(b"\xef\xbb\xbfa = 1\n", "x.toml", LogFormatError) == {"a": 1}
+    with pytest.raises(LogFormatError, match="nested too deeply"):
+        parse_toml("a = " + "[" * 100_000 + "]" * 100_000, "x.toml", LogFormatError)
+    with pytest.raises(LogFormatError, match="nested deeper than 64 levels"):
+        parse_toml("a = " + "[" * 70 + "]" * 70, "x.toml", LogFormatError)
+    with pytest.raises(LogFormatError, match="not accepted TOML"):
+        parse_toml("a = " + "1" * 5000, "x.toml", LogFormatError)
+
+
+def test_atomic_write_names_the_target_and_cleans_up(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import errno
+    import os
+
+    import servotune.logs as logs
+
+    target = tmp_path / "out.csv"
+    real_open = os.open
+
+    def refuse(path: object, *args: object, **kwargs: object) -> int:
+        if str(path).endswith(".tmp"):
+            raise PermissionError(errno.EACCES, "Permission denied", str(path))
+        return real_open(path, *args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(logs.os, "open", refuse)
+    with pytest.raises(PermissionError) as info:
+        logs.atomic_write_bytes(target, b"x")
+    assert info.value.filename == str(target) and info.value.errno == errno.EACCES
+    monkeypatch.undo()
+
+    def broken_replace(src: object, dst: object) -> None:
+        raise OSError(errno.EXDEV, "Invalid cross-device link", str(src))
+
+    monkeypatch.setattr(logs.os, "replace", broken_replace)
+    with pytest.raises(OSError) as info2:
+        logs.atomic_write_bytes(target, b"x")
+    assert info2.value.filename == str(target)
+    assert list(tmp_path.iterdir()) == []  # the temporary file is gone
+
+    def interrupted(src: object, dst: object) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(logs.os, "replace", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        logs.atomic_write_bytes(target, b"x")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_read_table(tmp_path: Path) -> None:
+    from servotune.logs import read_table
+
+    table = read_table(_log(tmp_path, meta=[("period_s", "0.004")]), what="table")
+    assert table.header == ["tick", "time_s", "dac_code", "counter"]
+    assert table.n_rows == 6 and table.row_lines.tolist() == [3, 4, 5, 6, 7, 8]
+    assert table.columns["dac_code"].dtype == np.int64 and table.metadata["period_s"] == "0.004"
+    bad = _log(tmp_path, header="tick,speed", rows=["0,1"], name="bad.csv")
+    with pytest.raises(LogFormatError, match=r"table '.*bad.csv': line 1: unknown column 'speed'"):
+        read_table(bad, what="table")

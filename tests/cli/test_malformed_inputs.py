@@ -1,0 +1,351 @@
+"""Issue 15, the reliability contract: malformed inputs end in one line on stderr naming the
+file, the field and the expected form or unit, exit code 3, no traceback, no file written.
+
+Every case goes through the command line (``servotune.cli.main``), as a user meets it.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import subprocess
+import sys
+import warnings
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+from conftest import EXAMPLE_RIG, ROOT
+
+from servotune.budget import set_memory_budget
+from servotune.cli import main
+from servotune.logs import LogMetadataWarning
+
+PLANTS = ROOT / "plants"
+
+
+@pytest.fixture(autouse=True)
+def _default_budget() -> None:
+    set_memory_budget(None)
+
+
+def refused(
+    capsys: pytest.CaptureFixture[str],
+    args: list[str],
+    *mentions: str,
+    not_written: Path | None = None,
+) -> str:
+    """Run the CLI; assert exit 3, exactly one non-empty stderr line holding every mention,
+    no traceback and (if given) no output file. Returns the line."""
+    code = main(args)
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert code == 3, err
+    assert len(lines) == 1, err
+    assert "Traceback" not in err
+    for m in mentions:
+        assert m in lines[0], (m, lines[0])
+    if not_written is not None:
+        assert not not_written.exists()
+        assert not list(not_written.parent.glob(f".{not_written.name}.*.tmp"))
+    return lines[0]
+
+
+def variant(tmp_path: Path, source: Path, old: str, new: str, name: str = "") -> Path:
+    """``source`` with ``old`` replaced by ``new`` (once), next to a copy of the example rig."""
+    text = source.read_text(encoding="utf-8")
+    assert old in text, old
+    (tmp_path / EXAMPLE_RIG.name).write_text(EXAMPLE_RIG.read_text())
+    out = tmp_path / (name or source.name)
+    out.write_text(text.replace(old, new, 1), encoding="utf-8")
+    return out
+
+
+# --- rig files ---------------------------------------------------------------------------------
+
+RIG_CASES = {
+    "counter_bits_float": ("bits = 24", "bits = 24.0", "counter.bits", "[bits]", "24.0"),
+    "counter_bits_string": ("bits = 24", 'bits = "24"', "counter.bits", "integer", "'24'"),
+    "dac_bits_float": ("bits = 12", "bits = 12.0", "dac.bits", "integer in 8..16"),
+    "lock_gain_huge": ("lock_gain_codes_per_count = 0.4 ", "lock_gain_codes_per_count = 1e10 ",
+                       "axis.master.lock_gain_codes_per_count", "[codes/count]"),
+    "offset_1000_v": ("offset_v = 0.005", "offset_v = 1000.0", "axis.master.plant.offset_v",
+                      "[-10, 10] [V]"),
+    "huge_integer": ("speed_limit_rpm = 600", "speed_limit_rpm = 1" + "0" * 400,
+                     "axis.master.speed_limit_rpm", "401 digits"),
+    "bool_for_number": ("pulses_per_rev = 3072", "pulses_per_rev = true",
+                        "encoder.pulses_per_rev", "[pulses/rev]", "True"),
+    "string_for_number": ("period_s = 0.004 ", 'period_s = "4ms" ', "timer.period_s", "[s]"),
+    "negative_period": ("period_s = 0.004 ", "period_s = -0.004 ", "timer.period_s", "> 0"),
+    "zero_period": ("period_s = 0.004 ", "period_s = 0.0 ", "timer.period_s", "> 0"),
+    "nan": ("tau_s = 0.025", "tau_s = nan", "axis.master.plant.tau_s", "[s]"),
+    "empty_timer": ("period_s = 0.004 ", "# nothing ", "missing key timer.period_s"),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("case", sorted(RIG_CASES))
+def test_rig_file(case: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    old, new, *mentions = RIG_CASES[case]
+    rig = variant(tmp_path, EXAMPLE_RIG, old, new, "rig.toml")
+    refused(capsys, ["rig", str(rig)], str(rig), *mentions)
+
+
+def test_rig_file_with_bom_is_accepted(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    rig = tmp_path / "bom.toml"
+    rig.write_bytes(b"\xef\xbb\xbf" + EXAMPLE_RIG.read_bytes())
+    assert main(["rig", str(rig)]) == 0
+    assert "timer divisor" in capsys.readouterr().out
+
+
+def test_rig_file_nested_too_deep(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    rig = tmp_path / "deep.toml"
+    rig.write_text(EXAMPLE_RIG.read_text() + "\n[x]\ny = " + "[" * 200_000 + "]" * 200_000)
+    refused(capsys, ["rig", str(rig)], str(rig), "nested too deeply")
+
+
+# --- logs (servotune fit) ----------------------------------------------------------------------
+
+
+def _log_text(dt: float = 0.004, n: int = 300, meta: str = "", first: str = "") -> str:
+    rows = [f"{i * dt!r},{2148 if (i // 5) % 2 else 1948},{i * 3}" for i in range(n)]
+    if first:
+        rows[0] = first
+    return meta + "time_s,dac_code,counter\n" + "\n".join(rows) + "\n"
+
+
+@pytest.fixture(scope="module")
+def sim_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("log") / "log.csv"
+    assert main(["simulate", str(EXAMPLE_RIG), "--scenario", "prbs", "--seconds", "4",
+                 "-o", str(out)]) == 0  # fmt: skip
+    return out
+
+
+@pytest.mark.parametrize("value", ["nan", "-1", "inf", "1"])
+def test_fit_compute_s_option(
+    value: str, sim_log: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    refused(capsys, ["fit", str(sim_log), "--axis", "master", "--compute-s", value],
+            "option compute_s")  # fmt: skip
+
+
+LOG_CASES: dict[str, tuple[Callable[[], str], tuple[str, ...]]] = {
+    "step_1e304": (lambda: _log_text(dt=1e304), ("period", "1e-06 … 60 s")),
+    "step_1e-300": (lambda: _log_text(dt=1e-300), ("period", "1e-06 … 60 s")),
+    "int_of_5e6_digits": (
+        lambda: _log_text(first="0.0,2048," + "1" * 5_000_000),
+        ("row 2", "'counter'", "5000000 characters", "at most 64"),
+    ),
+    "float_of_5e6_digits": (
+        lambda: _log_text(first="0." + "1" * 5_000_000 + ",2048,0"),
+        ("row 2", "'time_s'", "at most 64"),
+    ),
+    "metadata_of_5e6_chars": (
+        lambda: _log_text(meta="# period_s: 0.004" + "0" * 5_000_000 + "\n"),
+        ("line 1", "'period_s'", "at most 1024"),
+    ),
+    "metadata_period_out_of_range": (
+        lambda: _log_text(meta="# period_s: 1e-300\n"),
+        ("line 1", "'period_s'", "seconds > 0"),
+    ),
+    "nan_time": (lambda: _log_text(first="nan,2048,0"), ("row 2", "'time_s'", "not finite")),
+    "superscript_digit": (lambda: _log_text(first="0.0,2²,0"), ("row 2", "'dac_code'")),
+}
+
+
+@pytest.mark.parametrize("case", sorted(LOG_CASES))
+def test_fit_log(case: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    make, mentions = LOG_CASES[case]
+    log = tmp_path / "log.csv"
+    log.write_text(make(), encoding="utf-8")
+    out = tmp_path / "fitted.toml"
+    refused(capsys, ["fit", str(log), "-o", str(out), "--axis", "x"], str(log), *mentions,
+            not_written=out)  # fmt: skip
+
+
+def test_unknown_metadata_warns_and_bom_is_accepted(
+    sim_log: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    log = tmp_path / "noted.csv"
+    text = sim_log.read_text(encoding="utf-8")
+    log.write_bytes(b"\xef\xbb\xbf" + ("# machine_id: m7\n# date: 2024-05-01\n# colour: blue\n"
+                                       + text).encode())  # fmt: skip
+    with pytest.warns(LogMetadataWarning, match="'colour'") as rec:
+        assert main(["fit", str(log), "--axis", "master"]) == 0
+    assert not any("machine_id" in str(w.message) for w in rec)
+
+
+def test_a_metadata_typo_is_one_warning_line_with_a_suggestion(
+    sim_log: Path, tmp_path: Path
+) -> None:
+    """Issue 20/DECISIONS 1: an unknown metadata key warns (not an error), in one line on
+    stderr naming the closest declared key; the fit still runs."""
+    log = tmp_path / "typo.csv"
+    log.write_text("# counter_bitz: 24\n" + sim_log.read_text())
+    run = subprocess.run([sys.executable, "-m", "servotune.cli", "fit", str(log), "--axis",
+                          "master"], capture_output=True, text=True, stdin=subprocess.DEVNULL,
+                         timeout=300)  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    warned = [ln for ln in run.stderr.splitlines() if "warning" in ln]
+    assert warned == [
+        f"servotune fit: warning: log {str(log)!r}: unknown metadata 'counter_bitz' (line 1, "
+        "did you mean 'counter_bits'?), kept but not used (a typo? see "
+        "servotune.logs.METADATA_KEYS)"
+    ]
+
+
+def test_declared_metadata_does_not_warn(
+    sim_log: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    log = tmp_path / "declared.csv"
+    log.write_text("# machine_id: m7\n# date: 2024-05-01\n" + sim_log.read_text())
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", LogMetadataWarning)
+        assert main(["fit", str(log), "--axis", "master"]) == 0
+
+
+# --- excitation files (servotune simulate --input) --------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def excitation(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("exc") / "exc.csv"
+    assert main(["excite", "--rig", str(EXAMPLE_RIG), "--kind", "steps", "--seconds", "1",
+                 "-o", str(out)]) == 0  # fmt: skip
+    return out
+
+
+@pytest.mark.parametrize("code", ["2²", "+-5", "1e3", "0x10", "9" * 70])
+def test_simulate_input_bad_code(
+    code: str, excitation: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    lines = excitation.read_text(encoding="utf-8").splitlines()
+    head = next(i for i, ln in enumerate(lines) if ln.startswith("tick,"))
+    cells = lines[head + 4].split(",")
+    cells[-1] = code
+    lines[head + 4] = ",".join(cells)
+    bad = tmp_path / "bad.csv"
+    bad.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    out = tmp_path / "log.csv"
+    refused(capsys, ["simulate", str(EXAMPLE_RIG), "--input", str(bad), "-o", str(out)],
+            str(bad), f"row {head + 5}", "'master.dac_code'", not_written=out)  # fmt: skip
+
+
+# --- resource bounds ---------------------------------------------------------------------------
+
+
+def test_simulate_seconds_1e12(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "x.csv"
+    line = refused(capsys, ["simulate", str(EXAMPLE_RIG), "--scenario", "prbs", "--seconds",
+                            "1e12", "-o", str(out)], "simulate 1e+12 s", "ticks × 2 axes",
+                   "over the memory budget of 2 GiB", not_written=out)  # fmt: skip
+    assert "PiB" in line
+
+
+def test_excite_seconds_1e12(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "x.csv"
+    refused(capsys, ["excite", "--rig", str(EXAMPLE_RIG), "--kind", "multisine", "--seconds",
+                     "1e12", "-o", str(out)], "excitation of 1e+12 s", "memory budget",
+            not_written=out)  # fmt: skip
+
+
+def test_budget_from_environment(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("SERVOTUNE_MAX_MEMORY", "64K")
+    out = tmp_path / "x.csv"
+    refused(capsys, ["simulate", str(EXAMPLE_RIG), "--scenario", "steps", "--seconds", "10",
+                     "-o", str(out)], "memory budget of 64 KiB", not_written=out)  # fmt: skip
+    monkeypatch.setenv("SERVOTUNE_MAX_MEMORY", "lots")
+    args = ["simulate", str(EXAMPLE_RIG), "--scenario", "steps", "--seconds", "10", "-o", str(out)]
+    refused(capsys, args, "SERVOTUNE_MAX_MEMORY", "'lots'", not_written=out)
+
+
+# --- gantry (servotune sync) and linkage configs ----------------------------------------------
+
+SYNC_CASES = {
+    "cycle_10_s": ("cycle_s = 0.001", "cycle_s = 10", "bus.cycle_s", "[s]"),
+    "latency_1e9_float": ("latency_cycles = 1", "latency_cycles = 1e9", "bus.latency_cycles",
+                          "integer in 1..1000 [cycles]"),
+    "latency_1e9_int": ("latency_cycles = 1", "latency_cycles = 1000000000",
+                        "bus.latency_cycles", "integer in 1..1000"),
+    "seconds_negative": ("seconds = 2.0", "seconds = -2.0", "gantry.seconds", "[s]"),
+    "distance_float": ("distance_counts = 150000", "distance_counts = 1.5e5",
+                       "move.distance_counts", "integer"),
+    "empty_sync_law": ('law = "pi"', 'law = ""', "sync.law", "pi, pd"),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("case", sorted(SYNC_CASES))
+def test_sync_config(case: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    old, new, *mentions = SYNC_CASES[case]
+    cfg = variant(tmp_path, PLANTS / "gantry.toml", old, new)
+    refused(capsys, ["sync", str(cfg)], str(cfg), *mentions)
+
+
+LINKAGE_CASES = {
+    "length_1e300": ("to = { x = 40000,", "to = { x = 1e300,", "path.move[0].to.x", "[counts]"),
+    "dwell_1e12": ("dwell_s = 0.5", "dwell_s = 1e12", "path.move[1].dwell_s", "[s]"),
+    "feed_bool": ("feed_cps = 40000", "feed_cps = true", "path.move[0].feed_cps", "True"),
+    "queue_float": ("queue_depth = 20 ", "queue_depth = 20.0 ", "cpu[0].queue_depth",
+                    "integer"),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("case", sorted(LINKAGE_CASES))
+def test_linkage_config(case: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    old, new, *mentions = LINKAGE_CASES[case]
+    cfg = variant(tmp_path, PLANTS / "linkage-6axis.toml", old, new)
+    refused(capsys, ["linkage", str(cfg)], str(cfg), *mentions)
+
+
+def test_linkage_crawling_feed_is_over_budget(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    cfg = variant(tmp_path, PLANTS / "linkage-6axis.toml", "feed_cps = 40000", "feed_cps = 1e-6")
+    refused(capsys, ["linkage", str(cfg)], "linkage-6axis", "path.move[0]", "memory budget")
+
+
+# --- JSON (tuning files) -----------------------------------------------------------------------
+
+JSON_CASES = {
+    "nested_200000": ("[" * 200_000 + "]" * 200_000, "nested 200000 levels"),
+    "nan": ('{"schema": "servotune.tuning/1", "period_s": NaN}', "NaN"),
+    "infinity": ('{"schema": "servotune.tuning/1", "period_s": Infinity}', "Infinity"),
+    "minus_infinity": ('{"period_s": -Infinity}', "-Infinity"),
+    "long_number": ('{"period_s": 1' + "0" * 5000 + "}", "5001 characters"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(JSON_CASES))
+def test_tuning_json(case: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    text, mention = JSON_CASES[case]
+    path = tmp_path / "tuning.json"
+    path.write_text(text, encoding="utf-8")
+    out = tmp_path / "tables.json"
+    # reading the tuning is the first thing export-table does
+    refused(capsys, ["export-table", str(path), "--unverified", "-o", str(out)], str(path),
+            mention, not_written=out)  # fmt: skip
+
+
+# --- writing -----------------------------------------------------------------------------------
+
+
+def test_unwritable_directory_names_the_target(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import servotune.logs as logs
+
+    real_open = os.open
+
+    def no_temp_files(path: object, *args: object, **kwargs: object) -> int:
+        if str(path).endswith(".tmp"):  # the directory refuses new files (root ignores modes)
+            raise PermissionError(errno.EACCES, "Permission denied", str(path))
+        return real_open(path, *args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(logs.os, "open", no_temp_files)
+    out = tmp_path / "log.csv"
+    line = refused(capsys, ["simulate", str(EXAMPLE_RIG), "--scenario", "steps", "--seconds",
+                            "1", "-o", str(out)], str(out), "Permission denied",
+                   not_written=out)  # fmt: skip
+    assert ".tmp" not in line
