@@ -5,11 +5,13 @@ Identify axis models from logs, synthesise PI and fuzzy-PID tables, verify them 
 """
 
 from servotune._numba_cache import keyed_by_sources
+from servotune._version import __version__
 
 with keyed_by_sources():  # numba's cache follows every source edit (see _numba_cache)
     from servotune.engine import Batch, BatchResult, Loop, Trace, prepare_batch, run_batch, simulate
     from servotune.errors import (
         ConfigError,
+        DigestError,
         ExportError,
         IdentificationError,
         LogFormatError,
@@ -17,8 +19,10 @@ with keyed_by_sources():  # numba's cache follows every source edit (see _numba_
         ServotuneError,
         SimulationError,
         SpecError,
+        TrustError,
         TuningError,
     )
+    from servotune.export.json import check_tables, load_tables
     from servotune.fixed import Fixed, quantize
     from servotune.identify import FitResult, PoorFitWarning, fit, fit_arrays
     from servotune.laws import AxisController, PIGains, lock_holding_band
@@ -40,13 +44,13 @@ with keyed_by_sources():  # numba's cache follows every source edit (see _numba_
     from servotune.tune.pi import PITuning, tune_pi, tune_pi_axis
     from servotune.tuning import Tuning, read_tuning, write_tuning
 
-__version__ = "0.1.0"
 
 __all__ = [
     "AxisController",
     "Batch",
     "BatchResult",
     "ConfigError",
+    "DigestError",
     "ExportError",
     "FitResult",
     "Fixed",
@@ -72,10 +76,12 @@ __all__ = [
     "StepInfo",
     "Trace",
     "TrackingMetrics",
+    "TrustError",
     "Tuning",
     "TuningError",
     "__version__",
     "build_scenario",
+    "check_tables",
     "compare_topologies",
     "discretize",
     "discretize_lti",
@@ -84,6 +90,7 @@ __all__ = [
     "load_gantry",
     "load_linkage",
     "load_rig",
+    "load_tables",
     "lock_holding_band",
     "prepare_batch",
     "quantize",

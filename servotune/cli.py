@@ -1,24 +1,48 @@
 """Command line: ``servotune <verb>``. Each handler is a few lines calling the library.
 
 stdout carries only the product (JSON, CSV); diagnostics go to stderr. Exit codes: 0 ok,
-1 verification failed, 2 usage error, 3 bad input data. Errors are one line on stderr; the
-traceback only with ``--debug``.
+1 a verification or tuning failed its spec, or the inputs are not the verified ones (a digest
+differs), 2 usage error, 3 bad input data, 130 interrupted (SIGINT, Ctrl-C), 143 terminated
+(SIGTERM). Errors are one line on stderr; the traceback only with ``--debug``. An interrupted
+or terminated run leaves no partial or temporary file: every output is written to a temporary
+file and renamed into place, and the temporary file is removed when the run stops.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import signal
 import sys
+import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from servotune import __version__
-from servotune.errors import ServotuneError
+from servotune._version import __version__
+from servotune.budget import set_memory_budget
+from servotune.errors import InfeasibleError, ServotuneError, TrustError
 
 __all__ = ["main"]
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_BAD_INPUT = 0, 1, 2, 3
+EXIT_INTERRUPTED, EXIT_TERMINATED = 128 + signal.SIGINT, 128 + signal.SIGTERM
+
+
+class _Terminated(BaseException):
+    """Raised in the main thread by the SIGTERM handler, so cleanup (``finally``) runs."""
+
+
+def _on_sigterm(signum: int, frame: object) -> None:
+    raise _Terminated
+
+
+_MAX_MESSAGE = 600  # characters of an error line
+
+
+def _line(exc: object) -> str:
+    """An error as one line of at most :data:`_MAX_MESSAGE` characters."""
+    text = " ".join(str(exc).split())
+    return text if len(text) <= _MAX_MESSAGE else text[: _MAX_MESSAGE - 1] + "…"
 
 
 def _cmd_rig(args: argparse.Namespace) -> int:
@@ -26,7 +50,9 @@ def _cmd_rig(args: argparse.Namespace) -> int:
 
     facts = describe_rig(load_rig(args.rig))
     if args.json:
-        print(json.dumps(facts, indent=2, sort_keys=True))
+        from servotune.logs import json_safe
+
+        print(json.dumps(json_safe(facts), indent=2, sort_keys=True, allow_nan=False))
     else:
         print(_format_facts(facts))
     return EXIT_OK
@@ -141,6 +167,24 @@ def _check_dirs(*paths: str | None) -> None:
             )
 
 
+def _workbench_dir(d: Path) -> None:
+    """Create the workbench directory and check it is writable, before any work or output."""
+    import os
+
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ServotuneError(
+            f"cannot create the workbench directory {str(d)!r}: {exc.strerror or exc} "
+            "(set SERVOTUNE_WORKBENCH, or pass --no-current)"
+        ) from None
+    if not os.access(d, os.W_OK | os.X_OK):
+        raise ServotuneError(
+            f"the workbench directory {str(d)!r} is not writable (set SERVOTUNE_WORKBENCH, or "
+            "pass --no-current)"
+        )
+
+
 def _range(text: str) -> tuple[float, float]:
     try:
         lo, hi = (float(x) for x in text.split(","))
@@ -173,6 +217,9 @@ def _cmd_tune(args: argparse.Namespace) -> int:
     from servotune.tuning import current_tuning_path, tuning_to_string, write_tuning
 
     _check_dirs(args.output)
+    current = None if args.no_current else current_tuning_path()
+    if current is not None:
+        _workbench_dir(current.parent)
     spec = SlaveTuneSpec(generations=args.generations, population=args.population,
                          max_overshoot_pct=args.max_overshoot_pct,
                          max_saturation_pct=args.max_saturation_pct)  # fmt: skip
@@ -183,9 +230,7 @@ def _cmd_tune(args: argparse.Namespace) -> int:
         print(f"wrote the tuning to {args.output}", file=sys.stderr)
     else:
         sys.stdout.write(tuning_to_string(tuning))
-    if not args.no_current:
-        current = current_tuning_path()
-        current.parent.mkdir(parents=True, exist_ok=True)
+    if current is not None:
         write_tuning(tuning, current)
         print(f"recorded it as the current tuning ({current})", file=sys.stderr)
     return EXIT_OK
@@ -194,22 +239,21 @@ def _cmd_tune(args: argparse.Namespace) -> int:
 def _cmd_verify(args: argparse.Namespace) -> int:
     from servotune.verify import format_table, verify_files
 
+    if args.report:  # before the run: a report directory that cannot be made fails first
+        Path(args.report).mkdir(parents=True, exist_ok=True)
     result, record, path = verify_files(args.tuning, args.spec, args.rig, seed=args.seed,
                                         progress=lambda m: print(m, file=sys.stderr))  # fmt: skip
     if args.json:
         print(json.dumps(record, indent=2, sort_keys=True))
     else:
         print(format_table(result))
-    if not record["rig_matches_tuning"]:
-        print("note: the rig file differs from the one the tuning was made for", file=sys.stderr)
     print(f"wrote the verification record to {path}", file=sys.stderr)
     if args.report:
         from servotune.report import write_report
         from servotune.tuning import read_tuning
         from servotune.verify import default_rig_path
 
-        Path(args.report).mkdir(parents=True, exist_ok=True)
-        rig_path = args.rig or default_rig_path(read_tuning(args.tuning))
+        rig_path = args.rig or default_rig_path(read_tuning(args.tuning), args.tuning)
         out = write_report(args.report, tuning_path=args.tuning, rig_path=rig_path,
                            verification=result)  # fmt: skip
         print(f"wrote the report to {out}", file=sys.stderr)
@@ -218,32 +262,48 @@ def _cmd_verify(args: argparse.Namespace) -> int:
 
 def _cmd_export_table(args: argparse.Namespace) -> int:
     from servotune.export import tables_to_string, write_c, write_tables
-    from servotune.rig import load_rig
-    from servotune.tuning import current_tuning_path, read_tuning
-    from servotune.verify import default_rig_path, trusted_record
+    from servotune.tuning import current_tuning_path
+    from servotune.verify import load_for_export
 
     path = Path(args.tuning) if args.tuning else current_tuning_path()
     if args.format == "c" and not args.output:
         raise ServotuneError("--format c needs -o DIR (the directory to write the C files into)")
     _check_dirs(args.output if args.format == "json" else None)
-    tuning = read_tuning(path)
-    record = trusted_record(path)
-    if record is None and not args.unverified:
-        print(f"servotune export-table: refused: {path} has not passed `servotune verify` (or "
-              "changed since); verify it, or pass --unverified to export it marked so",
-              file=sys.stderr)  # fmt: skip
-        return EXIT_FAILED
-    rig = load_rig(args.rig or default_rig_path(tuning))
-    kw = {"rig": rig, "verification": record, "unverified": record is None}
+    v = load_for_export(path, args.rig, args.spec, unverified=args.unverified)
+    kw = {"rig": v.rig, "verification": v.record, "unverified": v.record is None}
     if args.format == "c":
         Path(args.output).mkdir(parents=True, exist_ok=True)
-        written = write_c(tuning, args.output, **kw)
+        written = write_c(v.tuning, args.output, **kw)
         print(f"wrote {', '.join(p.name for p in written)} to {args.output}", file=sys.stderr)
     elif args.output and args.output != "-":
-        write_tables(tuning, args.output, **kw)
+        write_tables(v.tuning, args.output, **kw)
         print(f"wrote the tables to {args.output}", file=sys.stderr)
     else:
-        sys.stdout.write(tables_to_string(tuning, **kw))
+        sys.stdout.write(tables_to_string(v.tuning, **kw))
+    return EXIT_OK
+
+
+def _cmd_check_table(args: argparse.Namespace) -> int:
+    from servotune.export.json import load_tables
+
+    doc = load_tables(args.file)
+    data = doc["data"]
+    summary = {
+        "axes": [a["name"] for a in data["axes"]],
+        "c_layout_sha256": data["c_layout_sha256"],
+        "file": args.file,
+        "ok": True,
+        "rig": data["rig_name"],
+        "schema": doc["schema"],
+        "sha256": doc["sha256"],
+        "verified": doc["verified"],
+    }
+    if args.json:
+        print(json.dumps(summary, indent=2, sort_keys=True))
+    verified = "verified" if doc["verified"] else "NOT verified (exported --unverified)"
+    print(f"{args.file}: ok: {doc['schema']}, rig {data['rig_name']}, axes "
+          f"{', '.join(summary['axes'])}, {verified}; every CRC and digest matches "
+          f"(sha256 {doc['sha256'][:12]}…)", file=sys.stderr)  # fmt: skip
     return EXIT_OK
 
 
@@ -333,6 +393,12 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--version", action="version", version=f"servotune {__version__}")
     p.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    p.add_argument(
+        "--max-memory",
+        metavar="SIZE",
+        help="memory budget a run may plan to allocate, e.g. 512M, 8G (default 2G, or "
+        "$SERVOTUNE_MAX_MEMORY); a larger run is refused before it starts (exit 3)",
+    )
     sub = p.add_subparsers(dest="verb", required=True, metavar="VERB")
 
     s = sub.add_parser("rig", help="print the derived facts of a rig file")
@@ -412,7 +478,11 @@ def _parser() -> argparse.ArgumentParser:
     s = sub.add_parser("verify", help="verify a tuning against a spec in the bit-true loop")
     s.add_argument("tuning", help="tuning file (from servotune tune)")
     s.add_argument("--spec", required=True, help="spec file (TOML)")
-    s.add_argument("--rig", help="rig file (default: plants/<rig name>.toml)")
+    s.add_argument(
+        "--rig",
+        help="rig file: a copy of the tuning's rig (default: the path the tuning records, then "
+        "plants/<rig name>.toml); another rig is refused (exit 1)",
+    )
     s.add_argument("--seed", type=int, default=None, help="Monte-Carlo seed (default: the spec's)")
     s.add_argument("--json", action="store_true", help="the verification record as JSON on stdout")
     s.add_argument("--report", help="also write the HTML report into this directory")
@@ -422,9 +492,21 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("tuning", nargs="?", help="tuning file (default: the workbench's current one)")
     s.add_argument("-o", "--output", help="file (JSON) or directory (C); default stdout (JSON)")
     s.add_argument("--format", choices=["json", "c"], default="json")
-    s.add_argument("--rig", help="rig file (default: plants/<rig name>.toml)")
+    s.add_argument(
+        "--rig",
+        help="rig file: a copy of the tuning's rig (default: the path the tuning records, then "
+        "plants/<rig name>.toml); another rig is refused",
+    )
+    s.add_argument("--spec", help="also require that the verification used this spec file")
     s.add_argument("--unverified", action="store_true", help="export without a passed verify")
     s.set_defaults(func=_cmd_export_table)
+
+    s = sub.add_parser(
+        "check-table", help="check a tables export: every CRC and digest (any edit is refused)"
+    )
+    s.add_argument("file", help="tables export (JSON, from servotune export-table)")
+    s.add_argument("--json", action="store_true", help="the check's summary as JSON on stdout")
+    s.set_defaults(func=_cmd_check_table)
 
     s = sub.add_parser("demo", help="run the whole job on a rig and write into a directory")
     s.add_argument("rig", help="rig file (TOML)")
@@ -450,23 +532,58 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the command line; returns the exit code."""
+    """Run the command line; returns the exit code (module docstring)."""
     parser = _parser()
     args = parser.parse_args(argv)
     func: Callable[[argparse.Namespace], int] = args.func
+    previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    format_warning = warnings.formatwarning
+
+    def one_line(message: Warning | str, *_: object, **__: object) -> str:
+        return f"servotune {args.verb}: warning: {message}\n"
+
+    if not args.debug:  # a warning is one line naming the verb (the source line only on --debug)
+        warnings.formatwarning = one_line
     try:
+        if args.max_memory is not None:
+            set_memory_budget(args.max_memory)
         return func(args)
+    except TrustError as exc:
+        if args.debug:
+            raise
+        print(f"servotune {args.verb}: refused: {_line(exc)}", file=sys.stderr)
+        return EXIT_FAILED
+    except InfeasibleError as exc:
+        if args.debug:
+            raise
+        print(f"servotune {args.verb}: failed: {_line(exc)}", file=sys.stderr)
+        return EXIT_FAILED
     except ServotuneError as exc:
         if args.debug:
             raise
-        print(f"servotune {args.verb}: error: {exc}", file=sys.stderr)
+        print(f"servotune {args.verb}: error: {_line(exc)}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except OSError as exc:
         if args.debug:
             raise
-        where = f" {exc.filename!r}" if getattr(exc, "filename", None) else ""
-        print(f"servotune {args.verb}: error:{where} {exc.strerror or exc}", file=sys.stderr)
+        where = f" {exc.filename!r}:" if getattr(exc, "filename", None) else ""
+        print(f"servotune {args.verb}: error:{where} {_line(exc.strerror or exc)}"[:700],
+              file=sys.stderr)  # fmt: skip
         return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        if args.debug:
+            raise
+        print(f"servotune {args.verb}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except _Terminated:
+        if args.debug:
+            raise
+        print(f"servotune {args.verb}: terminated", file=sys.stderr)
+        return EXIT_TERMINATED
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+        warnings.formatwarning = format_warning
+        set_memory_budget(None)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -7,14 +7,18 @@ built-in exception it resembles, so callers may catch either.
 from __future__ import annotations
 
 __all__ = [
+    "ConfigError",
     "CounterFaultWarning",
+    "DigestError",
     "ExportError",
     "IdentificationError",
+    "InfeasibleError",
     "LogFormatError",
     "RigError",
     "ServotuneError",
     "SimulationError",
     "SpecError",
+    "TrustError",
     "TuningError",
 ]
 
@@ -39,6 +43,11 @@ class SpecError(ServotuneError, ValueError):
     """A specification or scenario request is invalid or impossible."""
 
 
+class InfeasibleError(SpecError):
+    """The spec is well-formed, but no tuning meets it (the CLI exits 1: the tuning failed its
+    spec, as a failed verification does)."""
+
+
 class SimulationError(ServotuneError, ValueError):
     """A simulation request is inconsistent (shapes, timebases, options)."""
 
@@ -53,6 +62,18 @@ class ExportError(ServotuneError, ValueError):
 
 class ConfigError(ServotuneError, ValueError):
     """An architecture configuration (``servotune sync`` / ``linkage``) is invalid."""
+
+
+class TrustError(ServotuneError):
+    """What was verified and what is given differ: a tuning, rig or spec whose SHA-256 is not
+    the one its verification record (or tuning) holds, a record or export that was edited, a
+    record made by another tool version, or no passing verification at all. The CLI exits 1:
+    the inputs are well-formed, but they are not the verified ones."""
+
+
+class DigestError(ExportError, TrustError):
+    """A well-formed tables export whose CRC or digest does not match its content: it was edited
+    or damaged after export (the CLI exits 1, like any input that is not the verified one)."""
 
 
 class CounterFaultWarning(UserWarning):

@@ -26,6 +26,8 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
+from servotune.validate import show_value
+
 __all__ = [
     "E_MAX",
     "F_U",
@@ -91,10 +93,10 @@ class Fixed:
         if self.bits not in (16, 32):
             raise ValueError(f"bits must be 16 or 32, got {self.bits}")
         if not 0 <= self.f <= 62:
-            raise ValueError(f"f must be in 0..62 fraction bits, got {self.f}")
+            raise ValueError(f"f must be in 0..62 fraction bits, got {show_value(self.f)}")
         lim = 2 ** (self.bits - 1) - 1
         if not -lim <= self.q <= lim:
-            raise ValueError(f"q must fit int{self.bits} (|q| <= {lim}), got {self.q}")
+            raise ValueError(f"q must fit int{self.bits} (|q| <= {lim}), got {show_value(self.q)}")
 
     @property
     def value(self) -> float:
@@ -115,10 +117,12 @@ class Fixed:
             If ``d`` is not ``{"q": int, "f": int}`` or a value is out of range.
         """
         if not isinstance(d, dict) or set(d) != {"q", "f"}:
-            raise ValueError(f"a fixed-point constant must be {{'q': int, 'f': int}}, got {d!r}")
+            raise ValueError(
+                f"a fixed-point constant must be {{'q': int, 'f': int}}, got {show_value(d)}"
+            )
         q, f = d["q"], d["f"]
         if type(q) is not int or type(f) is not int:
-            raise ValueError(f"q and f must be integers, got q={q!r}, f={f!r}")
+            raise ValueError(f"q and f must be integers, got q={show_value(q)}, f={show_value(f)}")
         if f > f_max:
             raise ValueError(f"f must be <= {f_max} fraction bits, got {f}")
         return cls(q=q, f=f, bits=bits)

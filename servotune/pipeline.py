@@ -17,12 +17,13 @@ from typing import Any
 
 import numpy as np
 
-from servotune import __version__
+from servotune._version import __version__
 from servotune.engine import Loop, Trace, simulate
+from servotune.errors import IdentificationError
 from servotune.logs import atomic_write_text, write_log
 from servotune.metrics import tracking_metrics
 from servotune.rig import Rig, describe_rig, load_rig
-from servotune.scenarios import Inputs, Scenario, build_scenario
+from servotune.scenarios import Inputs, Scenario, build_scenario, check_run_memory
 from servotune.tune.pi import pi_loop_shaping
 
 __all__ = [
@@ -109,6 +110,7 @@ class LockHoldResult:
 def lock_hold(rig: Rig, *, seconds: float = 60.0, settle_s: float = 2.0, seed: int = 0,
               plants: list | None = None) -> LockHoldResult:  # fmt: skip
     """Run the lock module alone on every axis and compare the hold with the prediction."""
+    check_run_memory(rig, seconds / rig.period_s, f"a lock hold of {seconds:g} s")
     n = math.floor(seconds / rig.period_s + 0.5)
     loop = Loop.from_rig(rig)
     trace = simulate(loop, Inputs.hold(n, len(rig.axes)), seed=seed, plants=plants)
@@ -261,21 +263,23 @@ def run_demo(rig_path: str | Path, out_dir: str | Path, *, seed: int = 0) -> dic
     tuning_path = out / "tuning.json"
     write_tuning(tuning, tuning_path)
     cmp = run_comparison(rig, out, seed=seed)
-    # verify on the example rig (the "real" machine, not the fitted models), export, report
+    # verify on the rig the tuning was made for (the fitted models: what a user has; the spec's
+    # Monte-Carlo spreads cover the model error), then export exactly the verified bytes
     from servotune.export import write_c, write_tables
     from servotune.report import write_report
-    from servotune.verify import verify_files
+    from servotune.verify import load_for_export, verify_files
 
     spec_path = Path(rig_path).with_suffix(".spec.toml")
     architectures = run_architectures(Path(rig_path).parent, out, seed=seed)
-    verification, record, _ = verify_files(tuning_path, spec_path, rig_path)
+    verification, _, _ = verify_files(tuning_path, spec_path)
     exported = []
     if verification.passed:
-        write_tables(tuning, out / "fuzzy.json", rig=rig, verification=record)
+        v = load_for_export(tuning_path, spec_path=spec_path)
+        write_tables(v.tuning, out / "fuzzy.json", rig=v.rig, verification=v.record)
         (out / "c").mkdir(exist_ok=True)
-        write_c(tuning, out / "c", rig=rig, verification=record)
+        write_c(v.tuning, out / "c", rig=v.rig, verification=v.record)
         exported = ["fuzzy.json", "c/"]
-    write_report(out, tuning_path=tuning_path, rig_path=rig_path, verification=verification,
+    write_report(out, tuning_path=tuning_path, rig_path=fitted_rig, verification=verification,
                  seed=seed)  # fmt: skip
     summary = {
         "architectures": architectures,
@@ -351,9 +355,13 @@ def fit_log(
         dac_bits=dac_bits,
         dac_range_v=dac_range_v,
         period_s=period_s,
+        compute_s=compute_s,  # validated with the other options (finite, >= 0, < period)
     )
     log_axis = None if list(log.axes) == [""] else axis
-    result = fit(log, axis=log_axis, structure=structure, compute_s=compute_s)
+    try:
+        result = fit(log, axis=log_axis, structure=structure, compute_s=compute_s)
+    except IdentificationError as exc:  # the data do not allow it: name the log
+        raise IdentificationError(f"log {str(log_path)!r}: {exc}") from None
     name = axis if axis is not None else (log_axis or next(iter(log.axes)))
     return result, log, name
 

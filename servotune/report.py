@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from servotune import __version__
+from servotune._version import __version__
 from servotune.engine import simulate
 from servotune.laws.fuzzy_pid import TABLE_NAMES, FuzzyPIDConstants
 from servotune.logs import atomic_write_text

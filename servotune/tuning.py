@@ -6,7 +6,13 @@ entries with their fraction bits, the tick period and the timer divisor, the des
 came from (floats, for people), and provenance (rig hash, tool version, seed).
 
 The file is JSON with sorted keys, two-space indent and a trailing newline: the same tuning
-gives the same bytes. ``"schema": "servotune.tuning/1"``.
+gives the same bytes. ``"schema": "servotune.tuning/2"`` (``/2`` added the rig file's path;
+a ``/1`` file is refused with a request to re-run ``servotune tune``).
+
+Reading is strict: every key known (an unknown one is named with the closest known one), every
+integer an integer (not ``6.0`` nor ``"6"``), roles ``master``/``slave``, numbers finite.
+:func:`read_tuning_bytes` parses the bytes a caller already holds, so ``verify`` hashes exactly
+what it verified.
 
 The **workbench's current tuning** is ``.servotune/tuning.json`` under the working directory,
 or under the directory named by the environment variable ``SERVOTUNE_WORKBENCH``;
@@ -19,6 +25,7 @@ import hashlib
 import json
 import math
 import os
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,8 +34,9 @@ from typing import Any
 from servotune.engine import Loop
 from servotune.errors import TuningError
 from servotune.laws.axis import AxisController
-from servotune.logs import atomic_write_text, json_safe, read_json
-from servotune.rig import Rig
+from servotune.logs import atomic_write_text, json_safe, parse_json, read_bytes
+from servotune.rig import ROLES, Rig
+from servotune.validate import check_keys, show_value
 
 __all__ = [
     "SCHEMA",
@@ -36,11 +44,15 @@ __all__ = [
     "current_tuning_path",
     "file_sha256",
     "read_tuning",
+    "read_tuning_bytes",
     "tuning_to_string",
     "write_tuning",
 ]
 
-SCHEMA = "servotune.tuning/1"
+SCHEMA = "servotune.tuning/2"
+_OLD_SCHEMAS = ("servotune.tuning/1",)
+_SHA256 = re.compile(r"[0-9a-f]{64}")
+_MAX_NAME = 256  # characters of a rig or axis name, a path: 4096
 _PERIOD_RTOL = 1e-12
 
 
@@ -65,6 +77,9 @@ class Tuning:
         The rig's name.
     rig_sha256 : str
         SHA-256 of the rig file the tuning was made for.
+    rig_path : str
+        That rig file's path as the user gave it to ``tune`` ("" if unknown); ``verify`` and
+        ``export-table`` look for the rig there first.
     period_s : float
         Achieved tick period [s] (the constants fold it in).
     timer_divisor : int
@@ -88,6 +103,7 @@ class Tuning:
     controllers: tuple[AxisController, ...]
     design: Mapping[str, Any] = field(default_factory=dict, compare=False)
     provenance: Mapping[str, Any] = field(default_factory=dict, compare=False)
+    rig_path: str = field(default="", compare=False)
 
     def __post_init__(self) -> None:
         n = len(self.axis_names)
@@ -106,14 +122,16 @@ class Tuning:
         controllers: tuple[AxisController, ...],
         *,
         rig_sha256: str,
+        rig_path: str | Path = "",
         design: Mapping[str, Any] | None = None,
         provenance: Mapping[str, Any] | None = None,
     ) -> Tuning:
         """A tuning of ``rig``: its name, period, timer divisor, axes and roles, these
-        controllers (rig order), and the hash of the rig file they were made for."""
+        controllers (rig order), and the hash and path of the rig file they were made for."""
         return cls(
             rig_name=rig.name,
             rig_sha256=rig_sha256,
+            rig_path=Path(rig_path).as_posix() if str(rig_path) else "",
             period_s=rig.period_s,
             timer_divisor=rig.timer.divisor,
             axis_names=rig.axis_names,
@@ -157,53 +175,93 @@ class Tuning:
             "design": json_safe(self.design),
             "period_s": float(self.period_s),
             "provenance": json_safe(self.provenance),
-            "rig": {"name": self.rig_name, "sha256": self.rig_sha256},
+            "rig": {"name": self.rig_name, "path": self.rig_path, "sha256": self.rig_sha256},
             "schema": SCHEMA,
             "timer_divisor": int(self.timer_divisor),
         }
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> Tuning:
-        """Inverse of :meth:`to_dict`; every field checked.
+        """Inverse of :meth:`to_dict`; every field checked (see the module docstring).
 
         Raises
         ------
         TuningError
-            Wrong schema, missing or malformed field (the message names it).
+            Wrong or old schema, a missing, unknown or malformed field (the message names it).
         """
-        if not isinstance(d, Mapping):
+        if not isinstance(d, dict):
             raise TuningError("a tuning file must hold a JSON object")
-        if d.get("schema") != SCHEMA:
-            raise TuningError(f"schema must be {SCHEMA!r}, got {d.get('schema')!r}")
+        schema = d.get("schema")
+        if schema in _OLD_SCHEMAS:
+            raise TuningError(
+                f"{schema} was written by an older servotune; re-run `servotune tune` (and "
+                "`servotune verify`)"
+            )
+        if schema != SCHEMA:
+            raise TuningError(f"schema must be {SCHEMA!r}, got {show_value(schema)}")
         try:
+            check_keys(d, "", ("axes", "period_s", "rig", "schema", "timer_divisor"),
+                       ("design", "provenance"))  # fmt: skip
+            rig = check_keys(d["rig"], "rig", ("name", "path", "sha256"))
             axes = d["axes"]
-            if not isinstance(axes, list) or not axes:
-                raise TuningError("axes must be a non-empty list")
-            ctls = []
+            if not isinstance(axes, list) or not 1 <= len(axes) <= 16:
+                raise ValueError("axes must be a list of 1 to 16 axes")
+            names, roles, ctls = [], [], []
             for i, a in enumerate(axes):
+                a = check_keys(a, f"axes[{i}]", ("controller", "name", "role"))
+                names.append(_text(a["name"], f"axes[{i}].name", _MAX_NAME))
+                if a["role"] not in ROLES:
+                    got = show_value(a["role"])
+                    raise ValueError(f"axes[{i}].role must be one of {', '.join(ROLES)}, got {got}")
+                roles.append(a["role"])
                 try:
                     ctls.append(AxisController.from_dict(a["controller"]))
                 except ValueError as exc:
-                    raise TuningError(f"axes[{i}].controller: {exc}") from None
-            period = d["period_s"]
-            divisor = d["timer_divisor"]
-            if not isinstance(period, float) or type(divisor) is not int:
-                raise TuningError("period_s must be a number [s] and timer_divisor an integer")
+                    raise ValueError(f"axes[{i}].controller: {exc}") from None
+            if len(set(names)) != len(names):
+                raise ValueError(f"axis names must differ, got {names}")
+            period, divisor = d["period_s"], d["timer_divisor"]
+            if type(period) is not float or not 0 < period < 1:
+                raise ValueError(
+                    f"period_s must be a number in (0, 1) [s], got {show_value(period)}"
+                )
+            if type(divisor) is not int or not 2 <= divisor <= 65536:
+                raise ValueError(
+                    f"timer_divisor must be an integer in 2..65536, got {show_value(divisor)}"
+                )
+            sha = rig["sha256"]
+            if not isinstance(sha, str) or not _SHA256.fullmatch(sha):
+                raise ValueError(
+                    f"rig.sha256 must be 64 lower-case hex digits, got {show_value(sha)}"
+                )
+            for key in ("design", "provenance"):
+                if not isinstance(d.get(key, {}), dict):
+                    raise ValueError(f"{key} must be an object")
             return cls(
-                rig_name=str(d["rig"]["name"]),
-                rig_sha256=str(d["rig"]["sha256"]),
+                rig_name=_text(rig["name"], "rig.name", _MAX_NAME),
+                rig_sha256=sha,
+                rig_path=_text(rig["path"], "rig.path", 4096, empty=True),
                 period_s=period,
                 timer_divisor=divisor,
-                axis_names=tuple(str(a["name"]) for a in axes),
-                roles=tuple(str(a["role"]) for a in axes),
+                axis_names=tuple(names),
+                roles=tuple(roles),
                 controllers=tuple(ctls),
                 design=d.get("design", {}),
                 provenance=d.get("provenance", {}),
             )
-        except KeyError as exc:
-            raise TuningError(f"tuning file is missing the field {exc.args[0]!r}") from None
-        except TypeError as exc:
-            raise TuningError(f"tuning file is malformed: {exc}") from None
+        except TuningError:
+            raise
+        except ValueError as exc:
+            raise TuningError(str(exc)) from None
+
+
+def _text(v: object, where: str, max_len: int, *, empty: bool = False) -> str:
+    if not isinstance(v, str) or len(v) > max_len or (not v and not empty):
+        what = "a string" if empty else "a non-empty string"
+        raise ValueError(
+            f"{where} must be {what} of at most {max_len} characters, got {show_value(v)}"
+        )
+    return v
 
 
 def tuning_to_string(tuning: Tuning) -> str:
@@ -216,17 +274,32 @@ def write_tuning(tuning: Tuning, path: str | Path) -> None:
     atomic_write_text(path, tuning_to_string(tuning))
 
 
+def read_tuning_bytes(raw: bytes, src: str) -> Tuning:
+    """Parse and check a tuning from the file's bytes (``src`` names it in messages).
+
+    Raises
+    ------
+    TuningError
+        Not UTF-8 JSON, or not a valid tuning (one line naming ``src`` and the field).
+    """
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise TuningError(f"{src}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    data = parse_json(text, src, TuningError)
+    try:
+        return Tuning.from_dict(data)
+    except TuningError as exc:
+        raise TuningError(f"{src}: {exc}") from None
+
+
 def read_tuning(path: str | Path) -> Tuning:
-    """Read and check a tuning file.
+    """Read and check a tuning file (:func:`read_tuning_bytes` of its bytes).
 
     Raises
     ------
     TuningError
         If the file is missing, not JSON, or not a valid tuning.
     """
-    p = Path(path)
-    data = read_json(p, TuningError, "no such tuning file")
-    try:
-        return Tuning.from_dict(data)
-    except TuningError as exc:
-        raise TuningError(f"{p}: {exc}") from None
+    raw = read_bytes(path, TuningError, "tuning file", "no such tuning file")
+    return read_tuning_bytes(raw, str(path))

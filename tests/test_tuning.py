@@ -61,7 +61,7 @@ def test_bad_files_name_the_problem(rig: st.Rig, tmp_path) -> None:
     good = _tuning(rig).to_dict()
     cases = {
         "schema": ({**good, "schema": "servotune.tuning/0"}, "schema must be"),
-        "missing": ({k: v for k, v in good.items() if k != "period_s"}, "missing the field"),
+        "missing": ({k: v for k, v in good.items() if k != "period_s"}, "missing key period_s"),
         "law": (
             {**good, "axes": [{**good["axes"][0], "controller": {
                 **good["axes"][0]["controller"], "law": "pid"}}, good["axes"][1]]},

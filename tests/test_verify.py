@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 import math
 from pathlib import Path
@@ -10,7 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from servotune.errors import SpecError
+import servotune as st
+from servotune.errors import SpecError, TrustError
 from servotune.fixed import E_MAX, INT64_MAX, Fixed
 from servotune.laws.fuzzy_pid import FuzzyPIDGains
 from servotune.laws.pi import PIConstants
@@ -19,16 +21,18 @@ from servotune.tune.workflow import tune_rig
 from servotune.tuning import Tuning, file_sha256, read_tuning, write_tuning
 from servotune.verify import (
     ScenarioSpec,
+    SourceFile,
     Spec,
     check_overflow,
+    check_record,
     check_speed,
     check_timer,
     format_table,
     load_spec,
     max_safe_gain_q,
     plant_variants,
+    read_record,
     record_path,
-    trusted_record,
     verification_record,
     verify,
     verify_files,
@@ -332,37 +336,62 @@ def test_overflow_flags_a_scheduled_gain_beyond_the_bound(good, rig) -> None:
 # --- the record ----------------------------------------------------------------------------
 
 
+def _sources(tuning: Path) -> dict[str, SourceFile]:
+    return {
+        "tuning": SourceFile.read(tuning, OSError, "tuning file"),
+        "rig": SourceFile.read(EXAMPLE_RIG_PATH, OSError, "rig file"),
+        "spec": SourceFile.read(SPEC_PATH, OSError, "spec file"),
+    }
+
+
 def test_record_hashes_and_trust(tmp_path, tuning_file, good_result) -> None:
     tuning = tmp_path / "tuning.json"
     tuning.write_bytes(tuning_file.read_bytes())
-    record = verification_record(good_result, tuning, EXAMPLE_RIG_PATH, SPEC_PATH)
+    src = _sources(tuning)
+    record = verification_record(good_result, **src)
     files = record["files"]
+    # hashes against hashlib over the files' bytes (file_sha256), not the code under test
     assert files["tuning"]["sha256"] == file_sha256(tuning)
     assert files["rig"]["sha256"] == file_sha256(EXAMPLE_RIG_PATH)
     assert files["spec"]["sha256"] == file_sha256(SPEC_PATH)
-    assert record["passed"] is True and record["schema"] == "servotune.verify/1"
-    assert record["rig_matches_tuning"] is True and record["summary"]["limits_failed"] == 0
+    assert record["passed"] is True and record["schema"] == "servotune.verify/2"
+    assert record["summary"]["limits_failed"] == 0 and record["tool_version"] == st.__version__
+    body = {k: v for k, v in record.items() if k != "sha256"}
+    canon = json.dumps(body, sort_keys=True, separators=(",", ":"), ensure_ascii=False)
+    assert record["sha256"] == hashlib.sha256(canon.encode()).hexdigest()  # DECISIONS 3
     path = write_record(record, tuning)
     assert path == tmp_path / "tuning.json.verify.json" == record_path(tuning)
     text = path.read_text()
     assert text == json.dumps(json.loads(text), sort_keys=True, indent=2) + "\n"
-    assert trusted_record(tuning) == record
+    assert read_record(tuning) == record
+    check_record(record, **src)  # the same bytes: trusted
     # one byte changes in the tuning: the record no longer vouches for it
     raw = bytearray(tuning.read_bytes())
     raw[-1:] = b" \n"
     tuning.write_bytes(bytes(raw))
-    assert trusted_record(tuning) is None
+    with pytest.raises(TrustError, match="the tuning differs from the verified one"):
+        check_record(record, **_sources(tuning))
 
 
-def test_failed_or_missing_record_is_not_trusted(tmp_path, tuning_file, good_result) -> None:
+def test_failed_missing_or_edited_record_is_not_trusted(tmp_path, tuning_file, good_result) -> None:
     tuning = tmp_path / "t.json"
     tuning.write_bytes(tuning_file.read_bytes())
-    assert trusted_record(tuning) is None
-    record = verification_record(good_result, tuning, EXAMPLE_RIG_PATH, SPEC_PATH)
+    with pytest.raises(TrustError, match="has no verification record"):
+        read_record(tuning)
+    src = _sources(tuning)
+    record = verification_record(good_result, **src)
+    # edited by hand (passed flipped): the record's own digest refuses it
     write_record({**record, "passed": False}, tuning)
-    assert trusted_record(tuning) is None
+    with pytest.raises(TrustError, match="digest does not match"):
+        read_record(tuning)
+    failed = {**record, "passed": False}
+    with pytest.raises(TrustError, match="failed its verification"):
+        check_record(failed, **src)
+    with pytest.raises(TrustError, match=r"verified by servotune 0\.0\.0"):
+        check_record({**record, "tool_version": "0.0.0"}, **src)
     record_path(tuning).write_text("{not json")
-    assert trusted_record(tuning) is None
+    with pytest.raises(TrustError, match="not JSON"):
+        read_record(tuning)
 
 
 def test_verify_files_end_to_end(tmp_path, tuning_file, spec) -> None:
@@ -378,7 +407,7 @@ def test_verify_files_end_to_end(tmp_path, tuning_file, spec) -> None:
     first = path.read_bytes()
     verify_files(tuning, quick, EXAMPLE_RIG_PATH)
     assert path.read_bytes() == first  # deterministic bytes: no timestamps
-    assert trusted_record(tuning)["files"]["spec"]["name"] == "quick.spec.toml"
+    assert read_record(tuning)["files"]["spec"]["name"] == "quick.spec.toml"
     table = format_table(v)
     assert table.splitlines()[-1] == "PASSED" and "max_sync_error_counts" in table
     assert not any(math.isnan(r.worst) for r in v.rows)

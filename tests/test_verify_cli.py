@@ -93,7 +93,7 @@ def test_export_table_trusts_only_a_passed_verify(tunings, tmp_path, capsys, mon
     # the quick tuning failed verify: refused, exit 1, nothing written
     refused = tmp_path / "refused.json"
     assert main(["export-table", str(tunings["quick"]), "--rig", str(RIG), "-o", str(refused)]) == 1
-    assert "has not passed" in capsys.readouterr().err and not refused.exists()
+    assert "failed its verification" in capsys.readouterr().err and not refused.exists()
     # a tuning changed after its verify is not trusted either
     good.write_text(good.read_text().replace('"seed": 0', '"seed": 1'))
     assert main(["export-table", str(good), "--rig", str(RIG), "-o", str(refused)]) == 1

@@ -6,8 +6,11 @@
   CRCs as the JSON export, :func:`servotune.export.json.tables_document`): include guard,
   ``<stdint.h>`` types, the schema version, per axis every constant as an int32 ``q`` and its
   fraction bits ``f``, the query tables as ``static const int16_t`` arrays (row ``E``, column
-  ``EC``), the CRCs as ``uint32_t`` constants, and ``SERVOTUNE_TABLES_INIT``, an initialiser
-  of the runtime's ``st_consts_t``;
+  ``EC``), the CRCs as ``uint32_t`` constants, ``SERVOTUNE_TABLES_INIT``, an initialiser
+  of the runtime's ``st_consts_t``, and the SHA-256 of those compiled-in constants in the C
+  layout (:mod:`servotune.export.layout`, the JSON's ``data.c_layout_sha256``):
+  ``ST_TABLES_SHA256`` (hex string), ``ST_TABLES_SHA256_BYTES`` (a 32-byte initialiser) and
+  ``st_tables_sha256``, the array the runtime's ``st_check_digest`` compares with;
 - ``servotune_rt.c`` / ``servotune_rt.h``: the reference runtime (C99, integer only, no I/O),
   copied from the package data. It mirrors the Python laws line by line, so it produces the
   simulator's D/A codes bit for bit.
@@ -18,8 +21,14 @@ Usage on the target::
     static const st_consts_t consts = SERVOTUNE_TABLES_INIT;
     static st_state_t state;            /* zero: power-up */
     ...
-    if (st_check_consts(&consts) != 0 || st_consts_crc32(&consts) != ST_CONSTS_CRC32) halt();
+    if (st_check_digest(&consts, st_tables_sha256) != 0) halt(); /* the exported bytes? */
+    if (st_check_consts(&consts) != 0) halt();                   /* ranges the runtime needs */
     st_tick(&consts, &state, in, out);  /* every tick: bytes, reference, mode -> codes, flags */
+
+The runtime has no loader, so the digest check is what ties the compiled-in constants to the
+export: ``st_check_digest`` serialises ``consts`` into the C layout, hashes it and compares
+with ``st_tables_sha256`` (an edited constant, a stale header or one mixed up with another
+tuning's digest fails it). It guards against accidents, not an attacker.
 
 The bytes are deterministic (no timestamps). Every file is rendered in memory first and then
 written atomically (temp file, then rename), so a failure leaves no half-written file.
@@ -35,6 +44,7 @@ from typing import Any
 
 from servotune.errors import ExportError
 from servotune.export.json import SCHEMA, Summary, tables_document
+from servotune.export.layout import c_layout_sha256
 from servotune.laws.fuzzy_pid import TABLE_NAMES
 from servotune.logs import atomic_write_text
 from servotune.rig import Rig
@@ -94,14 +104,16 @@ def _q(v: int) -> str:
 
 def _table_lines(ident: str, name: str, tab: Mapping[str, Any]) -> list[str]:
     n = tab["n"]
-    size = 2 * n + 1
     up = f"ST_{ident.upper()}_TAB_{name.upper()}"
+    side = f"(2 * ST_{ident.upper()}_N + 1)"
     lines = [
         f"/* query table {_TABLE_TITLES[name]}: value q * 2^-f, row E = -{n}..{n}, "
         f"column EC = -{n}..{n} */",
         f"#define {up}_F {tab['f']}",
         f"#define {up}_CRC32 UINT32_C(0x{tab['crc32']:08x})",
-        f"static const int16_t st_{ident}_tab_{name}[{size * size}] = {{",
+        # sized by the axis's N: the runtime reads (2n+1)^2 entries, so an edited N changes
+        # the digest but cannot make st_check_digest (or st_tick) read past the table
+        f"static const int16_t st_{ident}_tab_{name}[{side} * {side}] = {{",
     ]
     for r, row in enumerate(tab["q"]):
         lines.append(f"    /* E = {r - n:3d} */ " + ", ".join(str(v) for v in row) + ",")
@@ -164,9 +176,33 @@ def _axis_lines(ax: Mapping[str, Any], ident: str) -> tuple[list[str], list[str]
     return lines, init
 
 
+def _digest_lines(digest: str) -> list[str]:
+    """The C-layout digest as a hex string macro, a byte initialiser and the array."""
+    octets = [f"0x{digest[i : i + 2]}" for i in range(0, 64, 2)]
+    rows = [", ".join(octets[i : i + 8]) for i in range(0, 32, 8)]
+    return [
+        "",
+        "/* SHA-256 of the compiled-in constants and tables in the C layout (servotune_rt.h):",
+        " * st_check_digest(&consts, st_tables_sha256) recomputes it; 0 = they are these. */",
+        f'#define ST_TABLES_SHA256 "{digest}"',
+        "#define ST_TABLES_SHA256_BYTES \\",
+        "    { \\",
+        *(f"        {row}, \\" for row in rows),
+        "    }",
+        "static const uint8_t st_tables_sha256[32] = ST_TABLES_SHA256_BYTES;",
+    ]
+
+
 def _header(doc: Mapping[str, Any]) -> str:
     data, prov = doc["data"], doc["provenance"]
     axes = data["axes"]
+    digest = c_layout_sha256(data)
+    stored = data.get("c_layout_sha256")
+    if stored is not None and stored != digest:
+        raise ExportError(
+            f"data.c_layout_sha256 {stored} is not the digest of the constants ({digest}); "
+            "the document was changed after it was made"
+        )
     idents = _identifiers(tuple(a["name"] for a in axes))
     verification = prov["verification"]
     if verification is None:
@@ -193,6 +229,9 @@ def _header(doc: Mapping[str, Any]) -> str:
         " * (dac_max, 0), (kdt_q, kdt_f), (k1t_q, k1t_f), (ke_q, ke_f), (kec_q, kec_f), (n, 0),",
         " * (ref_source, 0), as little-endian int32 q, int16 f. Table CRCs (st_table_crc32):",
         " * int16 n, int16 f, then the int16 entries row-major, little-endian.",
+        " * ST_TABLES_SHA256 is the SHA-256 of the C layout: the constants CRC's bytes, then for",
+        " * each fuzzy-PID axis in order its kp, ki, kd, k1 tables' CRC bytes. At start-up:",
+        " *     if (st_check_digest(&consts, st_tables_sha256) != 0) halt();",
         " */",
         "#ifndef SERVOTUNE_TABLES_H",
         "#define SERVOTUNE_TABLES_H",
@@ -212,6 +251,7 @@ def _header(doc: Mapping[str, Any]) -> str:
         f"#define ST_DAC_ZERO {data['dac']['zero_code']} /* code of 0 V */",
         f"#define ST_DAC_MAX {data['dac']['code_max']}",
         f"#define ST_CONSTS_CRC32 UINT32_C(0x{data['constants_crc32']:08x})",
+        *_digest_lines(digest),
         "",
         f"#if ST_MAX_AXES < {len(axes)}",
         f'#error "compile servotune_rt.c and this file with -DST_MAX_AXES={len(axes)}"',
@@ -224,7 +264,8 @@ def _header(doc: Mapping[str, Any]) -> str:
         inits.append(init)
     out += [
         "",
-        "/* static const st_consts_t consts = SERVOTUNE_TABLES_INIT; */",
+        "/* static const st_consts_t consts = SERVOTUNE_TABLES_INIT;",
+        " * at start-up: if (st_check_digest(&consts, st_tables_sha256) != 0) halt(); */",
         "#define SERVOTUNE_TABLES_INIT \\",
         "    { \\",
         "        .n_axes = ST_N_AXES, \\",

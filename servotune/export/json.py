@@ -1,6 +1,6 @@
 """The tables export (JSON): a tuning's runtime constants, with CRCs, for the target.
 
-The document (``"schema": "servotune.tables/1"``) holds exactly the constants of the tuning
+The document (``"schema": "servotune.tables/2"``) holds exactly the constants of the tuning
 file, as the runtime runs them: nothing is re-quantised (SPEC §6, verified = exported). It is
 JSON with sorted keys, two-space indent (the rows of a table and other lists of numbers on one
 line each) and a trailing newline; the same tuning, rig and verification give the same bytes.
@@ -19,6 +19,8 @@ There is no timestamp anywhere::
                  | {"kp", "ki_t", "kd_t", "k1_t", "ke", "kec", "n",  fuzzy-PID + feedforward
                     "tables": {"kp"|"ki"|"kd"|"k1": {"n", "f", "q": rows, "crc32"}}}}
         ],
+        "c_layout_sha256": str,        SHA-256 of the bytes the C runtime compiles in
+                                       (servotune.export.layout; the C header carries it)
         "constants_crc32": int,
         "counter_bits": int,
         "dac": {"bits", "code_max", "range_v", "zero_code"},
@@ -27,9 +29,10 @@ There is no timestamp anywhere::
         "rig_name": str,
         "timer_divisor": int
       },
-      "provenance": {"rig", "spec_sha256", "tool", "tool_version", "tuning", "tuning_sha256",
-                     "verification"},
-      "schema": "servotune.tables/1",
+      "provenance": {"rig": {"name", "path", "sha256"}, "spec_sha256", "tool",
+                     "tool_version", "tuning", "tuning_sha256", "verification"},
+      "schema": "servotune.tables/2",
+      "sha256": str,                   the document's digest (below)
       "verified": true | false
     }
 
@@ -56,8 +59,13 @@ Integrity (CRC-32 IEEE 802.3, as :func:`zlib.crc32`):
   the same CRCs (``st_consts_crc32``, ``st_table_crc32`` in ``servotune_rt.c``).
 
 The verification summary, hashes and tool version are provenance, kept apart from ``data`` and
-outside every CRC. ``"verified": false`` marks an export made without a passing verification
-(``unverified=True``, the CLI's ``--unverified``).
+outside every CRC. The document's ``sha256`` covers **everything else** (``data``, ``verified``
+and ``provenance``): it is the SHA-256 of the document's canonical JSON without that field
+(:mod:`servotune.digest`). :func:`load_tables` (and ``servotune check-table``) refuse a document
+whose digest, C-layout digest or any CRC does not match, so editing any field, or one table
+with its own CRC recomputed, is detected. ``/2`` added the digests; a ``/1`` file is refused
+with a request to export again. ``"verified": false`` marks an export made without a passing
+verification (``unverified=True``, the CLI's ``--unverified``).
 """
 
 from __future__ import annotations
@@ -65,7 +73,6 @@ from __future__ import annotations
 import hashlib
 import json
 import re
-import struct
 import zlib
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -73,41 +80,26 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from servotune.errors import ExportError
+from servotune._version import __version__
+from servotune.digest import DIGEST_FIELD, document_sha256
+from servotune.errors import DigestError, ExportError
+from servotune.export.layout import c_layout_sha256, constants_pairs, pairs_bytes, table_bytes
 from servotune.fixed import F_U
 from servotune.laws.axis import (
-    C_COUNTER_BITS,
-    C_DAC_MAX,
-    C_DAC_ZERO,
-    C_FE_LIMIT,
-    C_K1T_F,
-    C_K1T_Q,
-    C_KDT_F,
-    C_KDT_Q,
-    C_KE_F,
-    C_KE_Q,
-    C_KEC_F,
-    C_KEC_Q,
-    C_KIT_F,
-    C_KIT_Q,
-    C_KP_F,
-    C_KP_Q,
-    C_LAW,
-    C_LOCK_F,
-    C_LOCK_Q,
-    C_N,
     LAW_FUZZY_PID,
     LAW_NAMES,
     AxisController,
 )
-from servotune.laws.fuzzy_pid import TABLE_NAMES, FuzzyPIDConstants
+from servotune.laws.fuzzy_pid import TABLE_NAMES, FuzzyPIDConstants, int_rows
 from servotune.logs import atomic_write_text, json_safe, parse_json, read_json
 from servotune.rig import Counter, Dac, Rig
 from servotune.tuning import Tuning, tuning_to_string
+from servotune.validate import check_keys, show_value
 
 __all__ = [
     "SCHEMA",
     "Summary",
+    "check_tables",
     "constants_crc32",
     "controllers_from_tables",
     "load_tables",
@@ -117,7 +109,8 @@ __all__ = [
     "to_string",
 ]
 
-SCHEMA = "servotune.tables/1"
+SCHEMA = "servotune.tables/2"
+_OLD_SCHEMAS = ("servotune.tables/1",)
 
 
 class Summary(Protocol):
@@ -130,29 +123,11 @@ class Summary(Protocol):
 _INT16 = (-(2**15), 2**15 - 1)
 _INT32 = (-(2**31 - 1), 2**31 - 1)
 
-# (q index, f index) in the constants vector; f index None: an integer, the pair (value, 0)
-_CONST_PAIRS: tuple[tuple[int, int | None], ...] = (
-    (C_LAW, None),
-    (C_LOCK_Q, C_LOCK_F),
-    (C_KP_Q, C_KP_F),
-    (C_KIT_Q, C_KIT_F),
-    (C_FE_LIMIT, None),
-    (C_COUNTER_BITS, None),
-    (C_DAC_ZERO, None),
-    (C_DAC_MAX, None),
-    (C_KDT_Q, C_KDT_F),
-    (C_K1T_Q, C_K1T_F),
-    (C_KE_Q, C_KE_F),
-    (C_KEC_Q, C_KEC_F),
-    (C_N, None),
-)
-
-
 # --- CRCs ------------------------------------------------------------------------------------
 
 
 def table_crc32(q: np.ndarray | Sequence[Sequence[int]], f: int) -> int:
-    """CRC-32 of one query table (SPEC §6).
+    """CRC-32 of one query table (SPEC §6): ``zlib.crc32`` of :func:`~.layout.table_bytes`.
 
     Parameters
     ----------
@@ -171,41 +146,11 @@ def table_crc32(q: np.ndarray | Sequence[Sequence[int]], f: int) -> int:
     >>> hex(table_crc32([[0, 1, 2], [3, 4, 5], [6, 7, -8]], 3))
     '0xd3d2eea4'
     """
-    a = np.asarray(q, dtype=np.int64)
-    size = a.shape[0] if a.ndim == 2 else -1
-    if a.ndim != 2 or a.shape[1] != size or size % 2 != 1:
-        raise ValueError(f"a table must be square with an odd side (2n+1), got shape {a.shape}")
-    if a.size and (a.min() < _INT16[0] or a.max() > _INT16[1]):
-        raise ValueError("table entries must fit int16")
-    head = struct.pack("<hh", (size - 1) // 2, int(f))
-    return zlib.crc32(a.astype("<i2").tobytes(), zlib.crc32(head))
+    return zlib.crc32(table_bytes(q, f))
 
 
 def _pairs_crc(pairs: Sequence[tuple[int, int]]) -> int:
-    crc = 0
-    for q, f in pairs:
-        if not (_INT32[0] <= q <= _INT32[1]) or not (_INT16[0] <= f <= _INT16[1]):
-            raise ExportError(f"constant ({q}, {f}) does not fit the (int32 q, int16 f) pair")
-        crc = zlib.crc32(struct.pack("<ih", q, f), crc)
-    return crc
-
-
-def _constants_pairs(
-    controllers: Sequence[AxisController],
-    ref_source: Sequence[int],
-    *,
-    timer_divisor: int,
-    counter_bits: int,
-    dac_bits: int,
-    dac_zero: int,
-) -> list[tuple[int, int]]:
-    pairs = [(len(controllers), 0), (int(timer_divisor), 0)]
-    for ctl, src in zip(controllers, ref_source, strict=True):
-        c = ctl.consts(counter_bits=counter_bits, dac_bits=dac_bits, dac_zero=dac_zero)
-        for iq, jf in _CONST_PAIRS:
-            pairs.append((int(c[iq]), 0 if jf is None else int(c[jf])))
-        pairs.append((int(src), 0))
-    return pairs
+    return zlib.crc32(pairs_bytes(pairs))
 
 
 def constants_crc32(tuning: Tuning, *, rig: Rig | None = None) -> int:
@@ -224,7 +169,7 @@ def constants_crc32(tuning: Tuning, *, rig: Rig | None = None) -> int:
     """
     hw = _hardware(tuning, rig)
     return _pairs_crc(
-        _constants_pairs(
+        constants_pairs(
             tuning.controllers,
             _ref_sources(tuning.roles),
             timer_divisor=tuning.timer_divisor,
@@ -298,6 +243,12 @@ def _axis_doc(i: int, name: str, role: str, ctl: AxisController, src: int) -> di
     }
 
 
+def _recorded_sha(record: Mapping[str, Any], kind: str) -> str | None:
+    """A verification record's SHA-256 of one of its files (``files.<kind>.sha256``), or None."""
+    entry = record.get("files", {}).get(kind) if isinstance(record.get("files"), dict) else None
+    return entry.get("sha256") if isinstance(entry, dict) else None
+
+
 def tables_document(
     tuning: Tuning,
     *,
@@ -319,13 +270,16 @@ def tables_document(
         ``to_dict()``); it goes into the provenance whole. A key ``"passed"`` that is false
         fails the export unless ``unverified``. The provenance's ``spec_sha256`` is the
         summary's ``"spec_sha256"`` if it has one, else the SHA-256 of its ``"spec"`` as
-        canonical JSON (sorted keys, no spaces), else null.
+        canonical JSON (sorted keys, no spaces), else null. The provenance's ``tuning_sha256``
+        is the record's (``files.tuning.sha256``: the bytes verified) if it has one, else the
+        SHA-256 of the tuning's own serialisation (:func:`tuning_to_string`).
     unverified : bool
         Export without a (passing) verification; the document is marked ``"verified": false``.
 
     Returns
     -------
     dict
+        With its digests (``data.c_layout_sha256`` and the document's ``sha256``) filled in.
 
     Raises
     ------
@@ -356,7 +310,7 @@ def tables_document(
         )
     ]
     crc = _pairs_crc(
-        _constants_pairs(
+        constants_pairs(
             tuning.controllers,
             refs,
             timer_divisor=tuning.timer_divisor,
@@ -366,13 +320,16 @@ def tables_document(
         )
     )
     summary = None if verification is None else _plain(verification, "verification")
-    spec_sha = None
+    spec_sha = tuning_sha = None
     if summary is not None:
-        spec_sha = summary.get("spec_sha256")
+        spec_sha = summary.get("spec_sha256") or _recorded_sha(summary, "spec")
         if spec_sha is None and summary.get("spec") is not None:
             canon = json.dumps(summary["spec"], sort_keys=True, separators=(",", ":"))
             spec_sha = hashlib.sha256(canon.encode()).hexdigest()
-    return {
+        tuning_sha = _recorded_sha(summary, "tuning")
+    if tuning_sha is None:
+        tuning_sha = hashlib.sha256(tuning_to_string(tuning).encode()).hexdigest()
+    doc: dict[str, Any] = {
         "data": {
             "axes": axes,
             "constants_crc32": crc,
@@ -384,23 +341,20 @@ def tables_document(
             "timer_divisor": int(tuning.timer_divisor),
         },
         "provenance": {
-            "rig": {"name": tuning.rig_name, "sha256": tuning.rig_sha256},
+            "rig": {"name": tuning.rig_name, "path": tuning.rig_path, "sha256": tuning.rig_sha256},
             "spec_sha256": spec_sha,
             "tool": "servotune",
-            "tool_version": _tool_version(),
+            "tool_version": __version__,
             "tuning": _plain(tuning.provenance, "tuning provenance"),
-            "tuning_sha256": hashlib.sha256(tuning_to_string(tuning).encode()).hexdigest(),
+            "tuning_sha256": tuning_sha,
             "verification": summary,
         },
         "schema": SCHEMA,
         "verified": not unverified,
     }
-
-
-def _tool_version() -> str:
-    from servotune import __version__
-
-    return __version__
+    doc["data"]["c_layout_sha256"] = c_layout_sha256(doc["data"])
+    doc[DIGEST_FIELD] = document_sha256(doc)
+    return doc
 
 
 # rows of numbers on one line: a JSON list of numbers only (no string can hold a newline)
@@ -427,7 +381,7 @@ def to_string(
     --------
     >>> text = to_string(tuning, verification=summary)  # doctest: +SKIP
     >>> load_tables(text)["schema"]  # doctest: +SKIP
-    'servotune.tables/1'
+    'servotune.tables/2'
     """
     return _dumps(
         tables_document(tuning, rig=rig, verification=verification, unverified=unverified)
@@ -475,7 +429,7 @@ def _need(d: Any, key: str, where: str) -> Any:
 def _need_int(d: Any, key: str, where: str) -> int:
     v = _need(d, key, where)
     if not _is_int(v):
-        raise ExportError(f"{where}.{key} must be an integer, got {v!r}")
+        raise ExportError(f"{where}.{key} must be an integer, got {show_value(v)}")
     return v
 
 
@@ -485,33 +439,30 @@ def _check_table(tab: Any, name: str, n: int, where: str) -> None:
         raise ExportError(f"{w}: n must be {n} (the axis's levels), got {tab['n']}")
     f = _need_int(tab, "f", w)
     stored = _need_int(tab, "crc32", w)
-    rows = _need(tab, "q", w)
-    size = 2 * n + 1
-    if not isinstance(rows, list) or len(rows) != size:
-        raise ExportError(f"{w}: q must have {size} rows (E = -{n}..{n})")
-    for r, row in enumerate(rows):
-        if not isinstance(row, list) or len(row) != size:
-            raise ExportError(f"{w}: row {r} must have {size} entries (EC = -{n}..{n})")
-        for c, v in enumerate(row):
-            if not _is_int(v):
-                raise ExportError(f"{w}: entry q[{r}][{c}] must be an integer, got {v!r}")
-            if not _INT16[0] <= v <= _INT16[1]:
-                raise ExportError(f"{w}: entry q[{r}][{c}] = {v} is outside int16")
+    check_keys(tab, w, ("crc32", "f", "n", "q"), error=ExportError)
+    try:
+        rows = int_rows(tab["q"], 2 * n + 1, f"{w}: q")
+    except ValueError as exc:
+        raise ExportError(str(exc)) from None
     if not _INT16[0] <= f <= _INT16[1]:
         raise ExportError(f"{w}: f = {f} is outside int16")
     computed = table_crc32(rows, f)
     if computed != stored:
-        raise ExportError(
+        raise DigestError(
             f"{w}: CRC mismatch (stored 0x{stored:08x}, computed 0x{computed:08x}); "
             "the table was changed or damaged"
         )
 
 
 def _controller(ax: Any, where: str) -> AxisController:
+    check_keys(ax, where, ("following_error_limit_counts", "index", "law", "lock_gain", "name",
+                           "ref_source", "role", "task"), error=ExportError)  # fmt: skip
     task = _need(ax, "task", where)
     law = _need(ax, "law", where)
     if law not in LAW_NAMES:
-        raise ExportError(f"{where}.law must be one of {', '.join(LAW_NAMES)}, got {law!r}")
+        raise ExportError(
+            f"{where}.law must be one of {', '.join(LAW_NAMES)}, got {show_value(law)}"
+        )
     if law == LAW_NAMES[LAW_FUZZY_PID]:
         n = _need_int(task, "n", f"{where}.task")
         tabs = _need(task, "tables", f"{where}.task")
@@ -532,23 +483,57 @@ def _controller(ax: Any, where: str) -> AxisController:
         raise ExportError(f"{where}: {exc}") from None
 
 
+def _check_digests(doc: dict[str, Any]) -> None:
+    stored = doc.get(DIGEST_FIELD)
+    try:
+        computed = document_sha256(doc)
+    except (TypeError, ValueError):
+        computed = None
+    if stored != computed:
+        raise DigestError(
+            "the document's sha256 does not match its content: a field was edited after export "
+            "(export the tuning again)"
+        )
+    data = doc.get("data")
+    if not isinstance(data, dict) or not isinstance(data.get("c_layout_sha256"), str):
+        raise ExportError("data.c_layout_sha256 must be the C layout's SHA-256 (hex)")
+    try:
+        c_sha = c_layout_sha256(data)
+    except (KeyError, TypeError, ValueError, IndexError) as exc:
+        raise ExportError(f"data: cannot lay out the constants for C: {exc}") from None
+    if c_sha != data["c_layout_sha256"]:
+        raise DigestError("data.c_layout_sha256 does not match the constants and tables")
+
+
 def _check_document(doc: Any) -> tuple[AxisController, ...]:
     if not isinstance(doc, dict):
         raise ExportError("a tables export must hold a JSON object")
-    if doc.get("schema") != SCHEMA:
-        raise ExportError(f"schema must be {SCHEMA!r}, got {doc.get('schema')!r}")
-    if not isinstance(_need(doc, "verified", "document"), bool):
+    schema = doc.get("schema")
+    if schema in _OLD_SCHEMAS:
+        raise ExportError(f"{schema} was written by an older servotune; export the tuning again")
+    if schema != SCHEMA:
+        raise ExportError(f"schema must be {SCHEMA!r}, got {str(schema)[:60]!r}")
+    check_keys(doc, "document", ("data", DIGEST_FIELD, "provenance", "schema", "verified"),
+               error=ExportError)  # fmt: skip
+    if not isinstance(doc["verified"], bool):
         raise ExportError("verified must be true or false")
-    _need(doc, "provenance", "document")
-    data = _need(doc, "data", "document")
+    data = check_keys(
+        doc["data"], "data",
+        ("axes", "c_layout_sha256", "constants_crc32", "counter_bits", "dac", "f_u", "period_s",
+         "rig_name", "timer_divisor"),
+        error=ExportError,
+    )  # fmt: skip
     axes = _need(data, "axes", "data")
     if not isinstance(axes, list) or not axes:
         raise ExportError("data.axes must be a non-empty list")
     bits = _need_int(data, "counter_bits", "data")
     if bits not in (16, 24, 32):
-        raise ExportError(f"data.counter_bits must be 16, 24 or 32, got {bits}")
-    dac = _need(data, "dac", "data")
+        raise ExportError(f"data.counter_bits must be 16, 24 or 32, got {show_value(bits)}")
+    dac = check_keys(_need(data, "dac", "data"), "data.dac",
+                     ("bits", "code_max", "range_v", "zero_code"), error=ExportError)  # fmt: skip
     dac_bits = _need_int(dac, "bits", "data.dac")
+    if not 1 <= dac_bits <= 16:
+        raise ExportError(f"data.dac.bits must be an integer in 1..16 [bits], got {dac_bits}")
     dac_zero = _need_int(dac, "zero_code", "data.dac")
     if _need_int(dac, "code_max", "data.dac") != 2**dac_bits - 1:
         raise ExportError(f"data.dac.code_max must be 2**bits - 1 = {2**dac_bits - 1}")
@@ -557,7 +542,7 @@ def _check_document(doc: Any) -> tuple[AxisController, ...]:
     divisor = _need_int(data, "timer_divisor", "data")
     period = _need(data, "period_s", "data")
     if not isinstance(period, float) or not period > 0:
-        raise ExportError(f"data.period_s must be a number > 0 [s], got {period!r}")
+        raise ExportError(f"data.period_s must be a number > 0 [s], got {show_value(period)}")
     stored = _need_int(data, "constants_crc32", "data")
     ctls = []
     refs = []
@@ -571,7 +556,7 @@ def _check_document(doc: Any) -> tuple[AxisController, ...]:
         refs.append(src)
         ctls.append(_controller(ax, where))
     computed = _pairs_crc(
-        _constants_pairs(
+        constants_pairs(
             ctls,
             refs,
             timer_divisor=divisor,
@@ -581,15 +566,35 @@ def _check_document(doc: Any) -> tuple[AxisController, ...]:
         )
     )
     if computed != stored:
-        raise ExportError(
+        raise DigestError(
             f"data.constants_crc32: CRC mismatch (stored 0x{stored:08x}, computed "
             f"0x{computed:08x}); a constant was changed or damaged"
         )
+    _check_digests(doc)
     return tuple(ctls)
 
 
+def check_tables(doc: Any) -> tuple[AxisController, ...]:
+    """Check a parsed tables export: schema, exact keys and types, ranges, every table CRC,
+    the constants CRC, the C-layout digest and the document's digest.
+
+    Returns
+    -------
+    tuple of AxisController
+        The runtime constants per axis.
+
+    Raises
+    ------
+    ExportError
+        One line naming the field or table that is wrong; a :class:`~servotune.errors.DigestError`
+        (also a :class:`~servotune.errors.TrustError`) when the document is well-formed but a
+        CRC or digest does not match its content.
+    """
+    return _check_document(doc)
+
+
 def load_tables(path_or_text: str | Path) -> dict[str, Any]:
-    """Read a tables export and check it: schema, ranges, every table CRC, the constants CRC.
+    """Read a tables export and check it (:func:`check_tables`): any edit is refused.
 
     Parameters
     ----------
@@ -605,18 +610,18 @@ def load_tables(path_or_text: str | Path) -> dict[str, Any]:
     ------
     ExportError
         One line naming the file, table or field: unreadable or not JSON, wrong schema, a
-        missing or malformed field, an entry outside int16, a CRC mismatch.
+        missing, unknown or malformed field, an entry outside int16, a CRC or digest mismatch.
     """
     if isinstance(path_or_text, str) and path_or_text.lstrip().startswith("{"):
         src = "tables export"
         doc = parse_json(path_or_text, src, ExportError)
     else:
-        src = str(Path(path_or_text))
+        src = str(path_or_text)
         doc = read_json(path_or_text, ExportError)
     try:
         _check_document(doc)
     except ExportError as exc:
-        raise ExportError(f"{src}: {exc}") from None
+        raise type(exc)(f"{src}: {exc}") from None
     return doc
 
 

@@ -32,6 +32,7 @@ from servotune.laws.fuzzy_pid import (
 )
 from servotune.laws.lock import lock_step
 from servotune.laws.pi import PIConstants, pi_enter, pi_step
+from servotune.validate import check_keys, show_value
 
 __all__ = [
     "FLAG_COUNTER_FAULT",
@@ -175,19 +176,29 @@ class AxisController:
         ValueError
             If a field is missing or malformed (the message names it).
         """
+        d = check_keys(
+            d, "controller", ("following_error_limit_counts", "law", "lock_gain", "task")
+        )
         try:
             law = d["law"]
             if law not in LAW_NAMES:
-                raise ValueError(f"law must be one of {', '.join(LAW_NAMES)}, got {law!r}")
+                raise ValueError(
+                    f"law must be one of {', '.join(LAW_NAMES)}, got {show_value(law)}"
+                )
             task_d = d["task"]
             task: PIConstants | FuzzyPIDConstants | None = None
             if law == "pi":
                 task = PIConstants.from_dict(task_d)
             elif law == "fuzzy_pid":
                 task = FuzzyPIDConstants.from_dict(task_d)
+            if law == "none" and task_d is not None:
+                raise ValueError(f"task must be null for the law 'none', got {show_value(task_d)}")
             fe = d["following_error_limit_counts"]
-            if type(fe) is not int:
-                raise ValueError(f"following_error_limit_counts must be an integer, got {fe!r}")
+            if type(fe) is not int or not 0 <= fe <= 2**31 - 1:
+                raise ValueError(
+                    f"following_error_limit_counts must be an integer in 0..2**31-1 [counts] "
+                    f"(0 = off), got {show_value(fe)}"
+                )
             return cls(lock_gain=Fixed.from_dict(d["lock_gain"]), task=task,
                        following_error_limit_counts=fe)  # fmt: skip
         except KeyError as exc:

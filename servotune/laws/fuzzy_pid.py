@@ -42,6 +42,7 @@ from servotune.fixed import (
     sat_add,
     shift_round,
 )
+from servotune.validate import check_keys, show_value
 
 __all__ = [
     "TABLE_NAMES",
@@ -49,6 +50,7 @@ __all__ = [
     "FuzzyPIDGains",
     "feed_terms",
     "fuzzy_level",
+    "int_rows",
     "scheduled_gain",
 ]
 
@@ -275,24 +277,73 @@ class FuzzyPIDConstants:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> FuzzyPIDConstants:
-        """Inverse of :meth:`to_dict` (no re-quantising)."""
+        """Inverse of :meth:`to_dict` (no re-quantising).
+
+        Every key exactly (no unknown ones), ``n`` and every table entry an integer (not
+        ``6.0``, ``"6"`` nor ``1.7``), every table ``(2n+1)`` rows of ``(2n+1)`` entries.
+
+        Raises
+        ------
+        ValueError
+            Naming the key, table, row or entry that is wrong.
+        """
+        d = check_keys(d, "task", ("k1_t", "kd_t", "ke", "kec", "ki_t", "kp", "n", "tables"))
+        n = d["n"]
+        if type(n) is not int or not 1 <= n <= _LEVEL_LIMIT:
+            raise ValueError(
+                f"task.n must be an integer in 1..{_LEVEL_LIMIT} [levels], got {show_value(n)}"
+            )
+        tabs = check_keys(d["tables"], "task.tables", TABLE_NAMES)
+        tables = []
+        for t in TABLE_NAMES:
+            tab = check_keys(tabs[t], f"task.tables.{t}", ("f", "q"))
+            f_t = tab["f"]
+            if type(f_t) is not int:
+                raise ValueError(f"task.tables.{t}.f must be an integer, got {show_value(f_t)}")
+            tables.append((int_rows(tab["q"], 2 * n + 1, f"task.tables.{t}.q"), f_t))
 
         def fx(key: str) -> Fixed:
-            return Fixed.from_dict(d[key])
+            try:
+                return Fixed.from_dict(d[key])
+            except ValueError as exc:
+                raise ValueError(f"task.{key}: {exc}") from None
 
-        tabs = d["tables"]
-        return cls(
-            kp=fx("kp"),
-            ki_t=fx("ki_t"),
-            kd_t=fx("kd_t"),
-            k1_t=fx("k1_t"),
-            ke=fx("ke"),
-            kec=fx("kec"),
-            n=int(d["n"]),
-            tables=tuple(
-                (np.asarray(tabs[t]["q"], dtype=np.int64), int(tabs[t]["f"])) for t in TABLE_NAMES
-            ),
-        )
+        return cls(kp=fx("kp"), ki_t=fx("ki_t"), kd_t=fx("kd_t"), k1_t=fx("k1_t"), ke=fx("ke"),
+                   kec=fx("kec"), n=n, tables=tuple(tables))  # fmt: skip
+
+
+def int_rows(rows: object, size: int, where: str) -> np.ndarray:
+    """A square table of int16 entries read from nested lists, every entry an exact integer.
+
+    Parameters
+    ----------
+    rows : object
+        ``size`` lists of ``size`` entries each (as parsed from JSON).
+    size : int
+        The side, ``2n + 1``.
+    where : str
+        The table's name in messages.
+
+    Returns
+    -------
+    numpy.ndarray of int64, shape (size, size)
+
+    Raises
+    ------
+    ValueError
+        Naming the first wrong row or entry (not an int, a bool, or outside int16).
+    """
+    if not isinstance(rows, list) or len(rows) != size:
+        raise ValueError(f"{where} must have {size} rows (E = -n..n)")
+    for r, row in enumerate(rows):
+        if not isinstance(row, list) or len(row) != size:
+            raise ValueError(f"{where}: row {r} must have {size} entries (EC = -n..n)")
+        for c, v in enumerate(row):
+            if type(v) is not int:
+                raise ValueError(f"{where}[{r}][{c}] must be an integer, got {show_value(v)}")
+            if not -(2**15) <= v <= 2**15 - 1:
+                raise ValueError(f"{where}[{r}][{c}] = {v} is outside int16")
+    return np.array(rows, dtype=np.int64)
 
 
 # --- runtime arithmetic (numba; mirrored in the C runtime) ----------------------------------

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numba as nb
 
 from servotune.fixed import F_U, Fixed, align, clamp_e, quantize, sat_add, shift_round
+from servotune.validate import check_keys
 
 __all__ = ["PIConstants", "PIGains", "pi_enter", "pi_ideal_step", "pi_step"]
 
@@ -72,7 +73,14 @@ class PIConstants:
 
     @classmethod
     def from_dict(cls, d: dict[str, dict[str, int]]) -> PIConstants:
-        """Inverse of :meth:`to_dict` (no re-quantising)."""
+        """Inverse of :meth:`to_dict` (no re-quantising; exactly the keys ``kp``, ``ki_t``).
+
+        Raises
+        ------
+        ValueError
+            A missing or unknown key, or a malformed constant (the message names it).
+        """
+        d = check_keys(d, "task", ("ki_t", "kp"))
         return cls(kp=Fixed.from_dict(d["kp"]), ki_t=Fixed.from_dict(d["ki_t"]))
 
 

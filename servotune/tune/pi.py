@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 import numpy as np
 from scipy.optimize import brentq, minimize_scalar
 
-from servotune.errors import SpecError
+from servotune.errors import InfeasibleError, SpecError
 from servotune.hw import dac as hw_dac
 from servotune.laws.pi import PIGains
 from servotune.logs import json_float
@@ -1157,7 +1157,9 @@ def tune_pi(
 
     start = _start_point(ctx, spec)
     if start is None:
-        raise SpecError(f"no stabilising PI with kp >= 0, ki > 0 meets {spec.describe()} {where}")
+        raise InfeasibleError(
+            f"no stabilising PI with kp >= 0, ki > 0 meets {spec.describe()} {where}"
+        )
     # the NLP aims a hair inside the targets, so that the re-check finds them met
     pm_t = spec.pm_deg + 1e-6 if spec.pm_deg is not None else 0.0
     gm_t = spec.gm_db + 1e-6 if spec.gm_db is not None else 0.0

@@ -20,9 +20,9 @@ from typing import Any
 
 import numpy as np
 
-from servotune import __version__
+from servotune._version import __version__
 from servotune.engine import Loop, Trace, simulate
-from servotune.errors import SpecError
+from servotune.errors import InfeasibleError, SpecError
 from servotune.logs import json_float
 from servotune.metrics import step_info
 from servotune.rig import Rig, load_rig
@@ -118,7 +118,7 @@ def tune_rig(
         progress=progress,
     )
     if not slave.feasible:
-        raise SpecError(
+        raise InfeasibleError(
             "no slave tuning met the constraints (saturation <= "
             f"{spec.max_saturation_pct} %, overshoot <= {spec.max_overshoot_pct} %); "
             f"best worst case: {dict(slave.worst)}"
@@ -134,6 +134,7 @@ def tune_rig(
         rig,
         ctls,
         rig_sha256=rig_sha256,
+        rig_path=rig_path,
         design={
             "master": {"axis": rig.axes[i_m].name, "pi": master_pi.to_dict()},
             "slave": {

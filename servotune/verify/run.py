@@ -66,9 +66,7 @@ runtime's frame; every scenario also requires that no run latches a fault.
 
 from __future__ import annotations
 
-import json
 import math
-import tomllib
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
@@ -77,7 +75,7 @@ from typing import Any
 import numpy as np
 
 from servotune.engine import Loop, prepare_batch, run_batch
-from servotune.errors import SpecError, TuningError
+from servotune.errors import SpecError
 from servotune.fixed import E_MAX, F_U, INT64_MAX
 from servotune.hw import counter as hw_counter
 from servotune.laws.axis import (
@@ -87,16 +85,16 @@ from servotune.laws.axis import (
     AxisController,
 )
 from servotune.laws.fuzzy_pid import TABLE_NAMES, FuzzyPIDConstants
-from servotune.logs import atomic_write_text, json_float
+from servotune.logs import json_float, parse_toml, read_bytes
 from servotune.plant import Plant
-from servotune.rig import Rig, load_rig
+from servotune.rig import Rig
 from servotune.scenarios import Inputs, build_scenario, sync_move
-from servotune.tuning import Tuning, file_sha256, read_tuning
+from servotune.tuning import Tuning
+from servotune.validate import check_keys, check_number, show_value
 
 __all__ = [
     "KINDS",
     "LIMITS",
-    "RECORD_SCHEMA",
     "Check",
     "MonteCarlo",
     "Row",
@@ -107,21 +105,14 @@ __all__ = [
     "check_overflow",
     "check_speed",
     "check_timer",
-    "default_rig_path",
     "format_table",
     "load_spec",
     "max_safe_gain_q",
     "plant_variants",
-    "record_path",
+    "spec_from_bytes",
     "spec_from_dict",
-    "trusted_record",
-    "verification_record",
     "verify",
-    "verify_files",
-    "write_record",
 ]
-
-RECORD_SCHEMA = "servotune.verify/1"
 
 LIMITS: Mapping[str, tuple[str, str]] = {
     "max_overshoot_pct": ("overshoot_pct", "%"),
@@ -171,13 +162,13 @@ _FAULT_QUANTITY = "fault_runs"
 # --- the spec ------------------------------------------------------------------------------
 
 
-def _is_number(x: Any) -> bool:
-    return isinstance(x, int | float) and not isinstance(x, bool)
-
-
 def _number(key: str, value: Any, unit: str) -> float:
-    if not _is_number(value) or not math.isfinite(value):
-        raise SpecError(f"{key} must be a finite number [{unit}], got {value!r}")
+    try:
+        check_number(key, value, unit, lo=-math.inf, error=SpecError)
+    except SpecError:
+        raise SpecError(
+            f"{key} must be a finite number [{unit}], got {show_value(value)}"
+        ) from None
     return float(value)
 
 
@@ -429,9 +420,7 @@ def _table(data: Mapping[str, Any], key: str) -> Mapping[str, Any]:
 
 
 def _only(table: Mapping[str, Any], path: str, allowed: Sequence[str]) -> None:
-    unknown = sorted(set(table) - set(allowed))
-    if unknown:
-        raise SpecError(f"unknown key {path}.{unknown[0]} (allowed: {', '.join(sorted(allowed))})")
+    check_keys(dict(table), path, (), tuple(allowed), error=SpecError)
 
 
 def spec_from_dict(data: Mapping[str, Any], default_name: str = "spec") -> Spec:
@@ -511,20 +500,21 @@ def load_spec(path: str | Path) -> Spec:
     >>> [s.name for s in spec.scenarios]
     ['sync', 'track', 'lock']
     """
+    return spec_from_bytes(read_bytes(path, SpecError, "spec file"), path)
+
+
+def spec_from_bytes(raw: bytes, path: str | Path) -> Spec:
+    """A spec from a spec file's bytes (``path`` names it in messages and gives the default
+    name); see :func:`load_spec`."""
     p = Path(path)
-    try:
-        raw = p.read_bytes()
-    except OSError as exc:
-        raise SpecError(f"cannot read spec file {str(p)!r}: {exc.strerror or exc}") from None
-    try:
-        data = tomllib.loads(raw.decode("utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise SpecError(f"spec file {str(p)!r} is not valid TOML: {exc}") from None
+    data = parse_toml(raw, str(path), SpecError, "spec file")
     stem = p.name.removesuffix(".toml").removesuffix(".spec")
     try:
         return spec_from_dict(data, default_name=stem)
+    except SpecError as exc:
+        raise SpecError(f"spec file {str(path)!r}: {exc}") from None
     except TypeError as exc:  # a table where a value belongs, and the like
-        raise SpecError(f"spec file {str(p)!r}: {exc}") from None
+        raise SpecError(f"spec file {str(path)!r}: {exc}") from None
 
 
 # --- plant variants ------------------------------------------------------------------------
@@ -1310,168 +1300,3 @@ def format_table(verification: Verification) -> str:
     n_fail = sum(not r.passed for r in v.rows) + sum(not c.passed for c in v.checks)
     out.append("PASSED" if v.passed else f"FAILED ({n_fail} of {len(v.rows) + len(v.checks)})")
     return "\n".join(out)
-
-
-# --- the record ----------------------------------------------------------------------------
-
-
-def record_path(tuning_path: str | Path) -> Path:
-    """Where the verification record of a tuning file lives: ``<tuning name>.verify.json``."""
-    p = Path(tuning_path)
-    return p.with_name(p.name + ".verify.json")
-
-
-def verification_record(
-    verification: Verification,
-    tuning_path: str | Path,
-    rig_path: str | Path,
-    spec_path: str | Path,
-) -> dict[str, Any]:
-    """The record of a verification: which exact files were verified, and the verdict.
-
-    Returns
-    -------
-    dict
-        ``schema``, ``passed``, ``tool``/``tool_version``, ``files`` (name and SHA-256 of the
-        tuning, rig and spec files), ``rig_matches_tuning`` (the rig file is the one the tuning
-        was made for), ``seed``, ``summary`` (counts, failures, the smallest relative margin)
-        and the full ``verification``. No timestamps: the same inputs give the same bytes.
-    """
-    from servotune import __version__
-
-    v = verification
-    tuning_sha = file_sha256(tuning_path)
-    rig_sha = file_sha256(rig_path)
-    try:
-        tuning_rig_sha = read_tuning(tuning_path).rig_sha256
-    except TuningError:
-        tuning_rig_sha = None
-    rels = [(r.relative_margin, r) for r in v.rows if r.relative_margin is not None]
-    tight = min(rels, key=lambda x: x[0]) if rels else None
-    summary = {
-        "checks": len(v.checks),
-        "checks_failed": sum(not c.passed for c in v.checks),
-        "failures": v.failures,
-        "limits": len(v.rows),
-        "limits_failed": sum(not r.passed for r in v.rows),
-        "plant_sets": len(v.variants),
-        "tightest": None
-        if tight is None
-        else {
-            "axis": tight[1].axis,
-            "quantity": tight[1].quantity,
-            "relative_margin": json_float(tight[0]),
-            "scenario": tight[1].scenario,
-        },
-    }
-    return {
-        "files": {
-            "rig": {"name": Path(rig_path).name, "sha256": rig_sha},
-            "spec": {"name": Path(spec_path).name, "sha256": file_sha256(spec_path)},
-            "tuning": {"name": Path(tuning_path).name, "sha256": tuning_sha},
-        },
-        "passed": v.passed,
-        "rig_matches_tuning": tuning_rig_sha == rig_sha,
-        "schema": RECORD_SCHEMA,
-        "seed": v.seed,
-        "summary": summary,
-        "tool": "servotune",
-        "tool_version": __version__,
-        "verification": v.to_dict(),
-    }
-
-
-def _record_text(record: Mapping[str, Any]) -> str:
-    return json.dumps(record, sort_keys=True, indent=2, allow_nan=False) + "\n"
-
-
-def write_record(record: Mapping[str, Any], tuning_path: str | Path) -> Path:
-    """Write a record next to its tuning as ``<tuning name>.verify.json`` (atomically).
-
-    Returns
-    -------
-    Path
-        The record's path.
-    """
-    path = record_path(tuning_path)
-    atomic_write_text(path, _record_text(record))
-    return path
-
-
-def trusted_record(tuning_path: str | Path) -> dict[str, Any] | None:
-    """The tuning's verification record if it can be trusted, else None.
-
-    Trusted means: the record exists and parses, has this schema, says ``passed``, and the
-    SHA-256 it holds for the tuning is that of the tuning file's current bytes (the
-    exporter's check that it exports what was verified).
-    """
-    path = record_path(tuning_path)
-    try:
-        record = json.loads(path.read_text(encoding="utf-8"))
-        current = file_sha256(tuning_path)
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
-        return None
-    if not isinstance(record, dict) or record.get("schema") != RECORD_SCHEMA:
-        return None
-    if record.get("passed") is not True:
-        return None
-    try:
-        recorded = record["files"]["tuning"]["sha256"]
-    except (KeyError, TypeError):
-        return None
-    return record if recorded == current else None
-
-
-def default_rig_path(tuning: Tuning) -> Path:
-    """The rig file a tuning is verified on when none is given.
-
-    ``plants/<rig name>.toml`` under the working directory if it exists, else the example rig
-    if the tuning is for it.
-
-    Raises
-    ------
-    TuningError
-        If neither exists (give the rig file explicitly).
-    """
-    from servotune.rig import EXAMPLE_RIG_PATH
-
-    local = Path("plants") / f"{tuning.rig_name}.toml"
-    if local.is_file():
-        return local
-    if EXAMPLE_RIG_PATH.stem == tuning.rig_name and EXAMPLE_RIG_PATH.is_file():
-        return EXAMPLE_RIG_PATH
-    raise TuningError(
-        f"no rig file plants/{tuning.rig_name}.toml for the tuning's rig {tuning.rig_name!r}; "
-        "give the rig file (--rig)"
-    )
-
-
-def verify_files(
-    tuning_path: str | Path,
-    spec_path: str | Path,
-    rig_path: str | Path | None = None,
-    *,
-    seed: int | None = None,
-    progress: Callable[[str], None] | None = None,
-    write: bool = True,
-) -> tuple[Verification, dict[str, Any], Path | None]:
-    """What ``servotune verify TUNING --spec SPEC [--rig RIG]`` runs.
-
-    Reads the three files, verifies, builds the record and (``write``) writes it next to the
-    tuning.
-
-    Returns
-    -------
-    verification : Verification
-    record : dict
-    path : Path or None
-        Where the record was written (None if ``write`` is false).
-    """
-    tuning = read_tuning(tuning_path)
-    rig_file = Path(rig_path) if rig_path is not None else default_rig_path(tuning)
-    rig = load_rig(rig_file)
-    spec = load_spec(spec_path)
-    result = verify(tuning, rig, spec, seed=seed, progress=progress)
-    record = verification_record(result, tuning_path, rig_file, spec_path)
-    path = write_record(record, tuning_path) if write else None
-    return result, record, path

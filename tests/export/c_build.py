@@ -14,6 +14,8 @@ from pathlib import Path
 
 import pytest
 
+from servotune.export import write_c
+
 CC = shutil.which("cc")
 needs_cc = pytest.mark.skipif(
     CC is None, reason="no C compiler: `cc` is not on PATH, so the C runtime cannot be built"
@@ -58,3 +60,11 @@ def run_replay(exe: Path, payload: bytes, timeout: float) -> bytes:
     )  # fmt: skip
     assert res.returncode == 0 and "runtime error" not in res.stderr, res.stderr
     return (src_dir / "out.bin").read_bytes()
+
+
+def export_harness(tuning: object, out_dir: Path, harness: str, rig: object = None) -> Path:
+    """Export ``tuning`` as C (marked unverified) into ``out_dir`` with ``harness.c`` beside it."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_c(tuning, out_dir, rig=rig, unverified=True)
+    (out_dir / "harness.c").write_text(harness)
+    return out_dir

@@ -28,10 +28,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from c_build import STRICT, cc, needs_cc, run_replay, shared_harness, ubsan_harness
+from c_build import STRICT, cc, export_harness, needs_cc, run_replay, shared_harness, ubsan_harness
 
 from servotune.engine import Loop, Trace, simulate
-from servotune.export import constants_crc32, tables_document, write_c
+from servotune.export import constants_crc32, tables_document
 from servotune.fixed import Fixed, align, clamp_e, sat_add, shift_round
 from servotune.hw.counter import unwrap_step
 from servotune.laws.axis import (
@@ -208,10 +208,7 @@ int main(int argc, char **argv)
 
 
 def _export(tuning: Tuning, out_dir: Path, rig: Rig | None = None) -> Path:
-    out_dir.mkdir(parents=True, exist_ok=True)
-    write_c(tuning, out_dir, rig=rig, unverified=True)
-    (out_dir / "harness.c").write_text(HARNESS)
-    return out_dir
+    return export_harness(tuning, out_dir, HARNESS, rig)
 
 
 class Runtime:

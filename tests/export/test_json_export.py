@@ -8,6 +8,7 @@ the provenance, so a version bump needs a regeneration too.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import hashlib
 import json
@@ -19,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from servotune.errors import ExportError
+from servotune.errors import DigestError, ExportError
 from servotune.export import (
     RUNTIME_FILES,
     SCHEMA,
@@ -236,11 +237,16 @@ def test_an_entry_outside_int16_is_rejected(tuning: Tuning) -> None:
 
 def test_wrong_schema_and_malformed_documents_are_rejected(tuning: Tuning, tmp_path) -> None:
     doc = _doc(tuning)
-    doc["schema"] = "servotune.tables/2"
-    _reject(doc, "schema must be 'servotune.tables/1'", "servotune.tables/2")
+    doc["schema"] = "servotune.tables/3"
+    _reject(doc, "schema must be 'servotune.tables/2'", "servotune.tables/3")
+    doc["schema"] = "servotune.tables/1"  # DECISIONS 17: an older file gets one line
+    _reject(doc, "written by an older servotune", "export the tuning again")
     doc = _doc(tuning)
     del doc["data"]["axes"][1]["task"]["tables"]["k1"]
     _reject(doc, "missing the field 'k1'")
+    doc = _doc(tuning)
+    doc["data"]["rig_nmae"] = "x"  # DECISIONS 1: unknown keys refused with a did-you-mean
+    _reject(doc, "unknown key data.rig_nmae", "did you mean 'rig_name'?")
     doc = _doc(tuning)
     doc["data"]["axes"][1]["task"]["tables"]["kp"]["q"][3].pop()
     _reject(doc, "table kp", "row 3 must have 7 entries")
@@ -332,3 +338,113 @@ def test_write_c_writes_nothing_when_the_export_fails(tuning: Tuning, tmp_path) 
     assert list(tmp_path.iterdir()) == []
     with pytest.raises(ExportError, match="not a directory"):
         write_c(tuning, tmp_path / "missing", verification=SUMMARY)
+
+
+# --- tampering: the document's digest (issue 15) --------------------------------------------
+
+
+def _redigest(doc: dict) -> dict:
+    """The document's digest recomputed independently (DECISIONS 3: canonical JSON, sorted
+    keys, no whitespace, UTF-8, the digest field left out), as a careful tamperer would."""
+    body = {k: v for k, v in doc.items() if k != "sha256"}
+    canon = json.dumps(body, sort_keys=True, separators=(",", ":"), ensure_ascii=False)
+    return {**body, "sha256": hashlib.sha256(canon.encode("utf-8")).hexdigest()}
+
+
+def _table_crc(q: list, f: int) -> int:
+    """SPEC §6 table CRC, built here with struct and zlib (not the exporter's function)."""
+    n = (len(q) - 1) // 2
+    raw = struct.pack("<hh", n, f) + b"".join(struct.pack("<h", v) for row in q for v in row)
+    return zlib.crc32(raw)
+
+
+def _leaves(x: object, path: tuple = ()) -> list[tuple]:
+    """Every scalar leaf of a JSON document, with its path."""
+    if isinstance(x, dict):
+        return [leaf for k, v in x.items() for leaf in _leaves(v, (*path, k))]
+    if isinstance(x, list):
+        return [leaf for i, v in enumerate(x) for leaf in _leaves(v, (*path, i))]
+    return [path]
+
+
+def _changed(v: object) -> object:
+    if isinstance(v, bool):
+        return not v
+    if isinstance(v, int):
+        return v + 1
+    if isinstance(v, float):
+        return v * 1.001 + 1e-9
+    if isinstance(v, str):
+        return v + "x"
+    return 0
+
+
+def test_the_digest_matches_canonical_json_computed_independently(tuning: Tuning) -> None:
+    doc = _doc(tuning)
+    assert doc["schema"] == "servotune.tables/2"
+    assert _redigest(doc)["sha256"] == doc["sha256"]
+
+
+def test_every_edited_field_is_refused(tuning: Tuning, tmp_path) -> None:
+    """Each scalar of the document changed alone (the verified flag, period_s, range_v, rig_name,
+    provenance …, and every table entry): load_tables and check-table refuse it."""
+    from servotune.cli import main
+
+    base = _doc(tuning)
+    leaves = [p for p in _leaves(base) if p != ("sha256",)]
+    entries = sum(
+        (2 * a["task"]["n"] + 1) ** 2 * 4 for a in base["data"]["axes"] if a["law"] == "fuzzy_pid"
+    )
+    assert entries > 0 and len(leaves) > entries + 20  # every table entry is among the leaves
+    named = {("verified",), ("data", "period_s"), ("data", "dac", "range_v", 0),
+             ("data", "rig_name"), ("provenance", "tool_version")}  # fmt: skip
+    assert named <= set(leaves)
+    for path in leaves:
+        doc = copy.deepcopy(base)
+        node = doc
+        for k in path[:-1]:
+            node = node[k]
+        node[path[-1]] = _changed(node[path[-1]])
+        with pytest.raises(ExportError):  # malformed (exit 3) or a digest mismatch (exit 1)
+            load_tables(json.dumps(doc))
+    # through the CLI, for the fields the issue names: exit 1 (not the verified bytes: a
+    # DigestError is a TrustError), one line, the digest named
+    for path in sorted(named, key=str):
+        doc = copy.deepcopy(base)
+        node = doc
+        for k in path[:-1]:
+            node = node[k]
+        node[path[-1]] = _changed(node[path[-1]])
+        f = tmp_path / "edited.json"
+        f.write_text(json.dumps(doc, indent=2))
+        assert main(["check-table", str(f)]) == 1, path
+    f.write_text(json.dumps(base, indent=2))
+    assert main(["check-table", str(f)]) == 0
+
+
+def test_a_table_with_its_own_crc_recomputed_is_refused(tuning: Tuning) -> None:
+    base = _doc(tuning)
+    for axis in base["data"]["axes"]:
+        if axis["law"] != "fuzzy_pid":
+            continue
+        for name in ("kp", "ki", "kd", "k1"):
+            doc = copy.deepcopy(base)
+            tab = next(a for a in doc["data"]["axes"] if a["index"] == axis["index"])["task"][
+                "tables"
+            ][name]
+            tab["q"][0][0] += 1 if tab["q"][0][0] < 32767 else -1
+            tab["crc32"] = _table_crc(tab["q"], tab["f"])
+            with pytest.raises(DigestError, match="sha256 does not match"):
+                load_tables(json.dumps(doc))
+            # and with the document digest recomputed too, the C-layout digest still refuses
+            with pytest.raises(DigestError, match="c_layout_sha256 does not match"):
+                load_tables(json.dumps(_redigest(doc)))
+
+
+def test_an_edit_with_every_digest_recomputed_is_a_new_document(tuning: Tuning) -> None:
+    """Threat model (DECISIONS 3): accidents, not a tamperer holding the tool. A document whose
+    every CRC and digest is recomputed is self-consistent; it is still not the verified one:
+    its provenance digest no longer names the verification's tuning bytes."""
+    doc = _doc(tuning)
+    doc["verified"] = False
+    assert load_tables(json.dumps(_redigest(doc)))["verified"] is False

@@ -46,7 +46,7 @@ def test_cli_tune_to_stdout(tmp_path, monkeypatch, capsys) -> None:
     monkeypatch.setenv("SERVOTUNE_WORKBENCH", str(tmp_path / "wb"))
     assert main(["tune", str(RIG), "--no-current", *FAST]) == 0
     data = json.loads(capsys.readouterr().out)
-    assert data["schema"] == "servotune.tuning/1"
+    assert data["schema"] == "servotune.tuning/2"
     assert not (tmp_path / "wb").exists()
 
 
@@ -65,6 +65,18 @@ def test_impossible_tuning_spec_is_refused(tmp_path) -> None:
                          max_saturation_pct=0.0)  # fmt: skip
     with pytest.raises(st.SpecError, match="no slave tuning met the constraints"):
         tune_rig(RIG, spec=spec)
+
+
+def test_cli_tuning_that_fails_its_spec_exits_1_writing_nothing(tmp_path, capsys) -> None:
+    # issue 15: exit 1 is "a verification or tuning failed its spec"; 3 is bad input
+    out = tmp_path / "t.json"
+    budget = ["--generations", "1", "--population", "6"]
+    limits = ["--max-overshoot-pct", "0", "--max-saturation-pct", "0"]
+    args = ["tune", str(RIG), "-o", str(out), "--no-current", *budget, *limits]
+    assert main(args) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("servotune tune: failed: no slave tuning met the constraints")
+    assert "Traceback" not in "\n".join(err) and not out.exists()
 
 
 def test_tuned_tables_keep_the_default_properties(tmp_path) -> None:

@@ -617,6 +617,71 @@ int st_check_sync_consts(const st_sync_consts_t *c)
     return 0;
 }
 
+/* --- integrity: the byte streams (SPEC section 6) --------------------------------------- */
+
+/* The constants and tables are serialised once, here, into a sink: the CRC-32s and the
+ * SHA-256 of the C layout read the same bytes (servotune/export/layout.py). */
+typedef void (*st_sink_fn)(void *ctx, const uint8_t *p, size_t len);
+
+static void put_i16(st_sink_fn put, void *ctx, int64_t v)
+{
+    const uint16_t u = (uint16_t)v; /* modulo 2^16: two's complement, little-endian below */
+    uint8_t b[2];
+    b[0] = (uint8_t)(u & 0xFFu);
+    b[1] = (uint8_t)((u >> 8) & 0xFFu);
+    put(ctx, b, 2);
+}
+
+static void put_pair(st_sink_fn put, void *ctx, int64_t q, int64_t f)
+{
+    const uint32_t u = (uint32_t)q; /* modulo 2^32 */
+    uint8_t b[4];
+    b[0] = (uint8_t)(u & 0xFFu);
+    b[1] = (uint8_t)((u >> 8) & 0xFFu);
+    b[2] = (uint8_t)((u >> 16) & 0xFFu);
+    b[3] = (uint8_t)((u >> 24) & 0xFFu);
+    put(ctx, b, 4);
+    put_i16(put, ctx, f);
+}
+
+/* One table: int16 n, int16 f, then the (2n+1)^2 int16 entries row-major. */
+static void put_table(st_sink_fn put, void *ctx, int n, int f, const int16_t *q)
+{
+    const int64_t size = (2 * (int64_t)n + 1) * (2 * (int64_t)n + 1);
+    int64_t j;
+    put_i16(put, ctx, n);
+    put_i16(put, ctx, f);
+    for (j = 0; j < size; j++) {
+        put_i16(put, ctx, q[j]);
+    }
+}
+
+/* The constants as (q int32, f int16) pairs, in the order of the header comment
+ * (servotune/export/json.py, layout.py part 1). */
+static void put_consts(st_sink_fn put, void *ctx, const st_consts_t *c)
+{
+    int a;
+    put_pair(put, ctx, c->n_axes, 0);
+    put_pair(put, ctx, c->timer_divisor, 0);
+    for (a = 0; a < c->n_axes; a++) {
+        const st_axis_consts_t *x = &c->axis[a];
+        put_pair(put, ctx, x->law, 0);
+        put_pair(put, ctx, x->lock_q, x->lock_f);
+        put_pair(put, ctx, x->kp_q, x->kp_f);
+        put_pair(put, ctx, x->kit_q, x->kit_f);
+        put_pair(put, ctx, x->fe_limit, 0);
+        put_pair(put, ctx, x->counter_bits, 0);
+        put_pair(put, ctx, x->dac_zero, 0);
+        put_pair(put, ctx, x->dac_max, 0);
+        put_pair(put, ctx, x->kdt_q, x->kdt_f);
+        put_pair(put, ctx, x->k1t_q, x->k1t_f);
+        put_pair(put, ctx, x->ke_q, x->ke_f);
+        put_pair(put, ctx, x->kec_q, x->kec_f);
+        put_pair(put, ctx, x->n, 0);
+        put_pair(put, ctx, x->ref_source, 0);
+    }
+}
+
 /* --- integrity: CRC-32 (IEEE 802.3, reflected, as zlib's crc32) ------------------------- */
 
 uint32_t st_crc32(uint32_t crc, const uint8_t *p, size_t len)
@@ -632,59 +697,271 @@ uint32_t st_crc32(uint32_t crc, const uint8_t *p, size_t len)
     return ~crc;
 }
 
-static uint32_t crc_i16(uint32_t crc, int64_t v)
+static void crc_sink(void *ctx, const uint8_t *p, size_t len)
 {
-    const uint16_t u = (uint16_t)v;
-    uint8_t b[2];
-    b[0] = (uint8_t)(u & 0xFFu);
-    b[1] = (uint8_t)((u >> 8) & 0xFFu);
-    return st_crc32(crc, b, 2);
-}
-
-static uint32_t crc_pair(uint32_t crc, int64_t q, int64_t f)
-{
-    const uint32_t u = (uint32_t)q;
-    uint8_t b[4];
-    b[0] = (uint8_t)(u & 0xFFu);
-    b[1] = (uint8_t)((u >> 8) & 0xFFu);
-    b[2] = (uint8_t)((u >> 16) & 0xFFu);
-    b[3] = (uint8_t)((u >> 24) & 0xFFu);
-    return crc_i16(st_crc32(crc, b, 4), f);
+    uint32_t *crc = (uint32_t *)ctx;
+    *crc = st_crc32(*crc, p, len);
 }
 
 /* The table CRC: int16 n, int16 f, then the (2n+1)^2 int16 entries row-major. */
 uint32_t st_table_crc32(int n, int f, const int16_t *q)
 {
-    const int64_t size = (2 * (int64_t)n + 1) * (2 * (int64_t)n + 1);
-    int64_t j;
-    uint32_t crc = crc_i16(crc_i16(0, n), f);
-    for (j = 0; j < size; j++) {
-        crc = crc_i16(crc, q[j]);
-    }
+    uint32_t crc = 0;
+    put_table(crc_sink, &crc, n, f, q);
     return crc;
 }
 
 /* The constants CRC, in the order of the header comment (servotune/export/json.py). */
 uint32_t st_consts_crc32(const st_consts_t *c)
 {
+    uint32_t crc = 0;
+    put_consts(crc_sink, &crc, c);
+    return crc;
+}
+
+/* --- integrity: SHA-256 (FIPS 180-4) ----------------------------------------------------- */
+/* Written from FIPS 180-4: functions section 4.1.2, constants K section 4.2.2, padding
+ * section 5.1.1, initial hash value section 5.3.3, computation section 6.2.2 (the message
+ * schedule kept as a ring of 16 words). Words are big-endian. Every uint32_t result is reduced
+ * modulo 2^32 by the assignment, whatever the width of int. */
+
+static const uint32_t sha256_k[64] = {
+    UINT32_C(0x428a2f98), UINT32_C(0x71374491), UINT32_C(0xb5c0fbcf), UINT32_C(0xe9b5dba5),
+    UINT32_C(0x3956c25b), UINT32_C(0x59f111f1), UINT32_C(0x923f82a4), UINT32_C(0xab1c5ed5),
+    UINT32_C(0xd807aa98), UINT32_C(0x12835b01), UINT32_C(0x243185be), UINT32_C(0x550c7dc3),
+    UINT32_C(0x72be5d74), UINT32_C(0x80deb1fe), UINT32_C(0x9bdc06a7), UINT32_C(0xc19bf174),
+    UINT32_C(0xe49b69c1), UINT32_C(0xefbe4786), UINT32_C(0x0fc19dc6), UINT32_C(0x240ca1cc),
+    UINT32_C(0x2de92c6f), UINT32_C(0x4a7484aa), UINT32_C(0x5cb0a9dc), UINT32_C(0x76f988da),
+    UINT32_C(0x983e5152), UINT32_C(0xa831c66d), UINT32_C(0xb00327c8), UINT32_C(0xbf597fc7),
+    UINT32_C(0xc6e00bf3), UINT32_C(0xd5a79147), UINT32_C(0x06ca6351), UINT32_C(0x14292967),
+    UINT32_C(0x27b70a85), UINT32_C(0x2e1b2138), UINT32_C(0x4d2c6dfc), UINT32_C(0x53380d13),
+    UINT32_C(0x650a7354), UINT32_C(0x766a0abb), UINT32_C(0x81c2c92e), UINT32_C(0x92722c85),
+    UINT32_C(0xa2bfe8a1), UINT32_C(0xa81a664b), UINT32_C(0xc24b8b70), UINT32_C(0xc76c51a3),
+    UINT32_C(0xd192e819), UINT32_C(0xd6990624), UINT32_C(0xf40e3585), UINT32_C(0x106aa070),
+    UINT32_C(0x19a4c116), UINT32_C(0x1e376c08), UINT32_C(0x2748774c), UINT32_C(0x34b0bcb5),
+    UINT32_C(0x391c0cb3), UINT32_C(0x4ed8aa4a), UINT32_C(0x5b9cca4f), UINT32_C(0x682e6ff3),
+    UINT32_C(0x748f82ee), UINT32_C(0x78a5636f), UINT32_C(0x84c87814), UINT32_C(0x8cc70208),
+    UINT32_C(0x90befffa), UINT32_C(0xa4506ceb), UINT32_C(0xbef9a3f7), UINT32_C(0xc67178f2)
+};
+
+/* ROTR^n(x), 0 < n < 32 */
+static uint32_t rotr32(uint32_t x, unsigned n)
+{
+    return (uint32_t)((x >> n) | (x << (32u - n)));
+}
+
+/* Ch(x, y, z) = (x AND y) XOR (NOT x AND z), written without a complement */
+static uint32_t sha_ch(uint32_t x, uint32_t y, uint32_t z)
+{
+    return z ^ (x & (y ^ z));
+}
+
+/* Maj(x, y, z) = (x AND y) XOR (x AND z) XOR (y AND z) */
+static uint32_t sha_maj(uint32_t x, uint32_t y, uint32_t z)
+{
+    return (x & y) | (z & (x | y));
+}
+
+static uint32_t sha_big_sigma0(uint32_t x)
+{
+    return rotr32(x, 2) ^ rotr32(x, 13) ^ rotr32(x, 22);
+}
+
+static uint32_t sha_big_sigma1(uint32_t x)
+{
+    return rotr32(x, 6) ^ rotr32(x, 11) ^ rotr32(x, 25);
+}
+
+static uint32_t sha_small_sigma0(uint32_t x)
+{
+    return rotr32(x, 7) ^ rotr32(x, 18) ^ (x >> 3);
+}
+
+static uint32_t sha_small_sigma1(uint32_t x)
+{
+    return rotr32(x, 17) ^ rotr32(x, 19) ^ (x >> 10);
+}
+
+/* one 512-bit block M(i): H(i) := H(i-1) + the 64 rounds */
+static void sha256_block(uint32_t h[8], const uint8_t *m)
+{
+    uint32_t w[16];
+    uint32_t a = h[0];
+    uint32_t b = h[1];
+    uint32_t c = h[2];
+    uint32_t d = h[3];
+    uint32_t e = h[4];
+    uint32_t f = h[5];
+    uint32_t g = h[6];
+    uint32_t hh = h[7];
+    int t;
+    for (t = 0; t < 16; t++) {
+        w[t] = ((uint32_t)m[4 * t] << 24) | ((uint32_t)m[4 * t + 1] << 16)
+               | ((uint32_t)m[4 * t + 2] << 8) | (uint32_t)m[4 * t + 3];
+    }
+    for (t = 0; t < 64; t++) {
+        uint32_t wt;
+        uint32_t t1;
+        uint32_t t2;
+        if (t < 16) {
+            wt = w[t];
+        } else {
+            /* W(t) = s1(W(t-2)) + W(t-7) + s0(W(t-15)) + W(t-16); w[t & 15] holds W(t-16) */
+            wt = sha_small_sigma1(w[(t - 2) & 15]) + w[(t - 7) & 15]
+                 + sha_small_sigma0(w[(t - 15) & 15]) + w[t & 15];
+            w[t & 15] = wt;
+        }
+        t1 = hh + sha_big_sigma1(e) + sha_ch(e, f, g) + sha256_k[t] + wt;
+        t2 = sha_big_sigma0(a) + sha_maj(a, b, c);
+        hh = g;
+        g = f;
+        f = e;
+        e = d + t1;
+        d = c;
+        c = b;
+        b = a;
+        a = t1 + t2;
+    }
+    h[0] += a;
+    h[1] += b;
+    h[2] += c;
+    h[3] += d;
+    h[4] += e;
+    h[5] += f;
+    h[6] += g;
+    h[7] += hh;
+}
+
+void st_sha256_init(st_sha256_ctx_t *s)
+{
+    s->h[0] = UINT32_C(0x6a09e667);
+    s->h[1] = UINT32_C(0xbb67ae85);
+    s->h[2] = UINT32_C(0x3c6ef372);
+    s->h[3] = UINT32_C(0xa54ff53a);
+    s->h[4] = UINT32_C(0x510e527f);
+    s->h[5] = UINT32_C(0x9b05688c);
+    s->h[6] = UINT32_C(0x1f83d9ab);
+    s->h[7] = UINT32_C(0x5be0cd19);
+    s->n_bytes = 0;
+    s->fill = 0;
+}
+
+void st_sha256_update(st_sha256_ctx_t *s, const uint8_t *p, size_t len)
+{
+    s->n_bytes += (uint64_t)len;
+    while (len > 0) {
+        if (s->fill == 0 && len >= 64) {
+            sha256_block(s->h, p); /* whole blocks straight from the input */
+            p += 64;
+            len -= 64;
+        } else {
+            s->block[s->fill++] = *p++;
+            len--;
+            if (s->fill == 64) {
+                sha256_block(s->h, s->block);
+                s->fill = 0;
+            }
+        }
+    }
+}
+
+void st_sha256_final(st_sha256_ctx_t *s, uint8_t out[32])
+{
+    /* length in bits, modulo 2^64 (messages are far shorter than 2^61 bytes) */
+    const uint64_t bits = s->n_bytes * 8u;
+    int j;
+    /* padding: a 1 bit, zeros up to 448 bits modulo 512, then the 64-bit length */
+    s->block[s->fill++] = 0x80u;
+    if (s->fill > 56) {
+        while (s->fill < 64) {
+            s->block[s->fill++] = 0;
+        }
+        sha256_block(s->h, s->block);
+        s->fill = 0;
+    }
+    while (s->fill < 56) {
+        s->block[s->fill++] = 0;
+    }
+    for (j = 0; j < 8; j++) {
+        s->block[56 + j] = (uint8_t)((bits >> (56 - 8 * j)) & 0xFFu);
+    }
+    sha256_block(s->h, s->block);
+    s->fill = 0;
+    for (j = 0; j < 8; j++) {
+        out[4 * j] = (uint8_t)((s->h[j] >> 24) & 0xFFu);
+        out[4 * j + 1] = (uint8_t)((s->h[j] >> 16) & 0xFFu);
+        out[4 * j + 2] = (uint8_t)((s->h[j] >> 8) & 0xFFu);
+        out[4 * j + 3] = (uint8_t)(s->h[j] & 0xFFu);
+    }
+}
+
+void st_sha256(const uint8_t *p, size_t len, uint8_t out[32])
+{
+    st_sha256_ctx_t s;
+    st_sha256_init(&s);
+    st_sha256_update(&s, p, len);
+    st_sha256_final(&s, out);
+}
+
+/* --- integrity: the digest of the compiled-in constants (C layout) ----------------------- */
+
+static void sha_sink(void *ctx, const uint8_t *p, size_t len)
+{
+    st_sha256_update((st_sha256_ctx_t *)ctx, p, len);
+}
+
+/* The C layout (servotune/export/layout.py): the constants CRC's bytes, then for each
+ * fuzzy-PID axis in order its four tables' CRC bytes (ST_TAB_* order). */
+int st_consts_sha256(const st_consts_t *c, uint8_t out[32])
+{
+    st_sha256_ctx_t s;
     int a;
-    uint32_t crc = crc_pair(crc_pair(0, c->n_axes, 0), c->timer_divisor, 0);
+    int i;
+    /* only what can be walked safely: the axes present and, for fuzzy-PID, n and the tables */
+    if (c->n_axes < 1 || c->n_axes > ST_MAX_AXES) {
+        return ST_DIGEST_MALFORMED;
+    }
     for (a = 0; a < c->n_axes; a++) {
         const st_axis_consts_t *x = &c->axis[a];
-        crc = crc_pair(crc, x->law, 0);
-        crc = crc_pair(crc, x->lock_q, x->lock_f);
-        crc = crc_pair(crc, x->kp_q, x->kp_f);
-        crc = crc_pair(crc, x->kit_q, x->kit_f);
-        crc = crc_pair(crc, x->fe_limit, 0);
-        crc = crc_pair(crc, x->counter_bits, 0);
-        crc = crc_pair(crc, x->dac_zero, 0);
-        crc = crc_pair(crc, x->dac_max, 0);
-        crc = crc_pair(crc, x->kdt_q, x->kdt_f);
-        crc = crc_pair(crc, x->k1t_q, x->k1t_f);
-        crc = crc_pair(crc, x->ke_q, x->ke_f);
-        crc = crc_pair(crc, x->kec_q, x->kec_f);
-        crc = crc_pair(crc, x->n, 0);
-        crc = crc_pair(crc, x->ref_source, 0);
+        if (x->law == ST_LAW_FUZZY_PID) {
+            if (x->n < 1 || x->n > ST_MAX_LEVELS) {
+                return ST_DIGEST_MALFORMED;
+            }
+            for (i = 0; i < ST_N_TABLES; i++) {
+                if (x->tab[i] == NULL) {
+                    return ST_DIGEST_MALFORMED;
+                }
+            }
+        }
     }
-    return crc;
+    st_sha256_init(&s);
+    put_consts(sha_sink, &s, c);
+    for (a = 0; a < c->n_axes; a++) {
+        const st_axis_consts_t *x = &c->axis[a];
+        if (x->law == ST_LAW_FUZZY_PID) {
+            for (i = 0; i < ST_N_TABLES; i++) {
+                put_table(sha_sink, &s, x->n, x->tf[i], x->tab[i]);
+            }
+        }
+    }
+    st_sha256_final(&s, out);
+    return ST_DIGEST_OK;
+}
+
+int st_check_digest(const st_consts_t *c, const uint8_t expected[32])
+{
+    uint8_t d[32];
+    unsigned diff = 0;
+    int j;
+    const int r = st_consts_sha256(c, d);
+    if (r != ST_DIGEST_OK) {
+        return r;
+    }
+    if (expected == NULL) {
+        return ST_DIGEST_MISMATCH;
+    }
+    for (j = 0; j < 32; j++) {
+        diff |= (unsigned)(d[j] ^ expected[j]);
+    }
+    return diff == 0 ? ST_DIGEST_OK : ST_DIGEST_MISMATCH;
 }

@@ -20,8 +20,12 @@
  * st_axis_control then holds them at mid-scale, as for any latched fault, until a reset.
  *
  * Constants come from servotune_tables.h (servotune export), whose SERVOTUNE_TABLES_INIT
- * initialises an st_consts_t. Check them once at start-up with st_check_consts() and compare
- * st_consts_crc32() / st_table_crc32() with the exported CRCs.
+ * initialises an st_consts_t; they are compiled in (there is no loader). Check them once at
+ * start-up: st_check_digest(&consts, st_tables_sha256) recomputes the SHA-256 of the
+ * compiled-in constants and tables in the C layout (below) and compares it with the exported
+ * ST_TABLES_SHA256 (accidental edits, stale files, mix-ups); st_check_consts() checks the
+ * ranges the arithmetic relies on. st_consts_crc32() / st_table_crc32() give the CRCs of the
+ * same bytes, for comparison with the exported ones.
  *
  * Constants CRC (CRC-32 IEEE, as zlib's crc32): over (q int32, f int16) pairs, little-endian,
  * in this order; integers are pairs (value, 0), unused constants (0, 0):
@@ -31,6 +35,11 @@
  *   (ke_q, ke_f), (kec_q, kec_f), (n, 0), (ref_source, 0).
  * Each table's CRC covers int16 n, int16 f, then its (2n+1)^2 int16 entries row-major
  * (row E = -n..n, column EC = -n..n), little-endian.
+ *
+ * C layout (SHA-256, st_consts_sha256 / st_check_digest; servotune/export/layout.py): the
+ * constants CRC's bytes as above, then for each axis a = 0 .. n_axes-1 whose law is
+ * ST_LAW_FUZZY_PID, for each table i = ST_TAB_KP, ST_TAB_KI, ST_TAB_KD, ST_TAB_K1, that
+ * table CRC's bytes (int16 n, int16 tf[i], the entries). No padding, no length prefix.
  */
 #ifndef SERVOTUNE_RT_H
 #define SERVOTUNE_RT_H
@@ -235,6 +244,35 @@ int st_unwrap_step(int64_t raw, int64_t *hi_prev, int64_t *wraps, int counter_bi
 uint32_t st_crc32(uint32_t crc, const uint8_t *p, size_t len); /* zlib.crc32(p, crc) */
 uint32_t st_table_crc32(int n, int f, const int16_t *q);
 uint32_t st_consts_crc32(const st_consts_t *c);
+
+/* SHA-256 (FIPS 180-4), incremental: st_sha256_init, st_sha256_update any number of times,
+ * st_sha256_final (which ends the context: init it again to reuse it). No allocation. */
+typedef struct st_sha256_ctx {
+    uint32_t h[8];     /* intermediate hash value */
+    uint64_t n_bytes;  /* message length so far [bytes] */
+    uint8_t block[64]; /* the current, partial message block */
+    uint32_t fill;     /* bytes in block, 0 .. 63 */
+} st_sha256_ctx_t;
+
+void st_sha256_init(st_sha256_ctx_t *s);
+void st_sha256_update(st_sha256_ctx_t *s, const uint8_t *p, size_t len);
+void st_sha256_final(st_sha256_ctx_t *s, uint8_t out[32]);
+void st_sha256(const uint8_t *p, size_t len, uint8_t out[32]); /* one call: init+update+final */
+
+/* results of st_consts_sha256 / st_check_digest */
+#define ST_DIGEST_OK 0        /* the digest was computed / matches */
+#define ST_DIGEST_MISMATCH 1  /* st_check_digest: the constants are not the exported ones */
+#define ST_DIGEST_MALFORMED 2 /* n_axes outside 1 .. ST_MAX_AXES, or a fuzzy-PID axis with n
+                                 outside 1 .. ST_MAX_LEVELS or a NULL table: not walked */
+
+/* SHA-256 of the constants in the C layout (header comment) into out. ST_DIGEST_OK, or
+ * ST_DIGEST_MALFORMED (out untouched). */
+int st_consts_sha256(const st_consts_t *c, uint8_t out[32]);
+
+/* Start-up check of the compiled-in constants against the exported digest
+ * (st_tables_sha256 of servotune_tables.h): ST_DIGEST_OK (0) if they match, else
+ * ST_DIGEST_MISMATCH or ST_DIGEST_MALFORMED. Halt on anything but 0. */
+int st_check_digest(const st_consts_t *c, const uint8_t expected[32]);
 
 #ifdef __cplusplus
 }

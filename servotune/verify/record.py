@@ -1,0 +1,396 @@
+"""The trust chain: what ``verify`` verified, and the check ``export-table`` makes against it.
+
+``verify`` reads each input file's bytes **once**: the tuning, the rig and the spec are parsed
+from those bytes and hashed from those same bytes, so a file replaced while verification runs
+cannot be recorded as verified. The record (``<tuning>.verify.json``, ``servotune.verify/2``)
+binds the SHA-256 of the three files and the tool version to the verdict, and carries its own
+digest over its canonical JSON (:mod:`servotune.digest`), so an edited record is refused too.
+
+Which rig: a tuning records its rig's name, path and SHA-256. ``verify`` and ``export-table``
+use that rig: the given ``--rig`` file, else the recorded path, else ``plants/<rig name>.toml``,
+else the example rig; a file is used only if its SHA-256 is the tuning's (a moved copy is fine,
+another rig is refused).
+
+``export-table`` (:func:`load_for_export`) refuses, with :class:`~servotune.errors.TrustError`
+naming what differs, when there is no record, the record fails its own digest, did not pass,
+was made by another servotune version, or holds another tuning, rig or spec than the ones given.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from servotune._version import __version__
+from servotune.digest import DIGEST_FIELD, bytes_sha256, document_sha256
+from servotune.errors import RigError, SpecError, TrustError, TuningError
+from servotune.logs import atomic_write_text, json_float, parse_json, parse_toml, read_bytes
+from servotune.rig import EXAMPLE_RIG_PATH, Rig, rig_from_dict
+from servotune.tuning import Tuning, read_tuning_bytes
+from servotune.verify.run import Verification, spec_from_bytes, verify
+
+__all__ = [
+    "RECORD_SCHEMA",
+    "SourceFile",
+    "Verified",
+    "check_record",
+    "default_rig_path",
+    "load_for_export",
+    "read_record",
+    "record_path",
+    "rig_for_tuning",
+    "verification_record",
+    "verify_files",
+    "write_record",
+]
+
+RECORD_SCHEMA = "servotune.verify/2"
+_OLD_RECORD_SCHEMAS = ("servotune.verify/1",)
+_KINDS = ("tuning", "rig", "spec")
+
+
+@dataclass(frozen=True, slots=True)
+class SourceFile:
+    """One input file as read once: its path as given, its SHA-256 and its bytes."""
+
+    path: str
+    sha256: str
+    raw: bytes = field(repr=False, compare=False)
+
+    @classmethod
+    def read(cls, path: str | Path, error: type[Exception], what: str) -> SourceFile:
+        """Read ``path``'s bytes once (a failure is one line of ``error`` naming ``what``)."""
+        raw = read_bytes(path, error, what)
+        return cls(path=str(path), sha256=bytes_sha256(raw), raw=raw)
+
+    def entry(self) -> dict[str, str]:
+        """The record's entry for this file: its name and SHA-256."""
+        return {"name": Path(self.path).name, "sha256": self.sha256}
+
+
+@dataclass(frozen=True, slots=True)
+class Verified:
+    """A tuning with the rig it is for and its verification record, checked against each other.
+
+    ``record`` is None for an export the user asked to mark unverified.
+    """
+
+    tuning: Tuning
+    tuning_file: SourceFile
+    rig: Rig
+    rig_file: SourceFile
+    record: dict[str, Any] | None
+
+
+def record_path(tuning_path: str | Path) -> Path:
+    """Where the verification record of a tuning file lives: ``<tuning name>.verify.json``."""
+    p = Path(tuning_path)
+    return p.with_name(p.name + ".verify.json")
+
+
+def _rig_from(src: SourceFile) -> Rig:
+    data = parse_toml(src.raw, src.path, RigError, "rig file")
+    return rig_from_dict(data, default_name=Path(src.path).stem)
+
+
+def _tuning_and_rig(
+    tuning_path: str | Path, rig_path: str | Path | None
+) -> tuple[Tuning, SourceFile, Rig, SourceFile]:
+    """The tuning and its rig, each parsed from the bytes read once (see the module docstring)."""
+    tuning_file = SourceFile.read(tuning_path, TuningError, "tuning file")
+    tuning = read_tuning_bytes(tuning_file.raw, tuning_file.path)
+    rig_file = rig_for_tuning(tuning, tuning_path, rig_path)
+    return tuning, tuning_file, _rig_from(rig_file), rig_file
+
+
+def _short(sha: str) -> str:
+    return sha[:12] + "…"
+
+
+def _rig_candidates(tuning: Tuning, tuning_path: str | Path) -> list[Path]:
+    out: list[Path] = []
+    if tuning.rig_path:
+        recorded = Path(tuning.rig_path)
+        out.append(recorded)
+        if not recorded.is_absolute():
+            out.append(Path(tuning_path).parent / recorded)
+    out.append(Path("plants") / f"{tuning.rig_name}.toml")
+    if EXAMPLE_RIG_PATH.stem == tuning.rig_name:
+        out.append(EXAMPLE_RIG_PATH)
+    seen: list[Path] = []
+    for p in out:
+        if p not in seen:
+            seen.append(p)
+    return seen
+
+
+def rig_for_tuning(
+    tuning: Tuning, tuning_path: str | Path, rig_path: str | Path | None = None
+) -> SourceFile:
+    """The rig file a tuning is used with, read once; its SHA-256 must be the tuning's.
+
+    Parameters
+    ----------
+    tuning : Tuning
+    tuning_path : str or Path
+        Where the tuning was read from (a relative recorded rig path is also tried there).
+    rig_path : str or Path, optional
+        The rig file the user gave (``--rig``): it may be a moved copy, not another rig.
+
+    Raises
+    ------
+    TrustError
+        The given rig, or every rig file found, differs from the tuning's (names both hashes).
+    TuningError
+        No rig file found (give ``--rig``).
+    RigError
+        The given rig file cannot be read.
+    """
+    want = tuning.rig_sha256
+    if rig_path is not None:
+        src = SourceFile.read(rig_path, RigError, "rig file")
+        if src.sha256 != want:
+            raise TrustError(
+                f"rig file {str(rig_path)!r} (sha256 {_short(src.sha256)}) is not the rig the "
+                f"tuning was made for ({tuning.rig_name!r}, sha256 {_short(want)}"
+                + (f", {tuning.rig_path}" if tuning.rig_path else "")
+                + "): tune again for this rig, or give that rig file"
+            )
+        return src
+    found = []
+    for p in _rig_candidates(tuning, tuning_path):
+        if p.is_file():
+            src = SourceFile.read(p, RigError, "rig file")
+            if src.sha256 == want:
+                return src
+            found.append(f"{p} (sha256 {_short(src.sha256)})")
+    if found:
+        raise TrustError(
+            f"no rig file matches the tuning's rig {tuning.rig_name!r} (sha256 {_short(want)}): "
+            f"found {', '.join(found)}; give the rig file the tuning was made for (--rig)"
+        )
+    where = tuning.rig_path or f"plants/{tuning.rig_name}.toml"
+    raise TuningError(
+        f"no rig file {where} for the tuning's rig {tuning.rig_name!r}; give the rig file (--rig)"
+    )
+
+
+def default_rig_path(tuning: Tuning, tuning_path: str | Path = ".") -> Path:
+    """The path of the rig file :func:`rig_for_tuning` picks when none is given."""
+    return Path(rig_for_tuning(tuning, tuning_path).path)
+
+
+def verification_record(
+    verification: Verification,
+    *,
+    tuning: SourceFile,
+    rig: SourceFile,
+    spec: SourceFile,
+) -> dict[str, Any]:
+    """The record of a verification: which exact bytes were verified, and the verdict.
+
+    Returns
+    -------
+    dict
+        ``schema``, ``passed``, ``tool``/``tool_version``, ``files`` (name and SHA-256 of the
+        tuning, rig and spec as read), ``seed``, ``summary`` (counts, failures, the smallest
+        relative margin), the full ``verification``, and ``sha256``: the record's own digest
+        (:func:`servotune.digest.document_sha256`). No timestamps: the same inputs give the
+        same bytes.
+    """
+    v = verification
+    rels = [(r.relative_margin, r) for r in v.rows if r.relative_margin is not None]
+    tight = min(rels, key=lambda x: x[0]) if rels else None
+    summary = {
+        "checks": len(v.checks),
+        "checks_failed": sum(not c.passed for c in v.checks),
+        "failures": v.failures,
+        "limits": len(v.rows),
+        "limits_failed": sum(not r.passed for r in v.rows),
+        "plant_sets": len(v.variants),
+        "tightest": None
+        if tight is None
+        else {
+            "axis": tight[1].axis,
+            "quantity": tight[1].quantity,
+            "relative_margin": json_float(tight[0]),
+            "scenario": tight[1].scenario,
+        },
+    }
+    record: dict[str, Any] = {
+        "files": {"rig": rig.entry(), "spec": spec.entry(), "tuning": tuning.entry()},
+        "passed": v.passed,
+        "schema": RECORD_SCHEMA,
+        "seed": v.seed,
+        "summary": summary,
+        "tool": "servotune",
+        "tool_version": __version__,
+        "verification": v.to_dict(),
+    }
+    record[DIGEST_FIELD] = document_sha256(record)
+    return record
+
+
+def _record_text(record: Mapping[str, Any]) -> str:
+    return json.dumps(record, sort_keys=True, indent=2, allow_nan=False) + "\n"
+
+
+def write_record(record: Mapping[str, Any], tuning_path: str | Path) -> Path:
+    """Write a record next to its tuning as ``<tuning name>.verify.json`` (atomically).
+
+    Returns
+    -------
+    Path
+        The record's path.
+    """
+    path = record_path(tuning_path)
+    atomic_write_text(path, _record_text(record))
+    return path
+
+
+def verify_files(
+    tuning_path: str | Path,
+    spec_path: str | Path,
+    rig_path: str | Path | None = None,
+    *,
+    seed: int | None = None,
+    progress: Callable[[str], None] | None = None,
+    write: bool = True,
+) -> tuple[Verification, dict[str, Any], Path | None]:
+    """What ``servotune verify TUNING --spec SPEC [--rig RIG]`` runs.
+
+    Reads each file's bytes once, parses and hashes those bytes, verifies, builds the record
+    and (``write``) writes it next to the tuning.
+
+    Returns
+    -------
+    verification : Verification
+    record : dict
+    path : Path or None
+        Where the record was written (None if ``write`` is false).
+
+    Raises
+    ------
+    TrustError
+        The rig is not the one the tuning was made for (:func:`rig_for_tuning`).
+    TuningError, RigError, SpecError
+        A file is missing or malformed.
+    """
+    tuning, tuning_file, rig, rig_file = _tuning_and_rig(tuning_path, rig_path)
+    spec_file = SourceFile.read(spec_path, SpecError, "spec file")
+    spec = spec_from_bytes(spec_file.raw, spec_path)
+    result = verify(tuning, rig, spec, seed=seed, progress=progress)
+    record = verification_record(result, tuning=tuning_file, rig=rig_file, spec=spec_file)
+    path = write_record(record, tuning_path) if write else None
+    return result, record, path
+
+
+def read_record(tuning_path: str | Path) -> dict[str, Any]:
+    """The verification record of a tuning file, checked against its own digest.
+
+    Raises
+    ------
+    TrustError
+        No record, an unreadable one, one of an older schema, or one whose digest does not
+        match its content (it was edited).
+    """
+    path = record_path(tuning_path)
+    if not path.is_file():
+        raise TrustError(
+            f"{tuning_path} has no verification record ({path.name}): run `servotune verify` "
+            "on it first, or export it marked --unverified"
+        )
+    raw = read_bytes(path, TrustError, "verification record")
+    try:
+        record = parse_json(raw.decode("utf-8"), str(path), TrustError)
+    except UnicodeDecodeError:
+        raise TrustError(f"{path}: not UTF-8 text; run `servotune verify` again") from None
+    if not isinstance(record, dict):
+        raise TrustError(f"{path}: not a verification record; run `servotune verify` again")
+    schema = record.get("schema")
+    if schema in _OLD_RECORD_SCHEMAS:
+        raise TrustError(f"{path}: written by an older servotune ({schema}); verify again")
+    if schema != RECORD_SCHEMA:
+        raise TrustError(f"{path}: schema must be {RECORD_SCHEMA!r}; run `servotune verify` again")
+    try:
+        digest_ok = record.get(DIGEST_FIELD) == document_sha256(record)
+    except (TypeError, ValueError):
+        digest_ok = False
+    if not digest_ok:
+        raise TrustError(f"{path}: the record's digest does not match its content (it was edited)")
+    return record
+
+
+def check_record(
+    record: Mapping[str, Any],
+    *,
+    tuning: SourceFile,
+    rig: SourceFile,
+    spec: SourceFile | None = None,
+) -> None:
+    """Raise :class:`TrustError` unless ``record`` passed, was made by this servotune version,
+    and holds exactly these files' hashes (``spec`` only when given); the message names what
+    differs."""
+    if record.get("passed") is not True:
+        raise TrustError(f"{tuning.path} failed its verification: fix the tuning and verify again")
+    if record.get("tool_version") != __version__:
+        raise TrustError(
+            f"{tuning.path} was verified by servotune {record.get('tool_version')}, this is "
+            f"{__version__}: verify it again with this version"
+        )
+    files = record.get("files")
+    given = {"tuning": tuning, "rig": rig, "spec": spec}
+    for kind in _KINDS:
+        src = given[kind]
+        if src is None:
+            continue
+        entry = files.get(kind) if isinstance(files, dict) else None
+        recorded = entry.get("sha256") if isinstance(entry, dict) else None
+        if recorded != src.sha256:
+            name = entry.get("name") if isinstance(entry, dict) else "?"
+            raise TrustError(
+                f"the {kind} differs from the verified one: {src.path} has sha256 "
+                f"{_short(src.sha256)}, the record holds {name} with sha256 "
+                f"{_short(str(recorded))}; verify again"
+            )
+
+
+def load_for_export(
+    tuning_path: str | Path,
+    rig_path: str | Path | None = None,
+    spec_path: str | Path | None = None,
+    *,
+    unverified: bool = False,
+) -> Verified:
+    """What ``export-table`` exports: the tuning, its rig and its checked record.
+
+    Each file is read once; the tuning and rig are parsed from the bytes that are checked.
+
+    Parameters
+    ----------
+    tuning_path : str or Path
+    rig_path : str or Path, optional
+        The rig (``--rig``): must be the tuning's (:func:`rig_for_tuning`).
+    spec_path : str or Path, optional
+        If given (``--spec``), the record must hold this spec.
+    unverified : bool
+        Skip the record (the export is marked ``"verified": false``).
+
+    Raises
+    ------
+    TrustError
+        Anything of :func:`rig_for_tuning`, :func:`read_record` or :func:`check_record`.
+    TuningError, RigError, SpecError
+        A file is missing or malformed.
+    """
+    tuning, tuning_file, rig, rig_file = _tuning_and_rig(tuning_path, rig_path)
+    record = None
+    if not unverified:
+        spec = None if spec_path is None else SourceFile.read(spec_path, SpecError, "spec file")
+        record = read_record(tuning_path)
+        check_record(record, tuning=tuning_file, rig=rig_file, spec=spec)
+    return Verified(tuning=tuning, tuning_file=tuning_file, rig=rig, rig_file=rig_file,
+                    record=record)  # fmt: skip

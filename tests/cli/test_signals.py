@@ -1,0 +1,100 @@
+"""Signals and partial files (issue 15): Ctrl-C and SIGTERM end a run with one line, exit 130 or
+143, no traceback, and no partial or temporary file; an unusable workbench stops before any
+output is written."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+import servotune.logs as logs
+from servotune.cli import main
+
+ROOT = Path(__file__).resolve().parents[2]
+RIG = ROOT / "plants" / "pc-dual-servo.toml"
+
+
+SIGNALS = [(signal.SIGINT, 130, "interrupted"), (signal.SIGTERM, 143, "terminated")]
+
+
+def _files(d: Path) -> set[str]:
+    return {p.name for p in d.iterdir()}
+
+
+@pytest.mark.parametrize(("sig", "code", "word"), SIGNALS)
+def test_a_signal_during_the_atomic_write_leaves_no_file(
+    sig, code, word, tmp_path, capsys, monkeypatch
+) -> None:
+    """The signal arrives while the output's temporary file is open (at its fsync): the run
+    ends with the signal's exit code and neither the temp file nor the output remains."""
+    real_fsync = os.fsync
+
+    def fsync_then_signal(fd: int) -> None:
+        real_fsync(fd)
+        assert any(n.endswith(".tmp") for n in _files(tmp_path))  # the temp file exists now
+        os.kill(os.getpid(), sig)
+        time.sleep(1.0)  # the handler runs here
+
+    monkeypatch.setattr(logs.os, "fsync", fsync_then_signal)
+    out = tmp_path / "log.csv"
+    rc = main(["simulate", str(RIG), "--scenario", "prbs", "--seconds", "1", "-o", str(out)])
+    assert rc == code
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"servotune simulate: {word}"]
+    assert _files(tmp_path) == set()
+
+
+@pytest.mark.parametrize(("sig", "code", "word"), SIGNALS)
+def test_a_signal_to_a_long_run_ends_it_cleanly(sig, code, word, tmp_path) -> None:
+    """A real process (``python -m servotune.cli``) tuning with a large budget gets the signal
+    after it started working: one line on stderr, no traceback, no output, no temp file."""
+    out = tmp_path / "tuning.json"
+    env = {**os.environ, "SERVOTUNE_WORKBENCH": str(tmp_path / "wb")}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "servotune.cli", "tune", str(RIG), "--generations", "5000",
+         "-o", str(out)],
+        stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        cwd=tmp_path, env=env,
+    )  # fmt: skip
+    try:
+        deadline = time.monotonic() + 120
+        started = False
+        lines = []
+        while time.monotonic() < deadline:  # wait for the tuner's first progress line
+            line = proc.stderr.readline()
+            lines.append(line)
+            if line.startswith("tune:"):
+                started = True
+                break
+            if not line and proc.poll() is not None:
+                break
+        assert started, lines
+        time.sleep(0.5)
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == code, err
+    assert "Traceback" not in err
+    assert err.strip().splitlines()[-1] == f"servotune tune: {word}"
+    assert not out.exists()
+    leftovers = [p for p in tmp_path.rglob("*") if p.is_file()]
+    assert leftovers == [], leftovers
+
+
+def test_an_unusable_workbench_stops_tune_before_any_output(tmp_path, capsys, monkeypatch) -> None:
+    blocker = tmp_path / "not-a-dir"
+    blocker.write_text("a file where the workbench directory should be\n")
+    monkeypatch.setenv("SERVOTUNE_WORKBENCH", str(blocker / "wb"))
+    out = tmp_path / "tuning.json"
+    assert main(["tune", str(RIG), "-o", str(out)]) == 3
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "workbench directory" in err[0] and str(blocker / "wb") in err[0]
+    assert not out.exists()
