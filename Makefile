@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint format bench clean
+.PHONY: demo test lint format bench clean fuzz
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -26,6 +26,21 @@ format: $(STAMP)
 
 test: lint
 	$(BIN)/python -m pytest
+
+# Fuzz the file readers (tests/test_fuzz_readers.py) with the hypothesis profile "fuzz": rounds
+# of FUZZ_EXAMPLES random inputs per test (36 tests; 2000 examples: a round of about 5 minutes
+# on 2 cores) until FUZZ_MINUTES have passed, so 15 to 20 minutes by default; stops at the first
+# failing round. Not part of `make test` (which runs the same tests with the short deterministic
+# "ci" profile, about 10 s).
+FUZZ_MINUTES ?= 15
+FUZZ_EXAMPLES ?= 2000
+fuzz: $(STAMP)
+	@end=$$(( $$(date +%s) + $(FUZZ_MINUTES) * 60 )); round=0; \
+	while [ $$(date +%s) -lt $$end ]; do \
+		round=$$((round + 1)); echo "make fuzz: round $$round"; \
+		HYPOTHESIS_PROFILE=fuzz FUZZ_EXAMPLES=$(FUZZ_EXAMPLES) $(BIN)/python -m pytest -q \
+			-m fuzz tests/test_fuzz_readers.py --hypothesis-show-statistics || exit 1; \
+	done; echo "make fuzz: $$round rounds, no failure"
 
 bench: $(STAMP)
 	$(BIN)/python bench/bench.py --out reports/bench.json
