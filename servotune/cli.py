@@ -39,6 +39,22 @@ def _on_sigterm(signum: int, frame: object) -> None:
 _MAX_MESSAGE = 600  # characters of an error line
 
 
+def _outcome(exc: BaseException) -> tuple[str, int]:
+    """The one line (after ``servotune VERB:``) and the exit code for a run that raised."""
+    if isinstance(exc, KeyboardInterrupt):
+        return "interrupted", EXIT_INTERRUPTED
+    if isinstance(exc, _Terminated):
+        return "terminated", EXIT_TERMINATED
+    if isinstance(exc, TrustError):
+        return f"refused: {_line(exc)}", EXIT_FAILED
+    if isinstance(exc, InfeasibleError):
+        return f"failed: {_line(exc)}", EXIT_FAILED
+    if isinstance(exc, OSError) and not isinstance(exc, ServotuneError):
+        where = f" {_line(repr(exc.filename))}:" if getattr(exc, "filename", None) else ""
+        return f"error:{where} {_line(exc.strerror or exc)}", EXIT_BAD_INPUT
+    return f"error: {_line(exc)}", EXIT_BAD_INPUT
+
+
 def _line(exc: object) -> str:
     """An error as one line of at most :data:`_MAX_MESSAGE` characters."""
     text = " ".join(str(exc).split())
@@ -548,38 +564,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.max_memory is not None:
             set_memory_budget(args.max_memory)
         return func(args)
-    except TrustError as exc:
+    except (ServotuneError, OSError, KeyboardInterrupt, _Terminated) as exc:
         if args.debug:
             raise
-        print(f"servotune {args.verb}: refused: {_line(exc)}", file=sys.stderr)
-        return EXIT_FAILED
-    except InfeasibleError as exc:
-        if args.debug:
-            raise
-        print(f"servotune {args.verb}: failed: {_line(exc)}", file=sys.stderr)
-        return EXIT_FAILED
-    except ServotuneError as exc:
-        if args.debug:
-            raise
-        print(f"servotune {args.verb}: error: {_line(exc)}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except OSError as exc:
-        if args.debug:
-            raise
-        where = f" {exc.filename!r}:" if getattr(exc, "filename", None) else ""
-        print(f"servotune {args.verb}: error:{where} {_line(exc.strerror or exc)}"[:700],
-              file=sys.stderr)  # fmt: skip
-        return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
-        if args.debug:
-            raise
-        print(f"servotune {args.verb}: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
-    except _Terminated:
-        if args.debug:
-            raise
-        print(f"servotune {args.verb}: terminated", file=sys.stderr)
-        return EXIT_TERMINATED
+        message, code = _outcome(exc)
+        print(f"servotune {args.verb}: {message}", file=sys.stderr)
+        return code
     finally:
         signal.signal(signal.SIGTERM, previous)
         warnings.formatwarning = format_warning

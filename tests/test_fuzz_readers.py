@@ -28,16 +28,16 @@ import json
 import math
 import os
 import re
-import resource
 import shutil
-import signal
 import tomllib
 import traceback
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import guard
 import pytest
+from guard import GuardTimeout
 from hypothesis import HealthCheck, assume, event, given, settings
 from hypothesis import strategies as st
 from hypothesis.database import DirectoryBasedExampleDatabase
@@ -176,33 +176,11 @@ def workdir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 # --- the property ----------------------------------------------------------------------------
 
 
-class _Timeout(BaseException):
-    pass
-
-
-@contextlib.contextmanager
-def guarded(seconds: int = TIMEOUT_S, memory: int = MEMORY) -> Iterator[None]:
-    """:class:`_Timeout` after ``seconds``; MemoryError beyond ``memory`` more address space."""
-
-    def on_alarm(signum: int, frame: Any) -> None:
-        raise _Timeout(f"still running after {seconds} s")
-
-    soft, hard = resource.getrlimit(resource.RLIMIT_AS)
-    vm = next(
-        int(ln.split()[1]) * 1024
-        for ln in Path("/proc/self/status").read_text().splitlines()
-        if ln.startswith("VmSize:")
-    )
-    limit = vm + memory if hard == resource.RLIM_INFINITY else min(vm + memory, hard)
-    old = signal.signal(signal.SIGALRM, on_alarm)
-    resource.setrlimit(resource.RLIMIT_AS, (limit, hard))
-    signal.alarm(seconds)
-    try:
-        yield
-    finally:
-        signal.alarm(0)
-        resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
-        signal.signal(signal.SIGALRM, old)
+def guarded(
+    seconds: int = TIMEOUT_S, memory: int = MEMORY
+) -> contextlib.AbstractContextManager[None]:
+    """:func:`guard.guarded` with this module's limits."""
+    return guard.guarded(seconds, memory)
 
 
 _FINDINGS = os.environ.get("FUZZ_FINDINGS")
@@ -253,7 +231,7 @@ def check(kind: str, workdir: Path, data: bytes, source: str) -> None:
             problem, where, detail = "message-not-one-line", _where(exc), repr(msg[:300])
         elif len(msg) > MAX_MESSAGE:
             problem, where, detail = "message-too-long", _where(exc), f"{len(msg)} characters"
-    except _Timeout as exc:
+    except GuardTimeout as exc:
         problem, where, detail = "Timeout", _where(exc), str(exc)
     except Exception as exc:  # what the property forbids
         problem, where = f"{type(exc).__module__}.{type(exc).__name__}", _where(exc)

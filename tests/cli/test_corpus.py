@@ -22,14 +22,14 @@ import json
 import os
 import resource
 import shutil
-import signal
 import subprocess
 import sys
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import guard
 import pytest
+from guard import GuardTimeout
 
 ROOT = Path(__file__).resolve().parents[2]
 CORPUS = ROOT / "tests" / "corpus"
@@ -142,34 +142,11 @@ def snapshot(d: Path) -> dict[str, str]:
     }
 
 
-class _Timeout(BaseException):  # not an OSError: main() must not catch it
-    pass
-
-
-@contextlib.contextmanager
-def guarded(seconds: int = TIMEOUT_S, memory: int = MEMORY_LIMIT) -> Iterator[None]:
-    """Raise :class:`_Timeout` after ``seconds``, MemoryError beyond ``memory`` more bytes of
-    address space: a file asking for a 2**(10**12) integer must not take the test run down."""
-
-    def on_alarm(signum: int, frame: Any) -> None:
-        raise _Timeout(f"still running after {seconds} s")
-
-    soft, hard = resource.getrlimit(resource.RLIMIT_AS)
-    vm = next(
-        int(ln.split()[1]) * 1024
-        for ln in Path("/proc/self/status").read_text().splitlines()
-        if ln.startswith("VmSize:")
-    )
-    limit = vm + memory if hard == resource.RLIM_INFINITY else min(vm + memory, hard)
-    old = signal.signal(signal.SIGALRM, on_alarm)
-    resource.setrlimit(resource.RLIMIT_AS, (limit, hard))
-    signal.alarm(seconds)
-    try:
-        yield
-    finally:
-        signal.alarm(0)
-        resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
-        signal.signal(signal.SIGALRM, old)
+def guarded(
+    seconds: int = TIMEOUT_S, memory: int = MEMORY_LIMIT
+) -> contextlib.AbstractContextManager[None]:
+    """:func:`guard.guarded` with this module's limits."""
+    return guard.guarded(seconds, memory)
 
 
 def run_in_process(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str]:
@@ -244,7 +221,7 @@ def test_corpus_file(
     try:
         with guarded(30):
             read_with_reader(kind, Path(file))
-    except _Timeout:
+    except GuardTimeout:
         hung = True
     except Exception:  # a non-servotune error shows again in the CLI run
         refused = True
