@@ -84,7 +84,7 @@ from servotune.logs import json_float, read_toml
 from servotune.plant import Plant, advance
 from servotune.rig import MAX_LOCK_GAIN, Rig, build_section, check_plant, load_rig
 from servotune.tune.pi import DEFAULT_TARGETS
-from servotune.validate import check_integer, check_number, is_number, show_value
+from servotune.validate import check_integer, check_keys, check_number, is_number, show_value
 
 __all__ = [
     "SCHEMA",
@@ -615,9 +615,7 @@ def linkage_from_dict(
         If a key is unknown or missing, or a value is invalid; the message names the field
         (``bus.baud``, ``cpu[1].queue_depth``, ``axis.x.plant.tau_s``), the value and the unit.
     """
-    unknown = sorted(set(data) - set(_TOP_KEYS))
-    if unknown:
-        raise ConfigError(f"unknown key {unknown[0]} (allowed: {', '.join(_TOP_KEYS)})")
+    check_keys(data, "", (), _TOP_KEYS, error=ConfigError)
     rig_ref = data.get("rig")
     if not isinstance(rig_ref, str) or not rig_ref:
         raise ConfigError(f"rig must be the path of a rig file (TOML), got {show_value(rig_ref)}")

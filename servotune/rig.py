@@ -27,7 +27,7 @@ from servotune.hw import timer as hw_timer
 from servotune.laws.lock import lock_holding_band
 from servotune.logs import atomic_write_bytes
 from servotune.plant import Plant
-from servotune.validate import check_integer, check_number, is_number, show_value
+from servotune.validate import check_integer, check_keys, check_number, is_number, show_value
 
 __all__ = [
     "EXAMPLE_RIG_PATH",
@@ -467,19 +467,12 @@ def build_section(
 
 
 def _build(cls: type, table: Mapping[str, Any], path: str, **fixed: Any) -> Any:
-    allowed = {f.name for f in fields(cls)} - set(fixed)
-    unknown = sorted(set(table) - allowed)
-    if unknown:
-        raise RigError(f"unknown key {path}.{unknown[0]} (allowed: {', '.join(sorted(allowed))})")
-    missing = [
-        f.name
-        for f in fields(cls)
-        if f.name not in table and f.name not in fixed and f.init
-        and f.default is MISSING and f.default_factory is MISSING
+    allowed = [f.name for f in fields(cls) if f.init and f.name not in fixed]
+    required = [
+        f.name for f in fields(cls)
+        if f.name in allowed and f.default is MISSING and f.default_factory is MISSING
     ]  # fmt: skip
-    if missing:
-        raise RigError(f"missing key {path}.{missing[0]}")
-    kwargs = dict(table)
+    kwargs = check_keys(table, path, required, allowed, error=RigError)
     for k, v in kwargs.items():
         for x in v if isinstance(v, list) else (v,):
             if type(x) is int and not -(2**63) <= x < 2**63:  # no field takes such a number
@@ -506,14 +499,10 @@ def rig_from_dict(data: Mapping[str, Any], default_name: str = "rig") -> Rig:
     RigError
         Naming the first invalid field, its value and unit.
     """
-    allowed_top = {"rig", "timer", "counter", "dac", "encoder", "axis"}
-    unknown = sorted(set(data) - allowed_top)
-    if unknown:
-        raise RigError(f"unknown table [{unknown[0]}] (allowed: {', '.join(sorted(allowed_top))})")
+    check_keys(data, "", (), ("rig", "timer", "counter", "dac", "encoder", "axis"),
+               error=RigError, noun="table")  # fmt: skip
     meta = _table(data, "rig", "rig", required=False)
-    bad = sorted(set(meta) - {"name", "description"})
-    if bad:
-        raise RigError(f"unknown key rig.{bad[0]} (allowed: description, name)")
+    check_keys(meta, "rig", (), ("name", "description"), error=RigError)
     timer = _build(Timer, _table(data, "timer", "timer"), "timer")
     ctr = _build(Counter, _table(data, "counter", "counter"), "counter")
     dac = _build(Dac, _table(data, "dac", "dac"), "dac")

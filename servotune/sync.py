@@ -70,7 +70,7 @@ from servotune.laws.sync import (
 )
 from servotune.plant import Plant, advance, lag_split, step_coefficients
 from servotune.rig import Rig, build_section, check_plant, load_rig
-from servotune.validate import check_integer, check_number, show_value
+from servotune.validate import check_integer, check_keys, check_number, show_value
 
 __all__ = [
     "CASES",
@@ -430,10 +430,8 @@ def gantry_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".") -> Gan
     ConfigError
         Naming the first invalid table or field, its value and unit.
     """
-    allowed = {"gantry", "bus", "beam", "axis", "sync", "move", "load"}
-    unknown = sorted(set(data) - allowed)
-    if unknown:
-        raise ConfigError(f"unknown table [{unknown[0]}] (allowed: {', '.join(sorted(allowed))})")
+    check_keys(data, "", (), ("gantry", "bus", "beam", "axis", "sync", "move", "load"),
+               error=ConfigError, noun="table")  # fmt: skip
 
     def table(key: str, required: bool = False) -> Mapping[str, Any]:
         t = data.get(key, None)

@@ -98,6 +98,8 @@ def check_number(
         Exclude ``hi``.
     error : type of Exception
         What to raise.
+    noun : str
+        What the keys are called in the messages (``"key"``, ``"table"``).
 
     Raises
     ------
@@ -148,6 +150,7 @@ def check_keys(
     optional: Sequence[str] = (),
     *,
     error: type[Exception] = ValueError,
+    noun: str = "key",
 ) -> dict[str, Any]:
     """Check that ``d`` is a table with every ``required`` key and no key outside
     ``required`` + ``optional``; return it as a dict.
@@ -173,15 +176,16 @@ def check_keys(
     if not isinstance(d, Mapping):
         raise error(f"{where} must be a table, got {type(d).__name__}")
     prefix = f"{path}." if path else ""
-    missing = [k for k in required if k not in d]
-    if missing:
-        raise error(f"missing key {prefix}{missing[0]}")
     allowed = set(required) | set(optional)
     unknown = sorted((k for k in d if k not in allowed), key=str)
-    if unknown:
+    if unknown:  # before the missing ones: a misspelt required key is named as the typo
         k = unknown[0]
         name = k if isinstance(k, str) and len(k) <= _SHOW_CHARS else show_value(k)
         near = difflib.get_close_matches(str(k), sorted(allowed), n=1) if len(str(k)) < 64 else []
         hint = f"; did you mean {near[0]!r}?" if near else ""
-        raise error(f"unknown key {prefix}{name} (allowed: {', '.join(sorted(allowed))}){hint}")
+        listed = ", ".join(sorted(allowed)) or "none"
+        raise error(f"unknown {noun} {prefix}{name} (allowed: {listed}){hint}")
+    missing = [k for k in required if k not in d]
+    if missing:
+        raise error(f"missing {noun} {prefix}{missing[0]}")
     return dict(d)
