@@ -66,7 +66,7 @@ def _cmd_rig(args: argparse.Namespace) -> int:
 
     facts = describe_rig(load_rig(args.rig))
     if args.json:
-        from servotune.logs import json_safe
+        from servotune.io.files import json_safe
 
         print(json.dumps(json_safe(facts), indent=2, sort_keys=True, allow_nan=False))
     else:

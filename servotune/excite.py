@@ -30,8 +30,9 @@ from scipy import signal
 from servotune.budget import check_memory, format_count
 from servotune.errors import LogFormatError, SpecError
 from servotune.fixed import round_half_away
+from servotune.io.files import MAX_NUMBER_CHARS, atomic_write_text
 from servotune.laws.axis import MODE_LOCK, MODE_OPEN
-from servotune.logs import MAX_NUMBER_CHARS, Table, atomic_write_text, format_log, read_table
+from servotune.logs import Table, format_log, read_table
 from servotune.rig import Axis, Rig
 from servotune.scenarios import Inputs, prbs_codes, step_codes
 from servotune.validate import show_value

@@ -69,6 +69,7 @@ import numpy as np
 from servotune.budget import check_memory, format_count
 from servotune.errors import ConfigError, RigError
 from servotune.hw import counter as hw_counter
+from servotune.io.files import json_float, read_toml
 from servotune.laws.axis import (
     FLAG_COUNTER_FAULT,
     FLAG_FOLLOWING_ERROR,
@@ -80,7 +81,6 @@ from servotune.laws.axis import (
     axis_read,
 )
 from servotune.laws.pi import PIGains
-from servotune.logs import json_float, read_toml
 from servotune.plant import Plant, advance
 from servotune.rig import MAX_LOCK_GAIN, Rig, build_section, check_plant, load_rig
 from servotune.tune.pi import DEFAULT_TARGETS
@@ -255,18 +255,18 @@ class SlaveCpu:
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name:
-            raise ConfigError(f"name must be a non-empty string, got {self.name!r}")
+            raise ConfigError(f"name must be a non-empty string, got {show_value(self.name)}")
         if isinstance(self.axes, list):
             object.__setattr__(self, "axes", tuple(self.axes))
         if not isinstance(self.axes, tuple) or not all(isinstance(a, str) for a in self.axes):
-            raise ConfigError(f"axes must be a list of axis names, got {self.axes!r}")
+            raise ConfigError(f"axes must be a list of axis names, got {show_value(self.axes)}")
         if not 2 <= len(self.axes) <= 4:
             raise ConfigError(
                 f"axes must name 2 to 4 axes (a slave CPU drives 2–4 motors), got "
-                f"{list(self.axes)!r}"
+                f"{show_value(list(self.axes))}"
             )
         if len(set(self.axes)) != len(self.axes):
-            raise ConfigError(f"axes must not repeat an axis, got {list(self.axes)!r}")
+            raise ConfigError(f"axes must not repeat an axis, got {show_value(list(self.axes))}")
         check_integer("queue_depth", self.queue_depth, "setpoints", lo=1, hi=1_000_000,
                       error=ConfigError)  # fmt: skip
         check_number("clock_ppm", self.clock_ppm, "ppm", lo=-MAX_CLOCK_PPM, hi=MAX_CLOCK_PPM,
@@ -307,7 +307,7 @@ class LinkageAxis:
         if (self.kp is None) != (self.ki is None):
             raise ConfigError(
                 f"kp and ki must be given together (or neither, to tune them), got "
-                f"kp={self.kp!r}, ki={self.ki!r}"
+                f"kp={show_value(self.kp)}, ki={show_value(self.ki)}"
             )
         if self.kp is not None:
             check_number("kp", self.kp, "codes/count", hi=MAX_GAIN, error=ConfigError)
@@ -370,7 +370,7 @@ class Move:
             if isinstance(getattr(self, name), list):
                 object.__setattr__(self, name, tuple(getattr(self, name)))
         if self.kind not in ("line", "arc", "dwell"):
-            raise ConfigError(f"kind must be 'line', 'arc' or 'dwell', got {self.kind!r}")
+            raise ConfigError(f"kind must be 'line', 'arc' or 'dwell', got {show_value(self.kind)}")
         if self.kind == "dwell":
             check_number("dwell_s", self.dwell_s, "s", strict=True, hi=MAX_SECONDS,
                          error=ConfigError)  # fmt: skip
@@ -385,7 +385,9 @@ class Move:
         check_number("feed_cps", self.feed_cps, "counts/s", strict=True, hi=MAX_FEED_CPS,
                      error=ConfigError)  # fmt: skip
         if not isinstance(self.to, Mapping):
-            raise ConfigError(f"to must be a table of axis = position [counts], got {self.to!r}")
+            raise ConfigError(
+                f"to must be a table of axis = position [counts], got {show_value(self.to)}"
+            )
         for k, v in self.to.items():
             check_number(f"to.{k}", v, "counts", lo=-MAX_COUNTS, hi=MAX_COUNTS, error=ConfigError)
         if self.kind == "line":
@@ -401,7 +403,7 @@ class Move:
             or not all(isinstance(a, str) for a in self.plane)
             or self.plane[0] == self.plane[1]
         ):
-            raise ConfigError(f"plane must name two different axes, got {self.plane!r}")
+            raise ConfigError(f"plane must name two different axes, got {show_value(self.plane)}")
         if (
             not isinstance(self.centre, tuple)
             or len(self.centre) != 2
@@ -412,7 +414,7 @@ class Move:
                 f"{show_value(self.centre)}"
             )
         if self.direction not in ("ccw", "cw"):
-            raise ConfigError(f"direction must be 'ccw' or 'cw', got {self.direction!r}")
+            raise ConfigError(f"direction must be 'ccw' or 'cw', got {show_value(self.direction)}")
         in_to = [a in self.to for a in self.plane]
         if any(in_to) and not all(in_to):
             raise ConfigError(
@@ -506,36 +508,42 @@ class LinkageConfig:
         if compute_s >= self.period_s:
             raise ConfigError(
                 f"period_s must be longer than the rig's timer.compute_s ({compute_s:g} s), "
-                f"got {self.period_s!r} s"
+                f"got {show_value(self.period_s)} s"
             )
         names = [a.name for a in self.axes]
         if len(set(names)) != len(names):
-            raise ConfigError(f"axis names must be unique, got {names!r}")
+            raise ConfigError(f"axis names must be unique, got {show_value(names)}")
         if not self.cpus:
             raise ConfigError("cpu: at least one [[cpu]] is needed")
         cpu_names = [c.name for c in self.cpus]
         if len(set(cpu_names)) != len(cpu_names):
-            raise ConfigError(f"cpu names must be unique, got {cpu_names!r}")
+            raise ConfigError(f"cpu names must be unique, got {show_value(cpu_names)}")
         owner: dict[str, str] = {}
         for c in self.cpus:
             for a in c.axes:
                 if a not in names:
                     raise ConfigError(
-                        f"cpu {c.name!r} drives axis {a!r}, which has no [axis.{a}] table "
+                        f"cpu {show_value(c.name)} drives axis {show_value(a)}, which has no "
+                        f"[axis.{a}] table "
                         f"(axes: {names})"
                     )
                 if a in owner:
-                    raise ConfigError(f"axis {a!r} is on two CPUs: {owner[a]!r} and {c.name!r}")
+                    raise ConfigError(
+                        f"axis {show_value(a)} is on two CPUs: {show_value(owner[a])} and "
+                        f"{show_value(c.name)}"
+                    )
                 owner[a] = c.name
         lost = [a for a in names if a not in owner]
         if lost:
-            raise ConfigError(f"axis {lost[0]!r} is on no CPU; add it to a [[cpu]]'s axes")
+            raise ConfigError(
+                f"axis {show_value(lost[0])} is on no CPU; add it to a [[cpu]]'s axes"
+            )
         for i, m in enumerate(self.path.moves):
             used = list(m.to) + list(m.plane or ())
             for a in used:
                 if a not in names:
                     raise ConfigError(
-                        f"path.move[{i}] names axis {a!r}, which has no [axis.{a}] table "
+                        f"path.move[{i}] names axis {show_value(a)}, which has no [axis.{a}] table "
                         f"(axes: {names})"
                     )
         for a in self.axes:
@@ -566,14 +574,14 @@ class LinkageConfig:
         for a in self.axes:
             if a.name == name:
                 return a
-        raise ConfigError(f"no axis {name!r}; axes: {list(self.axis_names)}")
+        raise ConfigError(f"no axis {show_value(name)}; axes: {list(self.axis_names)}")
 
     def cpu_of(self, name: str) -> SlaveCpu:
         """The slave CPU that drives axis ``name``."""
         for c in self.cpus:
             if name in c.axes:
                 return c
-        raise ConfigError(f"no CPU drives axis {name!r}")
+        raise ConfigError(f"no CPU drives axis {show_value(name)}")
 
 
 _TOP_KEYS = ("axis", "bus", "clock", "cpu", "description", "name", "path", "period_s", "rig",
@@ -1284,7 +1292,9 @@ def axis_gains(
     given = dict(given or {})
     bad = sorted(set(given) - set(config.axis_names))
     if bad:
-        raise ConfigError(f"gains for unknown axis {bad[0]!r}; axes: {list(config.axis_names)}")
+        raise ConfigError(
+            f"gains for unknown axis {show_value(bad[0])}; axes: {list(config.axis_names)}"
+        )
     out: dict[str, tuple[PIGains, bool]] = {}
     for a in config.axes:
         g = given.get(a.name, a.gains)

@@ -21,8 +21,8 @@ import numpy as np
 
 from servotune._version import __version__
 from servotune.engine import simulate
+from servotune.io.files import atomic_write_text
 from servotune.laws.fuzzy_pid import TABLE_NAMES, FuzzyPIDConstants
-from servotune.logs import atomic_write_text
 from servotune.plant import discretize
 from servotune.rig import Rig, load_rig
 from servotune.scenarios import step_inputs, sync_move

@@ -24,8 +24,8 @@ from servotune.errors import RigError
 from servotune.hw import counter as hw_counter
 from servotune.hw import dac as hw_dac
 from servotune.hw import timer as hw_timer
+from servotune.io.files import atomic_write_bytes
 from servotune.laws.lock import lock_holding_band
-from servotune.logs import atomic_write_bytes
 from servotune.plant import Plant
 from servotune.validate import check_integer, check_keys, check_number, is_number, show_value
 
@@ -104,7 +104,8 @@ class Timer:
             raise RigError(f"timer.period_s: {exc}") from None
         if self.compute_s >= hw_timer.achieved_period_s(d, self.clock_hz):
             raise RigError(
-                f"timer.compute_s must be shorter than the tick period, got {self.compute_s!r} s"
+                f"timer.compute_s must be shorter than the tick period, got "
+                f"{show_value(self.compute_s)} s"
             )
 
     @property
@@ -321,11 +322,12 @@ class Rig:
             raise RigError("a rig needs at least one [axis.<name>] table")
         names = [a.name for a in self.axes]
         if len(set(names)) != len(names):
-            raise RigError(f"axis names must be unique, got {names!r}")
+            raise RigError(f"axis names must be unique, got {show_value(names)}")
         masters = [a.name for a in self.axes if a.role == "master"]
         if len(self.axes) > 1 and len(masters) != 1:
             raise RigError(
-                f"a multi-axis rig needs exactly one role = 'master' axis, got {masters!r}"
+                f"a multi-axis rig needs exactly one role = 'master' axis, got "
+                f"{show_value(masters)}"
             )
         for a in self.axes:
             if a.counter_init > (1 << self.counter.bits) - 1:
@@ -336,7 +338,7 @@ class Rig:
         for ch in ("counter_channel", "dac_channel"):
             used = [getattr(a, ch) for a in self.axes]
             if len(set(used)) != len(used):
-                raise RigError(f"two axes share one {ch}: {used!r}")
+                raise RigError(f"two axes share one {ch}: {show_value(used)}")
 
     @property
     def period_s(self) -> float:
@@ -360,7 +362,8 @@ class Rig:
             if a.name == name:
                 return a
         raise RigError(
-            f"no axis {name!r} in rig {self.name!r}; axes: {[a.name for a in self.axes]}"
+            f"no axis {show_value(name)} in rig {show_value(self.name)}; axes: "
+            f"{[a.name for a in self.axes]}"
         )
 
     @property
@@ -552,7 +555,7 @@ def load_rig(path: str | Path) -> Rig:
     RigError
         If the file is missing, not TOML, or any field is invalid.
     """
-    from servotune.logs import read_toml
+    from servotune.io.files import read_toml
 
     p = Path(path)
     data = read_toml(p, RigError, "rig file")
@@ -585,8 +588,9 @@ def describe_rig(rig: Rig) -> dict[str, Any]:
             )
         except ValueError as exc:
             raise RigError(
-                f"axis.{a.name}: lock_gain_codes_per_count {a.lock_gain_codes_per_count!r} "
-                f"[codes/count] with plant.offset_v {a.plant.offset_v!r} [V]: {exc}"
+                f"axis.{a.name}: lock_gain_codes_per_count "
+                f"{show_value(a.lock_gain_codes_per_count)} "
+                f"[codes/count] with plant.offset_v {show_value(a.plant.offset_v)} [V]: {exc}"
             ) from None
         axes[a.name] = {
             "counts_per_tick_at_speed_limit": v_cps * rig.period_s,
@@ -667,7 +671,8 @@ def _one_line(provenance: str) -> str:
     bad = [c for c in line if (ord(c) < 0x20 and c != "\t") or ord(c) == 0x7F]
     if bad:
         raise RigError(
-            f"provenance must be one line of text without control characters, got {provenance!r}"
+            f"provenance must be one line of text without control characters, got "
+            f"{show_value(provenance)}"
         )
     return line
 
@@ -684,7 +689,7 @@ def _plant_section(
     names = list(axes) if isinstance(axes, Mapping) else []
     if not isinstance(axes, MutableMapping) or axis not in axes:
         raise RigError(
-            f"no axis {axis!r} in rig file {str(source)!r}; axes: {names}. "
+            f"no axis {show_value(axis)} in rig file {str(source)!r}; axes: {names}. "
             f"Choose one of these or add an [axis.{axis}] table first."
         )
     axis_table = axes[axis]

@@ -394,7 +394,7 @@ class GantryConfig:
         if not _MIN_CYCLES <= self.seconds / cyc <= 5e6:
             raise ConfigError(
                 f"seconds must be {_MIN_CYCLES} to 5e6 bus cycles ({_MIN_CYCLES * cyc:g} … "
-                f"{5e6 * cyc:g} s at cycle_s {cyc:g}) [s], got {self.seconds!r}"
+                f"{5e6 * cyc:g} s at cycle_s {cyc:g}) [s], got {show_value(self.seconds)}"
             )
 
     @property
@@ -495,7 +495,7 @@ def load_gantry(path: str | Path, *, resolve: bool = True) -> GantryConfig:
     ConfigError
         If the file is missing, not TOML, or invalid (the message names the field).
     """
-    from servotune.logs import read_toml
+    from servotune.io.files import read_toml
 
     p = Path(path)
     data = read_toml(p, ConfigError, "gantry config")
@@ -845,7 +845,7 @@ def _case_config(cfg: GantryConfig, case: str) -> tuple[GantryConfig, np.ndarray
         k0 = min(n, round(cfg.load.time_s / cfg.bus.cycle_s))
         load[k0:, 0 if cfg.load.axis == "master" else 1] = cfg.load.volts
     elif case != "mismatch":
-        raise ValueError(f"case must be one of {', '.join(CASES)}, got {case!r}")
+        raise ValueError(f"case must be one of {', '.join(CASES)}, got {show_value(case)}")
     return cfg, load
 
 
@@ -873,7 +873,9 @@ def simulate_gantry(
     """
     topology = cfg.topology if topology is None else topology
     if topology not in TOPOLOGIES:
-        raise ValueError(f"topology must be one of {', '.join(TOPOLOGIES)}, got {topology!r}")
+        raise ValueError(
+            f"topology must be one of {', '.join(TOPOLOGIES)}, got {show_value(topology)}"
+        )
     n = cfg.n_cycles
     check_memory(n * _TRACE_BYTES_PER_CYCLE, f"a gantry run of {cfg.seconds:g} s",
                  f"{n:,} cycles × {_TRACE_BYTES_PER_CYCLE} bytes")  # fmt: skip
@@ -957,7 +959,7 @@ class SyncComparison:
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-able dict (``schema`` ``servotune.sync/1``)."""
         from servotune import __version__
-        from servotune.logs import json_safe
+        from servotune.io.files import json_safe
 
         c = self.config
         return json_safe({

@@ -33,8 +33,8 @@ from typing import Any
 
 from servotune.engine import Loop
 from servotune.errors import TuningError
+from servotune.io.files import atomic_write_text, json_safe, parse_json, read_bytes
 from servotune.laws.axis import AxisController
-from servotune.logs import atomic_write_text, json_safe, parse_json, read_bytes
 from servotune.rig import ROLES, Rig
 from servotune.validate import check_keys, show_value
 

@@ -615,7 +615,7 @@ def test_bom_csv(tmp_path: Path) -> None:
 
 
 def test_parse_json_refuses_what_json_is_not() -> None:
-    from servotune.logs import parse_json
+    from servotune.io.files import parse_json
 
     for text, expected in [
         ('{"n": NaN}', "NaN is not a JSON number"),
@@ -637,17 +637,17 @@ def test_parse_json_refuses_what_json_is_not() -> None:
 
 
 def test_read_json_bounds_the_file(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    import servotune.logs as logs
+    import servotune.io.files as files
 
     path = tmp_path / "big.json"
     path.write_text("[" + "1," * 100 + "1]")
-    monkeypatch.setattr(logs, "MAX_TEXT_FILE_BYTES", 64)
+    monkeypatch.setattr(files, "MAX_TEXT_FILE_BYTES", 64)
     with pytest.raises(LogFormatError, match="is 203 bytes; at most 64"):
-        logs.read_json(path, LogFormatError)
+        files.read_json(path, LogFormatError)
 
 
 def test_parse_toml_bom_depth_and_huge_integers() -> None:
-    from servotune.logs import parse_toml
+    from servotune.io.files import parse_toml
 
     assert parse_toml(b"\xef\xbb\xbfa = 1\n", "x.toml", LogFormatError) == {"a": 1}
     with pytest.raises(LogFormatError, match="nested too deeply"):
@@ -664,7 +664,7 @@ def test_atomic_write_names_the_target_and_cleans_up(
     import errno
     import os
 
-    import servotune.logs as logs
+    import servotune.io.files as files
 
     target = tmp_path / "out.csv"
     real_open = os.open
@@ -674,27 +674,27 @@ def test_atomic_write_names_the_target_and_cleans_up(
             raise PermissionError(errno.EACCES, "Permission denied", str(path))
         return real_open(path, *args, **kwargs)  # type: ignore[arg-type]
 
-    monkeypatch.setattr(logs.os, "open", refuse)
+    monkeypatch.setattr(files.os, "open", refuse)
     with pytest.raises(PermissionError) as info:
-        logs.atomic_write_bytes(target, b"x")
+        files.atomic_write_bytes(target, b"x")
     assert info.value.filename == str(target) and info.value.errno == errno.EACCES
     monkeypatch.undo()
 
     def broken_replace(src: object, dst: object) -> None:
         raise OSError(errno.EXDEV, "Invalid cross-device link", str(src))
 
-    monkeypatch.setattr(logs.os, "replace", broken_replace)
+    monkeypatch.setattr(files.os, "replace", broken_replace)
     with pytest.raises(OSError) as info2:
-        logs.atomic_write_bytes(target, b"x")
+        files.atomic_write_bytes(target, b"x")
     assert info2.value.filename == str(target)
     assert list(tmp_path.iterdir()) == []  # the temporary file is gone
 
     def interrupted(src: object, dst: object) -> None:
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(logs.os, "replace", interrupted)
+    monkeypatch.setattr(files.os, "replace", interrupted)
     with pytest.raises(KeyboardInterrupt):
-        logs.atomic_write_bytes(target, b"x")
+        files.atomic_write_bytes(target, b"x")
     assert list(tmp_path.iterdir()) == []
 
 

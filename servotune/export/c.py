@@ -45,8 +45,8 @@ from typing import Any
 from servotune.errors import ExportError
 from servotune.export.json import SCHEMA, Summary, tables_document
 from servotune.export.layout import c_layout_sha256
+from servotune.io.files import atomic_write_text
 from servotune.laws.fuzzy_pid import TABLE_NAMES
-from servotune.logs import atomic_write_text
 from servotune.rig import Rig
 from servotune.tuning import Tuning
 

@@ -85,13 +85,13 @@ from servotune.digest import DIGEST_FIELD, document_sha256
 from servotune.errors import DigestError, ExportError
 from servotune.export.layout import c_layout_sha256, constants_pairs, pairs_bytes, table_bytes
 from servotune.fixed import F_U
+from servotune.io.files import atomic_write_text, json_safe, parse_json, read_json
 from servotune.laws.axis import (
     LAW_FUZZY_PID,
     LAW_NAMES,
     AxisController,
 )
 from servotune.laws.fuzzy_pid import TABLE_NAMES, FuzzyPIDConstants, int_rows
-from servotune.logs import atomic_write_text, json_safe, parse_json, read_json
 from servotune.rig import Counter, Dac, Rig
 from servotune.tuning import Tuning, tuning_to_string
 from servotune.validate import check_keys, show_value
@@ -210,7 +210,7 @@ def _hardware(tuning: Tuning, rig: Rig | None) -> dict[str, Any]:
 
 
 def _plain(x: Any, where: str) -> Any:
-    """JSON-safe copy of a summary (:func:`servotune.logs.json_safe`), as an ExportError."""
+    """JSON-safe copy of a summary (:func:`servotune.io.files.json_safe`), as an ExportError."""
     try:
         return json_safe(x)
     except TypeError as exc:

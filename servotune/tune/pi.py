@@ -22,8 +22,8 @@ from scipy.optimize import brentq, minimize_scalar
 
 from servotune.errors import InfeasibleError, SpecError
 from servotune.hw import dac as hw_dac
+from servotune.io.files import json_float
 from servotune.laws.pi import PIGains
-from servotune.logs import json_float
 from servotune.plant import Plant, discretize, discretize_lti, lag_split
 
 if TYPE_CHECKING:  # python-control and casadi are imported where used (slow to import)

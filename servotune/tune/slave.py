@@ -35,10 +35,10 @@ from scipy.stats import qmc
 
 from servotune.engine import Loop, prepare_batch, run_batch
 from servotune.errors import SpecError
+from servotune.io.files import json_float
 from servotune.laws.axis import AxisController
 from servotune.laws.fuzzy_pid import TABLE_NAMES, FuzzyPIDGains
 from servotune.laws.pi import PIGains
-from servotune.logs import json_float
 from servotune.plant import Plant
 from servotune.rig import Rig
 from servotune.scenarios import Scenario, sync_move

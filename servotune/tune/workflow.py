@@ -23,7 +23,7 @@ import numpy as np
 from servotune._version import __version__
 from servotune.engine import Loop, Trace, simulate
 from servotune.errors import InfeasibleError, SpecError
-from servotune.logs import json_float
+from servotune.io.files import json_float
 from servotune.metrics import step_info
 from servotune.rig import Rig, load_rig
 from servotune.scenarios import sync_move

@@ -27,7 +27,7 @@ from typing import Any
 from servotune._version import __version__
 from servotune.digest import DIGEST_FIELD, bytes_sha256, document_sha256
 from servotune.errors import RigError, SpecError, TrustError, TuningError
-from servotune.logs import atomic_write_text, json_float, parse_json, parse_toml, read_bytes
+from servotune.io.files import atomic_write_text, json_float, parse_json, parse_toml, read_bytes
 from servotune.rig import EXAMPLE_RIG_PATH, Rig, rig_from_dict
 from servotune.tuning import Tuning, read_tuning_bytes
 from servotune.verify.run import Verification, spec_from_bytes, verify

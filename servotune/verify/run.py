@@ -78,6 +78,7 @@ from servotune.engine import Loop, prepare_batch, run_batch
 from servotune.errors import SpecError
 from servotune.fixed import E_MAX, F_U, INT64_MAX
 from servotune.hw import counter as hw_counter
+from servotune.io.files import json_float, parse_toml, read_bytes
 from servotune.laws.axis import (
     FAULT_MASK,
     FLAG_SATURATED,
@@ -85,7 +86,6 @@ from servotune.laws.axis import (
     AxisController,
 )
 from servotune.laws.fuzzy_pid import TABLE_NAMES, FuzzyPIDConstants
-from servotune.logs import json_float, parse_toml, read_bytes
 from servotune.plant import Plant
 from servotune.rig import Rig
 from servotune.scenarios import Inputs, build_scenario, sync_move

@@ -334,7 +334,7 @@ def test_tuning_json(case: str, tmp_path: Path, capsys: pytest.CaptureFixture[st
 def test_unwritable_directory_names_the_target(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    import servotune.logs as logs
+    import servotune.io.files as files
 
     real_open = os.open
 
@@ -343,7 +343,7 @@ def test_unwritable_directory_names_the_target(
             raise PermissionError(errno.EACCES, "Permission denied", str(path))
         return real_open(path, *args, **kwargs)  # type: ignore[arg-type]
 
-    monkeypatch.setattr(logs.os, "open", no_temp_files)
+    monkeypatch.setattr(files.os, "open", no_temp_files)
     out = tmp_path / "log.csv"
     line = refused(capsys, ["simulate", str(EXAMPLE_RIG), "--scenario", "steps", "--seconds",
                             "1", "-o", str(out)], str(out), "Permission denied",

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-import servotune.logs as logs
+import servotune.io.files as files
 from servotune.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -41,7 +41,7 @@ def test_a_signal_during_the_atomic_write_leaves_no_file(
         os.kill(os.getpid(), sig)
         time.sleep(1.0)  # the handler runs here
 
-    monkeypatch.setattr(logs.os, "fsync", fsync_then_signal)
+    monkeypatch.setattr(files.os, "fsync", fsync_then_signal)
     out = tmp_path / "log.csv"
     rc = main(["simulate", str(RIG), "--scenario", "prbs", "--seconds", "1", "-o", str(out)])
     assert rc == code

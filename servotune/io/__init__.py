@@ -1,0 +1,18 @@
+"""File input and output.
+
+:mod:`servotune.io.files` reads and writes bytes, JSON and TOML for every file kind (bounds on
+size, nesting, field length; the BOM; atomic writes). The file kinds and their one reader each:
+
+==================  ==============================================  ============================
+file                reader                                          schema (checked there)
+==================  ==============================================  ============================
+log CSV             :func:`servotune.logs.read_log`                 SPEC §5 columns, metadata
+excitation CSV      :func:`servotune.excite.read_excitation`        the log's rows (``read_table``)
+rig TOML            :func:`servotune.rig.load_rig`                  ``Rig`` and its sections
+spec TOML           :func:`servotune.verify.load_spec`              ``Spec``, ``ScenarioSpec``
+tuning JSON         :func:`servotune.tuning.read_tuning`            ``Tuning.from_dict``
+tables JSON         :func:`servotune.export.json.load_tables`       ``check_tables``
+gantry TOML         :func:`servotune.sync.load_gantry`              ``GantryConfig``
+linkage TOML        :func:`servotune.linkage.load_linkage`          ``LinkageConfig``
+==================  ==============================================  ============================
+"""
