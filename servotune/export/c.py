@@ -44,7 +44,6 @@ from typing import Any
 
 from servotune.errors import ExportError
 from servotune.export.json import SCHEMA, Summary, tables_document
-from servotune.export.layout import c_layout_sha256
 from servotune.io.files import atomic_write_text
 from servotune.laws.fuzzy_pid import TABLE_NAMES
 from servotune.rig import Rig
@@ -196,13 +195,7 @@ def _digest_lines(digest: str) -> list[str]:
 def _header(doc: Mapping[str, Any]) -> str:
     data, prov = doc["data"], doc["provenance"]
     axes = data["axes"]
-    digest = c_layout_sha256(data)
-    stored = data.get("c_layout_sha256")
-    if stored is not None and stored != digest:
-        raise ExportError(
-            f"data.c_layout_sha256 {stored} is not the digest of the constants ({digest}); "
-            "the document was changed after it was made"
-        )
+    digest = data["c_layout_sha256"]  # tables_document computed it (layout.c_layout_sha256)
     idents = _identifiers(tuple(a["name"] for a in axes))
     verification = prov["verification"]
     if verification is None:
