@@ -120,22 +120,24 @@ class Excitation:
         codes.setflags(write=False)
         object.__setattr__(self, "codes", codes)
         if not (isinstance(self.period_s, float | int) and self.period_s > 0):
-            raise SpecError(f"period_s must be > 0 [s], got {self.period_s!r}")
+            raise SpecError(f"period_s must be > 0 [s], got {show_value(self.period_s)}")
         if self.kind not in KINDS:
-            raise SpecError(f"kind must be one of {', '.join(KINDS)}, got {self.kind!r}")
+            raise SpecError(f"kind must be one of {', '.join(KINDS)}, got {show_value(self.kind)}")
         if self.limited_by not in ("requested", "dac", "speed", "travel"):
             raise SpecError(
-                f"limited_by must be requested, dac, speed or travel, got {self.limited_by!r}"
+                f"limited_by must be requested, dac, speed or travel, got "
+                f"{show_value(self.limited_by)}"
             )
         if int(np.max(np.abs(codes))) != self.amplitude_codes:
             raise SpecError(
                 f"amplitude_codes must equal max |codes| = {int(np.max(np.abs(codes)))}, "
-                f"got {self.amplitude_codes!r}"
+                f"got {show_value(self.amplitude_codes)}"
             )
         lo, hi = self.predicted_travel_counts
         if not lo <= hi:
             raise SpecError(
-                f"predicted_travel_counts must be (min, max), got {self.predicted_travel_counts!r}"
+                f"predicted_travel_counts must be (min, max), got "
+                f"{show_value(self.predicted_travel_counts)}"
             )
         object.__setattr__(self, "predicted_travel_counts", (float(lo), float(hi)))
 
@@ -239,13 +241,16 @@ def multisine_bins(
     Line ``b`` has frequency ``b / (n_ticks · period_s)`` [Hz]; see :func:`multisine_codes`.
     """
     if not period_s > 0:
-        raise SpecError(f"period_s must be > 0 [s], got {period_s!r}")
+        raise SpecError(f"period_s must be > 0 [s], got {show_value(period_s)}")
     if f_hi_hz is None:
         f_hi_hz = _MULTISINE_F_HI_NYQ * 0.5 / period_s
     if not 0 < f_lo_hz < f_hi_hz:
-        raise SpecError(f"multisine needs 0 < f_lo_hz < f_hi_hz, got {f_lo_hz!r}, {f_hi_hz!r}")
+        raise SpecError(
+            f"multisine needs 0 < f_lo_hz < f_hi_hz, got {show_value(f_lo_hz)}, "
+            f"{show_value(f_hi_hz)}"
+        )
     if lines_per_decade < 1:
-        raise SpecError(f"lines_per_decade must be >= 1, got {lines_per_decade!r}")
+        raise SpecError(f"lines_per_decade must be >= 1, got {show_value(lines_per_decade)}")
     f_res = 1.0 / (n_ticks * period_s)
     b_lo = max(1, math.floor(f_lo_hz / f_res + 0.5))
     b_hi = max(b_lo, min(math.floor(f_hi_hz / f_res), (n_ticks - 1) // 2))
@@ -407,12 +412,14 @@ def design_excitation(
         If the rig has no such axis.
     """
     if kind not in KINDS:
-        raise SpecError(f"unknown excitation kind {kind!r}; choose one of {', '.join(KINDS)}")
+        raise SpecError(
+            f"unknown excitation kind {show_value(kind)}; choose one of {', '.join(KINDS)}"
+        )
     ax = rig.axis(axis)
     if not isinstance(seed, int | np.integer) or isinstance(seed, bool) or seed < 0:
-        raise SpecError(f"seed must be an integer >= 0, got {seed!r}")
+        raise SpecError(f"seed must be an integer >= 0, got {show_value(seed)}")
     if not (isinstance(seconds, int | float) and math.isfinite(seconds) and seconds > 0):
-        raise SpecError(f"seconds must be > 0 [s], got {seconds!r}")
+        raise SpecError(f"seconds must be > 0 [s], got {show_value(seconds)}")
     period = rig.period_s
     check_memory(
         seconds / period * _DESIGN_BYTES_PER_TICK,
@@ -422,14 +429,14 @@ def design_excitation(
     n = math.floor(seconds / period + 0.5)
     if n < MIN_TICKS:
         raise SpecError(
-            f"seconds={seconds!r} gives only {n} ticks of {period * 1e3:.6f} ms; "
+            f"seconds={show_value(seconds)} gives only {n} ticks of {period * 1e3:.6f} ms; "
             f"an excitation needs at least {MIN_TICKS}"
         )
     zero, cmax = rig.dac.zero_code, rig.dac.code_max
     dac_amp = min(zero, cmax - zero)
     if dac_amp < 1:
         raise SpecError(
-            f"the D/A range {rig.dac.range_v!r} V has no room on one side of 0 V; "
+            f"the D/A range {show_value(rig.dac.range_v)} V has no room on one side of 0 V; "
             "an excitation needs both polarities"
         )
     if amplitude_codes is not None:
@@ -439,7 +446,8 @@ def design_excitation(
             or amplitude_codes < 1
         ):
             raise SpecError(
-                f"amplitude_codes must be an integer >= 1 [D/A codes], got {amplitude_codes!r}"
+                f"amplitude_codes must be an integer >= 1 [D/A codes], got "
+                f"{show_value(amplitude_codes)}"
             )
         amp, limited_by = min(int(amplitude_codes), dac_amp), "requested"
         if amplitude_codes > dac_amp:
@@ -459,9 +467,11 @@ def design_excitation(
     p_drift = drift.pos_counts
     if travel is not None and (p_drift.min() < p_lo or p_drift.max() > p_hi):
         raise SpecError(
-            f"axis {axis!r}: the drift offset_v={offset!r} V alone moves the axis "
-            f"{p_drift[np.argmax(np.abs(p_drift))]:.0f} counts in {seconds!r} s, beyond 90 % of "
-            f"the travel {list(travel)!r} counts; shorten the excitation"
+            f"axis {show_value(axis)}: the drift offset_v={show_value(offset)} V alone moves "
+            f"the axis "
+            f"{p_drift[np.argmax(np.abs(p_drift))]:.0f} counts in {show_value(seconds)} s, "
+            f"beyond 90 % of "
+            f"the travel {show_value(list(travel))} counts; shorten the excitation"
         )
     unit_m = _predict(rig, ax, unit, 0.0)
     bounds = {"speed": _limit_amplitude(unit_m, drift, -v_ok, v_ok, pos=False)}
@@ -474,12 +484,13 @@ def design_excitation(
     while True:
         if amp < 1:
             what = (
-                f"speed limit {ax.speed_limit_rpm!r} r/min"
+                f"speed limit {show_value(ax.speed_limit_rpm)} r/min"
                 if limited_by == "speed"
                 else f"travel {list(travel) if travel else None!r} counts"
             )
             raise SpecError(
-                f"axis {axis!r}: even 1 D/A code of {kind} for {seconds!r} s goes beyond 90 % "
+                f"axis {show_value(axis)}: even 1 D/A code of {kind} for {show_value(seconds)} "
+                f"s goes beyond 90 % "
                 f"of the {what}; shorten the excitation"
             )
         codes = make(amp)
@@ -498,7 +509,7 @@ def design_excitation(
         which = "requested" if limited_by == "requested" else "largest admissible"
         fix = "ask for a larger amplitude_codes" if limited_by == "requested" else "shorten it"
         raise SpecError(
-            f"axis {axis!r}: the {which} {kind} amplitude, {amp} codes "
+            f"axis {show_value(axis)}: the {which} {kind} amplitude, {amp} codes "
             f"({amp * lsb * 1e3:.2f} mV), cannot reverse the axis against the drift "
             f"({offset * 1e3:g} mV) and friction ({coulomb * 1e3:g} mV); {fix}"
         )
@@ -522,8 +533,9 @@ def design_excitation(
 def _check_period(period_s: float, rig: Rig, where: str, error: type[Exception]) -> None:
     if not abs(period_s - rig.period_s) <= _PERIOD_RTOL * rig.period_s:
         raise error(
-            f"{where} period {period_s!r} s differs from rig {rig.name!r}'s achieved period "
-            f"{rig.period_s!r} s by more than 0.1 %"
+            f"{where} period {show_value(period_s)} s differs from rig "
+            f"{show_value(rig.name)}'s achieved period "
+            f"{show_value(rig.period_s)} s by more than 0.1 %"
         )
 
 
@@ -555,7 +567,8 @@ def write_excitation(path: str | Path, excitation: Excitation, rig: Rig) -> None
     _check_period(excitation.period_s, rig, "the excitation's", SpecError)
     if excitation.zero_code != rig.dac.zero_code:
         raise SpecError(
-            f"the excitation's zero_code {excitation.zero_code} is not rig {rig.name!r}'s "
+            f"the excitation's zero_code {excitation.zero_code} is not rig "
+            f"{show_value(rig.name)}'s "
             f"0 V code {rig.dac.zero_code}"
         )
     absolute = excitation.absolute_codes
@@ -618,7 +631,8 @@ def read_excitation(path: str | Path, rig: Rig) -> tuple[str, np.ndarray]:
         for h in header:
             if h not in ("tick", "time_s") and h.rpartition(".")[2] != "dac_code":
                 raise LogFormatError(
-                    f"unexpected column {h!r} (line {header_line}); an excitation has only "
+                    f"unexpected column {show_value(h)} (line {header_line}); an excitation "
+                    f"has only "
                     "tick, time_s and one <axis>.dac_code"
                 )
         code_cols = [h for h in header if h.rpartition(".")[2] == "dac_code"]
@@ -638,7 +652,7 @@ def read_excitation(path: str | Path, rig: Rig) -> tuple[str, np.ndarray]:
     try:
         return _excitation_codes(table, rig)
     except LogFormatError as exc:
-        raise LogFormatError(f"{what} {src!r}: {exc}") from None
+        raise LogFormatError(f"{what} {show_value(src)}: {exc}") from None
 
 
 def _excitation_codes(table: Table, rig: Rig) -> tuple[str, np.ndarray]:
@@ -649,17 +663,20 @@ def _excitation_codes(table: Table, rig: Rig) -> tuple[str, np.ndarray]:
     if not axis:
         if len(rig.axes) != 1:
             raise LogFormatError(
-                f"column 'dac_code' has no axis prefix; rig {rig.name!r} has axes "
+                f"column 'dac_code' has no axis prefix; rig {show_value(rig.name)} has axes "
                 f"{list(rig.axis_names)}: name it <axis>.dac_code"
             )
         axis = rig.axes[0].name
     if axis not in rig.axis_names:
         raise LogFormatError(
-            f"column {code_name!r}: no axis {axis!r} in rig {rig.name!r} "
+            f"column {show_value(code_name)}: no axis {show_value(axis)} in rig "
+            f"{show_value(rig.name)} "
             f"(axes: {list(rig.axis_names)})"
         )
     if "axis" in meta and meta["axis"] != axis:
-        raise LogFormatError(f"metadata axis {meta['axis']!r} disagrees with column {code_name!r}")
+        raise LogFormatError(
+            f"metadata axis {meta['axis']!r} disagrees with column {show_value(code_name)}"
+        )
     _check_dac_meta(meta, rig)
     if table.n_rows < MIN_TICKS:
         raise LogFormatError(f"{table.n_rows} rows; need at least {MIN_TICKS}")
@@ -669,7 +686,8 @@ def _excitation_codes(table: Table, rig: Rig) -> tuple[str, np.ndarray]:
     if bad.any():
         r = int(np.argmax(bad))
         raise LogFormatError(
-            f"row {rows[r]}, column {code_name!r}: code {int(codes[r])} outside the D/A range "
+            f"row {rows[r]}, column {show_value(code_name)}: code {int(codes[r])} outside the "
+            f"D/A range "
             f"0..{rig.dac.code_max}"
         )
     if "tick" in header:
@@ -691,7 +709,7 @@ def _excitation_codes(table: Table, rig: Rig) -> tuple[str, np.ndarray]:
             r = int(np.argmax(off)) + 1 if off.any() else 1
             raise LogFormatError(
                 f"row {rows[r]}, column 'time_s': irregular or non-increasing time "
-                f"(interval {float(dt[r - 1])!r} s vs median {med!r} s)"
+                f"(interval {float(dt[r - 1])!r} s vs median {show_value(med)} s)"
             )
         _check_period(med, rig, "the file's time_s", LogFormatError)
         checked = True
@@ -733,7 +751,8 @@ def _check_dac_meta(meta: dict[str, str], rig: Rig) -> None:
         bits = int(text)
         if bits != rig.dac.bits:
             raise LogFormatError(
-                f"metadata dac_bits {bits} disagrees with rig {rig.name!r} ({rig.dac.bits} bits)"
+                f"metadata dac_bits {bits} disagrees with rig {show_value(rig.name)} "
+                f"({rig.dac.bits} bits)"
             )
     if "dac_range_v" in meta:
         parts = meta["dac_range_v"].split(",")
@@ -749,7 +768,7 @@ def _check_dac_meta(meta: dict[str, str], rig: Rig) -> None:
         r_lo, r_hi = rig.dac.range_v
         if not (math.isclose(lo, r_lo, abs_tol=1e-9) and math.isclose(hi, r_hi, abs_tol=1e-9)):
             raise LogFormatError(
-                f"metadata dac_range_v {lo:g},{hi:g} V disagrees with rig {rig.name!r} "
+                f"metadata dac_range_v {lo:g},{hi:g} V disagrees with rig {show_value(rig.name)} "
                 f"({r_lo:g},{r_hi:g} V)"
             )
 

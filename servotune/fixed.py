@@ -134,7 +134,8 @@ def _choose_f(xmax: float, bits: int, f_max: int) -> int:
         if round_half_away(xmax * 2.0**f) <= lim:
             return f
     raise ValueError(
-        f"value {xmax!r} does not fit a {bits}-bit fixed-point number even with 0 fraction bits"
+        f"value {show_value(xmax)} does not fit a {bits}-bit fixed-point number even with 0 "
+        f"fraction bits"
     )
 
 
@@ -169,7 +170,7 @@ def quantize(x: float, *, bits: int = 32, f_max: int = F_U) -> Fixed:
     """
     x = float(x)
     if not np.isfinite(x):
-        raise ValueError(f"cannot quantise a non-finite value, got {x!r}")
+        raise ValueError(f"cannot quantise a non-finite value, got {show_value(x)}")
     f = _choose_f(abs(x), bits, f_max)
     return Fixed(q=int(round_half_away(x * 2.0**f)), f=f, bits=bits)
 

@@ -21,6 +21,8 @@ from typing import TYPE_CHECKING
 import numba as nb
 import numpy as np
 
+from servotune.validate import show_value
+
 if TYPE_CHECKING:  # python-control is imported where it is used (it is slow to import)
     import control
 
@@ -40,10 +42,10 @@ __all__ = [
 
 def _check_finite_ge(name: str, value: float, lo: float, unit: str, strict: bool = False) -> None:
     if not isinstance(value, int | float) or isinstance(value, bool) or not math.isfinite(value):
-        raise ValueError(f"{name} must be a finite number [{unit}], got {value!r}")
+        raise ValueError(f"{name} must be a finite number [{unit}], got {show_value(value)}")
     if (value <= lo) if strict else (value < lo):
         op = ">" if strict else ">="
-        raise ValueError(f"{name} must be {op} {lo:g} [{unit}], got {value!r}")
+        raise ValueError(f"{name} must be {op} {lo:g} [{unit}], got {show_value(value)}")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -232,9 +234,9 @@ def discretize(plant: Plant, period_s: float, lag_s: float = 0.0) -> control.Sta
     import control
 
     if period_s <= 0:
-        raise ValueError(f"period_s must be > 0 [s], got {period_s!r}")
+        raise ValueError(f"period_s must be > 0 [s], got {show_value(period_s)}")
     if lag_s < 0:
-        raise ValueError(f"lag_s must be >= 0 [s], got {lag_s!r}")
+        raise ValueError(f"lag_s must be >= 0 [s], got {show_value(lag_s)}")
     m, lam = lag_split(lag_s, period_s)
     phi_b, phi_a, go_p, go_v, gn_p, gn_v = tick_coefficients(
         period_s, lam, plant.gain_cps_per_v, plant.tau_s
@@ -425,13 +427,13 @@ def discretize_lti(
             f"sys must be a control.TransferFunction or StateSpace, got {type(sys).__name__}"
         )
     if not sys.isctime(strict=True):
-        raise ValueError(f"sys must be continuous-time (dt=0), got dt={sys.dt!r}")
+        raise ValueError(f"sys must be continuous-time (dt=0), got dt={show_value(sys.dt)}")
     if sys.ninputs != 1 or sys.noutputs != 1:
         raise ValueError(f"sys must be SISO, got {sys.noutputs} outputs x {sys.ninputs} inputs")
     if not (isinstance(period_s, int | float) and math.isfinite(period_s) and period_s > 0):
-        raise ValueError(f"period_s must be > 0 [s], got {period_s!r}")
+        raise ValueError(f"period_s must be > 0 [s], got {show_value(period_s)}")
     if not (isinstance(lag_s, int | float) and math.isfinite(lag_s) and lag_s >= 0):
-        raise ValueError(f"lag_s must be >= 0 [s], got {lag_s!r}")
+        raise ValueError(f"lag_s must be >= 0 [s], got {show_value(lag_s)}")
     ss = control.ss(sys)
     a_c, b_c = np.asarray(ss.A, dtype=float), np.asarray(ss.B, dtype=float)
     c_c, d_c = np.asarray(ss.C, dtype=float), float(np.asarray(ss.D, dtype=float)[0, 0])

@@ -18,6 +18,7 @@ from servotune.budget import check_memory, format_count
 from servotune.errors import SpecError
 from servotune.laws.axis import MODE_LOCK, MODE_OPEN, MODE_TASK
 from servotune.rig import Rig
+from servotune.validate import show_value
 
 __all__ = [
     "SCENARIOS",
@@ -111,7 +112,7 @@ class Inputs:
         }
         for name, col in columns.items():
             if name not in arrays:
-                raise SpecError(f"unknown input column {name!r}")
+                raise SpecError(f"unknown input column {show_value(name)}")
             arrays[name][:, axis] = col
         return Inputs(**arrays)
 
@@ -371,18 +372,18 @@ def sync_move(
         ``axis`` is the master.
     """
     if not 0 < speed_fraction <= 1:
-        raise SpecError(f"speed_fraction must be in (0, 1], got {speed_fraction!r}")
+        raise SpecError(f"speed_fraction must be in (0, 1], got {show_value(speed_fraction)}")
     if not accel_s > 0:
-        raise SpecError(f"accel_s must be > 0 [s], got {accel_s!r}")
+        raise SpecError(f"accel_s must be > 0 [s], got {show_value(accel_s)}")
     if not (isinstance(seconds, int | float) and math.isfinite(seconds) and seconds > 0):
-        raise SpecError(f"seconds must be a number > 0 [s], got {seconds!r}")
+        raise SpecError(f"seconds must be a number > 0 [s], got {show_value(seconds)}")
     check_run_memory(rig, seconds / rig.period_s, f"a sync move of {seconds:g} s")
     n = math.floor(seconds / rig.period_s + 0.5)
     if n < 50:
-        raise SpecError(f"seconds={seconds!r} gives only {n} ticks; need at least 50")
+        raise SpecError(f"seconds={show_value(seconds)} gives only {n} ticks; need at least 50")
     i_m = next((i for i, a in enumerate(rig.axes) if a.role == "master"), None)
     if i_m is None:
-        raise SpecError(f"rig {rig.name!r} has no master axis")
+        raise SpecError(f"rig {show_value(rig.name)} has no master axis")
     master = rig.axes[i_m]
     start = math.floor(0.1 / rig.period_s + 0.5)
     end = n - max(1, n // 10)
@@ -413,12 +414,12 @@ def step_inputs(rig: Rig, *, step_counts: int, seconds: float = 2.0) -> Inputs:
         If the run is too short.
     """
     if not (isinstance(seconds, int | float) and math.isfinite(seconds) and seconds > 0):
-        raise SpecError(f"seconds must be a number > 0 [s], got {seconds!r}")
+        raise SpecError(f"seconds must be a number > 0 [s], got {show_value(seconds)}")
     check_run_memory(rig, seconds / rig.period_s, f"a step run of {seconds:g} s")
     n = math.floor(seconds / rig.period_s + 0.5)
     lead = math.floor(0.1 / rig.period_s + 0.5)
     if n <= lead + 10:
-        raise SpecError(f"seconds must exceed 0.15 s [s], got {seconds!r}")
+        raise SpecError(f"seconds must exceed 0.15 s [s], got {show_value(seconds)}")
     master = next((i for i, a in enumerate(rig.axes) if a.role == "master"), 0)
     mode = np.full(n, MODE_TASK, dtype=np.int64)
     mode[:lead] = MODE_LOCK
@@ -457,7 +458,9 @@ def build_scenario(
         If the run would exceed the memory budget (:func:`check_run_memory`).
     """
     if name not in SCENARIOS:
-        raise SpecError(f"unknown scenario {name!r}; choose one of {', '.join(sorted(SCENARIOS))}")
+        raise SpecError(
+            f"unknown scenario {show_value(name)}; choose one of {', '.join(sorted(SCENARIOS))}"
+        )
     rig.axis(axis)
     if not (
         isinstance(seconds, int | float)
@@ -465,9 +468,9 @@ def build_scenario(
         and math.isfinite(seconds)
         and seconds > 0
     ):
-        raise SpecError(f"seconds must be > 0 [s], got {seconds!r}")
+        raise SpecError(f"seconds must be > 0 [s], got {show_value(seconds)}")
     check_run_memory(rig, seconds / rig.period_s, f"simulate {seconds:g} s")
     n = math.floor(seconds / rig.period_s + 0.5)
     if n < 10:
-        raise SpecError(f"seconds={seconds!r} gives only {n} ticks; need at least 10")
+        raise SpecError(f"seconds={show_value(seconds)} gives only {n} ticks; need at least 10")
     return SCENARIOS[name](rig, axis, n, closed_loop)

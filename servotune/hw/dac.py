@@ -10,6 +10,7 @@ import numba as nb
 import numpy as np
 
 from servotune.fixed import round_half_away, shift_round
+from servotune.validate import show_value
 
 __all__ = ["code_from_uq", "code_from_volts", "lsb_v", "volts_from_code", "zero_code"]
 
@@ -37,7 +38,9 @@ def zero_code(bits: int = 12, range_v: tuple[float, float] = (-10.0, 10.0)) -> i
     lo, _hi = range_v
     z = -lo / lsb_v(bits, range_v)
     if not (0 <= z < 2**bits) or z != np.floor(z):
-        raise ValueError(f"range_v {range_v!r} has no code for exactly 0 V with {bits} bits")
+        raise ValueError(
+            f"range_v {show_value(range_v)} has no code for exactly 0 V with {bits} bits"
+        )
     return int(z)
 
 

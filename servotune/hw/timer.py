@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from servotune.validate import show_value
+
 __all__ = ["PC_PIT_CLOCK_HZ", "achieved_period_s", "divisor", "period_error_ppm"]
 
 PC_PIT_CLOCK_HZ = 1_193_180.0
@@ -44,7 +46,7 @@ def divisor(period_s: float | np.ndarray, clock_hz: float = PC_PIT_CLOCK_HZ) -> 
     4773
     """
     if clock_hz <= 0 or not np.isfinite(clock_hz):
-        raise ValueError(f"clock_hz must be > 0 [Hz], got {clock_hz!r}")
+        raise ValueError(f"clock_hz must be > 0 [Hz], got {show_value(clock_hz)}")
     p = np.asarray(period_s, dtype=float)
     d = np.floor(p * clock_hz + 0.5)
     bad = ~np.isfinite(d) | (d < DIVISOR_MIN) | (d > DIVISOR_MAX)
@@ -52,7 +54,8 @@ def divisor(period_s: float | np.ndarray, clock_hz: float = PC_PIT_CLOCK_HZ) -> 
         first = float(p.reshape(-1)[np.argmax(bad.reshape(-1))])
         lo, hi = DIVISOR_MIN / clock_hz, DIVISOR_MAX / clock_hz
         raise ValueError(
-            f"period_s {first!r} needs a timer divisor outside {DIVISOR_MIN}..{DIVISOR_MAX}; "
+            f"period_s {show_value(first)} needs a timer divisor outside "
+            f"{DIVISOR_MIN}..{DIVISOR_MAX}; "
             f"with clock_hz {clock_hz:g} the period must be within {lo:.3g}..{hi:.6g} s"
         )
     out = d.astype(np.int64)

@@ -202,7 +202,7 @@ class AxisController:
             return cls(lock_gain=Fixed.from_dict(d["lock_gain"]), task=task,
                        following_error_limit_counts=fe)  # fmt: skip
         except KeyError as exc:
-            raise ValueError(f"controller is missing the field {exc.args[0]!r}") from None
+            raise ValueError(f"controller is missing the field {show_value(exc.args[0])}") from None
         except TypeError as exc:
             raise ValueError(f"controller is malformed: {exc}") from None
 

@@ -126,12 +126,14 @@ class FuzzyPIDGains:
         for name, unit in units.items():
             v = getattr(self, name)
             if not isinstance(v, int | float) or not np.isfinite(v):
-                raise ValueError(f"{name} must be a finite number [{unit}], got {v!r}")
+                raise ValueError(f"{name} must be a finite number [{unit}], got {show_value(v)}")
         for name in ("ke", "kec"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0 [{units[name]}], got {getattr(self, name)}")
         if not isinstance(self.n, int) or not 1 <= self.n <= _LEVEL_LIMIT:
-            raise ValueError(f"n must be an integer in 1..{_LEVEL_LIMIT} [levels], got {self.n!r}")
+            raise ValueError(
+                f"n must be an integer in 1..{_LEVEL_LIMIT} [levels], got {show_value(self.n)}"
+            )
         for t in TABLE_NAMES:
             x = getattr(self, "d" + t)
             size = 2 * self.n + 1
@@ -155,7 +157,7 @@ class FuzzyPIDGains:
         int16 with ``f_t ≤ f``.
         """
         if not period_s > 0:
-            raise ValueError(f"period_s must be > 0 [s], got {period_s!r}")
+            raise ValueError(f"period_s must be > 0 [s], got {show_value(period_s)}")
         factor = {"kp": 1.0, "ki": period_s, "kd": 1.0 / period_s, "k1": 1.0 / period_s}
         bases: dict[str, Fixed] = {}
         tables: dict[str, tuple[np.ndarray, int]] = {}
@@ -217,7 +219,9 @@ class FuzzyPIDConstants:
 
     def __post_init__(self) -> None:
         if not isinstance(self.n, int) or not 1 <= self.n <= _LEVEL_LIMIT:
-            raise ValueError(f"n must be an integer in 1..{_LEVEL_LIMIT} [levels], got {self.n!r}")
+            raise ValueError(
+                f"n must be an integer in 1..{_LEVEL_LIMIT} [levels], got {show_value(self.n)}"
+            )
         if len(self.tables) != len(TABLE_NAMES):
             raise ValueError(f"need {len(TABLE_NAMES)} tables, got {len(self.tables)}")
         size = 2 * self.n + 1

@@ -10,6 +10,7 @@ import numba as nb
 import numpy as np
 
 from servotune.fixed import F_U, Fixed, align, clamp_e, quantize, shift_round
+from servotune.validate import show_value
 
 __all__ = ["lock_holding_band", "lock_step"]
 
@@ -80,7 +81,8 @@ def lock_holding_band(
     pos = net_v > 0
     if pos.all() or not pos.any():
         raise ValueError(
-            f"the lock cannot cancel offset_v={offset_v!r} V within ±{search_counts} counts"
+            f"the lock cannot cancel offset_v={show_value(offset_v)} V within ±{search_counts} "
+            f"counts"
         )
     i = int(np.argmax(pos))  # first error whose code drives the motor positive
     return int(e[i - 1]), int(e[i])

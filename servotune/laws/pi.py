@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numba as nb
 
 from servotune.fixed import F_U, Fixed, align, clamp_e, quantize, sat_add, shift_round
-from servotune.validate import check_keys
+from servotune.validate import check_keys, show_value
 
 __all__ = ["PIConstants", "PIGains", "pi_enter", "pi_ideal_step", "pi_step"]
 
@@ -39,12 +39,14 @@ class PIGains:
             v = getattr(self, name)
             if not isinstance(v, int | float) or not math.isfinite(v) or v < 0:
                 unit = "codes/count" if name == "kp" else "codes/(count·s)"
-                raise ValueError(f"{name} must be a finite number >= 0 [{unit}], got {v!r}")
+                raise ValueError(
+                    f"{name} must be a finite number >= 0 [{unit}], got {show_value(v)}"
+                )
 
     def quantize(self, period_s: float) -> PIConstants:
         """Fold the period in and quantise: ``Kp`` and ``Ki·T`` as (q, f) pairs."""
         if not period_s > 0:
-            raise ValueError(f"period_s must be > 0 [s], got {period_s!r}")
+            raise ValueError(f"period_s must be > 0 [s], got {show_value(period_s)}")
         return PIConstants(kp=quantize(self.kp), ki_t=quantize(self.ki * period_s))
 
     def to_dict(self) -> dict[str, float]:

@@ -36,6 +36,7 @@ import numpy as np
 from servotune.fixed import F_U, Fixed, align, clamp_e, quantize, shift_round
 from servotune.laws.fuzzy_pid import feed_terms
 from servotune.laws.pi import pi_step
+from servotune.validate import show_value
 
 __all__ = [
     "SYNC_LAWS",
@@ -88,7 +89,9 @@ class SyncGains:
 
     def __post_init__(self) -> None:
         if self.law not in SYNC_LAWS:
-            raise ValueError(f"law must be one of {', '.join(SYNC_LAWS)}, got {self.law!r}")
+            raise ValueError(
+                f"law must be one of {', '.join(SYNC_LAWS)}, got {show_value(self.law)}"
+            )
         for name, unit in (("kp", "-"), ("ki", "1/s"), ("kd", "s")):
             v = getattr(self, name)
             if (
@@ -97,23 +100,28 @@ class SyncGains:
                 or not math.isfinite(v)
                 or v < 0
             ):
-                raise ValueError(f"{name} must be a finite number >= 0 [{unit}], got {v!r}")
+                raise ValueError(
+                    f"{name} must be a finite number >= 0 [{unit}], got {show_value(v)}"
+                )
         if self.law == "pi" and self.kd != 0:
-            raise ValueError(f"kd must be 0 for a PI sync law [s], got {self.kd!r}")
+            raise ValueError(f"kd must be 0 for a PI sync law [s], got {show_value(self.kd)}")
         if self.law == "pd" and self.ki != 0:
-            raise ValueError(f"ki must be 0 for a PD sync law [1/s], got {self.ki!r}")
+            raise ValueError(f"ki must be 0 for a PD sync law [1/s], got {show_value(self.ki)}")
         dz, lim = self.dead_zone_counts, self.limit_counts
         if type(dz) is not int or dz < 0:
-            raise ValueError(f"dead_zone_counts must be an integer >= 0 [counts], got {dz!r}")
+            raise ValueError(
+                f"dead_zone_counts must be an integer >= 0 [counts], got {show_value(dz)}"
+            )
         if type(lim) is not int or not 1 <= lim <= LIMIT_MAX_COUNTS:
             raise ValueError(
-                f"limit_counts must be an integer in 1..{LIMIT_MAX_COUNTS} [counts], got {lim!r}"
+                f"limit_counts must be an integer in 1..{LIMIT_MAX_COUNTS} [counts], got "
+                f"{show_value(lim)}"
             )
 
     def quantize(self, period_s: float) -> SyncConstants:
         """Fold the period in and quantise: ``Kp``, ``Ki·T`` and ``Kd/T`` as (q, f) pairs."""
         if not (isinstance(period_s, int | float) and math.isfinite(period_s) and period_s > 0):
-            raise ValueError(f"period_s must be > 0 [s], got {period_s!r}")
+            raise ValueError(f"period_s must be > 0 [s], got {show_value(period_s)}")
         return SyncConstants(
             kp=quantize(self.kp),
             ki_t=quantize(self.ki * period_s),

@@ -224,7 +224,7 @@ class ScenarioSpec:
         p = f"scenario.{self.name}"
         if self.kind not in KINDS:
             raise SpecError(
-                f"{p}.kind must be one of {', '.join(sorted(KINDS))}, got {self.kind!r}"
+                f"{p}.kind must be one of {', '.join(sorted(KINDS))}, got {show_value(self.kind)}"
             )
         params, limits = KINDS[self.kind]
         defaults = {f.name: f.default for f in fields(self)}
@@ -235,7 +235,7 @@ class ScenarioSpec:
             allowed = f.name in params or f.name in limits
             if not allowed and value != defaults[f.name]:
                 raise SpecError(
-                    f"{p}.{f.name} does not apply to a {self.kind!r} scenario "
+                    f"{p}.{f.name} does not apply to a {show_value(self.kind)} scenario "
                     f"(it takes {', '.join(params + limits)})"
                 )
             if value is not None:
@@ -243,22 +243,25 @@ class ScenarioSpec:
         seconds = _DEFAULT_SECONDS[self.kind] if self.seconds is None else self.seconds
         seconds = _number(f"{p}.seconds", seconds, "s")
         if not 0 < seconds <= _MAX_SECONDS:
-            raise SpecError(f"{p}.seconds must be in (0, {_MAX_SECONDS:g}] [s], got {seconds!r}")
+            raise SpecError(
+                f"{p}.seconds must be in (0, {_MAX_SECONDS:g}] [s], got {show_value(seconds)}"
+            )
         object.__setattr__(self, "seconds", seconds)
         if not 0 < self.speed_fraction <= 1:
             raise SpecError(
-                f"{p}.speed_fraction must be in (0, 1] [1], got {self.speed_fraction!r}"
+                f"{p}.speed_fraction must be in (0, 1] [1], got {show_value(self.speed_fraction)}"
             )
         if not self.accel_s > 0:
-            raise SpecError(f"{p}.accel_s must be > 0 [s], got {self.accel_s!r}")
+            raise SpecError(f"{p}.accel_s must be > 0 [s], got {show_value(self.accel_s)}")
         if not 0 < self.settling_band_pct < 100:
             raise SpecError(
-                f"{p}.settling_band_pct must be in (0, 100) [%], got {self.settling_band_pct!r}"
+                f"{p}.settling_band_pct must be in (0, 100) [%], got "
+                f"{show_value(self.settling_band_pct)}"
             )
         if "settle_s" in params and not 0 <= self.settle_s < seconds:
             raise SpecError(
                 f"{p}.settle_s must be >= 0 and shorter than seconds ({seconds:g} s) [s], "
-                f"got {self.settle_s!r}"
+                f"got {show_value(self.settle_s)}"
             )
         present = [k for k in limits if getattr(self, k) is not None]
         if not present:
@@ -266,15 +269,16 @@ class ScenarioSpec:
         for k in present:
             v = getattr(self, k)
             if v < 0:
-                raise SpecError(f"{p}.{k} must be >= 0 [{_UNITS[k]}], got {v!r}")
+                raise SpecError(f"{p}.{k} must be >= 0 [{_UNITS[k]}], got {show_value(v)}")
         if self.max_saturation_pct is not None and self.max_saturation_pct > 100:
             raise SpecError(
-                f"{p}.max_saturation_pct must be <= 100 [%], got {self.max_saturation_pct!r}"
+                f"{p}.max_saturation_pct must be <= 100 [%], got "
+                f"{show_value(self.max_saturation_pct)}"
             )
         if self.max_settling_time_s is not None and self.max_settling_time_s >= seconds:
             raise SpecError(
                 f"{p}.max_settling_time_s must be shorter than the run ({seconds:g} s) [s], "
-                f"got {self.max_settling_time_s!r}"
+                f"got {show_value(self.max_settling_time_s)}"
             )
         # an RMS or a mean of |e| never exceeds its maximum: a larger limit is a mistake
         top = self.max_sync_error_counts
@@ -282,7 +286,8 @@ class ScenarioSpec:
             v = getattr(self, k)
             if top is not None and v is not None and v > top:
                 raise SpecError(
-                    f"{p}.{k} must be <= max_sync_error_counts ({top:g} counts) [counts], got {v!r}"
+                    f"{p}.{k} must be <= max_sync_error_counts ({top:g} counts) [counts], got "
+                    f"{show_value(v)}"
                 )
 
     @property
@@ -333,7 +338,9 @@ class MonteCarlo:
         for k, hi in (("count", _MAX_VARIANTS), ("seed", 2**63 - 1)):
             v = getattr(self, k)
             if not isinstance(v, int) or isinstance(v, bool) or not 0 <= v <= hi:
-                raise SpecError(f"montecarlo.{k} must be an integer in 0..{hi}, got {v!r}")
+                raise SpecError(
+                    f"montecarlo.{k} must be an integer in 0..{hi}, got {show_value(v)}"
+                )
         for k, hi, unit in (
             ("gain_spread", 0.9, "1"),
             ("tau_spread", 0.9, "1"),
@@ -342,13 +349,15 @@ class MonteCarlo:
         ):
             v = _number(f"montecarlo.{k}", getattr(self, k), unit)
             if not 0 <= v <= hi:
-                raise SpecError(f"montecarlo.{k} must be in [0, {hi:g}] [{unit}], got {v!r}")
+                raise SpecError(
+                    f"montecarlo.{k} must be in [0, {hi:g}] [{unit}], got {show_value(v)}"
+                )
             object.__setattr__(self, k, v)
         axes = self.axes
         if isinstance(axes, str) or not all(isinstance(a, str) for a in axes):
-            raise SpecError(f"montecarlo.axes must be a list of axis names, got {axes!r}")
+            raise SpecError(f"montecarlo.axes must be a list of axis names, got {show_value(axes)}")
         if len(set(axes)) != len(axes):
-            raise SpecError(f"montecarlo.axes names an axis twice: {list(axes)!r}")
+            raise SpecError(f"montecarlo.axes names an axis twice: {show_value(list(axes))}")
         object.__setattr__(self, "axes", tuple(axes))
 
     def to_dict(self) -> dict[str, Any]:
@@ -386,11 +395,13 @@ class Spec:
             raise SpecError("a spec needs at least one [scenario.<name>] table")
         names = [s.name for s in self.scenarios]
         if len(set(names)) != len(names):
-            raise SpecError(f"scenario names must be unique, got {names!r}")
+            raise SpecError(f"scenario names must be unique, got {show_value(names)}")
         if self.max_period_error_ppm is not None:
             v = _number("timer.max_period_error_ppm", self.max_period_error_ppm, "ppm")
             if v < 0:
-                raise SpecError(f"timer.max_period_error_ppm must be >= 0 [ppm], got {v!r}")
+                raise SpecError(
+                    f"timer.max_period_error_ppm must be >= 0 [ppm], got {show_value(v)}"
+                )
             object.__setattr__(self, "max_period_error_ppm", v)
 
     def scenario(self, name: str) -> ScenarioSpec:
@@ -398,7 +409,9 @@ class Spec:
         for s in self.scenarios:
             if s.name == name:
                 return s
-        raise SpecError(f"no scenario {name!r}; scenarios: {[s.name for s in self.scenarios]}")
+        raise SpecError(
+            f"no scenario {show_value(name)}; scenarios: {[s.name for s in self.scenarios]}"
+        )
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict."""
@@ -436,7 +449,7 @@ def spec_from_dict(data: Mapping[str, Any], default_name: str = "spec") -> Spec:
     _only(meta, "spec", ("name", "description", "rig"))
     for k in ("name", "description", "rig"):
         if k in meta and not isinstance(meta[k], str):
-            raise SpecError(f"spec.{k} must be a string, got {meta[k]!r}")
+            raise SpecError(f"spec.{k} must be a string, got {show_value(meta[k])}")
     timer = _table(data, "timer")
     _only(timer, "timer", ("max_period_error_ppm",))
     mc_t = dict(_table(data, "montecarlo"))
@@ -457,9 +470,12 @@ def spec_from_dict(data: Mapping[str, Any], default_name: str = "spec") -> Spec:
         if kind not in KINDS:
             kinds = ", ".join(sorted(KINDS))
             if "kind" in t:
-                raise SpecError(f"scenario.{name}.kind must be one of {kinds}, got {kind!r}")
+                raise SpecError(
+                    f"scenario.{name}.kind must be one of {kinds}, got {show_value(kind)}"
+                )
             raise SpecError(
-                f"scenario.{name}: {name!r} is not a scenario kind ({kinds}); add kind = ..."
+                f"scenario.{name}: {show_value(name)} is not a scenario kind ({kinds}); add "
+                f"kind = ..."
             )
         params, limits = KINDS[kind]
         _only(t, f"scenario.{name}", ("kind", *params, *limits))
@@ -561,7 +577,9 @@ def plant_variants(rig: Rig, mc: MonteCarlo, seed: int | None = None) -> tuple[V
     names = rig.axis_names
     for a in mc.axes:
         if a not in names:
-            raise SpecError(f"montecarlo.axes names {a!r}, the rig has axes {list(names)}")
+            raise SpecError(
+                f"montecarlo.axes names {show_value(a)}, the rig has axes {list(names)}"
+            )
     vary = [n in mc.axes if mc.axes else True for n in names]
     nominal = tuple(a.plant for a in rig.axes)
     out = [Variant(label="nominal", plants=nominal)]
@@ -756,7 +774,7 @@ class Verification:
         for c in self.checks:
             if c.name == name:
                 return c
-        raise KeyError(f"no check {name!r}")
+        raise KeyError(f"no check {show_value(name)}")
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict, JSON-ready (``json.dumps(..., sort_keys=True)``)."""
@@ -1016,7 +1034,7 @@ def _master(rig: Rig) -> tuple[int, str]:
     for i, a in enumerate(rig.axes):
         if a.role == "master":
             return i, a.name
-    raise SpecError(f"rig {rig.name!r} has no master axis")
+    raise SpecError(f"rig {show_value(rig.name)} has no master axis")
 
 
 def _move_windows(rig: Rig, sc: ScenarioSpec, inputs: Inputs) -> _MoveWindows:
@@ -1024,7 +1042,7 @@ def _move_windows(rig: Rig, sc: ScenarioSpec, inputs: Inputs) -> _MoveWindows:
     ref = inputs.ref_counts[:, i_m]
     moving = np.flatnonzero(ref != ref[0])
     if moving.size == 0:
-        raise SpecError(f"scenario {sc.name!r}: the master's reference does not move")
+        raise SpecError(f"scenario {show_value(sc.name)}: the master's reference does not move")
     start = max(int(moving[0]) - 1, 0)
     direction = 1 if ref[-1] >= ref[0] else -1
     dr = direction * np.diff(ref)
@@ -1039,7 +1057,8 @@ def _move_windows(rig: Rig, sc: ScenarioSpec, inputs: Inputs) -> _MoveWindows:
     lo = (c0 + hi) // 2
     if hi - lo < 3:
         raise SpecError(
-            f"scenario {sc.name!r} has no constant-speed part before the load step to measure "
+            f"scenario {show_value(sc.name)} has no constant-speed part before the load step "
+            f"to measure "
             "the steady lag; lengthen seconds or shorten accel_s"
         )
     return _MoveWindows(start=start, target=float(ref[-1]), steady=(lo, hi))
@@ -1190,7 +1209,10 @@ def verify(
     """
     say = progress or (lambda _msg: None)
     if spec.rig is not None and spec.rig != rig.name:
-        raise SpecError(f"spec {spec.name!r} is written for rig {spec.rig!r}, not {rig.name!r}")
+        raise SpecError(
+            f"spec {show_value(spec.name)} is written for rig {show_value(spec.rig)}, not "
+            f"{show_value(rig.name)}"
+        )
     loop = tuning.loop(rig)
     sync_limits = ("max_sync_error_counts", "max_rms_sync_error_counts", "max_steady_lag_counts")
     if not any(a.role == "slave" for a in rig.axes):
@@ -1198,7 +1220,8 @@ def verify(
             for k in sc.limits:
                 if k in sync_limits:
                     raise SpecError(
-                        f"scenario.{sc.name}.{k} needs a slave axis; rig {rig.name!r} has none"
+                        f"scenario.{sc.name}.{k} needs a slave axis; rig "
+                        f"{show_value(rig.name)} has none"
                     )
     used_seed = spec.montecarlo.seed if seed is None else int(seed)
     variants = plant_variants(rig, spec.montecarlo, used_seed)
@@ -1285,7 +1308,7 @@ def format_table(verification: Verification) -> str:
     widths = [max(len(row[i]) for row in lines) for i in range(len(head))]
     right = {3, 4, 5, 6}
     out = [
-        f"verify: spec {v.spec.name!r} on rig {v.rig_name!r}, seed {v.seed}, "
+        f"verify: spec {show_value(v.spec.name)} on rig {show_value(v.rig_name)}, seed {v.seed}, "
         f"{len(v.variants)} plant sets (nominal + {len(v.variants) - 1} Monte Carlo)"
     ]
     for row in lines:
