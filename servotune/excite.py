@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 from scipy import signal
 
+from servotune._version import __version__
 from servotune.budget import check_memory, format_count
 from servotune.errors import LogFormatError, SpecError
 from servotune.fixed import round_half_away
@@ -561,7 +562,6 @@ def write_excitation(path: str | Path, excitation: Excitation, rig: Rig) -> None
     OSError
         If the file cannot be written.
     """
-    from servotune import __version__  # here: servotune/__init__ may import this module
 
     rig.axis(excitation.axis)
     _check_period(excitation.period_s, rig, "the excitation's", SpecError)

@@ -24,7 +24,7 @@ from servotune.errors import RigError
 from servotune.hw import counter as hw_counter
 from servotune.hw import dac as hw_dac
 from servotune.hw import timer as hw_timer
-from servotune.io.files import atomic_write_bytes
+from servotune.io.files import atomic_write_bytes, read_toml
 from servotune.laws.lock import lock_holding_band
 from servotune.plant import Plant
 from servotune.validate import check_integer, check_keys, check_number, is_number, show_value
@@ -555,8 +555,6 @@ def load_rig(path: str | Path) -> Rig:
     RigError
         If the file is missing, not TOML, or any field is invalid.
     """
-    from servotune.io.files import read_toml
-
     p = Path(path)
     data = read_toml(p, RigError, "rig file")
     try:

@@ -44,10 +44,12 @@ from typing import Any
 import numba as nb
 import numpy as np
 
+from servotune._version import __version__
 from servotune.budget import check_memory
 from servotune.errors import ConfigError, RigError
 from servotune.fixed import shift_round
 from servotune.hw import dac as hw_dac
+from servotune.io.files import json_safe, read_toml
 from servotune.laws.axis import (
     FLAG_SYNC_TRIP,
     MODE_TASK,
@@ -495,8 +497,6 @@ def load_gantry(path: str | Path, *, resolve: bool = True) -> GantryConfig:
     ConfigError
         If the file is missing, not TOML, or invalid (the message names the field).
     """
-    from servotune.io.files import read_toml
-
     p = Path(path)
     data = read_toml(p, ConfigError, "gantry config")
     try:
@@ -958,9 +958,6 @@ class SyncComparison:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-able dict (``schema`` ``servotune.sync/1``)."""
-        from servotune import __version__
-        from servotune.io.files import json_safe
-
         c = self.config
         return json_safe({
             "schema": "servotune.sync/1",
