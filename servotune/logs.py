@@ -443,10 +443,9 @@ def _read_log(
         compute_s = meta_compute
     _warn_unknown_metadata(meta, meta_line, src)
 
-    if not body or body.isspace():
-        raise LogFormatError(f"log {src!r} has a header (line {header_line}) but no data rows")
-    _check_field_lengths(body, header_line, header)
-    table, rows = _parse_body(body, header_line, header)
+    table, rows = _data_rows(
+        body, header_line, header, f"log {src!r} has a header (line {header_line}) but no data rows"
+    )
     del body
     n = len(table)
     if n < MIN_ROWS:
@@ -584,10 +583,12 @@ def read_table(
                 raise LogFormatError(f"line {header_line}: unknown column {h!r}; {_COLUMNS_HELP}")
         if check_header is not None:
             check_header(header, header_line)
-        if not body or body.isspace():
-            raise LogFormatError(f"the header (line {header_line}) is followed by no data rows")
-        _check_field_lengths(body, header_line, header)
-        table, rows = _parse_body(body, header_line, header)
+        table, rows = _data_rows(
+            body,
+            header_line,
+            header,
+            f"the header (line {header_line}) is followed by no data rows",
+        )
         del body
         n = len(table)
         cols = {h: np.ascontiguousarray(table[f"c{j}"]) for j, h in enumerate(header)}
@@ -962,6 +963,16 @@ def _warn_unknown_metadata(meta: Mapping[str, str], meta_line: Mapping[str, int]
             LogMetadataWarning,
             stacklevel=3,
         )
+
+
+def _data_rows(
+    body: str, header_line: int, header: list[str], empty: str
+) -> tuple[np.ndarray, _RowLines]:
+    """The data rows under the header, parsed (``empty``: the message when there are none)."""
+    if not body or body.isspace():
+        raise LogFormatError(empty)
+    _check_field_lengths(body, header_line, header)
+    return _parse_body(body, header_line, header)
 
 
 def _parse_body(body: str, header_line: int, header: list[str]) -> tuple[np.ndarray, _RowLines]:
