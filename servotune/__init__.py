@@ -8,6 +8,14 @@ from servotune._numba_cache import keyed_by_sources
 from servotune._version import __version__
 
 with keyed_by_sources():  # numba's cache follows every source edit (see _numba_cache)
+    from servotune.arch.linkage import (
+        LinkageCheckError,
+        LinkageConfig,
+        LinkageResult,
+        load_linkage,
+        recommended_resync_interval_s,
+        run_linkage,
+    )
     from servotune.engine import Batch, BatchResult, Loop, Trace, prepare_batch, run_batch, simulate
     from servotune.errors import (
         ConfigError,
@@ -27,14 +35,6 @@ with keyed_by_sources():  # numba's cache follows every source edit (see _numba_
     from servotune.identify import FitResult, PoorFitWarning, fit, fit_arrays
     from servotune.laws import AxisController, PIGains, lock_holding_band
     from servotune.laws.fuzzy_pid import FuzzyPIDGains
-    from servotune.linkage import (
-        LinkageCheckError,
-        LinkageConfig,
-        LinkageResult,
-        load_linkage,
-        recommended_resync_interval_s,
-        run_linkage,
-    )
     from servotune.logs import Log, read_log, write_log
     from servotune.metrics import StepInfo, TrackingMetrics, step_info, tracking_metrics
     from servotune.plant import Plant, discretize, discretize_lti

@@ -372,7 +372,7 @@ def _cmd_sync(args: argparse.Namespace) -> int:
 
 
 def _cmd_linkage(args: argparse.Namespace) -> int:
-    from servotune.linkage import (
+    from servotune.arch.linkage import (
         LinkageCheckError,
         format_linkage_summary,
         load_linkage,

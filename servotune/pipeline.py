@@ -157,7 +157,7 @@ def run_architectures(plants_dir: str | Path, out_dir: str | Path, *, seed: int 
                              "predicted_load": doc["predicted_load"]}  # fmt: skip
     linkage_path = plants / "linkage-6axis.toml"
     if linkage_path.is_file():
-        from servotune.linkage import load_linkage, run_linkage
+        from servotune.arch.linkage import load_linkage, run_linkage
         from servotune.plot import plot_queue_levels, plot_radial_deviation
 
         res = run_linkage(load_linkage(linkage_path), seed=seed)

@@ -15,7 +15,7 @@ import numpy as np
 from servotune.engine import Trace
 
 if TYPE_CHECKING:
-    from servotune.linkage import LinkageResult
+    from servotune.arch.linkage import LinkageResult
 
 __all__ = [
     "plot_bode",

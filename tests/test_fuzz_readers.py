@@ -123,7 +123,7 @@ def reader(kind: str) -> Callable[[Path], Any]:
 
         return load_gantry
     if kind == "linkage":
-        from servotune.linkage import load_linkage
+        from servotune.arch.linkage import load_linkage
 
         return load_linkage
     if kind == "log":

@@ -1,4 +1,5 @@
-"""The multi-CPU linkage of seed 002 (servotune.linkage): interpolation, checks, clocks, contour.
+"""The multi-CPU linkage of seed 002 (servotune.arch.linkage): interpolation, checks, clocks,
+contour.
 
 Reference values are computed by hand from the example config plants/linkage-6axis.toml
 (6 axes, 2 ms, SCI at 460,800 baud 8N1, blocks of 5, prefill 2, queues of 20) unless a comment
@@ -19,9 +20,7 @@ import numpy as np
 import pytest
 from conftest import EXAMPLE_RIG, ROOT
 
-from servotune.cli import main
-from servotune.errors import ConfigError
-from servotune.linkage import (
+from servotune.arch.linkage import (
     SCHEMA,
     Clock,
     LinkageCheckError,
@@ -35,6 +34,8 @@ from servotune.linkage import (
     recommended_resync_interval_s,
     run_linkage,
 )
+from servotune.cli import main
+from servotune.errors import ConfigError
 
 EXAMPLE = ROOT / "plants" / "linkage-6axis.toml"
 PLANTS = EXAMPLE.parent

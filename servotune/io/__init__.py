@@ -13,6 +13,6 @@ spec TOML           :func:`servotune.verify.load_spec`              ``Spec``, ``
 tuning JSON         :func:`servotune.tuning.read_tuning`            ``Tuning.from_dict``
 tables JSON         :func:`servotune.export.json.load_tables`       ``check_tables``
 gantry TOML         :func:`servotune.sync.load_gantry`              ``GantryConfig``
-linkage TOML        :func:`servotune.linkage.load_linkage`          ``LinkageConfig``
+linkage TOML        :func:`servotune.arch.linkage.load_linkage`          ``LinkageConfig``
 ==================  ==============================================  ============================
 """

@@ -110,7 +110,7 @@ def read_with_reader(kind: str, path: Path) -> None:
 
         load_gantry(path, resolve=False)
     elif kind == "linkage":
-        from servotune.linkage import load_linkage
+        from servotune.arch.linkage import load_linkage
 
         load_linkage(path)
     else:  # pragma: no cover

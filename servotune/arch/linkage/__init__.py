@@ -1,0 +1,124 @@
+"""Multi-CPU multi-axis linkage (seed 002, SPEC §1b): interpolate, broadcast, queue, follow.
+
+One **master CPU** interpolates the path of every axis ahead of time into a queue of position
+commands, one per axis per sampling period. It broadcasts that queue in **data blocks** on one
+serial bus (SCI): block ``b`` carries the commands of ticks ``b·B … b·B + B − 1`` for every axis
+(``B = bus.block_size``), so one block leaves every ``B·period_s`` (the broadcast period). Each
+**slave CPU** drives 2–4 axes; it keeps the commands of its own axes in a local queue of the
+same structure, pops one command per axis every sampling period *by its own clock*, and closes
+each axis's position loop with the runtime law (:mod:`servotune.laws.axis`, task mode, PI).
+A **clock-sync broadcast** at motion start (and every ``clock.resync_interval_s`` if > 0)
+realigns the slave clocks to the master's.
+
+Submodules, each importing only those above it:
+
+- :mod:`~servotune.arch.linkage.bus`: the serial bus, the clock sync, the slave CPUs and the
+  bounds of the configuration's fields;
+- :mod:`~servotune.arch.linkage.config`: the configuration (:func:`load_linkage`, frozen
+  dataclasses validated on load);
+- :mod:`~servotune.arch.linkage.path`: the master's interpolation (:func:`interpolate`) and
+  the contour-error search;
+- :mod:`~servotune.arch.linkage.kernel`: the numba kernel of the event-driven simulation;
+- :mod:`~servotune.arch.linkage.checks`: the checks made before motion (:func:`check_linkage`,
+  :func:`bus_figures`, :func:`recommended_resync_interval_s`);
+- :mod:`~servotune.arch.linkage.result`: the result (:class:`LinkageResult`,
+  :func:`format_linkage_summary`);
+- :mod:`~servotune.arch.linkage.run`: the simulation of the whole system
+  (:func:`run_linkage`), the axes' gains (:func:`axis_gains`) and the checks during motion.
+
+This package re-exports the public names of all of them.
+
+Timing model (all times in master time, the master's clock being the reference)
+-------------------------------------------------------------------------------
+- Master tick ``k`` is at ``k·T`` (``T = period_s``); motion starts at ``t = 0`` with the first
+  sync. Command row ``k`` is the position the path programs for ``t = k·T``; row 0 is the start,
+  every axis at 0 counts (its power-up home).
+- **Prefill**: blocks ``0 … P − 1`` (``P = bus.prefill_blocks``) are in every slave queue before
+  motion. Block ``b >= P`` starts on the bus at ``(b − P)·B·T`` and has arrived completely
+  (and is queued) one frame time later: ``frame_s = 10·bytes/baud`` for 8N1, with
+  ``bytes = frame_overhead_bytes + bytes_per_setpoint·n_axes·B``. Bus utilisation is
+  ``frame_s / (B·T)``.
+- **Slave clocks**: slave ``s`` runs at ``(1 + ε_s)`` times nominal, ``ε_s = clock_ppm·1e-6``
+  relative to the master. After a sync at master tick ``k_r`` (time ``t_r = k_r·T``) its tick
+  with index ``j`` happens at ``t_r + (j − k_r)·T/(1 + ε_s)``.
+- **Sync semantics** (the slave clears its clock counter and takes the master's tick index):
+  if the slave is behind (its next index ``j < k_r``), the commands ``j … k_r − 1`` are popped
+  and discarded (counted as *skipped*) and its next tick is index ``k_r`` at ``t_r``; if it is
+  ahead (``j >= k_r``: indices up to ``j − 1`` already executed), no index is executed twice:
+  its next tick is index ``j`` at ``t_r + (j − k_r)·T/(1 + ε_s)``. While the drift between two
+  syncs stays below one tick, nothing is ever skipped or repeated; only the tick phase moves.
+  The sync frame's own bus latency is the same for every slave and is not modelled.
+- **Slave tick** ``j``: pop command ``j`` (an *underrun* if it is not in the queue: the axis
+  then holds its previous command); for each axis read the counter, run
+  :func:`~servotune.laws.axis.axis_read` and :func:`~servotune.laws.axis.axis_control`
+  (task mode, the popped command as reference), write the D/A code at ``tick + compute_s``;
+  the motor sees it ``delay_s`` later and moves exactly between input changes
+  (:func:`~servotune.plant.advance`). A block that finds its slave queue full is an *overrun*:
+  the commands that do not fit are lost.
+- At equal times events run in the order: sync, slave ticks, measurement, block arrival (a
+  block arriving at the instant of its tick is late: the conservative reading).
+
+Measurement: the "actual point" of tick ``k`` is every axis's plant position at the master
+time ``k·T`` (as a ballbar or laser measures, independent of each slave's clock), so clock
+skew between slaves shows in the tracking and contour errors. Tracking error
+``e = command − actual`` per axis; contour error = distance from the actual point to the
+programmed path (polyline of the programmed positions at every tick, searched near the current
+tick) in the space of the current move's axes (the plane of an arc, the moving axes of a line);
+for each arc the radial deviation ``|actual − centre| − R`` against the angle, read as an
+ISO 230-4 circular test (circularity = max − min).
+"""
+
+from servotune.arch.linkage.bus import Bus, Clock, SlaveCpu
+from servotune.arch.linkage.checks import (
+    Check,
+    LinkageCheckError,
+    bus_figures,
+    check_linkage,
+    recommended_resync_interval_s,
+)
+from servotune.arch.linkage.config import (
+    SCHEMA,
+    LinkageAxis,
+    LinkageConfig,
+    Move,
+    Toolpath,
+    linkage_from_dict,
+    load_linkage,
+)
+from servotune.arch.linkage.path import ArcGeometry, Interpolation, interpolate
+from servotune.arch.linkage.result import (
+    ArcResult,
+    AxisResult,
+    CpuResult,
+    LinkageResult,
+    format_linkage_summary,
+)
+from servotune.arch.linkage.run import axis_gains, run_linkage
+
+__all__ = [
+    "SCHEMA",
+    "ArcGeometry",
+    "ArcResult",
+    "AxisResult",
+    "Bus",
+    "Check",
+    "Clock",
+    "CpuResult",
+    "Interpolation",
+    "LinkageAxis",
+    "LinkageCheckError",
+    "LinkageConfig",
+    "LinkageResult",
+    "Move",
+    "SlaveCpu",
+    "Toolpath",
+    "axis_gains",
+    "bus_figures",
+    "check_linkage",
+    "format_linkage_summary",
+    "interpolate",
+    "linkage_from_dict",
+    "load_linkage",
+    "recommended_resync_interval_s",
+    "run_linkage",
+]

@@ -1,0 +1,533 @@
+"""The linkage configuration: axes, path, the whole machine, and its TOML reader.
+
+Frozen dataclasses validated on construction; :func:`load_linkage` reads a file,
+:func:`linkage_from_dict` its parsed contents.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from servotune.arch.linkage.bus import (
+    MAX_COUNTS,
+    MAX_FEED_CPS,
+    MAX_GAIN,
+    MAX_SECONDS,
+    Bus,
+    Clock,
+    SlaveCpu,
+)
+from servotune.errors import ConfigError, RigError
+from servotune.io.files import read_toml
+from servotune.laws.pi import PIGains
+from servotune.plant import Plant
+from servotune.rig import MAX_LOCK_GAIN, Rig, build_section, check_plant, load_rig
+from servotune.validate import check_integer, check_keys, check_number, is_number, show_value
+
+__all__ = [
+    "SCHEMA",
+    "LinkageAxis",
+    "LinkageConfig",
+    "Move",
+    "Toolpath",
+    "linkage_from_dict",
+    "load_linkage",
+]
+
+SCHEMA = "servotune.linkage/1"
+"""Version tag of :meth:`LinkageResult.to_dict`."""
+
+_RING = 64  # pending D/A writes per axis (the lag compute_s + delay_s must stay below this)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class LinkageAxis:
+    """One axis of the linkage: its plant and its position loop on the slave.
+
+    Parameters
+    ----------
+    name : str
+        Axis name (the key of ``[axis.<name>]``).
+    plant : Plant
+        Axis model (SPEC §5).
+    kp : float or None
+        PI proportional gain [codes/count]; None (with ``ki``): tuned.
+    ki : float or None
+        PI integral gain [codes/(count·s)]; None (with ``kp``): tuned.
+    lock_gain_codes_per_count : float
+        Position-lock gain [codes/count] (the runtime's lock module; seed 000: 0.4).
+    following_error_limit_counts : int
+        Following-error trip threshold [counts]; 0 disables the trip.
+    counter_init : int
+        Counter register value at the start [counts].
+    """
+
+    name: str
+    plant: Plant
+    kp: float | None = None
+    ki: float | None = None
+    lock_gain_codes_per_count: float = 0.4
+    following_error_limit_counts: int = 0
+    counter_init: int = 0
+
+    def __post_init__(self) -> None:
+        if (self.kp is None) != (self.ki is None):
+            raise ConfigError(
+                f"kp and ki must be given together (or neither, to tune them), got "
+                f"kp={show_value(self.kp)}, ki={show_value(self.ki)}"
+            )
+        if self.kp is not None:
+            check_number("kp", self.kp, "codes/count", hi=MAX_GAIN, error=ConfigError)
+            check_number("ki", self.ki, "codes/(count·s)", hi=MAX_GAIN, error=ConfigError)
+        check_number("lock_gain_codes_per_count", self.lock_gain_codes_per_count, "codes/count",
+                     strict=True, hi=MAX_LOCK_GAIN, error=ConfigError)  # fmt: skip
+        check_integer("following_error_limit_counts", self.following_error_limit_counts,
+                      "counts", hi=2**31 - 1, error=ConfigError)  # fmt: skip
+        check_integer("counter_init", self.counter_init, "counts", hi=2**32 - 1,
+                      error=ConfigError)  # fmt: skip
+
+    @property
+    def gains(self) -> PIGains | None:
+        """The explicit PI gains, or None if they are to be tuned."""
+        if self.kp is None or self.ki is None:
+            return None
+        return PIGains(kp=float(self.kp), ki=float(self.ki))
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Move:
+    """One move of the path.
+
+    Parameters
+    ----------
+    kind : str
+        ``"line"`` (linear interpolation), ``"arc"`` (circular in ``plane``; every other
+        axis named in ``to`` moves linearly along, a helix) or ``"dwell"`` (hold, as G04).
+    feed_cps : float or None
+        Programmed feed along the path [counts/s] (clamped to the path's limits); lines and
+        arcs only.
+    dwell_s : float or None
+        Dwell: how long every axis holds [s].
+    to : dict of str to float
+        Target positions [counts] of the axes that move (absolute, from the start at 0); axes
+        not named stay. For an arc, the plane axes' end point, or neither of them and
+        ``angle_deg``.
+    plane : tuple of str
+        Arc: the two axes of the plane ``(first, second)``; angles count from the first
+        towards the second.
+    centre : tuple of float
+        Arc: centre in the plane [counts].
+    angle_deg : float or None
+        Arc: swept angle [deg] in (0, 3600]; 360 is a full circle.
+    direction : str
+        Arc: ``"ccw"`` (from the first plane axis towards the second) or ``"cw"``.
+    """
+
+    kind: str
+    feed_cps: float | None = None
+    dwell_s: float | None = None
+    to: Mapping[str, float] = field(default_factory=dict)
+    plane: tuple[str, ...] | None = None
+    centre: tuple[float, ...] | None = None
+    angle_deg: float | None = None
+    direction: str = "ccw"
+
+    def __post_init__(self) -> None:
+        for name in ("plane", "centre"):
+            if isinstance(getattr(self, name), list):
+                object.__setattr__(self, name, tuple(getattr(self, name)))
+        if self.kind not in ("line", "arc", "dwell"):
+            raise ConfigError(f"kind must be 'line', 'arc' or 'dwell', got {show_value(self.kind)}")
+        if self.kind == "dwell":
+            check_number("dwell_s", self.dwell_s, "s", strict=True, hi=MAX_SECONDS,
+                         error=ConfigError)  # fmt: skip
+            for k in ("feed_cps", "plane", "centre", "angle_deg"):
+                if getattr(self, k) is not None:
+                    raise ConfigError(f"{k} is not for a dwell; a dwell takes kind, dwell_s")
+            if self.to:
+                raise ConfigError("to is not for a dwell; a dwell takes kind, dwell_s")
+            return
+        if self.dwell_s is not None:
+            raise ConfigError(f"dwell_s is for dwells only, got it on a {self.kind}")
+        check_number("feed_cps", self.feed_cps, "counts/s", strict=True, hi=MAX_FEED_CPS,
+                     error=ConfigError)  # fmt: skip
+        if not isinstance(self.to, Mapping):
+            raise ConfigError(
+                f"to must be a table of axis = position [counts], got {show_value(self.to)}"
+            )
+        for k, v in self.to.items():
+            check_number(f"to.{k}", v, "counts", lo=-MAX_COUNTS, hi=MAX_COUNTS, error=ConfigError)
+        if self.kind == "line":
+            if not self.to:
+                raise ConfigError("to must name at least one axis target for a line [counts]")
+            for k in ("plane", "centre", "angle_deg"):
+                if getattr(self, k) is not None:
+                    raise ConfigError(f"{k} is for arcs only; a line takes kind, feed_cps, to")
+            return
+        if (
+            not isinstance(self.plane, tuple)
+            or len(self.plane) != 2
+            or not all(isinstance(a, str) for a in self.plane)
+            or self.plane[0] == self.plane[1]
+        ):
+            raise ConfigError(f"plane must name two different axes, got {show_value(self.plane)}")
+        if (
+            not isinstance(self.centre, tuple)
+            or len(self.centre) != 2
+            or not all(is_number(c) and abs(c) <= MAX_COUNTS for c in self.centre)  # NaN fails too
+        ):
+            raise ConfigError(
+                f"centre must be [first, second], each within ±1e12 [counts], got "
+                f"{show_value(self.centre)}"
+            )
+        if self.direction not in ("ccw", "cw"):
+            raise ConfigError(f"direction must be 'ccw' or 'cw', got {show_value(self.direction)}")
+        in_to = [a in self.to for a in self.plane]
+        if any(in_to) and not all(in_to):
+            raise ConfigError(
+                f"to must give both plane axes {list(self.plane)} (the end point) or neither "
+                f"(then angle_deg), got {sorted(self.to)}"
+            )
+        if all(in_to) == (self.angle_deg is not None):
+            raise ConfigError(
+                "give the arc's end either as to = {plane axes} or as angle_deg, not both "
+                "and not neither"
+            )
+        if self.angle_deg is not None:
+            check_number("angle_deg", self.angle_deg, "deg", strict=True, hi=3600.0,
+                         error=ConfigError)  # fmt: skip
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Toolpath:
+    """The programmed path and the machine's path limits.
+
+    Parameters
+    ----------
+    max_feed_cps : float
+        Feed limit along the path [counts/s]; a move's feed above it is clamped (as a CNC
+        clamps a programmed feed to the machine's).
+    max_accel_cps2 : float
+        Acceleration along the path [counts/s²] (trapezoid ramps), also the limit of an arc's
+        centripetal acceleration (its feed is clamped to ``sqrt(a·R)`` in the plane).
+    moves : tuple of Move
+        The moves, in order; every move starts and ends at rest.
+    """
+
+    max_feed_cps: float
+    max_accel_cps2: float
+    moves: tuple[Move, ...]
+
+    def __post_init__(self) -> None:
+        check_number("max_feed_cps", self.max_feed_cps, "counts/s", strict=True,
+                     hi=MAX_FEED_CPS, error=ConfigError)  # fmt: skip
+        check_number("max_accel_cps2", self.max_accel_cps2, "counts/s²", strict=True,
+                     hi=1e3 * MAX_FEED_CPS, error=ConfigError)  # fmt: skip
+        if not self.moves:
+            raise ConfigError("move: the path needs at least one [[path.move]]")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class LinkageConfig:
+    """A multi-CPU linkage: the rig's hardware, the bus, the slave CPUs, axes and path.
+
+    Build it with :func:`load_linkage` or :func:`linkage_from_dict`.
+
+    Parameters
+    ----------
+    name : str
+        Name (default: the file's stem).
+    rig : Rig
+        The hardware facts: counter bits, D/A bits and range, encoder pulses/rev and
+        multiplier, ``timer.compute_s`` (tick start → D/A write on a slave). The rig's axes and
+        timer period are not used.
+    rig_file : str
+        The rig file as written in the configuration (provenance).
+    period_s : float
+        Nominal sampling period of every CPU [s].
+    bus : Bus
+    clock : Clock
+    cpus : tuple of SlaveCpu
+    axes : tuple of LinkageAxis
+        In file order (the column order of every array).
+    path : Toolpath
+    settle_s : float
+        Time simulated after the path ends, by default [s].
+    description : str
+    """
+
+    name: str
+    rig: Rig
+    rig_file: str
+    period_s: float
+    bus: Bus
+    clock: Clock
+    cpus: tuple[SlaveCpu, ...]
+    axes: tuple[LinkageAxis, ...]
+    path: Toolpath
+    settle_s: float = 0.5
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        check_number("period_s", self.period_s, "s", lo=1e-6, hi=1.0, error=ConfigError)
+        check_number("settle_s", self.settle_s, "s", hi=MAX_SECONDS, error=ConfigError)
+        compute_s = self.rig.timer.compute_s
+        if compute_s >= self.period_s:
+            raise ConfigError(
+                f"period_s must be longer than the rig's timer.compute_s ({compute_s:g} s), "
+                f"got {show_value(self.period_s)} s"
+            )
+        names = [a.name for a in self.axes]
+        if len(set(names)) != len(names):
+            raise ConfigError(f"axis names must be unique, got {show_value(names)}")
+        if not self.cpus:
+            raise ConfigError("cpu: at least one [[cpu]] is needed")
+        cpu_names = [c.name for c in self.cpus]
+        if len(set(cpu_names)) != len(cpu_names):
+            raise ConfigError(f"cpu names must be unique, got {show_value(cpu_names)}")
+        owner: dict[str, str] = {}
+        for c in self.cpus:
+            for a in c.axes:
+                if a not in names:
+                    raise ConfigError(
+                        f"cpu {show_value(c.name)} drives axis {show_value(a)}, which has no "
+                        f"[axis.{a}] table "
+                        f"(axes: {names})"
+                    )
+                if a in owner:
+                    raise ConfigError(
+                        f"axis {show_value(a)} is on two CPUs: {show_value(owner[a])} and "
+                        f"{show_value(c.name)}"
+                    )
+                owner[a] = c.name
+        lost = [a for a in names if a not in owner]
+        if lost:
+            raise ConfigError(
+                f"axis {show_value(lost[0])} is on no CPU; add it to a [[cpu]]'s axes"
+            )
+        for i, m in enumerate(self.path.moves):
+            used = list(m.to) + list(m.plane or ())
+            for a in used:
+                if a not in names:
+                    raise ConfigError(
+                        f"path.move[{i}] names axis {show_value(a)}, which has no [axis.{a}] table "
+                        f"(axes: {names})"
+                    )
+        for a in self.axes:
+            lag = compute_s + a.plant.delay_s
+            if lag >= (_RING - 4) * self.period_s:
+                raise ConfigError(
+                    f"axis.{a.name}.plant.delay_s: compute_s + delay_s = {lag:g} s must be "
+                    f"shorter than {_RING - 4} periods"
+                )
+            if a.counter_init >= 1 << self.rig.counter.bits:
+                raise ConfigError(
+                    f"axis.{a.name}.counter_init must fit the {self.rig.counter.bits}-bit "
+                    f"counter, got {a.counter_init}"
+                )
+
+    @property
+    def axis_names(self) -> tuple[str, ...]:
+        """Axis names in column order."""
+        return tuple(a.name for a in self.axes)
+
+    @property
+    def n_axes(self) -> int:
+        """Number of axes."""
+        return len(self.axes)
+
+    def axis(self, name: str) -> LinkageAxis:
+        """The axis called ``name``."""
+        for a in self.axes:
+            if a.name == name:
+                return a
+        raise ConfigError(f"no axis {show_value(name)}; axes: {list(self.axis_names)}")
+
+    def cpu_of(self, name: str) -> SlaveCpu:
+        """The slave CPU that drives axis ``name``."""
+        for c in self.cpus:
+            if name in c.axes:
+                return c
+        raise ConfigError(f"no CPU drives axis {show_value(name)}")
+
+
+_TOP_KEYS = ("axis", "bus", "clock", "cpu", "description", "name", "path", "period_s", "rig",
+             "settle_s")  # fmt: skip
+
+
+def _table(data: Mapping[str, Any], key: str, required: bool = True) -> Mapping[str, Any]:
+    if key not in data:
+        if required:
+            raise ConfigError(f"missing table [{key}]")
+        return {}
+    t = data[key]
+    if not isinstance(t, Mapping):
+        raise ConfigError(f"[{key}] must be a table, got {type(t).__name__}")
+    return t
+
+
+def linkage_from_dict(
+    data: Mapping[str, Any], base_dir: str | Path, default_name: str = "linkage"
+) -> LinkageConfig:
+    """Build and validate a :class:`LinkageConfig` from the parsed contents of a config file.
+
+    Parameters
+    ----------
+    data : mapping
+        The parsed TOML (see :func:`load_linkage` for the layout).
+    base_dir : str or Path
+        Directory the ``rig`` path is relative to (the config file's directory).
+    default_name : str
+        Name if the data has no ``name``.
+
+    Returns
+    -------
+    LinkageConfig
+
+    Raises
+    ------
+    ConfigError
+        If a key is unknown or missing, or a value is invalid; the message names the field
+        (``bus.baud``, ``cpu[1].queue_depth``, ``axis.x.plant.tau_s``), the value and the unit.
+    """
+    check_keys(data, "", (), _TOP_KEYS, error=ConfigError)
+    rig_ref = data.get("rig")
+    if not isinstance(rig_ref, str) or not rig_ref:
+        raise ConfigError(f"rig must be the path of a rig file (TOML), got {show_value(rig_ref)}")
+    try:
+        rig = load_rig(Path(base_dir) / rig_ref)
+    except RigError as exc:
+        raise ConfigError(f"rig: {exc}") from None
+    bus = build_section(Bus, _table(data, "bus"), "bus", ConfigError)
+    clock = build_section(Clock, _table(data, "clock", required=False), "clock", ConfigError)
+    cpus_t = data.get("cpu")
+    if not isinstance(cpus_t, list) or not cpus_t:
+        raise ConfigError("cpu must be one or more [[cpu]] tables")
+    cpus = []
+    for i, ct in enumerate(cpus_t):
+        if not isinstance(ct, Mapping):
+            raise ConfigError(f"cpu[{i}] must be a table")
+        cpus.append(build_section(SlaveCpu, ct, f"cpu[{i}]", ConfigError))
+    axes = []
+    for name, at in _table(data, "axis").items():
+        if not isinstance(at, Mapping):
+            raise ConfigError(f"[axis.{name}] must be a table")
+        at = dict(at)
+        pt = at.pop("plant", None)
+        if not isinstance(pt, Mapping):
+            raise ConfigError(f"missing table [axis.{name}.plant]")
+        plant = build_section(Plant, pt, f"axis.{name}.plant", ConfigError)
+        check_plant(plant, f"axis.{name}.plant", rig.dac.range_v, error=ConfigError)
+        axes.append(
+            build_section(LinkageAxis, at, f"axis.{name}", ConfigError, name=name, plant=plant)
+        )
+    pt = dict(_table(data, "path"))
+    moves_t = pt.pop("move", None)
+    if not isinstance(moves_t, list) or not moves_t:
+        raise ConfigError("path.move must be one or more [[path.move]] tables")
+    moves = []
+    for i, mt in enumerate(moves_t):
+        if not isinstance(mt, Mapping):
+            raise ConfigError(f"path.move[{i}] must be a table")
+        moves.append(build_section(Move, mt, f"path.move[{i}]", ConfigError))
+    path = build_section(Toolpath, pt, "path", ConfigError, moves=tuple(moves))
+    top: dict[str, Any] = {}
+    for key in ("period_s", "settle_s"):
+        if key in data:
+            top[key] = data[key]
+    if "period_s" not in top:
+        raise ConfigError("missing key period_s (the nominal sampling period [s])")
+    for key in ("name", "description"):
+        if key in data and not isinstance(data[key], str):
+            raise ConfigError(f"{key} must be a string, got {show_value(data[key])}")
+    return LinkageConfig(
+        name=str(data.get("name", default_name)),
+        description=str(data.get("description", "")),
+        rig=rig,
+        rig_file=rig_ref,
+        bus=bus,
+        clock=clock,
+        cpus=tuple(cpus),
+        axes=tuple(axes),
+        path=path,
+        **top,
+    )
+
+
+def load_linkage(path: str | Path) -> LinkageConfig:
+    """Read and validate a linkage configuration (TOML).
+
+    Layout (units in the names; positions in counts after the counter's multiplication)::
+
+        name = "linkage-6axis"            # optional (default: the file's stem)
+        rig = "pc-dual-servo.toml"        # hardware facts, relative to this file
+        period_s = 0.002                  # nominal sampling period of every CPU [s]
+        settle_s = 0.5                    # simulated after the path ends [s] (default 0.5)
+
+        [bus]                             # the SCI the master broadcasts on
+        baud = 460800                     # [bits/s]
+        block_size = 5                    # setpoints per axis per block
+        bytes_per_setpoint = 4            # [bytes] (default 4)
+        frame_overhead_bytes = 8          # [bytes] (default 8)
+        bits_per_byte = 10                # 8N1 (default 10)
+        max_utilisation = 1.0             # frame time / broadcast period (default 1)
+        prefill_blocks = 2                # blocks sent before motion (default 1)
+
+        [clock]
+        resync_interval_s = 12.5          # [s]; 0 = only the sync at motion start
+
+        [[cpu]]                           # one per slave CPU
+        name = "s1"
+        clock_ppm = 80.0                  # [ppm] relative to the master
+        queue_depth = 20                  # [setpoints per axis]
+        axes = ["x", "z", "a"]            # 2 to 4 axes
+
+        [axis.x]                          # one per axis
+        kp = 0.36                         # [codes/count]      } optional: tuned with
+        ki = 1.44                         # [codes/(count·s)]  } tune_pi if absent
+        following_error_limit_counts = 12288   # optional, 0 = no trip
+        lock_gain_codes_per_count = 0.4   # optional
+        counter_init = 0                  # optional
+        [axis.x.plant]                    # SPEC §5 names: gain_cps_per_v, tau_s, ...
+
+        [path]
+        max_feed_cps = 60000              # [counts/s]
+        max_accel_cps2 = 200000           # [counts/s²]
+        [[path.move]]
+        kind = "line"
+        to = { x = 40000, z = 10000 }     # absolute targets [counts]
+        feed_cps = 40000                  # [counts/s] along the path
+        [[path.move]]
+        kind = "arc"
+        plane = ["x", "y"]
+        centre = [0, 0]                   # [counts]
+        angle_deg = 360                   # or: to = { x = ..., y = ... } (end point)
+        direction = "ccw"
+        to = { z = 0 }                    # other axes move linearly along (helix)
+        feed_cps = 25000
+        [[path.move]]
+        kind = "dwell"                    # every axis holds (G04)
+        dwell_s = 0.5                     # [s]
+
+    Parameters
+    ----------
+    path : str or Path
+
+    Returns
+    -------
+    LinkageConfig
+
+    Raises
+    ------
+    ConfigError
+        If the file (or its rig file) cannot be read, is not TOML, or any field is invalid.
+    """
+    p = Path(path)
+    data = read_toml(p, ConfigError, "linkage config")
+    try:
+        return linkage_from_dict(data, p.parent, p.stem)
+    except ConfigError as exc:
+        raise ConfigError(f"linkage config {str(p)!r}: {exc}") from None

@@ -1,0 +1,366 @@
+"""The result of a linkage run (per CPU, per axis, per arc) and its text summary."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from servotune.arch.linkage.checks import Check
+from servotune.arch.linkage.config import SCHEMA
+from servotune.arch.linkage.path import Interpolation
+from servotune.io.files import json_float
+
+__all__ = [
+    "ArcResult",
+    "AxisResult",
+    "CpuResult",
+    "LinkageResult",
+    "format_linkage_summary",
+]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class CpuResult:
+    """What happened on one slave CPU.
+
+    Attributes
+    ----------
+    name : str
+    axes : tuple of str
+    clock_ppm : float
+        Its clock's error [ppm].
+    queue_depth : int
+        Capacity [setpoints per axis].
+    tick_time_s : ndarray
+        Master time of each of its ticks [s].
+    tick_index : ndarray of int64
+        The command index each tick executed (strictly increasing: none runs twice).
+    queue_level : ndarray of int64
+        Queue level just before each tick's pop [setpoints].
+    underruns : int
+        Ticks whose command was not in the queue.
+    first_underrun_s : float or None
+        Time of the first [s].
+    overruns : int
+        Blocks that did not fit completely.
+    first_overrun_s : float or None
+        Time of the first [s].
+    min_level : int
+        Worst underrun margin: lowest queue level before a pop [setpoints].
+    max_level : int
+        Highest queue level after an arrival [setpoints].
+    skipped : int
+        Commands consumed unexecuted at a sync (the slave was behind by whole ticks).
+    resyncs : int
+        Sync broadcasts during motion (after the start sync).
+    """
+
+    name: str
+    axes: tuple[str, ...]
+    clock_ppm: float
+    queue_depth: int
+    tick_time_s: np.ndarray = field(repr=False)
+    tick_index: np.ndarray = field(repr=False)
+    queue_level: np.ndarray = field(repr=False)
+    underruns: int
+    first_underrun_s: float | None
+    overruns: int
+    first_overrun_s: float | None
+    min_level: int
+    max_level: int
+    skipped: int
+    resyncs: int
+
+    def to_dict(self, arrays: bool = False) -> dict[str, Any]:
+        """Plain dict; the per-tick arrays only with ``arrays=True``."""
+        d: dict[str, Any] = {
+            "axes": list(self.axes),
+            "clock_ppm": self.clock_ppm,
+            "first_overrun_s": self.first_overrun_s,
+            "first_underrun_s": self.first_underrun_s,
+            "max_level": self.max_level,
+            "min_level": self.min_level,
+            "name": self.name,
+            "overruns": self.overruns,
+            "queue_depth": self.queue_depth,
+            "resyncs": self.resyncs,
+            "skipped": self.skipped,
+            "ticks": int(self.tick_time_s.size),
+            "underruns": self.underruns,
+        }
+        if arrays:
+            d["tick_time_s"] = self.tick_time_s.tolist()
+            d["tick_index"] = self.tick_index.tolist()
+            d["queue_level"] = self.queue_level.tolist()
+        return d
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class AxisResult:
+    """Tracking of one axis.
+
+    Attributes
+    ----------
+    name, cpu : str
+    kp : float
+        [codes/count]
+    ki : float
+        [codes/(count·s)]
+    tuned : bool
+        True if the gains were tuned (not given).
+    max_abs_err_counts, rms_err_counts : float
+        Of ``command − actual`` over every master tick [counts].
+    saturated_ticks : int
+        Ticks whose D/A output hit a rail.
+    fault : str or None
+        ``"following_error"`` or ``"counter"`` if a fault latched.
+    first_fault_s : float or None
+        When [s].
+    """
+
+    name: str
+    cpu: str
+    kp: float
+    ki: float
+    tuned: bool
+    max_abs_err_counts: float
+    rms_err_counts: float
+    saturated_ticks: int
+    fault: str | None
+    first_fault_s: float | None
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dict."""
+        return {k: getattr(self, k) for k in sorted(self.__slots__)}  # type: ignore[attr-defined]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ArcResult:
+    """The circular test of one arc (ISO 230-4 reading).
+
+    As a ballbar test is read at a constant feed after a run-in, the extremes and the
+    circularity are taken over the arc's cruise (constant-feed) ticks; the arrays cover the
+    whole move, ramps included, and ``circularity_whole_counts`` reads them all.
+
+    Attributes
+    ----------
+    move : int
+    plane : tuple of str
+    centre : tuple of float
+        [counts]
+    radius_counts : float
+        Programmed radius [counts].
+    angle_rad : ndarray
+        Angle of the actual point about the centre, per tick of the move [rad].
+    radial_dev_counts : ndarray
+        Actual radius − programmed radius, per tick of the move [counts].
+    cruise : ndarray of bool
+        Per tick of the move: at the constant feed.
+    max_dev_counts, min_dev_counts : float
+        Extremes of the radial deviation at the constant feed [counts].
+    circularity_counts : float
+        ``max − min`` at the constant feed [counts].
+    circularity_whole_counts : float
+        ``max − min`` over the whole move, ramps included [counts].
+    """
+
+    move: int
+    plane: tuple[str, str]
+    centre: tuple[float, float]
+    radius_counts: float
+    angle_rad: np.ndarray = field(repr=False)
+    radial_dev_counts: np.ndarray = field(repr=False)
+    cruise: np.ndarray = field(repr=False)
+    max_dev_counts: float
+    min_dev_counts: float
+    circularity_counts: float
+    circularity_whole_counts: float
+
+    def to_dict(self, arrays: bool = False) -> dict[str, Any]:
+        """Plain dict; the per-tick arrays only with ``arrays=True``."""
+        d: dict[str, Any] = {
+            "centre": list(self.centre),
+            "circularity_counts": self.circularity_counts,
+            "circularity_whole_counts": self.circularity_whole_counts,
+            "max_dev_counts": self.max_dev_counts,
+            "min_dev_counts": self.min_dev_counts,
+            "move": self.move,
+            "plane": list(self.plane),
+            "radius_counts": self.radius_counts,
+        }
+        if arrays:
+            d["angle_rad"] = self.angle_rad.tolist()
+            d["radial_dev_counts"] = self.radial_dev_counts.tolist()
+            d["cruise"] = self.cruise.tolist()
+        return d
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class LinkageResult:
+    """Result of :func:`run_linkage`.
+
+    Attributes
+    ----------
+    name : str
+        The configuration's name.
+    seed : int
+    period_s : float
+        Nominal period [s].
+    bus : dict
+        :func:`bus_figures` (utilisation, frame and broadcast period [s], lead [s], ...).
+    resync_interval_s : float
+        Interval used [s] (0: start sync only), after rounding to whole ticks.
+    recommended_resync_interval_s : float or None
+        :func:`recommended_resync_interval_s` [s] (None if no interval works).
+    cpus : tuple of CpuResult
+    axes : tuple of AxisResult
+    arcs : tuple of ArcResult
+    contour_max_counts, contour_rms_counts : float
+        Contour error over every master tick [counts].
+    checks : tuple of Check
+        Before and during motion.
+    interpolation : Interpolation
+    time_s : ndarray
+        Master ticks ``k · period_s`` [s].
+    command_counts : ndarray of int64, shape (ticks, axes)
+        Commands [counts] (the path, then its end held).
+    path_counts : ndarray, shape (ticks, axes)
+        Programmed positions [counts].
+    actual_counts : ndarray, shape (ticks, axes)
+        Plant positions at the master ticks [counts].
+    contour_counts : ndarray
+        Contour error per master tick [counts].
+    """
+
+    name: str
+    seed: int
+    period_s: float
+    bus: dict[str, float]
+    resync_interval_s: float
+    recommended_resync_interval_s: float | None
+    cpus: tuple[CpuResult, ...]
+    axes: tuple[AxisResult, ...]
+    arcs: tuple[ArcResult, ...]
+    contour_max_counts: float
+    contour_rms_counts: float
+    checks: tuple[Check, ...]
+    interpolation: Interpolation = field(repr=False)
+    time_s: np.ndarray = field(repr=False)
+    command_counts: np.ndarray = field(repr=False)
+    path_counts: np.ndarray = field(repr=False)
+    actual_counts: np.ndarray = field(repr=False)
+    contour_counts: np.ndarray = field(repr=False)
+
+    @property
+    def passed(self) -> bool:
+        """True if every check passed."""
+        return all(c.passed for c in self.checks)
+
+    @property
+    def failed_checks(self) -> tuple[Check, ...]:
+        """The checks that failed."""
+        return tuple(c for c in self.checks if not c.passed)
+
+    @property
+    def axis_names(self) -> tuple[str, ...]:
+        """Axis names in column order."""
+        return tuple(a.name for a in self.axes)
+
+    @property
+    def worst_underrun_margin(self) -> int:
+        """Lowest queue level before a pop over every slave [setpoints]."""
+        return min(c.min_level for c in self.cpus)
+
+    @property
+    def tracking_error_counts(self) -> np.ndarray:
+        """``command − actual`` per master tick and axis [counts]."""
+        return self.command_counts - self.actual_counts
+
+    def to_dict(self, arrays: bool = False) -> dict[str, Any]:
+        """Plain JSON-able dict with ``"schema": "servotune.linkage/1"``.
+
+        Parameters
+        ----------
+        arrays : bool
+            Also the per-tick arrays (queue levels, radial deviations); off by default.
+        """
+        return {
+            "arcs": [a.to_dict(arrays) for a in self.arcs],
+            "axes": [a.to_dict() for a in self.axes],
+            "bus": {
+                k: v if isinstance(v, int) else json_float(float(v))
+                for k, v in sorted(self.bus.items())
+            },
+            "checks": [c.to_dict() for c in self.checks],
+            "contour_max_counts": self.contour_max_counts,
+            "contour_rms_counts": self.contour_rms_counts,
+            "cpus": [c.to_dict(arrays) for c in self.cpus],
+            "duration_s": self.interpolation.duration_s,
+            "name": self.name,
+            "passed": self.passed,
+            "period_s": self.period_s,
+            "recommended_resync_interval_s": self.recommended_resync_interval_s,
+            "resync_interval_s": self.resync_interval_s,
+            "schema": SCHEMA,
+            "seconds": int(self.time_s.size) * self.period_s,
+            "seed": self.seed,
+            "worst_underrun_margin": self.worst_underrun_margin,
+        }
+
+
+def _optional_time(x: float) -> float | None:
+    return None if x < 0.0 else float(x)
+
+
+def format_linkage_summary(result: LinkageResult) -> str:
+    """A short text summary of a run (what ``servotune linkage`` prints).
+
+    Returns
+    -------
+    str
+        Several lines, no trailing newline.
+    """
+    b = result.bus
+    rec = result.recommended_resync_interval_s
+    lines = [
+        f"linkage {result.name}: {len(result.axes)} axes on {len(result.cpus)} slave CPUs, "
+        f"{result.time_s.size * result.period_s:.3f} s at {result.period_s * 1e3:g} ms, "
+        f"seed {result.seed}",
+        f"  bus        frame {int(b['frame_bytes'])} bytes = {b['frame_s'] * 1e3:.3f} ms every "
+        f"{b['broadcast_period_s'] * 1e3:.3f} ms (utilisation {b['utilisation'] * 100:.1f} %), "
+        f"lead {b['lead_s'] * 1e3:.2f} ms",
+        f"  clock      resync every {result.resync_interval_s:g} s"
+        + (" (start only)" if not result.resync_interval_s else "")
+        + (f"; recommended {rec:g} s" if rec is not None else ""),
+    ]
+    for c in result.cpus:
+        first = f" (first {c.first_underrun_s:.3f} s)" if c.first_underrun_s is not None else ""
+        firsto = f" (first {c.first_overrun_s:.3f} s)" if c.first_overrun_s is not None else ""
+        lines.append(
+            f"  cpu {c.name:<6} {c.clock_ppm:+8.1f} ppm  axes {','.join(c.axes):<10} queue "
+            f"{c.min_level}..{c.max_level} of {c.queue_depth}  underruns {c.underruns}{first}  "
+            f"overruns {c.overruns}{firsto}  skipped {c.skipped}"
+        )
+    for a in result.axes:
+        fault = f"  FAULT {a.fault} at {a.first_fault_s:.3f} s" if a.fault else ""
+        lines.append(
+            f"  axis {a.name:<5} on {a.cpu:<6} kp {a.kp:.4g} ki {a.ki:.4g}"
+            f"{' (tuned)' if a.tuned else ''}  tracking error max {a.max_abs_err_counts:.1f} "
+            f"rms {a.rms_err_counts:.1f} counts{fault}"
+        )
+    lines.append(
+        f"  contour    max {result.contour_max_counts:.2f} counts, rms "
+        f"{result.contour_rms_counts:.2f} counts"
+    )
+    for arc in result.arcs:
+        lines.append(
+            f"  circle     move {arc.move} in {'/'.join(arc.plane)}, R {arc.radius_counts:g}: "
+            f"radial deviation {arc.min_dev_counts:+.2f} … {arc.max_dev_counts:+.2f}, "
+            f"circularity {arc.circularity_counts:.2f} counts at constant feed "
+            f"({arc.circularity_whole_counts:.2f} with the ramps)"
+        )
+    failed = result.failed_checks
+    lines.append("  PASSED" if not failed else "  FAILED: " + "; ".join(c.detail for c in failed))
+    return "\n".join(lines)

@@ -1,0 +1,283 @@
+"""The frequency grid of :func:`~servotune.tune.pi.design.tune_pi`: the discrete plant model,
+the design and verification grids, the batched grid margins and the start point on them."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import TYPE_CHECKING, NamedTuple
+
+import numpy as np
+
+from servotune.plant import Plant, discretize, discretize_lti
+from servotune.tune.pi.spec import (
+    _MAX_LAG_PHASE_STEP,
+    _MAX_STABILITY_CHECKS,
+    _TOL_GM_DB,
+    _TOL_MS_REL,
+    _TOL_PM_DEG,
+    _TOL_WC_REL,
+    _Spec,
+)
+
+if TYPE_CHECKING:  # python-control is imported where used (slow to import)
+    import control
+
+__all__ = ["DECADES_BELOW", "POINTS_PER_DECADE"]
+
+POINTS_PER_DECADE = 150
+"""Design grid density: log-spaced frequencies per decade (see :func:`tune_pi`)."""
+DECADES_BELOW = 3.0
+"""The design grid starts this many decades below the slowest plant feature."""
+
+
+class _Ctx(NamedTuple):
+    """The discrete plant (``lsb_v`` included): its state-space matrices (with the held past
+    inputs, for the closed-loop poles), its response at any frequency and on the design grid."""
+
+    period_s: float
+    a: np.ndarray
+    b: np.ndarray
+    c: np.ndarray
+    d: float
+    resp: Callable[[np.ndarray], np.ndarray]  # plant response at ω [rad/s] (lsb_v included)
+    w: np.ndarray  # design grid [rad/s]
+    g: np.ndarray  # plant response on it (lsb_v included)
+    ph: np.ndarray  # unwrapped phase of g [rad]
+    q_im: np.ndarray  # Im of T·z/(z−1) on the grid; Re is T/2
+
+
+def _plant_model(
+    plant: Plant | control.TransferFunction, period_s: float, compute_s: float
+) -> tuple[Callable[[float], control.StateSpace], float, float]:
+    """The exact ZOH discretiser of the plant (a function of the lag), the total lag [s] and
+    the plant's slowest feature [rad/s] (``1/tau_s``, or the smallest nonzero pole/zero)."""
+    import control
+
+    if isinstance(plant, Plant):
+        lag = compute_s + plant.delay_s
+        return (lambda lag_s: discretize(plant, period_s, lag_s)), lag, 1.0 / plant.tau_s
+    if isinstance(plant, control.TransferFunction | control.StateSpace):
+        if not (plant.ninputs == 1 and plant.noutputs == 1):
+            raise ValueError("plant must be SISO")
+        if plant.isdtime(strict=True):
+            return _discrete_plant_model(plant, period_s, compute_s)
+        if not plant.isctime(strict=True):
+            raise ValueError(
+                f"plant must be continuous-time (dt=0) or discrete at period_s; got dt={plant.dt!r}"
+            )
+        roots = np.concatenate([np.atleast_1d(plant.poles()), np.atleast_1d(plant.zeros())])
+        mags = np.abs(roots[np.isfinite(roots)])
+        mags = mags[mags > 1e-12]
+        feature = float(mags.min()) if mags.size else math.inf
+        return (lambda lag_s: discretize_lti(plant, period_s, lag_s)), compute_s, feature
+    raise ValueError(
+        "plant must be a servotune Plant or a continuous control.TransferFunction, "
+        f"got {type(plant).__name__}"
+    )
+
+
+def _discrete_plant_model(
+    plant: control.TransferFunction | control.StateSpace, period_s: float, compute_s: float
+) -> tuple[Callable[[float], control.StateSpace], float, float]:
+    """:func:`_plant_model` for a plant already discrete at ``period_s`` (e.g. a closed inner
+    loop): the lag must be whole periods and acts as ``z^-m``."""
+    import control
+
+    if not math.isclose(float(plant.dt), period_s, rel_tol=1e-9):
+        raise ValueError(
+            f"a discrete plant must have dt = period_s = {period_s!r}, got {plant.dt!r}"
+        )
+    ss = control.ss(plant)
+
+    def delayed(lag_s: float) -> control.StateSpace:
+        m = round(lag_s / period_s)
+        if abs(lag_s - m * period_s) > 1e-9 * period_s:
+            raise ValueError(
+                f"compute_s must be whole periods for a discrete plant, got {compute_s!r} s "
+                f"at period_s={period_s!r} s"
+            )
+        if m == 0:
+            return ss
+        return control.ss(control.series(ss, control.tf([1.0], [1.0] + [0.0] * m, period_s)))
+
+    poles = np.concatenate([np.atleast_1d(ss.poles()), np.atleast_1d(ss.zeros())])
+    poles = poles[np.isfinite(poles) & (np.abs(poles) > 1e-12)]
+    s_c = np.abs(np.log(poles.astype(complex))) / period_s
+    s_c = s_c[s_c > 1e-9]
+    feature = float(s_c.min()) if s_c.size else math.inf
+    return delayed, compute_s, feature
+
+
+def _grid(w_lo: float, nyq: float, lag_s: float, poles: np.ndarray) -> np.ndarray:
+    """Design grid: log-spaced, refined by a linear grid where a lag turns the phase fast
+    (steps of at most 0.2 rad of lag phase) and around lightly damped plant poles."""
+    n = max(50, math.ceil(math.log10(nyq / w_lo) * POINTS_PER_DECADE) + 1)
+    parts = [np.geomspace(w_lo, nyq, n)]
+    step = _MAX_LAG_PHASE_STEP / lag_s  # [rad/s]
+    if nyq / step > 1:
+        parts.append(np.arange(1, math.floor(nyq / step) + 1) * step)
+    z = poles[(np.abs(poles) > 1e-9) & (np.abs(poles - 1.0) > 1e-9)]
+    s_c = np.log(z.astype(complex)) / (math.pi / nyq)
+    for s_i in s_c[s_c.imag > 0]:
+        wn = abs(s_i)
+        zeta = -s_i.real / wn
+        if 0 < zeta < 0.2:  # ±8 half-power bandwidths in steps of 1/8 of one
+            parts.append(wn * (1.0 + zeta * np.linspace(-8.0, 8.0, 129)))
+    w = np.unique(np.concatenate(parts))
+    w = w[(w >= w_lo) & (w < nyq * (1 - 1e-12))]
+    return np.append(w, nyq)
+
+
+def _check_grid(w: np.ndarray) -> np.ndarray:
+    """Verification grid: the design grid's geometric midpoints, a decade of log grid below
+    it, and the Nyquist frequency."""
+    below = np.geomspace(w[0] / 10.0, w[0], POINTS_PER_DECADE + 1)[:-1]
+    return np.concatenate([below, np.sqrt(w[:-1] * w[1:]), w[-1:]])
+
+
+def _ss_response(
+    a: np.ndarray, b: np.ndarray, c: np.ndarray, d: float, z: np.ndarray
+) -> np.ndarray:
+    """``C (zI − A)⁻¹ B + D`` at each ``z``, batched (in chunks, to bound the memory)."""
+    n = a.shape[0]
+    if n == 0:
+        return np.full(z.shape, d, dtype=complex)
+    out = np.empty(z.shape, dtype=complex)
+    chunk = max(1, 2**22 // (n * n))
+    eye = np.eye(n)
+    for i in range(0, z.size, chunk):
+        zc = z[i : i + chunk]
+        m = zc[:, None, None] * eye[None] - a[None]
+        x = np.linalg.solve(m, np.broadcast_to(b.astype(complex), (zc.size, n, 1)))
+        out[i : i + chunk] = (c[None] @ x)[:, 0, 0] + d
+    return out
+
+
+def _q_im(w: np.ndarray, period_s: float) -> np.ndarray:
+    """Im of ``T·z/(z−1)`` at ``z = exp(jωT)``: ``−(T/2)·cot(ωT/2)`` (its real part is T/2)."""
+    return -0.5 * period_s / np.tan(0.5 * w * period_s)
+
+
+def _unwrapped_phase(g: np.ndarray) -> np.ndarray:
+    """Phase from the lowest frequency on, its first value taken in (−3π/2, π/2]."""
+    ph = np.angle(g)
+    if ph[0] > 0.5 * math.pi:
+        ph[0] -= 2 * math.pi
+    return np.unwrap(ph)
+
+
+def _spectral_radius(ctx: _Ctx, kp: np.ndarray, ki: np.ndarray) -> np.ndarray:
+    """Largest closed-loop pole magnitude for each (kp, ki), batched."""
+    t = ctx.period_s
+    a, b, c, d = ctx.a, ctx.b[:, 0], ctx.c[0], ctx.d
+    n = a.shape[0]
+    g = kp + ki * t
+    s = 1.0 / (1.0 + g * d)
+    m = np.zeros((kp.size, n + 1, n + 1))
+    m[:, :n, :n] = a[None] - (b[None, :, None] * (s * g)[:, None, None]) * c[None, None, :]
+    m[:, :n, n] = b[None, :] * s[:, None]
+    # e = -(1 - d s g) C x - d s I ;  I' = I + ki T e
+    kit = ki * t
+    m[:, n, :n] = -(kit * (1.0 - d * s * g))[:, None] * c[None, :]
+    m[:, n, n] = 1.0 - kit * d * s
+    return np.max(np.abs(np.linalg.eigvals(m)), axis=1)
+
+
+def _grid_margins(ctx: _Ctx, kp: np.ndarray, ki: np.ndarray) -> dict[str, np.ndarray]:
+    """Grid estimates for a batch of (kp, ki): worst PM [rad], worst GM [ln], Ms, top crossover.
+
+    Crossings are located by linear interpolation between grid points.
+    """
+    t = ctx.period_s
+    cr = (kp + ki * 0.5 * t)[:, None]
+    ci = ki[:, None] * ctx.q_im[None, :]
+    loop = (cr + 1j * ci) * ctx.g[None, :]
+    lnl = np.log(np.abs(loop) + 1e-300)
+    phl = ctx.ph[None, :] + np.arctan2(ci, cr)
+    ms = 1.0 / np.min(np.abs(1.0 + loop), axis=1)
+    # gain crossovers: sign changes of ln|L|
+    s0, s1 = lnl[:, :-1], lnl[:, 1:]
+    cross = (s0 >= 0) != (s1 >= 0)
+    f = np.where(cross, s0 / np.where(cross, s0 - s1, 1.0), 0.0)
+    ph_c = phl[:, :-1] + f * (phl[:, 1:] - phl[:, :-1])
+    pm = np.where(cross, np.mod(ph_c, 2 * math.pi) - math.pi, np.inf).min(axis=1, initial=np.inf)
+    lw = np.log(ctx.w)
+    w_c = np.exp(lw[:-1][None, :] + f * (lw[1:] - lw[:-1])[None, :])
+    wc_top = np.where(cross, w_c, 0.0).max(axis=1, initial=0.0)
+    # phase crossovers: the phase passes an odd multiple of π
+    k = np.floor((phl + math.pi) / (2 * math.pi))
+    pc = k[:, :-1] != k[:, 1:]
+    lvl = np.maximum(k[:, :-1], k[:, 1:]) * 2 * math.pi - math.pi
+    dph = phl[:, 1:] - phl[:, :-1]
+    fp = np.where(pc, (lvl - phl[:, :-1]) / np.where(pc, dph, 1.0), 0.0)
+    ln_c = lnl[:, :-1] + fp * (lnl[:, 1:] - lnl[:, :-1])
+    gm = np.where(pc, -ln_c, np.inf).min(axis=1, initial=np.inf)
+    return {"pm": pm, "gm": gm, "ms": ms, "wc_top": wc_top}
+
+
+def _feasible(m: dict[str, np.ndarray], spec: _Spec, slack: float) -> np.ndarray:
+    ok = np.ones(m["ms"].shape, dtype=bool)
+    if spec.pm_deg is not None:
+        ok &= m["pm"] >= math.radians(spec.pm_deg) - slack * math.radians(_TOL_PM_DEG)
+    if spec.gm_db is not None:
+        ok &= m["gm"] >= spec.gm_db / 20 * math.log(10) - slack * _TOL_GM_DB / 20 * math.log(10)
+    if spec.ms is not None:
+        ok &= m["ms"] <= spec.ms * (1 + slack * _TOL_MS_REL)
+    if spec.wc_max is not None:
+        ok &= m["wc_top"] <= spec.wc_max * (1 + slack * _TOL_WC_REL)
+    return ok
+
+
+def _start_point(ctx: _Ctx, spec: _Spec) -> tuple[float, float] | None:
+    """Best grid design: points of the phase-margin loci with the largest Ki that pass.
+
+    On the locus of level φ every (kp, ki) puts ``L = −exp(jφ)`` at one grid frequency (on
+    the first branch: the unwrapped loop phase there is ``−180° + φ``). The loci for φ from
+    the lowest level the targets allow (the phase-margin target, and ``2·asin(1/(2·Ms))``,
+    which every loop with that peak sensitivity has) to 87.5° in steps of 2.5°, and on to 175°
+    in steps of 5° (small gains on a plant without integrator), cover the designs. Candidates
+    are checked, the largest Ki first, against the targets on every other grid point (with
+    the reporting tolerances as slack) and for stability (the first 64 that pass the grid
+    checks at most: past those, the plant is taken as not stabilisable by the PI under the
+    targets).
+    """
+    t = ctx.period_s
+    lo = 2.5
+    if spec.pm_deg is not None:
+        lo = max(lo, spec.pm_deg)
+    if spec.ms is not None:
+        lo = max(lo, math.degrees(2 * math.asin(0.5 / spec.ms)) - 0.5)
+    # above 90° too: small gains on a plant without integrator give margins up to 180°
+    levels = np.unique(
+        np.concatenate(
+            [[lo], np.arange(2.5 * math.ceil(lo / 2.5), 90.0, 2.5), np.arange(90.0, 176.0, 5.0)]
+        )
+    )
+    sel = np.arange(0, ctx.w.size - 1, 2)  # every other grid point, Nyquist excluded
+    q = ctx.q_im[None, sel]
+    c = -np.exp(1j * np.radians(levels))[:, None] / ctx.g[None, sel]  # the PI at that point
+    ki = c.imag / q
+    kp = c.real - 0.5 * t * ki
+    # the first branch only: the loop's unwrapped phase there is −180° + φ, not 360° lower
+    phase = ctx.ph[None, sel] + np.arctan2(ki * q, kp + 0.5 * t * ki)
+    first = np.abs(phase + math.pi - np.radians(levels)[:, None]) < 1e-6
+    keep = ((kp >= 0) & (ki > 0) & np.isfinite(kp) & np.isfinite(ki) & first).ravel()
+    kp, ki = kp.ravel()[keep], ki.ravel()[keep]
+    order = np.argsort(-ki)
+    kp, ki = kp[order], ki[order]
+    sub = np.append(np.arange(0, ctx.w.size - 1, 2), ctx.w.size - 1)
+    coarse = ctx._replace(w=ctx.w[sub], g=ctx.g[sub], ph=ctx.ph[sub], q_im=ctx.q_im[sub])
+    start, size, budget = 0, 128, _MAX_STABILITY_CHECKS
+    while start < kp.size and budget > 0:  # the largest Ki first: the first that passes wins
+        kpc, kic = kp[start : start + size], ki[start : start + size]
+        idx = np.flatnonzero(_feasible(_grid_margins(coarse, kpc, kic), spec, slack=1.0))
+        for j in range(0, min(idx.size, budget), 16):
+            batch = idx[j : min(j + 16, budget)]
+            budget -= batch.size
+            stable = batch[_spectral_radius(ctx, kpc[batch], kic[batch]) < 1.0]
+            if stable.size:
+                return float(kpc[stable[0]]), float(kic[stable[0]])
+        start += size
+        size = min(2 * size, 2048)
+    return None
