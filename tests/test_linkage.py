@@ -466,3 +466,17 @@ def test_cli_plot_writes_pngs(tmp_path: Path, capsys: pytest.CaptureFixture[str]
     assert "PASSED" in cap.out and "circularity" in cap.out
     for name in ("linkage_queues.png", "linkage_circle.png"):
         assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_the_old_module_path_warns_and_gives_the_same_objects() -> None:
+    # issue 16: the public API unchanged, or deprecated with a warning
+    import importlib
+    import sys
+
+    import servotune.arch.linkage as new
+
+    sys.modules.pop("servotune.linkage", None)
+    with pytest.warns(DeprecationWarning, match="servotune.arch.linkage"):
+        old = importlib.import_module("servotune.linkage")
+    assert old.__all__ == new.__all__
+    assert all(getattr(old, name) is getattr(new, name) for name in new.__all__)
