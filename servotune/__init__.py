@@ -8,6 +8,7 @@ from servotune._numba_cache import keyed_by_sources
 from servotune._version import __version__
 
 with keyed_by_sources():  # numba's cache follows every source edit (see _numba_cache)
+    from servotune.arch.gantry import GantryConfig, compare_topologies, load_gantry, simulate_gantry
     from servotune.arch.linkage import (
         LinkageCheckError,
         LinkageConfig,
@@ -40,7 +41,6 @@ with keyed_by_sources():  # numba's cache follows every source edit (see _numba_
     from servotune.plant import Plant, discretize, discretize_lti
     from servotune.rig import Rig, load_rig, write_plant
     from servotune.scenarios import Inputs, build_scenario, sync_move
-    from servotune.sync import GantryConfig, compare_topologies, load_gantry, simulate_gantry
     from servotune.tune.pi import PITuning, tune_pi, tune_pi_axis
     from servotune.tuning import Tuning, read_tuning, write_tuning
 

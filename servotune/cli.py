@@ -351,7 +351,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _cmd_sync(args: argparse.Namespace) -> int:
-    from servotune.sync import compare_topologies, format_comparison, load_gantry
+    from servotune.arch.gantry import compare_topologies, format_comparison, load_gantry
 
     cmp = compare_topologies(load_gantry(args.config), seed=args.seed)
     if args.json:
@@ -359,8 +359,8 @@ def _cmd_sync(args: argparse.Namespace) -> int:
     else:
         print(format_comparison(cmp))
     if args.plot:
+        from servotune.arch.gantry import CASES
         from servotune.plot import plot_sync_errors, save_figure
-        from servotune.sync import CASES
 
         Path(args.plot).mkdir(parents=True, exist_ok=True)
         for case in CASES:

@@ -166,7 +166,7 @@ def plot_comparison(traces: dict[str, Trace], slave: int, title: str = "") -> pl
 
 def plot_sync_errors(traces: Sequence[object], case: str, title: str = "") -> plt.Figure:
     """Sync error over time, one line per topology, for one case of a gantry comparison
-    (:func:`servotune.sync.compare_topologies`' traces)."""
+    (:func:`servotune.arch.gantry.compare_topologies`' traces)."""
     fig, ax = plt.subplots(figsize=(8, 4))
     for tr in traces:
         if tr.case != case:  # type: ignore[attr-defined]

@@ -459,7 +459,7 @@ def build_section(
 
     Unknown keys are refused (the message lists the allowed ones); lists become tuples;
     the dataclass's own validation message is prefixed with ``path``. Used for the rig file and
-    for the architecture configurations (``servotune.sync``, ``servotune.arch.linkage``).
+    for the architecture configurations (``servotune.arch.gantry``, ``servotune.arch.linkage``).
     """
     try:
         return _build(cls, table, path, **fixed)

@@ -130,8 +130,8 @@ def test_engine_checks_the_trace_arrays(rig: st.Rig) -> None:
 
 
 def test_gantry_and_linkage_runs() -> None:
+    from servotune.arch.gantry import compare_topologies, load_gantry
     from servotune.arch.linkage import load_linkage, run_linkage
-    from servotune.sync import compare_topologies, load_gantry
 
     plants = EXAMPLE_RIG.parent
     cfg = load_gantry(plants / "gantry.toml", resolve=False)

@@ -1,4 +1,4 @@
-"""The fieldbus gantry (servotune.sync, seed 003): topologies, compensator, monitor, beam."""
+"""The fieldbus gantry (servotune.arch.gantry, seed 003): topologies, compensator, monitor, beam."""
 
 from __future__ import annotations
 
@@ -11,11 +11,7 @@ import control
 import numpy as np
 import pytest
 
-from servotune.cli import main
-from servotune.errors import ConfigError, SpecError
-from servotune.hw import dac as hw_dac
-from servotune.laws.axis import FLAG_SYNC_TRIP
-from servotune.sync import (
+from servotune.arch.gantry import (
     TOPOLOGIES,
     compare_topologies,
     format_comparison,
@@ -27,6 +23,10 @@ from servotune.sync import (
     sync_loop_models,
     tune_sync,
 )
+from servotune.cli import main
+from servotune.errors import ConfigError, SpecError
+from servotune.hw import dac as hw_dac
+from servotune.laws.axis import FLAG_SYNC_TRIP
 from servotune.tune.pi import tune_pi
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -318,3 +318,17 @@ def test_resolve_keeps_given_gains(gantry) -> None:
     out = resolve_gains(cfg)
     assert (out.master.kp, out.master.ki) == (0.3, 1.0)
     assert out.sync == cfg.sync  # already resolved: not re-tuned
+
+
+def test_the_old_module_path_warns_and_gives_the_same_objects() -> None:
+    # issue 16: the public API unchanged, or deprecated with a warning
+    import importlib
+    import sys
+
+    import servotune.arch.gantry as new
+
+    sys.modules.pop("servotune.sync", None)
+    with pytest.warns(DeprecationWarning, match="servotune.arch.gantry"):
+        old = importlib.import_module("servotune.sync")
+    assert old.__all__ == new.__all__
+    assert all(getattr(old, name) is getattr(new, name) for name in new.__all__)

@@ -1,6 +1,9 @@
-"""Verification: a tuning against a spec on the bit-true closed loop (:mod:`.run`), and the
-trust chain from the verified bytes to the export (:mod:`.record`)."""
+"""Verification: a tuning against a spec on the bit-true closed loop (:mod:`.run`; the spec file
+:mod:`.spec`, its plant variants :mod:`.variants`, the checks :mod:`.checks`, the result and its
+table :mod:`.result`), and the trust chain from the verified bytes to the export
+(:mod:`.record`)."""
 
+from servotune.verify.checks import check_overflow, check_speed, check_timer, max_safe_gain_q
 from servotune.verify.record import (
     RECORD_SCHEMA,
     SourceFile,
@@ -15,27 +18,19 @@ from servotune.verify.record import (
     verify_files,
     write_record,
 )
-from servotune.verify.run import (
+from servotune.verify.result import Check, Row, Verification, format_table
+from servotune.verify.run import verify
+from servotune.verify.spec import (
     KINDS,
     LIMITS,
-    Check,
     MonteCarlo,
-    Row,
     ScenarioSpec,
     Spec,
-    Variant,
-    Verification,
-    check_overflow,
-    check_speed,
-    check_timer,
-    format_table,
     load_spec,
-    max_safe_gain_q,
-    plant_variants,
     spec_from_bytes,
     spec_from_dict,
-    verify,
 )
+from servotune.verify.variants import Variant, plant_variants
 
 __all__ = [
     "KINDS",

@@ -30,7 +30,9 @@ from servotune.errors import RigError, SpecError, TrustError, TuningError
 from servotune.io.files import atomic_write_text, json_float, parse_json, parse_toml, read_bytes
 from servotune.rig import EXAMPLE_RIG_PATH, Rig, rig_from_dict
 from servotune.tuning import Tuning, read_tuning_bytes
-from servotune.verify.run import Verification, spec_from_bytes, verify
+from servotune.verify.result import Verification
+from servotune.verify.run import verify
+from servotune.verify.spec import spec_from_bytes
 
 __all__ = [
     "RECORD_SCHEMA",

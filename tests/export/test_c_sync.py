@@ -12,8 +12,8 @@ more with ``-fsanitize=undefined -fno-sanitize-recover`` into a program that rep
   dead-zoned error, monitor level) must equal the Python laws'.
 - The same replay under the undefined-behaviour sanitizer.
 - Golden gantry replay: the C law driven cycle by cycle with the sync errors the gantry
-  simulation's law saw (``servotune.sync``) gives its compensation and monitor level at every
-  cycle; by induction, the C law in the loop reproduces the trajectory.
+  simulation's law saw (``servotune.arch.gantry``) gives its compensation and monitor level at
+  every cycle; by induction, the C law in the loop reproduces the trajectory.
 """
 
 from __future__ import annotations
@@ -458,7 +458,8 @@ def test_sync_trip_latches_like_any_fault(lib: ctypes.CDLL) -> None:
 @pytest.fixture(scope="module")
 def gantry():
     mod = pytest.importorskip(
-        "servotune.sync", reason="servotune.sync (the listening-slave gantry) does not exist yet"
+        "servotune.arch.gantry",
+        reason="servotune.arch.gantry (the listening-slave gantry) does not exist yet",
     )
     return mod, mod.load_gantry(ROOT / "plants" / "gantry.toml")
 

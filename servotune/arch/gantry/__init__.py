@@ -1,0 +1,95 @@
+"""Fieldbus gantry with a listening slave (seed 003, SPEC §1c): topologies, bus, beam, monitor.
+
+Two drives move the two sides of a gantry beam from one command. Each drive is a servotune
+axis (SPEC §5 plant, the runtime's PI law in the SPEC §6 arithmetic) that takes a position
+command from the fieldbus and closes its own position loop at the **bus cycle**. The beam may
+couple the sides (a spring and a damper between them: the sync error loads both motors).
+
+Submodules, each importing only those above it:
+
+- :mod:`~servotune.arch.gantry.config`: the configuration (frozen dataclasses validated on
+  construction, :func:`gantry_from_dict`), the topologies and the comparison cases;
+- :mod:`~servotune.arch.gantry.design`: the linear sync-loop models and the design of the gains
+  (:func:`sync_loop_models`, :func:`tune_sync`, :func:`resolve_gains`,
+  :func:`predicted_load_reduction`) and the config reader that resolves them
+  (:func:`load_gantry`);
+- :mod:`~servotune.arch.gantry.result`: the result (:class:`GantryTrace`,
+  :class:`SyncComparison`, :func:`format_comparison`);
+- :mod:`~servotune.arch.gantry.run`: the CNC's move (:func:`move_profile`), the numba kernel
+  of one run (:func:`simulate_gantry`) and the comparison (:func:`compare_topologies`).
+
+This package re-exports the public names of all of them.
+
+Topologies (``TOPOLOGIES``):
+
+- ``parallel``: both drives get the CNC's command; nothing corrects the sync error.
+- ``following``: the slave is commanded with the master's feedback (as it sees it on the bus).
+- ``listening``: the patent's. The slave listens to the bus: it reads the command sent to the
+  master and the master's feedback; a SISO **sync compensator** (:mod:`servotune.laws.sync`)
+  acts on the sync error and its output is added to the slave's position command.
+- ``cross``: cross-coupled: the CNC runs the same compensator and splits its output between
+  the two commands (the master's with the opposite sign).
+
+Bus (``GantryBus``): a sync frame every ``cycle_s``; every drive samples its encoder at the
+sync interrupt plus a random jitter (uniform within ±``jitter_s``; the sample is moved by
+speed × jitter, the write timing is not jittered) and writes its output ``compute_s`` later.
+The master's feedback of cycle k reaches the slave (and the CNC) ``latency_cycles`` later,
+tagged with its cycle, so the sync error the law sees at cycle k is the measured one of cycle
+``k − latency_cycles``: ``y_m(k−L) − y_s(k−L)``.
+
+Monitor: the station that forms the sync error (the listening slave, else the CNC) compares it
+with a warning and a trip threshold (:func:`~servotune.laws.sync.sync_monitor`). On a trip the
+detecting slave stops at once and every other drive with the next frame: both axes are
+latched at 0 V (:data:`~servotune.laws.axis.FLAG_SYNC_TRIP`) at most ``latency_cycles + 1``
+cycles after the measured sync error first crossed the trip threshold (``stop_bound_cycles``).
+
+Plant motion: exact per axis between input changes (:func:`~servotune.plant.advance`, friction
+and speed limit included); with a coupled beam each cycle is split into sub-steps over which
+the beam force is held (``beam_substeps``, chosen so the beam's mode is resolved).
+"""
+
+from servotune.arch.gantry.config import (
+    CASES,
+    TOPOLOGIES,
+    Beam,
+    GantryAxis,
+    GantryBus,
+    GantryConfig,
+    GantryLoad,
+    GantryMove,
+    SyncSettings,
+    gantry_from_dict,
+)
+from servotune.arch.gantry.design import (
+    load_gantry,
+    predicted_load_reduction,
+    resolve_gains,
+    sync_loop_models,
+    tune_sync,
+)
+from servotune.arch.gantry.result import GantryTrace, SyncComparison, format_comparison
+from servotune.arch.gantry.run import compare_topologies, move_profile, simulate_gantry
+
+__all__ = [
+    "CASES",
+    "TOPOLOGIES",
+    "Beam",
+    "GantryAxis",
+    "GantryBus",
+    "GantryConfig",
+    "GantryLoad",
+    "GantryMove",
+    "GantryTrace",
+    "SyncComparison",
+    "SyncSettings",
+    "compare_topologies",
+    "format_comparison",
+    "gantry_from_dict",
+    "load_gantry",
+    "move_profile",
+    "predicted_load_reduction",
+    "resolve_gains",
+    "simulate_gantry",
+    "sync_loop_models",
+    "tune_sync",
+]

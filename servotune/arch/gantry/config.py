@@ -1,0 +1,442 @@
+"""The gantry configuration: bus, beam, drives, compensator settings, move, load, and the cases.
+
+Frozen dataclasses validated on construction (against the bounds :data:`MAX_CYCLE_S`, ...);
+:func:`gantry_from_dict` builds a :class:`GantryConfig` from parsed TOML (the reader that also
+resolves the gains, :func:`~servotune.arch.gantry.design.load_gantry`, is in ``design``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from servotune.errors import ConfigError, RigError
+from servotune.laws.axis import AxisController
+from servotune.laws.pi import PIGains
+from servotune.laws.sync import SYNC_LAWS, SyncConstants, SyncGains
+from servotune.plant import Plant
+from servotune.rig import Rig, build_section, check_plant, load_rig
+from servotune.validate import check_integer, check_keys, check_number, show_value
+
+__all__ = [
+    "CASES",
+    "MAX_BEAM",
+    "MAX_COUNTS",
+    "MAX_CYCLE_S",
+    "MAX_GAIN",
+    "MAX_LATENCY_CYCLES",
+    "MAX_LOAD_V",
+    "MAX_SECONDS",
+    "MAX_SPEED_CPS",
+    "MIN_CYCLE_S",
+    "TOPOLOGIES",
+    "T_CROSS",
+    "T_FOLLOWING",
+    "T_LISTENING",
+    "T_PARALLEL",
+    "Beam",
+    "GantryAxis",
+    "GantryBus",
+    "GantryConfig",
+    "GantryLoad",
+    "GantryMove",
+    "SyncSettings",
+    "gantry_from_dict",
+]
+
+
+TOPOLOGIES = ("parallel", "following", "listening", "cross")
+"""Gantry topologies, in the order of the comparison table."""
+
+CASES = ("load", "mismatch")
+"""Comparison cases: ``load`` — both sides with the master's plant, a load step on one side
+during the move; ``mismatch`` — each side with its own plant, no load."""
+
+T_PARALLEL, T_FOLLOWING, T_LISTENING, T_CROSS = range(4)
+
+
+# Bounds of the configuration's fields (a typo must not size the simulation's arrays)
+MAX_CYCLE_S = 0.01
+"""Longest bus cycle [s] (10 ms)."""
+MIN_CYCLE_S = 1e-6
+"""Shortest bus cycle [s]."""
+MAX_LATENCY_CYCLES = 1000
+"""Largest feedback latency [cycles]."""
+MAX_SECONDS = 3600.0
+"""Longest run [s] (also at most 5e6 cycles, and at least 100)."""
+MAX_GAIN = 1e6
+"""Largest drive or sync gain (any unit)."""
+MAX_COUNTS = 2**31 - 1
+"""Largest count threshold or move distance [counts]."""
+MAX_SPEED_CPS = 1e9
+"""Largest speed [counts/s]; acceleration up to 1e12 counts/s²."""
+MAX_BEAM = 1e3
+"""Largest beam stiffness [V/count] or damping [V·s/count]."""
+MAX_LOAD_V = 1000.0
+"""Largest load step magnitude [V]."""
+_MIN_CYCLES = 100
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class GantryBus:
+    """Fieldbus timing.
+
+    Parameters
+    ----------
+    cycle_s : float
+        Communication (and drive position-loop) cycle [s].
+    jitter_s : float
+        Sync jitter: each sample instant moves uniformly within ±jitter_s [s].
+    latency_cycles : int
+        Cycles until the master's feedback reaches the slave and the CNC (>= 1).
+    compute_s : float
+        Sample → output write inside a drive [s], < cycle_s.
+    """
+
+    cycle_s: float = 0.001
+    jitter_s: float = 1e-6
+    latency_cycles: int = 1
+    compute_s: float = 0.0001
+
+    def __post_init__(self) -> None:
+        check_number("cycle_s", self.cycle_s, "s", lo=MIN_CYCLE_S, hi=MAX_CYCLE_S,
+                     error=ConfigError)  # fmt: skip
+        check_number("jitter_s", self.jitter_s, "s", hi=0.01 * self.cycle_s, error=ConfigError)
+        check_integer("latency_cycles", self.latency_cycles, "cycles", lo=1,
+                      hi=MAX_LATENCY_CYCLES, error=ConfigError)  # fmt: skip
+        check_number("compute_s", self.compute_s, "s", hi=self.cycle_s, hi_strict=True,
+                     error=ConfigError)  # fmt: skip
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Beam:
+    """Mechanical coupling of the two sides through the beam, as motor-input volts.
+
+    Parameters
+    ----------
+    stiffness_v_per_count : float
+        Spring: the force of a sync error, on both motors with opposite signs [V/count].
+    damping_v_s_per_count : float
+        Damper on the speed difference [V/(count/s)].
+    """
+
+    stiffness_v_per_count: float = 0.0
+    damping_v_s_per_count: float = 0.0
+
+    def __post_init__(self) -> None:
+        check_number("stiffness_v_per_count", self.stiffness_v_per_count, "V/count", hi=MAX_BEAM,
+                     error=ConfigError)  # fmt: skip
+        check_number("damping_v_s_per_count", self.damping_v_s_per_count, "V·s/count",
+                     hi=MAX_BEAM, error=ConfigError)  # fmt: skip
+
+    @property
+    def coupled(self) -> bool:
+        """True if the beam couples the sides."""
+        return self.stiffness_v_per_count > 0 or self.damping_v_s_per_count > 0
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class GantryAxis:
+    """One side's drive.
+
+    Parameters
+    ----------
+    plant : Plant
+        The side's model (volts → counts).
+    kp, ki : float or None
+        Drive position-loop PI gains [codes/count], [codes/(count·s)]; None: tuned at the bus
+        cycle (:func:`resolve_gains`).
+    following_error_limit_counts : int
+        Drive following-error trip [counts], 0 off.
+    counter_init : int
+        Counter register at power-up.
+    """
+
+    plant: Plant
+    kp: float | None = None
+    ki: float | None = None
+    following_error_limit_counts: int = 0
+    counter_init: int = 0
+
+    def __post_init__(self) -> None:
+        for name, unit in (("kp", "codes/count"), ("ki", "codes/(count·s)")):
+            if getattr(self, name) is not None:
+                check_number(name, getattr(self, name), unit, hi=MAX_GAIN, error=ConfigError)
+        check_integer("following_error_limit_counts", self.following_error_limit_counts,
+                      "counts", hi=MAX_COUNTS, error=ConfigError)  # fmt: skip
+        check_integer("counter_init", self.counter_init, "register value", hi=2**32 - 1,
+                      error=ConfigError)  # fmt: skip
+
+    @property
+    def gains(self) -> PIGains:
+        """The drive's PI gains (after :func:`resolve_gains`)."""
+        if self.kp is None or self.ki is None:
+            raise ValueError("drive gains are not resolved; call resolve_gains(config)")
+        return PIGains(kp=self.kp, ki=self.ki)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SyncSettings:
+    """The sync compensator, its synthesis targets and the monitor.
+
+    Parameters
+    ----------
+    law : str
+        ``"pi"`` or ``"pd"``.
+    kp, ki, kd : float or None
+        Gains [-], [1/s], [s]; None: synthesised (:func:`tune_sync`; PD keeps ``kd``, 0 if
+        None, and takes the largest ``kp`` meeting the targets).
+    dead_zone_counts, limit_counts : int
+        Dead zone and compensation limit [counts].
+    warn_counts, trip_counts : int
+        Monitor thresholds on |sync error| [counts], 0 off.
+    phase_margin_deg, gain_margin_db, max_sensitivity : float
+        Synthesis targets for the sync loop.
+    """
+
+    law: str = "pi"
+    kp: float | None = None
+    ki: float | None = None
+    kd: float | None = None
+    dead_zone_counts: int = 0
+    limit_counts: int = 4096
+    warn_counts: int = 0
+    trip_counts: int = 0
+    phase_margin_deg: float = 50.0
+    gain_margin_db: float = 8.0
+    max_sensitivity: float = 1.6
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.law, str) or self.law not in SYNC_LAWS:
+            raise ConfigError(
+                f"law must be one of {', '.join(SYNC_LAWS)}, got {show_value(self.law)}"
+            )
+        for name, unit in (("kp", "-"), ("ki", "1/s"), ("kd", "s")):
+            if getattr(self, name) is not None:
+                check_number(name, getattr(self, name), unit, hi=MAX_GAIN, error=ConfigError)
+        for name in ("dead_zone_counts", "warn_counts", "trip_counts"):
+            check_integer(name, getattr(self, name), "counts", hi=MAX_COUNTS, error=ConfigError)
+        check_integer("limit_counts", self.limit_counts, "counts", lo=1, hi=MAX_COUNTS,
+                      error=ConfigError)  # fmt: skip
+        if self.warn_counts and self.trip_counts and self.warn_counts >= self.trip_counts:
+            raise ConfigError(
+                f"warn_counts must be < trip_counts [counts], got {self.warn_counts} >= "
+                f"{self.trip_counts}"
+            )
+        check_number("phase_margin_deg", self.phase_margin_deg, "deg", strict=True, hi=90.0,
+                     hi_strict=True, error=ConfigError)  # fmt: skip
+        check_number("gain_margin_db", self.gain_margin_db, "dB", strict=True, hi=60.0,
+                     error=ConfigError)  # fmt: skip
+        check_number("max_sensitivity", self.max_sensitivity, "-", lo=1.0, strict=True, hi=10.0,
+                     error=ConfigError)  # fmt: skip
+
+    @property
+    def gains(self) -> SyncGains:
+        """The compensator's gains (after :func:`resolve_gains`)."""
+        if self.kp is None or (self.law == "pi" and self.ki is None):
+            raise ValueError("sync gains are not resolved; call resolve_gains(config)")
+        return SyncGains(law=self.law, kp=self.kp,
+                         ki=self.ki or 0.0 if self.law == "pi" else 0.0,
+                         kd=self.kd or 0.0 if self.law == "pd" else 0.0,
+                         dead_zone_counts=self.dead_zone_counts,
+                         limit_counts=self.limit_counts)  # fmt: skip
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class GantryMove:
+    """The CNC's command: a trapezoidal move there, a dwell, and back.
+
+    Parameters
+    ----------
+    distance_counts : int
+        Move length [counts] (signed).
+    speed_cps, accel_cps2 : float
+        Cruise speed [counts/s] and acceleration [counts/s²].
+    start_s : float
+        Time of the move's start [s].
+    """
+
+    distance_counts: int = 200_000
+    speed_cps: float = 60_000.0
+    accel_cps2: float = 600_000.0
+    start_s: float = 0.05
+
+    def __post_init__(self) -> None:
+        check_integer("distance_counts", self.distance_counts, "counts", lo=-MAX_COUNTS,
+                      hi=MAX_COUNTS, error=ConfigError)  # fmt: skip
+        check_number("speed_cps", self.speed_cps, "counts/s", strict=True, hi=MAX_SPEED_CPS,
+                     error=ConfigError)  # fmt: skip
+        check_number("accel_cps2", self.accel_cps2, "counts/s²", strict=True,
+                     hi=1e3 * MAX_SPEED_CPS, error=ConfigError)  # fmt: skip
+        check_number("start_s", self.start_s, "s", hi=MAX_SECONDS, error=ConfigError)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class GantryLoad:
+    """A load step on one side (the ``load`` case).
+
+    Parameters
+    ----------
+    axis : str
+        ``"master"`` or ``"slave"``.
+    time_s : float
+        Step time [s].
+    volts : float
+        Step size, as motor-input volts [V].
+    """
+
+    axis: str = "slave"
+    time_s: float = 0.5
+    volts: float = -0.3
+
+    def __post_init__(self) -> None:
+        if self.axis not in ("master", "slave"):
+            raise ConfigError(f"axis must be 'master' or 'slave', got {show_value(self.axis)}")
+        check_number("time_s", self.time_s, "s", hi=MAX_SECONDS, error=ConfigError)
+        check_number("volts", self.volts, "V", lo=-MAX_LOAD_V, hi=MAX_LOAD_V, error=ConfigError)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class GantryConfig:
+    """A gantry: hardware, bus, beam, the two drives, the compensator, the test motion.
+
+    Parameters
+    ----------
+    name : str
+    rig : Rig
+        Hardware facts (counter bits, D/A, encoder) from the referenced rig file.
+    topology : str
+        The topology deployed (judged by :func:`compare_topologies`' checks).
+    bus, beam, master, slave, sync, move, load :
+        See the classes.
+    seconds : float
+        Length of a run [s].
+    """
+
+    name: str = "gantry"
+    rig: Rig
+    topology: str = "listening"
+    bus: GantryBus = field(default_factory=GantryBus)
+    beam: Beam = field(default_factory=Beam)
+    master: GantryAxis
+    slave: GantryAxis
+    sync: SyncSettings = field(default_factory=SyncSettings)
+    move: GantryMove = field(default_factory=GantryMove)
+    load: GantryLoad = field(default_factory=GantryLoad)
+    seconds: float = 2.0
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str):
+            raise ConfigError(f"name must be a string, got {show_value(self.name)}")
+        if not isinstance(self.topology, str) or self.topology not in TOPOLOGIES:
+            raise ConfigError(
+                f"topology must be one of {', '.join(TOPOLOGIES)}, got {show_value(self.topology)}"
+            )
+        cyc = self.bus.cycle_s
+        check_number("seconds", self.seconds, "s", strict=True, hi=MAX_SECONDS, error=ConfigError)
+        if not _MIN_CYCLES <= self.seconds / cyc <= 5e6:
+            raise ConfigError(
+                f"seconds must be {_MIN_CYCLES} to 5e6 bus cycles ({_MIN_CYCLES * cyc:g} … "
+                f"{5e6 * cyc:g} s at cycle_s {cyc:g}) [s], got {show_value(self.seconds)}"
+            )
+
+    @property
+    def n_cycles(self) -> int:
+        """Cycles of a run."""
+        return max(1, round(self.seconds / self.bus.cycle_s))
+
+    @property
+    def sync_constants(self) -> SyncConstants:
+        """The compensator's constants as the runtime holds them (quantised at the cycle)."""
+        return self.sync.gains.quantize(self.bus.cycle_s)
+
+    @property
+    def stop_bound_cycles(self) -> int:
+        """Cycles from the measured sync error crossing the trip threshold to both axes at 0 V."""
+        return self.bus.latency_cycles + 1
+
+    def controllers(self) -> tuple[AxisController, AxisController]:
+        """The two drives' runtime controllers (PI at the bus cycle)."""
+        return tuple(
+            AxisController.from_gains(lock_gain_codes_per_count=0.4, task_gains=ax.gains,
+                                      period_s=self.bus.cycle_s,
+                                      following_error_limit_counts=ax.following_error_limit_counts)
+            for ax in (self.master, self.slave)
+        )  # type: ignore[return-value]  # fmt: skip
+
+
+def gantry_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".") -> GantryConfig:
+    """Build and validate a :class:`GantryConfig` from parsed TOML.
+
+    Raises
+    ------
+    ConfigError
+        Naming the first invalid table or field, its value and unit.
+    """
+    check_keys(data, "", (), ("gantry", "bus", "beam", "axis", "sync", "move", "load"),
+               error=ConfigError, noun="table")  # fmt: skip
+
+    def table(key: str, required: bool = False) -> Mapping[str, Any]:
+        t = data.get(key, None)
+        if t is None:
+            if required:
+                raise ConfigError(f"missing table [{key}]")
+            return {}
+        if not isinstance(t, Mapping):
+            raise ConfigError(f"[{key}] must be a table, got {type(t).__name__}")
+        return t
+
+    meta = dict(table("gantry", required=True))
+    if "rig" not in meta:
+        raise ConfigError("gantry.rig is missing: the rig file with the hardware facts")
+    rig_ref = meta.pop("rig")
+    if not isinstance(rig_ref, str) or not 0 < len(rig_ref) <= 4096:
+        raise ConfigError(
+            f"gantry.rig must be the path of a rig file (at most 4096 characters), got "
+            f"{show_value(rig_ref)}"
+        )
+    rig_path = Path(base_dir) / rig_ref
+    try:
+        rig = load_rig(rig_path)
+    except (RigError, OSError) as exc:  # one line naming the file
+        raise ConfigError(f"gantry.rig: {exc}") from None
+    axes_t = table("axis", required=True)
+    drives = {}
+    for name in ("master", "slave"):
+        at = axes_t.get(name)
+        if not isinstance(at, Mapping):
+            raise ConfigError(f"missing table [axis.{name}]")
+        at = dict(at)
+        if not isinstance(at.get("plant"), Mapping):
+            raise ConfigError(f"missing table [axis.{name}.plant]")
+        plant = build_section(Plant, at.pop("plant"), f"axis.{name}.plant", ConfigError)
+        check_plant(plant, f"axis.{name}.plant", rig.dac.range_v, error=ConfigError)
+        drives[name] = build_section(GantryAxis, at, f"axis.{name}", ConfigError, plant=plant)
+    extra = sorted(set(axes_t) - {"master", "slave"})
+    if extra:
+        raise ConfigError(f"unknown axis [axis.{extra[0]}] (a gantry has master and slave)")
+    parts = {
+        k: build_section(cls, table(k), k, ConfigError)
+        for k, cls in (("bus", GantryBus), ("beam", Beam), ("sync", SyncSettings),
+                       ("move", GantryMove), ("load", GantryLoad))
+    }  # fmt: skip
+    return build_section(GantryConfig, meta, "gantry", ConfigError, rig=rig,
+                         master=drives["master"], slave=drives["slave"], **parts)  # fmt: skip
+
+
+def _case_config(cfg: GantryConfig, case: str) -> tuple[GantryConfig, np.ndarray]:
+    """The config a case runs (``load``: the slave side a copy of the master's drive and
+    plant) and the load per cycle and axis [V]."""
+    n = cfg.n_cycles
+    load = np.zeros((n, 2))
+    if case == "load":
+        cfg = replace(cfg, slave=replace(cfg.master, counter_init=cfg.slave.counter_init))
+        k0 = min(n, round(cfg.load.time_s / cfg.bus.cycle_s))
+        load[k0:, 0 if cfg.load.axis == "master" else 1] = cfg.load.volts
+    elif case != "mismatch":
+        raise ValueError(f"case must be one of {', '.join(CASES)}, got {show_value(case)}")
+    return cfg, load

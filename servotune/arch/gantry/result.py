@@ -1,0 +1,135 @@
+"""The result of gantry runs: one run's trace, the comparison of the topologies, its table."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from servotune._version import __version__
+from servotune.arch.gantry.config import CASES, TOPOLOGIES, GantryConfig
+from servotune.io.files import json_safe
+from servotune.laws.sync import SYNC_WARN
+
+__all__ = [
+    "GantryTrace",
+    "SyncComparison",
+    "format_comparison",
+]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class GantryTrace:
+    """One gantry run. Arrays have one row per cycle; axis columns are (master, slave).
+
+    Attributes
+    ----------
+    topology, case : str
+    cycle_s : float
+    command : ndarray of int64 — the CNC's command [counts]
+    ref : ndarray of int64 (n, 2) — each drive's position command [counts]
+    y : ndarray of int64 (n, 2) — measured positions [counts]
+    position : ndarray (n, 2) — true positions at the sample instants [counts]
+    code, flags : ndarray of int64 (n, 2) — D/A codes and ``FLAG_*`` bits
+    sync_error : ndarray of int64 — measured ``y_master − y_slave`` [counts]
+    sync_op, sync_input, sync_comp, sync_level : ndarray of int64
+        Per cycle: the compensator call (0 none, 1 enter, 2 step), the sync error it saw, its
+        compensation [counts], the monitor level (0 ok, 1 warn, 2 trip).
+    trip_cycle : int
+        Cycle the monitor tripped, -1 if it did not.
+    stop_bound_cycles : int
+    """
+
+    topology: str
+    case: str
+    cycle_s: float
+    command: np.ndarray
+    ref: np.ndarray
+    y: np.ndarray
+    position: np.ndarray
+    code: np.ndarray
+    flags: np.ndarray
+    sync_error: np.ndarray
+    sync_op: np.ndarray
+    sync_input: np.ndarray
+    sync_comp: np.ndarray
+    sync_level: np.ndarray
+    trip_cycle: int
+    stop_bound_cycles: int
+
+    @property
+    def time_s(self) -> np.ndarray:
+        """Sample instants [s]."""
+        return np.arange(self.command.size, dtype=np.int64) * self.cycle_s
+
+    def metrics(self) -> dict[str, float | int | bool]:
+        """Max and RMS |sync error| [counts], warning cycles, trip."""
+        e = self.sync_error.astype(float)
+        return {
+            "max_sync_error_counts": float(np.max(np.abs(e))),
+            "rms_sync_error_counts": float(np.sqrt(np.mean(e * e))),
+            "warning_cycles": int(np.count_nonzero(self.sync_level == SYNC_WARN)),
+            "tripped": self.trip_cycle >= 0,
+            "trip_time_s": self.trip_cycle * self.cycle_s if self.trip_cycle >= 0 else None,
+        }
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SyncComparison:
+    """Max/RMS sync error per topology and case (:func:`compare_topologies`)."""
+
+    config: GantryConfig
+    rows: tuple[dict[str, Any], ...]
+    traces: tuple[GantryTrace, ...]
+    predicted: dict[str, float]
+    failed: tuple[str, ...]
+
+    @property
+    def passed(self) -> bool:
+        """True if the deployed topology tripped in no case."""
+        return not self.failed
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON-able dict (``schema`` ``servotune.sync/1``)."""
+        c = self.config
+        return json_safe({
+            "schema": "servotune.sync/1",
+            "name": c.name,
+            "topology": c.topology,
+            "cycle_s": c.bus.cycle_s,
+            "latency_cycles": c.bus.latency_cycles,
+            "stop_bound_cycles": c.stop_bound_cycles,
+            "drives": {"master": c.master.gains.to_dict(), "slave": c.slave.gains.to_dict()},
+            "sync": c.sync.gains.to_dict() | {"warn_counts": c.sync.warn_counts,
+                                              "trip_counts": c.sync.trip_counts},
+            "sync_constants": c.sync_constants.to_dict(),
+            "results": list(self.rows),
+            "predicted_load": self.predicted,
+            "passed": self.passed,
+            "failed": list(self.failed),
+            "version": __version__,
+        })  # fmt: skip
+
+
+def format_comparison(cmp: SyncComparison) -> str:
+    """The comparison as a text table (one row per topology, max/RMS per case)."""
+    c = cmp.config
+    head = f"{'topology':<11}" + "".join(
+        f"{case + ' max':>13}{case + ' RMS':>13}" for case in CASES
+    )
+    lines = [f"gantry {c.name}: sync error [counts], bus cycle {c.bus.cycle_s * 1e3:g} ms, "
+             f"latency {c.bus.latency_cycles} cycle(s), deployed: {c.topology}", head]  # fmt: skip
+    for topo in TOPOLOGIES:
+        cells = ""
+        for case in CASES:
+            r = next(r for r in cmp.rows if r["topology"] == topo and r["case"] == case)
+            mark = " TRIP" if r["tripped"] else ""
+            cells += f"{r['max_sync_error_counts']:>13.1f}{r['rms_sync_error_counts']:>13.1f}{mark}"
+        lines.append(f"{topo:<11}{cells}")
+    if cmp.predicted:
+        p = cmp.predicted
+        lines.append(f"predicted (linear) load-case max: parallel {p['parallel_max_counts']:.1f}, "
+                     f"listening {p['listening_max_counts']:.1f} (x{p['ratio']:.3f})")  # fmt: skip
+    lines.append("PASS" if cmp.passed else "FAIL: " + "; ".join(cmp.failed))
+    return "\n".join(lines)

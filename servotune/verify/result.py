@@ -1,0 +1,256 @@
+"""What verification found: a row per limit, the checks, the :class:`Verification`, and its
+pass/fail table for the terminal (:func:`format_table`)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from servotune.io.files import json_float
+from servotune.validate import show_value
+from servotune.verify.spec import Spec
+from servotune.verify.variants import Variant
+
+__all__ = [
+    "Check",
+    "Row",
+    "Verification",
+    "format_table",
+]
+
+
+# --- results -------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Row:
+    """One limit of one scenario on one axis, judged over every variant.
+
+    Attributes
+    ----------
+    scenario : str
+    quantity : str
+        What is measured (``overshoot_pct``, ``max_sync_error_counts``, …, ``fault_runs``).
+    axis : str
+    unit : str
+    limit : float
+        Upper bound [unit].
+    worst : float
+        Largest value over the variants [unit] (``inf``: never settled).
+    variant : str
+        Label of the variant giving ``worst``.
+    """
+
+    scenario: str
+    quantity: str
+    axis: str
+    unit: str
+    limit: float
+    worst: float
+    variant: str
+
+    @property
+    def passed(self) -> bool:
+        """``worst <= limit`` (a NaN fails)."""
+        return bool(self.worst <= self.limit)
+
+    @property
+    def margin(self) -> float:
+        """``limit − worst`` [unit]; negative when violated."""
+        return self.limit - self.worst
+
+    @property
+    def relative_margin(self) -> float | None:
+        """``margin / limit`` [1]; None for a zero limit."""
+        return self.margin / self.limit if self.limit > 0 else None
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dict (non-finite numbers as None)."""
+        rel = self.relative_margin
+        return {
+            "axis": self.axis,
+            "limit": float(self.limit),
+            "margin": json_float(self.margin),
+            "passed": self.passed,
+            "quantity": self.quantity,
+            "relative_margin": None if rel is None else json_float(rel),
+            "scenario": self.scenario,
+            "unit": self.unit,
+            "variant": self.variant,
+            "worst": json_float(self.worst),
+        }
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Check:
+    """A verification check that is not a scenario limit.
+
+    Attributes
+    ----------
+    name : str
+        ``counter_unwrap``, ``counter_input_frequency``, ``timer_period`` or ``overflow``.
+    passed : bool
+    value : float
+        The checked quantity [unit].
+    limit : float or None
+        Its bound [unit]; None if only reported.
+    unit : str
+    detail : str
+        One line for people.
+    facts : mapping
+        The numbers behind it.
+    """
+
+    name: str
+    passed: bool
+    value: float
+    limit: float | None
+    unit: str
+    detail: str
+    facts: Mapping[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dict."""
+        return {
+            "detail": self.detail,
+            "facts": dict(self.facts),
+            "limit": None if self.limit is None else json_float(self.limit),
+            "name": self.name,
+            "passed": self.passed,
+            "unit": self.unit,
+            "value": json_float(self.value),
+        }
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Verification:
+    """What :func:`verify` found.
+
+    Attributes
+    ----------
+    spec : Spec
+    rig_name : str
+    axis_names : tuple of str
+    seed : int
+        The seed used (variants and noise).
+    variants : tuple of Variant
+        The nominal plants first.
+    rows : tuple of Row
+        Every limit of every scenario (empty if the runs were skipped, see ``checks``).
+    checks : tuple of Check
+    """
+
+    spec: Spec
+    rig_name: str
+    axis_names: tuple[str, ...]
+    seed: int
+    variants: tuple[Variant, ...]
+    rows: tuple[Row, ...]
+    checks: tuple[Check, ...]
+
+    @property
+    def passed(self) -> bool:
+        """Every limit and every check holds (and the runs were made)."""
+        return (
+            bool(self.rows)
+            and all(r.passed for r in self.rows)
+            and all(c.passed for c in self.checks)
+        )
+
+    @property
+    def failures(self) -> list[str]:
+        """One line per violated limit or failed check."""
+        out = [
+            f"{r.scenario}: {r.quantity} of {r.axis} = {_fmt(r.worst)} {r.unit} > limit "
+            f"{_fmt(r.limit)} {r.unit} (variant {r.variant})"
+            for r in self.rows
+            if not r.passed
+        ]
+        out += [f"check {c.name}: {c.detail}" for c in self.checks if not c.passed]
+        if not self.rows:
+            out.append("closed-loop runs skipped (see the overflow check)")
+        return out
+
+    def row(self, scenario: str, quantity: str, axis: str) -> Row:
+        """The row of one scenario, quantity and axis."""
+        for r in self.rows:
+            if (r.scenario, r.quantity, r.axis) == (scenario, quantity, axis):
+                return r
+        raise KeyError(f"no row {scenario}/{quantity}/{axis}")
+
+    def check(self, name: str) -> Check:
+        """The check called ``name``."""
+        for c in self.checks:
+            if c.name == name:
+                return c
+        raise KeyError(f"no check {show_value(name)}")
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dict, JSON-ready (``json.dumps(..., sort_keys=True)``)."""
+        return {
+            "checks": [c.to_dict() for c in self.checks],
+            "failures": self.failures,
+            "passed": self.passed,
+            "rig": self.rig_name,
+            "rows": [r.to_dict() for r in self.rows],
+            "seed": self.seed,
+            "spec": self.spec.to_dict(),
+            "variants": [v.to_dict(self.axis_names) for v in self.variants],
+        }
+
+
+# --- presenting ----------------------------------------------------------------------------
+
+
+def _fmt(x: float | None, digits: int = 4) -> str:
+    if x is None:
+        return "n/a"
+    if math.isinf(x):
+        return "never" if x > 0 else "-inf"
+    if math.isnan(x):
+        return "nan"
+    if x == 0:
+        return "0"
+    if abs(x) >= 1e5 or abs(x) < 1e-3:
+        return f"{x:.{digits - 1}e}"
+    return f"{x:.{digits}g}"
+
+
+def format_table(verification: Verification) -> str:
+    """A pass/fail table with margins, then the checks and the verdict (for the terminal)."""
+    v = verification
+    head = ("scenario", "quantity", "axis", "limit", "worst", "margin", "margin %", "variant", "")
+    lines = [head]
+    for r in v.rows:
+        rel = r.relative_margin
+        lines.append((
+            r.scenario,
+            r.quantity,
+            r.axis,
+            f"{_fmt(r.limit)} {r.unit}",
+            f"{_fmt(r.worst)} {r.unit}",
+            _fmt(r.margin),
+            "n/a" if rel is None or not math.isfinite(rel) else f"{100.0 * rel:.0f}",
+            r.variant,
+            "ok" if r.passed else "FAIL",
+        ))  # fmt: skip
+    widths = [max(len(row[i]) for row in lines) for i in range(len(head))]
+    right = {3, 4, 5, 6}
+    out = [
+        f"verify: spec {show_value(v.spec.name)} on rig {show_value(v.rig_name)}, seed {v.seed}, "
+        f"{len(v.variants)} plant sets (nominal + {len(v.variants) - 1} Monte Carlo)"
+    ]
+    for row in lines:
+        cells = [c.rjust(w) if i in right else c.ljust(w)
+                 for i, (c, w) in enumerate(zip(row, widths, strict=True))]  # fmt: skip
+        out.append("  ".join(cells).rstrip())
+    if not v.rows:
+        out.append("(closed-loop runs skipped)")
+    out.append("checks")
+    for c in v.checks:
+        out.append(f"  {'ok  ' if c.passed else 'FAIL'}  {c.name}: {c.detail}")
+    n_fail = sum(not r.passed for r in v.rows) + sum(not c.passed for c in v.checks)
+    out.append("PASSED" if v.passed else f"FAILED ({n_fail} of {len(v.rows) + len(v.checks)})")
+    return "\n".join(out)
