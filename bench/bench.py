@@ -36,6 +36,8 @@ import numba
 import numpy as np
 
 import servotune
+from servotune.arch.gantry import load_gantry, simulate_gantry
+from servotune.arch.linkage import load_linkage, run_linkage
 from servotune.engine import METRIC_NAMES
 from servotune.fixed import F_U
 from servotune.hw.counter import unwrap_step
@@ -51,6 +53,9 @@ PI_GAINS = servotune.PIGains(kp=0.5, ki=5.0)
 """PI of the benchmark loop: 31° phase margin, gain margin 8.3 on the master's linear plant."""
 CANDIDATE_SEED = 2024
 """Seed of ``numpy.random.default_rng`` drawing the batched plant candidates."""
+ARCH_BASELINE_NS = {"gantry": 200.0, "linkage": 1380.0}
+"""ns per cycle (gantry) and per tick (linkage) of :func:`bench_arch`'s runs before the kernels
+were composed from the shared tick: commit 5e122fc, median of 5, on the project's 2-core VM."""
 PC_RUN_BUDGET_S = 60.0
 """Above this total, the python-control loop is timed over 3 runs instead of 5."""
 
@@ -811,6 +816,45 @@ def check_batch_metrics(m2: np.ndarray, m1: np.ndarray) -> None:
         "batched: worst over candidates: "
         + ", ".join(f"{k} {v:.4g}" for k, v in zip(METRIC_NAMES, worst, strict=True))
     )
+
+
+@register("arch")
+def bench_arch(opts: Options) -> list[Figure]:
+    """The gantry (seed 003) and linkage (seed 002) kernels: ns per tick, beside their baseline.
+
+    The baseline is :data:`ARCH_BASELINE_NS`: the same runs timed on the kernels as they were
+    before they were composed from the shared tick (commit 5e122fc, this 2-core VM).
+
+    Parameters
+    ----------
+    opts : Options
+
+    Returns
+    -------
+    list of Figure
+        ``gantry_ns_per_cycle`` (one run of the deployed topology, both drives) and
+        ``linkage_ns_per_tick`` (the 6-axis example, per master tick, every axis).
+    """
+    runs = opts.sizes.engine_runs
+    gantry = load_gantry(ROOT / "plants" / "gantry.toml")
+    gantry = dataclasses.replace(gantry, seconds=2.0 if opts.quick else 20.0)
+    simulate_gantry(gantry, seed=0)  # compile or cache load
+    times, trace = timed_runs(lambda: simulate_gantry(gantry, seed=0), runs)
+    g_ns = statistics.median(times) / trace.code.shape[0] * 1e9
+    progress(f"arch: gantry {trace.code.shape[0]} cycles, {g_ns:.4g} ns/cycle")
+    linkage = load_linkage(ROOT / "plants" / "linkage-6axis.toml")
+    seconds = 2.0 if opts.quick else 20.0
+    run_linkage(linkage, seconds=seconds)
+    times, _ = timed_runs(lambda: run_linkage(linkage, seconds=seconds), runs)
+    n_ticks = round(seconds / linkage.period_s)
+    l_ns = statistics.median(times) / n_ticks * 1e9
+    progress(f"arch: linkage {n_ticks} ticks x {linkage.n_axes} axes, {l_ns:.4g} ns/tick")
+    return [
+        Figure("gantry_ns_per_cycle", g_ns, "ns/cycle",
+               f"before the shared tick: {ARCH_BASELINE_NS['gantry']:.4g} ns/cycle"),
+        Figure("linkage_ns_per_tick", l_ns, "ns/tick",
+               f"before the shared tick: {ARCH_BASELINE_NS['linkage']:.4g} ns/tick"),
+    ]  # fmt: skip
 
 
 # --- report ----------------------------------------------------------------------------------

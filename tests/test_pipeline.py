@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 from pathlib import Path
 
@@ -10,6 +11,7 @@ from conftest import EXAMPLE_RIG
 
 import servotune as st
 import servotune.export
+from servotune._version import __version__
 from servotune.pipeline import run_demo
 
 
@@ -51,6 +53,44 @@ def test_demo_writes_its_products(tmp_path: Path) -> None:
     run_demo(EXAMPLE_RIG, tmp_path, seed=0)
     assert (tmp_path / "demo_summary.json").read_bytes() == first  # same input + seed → same bytes
     assert (tmp_path / "fuzzy.json").read_bytes() == first_tables
+    # the single-rig path's bytes are pinned (see DEMO_DIGESTS)
+    got = {name: _normalised_digest(tmp_path, name) for name in DEMO_DIGESTS}
+    changed = sorted(name for name in DEMO_DIGESTS if got[name] != DEMO_DIGESTS[name])
+    assert not changed, f"the single-rig demo products changed: {changed}"
+
+
+DEMO_DIGESTS = {
+    # SHA-256 of the single-rig products of `run_demo(EXAMPLE_RIG, out, seed=0)`, with the output
+    # folder written as "<out>" and the package version as "<version>". Source: the demo at
+    # commit 5e122fc, before the three kernels were composed from one tick (issue 16): the
+    # refactor must not change a byte of the single-rig path. Regenerate only on purpose.
+    "track_log.csv": "f7d686f065b441cdc05dd4509674df0e02206cb068f00010ec5697e31a7cbf3c",
+    "fitted-rig.toml": "d7bff5c29bade9aaf5476fd24b68e4b95d9da7cbfc7497e84cb93742db1c9873",
+    "tuning.json": "a5215bf9032662eb4af4ff1f9dcbb1a398cd7eae6bbe04c0a37ed15aa3353aee",
+    "fuzzy.json": "bb7833b3c27810e25568a4516c513f55cd3b6679360885d965ba0b72bc105351",
+    "figure4.json": "236424e2437bed71a8f7222aae27c28bc6b226ab72fcf62e0ed0a59c35d9f5b9",
+    "c/servotune_rt.c": "d36e7d41a3fadb722e75fab4af75ba467f059cbcdfebbc4c9d7d93e34b7723bd",
+    "c/servotune_rt.h": "87feeb024eb20ed602c0d94a2407b198e759b76239e0b4e216af4c457e758e2a",
+    "c/servotune_tables.h": "0a1d9bde4674cb7295019189b64962491cf0fc8987df39ed34e2ffd40b0189f3",
+}
+
+
+def _normalised_digest(out: Path, name: str) -> str:
+    """SHA-256 of a product with what depends on the output folder taken out.
+
+    The tuning records its rig's path, so the digests that bind the tuning (in the tables
+    document and the C header) change with the folder: for ``fuzzy.json`` the table data and the
+    verification's rows are hashed, for the header every line without a digest in it.
+    """
+    data = (out / name).read_bytes()
+    data = data.replace(str(out).encode(), b"<out>").replace(__version__.encode(), b"<version>")
+    if name == "fuzzy.json":
+        doc = json.loads(data)
+        kept = {"data": doc["data"], "rows": doc["provenance"]["verification"]["verification"]}
+        data = json.dumps(kept, sort_keys=True).encode()
+    elif name.endswith(".h"):
+        data = b"\n".join(ln for ln in data.split(b"\n") if b"sha256" not in ln.lower())
+    return hashlib.sha256(data).hexdigest()
 
 
 def test_demo_needs_an_existing_directory(tmp_path: Path) -> None:
