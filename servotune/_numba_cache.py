@@ -13,13 +13,15 @@ from __future__ import annotations
 import hashlib
 import os
 import shutil
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from functools import cache
 from pathlib import Path
+from typing import Any
 
 import numba
 
-__all__ = ["cache_dir", "keyed_by_sources", "source_digest"]
+__all__ = ["cache_dir", "jit", "keyed_by_sources", "source_digest"]
 
 _PACKAGE = Path(__file__).resolve().parent
 _PREFIX = "numba-"
@@ -63,6 +65,12 @@ def cache_dir(root: Path = _PACKAGE) -> Path | None:
     return user if _usable(user) else None
 
 
+@cache
+def _package_cache_dir() -> Path | None:
+    """:func:`cache_dir` of the installed package, computed once per process."""
+    return cache_dir()
+
+
 @contextmanager
 def keyed_by_sources() -> Iterator[None]:
     """Within the block, numba caches functions decorated there in :func:`cache_dir`.
@@ -73,7 +81,7 @@ def keyed_by_sources() -> Iterator[None]:
     if os.environ.get("NUMBA_CACHE_DIR"):
         yield
         return
-    path = cache_dir()
+    path = _package_cache_dir()
     previous = numba.config.CACHE_DIR
     if path is not None:
         numba.config.CACHE_DIR = str(path)
@@ -81,3 +89,26 @@ def keyed_by_sources() -> Iterator[None]:
         yield
     finally:
         numba.config.CACHE_DIR = previous
+
+
+def jit(fn: Callable[..., Any] | None = None, /, **options: Any) -> Any:
+    """``numba.njit(cache=True, **options)``, cached in :func:`cache_dir`: servotune's one jit.
+
+    Every compiled function of servotune is decorated with this, so each one caches under the
+    digest of the sources wherever it is imported from (a lazily imported module included), and
+    numba's cache setting is touched only while the function is decorated, then restored.
+
+    Examples
+    --------
+    >>> @jit(inline="always")
+    ... def twice(x):
+    ...     return 2 * x
+    >>> twice(21)
+    42
+    """
+
+    def decorate(f: Callable[..., Any]) -> Any:
+        with keyed_by_sources():
+            return numba.njit(cache=True, **options)(f)
+
+    return decorate if fn is None else decorate(fn)
