@@ -38,13 +38,13 @@ import numpy as np
 import servotune
 from servotune.arch.gantry import load_gantry, simulate_gantry
 from servotune.arch.linkage import load_linkage, run_linkage
-from servotune.engine import METRIC_NAMES
 from servotune.fixed import F_U
 from servotune.hw.counter import unwrap_step
 from servotune.hw.dac import code_from_uq
 from servotune.laws.axis import FLAG_SATURATED
 from servotune.laws.pi import pi_enter, pi_step
 from servotune.plant import lag_split
+from servotune.sim.engine import METRIC_NAMES
 
 SCHEMA = "servotune.bench/1"
 ROOT = Path(__file__).resolve().parents[1]
@@ -784,7 +784,7 @@ def bench_batched(opts: Options) -> list[Figure]:
             lambda th=threads: servotune.run_batch(batch, inputs, metrics_only=True, threads=th),
             sz.batch_runs,
         )
-        metrics[threads] = res.metrics
+        metrics[threads] = res.metrics.array
         rate = n_c * n_t / statistics.median(times)
         progress(f"batched: {rate:.4g} ticks/s (runs {[f'{t:.3f}' for t in times]} s)")
         spread = f"median of {len(times)} runs; single runs {n_c * n_t / max(times):.3g}"

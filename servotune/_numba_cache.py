@@ -20,8 +20,11 @@ from pathlib import Path
 from typing import Any
 
 import numba
+import numba.core.errors
 
-__all__ = ["cache_dir", "jit", "keyed_by_sources", "source_digest"]
+from servotune.errors import CompileError
+
+__all__ = ["cache_dir", "call_compiled", "jit", "keyed_by_sources", "source_digest"]
 
 _PACKAGE = Path(__file__).resolve().parent
 _PREFIX = "numba-"
@@ -112,3 +115,27 @@ def jit(fn: Callable[..., Any] | None = None, /, **options: Any) -> Any:
             return numba.njit(cache=True, **options)(f)
 
     return decorate if fn is None else decorate(fn)
+
+
+def call_compiled(kernel: Any, *args: Any) -> Any:
+    """``kernel(*args)``; a failure to compile becomes a :class:`CompileError` with its cause.
+
+    A kernel compiles at its first call with new argument types (or loads from the cache); a
+    numba outside the tested range may refuse it. That is an error to see, with numba's own
+    first line, not something to work around silently.
+
+    Raises
+    ------
+    CompileError
+        If numba cannot compile ``kernel`` for these arguments.
+    """
+    try:
+        return kernel(*args)
+    except numba.core.errors.NumbaError as exc:
+        cause = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        name = getattr(kernel, "__name__", repr(kernel))
+        raise CompileError(
+            f"the compiled kernel {name} does not compile with numba {numba.__version__} "
+            f"({type(exc).__name__}: {cause}); servotune is tested with the numba range in "
+            "its pyproject.toml"
+        ) from exc

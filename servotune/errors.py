@@ -7,6 +7,7 @@ built-in exception it resembles, so callers may catch either.
 from __future__ import annotations
 
 __all__ = [
+    "CompileError",
     "ConfigError",
     "CounterFaultWarning",
     "DigestError",
@@ -46,6 +47,14 @@ class SpecError(ServotuneError, ValueError):
 class InfeasibleError(SpecError):
     """The spec is well-formed, but no tuning meets it (the CLI exits 1: the tuning failed its
     spec, as a failed verification does)."""
+
+
+class CompileError(ServotuneError, RuntimeError):
+    """A compiled kernel does not compile with the installed numba (the message has the cause).
+
+    servotune has no slower fallback that would hide it: install the numba version range that
+    ``pyproject.toml`` names.
+    """
 
 
 class SimulationError(ServotuneError, ValueError):

@@ -1,39 +1,65 @@
 """Log files (SPEC §5): what ``servotune simulate`` writes and ``servotune fit`` reads.
 
-All log parsing and writing lives here. A log is CSV: optional ``# key: value`` metadata lines,
-one header row, then one row per tick. Time is ``time_s`` and/or ``tick``; per axis, columns
-prefixed ``<axis>.`` (a single-axis log may leave the prefix out): the command (``dac_code`` or
-``cmd_v``), the position (``counter`` raw register or ``pos_counts`` unwrapped) and optionally
-``ref_counts`` and ``mode`` (``lock`` / ``task`` / ``open``). Sampling is uniform. Writes are
-atomic (temp file, then rename).
+A log is CSV: optional ``# key: value`` metadata lines, one header row, then one row per tick.
+Time is ``time_s`` and/or ``tick``; per axis, columns prefixed ``<axis>.`` (a single-axis log may
+leave the prefix out): the command (``dac_code`` or ``cmd_v``), the position (``counter`` raw
+register or ``pos_counts`` unwrapped) and optionally ``ref_counts`` and ``mode`` (``lock`` /
+``task`` / ``open``). Sampling is uniform. Writes are atomic (temp file, then rename).
 
 :func:`read_log` validates everything and names the first problem in one line, with its row
 (the 1-based line number in the file) and column. The data rows are parsed in bulk
 (``numpy.loadtxt`` with one typed field per column, about 0.7 s per million rows); only when
-that fails are the rows scanned one by one to find the first bad one.
+that fails are the rows scanned one by one to find the first bad one. The format's parsing
+lives in :mod:`servotune.io.log_header` (text, metadata, header) and
+:mod:`servotune.io.log_rows` (data rows, time base); this module builds the :class:`Log`.
 """
 
 from __future__ import annotations
 
-import contextlib
 import difflib
 import io
 import math
-import os
-import re
 import warnings
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from servotune.budget import check_memory, format_bytes
+from servotune.budget import check_memory
 from servotune.errors import LogFormatError
 from servotune.hw import counter as hw_counter
 from servotune.hw import dac as hw_dac
-from servotune.io.files import MAX_NUMBER_CHARS, atomic_write_text
+from servotune.io.files import atomic_write_text
+from servotune.io.log_header import (
+    _COLUMNS_HELP,
+    MAX_METADATA_CHARS,
+    MAX_NAME_CHARS,
+    PERIOD_RANGE_S,
+    _classify_columns,
+    _meta_pair,
+    _meta_setting,
+    _option,
+    _parse_compute,
+    _parse_counter_bits,
+    _parse_dac_bits,
+    _parse_header,
+    _parse_period,
+    _parse_range,
+    _read_errors,
+    _read_text,
+    _split_text,
+)
+from servotune.io.log_rows import (
+    _KIND,
+    _base,
+    _check_range,
+    _data_rows,
+    _modes,
+    _RowLines,
+    _timebase,
+)
 from servotune.laws.axis import MODE_NAMES
 
 __all__ = [
@@ -52,8 +78,6 @@ __all__ = [
     "read_table",
     "write_log",
 ]
-
-_AXIS_COLUMNS = ("dac_code", "cmd_v", "counter", "pos_counts", "ref_counts", "mode")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -267,34 +291,10 @@ def write_log(path: str | Path, **kwargs: object) -> None:
 MIN_ROWS = 3
 """Fewest data rows :func:`read_log` accepts (the identifier asks for more itself)."""
 
-_REL_TOL = 1e-3  # SPEC §5: intervals within 0.1 % of the median; tick·period ≈ time_s
-_TIME_COLUMNS = ("tick", "time_s")
-_KIND = {
-    "tick": "int",
-    "time_s": "float",
-    "dac_code": "int",
-    "cmd_v": "float",
-    "counter": "int",
-    "pos_counts": "int",
-    "ref_counts": "int",
-    "mode": "text",
-}
-_MODE_WIDTH = 16  # mode fields are read as U16; a value that fills it may be truncated: invalid
-_DTYPES: dict[str, Any] = {"int": np.int64, "float": np.float64, "text": f"U{_MODE_WIDTH}"}
-_INT_RE = re.compile(r"[+-]?[0-9]+")
 _DEFAULT_COUNTER_BITS = 24
 _DEFAULT_DAC_BITS = 12
 _DEFAULT_DAC_RANGE_V = (-10.0, 10.0)
-PERIOD_RANGE_S = (1e-6, 60.0)
-"""Sample periods a log may have [s] (1 µs … 1 min)."""
 
-MAX_METADATA_CHARS = 1024
-"""Longest metadata value (``# key: value``) accepted [characters]."""
-
-MAX_NAME_CHARS = 64
-"""Longest metadata key or header column name accepted [characters]."""
-
-_DAC_RANGE_LIMIT_V = 1000.0  # |low|, |high| of a D/A range [V]
 METADATA_KEYS = frozenset(
     {
         # read (settings)
@@ -307,17 +307,9 @@ METADATA_KEYS = frozenset(
 )  # fmt: skip
 """Metadata keys a log may declare; others draw a :class:`LogMetadataWarning` (not an error)."""
 
-_LONG_FIELD_RE = re.compile(rf"[^,\n]{{{MAX_NUMBER_CHARS + 1}}}")
-
 
 class LogMetadataWarning(UserWarning):
     """A log declares a metadata key servotune does not know (a typo, or someone's note)."""
-
-
-_COLUMNS_HELP = (
-    "expected tick and/or time_s, and per axis [axis.]dac_code or cmd_v, counter or pos_counts, "
-    "optionally ref_counts and mode"
-)
 
 
 def read_log(
@@ -644,309 +636,6 @@ def read_metadata(path: str | Path) -> dict[str, str]:
     return meta
 
 
-def _meta_pair(line: str) -> tuple[str, str] | None:
-    """``(key, value)`` of a stripped ``# key: value`` line, None for any other comment."""
-    if ":" not in line:
-        return None
-    key, value = (x.strip() for x in line[1:].split(":", 1))
-    return key, value
-
-
-@contextlib.contextmanager
-def _read_errors(src: str, what: str = "log") -> Iterator[None]:
-    """Turn the OS errors of opening a log into one-line LogFormatErrors."""
-    try:
-        yield
-    except FileNotFoundError:
-        raise LogFormatError(f"{what} file {src!r} does not exist") from None
-    except IsADirectoryError:
-        raise LogFormatError(f"{what} {src!r} is a directory, not a file") from None
-    except OSError as exc:
-        raise LogFormatError(f"cannot read {what} {src!r}: {exc.strerror or exc}") from None
-
-
-_READ_BYTES_PER_BYTE = 4  # the bytes, the text, the row lines, the arrays: about 4x the file
-
-
-def _read_text(p: Path, src: str, what: str = "log") -> str:
-    with _read_errors(src, what):
-        with open(p, "rb") as fh:
-            size = os.fstat(fh.fileno()).st_size
-            check_memory(
-                _READ_BYTES_PER_BYTE * size,
-                f"reading {what} {src!r}",
-                f"{format_bytes(size)} × {_READ_BYTES_PER_BYTE}",
-            )
-            data = fh.read()
-    try:
-        text = data.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        line = data.count(b"\n", 0, exc.start) + 1
-        raise LogFormatError(
-            f"{what} {src!r} is not UTF-8 text (byte 0x{data[exc.start]:02x} at line {line})"
-        ) from None
-    nul = text.find("\x00")
-    if nul >= 0:
-        line = text.count("\n", 0, nul) + 1
-        raise LogFormatError(f"{what} {src!r} is not a text file (NUL byte at line {line})")
-    if "\r" in text:
-        text = text.replace("\r\n", "\n").replace("\r", "\n")
-    return text
-
-
-def _split_text(
-    text: str, src: str, what: str = "log"
-) -> tuple[dict[str, str], dict[str, int], int, str, str]:
-    """Metadata, their line numbers, the header's line number and text, and the body text."""
-    if not text or text.isspace():
-        raise LogFormatError(f"{what} {src!r} is empty (no header row)")
-    meta: dict[str, str] = {}
-    meta_line: dict[str, int] = {}
-    pos, line_no, end_of_text = 0, 0, len(text)
-    while pos < end_of_text:
-        nl = text.find("\n", pos)
-        end = end_of_text if nl < 0 else nl
-        line = text[pos:end].strip()
-        line_no += 1
-        if line and not line.startswith("#"):
-            return meta, meta_line, line_no, text[pos:end], text[end + 1 :]
-        kv = _meta_pair(line)
-        if kv is not None:
-            key, value = kv
-            if len(key) > MAX_NAME_CHARS or len(value) > MAX_METADATA_CHARS:
-                item, n, most = (
-                    ("key", len(key), MAX_NAME_CHARS)
-                    if len(key) > MAX_NAME_CHARS
-                    else (f"{key!r} value", len(value), MAX_METADATA_CHARS)
-                )
-                raise LogFormatError(
-                    f"{what} {src!r}, line {line_no}: metadata {item} of {n} characters (at most "
-                    f"{most} are accepted)"
-                )
-            if key in meta and meta[key] != value:
-                raise LogFormatError(
-                    f"line {line_no}: metadata {key!r} given twice with different values "
-                    f"(first on line {meta_line[key]})"
-                )
-            meta[key] = value
-            meta_line[key] = line_no
-        pos = end + 1
-    raise LogFormatError(f"{what} {src!r} has no header row, only metadata or comment lines")
-
-
-def _parse_header(header_text: str, line: int) -> list[str]:
-    names = [h.strip().strip('"').strip() for h in header_text.split(",")]
-    for j, h in enumerate(names):
-        if len(h) > MAX_NAME_CHARS:
-            raise LogFormatError(
-                f"line {line}: header column {j + 1} has a name of {len(h)} characters (at most "
-                f"{MAX_NAME_CHARS} are accepted)"
-            )
-    if all(_to_float(h) is not None for h in names):
-        raise LogFormatError(
-            f"line {line} looks like data, not a header; the first row after the metadata must "
-            f"name the columns (e.g. tick,time_s,dac_code,counter)"
-        )
-    seen: dict[str, int] = {}
-    for j, h in enumerate(names):
-        if not h:
-            hint = " (a trailing comma?)" if j == len(names) - 1 else ""
-            raise LogFormatError(f"line {line}: header column {j + 1} has no name{hint}")
-        if h in seen:
-            raise LogFormatError(
-                f"line {line}: duplicate column {h!r} (header columns {seen[h] + 1} and {j + 1})"
-            )
-        seen[h] = j
-    return names
-
-
-def _classify_columns(header: list[str], line: int) -> dict[str, dict[str, str]]:
-    """Per axis (header order), its column kinds mapped to header names; checks the set."""
-    prefixes = [h.rpartition(".")[0] for h in header if h.rpartition(".")[0]]
-    axes: dict[str, dict[str, str]] = {}
-    for h in header:
-        if h in _TIME_COLUMNS:
-            continue
-        ax, dot, col = h.rpartition(".")
-        if (dot and not ax) or col not in _AXIS_COLUMNS:
-            candidates = [*_TIME_COLUMNS, *_AXIS_COLUMNS]
-            candidates += [f"{a}.{c}" for a in dict.fromkeys(prefixes) for c in _AXIS_COLUMNS]
-            close = difflib.get_close_matches(h, candidates, n=1, cutoff=0.6)
-            hint = f"; did you mean {close[0]!r}?" if close else f"; {_COLUMNS_HELP}"
-            raise LogFormatError(f"line {line}: unknown column {h!r}{hint}")
-        axes.setdefault(ax, {})[col] = h
-    if not any(h in _TIME_COLUMNS for h in header):
-        raise LogFormatError(f"line {line}: no time column; expected 'time_s' and/or 'tick'")
-    if not axes:
-        raise LogFormatError(f"line {line}: no axis columns; {_COLUMNS_HELP}")
-    if "" in axes and len(axes) > 1:
-        bare = ", ".join(repr(c) for c in axes[""])
-        named = ", ".join(repr(a) for a in axes if a)
-        raise LogFormatError(
-            f"line {line}: column(s) {bare} have no axis prefix but the log has axes {named}; "
-            f"prefix every axis column (e.g. '{next(a for a in axes if a)}.dac_code')"
-        )
-    for ax, cols in axes.items():
-        label = f"{ax}." if ax else ""
-        who = f"axis {ax!r}" if ax else "the (unprefixed) axis"
-        others = [a for a in axes if a != ax]
-        alike = difflib.get_close_matches(ax, others, n=1, cutoff=0.6) if ax else []
-        hint = f" (axes {ax!r} and {alike[0]!r} look alike: a misspelt prefix?)" if alike else ""
-        for kind, pair in (
-            ("command", ("dac_code", "cmd_v")),
-            ("position", ("counter", "pos_counts")),
-        ):
-            have = [c for c in pair if c in cols]
-            if not have:
-                raise LogFormatError(
-                    f"line {line}: {who} has no {kind} column; expected '{label}{pair[0]}' or "
-                    f"'{label}{pair[1]}'{hint}"
-                )
-            if len(have) == 2:
-                raise LogFormatError(
-                    f"line {line}: {who} has both '{label}{pair[0]}' and '{label}{pair[1]}'; "
-                    f"keep one {kind} column"
-                )
-    return axes
-
-
-def _meta_setting(
-    key: str, meta: Mapping[str, str], meta_line: Mapping[str, int], parse: Callable[[str], Any]
-) -> Any:
-    if key not in meta:
-        return None
-    if len(meta[key]) > MAX_NUMBER_CHARS:
-        raise LogFormatError(
-            f"line {meta_line[key]}: metadata {key!r} is {len(meta[key])} characters long; a "
-            f"setting has at most {MAX_NUMBER_CHARS}"
-        )
-    try:
-        return parse(meta[key])
-    except ValueError as exc:
-        raise LogFormatError(
-            f"line {meta_line[key]}: metadata {key!r} must be {exc}, got {meta[key]!r}"
-        ) from None
-
-
-def _option(key: str, value: Any, parse: Callable[[str], Any]) -> Any:
-    text = ",".join(str(v) for v in value) if isinstance(value, tuple | list) else str(value)
-    if isinstance(value, bool):
-        text = "not a bool"
-    if len(text) > MAX_NUMBER_CHARS:
-        raise LogFormatError(
-            f"option {key} is {len(text)} characters long; a setting has at most {MAX_NUMBER_CHARS}"
-        )
-    try:
-        return parse(text)
-    except ValueError as exc:
-        raise LogFormatError(f"option {key} must be {exc}, got {value!r}") from None
-
-
-def _parse_int(s: str) -> int:
-    t = s.strip()
-    if not _INT_RE.fullmatch(t):
-        raise ValueError
-    return int(t)
-
-
-def _parse_counter_bits(s: str) -> int:
-    try:
-        v = _parse_int(s)
-    except ValueError:
-        v = None
-    if v not in (16, 24, 32):
-        raise ValueError("16, 24 or 32 (bits)")
-    return v
-
-
-def _parse_dac_bits(s: str) -> int:
-    try:
-        v = _parse_int(s)
-    except ValueError:
-        v = 0
-    if not 1 <= v <= 32:
-        raise ValueError("an integer number of bits in 1…32")
-    return v
-
-
-def _parse_range(s: str) -> tuple[float, float]:
-    parts = [_to_float(x) for x in s.strip().strip("[]()").split(",")]
-    if len(parts) != 2 or None in parts:
-        raise ValueError("'low,high' in volts (e.g. -10,10)")
-    lo, hi = parts
-    assert lo is not None and hi is not None
-    lim = _DAC_RANGE_LIMIT_V
-    if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi and -lim <= lo and hi <= lim):
-        raise ValueError(f"'low,high' in volts with low < high, each within ±{lim:g} V")
-    return (lo, hi)
-
-
-def _parse_period(s: str) -> float:
-    v = _to_float(s.strip())
-    lo, hi = PERIOD_RANGE_S
-    if v is None or not (math.isfinite(v) and lo <= v <= hi):
-        raise ValueError(f"a number of seconds > 0, within {lo:g} … {hi:g}")
-    return v
-
-
-def _parse_compute(s: str) -> float:
-    v = _to_float(s.strip())
-    if v is None or not (math.isfinite(v) and v >= 0):
-        raise ValueError("a finite number of seconds >= 0")
-    return v
-
-
-def _to_float(s: str) -> float | None:
-    """``float(s)``, or None if ``s`` is not a number (digit separators are not numbers)."""
-    if "_" in s or len(s) > MAX_NUMBER_CHARS:
-        return None
-    try:
-        return float(s)
-    except ValueError:
-        return None
-
-
-# --- data rows ---------------------------------------------------------------------------------
-
-
-class _RowLines:
-    """The 1-based file line of each data row, worked out only when an error names one."""
-
-    __slots__ = ("_body", "_first", "_lines")
-
-    def __init__(self, body: str | None, first: int, lines: np.ndarray | None = None) -> None:
-        self._body, self._first, self._lines = body, first, lines
-
-    def __call__(self, i: int) -> int:
-        if self._lines is None:
-            assert self._body is not None
-            lines = self._body.split("\n")
-            self._lines = np.asarray([k for k, s in enumerate(lines) if s.strip()]) + self._first
-            self._body = None
-        return int(self._lines[i])
-
-
-def _check_field_lengths(body: str, header_line: int, header: list[str]) -> None:
-    """Refuse a data field longer than :data:`MAX_NUMBER_CHARS` before parsing (one scan)."""
-    m = _LONG_FIELD_RE.search(body)
-    if m is None:
-        return
-    start = body.rfind("\n", 0, m.start()) + 1  # the row's first character
-    field_start = body.rfind(",", start, m.start()) + 1 or start
-    j = body.count(",", start, m.start())
-    stop = len(body)
-    for sep in (",", "\n"):
-        k = body.find(sep, m.end())
-        if k >= 0:
-            stop = min(stop, k)
-    row = header_line + 1 + body.count("\n", 0, start)
-    name = f", column {header[j]!r}" if j < len(header) else ""
-    raise LogFormatError(
-        f"row {row}{name}: a field of {stop - field_start} characters (a field has at most "
-        f"{MAX_NUMBER_CHARS})"
-    )
-
-
 def _warn_unknown_metadata(meta: Mapping[str, str], meta_line: Mapping[str, int], src: str) -> None:
     unknown = [k for k in meta if k not in METADATA_KEYS]
     if unknown:
@@ -963,191 +652,6 @@ def _warn_unknown_metadata(meta: Mapping[str, str], meta_line: Mapping[str, int]
             LogMetadataWarning,
             stacklevel=3,
         )
-
-
-def _data_rows(
-    body: str, header_line: int, header: list[str], empty: str
-) -> tuple[np.ndarray, _RowLines]:
-    """The data rows under the header, parsed (``empty``: the message when there are none)."""
-    if not body or body.isspace():
-        raise LogFormatError(empty)
-    _check_field_lengths(body, header_line, header)
-    return _parse_body(body, header_line, header)
-
-
-def _parse_body(body: str, header_line: int, header: list[str]) -> tuple[np.ndarray, _RowLines]:
-    """All data rows as a structured array (field ``c<j>`` per column) and their line numbers.
-
-    The fast path parses the whole body with ``numpy.loadtxt`` (one typed field per column),
-    which skips empty lines. If that fails, whitespace-only lines are dropped and, if the rest
-    still fails, the first bad row is found by bisection (``loadtxt`` judges rows one by one,
-    so a block fails exactly when it holds a bad row) and then explained field by field.
-    """
-    dtype = np.dtype([(f"c{j}", _DTYPES[_KIND[_base(h)]]) for j, h in enumerate(header)])
-    first = header_line + 1
-
-    def load(lines: str | list[str]) -> np.ndarray:
-        src = io.StringIO(lines) if isinstance(lines, str) else lines
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", UserWarning)  # "input contained no data"
-            # numpy < 2 parses "12.5" in an integer column as 12 with a DeprecationWarning
-            warnings.simplefilter("error", DeprecationWarning)
-            return np.loadtxt(src, delimiter=",", dtype=dtype, comments=None, ndmin=1)
-
-    def reason(exc: Exception) -> str:
-        text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        return re.sub(r" at row \d+.*$", "", text)  # loadtxt's row counts from 0 and blocks
-
-    try:
-        return load(body), _RowLines(body, first)
-    except (ValueError, OverflowError, DeprecationWarning):
-        pass
-    lines = body.split("\n")
-    keep = [k for k, s in enumerate(lines) if s.strip()]
-    kept = [lines[k] for k in keep]
-    del lines
-    rows = _RowLines(None, first, np.asarray(keep, dtype=np.int64) + first)
-    try:
-        return load(kept), rows
-    except (ValueError, OverflowError, DeprecationWarning) as exc:
-        why = reason(exc)
-    lo, hi = 0, len(kept)  # the first bad row is in [lo, hi); all rows before lo are good
-    while hi - lo > 1:
-        mid = (lo + hi) // 2
-        try:
-            load(kept[lo:mid])
-            lo = mid
-        except (ValueError, OverflowError, DeprecationWarning) as exc:
-            why = reason(exc)
-            hi = mid
-    raise LogFormatError(
-        _row_problem(kept[lo], rows(lo), header, header_line) or f"row {rows(lo)}: {why}"
-    )
-
-
-def _check_range(
-    values: np.ndarray, bits: int, rows: Callable[[int], int], name: str, what: str
-) -> None:
-    """Raise naming the first row whose value is outside 0 .. 2**bits − 1."""
-    top = (1 << bits) - 1
-    bad = (values < 0) | (values > top)
-    if bad.any():
-        k = int(np.argmax(bad))
-        msg = what.format(v=values[k], bits=bits, top=top)
-        raise LogFormatError(f"row {rows(k)}, column {name!r}: {msg}")
-
-
-def _base(h: str) -> str:
-    return h.rpartition(".")[2]
-
-
-def _row_problem(line: str, row: int, header: list[str], header_line: int) -> str | None:
-    """What is wrong with one data row (wrong number of fields, a bad field), or None."""
-    fields = line.split(",")
-    if len(fields) != len(header):
-        return (
-            f"row {row} has {len(fields)} field{'' if len(fields) == 1 else 's'}; the header "
-            f"(line {header_line}) has {len(header)}"
-        )
-    for s, name in zip(fields, header, strict=True):
-        problem = _field_problem(s, _KIND[_base(name)])
-        if problem:
-            return f"row {row}, column {name!r}: {problem}"
-    return None
-
-
-def _field_problem(s: str, kind: str) -> str | None:
-    """What is wrong with one field of a column of ``kind`` (int, float, text), or None."""
-    if kind == "text":
-        return None
-    t = s.strip()
-    if not t:
-        return "empty value" + (" (an integer is expected)" if kind == "int" else "")
-    if len(t) > MAX_NUMBER_CHARS:
-        return f"a field of {len(t)} characters (a number has at most {MAX_NUMBER_CHARS})"
-    if kind == "int":
-        if _INT_RE.fullmatch(t):
-            return None if -(2**63) <= int(t) < 2**63 else f"{t!r} is too large for int64"
-        x = _to_float(t)
-        if x is None:
-            return f"{t!r} is not a number (an integer is expected)"
-        if not math.isfinite(x):
-            return f"{t!r} is not finite (an integer is expected)"
-        return f"{t!r} is not an integer"
-    x = _to_float(t)
-    if x is None:
-        return f"{t!r} is not a number"
-    if not math.isfinite(x):
-        return f"{t!r} is not finite"
-    return None
-
-
-def _timebase(
-    tick: np.ndarray | None,
-    time_s: np.ndarray | None,
-    rows: _RowLines,
-    *,
-    meta_period: float | None,
-    meta_source: str,
-    opt_period: float | None,
-) -> float:
-    """Check the time columns and choose the period [s]: option, metadata, else ``time_s``."""
-    if tick is not None:
-        step = np.diff(tick)
-        bad = step != 1
-        if bad.any():
-            k = int(np.argmax(bad)) + 1
-            what = "does not increase" if step[k - 1] <= 0 else "skips"
-            raise LogFormatError(
-                f"row {rows(k)}, column 'tick': {tick[k]} after {tick[k - 1]}: the tick {what} "
-                f"(it must step by 1; a dropped sample is not interpolated)"
-            )
-    estimate = None
-    if time_s is not None:
-        dt = np.diff(time_s)
-        back = dt <= 0
-        if back.any():
-            k = int(np.argmax(back)) + 1
-            what = "repeats" if dt[k - 1] == 0 else "goes back"
-            raise LogFormatError(
-                f"row {rows(k)}, column 'time_s': {time_s[k]!r} after {time_s[k - 1]!r}: time "
-                f"{what} (it must increase)"
-            )
-        med = float(np.median(dt))
-        off = np.abs(dt - med) > _REL_TOL * med
-        if off.any():
-            k = int(np.argmax(off)) + 1
-            raise LogFormatError(
-                f"row {rows(k)}, column 'time_s': irregular sampling: interval {dt[k - 1]:.9g} s "
-                f"vs the median {med:.9g} s (more than 0.1 % apart; a dropped sample is not "
-                f"interpolated)"
-            )
-        for value, source in ((meta_period, meta_source), (opt_period, "option period_s")):
-            if value is not None and abs(value - med) > _REL_TOL * med:
-                raise LogFormatError(
-                    f"{source} = {value!r} s disagrees with the time_s column (median interval "
-                    f"{med:.9g} s) by more than 0.1 %"
-                )
-        # end to end: unlike the median, not limited by the resolution time_s is written with
-        estimate = float(time_s[-1] - time_s[0]) / (time_s.shape[0] - 1)
-        if tick is not None:
-            p = estimate if meta_period is None else meta_period
-            bad = np.abs(tick * p - time_s) > _REL_TOL * p
-            if bad.any():
-                k = int(np.argmax(bad))
-                src = "from time_s" if meta_period is None else meta_source
-                raise LogFormatError(
-                    f"row {rows(k)}: tick {tick[k]} × period {p:.9g} s ({src}) = "
-                    f"{tick[k] * p:.9g} s but time_s = {time_s[k]!r} s; tick and time_s must agree "
-                    f"within 0.1 % of a period"
-                )
-    for p in (opt_period, meta_period, estimate):
-        if p is not None:
-            return p
-    raise LogFormatError(
-        "the log has no time_s column and no period: add a '# period_s: <seconds>' metadata "
-        "line or give the period (option period_s)"
-    )
 
 
 def _axis_log(
@@ -1194,22 +698,3 @@ def _axis_log(
         counter_faults=faults,
         name=ax,
     )
-
-
-def _modes(text: np.ndarray, name: str, rows: _RowLines) -> np.ndarray:
-    codes = np.full(text.shape, -1, dtype=np.int8)
-    for m, mode_name in enumerate(MODE_NAMES):
-        codes[text == mode_name] = m
-    if np.any(codes < 0):
-        stripped = np.char.strip(text)
-        for m, mode_name in enumerate(MODE_NAMES):
-            codes[stripped == mode_name] = m
-        codes[np.char.str_len(text) >= _MODE_WIDTH] = -1  # possibly truncated on reading
-    bad = codes < 0
-    if bad.any():
-        k = int(np.argmax(bad))
-        raise LogFormatError(
-            f"row {rows(k)}, column {name!r}: mode {str(text[k]).strip()!r} is not one of "
-            f"{', '.join(MODE_NAMES)}"
-        )
-    return codes

@@ -18,13 +18,13 @@ from typing import Any
 import numpy as np
 
 from servotune._version import __version__
-from servotune.engine import Loop, Trace, simulate
 from servotune.errors import IdentificationError
 from servotune.io.files import atomic_write_text
 from servotune.logs import write_log
 from servotune.metrics import tracking_metrics
 from servotune.rig import Rig, describe_rig, load_rig
 from servotune.scenarios import Inputs, Scenario, build_scenario, check_run_memory
+from servotune.sim.engine import Loop, Trace, simulate
 from servotune.tune.pi import pi_loop_shaping
 
 __all__ = [

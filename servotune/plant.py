@@ -18,9 +18,9 @@ import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-import numba as nb
 import numpy as np
 
+from servotune._numba_cache import jit
 from servotune.validate import show_value
 
 if TYPE_CHECKING:  # python-control is imported where it is used (it is slow to import)
@@ -30,6 +30,7 @@ __all__ = [
     "NROW",
     "Plant",
     "advance",
+    "advance_span",
     "advance_tick",
     "discretize",
     "discretize_lti",
@@ -144,7 +145,7 @@ def step_coefficients(h_s: float, tau_s: float) -> tuple[float, float]:
     return a, -tau_s * math.expm1(-h_s / tau_s)
 
 
-@nb.njit(cache=True)
+@jit
 def advance(
     p: float,
     v: float,
@@ -355,7 +356,7 @@ def plant_row(
     return row, m
 
 
-@nb.njit(cache=True, inline="always")
+@jit(inline="always")
 def advance_tick(
     p: float, v: float, w_old: float, w_new: float, row: np.ndarray
 ) -> tuple[float, float]:
@@ -377,6 +378,44 @@ def advance_tick(
     return advance(
         p, v, w_new, row[R_H2], row[R_A2], row[R_B2], gain, row[R_TAU], row[R_COULOMB], vmax
     )
+
+
+@jit(inline="always")
+def _advance_for(p: float, v: float, w: float, h: float, row: np.ndarray) -> tuple[float, float]:
+    """:func:`advance` over ``h`` seconds, its coefficients computed for ``h``."""
+    tau = row[R_TAU]
+    return advance(p, v, w, h, math.exp(-h / tau), -tau * math.expm1(-h / tau), row[R_GAIN], tau,
+                   row[R_COULOMB], row[R_VMAX])  # fmt: skip
+
+
+@jit(inline="always")
+def advance_span(
+    p: float, v: float, w_old: float, w_new: float, lam: float, h: float, row: np.ndarray
+) -> tuple[float, float]:
+    """Move a plant over ``h`` seconds from a tick start: ``w_old`` until ``lam``, then ``w_new``.
+
+    :func:`advance_tick` for a span whose length is not the row's tick (a slave CPU's tick
+    stretched by a clock sync, the state inside a tick): the same exact solution, coefficients
+    computed for these lengths.
+
+    Parameters
+    ----------
+    p, v : float
+        Position [counts] and speed [counts/s] at the tick start.
+    w_old, w_new : float
+        Net inputs before and from ``lam`` [V].
+    lam : float
+        When the input switches, from the tick start [s], >= 0.
+    h : float
+        Length of the span [s], >= 0.
+    row : ndarray
+        The plant's row (:func:`plant_row`).
+    """
+    if h <= lam:
+        return _advance_for(p, v, w_old, h, row)
+    if lam > 0.0:
+        p, v = _advance_for(p, v, w_old, lam, row)
+    return _advance_for(p, v, w_new, h - lam, row)
 
 
 def discretize_lti(

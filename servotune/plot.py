@@ -12,7 +12,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from servotune.engine import Trace
+from servotune.sim.engine import Trace
 
 if TYPE_CHECKING:
     from servotune.arch.linkage import LinkageResult

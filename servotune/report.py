@@ -20,12 +20,12 @@ from typing import Any
 import numpy as np
 
 from servotune._version import __version__
-from servotune.engine import simulate
 from servotune.io.files import atomic_write_text
 from servotune.laws.fuzzy_pid import TABLE_NAMES, FuzzyPIDConstants
 from servotune.plant import discretize
 from servotune.rig import Rig, load_rig
 from servotune.scenarios import step_inputs, sync_move
+from servotune.sim.engine import simulate
 from servotune.tuning import Tuning, read_tuning
 
 __all__ = ["loop_response", "write_report"]

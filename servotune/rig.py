@@ -3,28 +3,26 @@
 A rig file (SPEC §5) describes the hardware around the loop and one ``[axis.<name>]`` table per
 axis with its plant under ``[axis.<name>.plant]``. Every field is validated on load; an error
 names the field, the value and the unit. Unknown keys are errors (a misspelt key would otherwise
-be silently ignored).
+be silently ignored). The TOML machinery (tables built into dataclasses, a plant table edited in
+place) is :mod:`servotune.io.rig`; this module holds the model and checks files against it.
 """
 
 from __future__ import annotations
 
-import errno
 import math
 import tomllib
-from collections.abc import Mapping, MutableMapping
-from dataclasses import MISSING, dataclass, fields
+from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
-
-import tomlkit
-import tomlkit.exceptions
-import tomlkit.items
 
 from servotune.errors import RigError
 from servotune.hw import counter as hw_counter
 from servotune.hw import dac as hw_dac
 from servotune.hw import timer as hw_timer
 from servotune.io.files import atomic_write_bytes, read_toml
+from servotune.io.rig import FLOAT_SIGNIFICANT_DIGITS as FLOAT_SIGNIFICANT_DIGITS
+from servotune.io.rig import build_section, edit_plant_text
 from servotune.laws.lock import lock_holding_band
 from servotune.plant import Plant
 from servotune.validate import check_integer, check_keys, check_number, is_number, show_value
@@ -452,48 +450,6 @@ def _table(
     return t
 
 
-def build_section(
-    cls: type, table: Mapping[str, Any], path: str, error: type[Exception] = RigError, **fixed: Any
-) -> Any:
-    """Build the dataclass ``cls`` from one TOML table, errors naming ``path.field``.
-
-    Unknown keys are refused (the message lists the allowed ones); lists become tuples;
-    the dataclass's own validation message is prefixed with ``path``. Used for the rig file and
-    for the architecture configurations (``servotune.arch.gantry``, ``servotune.arch.linkage``).
-    """
-    try:
-        return _build(cls, table, path, **fixed)
-    except RigError as exc:
-        if error is RigError:
-            raise
-        raise error(str(exc)) from None
-
-
-def _build(cls: type, table: Mapping[str, Any], path: str, **fixed: Any) -> Any:
-    allowed = [f.name for f in fields(cls) if f.init and f.name not in fixed]
-    required = [
-        f.name for f in fields(cls)
-        if f.name in allowed and f.default is MISSING and f.default_factory is MISSING
-    ]  # fmt: skip
-    kwargs = check_keys(table, path, required, allowed, error=RigError)
-    for k, v in kwargs.items():
-        for x in v if isinstance(v, list) else (v,):
-            if type(x) is int and not -(2**63) <= x < 2**63:  # no field takes such a number
-                raise RigError(
-                    f"{path}.{k} must be a number within ±2**63 (int64), got {show_value(x)}"
-                )
-        if isinstance(v, list):
-            kwargs[k] = tuple(v)
-    try:
-        return cls(**kwargs, **fixed)
-    except RigError:
-        raise
-    except TypeError as exc:
-        raise RigError(f"[{path}]: {exc}") from None
-    except ValueError as exc:
-        raise RigError(f"{path}.{exc}") from None
-
-
 def rig_from_dict(data: Mapping[str, Any], default_name: str = "rig") -> Rig:
     """Build and validate a :class:`Rig` from the parsed contents of a rig file.
 
@@ -506,10 +462,10 @@ def rig_from_dict(data: Mapping[str, Any], default_name: str = "rig") -> Rig:
                error=RigError, noun="table")  # fmt: skip
     meta = _table(data, "rig", "rig", required=False)
     check_keys(meta, "rig", (), ("name", "description"), error=RigError)
-    timer = _build(Timer, _table(data, "timer", "timer"), "timer")
-    ctr = _build(Counter, _table(data, "counter", "counter"), "counter")
-    dac = _build(Dac, _table(data, "dac", "dac"), "dac")
-    enc = _build(Encoder, _table(data, "encoder", "encoder"), "encoder")
+    timer = build_section(Timer, _table(data, "timer", "timer"), "timer")
+    ctr = build_section(Counter, _table(data, "counter", "counter"), "counter")
+    dac = build_section(Dac, _table(data, "dac", "dac"), "dac")
+    enc = build_section(Encoder, _table(data, "encoder", "encoder"), "encoder")
     axes_t = _table(data, "axis", "axis")
     axes = []
     for name, at in axes_t.items():
@@ -521,9 +477,9 @@ def rig_from_dict(data: Mapping[str, Any], default_name: str = "rig") -> Rig:
         pt = at.pop("plant")
         if not isinstance(pt, Mapping):
             raise RigError(f"[axis.{name}.plant] must be a table")
-        plant = _build(Plant, pt, f"axis.{name}.plant")
+        plant = build_section(Plant, pt, f"axis.{name}.plant")
         check_plant(plant, f"axis.{name}.plant", dac.range_v)
-        axes.append(_build(Axis, at, f"axis.{name}", name=name, plant=plant))
+        axes.append(build_section(Axis, at, f"axis.{name}", name=name, plant=plant))
     for key in ("name", "description"):
         if key in meta and not isinstance(meta[key], str):
             raise RigError(f"rig.{key} must be a string, got {show_value(meta[key])}")
@@ -621,108 +577,6 @@ def describe_rig(rig: Rig) -> dict[str, Any]:
 EXAMPLE_RIG_PATH = Path(__file__).resolve().parents[1] / "plants" / "pc-dual-servo.toml"
 """The example rig of seed 000, the template :func:`write_plant` starts a new rig file from."""
 
-FLOAT_SIGNIFICANT_DIGITS = 7
-"""Significant digits :func:`write_plant` keeps of each parameter (relative error <= 5e-7)."""
-
-_FITTED_KEYS = ("gain_cps_per_v", "tau_s", "delay_s", "offset_v", "coulomb_v")
-# Settings of the hardware that a fit does not estimate: written only when the plant sets them
-# (differs from the Plant default), otherwise the file's values stay.
-_KEPT_KEYS = ("max_speed_rpm", "noise_counts")
-
-
-def _toml_float(value: float) -> str:
-    """TOML text of ``value`` rounded to :data:`FLOAT_SIGNIFICANT_DIGITS` significant digits.
-
-    The rounded number is written with ``repr``, the shortest text that reads back as exactly
-    that float: ``12288.049999999999`` → ``12288.05``, ``0.0008`` → ``0.0008``, ``12288`` →
-    ``12288.0``, ``1.5e-05`` → ``1.5e-05`` (valid TOML). ``-0.0`` is written as ``0.0``.
-    """
-    x = float(f"{float(value):.{FLOAT_SIGNIFICANT_DIGITS}g}")
-    if x == 0.0:
-        x = 0.0
-    return repr(x)
-
-
-def _set_float(table: MutableMapping[str, Any], key: str, value: float) -> float:
-    """Set ``table[key]`` to ``value`` (rounded, see :func:`_toml_float`); return what is written.
-
-    An existing entry that already holds that value keeps its text (``0.030`` stays ``0.030``).
-    A replaced entry keeps its trailing comment, at the same column where the new value allows.
-    """
-    text = _toml_float(value)
-    number = float(text)
-    old = table.get(key)
-    if is_number(old) and float(old) == number:
-        return float(old)
-    item = tomlkit.value(text)
-    if isinstance(old, tomlkit.items.Item) and old.trivia.comment:
-        ws = old.trivia.comment_ws
-        column = len(old.as_string()) + len(ws)
-        item.trivia.comment_ws = " " * max(column - len(text), min(len(ws), 2), 1)
-        item.trivia.comment = old.trivia.comment
-    table[key] = item
-    return number
-
-
-def _one_line(provenance: str) -> str:
-    line = provenance.strip()
-    bad = [c for c in line if (ord(c) < 0x20 and c != "\t") or ord(c) == 0x7F]
-    if bad:
-        raise RigError(
-            f"provenance must be one line of text without control characters, got "
-            f"{show_value(provenance)}"
-        )
-    return line
-
-
-def _plant_section(
-    text: str, source: Path, axis: str, plant: Plant, provenance: str | None
-) -> tuple[str, dict[str, float]]:
-    """``text`` with the plant table of ``axis`` rewritten, and the values written."""
-    try:
-        doc = tomlkit.parse(text)
-    except tomlkit.exceptions.TOMLKitError as exc:
-        raise RigError(f"rig file {str(source)!r} is not valid TOML: {exc}") from None
-    axes = doc.get("axis")
-    names = list(axes) if isinstance(axes, Mapping) else []
-    if not isinstance(axes, MutableMapping) or axis not in axes:
-        raise RigError(
-            f"no axis {show_value(axis)} in rig file {str(source)!r}; axes: {names}. "
-            f"Choose one of these or add an [axis.{axis}] table first."
-        )
-    axis_table = axes[axis]
-    if not isinstance(axis_table, MutableMapping):
-        raise RigError(f"[axis.{axis}] in {str(source)!r} must be a table")
-    if "plant" not in axis_table:
-        axis_table["plant"] = tomlkit.table()
-    table = axis_table["plant"]
-    if not isinstance(table, MutableMapping):
-        raise RigError(f"[axis.{axis}.plant] in {str(source)!r} must be a table")
-
-    written = {key: _set_float(table, key, getattr(plant, key)) for key in _FITTED_KEYS}
-    defaults = {f.name: f.default for f in fields(Plant)}
-    for key in _KEPT_KEYS:
-        value = getattr(plant, key)
-        if value != defaults[key]:
-            written[key] = _set_float(table, key, value)
-
-    if provenance is not None:
-        line = _one_line(provenance)
-        trivia = getattr(table, "trivia", None)
-        if trivia is None:
-            raise RigError(
-                f"[axis.{axis}.plant] in {str(source)!r} is written with dotted keys "
-                f"(plant.tau_s = ...), which leaves no header for the provenance comment; "
-                f"write it as an [axis.{axis}.plant] table or pass provenance=None"
-            )
-        if line:
-            trivia.comment_ws = trivia.comment_ws or "  "
-            trivia.comment = f"# {line}"
-        else:
-            trivia.comment_ws = ""
-            trivia.comment = ""
-    return doc.as_string(), written
-
 
 def write_plant(
     path: str | Path,
@@ -797,33 +651,9 @@ def write_plant(
     if not isinstance(plant, Plant):
         raise TypeError(f"plant must be a servotune.plant.Plant, got {type(plant).__name__}")
     target = Path(path)
-    directory = target.parent
-    if not directory.is_dir():
-        raise FileNotFoundError(
-            errno.ENOENT,
-            f"cannot write rig file {str(target)!r}: its directory does not exist "
-            f"(create it first)",
-            str(directory),
-        )
-    source = target
-    try:
-        raw = target.read_bytes()
-    except FileNotFoundError:
-        source = Path(template)
-        try:
-            raw = source.read_bytes()
-        except OSError as exc:
-            raise RigError(
-                f"cannot read template rig file {str(source)!r}: {exc.strerror or exc}"
-            ) from None
-    except OSError as exc:
-        raise RigError(f"cannot read rig file {str(target)!r}: {exc.strerror or exc}") from None
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise RigError(f"rig file {str(source)!r} is not valid TOML: {exc}") from None
-
-    new_text, written = _plant_section(text, source, axis, plant, provenance)
+    new_text, written = edit_plant_text(
+        target, axis, plant, template=template, provenance=provenance
+    )
 
     # The result must load as a rig, with the values just written, before anything is written.
     try:

@@ -26,12 +26,12 @@ from typing import Any
 
 import numpy as np
 
-from servotune.engine import simulate
 from servotune.errors import SpecError
 from servotune.laws.axis import MODE_TASK
 from servotune.metrics import StepInfo, step_info
 from servotune.rig import Rig, load_rig
 from servotune.scenarios import step_inputs
+from servotune.sim.engine import simulate
 from servotune.tuning import Tuning, read_tuning
 
 __all__ = ["StepResponse", "assert_step_response", "step_response"]

@@ -31,11 +31,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from servotune.engine import Loop
 from servotune.errors import TuningError
 from servotune.io.files import atomic_write_text, json_safe, parse_json, read_bytes
 from servotune.laws.axis import AxisController
 from servotune.rig import ROLES, Rig
+from servotune.sim.engine import Loop
 from servotune.validate import check_keys, show_value
 
 __all__ = [

@@ -120,8 +120,8 @@ def test_run_paths_check_before_allocating(rig: st.Rig) -> None:
 
 
 def test_engine_checks_the_trace_arrays(rig: st.Rig) -> None:
-    from servotune.engine import Loop, simulate
     from servotune.scenarios import Inputs
+    from servotune.sim.engine import Loop, simulate
 
     inputs = Inputs.hold(2000, len(rig.axes))
     set_memory_budget(2000 * 2 * 72 - 1)

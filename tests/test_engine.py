@@ -174,14 +174,14 @@ def test_batch_equals_alone_bit_for_bit(rig: st.Rig) -> None:
     batch = st.prepare_batch(loop, plants=variants, seeds=seeds)
     res2 = st.run_batch(batch, scen.inputs, metrics_only=False, threads=2)
     res1 = st.run_batch(batch, scen.inputs, metrics_only=False, threads=1)
-    np.testing.assert_array_equal(res2.traces["code"], res1.traces["code"])
-    np.testing.assert_array_equal(res2.metrics, res1.metrics)
+    np.testing.assert_array_equal(res2.traces.code, res1.traces.code)
+    np.testing.assert_array_equal(res2.metrics.array, res1.metrics.array)
     for i, (plants, seed) in enumerate(zip(variants, seeds, strict=True)):
         alone = st.simulate(loop, scen.inputs, seed=seed, plants=plants)
-        np.testing.assert_array_equal(alone.code, res2.traces["code"][i])
-        np.testing.assert_array_equal(alone.counter, res2.traces["counter"][i])
+        np.testing.assert_array_equal(alone.code, res2.traces.code[i])
+        np.testing.assert_array_equal(alone.counter, res2.traces.counter[i])
     # the variants really differ
-    assert not np.array_equal(res2.traces["code"][0], res2.traces["code"][1])
+    assert not np.array_equal(res2.traces.code[0], res2.traces.code[1])
 
 
 def test_metrics_only_agree_with_traces(rig: st.Rig) -> None:
@@ -190,9 +190,9 @@ def test_metrics_only_agree_with_traces(rig: st.Rig) -> None:
     batch = st.prepare_batch(loop, n_candidates=2, seeds=3)
     res = st.run_batch(batch, scen.inputs, metrics_only=False)
     only = st.run_batch(batch, scen.inputs, metrics_only=True)
-    np.testing.assert_array_equal(res.metrics, only.metrics)
-    e = res.traces["err_counts"][0, :, 0]
-    task = res.traces["mode"][0, :, 0] == MODE_TASK
+    np.testing.assert_array_equal(res.metrics.array, only.metrics.array)
+    e = res.traces.err_counts[0, :, 0]
+    task = res.traces.mode[0, :, 0] == MODE_TASK
     assert res.metric("max_abs_err_counts")[0, 0] == np.max(np.abs(e[task]))
     np.testing.assert_allclose(
         res.metric("rms_err_counts")[0, 0], np.sqrt(np.mean(e[task].astype(float) ** 2)),
@@ -260,7 +260,7 @@ def test_lane_grouping_changes_no_result(
     rig: st.Rig, lanes: int, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     # candidates are interleaved per thread (engine.LANES); 5 candidates leave a partial group
-    import servotune.engine as engine
+    import servotune.sim.engine as engine
 
     loop = st.Loop.from_rig(rig, default_pi_gains(rig))
     scen = st.build_scenario(rig, "track", axis="master", seconds=1.0)
@@ -273,8 +273,8 @@ def test_lane_grouping_changes_no_result(
     monkeypatch.setattr(engine, "LANES", lanes)
     got = st.run_batch(batch, scen.inputs, metrics_only=False)
     for key in ("code", "counter", "flags"):
-        np.testing.assert_array_equal(got.traces[key], ref.traces[key])
-    np.testing.assert_array_equal(got.metrics, ref.metrics)
+        np.testing.assert_array_equal(getattr(got.traces, key), getattr(ref.traces, key))
+    np.testing.assert_array_equal(got.metrics.array, ref.metrics.array)
 
 
 @pytest.mark.parametrize("latched", [True, False])
@@ -285,7 +285,7 @@ def test_one_axis_metrics_only_equal_traced_run(
     # equal those of the traced kernel (engine._run_group) bit for bit, over noise, friction,
     # the speed limit, lags of 0 and 1 whole ticks, every mode, a reset, a following-error
     # trip, excitation, load and the three task laws
-    import servotune.engine as engine
+    import servotune.sim.engine as engine
     from servotune.laws.axis import AxisController
     from servotune.laws.fuzzy_pid import FuzzyPIDGains
     from servotune.laws.pi import PIGains
@@ -356,43 +356,69 @@ def test_one_axis_metrics_only_equal_traced_run(
     monkeypatch.setattr(engine, "_kernel", no_general_kernel)
     for threads in (1, 2):
         lean = st.run_batch(batch, inputs, metrics_only=True, metric_from_tick=150, threads=threads)
-        np.testing.assert_array_equal(lean.metrics, traced.metrics)
+        np.testing.assert_array_equal(lean.metrics.array, traced.metrics.array)
     # the scenario reaches what it is meant to: a trip, saturation, and a reset that clears it
     assert traced.metric("first_fault_tick")[5, 0] > 0
     assert traced.metric("saturated_ticks").max() > 0
-    assert not np.any(traced.traces["flags"][5, 2200:2400, 0] & FLAG_FOLLOWING_ERROR)
+    assert not np.any(traced.traces.flags[5, 2200:2400, 0] & FLAG_FOLLOWING_ERROR)
 
 
-def test_lean_kernel_that_cannot_compile_falls_back_to_the_general_kernel(
+def test_a_kernel_that_cannot_compile_is_an_error_with_its_cause(
     rig: st.Rig, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    # the lean kernel uses numba internals (engine._try_lean); a numba release without them
-    # must cost speed only: one warning, then every batch runs in the general kernel
+    # numba is used through its public API only, and a compile failure is not hidden behind a
+    # slower fallback: run_batch raises CompileError naming the kernel, numba and the cause
     import numba
 
-    import servotune.engine as engine
+    import servotune.sim.engine as engine
+    from servotune.errors import CompileError
 
     r1 = one_axis(rig)
     loop = st.Loop.from_rig(r1, [st.PIGains(kp=0.5, ki=5.0)])
-    n = 1500
-    ref = trapezoid_ref(n, r1.period_s, 20_000, 40_000.0, 300_000.0)
-    inputs = st.Inputs.hold(n, 1).replace_axis(0, mode=MODE_TASK, ref_counts=ref)
+    n = 200
+    inputs = st.Inputs.hold(n, 1).replace_axis(0, mode=MODE_TASK, ref_counts=np.full(n, 100))
     batch = st.prepare_batch(loop, n_candidates=3, seeds=7)
-    want = st.run_batch(batch, inputs, metrics_only=False).metrics
     calls = []
 
-    def broken_lean(*args: object) -> None:
+    def refused(*args: object) -> None:
         calls.append(1)
         raise numba.core.errors.TypingError("no such internal")
 
-    monkeypatch.setattr(engine, "_kernel_lean", broken_lean)
-    monkeypatch.setattr(engine, "_lean_works", None)
-    with pytest.warns(RuntimeWarning, match="lean one-axis kernel does not compile"):
-        got = st.run_batch(batch, inputs)
-    np.testing.assert_array_equal(got.metrics, want)
+    monkeypatch.setattr(engine, "_kernel_lean", refused)
     with warnings.catch_warnings():
-        warnings.simplefilter("error")  # no second attempt, no second warning
-        again = st.run_batch(batch, inputs)
-    np.testing.assert_array_equal(again.metrics, want)
+        warnings.simplefilter("error")
+        with pytest.raises(CompileError, match=r"kernel refused .*numba .*no such internal"):
+            st.run_batch(batch, inputs)
     assert calls == [1]
-    assert engine._lean_works is False
+    # the general kernel is untouched
+    assert np.all(np.isfinite(st.run_batch(batch, inputs, metrics_only=False).metrics.array))
+
+
+def test_the_old_module_path_warns_and_gives_the_same_objects() -> None:
+    # issue 16: the engine moved to servotune.sim.engine; the old path warns, same objects
+    import importlib
+    import sys
+
+    import servotune.sim.engine as new
+
+    sys.modules.pop("servotune.engine", None)
+    with pytest.warns(DeprecationWarning, match="servotune.sim.engine"):
+        old = importlib.import_module("servotune.engine")
+    assert old.__all__ == new.__all__
+    assert all(getattr(old, name) is getattr(new, name) for name in new.__all__)
+
+
+def test_batch_metrics_are_named_and_round_trip_the_kernel_array() -> None:
+    # BatchResult.metrics is a named object: each field is the kernel's column of that name
+    from servotune.sim.result import BatchMetrics
+    from servotune.sim.tick import METRIC_NAMES
+
+    arr = np.arange(2 * 3 * len(METRIC_NAMES), dtype=float).reshape(2, 3, len(METRIC_NAMES))
+    m = BatchMetrics.from_array(arr)
+    np.testing.assert_array_equal(m.array, arr)
+    np.testing.assert_array_equal(m.itae_counts_s2, arr[:, :, METRIC_NAMES.index("itae_counts_s2")])
+    assert set(m.to_dict()) == set(METRIC_NAMES)
+    res = st.BatchResult(metrics=m)
+    np.testing.assert_array_equal(res.metric("task_ticks"), m.task_ticks)
+    with pytest.raises(st.SimulationError, match="no metric 'nope'"):
+        res.metric("nope")

@@ -1,18 +1,25 @@
 """File input and output.
 
 :mod:`servotune.io.files` reads and writes bytes, JSON and TOML for every file kind (bounds on
-size, nesting, field length; the BOM; atomic writes). The file kinds and their one reader each:
+size, nesting, field length; the BOM; atomic writes). The log-format CSV is parsed by
+:mod:`servotune.io.log_header` (text, metadata, header) and :mod:`servotune.io.log_rows` (data
+rows, time base); :mod:`servotune.io.rig` builds the rig file's tables and edits its plant
+table; :mod:`servotune.io.excitation` reads and writes excitation files. The file kinds and
+their one reader each:
 
-==================  ==============================================  ============================
-file                reader                                          schema (checked there)
-==================  ==============================================  ============================
-log CSV             :func:`servotune.logs.read_log`                 SPEC §5 columns, metadata
-excitation CSV      :func:`servotune.excite.read_excitation`        the log's rows (``read_table``)
-rig TOML            :func:`servotune.rig.load_rig`                  ``Rig`` and its sections
-spec TOML           :func:`servotune.verify.load_spec`              ``Spec``, ``ScenarioSpec``
-tuning JSON         :func:`servotune.tuning.read_tuning`            ``Tuning.from_dict``
-tables JSON         :func:`servotune.export.json.load_tables`       ``check_tables``
-gantry TOML         :func:`servotune.arch.gantry.load_gantry`              ``GantryConfig``
-linkage TOML        :func:`servotune.arch.linkage.load_linkage`          ``LinkageConfig``
-==================  ==============================================  ============================
+==============  ===============================================  ===============================
+file            reader                                           schema (checked there)
+==============  ===============================================  ===============================
+log CSV         :func:`servotune.logs.read_log`                  SPEC §5 columns, metadata
+excitation CSV  :func:`servotune.io.excitation.read_excitation`  the log's rows (``read_table``)
+rig TOML        :func:`servotune.rig.load_rig`                   ``Rig`` and its sections
+spec TOML       :func:`servotune.verify.load_spec`               ``Spec``, ``ScenarioSpec``
+tuning JSON     :func:`servotune.tuning.read_tuning`             ``Tuning.from_dict``
+tables JSON     :func:`servotune.export.json.load_tables`        ``check_tables``
+gantry TOML     :func:`servotune.arch.gantry.load_gantry`        ``GantryConfig``
+linkage TOML    :func:`servotune.arch.linkage.load_linkage`      ``LinkageConfig``
+==============  ===============================================  ===============================
+
+The readers of logs, rigs and excitations stay importable from :mod:`servotune.logs`,
+:mod:`servotune.rig` and :mod:`servotune.excite` (where the models they build live).
 """

@@ -33,7 +33,6 @@ import numpy as np
 from scipy.optimize import differential_evolution
 from scipy.stats import qmc
 
-from servotune.engine import Loop, prepare_batch, run_batch
 from servotune.errors import SpecError
 from servotune.io.files import json_float
 from servotune.laws.axis import AxisController
@@ -42,13 +41,14 @@ from servotune.laws.pi import PIGains
 from servotune.plant import Plant
 from servotune.rig import Rig
 from servotune.scenarios import Scenario, sync_move
+from servotune.sim.engine import Loop, prepare_batch, run_batch
 
 __all__ = [
     "STRUCTURES",
     "SlaveTuneSpec",
     "SlaveTuning",
+    "corner_plants",
     "ideal_feedforward",
-    "plant_variants",
     "tune_slave",
 ]
 
@@ -176,7 +176,7 @@ def ideal_feedforward(plant: Plant, lsb_v: float) -> float:
     return 1.0 / (plant.gain_cps_per_v * lsb_v)
 
 
-def plant_variants(plant: Plant, gain_spread: float, tau_spread: float) -> tuple[Plant, ...]:
+def corner_plants(plant: Plant, gain_spread: float, tau_spread: float) -> tuple[Plant, ...]:
     """The nominal plant and the four corners of gain ``±gain_spread``, tau ``±tau_spread``."""
     out = [plant]
     for g in (1 - gain_spread, 1 + gain_spread):
@@ -367,7 +367,7 @@ def tune_slave(
     )
     variants = tuple(
         tuple(v if j == i_s else rig.axes[j].plant for j in range(len(rig.axes)))
-        for v in plant_variants(rig.axes[i_s].plant, spec.gain_spread, spec.tau_spread)
+        for v in corner_plants(rig.axes[i_s].plant, spec.gain_spread, spec.tau_spread)
     )
     seeds = tuple(
         int(s) for s in np.random.SeedSequence(seed).generate_state(len(variants), np.uint64)

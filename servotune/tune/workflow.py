@@ -21,12 +21,12 @@ from typing import Any
 import numpy as np
 
 from servotune._version import __version__
-from servotune.engine import Loop, Trace, simulate
 from servotune.errors import InfeasibleError, SpecError
 from servotune.io.files import json_float
 from servotune.metrics import step_info
 from servotune.rig import Rig, load_rig
 from servotune.scenarios import sync_move
+from servotune.sim.engine import Loop, Trace, simulate
 from servotune.tune.pi import DEFAULT_TARGETS, tune_pi_axis
 from servotune.tune.slave import STRUCTURES, SlaveTuneSpec, SlaveTuning, tune_slave
 from servotune.tuning import Tuning, file_sha256

@@ -1,8 +1,8 @@
 """Verification: does a tuning meet its spec on the bit-true closed loop?
 
 :func:`verify` runs the tuning's controllers, exactly as the runtime
-runs them (the engine: :func:`~servotune.engine.prepare_batch`,
-:func:`~servotune.engine.run_batch`), on every scenario for the nominal plants and every
+runs them (the engine: :func:`~servotune.sim.engine.prepare_batch`,
+:func:`~servotune.sim.engine.run_batch`), on every scenario for the nominal plants and every
 Monte Carlo variant, and reports per limit the worst value, the variant it came from and the
 margin. It also checks what no scenario can show by a number alone: the fastest simulated
 motion against the counter's speed limits, the timer's period error, and that no runtime sum
@@ -19,11 +19,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from servotune.engine import Loop, prepare_batch, run_batch
 from servotune.errors import SpecError
 from servotune.laws.axis import FAULT_MASK, FLAG_SATURATED, MODE_TASK
 from servotune.rig import Rig
 from servotune.scenarios import Inputs, build_scenario, sync_move
+from servotune.sim.engine import BatchTraces, Loop, prepare_batch, run_batch
 from servotune.tuning import Tuning
 from servotune.validate import show_value
 from servotune.verify.checks import (
@@ -127,7 +127,7 @@ def _run(
     loop: Loop, variants: Sequence[Variant], seeds: Sequence[int], inputs: Inputs
 ) -> dict[str, np.ndarray]:
     """Traces of every variant, run in chunks of the engine's batch."""
-    parts: list[dict[str, np.ndarray]] = []
+    parts: list[BatchTraces] = []
     for k in range(0, len(variants), _CHUNK):
         vs = variants[k : k + _CHUNK]
         batch = prepare_batch(
@@ -137,7 +137,7 @@ def _run(
         assert res.traces is not None
         parts.append(res.traces)
     keys = ("counter", "pos_counts", "err_counts", "flags", "true_pos_counts", "speed_cps")
-    return {key: np.concatenate([p[key] for p in parts]) for key in keys}
+    return {key: np.concatenate([getattr(p, key) for p in parts]) for key in keys}
 
 
 def _evaluate(

@@ -7,7 +7,7 @@ initialises ``st_consts_t`` from ``SERVOTUNE_TABLES_INIT`` and drives ``st_tick`
 - Golden run: the C runtime closes the loop around the simulator's plants (``plant_row`` and
   ``advance_tick`` exactly as ``engine._run_group`` uses them, noise off) for 110,000 ticks,
   and every tick's D/A codes and flags (and positions, errors, modes, counter registers) must
-  equal :func:`servotune.engine.simulate` on the same inputs. The scenario has counter wraps
+  equal :func:`servotune.sim.engine.simulate` on the same inputs. The scenario has counter wraps
   both ways on both axes, D/A saturation, lock/task handovers both ways, a reset in task mode,
   excitation in lock and open loop, a following-error trip of the master and a counter fault
   (a load kick too fast for the high-byte rule) of the slave, and resets.
@@ -30,7 +30,6 @@ import numpy as np
 import pytest
 from c_build import STRICT, cc, export_harness, needs_cc, run_replay, shared_harness, ubsan_harness
 
-from servotune.engine import Loop, Trace, simulate
 from servotune.export import constants_crc32, tables_document
 from servotune.fixed import Fixed, align, clamp_e, sat_add, shift_round
 from servotune.hw.counter import unwrap_step
@@ -61,6 +60,7 @@ from servotune.rig import (
     load_rig,
 )
 from servotune.scenarios import Inputs, trapezoid_ref
+from servotune.sim.engine import Loop, Trace, simulate
 from servotune.tune.slave import SlaveTuneSpec
 from servotune.tune.workflow import tune_rig
 from servotune.tuning import Tuning

@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 
 import servotune as st
-from servotune.engine import Loop, simulate
 from servotune.errors import SpecError
 from servotune.pipeline import default_pi_gains
 from servotune.scenarios import sync_move
+from servotune.sim.engine import Loop, simulate
 from servotune.tune.slave import (
     SlaveTuneSpec,
+    corner_plants,
     ideal_feedforward,
-    plant_variants,
     tune_slave,
 )
 from servotune.tune.workflow import rule_tables
@@ -62,7 +62,7 @@ def test_objective_is_the_integer_loop_on_every_variant(rig: st.Rig, composite) 
     scen = sync_move(rig, seconds=SMALL.seconds, load_step_v=SMALL.load_step_v)
     seeds = np.random.SeedSequence(0).generate_state(5, np.uint64)
     itaes = []
-    for v, seed in zip(plant_variants(rig.axes[1].plant, 0.2, 0.3), seeds, strict=True):
+    for v, seed in zip(corner_plants(rig.axes[1].plant, 0.2, 0.3), seeds, strict=True):
         tr = simulate(loop, scen.inputs, seed=int(seed), plants=[rig.axes[0].plant, v])
         task = tr.mode[:, 1] == 1
         k = np.nonzero(task)[0]

@@ -1,0 +1,297 @@
+"""The text, metadata lines and header row of a log-format CSV (SPEC §5).
+
+A log is read as one UTF-8 text (NUL bytes refused, line ends normalised, the memory budget
+checked), split into its ``# key: value`` metadata lines, its header row and the body; the
+header's names are checked and, for a log, classified per axis; the settings the metadata may
+carry (``counter_bits``, ``dac_bits``, ``dac_range_v``, ``period_s``, ``compute_s``) are parsed
+here, from the metadata or from an option. The internals of :func:`servotune.logs.read_log`,
+:func:`servotune.logs.read_table` and :func:`servotune.logs.read_metadata`; every error is a
+one-line :class:`LogFormatError`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import difflib
+import math
+import os
+from collections.abc import Callable, Iterator, Mapping
+from pathlib import Path
+from typing import Any
+
+from servotune.budget import check_memory, format_bytes
+from servotune.errors import LogFormatError
+from servotune.io.files import MAX_NUMBER_CHARS
+from servotune.io.log_rows import _INT_RE, _to_float
+
+__all__ = ["MAX_METADATA_CHARS", "MAX_NAME_CHARS", "PERIOD_RANGE_S"]
+
+_AXIS_COLUMNS = ("dac_code", "cmd_v", "counter", "pos_counts", "ref_counts", "mode")
+_TIME_COLUMNS = ("tick", "time_s")
+PERIOD_RANGE_S = (1e-6, 60.0)
+"""Sample periods a log may have [s] (1 µs … 1 min)."""
+
+MAX_METADATA_CHARS = 1024
+"""Longest metadata value (``# key: value``) accepted [characters]."""
+
+MAX_NAME_CHARS = 64
+"""Longest metadata key or header column name accepted [characters]."""
+
+_DAC_RANGE_LIMIT_V = 1000.0  # |low|, |high| of a D/A range [V]
+
+_COLUMNS_HELP = (
+    "expected tick and/or time_s, and per axis [axis.]dac_code or cmd_v, counter or pos_counts, "
+    "optionally ref_counts and mode"
+)
+
+
+def _meta_pair(line: str) -> tuple[str, str] | None:
+    """``(key, value)`` of a stripped ``# key: value`` line, None for any other comment."""
+    if ":" not in line:
+        return None
+    key, value = (x.strip() for x in line[1:].split(":", 1))
+    return key, value
+
+
+@contextlib.contextmanager
+def _read_errors(src: str, what: str = "log") -> Iterator[None]:
+    """Turn the OS errors of opening a log into one-line LogFormatErrors."""
+    try:
+        yield
+    except FileNotFoundError:
+        raise LogFormatError(f"{what} file {src!r} does not exist") from None
+    except IsADirectoryError:
+        raise LogFormatError(f"{what} {src!r} is a directory, not a file") from None
+    except OSError as exc:
+        raise LogFormatError(f"cannot read {what} {src!r}: {exc.strerror or exc}") from None
+
+
+_READ_BYTES_PER_BYTE = 4  # the bytes, the text, the row lines, the arrays: about 4x the file
+
+
+def _read_text(p: Path, src: str, what: str = "log") -> str:
+    with _read_errors(src, what):
+        with open(p, "rb") as fh:
+            size = os.fstat(fh.fileno()).st_size
+            check_memory(
+                _READ_BYTES_PER_BYTE * size,
+                f"reading {what} {src!r}",
+                f"{format_bytes(size)} × {_READ_BYTES_PER_BYTE}",
+            )
+            data = fh.read()
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        raise LogFormatError(
+            f"{what} {src!r} is not UTF-8 text (byte 0x{data[exc.start]:02x} at line {line})"
+        ) from None
+    nul = text.find("\x00")
+    if nul >= 0:
+        line = text.count("\n", 0, nul) + 1
+        raise LogFormatError(f"{what} {src!r} is not a text file (NUL byte at line {line})")
+    if "\r" in text:
+        text = text.replace("\r\n", "\n").replace("\r", "\n")
+    return text
+
+
+def _split_text(
+    text: str, src: str, what: str = "log"
+) -> tuple[dict[str, str], dict[str, int], int, str, str]:
+    """Metadata, their line numbers, the header's line number and text, and the body text."""
+    if not text or text.isspace():
+        raise LogFormatError(f"{what} {src!r} is empty (no header row)")
+    meta: dict[str, str] = {}
+    meta_line: dict[str, int] = {}
+    pos, line_no, end_of_text = 0, 0, len(text)
+    while pos < end_of_text:
+        nl = text.find("\n", pos)
+        end = end_of_text if nl < 0 else nl
+        line = text[pos:end].strip()
+        line_no += 1
+        if line and not line.startswith("#"):
+            return meta, meta_line, line_no, text[pos:end], text[end + 1 :]
+        kv = _meta_pair(line)
+        if kv is not None:
+            key, value = kv
+            if len(key) > MAX_NAME_CHARS or len(value) > MAX_METADATA_CHARS:
+                item, n, most = (
+                    ("key", len(key), MAX_NAME_CHARS)
+                    if len(key) > MAX_NAME_CHARS
+                    else (f"{key!r} value", len(value), MAX_METADATA_CHARS)
+                )
+                raise LogFormatError(
+                    f"{what} {src!r}, line {line_no}: metadata {item} of {n} characters (at most "
+                    f"{most} are accepted)"
+                )
+            if key in meta and meta[key] != value:
+                raise LogFormatError(
+                    f"line {line_no}: metadata {key!r} given twice with different values "
+                    f"(first on line {meta_line[key]})"
+                )
+            meta[key] = value
+            meta_line[key] = line_no
+        pos = end + 1
+    raise LogFormatError(f"{what} {src!r} has no header row, only metadata or comment lines")
+
+
+def _parse_header(header_text: str, line: int) -> list[str]:
+    names = [h.strip().strip('"').strip() for h in header_text.split(",")]
+    for j, h in enumerate(names):
+        if len(h) > MAX_NAME_CHARS:
+            raise LogFormatError(
+                f"line {line}: header column {j + 1} has a name of {len(h)} characters (at most "
+                f"{MAX_NAME_CHARS} are accepted)"
+            )
+    if all(_to_float(h) is not None for h in names):
+        raise LogFormatError(
+            f"line {line} looks like data, not a header; the first row after the metadata must "
+            f"name the columns (e.g. tick,time_s,dac_code,counter)"
+        )
+    seen: dict[str, int] = {}
+    for j, h in enumerate(names):
+        if not h:
+            hint = " (a trailing comma?)" if j == len(names) - 1 else ""
+            raise LogFormatError(f"line {line}: header column {j + 1} has no name{hint}")
+        if h in seen:
+            raise LogFormatError(
+                f"line {line}: duplicate column {h!r} (header columns {seen[h] + 1} and {j + 1})"
+            )
+        seen[h] = j
+    return names
+
+
+def _classify_columns(header: list[str], line: int) -> dict[str, dict[str, str]]:
+    """Per axis (header order), its column kinds mapped to header names; checks the set."""
+    prefixes = [h.rpartition(".")[0] for h in header if h.rpartition(".")[0]]
+    axes: dict[str, dict[str, str]] = {}
+    for h in header:
+        if h in _TIME_COLUMNS:
+            continue
+        ax, dot, col = h.rpartition(".")
+        if (dot and not ax) or col not in _AXIS_COLUMNS:
+            candidates = [*_TIME_COLUMNS, *_AXIS_COLUMNS]
+            candidates += [f"{a}.{c}" for a in dict.fromkeys(prefixes) for c in _AXIS_COLUMNS]
+            close = difflib.get_close_matches(h, candidates, n=1, cutoff=0.6)
+            hint = f"; did you mean {close[0]!r}?" if close else f"; {_COLUMNS_HELP}"
+            raise LogFormatError(f"line {line}: unknown column {h!r}{hint}")
+        axes.setdefault(ax, {})[col] = h
+    if not any(h in _TIME_COLUMNS for h in header):
+        raise LogFormatError(f"line {line}: no time column; expected 'time_s' and/or 'tick'")
+    if not axes:
+        raise LogFormatError(f"line {line}: no axis columns; {_COLUMNS_HELP}")
+    if "" in axes and len(axes) > 1:
+        bare = ", ".join(repr(c) for c in axes[""])
+        named = ", ".join(repr(a) for a in axes if a)
+        raise LogFormatError(
+            f"line {line}: column(s) {bare} have no axis prefix but the log has axes {named}; "
+            f"prefix every axis column (e.g. '{next(a for a in axes if a)}.dac_code')"
+        )
+    for ax, cols in axes.items():
+        label = f"{ax}." if ax else ""
+        who = f"axis {ax!r}" if ax else "the (unprefixed) axis"
+        others = [a for a in axes if a != ax]
+        alike = difflib.get_close_matches(ax, others, n=1, cutoff=0.6) if ax else []
+        hint = f" (axes {ax!r} and {alike[0]!r} look alike: a misspelt prefix?)" if alike else ""
+        for kind, pair in (
+            ("command", ("dac_code", "cmd_v")),
+            ("position", ("counter", "pos_counts")),
+        ):
+            have = [c for c in pair if c in cols]
+            if not have:
+                raise LogFormatError(
+                    f"line {line}: {who} has no {kind} column; expected '{label}{pair[0]}' or "
+                    f"'{label}{pair[1]}'{hint}"
+                )
+            if len(have) == 2:
+                raise LogFormatError(
+                    f"line {line}: {who} has both '{label}{pair[0]}' and '{label}{pair[1]}'; "
+                    f"keep one {kind} column"
+                )
+    return axes
+
+
+def _meta_setting(
+    key: str, meta: Mapping[str, str], meta_line: Mapping[str, int], parse: Callable[[str], Any]
+) -> Any:
+    if key not in meta:
+        return None
+    if len(meta[key]) > MAX_NUMBER_CHARS:
+        raise LogFormatError(
+            f"line {meta_line[key]}: metadata {key!r} is {len(meta[key])} characters long; a "
+            f"setting has at most {MAX_NUMBER_CHARS}"
+        )
+    try:
+        return parse(meta[key])
+    except ValueError as exc:
+        raise LogFormatError(
+            f"line {meta_line[key]}: metadata {key!r} must be {exc}, got {meta[key]!r}"
+        ) from None
+
+
+def _option(key: str, value: Any, parse: Callable[[str], Any]) -> Any:
+    text = ",".join(str(v) for v in value) if isinstance(value, tuple | list) else str(value)
+    if isinstance(value, bool):
+        text = "not a bool"
+    if len(text) > MAX_NUMBER_CHARS:
+        raise LogFormatError(
+            f"option {key} is {len(text)} characters long; a setting has at most {MAX_NUMBER_CHARS}"
+        )
+    try:
+        return parse(text)
+    except ValueError as exc:
+        raise LogFormatError(f"option {key} must be {exc}, got {value!r}") from None
+
+
+def _parse_int(s: str) -> int:
+    t = s.strip()
+    if not _INT_RE.fullmatch(t):
+        raise ValueError
+    return int(t)
+
+
+def _parse_counter_bits(s: str) -> int:
+    try:
+        v = _parse_int(s)
+    except ValueError:
+        v = None
+    if v not in (16, 24, 32):
+        raise ValueError("16, 24 or 32 (bits)")
+    return v
+
+
+def _parse_dac_bits(s: str) -> int:
+    try:
+        v = _parse_int(s)
+    except ValueError:
+        v = 0
+    if not 1 <= v <= 32:
+        raise ValueError("an integer number of bits in 1…32")
+    return v
+
+
+def _parse_range(s: str) -> tuple[float, float]:
+    parts = [_to_float(x) for x in s.strip().strip("[]()").split(",")]
+    if len(parts) != 2 or None in parts:
+        raise ValueError("'low,high' in volts (e.g. -10,10)")
+    lo, hi = parts
+    assert lo is not None and hi is not None
+    lim = _DAC_RANGE_LIMIT_V
+    if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi and -lim <= lo and hi <= lim):
+        raise ValueError(f"'low,high' in volts with low < high, each within ±{lim:g} V")
+    return (lo, hi)
+
+
+def _parse_period(s: str) -> float:
+    v = _to_float(s.strip())
+    lo, hi = PERIOD_RANGE_S
+    if v is None or not (math.isfinite(v) and lo <= v <= hi):
+        raise ValueError(f"a number of seconds > 0, within {lo:g} … {hi:g}")
+    return v
+
+
+def _parse_compute(s: str) -> float:
+    v = _to_float(s.strip())
+    if v is None or not (math.isfinite(v) and v >= 0):
+        raise ValueError("a finite number of seconds >= 0")
+    return v

@@ -1,0 +1,295 @@
+"""Data rows of a log-format CSV (SPEC §5): parsed in bulk, the first bad one explained.
+
+The rows under the header are parsed with ``numpy.loadtxt`` (one typed field per column, about
+0.7 s per million rows); only when that fails are they scanned to find the first bad row, which
+is then explained field by field with its 1-based file line and column. Also here: the time base
+(``tick`` and ``time_s`` checked, the period chosen), counter and D/A range checks and the
+``mode`` column. The internals of :func:`servotune.logs.read_log` and
+:func:`servotune.logs.read_table`; every error is a one-line :class:`LogFormatError`.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+import re
+import warnings
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from servotune.errors import LogFormatError
+from servotune.io.files import MAX_NUMBER_CHARS
+from servotune.laws.axis import MODE_NAMES
+
+_REL_TOL = 1e-3  # SPEC §5: intervals within 0.1 % of the median; tick·period ≈ time_s
+_KIND = {
+    "tick": "int",
+    "time_s": "float",
+    "dac_code": "int",
+    "cmd_v": "float",
+    "counter": "int",
+    "pos_counts": "int",
+    "ref_counts": "int",
+    "mode": "text",
+}
+_MODE_WIDTH = 16  # mode fields are read as U16; a value that fills it may be truncated: invalid
+_DTYPES: dict[str, Any] = {"int": np.int64, "float": np.float64, "text": f"U{_MODE_WIDTH}"}
+_INT_RE = re.compile(r"[+-]?[0-9]+")
+_LONG_FIELD_RE = re.compile(rf"[^,\n]{{{MAX_NUMBER_CHARS + 1}}}")
+
+
+def _to_float(s: str) -> float | None:
+    """``float(s)``, or None if ``s`` is not a number (digit separators are not numbers)."""
+    if "_" in s or len(s) > MAX_NUMBER_CHARS:
+        return None
+    try:
+        return float(s)
+    except ValueError:
+        return None
+
+
+# --- data rows ---------------------------------------------------------------------------------
+
+
+class _RowLines:
+    """The 1-based file line of each data row, worked out only when an error names one."""
+
+    __slots__ = ("_body", "_first", "_lines")
+
+    def __init__(self, body: str | None, first: int, lines: np.ndarray | None = None) -> None:
+        self._body, self._first, self._lines = body, first, lines
+
+    def __call__(self, i: int) -> int:
+        if self._lines is None:
+            assert self._body is not None
+            lines = self._body.split("\n")
+            self._lines = np.asarray([k for k, s in enumerate(lines) if s.strip()]) + self._first
+            self._body = None
+        return int(self._lines[i])
+
+
+def _check_field_lengths(body: str, header_line: int, header: list[str]) -> None:
+    """Refuse a data field longer than :data:`MAX_NUMBER_CHARS` before parsing (one scan)."""
+    m = _LONG_FIELD_RE.search(body)
+    if m is None:
+        return
+    start = body.rfind("\n", 0, m.start()) + 1  # the row's first character
+    field_start = body.rfind(",", start, m.start()) + 1 or start
+    j = body.count(",", start, m.start())
+    stop = len(body)
+    for sep in (",", "\n"):
+        k = body.find(sep, m.end())
+        if k >= 0:
+            stop = min(stop, k)
+    row = header_line + 1 + body.count("\n", 0, start)
+    name = f", column {header[j]!r}" if j < len(header) else ""
+    raise LogFormatError(
+        f"row {row}{name}: a field of {stop - field_start} characters (a field has at most "
+        f"{MAX_NUMBER_CHARS})"
+    )
+
+
+def _data_rows(
+    body: str, header_line: int, header: list[str], empty: str
+) -> tuple[np.ndarray, _RowLines]:
+    """The data rows under the header, parsed (``empty``: the message when there are none)."""
+    if not body or body.isspace():
+        raise LogFormatError(empty)
+    _check_field_lengths(body, header_line, header)
+    return _parse_body(body, header_line, header)
+
+
+def _parse_body(body: str, header_line: int, header: list[str]) -> tuple[np.ndarray, _RowLines]:
+    """All data rows as a structured array (field ``c<j>`` per column) and their line numbers.
+
+    The fast path parses the whole body with ``numpy.loadtxt`` (one typed field per column),
+    which skips empty lines. If that fails, whitespace-only lines are dropped and, if the rest
+    still fails, the first bad row is found by bisection (``loadtxt`` judges rows one by one,
+    so a block fails exactly when it holds a bad row) and then explained field by field.
+    """
+    dtype = np.dtype([(f"c{j}", _DTYPES[_KIND[_base(h)]]) for j, h in enumerate(header)])
+    first = header_line + 1
+
+    def load(lines: str | list[str]) -> np.ndarray:
+        src = io.StringIO(lines) if isinstance(lines, str) else lines
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)  # "input contained no data"
+            # numpy < 2 parses "12.5" in an integer column as 12 with a DeprecationWarning
+            warnings.simplefilter("error", DeprecationWarning)
+            return np.loadtxt(src, delimiter=",", dtype=dtype, comments=None, ndmin=1)
+
+    def reason(exc: Exception) -> str:
+        text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        return re.sub(r" at row \d+.*$", "", text)  # loadtxt's row counts from 0 and blocks
+
+    try:
+        return load(body), _RowLines(body, first)
+    except (ValueError, OverflowError, DeprecationWarning):
+        pass
+    lines = body.split("\n")
+    keep = [k for k, s in enumerate(lines) if s.strip()]
+    kept = [lines[k] for k in keep]
+    del lines
+    rows = _RowLines(None, first, np.asarray(keep, dtype=np.int64) + first)
+    try:
+        return load(kept), rows
+    except (ValueError, OverflowError, DeprecationWarning) as exc:
+        why = reason(exc)
+    lo, hi = 0, len(kept)  # the first bad row is in [lo, hi); all rows before lo are good
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        try:
+            load(kept[lo:mid])
+            lo = mid
+        except (ValueError, OverflowError, DeprecationWarning) as exc:
+            why = reason(exc)
+            hi = mid
+    raise LogFormatError(
+        _row_problem(kept[lo], rows(lo), header, header_line) or f"row {rows(lo)}: {why}"
+    )
+
+
+def _check_range(
+    values: np.ndarray, bits: int, rows: Callable[[int], int], name: str, what: str
+) -> None:
+    """Raise naming the first row whose value is outside 0 .. 2**bits − 1."""
+    top = (1 << bits) - 1
+    bad = (values < 0) | (values > top)
+    if bad.any():
+        k = int(np.argmax(bad))
+        msg = what.format(v=values[k], bits=bits, top=top)
+        raise LogFormatError(f"row {rows(k)}, column {name!r}: {msg}")
+
+
+def _base(h: str) -> str:
+    return h.rpartition(".")[2]
+
+
+def _row_problem(line: str, row: int, header: list[str], header_line: int) -> str | None:
+    """What is wrong with one data row (wrong number of fields, a bad field), or None."""
+    fields = line.split(",")
+    if len(fields) != len(header):
+        return (
+            f"row {row} has {len(fields)} field{'' if len(fields) == 1 else 's'}; the header "
+            f"(line {header_line}) has {len(header)}"
+        )
+    for s, name in zip(fields, header, strict=True):
+        problem = _field_problem(s, _KIND[_base(name)])
+        if problem:
+            return f"row {row}, column {name!r}: {problem}"
+    return None
+
+
+def _field_problem(s: str, kind: str) -> str | None:
+    """What is wrong with one field of a column of ``kind`` (int, float, text), or None."""
+    if kind == "text":
+        return None
+    t = s.strip()
+    if not t:
+        return "empty value" + (" (an integer is expected)" if kind == "int" else "")
+    if len(t) > MAX_NUMBER_CHARS:
+        return f"a field of {len(t)} characters (a number has at most {MAX_NUMBER_CHARS})"
+    if kind == "int":
+        if _INT_RE.fullmatch(t):
+            return None if -(2**63) <= int(t) < 2**63 else f"{t!r} is too large for int64"
+        x = _to_float(t)
+        if x is None:
+            return f"{t!r} is not a number (an integer is expected)"
+        if not math.isfinite(x):
+            return f"{t!r} is not finite (an integer is expected)"
+        return f"{t!r} is not an integer"
+    x = _to_float(t)
+    if x is None:
+        return f"{t!r} is not a number"
+    if not math.isfinite(x):
+        return f"{t!r} is not finite"
+    return None
+
+
+def _timebase(
+    tick: np.ndarray | None,
+    time_s: np.ndarray | None,
+    rows: _RowLines,
+    *,
+    meta_period: float | None,
+    meta_source: str,
+    opt_period: float | None,
+) -> float:
+    """Check the time columns and choose the period [s]: option, metadata, else ``time_s``."""
+    if tick is not None:
+        step = np.diff(tick)
+        bad = step != 1
+        if bad.any():
+            k = int(np.argmax(bad)) + 1
+            what = "does not increase" if step[k - 1] <= 0 else "skips"
+            raise LogFormatError(
+                f"row {rows(k)}, column 'tick': {tick[k]} after {tick[k - 1]}: the tick {what} "
+                f"(it must step by 1; a dropped sample is not interpolated)"
+            )
+    estimate = None
+    if time_s is not None:
+        dt = np.diff(time_s)
+        back = dt <= 0
+        if back.any():
+            k = int(np.argmax(back)) + 1
+            what = "repeats" if dt[k - 1] == 0 else "goes back"
+            raise LogFormatError(
+                f"row {rows(k)}, column 'time_s': {time_s[k]!r} after {time_s[k - 1]!r}: time "
+                f"{what} (it must increase)"
+            )
+        med = float(np.median(dt))
+        off = np.abs(dt - med) > _REL_TOL * med
+        if off.any():
+            k = int(np.argmax(off)) + 1
+            raise LogFormatError(
+                f"row {rows(k)}, column 'time_s': irregular sampling: interval {dt[k - 1]:.9g} s "
+                f"vs the median {med:.9g} s (more than 0.1 % apart; a dropped sample is not "
+                f"interpolated)"
+            )
+        for value, source in ((meta_period, meta_source), (opt_period, "option period_s")):
+            if value is not None and abs(value - med) > _REL_TOL * med:
+                raise LogFormatError(
+                    f"{source} = {value!r} s disagrees with the time_s column (median interval "
+                    f"{med:.9g} s) by more than 0.1 %"
+                )
+        # end to end: unlike the median, not limited by the resolution time_s is written with
+        estimate = float(time_s[-1] - time_s[0]) / (time_s.shape[0] - 1)
+        if tick is not None:
+            p = estimate if meta_period is None else meta_period
+            bad = np.abs(tick * p - time_s) > _REL_TOL * p
+            if bad.any():
+                k = int(np.argmax(bad))
+                src = "from time_s" if meta_period is None else meta_source
+                raise LogFormatError(
+                    f"row {rows(k)}: tick {tick[k]} × period {p:.9g} s ({src}) = "
+                    f"{tick[k] * p:.9g} s but time_s = {time_s[k]!r} s; tick and time_s must agree "
+                    f"within 0.1 % of a period"
+                )
+    for p in (opt_period, meta_period, estimate):
+        if p is not None:
+            return p
+    raise LogFormatError(
+        "the log has no time_s column and no period: add a '# period_s: <seconds>' metadata "
+        "line or give the period (option period_s)"
+    )
+
+
+def _modes(text: np.ndarray, name: str, rows: _RowLines) -> np.ndarray:
+    codes = np.full(text.shape, -1, dtype=np.int8)
+    for m, mode_name in enumerate(MODE_NAMES):
+        codes[text == mode_name] = m
+    if np.any(codes < 0):
+        stripped = np.char.strip(text)
+        for m, mode_name in enumerate(MODE_NAMES):
+            codes[stripped == mode_name] = m
+        codes[np.char.str_len(text) >= _MODE_WIDTH] = -1  # possibly truncated on reading
+    bad = codes < 0
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise LogFormatError(
+            f"row {rows(k)}, column {name!r}: mode {str(text[k]).strip()!r} is not one of "
+            f"{', '.join(MODE_NAMES)}"
+        )
+    return codes

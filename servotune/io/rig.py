@@ -1,0 +1,234 @@
+"""The rig file's TOML (SPEC §5): its tables built into dataclasses, its plant table edited.
+
+Reading: :func:`build_section` builds one validated dataclass from one TOML table (the rig's
+sections, and the architecture configurations' of ``servotune.arch.gantry`` and
+``servotune.arch.linkage``), errors naming ``path.field``. Writing: :func:`edit_plant_text`
+rewrites one ``[axis.<name>.plant]`` table of a rig file's text in place, every comment and the
+layout of the rest kept byte for byte. :func:`servotune.rig.load_rig` and
+:func:`servotune.rig.write_plant` check the result against the :class:`~servotune.rig.Rig`
+model; the bytes and the TOML themselves are read and written through
+:mod:`servotune.io.files`.
+"""
+
+from __future__ import annotations
+
+import errno
+from collections.abc import Mapping, MutableMapping
+from dataclasses import MISSING, fields
+from pathlib import Path
+from typing import Any
+
+import tomlkit
+import tomlkit.exceptions
+import tomlkit.items
+
+from servotune.errors import RigError
+from servotune.plant import Plant
+from servotune.validate import check_keys, is_number, show_value
+
+__all__ = ["FLOAT_SIGNIFICANT_DIGITS", "build_section", "edit_plant_text"]
+
+
+def build_section(
+    cls: type, table: Mapping[str, Any], path: str, error: type[Exception] = RigError, **fixed: Any
+) -> Any:
+    """Build the dataclass ``cls`` from one TOML table, errors naming ``path.field``.
+
+    Unknown keys are refused (the message lists the allowed ones); lists become tuples;
+    the dataclass's own validation message is prefixed with ``path``. Used for the rig file and
+    for the architecture configurations (``servotune.arch.gantry``, ``servotune.arch.linkage``).
+    """
+    try:
+        return _build(cls, table, path, **fixed)
+    except RigError as exc:
+        if error is RigError:
+            raise
+        raise error(str(exc)) from None
+
+
+def _build(cls: type, table: Mapping[str, Any], path: str, **fixed: Any) -> Any:
+    allowed = [f.name for f in fields(cls) if f.init and f.name not in fixed]
+    required = [
+        f.name for f in fields(cls)
+        if f.name in allowed and f.default is MISSING and f.default_factory is MISSING
+    ]  # fmt: skip
+    kwargs = check_keys(table, path, required, allowed, error=RigError)
+    for k, v in kwargs.items():
+        for x in v if isinstance(v, list) else (v,):
+            if type(x) is int and not -(2**63) <= x < 2**63:  # no field takes such a number
+                raise RigError(
+                    f"{path}.{k} must be a number within ±2**63 (int64), got {show_value(x)}"
+                )
+        if isinstance(v, list):
+            kwargs[k] = tuple(v)
+    try:
+        return cls(**kwargs, **fixed)
+    except RigError:
+        raise
+    except TypeError as exc:
+        raise RigError(f"[{path}]: {exc}") from None
+    except ValueError as exc:
+        raise RigError(f"{path}.{exc}") from None
+
+
+FLOAT_SIGNIFICANT_DIGITS = 7
+"""Significant digits :func:`write_plant` keeps of each parameter (relative error <= 5e-7)."""
+
+_FITTED_KEYS = ("gain_cps_per_v", "tau_s", "delay_s", "offset_v", "coulomb_v")
+# Settings of the hardware that a fit does not estimate: written only when the plant sets them
+# (differs from the Plant default), otherwise the file's values stay.
+_KEPT_KEYS = ("max_speed_rpm", "noise_counts")
+
+
+def _toml_float(value: float) -> str:
+    """TOML text of ``value`` rounded to :data:`FLOAT_SIGNIFICANT_DIGITS` significant digits.
+
+    The rounded number is written with ``repr``, the shortest text that reads back as exactly
+    that float: ``12288.049999999999`` → ``12288.05``, ``0.0008`` → ``0.0008``, ``12288`` →
+    ``12288.0``, ``1.5e-05`` → ``1.5e-05`` (valid TOML). ``-0.0`` is written as ``0.0``.
+    """
+    x = float(f"{float(value):.{FLOAT_SIGNIFICANT_DIGITS}g}")
+    if x == 0.0:
+        x = 0.0
+    return repr(x)
+
+
+def _set_float(table: MutableMapping[str, Any], key: str, value: float) -> float:
+    """Set ``table[key]`` to ``value`` (rounded, see :func:`_toml_float`); return what is written.
+
+    An existing entry that already holds that value keeps its text (``0.030`` stays ``0.030``).
+    A replaced entry keeps its trailing comment, at the same column where the new value allows.
+    """
+    text = _toml_float(value)
+    number = float(text)
+    old = table.get(key)
+    if is_number(old) and float(old) == number:
+        return float(old)
+    item = tomlkit.value(text)
+    if isinstance(old, tomlkit.items.Item) and old.trivia.comment:
+        ws = old.trivia.comment_ws
+        column = len(old.as_string()) + len(ws)
+        item.trivia.comment_ws = " " * max(column - len(text), min(len(ws), 2), 1)
+        item.trivia.comment = old.trivia.comment
+    table[key] = item
+    return number
+
+
+def _one_line(provenance: str) -> str:
+    line = provenance.strip()
+    bad = [c for c in line if (ord(c) < 0x20 and c != "\t") or ord(c) == 0x7F]
+    if bad:
+        raise RigError(
+            f"provenance must be one line of text without control characters, got "
+            f"{show_value(provenance)}"
+        )
+    return line
+
+
+def _plant_section(
+    text: str, source: Path, axis: str, plant: Plant, provenance: str | None
+) -> tuple[str, dict[str, float]]:
+    """``text`` with the plant table of ``axis`` rewritten, and the values written."""
+    try:
+        doc = tomlkit.parse(text)
+    except tomlkit.exceptions.TOMLKitError as exc:
+        raise RigError(f"rig file {str(source)!r} is not valid TOML: {exc}") from None
+    axes = doc.get("axis")
+    names = list(axes) if isinstance(axes, Mapping) else []
+    if not isinstance(axes, MutableMapping) or axis not in axes:
+        raise RigError(
+            f"no axis {show_value(axis)} in rig file {str(source)!r}; axes: {names}. "
+            f"Choose one of these or add an [axis.{axis}] table first."
+        )
+    axis_table = axes[axis]
+    if not isinstance(axis_table, MutableMapping):
+        raise RigError(f"[axis.{axis}] in {str(source)!r} must be a table")
+    if "plant" not in axis_table:
+        axis_table["plant"] = tomlkit.table()
+    table = axis_table["plant"]
+    if not isinstance(table, MutableMapping):
+        raise RigError(f"[axis.{axis}.plant] in {str(source)!r} must be a table")
+
+    written = {key: _set_float(table, key, getattr(plant, key)) for key in _FITTED_KEYS}
+    defaults = {f.name: f.default for f in fields(Plant)}
+    for key in _KEPT_KEYS:
+        value = getattr(plant, key)
+        if value != defaults[key]:
+            written[key] = _set_float(table, key, value)
+
+    if provenance is not None:
+        line = _one_line(provenance)
+        trivia = getattr(table, "trivia", None)
+        if trivia is None:
+            raise RigError(
+                f"[axis.{axis}.plant] in {str(source)!r} is written with dotted keys "
+                f"(plant.tau_s = ...), which leaves no header for the provenance comment; "
+                f"write it as an [axis.{axis}.plant] table or pass provenance=None"
+            )
+        if line:
+            trivia.comment_ws = trivia.comment_ws or "  "
+            trivia.comment = f"# {line}"
+        else:
+            trivia.comment_ws = ""
+            trivia.comment = ""
+    return doc.as_string(), written
+
+
+def edit_plant_text(
+    path: str | Path,
+    axis: str,
+    plant: Plant,
+    *,
+    template: str | Path,
+    provenance: str | None,
+) -> tuple[str, dict[str, float]]:
+    """The text of the rig file ``path`` with its ``[axis.<axis>.plant]`` table rewritten.
+
+    What :func:`servotune.rig.write_plant` writes, once it has checked that the text loads as a
+    rig with the values written. ``path`` is read if it exists, else ``template``; only the
+    entries of that one table change (see :func:`servotune.rig.write_plant` for what is written
+    and how numbers are rounded).
+
+    Returns
+    -------
+    text : str
+        The new text of the file.
+    written : dict of str to float
+        Each entry written, as the number it reads back as.
+
+    Raises
+    ------
+    FileNotFoundError
+        If the directory of ``path`` does not exist.
+    RigError
+        If the file or the template cannot be read or is not TOML, if ``axis`` is not in it, or
+        if ``provenance`` is not one line.
+    """
+    target = Path(path)
+    directory = target.parent
+    if not directory.is_dir():
+        raise FileNotFoundError(
+            errno.ENOENT,
+            f"cannot write rig file {str(target)!r}: its directory does not exist "
+            f"(create it first)",
+            str(directory),
+        )
+    source = target
+    try:
+        raw = target.read_bytes()
+    except FileNotFoundError:
+        source = Path(template)
+        try:
+            raw = source.read_bytes()
+        except OSError as exc:
+            raise RigError(
+                f"cannot read template rig file {str(source)!r}: {exc.strerror or exc}"
+            ) from None
+    except OSError as exc:
+        raise RigError(f"cannot read rig file {str(target)!r}: {exc.strerror or exc}") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise RigError(f"rig file {str(source)!r} is not valid TOML: {exc}") from None
+
+    return _plant_section(text, source, axis, plant, provenance)

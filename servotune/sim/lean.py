@@ -1,0 +1,120 @@
+"""The lean kernel: one axis, metrics only, the integer runtime (candidate sweeps).
+
+It composes the same tick steps as :mod:`servotune.sim.kernel` (:mod:`servotune.sim.tick`),
+with the same float operations in the same order, so its metrics equal the general kernel's bit
+for bit (``tests/test_engine.py``); only the plumbing differs, for speed.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from servotune._numba_cache import jit
+from servotune.laws.axis import MODE_TASK, N_STATE, S_MODE, axis_control, axis_read
+from servotune.plant import R_NOISE, R_OFFSET, advance_tick
+from servotune.sim.kernel import _I_INIT, _I_LAG
+from servotune.sim.tick import N_METRICS, accumulate, draw_noise, finish, latch
+
+__all__: list[str] = []
+
+# --- the lean kernel: one axis, metrics only, integer runtime ------------------------------
+#
+# Sweeps of many candidates of a one-axis loop for metrics only run here rather than in
+# _run_group. It calls the same law and plant functions (axis_read, axis_control,
+# advance_tick) and the same counter and metric helpers, with the same float operations in the
+# same order, so its metrics equal _run_group's bit for bit (tests/test_engine.py checks it);
+# only the plumbing differs, each choice for speed (about 2x over _run_group here):
+# - one candidate per loop, its law state and metric sums in small function-local ("stack")
+#   arrays indexed by constants, which LLVM promotes to registers; _run_group's heap arrays are
+#   stored and reloaded every tick, as LLVM cannot prove they do not alias the other arrays.
+#   Interleaving two candidates per loop, as _run_group does, gained nothing here (measured):
+#   this loop is bound by instruction throughput, not by the latency of one candidate's tick
+#   chain, and two candidates' state overflows the registers (paired timings: 4-8 % slower).
+#   Neither did a volts table or packing the per-tick inputs (within +-3 %). What did help a
+#   little: 1-D input columns with an unsigned tick index (+4 %), and the common tick (task
+#   mode, no reset, no excitation) called with those inputs as constants (+5 %);
+# - compiled without reference counting (numba's ``_nrt=False``): passing arrays to the inlined
+#   law functions otherwise leaves NRT_incref/NRT_decref calls in the tick loop, and every such
+#   call spills the floating-point registers (about 25 % of the time);
+# - no trace, ideal-law or slave-reference branches, and no ring buffer: a lag of 0 or 1 whole
+#   ticks needs only the last two writes, kept in scalars;
+# - threads take candidates one at a time from a shared counter (_kernel_lean), so a thread
+#   slowed by other work on its core does not hold up the batch.
+
+
+@jit
+def _run_lean(
+    b, pf, pi, consts, seeds, ref, mode, reset, u_add, load,
+    bits, latched, skew, dac_lo, lsb, m_from, period, metrics,
+):  # fmt: skip
+    """Run candidate ``b`` of a one-axis batch and write its metrics (arguments as _kernel).
+
+    Needs whole ticks of lag 0 or 1 (``Batch.ring <= 3``); integer runtime, no traces. The
+    per-tick inputs ``ref`` … ``load`` are the axis's 1-D columns (contiguous: plain indexing).
+    """
+    nt = ref.shape[0]
+    mask = (np.int64(1) << bits) - 1
+    nbytes = bits // 8
+    st = np.zeros((1, N_STATE), dtype=np.int64)
+    mt = np.zeros((1, N_METRICS))
+    mt[0, 4] = -1.0
+    cb = consts[b]  # (1, width): axis row 0 for the law functions
+    row = pf[b, 0]
+    noise = row[R_NOISE]
+    offset = row[R_OFFSET]
+    init = pi[b, 0, _I_INIT]
+    lag = pi[b, 0, _I_LAG]
+    rng = seeds[b]
+    pos = 0.0
+    spd = 0.0
+    v1 = 0.0  # volts written one tick ago
+    v2 = 0.0  # and two ticks ago
+    for k in range(nt):
+        i = np.uint64(k)  # an unsigned index: no negative-index wraparound code per access
+        rng, nz = draw_noise(rng, noise)
+        raw = latch(pos, spd, nz, init, mask, latched, nbytes, skew)
+        rs = reset[i]
+        md = mode[i]
+        ua = u_add[i]
+        if not rs and md == MODE_TASK and ua == 0:
+            # the common tick, with these inputs as constants: the same calls with the same
+            # values, which LLVM folds (no reset, lock or excitation paths); ~5 % faster
+            axis_read(st, cb, 0, raw, False)
+            code, flags, e = axis_control(st, cb, 0, ref[i], MODE_TASK, False, 0)
+        else:
+            axis_read(st, cb, 0, raw, rs)
+            code, flags, e = axis_control(st, cb, 0, ref[i], md, rs, ua)
+        volts = dac_lo + code * lsb
+        accumulate(mt, 0, k, e, flags, st[0, S_MODE], m_from, period)
+        # the writes of ticks k - lag (from λ on) and k - lag - 1 (before λ); 0 V before tick 0
+        if lag == 0:
+            v_new = volts
+            v_old = v1
+        else:
+            v_new = v1
+            v_old = v2
+        v2 = v1
+        v1 = volts
+        w_off = offset + load[i]
+        pos, spd = advance_tick(pos, spd, v_old + w_off, v_new + w_off, row)
+    finish(mt, 0, metrics, b, 0)
+
+
+@jit(parallel=True)
+def _kernel_lean(
+    pf, pi, consts, seeds, ref, mode, reset, u_add, load,
+    bits, latched, skew, dac_lo, lsb, m_from, period, metrics,
+):  # fmt: skip
+    """Every candidate of a one-axis batch through :func:`_run_lean`, in parallel.
+
+    Called with numba's parallel chunk size 1 (:func:`_run_lean_batch`), threads take
+    candidates one at a time as they become free (dynamic scheduling): split evenly in advance,
+    a run on a shared machine would wait for the thread whose core is busiest. Each candidate
+    writes only its own metrics row, so which thread runs it changes no result.
+    """
+    for b in nb.prange(pf.shape[0]):
+        _run_lean(
+            b, pf, pi, consts, seeds, ref, mode, reset, u_add, load,
+            bits, latched, skew, dac_lo, lsb, m_from, period, metrics,
+        )  # fmt: skip
