@@ -9,6 +9,9 @@ from __future__ import annotations
 
 import numba as nb
 import numpy as np
+from llvmlite import ir
+from numba import types
+from numba.extending import intrinsic
 
 from servotune._numba_cache import jit
 from servotune.laws.axis import MODE_TASK, N_STATE, S_MODE, axis_control, axis_read
@@ -25,8 +28,9 @@ __all__: list[str] = []
 # advance_tick) and the same counter and metric helpers, with the same float operations in the
 # same order, so its metrics equal _run_group's bit for bit (tests/test_engine.py checks it);
 # only the plumbing differs, each choice for speed (about 2x over _run_group here):
-# - one candidate per loop, its law state and metric sums in small function-local ("stack")
-#   arrays indexed by constants, which LLVM promotes to registers; _run_group's heap arrays are
+# - one candidate per loop, its law state and metric sums in small arrays in the function's
+#   frame (_frame_buffer viewed by numba.carray), indexed by constants, which LLVM promotes to
+#   registers; _run_group's heap arrays are
 #   stored and reloaded every tick, as LLVM cannot prove they do not alias the other arrays.
 #   Interleaving two candidates per loop, as _run_group does, gained nothing here (measured):
 #   this loop is bound by instruction throughput, not by the latency of one candidate's tick
@@ -34,13 +38,40 @@ __all__: list[str] = []
 #   Neither did a volts table or packing the per-tick inputs (within +-3 %). What did help a
 #   little: 1-D input columns with an unsigned tick index (+4 %), and the common tick (task
 #   mode, no reset, no excitation) called with those inputs as constants (+5 %);
-# - compiled without reference counting (numba's ``_nrt=False``): passing arrays to the inlined
-#   law functions otherwise leaves NRT_incref/NRT_decref calls in the tick loop, and every such
-#   call spills the floating-point registers (about 25 % of the time);
+# - no reference counting on the state: the frame arrays have no memory info, so passing them
+#   to the inlined law functions leaves no NRT_incref/NRT_decref calls in the tick loop (heap
+#   arrays there cost about 2x: every such call spills the floating-point registers);
 # - no trace, ideal-law or slave-reference branches, and no ring buffer: a lag of 0 or 1 whole
 #   ticks needs only the last two writes, kept in scalars;
-# - threads take candidates one at a time from a shared counter (_kernel_lean), so a thread
-#   slowed by other work on its core does not hold up the batch.
+# - threads take candidates one at a time (numba's dynamic scheduling, chunk size 1), so a
+#   thread slowed by other work on its core does not hold up the batch.
+
+
+@intrinsic
+def _frame_buffer(typingctx, n, dtype):
+    """A zeroed buffer of ``n`` elements of ``dtype`` in the calling function's frame.
+
+    Returns a pointer for :func:`numba.carray`, which views it as an array without a memory
+    info: no reference counting, and LLVM may keep its elements in registers. Built from numba's
+    documented extension API (``@intrinsic``) and llvmlite's IR builder (an ``alloca`` in the
+    entry block). The buffer lives as long as the calling function's frame: call this only from
+    a function that is never inlined into another, and never return the array or store it
+    where it outlives that call.
+    """
+    if not (isinstance(n, types.IntegerLiteral) and isinstance(dtype, types.DTypeSpec)):
+        return None
+    count = n.literal_value
+    el = dtype.dtype
+
+    def codegen(context, builder, sig, args):
+        ll_el = context.get_value_type(el)
+        buf_ty = ir.ArrayType(ll_el, count)
+        with builder.goto_entry_block():
+            buf = builder.alloca(buf_ty)
+        builder.store(ir.Constant(buf_ty, None), buf)
+        return builder.bitcast(buf, ll_el.as_pointer())
+
+    return types.CPointer(el)(n, dtype), codegen
 
 
 @jit
@@ -56,8 +87,8 @@ def _run_lean(
     nt = ref.shape[0]
     mask = (np.int64(1) << bits) - 1
     nbytes = bits // 8
-    st = np.zeros((1, N_STATE), dtype=np.int64)
-    mt = np.zeros((1, N_METRICS))
+    st = nb.carray(_frame_buffer(N_STATE, np.int64), (1, N_STATE))
+    mt = nb.carray(_frame_buffer(N_METRICS, np.float64), (1, N_METRICS))
     mt[0, 4] = -1.0
     cb = consts[b]  # (1, width): axis row 0 for the law functions
     row = pf[b, 0]
