@@ -4,10 +4,12 @@ Identify axis models from logs, synthesise PI and fuzzy-PID tables, verify them 
 4 ms closed loop, and export them to the runtime.
 """
 
-from servotune._numba_cache import keyed_by_sources
+from importlib import import_module
+from typing import TYPE_CHECKING, Any
+
 from servotune._version import __version__
 
-with keyed_by_sources():  # numba's cache follows every source edit (see _numba_cache)
+if TYPE_CHECKING:  # what type checkers and IDEs see; at run time the names load on first use
     from servotune.arch.gantry import GantryConfig, compare_topologies, load_gantry, simulate_gantry
     from servotune.arch.linkage import (
         LinkageCheckError,
@@ -17,7 +19,6 @@ with keyed_by_sources():  # numba's cache follows every source edit (see _numba_
         recommended_resync_interval_s,
         run_linkage,
     )
-    from servotune.engine import Batch, BatchResult, Loop, Trace, prepare_batch, run_batch, simulate
     from servotune.errors import (
         ConfigError,
         DigestError,
@@ -41,8 +42,101 @@ with keyed_by_sources():  # numba's cache follows every source edit (see _numba_
     from servotune.plant import Plant, discretize, discretize_lti
     from servotune.rig import Rig, load_rig, write_plant
     from servotune.scenarios import Inputs, build_scenario, sync_move
+    from servotune.sim.engine import (
+        Batch,
+        BatchResult,
+        Loop,
+        Trace,
+        prepare_batch,
+        run_batch,
+        simulate,
+    )
     from servotune.tune.pi import PITuning, tune_pi, tune_pi_axis
     from servotune.tuning import Tuning, read_tuning, write_tuning
+
+# Each public name -> the module defining it. ``import servotune`` (and so ``servotune --help``)
+# imports none of them: a name's module is imported on first access (PEP 562), which keeps
+# numba, scipy and matplotlib out of a process that never uses them.
+_LAZY: dict[str, str] = {
+    "GantryConfig": "servotune.arch.gantry",
+    "compare_topologies": "servotune.arch.gantry",
+    "load_gantry": "servotune.arch.gantry",
+    "simulate_gantry": "servotune.arch.gantry",
+    "LinkageCheckError": "servotune.arch.linkage",
+    "LinkageConfig": "servotune.arch.linkage",
+    "LinkageResult": "servotune.arch.linkage",
+    "load_linkage": "servotune.arch.linkage",
+    "recommended_resync_interval_s": "servotune.arch.linkage",
+    "run_linkage": "servotune.arch.linkage",
+    "Batch": "servotune.sim.engine",
+    "BatchResult": "servotune.sim.engine",
+    "Loop": "servotune.sim.engine",
+    "Trace": "servotune.sim.engine",
+    "prepare_batch": "servotune.sim.engine",
+    "run_batch": "servotune.sim.engine",
+    "simulate": "servotune.sim.engine",
+    "ConfigError": "servotune.errors",
+    "DigestError": "servotune.errors",
+    "ExportError": "servotune.errors",
+    "IdentificationError": "servotune.errors",
+    "LogFormatError": "servotune.errors",
+    "RigError": "servotune.errors",
+    "ServotuneError": "servotune.errors",
+    "SimulationError": "servotune.errors",
+    "SpecError": "servotune.errors",
+    "TrustError": "servotune.errors",
+    "TuningError": "servotune.errors",
+    "check_tables": "servotune.export.json",
+    "load_tables": "servotune.export.json",
+    "Fixed": "servotune.fixed",
+    "quantize": "servotune.fixed",
+    "FitResult": "servotune.identify",
+    "PoorFitWarning": "servotune.identify",
+    "fit": "servotune.identify",
+    "fit_arrays": "servotune.identify",
+    "AxisController": "servotune.laws",
+    "PIGains": "servotune.laws",
+    "lock_holding_band": "servotune.laws",
+    "FuzzyPIDGains": "servotune.laws.fuzzy_pid",
+    "Log": "servotune.logs",
+    "read_log": "servotune.logs",
+    "write_log": "servotune.logs",
+    "StepInfo": "servotune.metrics",
+    "TrackingMetrics": "servotune.metrics",
+    "step_info": "servotune.metrics",
+    "tracking_metrics": "servotune.metrics",
+    "Plant": "servotune.plant",
+    "discretize": "servotune.plant",
+    "discretize_lti": "servotune.plant",
+    "Rig": "servotune.rig",
+    "load_rig": "servotune.rig",
+    "write_plant": "servotune.rig",
+    "Inputs": "servotune.scenarios",
+    "build_scenario": "servotune.scenarios",
+    "sync_move": "servotune.scenarios",
+    "PITuning": "servotune.tune.pi",
+    "tune_pi": "servotune.tune.pi",
+    "tune_pi_axis": "servotune.tune.pi",
+    "Tuning": "servotune.tuning",
+    "read_tuning": "servotune.tuning",
+    "write_tuning": "servotune.tuning",
+}
+
+
+def __getattr__(name: str) -> Any:
+    """A public name, imported from its module on first access (PEP 562)."""
+    try:
+        module = _LAZY[name]
+    except KeyError:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}") from None
+    value = getattr(import_module(module), name)
+    globals()[name] = value  # later lookups skip __getattr__
+    return value
+
+
+def __dir__() -> list[str]:
+    """The module's attributes and every public name, loaded or not."""
+    return sorted(set(globals()) | set(_LAZY))
 
 
 __all__ = [

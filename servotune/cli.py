@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import signal
 import sys
 import warnings
@@ -21,6 +22,11 @@ from pathlib import Path
 from servotune._version import __version__
 from servotune.budget import set_memory_budget
 from servotune.errors import InfeasibleError, ServotuneError, TrustError
+
+# The library is imported inside each handler, not here, so that ``servotune --help`` (and any
+# verb) pays only for what it uses: numba, scipy, matplotlib and python-control stay unloaded
+# until a handler needs them (tests/cli/test_help_imports.py). That is the only reason for an
+# import inside a function in this module; none of them works around an import cycle.
 
 __all__ = ["main"]
 
@@ -185,8 +191,6 @@ def _check_dirs(*paths: str | None) -> None:
 
 def _workbench_dir(d: Path) -> None:
     """Create the workbench directory and check it is writable, before any work or output."""
-    import os
-
     try:
         d.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

@@ -23,9 +23,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba as nb
 import numpy as np
 
+from servotune._numba_cache import jit
 from servotune.validate import show_value
 
 __all__ = [
@@ -203,7 +203,7 @@ def quantize_table(x: np.ndarray, *, f_max: int, bits: int = 16) -> tuple[np.nda
 # --- integer primitives (numba; mirrored in the C runtime) ----------------------------------
 
 
-@nb.njit(cache=True)
+@jit
 def shift_round(x: int, f: int) -> int:
     """``x * 2**-f`` rounded half away from zero, for f >= 1 and x > INT64_MIN.
 
@@ -215,7 +215,7 @@ def shift_round(x: int, f: int) -> int:
     return -((m >> f) + ((m >> (f - 1)) & 1))
 
 
-@nb.njit(cache=True)
+@jit
 def sat_add(a: int, b: int) -> int:
     """``a + b`` saturated to ±INT64_MAX (the most negative value is never produced)."""
     if b > 0 and a > INT64_MAX - b:
@@ -228,7 +228,7 @@ def sat_add(a: int, b: int) -> int:
     return s
 
 
-@nb.njit(cache=True)
+@jit
 def align(x: int, k: int) -> int:
     """``x * 2**k`` for k >= 0, saturated to ±INT64_MAX; exact when it fits (no shift of x)."""
     if k == 0:
@@ -241,7 +241,7 @@ def align(x: int, k: int) -> int:
     return x * (np.int64(1) << k)
 
 
-@nb.njit(cache=True)
+@jit
 def clamp_e(x: int) -> int:
     """Clamp an error, error change or reference change to ±(2**31 - 1) before a product."""
     if x > E_MAX:

@@ -33,11 +33,11 @@ import warnings
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-import numba as nb
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.special import gammaincc
 
+from servotune._numba_cache import jit
 from servotune.errors import IdentificationError
 from servotune.logs import AxisLog, Log
 from servotune.plant import Plant, advance_tick, discretize, plant_row
@@ -171,7 +171,7 @@ class FitResult:
 # --- simulation of the model from the logged command ---------------------------------------
 
 
-@nb.njit(cache=True)
+@jit
 def _increments(u: np.ndarray, row: np.ndarray, m: int, v0: float, out: np.ndarray) -> None:
     """Position increment of the model over each tick, driven by the logged command [counts]."""
     v = v0

@@ -15,8 +15,9 @@ bits) from every start phase, and fails from some phase above it.
 
 from __future__ import annotations
 
-import numba as nb
 import numpy as np
+
+from servotune._numba_cache import jit
 
 __all__ = [
     "MULTIPLIERS",
@@ -118,7 +119,7 @@ def torn_read(reg_at_reads: np.ndarray, bits: int = 24) -> np.ndarray:
     return np.sum(((r >> shifts) & 0xFF) << shifts, axis=-1)
 
 
-@nb.njit(cache=True)
+@jit
 def unwrap_step(raw: int, hi_prev: int, wraps: int, bits: int) -> tuple[int, int, int, bool]:
     """One runtime unwrap step (the high-byte rule); mirrored in the C runtime.
 
@@ -156,7 +157,7 @@ def unwrap_step(raw: int, hi_prev: int, wraps: int, bits: int) -> tuple[int, int
     return wraps * (np.int64(1) << bits) + raw, hi, wraps, fault
 
 
-@nb.njit(cache=True)
+@jit
 def _unwrap_kernel(raw: np.ndarray, bits: int) -> tuple[np.ndarray, np.ndarray]:
     n = raw.shape[0]
     pos = np.empty(n, dtype=np.int64)

@@ -6,9 +6,9 @@ code 0 (−10 V) and code 4095 (+9.99512 V). Volts are coded by round-half-away-
 
 from __future__ import annotations
 
-import numba as nb
 import numpy as np
 
+from servotune._numba_cache import jit
 from servotune.fixed import round_half_away, shift_round
 from servotune.validate import show_value
 
@@ -86,7 +86,7 @@ def volts_from_code(
     return range_v[0] + c * lsb_v(bits, range_v)
 
 
-@nb.njit(cache=True)
+@jit
 def code_from_uq(u_q: int, f_u: int, zero: int, code_max: int) -> int:
     """Runtime coding: ``clamp(shift_round(u_q, f_u) + zero, 0, code_max)``, u_q in LSB."""
     c = shift_round(u_q, f_u) + zero

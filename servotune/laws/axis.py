@@ -18,9 +18,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-import numba as nb
 import numpy as np
 
+from servotune._numba_cache import jit
 from servotune.fixed import F_U, Fixed, align, quantize, sat_add, shift_round
 from servotune.hw.counter import unwrap_step
 from servotune.laws.fuzzy_pid import (
@@ -240,7 +240,7 @@ class AxisController:
         return c
 
 
-@nb.njit(cache=True, inline="always")
+@jit(inline="always")
 def axis_read(st: np.ndarray, c: np.ndarray, a: int, raw: int, reset: bool) -> int:
     """Read one axis's counter: unwrap with the high-byte rule, flag a counter fault.
 
@@ -286,7 +286,7 @@ def axis_read(st: np.ndarray, c: np.ndarray, a: int, raw: int, reset: bool) -> i
     return y
 
 
-@nb.njit(cache=True, inline="always")
+@jit(inline="always")
 def axis_control(
     st: np.ndarray, c: np.ndarray, a: int, ref: int, mode_cmd: int, reset: bool, u_add: int
 ) -> tuple[int, int, int]:

@@ -29,9 +29,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-import numba as nb
 import numpy as np
 
+from servotune._numba_cache import jit
 from servotune.fixed import (
     F_U,
     Fixed,
@@ -353,7 +353,7 @@ def int_rows(rows: object, size: int, where: str) -> np.ndarray:
 # --- runtime arithmetic (numba; mirrored in the C runtime) ----------------------------------
 
 
-@nb.njit(cache=True, inline="always")
+@jit(inline="always")
 def fuzzy_level(x: int, k_q: int, k_f: int, n: int) -> int:
     """Fuzzy level ``clamp(shift_round(clamp_e(x)·K_q, f_K), −n, n)`` (SPEC §6).
 
@@ -368,13 +368,13 @@ def fuzzy_level(x: int, k_q: int, k_f: int, n: int) -> int:
     return lv
 
 
-@nb.njit(cache=True, inline="always")
+@jit(inline="always")
 def scheduled_gain(base_q: int, base_f: int, t_q: int, t_f: int) -> int:
     """``Kx0 + ΔKx`` in ``q`` units at the base's ``f``: the entry aligned by ``2^(f − f_t)``."""
     return base_q + align(t_q, base_f - t_f)
 
 
-@nb.njit(cache=True, inline="always")
+@jit(inline="always")
 def feed_terms(kd_q: int, kd_f: int, k1_q: int, k1_f: int, ec: int, dr: int) -> int:
     """Derivative and feedforward terms ``(Kd/T)·ec + (K1/T)·Δr`` [LSB, ``F_U`` fraction bits]."""
     d = align(kd_q * clamp_e(ec), F_U - kd_f)

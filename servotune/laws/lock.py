@@ -6,16 +6,16 @@ While no task runs, the lock holds the axis at its target with ``u = Kp_lock · 
 
 from __future__ import annotations
 
-import numba as nb
 import numpy as np
 
+from servotune._numba_cache import jit
 from servotune.fixed import F_U, Fixed, align, clamp_e, quantize, shift_round
 from servotune.validate import show_value
 
 __all__ = ["lock_holding_band", "lock_step"]
 
 
-@nb.njit(cache=True, inline="always")
+@jit(inline="always")
 def lock_step(kl_q: int, kl_f: int, e: int) -> int:
     """Lock law output ``u_q`` [D/A LSB, F_U fraction bits] for error ``e`` [counts]."""
     return align(kl_q * clamp_e(e), F_U - kl_f)
@@ -88,7 +88,7 @@ def lock_holding_band(
     return int(e[i - 1]), int(e[i])
 
 
-@nb.njit(cache=True)
+@jit
 def _lock_codes(kl_q: int, kl_f: int, e: np.ndarray) -> np.ndarray:
     out = np.empty(e.shape[0], dtype=np.int64)
     for i in range(e.shape[0]):

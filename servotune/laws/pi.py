@@ -11,8 +11,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
-import numba as nb
-
+from servotune._numba_cache import jit
 from servotune.fixed import F_U, Fixed, align, clamp_e, quantize, sat_add, shift_round
 from servotune.validate import check_keys, show_value
 
@@ -86,7 +85,7 @@ class PIConstants:
         return cls(kp=Fixed.from_dict(d["kp"]), ki_t=Fixed.from_dict(d["ki_t"]))
 
 
-@nb.njit(cache=True, inline="always")
+@jit(inline="always")
 def pi_step(
     kp_q: int,
     kp_f: int,
@@ -140,17 +139,17 @@ def pi_step(
 _TWO_60 = 1 << 60
 
 
-@nb.njit(cache=True, inline="always")
+@jit(inline="always")
 def _below_2_60(x: int) -> bool:
     return -_TWO_60 < x < _TWO_60
 
 
-@nb.njit(cache=True, inline="always")
+@jit(inline="always")
 def _add(a: int, b: int) -> int:
     return a + b
 
 
-@nb.njit(cache=True, inline="always")
+@jit(inline="always")
 def _pi_core(
     add: Callable[[int, int], int],
     p_term: int,
@@ -179,7 +178,7 @@ def _pi_core(
     return add(add(p_term, integ), u_add), integ
 
 
-@nb.njit(cache=True, inline="always")
+@jit(inline="always")
 def pi_enter(
     kp_q: int, kp_f: int, u_last: int, e: int, u_add: int, zero: int, code_max: int
 ) -> tuple[int, int]:
@@ -199,7 +198,7 @@ def pi_enter(
     return sat_add(sat_add(p_term, integ), u_add), integ
 
 
-@nb.njit(cache=True)
+@jit
 def pi_ideal_step(kp: float, ki_t: float, integ: float, e: float) -> tuple[float, float]:
     """Ideal floating-point PI (design and comparison only): ``u = Kp·e + I(k)`` [D/A LSB]."""
     integ = integ + ki_t * e

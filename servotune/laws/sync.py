@@ -30,9 +30,9 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-import numba as nb
 import numpy as np
 
+from servotune._numba_cache import jit
 from servotune.fixed import F_U, Fixed, align, clamp_e, quantize, shift_round
 from servotune.laws.fuzzy_pid import feed_terms
 from servotune.laws.pi import pi_step
@@ -174,7 +174,7 @@ class SyncConstants:
         )
 
 
-@nb.njit(cache=True, inline="always")
+@jit(inline="always")
 def dead_zone(e: int, dz: int) -> int:
     """``e`` clamped to ±(2^31 − 1), then moved towards 0 by ``dz`` (0 inside ±dz) [counts]."""
     e = clamp_e(e)
@@ -185,7 +185,7 @@ def dead_zone(e: int, dz: int) -> int:
     return 0
 
 
-@nb.njit(cache=True, inline="always")
+@jit(inline="always")
 def sync_enter(kp_q: int, kp_f: int, dz: int, limit: int, e: int) -> tuple[int, int]:
     """Bumpless enable: returns ``(integ, e_d)`` with ``integ = −Kp·e_d`` (clamped to the rails).
 
@@ -201,7 +201,7 @@ def sync_enter(kp_q: int, kp_f: int, dz: int, limit: int, e: int) -> tuple[int, 
     return integ, e_d
 
 
-@nb.njit(cache=True, inline="always")
+@jit(inline="always")
 def sync_step(
     kp_q: int,
     kp_f: int,
@@ -251,7 +251,7 @@ def sync_step(
     return comp, integ, e_d
 
 
-@nb.njit(cache=True, inline="always")
+@jit(inline="always")
 def sync_monitor(e: int, warn: int, trip: int) -> int:
     """Monitor level of a sync error: ``SYNC_TRIP`` if ``|e| >= trip`` (trip > 0),
     ``SYNC_WARN`` if ``|e| >= warn`` (warn > 0), else ``SYNC_OK``; ``|e|`` saturates at
