@@ -16,13 +16,16 @@ The machine may be a noisy VM: every timing is the median of several runs.
 from __future__ import annotations
 
 import argparse
+import ctypes
 import dataclasses
 import gc
 import json
 import math
 import os
 import platform
+import shutil
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -36,15 +39,18 @@ import numba
 import numpy as np
 
 import servotune
+from servotune import plant as plant_model
 from servotune.arch.gantry import load_gantry, simulate_gantry
 from servotune.arch.linkage import load_linkage, run_linkage
+from servotune.export import write_c
 from servotune.fixed import F_U
 from servotune.hw.counter import unwrap_step
 from servotune.hw.dac import code_from_uq
 from servotune.laws.axis import FLAG_SATURATED
 from servotune.laws.pi import pi_enter, pi_step
-from servotune.plant import lag_split
+from servotune.plant import lag_split, plant_row
 from servotune.sim.engine import METRIC_NAMES
+from servotune.tuning import Tuning
 
 SCHEMA = "servotune.bench/1"
 ROOT = Path(__file__).resolve().parents[1]
@@ -816,6 +822,100 @@ def check_batch_metrics(m2: np.ndarray, m1: np.ndarray) -> None:
         "batched: worst over candidates: "
         + ", ".join(f"{k} {v:.4g}" for k, v in zip(METRIC_NAMES, worst, strict=True))
     )
+
+
+C_LOOP_SOURCE = Path(__file__).with_name("c_loop.c")
+"""The C loop: the exported runtime around a C copy of the plant (see its header comment)."""
+C_LOOP_FLAGS = ("-std=c99", "-O2", "-ffp-contract=off", "-Wall", "-Wextra", "-Werror")
+"""Strict C99 at -O2; no contraction into fused multiply-adds (the engine's operations)."""
+
+
+def build_c_loop(loop: servotune.Loop, out_dir: Path) -> ctypes.CDLL:
+    """Export the loop's tuning as C and build :data:`C_LOOP_SOURCE` around it.
+
+    Parameters
+    ----------
+    loop : Loop
+        One axis.
+    out_dir : Path
+        An empty directory for the sources and the library.
+
+    Returns
+    -------
+    ctypes.CDLL
+        With ``c_loop`` (see its C comment).
+    """
+    cc = shutil.which("cc")
+    if cc is None:
+        raise BenchMismatchError("no C compiler (cc) on PATH: the C runtime cannot be built")
+    tuning = Tuning.for_rig(loop.rig, loop.controllers, rig_sha256="0" * 64)
+    write_c(tuning, out_dir, rig=loop.rig, unverified=True)
+    names = [n for n in dir(plant_model) if n.startswith("R_")] + ["NROW"]
+    defines = "".join(f"#define {n} {getattr(plant_model, n)}\n" for n in sorted(names))
+    (out_dir / "plant_rows.h").write_text("/* servotune.plant row layout */\n" + defines)
+    shutil.copy(C_LOOP_SOURCE, out_dir / "c_loop.c")
+    res = subprocess.run(
+        [cc, *C_LOOP_FLAGS, "-shared", "-fPIC", "c_loop.c", "servotune_rt.c", "-lm", "-o",
+         "libloop.so"], cwd=out_dir, capture_output=True, text=True,
+    )  # fmt: skip
+    if res.returncode != 0:
+        raise BenchMismatchError(f"building the C loop failed:\n{res.stderr}")
+    lib = ctypes.CDLL(str(out_dir / "libloop.so"))
+    p_d, p_i = ctypes.POINTER(ctypes.c_double), ctypes.c_void_p
+    lib.c_loop.argtypes = [ctypes.c_int64, p_d, ctypes.c_int64, ctypes.c_int64, ctypes.c_int,
+                           ctypes.c_double, ctypes.c_double, p_i, p_i]  # fmt: skip
+    lib.c_loop.restype = ctypes.c_int
+    return lib
+
+
+@register("c_runtime")
+def bench_c_runtime(opts: Options) -> list[Figure]:
+    """The engine against the project's exported C runtime driving a C copy of the same plant.
+
+    Both run the one-axis loop of :func:`one_axis_setup` on the same reference; every D/A code
+    must agree (else :class:`BenchMismatchError`).
+
+    Parameters
+    ----------
+    opts : Options
+
+    Returns
+    -------
+    list of Figure
+        ``c_runtime_one_axis_ns_per_tick``, ``engine_one_axis_ns_per_tick`` (this run) and
+        ``engine_vs_c_runtime`` (engine time / C time).
+    """
+    loop, inputs = one_axis_setup(opts)
+    rig = loop.rig
+    n = inputs.n_ticks
+    ref = np.ascontiguousarray(inputs.ref_counts[:, 0], dtype=np.int64)
+    row, lag = plant_row(rig.axes[0].plant, rig.period_s, rig.timer.compute_s, rig.counts_per_rev)
+    row = np.ascontiguousarray(row)
+    codes = np.zeros(n, dtype=np.int32)
+    with tempfile.TemporaryDirectory(prefix="servotune-bench-") as tmp:
+        lib = build_c_loop(loop, Path(tmp))
+        args = (n, row.ctypes.data_as(ctypes.POINTER(ctypes.c_double)), lag,
+                rig.axes[0].counter_init, rig.counter.bits, rig.dac.range_v[0], rig.dac.lsb_v,
+                ref.ctypes.data, codes.ctypes.data)  # fmt: skip
+        if lib.c_loop(*args) != 0:
+            raise BenchMismatchError("c_loop: the lag needs a longer ring")
+        c_times, _ = timed_runs(lambda: lib.c_loop(*args), opts.sizes.engine_runs)
+    trace = servotune.simulate(loop, inputs, seed=0)
+    if not np.array_equal(codes, trace.code[:, 0]):
+        k = int(np.argmax(codes != trace.code[:, 0]))
+        raise BenchMismatchError(f"c_runtime: codes differ from the engine's at tick {k}")
+    progress(f"c_runtime: the C loop's {n} codes equal the engine's")
+    e_times, _ = timed_runs(
+        lambda: servotune.simulate(loop, inputs, seed=0), opts.sizes.engine_runs
+    )
+    c_ns = statistics.median(c_times) / n * 1e9
+    e_ns = statistics.median(e_times) / n * 1e9
+    progress(f"c_runtime: C {c_ns:.4g} ns/tick, engine {e_ns:.4g} ns/tick")
+    return [
+        Figure("c_runtime_one_axis_ns_per_tick", c_ns, "ns/tick"),
+        Figure("engine_one_axis_ns_per_tick", e_ns, "ns/tick", "simulate(), traces included"),
+        Figure("engine_vs_c_runtime", e_ns / c_ns, "x", "engine time over C time; < 1.5 wanted"),
+    ]
 
 
 @register("arch")
