@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from servotune import fuzzy
 from servotune._version import __version__
 from servotune.errors import InfeasibleError, SpecError
 from servotune.io.files import json_float
@@ -45,8 +46,6 @@ MASTER_TARGETS: Mapping[str, float] = DEFAULT_TARGETS
 
 def rule_tables(rule_base: str = "default", *, n: int = 6) -> dict[str, np.ndarray]:
     """Normalised query tables (values in [−1, 1]) of a rule base: ``default`` or ``classic``."""
-    from servotune import fuzzy
-
     bases = {"classic": fuzzy.CLASSIC_RULES, "default": fuzzy.DEFAULT_RULES}
     if rule_base not in bases:
         raise SpecError(f"rule_base must be one of {', '.join(sorted(bases))}, got {rule_base!r}")

@@ -21,6 +21,7 @@ import numpy as np
 
 from servotune.errors import SpecError
 from servotune.laws.axis import FAULT_MASK, FLAG_SATURATED, MODE_TASK
+from servotune.metrics import step_info
 from servotune.rig import Rig
 from servotune.scenarios import Inputs, build_scenario, sync_move
 from servotune.sim.engine import BatchTraces, Loop, prepare_batch, run_batch
@@ -109,8 +110,6 @@ def _move_windows(rig: Rig, sc: ScenarioSpec, inputs: Inputs) -> _MoveWindows:
 def _step_values(
     t: np.ndarray, y: np.ndarray, y_init: float, target: float, band_pct: float
 ) -> tuple[float, float]:
-    from servotune.metrics import step_info
-
     info = step_info(t, y, y_init=y_init, y_final=target, settling_threshold=band_pct / 100.0)
     settle = info.settling_time_s
     return info.overshoot_pct, (math.inf if math.isnan(settle) else settle)
