@@ -74,3 +74,19 @@ def test_numba_cache_dir_set_by_the_user_rules(tmp_path: Path) -> None:
         [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
     ).stdout
     assert Path(out).is_relative_to(tmp_path / "mine")
+
+
+def test_numba_is_used_through_its_public_api_only() -> None:
+    # issue 16: no private options or internals (``_nrt``, cgutils, arrayobj), and every compiled
+    # function through the one decorator (_numba_cache.jit), so each caches under the digest
+    package = Path(servotune.__file__).resolve().parent
+    private = ("_nrt", "numba.core.cgutils", "from numba.core import cgutils", "numba.np.arrayobj",
+               "make_array", "populate_array")  # fmt: skip
+    found = []
+    for path in sorted(package.rglob("*.py")):
+        text = path.read_text()
+        rel = path.relative_to(package).as_posix()
+        found += [f"{rel}: {word}" for word in private if word in text]
+        if rel != "_numba_cache.py" and ("nb.njit" in text or "numba.njit" in text):
+            found.append(f"{rel}: numba.njit outside _numba_cache.jit")
+    assert not found, found

@@ -13,6 +13,8 @@ import pytest
 
 from servotune.arch.gantry import (
     TOPOLOGIES,
+    GantryMetrics,
+    SyncLoopModels,
     compare_topologies,
     format_comparison,
     load_gantry,
@@ -43,27 +45,23 @@ def comparison(gantry):
     return compare_topologies(gantry, seed=0)
 
 
-def _row(cmp, topology: str, case: str) -> dict:
-    return next(r for r in cmp.rows if r["topology"] == topology and r["case"] == case)
-
-
 # --- must show -----------------------------------------------------------------------------
 
 
 def test_listening_compensator_cuts_the_load_step_sync_error_as_the_loop_gains_predict(
     gantry, comparison
 ) -> None:
-    par = _row(comparison, "parallel", "load")["max_sync_error_counts"]
-    lis = _row(comparison, "listening", "load")["max_sync_error_counts"]
+    par = comparison.row("parallel", "load").max_sync_error_counts
+    lis = comparison.row("listening", "load").max_sync_error_counts
     pred = predicted_load_reduction(gantry)
     # the prediction: the parallel error is the slave drive's closed-loop load response, and
     # the listening compensator scales it by the sync loop's sensitivity 1/(1 + C·z^-L·T_s)
     assert lis < par
-    assert pred["ratio"] < 0.8
+    assert pred.ratio < 0.8
     # live (integer law, quantised D/A and encoder, friction, noise, jitter) vs linear model
-    assert par == pytest.approx(pred["parallel_max_counts"], rel=0.05)
-    assert lis == pytest.approx(pred["listening_max_counts"], rel=0.08)
-    assert lis / par == pytest.approx(pred["ratio"], abs=0.05)
+    assert par == pytest.approx(pred.parallel_max_counts, rel=0.05)
+    assert lis == pytest.approx(pred.listening_max_counts, rel=0.08)
+    assert lis / par == pytest.approx(pred.ratio, abs=0.05)
 
 
 def test_prediction_tracks_a_weaker_compensator(gantry) -> None:
@@ -71,10 +69,10 @@ def test_prediction_tracks_a_weaker_compensator(gantry) -> None:
     s = gantry.sync
     weak = dataclasses.replace(gantry, sync=dataclasses.replace(s, kp=s.kp / 2, ki=s.ki / 2))
     pred = predicted_load_reduction(weak)
-    assert pred["ratio"] > predicted_load_reduction(gantry)["ratio"] + 0.05
-    par = simulate_gantry(weak, "parallel", case="load").metrics()["max_sync_error_counts"]
-    lis = simulate_gantry(weak, "listening", case="load").metrics()["max_sync_error_counts"]
-    assert lis / par == pytest.approx(pred["ratio"], abs=0.05)
+    assert pred.ratio > predicted_load_reduction(gantry).ratio + 0.05
+    par = simulate_gantry(weak, "parallel", case="load").metrics().max_sync_error_counts
+    lis = simulate_gantry(weak, "listening", case="load").metrics().max_sync_error_counts
+    assert lis / par == pytest.approx(pred.ratio, abs=0.05)
 
 
 @pytest.mark.parametrize("latency", [1, 3])
@@ -103,17 +101,44 @@ def test_a_trip_stops_both_axes_within_the_stated_cycles(gantry, latency, topolo
 
 
 def test_comparison_table_covers_every_topology_and_case(gantry, comparison) -> None:
-    assert {(r["topology"], r["case"]) for r in comparison.rows} == {
+    assert {(r.topology, r.case) for r in comparison.rows} == {
         (t, c) for t in TOPOLOGIES for c in ("load", "mismatch")}  # fmt: skip
     # mismatched plants: the listening compensator also cuts the error parallel leaves
-    assert (_row(comparison, "listening", "mismatch")["rms_sync_error_counts"]
-            < 0.6 * _row(comparison, "parallel", "mismatch")["rms_sync_error_counts"])  # fmt: skip
+    assert (comparison.row("listening", "mismatch").rms_sync_error_counts
+            < 0.6 * comparison.row("parallel", "mismatch").rms_sync_error_counts)  # fmt: skip
     # following the master's feedback adds the slave's own lag: worse than parallel here
-    assert (_row(comparison, "following", "mismatch")["max_sync_error_counts"]
-            > _row(comparison, "parallel", "mismatch")["max_sync_error_counts"])  # fmt: skip
+    assert (comparison.row("following", "mismatch").max_sync_error_counts
+            > comparison.row("parallel", "mismatch").max_sync_error_counts)  # fmt: skip
     assert comparison.passed  # the deployed (listening) topology does not trip
     text = format_comparison(comparison)
     assert all(t in text for t in TOPOLOGIES) and text.endswith("PASS")
+
+
+def test_results_are_named_objects_and_sync_json_keeps_its_keys(gantry, comparison) -> None:
+    # issue 16: named results (GantryMetrics, LoadPrediction, SyncLoopModels), the JSON of
+    # schema servotune.sync/1 unchanged: its rows and prediction keyed as before
+    doc = json.loads(json.dumps(comparison.to_dict(), sort_keys=True))
+    assert set(doc) == {
+        "schema", "name", "topology", "cycle_s", "latency_cycles", "stop_bound_cycles",
+        "drives", "sync", "sync_constants", "results", "predicted_load", "passed", "failed",
+        "version"}  # fmt: skip
+    row_keys = {"case", "topology", "max_sync_error_counts", "rms_sync_error_counts",
+                "warning_cycles", "tripped", "trip_time_s"}  # fmt: skip
+    assert all(set(r) == row_keys for r in doc["results"])
+    assert [r.to_dict() for r in comparison.rows] == doc["results"]
+    assert set(doc["predicted_load"]) == {"parallel_max_counts", "listening_max_counts", "ratio"}
+    m = comparison.row("listening", "load")
+    assert isinstance(m, GantryMetrics) and (m.topology, m.case) == ("listening", "load")
+    assert comparison.traces[comparison.rows.index(m)].metrics() == m
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        m.tripped = True  # type: ignore[misc]
+    with pytest.raises(KeyError, match="no run of the topology 'ring'"):
+        comparison.row("ring", "load")
+    models = sync_loop_models(gantry)
+    assert isinstance(models, SyncLoopModels)
+    assert set(models.to_dict()) == {"t_master", "t_slave", "load_master", "load_slave",
+                                     "compensator", "loop", "sensitivity"}  # fmt: skip
+    assert all(sys.dt == gantry.bus.cycle_s for sys in models.to_dict().values())
 
 
 def test_same_seed_same_result_other_seed_other_noise(gantry) -> None:
@@ -128,7 +153,7 @@ def test_same_seed_same_result_other_seed_other_noise(gantry) -> None:
 
 
 def test_compensator_synthesis_meets_its_targets_on_the_sync_loop(gantry) -> None:
-    loop = sync_loop_models(gantry)["loop"]
+    loop = sync_loop_models(gantry).loop
     w = np.geomspace(1e-2, math.pi / gantry.bus.cycle_s, 4000)
     resp = loop.frequency_response(w)
     gm, pm = control.stability_margins(resp)[:2]
@@ -150,7 +175,7 @@ def test_pd_synthesis_takes_the_largest_kp_meeting_the_targets(gantry) -> None:
 
     def pm(kp: float) -> float:
         c = dataclasses.replace(cfg, sync=dataclasses.replace(s, kp=kp))
-        loop = sync_loop_models(c)["loop"]
+        loop = sync_loop_models(c).loop
         w = np.geomspace(1e-2, math.pi / c.bus.cycle_s, 4000)
         return control.stability_margins(loop.frequency_response(w))[1]
 

@@ -10,11 +10,11 @@ Submodules, each importing only those above it:
 - :mod:`~servotune.arch.gantry.config`: the configuration (frozen dataclasses validated on
   construction, :func:`gantry_from_dict`), the topologies and the comparison cases;
 - :mod:`~servotune.arch.gantry.design`: the linear sync-loop models and the design of the gains
-  (:func:`sync_loop_models`, :func:`tune_sync`, :func:`resolve_gains`,
-  :func:`predicted_load_reduction`) and the config reader that resolves them
-  (:func:`load_gantry`);
-- :mod:`~servotune.arch.gantry.result`: the result (:class:`GantryTrace`,
-  :class:`SyncComparison`, :func:`format_comparison`);
+  (:func:`sync_loop_models` → :class:`SyncLoopModels`, :func:`tune_sync`,
+  :func:`resolve_gains`, :func:`predicted_load_reduction` → :class:`LoadPrediction`) and the
+  config reader that resolves them (:func:`load_gantry`);
+- :mod:`~servotune.arch.gantry.result`: the result (:class:`GantryTrace` and its
+  :class:`GantryMetrics`, :class:`SyncComparison`, :func:`format_comparison`);
 - :mod:`~servotune.arch.gantry.run`: the CNC's move (:func:`move_profile`), the numba kernel
   of one run (:func:`simulate_gantry`) and the comparison (:func:`compare_topologies`).
 
@@ -43,9 +43,13 @@ detecting slave stops at once and every other drive with the next frame: both ax
 latched at 0 V (:data:`~servotune.laws.axis.FLAG_SYNC_TRIP`) at most ``latency_cycles + 1``
 cycles after the measured sync error first crossed the trip threshold (``stop_bound_cycles``).
 
-Plant motion: exact per axis between input changes (:func:`~servotune.plant.advance`, friction
-and speed limit included); with a coupled beam each cycle is split into sub-steps over which
-the beam force is held (``beam_substeps``, chosen so the beam's mode is resolved).
+The drives' tick is the shared one of :mod:`servotune.sim.tick` (sample, read, law, D/A, hold,
+advance), with the single-rig engine's noise stream: with no jitter, no beam and the parallel
+topology, each drive runs exactly as an axis of :func:`servotune.sim.engine.simulate` would
+(``tests/arch/gantry/test_cross_kernel.py``). Plant motion: exact per axis over the cycle
+(:func:`~servotune.plant.advance_tick`, friction and speed limit included); with a coupled beam
+each cycle is split into sub-steps over which the beam force is held (chosen so the beam's
+mode is resolved, :func:`~servotune.plant.advance` on each).
 """
 
 from servotune.arch.gantry.config import (
@@ -61,13 +65,20 @@ from servotune.arch.gantry.config import (
     gantry_from_dict,
 )
 from servotune.arch.gantry.design import (
+    LoadPrediction,
+    SyncLoopModels,
     load_gantry,
     predicted_load_reduction,
     resolve_gains,
     sync_loop_models,
     tune_sync,
 )
-from servotune.arch.gantry.result import GantryTrace, SyncComparison, format_comparison
+from servotune.arch.gantry.result import (
+    GantryMetrics,
+    GantryTrace,
+    SyncComparison,
+    format_comparison,
+)
 from servotune.arch.gantry.run import compare_topologies, move_profile, simulate_gantry
 
 __all__ = [
@@ -78,9 +89,12 @@ __all__ = [
     "GantryBus",
     "GantryConfig",
     "GantryLoad",
+    "GantryMetrics",
     "GantryMove",
     "GantryTrace",
+    "LoadPrediction",
     "SyncComparison",
+    "SyncLoopModels",
     "SyncSettings",
     "compare_topologies",
     "format_comparison",

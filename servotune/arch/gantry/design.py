@@ -9,10 +9,11 @@
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
+import control
 import numpy as np
 
 from servotune.arch.gantry.config import (
@@ -21,12 +22,15 @@ from servotune.arch.gantry.config import (
     _case_config,
     gantry_from_dict,
 )
-from servotune.errors import ConfigError
-from servotune.hw import dac as hw_dac
+from servotune.errors import ConfigError, SpecError
 from servotune.io.files import read_toml
 from servotune.laws.sync import SyncGains
+from servotune.plant import discretize
+from servotune.tune.pi import DEFAULT_TARGETS, tune_pi
 
 __all__ = [
+    "LoadPrediction",
+    "SyncLoopModels",
     "load_gantry",
     "predicted_load_reduction",
     "resolve_gains",
@@ -35,49 +39,97 @@ __all__ = [
 ]
 
 
-def _pi_tf(kp: float, ki_t: float, dt: float) -> Any:
-    """``Kp + Ki·T·z/(z−1)``: the runtime PI (:func:`~servotune.laws.pi.pi_step`)."""
-    import control
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SyncLoopModels:
+    """Linear discrete models of the gantry's sync loop (:func:`sync_loop_models`), each with
+    ``dt`` = the bus cycle.
 
+    Attributes
+    ----------
+    t_master, t_slave : control.StateSpace
+        The drives' closed position loops, command → position [counts/count].
+    load_master, load_slave : control.StateSpace
+        Load volts on that side → its position, the drive's loop closed [counts/V].
+    compensator : control.TransferFunction
+        The sync law ``C(z)`` [counts of compensation per count of sync error].
+    loop : control.StateSpace
+        The sync loop ``C(z)·z^-L·T_s(z)`` [-].
+    sensitivity : control.StateSpace
+        ``1/(1 + loop)`` [-]: the factor by which the listening compensator scales the
+        parallel topology's sync error.
+    """
+
+    t_master: control.StateSpace
+    t_slave: control.StateSpace
+    load_master: control.StateSpace
+    load_slave: control.StateSpace
+    compensator: control.TransferFunction
+    loop: control.StateSpace
+    sensitivity: control.StateSpace
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dict of the models keyed by field name (python-control objects, not JSON)."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class LoadPrediction:
+    """What the linear loop gains predict for the ``load`` case
+    (:func:`predicted_load_reduction`), noise-free.
+
+    Attributes
+    ----------
+    parallel_max_counts : float
+        Max |sync error| of the parallel topology: the slave's closed-loop load response
+        [counts].
+    listening_max_counts : float
+        Max |sync error| of the listening topology: that error shaped by the sync loop's
+        sensitivity [counts].
+    ratio : float
+        ``listening_max_counts / parallel_max_counts`` [-].
+    """
+
+    parallel_max_counts: float
+    listening_max_counts: float
+    ratio: float
+
+    def to_dict(self) -> dict[str, float]:
+        """Plain dict keyed by field name (``sync.json``'s ``predicted_load``)."""
+        return {f.name: float(getattr(self, f.name)) for f in fields(self)}
+
+
+def _pi_tf(kp: float, ki_t: float, dt: float) -> control.TransferFunction:
+    """``Kp + Ki·T·z/(z−1)``: the runtime PI (:func:`~servotune.laws.pi.pi_step`)."""
     return control.tf([kp + ki_t, -kp], [1.0, -1.0], dt)
 
 
-def _compensator_tf(g: SyncGains, dt: float) -> Any:
+def _compensator_tf(g: SyncGains, dt: float) -> control.TransferFunction:
     """The sync law as a discrete transfer function: the runtime PI, or ``Kp + Kd/T·(1 − z⁻¹)``."""
-    import control
-
     if g.law == "pi":
         return _pi_tf(g.kp, g.ki * dt, dt)
     return control.tf([g.kp + g.kd / dt, -g.kd / dt], [1.0, 0.0], dt)
 
 
-def _sync_open_loop(comp: Any, t_slave: Any, cfg: GantryConfig) -> Any:
+def _sync_open_loop(
+    comp: control.TransferFunction, t_slave: control.StateSpace, cfg: GantryConfig
+) -> control.StateSpace:
     """``C(z)·z^-L·T_s(z)``: the compensator, the bus latency, the slave's closed drive loop."""
-    import control
-
     dt = cfg.bus.cycle_s
     delay = control.tf([1.0], [1.0] + [0.0] * cfg.bus.latency_cycles, dt)
     return control.ss(comp) * control.ss(delay) * t_slave
 
 
-def sync_loop_models(cfg: GantryConfig) -> dict[str, Any]:
+def sync_loop_models(cfg: GantryConfig) -> SyncLoopModels:
     """Linear discrete models of the sync loop (friction, quantisation and beam left out).
 
     Returns
     -------
-    dict
-        ``t_master``, ``t_slave``: drive closed loops (command → position [counts/count]);
-        ``load_slave``: load volts on the slave side → slave position [counts/V];
-        ``compensator``: the sync law ``C(z)``; ``loop``: ``C(z)·z^-L·T_s(z)``;
-        ``sensitivity``: ``1/(1 + loop)``, the factor by which the listening compensator
-        scales the parallel topology's sync error.
+    SyncLoopModels
+        The drives' closed loops and load responses, the compensator ``C(z)``, the sync loop
+        ``C(z)·z^-L·T_s(z)`` and its sensitivity.
     """
-    import control
-
-    from servotune.plant import discretize
-
     dt = cfg.bus.cycle_s
-    lsb = hw_dac.lsb_v(cfg.rig.dac.bits, cfg.rig.dac.range_v)
+    lsb = cfg.rig.dac.lsb_v
     out: dict[str, Any] = {}
     for key, ax in (("master", cfg.master), ("slave", cfg.slave)):
         p_u = control.ss(discretize(ax.plant, dt, cfg.bus.compute_s + ax.plant.delay_s))
@@ -90,10 +142,8 @@ def sync_loop_models(cfg: GantryConfig) -> dict[str, Any]:
         out[f"load_{key}"] = p_d * control.feedback(one, c * lsb * p_u)
     comp = _compensator_tf(cfg.sync.gains, dt)
     loop = _sync_open_loop(comp, out["t_slave"], cfg)
-    out["compensator"] = comp
-    out["loop"] = loop
-    out["sensitivity"] = control.feedback(control.ss(control.tf([1.0], [1.0], dt)), loop)
-    return out
+    sensitivity = control.feedback(control.ss(control.tf([1.0], [1.0], dt)), loop)
+    return SyncLoopModels(compensator=comp, loop=loop, sensitivity=sensitivity, **out)
 
 
 def tune_sync(cfg: GantryConfig) -> SyncSettings:
@@ -109,14 +159,9 @@ def tune_sync(cfg: GantryConfig) -> SyncSettings:
     SpecError
         If no compensator meets the targets.
     """
-    import control
-
-    from servotune.errors import SpecError
-    from servotune.tune.pi import tune_pi
-
     s = cfg.sync
     dt = cfg.bus.cycle_s
-    t_s = sync_loop_models(replace(cfg, sync=replace(s, kp=0.0, ki=0.0, kd=0.0)))["t_slave"]
+    t_s = sync_loop_models(replace(cfg, sync=replace(s, kp=0.0, ki=0.0, kd=0.0))).t_slave
     if s.law == "pi":
         r = tune_pi(t_s, period_s=dt, compute_s=cfg.bus.latency_cycles * dt,
                     phase_margin_deg=s.phase_margin_deg, gain_margin_db=s.gain_margin_db,
@@ -153,9 +198,7 @@ def resolve_gains(cfg: GantryConfig) -> GantryConfig:
     """Fill in the gains the config leaves out: each drive's PI tuned at the bus cycle
     (:func:`~servotune.tune.pi.tune_pi`, PM 50°, GM 8 dB, Ms 1.6), then the compensator
     (:func:`tune_sync`)."""
-    from servotune.tune.pi import DEFAULT_TARGETS, tune_pi
-
-    lsb = hw_dac.lsb_v(cfg.rig.dac.bits, cfg.rig.dac.range_v)
+    lsb = cfg.rig.dac.lsb_v
     drives = []
     for ax in (cfg.master, cfg.slave):
         if ax.kp is None or ax.ki is None:
@@ -195,25 +238,22 @@ def load_gantry(path: str | Path, *, resolve: bool = True) -> GantryConfig:
     return resolve_gains(cfg) if resolve else cfg
 
 
-def predicted_load_reduction(cfg: GantryConfig) -> dict[str, float]:
+def predicted_load_reduction(cfg: GantryConfig) -> LoadPrediction:
     """What the loop gains predict for the ``load`` case: max |sync error| of the parallel
     topology (the slave's closed-loop load response) and of the listening one (that error
     shaped by the sync loop's sensitivity ``1/(1 + C·z^-L·T_s)``), linear and noise-free.
 
     Returns
     -------
-    dict
-        ``parallel_max_counts``, ``listening_max_counts`` and their ``ratio``.
+    LoadPrediction
     """
-    import control
-
     cfg, load = _case_config(cfg, "load")
     models = sync_loop_models(cfg)
     n = cfg.n_cycles
     side = 0 if cfg.load.axis == "master" else 1
     d = load[:, side]
-    resp = control.forced_response(models["load_slave"], U=d)
+    resp = control.forced_response(models.load_slave, U=d)
     e_par = np.squeeze(resp.outputs) * (1.0 if side == 0 else -1.0)
-    e_lis = np.squeeze(control.forced_response(models["sensitivity"], U=e_par).outputs)
+    e_lis = np.squeeze(control.forced_response(models.sensitivity, U=e_par).outputs)
     p, li = float(np.max(np.abs(e_par[:n]))), float(np.max(np.abs(e_lis[:n])))
-    return {"parallel_max_counts": p, "listening_max_counts": li, "ratio": li / p}
+    return LoadPrediction(parallel_max_counts=p, listening_max_counts=li, ratio=li / p)

@@ -2,21 +2,58 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
 
 from servotune._version import __version__
 from servotune.arch.gantry.config import CASES, TOPOLOGIES, GantryConfig
+from servotune.arch.gantry.design import LoadPrediction
 from servotune.io.files import json_safe
 from servotune.laws.sync import SYNC_WARN
 
 __all__ = [
+    "GantryMetrics",
     "GantryTrace",
     "SyncComparison",
     "format_comparison",
 ]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class GantryMetrics:
+    """The sync error of one gantry run (:meth:`GantryTrace.metrics`): one row of the
+    comparison (:class:`SyncComparison`).
+
+    Attributes
+    ----------
+    topology, case : str
+        The run's topology (:data:`~servotune.arch.gantry.TOPOLOGIES`) and case
+        (:data:`~servotune.arch.gantry.CASES`).
+    max_sync_error_counts : float
+        Largest measured ``|y_master − y_slave|`` over the run [counts].
+    rms_sync_error_counts : float
+        RMS of the measured sync error over the run [counts].
+    warning_cycles : int
+        Cycles the monitor was at the warning level [cycles].
+    tripped : bool
+        True if the monitor tripped.
+    trip_time_s : float or None
+        When it tripped, from the run's start [s]; None if it did not.
+    """
+
+    topology: str
+    case: str
+    max_sync_error_counts: float
+    rms_sync_error_counts: float
+    warning_cycles: int
+    tripped: bool
+    trip_time_s: float | None
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dict keyed by field name (a row of ``sync.json``'s ``results``)."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -63,32 +100,63 @@ class GantryTrace:
         """Sample instants [s]."""
         return np.arange(self.command.size, dtype=np.int64) * self.cycle_s
 
-    def metrics(self) -> dict[str, float | int | bool]:
-        """Max and RMS |sync error| [counts], warning cycles, trip."""
+    def metrics(self) -> GantryMetrics:
+        """Max and RMS |sync error| [counts], warning cycles, trip (:class:`GantryMetrics`)."""
         e = self.sync_error.astype(float)
-        return {
-            "max_sync_error_counts": float(np.max(np.abs(e))),
-            "rms_sync_error_counts": float(np.sqrt(np.mean(e * e))),
-            "warning_cycles": int(np.count_nonzero(self.sync_level == SYNC_WARN)),
-            "tripped": self.trip_cycle >= 0,
-            "trip_time_s": self.trip_cycle * self.cycle_s if self.trip_cycle >= 0 else None,
-        }
+        return GantryMetrics(
+            topology=self.topology,
+            case=self.case,
+            max_sync_error_counts=float(np.max(np.abs(e))),
+            rms_sync_error_counts=float(np.sqrt(np.mean(e * e))),
+            warning_cycles=int(np.count_nonzero(self.sync_level == SYNC_WARN)),
+            tripped=self.trip_cycle >= 0,
+            trip_time_s=self.trip_cycle * self.cycle_s if self.trip_cycle >= 0 else None,
+        )
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class SyncComparison:
-    """Max/RMS sync error per topology and case (:func:`compare_topologies`)."""
+    """Max/RMS sync error per topology and case (:func:`compare_topologies`).
+
+    Attributes
+    ----------
+    config : GantryConfig
+        The gantry compared (gains resolved).
+    rows : tuple of GantryMetrics
+        One per case and topology, cases in :data:`CASES` order, topologies in
+        :data:`TOPOLOGIES` order.
+    traces : tuple of GantryTrace
+        The runs, in the order of ``rows``.
+    predicted : LoadPrediction or None
+        What the linear loop gains predict for the ``load`` case; None with a coupled beam
+        (the linear models leave the beam out).
+    failed : tuple of str
+        Why the check failed (a trip of the deployed topology), empty if it passed.
+    """
 
     config: GantryConfig
-    rows: tuple[dict[str, Any], ...]
+    rows: tuple[GantryMetrics, ...]
     traces: tuple[GantryTrace, ...]
-    predicted: dict[str, float]
+    predicted: LoadPrediction | None
     failed: tuple[str, ...]
 
     @property
     def passed(self) -> bool:
         """True if the deployed topology tripped in no case."""
         return not self.failed
+
+    def row(self, topology: str, case: str) -> GantryMetrics:
+        """The metrics of one topology in one case.
+
+        Raises
+        ------
+        KeyError
+            If the comparison has no such run.
+        """
+        for r in self.rows:
+            if r.topology == topology and r.case == case:
+                return r
+        raise KeyError(f"no run of the topology {topology!r} in the case {case!r}")
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-able dict (``schema`` ``servotune.sync/1``)."""
@@ -104,8 +172,8 @@ class SyncComparison:
             "sync": c.sync.gains.to_dict() | {"warn_counts": c.sync.warn_counts,
                                               "trip_counts": c.sync.trip_counts},
             "sync_constants": c.sync_constants.to_dict(),
-            "results": list(self.rows),
-            "predicted_load": self.predicted,
+            "results": [r.to_dict() for r in self.rows],
+            "predicted_load": {} if self.predicted is None else self.predicted.to_dict(),
             "passed": self.passed,
             "failed": list(self.failed),
             "version": __version__,
@@ -123,13 +191,13 @@ def format_comparison(cmp: SyncComparison) -> str:
     for topo in TOPOLOGIES:
         cells = ""
         for case in CASES:
-            r = next(r for r in cmp.rows if r["topology"] == topo and r["case"] == case)
-            mark = " TRIP" if r["tripped"] else ""
-            cells += f"{r['max_sync_error_counts']:>13.1f}{r['rms_sync_error_counts']:>13.1f}{mark}"
+            r = cmp.row(topo, case)
+            mark = " TRIP" if r.tripped else ""
+            cells += f"{r.max_sync_error_counts:>13.1f}{r.rms_sync_error_counts:>13.1f}{mark}"
         lines.append(f"{topo:<11}{cells}")
-    if cmp.predicted:
+    if cmp.predicted is not None:
         p = cmp.predicted
-        lines.append(f"predicted (linear) load-case max: parallel {p['parallel_max_counts']:.1f}, "
-                     f"listening {p['listening_max_counts']:.1f} (x{p['ratio']:.3f})")  # fmt: skip
+        lines.append(f"predicted (linear) load-case max: parallel {p.parallel_max_counts:.1f}, "
+                     f"listening {p.listening_max_counts:.1f} (x{p.ratio:.3f})")  # fmt: skip
     lines.append("PASS" if cmp.passed else "FAIL: " + "; ".join(cmp.failed))
     return "\n".join(lines)

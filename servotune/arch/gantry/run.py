@@ -1,15 +1,40 @@
 """Run the gantry: the CNC's move, the numba kernel of one run, every topology in every case.
 
 Timing, topologies and the monitor's stop: :mod:`servotune.arch.gantry`.
+
+The kernel composes the axis tick of :mod:`servotune.sim.tick` (the single-rig engine's, in the
+same order): per cycle and per drive, master then slave, the encoder noise is drawn
+(:func:`~servotune.sim.tick.draw_noise`) and the count latched and unwrapped
+(:func:`~servotune.sim.tick.read_axis`); then the sync monitor and compensator run, the
+topology routes the two position commands, and each drive's law writes its D/A
+(:func:`~servotune.sim.tick.write_axis`) into its tick-slot ring
+(:func:`~servotune.sim.tick.hold`); last the plants move over the cycle. What the gantry adds
+is only its scheduling and routing:
+
+- **sample instant**: a drive latches its encoder at the sync interrupt plus the jitter, so
+  the latched position is ``pos + speed·jitter`` (passed to ``read_axis`` as the position, with
+  the counter latched and no byte skew: a drive reads its own counter whole at the sample
+  instant; the rig file's ``counter.latched``/``read_skew_s`` describe the PC's counter card,
+  not a drive). With ``jitter_s = 0`` the read is the engine's, bit for bit.
+- **noise**: one splitmix64 stream per run, state ``seed``, drawn per cycle for the master then
+  the slave, only for a drive whose ``noise_counts > 0``: the engine's stream of a
+  one-candidate run (``simulate(loop, inputs, seed=seed)``). The sync jitter is bus physics,
+  not encoder noise: it keeps its own numpy draw (``default_rng(seed).uniform``), drawn only
+  when ``jitter_s > 0``.
+- **plant**: each drive's plant row (:func:`~servotune.plant.plant_row` at the bus cycle, the
+  drive's compute time and the rig's counts per revolution). An uncoupled beam moves each side
+  exactly over the cycle (:func:`~servotune.sim.tick.advance_axis`, as the engine); a coupled
+  beam splits the cycle into sub-steps over which the beam force is held
+  (:func:`~servotune.plant.advance` on each, the held writes switching at each drive's λ).
 """
 
 from __future__ import annotations
 
 import math
 
-import numba as nb
 import numpy as np
 
+from servotune._numba_cache import call_compiled, jit
 from servotune.arch.gantry.config import (
     CASES,
     T_CROSS,
@@ -24,17 +49,24 @@ from servotune.arch.gantry.design import predicted_load_reduction
 from servotune.arch.gantry.result import GantryTrace, SyncComparison
 from servotune.budget import check_memory
 from servotune.fixed import shift_round
-from servotune.hw import dac as hw_dac
-from servotune.laws.axis import (
-    FLAG_SYNC_TRIP,
-    MODE_TASK,
-    N_STATE,
-    S_FAULT,
-    axis_control,
-    axis_read,
-)
+from servotune.laws.axis import FLAG_SYNC_TRIP, MODE_TASK, N_STATE, S_FAULT
 from servotune.laws.sync import SYNC_TRIP, sync_enter, sync_monitor, sync_step
-from servotune.plant import Plant, advance, lag_split, step_coefficients
+from servotune.plant import (
+    NROW,
+    R_COULOMB,
+    R_GAIN,
+    R_H1,
+    R_NOISE,
+    R_OFFSET,
+    R_TAU,
+    R_VMAX,
+    Plant,
+    advance,
+    plant_row,
+    step_coefficients,
+)
+from servotune.scenarios import trapezoid_ref
+from servotune.sim.tick import advance_axis, draw_noise, held, hold, read_axis, write_axis
 from servotune.validate import show_value
 
 __all__ = [
@@ -46,15 +78,15 @@ __all__ = [
 
 OP_NONE, OP_ENTER, OP_STEP = 0, 1, 2
 _MAX_SUBSTEPS = 64
-_TRACE_BYTES_PER_CYCLE = 208  # a GantryTrace and its kernel inputs, per cycle
+# a GantryTrace (128 bytes) and its kernel inputs (load and jitter, 32 bytes; the jitter's
+# draw before scaling, 16 bytes), per cycle
+_TRACE_BYTES_PER_CYCLE = 176
 
 
 def move_profile(move: GantryMove, cycle_s: float, n_cycles: int) -> np.ndarray:
     """The CNC's command per cycle [counts]: a trapezoidal (or triangular) move of
     ``distance_counts`` starting at the cycle nearest ``start_s``, then held
     (:func:`~servotune.scenarios.trapezoid_ref`)."""
-    from servotune.scenarios import trapezoid_ref
-
     return trapezoid_ref(n_cycles, cycle_s, move.distance_counts, move.speed_cps,
                          move.accel_cps2, start_tick=round(move.start_s / cycle_s))  # fmt: skip
 
@@ -72,48 +104,73 @@ def _substeps(cfg: GantryConfig, plants: tuple[Plant, Plant]) -> int:
     return int(min(_MAX_SUBSTEPS, max(1, math.ceil(rate * cfg.bus.cycle_s / 0.05))))
 
 
-def _segments(cfg: GantryConfig, plants: tuple[Plant, Plant]) -> tuple[np.ndarray, ...]:
-    """Sub-intervals of one cycle: their lengths, whether each axis's new write acts in them,
-    and the exact-step coefficients; plus each axis's whole cycles of lag."""
+def _segments(
+    cfg: GantryConfig, plants: tuple[Plant, Plant], rows: np.ndarray
+) -> tuple[np.ndarray, ...]:
+    """Sub-intervals of one cycle for a coupled beam: their lengths [s], whether each axis's
+    newer write acts in them (from its λ, ``rows[a, R_H1]``), and the exact-step coefficients
+    ``a = exp(-h/tau)``, ``b = tau (1 - a)`` per sub-interval and axis."""
     dt = cfg.bus.cycle_s
     n = _substeps(cfg, plants)
-    lags = [lag_split(cfg.bus.compute_s + p.delay_s, dt) for p in plants]
-    cuts = sorted({0.0, dt, *(j * dt / n for j in range(1, n)), *(lam for _, lam in lags)})
+    lams = [float(rows[a, R_H1]) for a in range(2)]
+    cuts = sorted({0.0, dt, *(j * dt / n for j in range(1, n)), *lams})
     cuts = [c for c in cuts if 0.0 <= c <= dt]
     hs = np.diff(np.array(cuts))
     keep = hs > dt * 1e-12
     starts = np.array(cuts[:-1])[keep]
     hs = hs[keep]
-    new = np.array([[s >= lam - dt * 1e-12 for _, lam in lags] for s in starts], dtype=np.bool_)
+    new = np.array([[s >= lam - dt * 1e-12 for lam in lams] for s in starts], dtype=np.bool_)
     coef = np.array([[step_coefficients(h, p.tau_s) for p in plants] for h in hs])
-    m = np.array([mm for mm, _ in lags], dtype=np.int64)
-    return hs, new, coef[:, :, 0].copy(), coef[:, :, 1].copy(), m
+    return hs, new, coef[:, :, 0].copy(), coef[:, :, 1].copy()
 
 
-@nb.njit(cache=True)
+def _scratch(ring_n: int) -> tuple[np.ndarray, ...]:
+    """The kernel's working arrays, zeroed: the drives' law states, their tick-slot rings
+    (``ring_n`` slots), positions and speeds, the held inputs of a coupled cycle, the cycles
+    each drive stops at (-1: running)."""
+    return (np.zeros((2, N_STATE), dtype=np.int64), np.zeros((2, ring_n)), np.zeros(2),
+            np.zeros(2), np.zeros(2), np.zeros(2), np.full(2, -1, dtype=np.int64))  # fmt: skip
+
+
+# The working arrays come from :func:`_scratch`: nothing is allocated inside the kernel.
+@jit
 def _gantry_kernel(
-    topo, lat, cmd, load, noise, jit, consts, counter_init, bits, dac_lo, lsb,
-    plant, hs, new, seg_a, seg_b, lag_m, k_beam, c_beam,
+    topo, lat, cmd, load, jit_s, seed, consts, counter_init, bits, dac_lo, lsb,
+    rows, lag_m, coupled, hs, new, seg_a, seg_b, k_beam, c_beam,
     sc, warn, trip,
     code, y_out, ref_out, flags_out, pos_out, op_out, in_out, comp_out, level_out,
+    st, ring, pos, spd, w_old, w_new, stop_k,
 ):  # fmt: skip
+    """One gantry run (:func:`simulate_gantry`): fills the per-cycle outputs ``code`` …
+    ``level_out`` and returns the cycle the monitor tripped (-1 if it did not).
+
+    Inputs: the topology (``T_*``) and latency [cycles]; per cycle the CNC's command [counts],
+    the load per side [V] and the sample jitter per side [s]; the noise stream's seed; the
+    drives' law constants, counter registers at power-up, counter bits, D/A low rail [V] and
+    LSB [V]; the plant rows (:func:`~servotune.plant.plant_row`) and whole cycles of lag;
+    the beam (coupled, its sub-steps from :func:`_segments`, stiffness and damping); the
+    compensator's constants and the monitor's thresholds. Working arrays: :func:`_scratch`.
+    """
     nt = cmd.shape[0]
     mask = (np.int64(1) << bits) - 1
-    st = np.zeros((2, N_STATE), dtype=np.int64)
-    pos = np.zeros(2)
-    spd = np.zeros(2)
-    volts = np.zeros((nt, 2))
+    nbytes = bits // 8
+    ring_n = ring.shape[1]
+    rng = seed
     integ = np.int64(0)
     e_prev = np.int64(0)
     trip_k = -1
-    stop_k = np.full(2, -1, dtype=np.int64)
+    slot = ring_n - 1
     for k in range(nt):
-        # 1-2. sample at the sync interrupt (+ jitter) and unwrap, both drives
+        slot += 1
+        if slot == ring_n:
+            slot = 0
+        # 1-2. sample at the sync interrupt (+ jitter: the position moved by speed × jitter),
+        # latched whole, and unwrap, both drives
         for a in range(2):
-            cnt = np.int64(math.floor(pos[a] + spd[a] * jit[k, a] + noise[k, a]))
-            raw = (counter_init[a] + cnt) & mask
-            y_out[k, a] = axis_read(st, consts, a, raw, False)
+            rng, nz = draw_noise(rng, rows[a, R_NOISE])
             pos_out[k, a] = pos[a]
+            _, y_out[k, a] = read_axis(st, consts, a, pos[a] + spd[a] * jit_s[k, a], 0.0, nz,
+                                       counter_init[a], mask, True, nbytes, 0.0, False)  # fmt: skip
         # the sync error as the slave / the CNC sees it: measured, latency cycles old
         comp = np.int64(0)
         if k >= lat:
@@ -152,30 +209,35 @@ def _gantry_kernel(
             r_s = cmd[k] + (comp - half)
         ref_out[k, 0] = r_m
         ref_out[k, 1] = r_s
-        # 3-4. the drives' laws and D/A
+        # 3-4. the drives' laws and D/A; each write kept in its drive's tick-slot ring
         for a in range(2):
             r = r_m if a == 0 else r_s
-            c, fl, _ = axis_control(st, consts, a, r, MODE_TASK, False, 0)
+            c, fl, _, volts = write_axis(st, consts, a, r, MODE_TASK, False, 0, dac_lo, lsb)
             code[k, a] = c
             flags_out[k, a] = fl
-            volts[k, a] = dac_lo + c * lsb
-        # 5-6. the plants over the cycle, the beam force held per sub-step
-        w_new = np.zeros(2)
-        w_old = np.zeros(2)
-        for a in range(2):
-            m = lag_m[a]
-            off = plant[a, 2] + load[k, a]
-            w_new[a] = (volts[k - m, a] if k >= m else 0.0) + off
-            w_old[a] = (volts[k - m - 1, a] if k >= m + 1 else 0.0) + off
-        for i in range(hs.shape[0]):
-            f_beam = k_beam * (pos[0] - pos[1]) + c_beam * (spd[0] - spd[1])
+            hold(ring[a], slot, volts)
+        # 5. the plants over the cycle: each side exactly (as the engine), or with a coupled
+        # beam in sub-steps over which the beam force is held
+        if not coupled:
             for a in range(2):
-                w = w_new[a] if new[i, a] else w_old[a]
-                w += -f_beam if a == 0 else f_beam
-                pos[a], spd[a] = advance(
-                    pos[a], spd[a], w, hs[i], seg_a[i, a], seg_b[i, a], plant[a, 0],
-                    plant[a, 1], plant[a, 3], plant[a, 4],
-                )  # fmt: skip
+                w_off = rows[a, R_OFFSET] + load[k, a]
+                pos[a], spd[a] = advance_axis(pos[a], spd[a], ring[a], slot, lag_m[a], k, w_off,
+                                              rows[a])  # fmt: skip
+        else:
+            for a in range(2):
+                v_old, v_new = held(ring[a], slot, lag_m[a], k)
+                w_off = rows[a, R_OFFSET] + load[k, a]
+                w_old[a] = v_old + w_off
+                w_new[a] = v_new + w_off
+            for i in range(hs.shape[0]):
+                f_beam = k_beam * (pos[0] - pos[1]) + c_beam * (spd[0] - spd[1])
+                for a in range(2):
+                    w = w_new[a] if new[i, a] else w_old[a]
+                    w += -f_beam if a == 0 else f_beam
+                    pos[a], spd[a] = advance(
+                        pos[a], spd[a], w, hs[i], seg_a[i, a], seg_b[i, a], rows[a, R_GAIN],
+                        rows[a, R_TAU], rows[a, R_COULOMB], rows[a, R_VMAX],
+                    )  # fmt: skip
     return trip_k
 
 
@@ -195,7 +257,8 @@ def simulate_gantry(
         One of :data:`TOPOLOGIES`; default ``cfg.topology``.
     case : str
     seed : int
-        Seeds the encoder noise and the sync jitter.
+        Seeds the encoder noise (the splitmix64 stream of :mod:`servotune.sim.tick`, as
+        ``simulate(..., seed=seed)``) and the sync jitter (``numpy.random.default_rng``).
 
     Returns
     -------
@@ -212,33 +275,36 @@ def simulate_gantry(
     cfg, load = _case_config(cfg, case)
     plants = (cfg.master.plant, cfg.slave.plant)
     rig = cfg.rig
-    rng = np.random.default_rng(seed)
-    noise = rng.standard_normal((n, 2)) * np.array([p.noise_counts for p in plants])
-    jit = rng.uniform(-1.0, 1.0, (n, 2)) * cfg.bus.jitter_s
-    dac_zero = hw_dac.zero_code(rig.dac.bits, rig.dac.range_v)
-    ctrls = cfg.controllers()
+    dt = cfg.bus.cycle_s
+    rows = np.zeros((2, NROW))
+    lag_m = np.zeros(2, dtype=np.int64)
+    for a, p in enumerate(plants):
+        rows[a], lag_m[a] = plant_row(p, dt, cfg.bus.compute_s, rig.counts_per_rev)
+    if cfg.bus.jitter_s > 0:
+        jit_s = np.random.default_rng(seed).uniform(-1.0, 1.0, (n, 2)) * cfg.bus.jitter_s
+    else:
+        jit_s = np.zeros((n, 2))
     consts = np.stack([c.consts(counter_bits=rig.counter.bits, dac_bits=rig.dac.bits,
-                                dac_zero=dac_zero) for c in ctrls])  # fmt: skip
-    cpr = rig.encoder.pulses_per_rev * rig.counter.multiplier
-    plant_arr = np.array([[p.gain_cps_per_v, p.tau_s, p.offset_v, p.coulomb_v,
-                           p.max_speed_cps(cpr)] for p in plants])  # fmt: skip
-    hs, new, seg_a, seg_b, lag_m = _segments(cfg, plants)
+                                dac_zero=rig.dac.zero_code)
+                       for c in cfg.controllers()])  # fmt: skip
+    hs, new, seg_a, seg_b = _segments(cfg, plants, rows)
     sc_q = cfg.sync_constants
     sc = np.array([sc_q.kp.q, sc_q.kp.f, sc_q.ki_t.q, sc_q.ki_t.f, sc_q.kd_t.q, sc_q.kd_t.f,
                    sc_q.dead_zone_counts, sc_q.limit_counts], dtype=np.int64)  # fmt: skip
-    cmd = move_profile(cfg.move, cfg.bus.cycle_s, n)
+    cmd = move_profile(cfg.move, dt, n)
     i2 = lambda: np.zeros((n, 2), dtype=np.int64)  # noqa: E731
     i1 = lambda: np.zeros(n, dtype=np.int64)  # noqa: E731
     code, y, ref, flags = i2(), i2(), i2(), i2()
     pos = np.zeros((n, 2))
     op, e_in, comp, level = i1(), i1(), i1(), i1()
     init = np.array([cfg.master.counter_init, cfg.slave.counter_init], dtype=np.int64)
-    trip_k = _gantry_kernel(
-        TOPOLOGIES.index(topology), cfg.bus.latency_cycles, cmd, load, noise, jit, consts,
-        init, rig.counter.bits, rig.dac.range_v[0], hw_dac.lsb_v(rig.dac.bits, rig.dac.range_v),
-        plant_arr, hs, new, seg_a, seg_b, lag_m, cfg.beam.stiffness_v_per_count,
-        cfg.beam.damping_v_s_per_count, sc, cfg.sync.warn_counts, cfg.sync.trip_counts,
-        code, y, ref, flags, pos, op, e_in, comp, level,
+    trip_k = call_compiled(
+        _gantry_kernel, TOPOLOGIES.index(topology), cfg.bus.latency_cycles, cmd, load, jit_s,
+        np.uint64(seed), consts, init, rig.counter.bits, rig.dac.range_v[0], rig.dac.lsb_v,
+        rows, lag_m, cfg.beam.coupled, hs, new, seg_a, seg_b,
+        cfg.beam.stiffness_v_per_count, cfg.beam.damping_v_s_per_count, sc,
+        cfg.sync.warn_counts, cfg.sync.trip_counts,
+        code, y, ref, flags, pos, op, e_in, comp, level, *_scratch(int(lag_m.max()) + 2),
     )  # fmt: skip
     return GantryTrace(topology=topology, case=case, cycle_s=cfg.bus.cycle_s, command=cmd,
                        ref=ref, y=y, position=pos, code=code, flags=flags,
@@ -264,10 +330,10 @@ def compare_topologies(cfg: GantryConfig, *, seed: int = 0) -> SyncComparison:
             tr = simulate_gantry(cfg, topo, case=case, seed=seed)
             traces.append(tr)
             m = tr.metrics()
-            rows.append({"case": case, "topology": topo, **m})
-            if topo == cfg.topology and m["tripped"]:
-                failed.append(f"sync trip in the {case} case at {m['trip_time_s']:.3f} s "
+            rows.append(m)
+            if topo == cfg.topology and m.tripped:
+                failed.append(f"sync trip in the {case} case at {m.trip_time_s:.3f} s "
                               f"(|sync error| >= {cfg.sync.trip_counts} counts)")  # fmt: skip
-    predicted = predicted_load_reduction(cfg) if not cfg.beam.coupled else {}
+    predicted = predicted_load_reduction(cfg) if not cfg.beam.coupled else None
     return SyncComparison(config=cfg, rows=tuple(rows), traces=tuple(traces), predicted=predicted,
                           failed=tuple(failed))  # fmt: skip

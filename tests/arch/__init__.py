@@ -1,0 +1,1 @@
+"""Tests of the architectures (servotune.arch), mirroring the package."""

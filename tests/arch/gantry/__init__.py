@@ -1,0 +1,1 @@
+"""Tests of the gantry (servotune.arch.gantry, seed 003)."""
