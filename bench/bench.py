@@ -40,7 +40,8 @@ import numpy as np
 
 import servotune
 from servotune import plant as plant_model
-from servotune.arch.gantry import load_gantry, simulate_gantry
+from servotune.arch.gantry import simulate_gantry
+from servotune.arch.gantry.load import load_gantry
 from servotune.arch.linkage import load_linkage, run_linkage
 from servotune.export import write_c
 from servotune.fixed import F_U

@@ -10,7 +10,8 @@ from typing import TYPE_CHECKING, Any
 from servotune._version import __version__
 
 if TYPE_CHECKING:  # what type checkers and IDEs see; at run time the names load on first use
-    from servotune.arch.gantry import GantryConfig, compare_topologies, load_gantry, simulate_gantry
+    from servotune.arch.gantry import GantryConfig, compare_topologies, simulate_gantry
+    from servotune.arch.gantry.load import load_gantry
     from servotune.arch.linkage import (
         LinkageCheckError,
         LinkageConfig,
@@ -60,7 +61,7 @@ if TYPE_CHECKING:  # what type checkers and IDEs see; at run time the names load
 _LAZY: dict[str, str] = {
     "GantryConfig": "servotune.arch.gantry",
     "compare_topologies": "servotune.arch.gantry",
-    "load_gantry": "servotune.arch.gantry",
+    "load_gantry": "servotune.arch.gantry.load",
     "simulate_gantry": "servotune.arch.gantry",
     "LinkageCheckError": "servotune.arch.linkage",
     "LinkageConfig": "servotune.arch.linkage",

@@ -355,7 +355,8 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _cmd_sync(args: argparse.Namespace) -> int:
-    from servotune.arch.gantry import compare_topologies, format_comparison, load_gantry
+    from servotune.arch.gantry import compare_topologies, format_comparison
+    from servotune.arch.gantry.load import load_gantry
 
     cmp = compare_topologies(load_gantry(args.config), seed=args.seed)
     if args.json:

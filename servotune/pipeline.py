@@ -141,7 +141,8 @@ def run_architectures(plants_dir: str | Path, out_dir: str | Path, *, seed: int 
     ``linkage.json``, ``linkage_queues.png``, ``linkage_circle.png``. Returns a summary per
     architecture (whether it passed its checks, and its headline figures).
     """
-    from servotune.arch.gantry import CASES, compare_topologies, load_gantry
+    from servotune.arch.gantry import CASES, compare_topologies
+    from servotune.arch.gantry.load import load_gantry
     from servotune.plot import plot_sync_errors, save_figure
 
     plants, out = Path(plants_dir), Path(out_dir)

@@ -7,7 +7,11 @@ removed in a later release. The names are also in the top-level ``servotune`` AP
 import warnings
 
 from servotune.arch.gantry import *  # noqa: F403 (the same public names)
-from servotune.arch.gantry import __all__  # noqa: F401
+from servotune.arch.gantry import __all__ as _GANTRY
+from servotune.arch.gantry.load import load_gantry
+from servotune.tune.sync import resolve_gains, tune_sync
+
+__all__ = [*_GANTRY, "load_gantry", "resolve_gains", "tune_sync"]
 
 warnings.warn(
     "servotune.sync moved to servotune.arch.gantry; import it from there",

@@ -28,6 +28,8 @@ def test_quick_bench_prints_figures_and_writes_the_report(tmp_path: Path) -> Non
             "--only",
             "one_axis",
             "batched",
+            "c_runtime",
+            "arch",
             "--out",
             str(out),
         ],
@@ -50,11 +52,18 @@ def test_quick_bench_prints_figures_and_writes_the_report(tmp_path: Path) -> Non
         "batch_setup_s": "s",
         "batched_candidate_ticks_per_s": "ticks/s",
         "batched_candidate_ticks_per_s_1thread": "ticks/s",
+        "c_runtime_one_axis_ns_per_tick": "ns/tick",
+        "engine_one_axis_ns_per_tick": "ns/tick",
+        "engine_vs_c_runtime": "x",
+        "gantry_ns_per_cycle": "ns/cycle",
+        "linkage_ns_per_tick": "ns/tick",
     }
     assert {k: u for k, (_, u) in printed.items()} == expected
     assert all(v > 0 for v, _ in printed.values())
     # the python-control check ran and found the same codes (it aborts the run otherwise)
     assert "python-control codes and counter equal the engine's" in proc.stderr
+    # the exported C runtime around its C plant gave the engine's codes (it aborts otherwise)
+    assert "the C loop's 2000 codes equal the engine's" in proc.stderr
 
     report = json.loads(out.read_text())
     assert report["schema"] == "servotune.bench/1"
@@ -66,3 +75,4 @@ def test_quick_bench_prints_figures_and_writes_the_report(tmp_path: Path) -> Non
     for name, (value, _) in printed.items():  # printed with 6 significant digits
         assert math.isclose(report["figures"][name]["value"], value, rel_tol=1e-5), name
     assert "median of 3 runs" in report["figures"]["batched_candidate_ticks_per_s"]["note"]
+    assert "before the shared tick" in report["figures"]["gantry_ns_per_cycle"]["note"]

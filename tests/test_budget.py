@@ -130,7 +130,8 @@ def test_engine_checks_the_trace_arrays(rig: st.Rig) -> None:
 
 
 def test_gantry_and_linkage_runs() -> None:
-    from servotune.arch.gantry import compare_topologies, load_gantry
+    from servotune.arch.gantry import compare_topologies
+    from servotune.arch.gantry.load import load_gantry
     from servotune.arch.linkage import load_linkage, run_linkage
 
     plants = EXAMPLE_RIG.parent

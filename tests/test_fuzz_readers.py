@@ -115,11 +115,11 @@ def reader(kind: str) -> Callable[[Path], Any]:
 
         return load_spec
     if kind == "gantry":
-        from servotune.arch.gantry import load_gantry
+        from servotune.arch.gantry.load import load_gantry
 
         return lambda p: load_gantry(p, resolve=False)
     if kind == "gantry+resolve":
-        from servotune.arch.gantry import load_gantry
+        from servotune.arch.gantry.load import load_gantry
 
         return load_gantry
     if kind == "linkage":

@@ -17,19 +17,18 @@ from servotune.arch.gantry import (
     SyncLoopModels,
     compare_topologies,
     format_comparison,
-    load_gantry,
     move_profile,
     predicted_load_reduction,
-    resolve_gains,
     simulate_gantry,
     sync_loop_models,
-    tune_sync,
 )
+from servotune.arch.gantry.load import load_gantry
 from servotune.cli import main
 from servotune.errors import ConfigError, SpecError
 from servotune.hw import dac as hw_dac
 from servotune.laws.axis import FLAG_SYNC_TRIP
 from servotune.tune.pi import tune_pi
+from servotune.tune.sync import resolve_gains, tune_sync
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "plants" / "gantry.toml"
@@ -355,5 +354,23 @@ def test_the_old_module_path_warns_and_gives_the_same_objects() -> None:
     sys.modules.pop("servotune.sync", None)
     with pytest.warns(DeprecationWarning, match="servotune.arch.gantry"):
         old = importlib.import_module("servotune.sync")
-    assert old.__all__ == new.__all__
+    # the gantry's tuning moved to servotune.tune.sync and its reader to arch.gantry.load
+    import servotune.arch.gantry.load as load
+    import servotune.tune.sync as tune
+
+    assert old.__all__ == [*new.__all__, "load_gantry", "resolve_gains", "tune_sync"]
     assert all(getattr(old, name) is getattr(new, name) for name in new.__all__)
+    assert old.load_gantry is load.load_gantry
+    assert (old.resolve_gains, old.tune_sync) == (tune.resolve_gains, tune.tune_sync)
+
+
+def test_the_gantry_package_and_its_tuning_import_in_either_order() -> None:
+    # tune.sync imports the gantry's config and models; arch.gantry.load imports tune.sync:
+    # no cycle, whichever a fresh interpreter imports first
+    import subprocess
+    import sys
+
+    for first in ("servotune.tune.sync", "servotune.arch.gantry.load", "servotune.arch.gantry"):
+        code = f"import {first}; import servotune.tune.sync, servotune.arch.gantry.load"
+        res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+        assert res.returncode == 0, (first, res.stderr[-500:])

@@ -16,7 +16,7 @@ rig TOML        :func:`servotune.rig.load_rig`                   ``Rig`` and its
 spec TOML       :func:`servotune.verify.load_spec`               ``Spec``, ``ScenarioSpec``
 tuning JSON     :func:`servotune.tuning.read_tuning`             ``Tuning.from_dict``
 tables JSON     :func:`servotune.export.json.load_tables`        ``check_tables``
-gantry TOML     :func:`servotune.arch.gantry.load_gantry`        ``GantryConfig``
+gantry TOML     :func:`servotune.arch.gantry.load.load_gantry`   ``GantryConfig``
 linkage TOML    :func:`servotune.arch.linkage.load_linkage`      ``LinkageConfig``
 ==============  ===============================================  ===============================
 

@@ -106,7 +106,7 @@ def read_with_reader(kind: str, path: Path) -> None:
 
         load_tables(path)
     elif kind == "gantry":
-        from servotune.arch.gantry import load_gantry
+        from servotune.arch.gantry.load import load_gantry
 
         load_gantry(path, resolve=False)
     elif kind == "linkage":

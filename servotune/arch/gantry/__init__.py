@@ -9,16 +9,19 @@ Submodules, each importing only those above it:
 
 - :mod:`~servotune.arch.gantry.config`: the configuration (frozen dataclasses validated on
   construction, :func:`gantry_from_dict`), the topologies and the comparison cases;
-- :mod:`~servotune.arch.gantry.design`: the linear sync-loop models and the design of the gains
-  (:func:`sync_loop_models` → :class:`SyncLoopModels`, :func:`tune_sync`,
-  :func:`resolve_gains`, :func:`predicted_load_reduction` → :class:`LoadPrediction`) and the
-  config reader that resolves them (:func:`load_gantry`);
+- :mod:`~servotune.arch.gantry.design`: the linear sync-loop models
+  (:func:`sync_loop_models` → :class:`SyncLoopModels`, :func:`predicted_load_reduction` →
+  :class:`LoadPrediction`); the tuning of the drives and of the compensator is in
+  :mod:`servotune.tune.sync` (``tune_sync``, ``resolve_gains``);
 - :mod:`~servotune.arch.gantry.result`: the result (:class:`GantryTrace` and its
   :class:`GantryMetrics`, :class:`SyncComparison`, :func:`format_comparison`);
 - :mod:`~servotune.arch.gantry.run`: the CNC's move (:func:`move_profile`), the numba kernel
-  of one run (:func:`simulate_gantry`) and the comparison (:func:`compare_topologies`).
+  of one run (:func:`simulate_gantry`) and the comparison (:func:`compare_topologies`);
+- :mod:`~servotune.arch.gantry.load`: the config reader that resolves the gains a file leaves
+  out (``load_gantry``; not imported by the package, as it imports :mod:`servotune.tune.sync`,
+  which imports this package).
 
-This package re-exports the public names of all of them.
+This package re-exports the public names of all of them but ``load``.
 
 Topologies (``TOPOLOGIES``):
 
@@ -67,11 +70,8 @@ from servotune.arch.gantry.config import (
 from servotune.arch.gantry.design import (
     LoadPrediction,
     SyncLoopModels,
-    load_gantry,
     predicted_load_reduction,
-    resolve_gains,
     sync_loop_models,
-    tune_sync,
 )
 from servotune.arch.gantry.result import (
     GantryMetrics,
@@ -99,11 +99,8 @@ __all__ = [
     "compare_topologies",
     "format_comparison",
     "gantry_from_dict",
-    "load_gantry",
     "move_profile",
     "predicted_load_reduction",
-    "resolve_gains",
     "simulate_gantry",
     "sync_loop_models",
-    "tune_sync",
 ]

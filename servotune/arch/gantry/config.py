@@ -2,7 +2,7 @@
 
 Frozen dataclasses validated on construction (against the bounds :data:`MAX_CYCLE_S`, ...);
 :func:`gantry_from_dict` builds a :class:`GantryConfig` from parsed TOML (the reader that also
-resolves the gains, :func:`~servotune.arch.gantry.design.load_gantry`, is in ``design``).
+resolves the gains, :func:`~servotune.arch.gantry.load.load_gantry`, is in ``load``).
 """
 
 from __future__ import annotations

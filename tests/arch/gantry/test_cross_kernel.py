@@ -19,7 +19,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from servotune.arch.gantry import Beam, GantryConfig, load_gantry, simulate_gantry
+from servotune.arch.gantry import Beam, GantryConfig, simulate_gantry
+from servotune.arch.gantry.load import load_gantry
 from servotune.laws.axis import MODE_TASK
 from servotune.laws.pi import PIGains
 from servotune.rig import Axis, Rig, Timer

@@ -1,0 +1,37 @@
+"""Reading a gantry config and resolving the gains it leaves out (:func:`load_gantry`)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+from servotune.arch.gantry.config import GantryConfig, gantry_from_dict
+from servotune.errors import ConfigError
+from servotune.io.files import read_toml
+from servotune.tune.sync import resolve_gains
+
+__all__ = ["load_gantry"]
+
+
+def load_gantry(path: str | Path, *, resolve: bool = True) -> GantryConfig:
+    """Read a gantry config (TOML, e.g. ``plants/gantry.toml``).
+
+    Parameters
+    ----------
+    path : str or Path
+    resolve : bool
+        Tune the gains the file leaves out (:func:`resolve_gains`).
+
+    Raises
+    ------
+    ConfigError
+        If the file is missing, not TOML, or invalid (the message names the field).
+    """
+    p = Path(path)
+    data = read_toml(p, ConfigError, "gantry config")
+    try:
+        cfg = gantry_from_dict(data, base_dir=p.parent)
+    except ConfigError as exc:
+        raise ConfigError(f"gantry config {str(p)!r}: {exc}") from None
+    cfg = replace(cfg, name=cfg.name if cfg.name != "gantry" else p.stem.removesuffix(".sync"))
+    return resolve_gains(cfg) if resolve else cfg
