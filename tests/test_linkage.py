@@ -36,6 +36,7 @@ from servotune.arch.linkage import (
 )
 from servotune.cli import main
 from servotune.errors import ConfigError
+from servotune.tune.pi import tune_pi
 
 EXAMPLE = ROOT / "plants" / "linkage-6axis.toml"
 PLANTS = EXAMPLE.parent
@@ -66,12 +67,18 @@ def result(config: LinkageConfig) -> LinkageResult:
 
 def test_example_bus_figures_and_resync(config: LinkageConfig) -> None:
     f = bus_figures(config)
-    assert f["frame_bytes"] == 8 + 4 * 6 * 5  # overhead + 4 bytes × 6 axes × 5 setpoints
-    assert f["frame_s"] == pytest.approx(128 * 10 / 460_800, rel=1e-12)  # 2.778 ms
-    assert f["broadcast_period_s"] == pytest.approx(0.010, rel=1e-12)
-    assert f["utilisation"] == pytest.approx(0.27778, rel=1e-4)
-    assert f["lead_s"] == pytest.approx(2 * 0.010 - 128 * 10 / 460_800, rel=1e-12)
-    assert f["nominal_min_level"] == 2 * 5 - 1  # floor(2.778 ms / 2 ms) = 1 pop during a frame
+    assert f.frame_bytes == 8 + 4 * 6 * 5  # overhead + 4 bytes × 6 axes × 5 setpoints
+    assert f.frame_s == pytest.approx(128 * 10 / 460_800, rel=1e-12)  # 2.778 ms
+    assert f.broadcast_period_s == pytest.approx(0.010, rel=1e-12)
+    assert f.utilisation == pytest.approx(0.27778, rel=1e-4)
+    assert f.lead_s == pytest.approx(2 * 0.010 - 128 * 10 / 460_800, rel=1e-12)
+    assert f.nominal_min_level == 2 * 5 - 1  # floor(2.778 ms / 2 ms) = 1 pop during a frame
+    assert f.required_queue_depth == (2 + 1) * 5
+    # the result and linkage.json carry the same figures under the same keys
+    assert sorted(f.to_dict()) == [
+        "broadcast_period_s", "frame_bytes", "frame_s", "lead_s", "nominal_min_level",
+        "required_queue_depth", "utilisation",
+    ]  # fmt: skip
     # half a period of drift at the worst clock (80 ppm): 0.5 · 2 ms / 80e-6 = 12.5 s
     assert recommended_resync_interval_s(config) == pytest.approx(12.5, abs=1e-12)
     assert config.clock.resync_interval_s == recommended_resync_interval_s(config)
@@ -222,10 +229,10 @@ def _drifting(resync_s: float) -> LinkageConfig:
 def test_drift_without_resync_underruns_and_recommended_resync_prevents_it() -> None:
     cfg = _drifting(0.0)
     f = bus_figures(cfg)
-    period, bp = cfg.period_s, f["broadcast_period_s"]
-    lead = f["lead_s"]  # 10 ms − 2.778 ms = 7.22 ms
+    period, bp = cfg.period_s, f.broadcast_period_s
+    lead = f.lead_s  # 10 ms − 2.778 ms = 7.22 ms
     t_under = lead / 3000e-6  # the fast slave's ticks come lead earlier after lead/ε ≈ 2.41 s
-    slack = (20 - 10 + 1) * period + f["frame_s"]  # 24.78 ms (recommended_resync_interval_s)
+    slack = (20 - 10 + 1) * period + f.frame_s  # 24.78 ms (recommended_resync_interval_s)
     t_over = slack / 2000e-6  # the slow one has 24.78 ms of room: ≈ 12.39 s
     r = run_linkage(cfg, seconds=14.0)
     s1, s2 = r.cpus
@@ -334,6 +341,14 @@ def test_same_seed_same_result_other_seed_differs(config: LinkageConfig) -> None
     assert not np.array_equal(a.actual_counts, c.actual_counts)  # the noise follows the seed
     d = a.to_dict()
     assert d["schema"] == SCHEMA and "tick_time_s" not in d["cpus"][0]
+    assert a.traces is None and "traces" not in d  # per-tick traces only on request
+
+
+@pytest.mark.parametrize("seed", [-1, 2**64, 1.5, "7"])
+def test_seed_must_be_an_unsigned_64_bit_integer(config: LinkageConfig, seed: Any) -> None:
+    # the noise stream's state is a splitmix64 word (servotune.sim.tick.draw_noise)
+    with pytest.raises(ConfigError, match=r"seed must be an integer in 0\.\.18446744073709551615"):
+        run_linkage(config, seconds=0.1, seed=seed)
 
 
 def test_following_error_trip_fails_the_run() -> None:
@@ -347,14 +362,13 @@ def test_following_error_trip_fails_the_run() -> None:
 
 
 def test_gains_absent_are_tuned_with_tune_pi() -> None:
-    from servotune.tune.pi import tune_pi
-
     d = example_data()
     del d["axis"]["x"]["kp"], d["axis"]["x"]["ki"]
     cfg = config_from(d)
     gains = axis_gains(cfg)
-    g, tuned = gains["x"]
-    assert tuned and not gains["y"][1]
+    g = gains["x"].gains
+    assert gains["x"].tuned and not gains["y"].tuned
+    assert gains["y"].to_dict() == {"ki": 1.051, "kp": 0.3168, "tuned": False}  # the file's
     ref = tune_pi(cfg.axes[0].plant, period_s=0.002, compute_s=0.0002, phase_margin_deg=50,
                   gain_margin_db=8, max_sensitivity=1.6)  # fmt: skip
     assert (g.kp, g.ki) == (ref.kp, ref.ki)

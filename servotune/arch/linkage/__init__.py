@@ -18,7 +18,8 @@ Submodules, each importing only those above it:
   dataclasses validated on load);
 - :mod:`~servotune.arch.linkage.path`: the master's interpolation (:func:`interpolate`) and
   the contour-error search;
-- :mod:`~servotune.arch.linkage.kernel`: the numba kernel of the event-driven simulation;
+- :mod:`~servotune.arch.linkage.kernel`: the compiled kernel of the event-driven simulation
+  (its scheduling and routing; the axis tick is :mod:`servotune.sim.tick`'s);
 - :mod:`~servotune.arch.linkage.checks`: the checks made before motion (:func:`check_linkage`,
   :func:`bus_figures`, :func:`recommended_resync_interval_s`);
 - :mod:`~servotune.arch.linkage.result`: the result (:class:`LinkageResult`,
@@ -49,17 +50,34 @@ Timing model (all times in master time, the master's clock being the reference)
   syncs stays below one tick, nothing is ever skipped or repeated; only the tick phase moves.
   The sync frame's own bus latency is the same for every slave and is not modelled.
 - **Slave tick** ``j``: pop command ``j`` (an *underrun* if it is not in the queue: the axis
-  then holds its previous command); for each axis read the counter, run
-  :func:`~servotune.laws.axis.axis_read` and :func:`~servotune.laws.axis.axis_control`
-  (task mode, the popped command as reference), write the D/A code at ``tick + compute_s``;
-  the motor sees it ``delay_s`` later and moves exactly between input changes
-  (:func:`~servotune.plant.advance`). A block that finds its slave queue full is an *overrun*:
-  the commands that do not fit are lost.
+  then holds its previous command); then each of the CPU's axes runs the axis tick of
+  :mod:`servotune.sim.tick`, as on the single rig (:mod:`servotune.sim.engine`): its motor
+  first moves from the CPU's previous tick to this one, then the counter latches (encoder
+  noise from one splitmix64 stream for the run, drawn at each read of an axis with noise, in
+  event order), the runtime reads it and runs its law (task mode, the popped command as
+  reference), and the D/A write is held in the axis's tick-slot ring. A block that finds its
+  slave queue full is an *overrun*: the commands that do not fit are lost.
+- **Tick-relative plant**: each CPU counts its own ticks. An axis's plant row is built for its
+  CPU's nominal tick ``Tc = T/(1 + ε_s)`` (master time), its lag
+  ``compute_s + delay_s = m·Tc + λ`` (:func:`~servotune.plant.plant_row`): the write of the
+  CPU's tick ``c`` reaches the motor ``λ`` into its tick ``c + m`` (ring of ``m + 2`` ticks).
+  Between two ticks with no sync in between the motor moves over exactly one ``Tc``
+  (:func:`~servotune.sim.tick.advance_axis`); across a sync it moves over the actual interval,
+  the same held writes switching at ``λ`` (:func:`~servotune.plant.advance_span`).
+  *Modelling change* (issue 16): the write lag was timed in master seconds, a write landing
+  ``compute_s + delay_s`` after its tick whatever happened in between; it is now counted on
+  the CPU's own ticks. Between syncs that is the same instant (``m·Tc + λ`` is the lag, with
+  ``Tc`` the drifting CPU's tick, to rounding). A write still pending when a sync moves the
+  CPU's next tick (``m >= 1``, or a tick the sync shortened to less than ``λ``) moves with
+  the CPU's ticks, by the sync's phase correction (the drift since the last sync: within
+  half a period at the recommended resync interval). Without noise, the positions of
+  ``plants/linkage-6axis.toml`` agree with the former kernel's to 1e-9 counts.
 - At equal times events run in the order: sync, slave ticks, measurement, block arrival (a
   block arriving at the instant of its tick is late: the conservative reading).
 
 Measurement: the "actual point" of tick ``k`` is every axis's plant position at the master
-time ``k·T`` (as a ballbar or laser measures, independent of each slave's clock), so clock
+time ``k·T`` (as a ballbar or laser measures, independent of each slave's clock; computed from
+the axis's state at its CPU's last tick, which it leaves unchanged), so clock
 skew between slaves shows in the tracking and contour errors. Tracking error
 ``e = command − actual`` per axis; contour error = distance from the actual point to the
 programmed path (polyline of the programmed positions at every tick, searched near the current
@@ -70,6 +88,7 @@ ISO 230-4 circular test (circularity = max − min).
 
 from servotune.arch.linkage.bus import Bus, Clock, SlaveCpu
 from servotune.arch.linkage.checks import (
+    BusFigures,
     Check,
     LinkageCheckError,
     bus_figures,
@@ -89,18 +108,22 @@ from servotune.arch.linkage.path import ArcGeometry, Interpolation, interpolate
 from servotune.arch.linkage.result import (
     ArcResult,
     AxisResult,
+    AxisTrace,
     CpuResult,
     LinkageResult,
     format_linkage_summary,
 )
-from servotune.arch.linkage.run import axis_gains, run_linkage
+from servotune.arch.linkage.run import AxisGains, axis_gains, run_linkage
 
 __all__ = [
     "SCHEMA",
     "ArcGeometry",
     "ArcResult",
+    "AxisGains",
     "AxisResult",
+    "AxisTrace",
     "Bus",
+    "BusFigures",
     "Check",
     "Clock",
     "CpuResult",

@@ -25,11 +25,9 @@ MAX_CLOCK_PPM = 10_000.0
 """Largest clock error accepted [ppm] (1 %, beyond a ceramic resonator's tolerance)."""
 
 
-# --- validation helpers --------------------------------------------------------------------
-
-
-# Bounds of the configuration's fields (a typo must not size the simulation's arrays); the
-# checks are servotune.validate's, raising ConfigError.
+# --- bounds of the configuration's fields ---------------------------------------------------
+# (a typo must not size the simulation's arrays); every field is checked with
+# servotune.validate's check_number / check_integer, raising ConfigError.
 MAX_COUNTS = 1e12
 """Largest position, centre or distance magnitude [counts]."""
 MAX_FEED_CPS = 1e9

@@ -14,6 +14,7 @@ from servotune.errors import ConfigError
 from servotune.hw import counter as hw_counter
 
 __all__ = [
+    "BusFigures",
     "Check",
     "LinkageCheckError",
     "bus_figures",
@@ -57,39 +58,74 @@ class Check:
         return {"detail": self.detail, "name": self.name, "passed": self.passed}
 
 
-def bus_figures(config: LinkageConfig) -> dict[str, float]:
+@dataclass(frozen=True, slots=True, kw_only=True)
+class BusFigures:
+    """The bus and queue figures of a linkage at nominal clocks (:func:`bus_figures`).
+
+    Attributes
+    ----------
+    frame_bytes : int
+        Bytes of one block frame [bytes].
+    frame_s : float
+        Time one block frame takes on the line [s].
+    broadcast_period_s : float
+        Time between two blocks, ``B·T`` [s].
+    utilisation : float
+        ``frame_s / broadcast_period_s`` [-].
+    lead_s : float
+        How long before its first command is needed a block arrives, ``P·B·T − frame_s`` [s].
+    nominal_min_level : int
+        Queue level before the pop just ahead of each arrival, ``P·B − floor(frame_s/T)``
+        [setpoints].
+    required_queue_depth : int
+        Queue capacity the prefill plus the block in flight need, ``(P + 1)·B`` [setpoints].
+    """
+
+    frame_bytes: int
+    frame_s: float
+    broadcast_period_s: float
+    utilisation: float
+    lead_s: float
+    nominal_min_level: int
+    required_queue_depth: int
+
+    def to_dict(self) -> dict[str, int | float]:
+        """Plain dict of the fields, sorted by name."""
+        return {k: getattr(self, k) for k in sorted(self.__slots__)}  # type: ignore[attr-defined]
+
+
+def bus_figures(config: LinkageConfig) -> BusFigures:
     """The bus and queue figures the checks use (nominal clocks).
+
+    Parameters
+    ----------
+    config : LinkageConfig
 
     Returns
     -------
-    dict
-        ``frame_bytes`` [bytes], ``frame_s`` [s], ``broadcast_period_s`` [s],
-        ``utilisation`` [-], ``lead_s`` [s] (a block arrives this long before its first
-        command is needed: ``P·B·T − frame_s``), ``nominal_min_level`` [setpoints] (the queue
-        level before the pop just ahead of each arrival: ``P·B − floor(frame_s/T)``),
-        ``required_queue_depth`` [setpoints] (``(P + 1)·B``).
+    BusFigures
 
     Examples
     --------
     >>> from servotune.arch.linkage import load_linkage
     >>> from servotune.rig import EXAMPLE_RIG_PATH
     >>> f = bus_figures(load_linkage(EXAMPLE_RIG_PATH.parent / "linkage-6axis.toml"))
-    >>> f["frame_bytes"], round(f["utilisation"], 3)
+    >>> f.frame_bytes, round(f.utilisation, 3)
     (128, 0.278)
     """
     bus, period = config.bus, config.period_s
     n = config.n_axes
     frame_s = bus.frame_s(n)
     bp = bus.block_size * period
-    return {
-        "broadcast_period_s": bp,
-        "frame_bytes": bus.frame_bytes(n),
-        "frame_s": frame_s,
-        "lead_s": bus.prefill_blocks * bp - frame_s,
-        "nominal_min_level": bus.prefill_blocks * bus.block_size - math.floor(frame_s / period),
-        "required_queue_depth": (bus.prefill_blocks + 1) * bus.block_size,
-        "utilisation": frame_s / bp,
-    }
+    return BusFigures(
+        frame_bytes=bus.frame_bytes(n),
+        frame_s=frame_s,
+        broadcast_period_s=bp,
+        utilisation=frame_s / bp,
+        lead_s=bus.prefill_blocks * bp - frame_s,
+        nominal_min_level=bus.prefill_blocks * bus.block_size - math.floor(frame_s / period),
+        required_queue_depth=(bus.prefill_blocks + 1) * bus.block_size,
+    )
 
 
 def _speed_limits(config: LinkageConfig, a: LinkageAxis) -> tuple[float, str]:
@@ -137,16 +173,16 @@ def check_linkage(
     bus, period = config.bus, config.period_s
     n = config.n_axes
     checks: list[Check] = []
-    u = f["utilisation"]
+    u = f.utilisation
     bits = bus.bits_per_byte
     if u <= bus.max_utilisation:
         checks.append(Check(name="bus", passed=True, detail=(
-            f"a block frame ({f['frame_bytes']} bytes) takes {f['frame_s'] * 1e3:.2f} ms of the "
-            f"{f['broadcast_period_s'] * 1e3:.2f} ms broadcast period (utilisation "
+            f"a block frame ({f.frame_bytes} bytes) takes {f.frame_s * 1e3:.2f} ms of the "
+            f"{f.broadcast_period_s * 1e3:.2f} ms broadcast period (utilisation "
             f"{u * 100:.1f} % <= {bus.max_utilisation * 100:.0f} %)")))  # fmt: skip
     else:
         m = bus.max_utilisation
-        baud_min = f["frame_bytes"] * bits / (m * f["broadcast_period_s"])
+        baud_min = f.frame_bytes * bits / (m * f.broadcast_period_s)
         per_block = bus.bytes_per_setpoint * n * bits / bus.baud  # line time per setpoint row
         room = m * period - per_block
         hint = f"raise baud to >= {math.ceil(baud_min)}"
@@ -154,24 +190,24 @@ def check_linkage(
             b_min = math.ceil(bus.frame_overhead_bytes * bits / bus.baud / room)
             hint += f" or block_size to >= {b_min}"
         checks.append(Check(name="bus", passed=False, detail=(
-            f"bus overload: a block frame ({f['frame_bytes']} bytes × {bits} bits at "
-            f"{bus.baud:g} baud) takes {f['frame_s'] * 1e3:.2f} ms but the broadcast period is "
-            f"{f['broadcast_period_s'] * 1e3:.2f} ms (utilisation {u * 100:.0f} % > "
+            f"bus overload: a block frame ({f.frame_bytes} bytes × {bits} bits at "
+            f"{bus.baud:g} baud) takes {f.frame_s * 1e3:.2f} ms but the broadcast period is "
+            f"{f.broadcast_period_s * 1e3:.2f} ms (utilisation {u * 100:.0f} % > "
             f"{m * 100:.0f} %) — {hint}")))  # fmt: skip
     p_blocks = bus.prefill_blocks
-    if f["lead_s"] > 0:
+    if f.lead_s > 0:
         checks.append(Check(name="prefill", passed=True, detail=(
-            f"each block arrives {f['lead_s'] * 1e3:.2f} ms before its first command is "
+            f"each block arrives {f.lead_s * 1e3:.2f} ms before its first command is "
             f"needed (prefill {p_blocks} blocks; worst queue level before a pop "
-            f"{f['nominal_min_level']} setpoints)")))  # fmt: skip
+            f"{f.nominal_min_level} setpoints)")))  # fmt: skip
     else:
-        p_min = math.floor(f["frame_s"] / f["broadcast_period_s"]) + 1
+        p_min = math.floor(f.frame_s / f.broadcast_period_s) + 1
         checks.append(Check(name="prefill", passed=False, detail=(
             f"prefill too short: the first block broadcast during motion arrives "
-            f"{f['frame_s'] * 1e3:.2f} ms after the start but its first command is needed at "
-            f"{p_blocks * f['broadcast_period_s'] * 1e3:.2f} ms (prefill {p_blocks} blocks of "
+            f"{f.frame_s * 1e3:.2f} ms after the start but its first command is needed at "
+            f"{p_blocks * f.broadcast_period_s * 1e3:.2f} ms (prefill {p_blocks} blocks of "
             f"{bus.block_size}) — raise prefill_blocks to >= {p_min}")))  # fmt: skip
-    need = int(f["required_queue_depth"])
+    need = f.required_queue_depth
     for c in config.cpus:
         if c.queue_depth >= need:
             checks.append(Check(name=f"queue:{c.name}", passed=True, detail=(
@@ -243,11 +279,11 @@ def recommended_resync_interval_s(config: LinkageConfig) -> float:
     if eps == 0.0:
         return 0.0
     slack = min((c.queue_depth - (bus.prefill_blocks + 1) * bus.block_size + 1) * period
-                + f["frame_s"] for c in config.cpus)  # fmt: skip
-    if f["lead_s"] <= 0.0 or slack <= 0.0:
+                + f.frame_s for c in config.cpus)  # fmt: skip
+    if f.lead_s <= 0.0 or slack <= 0.0:
         failed = tuple(c for c in check_linkage(config) if not c.passed)
         raise LinkageCheckError(failed or (Check(name="prefill", passed=False, detail=(
             "no resync interval works: the queue has no margin for drift")),))  # fmt: skip
-    budget = 0.5 * min(period, f["lead_s"], slack)
+    budget = 0.5 * min(period, f.lead_s, slack)
     ticks = max(1, math.floor(budget / eps / period + 1e-9))
     return ticks * period

@@ -40,7 +40,7 @@ __all__ = [
 SCHEMA = "servotune.linkage/1"
 """Version tag of :meth:`LinkageResult.to_dict`."""
 
-_RING = 64  # pending D/A writes per axis (the lag compute_s + delay_s must stay below this)
+_MAX_LAG_TICKS = 60  # longest lag compute_s + delay_s accepted [periods]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -318,10 +318,10 @@ class LinkageConfig:
                     )
         for a in self.axes:
             lag = compute_s + a.plant.delay_s
-            if lag >= (_RING - 4) * self.period_s:
+            if lag >= _MAX_LAG_TICKS * self.period_s:
                 raise ConfigError(
                     f"axis.{a.name}.plant.delay_s: compute_s + delay_s = {lag:g} s must be "
-                    f"shorter than {_RING - 4} periods"
+                    f"shorter than {_MAX_LAG_TICKS} periods"
                 )
             if a.counter_init >= 1 << self.rig.counter.bits:
                 raise ConfigError(

@@ -1,73 +1,96 @@
-"""The numba kernel of the event-driven simulation: slave clocks and queues, loops, plants.
+"""The compiled linkage kernel: events in master time, each slave CPU's axis tick tick-relative.
 
-Timing model and sync semantics: :mod:`servotune.arch.linkage`.
+The kernel schedules (which CPU ticks when, syncs, block arrivals, measurements) and routes
+(each axis's reference from its CPU's queue); the axis tick itself is composed from
+:mod:`servotune.sim.tick` (noise, latch and read, law and D/A, hold, advance), on a plant row
+built for the CPU's nominal tick (:func:`servotune.plant.plant_row`). Timing model and sync
+semantics: :mod:`servotune.arch.linkage`.
 """
 
 from __future__ import annotations
 
-import math
-
-import numba as nb
 import numpy as np
 
-from servotune.arch.linkage.config import _RING
+from servotune._numba_cache import jit
 from servotune.laws.axis import (
     FLAG_COUNTER_FAULT,
     FLAG_FOLLOWING_ERROR,
     FLAG_SATURATED,
     MODE_TASK,
     N_STATE,
-    axis_control,
-    axis_read,
 )
-from servotune.plant import advance
+from servotune.plant import R_H1, R_NOISE, R_OFFSET, advance_span
+from servotune.sim.tick import advance_axis, draw_noise, held, hold, read_axis, write_axis
 
 __all__: list[str] = []  # private: the names run.py needs are imported by name
 
-# per-axis float parameters
-_P_GAIN, _P_TAU, _P_OFFSET, _P_COULOMB, _P_VMAX, _P_LAG = 0, 1, 2, 3, 4, 5
 # per-CPU statistics
 _S_UNDER, _S_T_UNDER, _S_OVER, _S_T_OVER, _S_SKIP, _S_MIN, _S_MAX, _S_TICKS, _S_RESYNC = range(9)
 _NS = 9
 # per-axis statistics
 _A_FLAGS, _A_T_FAULT, _A_SAT = 0, 1, 2
 _NA = 3
+# per-axis integer parameters: whole CPU ticks of lag, ring length (lag + 2), counter at start
+_I_LAG, _I_RING, _I_INIT = 0, 1, 2
+_NI = 3
+# per-tick trace rows: integer (reference, D/A code, unwrapped position) and float (plant
+# position and speed at the tick)
+_T_REF, _T_CODE, _T_Y = 0, 1, 2
+_NT = 3
+_T_POS, _T_SPD = 0, 1
+_NTF = 2
 
 
-@nb.njit(cache=True)
-def _to_time(p, v, w, t_ax, t, pf, a):  # fmt: skip
-    """Move axis ``a`` from ``t_ax`` to ``t`` with the net input ``w`` held [V]."""
-    h = t - t_ax
-    if h <= 0.0:
-        return p, v
-    tau = pf[a, _P_TAU]
-    return advance(p, v, w, h, math.exp(-h / tau), -tau * math.expm1(-h / tau), pf[a, _P_GAIN],
-                   tau, pf[a, _P_COULOMB], pf[a, _P_VMAX])  # fmt: skip
+@jit(inline="always")
+def _tick_time(anchor_s, ticks, period, eps):  # fmt: skip
+    """Master time [s] of a CPU's tick ``ticks`` after its sync anchor: ``T/(1 + ε)`` apart."""
+    return anchor_s + ticks * period / (1.0 + eps)
 
 
-@nb.njit(cache=True)
+@jit(inline="always")
+def _measure(p, v, ring, c_last, m, h, w_off, row):  # fmt: skip
+    """An axis's position ``h`` [s] after its CPU's tick ``c_last``, from its state there.
+
+    The writes held over that tick (:func:`~servotune.sim.tick.held`) act as in
+    :func:`~servotune.sim.tick.advance_axis`; the state itself is not changed (a copy moves).
+    """
+    if h == 0.0:  # at the tick itself (what advance_span gives for h = 0, without its exp)
+        return p
+    v_old, v_new = held(ring, c_last % ring.shape[0], m, c_last)
+    p_h, _ = advance_span(p, v, v_old + w_off, v_new + w_off, row[R_H1], h, row)
+    return p_h
+
+
+@jit
 def _kernel(
-    n_ticks, period, cmd, ax_cpu, pf, consts, counter_init, noise, cpu_eps, cpu_depth,
-    block, prefill, frame_s, resync_ticks, bits, dac_lo, lsb,
-    actual, q_time, q_level, q_index, cpu_stats, ax_stats,
+    n_ticks, period, cmd, ax_cpu, rows, ints, consts, seed, cpu_eps, cpu_depth,
+    block, prefill, frame_s, resync_ticks, bits, latched, skew, dac_lo, lsb,
+    actual, q_time, q_level, q_index, cpu_stats, ax_stats, tr_i, tr_f,
 ):  # fmt: skip
+    """Run the linkage for ``n_ticks`` master ticks (arguments: :func:`run_linkage`'s plumbing).
+
+    ``rows[a]`` is axis ``a``'s plant row for its CPU's nominal tick ``period / (1 + ε)``,
+    ``ints[a]`` its ``_I_*`` integers. Outputs: ``actual`` (positions at the master ticks),
+    the per-CPU queue records ``q_*``, the statistics, and, if ``tr_i``/``tr_f`` have rows,
+    the per-axis trace of each CPU tick (``_T_*`` rows).
+    """
     n_ax = cmd.shape[1]
     n_cmd = cmd.shape[0]
     n_cpu = cpu_eps.shape[0]
     n_rec = q_time.shape[1]
+    n_tr = tr_f.shape[1]
     mask = (np.int64(1) << bits) - 1
+    nbytes = bits // 8
     t_end = n_ticks * period
-    # axis states
+    rng = seed
+    # axis states at their CPU's last tick, and the tick-slot rings of their writes
     st = np.zeros((n_ax, N_STATE), dtype=np.int64)
     pos = np.zeros(n_ax)
     spd = np.zeros(n_ax)
-    t_ax = np.zeros(n_ax)
-    w_in = np.zeros(n_ax)  # volts at the motor input now (before offset)
-    ring_t = np.zeros((n_ax, _RING))
-    ring_v = np.zeros((n_ax, _RING))
-    ring_h = np.zeros(n_ax, dtype=np.int64)
-    ring_n = np.zeros(n_ax, dtype=np.int64)
-    n_read = np.zeros(n_ax, dtype=np.int64)
+    width = 2
+    for a in range(n_ax):
+        width = max(width, ints[a, _I_RING])
+    hist = np.zeros((n_ax, width))
     last_ref = np.zeros(n_ax, dtype=np.int64)
     for a in range(n_ax):
         last_ref[a] = cmd[0, a]
@@ -85,10 +108,16 @@ def _kernel(
         cpu_stats[s, _S_T_OVER] = -1.0
         cpu_stats[s, _S_MIN] = 1e18
         cpu_stats[s, _S_MAX] = n_pre
-    # clocks: next index, and the anchor (index, time) of the last sync
+    # clocks: next index, the anchor (index, time) of the last sync and the time of the next
+    # tick they give; each CPU's own tick count, the time of its last tick, and whether a sync
+    # moved its schedule since that tick
     next_j = np.zeros(n_cpu, dtype=np.int64)
     anc_k = np.zeros(n_cpu, dtype=np.int64)
     anc_t = np.zeros(n_cpu)
+    t_next = np.zeros(n_cpu)
+    n_tick = np.zeros(n_cpu, dtype=np.int64)
+    t_last = np.zeros(n_cpu)
+    stretched = np.zeros(n_cpu, dtype=np.bool_)
     n_blocks = (n_cmd + block - 1) // block
     nb_next = prefill
     r_next = 1
@@ -102,9 +131,8 @@ def _kernel(
             if tr < t_best:
                 t_best, kind = tr, 0
         for s in range(n_cpu):
-            ts = anc_t[s] + (next_j[s] - anc_k[s]) * period / (1.0 + cpu_eps[s])
-            if ts < t_best:
-                t_best, kind, which = ts, 1, s
+            if t_next[s] < t_best:
+                t_best, kind, which = t_next[s], 1, s
         if k_next < n_ticks:
             tk = k_next * period
             if tk < t_best:
@@ -130,20 +158,21 @@ def _kernel(
                     next_j[s] = k_r
                 anc_k[s] = k_r
                 anc_t[s] = t
+                t_next[s] = _tick_time(anc_t[s], next_j[s] - anc_k[s], period, cpu_eps[s])
+                stretched[s] = True
                 cpu_stats[s, _S_RESYNC] += 1.0
             r_next += 1
-        elif kind == 1:  # a slave tick
+        elif kind == 1:  # a slave tick: pop the command, then every axis of the CPU ticks
             s = which
             j = next_j[s]
             lvl = level[s]
             if lvl < cpu_stats[s, _S_MIN]:
                 cpu_stats[s, _S_MIN] = lvl
-            c = int(cpu_stats[s, _S_TICKS])
+            c = n_tick[s]
             if c < n_rec:
                 q_time[s, c] = t
                 q_level[s, c] = lvl
                 q_index[s, c] = j
-            cpu_stats[s, _S_TICKS] += 1.0
             ok = j < n_cmd and present[s, j]
             if ok:
                 present[s, j] = False
@@ -154,52 +183,63 @@ def _kernel(
                     cpu_stats[s, _S_T_UNDER] = t
             head[s] = j + 1
             next_j[s] = j + 1
+            t_next[s] = _tick_time(anc_t[s], next_j[s] - anc_k[s], period, cpu_eps[s])
+            h = t - t_last[s]
+            regular = not stretched[s]
             for a in range(n_ax):
                 if ax_cpu[a] != s:
                     continue
-                # the motor up to now, through the pending writes
-                while ring_n[a] > 0 and ring_t[a, ring_h[a]] <= t:
-                    tw = ring_t[a, ring_h[a]]
-                    pos[a], spd[a] = _to_time(pos[a], spd[a], w_in[a] + pf[a, _P_OFFSET],
-                                              t_ax[a], tw, pf, a)  # fmt: skip
-                    t_ax[a] = tw
-                    w_in[a] = ring_v[a, ring_h[a]]
-                    ring_h[a] = (ring_h[a] + 1) % _RING
-                    ring_n[a] -= 1
-                pos[a], spd[a] = _to_time(pos[a], spd[a], w_in[a] + pf[a, _P_OFFSET], t_ax[a],
-                                          t, pf, a)  # fmt: skip
-                t_ax[a] = t
-                nz = noise[a, n_read[a]] if n_read[a] < noise.shape[1] else 0.0
-                n_read[a] += 1
-                raw = (counter_init[a] + np.int64(math.floor(pos[a] + nz))) & mask
-                axis_read(st, consts, a, raw, False)
+                row = rows[a]
+                m = ints[a, _I_LAG]
+                ring = hist[a, : ints[a, _I_RING]]
+                w_off = row[R_OFFSET]
+                # 5. the motor over the CPU's previous tick: one regular tick on the row, else
+                # the interval a sync made (the same held writes, switching at λ)
+                if c > 0:
+                    slot = (c - 1) % ring.shape[0]
+                    if regular:
+                        pos[a], spd[a] = advance_axis(pos[a], spd[a], ring, slot, m, c - 1,
+                                                      w_off, row)  # fmt: skip
+                    else:
+                        v_old, v_new = held(ring, slot, m, c - 1)
+                        pos[a], spd[a] = advance_span(pos[a], spd[a], v_old + w_off,
+                                                      v_new + w_off, row[R_H1], h, row)  # fmt: skip
+                # 1-2. sample and read
+                rng, nz = draw_noise(rng, row[R_NOISE])
+                _raw, y = read_axis(st, consts, a, pos[a], spd[a], nz, ints[a, _I_INIT], mask,
+                                    latched, nbytes, skew, False)  # fmt: skip
+                # 3-4. the law on the popped command (the previous one on an underrun), D/A, hold
                 ref = cmd[j, a] if ok else last_ref[a]
                 last_ref[a] = ref
-                code, flags, _e = axis_control(st, consts, a, ref, MODE_TASK, False, 0)
+                code, flags, _e, volts = write_axis(st, consts, a, ref, MODE_TASK, False, 0,
+                                                    dac_lo, lsb)  # fmt: skip
+                hold(ring, c % ring.shape[0], volts)
                 if flags & FLAG_SATURATED:
                     ax_stats[a, _A_SAT] += 1.0
                 fault = flags & (FLAG_COUNTER_FAULT | FLAG_FOLLOWING_ERROR)
                 if fault and ax_stats[a, _A_T_FAULT] < 0.0:
                     ax_stats[a, _A_T_FAULT] = t
                 ax_stats[a, _A_FLAGS] = float(int(ax_stats[a, _A_FLAGS]) | fault)
-                slot = (ring_h[a] + ring_n[a]) % _RING
-                ring_t[a, slot] = t + pf[a, _P_LAG]
-                ring_v[a, slot] = dac_lo + code * lsb
-                ring_n[a] += 1
-        elif kind == 2:  # measurement at the master tick
+                if c < n_tr:
+                    tr_i[_T_REF, c, a] = ref
+                    tr_i[_T_CODE, c, a] = code
+                    tr_i[_T_Y, c, a] = y
+                    tr_f[_T_POS, c, a] = pos[a]
+                    tr_f[_T_SPD, c, a] = spd[a]
+            n_tick[s] = c + 1
+            t_last[s] = t
+            stretched[s] = False
+        elif kind == 2:  # measurement at the master tick: a copy of each axis moves to t
             for a in range(n_ax):
-                while ring_n[a] > 0 and ring_t[a, ring_h[a]] <= t:
-                    tw = ring_t[a, ring_h[a]]
-                    pos[a], spd[a] = _to_time(pos[a], spd[a], w_in[a] + pf[a, _P_OFFSET],
-                                              t_ax[a], tw, pf, a)  # fmt: skip
-                    t_ax[a] = tw
-                    w_in[a] = ring_v[a, ring_h[a]]
-                    ring_h[a] = (ring_h[a] + 1) % _RING
-                    ring_n[a] -= 1
-                pos[a], spd[a] = _to_time(pos[a], spd[a], w_in[a] + pf[a, _P_OFFSET], t_ax[a],
-                                          t, pf, a)  # fmt: skip
-                t_ax[a] = t
-                actual[k_next, a] = pos[a]
+                s = ax_cpu[a]
+                c_last = n_tick[s] - 1
+                if c_last < 0:
+                    actual[k_next, a] = pos[a]
+                    continue
+                row = rows[a]
+                actual[k_next, a] = _measure(pos[a], spd[a], hist[a, : ints[a, _I_RING]],
+                                             c_last, ints[a, _I_LAG], t - t_last[s],
+                                             row[R_OFFSET], row)  # fmt: skip
             k_next += 1
         else:  # block nb_next has arrived
             i0 = nb_next * block
@@ -221,3 +261,5 @@ def _kernel(
                 if level[s] > cpu_stats[s, _S_MAX]:
                     cpu_stats[s, _S_MAX] = level[s]
             nb_next += 1
+    for s in range(n_cpu):
+        cpu_stats[s, _S_TICKS] = n_tick[s]

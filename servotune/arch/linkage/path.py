@@ -5,9 +5,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numba as nb
 import numpy as np
 
+from servotune._numba_cache import jit
 from servotune.arch.linkage.config import LinkageConfig
 from servotune.budget import check_memory, format_count
 from servotune.errors import ConfigError
@@ -19,7 +19,10 @@ __all__ = [
 ]
 
 _CONTOUR_WINDOW = 4000  # largest number of ticks searched either side of the current one
-_TICK_BYTES_PER_AXIS = 64  # commands, path, noise, actual, error, contour per tick and axis
+# bytes per master tick and axis: interpolated positions and commands, padded path and
+# commands, actual, error (48), with a margin
+_TICK_BYTES_PER_AXIS = 64
+_TRACE_BYTES_PER_AXIS = 40  # run_linkage(trace=True): reference, code, positions, speed
 _TICK_BYTES = 64  # queue traces, move index per tick (and CPU)
 
 
@@ -296,7 +299,7 @@ def interpolate(config: LinkageConfig) -> Interpolation:
     )
 
 
-@nb.njit(cache=True)
+@jit
 def _contour(path, actual, move_of_tick, move_axes):  # fmt: skip
     """Distance from each actual point to the programmed polyline, near the current tick."""
     n, n_ax = actual.shape

@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from servotune.arch.linkage.checks import Check
+from servotune.arch.linkage.checks import BusFigures, Check
 from servotune.arch.linkage.config import SCHEMA
 from servotune.arch.linkage.path import Interpolation
 from servotune.io.files import json_float
@@ -15,6 +15,7 @@ from servotune.io.files import json_float
 __all__ = [
     "ArcResult",
     "AxisResult",
+    "AxisTrace",
     "CpuResult",
     "LinkageResult",
     "format_linkage_summary",
@@ -137,6 +138,56 @@ class AxisResult:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
+class AxisTrace:
+    """The ticks of one axis on its slave CPU (``run_linkage(..., trace=True)``).
+
+    Row ``i`` is the CPU's ``i``-th tick, at ``CpuResult.tick_time_s[i]`` (master time),
+    executing command ``CpuResult.tick_index[i]``.
+
+    Attributes
+    ----------
+    name, cpu : str
+        The axis and the CPU that drives it.
+    ref_counts : ndarray of int64
+        Reference the law followed: the popped command, the previous one on an underrun
+        [counts].
+    code : ndarray of int64
+        D/A code written.
+    pos_counts : ndarray of int64
+        The runtime's unwrapped position, relative to its first read [counts].
+    true_pos_counts : ndarray
+        Plant position at the tick, no noise, not quantised [counts].
+    speed_cps : ndarray
+        Plant speed at the tick [counts/s].
+    """
+
+    name: str
+    cpu: str
+    ref_counts: np.ndarray = field(repr=False)
+    code: np.ndarray = field(repr=False)
+    pos_counts: np.ndarray = field(repr=False)
+    true_pos_counts: np.ndarray = field(repr=False)
+    speed_cps: np.ndarray = field(repr=False)
+
+    @property
+    def n_ticks(self) -> int:
+        """Number of ticks recorded."""
+        return int(self.code.size)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dict, the arrays as lists."""
+        return {
+            "code": self.code.tolist(),
+            "cpu": self.cpu,
+            "name": self.name,
+            "pos_counts": self.pos_counts.tolist(),
+            "ref_counts": self.ref_counts.tolist(),
+            "speed_cps": self.speed_cps.tolist(),
+            "true_pos_counts": self.true_pos_counts.tolist(),
+        }
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
 class ArcResult:
     """The circular test of one arc (ISO 230-4 reading).
 
@@ -208,7 +259,7 @@ class LinkageResult:
     seed : int
     period_s : float
         Nominal period [s].
-    bus : dict
+    bus : BusFigures
         :func:`bus_figures` (utilisation, frame and broadcast period [s], lead [s], ...).
     resync_interval_s : float
         Interval used [s] (0: start sync only), after rounding to whole ticks.
@@ -232,12 +283,15 @@ class LinkageResult:
         Plant positions at the master ticks [counts].
     contour_counts : ndarray
         Contour error per master tick [counts].
+    traces : tuple of AxisTrace or None
+        Every axis's ticks on its CPU, in column order; only with ``run_linkage(...,
+        trace=True)`` (off by default: 40 bytes per tick and axis). Not in :meth:`to_dict`.
     """
 
     name: str
     seed: int
     period_s: float
-    bus: dict[str, float]
+    bus: BusFigures
     resync_interval_s: float
     recommended_resync_interval_s: float | None
     cpus: tuple[CpuResult, ...]
@@ -252,6 +306,7 @@ class LinkageResult:
     path_counts: np.ndarray = field(repr=False)
     actual_counts: np.ndarray = field(repr=False)
     contour_counts: np.ndarray = field(repr=False)
+    traces: tuple[AxisTrace, ...] | None = field(default=None, repr=False)
 
     @property
     def passed(self) -> bool:
@@ -291,7 +346,7 @@ class LinkageResult:
             "axes": [a.to_dict() for a in self.axes],
             "bus": {
                 k: v if isinstance(v, int) else json_float(float(v))
-                for k, v in sorted(self.bus.items())
+                for k, v in self.bus.to_dict().items()
             },
             "checks": [c.to_dict() for c in self.checks],
             "contour_max_counts": self.contour_max_counts,
@@ -328,9 +383,9 @@ def format_linkage_summary(result: LinkageResult) -> str:
         f"linkage {result.name}: {len(result.axes)} axes on {len(result.cpus)} slave CPUs, "
         f"{result.time_s.size * result.period_s:.3f} s at {result.period_s * 1e3:g} ms, "
         f"seed {result.seed}",
-        f"  bus        frame {int(b['frame_bytes'])} bytes = {b['frame_s'] * 1e3:.3f} ms every "
-        f"{b['broadcast_period_s'] * 1e3:.3f} ms (utilisation {b['utilisation'] * 100:.1f} %), "
-        f"lead {b['lead_s'] * 1e3:.2f} ms",
+        f"  bus        frame {b.frame_bytes} bytes = {b.frame_s * 1e3:.3f} ms every "
+        f"{b.broadcast_period_s * 1e3:.3f} ms (utilisation {b.utilisation * 100:.1f} %), "
+        f"lead {b.lead_s * 1e3:.2f} ms",
         f"  clock      resync every {result.resync_interval_s:g} s"
         + (" (start only)" if not result.resync_interval_s else "")
         + (f"; recommended {rec:g} s" if rec is not None else ""),

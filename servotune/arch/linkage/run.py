@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
+from servotune._numba_cache import call_compiled
 from servotune.arch.linkage.checks import (
     Check,
     LinkageCheckError,
@@ -19,8 +22,14 @@ from servotune.arch.linkage.kernel import (
     _A_FLAGS,
     _A_SAT,
     _A_T_FAULT,
+    _I_INIT,
+    _I_LAG,
+    _I_RING,
     _NA,
+    _NI,
     _NS,
+    _NT,
+    _NTF,
     _S_MAX,
     _S_MIN,
     _S_OVER,
@@ -30,12 +39,24 @@ from servotune.arch.linkage.kernel import (
     _S_T_UNDER,
     _S_TICKS,
     _S_UNDER,
+    _T_CODE,
+    _T_POS,
+    _T_REF,
+    _T_SPD,
+    _T_Y,
     _kernel,
 )
-from servotune.arch.linkage.path import _TICK_BYTES, _TICK_BYTES_PER_AXIS, _contour, interpolate
+from servotune.arch.linkage.path import (
+    _TICK_BYTES,
+    _TICK_BYTES_PER_AXIS,
+    _TRACE_BYTES_PER_AXIS,
+    _contour,
+    interpolate,
+)
 from servotune.arch.linkage.result import (
     ArcResult,
     AxisResult,
+    AxisTrace,
     CpuResult,
     LinkageResult,
     _optional_time,
@@ -44,11 +65,13 @@ from servotune.budget import check_memory, format_count
 from servotune.errors import ConfigError
 from servotune.laws.axis import FLAG_COUNTER_FAULT, FLAG_FOLLOWING_ERROR, AxisController
 from servotune.laws.pi import PIGains
-from servotune.tune.pi import DEFAULT_TARGETS
-from servotune.validate import check_number, show_value
+from servotune.plant import NROW, plant_row
+from servotune.tune.pi import DEFAULT_TARGETS, tune_pi
+from servotune.validate import check_integer, check_number, show_value
 
 __all__ = [
     "TUNE_TARGETS",
+    "AxisGains",
     "axis_gains",
     "run_linkage",
 ]
@@ -57,9 +80,29 @@ TUNE_TARGETS = DEFAULT_TARGETS
 """Robustness targets of :func:`~servotune.tune.pi.tune_pi` for axes without explicit gains."""
 
 
+@dataclass(frozen=True, slots=True, kw_only=True)
+class AxisGains:
+    """The PI gains one axis runs with (:func:`axis_gains`).
+
+    Attributes
+    ----------
+    gains : PIGains
+        ``kp`` [codes/count], ``ki`` [codes/(count·s)].
+    tuned : bool
+        True if tuned with :func:`~servotune.tune.pi.tune_pi` (the file gave none).
+    """
+
+    gains: PIGains
+    tuned: bool
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dict: ``kp``, ``ki``, ``tuned``."""
+        return {"ki": float(self.gains.ki), "kp": float(self.gains.kp), "tuned": self.tuned}
+
+
 def axis_gains(
     config: LinkageConfig, given: Mapping[str, PIGains] | None = None
-) -> dict[str, tuple[PIGains, bool]]:
+) -> dict[str, AxisGains]:
     """PI gains of every axis: ``given``, else the file's, else tuned.
 
     An axis without gains is tuned with :func:`~servotune.tune.pi.tune_pi` at the linkage's
@@ -74,8 +117,8 @@ def axis_gains(
 
     Returns
     -------
-    dict
-        Axis name → (gains [codes/count], [codes/(count·s)]; True if tuned).
+    dict of str to AxisGains
+        By axis name, in column order.
 
     Raises
     ------
@@ -88,17 +131,15 @@ def axis_gains(
         raise ConfigError(
             f"gains for unknown axis {show_value(bad[0])}; axes: {list(config.axis_names)}"
         )
-    out: dict[str, tuple[PIGains, bool]] = {}
+    out: dict[str, AxisGains] = {}
     for a in config.axes:
         g = given.get(a.name, a.gains)
         if g is not None:
-            out[a.name] = (g, False)
+            out[a.name] = AxisGains(gains=g, tuned=False)
             continue
-        from servotune.tune.pi import tune_pi
-
         r = tune_pi(a.plant, period_s=config.period_s, compute_s=config.rig.timer.compute_s,
                     lsb_v=config.rig.dac.lsb_v, **TUNE_TARGETS)  # fmt: skip
-        out[a.name] = (r.gains, True)
+        out[a.name] = AxisGains(gains=r.gains, tuned=True)
     return out
 
 
@@ -108,14 +149,17 @@ def run_linkage(
     seconds: float | None = None,
     seed: int = 0,
     gains: Mapping[str, PIGains] | None = None,
+    trace: bool = False,
 ) -> LinkageResult:
     """Simulate the linkage: master interpolation and broadcast, slave queues, clocks, loops.
 
     Event-driven in master time (see :mod:`servotune.arch.linkage` for the timing model and the
     sync semantics): block arrivals, every slave's ticks by its own clock, syncs, measurements at
-    the master ticks. Each slave tick runs the runtime's integer law per axis
-    (:func:`~servotune.laws.axis.axis_read`, :func:`~servotune.laws.axis.axis_control`) and
-    the plants move exactly between D/A writes (:func:`~servotune.plant.advance`).
+    the master ticks. Each slave tick runs the axis tick of :mod:`servotune.sim.tick` for each
+    of its axes (counter latch and read, the runtime's integer law
+    :func:`~servotune.laws.axis.axis_control` in task mode, D/A, hold), the plants moving
+    exactly over the CPU's ticks (:func:`~servotune.plant.advance_tick` on a row built for the
+    CPU's nominal tick, :func:`~servotune.plant.advance_span` over a tick a sync moved).
 
     Parameters
     ----------
@@ -124,9 +168,14 @@ def run_linkage(
         Simulated time [s]; default the path's duration plus ``settle_s``. After the path the
         master keeps broadcasting its end point.
     seed : int
-        Seed of the encoder noise (a numpy Generator); same config and seed → same result.
+        Seed of the encoder noise, in 0 … 2**64 − 1: one splitmix64 stream for the run
+        (:func:`~servotune.sim.tick.draw_noise`), drawn at each read of an axis with noise, in
+        event order; same config and seed → same result.
     gains : mapping of str to PIGains, optional
         Gains overriding the file's (and tuning) per axis name.
+    trace : bool
+        Also record every axis's ticks (:attr:`LinkageResult.traces`: reference, D/A code,
+        unwrapped and true position, speed per CPU tick); 40 more bytes per tick and axis.
 
     Returns
     -------
@@ -138,7 +187,8 @@ def run_linkage(
     LinkageCheckError
         If a check before motion fails (:func:`check_linkage`): nothing is simulated.
     ConfigError
-        If ``seconds`` is not a positive number, or a gain is unknown.
+        If ``seconds`` is not a positive number, ``seed`` is not an integer in range, or a gain
+        is unknown.
     """
     period = config.period_s
     ip = interpolate(config)
@@ -149,7 +199,11 @@ def run_linkage(
     if seconds is None:
         seconds = ip.duration_s + config.settle_s
     check_number("seconds", seconds, "s", strict=True, hi=1e6, error=ConfigError)
-    per_tick = config.n_axes * _TICK_BYTES_PER_AXIS + len(config.cpus) * 3 * 8 + _TICK_BYTES
+    if isinstance(seed, np.integer):
+        seed = int(seed)
+    check_integer("seed", seed, "-", hi=2**64 - 1, error=ConfigError)
+    per_tick = (config.n_axes * (_TICK_BYTES_PER_AXIS + (_TRACE_BYTES_PER_AXIS if trace else 0))
+                + len(config.cpus) * 3 * 8 + _TICK_BYTES)  # fmt: skip
     ticks_f = seconds / period
     check_memory(
         ticks_f * per_tick,
@@ -174,15 +228,18 @@ def run_linkage(
     move_pad = ip.move_of_tick[rows]
     cpu_index = {c.name: i for i, c in enumerate(config.cpus)}
     ax_cpu = np.array([cpu_index[config.cpu_of(a.name).name] for a in config.axes])
-    cpr = rig.counts_per_rev
-    pf = np.array([[a.plant.gain_cps_per_v, a.plant.tau_s, a.plant.offset_v, a.plant.coulomb_v,
-                    a.plant.max_speed_cps(cpr), rig.timer.compute_s + a.plant.delay_s]
-                   for a in config.axes])  # fmt: skip
+    # each axis's plant row for its CPU's nominal tick T/(1 + ε) (its tick in master time)
+    plant_rows = np.zeros((n_ax, NROW))
+    ints = np.zeros((n_ax, _NI), dtype=np.int64)
+    for i, a in enumerate(config.axes):
+        tick_s = period / (1.0 + eps[ax_cpu[i]])
+        plant_rows[i], m = plant_row(a.plant, tick_s, rig.timer.compute_s, rig.counts_per_rev)
+        ints[i, _I_LAG], ints[i, _I_RING], ints[i, _I_INIT] = m, m + 2, a.counter_init
     consts = np.stack(
         [
             AxisController.from_gains(
                 lock_gain_codes_per_count=a.lock_gain_codes_per_count,
-                task_gains=gains_used[a.name][0],
+                task_gains=gains_used[a.name].gains,
                 period_s=period,
                 following_error_limit_counts=a.following_error_limit_counts,
             ).consts(
@@ -192,11 +249,7 @@ def run_linkage(
         ]
     )
     n_rec = n_ticks + drift_ticks + 16
-    rng = np.random.default_rng(seed)
-    noise = (
-        rng.standard_normal((n_ax, n_rec))
-        * np.array([a.plant.noise_counts for a in config.axes])[:, None]
-    )
+    n_tr = n_rec if trace else 0
     figs = bus_figures(config)
     actual = np.zeros((n_ticks, n_ax))
     q_time = np.zeros((n_cpu, n_rec))
@@ -204,13 +257,14 @@ def run_linkage(
     q_index = np.zeros((n_cpu, n_rec), dtype=np.int64)
     cpu_stats = np.zeros((n_cpu, _NS))
     ax_stats = np.zeros((n_ax, _NA))
-    _kernel(
-        n_ticks, period, cmd, ax_cpu, pf, consts,
-        np.array([a.counter_init for a in config.axes], dtype=np.int64), noise, eps,
+    tr_i = np.zeros((_NT, n_tr, n_ax), dtype=np.int64)
+    tr_f = np.zeros((_NTF, n_tr, n_ax))
+    call_compiled(
+        _kernel, n_ticks, period, cmd, ax_cpu, plant_rows, ints, consts, np.uint64(seed), eps,
         np.array([c.queue_depth for c in config.cpus], dtype=np.int64),
-        bus.block_size, bus.prefill_blocks, figs["frame_s"], resync_ticks, rig.counter.bits,
-        float(rig.dac.range_v[0]), rig.dac.lsb_v,
-        actual, q_time, q_level, q_index, cpu_stats, ax_stats,
+        bus.block_size, bus.prefill_blocks, figs.frame_s, resync_ticks, rig.counter.bits,
+        bool(rig.counter.latched), float(rig.counter.read_skew_s), float(rig.dac.range_v[0]),
+        rig.dac.lsb_v, actual, q_time, q_level, q_index, cpu_stats, ax_stats, tr_i, tr_f,
     )  # fmt: skip
 
     # per CPU
@@ -229,6 +283,17 @@ def run_linkage(
             max_level=int(cpu_stats[s, _S_MAX]),
             skipped=int(cpu_stats[s, _S_SKIP]), resyncs=int(cpu_stats[s, _S_RESYNC]),
         ))  # fmt: skip
+    traces = None
+    if trace:
+        traces = []
+        for i, a in enumerate(config.axes):
+            n = cpus[ax_cpu[i]].tick_time_s.size
+            traces.append(AxisTrace(
+                name=a.name, cpu=cpus[ax_cpu[i]].name, ref_counts=tr_i[_T_REF, :n, i].copy(),
+                code=tr_i[_T_CODE, :n, i].copy(), pos_counts=tr_i[_T_Y, :n, i].copy(),
+                true_pos_counts=tr_f[_T_POS, :n, i].copy(),
+                speed_cps=tr_f[_T_SPD, :n, i].copy(),
+            ))  # fmt: skip
     # per axis
     command = cmd[:n_ticks]
     err = command - actual
@@ -240,16 +305,17 @@ def run_linkage(
             fault = "following_error"
         elif flags & FLAG_COUNTER_FAULT:
             fault = "counter"
-        g, was_tuned = gains_used[a.name]
+        g = gains_used[a.name]
         axes.append(AxisResult(
-            name=a.name, cpu=config.cpu_of(a.name).name, kp=float(g.kp), ki=float(g.ki),
-            tuned=was_tuned, max_abs_err_counts=float(np.max(np.abs(err[:, i]))),
+            name=a.name, cpu=config.cpu_of(a.name).name, kp=float(g.gains.kp),
+            ki=float(g.gains.ki), tuned=g.tuned,
+            max_abs_err_counts=float(np.max(np.abs(err[:, i]))),
             rms_err_counts=float(np.sqrt(np.mean(err[:, i] ** 2))),
             saturated_ticks=int(ax_stats[i, _A_SAT]), fault=fault,
             first_fault_s=_optional_time(ax_stats[i, _A_T_FAULT]),
         ))  # fmt: skip
     # contour and circular tests
-    contour = _contour(path_pad, actual, move_pad, ip.move_axes)
+    contour = call_compiled(_contour, path_pad, actual, move_pad, ip.move_axes)
     arcs = []
     for g in ip.arcs:
         k0 = ip.move_start_tick(g.move)
@@ -284,6 +350,7 @@ def run_linkage(
         checks=tuple(checks), interpolation=ip,
         time_s=np.arange(n_ticks, dtype=np.int64) * period, command_counts=command,
         path_counts=path_pad[:n_ticks], actual_counts=actual, contour_counts=contour,
+        traces=None if traces is None else tuple(traces),
     )  # fmt: skip
 
 
@@ -311,7 +378,7 @@ def _motion_checks(
                 f"cpu {c.name}: no underrun; worst queue level before a pop {c.min_level} "
                 f"setpoints")))  # fmt: skip
         else:
-            lead = f["lead_s"]
+            lead = f.lead_s
             eps = c.clock_ppm * 1e-6
             if c.overruns:
                 expect = ", commands lost to the overrun"

@@ -1,0 +1,1 @@
+"""Tests of the multi-CPU linkage (servotune.arch.linkage, seed 002)."""
