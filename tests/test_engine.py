@@ -422,3 +422,25 @@ def test_batch_metrics_are_named_and_round_trip_the_kernel_array() -> None:
     np.testing.assert_array_equal(res.metric("task_ticks"), m.task_ticks)
     with pytest.raises(st.SimulationError, match="no metric 'nope'"):
         res.metric("nope")
+
+
+def test_constants_wider_than_the_lean_frame_run_in_the_general_kernel(
+    rig: st.Rig, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # the lean kernel copies a candidate's constants into its frame (CONSTS_CAPACITY words);
+    # wider ones (large fuzzy tables) take the general kernel, with the same metrics
+    import servotune.sim.engine as engine
+
+    r1 = one_axis(rig)
+    loop = st.Loop.from_rig(r1, [st.PIGains(kp=0.5, ki=5.0)])
+    n = 1500
+    ref = trapezoid_ref(n, r1.period_s, 20_000, 40_000.0, 300_000.0)
+    inputs = st.Inputs.hold(n, 1).replace_axis(0, mode=MODE_TASK, ref_counts=ref)
+    batch = st.prepare_batch(loop, n_candidates=3, seeds=7)
+    lean = st.run_batch(batch, inputs)
+    calls = []
+    monkeypatch.setattr(engine, "_run_lean_batch", lambda *a: calls.append(1))
+    monkeypatch.setattr(engine, "CONSTS_CAPACITY", batch.consts.shape[2] - 1)
+    general = st.run_batch(batch, inputs)
+    assert calls == []
+    np.testing.assert_array_equal(general.metrics.array, lean.metrics.array)

@@ -29,7 +29,7 @@ from servotune.plant import NROW, Plant, plant_row
 from servotune.rig import Rig
 from servotune.scenarios import Inputs
 from servotune.sim.kernel import _G_KIT, _G_KP, _G_LOCK, _I_LAG, _NPI, LANES, _kernel
-from servotune.sim.lean import _kernel_lean
+from servotune.sim.lean import CONSTS_CAPACITY, _kernel_lean
 from servotune.sim.result import BatchMetrics, BatchResult, BatchTraces, Trace
 from servotune.sim.tick import METRIC_NAMES, N_METRICS
 
@@ -301,9 +301,10 @@ def run_batch(
 
     Notes
     -----
-    A one-axis batch run for metrics only, not ideal, with lags of at most one whole tick runs
-    in a leaner kernel than the others (no traces, its state in registers); it calls the same
-    law and plant functions in the same order, so the metrics are the same bit for bit.
+    A one-axis batch run for metrics only, not ideal, with lags of at most one whole tick and
+    law constants of at most ``CONSTS_CAPACITY`` words runs in a leaner kernel than the others
+    (no traces, its state in registers); it calls the same law and plant functions in the same
+    order, so the metrics are the same bit for bit.
     """
     loop = batch.loop
     _check_inputs(loop, inputs)
@@ -326,7 +327,8 @@ def run_batch(
         nb.set_num_threads(max(1, min(int(threads), nb.config.NUMBA_NUM_THREADS)))
     # one-axis metrics-only runs (candidate sweeps) take the lean kernel: same results, about
     # twice as fast; it holds lags of at most one whole tick (ring = largest lag + 2)
-    lean = metrics_only and not ideal and n_ax == 1 and batch.ring <= 3
+    lean = (metrics_only and not ideal and n_ax == 1 and batch.ring <= 3
+            and batch.consts.shape[2] <= CONSTS_CAPACITY)  # fmt: skip
     try:
         if lean:
             _run_lean_batch(batch, inputs, metric_from_tick, metrics)

@@ -15,11 +15,16 @@ from numba.extending import intrinsic
 
 from servotune._numba_cache import jit
 from servotune.laws.axis import MODE_TASK, N_STATE, S_MODE, axis_control, axis_read
-from servotune.plant import R_NOISE, R_OFFSET, advance_tick
+from servotune.plant import NROW, R_NOISE, R_OFFSET, advance_tick
 from servotune.sim.kernel import _I_INIT, _I_LAG
 from servotune.sim.tick import N_METRICS, accumulate, draw_noise, finish, latch
 
-__all__: list[str] = []
+__all__ = ["CONSTS_CAPACITY"]
+
+CONSTS_CAPACITY = 4096
+"""Largest constants vector (int64 words: the law's constants and its tables) the lean kernel
+holds in its frame; fuzzy-PID tables up to n = 15 levels fit. Wider ones run in the general
+kernel (same results)."""
 
 # --- the lean kernel: one axis, metrics only, integer runtime ------------------------------
 #
@@ -90,8 +95,15 @@ def _run_lean(
     st = nb.carray(_frame_buffer(N_STATE, np.int64), (1, N_STATE))
     mt = nb.carray(_frame_buffer(N_METRICS, np.float64), (1, N_METRICS))
     mt[0, 4] = -1.0
-    cb = consts[b]  # (1, width): axis row 0 for the law functions
-    row = pf[b, 0]
+    # the candidate's constants and plant row copied into the frame too: a view of the shared
+    # arrays would be reference-counted on every pass into the law functions, and the threads'
+    # atomic counts on the one memory info contend (measured: 2 threads no faster than 1)
+    cb = nb.carray(_frame_buffer(CONSTS_CAPACITY, np.int64), (1, CONSTS_CAPACITY))
+    for j in range(consts.shape[2]):
+        cb[0, j] = consts[b, 0, j]
+    row = nb.carray(_frame_buffer(NROW, np.float64), NROW)
+    for j in range(NROW):
+        row[j] = pf[b, 0, j]
     noise = row[R_NOISE]
     offset = row[R_OFFSET]
     init = pi[b, 0, _I_INIT]
