@@ -68,6 +68,7 @@ def _line(exc: object) -> str:
 
 
 def _cmd_rig(args: argparse.Namespace) -> int:
+    from servotune.report.text import format_rig_facts
     from servotune.rig import describe_rig, load_rig
 
     facts = describe_rig(load_rig(args.rig))
@@ -76,35 +77,8 @@ def _cmd_rig(args: argparse.Namespace) -> int:
 
         print(json.dumps(json_safe(facts), indent=2, sort_keys=True, allow_nan=False))
     else:
-        print(_format_facts(facts))
+        print(format_rig_facts(facts))
     return EXIT_OK
-
-
-def _format_facts(f: dict) -> str:
-    lines = [
-        f"rig {f['rig']}",
-        f"  timer divisor            {f['timer_divisor']}",
-        f"  achieved period          {f['achieved_period_s'] * 1e3:.6f} ms "
-        f"({f['period_error_ppm']:+.1f} ppm vs {f['requested_period_s'] * 1e3:g} ms)",
-        f"  counts per revolution    {f['counts_per_rev']:g}",
-        f"  D/A LSB                  {f['dac_lsb_mv']:.4f} mV",
-        f"  unwrap speed limit       {f['unwrap_speed_limit_rpm']:.0f} r/min "
-        f"({f['unwrap_max_counts_per_tick']} counts/tick)",
-        f"  input-frequency limit    {f['input_frequency_speed_limit_rpm']:.0f} r/min "
-        f"(binds first: {f['binding_speed_limit']})",
-    ]
-    for name, a in f["axes"].items():
-        lo, hi = a["lock_band_counts"]
-        lines += [
-            f"  axis {name} ({a['role']})",
-            f"    speed limit            {a['speed_limit_rpm']:g} r/min "
-            f"({a['counts_per_tick_at_speed_limit']:.1f} counts/tick; "
-            f"{'within' if a['speed_limit_ok'] else 'EXCEEDS'} the counter limits)",
-            f"    counter wraps every    {a['time_to_wrap_at_speed_limit_s']:.1f} s at that speed",
-            f"    lock holding band      [{lo}, {hi}] counts "
-            f"({'within' if a['lock_band_within_one_pulse'] else 'outside'} ±1 pulse)",
-        ]
-    return "\n".join(lines)
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
@@ -257,7 +231,8 @@ def _cmd_tune(args: argparse.Namespace) -> int:
 
 
 def _cmd_verify(args: argparse.Namespace) -> int:
-    from servotune.verify import format_table, verify_files
+    from servotune.report.text import format_table
+    from servotune.verify import verify_files
 
     if args.report:  # before the run: a report directory that cannot be made fails first
         Path(args.report).mkdir(parents=True, exist_ok=True)
@@ -355,8 +330,9 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _cmd_sync(args: argparse.Namespace) -> int:
-    from servotune.arch.gantry import compare_topologies, format_comparison
+    from servotune.arch.gantry import compare_topologies
     from servotune.arch.gantry.load import load_gantry
+    from servotune.report.text import format_comparison
 
     cmp = compare_topologies(load_gantry(args.config), seed=args.seed)
     if args.json:
@@ -377,12 +353,8 @@ def _cmd_sync(args: argparse.Namespace) -> int:
 
 
 def _cmd_linkage(args: argparse.Namespace) -> int:
-    from servotune.arch.linkage import (
-        LinkageCheckError,
-        format_linkage_summary,
-        load_linkage,
-        run_linkage,
-    )
+    from servotune.arch.linkage import LinkageCheckError, load_linkage, run_linkage
+    from servotune.report.text import format_linkage_summary
 
     config = load_linkage(args.config)
     try:

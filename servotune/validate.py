@@ -28,7 +28,7 @@ import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-__all__ = ["check_integer", "check_keys", "check_number", "is_number", "show_value"]
+__all__ = ["check_integer", "check_keys", "check_number", "is_number", "show_number", "show_value"]
 
 _SHOW_CHARS = 40
 
@@ -58,6 +58,28 @@ def show_value(v: object, limit: int = _SHOW_CHARS) -> str:
     except ValueError:  # e.g. the int-to-str digit limit
         return f"a {type(v).__name__}"
     return text if len(text) <= limit else text[: limit - 1] + "…"
+
+
+def show_number(x: float | None, digits: int = 4) -> str:
+    """A number for a table or a message: ``digits`` significant digits, exponent form when
+    very large or small; ``n/a`` for None, ``never`` for +inf.
+
+    Examples
+    --------
+    >>> show_number(0.0123456), show_number(123456.0), show_number(None), show_number(math.inf)
+    ('0.01235', '1.235e+05', 'n/a', 'never')
+    """
+    if x is None:
+        return "n/a"
+    if math.isinf(x):
+        return "never" if x > 0 else "-inf"
+    if math.isnan(x):
+        return "nan"
+    if x == 0:
+        return "0"
+    if abs(x) >= 1e5 or abs(x) < 1e-3:
+        return f"{x:.{digits - 1}e}"
+    return f"{x:.{digits}g}"
 
 
 def _finite(v: object) -> bool:

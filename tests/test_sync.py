@@ -16,7 +16,6 @@ from servotune.arch.gantry import (
     GantryMetrics,
     SyncLoopModels,
     compare_topologies,
-    format_comparison,
     move_profile,
     predicted_load_reduction,
     simulate_gantry,
@@ -27,6 +26,7 @@ from servotune.cli import main
 from servotune.errors import ConfigError, SpecError
 from servotune.hw import dac as hw_dac
 from servotune.laws.axis import FLAG_SYNC_TRIP
+from servotune.report.text import format_comparison
 from servotune.tune.pi import tune_pi
 from servotune.tune.sync import resolve_gains, tune_sync
 

@@ -16,6 +16,7 @@ from servotune.errors import SpecError, TrustError
 from servotune.fixed import E_MAX, INT64_MAX, Fixed
 from servotune.laws.fuzzy_pid import FuzzyPIDGains
 from servotune.laws.pi import PIConstants
+from servotune.report.text import format_table
 from servotune.rig import EXAMPLE_RIG_PATH, load_rig
 from servotune.tune.workflow import tune_rig
 from servotune.tuning import Tuning, file_sha256, read_tuning, write_tuning
@@ -27,7 +28,6 @@ from servotune.verify import (
     check_record,
     check_speed,
     check_timer,
-    format_table,
     load_spec,
     max_safe_gain_q,
     plant_variants,

@@ -1,8 +1,10 @@
 """Verification: a tuning against a spec on the bit-true closed loop (:mod:`.run`; the spec file
 :mod:`.spec`, its plant variants :mod:`.variants`, the checks :mod:`.checks`, the result and its
 table :mod:`.result`), and the trust chain from the verified bytes to the export
-(:mod:`.record`)."""
+(:mod:`.record`). The pass/fail table for the terminal is
+:func:`servotune.report.text.format_table`."""
 
+from servotune._deprecate import moved_names
 from servotune.verify.checks import check_overflow, check_speed, check_timer, max_safe_gain_q
 from servotune.verify.record import (
     RECORD_SCHEMA,
@@ -18,7 +20,7 @@ from servotune.verify.record import (
     verify_files,
     write_record,
 )
-from servotune.verify.result import Check, Row, Verification, format_table
+from servotune.verify.result import Check, Row, Verification
 from servotune.verify.run import verify
 from servotune.verify.spec import (
     KINDS,
@@ -50,7 +52,6 @@ __all__ = [
     "check_speed",
     "check_timer",
     "default_rig_path",
-    "format_table",
     "load_for_export",
     "load_spec",
     "max_safe_gain_q",
@@ -65,3 +66,5 @@ __all__ = [
     "verify_files",
     "write_record",
 ]
+
+__getattr__ = moved_names(__name__, {"format_table": "servotune.report.text"})

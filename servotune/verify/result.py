@@ -3,13 +3,12 @@ pass/fail table for the terminal (:func:`format_table`)."""
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 from servotune.io.files import json_float
-from servotune.validate import show_value
+from servotune.validate import show_number, show_value
 from servotune.verify.spec import Spec
 from servotune.verify.variants import Variant
 
@@ -17,7 +16,6 @@ __all__ = [
     "Check",
     "Row",
     "Verification",
-    "format_table",
 ]
 
 
@@ -163,8 +161,8 @@ class Verification:
     def failures(self) -> list[str]:
         """One line per violated limit or failed check."""
         out = [
-            f"{r.scenario}: {r.quantity} of {r.axis} = {_fmt(r.worst)} {r.unit} > limit "
-            f"{_fmt(r.limit)} {r.unit} (variant {r.variant})"
+            f"{r.scenario}: {r.quantity} of {r.axis} = {show_number(r.worst)} {r.unit} > limit "
+            f"{show_number(r.limit)} {r.unit} (variant {r.variant})"
             for r in self.rows
             if not r.passed
         ]
@@ -202,55 +200,3 @@ class Verification:
 
 
 # --- presenting ----------------------------------------------------------------------------
-
-
-def _fmt(x: float | None, digits: int = 4) -> str:
-    if x is None:
-        return "n/a"
-    if math.isinf(x):
-        return "never" if x > 0 else "-inf"
-    if math.isnan(x):
-        return "nan"
-    if x == 0:
-        return "0"
-    if abs(x) >= 1e5 or abs(x) < 1e-3:
-        return f"{x:.{digits - 1}e}"
-    return f"{x:.{digits}g}"
-
-
-def format_table(verification: Verification) -> str:
-    """A pass/fail table with margins, then the checks and the verdict (for the terminal)."""
-    v = verification
-    head = ("scenario", "quantity", "axis", "limit", "worst", "margin", "margin %", "variant", "")
-    lines = [head]
-    for r in v.rows:
-        rel = r.relative_margin
-        lines.append((
-            r.scenario,
-            r.quantity,
-            r.axis,
-            f"{_fmt(r.limit)} {r.unit}",
-            f"{_fmt(r.worst)} {r.unit}",
-            _fmt(r.margin),
-            "n/a" if rel is None or not math.isfinite(rel) else f"{100.0 * rel:.0f}",
-            r.variant,
-            "ok" if r.passed else "FAIL",
-        ))  # fmt: skip
-    widths = [max(len(row[i]) for row in lines) for i in range(len(head))]
-    right = {3, 4, 5, 6}
-    out = [
-        f"verify: spec {show_value(v.spec.name)} on rig {show_value(v.rig_name)}, seed {v.seed}, "
-        f"{len(v.variants)} plant sets (nominal + {len(v.variants) - 1} Monte Carlo)"
-    ]
-    for row in lines:
-        cells = [c.rjust(w) if i in right else c.ljust(w)
-                 for i, (c, w) in enumerate(zip(row, widths, strict=True))]  # fmt: skip
-        out.append("  ".join(cells).rstrip())
-    if not v.rows:
-        out.append("(closed-loop runs skipped)")
-    out.append("checks")
-    for c in v.checks:
-        out.append(f"  {'ok  ' if c.passed else 'FAIL'}  {c.name}: {c.detail}")
-    n_fail = sum(not r.passed for r in v.rows) + sum(not c.passed for c in v.checks)
-    out.append("PASSED" if v.passed else f"FAILED ({n_fail} of {len(v.rows) + len(v.checks)})")
-    return "\n".join(out)

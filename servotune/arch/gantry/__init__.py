@@ -14,7 +14,8 @@ Submodules, each importing only those above it:
   :class:`LoadPrediction`); the tuning of the drives and of the compensator is in
   :mod:`servotune.tune.sync` (``tune_sync``, ``resolve_gains``);
 - :mod:`~servotune.arch.gantry.result`: the result (:class:`GantryTrace` and its
-  :class:`GantryMetrics`, :class:`SyncComparison`, :func:`format_comparison`);
+  :class:`GantryMetrics`, :class:`SyncComparison`; its text table is
+  :func:`servotune.report.text.format_comparison`);
 - :mod:`~servotune.arch.gantry.run`: the CNC's move (:func:`move_profile`), the numba kernel
   of one run (:func:`simulate_gantry`) and the comparison (:func:`compare_topologies`);
 - :mod:`~servotune.arch.gantry.load`: the config reader that resolves the gains a file leaves
@@ -55,6 +56,7 @@ each cycle is split into sub-steps over which the beam force is held (chosen so 
 mode is resolved, :func:`~servotune.plant.advance` on each).
 """
 
+from servotune._deprecate import moved_names
 from servotune.arch.gantry.config import (
     CASES,
     TOPOLOGIES,
@@ -77,7 +79,6 @@ from servotune.arch.gantry.result import (
     GantryMetrics,
     GantryTrace,
     SyncComparison,
-    format_comparison,
 )
 from servotune.arch.gantry.run import compare_topologies, move_profile, simulate_gantry
 
@@ -97,10 +98,11 @@ __all__ = [
     "SyncLoopModels",
     "SyncSettings",
     "compare_topologies",
-    "format_comparison",
     "gantry_from_dict",
     "move_profile",
     "predicted_load_reduction",
     "simulate_gantry",
     "sync_loop_models",
 ]
+
+__getattr__ = moved_names(__name__, {"format_comparison": "servotune.report.text"})

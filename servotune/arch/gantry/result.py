@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 
 from servotune._version import __version__
-from servotune.arch.gantry.config import CASES, TOPOLOGIES, GantryConfig
+from servotune.arch.gantry.config import GantryConfig
 from servotune.arch.gantry.design import LoadPrediction
 from servotune.io.files import json_safe
 from servotune.laws.sync import SYNC_WARN
@@ -17,7 +17,6 @@ __all__ = [
     "GantryMetrics",
     "GantryTrace",
     "SyncComparison",
-    "format_comparison",
 ]
 
 
@@ -178,26 +177,3 @@ class SyncComparison:
             "failed": list(self.failed),
             "version": __version__,
         })  # fmt: skip
-
-
-def format_comparison(cmp: SyncComparison) -> str:
-    """The comparison as a text table (one row per topology, max/RMS per case)."""
-    c = cmp.config
-    head = f"{'topology':<11}" + "".join(
-        f"{case + ' max':>13}{case + ' RMS':>13}" for case in CASES
-    )
-    lines = [f"gantry {c.name}: sync error [counts], bus cycle {c.bus.cycle_s * 1e3:g} ms, "
-             f"latency {c.bus.latency_cycles} cycle(s), deployed: {c.topology}", head]  # fmt: skip
-    for topo in TOPOLOGIES:
-        cells = ""
-        for case in CASES:
-            r = cmp.row(topo, case)
-            mark = " TRIP" if r.tripped else ""
-            cells += f"{r.max_sync_error_counts:>13.1f}{r.rms_sync_error_counts:>13.1f}{mark}"
-        lines.append(f"{topo:<11}{cells}")
-    if cmp.predicted is not None:
-        p = cmp.predicted
-        lines.append(f"predicted (linear) load-case max: parallel {p.parallel_max_counts:.1f}, "
-                     f"listening {p.listening_max_counts:.1f} (x{p.ratio:.3f})")  # fmt: skip
-    lines.append("PASS" if cmp.passed else "FAIL: " + "; ".join(cmp.failed))
-    return "\n".join(lines)

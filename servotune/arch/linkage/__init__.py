@@ -22,8 +22,8 @@ Submodules, each importing only those above it:
   (its scheduling and routing; the axis tick is :mod:`servotune.sim.tick`'s);
 - :mod:`~servotune.arch.linkage.checks`: the checks made before motion (:func:`check_linkage`,
   :func:`bus_figures`, :func:`recommended_resync_interval_s`);
-- :mod:`~servotune.arch.linkage.result`: the result (:class:`LinkageResult`,
-  :func:`format_linkage_summary`);
+- :mod:`~servotune.arch.linkage.result`: the result (:class:`LinkageResult`; its text summary
+  is :func:`servotune.report.text.format_linkage_summary`);
 - :mod:`~servotune.arch.linkage.run`: the simulation of the whole system
   (:func:`run_linkage`), the axes' gains (:func:`axis_gains`) and the checks during motion.
 
@@ -86,6 +86,7 @@ for each arc the radial deviation ``|actual − centre| − R`` against the angl
 ISO 230-4 circular test (circularity = max − min).
 """
 
+from servotune._deprecate import moved_names
 from servotune.arch.linkage.bus import Bus, Clock, SlaveCpu
 from servotune.arch.linkage.checks import (
     BusFigures,
@@ -111,7 +112,6 @@ from servotune.arch.linkage.result import (
     AxisTrace,
     CpuResult,
     LinkageResult,
-    format_linkage_summary,
 )
 from servotune.arch.linkage.run import AxisGains, axis_gains, run_linkage
 
@@ -138,10 +138,11 @@ __all__ = [
     "axis_gains",
     "bus_figures",
     "check_linkage",
-    "format_linkage_summary",
     "interpolate",
     "linkage_from_dict",
     "load_linkage",
     "recommended_resync_interval_s",
     "run_linkage",
 ]
+
+__getattr__ = moved_names(__name__, {"format_linkage_summary": "servotune.report.text"})

@@ -18,7 +18,6 @@ __all__ = [
     "AxisTrace",
     "CpuResult",
     "LinkageResult",
-    "format_linkage_summary",
 ]
 
 
@@ -367,55 +366,3 @@ class LinkageResult:
 
 def _optional_time(x: float) -> float | None:
     return None if x < 0.0 else float(x)
-
-
-def format_linkage_summary(result: LinkageResult) -> str:
-    """A short text summary of a run (what ``servotune linkage`` prints).
-
-    Returns
-    -------
-    str
-        Several lines, no trailing newline.
-    """
-    b = result.bus
-    rec = result.recommended_resync_interval_s
-    lines = [
-        f"linkage {result.name}: {len(result.axes)} axes on {len(result.cpus)} slave CPUs, "
-        f"{result.time_s.size * result.period_s:.3f} s at {result.period_s * 1e3:g} ms, "
-        f"seed {result.seed}",
-        f"  bus        frame {b.frame_bytes} bytes = {b.frame_s * 1e3:.3f} ms every "
-        f"{b.broadcast_period_s * 1e3:.3f} ms (utilisation {b.utilisation * 100:.1f} %), "
-        f"lead {b.lead_s * 1e3:.2f} ms",
-        f"  clock      resync every {result.resync_interval_s:g} s"
-        + (" (start only)" if not result.resync_interval_s else "")
-        + (f"; recommended {rec:g} s" if rec is not None else ""),
-    ]
-    for c in result.cpus:
-        first = f" (first {c.first_underrun_s:.3f} s)" if c.first_underrun_s is not None else ""
-        firsto = f" (first {c.first_overrun_s:.3f} s)" if c.first_overrun_s is not None else ""
-        lines.append(
-            f"  cpu {c.name:<6} {c.clock_ppm:+8.1f} ppm  axes {','.join(c.axes):<10} queue "
-            f"{c.min_level}..{c.max_level} of {c.queue_depth}  underruns {c.underruns}{first}  "
-            f"overruns {c.overruns}{firsto}  skipped {c.skipped}"
-        )
-    for a in result.axes:
-        fault = f"  FAULT {a.fault} at {a.first_fault_s:.3f} s" if a.fault else ""
-        lines.append(
-            f"  axis {a.name:<5} on {a.cpu:<6} kp {a.kp:.4g} ki {a.ki:.4g}"
-            f"{' (tuned)' if a.tuned else ''}  tracking error max {a.max_abs_err_counts:.1f} "
-            f"rms {a.rms_err_counts:.1f} counts{fault}"
-        )
-    lines.append(
-        f"  contour    max {result.contour_max_counts:.2f} counts, rms "
-        f"{result.contour_rms_counts:.2f} counts"
-    )
-    for arc in result.arcs:
-        lines.append(
-            f"  circle     move {arc.move} in {'/'.join(arc.plane)}, R {arc.radius_counts:g}: "
-            f"radial deviation {arc.min_dev_counts:+.2f} … {arc.max_dev_counts:+.2f}, "
-            f"circularity {arc.circularity_counts:.2f} counts at constant feed "
-            f"({arc.circularity_whole_counts:.2f} with the ramps)"
-        )
-    failed = result.failed_checks
-    lines.append("  PASSED" if not failed else "  FAILED: " + "; ".join(c.detail for c in failed))
-    return "\n".join(lines)

@@ -1,0 +1,160 @@
+"""Results as text for the terminal: one function per result, each returning lines (no newline
+at the end). The CLI prints them; the library never prints.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any
+
+from servotune.arch.gantry.config import CASES, TOPOLOGIES
+from servotune.validate import show_number, show_value
+
+if TYPE_CHECKING:
+    from servotune.arch.gantry.result import SyncComparison
+    from servotune.arch.linkage.result import LinkageResult
+    from servotune.verify.result import Verification
+
+__all__ = ["format_comparison", "format_linkage_summary", "format_rig_facts", "format_table"]
+
+
+def format_table(verification: Verification) -> str:
+    """A pass/fail table with margins, then the checks and the verdict (for the terminal)."""
+    v = verification
+    head = ("scenario", "quantity", "axis", "limit", "worst", "margin", "margin %", "variant", "")
+    lines = [head]
+    for r in v.rows:
+        rel = r.relative_margin
+        lines.append((
+            r.scenario,
+            r.quantity,
+            r.axis,
+            f"{show_number(r.limit)} {r.unit}",
+            f"{show_number(r.worst)} {r.unit}",
+            show_number(r.margin),
+            "n/a" if rel is None or not math.isfinite(rel) else f"{100.0 * rel:.0f}",
+            r.variant,
+            "ok" if r.passed else "FAIL",
+        ))  # fmt: skip
+    widths = [max(len(row[i]) for row in lines) for i in range(len(head))]
+    right = {3, 4, 5, 6}
+    out = [
+        f"verify: spec {show_value(v.spec.name)} on rig {show_value(v.rig_name)}, seed {v.seed}, "
+        f"{len(v.variants)} plant sets (nominal + {len(v.variants) - 1} Monte Carlo)"
+    ]
+    for row in lines:
+        cells = [c.rjust(w) if i in right else c.ljust(w)
+                 for i, (c, w) in enumerate(zip(row, widths, strict=True))]  # fmt: skip
+        out.append("  ".join(cells).rstrip())
+    if not v.rows:
+        out.append("(closed-loop runs skipped)")
+    out.append("checks")
+    for c in v.checks:
+        out.append(f"  {'ok  ' if c.passed else 'FAIL'}  {c.name}: {c.detail}")
+    n_fail = sum(not r.passed for r in v.rows) + sum(not c.passed for c in v.checks)
+    out.append("PASSED" if v.passed else f"FAILED ({n_fail} of {len(v.rows) + len(v.checks)})")
+    return "\n".join(out)
+
+
+def format_comparison(cmp: SyncComparison) -> str:
+    """The comparison as a text table (one row per topology, max/RMS per case)."""
+    c = cmp.config
+    head = f"{'topology':<11}" + "".join(
+        f"{case + ' max':>13}{case + ' RMS':>13}" for case in CASES
+    )
+    lines = [f"gantry {c.name}: sync error [counts], bus cycle {c.bus.cycle_s * 1e3:g} ms, "
+             f"latency {c.bus.latency_cycles} cycle(s), deployed: {c.topology}", head]  # fmt: skip
+    for topo in TOPOLOGIES:
+        cells = ""
+        for case in CASES:
+            r = cmp.row(topo, case)
+            mark = " TRIP" if r.tripped else ""
+            cells += f"{r.max_sync_error_counts:>13.1f}{r.rms_sync_error_counts:>13.1f}{mark}"
+        lines.append(f"{topo:<11}{cells}")
+    if cmp.predicted is not None:
+        p = cmp.predicted
+        lines.append(f"predicted (linear) load-case max: parallel {p.parallel_max_counts:.1f}, "
+                     f"listening {p.listening_max_counts:.1f} (x{p.ratio:.3f})")  # fmt: skip
+    lines.append("PASS" if cmp.passed else "FAIL: " + "; ".join(cmp.failed))
+    return "\n".join(lines)
+
+
+def format_linkage_summary(result: LinkageResult) -> str:
+    """A short text summary of a run (what ``servotune linkage`` prints).
+
+    Returns
+    -------
+    str
+        Several lines, no trailing newline.
+    """
+    b = result.bus
+    rec = result.recommended_resync_interval_s
+    lines = [
+        f"linkage {result.name}: {len(result.axes)} axes on {len(result.cpus)} slave CPUs, "
+        f"{result.time_s.size * result.period_s:.3f} s at {result.period_s * 1e3:g} ms, "
+        f"seed {result.seed}",
+        f"  bus        frame {b.frame_bytes} bytes = {b.frame_s * 1e3:.3f} ms every "
+        f"{b.broadcast_period_s * 1e3:.3f} ms (utilisation {b.utilisation * 100:.1f} %), "
+        f"lead {b.lead_s * 1e3:.2f} ms",
+        f"  clock      resync every {result.resync_interval_s:g} s"
+        + (" (start only)" if not result.resync_interval_s else "")
+        + (f"; recommended {rec:g} s" if rec is not None else ""),
+    ]
+    for c in result.cpus:
+        first = f" (first {c.first_underrun_s:.3f} s)" if c.first_underrun_s is not None else ""
+        firsto = f" (first {c.first_overrun_s:.3f} s)" if c.first_overrun_s is not None else ""
+        lines.append(
+            f"  cpu {c.name:<6} {c.clock_ppm:+8.1f} ppm  axes {','.join(c.axes):<10} queue "
+            f"{c.min_level}..{c.max_level} of {c.queue_depth}  underruns {c.underruns}{first}  "
+            f"overruns {c.overruns}{firsto}  skipped {c.skipped}"
+        )
+    for a in result.axes:
+        fault = f"  FAULT {a.fault} at {a.first_fault_s:.3f} s" if a.fault else ""
+        lines.append(
+            f"  axis {a.name:<5} on {a.cpu:<6} kp {a.kp:.4g} ki {a.ki:.4g}"
+            f"{' (tuned)' if a.tuned else ''}  tracking error max {a.max_abs_err_counts:.1f} "
+            f"rms {a.rms_err_counts:.1f} counts{fault}"
+        )
+    lines.append(
+        f"  contour    max {result.contour_max_counts:.2f} counts, rms "
+        f"{result.contour_rms_counts:.2f} counts"
+    )
+    for arc in result.arcs:
+        lines.append(
+            f"  circle     move {arc.move} in {'/'.join(arc.plane)}, R {arc.radius_counts:g}: "
+            f"radial deviation {arc.min_dev_counts:+.2f} … {arc.max_dev_counts:+.2f}, "
+            f"circularity {arc.circularity_counts:.2f} counts at constant feed "
+            f"({arc.circularity_whole_counts:.2f} with the ramps)"
+        )
+    failed = result.failed_checks
+    lines.append("  PASSED" if not failed else "  FAILED: " + "; ".join(c.detail for c in failed))
+    return "\n".join(lines)
+
+
+def format_rig_facts(f: Mapping[str, Any]) -> str:
+    """What ``servotune rig`` prints: the facts of :func:`servotune.rig.describe_rig`."""
+    lines = [
+        f"rig {f['rig']}",
+        f"  timer divisor            {f['timer_divisor']}",
+        f"  achieved period          {f['achieved_period_s'] * 1e3:.6f} ms "
+        f"({f['period_error_ppm']:+.1f} ppm vs {f['requested_period_s'] * 1e3:g} ms)",
+        f"  counts per revolution    {f['counts_per_rev']:g}",
+        f"  D/A LSB                  {f['dac_lsb_mv']:.4f} mV",
+        f"  unwrap speed limit       {f['unwrap_speed_limit_rpm']:.0f} r/min "
+        f"({f['unwrap_max_counts_per_tick']} counts/tick)",
+        f"  input-frequency limit    {f['input_frequency_speed_limit_rpm']:.0f} r/min "
+        f"(binds first: {f['binding_speed_limit']})",
+    ]
+    for name, a in f["axes"].items():
+        lo, hi = a["lock_band_counts"]
+        lines += [
+            f"  axis {name} ({a['role']})",
+            f"    speed limit            {a['speed_limit_rpm']:g} r/min "
+            f"({a['counts_per_tick_at_speed_limit']:.1f} counts/tick; "
+            f"{'within' if a['speed_limit_ok'] else 'EXCEEDS'} the counter limits)",
+            f"    counter wraps every    {a['time_to_wrap_at_speed_limit_s']:.1f} s at that speed",
+            f"    lock holding band      [{lo}, {hi}] counts "
+            f"({'within' if a['lock_band_within_one_pulse'] else 'outside'} ±1 pulse)",
+        ]
+    return "\n".join(lines)
