@@ -11,21 +11,41 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from servotune._version import __version__
+from servotune.arch.gantry import CASES, compare_topologies
+from servotune.arch.gantry.load import load_gantry
+from servotune.arch.linkage import load_linkage, run_linkage
 from servotune.errors import IdentificationError
+from servotune.export import write_c, write_tables
+from servotune.identify import fit, simulate_fit, validation_split
 from servotune.io.files import atomic_write_text
-from servotune.logs import write_log
+from servotune.laws.lock import lock_holding_band
+from servotune.logs import read_log, read_metadata, write_log
 from servotune.metrics import tracking_metrics
-from servotune.rig import Rig, describe_rig, load_rig
+from servotune.plot import (
+    plot_comparison,
+    plot_fit,
+    plot_lock_hold,
+    plot_queue_levels,
+    plot_radial_deviation,
+    plot_sync_errors,
+    plot_tracking,
+    save_figure,
+)
+from servotune.report import write_report
+from servotune.rig import Rig, describe_rig, load_rig, write_plant
 from servotune.scenarios import Inputs, Scenario, build_scenario, check_run_memory
 from servotune.sim.engine import Loop, Trace, simulate
 from servotune.tune.pi import pi_loop_shaping
+from servotune.tune.workflow import compare_structures, tune_rig
+from servotune.tuning import write_tuning
+from servotune.verify import load_for_export, verify_files
 
 __all__ = [
     "comparison_table_text",
@@ -54,8 +74,6 @@ def run_scenario(rig: Rig, scenario: Scenario, *, seed: int = 0, noise: bool = T
     loop = Loop.from_rig(rig, default_pi_gains(rig) if scenario.needs_task_law else None)
     plants = None
     if not noise:
-        from dataclasses import replace
-
         plants = [replace(a.plant, noise_counts=0.0) for a in rig.axes]
     return simulate(loop, scenario.inputs, seed=seed, plants=plants)
 
@@ -125,8 +143,6 @@ def lock_hold(rig: Rig, *, seconds: float = 60.0, settle_s: float = 2.0, seed: i
         if plants is None:
             predicted[a.name] = tuple(facts["axes"][a.name]["lock_band_counts"])
         else:
-            from servotune.laws.lock import lock_holding_band
-
             predicted[a.name] = lock_holding_band(
                 a.lock_gain_codes_per_count, use[i].offset_v, rig.dac.lsb_v, use[i].coulomb_v
             )
@@ -141,9 +157,6 @@ def run_architectures(plants_dir: str | Path, out_dir: str | Path, *, seed: int 
     ``linkage.json``, ``linkage_queues.png``, ``linkage_circle.png``. Returns a summary per
     architecture (whether it passed its checks, and its headline figures).
     """
-    from servotune.arch.gantry import CASES, compare_topologies
-    from servotune.arch.gantry.load import load_gantry
-    from servotune.plot import plot_sync_errors, save_figure
 
     plants, out = Path(plants_dir), Path(out_dir)
     summary: dict[str, Any] = {}
@@ -158,9 +171,6 @@ def run_architectures(plants_dir: str | Path, out_dir: str | Path, *, seed: int 
                              "predicted_load": doc["predicted_load"]}  # fmt: skip
     linkage_path = plants / "linkage-6axis.toml"
     if linkage_path.is_file():
-        from servotune.arch.linkage import load_linkage, run_linkage
-        from servotune.plot import plot_queue_levels, plot_radial_deviation
-
         res = run_linkage(load_linkage(linkage_path), seed=seed)
         doc = res.to_dict()
         atomic_write_text(out / "linkage.json", json.dumps(doc, indent=2, sort_keys=True) + "\n")
@@ -189,7 +199,6 @@ def run_demo(rig_path: str | Path, out_dir: str | Path, *, seed: int = 0) -> dic
     dict
         The summary.
     """
-    from servotune.plot import plot_lock_hold, plot_tracking, save_figure
 
     out = Path(out_dir)
     if not out.is_dir():
@@ -223,9 +232,6 @@ def run_demo(rig_path: str | Path, out_dir: str | Path, *, seed: int = 0) -> dic
             "tracking": None if m is None else m.to_dict(),
         }
     identification = {}
-    from servotune.identify import simulate_fit, validation_split
-    from servotune.plot import plot_fit
-    from servotune.rig import write_plant
 
     fitted_rig = out / "fitted-rig.toml"
     for name in rig.axis_names:
@@ -258,8 +264,6 @@ def run_demo(rig_path: str | Path, out_dir: str | Path, *, seed: int = 0) -> dic
             "structure": list(result.structure),
         }
     # tune from the identified models (what a user has), then Figure 4 on the example rig
-    from servotune.tune.workflow import tune_rig
-    from servotune.tuning import write_tuning
 
     tuning = tune_rig(fitted_rig, seed=seed)
     tuning_path = out / "tuning.json"
@@ -267,9 +271,6 @@ def run_demo(rig_path: str | Path, out_dir: str | Path, *, seed: int = 0) -> dic
     cmp = run_comparison(rig, out, seed=seed)
     # verify on the rig the tuning was made for (the fitted models: what a user has; the spec's
     # Monte-Carlo spreads cover the model error), then export exactly the verified bytes
-    from servotune.export import write_c, write_tables
-    from servotune.report import write_report
-    from servotune.verify import load_for_export, verify_files
 
     spec_path = Path(rig_path).with_suffix(".spec.toml")
     architectures = run_architectures(Path(rig_path).parent, out, seed=seed)
@@ -336,8 +337,6 @@ def fit_log(
     axis : str
         The axis name (for an unprefixed log: ``axis`` if given, else ``""``).
     """
-    from servotune.identify import fit
-    from servotune.logs import read_log, read_metadata
 
     meta = read_metadata(log_path)
     if rig is not None:
@@ -406,8 +405,6 @@ def run_comparison(
     Comparison
         See :func:`servotune.tune.workflow.compare_structures`.
     """
-    from servotune.plot import plot_comparison, save_figure
-    from servotune.tune.workflow import compare_structures
 
     out = Path(out_dir)
     cmp = compare_structures(rig, spec=spec, seed=seed, progress=progress)

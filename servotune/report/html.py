@@ -17,12 +17,15 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import control
+import matplotlib.pyplot as plt
 import numpy as np
 
 from servotune._version import __version__
 from servotune.io.files import atomic_write_text
 from servotune.laws.fuzzy_pid import TABLE_NAMES, FuzzyPIDConstants
 from servotune.plant import discretize
+from servotune.plot import plot_bode, plot_query_tables, plot_tracking
 from servotune.rig import Rig, load_rig
 from servotune.scenarios import step_inputs, sync_move
 from servotune.sim.engine import simulate
@@ -42,7 +45,6 @@ def loop_response(rig: Rig, tuning: Tuning, axis: str, omega_rad_s: np.ndarray) 
     -------
     control.FrequencyResponseData
     """
-    import control
 
     c = tuning.controller(axis)
     if c.task is None:
@@ -63,7 +65,6 @@ def loop_response(rig: Rig, tuning: Tuning, axis: str, omega_rad_s: np.ndarray) 
 
 
 def _png(fig: Any) -> str:
-    import matplotlib.pyplot as plt
 
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=90, metadata={"Software": None})
@@ -106,9 +107,6 @@ def _verification_section(v: Any) -> str:
 
 
 def _bode_section(rig: Rig, tuning: Tuning) -> str:
-    import control
-
-    from servotune.plot import plot_bode
 
     w = np.logspace(-1, math.log10(math.pi / rig.period_s) - 1e-3, 600)
     responses, rows = {}, []
@@ -130,7 +128,6 @@ def _bode_section(rig: Rig, tuning: Tuning) -> str:
 
 
 def _response_section(rig: Rig, tuning: Tuning, seed: int) -> str:
-    from servotune.plot import plot_tracking
 
     loop = tuning.loop(rig)
     step = simulate(loop, step_inputs(rig, step_counts=rig.counts_per_rev, seconds=2.0), seed=seed)
@@ -146,7 +143,6 @@ def _response_section(rig: Rig, tuning: Tuning, seed: int) -> str:
 
 
 def _tables_section(tuning: Tuning) -> str:
-    from servotune.plot import plot_query_tables
 
     parts = []
     for name, c in zip(tuning.axis_names, tuning.controllers, strict=True):
