@@ -67,6 +67,14 @@ def _line(exc: object) -> str:
     return text if len(text) <= _MAX_MESSAGE else text[: _MAX_MESSAGE - 1] + "…"
 
 
+def _print_product(as_json: bool, doc: Callable[[], object], text: Callable[[], str]) -> None:
+    """The product on stdout: ``doc()`` as indented, key-sorted JSON, or else ``text()``."""
+    if as_json:
+        print(json.dumps(doc(), indent=2, sort_keys=True))
+    else:
+        print(text())
+
+
 def _cmd_rig(args: argparse.Namespace) -> int:
     from servotune.report.text import format_rig_facts
     from servotune.rig import describe_rig, load_rig
@@ -238,10 +246,7 @@ def _cmd_verify(args: argparse.Namespace) -> int:
         Path(args.report).mkdir(parents=True, exist_ok=True)
     result, record, path = verify_files(args.tuning, args.spec, args.rig, seed=args.seed,
                                         progress=lambda m: print(m, file=sys.stderr))  # fmt: skip
-    if args.json:
-        print(json.dumps(record, indent=2, sort_keys=True))
-    else:
-        print(format_table(result))
+    _print_product(args.json, lambda: record, lambda: format_table(result))
     print(f"wrote the verification record to {path}", file=sys.stderr)
     if args.report:
         from servotune.report import write_report
@@ -335,10 +340,7 @@ def _cmd_sync(args: argparse.Namespace) -> int:
     from servotune.report.text import format_comparison
 
     cmp = compare_topologies(load_gantry(args.config), seed=args.seed)
-    if args.json:
-        print(json.dumps(cmp.to_dict(), indent=2, sort_keys=True))
-    else:
-        print(format_comparison(cmp))
+    _print_product(args.json, cmp.to_dict, lambda: format_comparison(cmp))
     if args.plot:
         from servotune.arch.gantry import CASES
         from servotune.plot import plot_sync_errors, save_figure
@@ -363,10 +365,7 @@ def _cmd_linkage(args: argparse.Namespace) -> int:
         for check in exc.checks:
             print(f"servotune linkage: check failed: {check.detail}", file=sys.stderr)
         return EXIT_FAILED
-    if args.json:
-        print(json.dumps(result.to_dict(), indent=2, sort_keys=True))
-    else:
-        print(format_linkage_summary(result))
+    _print_product(args.json, result.to_dict, lambda: format_linkage_summary(result))
     if args.plot:
         from servotune.plot import plot_queue_levels, plot_radial_deviation, save_figure
 

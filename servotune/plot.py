@@ -42,6 +42,17 @@ def save_figure(fig: plt.Figure, path: str | Path) -> None:
     tmp.replace(p)
 
 
+def _finish(fig: plt.Figure, axs: Sequence[plt.Axes], title: str) -> plt.Figure:
+    """Grid and legend on every panel, ``title`` (if any) on the first, then lay it out."""
+    for a in axs:
+        a.grid(True, alpha=0.3)
+        a.legend(loc="best", fontsize=8)
+    if title:
+        axs[0].set_title(title)
+    fig.tight_layout()
+    return fig
+
+
 def plot_tracking(trace: Trace, title: str = "") -> plt.Figure:
     """Positions, errors, D/A codes and modes of a trace (one column per axis)."""
     t = trace.time_s
@@ -56,13 +67,7 @@ def plot_tracking(trace: Trace, title: str = "") -> plt.Figure:
     axs[1].set_ylabel("counts")
     axs[2].set_ylabel("code")
     axs[2].set_xlabel("time [s]")
-    for a in axs:
-        a.grid(True, alpha=0.3)
-        a.legend(loc="best", fontsize=8)
-    if title:
-        axs[0].set_title(title)
-    fig.tight_layout()
-    return fig
+    return _finish(fig, axs, title)
 
 
 def plot_lock_hold(
@@ -156,12 +161,9 @@ def plot_comparison(traces: dict[str, Trace], slave: int, title: str = "") -> pl
     axs[0].set_ylabel("slave speed [counts/s]")
     axs[1].set_ylabel("sync error [counts]")
     axs[1].set_xlabel("time [s]")
-    for a in axs:
-        a.grid(True, alpha=0.3)
-        a.legend(loc="best", fontsize=8)
-    axs[0].set_title(title or "slave tracking: PID, PID + feedforward, composite (Figure 4)")
-    fig.tight_layout()
-    return fig
+    return _finish(
+        fig, axs, title or "slave tracking: PID, PID + feedforward, composite (Figure 4)"
+    )
 
 
 def plot_sync_errors(traces: Sequence[object], case: str, title: str = "") -> plt.Figure:

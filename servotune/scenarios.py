@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -403,6 +404,19 @@ def sync_move(
         if other.role == "slave":
             inp = inp.replace_axis(j, mode=mode, load_v=load)
     return Scenario(name="sync", axis=master.name, inputs=inp, needs_task_law=True)
+
+
+def _sync_move_for(rig: Rig, run: Any) -> Scenario:
+    """:func:`sync_move` with the run ``run`` describes: its ``seconds``, ``speed_fraction``,
+    ``accel_s`` and ``load_step_v`` (a slave tuning's ``SlaveTuneSpec``, a verification spec's
+    sync ``ScenarioSpec``)."""
+    return sync_move(
+        rig,
+        seconds=run.seconds,
+        speed_fraction=run.speed_fraction,
+        accel_s=run.accel_s,
+        load_step_v=run.load_step_v,
+    )
 
 
 def step_inputs(rig: Rig, *, step_counts: int, seconds: float = 2.0) -> Inputs:

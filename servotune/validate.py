@@ -28,7 +28,15 @@ import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-__all__ = ["check_integer", "check_keys", "check_number", "is_number", "show_number", "show_value"]
+__all__ = [
+    "check_integer",
+    "check_keys",
+    "check_number",
+    "check_table",
+    "is_number",
+    "show_number",
+    "show_value",
+]
 
 _SHOW_CHARS = 40
 
@@ -211,3 +219,30 @@ def check_keys(
     if missing:
         raise error(f"missing {noun} {prefix}{missing[0]}")
     return dict(d)
+
+
+def check_table(
+    data: Mapping[str, Any],
+    key: str,
+    *,
+    error: type[Exception] = ValueError,
+    required: bool = True,
+    path: str | None = None,
+) -> Mapping[str, Any]:
+    """The table ``data[key]`` of a parsed file (TOML); ``{}`` if it is absent and not
+    ``required``. The messages name it ``[path]`` (default: ``[key]``).
+
+    Raises
+    ------
+    error
+        ``"missing table [bus]"`` or ``"[bus] must be a table, got list"``.
+    """
+    where = key if path is None else path
+    if key not in data:
+        if required:
+            raise error(f"missing table [{where}]")
+        return {}
+    t = data[key]
+    if not isinstance(t, Mapping):
+        raise error(f"[{where}] must be a table, got {type(t).__name__}")
+    return t

@@ -43,8 +43,7 @@ from pathlib import Path
 from typing import Any
 
 from servotune.errors import ExportError
-from servotune.export.json import SCHEMA, Summary, tables_document
-from servotune.io.files import atomic_write_text
+from servotune.export.json import SCHEMA, Summary, _write_export, tables_document
 from servotune.laws.fuzzy_pid import TABLE_NAMES
 from servotune.rig import Rig
 from servotune.tuning import Tuning
@@ -332,9 +331,6 @@ def write_c(
         texts[name] = runtime_source(name)
     written = []
     for name, text in texts.items():
-        try:
-            atomic_write_text(d / name, text)
-        except OSError as exc:
-            raise ExportError(f"{d / name}: cannot write: {exc}") from None
+        _write_export(d / name, text)
         written.append(d / name)
     return tuple(written)

@@ -83,7 +83,14 @@ import numpy as np
 from servotune._version import __version__
 from servotune.digest import DIGEST_FIELD, document_sha256
 from servotune.errors import DigestError, ExportError
-from servotune.export.layout import c_layout_sha256, constants_pairs, pairs_bytes, table_bytes
+from servotune.export.layout import (
+    _INT16,
+    _INT32,
+    c_layout_sha256,
+    constants_pairs,
+    pairs_bytes,
+    table_bytes,
+)
 from servotune.fixed import F_U
 from servotune.io.files import atomic_write_text, json_safe, parse_json, read_json
 from servotune.laws.axis import (
@@ -119,9 +126,6 @@ class Summary(Protocol):
 
     def to_dict(self) -> dict[str, Any]: ...
 
-
-_INT16 = (-(2**15), 2**15 - 1)
-_INT32 = (-(2**31 - 1), 2**31 - 1)
 
 # --- CRCs ------------------------------------------------------------------------------------
 
@@ -404,7 +408,13 @@ def to_file(
     ExportError
         As :func:`tables_document`, or if the file cannot be written (nothing is written then).
     """
-    text = to_string(tuning, rig=rig, verification=verification, unverified=unverified)
+    _write_export(
+        path, to_string(tuning, rig=rig, verification=verification, unverified=unverified)
+    )
+
+
+def _write_export(path: str | Path, text: str) -> None:
+    """Write one export file atomically; failing, an :class:`ExportError` naming the file."""
     try:
         atomic_write_text(path, text)
     except OSError as exc:

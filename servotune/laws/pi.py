@@ -150,6 +150,18 @@ def _add(a: int, b: int) -> int:
 
 
 @jit(inline="always")
+def _clamp_to_span(integ: int, zero: int, code_max: int) -> int:
+    """The integrator clamped to the D/A span: ``[−zero, code_max − zero]`` [LSB, F_U bits]."""
+    i_max = (code_max - zero) * (1 << F_U)
+    i_min = -zero * (1 << F_U)
+    if integ > i_max:
+        return i_max
+    if integ < i_min:
+        return i_min
+    return integ
+
+
+@jit(inline="always")
 def _pi_core(
     add: Callable[[int, int], int],
     p_term: int,
@@ -168,13 +180,7 @@ def _pi_core(
     u_pre = add(add(add(p_term, integ), d_i), u_add)
     raw = shift_round(u_pre, F_U) + zero
     if not ((raw > code_max and d_i > 0) or (raw < 0 and d_i < 0)):
-        integ = add(integ, d_i)
-        i_max = (code_max - zero) * (1 << F_U)
-        i_min = -zero * (1 << F_U)
-        if integ > i_max:
-            integ = i_max
-        elif integ < i_min:
-            integ = i_min
+        integ = _clamp_to_span(add(integ, d_i), zero, code_max)
     return add(add(p_term, integ), u_add), integ
 
 
@@ -188,13 +194,7 @@ def pi_enter(
     task output equals the previous law's last output. No integration on the entry tick.
     """
     p_term = align(kp_q * clamp_e(e), F_U - kp_f)
-    integ = sat_add(sat_add(u_last, -u_add), -p_term)
-    i_max = (code_max - zero) * (1 << F_U)
-    i_min = -zero * (1 << F_U)
-    if integ > i_max:
-        integ = i_max
-    elif integ < i_min:
-        integ = i_min
+    integ = _clamp_to_span(sat_add(sat_add(u_last, -u_add), -p_term), zero, code_max)
     return sat_add(sat_add(p_term, integ), u_add), integ
 
 

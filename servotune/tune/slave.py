@@ -40,7 +40,7 @@ from servotune.laws.fuzzy_pid import TABLE_NAMES, FuzzyPIDGains
 from servotune.laws.pi import PIGains
 from servotune.plant import Plant
 from servotune.rig import Rig
-from servotune.scenarios import Scenario, sync_move
+from servotune.scenarios import Scenario, _sync_move_for
 from servotune.sim.engine import Loop, prepare_batch, run_batch
 
 __all__ = [
@@ -169,6 +169,20 @@ class SlaveTuning:
             "structure": self.structure,
             "worst": {k: float(v) for k, v in sorted(self.worst.items())},
         }
+
+
+def _master_slave(rig: Rig) -> tuple[int, int]:
+    """Indices of the rig's master and slave axes.
+
+    Raises
+    ------
+    SpecError
+        The rig has no master or no slave axis.
+    """
+    roles = [a.role for a in rig.axes]
+    if "master" not in roles or "slave" not in roles:
+        raise SpecError(f"rig {rig.name!r} needs a master and a slave axis, has roles {roles}")
+    return roles.index("master"), roles.index("slave")
 
 
 def ideal_feedforward(plant: Plant, lsb_v: float) -> float:
@@ -343,10 +357,7 @@ def tune_slave(
     spec = spec or SlaveTuneSpec()
     if structure not in STRUCTURES:
         raise SpecError(f"structure must be one of {', '.join(STRUCTURES)}, got {structure!r}")
-    roles = [a.role for a in rig.axes]
-    if "master" not in roles or "slave" not in roles:
-        raise SpecError(f"rig {rig.name!r} needs a master and a slave axis, has roles {roles}")
-    i_m, i_s = roles.index("master"), roles.index("slave")
+    i_m, i_s = _master_slave(rig)
     if structure == "composite":
         if tables is None:
             raise SpecError("the composite structure needs query tables")
@@ -358,13 +369,7 @@ def tune_slave(
     else:
         n = 1
     loop = Loop.from_rig(rig, [master_gains if i == i_m else start for i in range(len(rig.axes))])
-    scenario = sync_move(
-        rig,
-        seconds=spec.seconds,
-        speed_fraction=spec.speed_fraction,
-        accel_s=spec.accel_s,
-        load_step_v=spec.load_step_v,
-    )
+    scenario = _sync_move_for(rig, spec)
     variants = tuple(
         tuple(v if j == i_s else rig.axes[j].plant for j in range(len(rig.axes)))
         for v in corner_plants(rig.axes[i_s].plant, spec.gain_spread, spec.tau_spread)

@@ -26,10 +26,16 @@ from servotune.errors import InfeasibleError, SpecError
 from servotune.io.files import json_float
 from servotune.metrics import step_info
 from servotune.rig import Rig, load_rig
-from servotune.scenarios import sync_move
+from servotune.scenarios import _sync_move_for
 from servotune.sim.engine import Loop, Trace, simulate
 from servotune.tune.pi import DEFAULT_TARGETS, tune_pi_axis
-from servotune.tune.slave import STRUCTURES, SlaveTuneSpec, SlaveTuning, tune_slave
+from servotune.tune.slave import (
+    STRUCTURES,
+    SlaveTuneSpec,
+    SlaveTuning,
+    _master_slave,
+    tune_slave,
+)
 from servotune.tuning import Tuning, file_sha256
 
 __all__ = [
@@ -53,15 +59,8 @@ def rule_tables(rule_base: str = "default", *, n: int = 6) -> dict[str, np.ndarr
     return {t: np.asarray(getattr(qt, t)) for t in ("kp", "ki", "kd", "k1")}
 
 
-def _roles(rig: Rig) -> tuple[int, int]:
-    roles = [a.role for a in rig.axes]
-    if "master" not in roles or "slave" not in roles:
-        raise SpecError(f"rig {rig.name!r} needs a master and a slave axis, has roles {roles}")
-    return roles.index("master"), roles.index("slave")
-
-
 def _pi_designs(rig: Rig, targets: Mapping[str, float]) -> tuple[Any, Any]:
-    i_m, i_s = _roles(rig)
+    i_m, i_s = _master_slave(rig)
     return (
         tune_pi_axis(rig, rig.axes[i_m].name, **targets),
         tune_pi_axis(rig, rig.axes[i_s].name, **targets),
@@ -102,7 +101,7 @@ def tune_rig(
     spec = spec or SlaveTuneSpec()
     targets = dict(MASTER_TARGETS if master_targets is None else master_targets)
     say = progress or (lambda _msg: None)
-    i_m, i_s = _roles(rig)
+    i_m, i_s = _master_slave(rig)
     say(f"tune: PI for {rig.axes[i_m].name} and the start point of {rig.axes[i_s].name}")
     master_pi, slave_pi = _pi_designs(rig, targets)
     tables = rule_tables(rule_base)
@@ -221,16 +220,10 @@ def compare_structures(
     """
     spec = spec or SlaveTuneSpec()
     targets = dict(MASTER_TARGETS if master_targets is None else master_targets)
-    i_m, i_s = _roles(rig)
+    i_m, i_s = _master_slave(rig)
     master_pi, slave_pi = _pi_designs(rig, targets)
     tables = rule_tables(rule_base)
-    scen = sync_move(
-        rig,
-        seconds=spec.seconds,
-        speed_fraction=spec.speed_fraction,
-        accel_s=spec.accel_s,
-        load_step_v=spec.load_step_v,
-    )
+    scen = _sync_move_for(rig, spec)
     mode = scen.inputs.mode[:, i_s]
     start = int(np.argmax(mode == 1))
     load_tick = int(np.argmax(scen.inputs.load_v[:, i_s] != 0.0)) or mode.size

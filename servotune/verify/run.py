@@ -23,7 +23,7 @@ from servotune.errors import SpecError
 from servotune.laws.axis import FAULT_MASK, FLAG_SATURATED, MODE_TASK
 from servotune.metrics import step_info
 from servotune.rig import Rig
-from servotune.scenarios import Inputs, build_scenario, sync_move
+from servotune.scenarios import Inputs, _sync_move_for, build_scenario
 from servotune.sim.engine import BatchTraces, Loop, prepare_batch, run_batch
 from servotune.tuning import Tuning
 from servotune.validate import show_value
@@ -58,13 +58,7 @@ class _MoveWindows:
 def _inputs(rig: Rig, sc: ScenarioSpec) -> Inputs:
     assert sc.seconds is not None  # resolved by ScenarioSpec
     if sc.kind == "sync":
-        return sync_move(
-            rig,
-            seconds=sc.seconds,
-            speed_fraction=sc.speed_fraction,
-            accel_s=sc.accel_s,
-            load_step_v=sc.load_step_v,
-        ).inputs
+        return _sync_move_for(rig, sc).inputs
     if sc.kind == "track":
         return build_scenario(rig, "track", axis=_master(rig)[1], seconds=sc.seconds).inputs
     n = math.floor(sc.seconds / rig.period_s + 0.5)

@@ -66,7 +66,7 @@ from typing import Any
 
 from servotune.errors import SpecError
 from servotune.io.files import parse_toml, read_bytes
-from servotune.validate import check_keys, check_number, show_value
+from servotune.validate import check_keys, check_number, check_table, show_value
 
 __all__ = [
     "KINDS",
@@ -389,10 +389,7 @@ class Spec:
 
 
 def _table(data: Mapping[str, Any], key: str) -> Mapping[str, Any]:
-    t = data.get(key, {})
-    if not isinstance(t, Mapping):
-        raise SpecError(f"[{key}] must be a table, got {type(t).__name__}")
-    return t
+    return check_table(data, key, error=SpecError, required=False)
 
 
 def _only(table: Mapping[str, Any], path: str, allowed: Sequence[str]) -> None:

@@ -25,7 +25,14 @@ from servotune.io.files import read_toml
 from servotune.laws.pi import PIGains
 from servotune.plant import Plant
 from servotune.rig import MAX_LOCK_GAIN, Rig, build_section, check_plant, load_rig
-from servotune.validate import check_integer, check_keys, check_number, is_number, show_value
+from servotune.validate import (
+    check_integer,
+    check_keys,
+    check_number,
+    check_table,
+    is_number,
+    show_value,
+)
 
 __all__ = [
     "SCHEMA",
@@ -359,14 +366,19 @@ _TOP_KEYS = ("axis", "bus", "clock", "cpu", "description", "name", "path", "peri
 
 
 def _table(data: Mapping[str, Any], key: str, required: bool = True) -> Mapping[str, Any]:
-    if key not in data:
-        if required:
-            raise ConfigError(f"missing table [{key}]")
-        return {}
-    t = data[key]
-    if not isinstance(t, Mapping):
-        raise ConfigError(f"[{key}] must be a table, got {type(t).__name__}")
-    return t
+    return check_table(data, key, error=ConfigError, required=required)
+
+
+def _sections(cls: type, tables: Any, where: str) -> list[Any]:
+    """An array of tables (``[[cpu]]``, ``[[path.move]]``), each built as a ``cls``."""
+    if not isinstance(tables, list) or not tables:
+        raise ConfigError(f"{where} must be one or more [[{where}]] tables")
+    out = []
+    for i, t in enumerate(tables):
+        if not isinstance(t, Mapping):
+            raise ConfigError(f"{where}[{i}] must be a table")
+        out.append(build_section(cls, t, f"{where}[{i}]", ConfigError))
+    return out
 
 
 def linkage_from_dict(
@@ -403,14 +415,7 @@ def linkage_from_dict(
         raise ConfigError(f"rig: {exc}") from None
     bus = build_section(Bus, _table(data, "bus"), "bus", ConfigError)
     clock = build_section(Clock, _table(data, "clock", required=False), "clock", ConfigError)
-    cpus_t = data.get("cpu")
-    if not isinstance(cpus_t, list) or not cpus_t:
-        raise ConfigError("cpu must be one or more [[cpu]] tables")
-    cpus = []
-    for i, ct in enumerate(cpus_t):
-        if not isinstance(ct, Mapping):
-            raise ConfigError(f"cpu[{i}] must be a table")
-        cpus.append(build_section(SlaveCpu, ct, f"cpu[{i}]", ConfigError))
+    cpus = _sections(SlaveCpu, data.get("cpu"), "cpu")
     axes = []
     for name, at in _table(data, "axis").items():
         if not isinstance(at, Mapping):
@@ -425,14 +430,7 @@ def linkage_from_dict(
             build_section(LinkageAxis, at, f"axis.{name}", ConfigError, name=name, plant=plant)
         )
     pt = dict(_table(data, "path"))
-    moves_t = pt.pop("move", None)
-    if not isinstance(moves_t, list) or not moves_t:
-        raise ConfigError("path.move must be one or more [[path.move]] tables")
-    moves = []
-    for i, mt in enumerate(moves_t):
-        if not isinstance(mt, Mapping):
-            raise ConfigError(f"path.move[{i}] must be a table")
-        moves.append(build_section(Move, mt, f"path.move[{i}]", ConfigError))
+    moves = _sections(Move, pt.pop("move", None), "path.move")
     path = build_section(Toolpath, pt, "path", ConfigError, moves=tuple(moves))
     top: dict[str, Any] = {}
     for key in ("period_s", "settle_s"):
