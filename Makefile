@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint format bench clean fuzz
+.PHONY: demo test test-slow lint format bench clean fuzz
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -25,7 +25,12 @@ format: $(STAMP)
 	$(BIN)/ruff check --fix servotune tests bench
 
 test: lint
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -m "not slow"
+
+# The big statistical runs (DECISIONS 8: marker `slow`, not part of `make test`), e.g. the
+# identifier's coverage over 250 closed-loop logs (tests/identify).
+test-slow: $(STAMP)
+	$(BIN)/python -m pytest -m slow
 
 # Fuzz the file readers (tests/test_fuzz_readers.py) with the hypothesis profile "fuzz": rounds
 # of FUZZ_EXAMPLES random inputs per test (36 tests; 2000 examples: a round of about 5 minutes

@@ -3,10 +3,11 @@
  * The bench's yardstick for the engine (make bench, figure engine_vs_c_runtime): the same loop
  * as servotune.sim.engine.simulate runs (latched counter, no noise, the tick-slot hold of the
  * writes, the exact one-tick plant map) written in C around the project's exported runtime
- * (st_tick). The plant here is a line-by-line copy of servotune/plant.py (advance,
- * advance_tick) for this benchmark only: the runtime itself holds laws and hardware arithmetic
- * only (the project's decision 16). The row layout comes from plant_rows.h, which the bench
- * writes from servotune.plant's R_* indices. Built with -ffp-contract=off so that the floating
+ * (st_tick). The plant here is a line-by-line copy of servotune/plant.py (_target_speed,
+ * advance, advance_tick: the asymmetric model, gain and Coulomb level per direction) for this
+ * benchmark only: the runtime itself holds laws and hardware arithmetic only (the project's
+ * decision 16). The row layout comes from plant_rows.h, which the bench writes from
+ * servotune.plant's R_* indices. Built with -ffp-contract=off so that the floating
  * point operations are the engine's, one by one: the bench checks every D/A code against it.
  */
 #include <math.h>
@@ -18,20 +19,41 @@
 
 static const st_consts_t consts = SERVOTUNE_TABLES_INIT;
 
-/* servotune.plant.advance: exact motion over h seconds of constant net input w [V] */
+/* servotune.plant._target_speed: the speed the motor tends to moving in direction s (+-1) */
+static double target_speed(double s, double w, double gain, double coulomb, double gain_neg,
+                           double coulomb_neg, double vmax)
+{
+    double vinf;
+    if (s > 0.0) {
+        vinf = gain * (w - coulomb * s);
+    } else {
+        vinf = gain_neg * (w - coulomb_neg * s);
+    }
+    if (vinf > vmax) {
+        return vmax;
+    }
+    if (vinf < -vmax) {
+        return -vmax;
+    }
+    return vinf;
+}
+
+/* servotune.plant.advance: exact motion over h seconds of constant net input w [V]; gain and
+ * coulomb act moving positive, gain_neg and coulomb_neg moving negative */
 static void advance(double *pp, double *pv, double w, double h, double a, double b, double gain,
-                    double tau, double coulomb, double vmax)
+                    double tau, double coulomb, double vmax, double gain_neg, double coulomb_neg)
 {
     double p = *pp;
     double v = *pv;
     double s;
     double vinf;
     double vend;
+    int kinks;
     if (h <= 0.0) {
         return;
     }
     if (v == 0.0) {
-        if (fabs(w) <= coulomb) {
+        if (w <= coulomb && w >= -coulomb_neg) {
             *pv = 0.0;
             return;
         }
@@ -39,14 +61,10 @@ static void advance(double *pp, double *pv, double w, double h, double a, double
     } else {
         s = v > 0.0 ? 1.0 : -1.0;
     }
-    vinf = gain * (w - coulomb * s);
-    if (vinf > vmax) {
-        vinf = vmax;
-    } else if (vinf < -vmax) {
-        vinf = -vmax;
-    }
+    vinf = target_speed(s, w, gain, coulomb, gain_neg, coulomb_neg, vmax);
     vend = vinf + (v - vinf) * a;
-    if (coulomb > 0.0 && v != 0.0 && vinf * s < 0.0 && vend * s <= 0.0) {
+    kinks = coulomb > 0.0 || coulomb_neg > 0.0 || gain_neg != gain;
+    if (kinks && v != 0.0 && vinf * s < 0.0 && vend * s <= 0.0) {
         double t0 = tau * log((v - vinf) / (-vinf));
         double hr;
         double ar;
@@ -55,18 +73,13 @@ static void advance(double *pp, double *pv, double w, double h, double a, double
         }
         p += vinf * t0 - (v - vinf) * tau * expm1(-t0 / tau);
         hr = h - t0;
-        if (fabs(w) <= coulomb || hr <= 0.0) {
+        if ((w <= coulomb && w >= -coulomb_neg) || hr <= 0.0) {
             *pp = p;
             *pv = 0.0;
             return;
         }
         s = w > 0.0 ? 1.0 : -1.0;
-        vinf = gain * (w - coulomb * s);
-        if (vinf > vmax) {
-            vinf = vmax;
-        } else if (vinf < -vmax) {
-            vinf = -vmax;
-        }
+        vinf = target_speed(s, w, gain, coulomb, gain_neg, coulomb_neg, vmax);
         ar = exp(-hr / tau);
         p += vinf * hr + vinf * tau * expm1(-hr / tau);
         *pp = p;
@@ -91,9 +104,10 @@ static void advance_tick(double *p, double *v, double w_old, double w_new, const
     }
     if (row[R_H1] > 0.0) {
         advance(p, v, w_old, row[R_H1], row[R_A1], row[R_B1], gain, row[R_TAU], row[R_COULOMB],
-                vmax);
+                vmax, row[R_GAIN_NEG], row[R_COULOMB_NEG]);
     }
-    advance(p, v, w_new, row[R_H2], row[R_A2], row[R_B2], gain, row[R_TAU], row[R_COULOMB], vmax);
+    advance(p, v, w_new, row[R_H2], row[R_A2], row[R_B2], gain, row[R_TAU], row[R_COULOMB], vmax,
+            row[R_GAIN_NEG], row[R_COULOMB_NEG]);
 }
 
 #define RING 8

@@ -115,7 +115,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         rig, scenario=scen.name, axis=scen.axis, closed_loop=str(args.closed_loop).lower(),
         seed=args.seed,
     )  # fmt: skip
-    kwargs = {"period_s": rig.period_s, "columns": trace_log_columns(trace), "metadata": meta}
+    cols = trace_log_columns(trace, scen.inputs.dac_add_codes)  # with exc_code (DECISIONS 5)
+    kwargs = {"period_s": rig.period_s, "columns": cols, "metadata": meta}
     if args.output == "-":
         sys.stdout.write(format_log(**kwargs))
     else:
@@ -125,7 +126,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _cmd_fit(args: argparse.Namespace) -> int:
-    from servotune.pipeline import fit_log
+    from servotune.identify import fit_log
+    from servotune.identify.result import FIT_SCHEMA
     from servotune.rig import load_rig, write_plant
 
     _check_dirs(args.output, args.plot)
@@ -134,7 +136,8 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     result, log, axis = fit_log(
         args.log, axis=args.axis, rig=rig, structure=args.structure,
         counter_bits=args.counter_bits, dac_bits=args.dac_bits, dac_range_v=dac_range,
-        period_s=args.period_s, compute_s=args.compute_s,
+        period_s=args.period_s, compute_s=args.compute_s, method=args.method,
+        friction=args.friction, invert_encoder=args.invert_encoder,
     )  # fmt: skip
     print(f"axis {axis or '(unprefixed)'}: " + result.summary(), file=sys.stderr)
     if args.plot:
@@ -142,21 +145,23 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         from servotune.plot import plot_fit, save_figure
 
         ax = log.axis(None if list(log.axes) == [""] else axis)
-        sim = simulate_fit(result, ax.cmd_v, ax.pos_counts)
-        save_figure(plot_fit(ax.pos_counts, sim, log.period_s, validation_split(sim.size),
+        pos = -ax.pos_counts if result.inverted_encoder else ax.pos_counts
+        sim = simulate_fit(result, ax.cmd_v, pos)
+        save_figure(plot_fit(pos, sim, log.period_s, validation_split(sim.size),
                              f"fit of {axis or 'axis'}"), args.plot)  # fmt: skip
     if args.output:
         if not axis:
             raise ServotuneError("-o needs --axis NAME for an unprefixed log")
         vel = result.fit_pct["velocity"]["validation"]
         prov = (
-            f"fitted by servotune {__version__} from {Path(args.log).name}: "
-            f"{'+'.join(result.structure)}, velocity fit {vel:.1f} %"
+            f"fitted by servotune {__version__} from {Path(args.log).name}: {result.method}, "
+            f"{'+'.join(result.structure)}, cross-validated velocity fit "
+            + ("n/a" if vel is None else f"{vel:.1f} %")
         )
-        write_plant(args.output, axis, result.plant, provenance=prov)
+        write_plant(args.output, axis, result.plant, provenance=prov, fit=result.plant_fit)
         print(f"wrote [axis.{axis}.plant] to {args.output}", file=sys.stderr)
     if args.json:
-        out = {"axis": axis, "schema": "servotune.fit/1", "version": __version__}
+        out = {"axis": axis, "schema": FIT_SCHEMA, "version": __version__}
         out.update(result.to_dict())
         print(json.dumps(out, indent=2, sort_keys=True))
     return EXIT_OK
@@ -429,6 +434,24 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--dac-range-v", help="D/A range LOW,HIGH [V]")
     s.add_argument("--period-s", type=float, help="sample period [s] when there is no time_s")
     s.add_argument("--compute-s", type=float, help="known compute time [s]")
+    s.add_argument(
+        "--method",
+        choices=["auto", "iv", "oe"],
+        default="auto",
+        help="iv: instrumental variables, consistent in closed loop (needs exc_code or a moving "
+        "reference); oe: least squares; auto (default): iv when the log allows it",
+    )
+    s.add_argument(
+        "--friction",
+        choices=["auto", "sym", "asym"],
+        default="auto",
+        help="friction form: sym, asym (gain and Coulomb level per direction), auto (default: BIC)",
+    )
+    s.add_argument(
+        "--invert-encoder",
+        action="store_true",
+        help="negate the position first (an encoder counting against the D/A's direction)",
+    )
     s.set_defaults(func=_cmd_fit)
 
     s = sub.add_parser("excite", help="design an identification excitation (D/A codes)")

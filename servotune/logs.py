@@ -3,8 +3,15 @@
 A log is CSV: optional ``# key: value`` metadata lines, one header row, then one row per tick.
 Time is ``time_s`` and/or ``tick``; per axis, columns prefixed ``<axis>.`` (a single-axis log may
 leave the prefix out): the command (``dac_code`` or ``cmd_v``), the position (``counter`` raw
-register or ``pos_counts`` unwrapped) and optionally ``ref_counts`` and ``mode`` (``lock`` /
-``task`` / ``open``). Sampling is uniform. Writes are atomic (temp file, then rename).
+register or ``pos_counts`` unwrapped) and optionally ``ref_counts``, ``exc_code`` and ``mode``
+(``lock`` / ``task`` / ``open``). Sampling is uniform. Writes are atomic (temp file, then rename).
+
+``exc_code`` is the excitation the law adds to its output [D/A codes, signed, relative to the
+zero code] (DECISIONS 5): ``servotune simulate`` writes it, ``servotune fit`` builds its
+instruments from it (:mod:`servotune.identify.iv`); a log without it still reads and fits. Log
+files carry no format version (they come from other tools too): the column is an optional
+addition, so every older log reads as before, and a servotune that predates it refuses a log that
+has it with one line naming the unknown column (exit 3) — never a silent misread (DECISIONS 17).
 
 :func:`read_log` validates everything and names the first problem in one line, with its row
 (the 1-based line number in the file) and column. The data rows are parsed in bulk
@@ -97,6 +104,10 @@ class AxisLog:
         Raw counter register values when the log has them.
     ref_counts : ndarray of int64 or None
         Closed-loop reference [counts] when the log has it.
+    exc_code : ndarray of int64 or None
+        Excitation the law added to its output [D/A codes, relative to the zero code] when the
+        log has it (signal independent of the loop's disturbances: the identifier's
+        instruments).
     mode : ndarray of int8 or None
         ``MODE_*`` values (index into ``MODE_NAMES``: lock, task, open) when the log has them.
     counter_faults : ndarray of int64
@@ -110,6 +121,7 @@ class AxisLog:
     dac_code: np.ndarray | None = None
     counter: np.ndarray | None = None
     ref_counts: np.ndarray | None = None
+    exc_code: np.ndarray | None = None
     mode: np.ndarray | None = None
     counter_faults: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     name: str = ""
@@ -118,7 +130,7 @@ class AxisLog:
         n = np.shape(self.cmd_v)
         if len(n) != 1:
             raise LogFormatError(f"AxisLog.cmd_v must be 1-D, got shape {n}")
-        for f in ("pos_counts", "dac_code", "counter", "ref_counts", "mode"):
+        for f in ("pos_counts", "dac_code", "counter", "ref_counts", "exc_code", "mode"):
             a = getattr(self, f)
             if a is not None and np.shape(a) != n:
                 raise LogFormatError(
@@ -511,8 +523,8 @@ class Table:
     header_line : int
         1-based line of the header.
     columns : dict of str to ndarray
-        Per column: int64 (tick, dac_code, counter, pos_counts, ref_counts), float64 (time_s,
-        cmd_v) or text (mode).
+        Per column: int64 (tick, dac_code, counter, pos_counts, ref_counts, exc_code), float64
+        (time_s, cmd_v) or text (mode).
     row_lines : ndarray of int64
         The 1-based file line of each data row.
     """
@@ -664,7 +676,7 @@ def _axis_log(
     dac_bits: int,
     dac_range_v: tuple[float, float],
 ) -> AxisLog:
-    dac_code = counter = ref = mode = None
+    dac_code = counter = ref = exc = mode = None
     faults = np.zeros(0, dtype=np.int64)
     if "dac_code" in names:
         name = names["dac_code"]
@@ -686,6 +698,17 @@ def _axis_log(
         pos = col[names["pos_counts"]]
     if "ref_counts" in names:
         ref = col[names["ref_counts"]]
+    if "exc_code" in names:
+        name = names["exc_code"]
+        exc = col[name]
+        top = (1 << dac_bits) - 1
+        bad = np.abs(exc) > top
+        if bad.any():
+            k = int(np.argmax(bad))
+            raise LogFormatError(
+                f"row {rows(k)}, column {name!r}: excitation {exc[k]} codes is beyond the "
+                f"{dac_bits}-bit D/A span (at most ±{top})"
+            )
     if "mode" in names:
         mode = _modes(col[names["mode"]], names["mode"], rows)
     return AxisLog(
@@ -694,6 +717,7 @@ def _axis_log(
         dac_code=dac_code,
         counter=counter,
         ref_counts=ref,
+        exc_code=exc,
         mode=mode,
         counter_faults=faults,
         name=ax,

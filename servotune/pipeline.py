@@ -21,12 +21,11 @@ from servotune._version import __version__
 from servotune.arch.gantry import CASES, compare_topologies
 from servotune.arch.gantry.load import load_gantry
 from servotune.arch.linkage import load_linkage, run_linkage
-from servotune.errors import IdentificationError
 from servotune.export import write_c, write_tables
-from servotune.identify import fit, simulate_fit, validation_split
+from servotune.identify import fit_log, simulate_fit, validation_split
 from servotune.io.files import atomic_write_text
 from servotune.laws.lock import lock_holding_band
-from servotune.logs import read_log, read_metadata, write_log
+from servotune.logs import write_log
 from servotune.metrics import tracking_metrics
 from servotune.plot import (
     plot_comparison,
@@ -78,13 +77,20 @@ def run_scenario(rig: Rig, scenario: Scenario, *, seed: int = 0, noise: bool = T
     return simulate(loop, scenario.inputs, seed=seed, plants=plants)
 
 
-def trace_log_columns(trace: Trace) -> dict[str, np.ndarray]:
-    """Log columns (SPEC §5) of a trace: per axis dac_code, counter, ref_counts, mode."""
+def trace_log_columns(trace: Trace, excitation: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """Log columns (SPEC §5) of a trace: per axis dac_code, counter, ref_counts, mode.
+
+    With ``excitation`` (the run's ``Inputs.dac_add_codes``, shape (ticks, axes) [D/A codes])
+    each axis also gets ``exc_code``, the excitation its law added (DECISIONS 5), from which
+    ``servotune fit`` builds its instruments.
+    """
     cols: dict[str, np.ndarray] = {}
     for i, name in enumerate(trace.axis_names):
         cols[f"{name}.dac_code"] = trace.code[:, i].astype(np.int64)
         cols[f"{name}.counter"] = trace.counter[:, i]
         cols[f"{name}.ref_counts"] = trace.ref_counts[:, i]
+        if excitation is not None:
+            cols[f"{name}.exc_code"] = np.asarray(excitation[:, i], dtype=np.int64)
         cols[f"{name}.mode"] = trace.mode[:, i]
     return cols
 
@@ -238,7 +244,8 @@ def run_demo(rig_path: str | Path, out_dir: str | Path, *, seed: int = 0) -> dic
         scen_id = build_scenario(rig, "prbs", axis=name, seconds=40.0, closed_loop=True)
         id_trace = run_scenario(rig, scen_id, seed=seed)
         log_path = out / f"ident_log_{name}.csv"
-        write_log(log_path, period_s=rig.period_s, columns=trace_log_columns(id_trace),
+        write_log(log_path, period_s=rig.period_s,
+                  columns=trace_log_columns(id_trace, scen_id.inputs.dac_add_codes),
                   metadata=log_metadata(rig, scenario="prbs", axis=name, closed_loop="true",
                                         seed=seed))  # fmt: skip
         result, log, _ = fit_log(log_path, axis=name, rig=rig)
@@ -252,6 +259,7 @@ def run_demo(rig_path: str | Path, out_dir: str | Path, *, seed: int = 0) -> dic
             result.plant,
             template=rig_path,
             provenance=f"fitted by servotune {__version__} from {log_path.name}",
+            fit=result.plant_fit,
         )
         truth = rig.axis(name).plant
         identification[name] = {
@@ -312,59 +320,6 @@ def run_demo(rig_path: str | Path, out_dir: str | Path, *, seed: int = 0) -> dic
         out / "demo_summary.json", json.dumps(summary, indent=2, sort_keys=True) + "\n"
     )
     return summary
-
-
-def fit_log(
-    log_path: str | Path,
-    *,
-    axis: str | None = None,
-    rig: Rig | None = None,
-    structure: str | None = None,
-    counter_bits: int | None = None,
-    dac_bits: int | None = None,
-    dac_range_v: tuple[float, float] | None = None,
-    period_s: float | None = None,
-    compute_s: float | None = None,
-) -> tuple[Any, Any, str]:
-    """Read a log and identify one axis (what ``servotune fit`` runs).
-
-    Settings come from the keyword options, then the log's metadata, then the rig (SPEC §5).
-
-    Returns
-    -------
-    result : FitResult
-    log : Log
-    axis : str
-        The axis name (for an unprefixed log: ``axis`` if given, else ``""``).
-    """
-
-    meta = read_metadata(log_path)
-    if rig is not None:
-        if counter_bits is None and "counter_bits" not in meta:
-            counter_bits = rig.counter.bits
-        if dac_bits is None and "dac_bits" not in meta:
-            dac_bits = rig.dac.bits
-        if dac_range_v is None and "dac_range_v" not in meta:
-            dac_range_v = rig.dac.range_v
-        if period_s is None and "period_s" not in meta:
-            period_s = rig.period_s
-        if compute_s is None and "compute_s" not in meta:
-            compute_s = rig.timer.compute_s
-    log = read_log(
-        log_path,
-        counter_bits=counter_bits,
-        dac_bits=dac_bits,
-        dac_range_v=dac_range_v,
-        period_s=period_s,
-        compute_s=compute_s,  # validated with the other options (finite, >= 0, < period)
-    )
-    log_axis = None if list(log.axes) == [""] else axis
-    try:
-        result = fit(log, axis=log_axis, structure=structure, compute_s=compute_s)
-    except IdentificationError as exc:  # the data do not allow it: name the log
-        raise IdentificationError(f"log {str(log_path)!r}: {exc}") from None
-    name = axis if axis is not None else (log_axis or next(iter(log.axes)))
-    return result, log, name
 
 
 _COMPARISON_COLUMNS = (

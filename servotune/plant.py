@@ -2,14 +2,20 @@
 
 A speed-command drive and motor, position ``p`` [counts], speed ``v = dp/dt`` [counts/s]::
 
-    tau_s · dv/dt + v = gain_cps_per_v · (u(t − delay_s) + offset_v + load_v(t)
-                                          − coulomb_v · sign(v))
+    tau_s · dv/dt + v = gain_d · (u(t − delay_s) + offset_v + load_v(t) − coulomb_d · d)
 
-The speed the drive aims at is limited to ``±max_speed`` (the drive's speed limit), and at rest
-the motor stays at rest while ``|u + offset_v + load_v| <= coulomb_v`` (no chattering through
+with ``d = sign(v)`` the direction of motion, and at rest the direction the net input pushes
+(``d = +1`` if it exceeds ``coulomb_v``, ``d = −1`` if it is below ``−coulomb_neg``). The
+asymmetric model (issue 17) gives each direction its own viscous gain and Coulomb level:
+``gain_d, coulomb_d`` are ``gain_cps_per_v, coulomb_v`` for ``d = +1`` and
+``gain_neg_cps_per_v, coulomb_neg_v`` for ``d = −1`` (each ``None``: the positive direction's
+value, the symmetric model of SPEC §5). The speed the drive aims at is limited to
+``±max_speed`` (the drive's speed limit, the same both ways), and at rest the motor stays at
+rest while ``−coulomb_neg_v <= u + offset_v + load_v <= coulomb_v`` (no chattering through
 zero). Between input changes the input is constant, so position and speed have a closed form;
-the only events are zero crossings of the speed, which are solved exactly. The same formulas
-give the exact ZOH discretisation of the linear part (:func:`discretize`).
+the only events are zero crossings of the speed (where the direction and its parameters
+switch), which are solved exactly. The same formulas give the exact ZOH discretisation of the
+linear part (:func:`discretize`).
 """
 
 from __future__ import annotations
@@ -64,12 +70,26 @@ class Plant:
     offset_v : float
         Analog zero drift [V]: the motor responds to ``u + offset_v``.
     coulomb_v : float
-        Coulomb friction as equivalent drive input [V], >= 0.
+        Coulomb friction as equivalent drive input [V], >= 0 (moving in the positive direction,
+        and the breakaway level at rest upwards).
     max_speed_rpm : float or None
         Drive speed limit [r/min]; None for no limit. Converting it to counts/s needs the rig's
-        counts per revolution (:meth:`max_speed_cps`).
+        counts per revolution (:meth:`max_speed_cps`). The same in both directions.
     noise_counts : float
         Standard deviation of encoder measurement noise [counts], added before the floor.
+    gain_neg_cps_per_v : float or None
+        Steady-state speed per volt moving in the negative direction [counts/s/V], > 0; None:
+        ``gain_cps_per_v`` (symmetric).
+    coulomb_neg_v : float or None
+        Coulomb friction moving in the negative direction, and the breakaway level at rest
+        downwards [V], >= 0; None: ``coulomb_v`` (symmetric).
+
+    Notes
+    -----
+    With both ``*_neg`` fields None (or equal to the positive direction's values) the model is
+    SPEC §5's symmetric one, and every simulation gives the same bytes as before they existed.
+    The linear model (:meth:`to_tf`, :func:`discretize`) uses the mean gain
+    (:attr:`mean_gain_cps_per_v`) and, as always, leaves the friction out.
     """
 
     gain_cps_per_v: float
@@ -79,6 +99,8 @@ class Plant:
     coulomb_v: float = 0.0
     max_speed_rpm: float | None = None
     noise_counts: float = 0.0
+    gain_neg_cps_per_v: float | None = None
+    coulomb_neg_v: float | None = None
 
     def __post_init__(self) -> None:
         _check_finite_ge("gain_cps_per_v", self.gain_cps_per_v, 0.0, "counts/s/V", strict=True)
@@ -89,6 +111,41 @@ class Plant:
         _check_finite_ge("noise_counts", self.noise_counts, 0.0, "counts")
         if self.max_speed_rpm is not None:
             _check_finite_ge("max_speed_rpm", self.max_speed_rpm, 0.0, "r/min", strict=True)
+        if self.gain_neg_cps_per_v is not None:
+            _check_finite_ge(
+                "gain_neg_cps_per_v", self.gain_neg_cps_per_v, 0.0, "counts/s/V", strict=True
+            )
+        if self.coulomb_neg_v is not None:
+            _check_finite_ge("coulomb_neg_v", self.coulomb_neg_v, 0.0, "V")
+
+    @property
+    def gains_cps_per_v(self) -> tuple[float, float]:
+        """Viscous gain moving positive and moving negative [counts/s/V]."""
+        neg = self.gain_neg_cps_per_v
+        return self.gain_cps_per_v, self.gain_cps_per_v if neg is None else neg
+
+    @property
+    def coulombs_v(self) -> tuple[float, float]:
+        """Coulomb level moving positive and moving negative [V]."""
+        neg = self.coulomb_neg_v
+        return self.coulomb_v, self.coulomb_v if neg is None else neg
+
+    @property
+    def symmetric(self) -> bool:
+        """True if both directions have the same gain and Coulomb level (SPEC §5's model)."""
+        (g_p, g_n), (c_p, c_n) = self.gains_cps_per_v, self.coulombs_v
+        return g_p == g_n and c_p == c_n
+
+    @property
+    def mean_gain_cps_per_v(self) -> float:
+        """The linear model's gain [counts/s/V]: the mean of the two directions' gains.
+
+        For a speed swinging through zero, ``v = V sin(ωt)``, the first harmonic of
+        ``gain_d · v`` is ``(gain + gain_neg) / 2 · v`` (the describing function of the
+        direction-dependent gain); for a symmetric plant it is ``gain_cps_per_v`` exactly.
+        """
+        g_p, g_n = self.gains_cps_per_v
+        return g_p if g_p == g_n else 0.5 * (g_p + g_n)
 
     def max_speed_cps(self, counts_per_rev: float) -> float:
         """Drive speed limit in counts/s (``inf`` if none) [counts/s]."""
@@ -100,14 +157,18 @@ class Plant:
         """Linear part without the delay: ``gain / (s (tau s + 1))`` [counts/V].
 
         The delay ``exp(-delay_s s)`` is not rational; :func:`discretize` includes it exactly.
+        Offset and friction are left out; the gain of an asymmetric plant is the mean of its
+        two directions' gains (:attr:`mean_gain_cps_per_v`).
         """
         import control
 
-        return control.tf([self.gain_cps_per_v], [self.tau_s, 1.0, 0.0])
+        return control.tf([self.mean_gain_cps_per_v], [self.tau_s, 1.0, 0.0])
 
     @classmethod
     def from_tf(cls, tf: control.TransferFunction, **extra: float) -> Plant:
         """Build from a continuous ``K / (s (tau s + 1))`` transfer function.
+
+        The plant is symmetric (``gain_cps_per_v = K``) unless ``extra`` says otherwise.
 
         Raises
         ------
@@ -129,9 +190,11 @@ class Plant:
     def to_dict(self) -> dict[str, float | None]:
         """Plain dict with the SPEC parameter names."""
         return {
+            "coulomb_neg_v": self.coulomb_neg_v,
             "coulomb_v": self.coulomb_v,
             "delay_s": self.delay_s,
             "gain_cps_per_v": self.gain_cps_per_v,
+            "gain_neg_cps_per_v": self.gain_neg_cps_per_v,
             "max_speed_rpm": self.max_speed_rpm,
             "noise_counts": self.noise_counts,
             "offset_v": self.offset_v,
@@ -143,6 +206,24 @@ def step_coefficients(h_s: float, tau_s: float) -> tuple[float, float]:
     """``a = exp(-h/tau)`` and ``b = tau (1 - a)`` for a constant-input interval of ``h_s``."""
     a = math.exp(-h_s / tau_s)
     return a, -tau_s * math.expm1(-h_s / tau_s)
+
+
+@jit(inline="always")
+def _target_speed(
+    s: float, w: float, gain: float, coulomb: float, gain_neg: float, coulomb_neg: float,
+    vmax: float,
+) -> float:  # fmt: skip
+    """The speed [counts/s] the motor tends to moving in direction ``s`` (±1) under the net
+    input ``w`` [V]: that direction's ``gain · (w − coulomb · s)``, within ``±vmax``."""
+    if s > 0.0:
+        vinf = gain * (w - coulomb * s)
+    else:
+        vinf = gain_neg * (w - coulomb_neg * s)
+    if vinf > vmax:
+        return vmax
+    if vinf < -vmax:
+        return -vmax
+    return vinf
 
 
 @jit
@@ -157,8 +238,16 @@ def advance(
     tau: float,
     coulomb: float,
     vmax: float,
+    gain_neg: float | None = None,
+    coulomb_neg: float | None = None,
 ) -> tuple[float, float]:
     """Advance position and speed exactly over ``h`` seconds of constant drive input ``w``.
+
+    The direction ``d`` is the sign of the speed, or at rest the way ``w`` pushes past the
+    Coulomb level of that way; ``gain, coulomb`` act moving positive, ``gain_neg,
+    coulomb_neg`` moving negative. A speed reaching zero inside the interval stops there
+    (sticks while ``-coulomb_neg <= w <= coulomb``) or goes on the other way with the other
+    direction's parameters from the crossing instant.
 
     Parameters
     ----------
@@ -169,42 +258,44 @@ def advance(
     h : float
         Interval [s]; ``a = exp(-h/tau)`` and ``b = tau (1 - a)`` precomputed for it.
     gain, tau, coulomb, vmax : float
-        Plant parameters [counts/s/V], [s], [V], [counts/s].
+        Plant parameters [counts/s/V], [s], [V], [counts/s]; ``gain`` and ``coulomb`` of the
+        positive direction, ``vmax`` both ways.
+    gain_neg, coulomb_neg : float or None
+        The negative direction's gain [counts/s/V] and Coulomb level [V]; None (default): the
+        positive direction's (symmetric). A plant row carries both (:func:`plant_row`).
 
     Returns
     -------
     p, v : float
         Position and speed at the end.
     """
+    if gain_neg is None:
+        gain_neg = gain
+    if coulomb_neg is None:
+        coulomb_neg = coulomb
     if h <= 0.0:
         return p, v
     if v == 0.0:
-        if abs(w) <= coulomb:
+        if w <= coulomb and w >= -coulomb_neg:
             return p, 0.0
         s = 1.0 if w > 0.0 else -1.0
     else:
         s = 1.0 if v > 0.0 else -1.0
-    vinf = gain * (w - coulomb * s)
-    if vinf > vmax:
-        vinf = vmax
-    elif vinf < -vmax:
-        vinf = -vmax
+    vinf = _target_speed(s, w, gain, coulomb, gain_neg, coulomb_neg, vmax)
     vend = vinf + (v - vinf) * a
-    if coulomb > 0.0 and v != 0.0 and vinf * s < 0.0 and vend * s <= 0.0:
+    kinks = coulomb > 0.0 or coulomb_neg > 0.0 or gain_neg != gain  # the model bends at v = 0
+    if kinks and v != 0.0 and vinf * s < 0.0 and vend * s <= 0.0:
         # speed reaches zero inside the interval: solve the crossing time exactly
         t0 = tau * math.log((v - vinf) / (-vinf))
         if t0 > h:
             t0 = h
         p += vinf * t0 - (v - vinf) * tau * math.expm1(-t0 / tau)
         hr = h - t0
-        if abs(w) <= coulomb or hr <= 0.0:
+        if (w <= coulomb and w >= -coulomb_neg) or hr <= 0.0:
             return p, 0.0
+        # from rest the other way, with that direction's gain and Coulomb level
         s = 1.0 if w > 0.0 else -1.0
-        vinf = gain * (w - coulomb * s)
-        if vinf > vmax:
-            vinf = vmax
-        elif vinf < -vmax:
-            vinf = -vmax
+        vinf = _target_speed(s, w, gain, coulomb, gain_neg, coulomb_neg, vmax)
         ar = math.exp(-hr / tau)
         p += vinf * hr + vinf * tau * math.expm1(-hr / tau)
         return p, vinf * (1.0 - ar)
@@ -216,7 +307,9 @@ def discretize(plant: Plant, period_s: float, lag_s: float = 0.0) -> control.Sta
 
     The input (volts) is written every ``period_s`` and reaches the motor ``lag_s`` later
     (compute time + ``delay_s``); with ``lag_s = m·T + λ`` the input changes inside each tick at
-    ``λ`` (modified z-transform). Offset, friction and speed limit are left out.
+    ``λ`` (modified z-transform). Offset, friction and speed limit are left out; an asymmetric
+    plant enters with the mean of its two directions' gains (:attr:`Plant.mean_gain_cps_per_v`),
+    a symmetric one with ``gain_cps_per_v`` exactly.
 
     Parameters
     ----------
@@ -240,7 +333,7 @@ def discretize(plant: Plant, period_s: float, lag_s: float = 0.0) -> control.Sta
         raise ValueError(f"lag_s must be >= 0 [s], got {show_value(lag_s)}")
     m, lam = lag_split(lag_s, period_s)
     phi_b, phi_a, go_p, go_v, gn_p, gn_v = tick_coefficients(
-        period_s, lam, plant.gain_cps_per_v, plant.tau_s
+        period_s, lam, plant.mean_gain_cps_per_v, plant.tau_s
     )
     phi_t = np.array([[1.0, phi_b], [0.0, phi_a]])
     g_old = np.array([go_p, go_v])  # input from write k-m-1, acting for λ at the tick start
@@ -306,7 +399,8 @@ def lag_split(lag_s: float, period_s: float) -> tuple[int, float]:
 R_GAIN, R_TAU, R_OFFSET, R_COULOMB, R_VMAX, R_NOISE = 0, 1, 2, 3, 4, 5
 R_A1, R_B1, R_A2, R_B2, R_H1, R_H2 = 6, 7, 8, 9, 10, 11
 R_PHI_B, R_PHI_A, R_GO_P, R_GO_V, R_GN_P, R_GN_V, R_LINEAR = 12, 13, 14, 15, 16, 17, 18
-NROW = 19
+R_GAIN_NEG, R_COULOMB_NEG = 19, 20
+NROW = 21
 """Length of a plant row (:func:`plant_row`)."""
 
 
@@ -328,6 +422,10 @@ def plant_row(
     Returns
     -------
     row : ndarray, shape (NROW,)
+        ``R_GAIN``, ``R_COULOMB`` the positive direction's gain and Coulomb level,
+        ``R_GAIN_NEG``, ``R_COULOMB_NEG`` the negative direction's (resolved: equal to the
+        positive ones for a symmetric plant); ``R_LINEAR`` is 1 only for a linear model
+        (symmetric gain, no friction), where the one-tick map ``R_PHI_B`` … ``R_GN_V`` holds.
     lag_ticks : int
         ``m`` in ``lag = m·T + λ``: the write of tick ``k − m`` acts from ``λ`` into tick ``k``.
     """
@@ -335,6 +433,8 @@ def plant_row(
     a1, b1 = step_coefficients(lam, plant.tau_s)
     a2, b2 = step_coefficients(period_s - lam, plant.tau_s)
     vmax = plant.max_speed_cps(counts_per_rev) if math.isfinite(counts_per_rev) else math.inf
+    (gain, gain_neg), (coulomb, coulomb_neg) = plant.gains_cps_per_v, plant.coulombs_v
+    linear = coulomb == 0.0 and coulomb_neg == 0.0 and gain_neg == gain
     row = np.array(
         [
             plant.gain_cps_per_v,
@@ -350,7 +450,9 @@ def plant_row(
             lam,
             period_s - lam,
             *tick_coefficients(period_s, lam, plant.gain_cps_per_v, plant.tau_s),
-            1.0 if plant.coulomb_v == 0.0 else 0.0,
+            1.0 if linear else 0.0,
+            gain_neg,
+            coulomb_neg,
         ]
     )
     return row, m
@@ -362,8 +464,9 @@ def advance_tick(
 ) -> tuple[float, float]:
     """Move a plant over one tick: input ``w_old`` for ``λ``, then ``w_new`` [V, net of offset].
 
-    Uses the exact linear one-tick map while no nonlinearity can act (no friction, and the
-    speed limit cannot bind for either input), else :func:`advance` on both sub-intervals.
+    Uses the exact linear one-tick map while no nonlinearity can act (a linear model: no
+    friction and the same gain both ways; and the speed limit cannot bind for either input),
+    else :func:`advance` on both sub-intervals.
     """
     vmax = row[R_VMAX]
     gain = row[R_GAIN]
@@ -372,12 +475,10 @@ def advance_tick(
         v_n = row[R_PHI_A] * v + row[R_GO_V] * w_old + row[R_GN_V] * w_new
         return p_n, v_n
     if row[R_H1] > 0.0:
-        p, v = advance(
-            p, v, w_old, row[R_H1], row[R_A1], row[R_B1], gain, row[R_TAU], row[R_COULOMB], vmax
-        )
-    return advance(
-        p, v, w_new, row[R_H2], row[R_A2], row[R_B2], gain, row[R_TAU], row[R_COULOMB], vmax
-    )
+        p, v = advance(p, v, w_old, row[R_H1], row[R_A1], row[R_B1], gain, row[R_TAU],
+                       row[R_COULOMB], vmax, row[R_GAIN_NEG], row[R_COULOMB_NEG])  # fmt: skip
+    return advance(p, v, w_new, row[R_H2], row[R_A2], row[R_B2], gain, row[R_TAU],
+                   row[R_COULOMB], vmax, row[R_GAIN_NEG], row[R_COULOMB_NEG])  # fmt: skip
 
 
 @jit(inline="always")
@@ -385,7 +486,7 @@ def _advance_for(p: float, v: float, w: float, h: float, row: np.ndarray) -> tup
     """:func:`advance` over ``h`` seconds, its coefficients computed for ``h``."""
     tau = row[R_TAU]
     return advance(p, v, w, h, math.exp(-h / tau), -tau * math.expm1(-h / tau), row[R_GAIN], tau,
-                   row[R_COULOMB], row[R_VMAX])  # fmt: skip
+                   row[R_COULOMB], row[R_VMAX], row[R_GAIN_NEG], row[R_COULOMB_NEG])  # fmt: skip
 
 
 @jit(inline="always")

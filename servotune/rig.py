@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 import tomllib
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +34,7 @@ __all__ = [
     "Counter",
     "Dac",
     "Encoder",
+    "PlantFit",
     "Rig",
     "Timer",
     "check_plant",
@@ -233,6 +234,103 @@ class Encoder:
             _positive("encoder.counts_per_mm", self.counts_per_mm, "counts/mm", hi=MAX_PULSES)
 
 
+FIT_METHODS = ("iv", "oe")
+"""Identification methods a plant's fit record may name (``servotune fit --method``)."""
+FRICTION_FORMS = ("sym", "asym")
+"""Friction forms a plant's fit record may name (``servotune fit --friction``)."""
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class PlantFit:
+    """How an axis's plant was identified: ``[axis.<name>.plant.fit]`` (DECISIONS 6).
+
+    ``servotune fit -o`` writes it beside the fitted values; robust tuning and Monte-Carlo
+    studies read their plant set from the intervals. A rig file without it is a hand-written
+    (or older) model. Rig files carry no format version: the table is an optional addition,
+    every older rig file reads as before, and a servotune that predates it refuses a file that
+    has it with one line naming the unknown key (exit 3) — never a silent misread
+    (DECISIONS 17).
+
+    Parameters
+    ----------
+    method : str
+        ``"iv"`` or ``"oe"`` (:mod:`servotune.identify`).
+    structure : tuple of str
+        The plant parameters that were estimated (the others were left out: 0, or for the
+        negative direction's the positive one's).
+    friction : str
+        ``"sym"`` or ``"asym"``.
+    adequate : bool
+        Whether every residual test passed.
+    reason : str
+        Why not, when not adequate (``""`` otherwise).
+    interval : str
+        How the intervals were made.
+    ci95 : dict of str to (float, float)
+        95 % interval of each estimated parameter [the parameter's unit].
+    """
+
+    method: str
+    structure: tuple[str, ...]
+    friction: str
+    adequate: bool
+    reason: str = ""
+    interval: str = ""
+    ci95: Mapping[str, tuple[float, float]] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        # ValueError: build_section prefixes the table's path (axis.<name>.plant.fit.<field>)
+        if self.method not in FIT_METHODS:
+            raise ValueError(
+                f"method must be one of {', '.join(FIT_METHODS)}, got {show_value(self.method)}"
+            )
+        if self.friction not in FRICTION_FORMS:
+            raise ValueError(
+                f"friction must be one of {', '.join(FRICTION_FORMS)}, got "
+                f"{show_value(self.friction)}"
+            )
+        if not isinstance(self.adequate, bool):
+            raise ValueError(f"adequate must be true or false, got {show_value(self.adequate)}")
+        for name in ("reason", "interval"):
+            if not isinstance(getattr(self, name), str):
+                raise ValueError(f"{name} must be a string, got {show_value(getattr(self, name))}")
+        known = [f.name for f in fields(Plant)]
+        structure = tuple(self.structure) if isinstance(self.structure, tuple | list) else None
+        if structure is None or any(p not in known for p in structure):
+            raise ValueError(
+                f"structure must be a list of plant parameters ({', '.join(known)}), got "
+                f"{show_value(self.structure)}"
+            )
+        object.__setattr__(self, "structure", structure)
+        if not isinstance(self.ci95, Mapping):
+            raise ValueError(f"ci95 must be a table of [low, high], got {show_value(self.ci95)}")
+        ci = {}
+        for k, v in self.ci95.items():
+            if k not in structure:
+                raise ValueError(
+                    f"ci95.{k} is not an estimated parameter (structure: {', '.join(structure)})"
+                )
+            pair = list(v) if isinstance(v, tuple | list) else v
+            if (
+                not isinstance(pair, list)
+                or len(pair) != 2
+                or not all(is_number(x) and math.isfinite(x) for x in pair)
+                or pair[0] > pair[1]
+            ):
+                raise ValueError(
+                    f"ci95.{k} must be [low, high], finite numbers with low <= high, got "
+                    f"{show_value(pair)}"
+                )
+            ci[k] = (float(pair[0]), float(pair[1]))
+        object.__setattr__(self, "ci95", ci)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dict, the keys of the TOML table."""
+        return {"adequate": self.adequate, "ci95": {k: list(v) for k, v in self.ci95.items()},
+                "friction": self.friction, "interval": self.interval, "method": self.method,
+                "reason": self.reason, "structure": list(self.structure)}  # fmt: skip
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Axis:
     """One axis: its role, runtime limits and plant.
@@ -257,6 +355,8 @@ class Axis:
         Counter register value at the start (lets logs wrap within travel).
     counter_channel, dac_channel : int
         Card channels.
+    plant_fit : PlantFit or None
+        How the plant was identified (``[axis.<name>.plant.fit]``), if it was.
     """
 
     name: str
@@ -269,6 +369,7 @@ class Axis:
     counter_init: int = 0
     counter_channel: int = 0
     dac_channel: int = 0
+    plant_fit: PlantFit | None = None
 
     def __post_init__(self) -> None:
         p = f"axis.{self.name}"
@@ -402,7 +503,8 @@ def check_plant(
     ``delay_s = 1e300`` is refused instead of sizing the simulation's arrays): gain up to 1e9
     counts/s/V, tau_s in 1 µs … 1000 s, delay_s up to 1 s, offset_v and coulomb_v within the
     D/A range (``dac_range_v``; ±1000 V if not given), max_speed_rpm up to 1e6 r/min,
-    noise_counts up to 1e6 counts.
+    noise_counts up to 1e6 counts; the negative direction's gain_neg_cps_per_v and
+    coulomb_neg_v, where given, as gain_cps_per_v and coulomb_v.
 
     Parameters
     ----------
@@ -428,8 +530,13 @@ def check_plant(
         ("offset_v", "V", -span, False, span),
         ("coulomb_v", "V", 0.0, False, span),
         ("noise_counts", "counts", 0.0, False, MAX_NOISE_COUNTS),
+        # the negative direction's (asymmetric model), where given
+        ("gain_neg_cps_per_v", "counts/s/V", 0.0, True, MAX_PLANT_GAIN),
+        ("coulomb_neg_v", "V", 0.0, False, span),
     )
     for name, unit, lo, strict, hi in checks:
+        if getattr(plant, name) is None:  # a *_neg field left to the positive direction's
+            continue
         check_number(f"{path}.{name}", getattr(plant, name), unit, lo=lo, strict=strict, hi=hi,
                      error=error)  # fmt: skip
     if plant.max_speed_rpm is not None:
@@ -477,9 +584,17 @@ def rig_from_dict(data: Mapping[str, Any], default_name: str = "rig") -> Rig:
         pt = at.pop("plant")
         if not isinstance(pt, Mapping):
             raise RigError(f"[axis.{name}.plant] must be a table")
+        pt = dict(pt)
+        fit_t = pt.pop("fit", None)  # the fit record (servotune fit -o), not a plant field
         plant = build_section(Plant, pt, f"axis.{name}.plant")
         check_plant(plant, f"axis.{name}.plant", dac.range_v)
-        axes.append(build_section(Axis, at, f"axis.{name}", name=name, plant=plant))
+        plant_fit = None
+        if fit_t is not None:
+            if not isinstance(fit_t, Mapping):
+                raise RigError(f"[axis.{name}.plant.fit] must be a table")
+            plant_fit = build_section(PlantFit, fit_t, f"axis.{name}.plant.fit")
+        axes.append(build_section(Axis, at, f"axis.{name}", name=name, plant=plant,
+                                  plant_fit=plant_fit))  # fmt: skip
     for key in ("name", "description"):
         if key in meta and not isinstance(meta[key], str):
             raise RigError(f"rig.{key} must be a string, got {show_value(meta[key])}")
@@ -585,6 +700,7 @@ def write_plant(
     *,
     template: str | Path = EXAMPLE_RIG_PATH,
     provenance: str | None = None,
+    fit: PlantFit | None = None,
 ) -> None:
     """Write one axis's model into the ``[axis.<axis>.plant]`` table of a rig file.
 
@@ -594,6 +710,9 @@ def write_plant(
 
     - The fitted parameters ``gain_cps_per_v`` [counts/s/V], ``tau_s`` [s], ``delay_s`` [s],
       ``offset_v`` [V] and ``coulomb_v`` [V] are always written (added if missing).
+    - ``gain_neg_cps_per_v`` [counts/s/V] and ``coulomb_neg_v`` [V], the negative direction's
+      (asymmetric model), are written when ``plant`` sets them and removed when it leaves them
+      None (a symmetric plant), so the table records which structure was fitted.
     - ``max_speed_rpm`` [r/min] and ``noise_counts`` [counts] describe the drive and the encoder
       rather than the fit: the file's values stay unless ``plant`` sets them (differs from the
       :class:`~servotune.plant.Plant` default, ``None`` and ``0.0``); then they are replaced.
@@ -651,9 +770,9 @@ def write_plant(
     if not isinstance(plant, Plant):
         raise TypeError(f"plant must be a servotune.plant.Plant, got {type(plant).__name__}")
     target = Path(path)
-    new_text, written = edit_plant_text(
-        target, axis, plant, template=template, provenance=provenance
-    )
+    new_text, written = edit_plant_text(target, axis, plant, template=template,
+                                        provenance=provenance,
+                                        fit=None if fit is None else fit.to_dict())  # fmt: skip
 
     # The result must load as a rig, with the values just written, before anything is written.
     try:
@@ -664,13 +783,16 @@ def write_plant(
             f"nothing written"
         ) from None
     try:
-        loaded = rig_from_dict(data, default_name=target.stem).axis(axis).plant
+        loaded_axis = rig_from_dict(data, default_name=target.stem).axis(axis)
+        loaded = loaded_axis.plant
     except RigError as exc:
         raise RigError(
             f"{str(target)!r} would not load after writing [axis.{axis}.plant] ({exc}); "
             f"nothing written"
         ) from None
-    wrong = sorted(k for k, v in written.items() if getattr(loaded, k) != v)
+    wrong = sorted(k for k, v in written.items() if k != "fit" and getattr(loaded, k) != v)
+    if (loaded_axis.plant_fit.to_dict() if loaded_axis.plant_fit else None) != written.get("fit"):
+        wrong.append("fit")
     if wrong:
         raise RigError(
             f"[axis.{axis}.plant] in {str(target)!r} reads back different values for "

@@ -11,6 +11,7 @@ from conftest import EXAMPLE_RIG
 
 import servotune as st
 from servotune.cli import main
+from servotune.identify import ClosedLoopBiasWarning
 
 
 @pytest.fixture(scope="module")
@@ -31,15 +32,32 @@ def test_fit_json_rig_file_and_plot(
     assert main(args) == 0
     cap = capsys.readouterr()
     d = json.loads(cap.out)
-    assert d["schema"] == "servotune.fit/1" and d["axis"] == "master"
-    assert set(d) >= {"structure", "params", "std", "ci95", "fit_pct", "whiteness", "period_s"}
+    assert d["schema"] == "servotune.fit/2" and d["axis"] == "master"
+    assert set(d) >= {"structure", "params", "std", "ci95", "fit_pct", "whiteness", "period_s",
+                      "method", "interval_method", "adequate", "cross_correlation",
+                      "parameters", "units", "friction"}  # fmt: skip
+    # simulate logs the excitation (exc_code): the default is the consistent method
+    assert d["method"] == "iv" and "exc_code" in d["instruments"]["signals"]
+    assert "moving-block bootstrap" in d["interval_method"]
+    for p in d["structure"]:  # every parameter with its interval and unit
+        entry = d["parameters"][p]
+        assert entry["ci95"][0] <= entry["value"] <= entry["ci95"][1] and entry["unit"]
     truth = st.load_rig(EXAMPLE_RIG).axis("master").plant
     assert d["params"]["gain_cps_per_v"] == pytest.approx(truth.gain_cps_per_v, rel=0.02)
     assert "structure:" in cap.err and "fit (MATLAB compare)" in cap.err
-    # the rig file was created from the example rig, with the fitted plant and its provenance
-    fitted = st.load_rig(rig_out).axis("master").plant
-    assert fitted.tau_s == pytest.approx(d["params"]["tau_s"], rel=1e-6)
+    assert "method: iv" in cap.err and "intervals: moving-block bootstrap" in cap.err
+    assert "counts/s/V 95 %:" in cap.err
+    # the rig file was created from the example rig, with the fitted plant, its provenance and
+    # the fit record (DECISIONS 6): intervals, method, structure, friction form, adequacy
+    ax = st.load_rig(rig_out).axis("master")
+    assert ax.plant.tau_s == pytest.approx(d["params"]["tau_s"], rel=1e-6)
     assert "fitted by servotune" in rig_out.read_text()
+    rec = ax.plant_fit
+    assert rec is not None and rec.method == "iv" and rec.friction == d["friction"]
+    assert list(rec.structure) == d["structure"] and rec.adequate == d["adequate"]
+    for p, (lo, hi) in rec.ci95.items():
+        assert lo == pytest.approx(d["ci95"][p][0], rel=1e-6, abs=1e-12)
+        assert hi == pytest.approx(d["ci95"][p][1], rel=1e-6, abs=1e-12)
     assert png.read_bytes()[:4] == b"\x89PNG"
     # same input → same bytes
     assert main(args) == 0
@@ -134,3 +152,59 @@ def test_output_into_missing_directory(good_log: Path, tmp_path: Path,
 def test_multi_axis_log_needs_axis(good_log: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["fit", str(good_log)]) == 3
     assert "--axis" in capsys.readouterr().err
+
+
+def _reverse_counter(src: Path, dst: Path, axis: str = "master") -> None:
+    """The log as an encoder counting the other way would have written it (24-bit register)."""
+    lines = src.read_text().splitlines()
+    head = next(i for i, ln in enumerate(lines) if not ln.startswith("#"))
+    col = lines[head].split(",").index(f"{axis}.counter")
+    out = lines[: head + 1]
+    for ln in lines[head + 1 :]:
+        cells = ln.split(",")
+        cells[col] = str((2**24 - int(cells[col])) % 2**24)
+        out.append(",".join(cells))
+    dst.write_text("\n".join(out) + "\n")
+
+
+def test_reversed_encoder_exit_3_and_invert_encoder(
+    good_log: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    rev = tmp_path / "reversed.csv"
+    _reverse_counter(good_log, rev)
+    out = tmp_path / "rig.toml"
+    assert main(["fit", str(rev), "--axis", "master", "-o", str(out)]) == 3
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert "reversed" in err and "--invert-encoder" in err, err
+    assert not out.exists()
+    assert main(["fit", str(rev), "--axis", "master", "--invert-encoder", "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    truth = st.load_rig(EXAMPLE_RIG).axis("master").plant
+    assert d["inverted_encoder"] is True
+    assert d["params"]["gain_cps_per_v"] == pytest.approx(truth.gain_cps_per_v, rel=0.02)
+
+
+def test_method_option(good_log: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["fit", str(good_log), "--axis", "master", "--method", "oe", "--json"]) == 0
+    cap = capsys.readouterr()
+    assert json.loads(cap.out)["method"] == "oe" and "warning" not in cap.err
+    # a log with no external signal: least squares, and one line on stderr saying why
+    n = 400
+    k = np.arange(n)
+    u = np.where((k // 50) % 2 == 0, 1.0, -1.0)
+    y = np.cumsum(np.round(u * 40)).astype(int)
+    plain = tmp_path / "plain.csv"
+    plain.write_text(_rows(n, u, y))
+    with pytest.warns(ClosedLoopBiasWarning, match=r"no external signal.*least squares \(oe\)"):
+        assert main(["fit", str(plain), "--structure", "offset", "--friction", "sym",
+                     "--json"]) == 0  # fmt: skip
+    assert json.loads(capsys.readouterr().out)["method"] == "oe"
+    # iv asked for on that log: one line, exit 3
+    assert main(["fit", str(plain), "--method", "iv"]) == 3
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "method iv needs instruments" in err
+    # choices are checked by argparse: exit 2
+    with pytest.raises(SystemExit) as info:
+        main(["fit", str(plain), "--method", "pem"])
+    assert info.value.code == 2

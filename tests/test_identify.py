@@ -29,7 +29,9 @@ def _log(tmp_path: Path, rig: st.Rig, scenario: str, closed: bool, seed: int) ->
     scen = st.build_scenario(rig, scenario, axis="master", seconds=40.0, closed_loop=closed)
     tr = run_scenario(rig, scen, seed=seed)
     path = tmp_path / f"{scenario}-{closed}-{seed}.csv"
-    write_log(path, period_s=rig.period_s, columns=trace_log_columns(tr),
+    # as servotune simulate writes it: with the excitation (exc_code), so the default is iv
+    write_log(path, period_s=rig.period_s,
+              columns=trace_log_columns(tr, scen.inputs.dac_add_codes),
               metadata=log_metadata(rig, seed=seed))  # fmt: skip
     return path
 
@@ -49,6 +51,7 @@ def test_fit_recovers_truth_over_ten_seeds(
         raw = log.axis("master").counter
         assert np.any(np.abs(np.diff(raw)) > 2**23), "the counter must wrap during the log"
         res = fit(log, axis="master")
+        assert res.method == "iv", res.method_reason
         p = res.params
         assert p["gain_cps_per_v"] == pytest.approx(truth.gain_cps_per_v, rel=0.02), seed
         assert p["tau_s"] == pytest.approx(truth.tau_s, rel=0.02), seed

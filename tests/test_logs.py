@@ -708,3 +708,70 @@ def test_read_table(tmp_path: Path) -> None:
     bad = _log(tmp_path, header="tick,speed", rows=["0,1"], name="bad.csv")
     with pytest.raises(LogFormatError, match=r"table '.*bad.csv': line 1: unknown column 'speed'"):
         read_table(bad, what="table")
+
+
+# --- the excitation column (issue 17, DECISIONS 5) ---------------------------------------------
+
+
+def test_exc_code_is_read_per_axis_and_optional(tmp_path: Path) -> None:
+    # the excitation the law adds [D/A codes relative to the zero code], signed
+    rows = [
+        f"{k},{k * 0.004:.9f},{2048 + 7 * k},{100 + 3 * k},{(-1) ** k * 5 * k}" for k in range(6)
+    ]
+    log = read_log(_log(tmp_path, header=HEADER + ",exc_code", rows=rows))
+    assert_array_equal(log.axis().exc_code, [0, -5, 10, -15, 20, -25])
+    assert log.axis().exc_code.dtype == np.int64
+    # a log without it reads as before (DECISIONS 5: optional)
+    assert read_log(_log(tmp_path, name="old.csv")).axis().exc_code is None
+    two = "tick,a.dac_code,a.counter,a.exc_code,b.dac_code,b.counter"
+    rows2 = [f"{k},2048,{k},{k},2048,{2 * k}" for k in range(5)]
+    log2 = read_log(_log(tmp_path, header=two, rows=rows2, meta=[("period_s", "0.004")],
+                         name="two.csv"))  # fmt: skip
+    assert_array_equal(log2.axis("a").exc_code, np.arange(5))
+    assert log2.axis("b").exc_code is None
+
+
+def test_exc_code_beyond_the_dac_span_or_not_an_integer(tmp_path: Path) -> None:
+    # a 12-bit D/A spans 4095 codes: an excitation of 4096 codes cannot have been added
+    rows = [f"{k},{k * 0.004:.9f},2048,{k},{4096 if k == 3 else 0}" for k in range(6)]
+    msg = _error(_log(tmp_path, header=HEADER + ",exc_code", rows=rows))
+    assert "row 5, column 'exc_code'" in msg and "4096" in msg and "±4095" in msg
+    rows[3] = "3,0.012000000,2048,3,-4095"
+    assert (
+        read_log(_log(tmp_path, header=HEADER + ",exc_code", rows=rows)).axis().exc_code[3] == -4095
+    )
+    rows[2] = "2,0.008000000,2048,2,1.5"
+    assert "row 4, column 'exc_code'" in _error(_log(tmp_path, header=HEADER + ",exc_code",
+                                                      rows=rows))  # fmt: skip
+
+
+def test_exc_code_is_a_known_column_and_listed_in_the_help(tmp_path: Path) -> None:
+    msg = _error(_log(tmp_path, header=HEADER + ",exc_codes", rows=[r + ",0" for r in _rows()]))
+    assert "did you mean 'exc_code'" in msg
+    msg = _error(_log(tmp_path, header=HEADER + ",zzz", rows=[r + ",0" for r in _rows()]))
+    assert "exc_code" in msg  # the list of valid columns names it
+
+
+def test_trace_columns_carry_the_excitation(tmp_path: Path, rig: object) -> None:
+    import servotune as st
+    from servotune.pipeline import run_scenario, trace_log_columns
+
+    scen = st.build_scenario(rig, "prbs", axis="master", seconds=2.0, closed_loop=True)
+    trace = run_scenario(rig, scen, seed=1)
+    cols = trace_log_columns(trace, scen.inputs.dac_add_codes)
+    assert_array_equal(cols["master.exc_code"], scen.inputs.dac_add_codes[:, 0])
+    assert not np.any(cols["slave.exc_code"])
+    assert "master.exc_code" not in trace_log_columns(trace)  # without it: as before
+    path = tmp_path / "sim.csv"
+    path.write_text(format_log(period_s=rig.period_s, columns=cols, metadata={}))
+    assert_array_equal(read_log(path).axis("master").exc_code, scen.inputs.dac_add_codes[:, 0])
+
+
+def test_long_field_check_counts_characters_not_bytes(tmp_path: Path) -> None:
+    # the field-length scan works on bytes: a field of 40 two-byte characters (80 bytes) is
+    # within the 64-character limit (and then refused as text), a later 65-digit field is named
+    rows = _rows()
+    rows[1] = "1,0.004," + "é" * 40 + ",103"
+    assert "'" + "é" * 40 + "' is not a number" in _error(_log(tmp_path, rows=rows))
+    rows[4] = "4,0.016," + "7" * 65 + ",112"
+    assert "row 6, column 'dac_code': a field of 65 characters" in _error(_log(tmp_path, rows=rows))

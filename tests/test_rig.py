@@ -97,6 +97,21 @@ def _write(tmp_path: Path, text: str) -> Path:
          r"encoder.pulses_per_rev must be a number in \(0, 1e\+09\] \[pulses/rev\]"),
         ("range_v = [-10.0, 10.0]", "range_v = [10.0, -10.0]",
          r"dac.range_v must be \[low, high\]"),
+        # the asymmetric model's keys (issue 17): checked as their positive-direction peers
+        ("coulomb_v = 0.002", "coulomb_v = 0.002\ncoulomb_neg_v = -0.003",
+         r"axis.master.plant.coulomb_neg_v must be >= 0 \[V\], got -0.003"),
+        ("coulomb_v = 0.002", "coulomb_v = 0.002\ncoulomb_neg_v = nan",
+         r"axis.master.plant.coulomb_neg_v must be a finite number \[V\], got nan"),
+        ("coulomb_v = 0.002", "coulomb_v = 0.002\ncoulomb_neg_v = 11.0",
+         r"axis.master.plant.coulomb_neg_v must be a number in \[0, 10\] \[V\], got 11.0"),
+        ("coulomb_v = 0.002", "coulomb_v = 0.002\ngain_neg_cps_per_v = -9000.0",
+         r"axis.master.plant.gain_neg_cps_per_v must be > 0 \[counts/s/V\], got -9000.0"),
+        ("coulomb_v = 0.002", "coulomb_v = 0.002\ngain_neg_cps_per_v = inf",
+         r"axis.master.plant.gain_neg_cps_per_v must be a finite number \[counts/s/V\], got inf"),
+        ("coulomb_v = 0.002", "coulomb_v = 0.002\ngain_neg_cps_per_v = 1e12",
+         r"axis.master.plant.gain_neg_cps_per_v must be a number in \(0, 1e\+09\] \[counts/s/V\]"),
+        ("coulomb_v = 0.002", "coulomb_v = 0.002\ncoulomb_negative_v = 0.003",
+         r"unknown key axis.master.plant.coulomb_negative_v.*did you mean 'coulomb_neg_v'\?"),
     ],
 )  # fmt: skip
 def test_rig_errors_name_field_value_unit(tmp_path: Path, old: str, new: str, message: str) -> None:
@@ -107,6 +122,21 @@ def test_rig_errors_name_field_value_unit(tmp_path: Path, old: str, new: str, me
         st.load_rig(p)
     assert str(exc.value).startswith(f"rig file {str(p)!r}: ")
     assert "\n" not in str(exc.value) and len(str(exc.value)) < 300
+
+
+def test_asymmetric_plant_keys_are_read(tmp_path: Path) -> None:
+    text = EXAMPLE_RIG.read_text().replace(
+        "coulomb_v = 0.002",
+        "coulomb_v = 0.002\ncoulomb_neg_v = 0.0035\ngain_neg_cps_per_v = 11000.0",
+        1,
+    )
+    rig = st.load_rig(_write(tmp_path, text))
+    p = rig.axis("master").plant
+    assert (p.gain_neg_cps_per_v, p.coulomb_neg_v) == (11000.0, 0.0035)
+    assert p.gains_cps_per_v == (12288.0, 11000.0) and p.coulombs_v == (0.002, 0.0035)
+    # left out: None, the symmetric model of the file as it was
+    assert rig.axis("slave").plant.gain_neg_cps_per_v is None
+    assert rig.axis("slave").plant.symmetric
 
 
 def test_bom_is_accepted(tmp_path: Path) -> None:

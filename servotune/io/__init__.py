@@ -18,6 +18,7 @@ tuning JSON     :func:`servotune.tuning.read_tuning`             ``Tuning.from_d
 tables JSON     :func:`servotune.export.json.load_tables`        ``check_tables``
 gantry TOML     :func:`servotune.arch.gantry.load.load_gantry`   ``GantryConfig``
 linkage TOML    :func:`servotune.arch.linkage.load_linkage`      ``LinkageConfig``
+EMPS .mat       :func:`servotune.io.emps.read_emps`              ``EmpsLog`` (MATLAB variables)
 ==============  ===============================================  ===============================
 
 The readers of logs, rigs and excitations stay importable from :mod:`servotune.logs`,

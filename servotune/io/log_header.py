@@ -26,7 +26,7 @@ from servotune.io.log_rows import _INT_RE, _to_float
 
 __all__ = ["MAX_METADATA_CHARS", "MAX_NAME_CHARS", "PERIOD_RANGE_S"]
 
-_AXIS_COLUMNS = ("dac_code", "cmd_v", "counter", "pos_counts", "ref_counts", "mode")
+_AXIS_COLUMNS = ("dac_code", "cmd_v", "counter", "pos_counts", "ref_counts", "exc_code", "mode")
 _TIME_COLUMNS = ("tick", "time_s")
 PERIOD_RANGE_S = (1e-6, 60.0)
 """Sample periods a log may have [s] (1 µs … 1 min)."""
@@ -41,7 +41,7 @@ _DAC_RANGE_LIMIT_V = 1000.0  # |low|, |high| of a D/A range [V]
 
 _COLUMNS_HELP = (
     "expected tick and/or time_s, and per axis [axis.]dac_code or cmd_v, counter or pos_counts, "
-    "optionally ref_counts and mode"
+    "optionally ref_counts, exc_code and mode"
 )
 
 

@@ -78,6 +78,9 @@ _FITTED_KEYS = ("gain_cps_per_v", "tau_s", "delay_s", "offset_v", "coulomb_v")
 # Settings of the hardware that a fit does not estimate: written only when the plant sets them
 # (differs from the Plant default), otherwise the file's values stay.
 _KEPT_KEYS = ("max_speed_rpm", "noise_counts")
+# The negative direction's gain and Coulomb level (asymmetric model): written when the plant
+# sets them, removed when it leaves them None (a symmetric plant), so the file says which.
+_DIRECTION_KEYS = ("gain_neg_cps_per_v", "coulomb_neg_v")
 
 
 def _toml_float(value: float) -> str:
@@ -125,9 +128,36 @@ def _one_line(provenance: str) -> str:
     return line
 
 
+def _fit_table(fit: Mapping[str, Any]) -> tuple[Any, dict[str, Any]]:
+    """The ``[axis.<name>.plant.fit]`` table of a fit record, and the record as it reads back.
+
+    Keys in a fixed order; interval ends rounded like the plant's values (:func:`_toml_float`).
+    """
+    table = tomlkit.table()
+    back: dict[str, Any] = {}
+    for key in ("method", "structure", "friction", "adequate", "reason", "interval"):
+        value = fit[key]
+        table[key] = list(value) if isinstance(value, tuple) else value
+        back[key] = list(value) if isinstance(value, tuple | list) else value
+    ci = tomlkit.table()
+    back["ci95"] = {}
+    for name, (lo, hi) in fit["ci95"].items():
+        pair = [float(_toml_float(lo)), float(_toml_float(hi))]
+        ci[name] = tomlkit.array(f"[{_toml_float(lo)}, {_toml_float(hi)}]")
+        back["ci95"][name] = pair
+    ci.add(tomlkit.nl())  # a blank line before whatever table follows, as the file had
+    table["ci95"] = ci
+    return table, back
+
+
 def _plant_section(
-    text: str, source: Path, axis: str, plant: Plant, provenance: str | None
-) -> tuple[str, dict[str, float]]:
+    text: str,
+    source: Path,
+    axis: str,
+    plant: Plant,
+    provenance: str | None,
+    fit: Mapping[str, Any] | None = None,
+) -> tuple[str, dict[str, Any]]:
     """``text`` with the plant table of ``axis`` rewritten, and the values written."""
     try:
         doc = tomlkit.parse(text)
@@ -150,12 +180,23 @@ def _plant_section(
         raise RigError(f"[axis.{axis}.plant] in {str(source)!r} must be a table")
 
     written = {key: _set_float(table, key, getattr(plant, key)) for key in _FITTED_KEYS}
+    for key in _DIRECTION_KEYS:
+        if getattr(plant, key) is not None:
+            written[key] = _set_float(table, key, getattr(plant, key))
+        elif key in table:
+            del table[key]
     defaults = {f.name: f.default for f in fields(Plant)}
     for key in _KEPT_KEYS:
         value = getattr(plant, key)
         if value != defaults[key]:
             written[key] = _set_float(table, key, value)
 
+    # the fit record (DECISIONS 6) describes these values: written with them, or removed (a
+    # record left from an earlier fit would describe other numbers)
+    if "fit" in table:
+        del table["fit"]
+    if fit is not None:
+        table["fit"], written["fit"] = _fit_table(fit)
     if provenance is not None:
         line = _one_line(provenance)
         trivia = getattr(table, "trivia", None)
@@ -181,7 +222,8 @@ def edit_plant_text(
     *,
     template: str | Path,
     provenance: str | None,
-) -> tuple[str, dict[str, float]]:
+    fit: Mapping[str, Any] | None = None,
+) -> tuple[str, dict[str, Any]]:
     """The text of the rig file ``path`` with its ``[axis.<axis>.plant]`` table rewritten.
 
     What :func:`servotune.rig.write_plant` writes, once it has checked that the text loads as a
@@ -194,7 +236,8 @@ def edit_plant_text(
     text : str
         The new text of the file.
     written : dict of str to float
-        Each entry written, as the number it reads back as.
+        Each entry written, as the number it reads back as; ``"fit"``: the fit record as it
+        reads back (:meth:`servotune.rig.PlantFit.to_dict`), when one was written.
 
     Raises
     ------
@@ -231,4 +274,4 @@ def edit_plant_text(
     except UnicodeDecodeError as exc:
         raise RigError(f"rig file {str(source)!r} is not valid TOML: {exc}") from None
 
-    return _plant_section(text, source, axis, plant, provenance)
+    return _plant_section(text, source, axis, plant, provenance, fit)

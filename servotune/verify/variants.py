@@ -40,12 +40,15 @@ class Variant:
     plants: tuple[Plant, ...]
 
     def to_dict(self, axis_names: Sequence[str]) -> dict[str, Any]:
-        """Plain dict: the label and per axis the varied parameters."""
+        """Plain dict: the label and per axis the varied parameters (the negative direction's
+        gain and Coulomb level only for an asymmetric plant that sets them)."""
         keys = ("gain_cps_per_v", "tau_s", "offset_v", "coulomb_v")
+        neg_keys = ("gain_neg_cps_per_v", "coulomb_neg_v")
         return {
             "label": self.label,
             "plants": {
                 n: {k: float(getattr(p, k)) for k in keys}
+                | {k: float(getattr(p, k)) for k in neg_keys if getattr(p, k) is not None}
                 for n, p in zip(axis_names, self.plants, strict=True)
             },
         }
@@ -55,7 +58,11 @@ def plant_variants(rig: Rig, mc: MonteCarlo, seed: int | None = None) -> tuple[V
     """The nominal plants and ``mc.count`` random variants (deterministic in the seed).
 
     Each variant draws, for every axis in rig order, four uniforms in [−1, 1] (gain, tau,
-    offset, Coulomb) and applies the spreads of ``mc`` to the axes it names.
+    offset, Coulomb) and applies the spreads of ``mc`` to the axes it names. An asymmetric
+    plant stays asymmetric: the gain draw scales both directions' gains by the same factor,
+    the Coulomb draw both directions' Coulomb levels (the ratio between the directions is the
+    drive's and is kept); a direction left None stays None, so a symmetric plant stays
+    symmetric and draws exactly as before.
 
     Raises
     ------
@@ -80,17 +87,25 @@ def plant_variants(rig: Rig, mc: MonteCarlo, seed: int | None = None) -> tuple[V
                 plants.append(p)
                 continue
             g, t, o, c = (float(x) for x in u[i, j])
+            g_f, c_f = 1.0 + mc.gain_spread * g, 1.0 + mc.coulomb_spread * c
             plants.append(
                 replace(
                     p,
-                    gain_cps_per_v=p.gain_cps_per_v * (1.0 + mc.gain_spread * g),
+                    gain_cps_per_v=p.gain_cps_per_v * g_f,
                     tau_s=p.tau_s * (1.0 + mc.tau_spread * t),
                     offset_v=p.offset_v + mc.offset_spread_v * o,
-                    coulomb_v=p.coulomb_v * (1.0 + mc.coulomb_spread * c),
+                    coulomb_v=p.coulomb_v * c_f,
+                    gain_neg_cps_per_v=_scaled(p.gain_neg_cps_per_v, g_f),
+                    coulomb_neg_v=_scaled(p.coulomb_neg_v, c_f),
                 )
             )
         out.append(Variant(label=f"mc{i + 1}", plants=tuple(plants)))
     return tuple(out)
+
+
+def _scaled(value: float | None, factor: float) -> float | None:
+    """``value · factor``; None (the positive direction's value) stays None."""
+    return None if value is None else value * factor
 
 
 def _seed_seqs(seed: int) -> list[np.random.SeedSequence]:

@@ -54,7 +54,9 @@ from servotune.laws.sync import SYNC_TRIP, sync_enter, sync_monitor, sync_step
 from servotune.plant import (
     NROW,
     R_COULOMB,
+    R_COULOMB_NEG,
     R_GAIN,
+    R_GAIN_NEG,
     R_H1,
     R_NOISE,
     R_OFFSET,
@@ -98,7 +100,7 @@ def _substeps(cfg: GantryConfig, plants: tuple[Plant, Plant]) -> int:
         return 1
     rate = 0.0
     for p in plants:
-        g_t = p.gain_cps_per_v / p.tau_s
+        g_t = max(p.gains_cps_per_v) / p.tau_s  # the faster direction's
         rate = max(rate, math.sqrt(2 * g_t * cfg.beam.stiffness_v_per_count),
                    2 * g_t * cfg.beam.damping_v_s_per_count)  # fmt: skip
     return int(min(_MAX_SUBSTEPS, max(1, math.ceil(rate * cfg.bus.cycle_s / 0.05))))
@@ -236,7 +238,8 @@ def _gantry_kernel(
                     w += -f_beam if a == 0 else f_beam
                     pos[a], spd[a] = advance(
                         pos[a], spd[a], w, hs[i], seg_a[i, a], seg_b[i, a], rows[a, R_GAIN],
-                        rows[a, R_TAU], rows[a, R_COULOMB], rows[a, R_VMAX],
+                        rows[a, R_TAU], rows[a, R_COULOMB], rows[a, R_VMAX], rows[a, R_GAIN_NEG],
+                        rows[a, R_COULOMB_NEG],
                     )  # fmt: skip
     return trip_k
 

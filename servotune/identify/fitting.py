@@ -1,0 +1,652 @@
+"""What ``servotune fit`` runs: method, structure, estimate, intervals, validation, diagnostics.
+
+1. **Checks** — enough samples, a command that varies, a motor that moves, and a motor that
+   moves *with* its command (:func:`~servotune.identify.model.check_direction`: a reversed
+   encoder or D/A is an :class:`~servotune.errors.IdentificationError` naming the cause;
+   ``invert_encoder`` negates the position first).
+2. **Method** (``method="auto"``) — ``iv`` (:mod:`servotune.identify.iv`) when the log has an
+   external signal that excites the axis (the excitation ``exc_code``, the reference where it
+   moves in task mode) and it explains at least :data:`~servotune.identify.iv.MIN_R2` of the
+   command's variance; otherwise ``oe`` (:mod:`servotune.identify.oe`) with a
+   :class:`~servotune.identify.result.ClosedLoopBiasWarning` saying why (none for a log that is
+   open loop throughout, where least squares is consistent).
+3. **Structure and friction form** — with ``structure=None`` every structure (gain and tau plus
+   any subset of delay, offset and Coulomb friction) is fitted on the first
+   :data:`SELECTION_SAMPLES` samples with the chosen method (least squares gives the start)
+   and scored by BIC (``m·ln σ² + k·ln m``) on that method's residual: for ``iv`` whitened by
+   one noise model (the largest candidate's), so that a coloured disturbance does not make
+   every extra term look worth its price; for ``oe`` as it is. The smallest wins. With
+   ``friction="auto"`` the winner is refitted with the asymmetric form (its own gain, and
+   Coulomb level where identifiable, for the negative direction) and the form with the smaller
+   BIC is kept; both scores are reported. Where the refined IV finds no solution on the
+   selection's samples, basic IV (:func:`~servotune.identify.iv.estimate_iv`) is used
+   throughout; where neither does, least squares, with a warning.
+4. **Estimate** on the whole log with the chosen method, from the selection's fit.
+5. **Intervals** — moving-block bootstrap of the estimating equations
+   (:func:`~servotune.identify.quality.block_bootstrap`): they hold with correlated residuals.
+6. **Validation** — split-half cross-validation: the model is estimated on each half (the
+   one-step estimate of that half's own equations) and its simulation fit % (MATLAB
+   ``compare``) measured on the other half, whose equations it has not used.
+7. **Diagnostics** — whiteness of the noise model's innovations and their cross-correlation
+   with the inputs (:mod:`servotune.identify.quality`); a failed test makes ``adequate`` false,
+   with the reason, and an :class:`~servotune.identify.result.InadequateModelWarning`.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from typing import Any
+
+import numpy as np
+
+from servotune.budget import check_memory
+from servotune.errors import IdentificationError
+from servotune.identify import iv, model, oe, quality
+from servotune.identify.model import ALL_PARAMS, I_COULOMB, I_GAIN, PARAMS
+from servotune.identify.noise import NoiseModel
+from servotune.identify.result import (
+    ClosedLoopBiasWarning,
+    FitResult,
+    InadequateModelWarning,
+    PoorFitWarning,
+)
+from servotune.laws.axis import MODE_OPEN, MODE_TASK
+from servotune.logs import AxisLog, Log
+
+__all__ = [
+    "FRICTION_FORMS",
+    "METHODS",
+    "MIN_SAMPLES",
+    "SELECTION_SAMPLES",
+    "fit",
+    "fit_arrays",
+    "simulate_fit",
+    "validation_split",
+]
+
+MIN_SAMPLES = 100
+"""Fewest samples a log needs."""
+SELECTION_SAMPLES = 20_000
+"""Samples (the first ones) the structure and friction-form selection fits on."""
+METHODS = ("auto", "iv", "oe")
+"""Values of ``method`` (``servotune fit --method``)."""
+FRICTION_FORMS = ("auto", "sym", "asym")
+"""Values of ``friction`` (``servotune fit --friction``)."""
+_BYTES_PER_SAMPLE = 700  # the estimators' arrays: about 90 doubles per sample at the peak
+
+
+def validation_split(n_samples: int) -> int:
+    """First sample of the second half of a log of ``n_samples`` (split-half validation)."""
+    return n_samples // 2
+
+
+def _params(x: np.ndarray, free: np.ndarray) -> dict[str, float]:
+    """Every SPEC parameter (0 when left out), and the negative direction's when estimated."""
+    out = {}
+    for i, p in enumerate(ALL_PARAMS):
+        if i < len(PARAMS):
+            v = float(x[i]) if free[i] else 0.0
+            out[p] = max(v, 0.0) if p in ("delay_s", "coulomb_v") else v
+        elif free[i]:
+            out[p] = max(float(x[i]), 0.0)
+    return out
+
+
+def _skip(x: np.ndarray, period_s: float, n: int) -> int:
+    """Start samples left out (at most a tenth of the log).
+
+    The model's initial transient (five time constants, at least 50 samples), and twice the
+    projection's FIR length: before the FIR has seen the excitation's past, the projected
+    command (and so the instruments) is wrong, and those samples weigh heavily.
+    """
+    start = max(50, math.ceil(5.0 * x[1] / period_s), 2 * iv.projection_lags(period_s))
+    return int(min(start, max(1, n // 10)))
+
+
+def _estimate(
+    method: str,
+    u1: np.ndarray,
+    dy: np.ndarray,
+    sigs: list[np.ndarray],
+    x0: np.ndarray,
+    free: np.ndarray,
+    *,
+    period_s: float,
+    compute_s: float,
+    skip: int,
+    projection: iv.Projection | None = None,
+    noise0: NoiseModel | None = None,
+    max_nfev: int = 60,
+    max_outer: int = 4,
+    refit_noise: bool = True,
+) -> tuple[model.Estimate, dict[str, Any]]:
+    if method.startswith("iv"):  # iv: refined, else basic; iv-refined, iv-basic: only that
+        kw = {"period_s": period_s, "compute_s": compute_s, "skip": skip,
+              "projection": projection, "noise0": noise0, "max_outer": max_outer,
+              "refit_noise": refit_noise}  # fmt: skip
+        try:
+            if method == "iv-basic":
+                raise iv.NotConverged("basic IV asked for")
+            r = iv.estimate_iv(u1, dy, sigs, x0, free, **kw)
+        except iv.NotConverged:  # refined IV did not settle: basic IV (raises if it neither)
+            if method == "iv-refined":
+                raise
+            r = iv.estimate_iv(u1, dy, sigs, x0, free, prefilter=False, **kw)
+        info = {"converged": r.converged, "iterations": r.iterations, "lags": r.projection.lags,
+                "r2": r.projection.r2, "prefilter": r.prefilter}  # fmt: skip
+        return r, info
+    f = oe.estimate_oe(u1, dy, x0, free, period_s=period_s, compute_s=compute_s, skip=skip,
+                       max_nfev=max_nfev, noise0=noise0, refit_noise=refit_noise)  # fmt: skip
+    return f, {"nfev": f.nfev}
+
+
+def _choose_method(
+    method: str, u1: np.ndarray, sigs: list[np.ndarray], labels: list[str], period_s: float,
+    open_loop: bool,
+) -> tuple[str, str, iv.Projection | None]:  # fmt: skip
+    if method not in METHODS:
+        raise IdentificationError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
+    if method == "oe":
+        return "oe", "output-error least squares, as asked", None
+    if not sigs:
+        why = ("the log has no external signal (no exc_code column that varies, no reference "
+               "that moves in task mode)")  # fmt: skip
+        if method == "iv":
+            raise IdentificationError(f"method iv needs instruments, but {why}")
+        if open_loop:
+            return "oe", "open-loop log: output-error least squares is consistent", None
+        warnings.warn(
+            f"{why}: fitted by least squares (oe), which is biased if the loop was closed and a "
+            "disturbance acted; log the excitation (exc_code) to get the consistent iv",
+            ClosedLoopBiasWarning,
+            stacklevel=3,
+        )
+        return "oe", f"output-error least squares: {why}", None
+    proj = iv.project(u1, sigs, iv.projection_lags(period_s))
+    share = f"{100 * proj.r2:.1f} %"
+    names = " and ".join(labels)
+    if proj.r2 < iv.MIN_R2 and method == "auto":
+        warnings.warn(
+            f"the external signals ({names}) explain only {share} of the command (need "
+            f"{100 * iv.MIN_R2:g} %): too weak for instrumental variables, fitted by least "
+            "squares (oe), which is biased if the loop was closed and a disturbance acted",
+            ClosedLoopBiasWarning,
+            stacklevel=3,
+        )
+        return (
+            "oe",
+            f"output-error least squares: {names} explain only {share} of the command",
+            None,
+        )
+    return ("iv", f"instrumental variables, instruments from {names} (they explain {share} "
+            "of the command)", proj)  # fmt: skip
+
+
+_Selection = tuple[
+    np.ndarray, np.ndarray, list[dict[str, Any]], str, dict[str, Any], NoiseModel, str
+]
+
+
+def _select(
+    method: str, u: np.ndarray, y: np.ndarray, dy: np.ndarray, sigs: list[np.ndarray],
+    terms: tuple[str, ...] | None, friction: str, *, period_s: float, compute_s: float,
+) -> _Selection:  # fmt: skip
+    """Structure and friction form by BIC on the first samples; the start of the estimate.
+
+    Every candidate is estimated with the method of the final estimate (least squares would
+    prefer the wrong structure on a closed-loop log, its residual being the disturbance it
+    mistakes for dynamics), from the least-squares fit of the largest candidate, and scored in
+    that method's own terms: for ``iv`` the variance of the residual whitened by the largest
+    candidate's noise model (the same prefilter for all), for ``oe`` the raw residual's.
+    """
+    n_s = min(dy.size, SELECTION_SAMPLES)
+    form = "sym" if friction == "auto" else friction
+    candidates = [terms] if terms is not None else [
+        tuple(t for t, on in zip(model.OPTIONAL_PARAMS, bits, strict=True) if on)
+        for bits in ((m & 1, m & 2, m & 4) for m in range(8))
+    ]  # fmt: skip
+    largest = model.free_mask(terms if terms is not None else model.OPTIONAL_PARAMS, form)
+    x_ls = model.ls_start(u[: n_s + 1], y[: n_s + 1], period_s, compute_s, largest)
+    skip_s = _skip(x_ls, period_s, n_s)
+    x_oe = oe.estimate_oe(u[:n_s], dy[:n_s], x_ls, largest, period_s=period_s,
+                          compute_s=compute_s, skip=skip_s, max_nfev=40).x  # fmt: skip
+    sigs_s = [sg[:n_s] for sg in sigs]
+    proj = iv.project(u[:n_s], sigs_s, iv.projection_lags(period_s)) if method == "iv" else None
+    noise: NoiseModel | None = None
+    # refined IV for every candidate (one without a solution cannot win); basic IV for all only
+    # where no candidate has a refined solution
+    variant = "iv-refined" if method == "iv" else method
+
+    def score(free: np.ndarray, x0: np.ndarray) -> tuple[float, float, np.ndarray, NoiseModel]:
+        try:
+            est, _ = _estimate(variant, u[:n_s], dy[:n_s], sigs_s, x0, free, period_s=period_s,
+                               compute_s=compute_s, skip=skip_s, projection=proj,
+                               noise0=noise, max_nfev=40, max_outer=4,
+                               refit_noise=noise is None)  # fmt: skip
+        except iv.NotConverged:  # this candidate has no IV solution: it cannot win
+            return math.inf, math.inf, x0, noise or NoiseModel.identity()
+        # each method's own criterion: iv solves its equations in the prefiltered domain (the
+        # prefilter the same for every candidate), least squares minimises the raw residual
+        r = est.whitened if method == "iv" else est.residual
+        m = r.size
+        var = max(float(np.mean(r * r)), 1e-300)
+        k = int(free.sum())
+        return m * math.log(var) + k * math.log(m), var, est.x, est.noise
+
+    def score_all() -> list[dict[str, Any]]:
+        nonlocal noise
+        out = []
+        for t in sorted(candidates, key=len, reverse=True):  # the largest first: its noise
+            free = model.free_mask(t, form)
+            x0 = np.where(free, x_oe, 0.0)
+            x0[5], x0[6] = (x_oe[5], x_oe[6]) if form == "asym" else (x0[I_GAIN], x0[I_COULOMB])
+            bic, var, x, nm = score(free, x0)
+            if math.isfinite(bic):
+                noise = noise or nm
+            out.append({"bic": bic, "params": list(model.names(free)), "variance": var,
+                        "_free": free, "_x": x})  # fmt: skip
+        return out
+
+    scored = score_all()
+    if variant == "iv-refined" and not any(math.isfinite(e["bic"]) for e in scored):
+        variant, noise = "iv-basic", None
+        scored = score_all()
+    best = min(scored, key=lambda e: e["bic"])
+    if not math.isfinite(best["bic"]):
+        raise iv.NotConverged(f"no candidate structure has an {method} solution")
+    selection: list[dict[str, Any]] = []
+    if terms is None:
+        ordered = sorted(scored, key=lambda e: e["bic"])
+        selection = [{k: v for k, v in e.items() if not k.startswith("_")} for e in ordered]
+        runner = ordered[1]
+        reason = (f"smallest BIC ({ordered[0]['bic']:.1f}, {method} fits) of {len(scored)} "
+                  f"structures on {n_s - skip_s} samples; next: {'+'.join(runner['params'])} "
+                  f"at {runner['bic']:.1f}")  # fmt: skip
+    else:
+        reason = "structure given by the user"
+    free, x = best["_free"], best["_x"]
+    friction_selection: dict[str, Any] = {}
+    if friction == "auto":
+        free_a = model.free_mask(tuple(p for p in model.OPTIONAL_PARAMS if free[PARAMS.index(p)]),
+                                 "asym")  # fmt: skip
+        xa0 = x.copy()
+        xa0[5], xa0[6] = x[I_GAIN], x[I_COULOMB]
+        bic_a, _, xa, _ = score(free_a, xa0)
+        scores = {"asym": bic_a, "sym": best["bic"]}
+        chosen = "asym" if bic_a < best["bic"] else "sym"
+        other = "sym" if chosen == "asym" else "asym"
+        friction_selection = {
+            "chosen": chosen, "criterion": f"BIC of {method} fits on {n_s - skip_s} samples",
+            "runner_up": other, "scores": scores,
+            "reason": f"BIC {scores[chosen]:.1f}; {other} at {scores[other]:.1f}",
+        }  # fmt: skip
+        if chosen == "asym":
+            free, x = free_a, xa
+    noise = noise or NoiseModel.identity()
+    return free, x, selection, reason, friction_selection, noise, variant
+
+
+def _simulate(u: np.ndarray, dy: np.ndarray, x: np.ndarray, free: np.ndarray, period_s: float,
+              compute_s: float) -> np.ndarray:  # fmt: skip
+    v0 = float(np.mean(dy[: max(1, min(5, dy.size))]) / period_s)
+    return model.simulate_increments(np.asarray(u, dtype=float)[None, :], [x], free, [0],
+                                     period_s=period_s, compute_s=compute_s, v0=v0)[0]  # fmt: skip
+
+
+def _fit_pcts(
+    y: np.ndarray, dy: np.ndarray, dp: np.ndarray, period_s: float
+) -> tuple[float, float]:
+    pos = y[0] + np.concatenate([[0.0], np.cumsum(dp)])
+    return (quality.fit_pct(dy / period_s, dp / period_s),
+            quality.fit_pct(y.astype(float), pos))  # fmt: skip
+
+
+def _cross_validate(
+    est: model.Estimate, u: np.ndarray, y: np.ndarray, free: np.ndarray, *, period_s: float,
+    compute_s: float,
+) -> tuple[list[np.ndarray], list[tuple[float, float]] | None]:  # fmt: skip
+    """Split-half: each half's estimate, and its fit % (velocity, position) on the other half.
+
+    Each half's estimate is the one-step estimate from the whole log's: one Gauss–Newton step
+    of that half's own estimating equations (the terms ``est`` holds per sample, summed over
+    that half only), ``θ_h = θ̂ + A_h⁻¹ Σ_{k∈h} s_k``. To first order it is the estimate the
+    half alone gives — the other half enters only at second order, through the start — and it
+    costs no simulation. The fit % is then the simulation of each half by the other half's
+    model, from that half's own first position and speed.
+    """
+    n = y.size
+    h = validation_split(n)
+    first = (n - 1) - est.scores.shape[0]  # the increment index of the equations' first term
+    split = min(max(h - first, 1), est.scores.shape[0] - 1)
+    lo, hi = model.lower_bounds()[free], model.upper_bounds(period_s)[free]
+    xs: list[np.ndarray] = []
+    for sel in (slice(0, split), slice(split, None)):
+        a_h = est.instruments[:, sel] @ est.sensitivities[:, sel].T
+        try:
+            step = np.linalg.solve(a_h, est.scores[sel].sum(axis=0))
+        except np.linalg.LinAlgError:
+            return [], None
+        xh = est.x.copy()
+        xh[free] = np.clip(est.x[free] + step, lo, hi)
+        xs.append(xh)
+    folds = []
+    for i, (a, b) in enumerate(((0, h), (h, n))):
+        ua, ya = u[a:b], y[a:b]
+        dya = np.diff(ya).astype(float)
+        try:
+            dp = _simulate(ua[:-1], dya, xs[1 - i], free, period_s, compute_s)
+        except ValueError:  # a one-step estimate outside what a plant can be
+            return [], None
+        folds.append(_fit_pcts(ya, dya, dp, period_s))
+    return xs, folds
+
+
+def _diagnostics(
+    est: model.Estimate, method: str, u1: np.ndarray, sigs: list[np.ndarray], labels: list[str],
+    skip: int,
+) -> tuple[dict[str, Any], list[dict[str, Any]], list[str]]:  # fmt: skip
+    white = quality.ljung_box(est.whitened, fitted=sum(est.noise.order))
+    if method == "iv":
+        cross = [quality.cross_correlation_test(est.whitened, s, name=lab)
+                 for s, lab in zip(sigs, labels, strict=True)]  # fmt: skip
+    else:
+        cross = [quality.cross_correlation_test(est.whitened, u1, name="command")]
+    reasons = []
+    if not white["white"]:
+        reasons.append(
+            f"the innovations are not white (Ljung-Box p = {white['p_value']:.2g}, largest "
+            f"|autocorrelation| {white['max_abs_autocorrelation']:.3f}): the noise model misses "
+            "structure of the residual, so the intervals may be too narrow"
+        )
+    for c in cross:
+        if not c["uncorrelated"]:
+            reasons.append(
+                f"the residual is correlated with the {c['input']} (p = {c['p_value']:.2g}, "
+                f"largest |corr| {c['max_abs_correlation']:.3f}): the model misses dynamics "
+                "that input drives"
+            )
+    return white, cross, reasons
+
+
+def fit_arrays(
+    cmd_v: np.ndarray,
+    pos_counts: np.ndarray,
+    *,
+    period_s: float,
+    compute_s: float = 0.0,
+    structure: str | tuple[str, ...] | list[str] | None = None,
+    method: str = "auto",
+    friction: str = "auto",
+    exc_v: np.ndarray | None = None,
+    ref_counts: np.ndarray | None = None,
+    mode: np.ndarray | None = None,
+    invert_encoder: bool = False,
+) -> FitResult:
+    """Identify the axis model from a command and a position sequence (module docstring).
+
+    Parameters
+    ----------
+    cmd_v : ndarray
+        D/A output written each tick [V] (row k written at ``t_k + compute_s``).
+    pos_counts : ndarray of int
+        Unwrapped encoder position latched at ``t_k`` [counts].
+    period_s : float
+        Sample period [s].
+    compute_s : float
+        Known tick-start → write time [s]; ``delay_s`` is identified beyond it.
+    structure : str or sequence of str, optional
+        Terms to estimate besides gain and tau (``"delay,offset"``, names or SPEC names);
+        None or ``"auto"`` selects by BIC.
+    method : str
+        ``"auto"`` (default: ``iv`` when the log allows it, else ``oe`` with a warning),
+        ``"iv"`` or ``"oe"``.
+    friction : str
+        ``"auto"`` (default: chosen by BIC), ``"sym"`` or ``"asym"`` (per-direction gain and
+        Coulomb level).
+    exc_v : ndarray, optional
+        The excitation the law added [V] (the log's ``exc_code`` times the D/A step).
+    ref_counts : ndarray of int, optional
+        The reference [counts].
+    mode : ndarray of int, optional
+        The runtime's mode per row (``MODE_*``): the reference is an instrument only in task
+        rows; a log open loop throughout needs no instruments.
+    invert_encoder : bool
+        Negate the position first (an encoder counting the other way).
+
+    Returns
+    -------
+    FitResult
+
+    Raises
+    ------
+    IdentificationError
+        Too few samples, a constant command, a motor that never moved or moves against its
+        command (a reversed encoder or D/A), ``method="iv"`` without an external signal, an
+        unknown method, friction form or structure term.
+
+    Warns
+    -----
+    ClosedLoopBiasWarning
+        Least squares on a log that may be closed loop (no usable external signal).
+    InadequateModelWarning
+        A residual test failed (the reason is in ``FitResult.inadequacy``).
+    PoorFitWarning
+        The cross-validated velocity fit is below 50 %.
+    """
+    u = np.asarray(cmd_v, dtype=float)
+    y = np.asarray(pos_counts)
+    n = u.size
+    _check(u, y)
+    if invert_encoder:
+        y = -y.astype(np.int64)
+    if friction not in FRICTION_FORMS:
+        raise IdentificationError(
+            f"friction must be one of {', '.join(FRICTION_FORMS)}, got {friction!r}"
+        )
+    terms = model.parse_terms(structure)
+    check_memory(n * _BYTES_PER_SAMPLE, f"identifying a log of {n:,} samples",
+                 f"{n:,} samples × {_BYTES_PER_SAMPLE} bytes")  # fmt: skip
+    model.check_direction(u, y, period_s, compute_s)
+    dy = np.diff(y).astype(float)
+    u1 = u[:-1]
+    task = None if mode is None else np.asarray(mode) == MODE_TASK
+    open_loop = mode is not None and bool(np.all(np.asarray(mode) == MODE_OPEN))
+    sigs, labels = iv.external_signals(exc_v, ref_counts, task)
+    sigs = [s[:-1] for s in sigs]
+    chosen, method_reason, proj = _choose_method(method, u1, sigs, labels, period_s, open_loop)
+    try:
+        free, x0, selection, reason, friction_selection, noise0, variant = _select(
+            chosen, u, y, dy, sigs, terms, friction, period_s=period_s, compute_s=compute_s
+        )
+        skip = _skip(x0, period_s, n)
+        final = "iv" if variant == "iv-refined" else variant  # refined may still fall back
+        est, info = _estimate(final, u1, dy, sigs, x0, free, period_s=period_s,
+                              compute_s=compute_s, skip=skip, projection=proj,
+                              noise0=noise0)  # fmt: skip
+    except iv.NotConverged as exc:
+        if method == "iv":
+            raise IdentificationError(f"method iv: {exc}; try --method oe") from None
+        warnings.warn(
+            f"instrumental variables found no solution on this log ({exc}): fitted by least "
+            "squares (oe), which is biased if the loop was closed and a disturbance acted",
+            ClosedLoopBiasWarning,
+            stacklevel=2,
+        )
+        chosen, method_reason = "oe", f"output-error least squares: {exc}"
+        free, x0, selection, reason, friction_selection, noise0, variant = _select(
+            chosen, u, y, dy, sigs, terms, friction, period_s=period_s, compute_s=compute_s
+        )
+        skip = _skip(x0, period_s, n)
+        est, info = _estimate(chosen, u1, dy, sigs, x0, free, period_s=period_s,
+                              compute_s=compute_s, skip=skip, noise0=noise0)  # fmt: skip
+    if chosen == "iv":
+        method_reason += (
+            "; refined: prefiltered by the noise model" if info["prefilter"]
+            else "; basic: the noise-model prefilter found no solution on this log"
+        )  # fmt: skip
+    x = est.x
+    if x[I_GAIN] <= 10 * model.lower_bounds()[I_GAIN]:
+        raise IdentificationError(
+            f"the fitted gain {x[I_GAIN]:.3g} counts/s/V is implausibly small: the axis does not "
+            "move with its command; the encoder or the D/A sign may be reversed (re-run with "
+            "--invert-encoder), or the command does not reach the drive"
+        )
+    std_v, lo_dev, hi_dev, block = quality.block_bootstrap(est.a_mat, est.scores)
+    names = model.names(free)
+    params = _params(x, free)
+    lo_b = model.lower_bounds()[free]
+    std = {p: float(s) for p, s in zip(names, std_v, strict=True)}
+    ci95 = {p: (max(params[p] - float(hd), float(lb)) if lb >= 0 else params[p] - float(hd),
+                params[p] - float(ld))
+            for p, ld, hd, lb in zip(names, lo_dev, hi_dev, lo_b, strict=True)}  # fmt: skip
+    interval_method = (
+        f"moving-block bootstrap of the {chosen} estimating equations "
+        f"({quality.BOOTSTRAP_REPLICATES} replicates, blocks of {block} samples), basic 95 % "
+        "interval"
+    )
+    # validation: split-half cross-validation, and the whole-log model on the whole log
+    xs, folds = _cross_validate(est, u, y, free, period_s=period_s, compute_s=compute_s)
+    vel_est, pos_est = _fit_pcts(y, dy, _simulate(u1, dy, x, free, period_s, compute_s), period_s)
+    fit_pct: dict[str, dict[str, Any]] = {}
+    for j, key in enumerate(("velocity", "position")):
+        vals = None if folds is None else [f[j] for f in folds]
+        fit_pct[key] = {"estimation": vel_est if j == 0 else pos_est,
+                        "folds": vals, "validation": None if vals is None else float(np.mean(vals)),
+                        "cross_validation": "split-half"}  # fmt: skip
+    white, cross, reasons = _diagnostics(est, chosen, u1, sigs, labels, skip)
+    if reasons:
+        warnings.warn("the model is not adequate: " + "; ".join(reasons),
+                      InadequateModelWarning, stacklevel=2)  # fmt: skip
+    val = fit_pct["velocity"]["validation"]
+    if val is not None and val < 50:
+        warnings.warn(f"cross-validated velocity fit is only {val:.1f} %", PoorFitWarning,
+                      stacklevel=2)  # fmt: skip
+    instruments: dict[str, Any] = {}
+    if chosen == "iv":
+        instruments = {
+            "signals": labels, "projection_lags": info["lags"], "r2": info["r2"],
+            "converged": info["converged"], "iterations": info["iterations"],
+            "prefilter": "noise model A/C" if info["prefilter"] else "none",
+        }  # fmt: skip
+    return FitResult(
+        structure=names,
+        params=params,
+        std=std,
+        ci95=ci95,
+        method=chosen,
+        method_reason=method_reason,
+        interval_method=interval_method,
+        friction="asym" if free[5] else "sym",
+        friction_selection=friction_selection,
+        fit_pct=fit_pct,
+        whiteness=white,
+        cross_correlation=cross,
+        adequate=not reasons,
+        inadequacy=tuple(reasons),
+        instruments=instruments,
+        noise_model=est.noise.to_dict(),
+        period_s=float(period_s),
+        compute_s=float(compute_s),
+        selection=selection,
+        reason=reason,
+        n_samples=int(n),
+        cv_params=tuple(_params(xi, free) for xi in xs),
+        inverted_encoder=bool(invert_encoder),
+    )
+
+
+def _check(u: np.ndarray, y: np.ndarray) -> None:
+    n = u.size
+    if y.size != n:
+        raise IdentificationError(f"command and position lengths differ ({n} vs {y.size})")
+    if n < MIN_SAMPLES:
+        raise IdentificationError(f"the log is too short: {n} samples, need at least {MIN_SAMPLES}")
+    if not np.all(np.isfinite(u)):
+        raise IdentificationError("the command has non-finite values")
+    if np.ptp(u) == 0:
+        raise IdentificationError(
+            f"the command is constant ({u[0]:g} V): nothing excites the axis, not identifiable"
+        )
+    if np.ptp(y) < 10:
+        raise IdentificationError(
+            f"the motor never moved (position range {int(np.ptp(y))} counts): not identifiable"
+        )
+
+
+def simulate_fit(result: FitResult, cmd_v: np.ndarray, pos_counts: np.ndarray) -> np.ndarray:
+    """Held-out position simulation [counts], as the validation fit % measures it.
+
+    Each half of the log is simulated from its own command and first position by the model
+    fitted on the other half (split-half cross-validation; the whole-log model when the result
+    has none). ``pos_counts`` is the position as fitted (negated already if the encoder was
+    inverted).
+    """
+    u = np.asarray(cmd_v, dtype=float)
+    y = np.asarray(pos_counts)
+    n = y.size
+    free = np.array([p in result.structure for p in ALL_PARAMS])
+
+    def vec(params: dict[str, float]) -> np.ndarray:
+        x = np.array([params.get(p, 0.0) for p in ALL_PARAMS])
+        if "gain_neg_cps_per_v" not in params:
+            x[5] = x[I_GAIN]
+        if "coulomb_neg_v" not in params:
+            x[6] = x[I_COULOMB]
+        return x
+
+    models = [vec(p) for p in result.cv_params] or [vec(result.params)] * 2
+    h = validation_split(n)
+    out = np.empty(n)
+    for i, (a, b) in enumerate(((0, h), (h, n))):
+        dya = np.diff(y[a:b]).astype(float)
+        dp = _simulate(u[a : b - 1], dya, models[1 - i], free, result.period_s, result.compute_s)
+        out[a:b] = y[a] + np.concatenate([[0.0], np.cumsum(dp)])
+    return out
+
+
+def fit(
+    log: Log,
+    *,
+    axis: str | None = None,
+    structure: str | tuple[str, ...] | list[str] | None = None,
+    compute_s: float | None = None,
+    method: str = "auto",
+    friction: str = "auto",
+    invert_encoder: bool = False,
+) -> FitResult:
+    """Identify one axis of a log (:func:`servotune.read_log`).
+
+    Parameters
+    ----------
+    log : Log
+    axis : str, optional
+        Axis name (may be omitted for a single-axis log).
+    structure, method, friction, invert_encoder : optional
+        See :func:`fit_arrays`.
+    compute_s : float, optional
+        Known compute time [s]; default from the log's ``compute_s`` metadata, else 0 (then
+        ``delay_s`` includes it).
+
+    Returns
+    -------
+    FitResult
+
+    Raises
+    ------
+    IdentificationError
+        If the log cannot identify the model (see :func:`fit_arrays`) or has counter faults.
+    """
+    ax: AxisLog = log.axis(axis)
+    if ax.counter_faults.size:
+        raise IdentificationError(
+            f"the counter column breaks the high-byte rule at {ax.counter_faults.size} rows "
+            f"(first at sample {int(ax.counter_faults[0])}): the unwrapped position is unreliable"
+        )
+    if compute_s is None:
+        compute_s = log.compute_s if log.compute_s is not None else 0.0
+    exc_v = None if ax.exc_code is None else ax.exc_code * log.dac_lsb_v
+    return fit_arrays(ax.cmd_v, ax.pos_counts, period_s=log.period_s, compute_s=compute_s,
+                      structure=structure, method=method, friction=friction, exc_v=exc_v,
+                      ref_counts=ax.ref_counts, mode=ax.mode,
+                      invert_encoder=invert_encoder)  # fmt: skip

@@ -1,0 +1,82 @@
+"""A log file read and one axis identified: what ``servotune fit LOG`` runs.
+
+Here rather than in :mod:`servotune.pipeline` so that the fit verb imports the identifier and
+the log reader only (the pipeline imports every subsystem: seconds of a one-verb process).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from servotune.errors import IdentificationError
+from servotune.identify.fitting import fit
+from servotune.identify.result import FitResult
+from servotune.logs import Log, read_log, read_metadata
+from servotune.rig import Rig
+
+__all__ = ["fit_log"]
+
+
+def fit_log(
+    log_path: str | Path,
+    *,
+    axis: str | None = None,
+    rig: Rig | None = None,
+    structure: str | None = None,
+    counter_bits: int | None = None,
+    dac_bits: int | None = None,
+    dac_range_v: tuple[float, float] | None = None,
+    period_s: float | None = None,
+    compute_s: float | None = None,
+    method: str = "auto",
+    friction: str = "auto",
+    invert_encoder: bool = False,
+) -> tuple[FitResult, Log, str]:
+    """Read a log and identify one axis (what ``servotune fit`` runs).
+
+    Settings come from the keyword options, then the log's metadata, then the rig (SPEC §5).
+    ``structure``, ``method``, ``friction`` and ``invert_encoder`` are
+    :func:`servotune.identify.fit_arrays`'s.
+
+    Returns
+    -------
+    result : FitResult
+    log : Log
+    axis : str
+        The axis name (for an unprefixed log: ``axis`` if given, else ``""``).
+
+    Raises
+    ------
+    LogFormatError
+        If the log cannot be read (:func:`servotune.logs.read_log`).
+    IdentificationError
+        If the data do not identify the model; the message names the log.
+    """
+    meta = read_metadata(log_path)
+    if rig is not None:
+        if counter_bits is None and "counter_bits" not in meta:
+            counter_bits = rig.counter.bits
+        if dac_bits is None and "dac_bits" not in meta:
+            dac_bits = rig.dac.bits
+        if dac_range_v is None and "dac_range_v" not in meta:
+            dac_range_v = rig.dac.range_v
+        if period_s is None and "period_s" not in meta:
+            period_s = rig.period_s
+        if compute_s is None and "compute_s" not in meta:
+            compute_s = rig.timer.compute_s
+    log = read_log(
+        log_path,
+        counter_bits=counter_bits,
+        dac_bits=dac_bits,
+        dac_range_v=dac_range_v,
+        period_s=period_s,
+        compute_s=compute_s,  # validated with the other options (finite, >= 0, < period)
+    )
+    log_axis = None if list(log.axes) == [""] else axis
+    try:
+        result = fit(log, axis=log_axis, structure=structure, compute_s=compute_s, method=method,
+                     friction=friction, invert_encoder=invert_encoder)  # fmt: skip
+    except IdentificationError as exc:  # the data do not allow it: name the log
+        raise IdentificationError(f"log {str(log_path)!r}: {exc}") from None
+    name = axis if axis is not None else (log_axis or next(iter(log.axes)))
+    return result, log, name
