@@ -25,7 +25,14 @@ from servotune.io.rig import FLOAT_SIGNIFICANT_DIGITS as FLOAT_SIGNIFICANT_DIGIT
 from servotune.io.rig import build_section, edit_plant_text
 from servotune.laws.lock import lock_holding_band
 from servotune.plant import Plant
-from servotune.validate import check_integer, check_keys, check_number, is_number, show_value
+from servotune.validate import (
+    check_integer,
+    check_keys,
+    check_number,
+    check_table,
+    is_number,
+    show_value,
+)
 
 __all__ = [
     "EXAMPLE_RIG_PATH",
@@ -547,14 +554,7 @@ def check_plant(
 def _table(
     data: Mapping[str, Any], key: str, path: str, required: bool = True
 ) -> Mapping[str, Any]:
-    if key not in data:
-        if required:
-            raise RigError(f"missing table [{path}]")
-        return {}
-    t = data[key]
-    if not isinstance(t, Mapping):
-        raise RigError(f"[{path}] must be a table, got {type(t).__name__}")
-    return t
+    return check_table(data, key, error=RigError, required=required, path=path)
 
 
 def rig_from_dict(data: Mapping[str, Any], default_name: str = "rig") -> Rig:
