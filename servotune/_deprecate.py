@@ -13,7 +13,7 @@ import warnings
 from collections.abc import Callable, Mapping
 from typing import Any
 
-__all__ = ["moved_names"]
+__all__ = ["moved_module", "moved_names"]
 
 
 def moved_names(package: str, moved: Mapping[str, str]) -> Callable[[str], Any]:
@@ -44,3 +44,11 @@ def moved_names(package: str, moved: Mapping[str, str]) -> Callable[[str], Any]:
         return getattr(importlib.import_module(moved[name]), name)
 
     return __getattr__
+
+
+def moved_module(old: str, new: str) -> None:
+    """Warn (``DeprecationWarning``, at the importer's line) that module ``old`` moved to ``new``.
+
+    Called once at the top level of an old module that re-exports the new one's names.
+    """
+    warnings.warn(f"{old} moved to {new}; import it from there", DeprecationWarning, stacklevel=3)

@@ -6,6 +6,12 @@ until ``engine.py`` changes too. Bit-true results cannot rest on that, so while 
 modules are imported (and their functions decorated), numba's cache directory is one named by
 a digest of every servotune source file: any edit compiles afresh, and an unchanged tree reuses
 its cache. ``NUMBA_CACHE_DIR``, when set, is left to rule.
+
+numba has no public per-function cache location: it reads ``numba.config.CACHE_DIR`` when a
+function is decorated with ``cache=True``. :func:`jit` therefore sets it for the length of its
+own decoration call and restores it (the environment is never touched): other packages'
+functions, decorated before or after, keep numba's defaults. The one exception the public API
+leaves open is a function decorated by another thread during those microseconds.
 """
 
 from __future__ import annotations

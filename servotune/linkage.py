@@ -4,13 +4,8 @@ Importing this module warns (``DeprecationWarning``) and gives the same objects;
 removed in a later release. The names are also in the top-level ``servotune`` API.
 """
 
-import warnings
-
+from servotune._deprecate import moved_module
 from servotune.arch.linkage import *  # noqa: F403 (the same public names)
 from servotune.arch.linkage import __all__  # noqa: F401
 
-warnings.warn(
-    "servotune.linkage moved to servotune.arch.linkage; import it from there",
-    DeprecationWarning,
-    stacklevel=2,
-)
+moved_module(__name__, "servotune.arch.linkage")

@@ -29,6 +29,7 @@ from servotune.validate import (
     check_integer,
     check_keys,
     check_number,
+    check_strings,
     check_table,
     is_number,
     show_value,
@@ -595,9 +596,7 @@ def rig_from_dict(data: Mapping[str, Any], default_name: str = "rig") -> Rig:
             plant_fit = build_section(PlantFit, fit_t, f"axis.{name}.plant.fit")
         axes.append(build_section(Axis, at, f"axis.{name}", name=name, plant=plant,
                                   plant_fit=plant_fit))  # fmt: skip
-    for key in ("name", "description"):
-        if key in meta and not isinstance(meta[key], str):
-            raise RigError(f"rig.{key} must be a string, got {show_value(meta[key])}")
+    check_strings(meta, "rig", ("name", "description"), error=RigError)
     return Rig(
         name=str(meta.get("name", default_name)),
         description=str(meta.get("description", "")),

@@ -4,8 +4,7 @@ Importing this module warns (``DeprecationWarning``) and gives the same objects;
 removed in a later release. The names are also in the top-level ``servotune`` API.
 """
 
-import warnings
-
+from servotune._deprecate import moved_module
 from servotune.arch.gantry import *  # noqa: F403 (the same public names)
 from servotune.arch.gantry import __all__ as _GANTRY
 from servotune.arch.gantry.load import load_gantry
@@ -13,8 +12,4 @@ from servotune.tune.sync import resolve_gains, tune_sync
 
 __all__ = [*_GANTRY, "load_gantry", "resolve_gains", "tune_sync"]
 
-warnings.warn(
-    "servotune.sync moved to servotune.arch.gantry; import it from there",
-    DeprecationWarning,
-    stacklevel=2,
-)
+moved_module(__name__, "servotune.arch.gantry")

@@ -32,6 +32,7 @@ __all__ = [
     "check_integer",
     "check_keys",
     "check_number",
+    "check_strings",
     "check_table",
     "is_number",
     "show_number",
@@ -128,8 +129,6 @@ def check_number(
         Exclude ``hi``.
     error : type of Exception
         What to raise.
-    noun : str
-        What the keys are called in the messages (``"key"``, ``"table"``).
 
     Raises
     ------
@@ -219,6 +218,22 @@ def check_keys(
     if missing:
         raise error(f"missing {noun} {prefix}{missing[0]}")
     return dict(d)
+
+
+def check_strings(
+    d: Mapping[str, Any], path: str, keys: Sequence[str], *, error: type[Exception] = ValueError
+) -> None:
+    """Raise ``error`` unless each of ``keys`` present in the table ``d`` is a string.
+
+    Raises
+    ------
+    error
+        ``"rig.name must be a string, got 3"`` (``path`` ``""``: ``"name must be ..."``).
+    """
+    prefix = f"{path}." if path else ""
+    for k in keys:
+        if k in d and not isinstance(d[k], str):
+            raise error(f"{prefix}{k} must be a string, got {show_value(d[k])}")
 
 
 def check_table(

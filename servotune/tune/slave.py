@@ -42,6 +42,7 @@ from servotune.plant import Plant
 from servotune.rig import Rig
 from servotune.scenarios import Scenario, _sync_move_for
 from servotune.sim.engine import Loop, prepare_batch, run_batch
+from servotune.validate import check_integer, check_number
 
 __all__ = [
     "STRUCTURES",
@@ -99,22 +100,14 @@ class SlaveTuneSpec:
     generations: int = 40
 
     def __post_init__(self) -> None:
-        checks = {
-            "max_saturation_pct": (0.0, 100.0, "%"),
-            "max_overshoot_pct": (0.0, math.inf, "%"),
-            "gain_spread": (0.0, 0.9, "1"),
-            "tau_spread": (0.0, 0.9, "1"),
-        }
-        for name, (lo, hi, unit) in checks.items():
-            v = getattr(self, name)
-            if not isinstance(v, int | float) or not lo <= v <= hi:
-                raise SpecError(f"{name} must be in [{lo}, {hi}] [{unit}], got {v!r}")
-        if not self.seconds > 0:
-            raise SpecError(f"seconds must be > 0 [s], got {self.seconds!r}")
-        if not isinstance(self.population, int) or self.population < 5:
-            raise SpecError(f"population must be an integer >= 5, got {self.population!r}")
-        if not isinstance(self.generations, int) or self.generations < 0:
-            raise SpecError(f"generations must be an integer >= 0, got {self.generations!r}")
+        e = SpecError
+        check_number("max_saturation_pct", self.max_saturation_pct, "%", hi=100.0, error=e)
+        check_number("max_overshoot_pct", self.max_overshoot_pct, "%", error=e)
+        check_number("gain_spread", self.gain_spread, "1", hi=0.9, error=e)
+        check_number("tau_spread", self.tau_spread, "1", hi=0.9, error=e)
+        check_number("seconds", self.seconds, "s", strict=True, error=e)
+        check_integer("population", self.population, "candidates", lo=5, error=e)
+        check_integer("generations", self.generations, "generations", error=e)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict."""

@@ -66,7 +66,7 @@ from typing import Any
 
 from servotune.errors import SpecError
 from servotune.io.files import parse_toml, read_bytes
-from servotune.validate import check_keys, check_number, check_table, show_value
+from servotune.validate import check_keys, check_number, check_strings, check_table, show_value
 
 __all__ = [
     "KINDS",
@@ -407,9 +407,7 @@ def spec_from_dict(data: Mapping[str, Any], default_name: str = "spec") -> Spec:
     _only(data, "", ("spec", "timer", "montecarlo", "scenario"))
     meta = _table(data, "spec")
     _only(meta, "spec", ("name", "description", "rig"))
-    for k in ("name", "description", "rig"):
-        if k in meta and not isinstance(meta[k], str):
-            raise SpecError(f"spec.{k} must be a string, got {show_value(meta[k])}")
+    check_strings(meta, "spec", ("name", "description", "rig"), error=SpecError)
     timer = _table(data, "timer")
     _only(timer, "timer", ("max_period_error_ppm",))
     mc_t = dict(_table(data, "montecarlo"))

@@ -103,5 +103,7 @@ def test_bad_requests(rig: st.Rig) -> None:
         tune_slave(rig, g[0], structure="composite", start=g[1])
     with pytest.raises(SpecError, match="population must be"):
         SlaveTuneSpec(population=2)
-    with pytest.raises(SpecError, match="max_saturation_pct must be in"):
+    with pytest.raises(SpecError, match=r"max_saturation_pct must be a number in \[0, 100\]"):
         SlaveTuneSpec(max_saturation_pct=-1.0)
+    with pytest.raises(SpecError, match="seconds must be a number > 0"):
+        SlaveTuneSpec(seconds=float("nan"))

@@ -29,6 +29,7 @@ from servotune.validate import (
     check_integer,
     check_keys,
     check_number,
+    check_strings,
     check_table,
     is_number,
     show_value,
@@ -438,9 +439,7 @@ def linkage_from_dict(
             top[key] = data[key]
     if "period_s" not in top:
         raise ConfigError("missing key period_s (the nominal sampling period [s])")
-    for key in ("name", "description"):
-        if key in data and not isinstance(data[key], str):
-            raise ConfigError(f"{key} must be a string, got {show_value(data[key])}")
+    check_strings(data, "", ("name", "description"), error=ConfigError)
     return LinkageConfig(
         name=str(data.get("name", default_name)),
         description=str(data.get("description", "")),
