@@ -265,6 +265,17 @@ def _cmd_verify(args: argparse.Namespace) -> int:
     return EXIT_OK if result.passed else EXIT_FAILED
 
 
+def _cmd_margins(args: argparse.Namespace) -> int:
+    from servotune.report.text import format_margins
+    from servotune.verify import MarginLimits, margins_files
+
+    limits = MarginLimits(min_phase_margin_deg=args.pm, min_gain_margin_db=args.gm,
+                          max_sensitivity=args.ms)  # fmt: skip
+    m = margins_files(args.tuning, args.rig, limits=limits)
+    _print_product(args.json, m.to_dict, lambda: format_margins(m))
+    return EXIT_OK if m.passed else EXIT_FAILED
+
+
 def _cmd_export_table(args: argparse.Namespace) -> int:
     from servotune.export import tables_to_string, write_c, write_tables
     from servotune.tuning import current_tuning_path
@@ -502,6 +513,23 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--json", action="store_true", help="the verification record as JSON on stdout")
     s.add_argument("--report", help="also write the HTML report into this directory")
     s.set_defaults(func=_cmd_verify)
+
+    s = sub.add_parser(
+        "margins",
+        help="gain, phase and delay margins, Ms and Mt of every loop a tuning can run "
+        "(exit 1 if one breaks a limit)",
+    )
+    s.add_argument("tuning", help="tuning file (from servotune tune)")
+    s.add_argument(
+        "--rig",
+        help="rig file: a copy of the tuning's rig (default: the path the tuning records, then "
+        "plants/<rig name>.toml); another rig is refused (exit 1)",
+    )
+    s.add_argument("--pm", type=float, default=45.0, help="least phase margin [deg] (default 45)")
+    s.add_argument("--gm", type=float, default=6.0, help="least gain margin [dB] (default 6)")
+    s.add_argument("--ms", type=float, default=2.0, help="largest peak sensitivity (default 2.0)")
+    s.add_argument("--json", action="store_true", help="every loop's figures as JSON on stdout")
+    s.set_defaults(func=_cmd_margins)
 
     s = sub.add_parser("export-table", help="export a verified tuning's tables (JSON or C)")
     s.add_argument("tuning", nargs="?", help="tuning file (default: the workbench's current one)")

@@ -14,9 +14,16 @@ from servotune.validate import show_number, show_value
 if TYPE_CHECKING:
     from servotune.arch.gantry.result import SyncComparison
     from servotune.arch.linkage.result import LinkageResult
+    from servotune.verify.margins import LoopMargins, Margins
     from servotune.verify.result import Verification
 
-__all__ = ["format_comparison", "format_linkage_summary", "format_rig_facts", "format_table"]
+__all__ = [
+    "format_comparison",
+    "format_linkage_summary",
+    "format_margins",
+    "format_rig_facts",
+    "format_table",
+]
 
 
 def format_table(verification: Verification) -> str:
@@ -157,4 +164,59 @@ def format_rig_facts(f: Mapping[str, Any]) -> str:
             f"    lock holding band      [{lo}, {hi}] counts "
             f"({'within' if a['lock_band_within_one_pulse'] else 'outside'} ±1 pulse)",
         ]
+    return "\n".join(lines)
+
+
+def _margin_row(m: LoopMargins, what: str, broken: tuple[str, ...]) -> str:
+    def num(x: float, digits: int) -> str:
+        return f"{x:.{digits}f}" if math.isfinite(x) else "inf"
+
+    verdict = "ok" if not broken else "FAIL: " + "; ".join(broken)
+    return (
+        f"{m.axis:<8} {what:<26} {m.plant:<10} {num(m.phase_margin_deg, 1):>7} "
+        f"{num(m.gain_margin_db, 1):>7} {num(m.delay_margin_ticks, 2):>9} "
+        f"{num(m.max_sensitivity, 2):>6} {num(m.max_complementary_sensitivity, 2):>6} "
+        f"{num(m.bandwidth_rad_s, 1):>9}  {verdict}"
+    )
+
+
+def format_margins(margins: Margins) -> str:
+    """What ``servotune margins`` prints: per axis and loop the worst case, the scheduled
+    axes' worst and centre cells, and the verdict naming the worst loop."""
+    lim = margins.limits
+    lines = [
+        f"loop margins (limits: PM >= {lim.min_phase_margin_deg:g}°, GM >= "
+        f"{lim.min_gain_margin_db:g} dB, Ms <= {lim.max_sensitivity:g})",
+        f"{'axis':<8} {'loop':<26} {'plant':<10} {'PM[deg]':>7} {'GM[dB]':>7} "
+        f"{'DM[ticks]':>9} {'Ms':>6} {'Mt':>6} {'BW[rad/s]':>9}",
+    ]
+    axes = list(dict.fromkeys(m.axis for m in margins.loops))
+    scheduled = False
+    for a in axes:
+        for loop in ("lock", "task"):
+            ms = list(margins.select(a, loop))
+            if not ms:
+                continue
+            worst = margins.worst(a, loop)
+            if worst.cell is None:
+                lines.append(_margin_row(worst, loop, lim.broken(worst)))
+                continue
+            scheduled = True
+            n_bad = sum(bool(lim.broken(m)) for m in ms)
+            cells = len({m.cell for m in ms})
+            lines.append(_margin_row(worst, f"task worst of {cells} cells", lim.broken(worst)))
+            lines.append(f"{'':<8}   at E={worst.cell[0]:+d} EC={worst.cell[1]:+d}; "
+                         f"{n_bad} of {len(ms)} cell loops break a limit")  # fmt: skip
+            centre = [m for m in ms if m.cell == (0, 0) and m.plant == worst.plant]
+            if centre:
+                lines.append(_margin_row(centre[0], "task centre cell", lim.broken(centre[0])))
+    if scheduled:
+        lines.append("the feedforward (K1) acts on the reference only: it changes no margin")
+    bad = margins.failures()
+    if not bad:
+        lines.append(f"margins: PASS ({len(margins.loops)} loops)")
+    else:
+        m, b = bad[0]
+        lines.append(f"margins: FAIL ({len(bad)} of {len(margins.loops)} loops break a limit; "
+                     f"worst {m.name} on {m.plant}: {'; '.join(b)})")  # fmt: skip
     return "\n".join(lines)

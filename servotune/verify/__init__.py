@@ -6,6 +6,14 @@ table :mod:`.result`), and the trust chain from the verified bytes to the export
 
 from servotune._deprecate import moved_names
 from servotune.verify.checks import check_overflow, check_speed, check_timer, max_safe_gain_q
+from servotune.verify.margins import (
+    DEFAULT_LIMITS,
+    GainSet,
+    LoopMargins,
+    MarginLimits,
+    Margins,
+    tuning_margins,
+)
 from servotune.verify.record import (
     RECORD_SCHEMA,
     SourceFile,
@@ -13,6 +21,7 @@ from servotune.verify.record import (
     check_record,
     default_rig_path,
     load_for_export,
+    margins_files,
     read_record,
     record_path,
     rig_for_tuning,
@@ -35,10 +44,15 @@ from servotune.verify.spec import (
 from servotune.verify.variants import Variant, plant_variants
 
 __all__ = [
+    "DEFAULT_LIMITS",
     "KINDS",
     "LIMITS",
     "RECORD_SCHEMA",
     "Check",
+    "GainSet",
+    "LoopMargins",
+    "MarginLimits",
+    "Margins",
     "MonteCarlo",
     "Row",
     "ScenarioSpec",
@@ -54,6 +68,7 @@ __all__ = [
     "default_rig_path",
     "load_for_export",
     "load_spec",
+    "margins_files",
     "max_safe_gain_q",
     "plant_variants",
     "read_record",
@@ -61,6 +76,7 @@ __all__ = [
     "rig_for_tuning",
     "spec_from_bytes",
     "spec_from_dict",
+    "tuning_margins",
     "verification_record",
     "verify",
     "verify_files",

@@ -30,6 +30,7 @@ from servotune.errors import RigError, SpecError, TrustError, TuningError
 from servotune.io.files import atomic_write_text, json_float, parse_json, parse_toml, read_bytes
 from servotune.rig import EXAMPLE_RIG_PATH, Rig, rig_from_dict
 from servotune.tuning import Tuning, read_tuning_bytes
+from servotune.verify.margins import DEFAULT_LIMITS, MarginLimits, Margins, tuning_margins
 from servotune.verify.result import Verification
 from servotune.verify.run import verify
 from servotune.verify.spec import spec_from_bytes
@@ -41,6 +42,7 @@ __all__ = [
     "check_record",
     "default_rig_path",
     "load_for_export",
+    "margins_files",
     "read_record",
     "record_path",
     "rig_for_tuning",
@@ -288,6 +290,26 @@ def verify_files(
     record = verification_record(result, tuning=tuning_file, rig=rig_file, spec=spec_file)
     path = write_record(record, tuning_path) if write else None
     return result, record, path
+
+
+def margins_files(
+    tuning_path: str | Path,
+    rig_path: str | Path | None = None,
+    *,
+    limits: MarginLimits | None = None,
+) -> Margins:
+    """What ``servotune margins TUNING [--rig RIG]`` computes: the margins of every loop of the
+    tuning on the nominal plants of the rig it was made for (:func:`rig_for_tuning`).
+
+    Raises
+    ------
+    TrustError
+        The rig is not the one the tuning was made for.
+    TuningError, RigError
+        A file is missing or malformed.
+    """
+    tuning, _, rig, _ = _tuning_and_rig(tuning_path, rig_path)
+    return tuning_margins(tuning, rig, limits=DEFAULT_LIMITS if limits is None else limits)
 
 
 def read_record(tuning_path: str | Path) -> dict[str, Any]:
