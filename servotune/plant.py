@@ -226,7 +226,7 @@ def _target_speed(
     return vinf
 
 
-@jit
+@jit(inline="always")
 def advance(
     p: float,
     v: float,

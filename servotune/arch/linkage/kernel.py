@@ -5,11 +5,24 @@ The kernel schedules (which CPU ticks when, syncs, block arrivals, measurements)
 :mod:`servotune.sim.tick` (noise, latch and read, law and D/A, hold, advance), on a plant row
 built for the CPU's nominal tick (:func:`servotune.plant.plant_row`). Timing model and sync
 semantics: :mod:`servotune.arch.linkage`.
+
+Plumbing for speed, the same operations in the same order (bit for bit the same results):
+
+- the arrays the inlined tick functions are passed per axis (law states and constants, plant
+  rows, rings) are used through views without a memory info (:func:`_unmanaged`), so their
+  rows and slices are not reference-counted: each NRT_incref/NRT_decref call in the loop is
+  an atomic operation and spills the floating-point registers (about 13 % of the kernel);
+- the ring slot of each axis's tick is counted, not taken modulo the ring length;
+- a CPU tick draws its axes' encoder noise first, in the stream's order (by axis), so that
+  the draws overlap.
 """
 
 from __future__ import annotations
 
+import numba as nb
 import numpy as np
+from numba import types
+from numba.extending import intrinsic
 
 from servotune._numba_cache import jit
 from servotune.laws.axis import (
@@ -41,6 +54,32 @@ _T_POS, _T_SPD = 0, 1
 _NTF = 2
 
 
+@intrinsic
+def _pointer(typingctx, address, dtype):
+    """``address`` (an array's ``ctypes.data``) as a pointer to ``dtype``, for :func:`numba.carray`.
+
+    Built from numba's documented extension API (``@intrinsic``) and llvmlite's IR builder.
+    """
+    if not (isinstance(address, types.Integer) and isinstance(dtype, types.DTypeSpec)):
+        return None
+    el = dtype.dtype
+
+    def codegen(context, builder, sig, args):
+        return builder.inttoptr(args[0], context.get_value_type(el).as_pointer())
+
+    return types.CPointer(el)(address, dtype), codegen
+
+
+@jit(inline="always")
+def _unmanaged(arr):  # fmt: skip
+    """``arr``'s memory (C-contiguous) as an array without a memory info: its rows and slices
+    are not reference-counted. Only for an array that outlives every use of the result (an
+    argument of the calling function: its caller holds it)."""
+    if not arr.flags.c_contiguous:
+        raise ValueError("_unmanaged needs a C-contiguous array")
+    return nb.carray(_pointer(arr.ctypes.data, arr.dtype), arr.shape)
+
+
 @jit(inline="always")
 def _tick_time(anchor_s, ticks, period, eps):  # fmt: skip
     """Master time [s] of a CPU's tick ``ticks`` after its sync anchor: ``T/(1 + ε)`` apart."""
@@ -48,15 +87,16 @@ def _tick_time(anchor_s, ticks, period, eps):  # fmt: skip
 
 
 @jit(inline="always")
-def _measure(p, v, ring, c_last, m, h, w_off, row):  # fmt: skip
-    """An axis's position ``h`` [s] after its CPU's tick ``c_last``, from its state there.
+def _measure(p, v, ring, slot, c_last, m, h, w_off, row):  # fmt: skip
+    """An axis's position ``h`` [s] after its CPU's tick ``c_last`` (in ``slot`` of its ring),
+    from its state there.
 
     The writes held over that tick (:func:`~servotune.sim.tick.held`) act as in
     :func:`~servotune.sim.tick.advance_axis`; the state itself is not changed (a copy moves).
     """
     if h == 0.0:  # at the tick itself (what advance_span gives for h = 0, without its exp)
         return p
-    v_old, v_new = held(ring, c_last % ring.shape[0], m, c_last)
+    v_old, v_new = held(ring, slot, m, c_last)
     p_h, _ = advance_span(p, v, v_old + w_off, v_new + w_off, row[R_H1], h, row)
     return p_h
 
@@ -74,6 +114,33 @@ def _kernel(
     the per-CPU queue records ``q_*``, the statistics, and, if ``tr_i``/``tr_f`` have rows,
     the per-axis trace of each CPU tick (``_T_*`` rows).
     """
+    # the axis states at their CPU's last tick and the tick-slot rings of their writes,
+    # allocated here so that they outlive _events, which uses them (like the plant rows and law
+    # constants) without reference counting
+    n_ax = cmd.shape[1]
+    st = np.zeros((n_ax, N_STATE), dtype=np.int64)
+    width = 2
+    for a in range(n_ax):
+        width = max(width, ints[a, _I_RING])
+    hist = np.zeros((n_ax, width))
+    _events(
+        n_ticks, period, cmd, ax_cpu, rows, ints, consts, seed, cpu_eps, cpu_depth,
+        block, prefill, frame_s, resync_ticks, bits, latched, skew, dac_lo, lsb,
+        actual, q_time, q_level, q_index, cpu_stats, ax_stats, tr_i, tr_f, st, hist,
+    )  # fmt: skip
+
+
+@jit
+def _events(
+    n_ticks, period, cmd, ax_cpu, rows, ints, consts, seed, cpu_eps, cpu_depth,
+    block, prefill, frame_s, resync_ticks, bits, latched, skew, dac_lo, lsb,
+    actual, q_time, q_level, q_index, cpu_stats, ax_stats, tr_i, tr_f, st, hist,
+):  # fmt: skip
+    """:func:`_kernel`'s event loop, given the zeroed axis states ``st`` and rings ``hist``.
+
+    The arrays the axis tick is passed (law states and constants, plant rows, rings) are used
+    through :func:`_unmanaged` views: the caller keeps them alive.
+    """
     n_ax = cmd.shape[1]
     n_cmd = cmd.shape[0]
     n_cpu = cpu_eps.shape[0]
@@ -83,16 +150,18 @@ def _kernel(
     nbytes = bits // 8
     t_end = n_ticks * period
     rng = seed
-    # axis states at their CPU's last tick, and the tick-slot rings of their writes
-    st = np.zeros((n_ax, N_STATE), dtype=np.int64)
+    st = _unmanaged(st)
+    hist = _unmanaged(hist)
+    rows = _unmanaged(rows)
+    consts = _unmanaged(consts)
     pos = np.zeros(n_ax)
     spd = np.zeros(n_ax)
-    width = 2
-    for a in range(n_ax):
-        width = max(width, ints[a, _I_RING])
-    hist = np.zeros((n_ax, width))
+    nz = np.zeros(n_ax)  # encoder noise of the reads of a CPU tick
+    # each ring's slot of its CPU's last tick (k mod ring length, kept without a division)
+    slot = np.zeros(n_ax, dtype=np.int64)
     last_ref = np.zeros(n_ax, dtype=np.int64)
     for a in range(n_ax):
+        slot[a] = ints[a, _I_RING] - 1
         last_ref[a] = cmd[0, a]
         ax_stats[a, _A_T_FAULT] = -1.0
     # queues
@@ -186,6 +255,10 @@ def _kernel(
             t_next[s] = _tick_time(anc_t[s], next_j[s] - anc_k[s], period, cpu_eps[s])
             h = t - t_last[s]
             regular = not stretched[s]
+            # 1. the encoder noise of the CPU's reads, drawn first (in the stream's order: by axis)
+            for a in range(n_ax):
+                if ax_cpu[a] == s:
+                    rng, nz[a] = draw_noise(rng, rows[a, R_NOISE])
             for a in range(n_ax):
                 if ax_cpu[a] != s:
                     continue
@@ -193,27 +266,28 @@ def _kernel(
                 m = ints[a, _I_LAG]
                 ring = hist[a, : ints[a, _I_RING]]
                 w_off = row[R_OFFSET]
+                prev = slot[a]
+                now = prev + 1 if prev + 1 < ring.shape[0] else 0
                 # 5. the motor over the CPU's previous tick: one regular tick on the row, else
                 # the interval a sync made (the same held writes, switching at λ)
                 if c > 0:
-                    slot = (c - 1) % ring.shape[0]
                     if regular:
-                        pos[a], spd[a] = advance_axis(pos[a], spd[a], ring, slot, m, c - 1,
+                        pos[a], spd[a] = advance_axis(pos[a], spd[a], ring, prev, m, c - 1,
                                                       w_off, row)  # fmt: skip
                     else:
-                        v_old, v_new = held(ring, slot, m, c - 1)
+                        v_old, v_new = held(ring, prev, m, c - 1)
                         pos[a], spd[a] = advance_span(pos[a], spd[a], v_old + w_off,
                                                       v_new + w_off, row[R_H1], h, row)  # fmt: skip
                 # 1-2. sample and read
-                rng, nz = draw_noise(rng, row[R_NOISE])
-                _raw, y = read_axis(st, consts, a, pos[a], spd[a], nz, ints[a, _I_INIT], mask,
+                _raw, y = read_axis(st, consts, a, pos[a], spd[a], nz[a], ints[a, _I_INIT], mask,
                                     latched, nbytes, skew, False)  # fmt: skip
                 # 3-4. the law on the popped command (the previous one on an underrun), D/A, hold
                 ref = cmd[j, a] if ok else last_ref[a]
                 last_ref[a] = ref
                 code, flags, _e, volts = write_axis(st, consts, a, ref, MODE_TASK, False, 0,
                                                     dac_lo, lsb)  # fmt: skip
-                hold(ring, c % ring.shape[0], volts)
+                hold(ring, now, volts)
+                slot[a] = now
                 if flags & FLAG_SATURATED:
                     ax_stats[a, _A_SAT] += 1.0
                 fault = flags & (FLAG_COUNTER_FAULT | FLAG_FOLLOWING_ERROR)
@@ -238,7 +312,7 @@ def _kernel(
                     continue
                 row = rows[a]
                 actual[k_next, a] = _measure(pos[a], spd[a], hist[a, : ints[a, _I_RING]],
-                                             c_last, ints[a, _I_LAG], t - t_last[s],
+                                             slot[a], c_last, ints[a, _I_LAG], t - t_last[s],
                                              row[R_OFFSET], row)  # fmt: skip
             k_next += 1
         else:  # block nb_next has arrived
