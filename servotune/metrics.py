@@ -1,10 +1,11 @@
 """Step-response and tracking metrics.
 
 Plain functions on sampled responses. :func:`step_info` follows the definitions of MATLAB
-``stepinfo`` but does not depend on the sample grid: every level crossing is located by linear
-interpolation between the two samples around it, and every extremum is refined with the vertex of
-the parabola through the extreme sample and its two neighbours. :func:`tracking_metrics`
-summarises a tracking-error sequence sampled once per tick.
+``stepinfo``. By default it reads them at the samples, as MATLAB ``stepinfo`` and python-control's
+``step_info`` do for a discrete-time system (the response of a sampled loop is known only at its
+ticks); ``refine=True`` instead interpolates crossings and refines extrema between the samples,
+for densely sampled continuous-like data. :func:`tracking_metrics` summarises a tracking-error
+sequence sampled once per tick.
 """
 
 from __future__ import annotations
@@ -26,12 +27,14 @@ class StepInfo:
     """Step-response characteristics, as returned by :func:`step_info`.
 
     Every field is a plain ``float``; a characteristic that the response does not reach is NaN.
+    Times and values are read at the samples, or between them with ``refine=True`` (see
+    :func:`step_info`).
 
     Parameters
     ----------
     rise_time_s : float
         Time from the first crossing of the lower rise limit to the first crossing of the
-        upper rise limit [s]. NaN if the response never reaches either limit.
+        upper rise limit [s]. NaN if the response never reaches the upper limit.
     settling_time_s : float
         Time, measured from ``t[0]``, after which the response stays within the settling band
         around ``y_final`` [s]. NaN if the last sample is still outside the band.
@@ -48,7 +51,7 @@ class StepInfo:
     peak : float
         Peak of ``|y - y_init|`` [unit of y].
     peak_time_s : float
-        Time at which ``peak`` occurs, on the time axis of ``t`` [s].
+        Time at which ``peak`` first occurs, on the time axis of ``t`` [s].
     """
 
     rise_time_s: float
@@ -130,17 +133,15 @@ def step_info(
     y_final: float | None = None,
     settling_threshold: float = 0.02,
     rise_limits: tuple[float, float] = (0.1, 0.9),
+    refine: bool = False,
 ) -> StepInfo:
-    """Compute step-response characteristics independently of the sample grid.
+    """Compute step-response characteristics of a sampled response.
 
     The definitions are those of MATLAB ``stepinfo``, applied to the normalised response
     ``z = (y - y_init) / (y_final - y_init)`` (so a negative step is handled like a positive
-    one), but the results are interpolated rather than read off a sample:
-
-    - level crossings (rise limits, settling band exit) are found by linear interpolation
-      between the two samples that bracket the level;
-    - extrema (peak, overshoot, undershoot, settling minimum and maximum) at an interior sample
-      are refined to the vertex of the parabola through that sample and its two neighbours.
+    one). By default they are read at the samples, the convention of MATLAB ``stepinfo`` and
+    python-control's ``step_info`` for a discrete-time system; ``refine=True`` estimates them
+    between the samples instead (see Notes).
 
     Parameters
     ----------
@@ -158,6 +159,10 @@ def step_info(
     rise_limits : tuple of float, optional
         Lower and upper rise levels as fractions of the step [-], ``0 <= low < high <= 1``.
         Default (0.1, 0.9).
+    refine : bool, optional
+        False (default): read every characteristic at the samples. True: locate level
+        crossings by linear interpolation and refine extrema with a parabola, for densely
+        sampled data of a continuous response.
 
     Returns
     -------
@@ -169,34 +174,77 @@ def step_info(
         ``settling_min``, ``settling_max`` [unit of y]: extrema of ``y`` from the upper rise
         crossing on. ``overshoot_pct``, ``undershoot_pct`` [%]: ``100 * max(0, max(z) - 1)``
         and ``100 * max(0, -min(z))``. ``peak`` [unit of y]: maximum of ``|y - y_init|``;
-        ``peak_time_s`` [s]: its time on the axis of ``t``.
+        ``peak_time_s`` [s]: its (first) time on the axis of ``t``.
 
     Raises
     ------
     ValueError
         If ``t`` or ``y`` is not a finite 1-D array of at least 3 samples, their lengths
         differ, ``t`` is not strictly increasing, ``y_init`` or ``y_final`` is not finite,
-        the step ``y_final - y_init`` is zero, or ``settling_threshold`` or ``rise_limits``
-        is out of range.
+        the step ``y_final - y_init`` is zero, ``settling_threshold`` or ``rise_limits``
+        is out of range, or ``refine`` is not a bool.
 
     Notes
     -----
-    The settling test is made on the samples: an excursion out of the band that starts and
-    ends between two samples is not seen. Rise and settling times carry an interpolation
-    error of order ``dt**2`` times the curvature of the response at the crossing; peak values
-    an error of order ``dt**3`` and peak times of order ``dt**2``.
+    **At the samples** (default), as python-control's ``step_info`` computes them (on any
+    time grid) and as MATLAB ``stepinfo`` reads a discrete-time system (the times of the 0.2 s
+    ``ss`` example of its page are multiples of the sample time):
+
+    - rise time: ``t[i_high] - t[i_low]``, where ``i_low`` and ``i_high`` are the first samples
+      with ``z >= low`` and ``z >= high``;
+    - settling time: ``t[j + 1] - t[0]``, where ``j`` is the last sample outside the band (the
+      first sample of the final run of samples inside it);
+    - settling min / max: extrema of the samples from ``i_high`` on;
+    - overshoot, undershoot, peak: extreme samples; peak time: time of the first sample of
+      largest ``|y - y_init|``.
+
+    With ``y_init = 0`` and ``y_final`` its DC gain, the result equals python-control's
+    ``step_info`` of a discrete-time system except in two documented details:
+
+    - ``settling_min`` / ``settling_max`` are extrema of the samples, as MATLAB defines them;
+      python-control clips them to ``y_final`` (``min(..., y_final)``, ``max(..., y_final)``),
+      which for a response still approaching ``y_final`` at the last sample reports a value
+      the response never takes;
+    - the settling band is tested as ``|y - y_final| <= threshold * |y_final - y_init|`` on
+      the deviation, so a sample exactly on the edge (e.g. integer counts: 980 for a 1000-count
+      step and a 2 % band) is inside; python-control tests ``|y / y_final - 1| >= threshold``,
+      which decides such ties by the rounding of the division.
+
+    The settling band is relative to the step ``|y_final - y_init|`` (current MATLAB and
+    python-control). Older MATLAB releases used 2 % of the peak error ``max|y - y_final|``
+    instead, a wider band when that error exceeds the step (a response that starts on the wrong
+    side of ``y_init``, or overshoots by more than 100 %): that is why the discrete example of
+    the MATLAB page gives settling times one sample earlier on two of its channels.
+
+    **Between the samples** (``refine=True``), an estimate of the continuous response the
+    samples come from: level crossings (rise limits, settling band exit) are found by linear
+    interpolation between the two samples that bracket the level, as MATLAB does for a
+    continuous-time system; extrema (peak, overshoot, undershoot, settling minimum and
+    maximum) at an interior sample are refined to the vertex of the parabola through that
+    sample and its two neighbours (MATLAB reads them off its simulation grid), and the
+    settling extrema start at the interpolated upper rise crossing. Rise and settling times
+    then carry an error of order ``dt**2`` times the curvature of the response at the
+    crossing; peak values an error of order ``dt**3`` and peak times of order ``dt**2``. In
+    both modes the settling test is made on the samples: an excursion out of the band that
+    starts and ends between two samples is not seen.
 
     MATLAB's data syntax ``stepinfo(y, t)`` takes ``y_init = 0``; here the default is ``y[0]``,
-    the value the response starts from. Pass ``y_init=0.0`` to reproduce MATLAB.
+    the value the response starts from. Pass ``y_init=0.0`` to reproduce MATLAB and
+    python-control (a response with direct feedthrough starts away from 0).
 
     Examples
     --------
-    A first-order lag with time constant 1 s: rise time ln 9, settling time ln 50.
+    A first-order lag with time constant 1 s sampled every 50 ms: rise time ln 9 = 2.197 s and
+    settling time ln 50 = 3.912 s, read at the samples (the 10 %, 90 % and 2 % levels are first
+    reached at the samples 0.15 s, 2.35 s and 3.95 s) or interpolated between them.
 
     >>> import numpy as np
     >>> t = np.arange(401) * 0.05
     >>> info = step_info(t, 1.0 - np.exp(-t), y_final=1.0)
     >>> round(info.rise_time_s, 3), round(info.settling_time_s, 3)
+    (2.2, 3.95)
+    >>> fine = step_info(t, 1.0 - np.exp(-t), y_final=1.0, refine=True)
+    >>> round(fine.rise_time_s, 3), round(fine.settling_time_s, 3)
     (2.197, 3.912)
     >>> info.overshoot_pct
     0.0
@@ -217,8 +265,82 @@ def step_info(
     if not 0.0 < threshold < 1.0:
         raise ValueError(f"settling_threshold must be in (0, 1), got {threshold!r}")
     low, high = _rise_limits(rise_limits)
+    if not isinstance(refine, (bool, np.bool_)):
+        raise ValueError(f"refine must be True or False, got {refine!r}")
+    if refine:
+        return _step_info_refined(t_arr, y_arr, y0, y1, threshold, low, high)
+    return _step_info_sampled(t_arr, y_arr, y0, y1, threshold, low, high)
 
-    z = (y_arr - y0) / step
+
+def _step_info_sampled(
+    t: NDArray[np.float64],
+    y: NDArray[np.float64],
+    y0: float,
+    y1: float,
+    threshold: float,
+    low: float,
+    high: float,
+) -> StepInfo:
+    """:func:`step_info` read at the samples (python-control's ``step_info`` conventions)."""
+    step = y1 - y0
+    size = abs(step)
+    # Deviation from y_init in the direction of the step: it is `size` at y_final. Levels are
+    # compared as `dev >= level * size`, which is exactly python-control's
+    # `sign * (y - level * y_final) >= 0` when y_init = 0.
+    dev = (y - y0) if step > 0.0 else (y0 - y)
+
+    # Rise time: first samples at or beyond the two rise levels.
+    i_low = _first_index(dev >= low * size)
+    i_high = _first_index(dev >= high * size)
+    rise_time = math.nan if i_high < 0 else float(t[i_high] - t[i_low])
+
+    # Settling time: the first sample of the final run of samples inside the band.
+    outside = np.flatnonzero(np.abs(y - y1) > threshold * size)
+    if outside.size == 0:
+        settling_time = 0.0
+    elif outside[-1] == y.size - 1:
+        settling_time = math.nan
+    else:
+        settling_time = float(t[outside[-1] + 1] - t[0])
+
+    # Settling min / max: extreme samples from the first one at or beyond the upper level.
+    if i_high < 0:
+        settling_min = settling_max = math.nan
+    else:
+        settling_min = float(np.min(y[i_high:]))
+        settling_max = float(np.max(y[i_high:]))
+
+    # Overshoot / undershoot: extreme samples of the deviation, relative to the step size.
+    overshoot = 100.0 * max(0.0, float(np.max(dev)) - size) / size
+    undershoot = 100.0 * max(0.0, -float(np.min(dev))) / size
+
+    # Peak of |y - y_init| and the time of its first sample.
+    abs_dev = np.abs(dev)
+    i_peak = int(np.argmax(abs_dev))
+
+    return StepInfo(
+        rise_time_s=rise_time,
+        settling_time_s=settling_time,
+        settling_min=settling_min,
+        settling_max=settling_max,
+        overshoot_pct=overshoot,
+        undershoot_pct=undershoot,
+        peak=float(abs_dev[i_peak]),
+        peak_time_s=float(t[i_peak]),
+    )
+
+
+def _step_info_refined(
+    t_arr: NDArray[np.float64],
+    y_arr: NDArray[np.float64],
+    y0: float,
+    y1: float,
+    threshold: float,
+    low: float,
+    high: float,
+) -> StepInfo:
+    """:func:`step_info` with interpolated crossings and parabola-refined extrema."""
+    z = (y_arr - y0) / (y1 - y0)
 
     # Rise time: first crossings of the two rise levels.
     t_low = _first_crossing(t_arr, z, low)
@@ -403,6 +525,12 @@ def _rise_limits(rise_limits: tuple[float, float]) -> tuple[float, float]:
 def _crossing_time(t0: float, t1: float, v0: float, v1: float, level: float) -> float:
     """Time at which the straight line from (t0, v0) to (t1, v1) takes the value ``level``."""
     return float(t0 + (level - v0) / (v1 - v0) * (t1 - t0))
+
+
+def _first_index(mask: NDArray[np.bool_]) -> int:
+    """Index of the first True in ``mask``; -1 if there is none."""
+    hits = np.flatnonzero(mask)
+    return int(hits[0]) if hits.size else -1
 
 
 def _first_crossing(t: NDArray[np.float64], z: NDArray[np.float64], level: float) -> float:

@@ -1,4 +1,11 @@
-"""Tests for servotune.metrics: step-response characteristics and tracking metrics."""
+"""Tests for servotune.metrics: step-response characteristics and tracking metrics.
+
+The continuous-time references below (MATLAB's examples of continuous systems, exact and
+analytic responses) are compared with ``step_info(..., refine=True)``, which estimates the
+continuous response between the samples. The default reading at the samples (python-control's
+and MATLAB's convention for discrete-time systems) is cross-checked against python-control in
+tests/test_step_info_discrete.py and against hand-computed sample indices here.
+"""
 
 from __future__ import annotations
 
@@ -49,11 +56,15 @@ TF_EXAMPLE_DC_GAIN = 2.5  # 5 / 2, num(0) / den(0)
 
 
 def _tf_example_info(dt: float, t_end: float = 40.0) -> StepInfo:
+    # A continuous system sampled on a grid: refine=True (crossings interpolated, as MATLAB does
+    # for continuous systems; extrema refined between samples).
     n = round(t_end / dt) + 1
     t = np.arange(n) * dt  # integer index times dt, never arange with a float step
     sys = control.tf([1, 5, 5], [1, 1.65, 5, 6.5, 2])
     response = control.step_response(sys, T=t)
-    return step_info(response.time, response.outputs, y_init=0.0, y_final=TF_EXAMPLE_DC_GAIN)
+    return step_info(
+        response.time, response.outputs, y_init=0.0, y_final=TF_EXAMPLE_DC_GAIN, refine=True
+    )
 
 
 def test_step_info_matlab_example() -> None:
@@ -101,7 +112,7 @@ def test_step_info_nonminimum_phase_matlab_example() -> None:
     dt = 0.05
     t = np.arange(201) * dt
     response = control.step_response(control.tf([-1, 2], [1, 2, 2]), T=t)
-    info = step_info(t, response.outputs, y_init=0.0, y_final=1.0).to_dict()
+    info = step_info(t, response.outputs, y_init=0.0, y_final=1.0, refine=True).to_dict()
     for name, value in reference.items():
         assert_allclose(info[name], value, rtol=5e-3, err_msg=name)
     # MATLAB's SettlingMin 0.9042 is the first sample of its grid after the 90 % crossing; the
@@ -127,7 +138,7 @@ def test_step_info_first_order_analytic() -> None:
     # Linear interpolation of a concave exponential is late by at most dt^2 / (8 tau)
     # = 6.3e-4 s at dt = tau / 10, i.e. < 1e-3 relative to the rise time.
     t, y = _first_order(TAU_S / 10)
-    info = step_info(t, y, y_final=1.0)
+    info = step_info(t, y, y_final=1.0, refine=True)
     assert_allclose(info.rise_time_s, TAU_S * math.log(9.0), rtol=1e-3)
     assert_allclose(info.settling_time_s, TAU_S * math.log(50.0), rtol=1e-3)
     assert info.overshoot_pct == 0.0
@@ -139,23 +150,56 @@ def test_step_info_first_order_analytic() -> None:
     assert_allclose(info.settling_max, y[-1], rtol=1e-12)
 
 
-def test_step_info_negative_step_gives_same_times() -> None:
+def _first_sample_at(level: float, dt: float) -> int:
+    """First k with 1 - exp(-k dt / tau) >= level: k = ceil(-tau ln(1 - level) / dt)."""
+    return math.ceil(-TAU_S * math.log(1.0 - level) / dt)
+
+
+def test_step_info_first_order_at_samples() -> None:
+    # Default reading at the samples, by hand with dt = tau / 10 = 0.05 s:
+    # 10 %: -tau ln 0.9 / dt = 1.05 -> k = 2; 90 %: tau ln 10 / dt = 23.03 -> k = 24;
+    # rise time (24 - 2) dt = 1.1 s. Settling: exp(-k dt / tau) > 0.02 for k < 10 ln 50 = 39.1,
+    # so sample 39 is the last outside the band and the settling time is 40 dt = 2.0 s.
+    dt = TAU_S / 10
+    t, y = _first_order(dt)
+    info = step_info(t, y, y_final=1.0)
+    k_low, k_high = _first_sample_at(0.1, dt), _first_sample_at(0.9, dt)
+    assert (k_low, k_high) == (2, 24)
+    assert_allclose(info.rise_time_s, (k_high - k_low) * dt, rtol=1e-12)
+    assert_allclose(info.settling_time_s, 40 * dt, rtol=1e-12)
+    assert info.overshoot_pct == 0.0
+    assert info.undershoot_pct == 0.0
+    # Extrema are samples: the last sample is the peak; from sample k_high on, y[k_high] is
+    # the minimum (not the 0.9 level itself, which lies between samples 23 and 24).
+    assert info.peak == y[-1]
+    assert info.peak_time_s == t[-1]
+    assert info.settling_min == y[k_high]
+    assert info.settling_max == y[-1]
+
+
+@pytest.mark.parametrize("refine", [False, True])
+def test_step_info_negative_step_gives_same_times(refine: bool) -> None:
     # y = 4 - 3 (1 - exp(-t / tau)): a step of -3 from an offset of 4 to a final value of 1.
     t, y_unit = _first_order(TAU_S / 10)
     y = 4.0 - 3.0 * y_unit
-    up = step_info(t, y_unit, y_final=1.0)
-    down = step_info(t, y, y_final=1.0)
+    up = step_info(t, y_unit, y_final=1.0, refine=refine)
+    down = step_info(t, y, y_final=1.0, refine=refine)
     assert_allclose(down.rise_time_s, up.rise_time_s, rtol=1e-12)
     assert_allclose(down.settling_time_s, up.settling_time_s, rtol=1e-12)
-    assert_allclose(down.rise_time_s, TAU_S * math.log(9.0), rtol=1e-3)
-    assert_allclose(down.settling_time_s, TAU_S * math.log(50.0), rtol=1e-3)
+    if refine:
+        assert_allclose(down.rise_time_s, TAU_S * math.log(9.0), rtol=1e-3)
+        assert_allclose(down.settling_time_s, TAU_S * math.log(50.0), rtol=1e-3)
+    else:  # the sample indices of test_step_info_first_order_at_samples
+        assert_allclose(down.rise_time_s, 22 * TAU_S / 10, rtol=1e-12)
+        assert_allclose(down.settling_time_s, 40 * TAU_S / 10, rtol=1e-12)
     assert down.overshoot_pct == 0.0
     assert down.undershoot_pct == 0.0
     # Peak of |y - y_init| = 3 (1 - exp(-t_end / tau)), at the last sample.
     assert_allclose(down.peak, 3.0 * y_unit[-1], rtol=1e-12)
     assert_allclose(down.peak_time_s, t[-1], rtol=1e-12)
-    # Falling response: from the 90 % crossing (y = 4 - 2.7 = 1.3) down to the last sample.
-    assert_allclose(down.settling_max, 1.3, rtol=1e-12)
+    # Falling response: from the 90 % crossing (y = 4 - 2.7 = 1.3; at the samples, the first
+    # sample below it, y[24]) down to the last sample.
+    assert_allclose(down.settling_max, 1.3 if refine else y[24], rtol=1e-12)
     assert_allclose(down.settling_min, y[-1], rtol=1e-12)
 
 
@@ -187,13 +231,14 @@ def test_step_info_times_are_relative_to_first_sample_except_peak_time() -> None
 def test_step_info_second_order_overshoot(
     zeta: float, dt: float, rtol_os: float, rtol_tp: float
 ) -> None:
+    # The continuous response sampled: refine=True estimates its peak between the samples.
     omega_n = 2.0
     omega_d = omega_n * math.sqrt(1.0 - zeta**2)
     t = np.arange(round(40.0 / dt) + 1) * dt
     y = 1.0 - np.exp(-zeta * omega_n * t) * (
         np.cos(omega_d * t) + zeta / math.sqrt(1.0 - zeta**2) * np.sin(omega_d * t)
     )
-    info = step_info(t, y, y_final=1.0)
+    info = step_info(t, y, y_final=1.0, refine=True)
     overshoot = 100.0 * math.exp(-zeta * math.pi / math.sqrt(1.0 - zeta**2))
     assert_allclose(info.overshoot_pct, overshoot, rtol=rtol_os)
     assert_allclose(info.peak, 1.0 + overshoot / 100.0, rtol=rtol_os)
