@@ -1,17 +1,24 @@
 """How good the identified model is: fit %, residual tests and intervals that allow correlation.
 
 - **Fit %** (MATLAB ``compare``): ``100·(1 − ‖y − ŷ‖/‖y − mean(y)‖)`` of a simulation.
-A test fails when it is significant (p < :data:`SIGNIFICANCE`) *and* material (a correlation
-of at least :data:`MATERIAL_CORRELATION`).
+A test fails when it is significant *and* material (a correlation of at least
+:data:`MATERIAL_CORRELATION`). Significant means below :data:`TEST_LEVEL`, the family-wise level
+:data:`SIGNIFICANCE` shared by the :data:`RESIDUAL_TESTS` tests a fit runs (Bonferroni): the
+verdict ``adequate`` is one decision on the whole family, so it is the family's false-alarm rate
+that must be :data:`SIGNIFICANCE` — three tests each at 1 % flag about 3 % of correctly modelled
+logs.
 
 - **Whiteness**: Ljung–Box on the noise model's innovations (the residual whitened by its ARMA
   model, :mod:`servotune.identify.noise`): if they are not white, the noise model (and so the
-  intervals it shapes) does not describe the residual.
+  intervals it shapes) does not describe the residual. The ``p + q`` ARMA coefficients were
+  fitted to this residual, which constrains its first autocorrelations: the statistic is χ² with
+  ``lags − p − q`` degrees of freedom (Box & Pierce, JASA 65, 1970; Ljung & Box, Biometrika 65,
+  1978).
 - **Input–residual cross-correlation**: the innovations against the input prewhitened by its
   own autoregression, lags 0 … M — the external signal for ``iv`` (in closed loop the residual
   legitimately correlates with the command, through the controller), the command for ``oe``.
-  Statistic ``n·Σρ²``, χ² with M + 1 degrees of freedom. A correlation left there is dynamics
-  the model misses.
+  Statistic ``n·Σρ²``, χ² with M + 1 degrees of freedom (Ljung, *System Identification*, 2nd
+  ed., 1999, §16.6). A correlation left there is dynamics the model misses.
 - **Intervals**: a moving-block bootstrap of the estimating equations (Künsch, Ann. Stat. 17,
   1989): the estimate is linearised, ``θ̂ − θ = A⁻¹ Σ s_k`` with ``s_k`` the equations' terms,
   and the sum is resampled in blocks of consecutive samples, so correlation within a block is
@@ -35,7 +42,9 @@ from servotune.identify.noise import autocorrelation, crosscorrelation, levinson
 
 __all__ = [
     "BOOTSTRAP_REPLICATES",
+    "RESIDUAL_TESTS",
     "SIGNIFICANCE",
+    "TEST_LEVEL",
     "block_bootstrap",
     "cross_correlation_test",
     "fit_pct",
@@ -49,7 +58,17 @@ MAX_BLOCKS = 1000
 BOOTSTRAP_KEY = (17, 0)
 """Key of the bootstrap's Philox generator (DECISIONS 11: counter-based, fixed)."""
 SIGNIFICANCE = 0.01
-"""A residual test fails below this p-value (and only with a material correlation)."""
+"""Family-wise level of the residual tests: the probability that a correctly modelled log is
+called not adequate (by any of its tests)."""
+RESIDUAL_TESTS = 3
+"""Tests in the family: whiteness and the cross-correlation with each input tested — the command
+for ``oe``, the external signals for ``iv``, of which a log has two at most (``exc_code`` and the
+reference). Fewer tests make the Bonferroni level only more conservative."""
+TEST_LEVEL = SIGNIFICANCE / RESIDUAL_TESTS
+"""A residual test fails below this p-value (and only with a material correlation): Bonferroni's
+inequality, P(any of m tests fails) ≤ Σ P(test fails) = m·(α/m) = α, whatever their dependence
+(Holm, Scand. J. Statist. 6, 1979). The tests are decided one by one (each result stands on
+its own in a fit's record), so the per-test Bonferroni level rather than Holm's step-down."""
 MATERIAL_CORRELATION = 0.02
 """A residual test fails only if some correlation reaches this size too: with a million
 samples a correlation of 0.005 is significant — the whitening of quantisation noise leaves
@@ -75,8 +94,16 @@ def _chi2_sf(q: float, dof: int) -> float:
 def ljung_box(w: np.ndarray, lags: int = TEST_LAGS, fitted: int = 0) -> dict[str, Any]:
     """Ljung–Box whiteness test of ``w`` (``fitted``: ARMA parameters estimated from it).
 
+    The p-value is that of χ² with ``lags − fitted`` degrees of freedom: the innovations of an
+    ARMA(p, q) model fitted to the series satisfy ``p + q`` normal equations, so ``p + q`` of
+    the statistic's degrees of freedom are spent (Box & Pierce, JASA 65, 1970; Ljung & Box,
+    Biometrika 65, 1978). Without the correction the test would be conservative (the
+    statistic's mean is ``lags − p − q``, not ``lags``). The correction holds only for the
+    innovations of a model *fitted to this residual* with its order right: a noise model whose
+    order was chosen on another residual leaves them coloured, and the test then says so.
+
     Returns ``lags``, ``statistic``, ``p_value``, ``lag1_autocorrelation``,
-    ``max_abs_autocorrelation`` and ``white`` (p > :data:`SIGNIFICANCE`, or no autocorrelation
+    ``max_abs_autocorrelation`` and ``white`` (p ≥ :data:`TEST_LEVEL`, or no autocorrelation
     reaching :data:`MATERIAL_CORRELATION`).
     """
     w = np.asarray(w, dtype=float) - np.mean(w)
@@ -92,7 +119,7 @@ def ljung_box(w: np.ndarray, lags: int = TEST_LAGS, fitted: int = 0) -> dict[str
     big = float(np.max(np.abs(rho)))
     return {"lag1_autocorrelation": float(rho[0]), "lags": lags, "p_value": p,
             "max_abs_autocorrelation": big, "statistic": q,
-            "white": bool(p > SIGNIFICANCE or big < MATERIAL_CORRELATION)}  # fmt: skip
+            "white": bool(p >= TEST_LEVEL or big < MATERIAL_CORRELATION)}  # fmt: skip
 
 
 def cross_correlation_test(
@@ -104,10 +131,12 @@ def cross_correlation_test(
 
     The input is prewhitened by its own autoregression first (so the correlations of two white
     sequences have variance ``1/n`` each); ``ρ_j = corr(x_k, w_{k+j})`` for ``j = 0 … lags``;
-    statistic ``n·Σρ²`` ~ χ²(lags + 1) when the model misses nothing ``x`` drives.
+    statistic ``n·Σρ²`` ~ χ²(lags + 1) when the model misses nothing ``x`` drives (Ljung,
+    *System Identification*, 2nd ed., 1999, §16.6; asymptotically, the parameters estimated
+    from the same data only make it smaller, so the test errs on the safe side).
 
     Returns ``input``, ``lags``, ``statistic``, ``p_value``, ``max_abs_correlation`` and
-    ``uncorrelated`` (p > :data:`SIGNIFICANCE`, or no correlation reaching
+    ``uncorrelated`` (p ≥ :data:`TEST_LEVEL`, or no correlation reaching
     :data:`MATERIAL_CORRELATION`).
     """
     w = np.asarray(w, dtype=float) - np.mean(w)
@@ -130,7 +159,7 @@ def cross_correlation_test(
     p = _chi2_sf(q, lags + 1)
     big = float(np.max(np.abs(rho)))
     out.update(max_abs_correlation=big, p_value=p, statistic=q,
-               uncorrelated=bool(p > SIGNIFICANCE or big < MATERIAL_CORRELATION))  # fmt: skip
+               uncorrelated=bool(p >= TEST_LEVEL or big < MATERIAL_CORRELATION))  # fmt: skip
     return out
 
 
