@@ -19,6 +19,7 @@ from __future__ import annotations
 import hashlib
 import os
 import shutil
+import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from functools import cache
@@ -34,6 +35,8 @@ __all__ = ["cache_dir", "call_compiled", "jit", "keyed_by_sources", "source_dige
 
 _PACKAGE = Path(__file__).resolve().parent
 _PREFIX = "numba-"
+_STALE_S = 3600.0
+"""An older cache directory is removed once nothing has been written into it for this long [s]."""
 
 
 def source_digest(root: Path = _PACKAGE) -> str:
@@ -59,15 +62,23 @@ def cache_dir(root: Path = _PACKAGE) -> Path | None:
     """The cache directory for the sources under ``root``; None if none is writable.
 
     ``root/__pycache__/numba-<digest>`` (older ``numba-*`` siblings there are removed when it
-    is created), else ``$XDG_CACHE_HOME/servotune/numba-<digest>`` (default ``~/.cache``).
+    is created, once idle for an hour), else ``$XDG_CACHE_HOME/servotune/numba-<digest>``
+    (default ``~/.cache``).
     """
     name = _PREFIX + source_digest(root)
     in_tree = root / "__pycache__" / name
     if in_tree.is_dir() and os.access(in_tree, os.W_OK | os.X_OK):
         return in_tree
     if _usable(in_tree):
+        now = time.time()
         for old in in_tree.parent.glob(_PREFIX + "*"):
-            if old != in_tree:
+            # another process may still be writing into a sibling of a moment ago (the sources
+            # changed under a running suite): only siblings left alone for a while go
+            try:
+                idle = now - old.stat().st_mtime
+            except OSError:
+                continue
+            if old != in_tree and idle > _STALE_S:
                 shutil.rmtree(old, ignore_errors=True)
         return in_tree
     user = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "servotune" / name

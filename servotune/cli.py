@@ -219,19 +219,28 @@ def _cmd_excite(args: argparse.Namespace) -> int:
 
 
 def _cmd_tune(args: argparse.Namespace) -> int:
+    from servotune.report.text import format_tuning_summary
     from servotune.tune.slave import SlaveTuneSpec
-    from servotune.tune.workflow import tune_rig
+    from servotune.tune.workflow import tune_rig, tuning_summary
     from servotune.tuning import current_tuning_path, tuning_to_string, write_tuning
 
     _check_dirs(args.output)
     current = None if args.no_current else current_tuning_path()
     if current is not None:
         _workbench_dir(current.parent)
+    if args.json and (not args.output or args.output == "-"):
+        raise ServotuneError("--json prints the summary on stdout: give -o FILE for the tuning")
     spec = SlaveTuneSpec(generations=args.generations, population=args.population,
                          max_overshoot_pct=args.max_overshoot_pct,
-                         max_saturation_pct=args.max_saturation_pct)  # fmt: skip
+                         max_saturation_pct=args.max_saturation_pct,
+                         min_phase_margin_deg=args.pm, min_gain_margin_db=args.gm,
+                         max_sensitivity=args.ms)  # fmt: skip
     tuning = tune_rig(args.rig, seed=args.seed, spec=spec, rule_base=args.rule_base,
                       progress=lambda msg: print(msg, file=sys.stderr))  # fmt: skip
+    if args.json:
+        print(json.dumps(tuning_summary(tuning), indent=2, sort_keys=True))
+    else:
+        print(format_tuning_summary(tuning_summary(tuning)), file=sys.stderr)
     if args.output and args.output != "-":
         write_tuning(tuning, args.output)
         print(f"wrote the tuning to {args.output}", file=sys.stderr)
@@ -250,6 +259,7 @@ def _cmd_verify(args: argparse.Namespace) -> int:
     if args.report:  # before the run: a report directory that cannot be made fails first
         Path(args.report).mkdir(parents=True, exist_ok=True)
     result, record, path = verify_files(args.tuning, args.spec, args.rig, seed=args.seed,
+                                        montecarlo=args.montecarlo,
                                         progress=lambda m: print(m, file=sys.stderr))  # fmt: skip
     _print_product(args.json, lambda: record, lambda: format_table(result))
     print(f"wrote the verification record to {path}", file=sys.stderr)
@@ -485,14 +495,37 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument(
         "--max-overshoot-pct",
         type=float,
-        default=50.0,
-        help="largest sync-error overshoot, %% of the largest lag (default 50)",
+        default=100.0,
+        help="largest lead of the slave over the master, %% of its largest lag (default 100)",
     )
     s.add_argument(
         "--max-saturation-pct",
         type=float,
         default=2.0,
         help="largest share of task ticks on a D/A rail, %% (default 2)",
+    )
+    s.add_argument(
+        "--pm",
+        type=float,
+        default=45.0,
+        help="least phase margin of every loop over the plant set [deg] (default 45)",
+    )
+    s.add_argument(
+        "--gm",
+        type=float,
+        default=6.0,
+        help="least gain margin of every loop over the plant set [dB] (default 6)",
+    )
+    s.add_argument(
+        "--ms",
+        type=float,
+        default=2.0,
+        help="largest peak sensitivity of every loop over the plant set (default 2)",
+    )
+    s.add_argument(
+        "--json",
+        action="store_true",
+        help="the summary (gains, margins) as JSON on stdout (needs -o)",
     )
     s.add_argument(
         "--no-current",
@@ -510,6 +543,13 @@ def _parser() -> argparse.ArgumentParser:
         "plants/<rig name>.toml); another rig is refused (exit 1)",
     )
     s.add_argument("--seed", type=int, default=None, help="Monte-Carlo seed (default: the spec's)")
+    s.add_argument(
+        "--montecarlo",
+        type=int,
+        default=None,
+        metavar="N",
+        help="plant variants (default: the spec's montecarlo.count; up to 10000)",
+    )
     s.add_argument("--json", action="store_true", help="the verification record as JSON on stdout")
     s.add_argument("--report", help="also write the HTML report into this directory")
     s.set_defaults(func=_cmd_verify)

@@ -38,6 +38,7 @@ from servotune.plot import (
     save_figure,
 )
 from servotune.report import write_report
+from servotune.report.text import figure4_statement
 from servotune.rig import Rig, describe_rig, load_rig, write_plant
 from servotune.scenarios import Inputs, Scenario, build_scenario, check_run_memory
 from servotune.sim.engine import Loop, Trace, simulate
@@ -367,5 +368,6 @@ def run_comparison(
     save_figure(plot_comparison(dict(cmp.traces), slave), out / "figure4.png")
     data = {"schema": "servotune.figure4/1", "seed": seed, "version": __version__}
     data.update(cmp.to_dict())
+    data["statement"] = figure4_statement(cmp.table).splitlines()
     atomic_write_text(out / "figure4.json", json.dumps(data, indent=2, sort_keys=True) + "\n")
     return cmp

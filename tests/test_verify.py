@@ -6,6 +6,7 @@ import dataclasses
 import hashlib
 import json
 import math
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -89,7 +90,7 @@ def with_slave_task(tuning: Tuning, task) -> Tuning:
 
 def test_shipped_spec_loads(spec) -> None:
     assert spec.name == "pc-dual-servo" and spec.rig == "pc-dual-servo"
-    assert [s.name for s in spec.scenarios] == ["sync", "track", "lock"]
+    assert [s.name for s in spec.scenarios] == ["sync", "track", "lock", "heldout"]
     sync = spec.scenario("sync")
     assert sync.kind == "sync" and sync.seconds == 2.4 and sync.load_step_v == -0.3
     assert set(sync.limits) == {
@@ -206,8 +207,9 @@ def test_good_tuning_passes_shipped_spec_with_margin(good_result) -> None:
     for r in v.rows:
         if r.quantity in ("holding_band_counts", "fault_runs", "saturation_pct"):
             continue
-        # the spec was set so that a default-budget tuning keeps >= 10 % on every limit
-        assert r.relative_margin >= 0.10, r
+        # the spec's limits are the example machine's (its comments); a default-budget tuning
+        # keeps at least 5 % on each, so that a small change is not decided by noise
+        assert r.relative_margin >= 0.05, r
     # the lock holds every axis within ±1 pulse (SPEC §1a), the physics of the quantised P loop
     assert v.row("lock", "holding_band_counts", "master").worst <= 4
     assert v.check("overflow").passed and v.check("timer_period").passed
@@ -411,3 +413,164 @@ def test_verify_files_end_to_end(tmp_path, tuning_file, spec) -> None:
     table = format_table(v)
     assert table.splitlines()[-1] == "PASSED" and "max_sync_error_counts" in table
     assert not any(math.isnan(r.worst) for r in v.rows)
+
+
+# --- margins: every loop the runtime can run (issue 18) -----------------------------------
+
+
+def _value(fx: dict) -> float:
+    return fx["q"] * 2.0 ** -fx["f"]
+
+
+def _independent_loop(plant, rig, kp: float, ki_t: float, kd_t: float, extra_lag_s: float):
+    """L(z) built here with python-control (ZOH ``c2d`` of the continuous model with its lag
+    as a 6th-order Padé approximant), not with servotune's loop builder."""
+    import control
+
+    t = rig.period_s
+    g = control.tf([plant.gain_cps_per_v], [plant.tau_s, 1.0, 0.0])
+    num, den = control.pade(rig.timer.compute_s + plant.delay_s + extra_lag_s, 6)
+    p = control.c2d(g * control.tf(num, den), t, method="zoh") * rig.dac.lsb_v
+    z = control.tf([1.0, 0.0], [1.0], t)
+    c = kp + ki_t * z / (z - 1) + kd_t * (z - 1) / z
+    return control.minreal(c * p, verbose=False)
+
+
+def test_default_tuning_keeps_the_margin_limits_on_every_cell_and_corner(tuning_file, rig):
+    """The default tuning, read from its file, meets PM >= 45°, GM >= 6 dB, Ms <= 2 on every
+    loop over the spec's corners (gain ±20 %, tau ±30 %) one tick late, by python-control on
+    loops built here (issue 18: an independent check of the tool's margins)."""
+    import control
+
+    doc = json.loads(tuning_file.read_text())
+    loops = []  # (axis, what, kp, ki_t, kd_t)
+    for a in doc["axes"]:
+        ctl = a["controller"]
+        loops.append((a["name"], "lock", _value(ctl["lock_gain"]), 0.0, 0.0))
+        task = ctl["task"]
+        if ctl["law"] == "pi":
+            loops.append((a["name"], "task", _value(task["kp"]), _value(task["ki_t"]), 0.0))
+        elif ctl["law"] == "fuzzy_pid":
+            n = task["n"]
+            cells = set()
+            for e in range(2 * n + 1):
+                for ec in range(2 * n + 1):
+                    gains = []
+                    for base, tab in (("kp", "kp"), ("ki_t", "ki"), ("kd_t", "kd")):
+                        b, tb = task[base], task["tables"][tab]
+                        q = b["q"] + tb["q"][e][ec] * 2 ** (b["f"] - tb["f"])
+                        gains.append(q * 2.0 ** -b["f"])
+                    cells.add(tuple(gains))
+            loops += [(a["name"], "cell", *g) for g in sorted(cells)]
+    assert sum(1 for x in loops if x[1] == "cell") > 10  # the table really schedules
+    t = rig.period_s
+    w = np.linspace(1e-2, np.pi / t * (1 - 1e-9), 4000)
+    worst = {"pm": 180.0, "gm": 99.0, "ms": 0.0}
+    for name, what, kp, ki_t, kd_t in loops:
+        plant = rig.axis(name).plant
+        for fg in (0.8, 1.2):
+            for ft in (0.7, 1.3):
+                p = dataclasses.replace(plant, gain_cps_per_v=plant.gain_cps_per_v * fg,
+                                        tau_s=plant.tau_s * ft)  # fmt: skip
+                lp = _independent_loop(p, rig, kp, ki_t, kd_t, t)
+                lw = lp(np.exp(1j * w * t))
+                ms = float(np.max(np.abs(1 / (1 + lw))))
+                poles = control.feedback(lp, 1).poles()
+                assert np.max(np.abs(poles)) < 1, (name, what, fg, ft)
+                worst["ms"] = max(worst["ms"], ms)
+                if ms > 1.4:  # margins of the loops near the limit (the others are far inside)
+                    with warnings.catch_warnings():
+                        warnings.simplefilter("ignore", UserWarning)
+                        gm, pm, *_ = control.stability_margins(lp)
+                    worst["pm"] = min(worst["pm"], pm)
+                    worst["gm"] = min(worst["gm"], 20 * np.log10(gm))
+    # tolerance: the Padé lag here against servotune's exact one (about 0.1° at crossover)
+    assert worst["ms"] <= 2.0 + 0.01, worst
+    assert worst["pm"] >= 45.0 - 0.3, worst
+    assert worst["gm"] >= 6.0, worst
+
+
+def _with_hot_cell(tuning: Tuning, cell: tuple[int, int], factor: float) -> Tuning:
+    """The tuning with the slave's Kp at one query-table cell ``factor`` times its base (the
+    design gains re-quantised, as ``tune`` would)."""
+    d = dict(tuning.design["slave"]["tuning"]["gains"])
+    n = d["n"]
+    dkp = np.array(d["dkp"], dtype=float)
+    dkp[cell[0] + n, cell[1] + n] = (factor - 1.0) * d["kp0"]
+    gains = FuzzyPIDGains(**{**d, "dkp": dkp})
+    return with_slave_task(tuning, gains.quantize(tuning.period_s))
+
+
+def test_a_cell_that_breaks_the_margins_fails_verify_with_the_cell_named(good, rig, spec):
+    # one corner cell (large error, large error change: never reached in these runs) with
+    # Kp × 8: the time-domain limits still pass, the margins do not
+    bad = _with_hot_cell(good, (6, 6), 8.0)
+    v = verify(bad, rig, small(spec, count=2))
+    assert all(r.passed for r in v.rows), [r for r in v.rows if not r.passed]
+    check = v.check("margins:slave:task")
+    assert not check.passed and not v.passed
+    assert "cell E=+6 EC=+6" in check.detail
+    assert any("margins:slave:task" in f and "E=+6 EC=+6" in f for f in v.failures)
+    # the same tuning without the hot cell passes the margins
+    assert verify(good, rig, small(spec, count=2)).check("margins:slave:task").passed
+
+
+def test_margins_limits_come_from_the_spec(good, rig, spec):
+    loose = dataclasses.replace(small(spec, count=0), margins=st.verify.MarginLimits(
+        min_phase_margin_deg=10.0, min_gain_margin_db=1.0, max_sensitivity=10.0))  # fmt: skip
+    bad = _with_hot_cell(good, (6, 6), 2.5)  # Ms between the two limits
+    hot = verify(bad, rig, loose).check("margins:slave:task")
+    strict = verify(bad, rig, small(spec, count=0)).check("margins:slave:task")
+    assert hot.passed != strict.passed  # the same loops, judged by other limits
+
+
+def test_spec_margins_table_is_read_and_checked(tmp_path) -> None:
+    text = SPEC_PATH.read_text().replace(
+        "min_phase_margin_deg = 45.0", "min_phase_margin_deg = 50.0"
+    )
+    p = tmp_path / "s.spec.toml"
+    p.write_text(text)
+    assert load_spec(p).margins.min_phase_margin_deg == 50.0
+    p.write_text(text.replace("extra_ticks = 1", "extra_ticks = 1\nmax_sensitivty = 2.0"))
+    with pytest.raises(SpecError, match=r"margins\.max_sensitivty"):
+        load_spec(p)
+    p.write_text(text.replace("max_sensitivity = 2.0", "max_sensitivity = 0.5"))
+    with pytest.raises(SpecError, match="max_sensitivity"):
+        load_spec(p)
+
+
+# --- Monte Carlo: pass fraction with its interval (issue 18, point 2) ----------------------
+
+
+def test_pass_fraction_is_the_same_on_one_and_two_threads(good, rig, spec) -> None:
+    import numba
+
+    s = small(spec, count=40)
+    before = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        one = verify(good, rig, s)
+        numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
+        two = verify(good, rig, s)
+    finally:
+        numba.set_num_threads(before)
+    assert one.variant_passed == two.variant_passed and one.to_dict() == two.to_dict()
+    k, n, frac, lo, hi = one.pass_fraction
+    assert n == 40 and k == sum(one.variant_passed[1:]) and lo <= frac <= hi
+    assert one.to_dict()["montecarlo"]["count"] == 40
+
+
+def test_pass_fraction_interval_is_clopper_pearson(good_result) -> None:
+    # exact closed forms of the Clopper–Pearson 95 % interval (Clopper & Pearson, Biometrika
+    # 26, 1934): all n pass → lower = 0.025^(1/n); none pass → upper = 1 − 0.025^(1/n)
+    v = dataclasses.replace(good_result, variant_passed=(True,) * 41)
+    k, n, frac, lo, hi = v.pass_fraction
+    assert (k, n, frac, hi) == (40, 40, 1.0, 1.0)
+    assert lo == pytest.approx(0.025 ** (1 / 40), rel=1e-9)
+    v = dataclasses.replace(good_result, variant_passed=(True,) + (False,) * 40)
+    assert v.pass_fraction[3] == 0.0
+    assert v.pass_fraction[4] == pytest.approx(1 - 0.025 ** (1 / 40), rel=1e-9)
+    # one of two: symmetric about 1/2, lower = 1 − sqrt(0.975) (beta(1, 2) quantile)
+    v = dataclasses.replace(good_result, variant_passed=(True, True, False))
+    assert v.pass_fraction[3] == pytest.approx(1 - 0.975**0.5, rel=1e-9)
+    assert v.pass_fraction[3] + v.pass_fraction[4] == pytest.approx(1.0)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import base64
 import html
 import io
+import json
 import math
 from collections.abc import Sequence
 from pathlib import Path
@@ -161,6 +162,9 @@ def _existing_images(out: Path) -> str:
         files = sorted(out.glob(pattern))
         if files:
             parts.append(f"<h2>{title}</h2>")
+            if pattern == "figure4.png" and (out / "figure4.json").is_file():
+                said = json.loads((out / "figure4.json").read_text()).get("statement", [])
+                parts.append("".join(f"<p>{html.escape(s)}</p>" for s in said))
             for f in files:
                 uri = "data:image/png;base64," + base64.b64encode(f.read_bytes()).decode("ascii")
                 parts.append(_img(uri, f.name))

@@ -18,11 +18,13 @@ if TYPE_CHECKING:
     from servotune.verify.result import Verification
 
 __all__ = [
+    "figure4_statement",
     "format_comparison",
     "format_linkage_summary",
     "format_margins",
     "format_rig_facts",
     "format_table",
+    "format_tuning_summary",
 ]
 
 
@@ -59,6 +61,11 @@ def format_table(verification: Verification) -> str:
     out.append("checks")
     for c in v.checks:
         out.append(f"  {'ok  ' if c.passed else 'FAIL'}  {c.name}: {c.detail}")
+    k, n, frac, lo, hi = v.pass_fraction
+    if n:
+        out.append(f"Monte Carlo: {k} of {n} plant variants keep every limit "
+                   f"({100 * frac:.1f} %; 95 % interval {100 * lo:.1f}–{100 * hi:.1f} %, "
+                   "Clopper–Pearson)")  # fmt: skip
     n_fail = sum(not r.passed for r in v.rows) + sum(not c.passed for c in v.checks)
     out.append("PASSED" if v.passed else f"FAILED ({n_fail} of {len(v.rows) + len(v.checks)})")
     return "\n".join(out)
@@ -219,4 +226,71 @@ def format_margins(margins: Margins) -> str:
         m, b = bad[0]
         lines.append(f"margins: FAIL ({len(bad)} of {len(margins.loops)} loops break a limit; "
                      f"worst {m.name} on {m.plant}: {'; '.join(b)})")  # fmt: skip
+    return "\n".join(lines)
+
+
+def format_tuning_summary(summary: Mapping[str, Any]) -> str:
+    """What ``servotune tune`` prints on stderr (:func:`servotune.tune.workflow.tuning_summary`):
+    per axis its gains and its worst loop's margins over the plant set."""
+    lines = ["tuned gains [codes/count; Ki·T per tick, Kd/T and K1/T per count of change]"]
+    for name, ax in summary["axes"].items():
+        g = ax["gains"]
+        parts = [f"lock {ax['lock_gain']:.4g}"]
+        if g:
+            parts.append(f"{ax['law']}: Kp {g['kp']:.4g}, Ki·T {g['ki_t']:.4g}")
+        if "kd_t" in g:
+            parts[-1] += f", Kd/T {g['kd_t']:.4g}, K1/T {g['k1_t']:.4g}"
+            parts.append("table Kp " + "–".join(f"{x:.4g}" for x in g["kp_range"]))
+        lines.append(f"  {name}: " + "; ".join(parts))
+        w = ax.get("worst_loop")
+        if w:
+            cell = "" if w["cell"] is None else f" cell E={w['cell'][0]:+d} EC={w['cell'][1]:+d}"
+            lines.append(
+                f"    worst loop ({w['loop']}{cell}, plant {w['plant']}): PM "
+                f"{show_number(w['phase_margin_deg'])}°, GM {show_number(w['gain_margin_db'])} dB, "
+                f"Ms {show_number(w['max_sensitivity'])}"
+            )
+    s = summary.get("slave") or {}
+    if s.get("objective") is not None:
+        lines.append(f"  slave objective (mean ITAE of the sync error over the variants): "
+                     f"{s['objective']:.4g} counts·s²")  # fmt: skip
+    return "\n".join(lines)
+
+
+_FIGURE4_METRICS = (
+    ("itae", "ITAE of the sync error (the tuning objective)", "counts·s²", 1.0, "{:.4g}"),
+    ("max_sync_counts", "max sync error", "counts", 1.0, "{:.0f}"),
+    ("rms_sync_counts", "RMS sync error", "counts", 1.0, "{:.1f}"),
+    ("rise_s", "rise time", "ms", 1e3, "{:.0f}"),
+    ("settling_s", "settling time", "ms", 1e3, "{:.0f}"),
+)
+_STRUCTURE_NAMES = {"pid": "PID", "pid_ff": "PID + feedforward", "composite": "composite"}
+
+
+def figure4_statement(table: Mapping[str, Mapping[str, float]]) -> str:
+    """What the Figure-4 comparison measured, in words derived from its numbers: the winner
+    (lowest value) of each metric with every structure's value, and whether the composite law
+    wins on the tuning objective, as the seed claims (lower is better for every metric)."""
+    lines = []
+    for key, what, unit, scale, fmt in _FIGURE4_METRICS:
+        vals = {s: row[key] for s, row in table.items() if math.isfinite(row.get(key, math.nan))}
+        if not vals:
+            continue
+        best = min(vals, key=lambda s: vals[s])
+        shown = ", ".join(f"{_STRUCTURE_NAMES.get(s, s)} {fmt.format(v * scale)}"
+                          for s, v in vals.items())  # fmt: skip
+        lines.append(f"{what}: {_STRUCTURE_NAMES.get(best, best)} is lowest ({shown} {unit})")
+    itae = {s: row["itae"] for s, row in table.items()}
+    if "composite" in itae and len(itae) > 1:
+        rival = min((s for s in itae if s != "composite"), key=lambda s: itae[s])
+        c, r = itae["composite"], itae[rival]
+        if c < r:
+            lines.append(f"The composite law wins on the objective: {c:.4g} against "
+                         f"{_STRUCTURE_NAMES.get(rival, rival)}'s {r:.4g} counts·s², as the "
+                         "seed's Figure 4 claims.")  # fmt: skip
+        else:
+            lines.append(f"The composite law does not win on the objective: {c:.4g} against "
+                         f"{_STRUCTURE_NAMES.get(rival, rival)}'s {r:.4g} counts·s² "
+                         "(same optimiser, budget and margin limits), contrary to the seed's "
+                         "Figure 4.")  # fmt: skip
     return "\n".join(lines)

@@ -12,8 +12,13 @@ Objective: the mean over variants of the ITAE of the sync error (master − slav
 Constraints, on every variant: no fault (following-error trip), D/A saturation at most
 ``max_saturation_pct`` of the task ticks, overshoot of the sync error (its largest swing past
 zero, the slave ahead of the master, as a share of its largest lag) at most
-``max_overshoot_pct``. A candidate that breaks a constraint ranks behind every one that keeps
-them, by how much it breaks them.
+``max_overshoot_pct``; and robustness, on every loop the law can switch to (every query-table
+cell's frozen gains) over the variants, each also with one extra tick of latency:
+phase margin, gain margin and peak sensitivity within ``min_phase_margin_deg``,
+``min_gain_margin_db``, ``max_sensitivity`` (screened on a frequency grid,
+:func:`servotune.verify.margins.grid_margins`; the tuning's verdict is python-control's, see
+:func:`servotune.verify.margins.tuning_margins`). A candidate that breaks a constraint ranks
+behind every one that keeps them, by how much it breaks them.
 
 Three structures share the optimiser and its budget (the paper's Figure 4 comparison):
 ``pid`` (conventional PID: zero tables, no feedforward), ``pid_ff`` (PID + the feedforward
@@ -36,13 +41,15 @@ from scipy.stats import qmc
 from servotune.errors import SpecError
 from servotune.io.files import json_float
 from servotune.laws.axis import AxisController
-from servotune.laws.fuzzy_pid import TABLE_NAMES, FuzzyPIDGains
+from servotune.laws.fuzzy_pid import TABLE_NAMES, FuzzyPIDConstants, FuzzyPIDGains
 from servotune.laws.pi import PIGains
 from servotune.plant import Plant
 from servotune.rig import Rig
 from servotune.scenarios import Scenario, _sync_move_for
 from servotune.sim.engine import Loop, prepare_batch, run_batch
+from servotune.tune.robust import MarginScreen, design_limits
 from servotune.validate import check_integer, check_number
+from servotune.verify.margins import DEFAULT_LIMITS, MarginLimits, plant_cases
 
 __all__ = [
     "STRUCTURES",
@@ -69,7 +76,9 @@ class SlaveTuneSpec:
         Largest share of task ticks with the D/A on a rail, on any variant [%].
     max_overshoot_pct : float
         Largest lead of the slave over the master (sync error opposite to the motion) as a share
-        of the largest lag, on any variant [%].
+        of the largest lag, on any variant [%]. Default 100: the slave may lead by as much as
+        it lags (a gantry's skew is the same either way; the spec bounds |sync error|). A
+        tighter bound costs tracking once the margins are held (a lower integral gain).
     gain_spread : float
         Relative spread of the slave's gain in the variants (0.2: ±20 %).
     tau_spread : float
@@ -86,10 +95,18 @@ class SlaveTuneSpec:
         Candidates per generation.
     generations : int
         Generations of differential evolution after the initial population (the budget).
+    min_phase_margin_deg, min_gain_margin_db, max_sensitivity : float
+        Robustness limits of every loop (every cell of the slave's law, the master's PI, the
+        lock loops) over the plant set [deg], [dB], [1] (defaults:
+        :data:`servotune.verify.margins.DEFAULT_LIMITS`).
+    extra_ticks : int
+        Latency the loops must also take [ticks], 0..10.
+    period_error_ppm : float
+        The timer's period error the loops must also take [ppm].
     """
 
     max_saturation_pct: float = 2.0
-    max_overshoot_pct: float = 50.0
+    max_overshoot_pct: float = 100.0
     gain_spread: float = 0.2
     tau_spread: float = 0.3
     seconds: float = 2.4
@@ -98,6 +115,11 @@ class SlaveTuneSpec:
     load_step_v: float = -0.3
     population: int = 32
     generations: int = 40
+    min_phase_margin_deg: float = DEFAULT_LIMITS.min_phase_margin_deg
+    min_gain_margin_db: float = DEFAULT_LIMITS.min_gain_margin_db
+    max_sensitivity: float = DEFAULT_LIMITS.max_sensitivity
+    extra_ticks: int = 1
+    period_error_ppm: float = 100.0
 
     def __post_init__(self) -> None:
         e = SpecError
@@ -108,6 +130,16 @@ class SlaveTuneSpec:
         check_number("seconds", self.seconds, "s", strict=True, error=e)
         check_integer("population", self.population, "candidates", lo=5, error=e)
         check_integer("generations", self.generations, "generations", error=e)
+        check_integer("extra_ticks", self.extra_ticks, "ticks", hi=10, error=e)
+        check_number("period_error_ppm", self.period_error_ppm, "ppm", hi=1e4, error=e)
+        self.limits  # noqa: B018 (validates the three limits)
+
+    @property
+    def limits(self) -> MarginLimits:
+        """The robustness limits as a :class:`~servotune.verify.margins.MarginLimits`."""
+        return MarginLimits(min_phase_margin_deg=self.min_phase_margin_deg,
+                            min_gain_margin_db=self.min_gain_margin_db,
+                            max_sensitivity=self.max_sensitivity)  # fmt: skip
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict."""
@@ -247,6 +279,29 @@ def _gains_from(
 # --- evaluation -----------------------------------------------------------------------------
 
 
+def _screen(rig: Rig, slave: int, spec: SlaveTuneSpec) -> MarginScreen:
+    """The margin screen over the plant set verification judges robustness on
+    (:func:`~servotune.verify.margins.plant_cases`), its late cases only: one tick more delay
+    lowers the phase at every frequency, so a loop that keeps its margins late keeps them on
+    time (verification checks both)."""
+    cases = plant_cases(
+        rig,
+        gain_spread=spec.gain_spread,
+        tau_spread=spec.tau_spread,
+        extra_ticks=spec.extra_ticks,
+        period_error_ppm=spec.period_error_ppm,
+    )
+    late = max(c.extra_lag_s for c in cases)
+    return MarginScreen(rig, slave, [c for c in cases if c.extra_lag_s == late])
+
+
+def _worst_margins(screen: MarginScreen, task: FuzzyPIDConstants) -> tuple[float, float, float]:
+    """Worst phase margin [deg], gain margin [dB] and Ms over every cell and plant case."""
+    cells = np.stack([task.scheduled(name).ravel() for name in ("kp", "ki", "kd")], axis=1)
+    pm, gm, ms = screen(np.unique(cells, axis=0))
+    return float(pm.min()), float(gm.min()), float(ms.max())
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class _Problem:
     loop: Loop
@@ -256,13 +311,16 @@ class _Problem:
     seeds: tuple[int, ...]
     master_ctl: AxisController
     spec: SlaveTuneSpec
+    screen: MarginScreen
 
 
 def _evaluate(prob: _Problem, gains: Sequence[FuzzyPIDGains]) -> tuple[np.ndarray, np.ndarray]:
-    """Objective and worst-case quantities (saturation %, overshoot, fault) per candidate."""
+    """Objective and worst-case quantities (saturation %, overshoot, fault, PM [deg], GM [dB],
+    Ms) per candidate."""
     rig = prob.loop.rig
     n_v = len(prob.variants)
     ctls = []
+    robust = []
     for g in gains:
         slave_ctl = AxisController.from_gains(
             lock_gain_codes_per_count=rig.axes[prob.slave].lock_gain_codes_per_count,
@@ -270,6 +328,7 @@ def _evaluate(prob: _Problem, gains: Sequence[FuzzyPIDGains]) -> tuple[np.ndarra
             period_s=rig.period_s,
             following_error_limit_counts=rig.axes[prob.slave].following_error_limit_counts,
         )
+        robust.append(_worst_margins(prob.screen, slave_ctl.task))  # type: ignore[arg-type]
         row = [prob.master_ctl] * len(rig.axes)
         row[prob.slave] = slave_ctl
         ctls.extend([tuple(row)] * n_v)
@@ -288,6 +347,7 @@ def _evaluate(prob: _Problem, gains: Sequence[FuzzyPIDGains]) -> tuple[np.ndarra
             100.0 * sat.reshape(len(gains), n_v).max(axis=1),
             over.reshape(len(gains), n_v).max(axis=1),
             fault.reshape(len(gains), n_v).any(axis=1).astype(float),
+            *np.array(robust).T,
         ],
         axis=1,
     )
@@ -296,10 +356,14 @@ def _evaluate(prob: _Problem, gains: Sequence[FuzzyPIDGains]) -> tuple[np.ndarra
 
 def _penalised(prob: _Problem, itae: np.ndarray, worst: np.ndarray) -> np.ndarray:
     spec = prob.spec
+    aim = design_limits(spec.limits)
     viol = (
         np.maximum(worst[:, 0] - spec.max_saturation_pct, 0.0) / max(spec.max_saturation_pct, 1.0)
         + np.maximum(worst[:, 1] - spec.max_overshoot_pct, 0.0) / max(spec.max_overshoot_pct, 1.0)
         + worst[:, 2] * 10.0
+        + np.maximum(aim.min_phase_margin_deg - worst[:, 3], 0.0) / 10.0
+        + np.maximum(aim.min_gain_margin_db - worst[:, 4], 0.0) / 2.0
+        + np.maximum(worst[:, 5] - aim.max_sensitivity, 0.0) / 0.2
     )
     return np.where(viol > 0, _BIG * (1.0 + viol), itae)
 
@@ -378,6 +442,7 @@ def tune_slave(
         seeds=seeds,
         master_ctl=loop.controllers[i_m],
         spec=spec,
+        screen=_screen(rig, i_s, spec),
     )
     space = _space(structure, start, n)
     k1_ideal = ideal_feedforward(rig.axes[i_s].plant, rig.dac.lsb_v)
@@ -446,5 +511,8 @@ def tune_slave(
             "saturation_pct": float(worst[0, 0]),
             "overshoot_pct": float(worst[0, 1]),
             "fault": float(worst[0, 2]),
+            "phase_margin_deg": float(worst[0, 3]),
+            "gain_margin_db": float(worst[0, 4]),
+            "max_sensitivity": float(worst[0, 5]),
         },
     )

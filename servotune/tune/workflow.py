@@ -1,9 +1,11 @@
 """Tuning a rig end to end (what ``servotune tune`` runs) and the Figure-4 comparison.
 
-:func:`tune_rig`: the master's PI by :func:`~servotune.tune.pi.tune_pi` on its axis model, the
-slave's composite fuzzy-PID + feedforward by :func:`~servotune.tune.slave.tune_slave` starting
+:func:`tune_rig`: the lock gains and the master's PI designed to keep the margin limits over
+the plant set (:mod:`servotune.tune.robust`), the slave's composite fuzzy-PID + feedforward by
+:func:`~servotune.tune.slave.tune_slave` (the margins of every cell as constraints) starting
 from a PI designed the same way for the slave, the rule base evaluated into query tables by
-:mod:`servotune.fuzzy`; everything quantised into a :class:`~servotune.tuning.Tuning`.
+:mod:`servotune.fuzzy`; everything quantised into a :class:`~servotune.tuning.Tuning`, whose
+margins python-control then confirms.
 
 :func:`compare_structures`: the paper's Figure 4 on our models. Conventional PID, PID + the same
 feedforward, and composite control are each tuned by the same optimiser with the same budget,
@@ -13,6 +15,7 @@ and the start transient's rise and settling (of the slave's speed, 10–90 % and
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,11 +27,12 @@ from servotune import fuzzy
 from servotune._version import __version__
 from servotune.errors import InfeasibleError, SpecError
 from servotune.io.files import json_float
+from servotune.laws.fuzzy_pid import FuzzyPIDConstants
 from servotune.metrics import step_info
 from servotune.rig import Rig, load_rig
 from servotune.scenarios import _sync_move_for
 from servotune.sim.engine import Loop, Trace, simulate
-from servotune.tune.pi import DEFAULT_TARGETS, tune_pi_axis
+from servotune.tune.robust import robust_lock_gain, robust_pi
 from servotune.tune.slave import (
     STRUCTURES,
     SlaveTuneSpec,
@@ -37,17 +41,15 @@ from servotune.tune.slave import (
     tune_slave,
 )
 from servotune.tuning import Tuning, file_sha256
+from servotune.verify.margins import plant_cases, tuning_margins
 
 __all__ = [
-    "MASTER_TARGETS",
     "Comparison",
     "compare_structures",
     "rule_tables",
     "tune_rig",
+    "tuning_summary",
 ]
-
-MASTER_TARGETS: Mapping[str, float] = DEFAULT_TARGETS
-"""Default robustness targets of the PI designs (master, and the slave's start point)."""
 
 
 def rule_tables(rule_base: str = "default", *, n: int = 6) -> dict[str, np.ndarray]:
@@ -59,11 +61,43 @@ def rule_tables(rule_base: str = "default", *, n: int = 6) -> dict[str, np.ndarr
     return {t: np.asarray(getattr(qt, t)) for t in ("kp", "ki", "kd", "k1")}
 
 
-def _pi_designs(rig: Rig, targets: Mapping[str, float]) -> tuple[Any, Any]:
+@dataclass(frozen=True, slots=True, kw_only=True)
+class _RobustStart:
+    """The fixed-gain loops designed for the plant set, before the slave's law is tuned."""
+
+    rig: Rig  # the rig with each axis's lock gain as designed
+    master_pi: Any  # PITuning
+    slave_pi: Any  # PITuning (the slave tuner's start point)
+    lock_gains: tuple[float, ...]
+
+
+def _robust_start(rig: Rig, spec: SlaveTuneSpec) -> _RobustStart:
+    """Lock gains and PI designs that keep ``spec``'s margin limits over the plant set
+    (:func:`~servotune.verify.margins.plant_cases` of the spec's spreads, latency and timer
+    error).
+
+    Raises
+    ------
+    InfeasibleError
+        A loop cannot keep the limits (the message names the axis and the binding limit).
+    """
     i_m, i_s = _master_slave(rig)
-    return (
-        tune_pi_axis(rig, rig.axes[i_m].name, **targets),
-        tune_pi_axis(rig, rig.axes[i_s].name, **targets),
+    cases = plant_cases(
+        rig,
+        gain_spread=spec.gain_spread,
+        tau_spread=spec.tau_spread,
+        extra_ticks=spec.extra_ticks,
+        period_error_ppm=spec.period_error_ppm,
+    )
+    locks = tuple(robust_lock_gain(rig, a.name, cases, spec.limits) for a in rig.axes)
+    robust = dataclasses.replace(rig, axes=tuple(
+        dataclasses.replace(a, lock_gain_codes_per_count=k)
+        for a, k in zip(rig.axes, locks, strict=True)))  # fmt: skip
+    return _RobustStart(
+        rig=robust,
+        master_pi=robust_pi(robust, rig.axes[i_m].name, cases, spec.limits),
+        slave_pi=robust_pi(robust, rig.axes[i_s].name, cases, spec.limits),
+        lock_gains=locks,
     )
 
 
@@ -73,10 +107,16 @@ def tune_rig(
     seed: int = 0,
     spec: SlaveTuneSpec | None = None,
     rule_base: str = "default",
-    master_targets: Mapping[str, float] | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> Tuning:
-    """Tune a rig: master PI, slave composite law; the result as the runtime will run it.
+    """Tune a rig: lock gains, master PI, slave composite law; the result as the runtime will
+    run it, every loop of it keeping ``spec``'s margin limits over the plant set.
+
+    The lock gains (the rig's, lowered if needed) and the PIs are designed for the plant set
+    (:mod:`servotune.tune.robust`); the slave's law is tuned with the margins of every cell as
+    constraints (:func:`~servotune.tune.slave.tune_slave`). The result is then judged as
+    verification judges it: python-control on the quantised constants over the plant set
+    (:func:`~servotune.verify.margins.tuning_margins`); its figures go into ``design``.
 
     Parameters
     ----------
@@ -88,22 +128,26 @@ def tune_rig(
         Slave tuning run, constraints and budget.
     rule_base : {"default", "classic"}
         Rule base of the query tables.
-    master_targets : mapping, optional
-        Keyword targets for :func:`~servotune.tune.pi.tune_pi` (default :data:`MASTER_TARGETS`).
     progress : callable, optional
         Receives one line per step (the CLI prints them on stderr).
 
     Returns
     -------
     Tuning
+
+    Raises
+    ------
+    InfeasibleError
+        No tuning keeps the constraints (the message names the loop and the binding limit);
+        nothing is returned, so nothing is written.
     """
     rig = load_rig(rig_path)
     spec = spec or SlaveTuneSpec()
-    targets = dict(MASTER_TARGETS if master_targets is None else master_targets)
     say = progress or (lambda _msg: None)
     i_m, i_s = _master_slave(rig)
     say(f"tune: PI for {rig.axes[i_m].name} and the start point of {rig.axes[i_s].name}")
-    master_pi, slave_pi = _pi_designs(rig, targets)
+    start = _robust_start(rig, spec)
+    rig, master_pi, slave_pi = start.rig, start.master_pi, start.slave_pi
     tables = rule_tables(rule_base)
     slave = tune_slave(
         rig,
@@ -116,10 +160,30 @@ def tune_rig(
         progress=progress,
     )
     if not slave.feasible:
+        w = slave.worst
+        broken = [
+            text
+            for bad, text in (
+                (w["fault"] > 0, "a fault (following-error trip) on some variant"),
+                (w["saturation_pct"] > spec.max_saturation_pct,
+                 f"saturation {w['saturation_pct']:.1f} % > {spec.max_saturation_pct:g} %"),
+                (w["overshoot_pct"] > spec.max_overshoot_pct,
+                 f"overshoot {w['overshoot_pct']:.0f} % > {spec.max_overshoot_pct:g} %"),
+                (w["phase_margin_deg"] < spec.min_phase_margin_deg,
+                 f"PM {w['phase_margin_deg']:.1f}° < {spec.min_phase_margin_deg:g}°"),
+                (w["gain_margin_db"] < spec.min_gain_margin_db,
+                 f"GM {w['gain_margin_db']:.1f} dB < {spec.min_gain_margin_db:g} dB"),
+                (w["max_sensitivity"] > spec.max_sensitivity,
+                 f"Ms {w['max_sensitivity']:.2f} > {spec.max_sensitivity:g}"),
+            )
+            if bad
+        ]  # fmt: skip
         raise InfeasibleError(
-            "no slave tuning met the constraints (saturation <= "
-            f"{spec.max_saturation_pct} %, overshoot <= {spec.max_overshoot_pct} %); "
-            f"best worst case: {dict(slave.worst)}"
+            f"no slave tuning met the constraints within the budget ({spec.generations} "
+            f"generations of {spec.population}); the closest breaks: "
+            f"{'; '.join(broken) or 'a margin limit by the tolerance the design keeps'} "
+            f"(worst cell PM {w['phase_margin_deg']:.1f}°, GM {w['gain_margin_db']:.1f} dB, "
+            f"Ms {w['max_sensitivity']:.2f})"
         )
     gains: list[object | None] = [None] * len(rig.axes)
     gains[i_m], gains[i_s] = master_pi.gains, slave.gains
@@ -128,7 +192,7 @@ def tune_rig(
     say(f"tune: sync-error ITAE {slave.start_objective:.4g} counts·s² at the start (which {kept} "
         f"the constraints), {slave.objective:.4g} tuned")  # fmt: skip
     rig_sha256 = file_sha256(rig_path)
-    return Tuning.for_rig(
+    tuning = Tuning.for_rig(
         rig,
         ctls,
         rig_sha256=rig_sha256,
@@ -141,7 +205,7 @@ def tune_rig(
                 "tuning": slave.to_dict(),
             },
             "spec": spec.to_dict(),
-            "pi_targets": targets,
+            "lock_gains_codes_per_count": dict(zip(rig.axis_names, start.lock_gains, strict=True)),
         },
         provenance={
             "rig_sha256": rig_sha256,
@@ -151,6 +215,63 @@ def tune_rig(
             "tool_version": __version__,
         },
     )
+    say("tune: margins of every loop over the plant set (python-control)")
+    cases = plant_cases(
+        rig,
+        gain_spread=spec.gain_spread,
+        tau_spread=spec.tau_spread,
+        extra_ticks=spec.extra_ticks,
+        period_error_ppm=spec.period_error_ppm,
+    )
+    margins = tuning_margins(tuning, rig, limits=spec.limits, cases=cases)
+    if not margins.passed:
+        m, broken = margins.failures()[0]
+        raise InfeasibleError(
+            f"the tuned {m.name} breaks the margin limits on plant {m.plant}: "
+            f"{'; '.join(broken)} (the grid screen passed it; tighten the limits or report "
+            "this)"
+        )
+    summary = {a: margins.worst(a).to_dict() for a in rig.axis_names}
+    return dataclasses.replace(tuning, design={**tuning.design, "margins": summary})
+
+
+def tuning_summary(tuning: Tuning) -> dict[str, Any]:
+    """What ``servotune tune`` reports: per axis its gains as they run (lock gain, the task law's
+    base gains and, for a scheduled law, the range over its query table) and its worst loop's
+    margins over the plant set (python-control, from ``tuning.design["margins"]``); the slave
+    tuner's objective and constraint figures.
+
+    Returns
+    -------
+    dict
+        ``schema`` ``"servotune.tune-summary/1"``, ``axes`` (name → ``lock_gain``, ``law``,
+        ``gains``, ``worst_loop``), ``slave`` (objective and worst-case figures).
+    """
+    margins = tuning.design.get("margins", {})
+    axes: dict[str, Any] = {}
+    for name, ctl in zip(tuning.axis_names, tuning.controllers, strict=True):
+        task = ctl.task
+        gains: dict[str, Any] = {}
+        if task is not None:
+            gains = {"kp": task.kp.value, "ki_t": task.ki_t.value}
+        if isinstance(task, FuzzyPIDConstants):
+            gains["kd_t"] = task.kd_t.value
+            gains["k1_t"] = task.k1_t.value
+            for key in ("kp", "ki", "kd"):
+                s = task.scheduled(key)
+                gains[f"{key}_range"] = [float(s.min()), float(s.max())]
+        axes[name] = {
+            "gains": gains,
+            "law": ctl.to_dict()["law"],
+            "lock_gain": ctl.lock_gain.value,
+            "worst_loop": margins.get(name),
+        }
+    slave = tuning.design.get("slave", {}).get("tuning", {})
+    return {
+        "schema": "servotune.tune-summary/1",
+        "axes": axes,
+        "slave": {k: slave.get(k) for k in ("objective", "feasible", "worst", "structure")},
+    }
 
 
 # --- Figure 4 --------------------------------------------------------------------------------
@@ -209,7 +330,6 @@ def compare_structures(
     rule_base: str = "default",
     spec: SlaveTuneSpec | None = None,
     seed: int = 0,
-    master_targets: Mapping[str, float] | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> Comparison:
     """Tune PID, PID + feedforward and composite with the same optimiser and budget; compare.
@@ -219,9 +339,9 @@ def compare_structures(
     Comparison
     """
     spec = spec or SlaveTuneSpec()
-    targets = dict(MASTER_TARGETS if master_targets is None else master_targets)
     i_m, i_s = _master_slave(rig)
-    master_pi, slave_pi = _pi_designs(rig, targets)
+    start = _robust_start(rig, spec)
+    rig, master_pi, slave_pi = start.rig, start.master_pi, start.slave_pi
     tables = rule_tables(rule_base)
     scen = _sync_move_for(rig, spec)
     mode = scen.inputs.mode[:, i_s]

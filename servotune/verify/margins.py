@@ -43,6 +43,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from servotune._numba_cache import jit
 from servotune.errors import SpecError
 from servotune.laws.fuzzy_pid import FuzzyPIDConstants
 from servotune.laws.pi import PIConstants
@@ -61,11 +62,18 @@ __all__ = [
     "LoopMargins",
     "MarginLimits",
     "Margins",
+    "PlantCase",
+    "controller_basis",
+    "controller_response",
     "controller_tf",
     "gain_sets",
+    "grid_margins",
     "loop_margins",
     "loop_model",
+    "plant_cases",
+    "plant_response",
     "tuning_margins",
+    "unwrapped_phase",
 ]
 
 GRID_POINTS = 800
@@ -102,15 +110,19 @@ class MarginLimits:
 
     def broken(self, m: LoopMargins) -> tuple[str, ...]:
         """The limits ``m`` breaks, each as a phrase (empty: it meets them all)."""
-        if not m.stable:
-            return (f"unstable (closed-loop pole radius {m.spectral_radius:.4f})",)
+        return self.broken_figures({f.name: getattr(m, f.name) for f in fields(m)})
+
+    def broken_figures(self, figures: Mapping[str, Any]) -> tuple[str, ...]:
+        """:meth:`broken` for the figures of :func:`loop_margins` (a dict)."""
+        if not figures["stable"]:
+            return (f"unstable (closed-loop pole radius {figures['spectral_radius']:.4f})",)
         out = []
-        if m.phase_margin_deg < self.min_phase_margin_deg:
-            out.append(f"PM {m.phase_margin_deg:.1f}° < {self.min_phase_margin_deg:g}°")
-        if m.gain_margin_db < self.min_gain_margin_db:
-            out.append(f"GM {m.gain_margin_db:.1f} dB < {self.min_gain_margin_db:g} dB")
-        if m.max_sensitivity > self.max_sensitivity:
-            out.append(f"Ms {m.max_sensitivity:.2f} > {self.max_sensitivity:g}")
+        if figures["phase_margin_deg"] < self.min_phase_margin_deg:
+            out.append(f"PM {figures['phase_margin_deg']:.1f}° < {self.min_phase_margin_deg:g}°")
+        if figures["gain_margin_db"] < self.min_gain_margin_db:
+            out.append(f"GM {figures['gain_margin_db']:.1f} dB < {self.min_gain_margin_db:g} dB")
+        if figures["max_sensitivity"] > self.max_sensitivity:
+            out.append(f"Ms {figures['max_sensitivity']:.2f} > {self.max_sensitivity:g}")
         return tuple(out)
 
     def to_dict(self) -> dict[str, float]:
@@ -170,6 +182,122 @@ def loop_model(
 
     p = discretize(plant, period_s, lag_s) * lsb_volts
     return control.ss(control.series(controller_tf(g, period_s), p))
+
+
+def unwrapped_phase(g: np.ndarray) -> np.ndarray:
+    """Phase of a response along its last axis, from the lowest frequency on, its first value
+    taken in (−3π/2, π/2] [rad]."""
+    ph = np.angle(g)
+    first = ph[..., 0]
+    ph[..., 0] = np.where(first > 0.5 * math.pi, first - 2 * math.pi, first)
+    return np.unwrap(ph, axis=-1)
+
+
+@jit
+def _grid_kernel(
+    lw: np.ndarray,
+    gains: np.ndarray,
+    integ: np.ndarray,
+    diff: np.ndarray,
+    g: np.ndarray,
+    g_phase: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """:func:`grid_margins` for every (gain row, plant) pair into ``out[u, p, 0:4]``."""
+    two_pi = 2.0 * math.pi
+    m = lw.size
+    c = np.empty(m, dtype=np.complex128)
+    c_phase = np.empty(m)
+    for u in range(gains.shape[0]):
+        for i in range(m):
+            c[i] = gains[u, 0] + gains[u, 1] * integ[i] + gains[u, 2] * diff[i]
+            c_phase[i] = math.atan2(c[i].imag, c[i].real)
+        for p in range(g.shape[0]):
+            pm, gm, s2_min, wc_top = math.inf, math.inf, math.inf, 0.0
+            a0 = ph0 = k0 = 0.0
+            for i in range(m):
+                loop = c[i] * g[p, i]
+                a1 = loop.real * loop.real + loop.imag * loop.imag  # |L|²
+                ph1 = g_phase[p, i] + c_phase[i]
+                k1 = math.floor((ph1 + math.pi) / two_pi)
+                s2 = (1.0 + loop.real) ** 2 + loop.imag * loop.imag  # |1 + L|²
+                if s2 < s2_min:
+                    s2_min = s2
+                if i > 0:
+                    if (a0 >= 1.0) != (a1 >= 1.0):  # a gain crossover
+                        ln0, ln1 = 0.5 * math.log(a0), 0.5 * math.log(a1)
+                        f = ln0 / (ln0 - ln1)
+                        v = (ph0 + f * (ph1 - ph0)) % two_pi - math.pi
+                        pm = min(pm, v)
+                        wc_top = max(wc_top, math.exp(lw[i - 1] + f * (lw[i] - lw[i - 1])))
+                    if k0 != k1:  # a phase crossover (an odd multiple of π)
+                        lvl = max(k0, k1) * two_pi - math.pi
+                        fp = (lvl - ph0) / (ph1 - ph0)
+                        ln0 = 0.5 * math.log(a0 + 1e-300)
+                        ln1 = 0.5 * math.log(a1 + 1e-300)
+                        gm = min(gm, -(ln0 + fp * (ln1 - ln0)))
+                a0, ph0, k0 = a1, ph1, k1
+            out[u, p, 0] = pm
+            out[u, p, 1] = gm
+            out[u, p, 2] = 1.0 / math.sqrt(s2_min)
+            out[u, p, 3] = wc_top
+
+
+def controller_basis(w: np.ndarray, period_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """``z/(z − 1)`` and ``1 − 1/z`` at ``z = e^{jωT}`` on ``w``: ``C = Kp + Ki·T·(first) +
+    Kd/T·(second)`` (:func:`controller_response`)."""
+    z = np.exp(1j * np.asarray(w, dtype=float) * period_s)
+    return z / (z - 1.0), 1.0 - 1.0 / z
+
+
+def grid_margins(
+    w: np.ndarray,
+    gains: np.ndarray,
+    basis: tuple[np.ndarray, np.ndarray],
+    g: np.ndarray,
+    g_phase: np.ndarray,
+) -> dict[str, np.ndarray]:
+    """Margins of every loop ``L = C·G`` of a batch of controllers and plants from their
+    responses on a grid (compiled; the screen behind the tuners).
+
+    Every gain and phase crossover is located by linear interpolation (``ln|L|`` against
+    ``ln ω``, and the phase) between grid points; the verdict is :func:`loop_margins`
+    (python-control), which the tests hold this against.
+
+    Parameters
+    ----------
+    w : ndarray, shape (m,)
+        Frequency grid [rad/s], increasing.
+    gains : ndarray, shape (u, 3)
+        Rows ``(Kp, Ki·T, Kd/T)`` [codes/count], each >= 0 (so ``Re C > 0``: the controller's
+        phase is continuous without unwrapping).
+    basis : tuple of ndarray
+        :func:`controller_basis` of ``w`` at the loop's period.
+    g : ndarray of complex, shape (p, m)
+        Plant responses (D/A gain included).
+    g_phase : ndarray, shape (p, m)
+        Their unwrapped phases [rad] (:func:`unwrapped_phase`).
+
+    Returns
+    -------
+    dict of str to ndarray, shape (u, p)
+        ``pm`` worst phase margin [rad] (inf without a gain crossover), ``gm`` worst gain margin
+        [ln, i.e. nepers] (inf without a phase crossover), ``ms`` peak sensitivity [1] on the
+        grid, ``wc_top`` highest gain crossover [rad/s] (0 without one).
+    """
+    gr = np.ascontiguousarray(np.atleast_2d(gains), dtype=float)
+    g2 = np.ascontiguousarray(np.atleast_2d(g), dtype=complex)
+    out = np.empty((gr.shape[0], g2.shape[0], 4))
+    _grid_kernel(
+        np.log(np.asarray(w, dtype=float)),
+        gr,
+        np.ascontiguousarray(basis[0], dtype=complex),
+        np.ascontiguousarray(basis[1], dtype=complex),
+        g2,
+        np.ascontiguousarray(np.atleast_2d(g_phase), dtype=float),
+        out,
+    )
+    return {"pm": out[..., 0], "gm": out[..., 1], "ms": out[..., 2], "wc_top": out[..., 3]}
 
 
 def _grid(plant: Plant, period_s: float) -> np.ndarray:
@@ -416,16 +544,148 @@ def gain_sets(
     return out
 
 
+@dataclass(frozen=True, slots=True, kw_only=True)
+class PlantCase:
+    """One plant set the loops are taken on.
+
+    Attributes
+    ----------
+    label : str
+        ``"nominal"``, ``"gain+20%,tau-30%"``, with ``"+1tick"`` (one tick more latency) and
+        ``"@+100ppm"`` (the timer's period error) where they apply.
+    plants : tuple of Plant
+        One per rig axis.
+    extra_lag_s : float
+        Latency added to every axis's loop [s].
+    period_s : float
+        Tick period [s].
+    """
+
+    label: str
+    plants: tuple[Plant, ...]
+    extra_lag_s: float = 0.0
+    period_s: float
+
+
+def _spread(plant: Plant, fit: Any, key: str, spread: float) -> tuple[float, float]:
+    """Low and high factor on ``key``: the wider of the identification's 95 % interval (the
+    axis's plant fit record, where the rig has one) and ``± spread``."""
+    v = float(getattr(plant, key))
+    lo, hi = 1.0 - spread, 1.0 + spread
+    ci = getattr(fit, "ci95", {}) if fit is not None else {}
+    if key in ci and v > 0:
+        lo, hi = min(lo, ci[key][0] / v), max(hi, ci[key][1] / v)
+    return max(lo, 1e-3), hi
+
+
+def plant_cases(
+    rig: Rig,
+    *,
+    gain_spread: float = 0.0,
+    tau_spread: float = 0.0,
+    extra_ticks: int = 1,
+    period_error_ppm: float = 0.0,
+) -> tuple[PlantCase, ...]:
+    """The plant set robustness is judged over: what is not known about the loop.
+
+    Every axis's gain and time constant at the corners of the wider of its identified 95 %
+    interval (``[axis.<name>.plant.fit]``) and ``± spread``; each corner and the nominal plants
+    as they are and with ``extra_ticks`` ticks more latency; each at the nominal period and at
+    ``± period_error_ppm``. Friction, offset and noise do not enter a linear loop's margins.
+
+    Parameters
+    ----------
+    rig : Rig
+    gain_spread, tau_spread : float
+        Relative spreads [1] (e.g. a spec's Monte-Carlo spreads).
+    extra_ticks : int
+        Extra latency [ticks] (0: none).
+    period_error_ppm : float
+        Timer period error [ppm] (0: the nominal period only).
+
+    Returns
+    -------
+    tuple of PlantCase
+        The nominal case first.
+    """
+    corners: list[tuple[str, tuple[Plant, ...]]] = [("nominal", tuple(a.plant for a in rig.axes))]
+    if gain_spread > 0 or tau_spread > 0 or any(a.plant_fit is not None for a in rig.axes):
+        for sg in (-1, 1):
+            for st_ in (-1, 1):
+                plants = []
+                for a in rig.axes:
+                    g = _spread(a.plant, a.plant_fit, "gain_cps_per_v", gain_spread)
+                    tt = _spread(a.plant, a.plant_fit, "tau_s", tau_spread)
+                    fg, ft = g[sg > 0], tt[st_ > 0]
+                    changes: dict[str, Any] = {"gain_cps_per_v": a.plant.gain_cps_per_v * fg,
+                                               "tau_s": a.plant.tau_s * ft}  # fmt: skip
+                    if a.plant.gain_neg_cps_per_v is not None:
+                        changes["gain_neg_cps_per_v"] = a.plant.gain_neg_cps_per_v * fg
+                    plants.append(replace(a.plant, **changes))
+                label = f"gain{'-+'[sg > 0]},tau{'-+'[st_ > 0]}"
+                corners.append((label, tuple(plants)))
+    lags = [(0.0, "")] + ([(extra_ticks * rig.period_s, f"+{extra_ticks}tick")]
+                          if extra_ticks > 0 else [])  # fmt: skip
+    periods = [(rig.period_s, "")]
+    if period_error_ppm > 0:
+        for s in (-1, 1):
+            periods.append((rig.period_s * (1 + s * period_error_ppm * 1e-6),
+                            f"@{s * period_error_ppm:+g}ppm"))  # fmt: skip
+    return tuple(
+        PlantCase(
+            label=(label + lt + pt) if (lt or pt) else label,
+            plants=plants,
+            extra_lag_s=lag,
+            period_s=per,
+        )
+        for label, plants in corners
+        for lag, lt in lags
+        for per, pt in periods
+    )
+
+
+def plant_response(plant: Plant, rig: Rig, case: PlantCase, w: np.ndarray) -> np.ndarray:
+    """``lsb·P(e^{jωT})`` of one axis's plant in a case, by python-control, on ``w``."""
+    import control
+
+    lag = rig.timer.compute_s + plant.delay_s + case.extra_lag_s
+    p = discretize(plant, case.period_s, lag) * rig.dac.lsb_v
+    return control.frequency_response(p, w).complex.ravel()
+
+
+def controller_response(gains: np.ndarray, w: np.ndarray, period_s: float) -> np.ndarray:
+    """``C(e^{jωT})`` of each row ``(Kp, Ki·T, Kd/T)`` of ``gains`` on ``w``, shape (rows, m)."""
+    integ, diff = controller_basis(w, period_s)
+    g = np.atleast_2d(gains)
+    return g[:, :1] + g[:, 1:2] * integ[None, :] + g[:, 2:3] * diff[None, :]
+
+
+def _margins_of(
+    axis: str, loop: str, cell: tuple[int, int] | None, g: GainSet, plant: Plant, rig: Rig,
+    case: PlantCase,
+) -> LoopMargins:  # fmt: skip
+    lag = rig.timer.compute_s + plant.delay_s + case.extra_lag_s
+    model = loop_model(plant, g, period_s=case.period_s, lag_s=lag, lsb_volts=rig.dac.lsb_v)
+    figures = loop_margins(model, _grid(plant, case.period_s))
+    return LoopMargins(axis=axis, loop=loop, cell=cell, plant=case.label, gains=g,
+                       period_s=case.period_s, **figures)  # type: ignore[arg-type]  # fmt: skip
+
+
 def tuning_margins(
     tuning: Tuning,
     rig: Rig,
     *,
     limits: MarginLimits = DEFAULT_LIMITS,
-    plants: Mapping[str, Sequence[Plant]] | None = None,
-    extra_lag_s: Sequence[float] = (0.0,),
-    periods_s: Sequence[float] | None = None,
+    cases: Sequence[PlantCase] | None = None,
 ) -> Margins:
     """The margins of every loop of ``tuning`` on ``rig`` (module docstring).
+
+    On the nominal plants every loop is computed with python-control. Over a plant set
+    (``cases``, e.g. :func:`plant_cases`) every loop on every other case is screened on a grid
+    (:func:`grid_margins`); for each axis and loop kind the cases and cells with the worst Ms,
+    the worst phase margin and the worst gain margin are then computed with python-control,
+    and those are the figures reported. So each reported number is python-control's, and the
+    worst case is found among all of them.
 
     Parameters
     ----------
@@ -434,48 +694,54 @@ def tuning_margins(
         The rig the tuning was made for (its axes and period are checked).
     limits : MarginLimits
         The limits the verdict uses.
-    plants : mapping of str to sequence of Plant, optional
-        Label → one plant per rig axis (e.g. the corners of the identified intervals); default
-        ``{"nominal": the rig's plants}``.
-    extra_lag_s : sequence of float
-        Extra input lags [s] each plant is also taken with (e.g. ``(0, T)``: one tick more).
-    periods_s : sequence of float, optional
-        Tick periods [s] to take (e.g. the period ± the timer's error); default the rig's.
+    cases : sequence of PlantCase, optional
+        The plant set; default the nominal plants only.
 
     Returns
     -------
     Margins
-        Gain sets shared by several cells are computed once.
+        The nominal loops (rig axis order; per axis the lock loop, then the task loop, each cell
+        row ``E`` then column ``EC``), then the worst cases found over the plant set.
     """
     tuning.check_rig(rig)
-    lsb = rig.dac.lsb_v
-    plant_sets = {"nominal": tuple(a.plant for a in rig.axes)} if plants is None else dict(plants)
-    periods = (rig.period_s,) if periods_s is None else tuple(periods_s)
-    cases = []
-    for label, ps in plant_sets.items():
-        for extra in extra_lag_s:
-            for per in periods:
-                tag = label
-                if len(extra_lag_s) > 1 or extra:
-                    tag += f"+{extra / rig.period_s:g}tick"
-                if len(periods) > 1:
-                    tag += f"@{(per / rig.period_s - 1) * 1e6:+.0f}ppm"
-                cases.append((tag, ps, extra, per))
+    nominal = PlantCase(label="nominal", plants=tuple(a.plant for a in rig.axes),
+                        period_s=rig.period_s)  # fmt: skip
+    others = [c for c in (cases or ()) if c.label != "nominal"]
     out: list[LoopMargins] = []
+    worst: list[LoopMargins] = []
     for a, (name, ctrl) in enumerate(zip(tuning.axis_names, tuning.controllers, strict=True)):
         sets = gain_sets(ctrl)
-        for tag, ps, extra, per in cases:
-            plant = ps[a]
-            lag = rig.timer.compute_s + plant.delay_s + extra
-            w = _grid(plant, per)
-            memo: dict[GainSet, dict[str, float | bool]] = {}
-            for loop, cell, g in sets:
-                if g not in memo:
-                    model = loop_model(plant, g, period_s=per, lag_s=lag, lsb_volts=lsb)
-                    memo[g] = loop_margins(model, w)
-                out.append(LoopMargins(axis=name, loop=loop, cell=cell, plant=tag, gains=g,
-                                       period_s=per, **memo[g]))  # type: ignore[arg-type]  # fmt: skip
-    return Margins(loops=tuple(out), limits=limits)
+        memo: dict[GainSet, LoopMargins] = {}
+        for loop, cell, g in sets:
+            if g not in memo:
+                memo[g] = _margins_of(name, loop, cell, g, nominal.plants[a], rig, nominal)
+            out.append(replace(memo[g], loop=loop, cell=cell))
+        if not others:
+            continue
+        for kind in ("lock", "task"):
+            kind_sets = [(cell, g) for loop, cell, g in sets if loop == kind]
+            if not kind_sets:
+                continue
+            uniq = list(dict.fromkeys(g for _, g in kind_sets))
+            gains = np.array([(g.kp, g.ki_t, g.kd_t) for g in uniq])
+            found: dict[tuple[int, int], None] = {}
+            scores = []
+            for ci, case in enumerate(others):
+                plant = case.plants[a]
+                w = _grid(plant, case.period_s)
+                gr = plant_response(plant, rig, case, w)[None, :]
+                m = grid_margins(w, gains, controller_basis(w, case.period_s), gr,
+                                 unwrapped_phase(gr))  # fmt: skip
+                scores.append((ci, m["ms"][:, 0], m["pm"][:, 0], m["gm"][:, 0]))
+            for pick in (lambda s: -s[1], lambda s: s[2], lambda s: s[3]):  # Ms, PM, GM
+                best = min((float(pick(s)[u]), s[0], u) for s in scores
+                            for u in range(len(uniq)))  # fmt: skip
+                found[(best[1], best[2])] = None
+            for ci, u in found:
+                cell = next(cell for cell, g in kind_sets if g == uniq[u])
+                worst.append(_margins_of(name, kind, cell, uniq[u], others[ci].plants[a], rig,
+                                         others[ci]))  # fmt: skip
+    return Margins(loops=tuple(out + worst), limits=limits)
 
 
 def with_limits(m: Margins, limits: MarginLimits) -> Margins:

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -261,13 +261,15 @@ def verify_files(
     rig_path: str | Path | None = None,
     *,
     seed: int | None = None,
+    montecarlo: int | None = None,
     progress: Callable[[str], None] | None = None,
     write: bool = True,
 ) -> tuple[Verification, dict[str, Any], Path | None]:
     """What ``servotune verify TUNING --spec SPEC [--rig RIG]`` runs.
 
     Reads each file's bytes once, parses and hashes those bytes, verifies, builds the record
-    and (``write``) writes it next to the tuning.
+    and (``write``) writes it next to the tuning. ``montecarlo`` overrides the spec's variant
+    count (the record then holds the spec as run).
 
     Returns
     -------
@@ -286,6 +288,8 @@ def verify_files(
     tuning, tuning_file, rig, rig_file = _tuning_and_rig(tuning_path, rig_path)
     spec_file = SourceFile.read(spec_path, SpecError, "spec file")
     spec = spec_from_bytes(spec_file.raw, spec_path)
+    if montecarlo is not None:  # the spec's count overridden (validated as the spec's is)
+        spec = replace(spec, montecarlo=replace(spec.montecarlo, count=montecarlo))
     result = verify(tuning, rig, spec, seed=seed, progress=progress)
     record = verification_record(result, tuning=tuning_file, rig=rig_file, spec=spec_file)
     path = write_record(record, tuning_path) if write else None

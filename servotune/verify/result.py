@@ -3,9 +3,12 @@ pass/fail table for the terminal (:func:`format_table`)."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
+
+from scipy.stats import beta
 
 from servotune.io.files import json_float
 from servotune.validate import show_number, show_value
@@ -138,6 +141,8 @@ class Verification:
     rows : tuple of Row
         Every limit of every scenario (empty if the runs were skipped, see ``checks``).
     checks : tuple of Check
+    variant_passed : tuple of bool
+        Per variant (``variants`` order), whether it kept every limit of every scenario.
     """
 
     spec: Spec
@@ -147,6 +152,21 @@ class Verification:
     variants: tuple[Variant, ...]
     rows: tuple[Row, ...]
     checks: tuple[Check, ...]
+    variant_passed: tuple[bool, ...] = ()
+
+    @property
+    def pass_fraction(self) -> tuple[int, int, float, float, float]:
+        """Over the Monte-Carlo variants (the nominal plants excluded): ``(passed, count,
+        fraction, low, high)``, ``low``–``high`` the exact (Clopper–Pearson) 95 % interval of
+        the probability that a plant drawn from the spec's spread keeps every limit; NaN
+        fraction and (0, 1) without variants."""
+        mc = list(self.variant_passed[1:])
+        n, k = len(mc), int(sum(mc))
+        if n == 0:
+            return 0, 0, math.nan, 0.0, 1.0
+        lo = 0.0 if k == 0 else float(beta.ppf(0.025, k, n - k + 1))
+        hi = 1.0 if k == n else float(beta.ppf(0.975, k + 1, n - k))
+        return k, n, k / n, lo, hi
 
     @property
     def passed(self) -> bool:
@@ -185,11 +205,18 @@ class Verification:
                 return c
         raise KeyError(f"no check {show_value(name)}")
 
+    def _montecarlo_dict(self) -> dict[str, Any]:
+        k, n, frac, lo, hi = self.pass_fraction
+        return {"ci95": [json_float(lo), json_float(hi)], "count": n,
+                "interval": "Clopper-Pearson", "pass_fraction": json_float(frac),
+                "passed": k}  # fmt: skip
+
     def to_dict(self) -> dict[str, Any]:
         """Plain dict, JSON-ready (``json.dumps(..., sort_keys=True)``)."""
         return {
             "checks": [c.to_dict() for c in self.checks],
             "failures": self.failures,
+            "montecarlo": self._montecarlo_dict(),
             "passed": self.passed,
             "rig": self.rig_name,
             "rows": [r.to_dict() for r in self.rows],

@@ -24,7 +24,7 @@ from servotune.laws.axis import FAULT_MASK, FLAG_SATURATED, MODE_TASK
 from servotune.metrics import step_info
 from servotune.rig import Rig
 from servotune.scenarios import Inputs, _sync_move_for, build_scenario
-from servotune.sim.engine import BatchTraces, Loop, prepare_batch, run_batch
+from servotune.sim.engine import Loop, prepare_batch, run_batch
 from servotune.tuning import Tuning
 from servotune.validate import show_value
 from servotune.verify.checks import (
@@ -34,6 +34,7 @@ from servotune.verify.checks import (
     check_speed,
     check_timer,
 )
+from servotune.verify.margins import plant_cases, tuning_margins
 from servotune.verify.result import Check, Row, Verification
 from servotune.verify.spec import LIMITS, ScenarioSpec, Spec
 from servotune.verify.variants import Variant, _seed_seqs, plant_variants
@@ -119,30 +120,21 @@ def _worst(values: np.ndarray, labels: Sequence[str]) -> tuple[float, str]:
 def _run(
     loop: Loop, variants: Sequence[Variant], seeds: Sequence[int], inputs: Inputs
 ) -> dict[str, np.ndarray]:
-    """Traces of every variant, run in chunks of the engine's batch."""
-    parts: list[BatchTraces] = []
-    for k in range(0, len(variants), _CHUNK):
-        vs = variants[k : k + _CHUNK]
-        batch = prepare_batch(
-            loop, plants=[v.plants for v in vs], seeds=list(seeds[k : k + _CHUNK])
-        )
-        res = run_batch(batch, inputs, metrics_only=False)
-        assert res.traces is not None
-        parts.append(res.traces)
+    """Traces of a chunk of variants (one engine batch)."""
+    batch = prepare_batch(loop, plants=[v.plants for v in variants], seeds=list(seeds))
+    res = run_batch(batch, inputs, metrics_only=False)
+    assert res.traces is not None
     keys = ("counter", "pos_counts", "err_counts", "flags", "true_pos_counts", "speed_cps")
-    return {key: np.concatenate([getattr(p, key) for p in parts]) for key in keys}
+    return {key: getattr(res.traces, key) for key in keys}
 
 
 def _evaluate(
-    rig: Rig,
-    sc: ScenarioSpec,
-    inputs: Inputs,
-    tr: dict[str, np.ndarray],
-    labels: Sequence[str],
-) -> list[Row]:
+    rig: Rig, sc: ScenarioSpec, inputs: Inputs, tr: dict[str, np.ndarray]
+) -> tuple[dict[tuple[str, str], np.ndarray], dict[str, np.ndarray]]:
+    """Every limited quantity per variant of a chunk (``(quantity, axis)`` → values), and per
+    axis whether each variant latched a fault."""
     names = rig.axis_names
     n_v, n_t = tr["flags"].shape[:2]
-    limits = sc.limits
     values: dict[tuple[str, str], np.ndarray] = {}
     pos = tr["true_pos_counts"]
     flags = tr["flags"]
@@ -186,20 +178,77 @@ def _evaluate(
             )
             sat = (flags[:, :, a] & FLAG_SATURATED) != 0
             values[("saturation_pct", name)] = 100.0 * sat.mean(axis=1)
+    faults = {name: ((flags[:, :, a] & FAULT_MASK) != 0).any(axis=1)
+              for a, name in enumerate(names)}  # fmt: skip
+    return values, faults
+
+
+def _rows(
+    sc: ScenarioSpec,
+    names: Sequence[str],
+    values: dict[tuple[str, str], np.ndarray],
+    faults: dict[str, np.ndarray],
+    labels: Sequence[str],
+) -> tuple[list[Row], np.ndarray]:
+    """The rows of a scenario (worst over the variants) and which variants keep every limit
+    of it (a NaN or a fault fails)."""
     rows = []
-    for key, lim in limits.items():
+    ok = np.ones(len(labels), dtype=bool)
+    for key, lim in sc.limits.items():
         quantity, unit = LIMITS[key]
         for name in names:
             if (quantity, name) in values:
-                worst, label = _worst(values[(quantity, name)], labels)
+                v = values[(quantity, name)]
+                worst, label = _worst(v, labels)
+                ok &= v <= lim
                 rows.append(Row(scenario=sc.name, quantity=quantity, axis=name, unit=unit,
                                 limit=lim, worst=worst, variant=label))  # fmt: skip
-    for a, name in enumerate(names):
-        faulted = ((flags[:, :, a] & FAULT_MASK) != 0).any(axis=1)
+    for name in names:
+        faulted = faults[name]
+        ok &= ~faulted
         first = labels[int(np.argmax(faulted))] if faulted.any() else labels[0]
         rows.append(Row(scenario=sc.name, quantity=_FAULT_QUANTITY, axis=name, unit="runs",
                         limit=0.0, worst=float(faulted.sum()), variant=first))  # fmt: skip
-    return rows
+    return rows, ok
+
+
+def check_margins(tuning: Tuning, rig: Rig, spec: Spec) -> list[Check]:
+    """One check per axis and loop kind (``margins:<axis>:<lock|task>``): every loop of that
+    kind (every query-table cell of a scheduled law) keeps the spec's margin limits on the
+    nominal plants and over the plant set (:func:`~servotune.verify.margins.plant_cases`: the
+    corners of the identified intervals and of the spec's Monte-Carlo gain and tau spreads,
+    each also ``margins.extra_ticks`` ticks late, at the period ± the timer's error limit).
+
+    The check's value is the worst Ms [1]; its detail names the worst loop (the cell), the
+    plant case and the limits it breaks.
+    """
+    mc = spec.montecarlo
+    cases = plant_cases(rig, gain_spread=mc.gain_spread, tau_spread=mc.tau_spread,
+                        extra_ticks=spec.margin_extra_ticks,
+                        period_error_ppm=spec.max_period_error_ppm or 0.0)  # fmt: skip
+    m = tuning_margins(tuning, rig, limits=spec.margins, cases=cases)
+    lim = spec.margins
+    out = []
+    for name in tuning.axis_names:
+        for kind in ("lock", "task"):
+            loops = list(m.select(name, kind))
+            if not loops:
+                continue
+            bad = [(x, lim.broken(x)) for x in loops if lim.broken(x)]
+            worst, broken = bad[0] if bad else (m.worst(name, kind), ())
+            if bad:
+                worst, broken = min(bad, key=lambda xb: (xb[0].stable, -xb[0].max_sensitivity))
+            figures = (f"PM {worst.phase_margin_deg:.1f}°, GM {worst.gain_margin_db:.1f} dB, "
+                       f"Ms {worst.max_sensitivity:.2f}")  # fmt: skip
+            if broken:
+                detail = (f"{worst.name} on plant {worst.plant}: {'; '.join(broken)} "
+                          f"({len(bad)} of {len(loops)} loop cases break a limit)")  # fmt: skip
+            else:
+                detail = f"worst {worst.name} on plant {worst.plant}: {figures}"
+            out.append(Check(name=f"margins:{name}:{kind}", passed=not broken,
+                             value=worst.max_sensitivity, limit=lim.max_sensitivity, unit="1",
+                             detail=detail, facts=worst.to_dict()))  # fmt: skip
+    return out
 
 
 def verify(
@@ -217,7 +266,8 @@ def verify(
     tuning's quantised constants (nothing is re-quantised). Then the checks: the fastest motion
     against the counter's limits (:func:`check_speed`), the timer period (:func:`check_timer`)
     and the overflow bound (:func:`check_overflow`; if it fails the runs are skipped, since the
-    runtime arithmetic is not defined for such constants).
+    runtime arithmetic is not defined for such constants), and the margins of every loop the
+    runtime can run over the plant set (:func:`check_margins`).
 
     Parameters
     ----------
@@ -271,6 +321,7 @@ def verify(
                             seed=used_seed, variants=variants, rows=(),
                             checks=tuple(checks))  # fmt: skip
     fastest = _Fastest()
+    passed = np.ones(len(variants), dtype=bool)
     for sc in spec.scenarios:
         say(f"verify: scenario {sc.name} ({sc.kind}, {sc.seconds:g} s), {len(variants)} plant sets")
         try:
@@ -279,18 +330,25 @@ def verify(
             raise SpecError(f"scenario.{sc.name}: {exc}") from None
         if sc.kind != "lock":
             _move_windows(rig, sc, inputs)  # a bad scenario fails before the runs
-        tr = _run(loop, variants, noise, inputs)
-        rows += _evaluate(rig, sc, inputs, tr, labels)
-        step = np.abs(np.diff(tr["true_pos_counts"], axis=1))
-        if step.size and step.max() > fastest.counts_per_tick:
-            b, _, a = np.unravel_index(int(np.argmax(step)), step.shape)
-            fastest.counts_per_tick = float(step.max())
-            fastest.where_tick = f"{sc.name}, {rig.axes[a].name}, {labels[b]}"
-        spd = np.abs(tr["speed_cps"])
-        if spd.max() > fastest.speed_cps:
-            b, _, a = np.unravel_index(int(np.argmax(spd)), spd.shape)
-            fastest.speed_cps = float(spd.max())
-            fastest.where_speed = f"{sc.name}, {rig.axes[a].name}, {labels[b]}"
+        parts = []
+        for k in range(0, len(variants), _CHUNK):  # chunks bound the traces' memory
+            tr = _run(loop, variants[k : k + _CHUNK], noise[k : k + _CHUNK], inputs)
+            parts.append(_evaluate(rig, sc, inputs, tr))
+            step = np.abs(np.diff(tr["true_pos_counts"], axis=1))
+            if step.size and step.max() > fastest.counts_per_tick:
+                b, _, a = np.unravel_index(int(np.argmax(step)), step.shape)
+                fastest.counts_per_tick = float(step.max())
+                fastest.where_tick = f"{sc.name}, {rig.axes[a].name}, {labels[k + b]}"
+            spd = np.abs(tr["speed_cps"])
+            if spd.max() > fastest.speed_cps:
+                b, _, a = np.unravel_index(int(np.argmax(spd)), spd.shape)
+                fastest.speed_cps = float(spd.max())
+                fastest.where_speed = f"{sc.name}, {rig.axes[a].name}, {labels[k + b]}"
+        values = {key: np.concatenate([v[key] for v, _ in parts]) for key in parts[0][0]}
+        faults = {n: np.concatenate([f[n] for _, f in parts]) for n in parts[0][1]}
+        sc_rows, sc_ok = _rows(sc, rig.axis_names, values, faults, labels)
+        rows += sc_rows
+        passed &= sc_ok
     checks[:0] = check_speed(
         rig,
         fastest.counts_per_tick,
@@ -298,8 +356,11 @@ def verify(
         where_tick=fastest.where_tick,
         where_speed=fastest.where_speed,
     )
+    say("verify: margins of every loop over the plant set")
+    checks += check_margins(tuning, rig, spec)
     result = Verification(spec=spec, rig_name=rig.name, axis_names=rig.axis_names,
                           seed=used_seed, variants=variants, rows=tuple(rows),
-                          checks=tuple(checks))  # fmt: skip
+                          checks=tuple(checks),
+                          variant_passed=tuple(bool(x) for x in passed))  # fmt: skip
     say(f"verify: {'PASSED' if result.passed else 'FAILED'}")
     return result

@@ -23,6 +23,12 @@ Every key is optional unless marked; unknown keys are errors; every limit is an 
     coulomb_spread = 0.5          # coulomb_v × U(1 − s, 1 + s) [1]
     axes = ["master", "slave"]    # axes whose plants vary; default every axis
 
+    [margins]                     # every loop the runtime can run (verify.margins); defaults:
+    min_phase_margin_deg = 45.0   # [deg]
+    min_gain_margin_db = 6.0      # [dB]
+    max_sensitivity = 2.0         # peak sensitivity Ms [1] (Åström & Hägglund: 1.2–2.0)
+    extra_ticks = 1               # latency the loops must also take [ticks] (0: none)
+
     [scenario.<name>]             # at least one; kind defaults to the table name
     kind = "sync"                 # "sync", "track" or "lock"
     ...parameters and limits of the kind (below)
@@ -66,7 +72,15 @@ from typing import Any
 
 from servotune.errors import SpecError
 from servotune.io.files import parse_toml, read_bytes
-from servotune.validate import check_keys, check_number, check_strings, check_table, show_value
+from servotune.validate import (
+    check_integer,
+    check_keys,
+    check_number,
+    check_strings,
+    check_table,
+    show_value,
+)
+from servotune.verify.margins import DEFAULT_LIMITS, MarginLimits
 
 __all__ = [
     "KINDS",
@@ -344,6 +358,11 @@ class Spec:
         Rig name the spec is written for (checked by :func:`verify` if given).
     max_period_error_ppm : float or None
         Limit on the timer's |period error| [ppm]; None: reported, not judged.
+    margins : MarginLimits
+        Limits of every loop's margins over the plant set (default PM >= 45°, GM >= 6 dB,
+        Ms <= 2.0).
+    margin_extra_ticks : int
+        Extra latency the loops must also keep those margins with [ticks], 0..10.
     """
 
     name: str
@@ -352,6 +371,8 @@ class Spec:
     description: str = ""
     rig: str | None = None
     max_period_error_ppm: float | None = None
+    margins: MarginLimits = DEFAULT_LIMITS
+    margin_extra_ticks: int = 1
 
     def __post_init__(self) -> None:
         if not self.scenarios:
@@ -366,6 +387,8 @@ class Spec:
                     f"timer.max_period_error_ppm must be >= 0 [ppm], got {show_value(v)}"
                 )
             object.__setattr__(self, "max_period_error_ppm", v)
+        check_integer("margins.extra_ticks", self.margin_extra_ticks, "ticks", hi=10,
+                      error=SpecError)  # fmt: skip
 
     def scenario(self, name: str) -> ScenarioSpec:
         """The scenario called ``name``."""
@@ -380,6 +403,7 @@ class Spec:
         """Plain dict."""
         return {
             "description": self.description,
+            "margins": {**self.margins.to_dict(), "extra_ticks": self.margin_extra_ticks},
             "max_period_error_ppm": self.max_period_error_ppm,
             "montecarlo": self.montecarlo.to_dict(),
             "name": self.name,
@@ -404,7 +428,7 @@ def spec_from_dict(data: Mapping[str, Any], default_name: str = "spec") -> Spec:
     SpecError
         Naming the first unknown key or invalid value (with its unit).
     """
-    _only(data, "", ("spec", "timer", "montecarlo", "scenario"))
+    _only(data, "", ("spec", "timer", "montecarlo", "margins", "scenario"))
     meta = _table(data, "spec")
     _only(meta, "spec", ("name", "description", "rig"))
     check_strings(meta, "spec", ("name", "description", "rig"), error=SpecError)
@@ -417,6 +441,13 @@ def spec_from_dict(data: Mapping[str, Any], default_name: str = "spec") -> Spec:
             raise SpecError(f"montecarlo.axes must be a list of axis names, got {mc_t['axes']!r}")
         mc_t["axes"] = tuple(mc_t["axes"])
     montecarlo = MonteCarlo(**mc_t)
+    margins_t = dict(_table(data, "margins"))
+    limit_keys = [f.name for f in fields(MarginLimits)]
+    _only(margins_t, "margins", [*limit_keys, "extra_ticks"])
+    try:
+        margin_limits = MarginLimits(**{k: v for k, v in margins_t.items() if k in limit_keys})
+    except SpecError as exc:
+        raise SpecError(f"margins.{exc}") from None
     scen_t = data.get("scenario")
     if not isinstance(scen_t, Mapping) or not scen_t:
         raise SpecError("a spec needs at least one [scenario.<name>] table")
@@ -445,6 +476,8 @@ def spec_from_dict(data: Mapping[str, Any], default_name: str = "spec") -> Spec:
         rig=meta.get("rig"),
         max_period_error_ppm=timer.get("max_period_error_ppm"),
         montecarlo=montecarlo,
+        margins=margin_limits,
+        margin_extra_ticks=margins_t.get("extra_ticks", 1),
         scenarios=tuple(scenarios),
     )
 

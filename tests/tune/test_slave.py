@@ -21,7 +21,11 @@ from servotune.tune.slave import (
 from servotune.tune.workflow import rule_tables
 
 # small budget: the properties, not the optimum, are under test
-SMALL = SlaveTuneSpec(population=8, generations=4, max_overshoot_pct=200.0, seconds=1.6)
+# (the margin limits relaxed too, so that the loop-shaping start, designed for the nominal plant
+# only, is feasible; the robust limits are tested in tests/tune/test_robust.py)
+SMALL = SlaveTuneSpec(population=8, generations=4, max_overshoot_pct=200.0, seconds=1.6,
+                      min_phase_margin_deg=20.0, min_gain_margin_db=3.0,
+                      max_sensitivity=4.0)  # fmt: skip
 
 
 @pytest.fixture(scope="module")

@@ -104,6 +104,11 @@ def test_figure4_runs_all_three_live(comparison) -> None:
     # the feedforward differential removes most of the velocity lag a PID needs to build up
     assert t["pid_ff"]["max_sync_counts"] < 0.85 * t["pid"]["max_sync_counts"]
     assert t["pid_ff"]["itae"] < t["pid"]["itae"]
-    # every structure was tuned against the same objective; the composite's search space holds
-    # the feedforward one (output scales 0), and with this budget it does at least as well
-    assert t["composite"]["itae"] <= 1.05 * t["pid_ff"]["itae"]
+    # every structure was tuned against the same objective, budget and margin constraints (the
+    # composite law's every cell too); whether the composite law wins is measured, not assumed
+    # (with the margins held it does not, on this rig: the report says so, see
+    # tests/report/test_figure4_statement.py)
+    for name in ("pid", "pid_ff", "composite"):
+        w = comparison.tunings[name].worst
+        assert comparison.tunings[name].feasible, name
+        assert w["phase_margin_deg"] >= 45.0 and w["max_sensitivity"] <= 2.0, (name, w)

@@ -28,10 +28,10 @@ from servotune.tune.pi.grid import (
     _q_im,
     _ss_response,
     _start_point,
-    _unwrapped_phase,
 )
 from servotune.tune.pi.nlp import _Nlp
 from servotune.tune.pi.spec import _MAX_BUILDS, _PEAK_STENCIL, _REFINE_ROUNDS, PITuning, _check_spec
+from servotune.verify.margins import unwrapped_phase
 
 if TYPE_CHECKING:  # python-control is imported where used (slow to import)
     import control
@@ -183,7 +183,7 @@ def tune_pi(
     g = resp(w)
     if not np.all(np.isfinite(g)):
         raise SpecError("the discrete plant has a pole on the unit circle away from z = 1")
-    ctx = _Ctx(period_s, a, b, c, d, resp, w, g, _unwrapped_phase(g), _q_im(w, period_s))
+    ctx = _Ctx(period_s, a, b, c, d, resp, w, g, unwrapped_phase(g), _q_im(w, period_s))
     w_check = _check_grid(w)
     where = f"on this plant at period_s={period_s:g} s, compute_s={compute_s:g} s"
 

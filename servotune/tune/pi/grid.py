@@ -19,6 +19,7 @@ from servotune.tune.pi.spec import (
     _TOL_WC_REL,
     _Spec,
 )
+from servotune.verify.margins import controller_basis, grid_margins
 
 if TYPE_CHECKING:  # python-control is imported where used (slow to import)
     import control
@@ -159,14 +160,6 @@ def _q_im(w: np.ndarray, period_s: float) -> np.ndarray:
     return -0.5 * period_s / np.tan(0.5 * w * period_s)
 
 
-def _unwrapped_phase(g: np.ndarray) -> np.ndarray:
-    """Phase from the lowest frequency on, its first value taken in (−3π/2, π/2]."""
-    ph = np.angle(g)
-    if ph[0] > 0.5 * math.pi:
-        ph[0] -= 2 * math.pi
-    return np.unwrap(ph)
-
-
 def _spectral_radius(ctx: _Ctx, kp: np.ndarray, ki: np.ndarray) -> np.ndarray:
     """Largest closed-loop pole magnitude for each (kp, ki), batched."""
     t = ctx.period_s
@@ -185,35 +178,12 @@ def _spectral_radius(ctx: _Ctx, kp: np.ndarray, ki: np.ndarray) -> np.ndarray:
 
 
 def _grid_margins(ctx: _Ctx, kp: np.ndarray, ki: np.ndarray) -> dict[str, np.ndarray]:
-    """Grid estimates for a batch of (kp, ki): worst PM [rad], worst GM [ln], Ms, top crossover.
-
-    Crossings are located by linear interpolation between grid points.
-    """
-    t = ctx.period_s
-    cr = (kp + ki * 0.5 * t)[:, None]
-    ci = ki[:, None] * ctx.q_im[None, :]
-    loop = (cr + 1j * ci) * ctx.g[None, :]
-    lnl = np.log(np.abs(loop) + 1e-300)
-    phl = ctx.ph[None, :] + np.arctan2(ci, cr)
-    ms = 1.0 / np.min(np.abs(1.0 + loop), axis=1)
-    # gain crossovers: sign changes of ln|L|
-    s0, s1 = lnl[:, :-1], lnl[:, 1:]
-    cross = (s0 >= 0) != (s1 >= 0)
-    f = np.where(cross, s0 / np.where(cross, s0 - s1, 1.0), 0.0)
-    ph_c = phl[:, :-1] + f * (phl[:, 1:] - phl[:, :-1])
-    pm = np.where(cross, np.mod(ph_c, 2 * math.pi) - math.pi, np.inf).min(axis=1, initial=np.inf)
-    lw = np.log(ctx.w)
-    w_c = np.exp(lw[:-1][None, :] + f * (lw[1:] - lw[:-1])[None, :])
-    wc_top = np.where(cross, w_c, 0.0).max(axis=1, initial=0.0)
-    # phase crossovers: the phase passes an odd multiple of π
-    k = np.floor((phl + math.pi) / (2 * math.pi))
-    pc = k[:, :-1] != k[:, 1:]
-    lvl = np.maximum(k[:, :-1], k[:, 1:]) * 2 * math.pi - math.pi
-    dph = phl[:, 1:] - phl[:, :-1]
-    fp = np.where(pc, (lvl - phl[:, :-1]) / np.where(pc, dph, 1.0), 0.0)
-    ln_c = lnl[:, :-1] + fp * (lnl[:, 1:] - lnl[:, :-1])
-    gm = np.where(pc, -ln_c, np.inf).min(axis=1, initial=np.inf)
-    return {"pm": pm, "gm": gm, "ms": ms, "wc_top": wc_top}
+    """Grid estimates for a batch of (kp, ki): worst PM [rad], worst GM [ln], Ms, top crossover
+    (:func:`servotune.verify.margins.grid_margins` of the PI loops on the plant)."""
+    gains = np.stack([kp, ki * ctx.period_s, np.zeros_like(kp)], axis=1)
+    basis = controller_basis(ctx.w, ctx.period_s)
+    m = grid_margins(ctx.w, gains, basis, ctx.g[None, :], ctx.ph[None, :])
+    return {k: v[:, 0] for k, v in m.items()}
 
 
 def _feasible(m: dict[str, np.ndarray], spec: _Spec, slack: float) -> np.ndarray:
