@@ -31,6 +31,7 @@ from servotune.rig import Rig, load_rig
 from servotune.scenarios import step_inputs, sync_move
 from servotune.sim.engine import simulate
 from servotune.tuning import Tuning, read_tuning
+from servotune.verify.margins import tuning_margins
 
 __all__ = ["loop_response", "write_report"]
 
@@ -154,6 +155,27 @@ def _tables_section(tuning: Tuning) -> str:
     return "<h2>Query tables (as the runtime holds them)</h2>" + "".join(parts) if parts else ""
 
 
+def _margins_section(rig: Rig, tuning: Tuning) -> str:
+    """Heat maps of each scheduled axis's phase margin and Ms over the query table (frozen
+    gains, nominal plant; python-control), the worst loop of each axis named."""
+    m = tuning_margins(tuning, rig)
+    parts = ["<h2>Margins of every loop the runtime can run (nominal plants)</h2>",
+             "<p>" + "; ".join(html.escape(f"{a}: worst {m.worst(a).name}, PM "
+                                           f"{m.worst(a).phase_margin_deg:.1f}°, Ms "
+                                           f"{m.worst(a).max_sensitivity:.2f}")
+                               for a in tuning.axis_names)
+             + ". The feedforward acts on the reference only: it changes no margin. "
+             "Over the plant set, see <code>servotune margins</code> and the verification's "
+             "margins checks.</p>"]  # fmt: skip
+    for name, c in zip(tuning.axis_names, tuning.controllers, strict=True):
+        if isinstance(c.task, FuzzyPIDConstants):
+            grids = {"PM [deg]": m.cell_grid(name, "phase_margin_deg"),
+                     "Ms": m.cell_grid(name, "max_sensitivity")}  # fmt: skip
+            fig = plot_query_tables(grids, c.task.n, f"{name}: margins per query-table cell")
+            parts.append(_img(_png(fig), f"{name} margins per cell"))
+    return "".join(parts)
+
+
 def _existing_images(out: Path) -> str:
     parts = []
     for pattern, title in (("fit_*.png", "Identification"), ("figure4.png", "Figure 4"),
@@ -204,6 +226,7 @@ def write_report(
         _bode_section(rig, tuning),
         _response_section(rig, tuning, seed),
         _tables_section(tuning),
+        _margins_section(rig, tuning),
         _existing_images(out),
     ]
     page = (

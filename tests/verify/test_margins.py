@@ -205,3 +205,13 @@ def test_cli_bad_limit_is_one_line_exit_3(case, capsys) -> None:
     rc = main(["margins", str(case["path"]), "--rig", str(RIG), "--ms", "0.5"])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 3 and len(err) == 1 and "max_sensitivity" in err[0]
+
+
+def test_cell_grid_lays_the_cells_out_row_e_column_ec(case) -> None:
+    m = case["margins"]
+    grid = m.cell_grid("slave", "max_sensitivity")
+    assert grid.shape == (13, 13) and not np.isnan(grid).any()
+    for x in m.select("slave", "task"):
+        assert grid[x.cell[0] + 6, x.cell[1] + 6] == x.max_sensitivity
+    with pytest.raises(ValueError, match="no scheduled task loop"):
+        m.cell_grid("master", "max_sensitivity")
