@@ -169,6 +169,11 @@ class SlaveTuning:
         Best objective after the initial population and each generation.
     worst : dict
         Worst case over variants of the constrained quantities.
+    at_bounds : tuple of str
+        Search parameters whose optimum lies at a bound of the search space (within 0.5 % of
+        its range): there the bound, not the problem, decided.
+    binding : tuple of str
+        Constraints the optimum sits on (within 2 % of the limit, or 0.5° of phase margin).
     """
 
     structure: str
@@ -180,10 +185,14 @@ class SlaveTuning:
     evaluations: int
     history: tuple[float, ...] = field(repr=False)
     worst: Mapping[str, float] = field(default_factory=dict)
+    at_bounds: tuple[str, ...] = ()
+    binding: tuple[str, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict (``inf`` as None)."""
         return {
+            "at_bounds": list(self.at_bounds),
+            "binding": list(self.binding),
             "evaluations": self.evaluations,
             "feasible": self.feasible,
             "gains": self.gains.to_dict(),
@@ -245,7 +254,7 @@ def _space(structure: str, start: PIGains, n: int) -> _Space:
     p: dict[str, tuple[float, float, float]] = {
         "log_kp0": (math.log10(kp / 5), math.log10(kp * 5), math.log10(kp)),
         "log_ki0": (math.log10(ki / 20), math.log10(ki * 20), math.log10(ki)),
-        "log_kd0": (math.log10(kp * 1e-5), math.log10(kp * 0.03), math.log10(kp * 1e-4)),
+        "log_kd0": (math.log10(kp * 1e-5), math.log10(kp * 1.0), math.log10(kp * 1e-4)),
     }
     if structure in ("pid_ff", "composite"):
         p["k1_ratio"] = (0.0, 1.3, 1.0)
@@ -498,6 +507,24 @@ def tune_slave(
     itae, worst = _evaluate(prob, [gains])
     val = float(_penalised(prob, itae, worst)[0])
     feasible = val < _BIG
+    edge = 0.005 * (space.hi - space.lo)
+    at_bounds = tuple(
+        f"{name} at its {'lower' if x <= lo + e else 'upper'} bound"
+        for name, x, lo, hi, e in zip(space.names, x_best, space.lo, space.hi, edge, strict=True)
+        if x <= lo + e or x >= hi - e
+    )
+    w0 = worst[0]
+    binding = tuple(
+        name
+        for name, near in (
+            ("max_saturation_pct", w0[0] >= 0.98 * spec.max_saturation_pct > 0),
+            ("max_overshoot_pct", w0[1] >= 0.98 * spec.max_overshoot_pct),
+            ("min_phase_margin_deg", w0[3] <= spec.min_phase_margin_deg + 1.0),
+            ("min_gain_margin_db", w0[4] <= spec.min_gain_margin_db + 0.3),
+            ("max_sensitivity", w0[5] >= 0.98 * spec.max_sensitivity),
+        )
+        if near
+    )
     return SlaveTuning(
         structure=structure,
         gains=gains,
@@ -507,6 +534,8 @@ def tune_slave(
         feasible=feasible,
         evaluations=evaluations + 1,
         history=tuple(history),
+        at_bounds=at_bounds,
+        binding=binding,
         worst={
             "saturation_pct": float(worst[0, 0]),
             "overshoot_pct": float(worst[0, 1]),
