@@ -14,9 +14,10 @@ addition, so every older log reads as before, and a servotune that predates it r
 has it with one line naming the unknown column (exit 3) — never a silent misread (DECISIONS 17).
 
 :func:`read_log` validates everything and names the first problem in one line, with its row
-(the 1-based line number in the file) and column. The data rows are parsed in bulk
-(``numpy.loadtxt`` with one typed field per column, about 0.7 s per million rows); only when
-that fails are the rows scanned one by one to find the first bad one. The format's parsing
+(the 1-based line number in the file) and column. The data rows are parsed in bulk: rows in
+the plain form servotune writes straight from the bytes by one compiled pass, any others with
+``numpy.loadtxt`` (one typed field per column, about 0.7 s per million rows); only when that
+fails are the rows scanned one by one to find the first bad one. The format's parsing
 lives in :mod:`servotune.io.log_header` (text, metadata, header) and
 :mod:`servotune.io.log_rows` (data rows, time base); this module builds the :class:`Log`.
 """
@@ -45,6 +46,7 @@ from servotune.io.log_header import (
     MAX_NAME_CHARS,
     PERIOD_RANGE_S,
     _classify_columns,
+    _decode,
     _meta_pair,
     _meta_setting,
     _option,
@@ -54,8 +56,10 @@ from servotune.io.log_header import (
     _parse_header,
     _parse_period,
     _parse_range,
+    _read_bytes,
     _read_errors,
     _read_text,
+    _split_ascii_head,
     _split_text,
 )
 from servotune.io.log_rows import (
@@ -63,6 +67,7 @@ from servotune.io.log_rows import (
     _base,
     _check_range,
     _data_rows,
+    _fast_columns,
     _modes,
     _RowLines,
     _timebase,
@@ -422,9 +427,15 @@ def _read_log(
     period_s: float | None,
     compute_s: float | None,
 ) -> Log:
-    text = _read_text(Path(path), src)
-    meta, meta_line, header_line, header_text, body = _split_text(text, src)
-    del text
+    data = _read_bytes(Path(path), src)
+    head = _split_ascii_head(data, src)
+    if head is None:
+        text = _decode(data, src)
+        del data
+        meta, meta_line, header_line, header_text, body = _split_text(text, src)
+        del text
+    else:  # plain ASCII: the body stays bytes (data[body_start:]) unless the slow path needs it
+        meta, meta_line, header_line, header_text, body_start = head
     header = _parse_header(header_text, header_line)
     axes_cols = _classify_columns(header, header_line)
 
@@ -447,17 +458,25 @@ def _read_log(
         compute_s = meta_compute
     _warn_unknown_metadata(meta, meta_line, src)
 
-    table, rows = _data_rows(
-        body, header_line, header, f"log {src!r} has a header (line {header_line}) but no data rows"
-    )
-    del body
-    n = len(table)
+    col = None
+    if head is not None:
+        col = _fast_columns(data, body_start, header)
+        if col is None:
+            body = data[body_start:].decode("ascii")
+        del data
+    if col is not None:
+        rows = _RowLines(None, header_line + 1)  # plain rows: one per line, no blank lines
+    else:
+        empty = f"log {src!r} has a header (line {header_line}) but no data rows"
+        table, rows = _data_rows(body, header_line, header, empty)
+        del body
+        col = {h: np.ascontiguousarray(table[f"c{j}"]) for j, h in enumerate(header)}
+        del table
+    n = len(next(iter(col.values())))
     if n < MIN_ROWS:
         raise LogFormatError(
             f"log {src!r} has {n} data row{'' if n == 1 else 's'}; at least {MIN_ROWS} are needed"
         )
-    col = {h: np.ascontiguousarray(table[f"c{j}"]) for j, h in enumerate(header)}
-    del table
     for h, a in col.items():
         if a.dtype.kind == "f":
             bad = ~np.isfinite(a)

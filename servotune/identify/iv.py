@@ -57,7 +57,14 @@ import numpy as np
 
 from servotune.errors import IdentificationError
 from servotune.identify import model
-from servotune.identify.noise import NoiseModel, convolve, crosscorrelation, fit_noise_model
+from servotune.identify.noise import (
+    NoiseModel,
+    convolve,
+    correlation_length,
+    correlation_of_spectra,
+    fit_noise_model,
+    spectrum,
+)
 
 __all__ = [
     "MIN_R2",
@@ -121,11 +128,15 @@ def project(u: np.ndarray, signals: list[np.ndarray], lags: int) -> Projection:
     rhs = np.empty(size)
     idx = np.arange(lags)
     diff = idx[:, None] - idx[None, :]
+    # every correlation here has the same length: each sequence is transformed once
+    nf = correlation_length(u.size, lags - 1)
+    spec = [spectrum(x, nf) for x in s]
+    spec_u = spectrum(uc, nf)
     for a in range(m):
-        rhs[a * lags : (a + 1) * lags] = crosscorrelation(s[a], uc, lags - 1)
+        rhs[a * lags : (a + 1) * lags] = correlation_of_spectra(spec[a], spec_u, nf, lags - 1)
         for b in range(a, m):
-            r_ab = crosscorrelation(s[a], s[b], lags - 1)  # Σ s_a,k s_b,k+j
-            r_ba = crosscorrelation(s[b], s[a], lags - 1)
+            r_ab = correlation_of_spectra(spec[a], spec[b], nf, lags - 1)  # Σ s_a,k s_b,k+j
+            r_ba = r_ab if b == a else correlation_of_spectra(spec[b], spec[a], nf, lags - 1)
             # Σ_k s_a,k−i s_b,k−j is R_ab(i − j) for i >= j and R_ba(j − i) for i < j
             full = np.where(diff >= 0, r_ab[np.abs(diff)], r_ba[np.abs(diff)])
             gram[a * lags : (a + 1) * lags, b * lags : (b + 1) * lags] = full
@@ -134,9 +145,10 @@ def project(u: np.ndarray, signals: list[np.ndarray], lags: int) -> Projection:
     h = np.linalg.solve(gram + ridge * np.eye(size), rhs)
     u_hat = np.full(u.size, um)
     for a in range(m):
-        u_hat += convolve(s[a], h[a * lags : (a + 1) * lags])
+        u_hat += convolve(s[a], h[a * lags : (a + 1) * lags], {nf: spec[a]})
     den = float(np.dot(uc, uc))
-    r2 = 1.0 - float(np.dot(u - u_hat, u - u_hat)) / den if den > 0 else 0.0
+    miss = u - u_hat
+    r2 = 1.0 - float(np.dot(miss, miss)) / den if den > 0 else 0.0
     return Projection(u_hat=u_hat, r2=r2, lags=lags)
 
 
@@ -226,7 +238,7 @@ def estimate_iv(
         If the iteration does not settle.
     """
     proj = projection or project(u, signals, projection_lags(period_s))
-    inputs = np.vstack([u, proj.u_hat])
+    inputs = (np.asarray(u, dtype=float), proj.u_hat)  # the logged command, its projection
     v0 = float(np.mean(dy[: max(1, min(5, dy.size))]) / period_s)
     x = model.clip_to_bounds(x0, free, period_s)
     lo, hi = model.lower_bounds()[free], model.upper_bounds(period_s)[free]
@@ -236,6 +248,7 @@ def estimate_iv(
     pf = NoiseModel.identity()
     cut = skip
     jf = zf = np.zeros((int(free.sum()), 0))
+    a_mat = zf @ jf.T
     moved = np.full(int(free.sum()), np.inf)
     rel = np.inf
 
@@ -244,7 +257,8 @@ def estimate_iv(
                                          compute_s=compute_s, v0=v0)[0]  # fmt: skip
 
     for outer in range(max_outer):
-        (base, jac), (_, zs) = model.sensitivities(
+        del jf, zf  # the last refresh's, released before the next one is made (memory)
+        (base, jac), (base_hat, zs) = model.sensitivities(
             inputs, x, free, (0, 1), period_s=period_s, compute_s=compute_s, v0=v0
         )
         if prefilter:
@@ -255,16 +269,18 @@ def estimate_iv(
                 noise = fit_noise_model(dy[skip:] - base[skip:], start=noise)
             pf = noise
         cut = skip + pf.settle_samples  # filtered from the start, used after both transients
-        jf = pf.whiten(jac)[:, cut:]
-        zf = pf.whiten(zs)[:, cut:]
-        a_mat = zf @ jf.T
         eps = dy - base
+        # whitened in place, in the simulations' rows: no new arrays (memory)
+        jf = pf.whiten(jac, out=jac)[:, cut:]
+        zf = pf.whiten(zs, out=zs)[:, cut:]
+        a_mat = zf @ jf.T
+        del base, jac, base_hat, zs
         scale = model.typical_scale(x, period_s)[free]
         active = np.ones(scale.size, dtype=bool)
         for chord in range(_MAX_CHORD):
             if chord:
                 eps = dy - simulate(x)
-            g = zf @ pf.whiten(eps)[cut:]
+            g = zf @ pf.whiten(eps, out=eps)[cut:]  # eps is not needed after: in place
             step = _step(a_mat, g, scale, active)
             # a parameter on a bound that the step pushes further out stays there (active set)
             pinned = ((x[free] <= lo) & (step < 0)) | ((x[free] >= hi) & (step > 0))
@@ -296,16 +312,19 @@ def estimate_iv(
             f"{'refined' if prefilter else 'basic'} instrumental variables did not settle in "
             f"{iterations} iterations"
         )
-    eps = dy - simulate(x)
+    sim = simulate(x)
+    eps = dy - sim
+    weighed = pf.whiten(eps)[cut:]  # the residual as the equations weigh it
     if prefilter:
         assert noise is not None
-        whitened = pf.whiten(eps)[cut:]
+        whitened = weighed
     else:  # the diagnostics still test the innovations of a noise model of the residual
         noise = fit_noise_model(eps[skip:], start=noise0)
         whitened = noise.whiten(eps)[skip + noise.settle_samples :]
-    return IVFit(x=x, a_mat=zf @ jf.T, scores=(zf * pf.whiten(eps)[cut:]).T, residual=eps[cut:],
+    # a_mat: the last refresh's zf @ jf.T (the instruments and sensitivities kept)
+    return IVFit(x=x, a_mat=a_mat, scores=(zf * weighed).T, residual=eps[cut:],
                  whitened=whitened, noise=noise, instruments=zf, sensitivities=jf,
-                 projection=proj, iterations=iterations, converged=converged,
+                 simulated=sim, projection=proj, iterations=iterations, converged=converged,
                  prefilter=prefilter)  # fmt: skip
 
 

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -102,6 +103,11 @@ class Estimate:
         scores are the instruments times the residual as the equations weigh it), so the
         equations of any stretch of the log can be formed again (the one-step estimates of
         the cross-validation).
+    simulated : ndarray or None
+        The model at ``x`` simulated from the logged command over the whole log, from its
+        first sample (:func:`simulate_increments`, the initial speed from the first five
+        increments) [counts per tick], when the estimator has it: the whole-log fit % needs
+        no simulation of its own.
     """
 
     x: np.ndarray
@@ -112,6 +118,7 @@ class Estimate:
     noise: NoiseModel
     instruments: np.ndarray
     sensitivities: np.ndarray
+    simulated: np.ndarray | None = None
 
 
 def names(free: np.ndarray) -> tuple[str, ...]:
@@ -220,7 +227,7 @@ PARALLEL_STEPS = 4_000_000
 
 
 def simulate_increments(
-    inputs: np.ndarray,
+    inputs: np.ndarray | Sequence[np.ndarray],
     xs: list[np.ndarray],
     free: np.ndarray,
     which: list[int],
@@ -233,8 +240,9 @@ def simulate_increments(
 
     Parameters
     ----------
-    inputs : ndarray, shape (n_inputs, n)
-        Commands [V], one per row (row k written at ``t_k + compute_s``).
+    inputs : ndarray, shape (n_inputs, n), or sequence of ndarray, shape (n,)
+        Commands [V], one per row (row k written at ``t_k + compute_s``); a sequence of rows
+        spares stacking long ones into one array.
     xs : list of ndarray
         Parameter vectors (:data:`ALL_PARAMS` order).
     free : ndarray of bool
@@ -255,11 +263,18 @@ def simulate_increments(
     lags = np.empty(len(xs), dtype=np.int64)
     for r, x in enumerate(xs):
         rows[r], lags[r] = plant_row(plant_from(x, free), period_s, compute_s)
-    out = np.empty((len(xs), inputs.shape[1]))
-    inputs = np.ascontiguousarray(inputs, dtype=float)
+    if isinstance(inputs, np.ndarray):
+        commands = np.ascontiguousarray(inputs, dtype=float)
+        n = commands.shape[1]
+    else:
+        commands = [np.ascontiguousarray(c, dtype=float) for c in inputs]
+        n = commands[0].shape[0]
+        if any(c.shape != (n,) for c in commands):
+            raise ValueError("every command of simulate_increments needs the same length")
+    out = np.empty((len(xs), n))
 
     def run(r: int) -> None:
-        call_compiled(_increments, inputs[which[r]], rows[r], int(lags[r]), float(v0), out[r])
+        call_compiled(_increments, commands[which[r]], rows[r], int(lags[r]), float(v0), out[r])
 
     workers = min(len(xs), os.cpu_count() or 1)
     if out.size < PARALLEL_STEPS or workers < 2:
@@ -272,7 +287,7 @@ def simulate_increments(
 
 
 def sensitivities(
-    inputs: np.ndarray,
+    inputs: np.ndarray | Sequence[np.ndarray],
     x: np.ndarray,
     free: np.ndarray,
     which_inputs: tuple[int, ...],
@@ -308,7 +323,9 @@ def sensitivities(
     per = idx.size + 1
     for j in range(len(which_inputs)):
         base = sim[j * per]
-        jac = (sim[j * per + 1 : (j + 1) * per] - base) / steps[idx][:, None]
+        jac = sim[j * per + 1 : (j + 1) * per]  # the differences made in place: no temporaries
+        np.subtract(jac, base, out=jac)
+        np.divide(jac, steps[idx][:, None], out=jac)
         out.append((base, jac))
     return out
 
@@ -378,6 +395,7 @@ def check_direction(u: np.ndarray, y: np.ndarray, period_s: float, compute_s: fl
     idx = np.flatnonzero(keep)
     vk = v[keep] - np.mean(v[keep])
     best = None
+    svv = float(np.dot(vk, vk))
     for lag in sorted(
         {
             math.ceil((compute_s + d) / period_s - 1e-12)
@@ -387,8 +405,9 @@ def check_direction(u: np.ndarray, y: np.ndarray, period_s: float, compute_s: fl
         ud = u[np.clip(idx - lag, 0, n - 1)]
         ud = ud - np.mean(ud)
         suu = float(np.dot(ud, ud))
-        gain = float(np.dot(ud, vk)) / suu if suu > 0 else 0.0
-        rss = float(np.dot(vk, vk)) - gain * float(np.dot(ud, vk))
+        suv = float(np.dot(ud, vk))
+        gain = suv / suu if suu > 0 else 0.0
+        rss = svv - gain * suv
         if best is None or rss < best[0]:
             best = (rss, gain, math.sqrt(suu / ud.size))
     assert best is not None

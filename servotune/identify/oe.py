@@ -18,6 +18,7 @@ the example rig with an AR(1) load, issue 17) — more data does not help. Use `
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -25,7 +26,7 @@ from scipy.optimize import least_squares
 from servotune.identify import model
 from servotune.identify.noise import NoiseModel, fit_noise_model
 
-__all__ = ["OEFit", "estimate_oe"]
+__all__ = ["OEFit", "estimate_oe", "oe_parameters"]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -63,11 +64,13 @@ class _Problem:
         x[self.free] = z
         return x
 
+    def simulate(self, z: np.ndarray) -> np.ndarray:
+        return model.simulate_increments(self.inputs, [self.full(z)], self.free, [0],
+                                         period_s=self.period_s, compute_s=self.compute_s,
+                                         v0=self.v0)[0]  # fmt: skip
+
     def residual(self, z: np.ndarray) -> np.ndarray:
-        sim = model.simulate_increments(self.inputs, [self.full(z)], self.free, [0],
-                                        period_s=self.period_s, compute_s=self.compute_s,
-                                        v0=self.v0)  # fmt: skip
-        return (self.dy - sim[0])[self.skip :]
+        return (self.dy - self.simulate(z))[self.skip :]
 
     def jacobian(self, z: np.ndarray) -> np.ndarray:
         key = z.tobytes()
@@ -75,7 +78,10 @@ class _Problem:
             ((_, jac),) = model.sensitivities(self.inputs, self.full(z), self.free, (0,),
                                               period_s=self.period_s, compute_s=self.compute_s,
                                               v0=self.v0)  # fmt: skip
-            self._key, self._jac = key, np.ascontiguousarray(-jac[:, self.skip :].T)
+            used = jac[:, self.skip :].T
+            minus = np.empty(used.shape)  # one copy, in C order
+            np.negative(used, out=minus)
+            self._key, self._jac = key, minus
         assert self._jac is not None
         return self._jac
 
@@ -113,6 +119,52 @@ def estimate_oe(
     -------
     OEFit
     """
+    prob, sol = _solve(u, dy, x0, free, period_s=period_s, compute_s=compute_s, skip=skip,
+                       max_nfev=max_nfev)  # fmt: skip
+    x = prob.full(sol.x)
+    jac = prob.jacobian(sol.x)
+    np.negative(jac, out=jac)  # the problem is done with: its Jacobian negated in place
+    sim = prob.simulate(sol.x)
+    r = (prob.dy - sim)[skip:]
+    nm = fit_noise_model(r, start=noise0) if refit_noise or noise0 is None else noise0
+    return OEFit(x=x, a_mat=jac.T @ jac, scores=jac * r[:, None], residual=r,
+                 whitened=nm.whiten(r)[nm.settle_samples :], noise=nm, instruments=jac.T,
+                 sensitivities=jac.T, simulated=sim, nfev=int(sol.nfev))  # fmt: skip
+
+
+def oe_parameters(
+    u: np.ndarray,
+    dy: np.ndarray,
+    x0: np.ndarray,
+    free: np.ndarray,
+    *,
+    period_s: float,
+    compute_s: float,
+    skip: int,
+    max_nfev: int = 60,
+) -> np.ndarray:
+    """The parameter vector of :func:`estimate_oe` alone (:data:`~model.ALL_PARAMS` order).
+
+    The same least-squares solution, without what only an estimate needs (the noise model of
+    its residual, its estimating equations): where the fit is only a start, as for the
+    structure selection.
+    """
+    prob, sol = _solve(u, dy, x0, free, period_s=period_s, compute_s=compute_s, skip=skip,
+                       max_nfev=max_nfev)  # fmt: skip
+    return prob.full(sol.x)
+
+
+def _solve(
+    u: np.ndarray,
+    dy: np.ndarray,
+    x0: np.ndarray,
+    free: np.ndarray,
+    *,
+    period_s: float,
+    compute_s: float,
+    skip: int,
+    max_nfev: int,
+) -> tuple[_Problem, Any]:
     prob = _Problem(u, dy, x0, free, period_s, compute_s, skip)
     lo, hi = model.lower_bounds()[free], model.upper_bounds(period_s)[free]
     z0 = np.clip(x0[free], lo + 1e-12 * np.abs(lo), hi)
@@ -121,10 +173,4 @@ def estimate_oe(
     sol = least_squares(prob.residual, z0, jac=prob.jacobian, bounds=(lo, hi), x_scale=scale,
                         method="trf", max_nfev=max_nfev, xtol=1e-10, ftol=1e-12,
                         gtol=1e-10)  # fmt: skip
-    x = prob.full(sol.x)
-    jac = -prob.jacobian(sol.x)
-    r = prob.residual(sol.x)
-    nm = fit_noise_model(r, start=noise0) if refit_noise or noise0 is None else noise0
-    return OEFit(x=x, a_mat=jac.T @ jac, scores=jac * r[:, None], residual=r,
-                 whitened=nm.whiten(r)[nm.settle_samples :], noise=nm, instruments=jac.T,
-                 sensitivities=jac.T, nfev=int(sol.nfev))  # fmt: skip
+    return prob, sol

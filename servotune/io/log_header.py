@@ -70,6 +70,11 @@ _READ_BYTES_PER_BYTE = 4  # the bytes, the text, the row lines, the arrays: abou
 
 
 def _read_text(p: Path, src: str, what: str = "log") -> str:
+    return _decode(_read_bytes(p, src, what), src, what)
+
+
+def _read_bytes(p: Path, src: str, what: str = "log") -> bytes:
+    """The file's bytes (the memory budget checked first)."""
     with _read_errors(src, what):
         with open(p, "rb") as fh:
             size = os.fstat(fh.fileno()).st_size
@@ -78,7 +83,11 @@ def _read_text(p: Path, src: str, what: str = "log") -> str:
                 f"reading {what} {src!r}",
                 f"{format_bytes(size)} × {_READ_BYTES_PER_BYTE}",
             )
-            data = fh.read()
+            return fh.read()
+
+
+def _decode(data: bytes, src: str, what: str = "log") -> str:
+    """The file's text: UTF-8 (a byte-order mark dropped), no NUL, line ends normalised."""
     try:
         text = data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
@@ -133,6 +142,32 @@ def _split_text(
             meta_line[key] = line_no
         pos = end + 1
     raise LogFormatError(f"{what} {src!r} has no header row, only metadata or comment lines")
+
+
+_HEAD_BYTES = 1 << 16  # where the plain-ASCII shortcut looks for the header row
+
+
+def _split_ascii_head(
+    data: bytes, src: str, what: str = "log"
+) -> tuple[dict[str, str], dict[str, int], int, str, int] | None:
+    """:func:`_split_text` of a plain file from its head alone, the body as a byte offset.
+
+    For a file of ASCII bytes without NUL or carriage return, decoding changes nothing, so the
+    metadata and header lines found in the whole lines of the first :data:`_HEAD_BYTES` bytes
+    are those of the whole text, and the body starts at the byte after the header's line end:
+    the body need not be decoded or copied. None when that does not apply or the head does not
+    settle it (no header row there, a problem in its lines): then :func:`_decode` and
+    :func:`_split_text` of the whole file decide, with their messages.
+    """
+    if not data.isascii() or b"\0" in data or b"\r" in data:
+        return None
+    cut = len(data) if len(data) <= _HEAD_BYTES else data.rfind(b"\n", 0, _HEAD_BYTES) + 1
+    head = data[:cut].decode("ascii")
+    try:
+        meta, meta_line, header_line, header_text, body = _split_text(head, src, what)
+    except LogFormatError:
+        return None
+    return meta, meta_line, header_line, header_text, cut - len(body)
 
 
 def _parse_header(header_text: str, line: int) -> list[str]:
