@@ -42,20 +42,11 @@ PLANT = TruePlant()  # the example rig's master (closed_loop.py)
 SHORT = Experiment(n_ticks=3000)  # the default experiment, a quarter as long (fast fits)
 LSB_V = 20.0 / 4096
 
-# The noise model's order is chosen once, by BIC on the residual at the least-squares start of the
-# structure selection (servotune/identify/fitting.py, _select), and kept by every later refit
-# (iv.estimate_iv and oe.estimate_oe refit it with ``start=``, which keeps the order). On the
-# final residual that order can be too small (ARMA(2, 2) where the residual needs (2, 3)): the
-# innovations are then coloured (Ljung–Box p ~ 1e-28 on 10 of 200 default logs; on 28 of 100
-# short logs the whiteness test fails). The whiteness test is right to say so; the fix belongs to
-# the estimators (reselect the order by BIC on the final residual). Until it is made, the
-# end-to-end rate tests fail; strict, so that they report the fix (XPASS fails): then remove it.
-NOISE_ORDER_CARRIED_OVER = pytest.mark.xfail(
-    strict=True,
-    reason="the noise model's order is chosen at the least-squares start of the structure "
-    "selection and kept to the end (iv.estimate_iv / oe.estimate_oe refit it with start=): its "
-    "innovations are coloured on some correctly modelled logs",
-)
+# The residual tests judge the final residual with a noise model fitted afresh (order by BIC;
+# servotune/identify/fitting.py, _diagnostics). The estimators keep the order chosen at their
+# start; when it was too small (ARMA(2, 2) where the final residual needs (2, 3)), testing their
+# innovations flagged 10 of 200 correctly modelled default logs (Ljung–Box p ~ 1e-28), and 28 of
+# 100 short ones. The end-to-end rate tests below hold the fix.
 
 
 def _fit(log: ClosedLoopLog, **options: Any) -> FitResult:
@@ -130,7 +121,6 @@ def test_a_model_missing_a_delay_is_flagged_in_most_logs() -> None:
     assert len(by_exc) >= 8, [r.inadequacy for r in flagged]
 
 
-@NOISE_ORDER_CARRIED_OVER
 def test_correctly_modelled_short_logs_are_rarely_called_inadequate() -> None:
     # 30 short logs of the model class. At a family-wise level of 1 %: P(X >= 3 | n = 30,
     # p = 0.01) = 0.0033, so at most 2 flagged. Before the fix 29 of 100 short logs were flagged
@@ -141,7 +131,6 @@ def test_correctly_modelled_short_logs_are_rarely_called_inadequate() -> None:
 
 
 @pytest.mark.slow
-@NOISE_ORDER_CARRIED_OVER
 def test_the_false_alarm_rate_over_200_logs() -> None:
     # 200 default logs (12,000 ticks). At a family-wise level of 1 %: P(X >= 7 | n = 200,
     # p = 0.01) = 0.0043, so at most 6 flagged; the 7.5 % (15 of 200, seed 7) gives
