@@ -276,10 +276,12 @@ def figure4_statement(table: Mapping[str, Mapping[str, float]]) -> str:
         vals = {s: row[key] for s, row in table.items() if math.isfinite(row.get(key, math.nan))}
         if not vals:
             continue
-        best = min(vals, key=lambda s: vals[s])
+        low = min(vals.values())
+        best = [_STRUCTURE_NAMES.get(s, s) for s, v in vals.items() if v <= low * (1 + 1e-9)]
         shown = ", ".join(f"{_STRUCTURE_NAMES.get(s, s)} {fmt.format(v * scale)}"
                           for s, v in vals.items())  # fmt: skip
-        lines.append(f"{what}: {_STRUCTURE_NAMES.get(best, best)} is lowest ({shown} {unit})")
+        who = f"{best[0]} is lowest" if len(best) == 1 else f"{' and '.join(best)} tie"
+        lines.append(f"{what}: {who} ({shown} {unit})")
     itae = {s: row["itae"] for s, row in table.items()}
     if "composite" in itae and len(itae) > 1:
         rival = min((s for s in itae if s != "composite"), key=lambda s: itae[s])

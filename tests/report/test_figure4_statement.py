@@ -35,11 +35,16 @@ def test_the_statement_follows_the_numbers() -> None:
     assert turned != said
 
 
+def test_a_tie_is_called_a_tie() -> None:
+    said = figure4_statement(TABLE).splitlines()
+    assert said[3].startswith("rise time: PID + feedforward and composite tie (")
+
+
 def test_every_metric_names_its_winner_with_all_values() -> None:
     lines = figure4_statement(TABLE).splitlines()
     assert lines[0].startswith("ITAE of the sync error (the tuning objective): PID + feedforward")
     assert "PID 1500, PID + feedforward 1007, composite 1096 counts·s²" in lines[0]
-    assert (
-        lines[3]
-        == "rise time: PID + feedforward is lowest (PID 80, PID + feedforward 76, composite 76 ms)"
+    assert lines[4] == (
+        "settling time: PID + feedforward is lowest (PID 300, PID + feedforward 250, "
+        "composite 260 ms)"
     )
