@@ -226,7 +226,7 @@ def _target_speed(
     return vinf
 
 
-@jit(inline="always")
+@jit
 def advance(
     p: float,
     v: float,

@@ -350,9 +350,12 @@ def _diagnostics(
     # by BIC): the estimator's own model was chosen at its start and kept, and when that order
     # is too small the innovations are coloured by it, not by the plant model (a false alarm
     # in about 5 % of correctly modelled logs)
-    nm = noise.fit_noise_model(est.residual)
-    innov = nm.whiten(est.residual)[nm.settle_samples :]
-    white = quality.ljung_box(innov, fitted=sum(nm.order))
+    if noise.long_enough(min(est.residual.size, noise.REGRESSION_SAMPLES)):
+        nm = noise.fit_noise_model(est.residual)
+        innov, fitted = nm.whiten(est.residual)[nm.settle_samples :], sum(nm.order)
+    else:  # too short to fit afresh: the estimator's own model
+        innov, fitted = est.whitened, sum(est.noise.order)
+    white = quality.ljung_box(innov, fitted=fitted)
     if method == "iv":
         cross = [quality.cross_correlation_test(innov, s, name=lab)
                  for s, lab in zip(sigs, labels, strict=True)]  # fmt: skip

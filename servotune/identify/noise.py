@@ -32,6 +32,7 @@ __all__ = [
     "fit_noise_model",
     "levinson",
     "lfilter",
+    "long_enough",
 ]
 
 MAX_ARMA_ORDER = 3
@@ -429,6 +430,12 @@ def _innovations(e: np.ndarray, theta: np.ndarray, p: int, start: int) -> np.nda
     return lfilter(a, c, e)[start:]
 
 
+def long_enough(n: int, max_order: int = MAX_ARMA_ORDER) -> bool:
+    """Whether a residual of ``n`` samples is long enough for :func:`fit_noise_model` to fit
+    an ARMA model (shorter ones get the identity)."""
+    return min(LONG_AR_ORDER, n // 25) >= 4 * max_order
+
+
 def fit_noise_model(
     e: np.ndarray, max_order: int = MAX_ARMA_ORDER, *, start: NoiseModel | None = None
 ) -> NoiseModel:
@@ -462,7 +469,7 @@ def fit_noise_model(
     r0 = float(np.dot(e, e)) / max(n, 1)
     one = np.ones(1)
     long_p = min(LONG_AR_ORDER, n // 25)  # a short residual: a shorter long autoregression
-    if long_p < 4 * max_order or r0 <= 0:
+    if not long_enough(n, max_order) or r0 <= 0:
         return NoiseModel(ar=one, ma=one, variance=max(r0, 0.0), bic=0.0)
     begin = min(n // 4, _BEGIN)
     identity = NoiseModel(ar=one, ma=one, variance=r0, bic=n * math.log(r0))

@@ -49,7 +49,7 @@ from servotune.scenarios import Scenario, _sync_move_for
 from servotune.sim.engine import Loop, prepare_batch, run_batch
 from servotune.tune.robust import MarginScreen, design_limits
 from servotune.validate import check_integer, check_number
-from servotune.verify.margins import DEFAULT_LIMITS, MarginLimits, plant_cases
+from servotune.verify.margins import DEFAULT_LIMITS, MarginLimits, PlantCase, plant_cases
 
 __all__ = [
     "STRUCTURES",
@@ -133,6 +133,17 @@ class SlaveTuneSpec:
         check_integer("extra_ticks", self.extra_ticks, "ticks", hi=10, error=e)
         check_number("period_error_ppm", self.period_error_ppm, "ppm", hi=1e4, error=e)
         self.limits  # noqa: B018 (validates the three limits)
+
+    def plant_cases(self, rig: Rig) -> tuple[PlantCase, ...]:
+        """The plant set the margin limits hold over (:func:`~servotune.verify.margins.plant_cases`
+        of these spreads, latency and timer error)."""
+        return plant_cases(
+            rig,
+            gain_spread=self.gain_spread,
+            tau_spread=self.tau_spread,
+            extra_ticks=self.extra_ticks,
+            period_error_ppm=self.period_error_ppm,
+        )
 
     @property
     def limits(self) -> MarginLimits:
@@ -293,13 +304,7 @@ def _screen(rig: Rig, slave: int, spec: SlaveTuneSpec) -> MarginScreen:
     (:func:`~servotune.verify.margins.plant_cases`), its late cases only: one tick more delay
     lowers the phase at every frequency, so a loop that keeps its margins late keeps them on
     time (verification checks both)."""
-    cases = plant_cases(
-        rig,
-        gain_spread=spec.gain_spread,
-        tau_spread=spec.tau_spread,
-        extra_ticks=spec.extra_ticks,
-        period_error_ppm=spec.period_error_ppm,
-    )
+    cases = spec.plant_cases(rig)
     late = max(c.extra_lag_s for c in cases)
     return MarginScreen(rig, slave, [c for c in cases if c.extra_lag_s == late])
 

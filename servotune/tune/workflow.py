@@ -41,7 +41,7 @@ from servotune.tune.slave import (
     tune_slave,
 )
 from servotune.tuning import Tuning, file_sha256
-from servotune.verify.margins import plant_cases, tuning_margins
+from servotune.verify.margins import tuning_margins
 
 __all__ = [
     "Comparison",
@@ -82,13 +82,7 @@ def _robust_start(rig: Rig, spec: SlaveTuneSpec) -> _RobustStart:
         A loop cannot keep the limits (the message names the axis and the binding limit).
     """
     i_m, i_s = _master_slave(rig)
-    cases = plant_cases(
-        rig,
-        gain_spread=spec.gain_spread,
-        tau_spread=spec.tau_spread,
-        extra_ticks=spec.extra_ticks,
-        period_error_ppm=spec.period_error_ppm,
-    )
+    cases = spec.plant_cases(rig)
     locks = tuple(robust_lock_gain(rig, a.name, cases, spec.limits) for a in rig.axes)
     robust = dataclasses.replace(rig, axes=tuple(
         dataclasses.replace(a, lock_gain_codes_per_count=k)
@@ -216,14 +210,8 @@ def tune_rig(
         },
     )
     say("tune: margins of every loop over the plant set (python-control)")
-    cases = plant_cases(
-        rig,
-        gain_spread=spec.gain_spread,
-        tau_spread=spec.tau_spread,
-        extra_ticks=spec.extra_ticks,
-        period_error_ppm=spec.period_error_ppm,
-    )
-    margins = tuning_margins(tuning, rig, limits=spec.limits, cases=cases)
+    cases = spec.plant_cases(rig)
+    margins = tuning_margins(tuning, rig, limits=spec.limits, cases=cases, every_loop=False)
     if not margins.passed:
         m, broken = margins.failures()[0]
         raise InfeasibleError(

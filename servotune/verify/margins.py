@@ -677,6 +677,7 @@ def tuning_margins(
     *,
     limits: MarginLimits = DEFAULT_LIMITS,
     cases: Sequence[PlantCase] | None = None,
+    every_loop: bool = True,
 ) -> Margins:
     """The margins of every loop of ``tuning`` on ``rig`` (module docstring).
 
@@ -696,6 +697,10 @@ def tuning_margins(
         The limits the verdict uses.
     cases : sequence of PlantCase, optional
         The plant set; default the nominal plants only.
+    every_loop : bool
+        Compute every nominal loop with python-control (for tables and heat maps). False: the
+        nominal plants are screened like the other cases and only the worst loops found are
+        computed with python-control (what a verdict needs; verification uses it).
 
     Returns
     -------
@@ -706,13 +711,15 @@ def tuning_margins(
     tuning.check_rig(rig)
     nominal = PlantCase(label="nominal", plants=tuple(a.plant for a in rig.axes),
                         period_s=rig.period_s)  # fmt: skip
-    others = [c for c in (cases or ()) if c.label != "nominal"]
+    others = [c for c in (cases or ()) if c.label != "nominal" or not every_loop]
+    if not every_loop and not any(c.label == "nominal" for c in others):
+        others.insert(0, nominal)
     out: list[LoopMargins] = []
     worst: list[LoopMargins] = []
     for a, (name, ctrl) in enumerate(zip(tuning.axis_names, tuning.controllers, strict=True)):
         sets = gain_sets(ctrl)
         memo: dict[GainSet, LoopMargins] = {}
-        for loop, cell, g in sets:
+        for loop, cell, g in sets if every_loop else ():
             if g not in memo:
                 memo[g] = _margins_of(name, loop, cell, g, nominal.plants[a], rig, nominal)
             out.append(replace(memo[g], loop=loop, cell=cell))
