@@ -38,8 +38,21 @@ class _Terminated(BaseException):
     """Raised in the main thread by the SIGTERM handler, so cleanup (``finally``) runs."""
 
 
+_SIGNALLED: list[int] = []  # the signal that asked this run to end, once one has
+
+
 def _on_sigterm(signum: int, frame: object) -> None:
+    _SIGNALLED.append(signum)
     raise _Terminated
+
+
+def _progress(message: str) -> None:
+    """A progress line on stderr; long runs report often, so this is also where a run whose
+    SIGTERM exception was swallowed (raised inside a destructor or a C callback, where Python
+    ignores exceptions) ends after all."""
+    if _SIGNALLED:
+        raise _Terminated
+    print(message, file=sys.stderr)
 
 
 _MAX_MESSAGE = 600  # characters of an error line
@@ -220,9 +233,10 @@ def _cmd_excite(args: argparse.Namespace) -> int:
 
 def _cmd_tune(args: argparse.Namespace) -> int:
     from servotune.report.text import format_tuning_summary
-    from servotune.tune.slave import SlaveTuneSpec
+    from servotune.tune.slave import tune_spec_from
     from servotune.tune.workflow import tune_rig, tuning_summary
     from servotune.tuning import current_tuning_path, tuning_to_string, write_tuning
+    from servotune.verify.spec import load_spec
 
     _check_dirs(args.output)
     current = None if args.no_current else current_tuning_path()
@@ -230,13 +244,13 @@ def _cmd_tune(args: argparse.Namespace) -> int:
         _workbench_dir(current.parent)
     if args.json and (not args.output or args.output == "-"):
         raise ServotuneError("--json prints the summary on stdout: give -o FILE for the tuning")
-    spec = SlaveTuneSpec(generations=args.generations, population=args.population,
-                         max_overshoot_pct=args.max_overshoot_pct,
-                         max_saturation_pct=args.max_saturation_pct,
-                         min_phase_margin_deg=args.pm, min_gain_margin_db=args.gm,
-                         max_sensitivity=args.ms)  # fmt: skip
+    limits = ("max_overshoot_pct", "max_saturation_pct", "min_phase_margin_deg",
+              "min_gain_margin_db", "max_sensitivity")  # fmt: skip
+    given = {k: getattr(args, k) for k in limits if getattr(args, k) is not None}
+    budget = {"generations": args.generations, "population": args.population}
+    spec = tune_spec_from(load_spec(args.spec) if args.spec else None, **budget, **given)
     tuning = tune_rig(args.rig, seed=args.seed, spec=spec, rule_base=args.rule_base,
-                      progress=lambda msg: print(msg, file=sys.stderr))  # fmt: skip
+                      progress=_progress)  # fmt: skip
     if args.json:
         print(json.dumps(tuning_summary(tuning), indent=2, sort_keys=True))
     else:
@@ -260,7 +274,7 @@ def _cmd_verify(args: argparse.Namespace) -> int:
         Path(args.report).mkdir(parents=True, exist_ok=True)
     result, record, path = verify_files(args.tuning, args.spec, args.rig, seed=args.seed,
                                         montecarlo=args.montecarlo,
-                                        progress=lambda m: print(m, file=sys.stderr))  # fmt: skip
+                                        progress=_progress)  # fmt: skip
     _print_product(args.json, lambda: record, lambda: format_table(result))
     print(f"wrote the verification record to {path}", file=sys.stderr)
     if args.report:
@@ -333,11 +347,42 @@ def _cmd_check_table(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_compare(args: argparse.Namespace) -> int:
+    from servotune.pipeline import DemoPreset, run_comparison
+    from servotune.report.text import figure4_statement
+    from servotune.rig import load_rig
+    from servotune.verify.spec import load_spec
+
+    try:
+        ms = tuple(float(x) for x in args.pareto.split(",") if x.strip())
+    except ValueError:
+        raise ServotuneError(
+            f"--pareto takes numbers separated by commas, got {args.pareto!r}"
+        ) from None
+    if args.seeds < 1:
+        raise ServotuneError(f"--seeds must be >= 1, got {args.seeds}")
+    rig, spec = load_rig(args.rig), load_spec(args.spec)
+    Path(args.out).mkdir(parents=True, exist_ok=True)
+    preset = DemoPreset(generations=args.generations, population=args.population,
+                        seeds=tuple(range(args.seeds)), heldout_count=args.heldout_count,
+                        pareto_ms=ms)  # fmt: skip
+    cmp = run_comparison(rig, spec, args.out, preset=preset, seed=args.seed,
+                         progress=_progress)  # fmt: skip
+    print(figure4_statement(cmp.table, cmp.spread if args.seeds > 1 else None), file=sys.stderr)
+    if args.json:
+        sys.stdout.write((Path(args.out) / "figure4.json").read_text())
+    print(f"wrote figure4.png, figure4.json{', pareto.png' if ms else ''} to {args.out}",
+          file=sys.stderr)  # fmt: skip
+    return EXIT_OK
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     from servotune.pipeline import comparison_table_text, run_demo
 
     Path(args.out).mkdir(parents=True, exist_ok=True)
-    summary = run_demo(args.rig, args.out, seed=args.seed)
+    summary = run_demo(args.rig, args.out, seed=args.seed,
+                       preset="full" if args.full else "quick",
+                       progress=_progress)  # fmt: skip
     for name, h in summary["lock_hold"].items():
         print(f"lock hold {name}: observed {h['observed_counts']} "
               f"predicted {h['predicted_counts']} counts", file=sys.stderr)  # fmt: skip
@@ -347,6 +392,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
               f"tau {err['tau_s']:+.2%} vs the virtual rig's truth", file=sys.stderr)  # fmt: skip
     print("Figure 4 (slave tracking, each structure tuned with the same budget):\n"
           + comparison_table_text(summary["comparison"]), file=sys.stderr)  # fmt: skip
+    print("\n".join(summary["figure4_statement"]), file=sys.stderr)
     v = summary["verification"]
     print("verify: " + ("PASSED" if v["passed"] else "FAILED: " + "; ".join(v["failures"])),
           file=sys.stderr)  # fmt: skip
@@ -495,32 +541,38 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument(
         "--max-overshoot-pct",
         type=float,
-        default=100.0,
         help="largest lead of the slave over the master, %% of its largest lag (default 100)",
     )
     s.add_argument(
         "--max-saturation-pct",
         type=float,
-        default=2.0,
-        help="largest share of task ticks on a D/A rail, %% (default 2)",
+        help="largest share of task ticks on a D/A rail, %% (default 2, or the spec's sync "
+        "scenario's)",
     )
     s.add_argument(
         "--pm",
         type=float,
-        default=45.0,
-        help="least phase margin of every loop over the plant set [deg] (default 45)",
+        dest="min_phase_margin_deg",
+        help="least phase margin of every loop over the plant set [deg] (default 45, or the "
+        "spec's)",
     )
     s.add_argument(
         "--gm",
         type=float,
-        default=6.0,
-        help="least gain margin of every loop over the plant set [dB] (default 6)",
+        dest="min_gain_margin_db",
+        help="least gain margin of every loop over the plant set [dB] (default 6, or the spec's)",
     )
     s.add_argument(
         "--ms",
         type=float,
-        default=2.0,
-        help="largest peak sensitivity of every loop over the plant set (default 2)",
+        dest="max_sensitivity",
+        help="largest peak sensitivity of every loop over the plant set (default 2, or the spec's)",
+    )
+    s.add_argument(
+        "--spec",
+        help="verification spec (TOML) to design for: its [margins] limits and latency, timer "
+        "error, Monte-Carlo gain/tau spreads and its 'sync' scenario's run (other scenarios stay "
+        "held out); flags given here win",
     )
     s.add_argument(
         "--json",
@@ -595,7 +647,41 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("rig", help="rig file (TOML)")
     s.add_argument("--out", default="reports", help="output directory (default reports)")
     s.add_argument("--seed", type=int, default=0)
+    s.add_argument(
+        "--full",
+        action="store_true",
+        help="the whole study: the default tuning budget, Figure 4 over three seeds and the "
+        "tracking/robustness sweep (several minutes; default: the quick preset)",
+    )
     s.set_defaults(func=_cmd_demo)
+
+    s = sub.add_parser(
+        "compare",
+        help="Figure 4: PID, PID + feedforward and composite tuned alike, compared on held-out "
+        "scenarios",
+    )
+    s.add_argument("rig", help="rig file (TOML)")
+    s.add_argument("--spec", required=True, help="verification spec (TOML): limits, tuning run "
+                   "and the held-out scenarios")  # fmt: skip
+    s.add_argument("--out", default="reports", help="directory for figure4.png/json, pareto.png")
+    s.add_argument("--seeds", type=int, default=3, help="optimiser seeds (default 3)")
+    s.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
+    s.add_argument("--generations", type=int, default=40, help="optimiser budget (default 40)")
+    s.add_argument("--population", type=int, default=32, help="candidates per generation")
+    s.add_argument(
+        "--heldout-count",
+        type=int,
+        default=64,
+        help="Monte-Carlo plant draws per held-out verification (default 64)",
+    )
+    s.add_argument(
+        "--pareto",
+        default="",
+        metavar="MS,MS,...",
+        help="peak-sensitivity ceilings of the trade-off sweep, e.g. 1.3,1.5,1.7,2",
+    )
+    s.add_argument("--json", action="store_true", help="figure4.json on stdout as well")
+    s.set_defaults(func=_cmd_compare)
 
     s = sub.add_parser("sync", help="compare gantry topologies (seed 003) on a gantry config")
     s.add_argument("config", help="gantry config (TOML), e.g. plants/gantry.toml")
@@ -620,6 +706,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     func: Callable[[argparse.Namespace], int] = args.func
     previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    _SIGNALLED.clear()
     format_warning = warnings.formatwarning
 
     def one_line(message: Warning | str, *_: object, **__: object) -> str:

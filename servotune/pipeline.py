@@ -31,6 +31,7 @@ from servotune.plot import (
     plot_comparison,
     plot_fit,
     plot_lock_hold,
+    plot_pareto,
     plot_queue_levels,
     plot_radial_deviation,
     plot_sync_errors,
@@ -42,12 +43,17 @@ from servotune.report.text import figure4_statement
 from servotune.rig import Rig, describe_rig, load_rig, write_plant
 from servotune.scenarios import Inputs, Scenario, build_scenario, check_run_memory
 from servotune.sim.engine import Loop, Trace, simulate
+from servotune.tune.compare import compare_structures, pareto_front
 from servotune.tune.pi import pi_loop_shaping
-from servotune.tune.workflow import compare_structures, tune_rig
+from servotune.tune.slave import tune_spec_from
+from servotune.tune.workflow import tune_rig
 from servotune.tuning import write_tuning
 from servotune.verify import load_for_export, verify_files
+from servotune.verify.spec import Spec, load_spec
 
 __all__ = [
+    "PRESETS",
+    "DemoPreset",
     "comparison_table_text",
     "default_pi_gains",
     "fit_log",
@@ -190,8 +196,19 @@ def run_architectures(plants_dir: str | Path, out_dir: str | Path, *, seed: int 
     return summary
 
 
-def run_demo(rig_path: str | Path, out_dir: str | Path, *, seed: int = 0) -> dict[str, Any]:
+def run_demo(
+    rig_path: str | Path,
+    out_dir: str | Path,
+    *,
+    seed: int = 0,
+    preset: str = "quick",
+    progress: Any = None,
+) -> dict[str, Any]:
     """Run the demo job and write its products into ``out_dir``.
+
+    ``preset`` (:data:`PRESETS`): ``quick`` tunes with a small budget and runs Figure 4 with one
+    seed; ``full`` uses the default budget, Figure 4 over three seeds and the trade-off sweep.
+    ``progress`` receives a line per step.
 
     Writes ``demo_summary.json``, ``lock_hold.png``, ``track.png``, ``track_log.csv``; for
     the identification step ``ident_log.csv`` (a closed-loop multi-level PRBS per axis),
@@ -210,8 +227,12 @@ def run_demo(rig_path: str | Path, out_dir: str | Path, *, seed: int = 0) -> dic
     out = Path(out_dir)
     if not out.is_dir():
         raise FileNotFoundError(f"output directory {str(out)!r} does not exist")
+    if preset not in PRESETS:
+        raise ValueError(f"preset must be one of {', '.join(PRESETS)}, got {preset!r}")
+    say = progress or (lambda _msg: None)
     rig = load_rig(rig_path)
     facts = describe_rig(rig)
+    say("demo: lock hold and a tracking move on the virtual rig")
     hold = lock_hold(rig, seconds=60.0, seed=seed)
     save_figure(
         plot_lock_hold(hold.trace, hold.predicted, hold.settle_s, "Position lock, 60 s"),
@@ -239,6 +260,7 @@ def run_demo(rig_path: str | Path, out_dir: str | Path, *, seed: int = 0) -> dic
             "tracking": None if m is None else m.to_dict(),
         }
     identification = {}
+    say("demo: identify both axes from closed-loop logs")
 
     fitted_rig = out / "fitted-rig.toml"
     for name in rig.axis_names:
@@ -274,15 +296,24 @@ def run_demo(rig_path: str | Path, out_dir: str | Path, *, seed: int = 0) -> dic
         }
     # tune from the identified models (what a user has), then Figure 4 on the example rig
 
-    tuning = tune_rig(fitted_rig, seed=seed)
+    chosen = PRESETS[preset]
+    spec_path = Path(rig_path).with_suffix(".spec.toml")
+    spec = load_spec(spec_path)
+    say(f"demo: tune on the fitted rig ({chosen.generations} generations of "
+        f"{chosen.population})")  # fmt: skip
+    budget = {"generations": chosen.generations, "population": chosen.population}
+    tuning = tune_rig(fitted_rig, seed=seed, spec=tune_spec_from(spec, **budget))
     tuning_path = out / "tuning.json"
     write_tuning(tuning, tuning_path)
-    cmp = run_comparison(rig, out, seed=seed)
+    say(f"demo: Figure 4 ({len(chosen.seeds)} seed(s), held-out scenarios)"
+        + (", trade-off sweep" if chosen.pareto_ms else ""))  # fmt: skip
+    cmp = run_comparison(rig, spec, out, preset=chosen, seed=seed)
     # verify on the rig the tuning was made for (the fitted models: what a user has; the spec's
     # Monte-Carlo spreads cover the model error), then export exactly the verified bytes
 
-    spec_path = Path(rig_path).with_suffix(".spec.toml")
+    say("demo: gantry and linkage")
     architectures = run_architectures(Path(rig_path).parent, out, seed=seed)
+    say("demo: verify, export, report")
     verification, _, _ = verify_files(tuning_path, spec_path)
     exported = []
     if verification.passed:
@@ -296,6 +327,9 @@ def run_demo(rig_path: str | Path, out_dir: str | Path, *, seed: int = 0) -> dic
     summary = {
         "architectures": architectures,
         "comparison": cmp.to_dict()["table"],
+        "figure4_statement": figure4_statement(
+            cmp.table, cmp.spread if len(cmp.seeds) > 1 else None
+        ).splitlines(),
         "exported": exported,
         "verification": {"passed": verification.passed, "failures": verification.failures},
         "identification": identification,
@@ -312,7 +346,8 @@ def run_demo(rig_path: str | Path, out_dir: str | Path, *, seed: int = 0) -> dic
             for name in hold.observed
         },
         "rig": facts,
-        "schema": "servotune.demo/1",
+        "preset": preset,
+        "schema": "servotune.demo/2",
         "seed": seed,
         "track": track,
         "version": __version__,
@@ -329,6 +364,9 @@ _COMPARISON_COLUMNS = (
     ("rise_s", "rise [ms]", "{:.0f}"),
     ("settling_s", "settling [ms]", "{:.0f}"),
     ("itae", "ITAE [counts·s²]", "{:.4g}"),
+    ("heldout_max_sync_counts", "held-out max sync [counts]", "{:.0f}"),
+    ("heldout_pass_pct", "held-out pass [%]", "{:.0f}"),
+    ("worst_ms", "worst Ms", "{:.2f}"),
 )
 
 
@@ -339,35 +377,82 @@ def comparison_table_text(table: dict[str, dict[str, float]]) -> str:
     for name, row in table.items():
         cells = [name]
         for key, _, fmt in _COMPARISON_COLUMNS:
-            v = row[key] * (1000.0 if key in ("rise_s", "settling_s") else 1.0)
-            cells.append("n/a" if not math.isfinite(v) else fmt.format(v))
+            v = row.get(key)
+            if v is None or not math.isfinite(v):
+                cells.append("n/a")
+                continue
+            cells.append(fmt.format(v * (1000.0 if key in ("rise_s", "settling_s") else 1.0)))
         rows.append(cells)
     widths = [max(len(r[i]) for r in rows) for i in range(len(head))]
     return "\n".join("  ".join(c.rjust(w) for c, w in zip(r, widths, strict=True)) for r in rows)
 
 
+@dataclass(frozen=True, slots=True, kw_only=True)
+class DemoPreset:
+    """How much of the study the demo runs (see the README: ``make demo`` is ``quick``,
+    ``servotune demo --full`` the whole study).
+
+    Attributes
+    ----------
+    generations, population : int
+        The slave tuner's budget (the tuning written and every Figure-4 structure alike).
+    seeds : tuple of int
+        Figure-4 seeds (the spread over seeds is reported where there are several).
+    heldout_count : int
+        Monte-Carlo plant draws of each held-out verification in Figure 4.
+    pareto_ms : tuple of float
+        Peak-sensitivity ceilings of the trade-off sweep (empty: no sweep).
+    """
+
+    generations: int
+    population: int
+    seeds: tuple[int, ...]
+    heldout_count: int
+    pareto_ms: tuple[float, ...] = ()
+
+
+PRESETS = {
+    "quick": DemoPreset(generations=12, population=16, seeds=(0,), heldout_count=8),
+    "full": DemoPreset(generations=40, population=32, seeds=(0, 1, 2), heldout_count=64,
+                       pareto_ms=(1.3, 1.5, 1.7, 2.0)),
+}  # fmt: skip
+"""The demo's presets."""
+
+
 def run_comparison(
     rig: Rig,
+    spec: Spec,
     out_dir: str | Path,
     *,
+    preset: DemoPreset = PRESETS["quick"],
     seed: int = 0,
-    spec: Any = None,
     progress: Any = None,
 ) -> Any:
-    """Figure 4 on ``rig``: tune the three structures, write ``figure4.png`` and ``figure4.json``.
+    """Figure 4 on ``rig`` (:func:`servotune.tune.compare.compare_structures`, the preset's
+    seeds offset by ``seed``) and, if the preset sweeps, the trade-off
+    (:func:`~servotune.tune.compare.pareto_front`): writes ``figure4.png``, ``figure4.json``
+    (the comparison, the statement, the Pareto points) and ``pareto.png``.
 
     Returns
     -------
     Comparison
-        See :func:`servotune.tune.workflow.compare_structures`.
     """
 
     out = Path(out_dir)
-    cmp = compare_structures(rig, spec=spec, seed=seed, progress=progress)
+    tune = tune_spec_from(spec, generations=preset.generations, population=preset.population)
+    cmp = compare_structures(rig, spec, tune=tune, seeds=[seed + s for s in preset.seeds],
+                             heldout_count=preset.heldout_count, progress=progress)  # fmt: skip
     slave = [a.role for a in rig.axes].index("slave")
     save_figure(plot_comparison(dict(cmp.traces), slave), out / "figure4.png")
-    data = {"schema": "servotune.figure4/1", "seed": seed, "version": __version__}
+    data = {"schema": "servotune.figure4/2", "seed": seed, "version": __version__}
     data.update(cmp.to_dict())
-    data["statement"] = figure4_statement(cmp.table).splitlines()
+    data["statement"] = figure4_statement(
+        cmp.table, cmp.spread if len(cmp.seeds) > 1 else None
+    ).splitlines()
+    data["pareto"] = []
+    if preset.pareto_ms:
+        points = pareto_front(rig, tune, preset.pareto_ms, seed=seed, progress=progress)
+        save_figure(plot_pareto(points), out / "pareto.png")
+        data["pareto"] = [p.to_dict() for p in points]
     atomic_write_text(out / "figure4.json", json.dumps(data, indent=2, sort_keys=True) + "\n")
     return cmp

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import matplotlib
 
@@ -22,6 +22,7 @@ __all__ = [
     "plot_comparison",
     "plot_fit",
     "plot_lock_hold",
+    "plot_pareto",
     "plot_query_tables",
     "plot_queue_levels",
     "plot_radial_deviation",
@@ -164,6 +165,27 @@ def plot_comparison(traces: dict[str, Trace], slave: int, title: str = "") -> pl
     return _finish(
         fig, axs, title or "slave tracking: PID, PID + feedforward, composite (Figure 4)"
     )
+
+
+def plot_pareto(points: Sequence[Any], title: str = "") -> plt.Figure:
+    """The tracking/robustness trade-off: ITAE and max sync error against the worst Ms, one
+    colour per structure, its front joined (:func:`servotune.tune.compare.pareto_front`)."""
+    fig, axs = plt.subplots(1, 2, figsize=(10, 4.2))
+    labels = {"pid": "PID", "pid_ff": "PID + feedforward", "composite": "fuzzy-PID + feedforward"}
+    for structure in dict.fromkeys(p.structure for p in points):
+        mine = [p for p in points if p.structure == structure and p.feasible]
+        for ax, key, front in ((axs[0], "itae", "front_itae"), (axs[1], "max_sync_counts",
+                                                                 "front_max")):  # fmt: skip
+            line = ax.plot([p.worst_ms for p in mine], [getattr(p, key) for p in mine], "o",
+                           ms=4, alpha=0.5)[0]  # fmt: skip
+            on = sorted((p for p in mine if getattr(p, front)), key=lambda p: p.worst_ms)
+            ax.plot([p.worst_ms for p in on], [getattr(p, key) for p in on], "-o", ms=5,
+                    color=line.get_color(), label=labels.get(structure, structure))  # fmt: skip
+    axs[0].set_ylabel("ITAE of the sync error [counts·s²]")
+    axs[1].set_ylabel("max |sync error| [counts]")
+    for ax in axs:
+        ax.set_xlabel("worst peak sensitivity Ms over the plant set")
+    return _finish(fig, axs, title or "tracking against robustness (each structure's front)")
 
 
 def plot_sync_errors(traces: Sequence[object], case: str, title: str = "") -> plt.Figure:

@@ -38,7 +38,12 @@ def test_demo_writes_its_products(tmp_path: Path) -> None:
     table = summary["comparison"]
     assert set(table) == {"pid", "pid_ff", "composite"}
     on_disk = json.loads((tmp_path / "demo_summary.json").read_text())
-    assert on_disk["schema"] == "servotune.demo/1"
+    assert on_disk["schema"] == "servotune.demo/2" and on_disk["preset"] == "quick"
+    # Figure 4 on the quick preset (DECISIONS 9: one seed), judged on the held-out scenarios
+    fig4 = json.loads((tmp_path / "figure4.json").read_text())
+    assert fig4["seeds"] == [0] and fig4["heldout_scenarios"] == ["track", "lock", "heldout"]
+    assert fig4["budget"]["generations"] == 12 and fig4["pareto"] == []
+    assert summary["figure4_statement"] == fig4["statement"]
     for name, hold in summary["lock_hold"].items():
         lo, hi = hold["observed_counts"]
         assert -4 <= lo <= hi <= 4, name  # seed 000: ±1 pulse
@@ -70,15 +75,18 @@ DEMO_DIGESTS = {
     # the tuning products (tuning.json, fuzzy.json, servotune_tables.h, figure4.json) once more
     # for issue 18 (margin-certified tuning: robust lock gains and PIs, every cell's margins as
     # constraints, a wider derivative bound; step_info at the samples; the Figure-4 statement);
-    # the simulated log, the fit and the runtime sources kept their digests.
+    # and for the demo's quick preset (DECISIONS 9: a 12 x 16 tuning budget, Figure 4 with one
+    # seed on held-out scenarios; margins confirmed on 32 sampled plants too, the tuning run's
+    # sync-error figures in the design record, Kp0's and Kec's search bounds widened). The
+    # simulated log, the fit and the runtime sources kept their digests.
     "track_log.csv": "f7d686f065b441cdc05dd4509674df0e02206cb068f00010ec5697e31a7cbf3c",
     "fitted-rig.toml": "fa857aeaed5c4836378857da32ba0a8af7719206d0ef83dd526b8193e7114035",
-    "tuning.json": "84cf098f03ceebadf22e9c21e29b2b9fa93e2bd61c2da504c4a3ef5890e5b2cf",
-    "fuzzy.json": "78d274ea5cad087db34d7e83f8a0e7f73400d82f5351dbd16957ea92619df352",
-    "figure4.json": "13370d751ce3d5f744de71719feb70024037a2d0ba080b28091e2a1dc253f5a5",
+    "tuning.json": "9546ae9eac0cb2fde8d2700c935bf988fdc70be897d1a0bfa9ab42a814f6b5b8",
+    "fuzzy.json": "b7cd9a7d4cbc41965ef419cdb91ad6737b6e5849a03e0300f3dd38b2fced2914",
+    "figure4.json": "4aaaffb9d2176bc66f7fb3675c9bf6c0328e6a909635b3ec15fd20a8f012e419",
     "c/servotune_rt.c": "d36e7d41a3fadb722e75fab4af75ba467f059cbcdfebbc4c9d7d93e34b7723bd",
     "c/servotune_rt.h": "87feeb024eb20ed602c0d94a2407b198e759b76239e0b4e216af4c457e758e2a",
-    "c/servotune_tables.h": "be93ddda33b5dc52bbe1254acf0f0aae67eeb062720f9bb493ae41db79b925dd",
+    "c/servotune_tables.h": "a8bb4b0b2e7cef4c6d4114fbb31b03f5a9504e1d898e50539889768b916fd4d3",
 }
 
 

@@ -19,7 +19,6 @@ from servotune.laws.fuzzy_pid import FuzzyPIDGains
 from servotune.laws.pi import PIConstants
 from servotune.report.text import format_table
 from servotune.rig import EXAMPLE_RIG_PATH, load_rig
-from servotune.tune.workflow import tune_rig
 from servotune.tuning import Tuning, file_sha256, read_tuning, write_tuning
 from servotune.verify import (
     ScenarioSpec,
@@ -54,10 +53,10 @@ def spec() -> Spec:
 
 
 @pytest.fixture(scope="module")
-def tuning_file(tmp_path_factory) -> Path:
+def tuning_file(tmp_path_factory, default_tuning) -> Path:
     """A good tuning: default-budget ``tune_rig`` of the example rig (seed 0), on disk."""
     path = tmp_path_factory.mktemp("verify") / "tuning.json"
-    write_tuning(tune_rig(EXAMPLE_RIG_PATH, seed=0), path)
+    write_tuning(default_tuning, path)
     return path
 
 
@@ -531,6 +530,10 @@ def test_spec_margins_table_is_read_and_checked(tmp_path) -> None:
     p = tmp_path / "s.spec.toml"
     p.write_text(text)
     assert load_spec(p).margins.min_phase_margin_deg == 50.0
+    assert load_spec(p).margin_samples == 32  # the example spec's draws inside the plant set
+    p.write_text(text.replace("samples = 32", "samples = -1"))
+    with pytest.raises(SpecError, match=r"margins\.samples"):
+        load_spec(p)
     p.write_text(text.replace("extra_ticks = 1", "extra_ticks = 1\nmax_sensitivty = 2.0"))
     with pytest.raises(SpecError, match=r"margins\.max_sensitivty"):
         load_spec(p)

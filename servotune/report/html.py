@@ -176,6 +176,35 @@ def _margins_section(rig: Rig, tuning: Tuning) -> str:
     return "".join(parts)
 
 
+def _figure4_text(data: dict) -> str:
+    """The Figure-4 statement, its numbers (mean and range over the seeds) and the constraints
+    each structure's optima sit on."""
+    parts = [f"<p>{html.escape(s)}</p>" for s in data.get("statement", [])]
+    table, spread = data.get("table", {}), data.get("spread", {})
+    if table:
+        keys = list(next(iter(table.values())))
+        head = "".join(f"<th>{html.escape(k)}</th>" for k in keys)
+        rows = []
+        for s, row in table.items():
+            cells = []
+            for k in keys:
+                v, r = row.get(k), spread.get(s, {}).get(k)
+                text = "n/a" if v is None else f"{v:.4g}"
+                if r and r[0] is not None and r[0] != r[1]:
+                    text += f" ({r[0]:.4g}–{r[1]:.4g})"
+                cells.append(f"<td>{text}</td>")
+            active = data.get("active_constraints", {}).get(s, {})
+            sits = ", ".join(active.get("binding", []) + active.get("at_bounds", [])) or "none"
+            rows.append(f"<tr><th>{html.escape(s)}</th>{''.join(cells)}"
+                        f"<td>{html.escape(sits)}</td></tr>")  # fmt: skip
+        seeds = ", ".join(str(x) for x in data.get("seeds", []))
+        parts.append(f"<p>Seeds {html.escape(seeds)}; held-out scenarios: "
+                     f"{html.escape(', '.join(data.get('heldout_scenarios', [])))}.</p>"
+                     f"<table><tr><th>structure</th>{head}<th>active constraints</th></tr>"
+                     f"{''.join(rows)}</table>")  # fmt: skip
+    return "".join(parts)
+
+
 def _existing_images(out: Path) -> str:
     parts = []
     for pattern, title in (("fit_*.png", "Identification"), ("figure4.png", "Figure 4"),
@@ -185,8 +214,8 @@ def _existing_images(out: Path) -> str:
         if files:
             parts.append(f"<h2>{title}</h2>")
             if pattern == "figure4.png" and (out / "figure4.json").is_file():
-                said = json.loads((out / "figure4.json").read_text()).get("statement", [])
-                parts.append("".join(f"<p>{html.escape(s)}</p>" for s in said))
+                parts.append(_figure4_text(json.loads((out / "figure4.json").read_text())))
+                files += sorted(out.glob("pareto.png"))
             for f in files:
                 uri = "data:image/png;base64," + base64.b64encode(f.read_bytes()).decode("ascii")
                 parts.append(_img(uri, f.name))

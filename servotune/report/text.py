@@ -5,7 +5,7 @@ at the end). The CLI prints them; the library never prints.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
 from servotune.arch.gantry.config import CASES, TOPOLOGIES
@@ -254,6 +254,20 @@ def format_tuning_summary(summary: Mapping[str, Any]) -> str:
     if s.get("objective") is not None:
         lines.append(f"  slave objective (mean ITAE of the sync error over the variants): "
                      f"{s['objective']:.4g} counts·s²")  # fmt: skip
+    w = s.get("worst") or {}
+    if "max_sync_counts" in w:
+        run = summary.get("run") or {}
+        lines.append(
+            f"  tuning run ({show_number(run.get('speed_fraction'))} of the speed limit, load "
+            f"{show_number(run.get('load_step_v'))} V), worst plant variant: sync error max "
+            f"{w['max_sync_counts']:.0f} counts, RMS {w['rms_sync_counts']:.0f} counts; "
+            f"saturation {w['saturation_pct']:.1f} %; slave lead {w['overshoot_pct']:.0f} % of "
+            f"its lag; {'a fault' if w['fault'] else 'no fault'}"
+        )
+    if s.get("binding"):
+        lines.append(f"  constraints the optimum sits on: {', '.join(s['binding'])}")
+    if s.get("at_bounds"):
+        lines.append(f"  search bounds reached (widen them): {', '.join(s['at_bounds'])}")
     return "\n".join(lines)
 
 
@@ -263,36 +277,83 @@ _FIGURE4_METRICS = (
     ("rms_sync_counts", "RMS sync error", "counts", 1.0, "{:.1f}"),
     ("rise_s", "rise time", "ms", 1e3, "{:.0f}"),
     ("settling_s", "settling time", "ms", 1e3, "{:.0f}"),
+    ("heldout_max_sync_counts", "held out: worst max sync error", "counts", 1.0, "{:.0f}"),
+    ("heldout_rms_sync_counts", "held out: worst RMS sync error", "counts", 1.0, "{:.1f}"),
+    ("heldout_pass_pct", "held out: plant sets keeping every limit", "%", 1.0, "{:.1f}"),
+    ("worst_ms", "worst peak sensitivity Ms over the plant set", "", 1.0, "{:.2f}"),
 )
+_HIGHER_IS_BETTER = frozenset({"heldout_pass_pct"})
 _STRUCTURE_NAMES = {"pid": "PID", "pid_ff": "PID + feedforward", "composite": "composite"}
 
 
-def figure4_statement(table: Mapping[str, Mapping[str, float]]) -> str:
-    """What the Figure-4 comparison measured, in words derived from its numbers: the winner
-    (lowest value) of each metric with every structure's value, and whether the composite law
-    wins on the tuning objective, as the seed claims (lower is better for every metric)."""
+def _structure(s: str) -> str:
+    return _STRUCTURE_NAMES.get(s, s)
+
+
+def _finite(row: Mapping[str, Any], key: str) -> bool:
+    v = row.get(key)
+    return v is not None and math.isfinite(v)
+
+
+def figure4_statement(
+    table: Mapping[str, Mapping[str, float]],
+    spread: Mapping[str, Mapping[str, Sequence[float]]] | None = None,
+) -> str:
+    """What the Figure-4 comparison measured, in words derived from its numbers: the best
+    structure of each metric with every structure's value (and its range over the seeds, where
+    ``spread`` gives one), and whether the composite law wins on the tuning objective and on the
+    held-out scenarios' worst sync error, as the seed claims. A win whose ranges over the seeds
+    overlap the rival's is called not clear."""
+
+    def shown(key: str, s: str, fmt: str, scale: float) -> str:
+        text = fmt.format(table[s][key] * scale)
+        lo_hi = (spread or {}).get(s, {}).get(key)
+        if lo_hi is not None and lo_hi[0] != lo_hi[1]:
+            text += f" ({fmt.format(lo_hi[0] * scale)}–{fmt.format(lo_hi[1] * scale)})"
+        return text
+
     lines = []
     for key, what, unit, scale, fmt in _FIGURE4_METRICS:
-        vals = {s: row[key] for s, row in table.items() if math.isfinite(row.get(key, math.nan))}
+        vals = {s: row[key] for s, row in table.items() if _finite(row, key)}
         if not vals:
             continue
-        low = min(vals.values())
-        best = [_STRUCTURE_NAMES.get(s, s) for s, v in vals.items() if v <= low * (1 + 1e-9)]
-        shown = ", ".join(f"{_STRUCTURE_NAMES.get(s, s)} {fmt.format(v * scale)}"
-                          for s, v in vals.items())  # fmt: skip
-        who = f"{best[0]} is lowest" if len(best) == 1 else f"{' and '.join(best)} tie"
-        lines.append(f"{what}: {who} ({shown} {unit})")
-    itae = {s: row["itae"] for s, row in table.items()}
-    if "composite" in itae and len(itae) > 1:
-        rival = min((s for s in itae if s != "composite"), key=lambda s: itae[s])
-        c, r = itae["composite"], itae[rival]
-        if c < r:
-            lines.append(f"The composite law wins on the objective: {c:.4g} against "
-                         f"{_STRUCTURE_NAMES.get(rival, rival)}'s {r:.4g} counts·s², as the "
-                         "seed's Figure 4 claims.")  # fmt: skip
+        sign = -1.0 if key in _HIGHER_IS_BETTER else 1.0
+        top = min(sign * v for v in vals.values())
+        best = [_structure(s) for s, v in vals.items() if sign * v <= top + 1e-9 * abs(top)]
+        values = ", ".join(f"{_structure(s)} {shown(key, s, fmt, scale)}" for s in vals)
+        verb = "highest" if sign < 0 else "lowest"
+        who = f"{best[0]} is {verb}" if len(best) == 1 else f"{' and '.join(best)} tie"
+        lines.append(f"{what}: {who} ({values}{' ' + unit if unit else ''})")
+    if spread:
+        lines.append("Values are means over the seeds, ranges over the seeds in brackets.")
+    failed = [_structure(s) for s, row in table.items() if not _finite(row, "itae")]
+    if failed:
+        lines.append(f"No tuning within the constraints and budget for {', '.join(failed)} "
+                     "(on some seed): its figures are its closest candidate's, and it takes "
+                     "no part in the objective's verdict.")  # fmt: skip
+    for key, what, fmt in (("itae", "on the objective", "{:.4g} counts·s²"),
+                           ("heldout_max_sync_counts", "on the held-out scenarios' worst max "
+                            "sync error", "{:.0f} counts")):  # fmt: skip
+        vals = {s: row[key] for s, row in table.items() if _finite(row, key)}
+        if "composite" not in vals or len(vals) < 2:
+            continue
+        rival = min((s for s in vals if s != "composite"), key=lambda s: vals[s])
+        c, r = vals["composite"], vals[rival]
+        versus = f"{fmt.format(c)} against {_structure(rival)}'s {fmt.format(r)}"
+        ranges = (
+            (spread or {}).get("composite", {}).get(key),
+            (spread or {}).get(rival, {}).get(key),
+        )
+        overlap = (
+            None not in ranges and ranges[0][0] <= ranges[1][1] and ranges[1][0] <= ranges[0][1]
+        )
+        if c < r and not overlap:
+            lines.append(f"The composite law wins {what}: {versus}, as the seed's Figure 4 "
+                         "claims.")  # fmt: skip
+        elif c < r:
+            lines.append(f"The composite law is ahead {what} on average ({versus}), but not "
+                         "clearly: the ranges over the seeds overlap.")  # fmt: skip
         else:
-            lines.append(f"The composite law does not win on the objective: {c:.4g} against "
-                         f"{_STRUCTURE_NAMES.get(rival, rival)}'s {r:.4g} counts·s² "
-                         "(same optimiser, budget and margin limits), contrary to the seed's "
-                         "Figure 4.")  # fmt: skip
+            lines.append(f"The composite law does not win {what}: {versus} (same optimiser, "
+                         "budget and margin limits), contrary to the seed's Figure 4.")  # fmt: skip
     return "\n".join(lines)

@@ -48,12 +48,14 @@ SCREEN_POINTS = 400
 
 
 def design_limits(limits: MarginLimits) -> MarginLimits:
-    """``limits`` tightened by :data:`DESIGN_TOLERANCE`."""
+    """``limits`` tightened by :data:`DESIGN_TOLERANCE` (an Ms limit close to 1 by at most
+    half its distance to 1, so the aim stays a valid limit)."""
     tol = DESIGN_TOLERANCE
+    ms = limits.max_sensitivity
     return MarginLimits(
         min_phase_margin_deg=limits.min_phase_margin_deg + tol.min_phase_margin_deg,
         min_gain_margin_db=limits.min_gain_margin_db + tol.min_gain_margin_db,
-        max_sensitivity=limits.max_sensitivity - (tol.max_sensitivity - 1.0),
+        max_sensitivity=max(ms - (tol.max_sensitivity - 1.0), 1.0 + 0.5 * (ms - 1.0)),
     )
 
 

@@ -58,6 +58,8 @@ __all__ = [
     "corner_plants",
     "ideal_feedforward",
     "tune_slave",
+    "tune_spec_from",
+    "tuning_run",
 ]
 
 STRUCTURES = ("pid", "pid_ff", "composite")
@@ -103,6 +105,9 @@ class SlaveTuneSpec:
         Latency the loops must also take [ticks], 0..10.
     period_error_ppm : float
         The timer's period error the loops must also take [ppm].
+    margin_samples : int
+        Plant sets drawn inside the plant set's box that the finished tuning's margins are
+        also confirmed on (the tuner's screen takes the corners).
     """
 
     max_saturation_pct: float = 2.0
@@ -120,6 +125,7 @@ class SlaveTuneSpec:
     max_sensitivity: float = DEFAULT_LIMITS.max_sensitivity
     extra_ticks: int = 1
     period_error_ppm: float = 100.0
+    margin_samples: int = 32
 
     def __post_init__(self) -> None:
         e = SpecError
@@ -131,18 +137,24 @@ class SlaveTuneSpec:
         check_integer("population", self.population, "candidates", lo=5, error=e)
         check_integer("generations", self.generations, "generations", error=e)
         check_integer("extra_ticks", self.extra_ticks, "ticks", hi=10, error=e)
+        check_integer("margin_samples", self.margin_samples, "plant sets", hi=10_000, error=e)
         check_number("period_error_ppm", self.period_error_ppm, "ppm", hi=1e4, error=e)
         self.limits  # noqa: B018 (validates the three limits)
 
-    def plant_cases(self, rig: Rig) -> tuple[PlantCase, ...]:
+    def plant_cases(
+        self, rig: Rig, *, seed: int = 0, sampled: bool = False
+    ) -> tuple[PlantCase, ...]:
         """The plant set the margin limits hold over (:func:`~servotune.verify.margins.plant_cases`
-        of these spreads, latency and timer error)."""
+        of these spreads, latency and timer error; with ``sampled``, also ``margin_samples``
+        plant sets drawn inside it from ``seed``)."""
         return plant_cases(
             rig,
             gain_spread=self.gain_spread,
             tau_spread=self.tau_spread,
             extra_ticks=self.extra_ticks,
             period_error_ppm=self.period_error_ppm,
+            samples=self.margin_samples if sampled else 0,
+            seed=seed,
         )
 
     @property
@@ -155,6 +167,58 @@ class SlaveTuneSpec:
     def to_dict(self) -> dict[str, Any]:
         """Plain dict."""
         return dataclasses.asdict(self)
+
+
+def tuning_run(spec: Any) -> Any:
+    """The scenario of a verification spec the slave is tuned on: the one named ``sync``, else
+    the first sync scenario, else None (the tuner's default run). Every other scenario of the
+    spec is held out from tuning."""
+    syncs = [s for s in spec.scenarios if s.kind == "sync"]
+    return next((s for s in syncs if s.name == "sync"), syncs[0] if syncs else None)
+
+
+def tune_spec_from(spec: Any = None, **overrides: Any) -> SlaveTuneSpec:
+    """The slave tuner's spec that designs for what a verification spec checks.
+
+    From ``spec`` (a :class:`servotune.verify.spec.Spec`; None: the defaults): the margin
+    limits and their extra latency (``[margins]``), the timer's period error (``[timer]
+    max_period_error_ppm``), the plant spreads (``[montecarlo]`` gain and tau spreads), and the
+    tuning run from the scenario named ``sync`` (else the first sync scenario): its length,
+    speed, acceleration, load step and saturation limit. The spec's other scenarios are not
+    tuned on: they stay held out. ``overrides`` (the budget, or a limit given on the command
+    line) win.
+
+    Raises
+    ------
+    SpecError
+        An override that is not a field of :class:`SlaveTuneSpec`, or an invalid value.
+    """
+    unknown = set(overrides) - {f.name for f in dataclasses.fields(SlaveTuneSpec)}
+    if unknown:
+        raise SpecError(f"unknown tuning option(s): {', '.join(sorted(unknown))}")
+    if spec is None:
+        return SlaveTuneSpec(**overrides)
+    kw: dict[str, Any] = {
+        "min_phase_margin_deg": spec.margins.min_phase_margin_deg,
+        "min_gain_margin_db": spec.margins.min_gain_margin_db,
+        "max_sensitivity": spec.margins.max_sensitivity,
+        "extra_ticks": spec.margin_extra_ticks,
+        "margin_samples": spec.margin_samples,
+        "gain_spread": spec.montecarlo.gain_spread,
+        "tau_spread": spec.montecarlo.tau_spread,
+    }
+    if spec.max_period_error_ppm is not None:
+        kw["period_error_ppm"] = spec.max_period_error_ppm
+    run = tuning_run(spec)
+    if run is not None:
+        kw.update(speed_fraction=run.speed_fraction, accel_s=run.accel_s,
+                  load_step_v=run.load_step_v)  # fmt: skip
+        if run.seconds is not None:
+            kw["seconds"] = run.seconds
+        if run.max_saturation_pct is not None:
+            kw["max_saturation_pct"] = run.max_saturation_pct
+    kw.update(overrides)
+    return SlaveTuneSpec(**kw)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -179,7 +243,10 @@ class SlaveTuning:
     history : tuple of float
         Best objective after the initial population and each generation.
     worst : dict
-        Worst case over variants of the constrained quantities.
+        Worst case over the variants of the tuning run: ``saturation_pct``, ``overshoot_pct``,
+        ``fault`` (1 if any variant trips), the margins over the plant set
+        (``phase_margin_deg``, ``gain_margin_db``, ``max_sensitivity``: the grid screen's) and
+        the sync error over the task ticks (``max_sync_counts``, ``rms_sync_counts``).
     at_bounds : tuple of str
         Search parameters whose optimum lies at a bound of the search space (within 0.5 % of
         its range): there the bound, not the problem, decided.
@@ -263,7 +330,9 @@ def _space(structure: str, start: PIGains, n: int) -> _Space:
     kp, ki = max(start.kp, 1e-6), max(start.ki, 1e-6)
     # name: (lower, upper, start); log10 for gains and scalings, linear for fractions
     p: dict[str, tuple[float, float, float]] = {
-        "log_kp0": (math.log10(kp / 5), math.log10(kp * 5), math.log10(kp)),
+        # Kp0 up to 25x the start PI's: at 5x, PID + feedforward's optimum reached the bound
+        # on some seeds of the full Figure-4 study (the margins, not the bound, must decide)
+        "log_kp0": (math.log10(kp / 5), math.log10(kp * 25), math.log10(kp)),
         "log_ki0": (math.log10(ki / 20), math.log10(ki * 20), math.log10(ki)),
         "log_kd0": (math.log10(kp * 1e-5), math.log10(kp * 1.0), math.log10(kp * 1e-4)),
     }
@@ -271,7 +340,8 @@ def _space(structure: str, start: PIGains, n: int) -> _Space:
         p["k1_ratio"] = (0.0, 1.3, 1.0)
     if structure == "composite":
         p["log_ke"] = (math.log10(n / 2000), math.log10(n / 5), math.log10(n / 200))
-        p["log_kec"] = (math.log10(n / 200), math.log10(float(n)), math.log10(n / 20))
+        # Kec down to n/5000: an optimum that wants the EC index to barely move reached n/200
+        p["log_kec"] = (math.log10(n / 5000), math.log10(float(n)), math.log10(n / 20))
         for t in ("kp", "ki", "kd"):
             p["scale_" + t] = (0.0, 0.95, 0.3)
     names = tuple(p)
@@ -330,7 +400,7 @@ class _Problem:
 
 def _evaluate(prob: _Problem, gains: Sequence[FuzzyPIDGains]) -> tuple[np.ndarray, np.ndarray]:
     """Objective and worst-case quantities (saturation %, overshoot, fault, PM [deg], GM [dB],
-    Ms) per candidate."""
+    Ms, max and RMS |sync error| [counts]) per candidate."""
     rig = prob.loop.rig
     n_v = len(prob.variants)
     ctls = []
@@ -356,12 +426,15 @@ def _evaluate(prob: _Problem, gains: Sequence[FuzzyPIDGains]) -> tuple[np.ndarra
     lead = np.maximum(-res.metric("min_err_counts")[:, s], 0.0)
     over = 100.0 * lead / np.maximum(res.metric("max_err_counts")[:, s], 1.0)
     fault = (res.metric("first_fault_tick") >= 0).any(axis=1)
+    per_variant = (len(gains), n_v)
     worst = np.stack(
         [
-            100.0 * sat.reshape(len(gains), n_v).max(axis=1),
-            over.reshape(len(gains), n_v).max(axis=1),
-            fault.reshape(len(gains), n_v).any(axis=1).astype(float),
+            100.0 * sat.reshape(per_variant).max(axis=1),
+            over.reshape(per_variant).max(axis=1),
+            fault.reshape(per_variant).any(axis=1).astype(float),
             *np.array(robust).T,
+            res.metric("max_abs_err_counts")[:, s].reshape(per_variant).max(axis=1),
+            res.metric("rms_err_counts")[:, s].reshape(per_variant).max(axis=1),
         ],
         axis=1,
     )
@@ -548,5 +621,7 @@ def tune_slave(
             "phase_margin_deg": float(worst[0, 3]),
             "gain_margin_db": float(worst[0, 4]),
             "max_sensitivity": float(worst[0, 5]),
+            "max_sync_counts": float(worst[0, 6]),
+            "rms_sync_counts": float(worst[0, 7]),
         },
     )

@@ -1,4 +1,4 @@
-"""Tuning a rig end to end (what ``servotune tune`` runs) and the Figure-4 comparison.
+"""Tuning a rig end to end (what ``servotune tune`` runs).
 
 :func:`tune_rig`: the lock gains and the master's PI designed to keep the margin limits over
 the plant set (:mod:`servotune.tune.robust`), the slave's composite fuzzy-PID + feedforward by
@@ -6,18 +6,13 @@ the plant set (:mod:`servotune.tune.robust`), the slave's composite fuzzy-PID + 
 from a PI designed the same way for the slave, the rule base evaluated into query tables by
 :mod:`servotune.fuzzy`; everything quantised into a :class:`~servotune.tuning.Tuning`, whose
 margins python-control then confirms.
-
-:func:`compare_structures`: the paper's Figure 4 on our models. Conventional PID, PID + the same
-feedforward, and composite control are each tuned by the same optimiser with the same budget,
-then run on the nominal rig through the tuning scenario; the table holds max and RMS sync error
-and the start transient's rise and settling (of the slave's speed, 10–90 % and 2 %).
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -26,17 +21,12 @@ import numpy as np
 from servotune import fuzzy
 from servotune._version import __version__
 from servotune.errors import InfeasibleError, SpecError
-from servotune.io.files import json_float
 from servotune.laws.fuzzy_pid import FuzzyPIDConstants
-from servotune.metrics import step_info
 from servotune.rig import Rig, load_rig
-from servotune.scenarios import _sync_move_for
-from servotune.sim.engine import Loop, Trace, simulate
+from servotune.sim.engine import Loop
 from servotune.tune.robust import robust_lock_gain, robust_pi
 from servotune.tune.slave import (
-    STRUCTURES,
     SlaveTuneSpec,
-    SlaveTuning,
     _master_slave,
     tune_slave,
 )
@@ -44,8 +34,6 @@ from servotune.tuning import Tuning, file_sha256
 from servotune.verify.margins import tuning_margins
 
 __all__ = [
-    "Comparison",
-    "compare_structures",
     "rule_tables",
     "tune_rig",
     "tuning_summary",
@@ -210,7 +198,7 @@ def tune_rig(
         },
     )
     say("tune: margins of every loop over the plant set (python-control)")
-    cases = spec.plant_cases(rig)
+    cases = spec.plant_cases(rig, seed=seed, sampled=True)
     margins = tuning_margins(tuning, rig, limits=spec.limits, cases=cases, every_loop=False)
     if not margins.passed:
         m, broken = margins.failures()[0]
@@ -233,7 +221,9 @@ def tuning_summary(tuning: Tuning) -> dict[str, Any]:
     -------
     dict
         ``schema`` ``"servotune.tune-summary/1"``, ``axes`` (name → ``lock_gain``, ``law``,
-        ``gains``, ``worst_loop``), ``slave`` (objective and worst-case figures).
+        ``gains``, ``worst_loop``), ``slave`` (objective, worst case over the variants of the
+        tuning run: sync error, saturation, overshoot, grid-screened margins; the constraints
+        it sits on and the search bounds it reached), ``run`` (the tuning run's move and load).
     """
     margins = tuning.design.get("margins", {})
     axes: dict[str, Any] = {}
@@ -255,101 +245,13 @@ def tuning_summary(tuning: Tuning) -> dict[str, Any]:
             "worst_loop": margins.get(name),
         }
     slave = tuning.design.get("slave", {}).get("tuning", {})
+    spec = tuning.design.get("spec", {})
     return {
         "schema": "servotune.tune-summary/1",
         "axes": axes,
-        "slave": {k: slave.get(k) for k in ("objective", "feasible", "worst", "structure")},
+        "slave": {
+            k: slave.get(k)
+            for k in ("objective", "feasible", "worst", "structure", "binding", "at_bounds")
+        },
+        "run": {k: spec.get(k) for k in ("seconds", "speed_fraction", "accel_s", "load_step_v")},
     }
-
-
-# --- Figure 4 --------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class Comparison:
-    """The Figure-4 comparison: per structure its tuning, nominal trace and table row.
-
-    Attributes
-    ----------
-    tunings : dict of str to SlaveTuning
-    traces : dict of str to Trace
-        Nominal rig (noise included), the tuning scenario.
-    table : dict of str to dict
-        Per structure: ``max_sync_counts``, ``rms_sync_counts`` (task ticks), ``rise_s`` and
-        ``settling_s`` of the slave's speed over the start transient, ``itae`` (the objective).
-    """
-
-    tunings: Mapping[str, SlaveTuning]
-    traces: Mapping[str, Trace] = field(repr=False)
-    table: Mapping[str, Mapping[str, float]]
-
-    def winner(self, column: str) -> str:
-        """Structure with the smallest value of a table column."""
-        return min(self.table, key=lambda s: self.table[s][column])
-
-    def to_dict(self) -> dict[str, Any]:
-        """Plain dict (the table and the tunings)."""
-        return {
-            "table": {
-                s: {k: json_float(v) for k, v in row.items()} for s, row in self.table.items()
-            },
-            "tunings": {s: t.to_dict() for s, t in self.tunings.items()},
-        }
-
-
-def _row(trace: Trace, rig: Rig, i_s: int, start: int, load_tick: int) -> dict[str, float]:
-    task = trace.mode[:, i_s] == 1
-    e = trace.err_counts[task, i_s].astype(float)
-    # start transient: from the master's start to just before the load step
-    t = trace.time_s[start:load_tick] - trace.time_s[start]
-    v = trace.speed_cps[start:load_tick, i_s]
-    info = step_info(t, v, y_init=0.0, y_final=float(np.mean(v[-10:])))
-    return {
-        "max_sync_counts": float(np.max(np.abs(e))),
-        "rms_sync_counts": float(np.sqrt(np.mean(e * e))),
-        "rise_s": info.rise_time_s,
-        "settling_s": info.settling_time_s,
-    }
-
-
-def compare_structures(
-    rig: Rig,
-    *,
-    rule_base: str = "default",
-    spec: SlaveTuneSpec | None = None,
-    seed: int = 0,
-    progress: Callable[[str], None] | None = None,
-) -> Comparison:
-    """Tune PID, PID + feedforward and composite with the same optimiser and budget; compare.
-
-    Returns
-    -------
-    Comparison
-    """
-    spec = spec or SlaveTuneSpec()
-    i_m, i_s = _master_slave(rig)
-    start = _robust_start(rig, spec)
-    rig, master_pi, slave_pi = start.rig, start.master_pi, start.slave_pi
-    tables = rule_tables(rule_base)
-    scen = _sync_move_for(rig, spec)
-    mode = scen.inputs.mode[:, i_s]
-    start = int(np.argmax(mode == 1))
-    load_tick = int(np.argmax(scen.inputs.load_v[:, i_s] != 0.0)) or mode.size
-    tunings, traces, table = {}, {}, {}
-    for structure in STRUCTURES:
-        res = tune_slave(
-            rig,
-            master_pi.gains,
-            structure=structure,
-            tables=tables if structure == "composite" else None,
-            start=slave_pi.gains,
-            spec=spec,
-            seed=seed,
-            progress=progress,
-        )
-        gains: list[object | None] = [None] * len(rig.axes)
-        gains[i_m], gains[i_s] = master_pi.gains, res.gains
-        tr = simulate(Loop.from_rig(rig, gains), scen.inputs, seed=seed)
-        tunings[structure], traces[structure] = res, tr
-        table[structure] = {**_row(tr, rig, i_s, start, load_tick), "itae": res.objective}
-    return Comparison(tunings=tunings, traces=traces, table=table)

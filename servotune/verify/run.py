@@ -217,7 +217,8 @@ def check_margins(tuning: Tuning, rig: Rig, spec: Spec) -> list[Check]:
     kind (every query-table cell of a scheduled law) keeps the spec's margin limits on the
     nominal plants and over the plant set (:func:`~servotune.verify.margins.plant_cases`: the
     corners of the identified intervals and of the spec's Monte-Carlo gain and tau spreads,
-    each also ``margins.extra_ticks`` ticks late, at the period ± the timer's error limit).
+    each also ``margins.extra_ticks`` ticks late, at the period ± the timer's error limit;
+    and ``margins.samples`` plant sets drawn inside that box).
 
     The check's value is the worst Ms [1]; its detail names the worst loop (the cell), the
     plant case and the limits it breaks. Every loop on every case is screened on a grid; the
@@ -226,7 +227,8 @@ def check_margins(tuning: Tuning, rig: Rig, spec: Spec) -> list[Check]:
     mc = spec.montecarlo
     cases = plant_cases(rig, gain_spread=mc.gain_spread, tau_spread=mc.tau_spread,
                         extra_ticks=spec.margin_extra_ticks,
-                        period_error_ppm=spec.max_period_error_ppm or 0.0)  # fmt: skip
+                        period_error_ppm=spec.max_period_error_ppm or 0.0,
+                        samples=spec.margin_samples, seed=mc.seed)  # fmt: skip
     m = tuning_margins(tuning, rig, limits=spec.margins, cases=cases, every_loop=False)
     lim = spec.margins
     out = []

@@ -28,6 +28,7 @@ Every key is optional unless marked; unknown keys are errors; every limit is an 
     min_gain_margin_db = 6.0      # [dB]
     max_sensitivity = 2.0         # peak sensitivity Ms [1] (Åström & Hägglund: 1.2–2.0)
     extra_ticks = 1               # latency the loops must also take [ticks] (0: none)
+    samples = 32                  # plant sets drawn inside the box besides its corners
 
     [scenario.<name>]             # at least one; kind defaults to the table name
     kind = "sync"                 # "sync", "track" or "lock"
@@ -363,6 +364,9 @@ class Spec:
         Ms <= 2.0).
     margin_extra_ticks : int
         Extra latency the loops must also keep those margins with [ticks], 0..10.
+    margin_samples : int
+        Plant sets drawn inside the plant set's box besides its corners (seeded by the
+        Monte-Carlo seed), 0..10,000.
     """
 
     name: str
@@ -373,6 +377,7 @@ class Spec:
     max_period_error_ppm: float | None = None
     margins: MarginLimits = DEFAULT_LIMITS
     margin_extra_ticks: int = 1
+    margin_samples: int = 32
 
     def __post_init__(self) -> None:
         if not self.scenarios:
@@ -389,6 +394,8 @@ class Spec:
             object.__setattr__(self, "max_period_error_ppm", v)
         check_integer("margins.extra_ticks", self.margin_extra_ticks, "ticks", hi=10,
                       error=SpecError)  # fmt: skip
+        check_integer("margins.samples", self.margin_samples, "plant sets", hi=10_000,
+                      error=SpecError)  # fmt: skip
 
     def scenario(self, name: str) -> ScenarioSpec:
         """The scenario called ``name``."""
@@ -403,7 +410,11 @@ class Spec:
         """Plain dict."""
         return {
             "description": self.description,
-            "margins": {**self.margins.to_dict(), "extra_ticks": self.margin_extra_ticks},
+            "margins": {
+                **self.margins.to_dict(),
+                "extra_ticks": self.margin_extra_ticks,
+                "samples": self.margin_samples,
+            },
             "max_period_error_ppm": self.max_period_error_ppm,
             "montecarlo": self.montecarlo.to_dict(),
             "name": self.name,
@@ -443,7 +454,7 @@ def spec_from_dict(data: Mapping[str, Any], default_name: str = "spec") -> Spec:
     montecarlo = MonteCarlo(**mc_t)
     margins_t = dict(_table(data, "margins"))
     limit_keys = [f.name for f in fields(MarginLimits)]
-    _only(margins_t, "margins", [*limit_keys, "extra_ticks"])
+    _only(margins_t, "margins", [*limit_keys, "extra_ticks", "samples"])
     try:
         margin_limits = MarginLimits(**{k: v for k, v in margins_t.items() if k in limit_keys})
     except SpecError as exc:
@@ -478,6 +489,7 @@ def spec_from_dict(data: Mapping[str, Any], default_name: str = "spec") -> Spec:
         montecarlo=montecarlo,
         margins=margin_limits,
         margin_extra_ticks=margins_t.get("extra_ticks", 1),
+        margin_samples=margins_t.get("samples", 32),
         scenarios=tuple(scenarios),
     )
 

@@ -18,8 +18,8 @@ TABLE = {
 def test_the_statement_follows_the_numbers() -> None:
     said = figure4_statement(TABLE)
     assert (
-        "The composite law does not win on the objective: 1096 against PID + feedforward's 1007"
-        in said
+        "The composite law does not win on the objective: 1096 counts·s² against PID + "
+        "feedforward's 1007 counts·s²" in said
     )
     assert "contrary to the seed's Figure 4" in said
     assert "max sync error: composite is lowest" in said
@@ -29,7 +29,8 @@ def test_the_statement_follows_the_numbers() -> None:
     swapped["composite"]["itae"], swapped["pid_ff"]["itae"] = 1007.0, 1096.0
     turned = figure4_statement(swapped)
     assert (
-        "The composite law wins on the objective: 1007 against PID + feedforward's 1096" in turned
+        "The composite law wins on the objective: 1007 counts·s² against PID + feedforward's "
+        "1096 counts·s²" in turned
     )
     assert "as the seed's Figure 4 claims" in turned and "does not win" not in turned
     assert turned != said
@@ -47,4 +48,46 @@ def test_every_metric_names_its_winner_with_all_values() -> None:
     assert lines[4] == (
         "settling time: PID + feedforward is lowest (PID 300, PID + feedforward 250, "
         "composite 260 ms)"
+    )
+
+
+HELD_OUT = {s: {**row, "heldout_max_sync_counts": v, "heldout_pass_pct": p}
+            for (s, row), v, p in zip(TABLE.items(), (1900.0, 1200.0, 1250.0),
+                                      (90.0, 100.0, 95.0), strict=True)}  # fmt: skip
+
+
+def test_held_out_figures_get_their_own_verdict() -> None:
+    said = figure4_statement(HELD_OUT)
+    assert "held out: worst max sync error: PID + feedforward is lowest" in said
+    # a share of passing plant sets: higher is better
+    assert "held out: plant sets keeping every limit: PID + feedforward is highest" in said
+    assert ("The composite law does not win on the held-out scenarios' worst max sync error: "
+            "1250 counts against PID + feedforward's 1200 counts") in said  # fmt: skip
+    swapped = {k: dict(v) for k, v in HELD_OUT.items()}
+    swapped["composite"]["heldout_max_sync_counts"] = 1100.0
+    turned = figure4_statement(swapped)
+    assert ("The composite law wins on the held-out scenarios' worst max sync error: 1100 "
+            "counts against PID + feedforward's 1200 counts") in turned  # fmt: skip
+
+
+def test_a_lead_inside_the_spread_over_seeds_is_not_a_clear_win() -> None:
+    table = {k: dict(v) for k, v in TABLE.items()}
+    table["composite"]["itae"] = 1000.0  # ahead of PID + feedforward's 1007 on average
+    spread = {s: {"itae": (row["itae"] - 20.0, row["itae"] + 20.0)} for s, row in table.items()}
+    said = figure4_statement(table, spread)
+    assert "The composite law is ahead on the objective on average" in said
+    assert "not clearly: the ranges over the seeds overlap" in said
+    assert "composite 1000 (980–1020)" in said and "over the seeds in brackets" in said
+    apart = {s: {"itae": (row["itae"] - 2.0, row["itae"] + 2.0)} for s, row in table.items()}
+    said = figure4_statement(table, apart)
+    assert "The composite law wins on the objective: 1000 counts·s²" in said
+
+
+def test_a_structure_without_a_feasible_tuning_is_named() -> None:
+    table = {k: dict(v) for k, v in TABLE.items()}
+    table["pid"]["itae"] = None  # JSON's inf
+    said = figure4_statement(table)
+    assert "No tuning within the constraints and budget for PID" in said
+    assert (
+        "ITAE of the sync error (the tuning objective): PID + feedforward is lowest (PID + " in said
     )
