@@ -14,6 +14,26 @@ EXAMPLE_RIG = ROOT / "plants" / "pc-dual-servo.toml"
 
 
 @pytest.fixture(scope="session")
+def default_tuning() -> st.Tuning:
+    """``tune_rig`` of the example rig, default budget, seed 0: a good tuning, made once for
+    every test file that needs one (a frozen value: tests replace fields, never mutate it)."""
+    from servotune.tune.workflow import tune_rig
+
+    return tune_rig(EXAMPLE_RIG, seed=0)
+
+
+@pytest.fixture(scope="session")
+def quick_tuning() -> st.Tuning:
+    """A two-generation tuning of the example rig (seed 0; overshoot bound relaxed so that it
+    is feasible): a real tuning, too little tuned for the shipped spec's sync-error limit."""
+    from servotune.tune.slave import SlaveTuneSpec
+    from servotune.tune.workflow import tune_rig
+
+    spec = SlaveTuneSpec(generations=2, population=6, max_overshoot_pct=300.0)
+    return tune_rig(EXAMPLE_RIG, seed=0, spec=spec)
+
+
+@pytest.fixture(scope="session")
 def rig() -> st.Rig:
     """The example rig of seed 000 (plants/pc-dual-servo.toml)."""
     return st.load_rig(EXAMPLE_RIG)

@@ -8,8 +8,6 @@ from pathlib import Path
 import pytest
 
 from servotune.cli import main
-from servotune.tune.slave import SlaveTuneSpec
-from servotune.tune.workflow import tune_rig
 from servotune.tuning import write_tuning
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -18,15 +16,12 @@ SPEC = ROOT / "plants" / "pc-dual-servo.spec.toml"
 
 
 @pytest.fixture(scope="module")
-def tunings(tmp_path_factory) -> dict[str, Path]:
+def tunings(tmp_path_factory, default_tuning, quick_tuning) -> dict[str, Path]:
     d = tmp_path_factory.mktemp("tunings")
     good, quick = d / "good.json", d / "quick.json"
-    write_tuning(tune_rig(RIG), good)
+    write_tuning(default_tuning, good)
     # a two-generation search: too little tuning for the shipped spec's sync-error limit
-    write_tuning(
-        tune_rig(RIG, spec=SlaveTuneSpec(generations=2, population=6, max_overshoot_pct=300.0)),
-        quick,
-    )
+    write_tuning(quick_tuning, quick)
     return {"good": good, "quick": quick}
 
 

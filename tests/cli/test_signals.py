@@ -98,3 +98,31 @@ def test_an_unusable_workbench_stops_tune_before_any_output(tmp_path, capsys, mo
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "workbench directory" in err[0] and str(blocker / "wb") in err[0]
     assert not out.exists()
+
+
+@pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")
+def test_a_swallowed_sigterm_ends_the_run_at_its_next_progress_line(
+    tmp_path, monkeypatch, capsys
+) -> None:
+    """Python ignores an exception raised in a destructor: a SIGTERM arriving there would be
+    lost. The run still ends, with 143 and one line, at the next progress line."""
+    steps = []
+
+    class Dying:
+        def __del__(self) -> None:
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(0.2)  # the handler raises here, inside the destructor: ignored
+
+    def tune_rig(rig_path, *, progress, **_kw):
+        d = Dying()
+        del d
+        steps.append("after the destructor")  # the signal's exception did not end the run
+        progress("tune: the next step")
+        steps.append("not reached")
+
+    monkeypatch.setattr("servotune.tune.workflow.tune_rig", tune_rig)
+    rc = main(["tune", str(RIG), "--no-current", "-o", str(tmp_path / "t.json")])
+    assert rc == 143 and steps == ["after the destructor"]
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1] == "servotune tune: terminated"
+    assert not (tmp_path / "t.json").exists()

@@ -49,9 +49,7 @@ from servotune.laws.axis import AxisController
 from servotune.laws.fuzzy_pid import FuzzyPIDConstants
 from servotune.laws.pi import PIConstants
 from servotune.plant import Plant
-from servotune.rig import EXAMPLE_RIG_PATH, Axis, Counter, Dac, Encoder, Rig, Timer
-from servotune.tune.slave import SlaveTuneSpec
-from servotune.tune.workflow import tune_rig
+from servotune.rig import Axis, Counter, Dac, Encoder, Rig, Timer
 from servotune.tuning import Tuning
 
 ST_DIGEST_OK, ST_DIGEST_MISMATCH, ST_DIGEST_MALFORMED = 0, 1, 2
@@ -238,12 +236,10 @@ def _header(src_dir: Path) -> str:
 
 
 @pytest.fixture(scope="module")
-def example_tuning() -> Tuning:
+def example_tuning(quick_tuning) -> Tuning:
     """A real tuning of the example rig (tiny budget, seed 0: deterministic): master PI,
     slave fuzzy-PID + feedforward."""
-    return tune_rig(
-        EXAMPLE_RIG_PATH, spec=SlaveTuneSpec(generations=2, population=6, max_overshoot_pct=300)
-    )
+    return quick_tuning
 
 
 @pytest.fixture(scope="module")

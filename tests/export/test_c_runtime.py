@@ -61,8 +61,6 @@ from servotune.rig import (
 )
 from servotune.scenarios import Inputs, trapezoid_ref
 from servotune.sim.engine import Loop, Trace, simulate
-from servotune.tune.slave import SlaveTuneSpec
-from servotune.tune.workflow import tune_rig
 from servotune.tuning import Tuning
 
 pytestmark = needs_cc
@@ -292,12 +290,10 @@ MASTER_FE_LIMIT = 20_000  # [counts]: trips on the 40,000-count reference step b
 
 
 @pytest.fixture(scope="module")
-def tuning() -> Tuning:
+def tuning(quick_tuning) -> Tuning:
     """A real tuning (tiny budget, seed 0: deterministic), the master's following-error limit
     lowered so that a reference step can trip it."""
-    t = tune_rig(
-        EXAMPLE_RIG_PATH, spec=SlaveTuneSpec(generations=2, population=6, max_overshoot_pct=300)
-    )
+    t = quick_tuning
     ctl = list(t.controllers)
     ctl[0] = dataclasses.replace(ctl[0], following_error_limit_counts=MASTER_FE_LIMIT)
     return dataclasses.replace(t, controllers=tuple(ctl))

@@ -6,6 +6,7 @@ test; every refusal is checked as a user sees it: exit code, one line on stderr,
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import shutil
@@ -15,8 +16,6 @@ import pytest
 
 import servotune.verify.record as record_module
 from servotune.cli import main
-from servotune.tune.slave import SlaveTuneSpec
-from servotune.tune.workflow import tune_rig
 from servotune.tuning import write_tuning
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -29,15 +28,16 @@ def _sha(path: Path) -> str:
 
 
 @pytest.fixture(scope="module")
-def bench(tmp_path_factory) -> dict[str, Path]:
+def bench(tmp_path_factory, default_tuning, quick_tuning) -> dict[str, Path]:
     """A rig at a path of the user's choosing, a good and a poor tuning of it, a quick spec."""
     d = tmp_path_factory.mktemp("trust")
     rig = d / "my-rig.toml"
     shutil.copyfile(RIG, rig)
     good, poor = d / "good.json", d / "poor.json"
-    write_tuning(tune_rig(rig), good)
-    write_tuning(tune_rig(rig, spec=SlaveTuneSpec(generations=2, population=6,
-                                                 max_overshoot_pct=300.0)), poor)  # fmt: skip
+    # the example rig's tunings (same bytes, so the same SHA-256), made for the copy's path as
+    # `tune my-rig.toml` records it
+    for tuning, path in ((default_tuning, good), (quick_tuning, poor)):
+        write_tuning(dataclasses.replace(tuning, rig_path=rig.as_posix()), path)
     spec = d / "quick.spec.toml"
     spec.write_text(SPEC.read_text().replace("count = 64", "count = 2"))
     other = d / "other-rig.toml"  # another rig: a different drift on the master
