@@ -34,7 +34,7 @@ def test_demo_writes_its_products(tmp_path: Path) -> None:
         assert section in page, section
     assert summary["architectures"]["gantry"]["passed"]
     assert summary["architectures"]["linkage"]["passed"]
-    assert json.loads((tmp_path / "sync.json").read_text())["schema"] == "servotune.sync/1"
+    assert json.loads((tmp_path / "sync.json").read_text())["schema"] == "servotune.sync/2"
     table = summary["comparison"]
     assert set(table) == {"pid", "pid_ff", "composite"}
     on_disk = json.loads((tmp_path / "demo_summary.json").read_text())

@@ -8,8 +8,6 @@ import pytest
 
 import servotune as st
 from servotune.testing import assert_step_response, step_response
-from servotune.tune.slave import SlaveTuneSpec
-from servotune.tune.workflow import tune_rig
 from servotune.tuning import write_tuning
 
 pytest_plugins = ["pytester"]
@@ -27,10 +25,10 @@ def test_master_step(servotune_rig, servotune_tuning):
 
 
 @pytest.fixture(scope="module")
-def tuning_file(tmp_path_factory) -> Path:
-    t = tune_rig(RIG, spec=SlaveTuneSpec(generations=2, population=6, max_overshoot_pct=300.0))
+def tuning_file(tmp_path_factory, default_tuning) -> Path:
+    # the default tuning: a step response is judged on a loop as `servotune tune` makes it
     p = tmp_path_factory.mktemp("tuning") / "tuning.json"
-    write_tuning(t, p)
+    write_tuning(default_tuning, p)
     return p
 
 

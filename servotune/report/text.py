@@ -90,6 +90,15 @@ def format_comparison(cmp: SyncComparison) -> str:
         p = cmp.predicted
         lines.append(f"predicted (linear) load-case max: parallel {p.parallel_max_counts:.1f}, "
                      f"listening {p.listening_max_counts:.1f} (x{p.ratio:.3f})")  # fmt: skip
+    lim = c.margins
+    lines.append(f"margins over the plant set (gain ±{lim.gain_spread:.0%}, tau "
+                 f"±{lim.tau_spread:.0%}, +{lim.extra_cycles} cycle; limits PM >= "
+                 f"{lim.min_phase_margin_deg:g}°, GM >= {lim.min_gain_margin_db:g} dB, Ms <= "
+                 f"{lim.max_sensitivity:g}), the least phase margin of each loop:")  # fmt: skip
+    for loop, m in cmp.worst_margins().items():
+        lines.append(f"  {loop:<7}PM {show_number(m.phase_margin_deg)}°, GM "
+                     f"{show_number(m.gain_margin_db)} dB, Ms {show_number(m.max_sensitivity)} "
+                     f"(plant {m.plant})")  # fmt: skip
     lines.append("PASS" if cmp.passed else "FAIL: " + "; ".join(cmp.failed))
     return "\n".join(lines)
 

@@ -7,8 +7,10 @@ a gantry config leaves out (the drives, then the compensator).
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import replace
+from typing import Any
 
 import control
 import numpy as np
@@ -70,21 +72,94 @@ def tune_sync(cfg: GantryConfig) -> SyncSettings:
     return replace(s, kp=lo, ki=0.0, kd=kd)
 
 
+def _keeps(cfg: GantryConfig, axis: str) -> bool:
+    """Every loop of ``axis`` (``master``, ``slave`` or ``sync``) keeps ``cfg.margins`` over
+    the plant set (python-control, :func:`~servotune.arch.gantry.margins.gantry_margins`)."""
+    from servotune.arch.gantry.margins import gantry_margins
+
+    lim = cfg.margins.limits
+    return not any(lim.broken(m) for m in gantry_margins(cfg, loops=(axis,)))
+
+
+def _aim(cfg: GantryConfig) -> dict[str, float]:
+    """The margin limits tightened as robust designs aim (:func:`~servotune.tune.robust.
+    design_limits`), as :func:`~servotune.tune.pi.tune_pi` targets."""
+    from servotune.tune.robust import design_limits
+
+    a = design_limits(cfg.margins.limits)
+    return {"phase_margin_deg": a.min_phase_margin_deg, "gain_margin_db": a.min_gain_margin_db,
+            "max_sensitivity": a.max_sensitivity}  # fmt: skip
+
+
+def _with_drive_pi(
+    cfg: GantryConfig, name: str, plant: Any, compute_s: float, targets: Any
+) -> GantryConfig:
+    """``cfg`` with drive ``name``'s missing PI gains designed on ``plant``."""
+    ax = getattr(cfg, name)
+    r = tune_pi(plant, period_s=cfg.bus.cycle_s, compute_s=compute_s, lsb_v=cfg.rig.dac.lsb_v,
+                **targets)  # fmt: skip
+    return replace(cfg, **{name: replace(ax, kp=float(r.kp) if ax.kp is None else ax.kp,
+                                         ki=float(r.ki) if ax.ki is None else ax.ki)})  # fmt: skip
+
+
+def _with_robust_sync(cfg: GantryConfig, slave_plant: Any, more_pm_deg: float) -> GantryConfig:
+    """``cfg`` with the compensator designed on ``slave_plant`` behind the bus latency plus
+    the extra cycles, aiming just inside the margin limits (``more_pm_deg`` more phase)."""
+    m, s = cfg.margins, cfg.sync
+    aim = _aim(cfg)
+    aim["phase_margin_deg"] = min(aim["phase_margin_deg"] + more_pm_deg, 85.0)
+    bus = replace(cfg.bus, latency_cycles=cfg.bus.latency_cycles + m.extra_cycles)
+    at = replace(cfg, bus=bus, slave=replace(cfg.slave, plant=slave_plant),
+                 sync=replace(s, **aim))  # fmt: skip
+    return replace(cfg, sync=replace(tune_sync(at), **{k: getattr(s, k) for k in aim}))
+
+
+@functools.lru_cache(maxsize=32)
 def resolve_gains(cfg: GantryConfig) -> GantryConfig:
-    """Fill in the gains the config leaves out: each drive's PI tuned at the bus cycle
-    (:func:`~servotune.tune.pi.tune_pi`, PM 50°, GM 8 dB, Ms 1.6), then the compensator
-    (:func:`tune_sync`)."""
-    lsb = cfg.rig.dac.lsb_v
-    drives = []
-    for ax in (cfg.master, cfg.slave):
-        if ax.kp is None or ax.ki is None:
-            r = tune_pi(ax.plant, period_s=cfg.bus.cycle_s, compute_s=cfg.bus.compute_s,
-                        lsb_v=lsb, **DEFAULT_TARGETS)  # fmt: skip
-            ax = replace(ax, kp=float(r.kp) if ax.kp is None else ax.kp,
-                         ki=float(r.ki) if ax.ki is None else ax.ki)  # fmt: skip
-        drives.append(ax)
-    cfg = replace(cfg, master=drives[0], slave=drives[1])
+    """Fill in the gains the config leaves out, each loop robust over ``cfg.margins``' plant
+    set (:func:`~servotune.arch.gantry.margins.gantry_cases`).
+
+    Each drive's PI is tuned at the bus cycle (:func:`~servotune.tune.pi.tune_pi`, PM 50°,
+    GM 8 dB, Ms 1.6 on the nominal drive), then the compensator (:func:`tune_sync`, the
+    config's targets). Where such a design breaks the margin limits somewhere in the plant set,
+    it is designed again where the loop has least margin, aiming just inside the limits: a
+    drive at gain and tau high, one extra cycle late; the compensator behind the latency plus
+    the extra cycles, on the slave at tau high and gain high, else gain low, with a few degrees
+    more phase if needed. A design that still breaks them is kept: the gantry's margins check
+    names what breaks.
+
+    A pure function of the (frozen) config: results are kept for the 32 latest configs, since
+    a robust design takes seconds and a session loads the same gantry again and again.
+    """
+    from servotune.arch.gantry.margins import worst_corner
+
+    m = cfg.margins
+    late = cfg.bus.compute_s + m.extra_cycles * cfg.bus.cycle_s
+    for name in ("master", "slave"):
+        ax = getattr(cfg, name)
+        if ax.kp is not None and ax.ki is not None:
+            continue
+        out = _with_drive_pi(cfg, name, ax.plant, cfg.bus.compute_s, DEFAULT_TARGETS)
+        if not _keeps(out, name):
+            out = _with_drive_pi(cfg, name, worst_corner(ax.plant, m), late, _aim(cfg))
+        cfg = out
     s = cfg.sync
     if s.kp is None or (s.law == "pi" and s.ki is None):
-        cfg = replace(cfg, sync=tune_sync(cfg))
+        out = replace(cfg, sync=tune_sync(cfg))
+        if not _keeps(out, "sync"):
+            high = worst_corner(cfg.slave.plant, m)
+            low = replace(high, gain_cps_per_v=cfg.slave.plant.gain_cps_per_v
+                          * (1.0 - m.gain_spread))  # fmt: skip
+            # the sync loop's worst corner moves with its gains: aim at each candidate with a
+            # little more phase until every case keeps the limits
+            for more in (0.0, 1.0, 2.0, 4.0, 8.0):
+                found = False
+                for plant in (high, low):
+                    out = _with_robust_sync(cfg, plant, more)
+                    found = _keeps(out, "sync")
+                    if found:
+                        break
+                if found:
+                    break
+        cfg = out
     return cfg

@@ -14,13 +14,14 @@ from typing import Any
 
 import numpy as np
 
-from servotune.errors import ConfigError, RigError
+from servotune.errors import ConfigError, RigError, SpecError
 from servotune.laws.axis import AxisController
 from servotune.laws.pi import PIGains
 from servotune.laws.sync import SYNC_LAWS, SyncConstants, SyncGains
 from servotune.plant import Plant
 from servotune.rig import Rig, build_section, check_plant, load_rig
 from servotune.validate import check_integer, check_keys, check_number, show_value
+from servotune.verify.margins import MarginLimits
 
 __all__ = [
     "CASES",
@@ -247,6 +248,46 @@ class SyncSettings:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
+class GantryMargins:
+    """What every loop of the gantry must keep, and over which plant set
+    (:func:`servotune.arch.gantry.margins.gantry_margins`; the ``[margins]`` table).
+
+    Parameters
+    ----------
+    min_phase_margin_deg, min_gain_margin_db, max_sensitivity : float
+        Limits of every loop (each drive's PI, the sync loop) over the plant set [deg], [dB],
+        [1]; defaults 45°, 6 dB, 2.0 (Åström & Hägglund's robust range, as for a single rig).
+    extra_cycles : int
+        Latency every loop must also take [bus cycles], 0..10.
+    gain_spread, tau_spread : float
+        Relative spread of both drives' gain and time constant [1], 0..0.9.
+    """
+
+    min_phase_margin_deg: float = 45.0
+    min_gain_margin_db: float = 6.0
+    max_sensitivity: float = 2.0
+    extra_cycles: int = 1
+    gain_spread: float = 0.2
+    tau_spread: float = 0.3
+
+    def __post_init__(self) -> None:
+        check_integer("extra_cycles", self.extra_cycles, "cycles", hi=10, error=ConfigError)
+        for name in ("gain_spread", "tau_spread"):
+            check_number(name, getattr(self, name), "1", hi=0.9, error=ConfigError)
+        self.limits  # noqa: B018 (validates the three limits)
+
+    @property
+    def limits(self) -> MarginLimits:
+        """The three limits as a :class:`~servotune.verify.margins.MarginLimits`."""
+        try:
+            return MarginLimits(min_phase_margin_deg=self.min_phase_margin_deg,
+                                min_gain_margin_db=self.min_gain_margin_db,
+                                max_sensitivity=self.max_sensitivity)  # fmt: skip
+        except SpecError as exc:
+            raise ConfigError(str(exc)) from None
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
 class GantryMove:
     """The CNC's command: a trapezoidal move there, a dwell, and back.
 
@@ -311,7 +352,7 @@ class GantryConfig:
         Hardware facts (counter bits, D/A, encoder) from the referenced rig file.
     topology : str
         The topology deployed (judged by :func:`compare_topologies`' checks).
-    bus, beam, master, slave, sync, move, load :
+    bus, beam, master, slave, sync, move, load, margins :
         See the classes.
     seconds : float
         Length of a run [s].
@@ -327,6 +368,7 @@ class GantryConfig:
     sync: SyncSettings = field(default_factory=SyncSettings)
     move: GantryMove = field(default_factory=GantryMove)
     load: GantryLoad = field(default_factory=GantryLoad)
+    margins: GantryMargins = field(default_factory=GantryMargins)
     seconds: float = 2.0
 
     def __post_init__(self) -> None:
@@ -377,7 +419,7 @@ def gantry_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".") -> Gan
     ConfigError
         Naming the first invalid table or field, its value and unit.
     """
-    check_keys(data, "", (), ("gantry", "bus", "beam", "axis", "sync", "move", "load"),
+    check_keys(data, "", (), ("gantry", "bus", "beam", "axis", "sync", "move", "load", "margins"),
                error=ConfigError, noun="table")  # fmt: skip
 
     def table(key: str, required: bool = False) -> Mapping[str, Any]:
@@ -422,7 +464,7 @@ def gantry_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".") -> Gan
     parts = {
         k: build_section(cls, table(k), k, ConfigError)
         for k, cls in (("bus", GantryBus), ("beam", Beam), ("sync", SyncSettings),
-                       ("move", GantryMove), ("load", GantryLoad))
+                       ("move", GantryMove), ("load", GantryLoad), ("margins", GantryMargins))
     }  # fmt: skip
     return build_section(GantryConfig, meta, "gantry", ConfigError, rig=rig,
                          master=drives["master"], slave=drives["slave"], **parts)  # fmt: skip

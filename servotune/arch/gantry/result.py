@@ -12,6 +12,7 @@ from servotune.arch.gantry.config import GantryConfig
 from servotune.arch.gantry.design import LoadPrediction
 from servotune.io.files import json_safe
 from servotune.laws.sync import SYNC_WARN
+from servotune.verify.margins import LoopMargins
 
 __all__ = [
     "GantryMetrics",
@@ -130,7 +131,10 @@ class SyncComparison:
         What the linear loop gains predict for the ``load`` case; None with a coupled beam
         (the linear models leave the beam out).
     failed : tuple of str
-        Why the check failed (a trip of the deployed topology), empty if it passed.
+        Why the checks failed (a trip of the deployed topology, a loop breaking a margin limit
+        on some plant), empty if they passed.
+    margins : tuple of LoopMargins
+        Every loop on every plant case (:func:`~servotune.arch.gantry.margins.gantry_margins`).
     """
 
     config: GantryConfig
@@ -138,6 +142,15 @@ class SyncComparison:
     traces: tuple[GantryTrace, ...]
     predicted: LoadPrediction | None
     failed: tuple[str, ...]
+    margins: tuple[LoopMargins, ...] = ()
+
+    def worst_margins(self) -> dict[str, LoopMargins]:
+        """Per loop (``master``, ``slave``, ``sync``), its case with the least phase margin."""
+        out: dict[str, LoopMargins] = {}
+        for m in self.margins:
+            if m.axis not in out or m.phase_margin_deg < out[m.axis].phase_margin_deg:
+                out[m.axis] = m
+        return out
 
     @property
     def passed(self) -> bool:
@@ -158,10 +171,17 @@ class SyncComparison:
         raise KeyError(f"no run of the topology {topology!r} in the case {case!r}")
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain JSON-able dict (``schema`` ``servotune.sync/1``)."""
+        """Plain JSON-able dict (``schema`` ``servotune.sync/2``: ``/1`` and the margins)."""
         c = self.config
+        lim = c.margins
         return json_safe({
-            "schema": "servotune.sync/1",
+            "schema": "servotune.sync/2",
+            "margins": {
+                "limits": lim.limits.to_dict() | {"extra_cycles": lim.extra_cycles,
+                                                  "gain_spread": lim.gain_spread,
+                                                  "tau_spread": lim.tau_spread},
+                "worst": {k: m.to_dict() for k, m in self.worst_margins().items()},
+            },
             "name": c.name,
             "topology": c.topology,
             "cycle_s": c.bus.cycle_s,

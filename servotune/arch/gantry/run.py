@@ -46,6 +46,7 @@ from servotune.arch.gantry.config import (
     _case_config,
 )
 from servotune.arch.gantry.design import predicted_load_reduction
+from servotune.arch.gantry.margins import gantry_margins
 from servotune.arch.gantry.result import GantryTrace, SyncComparison
 from servotune.budget import check_memory
 from servotune.fixed import shift_round
@@ -316,10 +317,18 @@ def simulate_gantry(
                        stop_bound_cycles=cfg.stop_bound_cycles)  # fmt: skip
 
 
-def compare_topologies(cfg: GantryConfig, *, seed: int = 0) -> SyncComparison:
-    """Every topology in every case (:data:`CASES`): max/RMS sync error, warnings, trips.
+_LOOP_NAMES = {"master": "the master's drive loop", "slave": "the slave's drive loop",
+               "sync": "the sync loop"}  # fmt: skip
 
-    The check: the deployed topology (``cfg.topology``) must not trip in any case.
+
+def compare_topologies(cfg: GantryConfig, *, seed: int = 0) -> SyncComparison:
+    """Every topology in every case (:data:`CASES`): max/RMS sync error, warnings, trips; and
+    the margins of every loop over the plant set (:func:`~servotune.arch.gantry.margins.
+    gantry_margins`).
+
+    The checks: the deployed topology (``cfg.topology``) must not trip in any case, and every
+    loop it runs must keep ``cfg.margins``' limits over the plant set (a failure names the
+    loop, the plant case and the limit).
     """
     n_runs = len(CASES) * len(TOPOLOGIES)  # every trace is kept
     check_memory(
@@ -338,5 +347,13 @@ def compare_topologies(cfg: GantryConfig, *, seed: int = 0) -> SyncComparison:
                 failed.append(f"sync trip in the {case} case at {m.trip_time_s:.3f} s "
                               f"(|sync error| >= {cfg.sync.trip_counts} counts)")  # fmt: skip
     predicted = predicted_load_reduction(cfg) if not cfg.beam.coupled else None
+    margins = gantry_margins(cfg)
+    lim = cfg.margins.limits
+    for loop in ("master", "slave", "sync"):
+        bad = [(m, lim.broken(m)) for m in margins if m.axis == loop and lim.broken(m)]
+        if bad:
+            m, broken = min(bad, key=lambda mb: (mb[0].stable, mb[0].phase_margin_deg))
+            failed.append(f"margins: {_LOOP_NAMES[loop]} on plant {m.plant}: "
+                          f"{'; '.join(broken)}")  # fmt: skip
     return SyncComparison(config=cfg, rows=tuple(rows), traces=tuple(traces), predicted=predicted,
-                          failed=tuple(failed))  # fmt: skip
+                          failed=tuple(failed), margins=margins)  # fmt: skip
