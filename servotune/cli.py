@@ -411,7 +411,8 @@ def _cmd_sync(args: argparse.Namespace) -> int:
     from servotune.arch.gantry.load import load_gantry
     from servotune.report.text import format_comparison
 
-    cmp = compare_topologies(load_gantry(args.config), seed=args.seed)
+    cmp = compare_topologies(load_gantry(args.config), seed=args.seed,
+                             montecarlo=args.montecarlo)  # fmt: skip
     _print_product(args.json, cmp.to_dict, lambda: format_comparison(cmp))
     if args.plot:
         from servotune.arch.gantry import CASES
@@ -686,6 +687,14 @@ def _parser() -> argparse.ArgumentParser:
     s = sub.add_parser("sync", help="compare gantry topologies (seed 003) on a gantry config")
     s.add_argument("config", help="gantry config (TOML), e.g. plants/gantry.toml")
     s.add_argument("--seed", type=int, default=0, help="noise and jitter seed (default 0)")
+    s.add_argument(
+        "--montecarlo",
+        type=int,
+        default=0,
+        metavar="N",
+        help="also run the deployed topology over N plant pairs drawn inside the [margins] "
+        "spreads; a trip in any fails (default 0: none)",
+    )
     s.add_argument("--json", action="store_true", help="JSON on stdout")
     s.add_argument("--plot", metavar="DIR", help="write sync-error plots (PNG) into DIR")
     s.set_defaults(func=_cmd_sync)

@@ -120,7 +120,7 @@ def test_results_are_named_objects_and_sync_json_keeps_its_keys(gantry, comparis
     assert set(doc) == {
         "schema", "name", "topology", "cycle_s", "latency_cycles", "stop_bound_cycles",
         "drives", "sync", "sync_constants", "results", "predicted_load", "passed", "failed",
-        "version", "margins"}  # fmt: skip
+        "version", "margins", "montecarlo"}  # fmt: skip
     row_keys = {"case", "topology", "max_sync_error_counts", "rms_sync_error_counts",
                 "warning_cycles", "tripped", "trip_time_s"}  # fmt: skip
     assert all(set(r) == row_keys for r in doc["results"])

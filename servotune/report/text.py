@@ -99,6 +99,12 @@ def format_comparison(cmp: SyncComparison) -> str:
         lines.append(f"  {loop:<7}PM {show_number(m.phase_margin_deg)}°, GM "
                      f"{show_number(m.gain_margin_db)} dB, Ms {show_number(m.max_sensitivity)} "
                      f"(plant {m.plant})")  # fmt: skip
+    if cmp.montecarlo is not None:
+        k, n, frac, lo, hi = cmp.montecarlo.pass_fraction
+        w = cmp.montecarlo.worst
+        lines.append(f"Monte Carlo: {k} of {n} plant pairs never trip ({100 * frac:.1f} %; 95 % "
+                     f"interval {100 * lo:.1f}–{100 * hi:.1f} %, Clopper–Pearson); largest sync "
+                     f"error {w.max_sync_error_counts:.0f} counts ({w.label})")  # fmt: skip
     lines.append("PASS" if cmp.passed else "FAIL: " + "; ".join(cmp.failed))
     return "\n".join(lines)
 

@@ -19,10 +19,24 @@ __all__ = [
     "Check",
     "Row",
     "Verification",
+    "clopper_pearson",
 ]
 
 
 # --- results -------------------------------------------------------------------------------
+
+
+def clopper_pearson(k: int, n: int, level: float = 0.95) -> tuple[float, float]:
+    """The exact (Clopper–Pearson) ``level`` interval of a probability from ``k`` successes in
+    ``n`` trials, ``n >= 1``: it holds the true probability at least ``level`` of the time.
+
+    >>> [round(x, 4) for x in clopper_pearson(64, 64)]
+    [0.944, 1.0]
+    """
+    a = (1.0 - level) / 2.0
+    lo = 0.0 if k == 0 else float(beta.ppf(a, k, n - k + 1))
+    hi = 1.0 if k == n else float(beta.ppf(1.0 - a, k + 1, n - k))
+    return lo, hi
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -164,9 +178,7 @@ class Verification:
         n, k = len(mc), int(sum(mc))
         if n == 0:
             return 0, 0, math.nan, 0.0, 1.0
-        lo = 0.0 if k == 0 else float(beta.ppf(0.025, k, n - k + 1))
-        hi = 1.0 if k == n else float(beta.ppf(0.975, k + 1, n - k))
-        return k, n, k / n, lo, hi
+        return k, n, k / n, *clopper_pearson(k, n)
 
     @property
     def passed(self) -> bool:

@@ -65,6 +65,7 @@ from servotune.arch.gantry.config import (
     GantryBus,
     GantryConfig,
     GantryLoad,
+    GantryMargins,
     GantryMove,
     SyncSettings,
     gantry_from_dict,
@@ -75,12 +76,20 @@ from servotune.arch.gantry.design import (
     predicted_load_reduction,
     sync_loop_models,
 )
+from servotune.arch.gantry.margins import GantryCase, gantry_cases, gantry_margins
 from servotune.arch.gantry.result import (
     GantryMetrics,
+    GantryMonteCarlo,
     GantryTrace,
+    GantryVariant,
     SyncComparison,
 )
-from servotune.arch.gantry.run import compare_topologies, move_profile, simulate_gantry
+from servotune.arch.gantry.run import (
+    compare_topologies,
+    gantry_montecarlo,
+    move_profile,
+    simulate_gantry,
+)
 
 __all__ = [
     "CASES",
@@ -88,17 +97,24 @@ __all__ = [
     "Beam",
     "GantryAxis",
     "GantryBus",
+    "GantryCase",
     "GantryConfig",
     "GantryLoad",
+    "GantryMargins",
     "GantryMetrics",
+    "GantryMonteCarlo",
     "GantryMove",
     "GantryTrace",
+    "GantryVariant",
     "LoadPrediction",
     "SyncComparison",
     "SyncLoopModels",
     "SyncSettings",
     "compare_topologies",
+    "gantry_cases",
     "gantry_from_dict",
+    "gantry_margins",
+    "gantry_montecarlo",
     "move_profile",
     "predicted_load_reduction",
     "simulate_gantry",

@@ -10,13 +10,16 @@ import numpy as np
 from servotune._version import __version__
 from servotune.arch.gantry.config import GantryConfig
 from servotune.arch.gantry.design import LoadPrediction
-from servotune.io.files import json_safe
+from servotune.io.files import json_float, json_safe
 from servotune.laws.sync import SYNC_WARN
 from servotune.verify.margins import LoopMargins
+from servotune.verify.result import clopper_pearson
 
 __all__ = [
     "GantryMetrics",
+    "GantryMonteCarlo",
     "GantryTrace",
+    "GantryVariant",
     "SyncComparison",
 ]
 
@@ -115,6 +118,74 @@ class GantryTrace:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
+class GantryVariant:
+    """One drawn plant pair and what it did.
+
+    Attributes
+    ----------
+    index : int
+    factors : dict of str to float
+        ``master_gain``, ``master_tau``, ``slave_gain``, ``slave_tau``: the factors on the
+        config's plants [1].
+    max_sync_error_counts : float
+        Largest |sync error| over the cases [counts].
+    tripped : bool
+        The monitor tripped in some case.
+    """
+
+    index: int
+    factors: dict[str, float]
+    max_sync_error_counts: float
+    tripped: bool
+
+    @property
+    def label(self) -> str:
+        return f"mc{self.index}"
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"label": self.label, "factors": dict(self.factors),
+                "max_sync_error_counts": json_float(self.max_sync_error_counts),
+                "tripped": self.tripped}  # fmt: skip
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class GantryMonteCarlo:
+    """Result of :func:`gantry_montecarlo`.
+
+    Attributes
+    ----------
+    seed : int
+    variants : tuple of GantryVariant
+    """
+
+    seed: int
+    variants: tuple[GantryVariant, ...]
+
+    @property
+    def pass_fraction(self) -> tuple[int, int, float, float, float]:
+        """``(passed, count, fraction, low, high)``: pairs that never trip and the exact 95 %
+        interval of the probability that a drawn pair does not."""
+        n = len(self.variants)
+        k = sum(not v.tripped for v in self.variants)
+        return k, n, k / n, *clopper_pearson(k, n)
+
+    @property
+    def worst(self) -> GantryVariant:
+        """The variant with the largest sync error (a trip first)."""
+        return max(self.variants, key=lambda v: (v.tripped, v.max_sync_error_counts))
+
+    @property
+    def passed(self) -> bool:
+        return all(not v.tripped for v in self.variants)
+
+    def to_dict(self) -> dict[str, Any]:
+        k, n, frac, lo, hi = self.pass_fraction
+        return {"seed": self.seed, "count": n, "passed": k, "fraction": frac,
+                "interval95": [lo, hi], "worst": self.worst.to_dict(),
+                "tripped": [v.to_dict() for v in self.variants if v.tripped]}  # fmt: skip
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
 class SyncComparison:
     """Max/RMS sync error per topology and case (:func:`compare_topologies`).
 
@@ -135,6 +206,9 @@ class SyncComparison:
         on some plant), empty if they passed.
     margins : tuple of LoopMargins
         Every loop on every plant case (:func:`~servotune.arch.gantry.margins.gantry_margins`).
+    montecarlo : GantryMonteCarlo or None
+        The deployed topology over drawn plant pairs (:func:`~servotune.arch.gantry.run.
+        gantry_montecarlo`), where it was run.
     """
 
     config: GantryConfig
@@ -143,6 +217,7 @@ class SyncComparison:
     predicted: LoadPrediction | None
     failed: tuple[str, ...]
     margins: tuple[LoopMargins, ...] = ()
+    montecarlo: GantryMonteCarlo | None = None
 
     def worst_margins(self) -> dict[str, LoopMargins]:
         """Per loop (``master``, ``slave``, ``sync``), its case with the least phase margin."""
@@ -192,6 +267,7 @@ class SyncComparison:
                                               "trip_counts": c.sync.trip_counts},
             "sync_constants": c.sync_constants.to_dict(),
             "results": [r.to_dict() for r in self.rows],
+            "montecarlo": None if self.montecarlo is None else self.montecarlo.to_dict(),
             "predicted_load": {} if self.predicted is None else self.predicted.to_dict(),
             "passed": self.passed,
             "failed": list(self.failed),

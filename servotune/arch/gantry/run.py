@@ -31,6 +31,8 @@ is only its scheduling and routing:
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 
@@ -47,7 +49,12 @@ from servotune.arch.gantry.config import (
 )
 from servotune.arch.gantry.design import predicted_load_reduction
 from servotune.arch.gantry.margins import gantry_margins
-from servotune.arch.gantry.result import GantryTrace, SyncComparison
+from servotune.arch.gantry.result import (
+    GantryMonteCarlo,
+    GantryTrace,
+    GantryVariant,
+    SyncComparison,
+)
 from servotune.budget import check_memory
 from servotune.fixed import shift_round
 from servotune.laws.axis import FLAG_SYNC_TRIP, MODE_TASK, N_STATE, S_FAULT
@@ -74,6 +81,7 @@ from servotune.validate import show_value
 
 __all__ = [
     "compare_topologies",
+    "gantry_montecarlo",
     "move_profile",
     "simulate_gantry",
 ]
@@ -317,18 +325,21 @@ def simulate_gantry(
                        stop_bound_cycles=cfg.stop_bound_cycles)  # fmt: skip
 
 
+_MC_MAX = 1_000_000  # plant pairs of a Monte-Carlo run
+
 _LOOP_NAMES = {"master": "the master's drive loop", "slave": "the slave's drive loop",
                "sync": "the sync loop"}  # fmt: skip
 
 
-def compare_topologies(cfg: GantryConfig, *, seed: int = 0) -> SyncComparison:
+def compare_topologies(cfg: GantryConfig, *, seed: int = 0, montecarlo: int = 0) -> SyncComparison:
     """Every topology in every case (:data:`CASES`): max/RMS sync error, warnings, trips; and
     the margins of every loop over the plant set (:func:`~servotune.arch.gantry.margins.
     gantry_margins`).
 
     The checks: the deployed topology (``cfg.topology``) must not trip in any case, and every
     loop it runs must keep ``cfg.margins``' limits over the plant set (a failure names the
-    loop, the plant case and the limit).
+    loop, the plant case and the limit); with ``montecarlo`` > 0, no drawn plant pair may trip
+    (:func:`gantry_montecarlo`, seeded by ``seed``).
     """
     n_runs = len(CASES) * len(TOPOLOGIES)  # every trace is kept
     check_memory(
@@ -355,5 +366,60 @@ def compare_topologies(cfg: GantryConfig, *, seed: int = 0) -> SyncComparison:
             m, broken = min(bad, key=lambda mb: (mb[0].stable, mb[0].phase_margin_deg))
             failed.append(f"margins: {_LOOP_NAMES[loop]} on plant {m.plant}: "
                           f"{'; '.join(broken)}")  # fmt: skip
+    mc = gantry_montecarlo(cfg, montecarlo, seed=seed) if montecarlo else None
+    if mc is not None and not mc.passed:
+        k, n, *_ = mc.pass_fraction
+        w = mc.worst
+        drawn = ", ".join(f"{key.replace('_', ' ')} x{v:.3f}" for key, v in w.factors.items())
+        failed.append(f"Monte Carlo: {n - k} of {n} plant pairs trip (first by size: {w.label}: "
+                      f"{drawn})")  # fmt: skip
     return SyncComparison(config=cfg, rows=tuple(rows), traces=tuple(traces), predicted=predicted,
-                          failed=tuple(failed), margins=margins)  # fmt: skip
+                          failed=tuple(failed), margins=margins, montecarlo=mc)  # fmt: skip
+
+
+def gantry_montecarlo(
+    cfg: GantryConfig,
+    count: int,
+    *,
+    seed: int = 0,
+    progress: Callable[[str], None] | None = None,
+) -> GantryMonteCarlo:
+    """Run the deployed topology in every case over ``count`` drawn plant pairs inside the
+    ``[margins]`` spreads (each drive's gain and tau independently uniform in ``× [1 − s,
+    1 + s]``), ``cfg``'s resolved gains kept, on the bit-true gantry loop. A pair passes if the
+    monitor trips in no case; the same config, count and seed give the same result.
+
+    Raises
+    ------
+    ValueError
+        If ``count`` is not in 1..1,000,000.
+    """
+    if not isinstance(count, int) or not 1 <= count <= _MC_MAX:
+        raise ValueError(f"count must be an integer in 1..{_MC_MAX:,}, got {count!r}")
+    say = progress or (lambda _msg: None)
+    m = cfg.margins
+    rng = np.random.default_rng([seed, 0x67616E74])  # a stream of its own ("gant")
+    draws = rng.uniform(-1.0, 1.0, (count, 4))
+    spreads = np.array([m.gain_spread, m.tau_spread, m.gain_spread, m.tau_spread])
+    factors = 1.0 + draws * spreads
+    out = []
+    for i, (fmg, fmt, fsg, fst) in enumerate(factors):
+        if i and i % 100 == 0:
+            say(f"sync: Monte Carlo {i}/{count}")
+        plants = {}
+        for name, fg, ft in (("master", fmg, fmt), ("slave", fsg, fst)):
+            p = getattr(cfg, name).plant
+            changes = {"gain_cps_per_v": p.gain_cps_per_v * fg, "tau_s": p.tau_s * ft}
+            if p.gain_neg_cps_per_v is not None:
+                changes["gain_neg_cps_per_v"] = p.gain_neg_cps_per_v * fg
+            plants[name] = replace(getattr(cfg, name), plant=replace(p, **changes))
+        c = replace(cfg, **plants)
+        worst, tripped = 0.0, False
+        for case in CASES:
+            r = simulate_gantry(c, case=case, seed=seed + 1 + i).metrics()
+            worst = max(worst, r.max_sync_error_counts)
+            tripped |= r.tripped
+        out.append(GantryVariant(index=i, factors={
+            "master_gain": float(fmg), "master_tau": float(fmt), "slave_gain": float(fsg),
+            "slave_tau": float(fst)}, max_sync_error_counts=worst, tripped=tripped))  # fmt: skip
+    return GantryMonteCarlo(seed=seed, variants=tuple(out))

@@ -1,0 +1,76 @@
+"""Monte-Carlo over the gantry's drives (issue 19, point 3): deterministic by seed, its interval
+the exact binomial one (checked against scipy's ``binomtest``), a trip in a drawn pair fails the
+check naming the pair, and the named pair trips when run on its own."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import pytest
+from scipy.stats import binomtest
+
+from servotune.arch.gantry import CASES, compare_topologies, gantry_montecarlo, simulate_gantry
+from servotune.arch.gantry.load import load_gantry
+from servotune.cli import main
+
+ROOT = Path(__file__).resolve().parents[3]
+GANTRY = ROOT / "plants" / "gantry.toml"
+
+
+@pytest.fixture(scope="module")
+def cfg():
+    return load_gantry(GANTRY)
+
+
+def _tight(cfg):
+    """A trip threshold between the nominal gantry's worst sync error (552 counts, mismatch,
+    listening) and what drawn plants reach: the nominal passes, some drawn pairs trip."""
+    return dataclasses.replace(cfg, sync=dataclasses.replace(cfg.sync, trip_counts=900))
+
+
+def test_same_seed_same_result_and_draws_inside_the_spreads(cfg) -> None:
+    a = gantry_montecarlo(cfg, 12, seed=3)
+    assert a == gantry_montecarlo(cfg, 12, seed=3)
+    assert a.variants != gantry_montecarlo(cfg, 12, seed=4).variants
+    for v in a.variants:
+        assert 0.8 <= v.factors["master_gain"] <= 1.2 and 0.7 <= v.factors["slave_tau"] <= 1.3
+    with pytest.raises(ValueError, match="count must be an integer"):
+        gantry_montecarlo(cfg, 0)
+
+
+def test_pass_fraction_interval_is_the_exact_binomial_one(cfg) -> None:
+    mc = gantry_montecarlo(_tight(cfg), 30, seed=0)
+    k, n, frac, lo, hi = mc.pass_fraction
+    assert n == 30 and 0 < k < n  # some pairs trip at the tight threshold, not all
+    ref = binomtest(k, n).proportion_ci(confidence_level=0.95, method="exact")
+    assert (lo, hi) == pytest.approx((ref.low, ref.high), abs=1e-9)
+    assert frac == k / n and not mc.passed
+
+
+def test_a_tripping_pair_fails_the_check_and_trips_on_its_own(cfg) -> None:
+    tight = _tight(cfg)
+    cmp = compare_topologies(tight, montecarlo=30)
+    assert cmp.row("listening", "mismatch").tripped is False  # the nominal gantry passes
+    assert not cmp.passed
+    line = [f for f in cmp.failed if f.startswith("Monte Carlo:")]
+    w = cmp.montecarlo.worst
+    assert len(line) == 1 and f"first by size: {w.label}: master gain x" in line[0]
+    # rebuild the named pair from its factors and run it: it trips
+    f = w.factors
+    plants = {}
+    for name in ("master", "slave"):
+        p = getattr(tight, name).plant
+        plants[name] = dataclasses.replace(getattr(tight, name), plant=dataclasses.replace(
+            p, gain_cps_per_v=p.gain_cps_per_v * f[f"{name}_gain"],
+            tau_s=p.tau_s * f[f"{name}_tau"]))  # fmt: skip
+    pair = dataclasses.replace(tight, **plants)
+    assert any(simulate_gantry(pair, case=c, seed=1 + w.index).metrics().tripped for c in CASES)
+    doc = cmp.to_dict()["montecarlo"]
+    assert doc["count"] == 30 and doc["worst"]["label"] == w.label
+
+
+def test_cli_sync_montecarlo(capsys) -> None:
+    assert main(["sync", str(GANTRY), "--montecarlo", "8"]) == 0
+    out = capsys.readouterr().out
+    assert "Monte Carlo: 8 of 8 plant pairs never trip (100.0 %; 95 % interval 63.1–100.0 %" in out
