@@ -275,7 +275,10 @@ def _cmd_verify(args: argparse.Namespace) -> int:
     result, record, path = verify_files(args.tuning, args.spec, args.rig, seed=args.seed,
                                         montecarlo=args.montecarlo,
                                         progress=_progress)  # fmt: skip
-    _print_product(args.json, lambda: record, lambda: format_table(result))
+    if args.json:  # DECISIONS 10: stdout carries only the product; the summary is stderr's
+        print(json.dumps(record, indent=2, sort_keys=True))
+    else:
+        print(format_table(result), file=sys.stderr)
     print(f"wrote the verification record to {path}", file=sys.stderr)
     if args.report:
         from servotune.report import write_report

@@ -28,8 +28,9 @@ def tunings(tmp_path_factory, default_tuning, quick_tuning) -> dict[str, Path]:
 def test_passing_tuning_exits_0_and_records(tunings, capsys, tmp_path) -> None:
     rc = main(["verify", str(tunings["good"]), "--spec", str(SPEC), "--rig", str(RIG),
                "--report", str(tmp_path / "rep")])  # fmt: skip
-    out = capsys.readouterr().out
-    assert rc == 0 and out.rstrip().endswith("PASSED")
+    cap = capsys.readouterr()
+    # the human summary on stderr, stdout left for products (DECISIONS 10)
+    assert rc == 0 and cap.out == "" and "PASSED\nwrote the verification record" in cap.err
     rec = json.loads(Path(str(tunings["good"]) + ".verify.json").read_text())
     assert rec["passed"] is True
     page = (tmp_path / "rep" / "report.html").read_text()
@@ -38,9 +39,13 @@ def test_passing_tuning_exits_0_and_records(tunings, capsys, tmp_path) -> None:
 
 def test_failing_tuning_exits_1_naming_the_limit(tunings, capsys) -> None:
     rc = main(["verify", str(tunings["quick"]), "--spec", str(SPEC), "--rig", str(RIG)])
-    out = capsys.readouterr().out
-    assert rc == 1
-    assert "max_sync_error_counts" in out and "FAIL" in out
+    cap = capsys.readouterr()
+    assert rc == 1 and cap.out == ""
+    assert "max_sync_error_counts" in cap.err and "FAIL" in cap.err
+    # --json: the record on stdout (the product), nothing else there
+    rc = main(["verify", str(tunings["quick"]), "--spec", str(SPEC), "--rig", str(RIG), "--json"])
+    doc = json.loads(capsys.readouterr().out)
+    assert rc == 1 and doc["passed"] is False
 
 
 def test_bad_inputs_exit_3_one_line_nothing_written(tunings, tmp_path, capsys) -> None:
