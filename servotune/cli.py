@@ -233,6 +233,7 @@ def _cmd_excite(args: argparse.Namespace) -> int:
 
 def _cmd_tune(args: argparse.Namespace) -> int:
     from servotune.report.text import format_tuning_summary
+    from servotune.rig import load_rig
     from servotune.tune.slave import tune_spec_from
     from servotune.tune.workflow import tune_rig, tuning_summary
     from servotune.tuning import current_tuning_path, tuning_to_string, write_tuning
@@ -248,7 +249,8 @@ def _cmd_tune(args: argparse.Namespace) -> int:
               "min_gain_margin_db", "max_sensitivity")  # fmt: skip
     given = {k: getattr(args, k) for k in limits if getattr(args, k) is not None}
     budget = {"generations": args.generations, "population": args.population}
-    spec = tune_spec_from(load_spec(args.spec) if args.spec else None, **budget, **given)
+    spec = tune_spec_from(load_spec(args.spec) if args.spec else None, rig=load_rig(args.rig),
+                          **budget, **given)  # fmt: skip
     tuning = tune_rig(args.rig, seed=args.seed, spec=spec, rule_base=args.rule_base,
                       progress=_progress)  # fmt: skip
     if args.json:

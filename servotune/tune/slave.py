@@ -177,7 +177,7 @@ def tuning_run(spec: Any) -> Any:
     return next((s for s in syncs if s.name == "sync"), syncs[0] if syncs else None)
 
 
-def tune_spec_from(spec: Any = None, **overrides: Any) -> SlaveTuneSpec:
+def tune_spec_from(spec: Any = None, *, rig: Rig | None = None, **overrides: Any) -> SlaveTuneSpec:
     """The slave tuner's spec that designs for what a verification spec checks.
 
     From ``spec`` (a :class:`servotune.verify.spec.Spec`; None: the defaults): the margin
@@ -191,8 +191,11 @@ def tune_spec_from(spec: Any = None, **overrides: Any) -> SlaveTuneSpec:
     Raises
     ------
     SpecError
-        An override that is not a field of :class:`SlaveTuneSpec`, or an invalid value.
+        An override that is not a field of :class:`SlaveTuneSpec`, an invalid value, or a spec
+        written for another rig than ``rig`` (where both name one).
     """
+    if spec is not None and rig is not None and spec.rig is not None and spec.rig != rig.name:
+        raise SpecError(f"spec {spec.name!r} is written for rig {spec.rig!r}, not {rig.name!r}")
     unknown = set(overrides) - {f.name for f in dataclasses.fields(SlaveTuneSpec)}
     if unknown:
         raise SpecError(f"unknown tuning option(s): {', '.join(sorted(unknown))}")

@@ -7,6 +7,7 @@ built from the designed gains), never the screen the designs were made with.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import re
 from pathlib import Path
@@ -151,6 +152,9 @@ def test_tune_spec_follows_the_verification_spec(tmp_path) -> None:
     assert tune_spec_from().min_phase_margin_deg == DEFAULT_LIMITS.min_phase_margin_deg
     with pytest.raises(SpecError, match="unknown tuning option"):
         tune_spec_from(spec, pm=50.0)
+    other = dataclasses.replace(st.load_rig(RIG), name="another-rig")
+    with pytest.raises(SpecError, match="written for rig 'pc-dual-servo', not 'another-rig'"):
+        tune_spec_from(spec, rig=other)
 
 
 def test_tune_flags_win_over_the_spec(tmp_path, monkeypatch) -> None:
