@@ -63,13 +63,16 @@ def test_a_signal_to_a_long_run_ends_it_cleanly(sig, code, word, tmp_path) -> No
         cwd=tmp_path, env=env,
     )  # fmt: skip
     try:
-        deadline = time.monotonic() + 120
+        # wait until the optimiser is in its generation loop: before that a cold start may be
+        # compiling the kernels (minutes on a loaded 2-core machine), and LLVM holds the
+        # interpreter while it compiles, so a signal then waits for the compile to return
+        deadline = time.monotonic() + 600
         started = False
         lines = []
-        while time.monotonic() < deadline:  # wait for the tuner's first progress line
+        while time.monotonic() < deadline:
             line = proc.stderr.readline()
             lines.append(line)
-            if line.startswith("tune:"):
+            if line.startswith("tune composite: generation 1/"):
                 started = True
                 break
             if not line and proc.poll() is not None:
