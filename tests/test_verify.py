@@ -18,7 +18,7 @@ from servotune.fixed import E_MAX, INT64_MAX, Fixed
 from servotune.laws.fuzzy_pid import FuzzyPIDGains
 from servotune.laws.pi import PIConstants
 from servotune.report.text import format_table
-from servotune.rig import EXAMPLE_RIG_PATH, load_rig
+from servotune.rig import EXAMPLE_RIG_PATH, PlantFit, load_rig
 from servotune.tuning import Tuning, file_sha256, read_tuning, write_tuning
 from servotune.verify import (
     ScenarioSpec,
@@ -176,6 +176,33 @@ def test_spec_for_another_rig_or_axis_is_refused(good, rig, spec) -> None:
     mc = dataclasses.replace(spec.montecarlo, axes=("gantry",))
     with pytest.raises(SpecError, match=r"montecarlo\.axes names 'gantry'"):
         verify(good, rig, dataclasses.replace(small(spec), montecarlo=mc))
+
+
+def test_plant_variants_widen_to_the_identified_intervals(rig, spec) -> None:
+    # issue 18 (2): the plant set is the identification's intervals, widened by the spec's
+    # spreads; an identified gain interval of -35 %/+40 % is wider than the spec's ±20 %
+    slave = rig.axis("slave")
+    g0, off0 = slave.plant.gain_cps_per_v, slave.plant.offset_v
+    fit = PlantFit(method="iv", structure=("gain_cps_per_v", "offset_v"), friction="sym",
+                      adequate=True, ci95={"gain_cps_per_v": (0.65 * g0, 1.4 * g0),
+                                           "offset_v": (off0 - 0.01, off0 + 0.001)})  # fmt: skip
+    fitted = dataclasses.replace(rig, axes=(rig.axes[0], dataclasses.replace(slave, plant_fit=fit)))
+    mc = dataclasses.replace(spec.montecarlo, count=3000)
+    v = plant_variants(fitted, mc)[1:]
+    gains = np.array([x.plants[1].gain_cps_per_v for x in v]) / g0
+    assert gains.min() == pytest.approx(0.65, abs=0.01) and gains.max() == pytest.approx(
+        1.4, abs=0.01
+    )
+    offs = np.array([x.plants[1].offset_v for x in v]) - off0
+    # below: the interval (10 mV) is wider than the spread (2 mV); above: the spread is wider
+    assert offs.min() == pytest.approx(-0.01, abs=1e-4) and offs.max() == pytest.approx(
+        0.002, abs=1e-4
+    )
+    taus = np.array([x.plants[1].tau_s for x in v]) / slave.plant.tau_s  # no interval: spread
+    assert taus.min() == pytest.approx(0.7, abs=0.01) and taus.max() == pytest.approx(1.3, abs=0.01)
+    # without a fit record (or a narrower one) the draws are the spec spread's, bit for bit
+    plain = plant_variants(rig, mc)
+    assert [x.plants[0] for x in plain] == [x.plants[0] for x in plant_variants(fitted, mc)]
 
 
 def test_plant_variants_stay_in_their_ranges(rig, spec) -> None:

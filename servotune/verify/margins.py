@@ -72,6 +72,7 @@ __all__ = [
     "loop_model",
     "plant_cases",
     "plant_response",
+    "spread_factors",
     "tuning_margins",
     "unwrapped_phase",
 ]
@@ -565,9 +566,13 @@ class PlantCase:
     period_s: float
 
 
-def _spread(plant: Plant, fit: Any, key: str, spread: float) -> tuple[float, float]:
+def spread_factors(plant: Plant, fit: Any, key: str, spread: float) -> tuple[float, float]:
     """Low and high factor on ``key``: the wider of the identification's 95 % interval (the
-    axis's plant fit record, where the rig has one) and ``± spread``."""
+    axis's plant fit record, where the rig has one) and ``± spread``.
+
+    >>> spread_factors(Plant(gain_cps_per_v=100.0, tau_s=0.02), None, "tau_s", 0.3)
+    (0.7, 1.3)
+    """
     v = float(getattr(plant, key))
     lo, hi = 1.0 - spread, 1.0 + spread
     ci = getattr(fit, "ci95", {}) if fit is not None else {}
@@ -621,8 +626,8 @@ def plant_cases(
             for st_ in (-1, 1):
                 plants = []
                 for a in rig.axes:
-                    g = _spread(a.plant, a.plant_fit, "gain_cps_per_v", gain_spread)
-                    tt = _spread(a.plant, a.plant_fit, "tau_s", tau_spread)
+                    g = spread_factors(a.plant, a.plant_fit, "gain_cps_per_v", gain_spread)
+                    tt = spread_factors(a.plant, a.plant_fit, "tau_s", tau_spread)
                     fg, ft = g[sg > 0], tt[st_ > 0]
                     changes: dict[str, Any] = {"gain_cps_per_v": a.plant.gain_cps_per_v * fg,
                                                "tau_s": a.plant.tau_s * ft}  # fmt: skip
@@ -653,8 +658,8 @@ def plant_cases(
     for i in range(samples):
         plants = []
         for a in rig.axes:
-            g = rng.uniform(*_spread(a.plant, a.plant_fit, "gain_cps_per_v", gain_spread))
-            tt = rng.uniform(*_spread(a.plant, a.plant_fit, "tau_s", tau_spread))
+            g = rng.uniform(*spread_factors(a.plant, a.plant_fit, "gain_cps_per_v", gain_spread))
+            tt = rng.uniform(*spread_factors(a.plant, a.plant_fit, "tau_s", tau_spread))
             changes = {"gain_cps_per_v": a.plant.gain_cps_per_v * g, "tau_s": a.plant.tau_s * tt}
             if a.plant.gain_neg_cps_per_v is not None:
                 changes["gain_neg_cps_per_v"] = a.plant.gain_neg_cps_per_v * g

@@ -26,14 +26,15 @@ __all__ = [
 # --- results -------------------------------------------------------------------------------
 
 
-def clopper_pearson(k: int, n: int, level: float = 0.95) -> tuple[float, float]:
-    """The exact (Clopper–Pearson) ``level`` interval of a probability from ``k`` successes in
-    ``n`` trials, ``n >= 1``: it holds the true probability at least ``level`` of the time.
+def clopper_pearson(k: int, n: int, alpha: float = 0.05) -> tuple[float, float]:
+    """The exact (Clopper–Pearson) ``1 − alpha`` interval of a probability from ``k`` successes
+    in ``n`` trials, ``n >= 1``: it holds the true probability at least ``1 − alpha`` of the
+    time.
 
     >>> [round(x, 4) for x in clopper_pearson(64, 64)]
     [0.944, 1.0]
     """
-    a = (1.0 - level) / 2.0
+    a = alpha / 2.0
     lo = 0.0 if k == 0 else float(beta.ppf(a, k, n - k + 1))
     hi = 1.0 if k == n else float(beta.ppf(1.0 - a, k + 1, n - k))
     return lo, hi

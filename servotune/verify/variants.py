@@ -13,6 +13,7 @@ from servotune.errors import SpecError
 from servotune.plant import Plant
 from servotune.rig import Rig
 from servotune.validate import show_value
+from servotune.verify.margins import spread_factors
 from servotune.verify.spec import MonteCarlo
 
 __all__ = [
@@ -80,6 +81,9 @@ def plant_variants(rig: Rig, mc: MonteCarlo, seed: int | None = None) -> tuple[V
     out = [Variant(label="nominal", plants=nominal)]
     rng = np.random.default_rng(_seed_seqs(mc.seed if seed is None else seed)[0])
     u = rng.uniform(-1.0, 1.0, size=(mc.count, len(names), 4))
+    # per axis, the draw's map onto each parameter: the spec's spread, or the identified 95 %
+    # interval where that is wider (the fit record of a fitted rig)
+    maps = [_maps(a.plant, a.plant_fit, mc) for a in rig.axes]
     for i in range(mc.count):
         plants = []
         for j, p in enumerate(nominal):
@@ -87,13 +91,14 @@ def plant_variants(rig: Rig, mc: MonteCarlo, seed: int | None = None) -> tuple[V
                 plants.append(p)
                 continue
             g, t, o, c = (float(x) for x in u[i, j])
-            g_f, c_f = 1.0 + mc.gain_spread * g, 1.0 + mc.coulomb_spread * c
+            gain, tau, offset, coulomb = maps[j]
+            g_f, c_f = gain(g), coulomb(c)
             plants.append(
                 replace(
                     p,
                     gain_cps_per_v=p.gain_cps_per_v * g_f,
-                    tau_s=p.tau_s * (1.0 + mc.tau_spread * t),
-                    offset_v=p.offset_v + mc.offset_spread_v * o,
+                    tau_s=p.tau_s * tau(t),
+                    offset_v=p.offset_v + offset(o),
                     coulomb_v=p.coulomb_v * c_f,
                     gain_neg_cps_per_v=_scaled(p.gain_neg_cps_per_v, g_f),
                     coulomb_neg_v=_scaled(p.coulomb_neg_v, c_f),
@@ -101,6 +106,38 @@ def plant_variants(rig: Rig, mc: MonteCarlo, seed: int | None = None) -> tuple[V
             )
         out.append(Variant(label=f"mc{i + 1}", plants=tuple(plants)))
     return tuple(out)
+
+
+def _linear(lo: float, hi: float, centre: float, half: float) -> Any:
+    """``u ∈ [−1, 1]`` onto ``[lo, hi]``: ``centre + half·u`` when that is the interval
+    (bit for bit the spec-spread draw), else the interval's own midpoint and half-width."""
+    if (lo, hi) == (centre - half, centre + half):
+        return lambda u: centre + half * u
+    mid, rad = 0.5 * (lo + hi), 0.5 * (hi - lo)
+    return lambda u: mid + rad * u
+
+
+def _maps(plant: Plant, fit: Any, mc: MonteCarlo) -> tuple[Any, Any, Any, Any]:
+    """Per parameter (gain factor, tau factor, offset shift [V], Coulomb factor) the map of a
+    uniform draw in [−1, 1]: onto ``1 ± spread`` (``± offset_spread_v``), widened to the
+    identification's 95 % interval where the axis's fit record has a wider one."""
+    out = []
+    for key, spread in (("gain_cps_per_v", mc.gain_spread), ("tau_s", mc.tau_spread)):
+        out.append(_linear(*spread_factors(plant, fit, key, spread), 1.0, spread))
+    ci = getattr(fit, "ci95", {}) if fit is not None else {}
+    s = mc.offset_spread_v
+    lo, hi = -s, s
+    if "offset_v" in ci:
+        lo = min(lo, ci["offset_v"][0] - plant.offset_v)
+        hi = max(hi, ci["offset_v"][1] - plant.offset_v)
+    out.append(_linear(lo, hi, 0.0, s))
+    if plant.coulomb_v > 0:
+        out.append(_linear(*spread_factors(plant, fit, "coulomb_v", mc.coulomb_spread), 1.0,
+                           mc.coulomb_spread))  # fmt: skip
+    else:
+        out.append(_linear(1.0 - mc.coulomb_spread, 1.0 + mc.coulomb_spread, 1.0,
+                           mc.coulomb_spread))  # fmt: skip
+    return out[0], out[1], out[2], out[3]
 
 
 def _scaled(value: float | None, factor: float) -> float | None:
