@@ -160,9 +160,7 @@ class SlaveTuneSpec:
     @property
     def limits(self) -> MarginLimits:
         """The robustness limits as a :class:`~servotune.verify.margins.MarginLimits`."""
-        return MarginLimits(min_phase_margin_deg=self.min_phase_margin_deg,
-                            min_gain_margin_db=self.min_gain_margin_db,
-                            max_sensitivity=self.max_sensitivity)  # fmt: skip
+        return MarginLimits.of(self)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict."""

@@ -109,6 +109,12 @@ class MarginLimits:
         check_number("max_sensitivity", self.max_sensitivity, "1", lo=1.0, strict=True, hi=100.0,
                      error=e)  # fmt: skip
 
+    @classmethod
+    def of(cls, owner: Any) -> MarginLimits:
+        """The limits held by ``owner`` (a tuning spec, a gantry's ``[margins]``) in attributes
+        named as this class's fields."""
+        return cls(**{f.name: getattr(owner, f.name) for f in fields(cls)})
+
     def broken(self, m: LoopMargins) -> tuple[str, ...]:
         """The limits ``m`` breaks, each as a phrase (empty: it meets them all)."""
         return self.broken_figures({f.name: getattr(m, f.name) for f in fields(m)})

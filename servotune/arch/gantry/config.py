@@ -280,9 +280,7 @@ class GantryMargins:
     def limits(self) -> MarginLimits:
         """The three limits as a :class:`~servotune.verify.margins.MarginLimits`."""
         try:
-            return MarginLimits(min_phase_margin_deg=self.min_phase_margin_deg,
-                                min_gain_margin_db=self.min_gain_margin_db,
-                                max_sensitivity=self.max_sensitivity)  # fmt: skip
+            return MarginLimits.of(self)
         except SpecError as exc:
             raise ConfigError(str(exc)) from None
 
