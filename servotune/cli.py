@@ -353,8 +353,7 @@ def _cmd_check_table(args: argparse.Namespace) -> int:
 
 
 def _cmd_compare(args: argparse.Namespace) -> int:
-    from servotune.pipeline import DemoPreset, run_comparison
-    from servotune.report.text import figure4_statement
+    from servotune.pipeline import DemoPreset, comparison_statement, run_comparison
     from servotune.rig import load_rig
     from servotune.verify.spec import load_spec
 
@@ -373,7 +372,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
                         pareto_ms=ms)  # fmt: skip
     cmp = run_comparison(rig, spec, args.out, preset=preset, seed=args.seed,
                          progress=_progress)  # fmt: skip
-    print(figure4_statement(cmp.table, cmp.spread if args.seeds > 1 else None), file=sys.stderr)
+    print("\n".join(comparison_statement(cmp)), file=sys.stderr)
     if args.json:
         sys.stdout.write((Path(args.out) / "figure4.json").read_text())
     print(f"wrote figure4.png, figure4.json{', pareto.png' if ms else ''} to {args.out}",

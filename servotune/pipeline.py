@@ -54,6 +54,7 @@ from servotune.verify.spec import Spec, load_spec
 __all__ = [
     "PRESETS",
     "DemoPreset",
+    "comparison_statement",
     "comparison_table_text",
     "default_pi_gains",
     "fit_log",
@@ -327,9 +328,7 @@ def run_demo(
     summary = {
         "architectures": architectures,
         "comparison": cmp.to_dict()["table"],
-        "figure4_statement": figure4_statement(
-            cmp.table, cmp.spread if len(cmp.seeds) > 1 else None
-        ).splitlines(),
+        "figure4_statement": comparison_statement(cmp),
         "exported": exported,
         "verification": {"passed": verification.passed, "failures": verification.failures},
         "identification": identification,
@@ -419,6 +418,12 @@ PRESETS = {
 """The demo's presets."""
 
 
+def comparison_statement(cmp: Any) -> list[str]:
+    """The lines of :func:`~servotune.report.text.figure4_statement` for a comparison (with its
+    ranges where it ran more than one seed)."""
+    return figure4_statement(cmp.table, cmp.spread if len(cmp.seeds) > 1 else None).splitlines()
+
+
 def run_comparison(
     rig: Rig,
     spec: Spec,
@@ -446,9 +451,7 @@ def run_comparison(
     save_figure(plot_comparison(dict(cmp.traces), slave), out / "figure4.png")
     data = {"schema": "servotune.figure4/2", "seed": seed, "version": __version__}
     data.update(cmp.to_dict())
-    data["statement"] = figure4_statement(
-        cmp.table, cmp.spread if len(cmp.seeds) > 1 else None
-    ).splitlines()
+    data["statement"] = comparison_statement(cmp)
     data["pareto"] = []
     if preset.pareto_ms:
         points = pareto_front(rig, tune, preset.pareto_ms, seed=seed, progress=progress)
