@@ -141,15 +141,15 @@ def resolve_gains(cfg: GantryConfig) -> GantryConfig:
             continue
         out = _with_drive_pi(cfg, name, ax.plant, cfg.bus.compute_s, DEFAULT_TARGETS)
         if not _keeps(out, name):
-            out = _with_drive_pi(cfg, name, worst_corner(ax.plant, m), late, _aim(cfg))
+            out = _with_drive_pi(cfg, name, worst_corner(ax, m), late, _aim(cfg))
         cfg = out
     s = cfg.sync
     if s.kp is None or (s.law == "pi" and s.ki is None):
         out = replace(cfg, sync=tune_sync(cfg))
         if not _keeps(out, "sync"):
-            high = worst_corner(cfg.slave.plant, m)
+            high = worst_corner(cfg.slave, m)
             low = replace(high, gain_cps_per_v=cfg.slave.plant.gain_cps_per_v
-                          * (1.0 - m.gain_spread))  # fmt: skip
+                          * (1.0 - m.spreads(cfg.slave)[0]))  # fmt: skip
             # the sync loop's worst corner moves with its gains: aim at each candidate with a
             # little more phase until every case keeps the limits
             for more in (0.0, 1.0, 2.0, 4.0, 8.0):

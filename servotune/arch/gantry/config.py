@@ -155,6 +155,9 @@ class GantryAxis:
         Drive following-error trip [counts], 0 off.
     counter_init : int
         Counter register at power-up.
+    gain_spread, tau_spread : float or None
+        This drive's relative spread of gain and time constant in the robustness checks [1],
+        0..0.9 (e.g. from its own identification); None: the ``[margins]`` table's.
     """
 
     plant: Plant
@@ -162,11 +165,16 @@ class GantryAxis:
     ki: float | None = None
     following_error_limit_counts: int = 0
     counter_init: int = 0
+    gain_spread: float | None = None
+    tau_spread: float | None = None
 
     def __post_init__(self) -> None:
         for name, unit in (("kp", "codes/count"), ("ki", "codes/(count·s)")):
             if getattr(self, name) is not None:
                 check_number(name, getattr(self, name), unit, hi=MAX_GAIN, error=ConfigError)
+        for name in ("gain_spread", "tau_spread"):
+            if getattr(self, name) is not None:
+                check_number(name, getattr(self, name), "1", hi=0.9, error=ConfigError)
         check_integer("following_error_limit_counts", self.following_error_limit_counts,
                       "counts", hi=MAX_COUNTS, error=ConfigError)  # fmt: skip
         check_integer("counter_init", self.counter_init, "register value", hi=2**32 - 1,
@@ -260,7 +268,8 @@ class GantryMargins:
     extra_cycles : int
         Latency every loop must also take [bus cycles], 0..10.
     gain_spread, tau_spread : float
-        Relative spread of both drives' gain and time constant [1], 0..0.9.
+        Relative spread of the drives' gain and time constant [1], 0..0.9, where a drive
+        (``[axis.<name>]``) does not give its own.
     """
 
     min_phase_margin_deg: float = 45.0
@@ -275,6 +284,12 @@ class GantryMargins:
         for name in ("gain_spread", "tau_spread"):
             check_number(name, getattr(self, name), "1", hi=0.9, error=ConfigError)
         self.limits  # noqa: B018 (validates the three limits)
+
+    def spreads(self, axis: GantryAxis) -> tuple[float, float]:
+        """``(gain_spread, tau_spread)`` of a drive: its own where it gives them, else these."""
+        gs = self.gain_spread if axis.gain_spread is None else axis.gain_spread
+        ts = self.tau_spread if axis.tau_spread is None else axis.tau_spread
+        return gs, ts
 
     @property
     def limits(self) -> MarginLimits:

@@ -16,7 +16,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
-from servotune.arch.gantry.config import GantryConfig, GantryMargins
+from servotune.arch.gantry.config import GantryAxis, GantryConfig, GantryMargins
 from servotune.arch.gantry.design import sync_loop_models
 from servotune.plant import Plant
 from servotune.verify.margins import GainSet, LoopMargins, _grid, loop_margins, loop_model
@@ -53,24 +53,27 @@ def _scaled(p: Plant, fg: float, ft: float) -> Plant:
     return replace(p, **changes)
 
 
-def worst_corner(plant: Plant, m: GantryMargins) -> Plant:
-    """The corner a PI on an integrating plant has least margin at: gain and tau both high
-    (the robust designs of :mod:`servotune.tune.sync` aim there; every corner is checked)."""
-    return _scaled(plant, 1.0 + m.gain_spread, 1.0 + m.tau_spread)
+def worst_corner(axis: GantryAxis, m: GantryMargins) -> Plant:
+    """The corner a PI on an integrating plant has least margin at: gain and tau both high,
+    by the drive's spreads (the robust designs of :mod:`servotune.tune.sync` aim there; every
+    corner is checked)."""
+    gs, ts = m.spreads(axis)
+    return _scaled(axis.plant, 1.0 + gs, 1.0 + ts)
 
 
 def gantry_cases(cfg: GantryConfig) -> tuple[GantryCase, ...]:
     """The plant set of ``cfg.margins``: nominal and the four gain/tau corners (both drives at
-    the same corner: each loop sees one drive), each on time and ``extra_cycles`` late."""
+    the same corner, each by its own spreads: each loop sees one drive), each on time and
+    ``extra_cycles`` late."""
     m = cfg.margins
     sets = [("nominal", cfg.master.plant, cfg.slave.plant)]
-    if m.gain_spread > 0 or m.tau_spread > 0:
+    (mg, mt), (sg_, st_) = m.spreads(cfg.master), m.spreads(cfg.slave)
+    if max(mg, mt, sg_, st_) > 0:
         for sg in (-1, 1):
             for st in (-1, 1):
-                fg, ft = 1.0 + sg * m.gain_spread, 1.0 + st * m.tau_spread
                 sets.append((f"gain{'-+'[sg > 0]},tau{'-+'[st > 0]}",
-                             _scaled(cfg.master.plant, fg, ft),
-                             _scaled(cfg.slave.plant, fg, ft)))  # fmt: skip
+                             _scaled(cfg.master.plant, 1.0 + sg * mg, 1.0 + st * mt),
+                             _scaled(cfg.slave.plant, 1.0 + sg * sg_, 1.0 + st * st_)))  # fmt: skip
     lates = [0] + ([m.extra_cycles] if m.extra_cycles > 0 else [])
     return tuple(
         GantryCase(label=label + (f"+{x}cycle" if x else ""), master=pm, slave=ps, extra_cycles=x)

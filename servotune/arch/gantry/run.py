@@ -385,9 +385,10 @@ def gantry_montecarlo(
     progress: Callable[[str], None] | None = None,
 ) -> GantryMonteCarlo:
     """Run the deployed topology in every case over ``count`` drawn plant pairs inside the
-    ``[margins]`` spreads (each drive's gain and tau independently uniform in ``× [1 − s,
-    1 + s]``), ``cfg``'s resolved gains kept, on the bit-true gantry loop. A pair passes if the
-    monitor trips in no case; the same config, count and seed give the same result.
+    drives' spreads (``[margins]``, or a drive's own; each drive's gain and tau independently
+    uniform in ``× [1 − s, 1 + s]``), ``cfg``'s resolved gains kept, on the bit-true gantry
+    loop. A pair passes if the monitor trips in no case; the same config, count and seed give
+    the same result.
 
     Raises
     ------
@@ -400,7 +401,7 @@ def gantry_montecarlo(
     m = cfg.margins
     rng = np.random.default_rng([seed, 0x67616E74])  # a stream of its own ("gant")
     draws = rng.uniform(-1.0, 1.0, (count, 4))
-    spreads = np.array([m.gain_spread, m.tau_spread, m.gain_spread, m.tau_spread])
+    spreads = np.array([*m.spreads(cfg.master), *m.spreads(cfg.slave)])
     factors = 1.0 + draws * spreads
     out = []
     for i, (fmg, fmt, fsg, fst) in enumerate(factors):

@@ -165,3 +165,20 @@ def test_to_dict_carries_the_worst_loops(cfg) -> None:
     assert set(d["margins"]["worst"]) == {"master", "slave", "sync"}
     assert d["margins"]["limits"]["extra_cycles"] == 1
     assert dataclasses.asdict(cfg.margins)["gain_spread"] == 0.2
+
+
+def test_each_drive_may_have_its_own_spread(tmp_path) -> None:
+    # the slave's own identification is poorer: ±40 % gain; the master keeps [margins]' ±20 %
+    text = _anywhere(GANTRY.read_text()).replace(
+        "[axis.slave]\n", "[axis.slave]\ngain_spread = 0.4\n"
+    )
+    path = tmp_path / "g.toml"
+    path.write_text(text)
+    c = load_gantry(path, resolve=False)
+    cases = gantry_cases(c)
+    m0, s0 = c.master.plant.gain_cps_per_v, c.slave.plant.gain_cps_per_v
+    assert sorted({x.master.gain_cps_per_v / m0 for x in cases}) == pytest.approx([0.8, 1, 1.2])
+    assert sorted({x.slave.gain_cps_per_v / s0 for x in cases}) == pytest.approx([0.6, 1, 1.4])
+    path.write_text(text.replace("gain_spread = 0.4", "gain_spread = 1.5"))
+    with pytest.raises(ConfigError, match="gain_spread"):
+        load_gantry(path, resolve=False)

@@ -74,3 +74,12 @@ def test_cli_sync_montecarlo(capsys) -> None:
     assert main(["sync", str(GANTRY), "--montecarlo", "8"]) == 0
     out = capsys.readouterr().out
     assert "Monte Carlo: 8 of 8 plant pairs never trip (100.0 %; 95 % interval 63.1–100.0 %" in out
+
+
+def test_each_drive_draws_by_its_own_spread(cfg) -> None:
+    wide = dataclasses.replace(cfg, slave=dataclasses.replace(cfg.slave, gain_spread=0.5))
+    mc = gantry_montecarlo(wide, 40, seed=1)
+    slave = [v.factors["slave_gain"] for v in mc.variants]
+    master = [v.factors["master_gain"] for v in mc.variants]
+    assert all(0.5 <= f <= 1.5 for f in slave) and max(abs(f - 1) for f in slave) > 0.3
+    assert all(0.8 <= f <= 1.2 for f in master)
