@@ -17,9 +17,11 @@ import numpy as np
 
 from servotune.arch.gantry.config import GantryConfig, SyncSettings
 from servotune.arch.gantry.design import _compensator_tf, _sync_open_loop, sync_loop_models
+from servotune.arch.gantry.margins import gantry_margins, worst_corner
 from servotune.errors import SpecError
 from servotune.laws.sync import SyncGains
 from servotune.tune.pi import DEFAULT_TARGETS, tune_pi
+from servotune.tune.robust import design_limits
 
 __all__ = ["resolve_gains", "tune_sync"]
 
@@ -75,8 +77,6 @@ def tune_sync(cfg: GantryConfig) -> SyncSettings:
 def _keeps(cfg: GantryConfig, axis: str) -> bool:
     """Every loop of ``axis`` (``master``, ``slave`` or ``sync``) keeps ``cfg.margins`` over
     the plant set (python-control, :func:`~servotune.arch.gantry.margins.gantry_margins`)."""
-    from servotune.arch.gantry.margins import gantry_margins
-
     lim = cfg.margins.limits
     return not any(lim.broken(m) for m in gantry_margins(cfg, loops=(axis,)))
 
@@ -84,8 +84,6 @@ def _keeps(cfg: GantryConfig, axis: str) -> bool:
 def _aim(cfg: GantryConfig) -> dict[str, float]:
     """The margin limits tightened as robust designs aim (:func:`~servotune.tune.robust.
     design_limits`), as :func:`~servotune.tune.pi.tune_pi` targets."""
-    from servotune.tune.robust import design_limits
-
     a = design_limits(cfg.margins.limits)
     return {"phase_margin_deg": a.min_phase_margin_deg, "gain_margin_db": a.min_gain_margin_db,
             "max_sensitivity": a.max_sensitivity}  # fmt: skip
@@ -131,8 +129,6 @@ def resolve_gains(cfg: GantryConfig) -> GantryConfig:
     A pure function of the (frozen) config: results are kept for the 32 latest configs, since
     a robust design takes seconds and a session loads the same gantry again and again.
     """
-    from servotune.arch.gantry.margins import worst_corner
-
     m = cfg.margins
     late = cfg.bus.compute_s + m.extra_cycles * cfg.bus.cycle_s
     for name in ("master", "slave"):
