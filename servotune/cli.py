@@ -231,7 +231,44 @@ def _cmd_excite(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+_RIG_ONLY_TUNE = {"spec": None, "rule_base": "default", "generations": 40, "population": 32,
+                  "max_overshoot_pct": None, "max_saturation_pct": None,
+                  "min_phase_margin_deg": None, "min_gain_margin_db": None,
+                  "max_sensitivity": None}  # fmt: skip
+
+
+def _tune_gantry(args: argparse.Namespace, current: Path | None) -> int:
+    from servotune.arch.gantry.tuning import (
+        gantry_tuning_to_string,
+        tune_gantry,
+        write_gantry_tuning,
+    )
+    from servotune.report.text import format_gantry_tuning
+
+    given = [k for k, v in _RIG_ONLY_TUNE.items() if getattr(args, k) != v]
+    if given:
+        flag = "--" + given[0].replace("_", "-")
+        raise ServotuneError(f"{flag} tunes a single rig; a gantry's targets are in its config "
+                             f"({args.rig}: [sync], [margins])")  # fmt: skip
+    _progress(f"tune gantry {args.rig}: each drive's PI, then the sync compensator")
+    tuning = tune_gantry(args.rig)
+    if args.json:
+        print(json.dumps(tuning.design, indent=2, sort_keys=True))
+    else:
+        print(format_gantry_tuning(tuning), file=sys.stderr)
+    if args.output and args.output != "-":
+        write_gantry_tuning(tuning, args.output)
+        print(f"wrote the gantry tuning to {args.output}", file=sys.stderr)
+    else:
+        sys.stdout.write(gantry_tuning_to_string(tuning))
+    if current is not None:
+        write_gantry_tuning(tuning, current)
+        print(f"recorded it as the current tuning ({current})", file=sys.stderr)
+    return EXIT_OK
+
+
 def _cmd_tune(args: argparse.Namespace) -> int:
+    from servotune.arch.kind import config_kind
     from servotune.report.text import format_tuning_summary
     from servotune.rig import load_rig
     from servotune.tune.slave import tune_spec_from
@@ -245,6 +282,12 @@ def _cmd_tune(args: argparse.Namespace) -> int:
         _workbench_dir(current.parent)
     if args.json and (not args.output or args.output == "-"):
         raise ServotuneError("--json prints the summary on stdout: give -o FILE for the tuning")
+    kind = config_kind(args.rig)
+    if kind == "linkage":
+        raise ServotuneError(f"{args.rig} is a linkage config: plan it with `servotune plan "
+                             f"{args.rig}`")  # fmt: skip
+    if kind == "gantry":
+        return _tune_gantry(args, current)
     limits = ("max_overshoot_pct", "max_saturation_pct", "min_phase_margin_deg",
               "min_gain_margin_db", "max_sensitivity")  # fmt: skip
     given = {k: getattr(args, k) for k in limits if getattr(args, k) is not None}
@@ -268,10 +311,35 @@ def _cmd_tune(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _verify_gantry(args: argparse.Namespace) -> int:
+    from servotune.arch.gantry.verify import verify_gantry_files
+    from servotune.report.text import format_gantry_verification
+
+    for flag, value in (("--rig", args.rig), ("--report", args.report)):
+        if value is not None:
+            raise ServotuneError(f"{flag} is for a single rig's tuning; {args.tuning} is a "
+                                 "gantry tuning (its rig is named by its gantry config, "
+                                 "--gantry)")  # fmt: skip
+    result, record, path = verify_gantry_files(args.tuning, args.spec, args.gantry,
+                                               seed=args.seed, montecarlo=args.montecarlo,
+                                               progress=_progress)  # fmt: skip
+    if args.json:
+        print(json.dumps(record, indent=2, sort_keys=True))
+    else:
+        print(format_gantry_verification(result), file=sys.stderr)
+    print(f"wrote the verification record to {path}", file=sys.stderr)
+    return EXIT_OK if result.passed else EXIT_FAILED
+
+
 def _cmd_verify(args: argparse.Namespace) -> int:
+    from servotune.arch.kind import document_kind
     from servotune.report.text import format_table
     from servotune.verify import verify_files
 
+    if document_kind(args.tuning) == "gantry":
+        return _verify_gantry(args)
+    if args.gantry is not None:
+        raise ServotuneError(f"--gantry is for a gantry tuning; {args.tuning} is a rig's")
     if args.report:  # before the run: a report directory that cannot be made fails first
         Path(args.report).mkdir(parents=True, exist_ok=True)
     result, record, path = verify_files(args.tuning, args.spec, args.rig, seed=args.seed,
@@ -305,7 +373,34 @@ def _cmd_margins(args: argparse.Namespace) -> int:
     return EXIT_OK if m.passed else EXIT_FAILED
 
 
+def _export_gantry(args: argparse.Namespace, path: Path) -> int:
+    from servotune.arch.gantry.verify import load_gantry_for_export
+    from servotune.export.gantry import (
+        gantry_document,
+        gantry_tables_to_string,
+        write_gantry_c,
+        write_gantry_tables,
+    )
+
+    if args.rig is not None:
+        raise ServotuneError(f"--rig is for a single rig's tuning; {path} is a gantry tuning "
+                             "(give its gantry config with --gantry)")  # fmt: skip
+    v = load_gantry_for_export(path, args.gantry, args.spec, unverified=args.unverified)
+    doc = gantry_document(v.tuning, v.config.rig, record=v.record, unverified=args.unverified)
+    if args.format == "c":
+        Path(args.output).mkdir(parents=True, exist_ok=True)
+        written = write_gantry_c(doc, args.output)
+        print(f"wrote {', '.join(p.name for p in written)} to {args.output}", file=sys.stderr)
+    elif args.output and args.output != "-":
+        write_gantry_tables(doc, args.output)
+        print(f"wrote the gantry tables to {args.output}", file=sys.stderr)
+    else:
+        sys.stdout.write(gantry_tables_to_string(doc))
+    return EXIT_OK
+
+
 def _cmd_export_table(args: argparse.Namespace) -> int:
+    from servotune.arch.kind import document_kind
     from servotune.export import tables_to_string, write_c, write_tables
     from servotune.tuning import current_tuning_path
     from servotune.verify import load_for_export
@@ -314,6 +409,10 @@ def _cmd_export_table(args: argparse.Namespace) -> int:
     if args.format == "c" and not args.output:
         raise ServotuneError("--format c needs -o DIR (the directory to write the C files into)")
     _check_dirs(args.output if args.format == "json" else None)
+    if document_kind(path) == "gantry":
+        return _export_gantry(args, path)
+    if args.gantry is not None:
+        raise ServotuneError(f"--gantry is for a gantry tuning; {path} is a rig's")
     v = load_for_export(path, args.rig, args.spec, unverified=args.unverified)
     kw = {"rig": v.rig, "verification": v.record, "unverified": v.record is None}
     if args.format == "c":
@@ -328,9 +427,32 @@ def _cmd_export_table(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _check_gantry_table(args: argparse.Namespace) -> int:
+    from servotune.errors import ExportError
+    from servotune.export.gantry import check_gantry_tables
+    from servotune.io.files import read_bytes
+
+    raw = read_bytes(args.file, ExportError, "gantry tables export")
+    doc = check_gantry_tables(raw.decode("utf-8", errors="replace"), args.file)
+    data = doc["data"]
+    if args.json:
+        print(json.dumps({"c_layout_sha256": data["c_layout_sha256"], "file": args.file,
+                          "gantry": data["gantry_name"], "ok": True, "schema": doc["schema"],
+                          "sha256": doc["sha256"], "verified": doc["verified"]},
+                         indent=2, sort_keys=True))  # fmt: skip
+    verified = "verified" if doc["verified"] else "NOT verified (exported --unverified)"
+    print(f"{args.file}: ok: {doc['schema']}, gantry {data['gantry_name']} "
+          f"({data['topology']}), {verified}; both digests match (sha256 "
+          f"{doc['sha256'][:12]}…)", file=sys.stderr)  # fmt: skip
+    return EXIT_OK
+
+
 def _cmd_check_table(args: argparse.Namespace) -> int:
+    from servotune.arch.kind import document_kind
     from servotune.export.json import load_tables
 
+    if document_kind(args.file) == "gantry":
+        return _check_gantry_table(args)
     doc = load_tables(args.file)
     data = doc["data"]
     summary = {
@@ -536,8 +658,12 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("-o", "--output", required=True, help="excitation CSV to write")
     s.set_defaults(func=_cmd_excite)
 
-    s = sub.add_parser("tune", help="tune the master's PI and the slave's fuzzy-PID tables")
-    s.add_argument("rig", help="rig file (TOML)")
+    s = sub.add_parser(
+        "tune",
+        help="tune the master's PI and the slave's fuzzy-PID tables (a rig), or both drives' PI "
+        "and the sync compensator (a gantry config)",
+    )
+    s.add_argument("rig", help="rig file or gantry config (TOML)")
     s.add_argument("-o", "--output", help="tuning file to write (default: stdout)")
     s.add_argument("--seed", type=int, default=0, help="optimiser and noise seed (default 0)")
     s.add_argument("--rule-base", default="default", choices=["default", "classic"])
@@ -599,6 +725,11 @@ def _parser() -> argparse.ArgumentParser:
         help="rig file: a copy of the tuning's rig (default: the path the tuning records, then "
         "plants/<rig name>.toml); another rig is refused (exit 1)",
     )
+    s.add_argument(
+        "--gantry",
+        help="gantry config of a gantry tuning: a copy of the one it was tuned from (default: "
+        "the path the tuning records, then plants/<gantry name>.toml); another is refused",
+    )
     s.add_argument("--seed", type=int, default=None, help="Monte-Carlo seed (default: the spec's)")
     s.add_argument(
         "--montecarlo",
@@ -636,6 +767,11 @@ def _parser() -> argparse.ArgumentParser:
         "--rig",
         help="rig file: a copy of the tuning's rig (default: the path the tuning records, then "
         "plants/<rig name>.toml); another rig is refused",
+    )
+    s.add_argument(
+        "--gantry",
+        help="gantry config of a gantry tuning (default: the path the tuning records); another "
+        "is refused",
     )
     s.add_argument("--spec", help="also require that the verification used this spec file")
     s.add_argument("--unverified", action="store_true", help="export without a passed verify")

@@ -49,6 +49,7 @@ from servotune.rig import Rig
 from servotune.tuning import Tuning
 
 __all__ = [
+    "GANTRY_RUNTIME_FILES",
     "HEADER_NAME",
     "RUNTIME_FILES",
     "runtime_source",
@@ -59,6 +60,9 @@ __all__ = [
 HEADER_NAME = "servotune_tables.h"
 RUNTIME_FILES = ("servotune_rt.c", "servotune_rt.h")
 """The reference runtime's sources (package data of ``servotune.export``)."""
+GANTRY_RUNTIME_FILES = ("servotune_gantry.c", "servotune_gantry.h")
+"""The gantry runtime's sources, on top of :data:`RUNTIME_FILES`
+(:mod:`servotune.export.gantry`)."""
 
 _MAX_AXES = 4  # ST_MAX_AXES default of servotune_rt.h
 _LAW_MACROS = {"none": "ST_LAW_NONE", "pi": "ST_LAW_PI", "fuzzy_pid": "ST_LAW_FUZZY_PID"}
@@ -71,9 +75,11 @@ _TABLE_TITLES = {
 
 
 def runtime_source(name: str) -> str:
-    """Text of one reference-runtime file (``servotune_rt.c`` or ``servotune_rt.h``)."""
-    if name not in RUNTIME_FILES:
-        raise ExportError(f"no runtime file {name!r}; files: {', '.join(RUNTIME_FILES)}")
+    """Text of one reference-runtime file (of :data:`RUNTIME_FILES`,
+    :data:`GANTRY_RUNTIME_FILES`)."""
+    known = RUNTIME_FILES + GANTRY_RUNTIME_FILES
+    if name not in known:
+        raise ExportError(f"no runtime file {name!r}; files: {', '.join(known)}")
     return resources.files("servotune.export").joinpath("runtime", name).read_text(encoding="utf-8")
 
 
@@ -174,20 +180,28 @@ def _axis_lines(ax: Mapping[str, Any], ident: str) -> tuple[list[str], list[str]
     return lines, init
 
 
-def _digest_lines(digest: str) -> list[str]:
-    """The C-layout digest as a hex string macro, a byte initialiser and the array."""
+def _digest_bytes_lines(array: str, digest: str) -> list[str]:
+    """A SHA-256 (hex) as the macro ``<ARRAY>_BYTES`` (a 32-byte initialiser) and the
+    ``static const uint8_t`` array ``array``."""
     octets = [f"0x{digest[i : i + 2]}" for i in range(0, 64, 2)]
     rows = [", ".join(octets[i : i + 8]) for i in range(0, 32, 8)]
+    return [
+        f"#define {array.upper()}_BYTES \\",
+        "    { \\",
+        *(f"        {row}, \\" for row in rows),
+        "    }",
+        f"static const uint8_t {array}[32] = {array.upper()}_BYTES;",
+    ]
+
+
+def _digest_lines(digest: str) -> list[str]:
+    """The C-layout digest as a hex string macro, a byte initialiser and the array."""
     return [
         "",
         "/* SHA-256 of the compiled-in constants and tables in the C layout (servotune_rt.h):",
         " * st_check_digest(&consts, st_tables_sha256) recomputes it; 0 = they are these. */",
         f'#define ST_TABLES_SHA256 "{digest}"',
-        "#define ST_TABLES_SHA256_BYTES \\",
-        "    { \\",
-        *(f"        {row}, \\" for row in rows),
-        "    }",
-        "static const uint8_t st_tables_sha256[32] = ST_TABLES_SHA256_BYTES;",
+        *_digest_bytes_lines("st_tables_sha256", digest),
     ]
 
 

@@ -13,6 +13,8 @@ from servotune.validate import show_number, show_value
 
 if TYPE_CHECKING:
     from servotune.arch.gantry.result import SyncComparison
+    from servotune.arch.gantry.tuning import GantryTuning
+    from servotune.arch.gantry.verify import GantryVerification
     from servotune.arch.linkage.result import LinkageResult
     from servotune.verify.margins import LoopMargins, Margins
     from servotune.verify.result import Verification
@@ -20,6 +22,8 @@ if TYPE_CHECKING:
 __all__ = [
     "figure4_statement",
     "format_comparison",
+    "format_gantry_tuning",
+    "format_gantry_verification",
     "format_linkage_summary",
     "format_margins",
     "format_rig_facts",
@@ -371,4 +375,47 @@ def figure4_statement(
         else:
             lines.append(f"The composite law does not win {what}: {versus} (same optimiser, "
                          "budget and margin limits), contrary to the seed's Figure 4.")  # fmt: skip
+    return "\n".join(lines)
+
+
+def format_gantry_tuning(tuning: GantryTuning) -> str:
+    """What ``servotune tune GANTRY.toml`` prints: the gains, each loop's least margin over
+    the plant set and each case's sync error on the nominal drives."""
+    d = tuning.design
+    g = d.get("gains", {})
+    lines = [f"gantry {tuning.gantry_name}: {tuning.topology}, bus cycle "
+             f"{tuning.cycle_s * 1e3:g} ms, latency {tuning.latency_cycles} cycle(s)"]  # fmt: skip
+    for name in ("master", "slave"):
+        if name in g:
+            lines.append(f"  {name} drive PI: Kp {show_number(g[name]['kp'])} codes/count, Ki "
+                         f"{show_number(g[name]['ki'])} codes/(count·s)")  # fmt: skip
+    if "sync" in g:
+        s = g["sync"]
+        lines.append(f"  sync compensator ({tuning.sync_law}): Kp {show_number(s['kp'])}, Ki "
+                     f"{show_number(s['ki'])} 1/s, Kd {show_number(s['kd'])} s; dead zone "
+                     f"{tuning.sync.dead_zone_counts}, limit {tuning.sync.limit_counts}, warn "
+                     f"{tuning.warn_counts}, trip {tuning.trip_counts} counts")  # fmt: skip
+    for loop, m in d.get("worst_margins", {}).items():
+        lines.append(f"  least margin, {loop:<6} PM {show_number(m['phase_margin_deg'])}°, GM "
+                     f"{show_number(m['gain_margin_db'])} dB, Ms "
+                     f"{show_number(m['max_sensitivity'])} (plant {m['plant']})")  # fmt: skip
+    for case, c in d.get("cases", {}).items():
+        trip = ", TRIPS" if c["tripped"] else ""
+        lines.append(f"  {case} case: sync error max {c['max_sync_error_counts']:.0f}, RMS "
+                     f"{c['rms_sync_error_counts']:.1f} counts{trip}")  # fmt: skip
+    return "\n".join(lines)
+
+
+def format_gantry_verification(v: GantryVerification) -> str:
+    """What ``servotune verify GANTRY-TUNING`` prints: one row per check, then the verdict."""
+    lines = [f"gantry {v.gantry}: verified at a bus latency of {v.latency_cycles} cycle(s)",
+             f"{'check':<15}{'what':<42}{'value':>9}  {'limit':<10}{'unit':<8}result"]  # fmt: skip
+    for r in v.rows:
+        value = show_number(r.value)
+        limit = f"{r.kind} {show_number(r.limit)}"
+        unit = r.unit if len(r.unit) <= 7 else ""
+        note = "; ".join(x for x in (r.unit if not unit else "", r.detail) if x)
+        lines.append(f"{r.check:<15}{r.subject:<42}{value:>9}  {limit:<10}{unit:<8}"
+                     f"{'ok' if r.passed else 'FAIL'}{'  ' + note if note else ''}")  # fmt: skip
+    lines.append("PASS" if v.passed else "FAIL: " + "; ".join(v.failures))
     return "\n".join(lines)

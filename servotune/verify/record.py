@@ -19,7 +19,7 @@ was made by another servotune version, or holds another tuning, rig or spec than
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -39,13 +39,16 @@ __all__ = [
     "RECORD_SCHEMA",
     "SourceFile",
     "Verified",
+    "candidate_paths",
     "check_record",
     "default_rig_path",
     "load_for_export",
     "margins_files",
+    "matching_file",
     "read_record",
     "record_path",
     "rig_for_tuning",
+    "trust_record",
     "verification_record",
     "verify_files",
     "write_record",
@@ -53,7 +56,6 @@ __all__ = [
 
 RECORD_SCHEMA = "servotune.verify/2"
 _OLD_RECORD_SCHEMAS = ("servotune.verify/1",)
-_KINDS = ("tuning", "rig", "spec")
 
 
 @dataclass(frozen=True, slots=True)
@@ -114,21 +116,29 @@ def _short(sha: str) -> str:
     return sha[:12] + "…"
 
 
-def _rig_candidates(tuning: Tuning, tuning_path: str | Path) -> list[Path]:
+def candidate_paths(
+    recorded: str, tuning_path: str | Path, name: str, extra: Sequence[Path] = ()
+) -> list[Path]:
+    """Where a tuning's ``recorded`` file may be: that path, the same relative to the tuning's
+    directory, ``plants/<name>.toml``, then ``extra`` (duplicates dropped)."""
     out: list[Path] = []
-    if tuning.rig_path:
-        recorded = Path(tuning.rig_path)
-        out.append(recorded)
-        if not recorded.is_absolute():
-            out.append(Path(tuning_path).parent / recorded)
-    out.append(Path("plants") / f"{tuning.rig_name}.toml")
-    if EXAMPLE_RIG_PATH.stem == tuning.rig_name:
-        out.append(EXAMPLE_RIG_PATH)
+    if recorded:
+        p = Path(recorded)
+        out.append(p)
+        if not p.is_absolute():
+            out.append(Path(tuning_path).parent / p)
+    out.append(Path("plants") / f"{name}.toml")
+    out.extend(extra)
     seen: list[Path] = []
     for p in out:
         if p not in seen:
             seen.append(p)
     return seen
+
+
+def _rig_candidates(tuning: Tuning, tuning_path: str | Path) -> list[Path]:
+    example = [EXAMPLE_RIG_PATH] if EXAMPLE_RIG_PATH.stem == tuning.rig_name else []
+    return candidate_paths(tuning.rig_path, tuning_path, tuning.rig_name, example)
 
 
 def rig_for_tuning(
@@ -153,32 +163,59 @@ def rig_for_tuning(
     RigError
         The given rig file cannot be read.
     """
-    want = tuning.rig_sha256
-    if rig_path is not None:
-        src = SourceFile.read(rig_path, RigError, "rig file")
+    return matching_file(tuning.rig_sha256, rig_path, _rig_candidates(tuning, tuning_path),
+                         kind="rig", name=tuning.rig_name, recorded=tuning.rig_path,
+                         error=RigError)  # fmt: skip
+
+
+def matching_file(
+    want: str,
+    given: str | Path | None,
+    candidates: Sequence[Path],
+    *,
+    kind: str,
+    name: str,
+    recorded: str,
+    error: type[Exception],
+) -> SourceFile:
+    """The ``kind`` file (``rig``, ``gantry`` …) a tuning is used with, read once: the given one
+    (``--<kind>``), else the first of ``candidates`` that exists; its SHA-256 must be ``want``
+    (a moved copy is fine, another file is refused).
+
+    Raises
+    ------
+    TrustError
+        The given file, or every candidate found, differs (names both hashes).
+    TuningError
+        No candidate exists (give ``--<kind>``).
+    error
+        The given file cannot be read.
+    """
+    if given is not None:
+        src = SourceFile.read(given, error, f"{kind} file")
         if src.sha256 != want:
             raise TrustError(
-                f"rig file {str(rig_path)!r} (sha256 {_short(src.sha256)}) is not the rig the "
-                f"tuning was made for ({tuning.rig_name!r}, sha256 {_short(want)}"
-                + (f", {tuning.rig_path}" if tuning.rig_path else "")
-                + "): tune again for this rig, or give that rig file"
+                f"{kind} file {str(given)!r} (sha256 {_short(src.sha256)}) is not the {kind} the "
+                f"tuning was made for ({name!r}, sha256 {_short(want)}"
+                + (f", {recorded}" if recorded else "")
+                + f"): tune again for this {kind}, or give that {kind} file"
             )
         return src
     found = []
-    for p in _rig_candidates(tuning, tuning_path):
+    for p in candidates:
         if p.is_file():
-            src = SourceFile.read(p, RigError, "rig file")
+            src = SourceFile.read(p, error, f"{kind} file")
             if src.sha256 == want:
                 return src
             found.append(f"{p} (sha256 {_short(src.sha256)})")
     if found:
         raise TrustError(
-            f"no rig file matches the tuning's rig {tuning.rig_name!r} (sha256 {_short(want)}): "
-            f"found {', '.join(found)}; give the rig file the tuning was made for (--rig)"
+            f"no {kind} file matches the tuning's {kind} {name!r} (sha256 {_short(want)}): "
+            f"found {', '.join(found)}; give the {kind} file the tuning was made for (--{kind})"
         )
-    where = tuning.rig_path or f"plants/{tuning.rig_name}.toml"
+    where = recorded or f"plants/{name}.toml"
     raise TuningError(
-        f"no rig file {where} for the tuning's rig {tuning.rig_name!r}; give the rig file (--rig)"
+        f"no {kind} file {where} for the tuning's {kind} {name!r}; give the {kind} file (--{kind})"
     )
 
 
@@ -224,15 +261,33 @@ def verification_record(
             "scenario": tight[1].scenario,
         },
     }
+    return trust_record(RECORD_SCHEMA, passed=v.passed, seed=v.seed, summary=summary,
+                        files={"rig": rig, "spec": spec, "tuning": tuning},
+                        result={"verification": v.to_dict()})  # fmt: skip
+
+
+def trust_record(
+    schema: str,
+    *,
+    passed: bool,
+    files: Mapping[str, SourceFile],
+    seed: int | None,
+    summary: Mapping[str, Any],
+    result: Mapping[str, Any],
+) -> dict[str, Any]:
+    """A verification record of any architecture: the schema, the verdict, which exact bytes
+    were verified (``files``: name and SHA-256 per kind), the seed, a summary, the full result
+    (``result``'s keys), the tool and its version, and the record's own digest
+    (:func:`servotune.digest.document_sha256`). No timestamps."""
     record: dict[str, Any] = {
-        "files": {"rig": rig.entry(), "spec": spec.entry(), "tuning": tuning.entry()},
-        "passed": v.passed,
-        "schema": RECORD_SCHEMA,
-        "seed": v.seed,
-        "summary": summary,
+        "files": {kind: src.entry() for kind, src in files.items()},
+        "passed": bool(passed),
+        "schema": schema,
+        "seed": seed,
+        "summary": dict(summary),
         "tool": "servotune",
         "tool_version": __version__,
-        "verification": v.to_dict(),
+        **result,
     }
     record[DIGEST_FIELD] = document_sha256(record)
     return record
@@ -316,8 +371,9 @@ def margins_files(
     return tuning_margins(tuning, rig, limits=DEFAULT_LIMITS if limits is None else limits)
 
 
-def read_record(tuning_path: str | Path) -> dict[str, Any]:
-    """The verification record of a tuning file, checked against its own digest.
+def read_record(tuning_path: str | Path, schema: str = RECORD_SCHEMA) -> dict[str, Any]:
+    """The verification record of a tuning file (of ``schema``), checked against its own
+    digest.
 
     Raises
     ------
@@ -338,11 +394,11 @@ def read_record(tuning_path: str | Path) -> dict[str, Any]:
         raise TrustError(f"{path}: not UTF-8 text; run `servotune verify` again") from None
     if not isinstance(record, dict):
         raise TrustError(f"{path}: not a verification record; run `servotune verify` again")
-    schema = record.get("schema")
-    if schema in _OLD_RECORD_SCHEMAS:
-        raise TrustError(f"{path}: written by an older servotune ({schema}); verify again")
-    if schema != RECORD_SCHEMA:
-        raise TrustError(f"{path}: schema must be {RECORD_SCHEMA!r}; run `servotune verify` again")
+    got = record.get("schema")
+    if got in _OLD_RECORD_SCHEMAS:
+        raise TrustError(f"{path}: written by an older servotune ({got}); verify again")
+    if got != schema:
+        raise TrustError(f"{path}: schema must be {schema!r}; run `servotune verify` again")
     try:
         digest_ok = record.get(DIGEST_FIELD) == document_sha256(record)
     except (TypeError, ValueError):
@@ -356,12 +412,13 @@ def check_record(
     record: Mapping[str, Any],
     *,
     tuning: SourceFile,
-    rig: SourceFile,
+    rig: SourceFile | None = None,
     spec: SourceFile | None = None,
+    **others: SourceFile | None,
 ) -> None:
     """Raise :class:`TrustError` unless ``record`` passed, was made by this servotune version,
-    and holds exactly these files' hashes (``spec`` only when given); the message names what
-    differs."""
+    and holds exactly these files' hashes (each kind only when given; ``others``: the kinds
+    of another architecture's record, e.g. ``gantry``); the message names what differs."""
     if record.get("passed") is not True:
         raise TrustError(f"{tuning.path} failed its verification: fix the tuning and verify again")
     if record.get("tool_version") != __version__:
@@ -370,9 +427,8 @@ def check_record(
             f"{__version__}: verify it again with this version"
         )
     files = record.get("files")
-    given = {"tuning": tuning, "rig": rig, "spec": spec}
-    for kind in _KINDS:
-        src = given[kind]
+    given = {"tuning": tuning, "rig": rig, "spec": spec, **others}
+    for kind, src in given.items():
         if src is None:
             continue
         entry = files.get(kind) if isinstance(files, dict) else None

@@ -25,6 +25,7 @@ from servotune.verify.margins import MarginLimits
 
 __all__ = [
     "CASES",
+    "DRIVE_LOCK_GAIN",
     "MAX_BEAM",
     "MAX_COUNTS",
     "MAX_CYCLE_S",
@@ -80,6 +81,8 @@ MAX_BEAM = 1e3
 MAX_LOAD_V = 1000.0
 """Largest load step magnitude [V]."""
 _MIN_CYCLES = 100
+DRIVE_LOCK_GAIN = 0.4
+"""A drive's position-lock gain [D/A codes per count] (it holds position in lock mode)."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -158,6 +161,10 @@ class GantryAxis:
     gain_spread, tau_spread : float or None
         This drive's relative spread of gain and time constant in the robustness checks [1],
         0..0.9 (e.g. from its own identification); None: the ``[margins]`` table's.
+    controller : AxisController or None
+        The runtime constants a gantry tuning holds (not a config-file key): when set, the
+        drive runs exactly these (:meth:`GantryConfig.controllers`), and ``kp``/``ki`` are
+        their values (:func:`servotune.arch.gantry.tuning.apply_tuning`).
     """
 
     plant: Plant
@@ -167,6 +174,7 @@ class GantryAxis:
     counter_init: int = 0
     gain_spread: float | None = None
     tau_spread: float | None = None
+    controller: AxisController | None = None
 
     def __post_init__(self) -> None:
         for name, unit in (("kp", "codes/count"), ("ki", "codes/(count·s)")):
@@ -205,6 +213,10 @@ class SyncSettings:
         Monitor thresholds on |sync error| [counts], 0 off.
     phase_margin_deg, gain_margin_db, max_sensitivity : float
         Synthesis targets for the sync loop.
+    constants : SyncConstants or None
+        The runtime constants a gantry tuning holds (not a config-file key): when set, the
+        compensator runs exactly these (:attr:`GantryConfig.sync_constants`), and the gains,
+        dead zone and limit are their values.
     """
 
     law: str = "pi"
@@ -218,6 +230,7 @@ class SyncSettings:
     phase_margin_deg: float = 50.0
     gain_margin_db: float = 8.0
     max_sensitivity: float = 1.6
+    constants: SyncConstants | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.law, str) or self.law not in SYNC_LAWS:
@@ -406,7 +419,10 @@ class GantryConfig:
 
     @property
     def sync_constants(self) -> SyncConstants:
-        """The compensator's constants as the runtime holds them (quantised at the cycle)."""
+        """The compensator's constants as the runtime holds them: a tuning's
+        (``sync.constants``), else the gains quantised at the cycle."""
+        if self.sync.constants is not None:
+            return self.sync.constants
         return self.sync.gains.quantize(self.bus.cycle_s)
 
     @property
@@ -415,10 +431,12 @@ class GantryConfig:
         return self.bus.latency_cycles + 1
 
     def controllers(self) -> tuple[AxisController, AxisController]:
-        """The two drives' runtime controllers (PI at the bus cycle)."""
+        """The two drives' runtime controllers: a tuning's (``controller``), else PI at the
+        bus cycle quantised from the gains (lock gain :data:`DRIVE_LOCK_GAIN`)."""
         return tuple(
-            AxisController.from_gains(lock_gain_codes_per_count=0.4, task_gains=ax.gains,
-                                      period_s=self.bus.cycle_s,
+            ax.controller if ax.controller is not None else
+            AxisController.from_gains(lock_gain_codes_per_count=DRIVE_LOCK_GAIN,
+                                      task_gains=ax.gains, period_s=self.bus.cycle_s,
                                       following_error_limit_counts=ax.following_error_limit_counts)
             for ax in (self.master, self.slave)
         )  # type: ignore[return-value]  # fmt: skip
@@ -470,15 +488,17 @@ def gantry_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".") -> Gan
             raise ConfigError(f"missing table [axis.{name}.plant]")
         plant = build_section(Plant, at.pop("plant"), f"axis.{name}.plant", ConfigError)
         check_plant(plant, f"axis.{name}.plant", rig.dac.range_v, error=ConfigError)
-        drives[name] = build_section(GantryAxis, at, f"axis.{name}", ConfigError, plant=plant)
+        drives[name] = build_section(GantryAxis, at, f"axis.{name}", ConfigError, plant=plant,
+                                     controller=None)  # fmt: skip
     extra = sorted(set(axes_t) - {"master", "slave"})
     if extra:
         raise ConfigError(f"unknown axis [axis.{extra[0]}] (a gantry has master and slave)")
     parts = {
         k: build_section(cls, table(k), k, ConfigError)
-        for k, cls in (("bus", GantryBus), ("beam", Beam), ("sync", SyncSettings),
-                       ("move", GantryMove), ("load", GantryLoad), ("margins", GantryMargins))
+        for k, cls in (("bus", GantryBus), ("beam", Beam), ("move", GantryMove),
+                       ("load", GantryLoad), ("margins", GantryMargins))
     }  # fmt: skip
+    parts["sync"] = build_section(SyncSettings, table("sync"), "sync", ConfigError, constants=None)
     return build_section(GantryConfig, meta, "gantry", ConfigError, rig=rig,
                          master=drives["master"], slave=drives["slave"], **parts)  # fmt: skip
 

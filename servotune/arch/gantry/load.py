@@ -7,13 +7,15 @@ from pathlib import Path
 
 from servotune.arch.gantry.config import GantryConfig, gantry_from_dict
 from servotune.errors import ConfigError
-from servotune.io.files import read_toml
+from servotune.io.files import parse_toml, read_toml
 from servotune.tune.sync import resolve_gains
 
 __all__ = ["load_gantry"]
 
 
-def load_gantry(path: str | Path, *, resolve: bool = True) -> GantryConfig:
+def load_gantry(
+    path: str | Path, *, resolve: bool = True, raw: bytes | None = None
+) -> GantryConfig:
     """Read a gantry config (TOML, e.g. ``plants/gantry.toml``).
 
     Parameters
@@ -21,6 +23,9 @@ def load_gantry(path: str | Path, *, resolve: bool = True) -> GantryConfig:
     path : str or Path
     resolve : bool
         Tune the gains the file leaves out (:func:`resolve_gains`).
+    raw : bytes, optional
+        The file's bytes as the caller already read them (and hashed them): parsed instead of
+        reading ``path`` again (which still names the file and anchors its rig path).
 
     Raises
     ------
@@ -28,7 +33,10 @@ def load_gantry(path: str | Path, *, resolve: bool = True) -> GantryConfig:
         If the file is missing, not TOML, or invalid (the message names the field).
     """
     p = Path(path)
-    data = read_toml(p, ConfigError, "gantry config")
+    if raw is None:
+        data = read_toml(p, ConfigError, "gantry config")
+    else:
+        data = parse_toml(raw, str(p), ConfigError, "gantry config")
     try:
         cfg = gantry_from_dict(data, base_dir=p.parent)
     except ConfigError as exc:

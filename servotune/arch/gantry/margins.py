@@ -19,12 +19,31 @@ from dataclasses import dataclass, replace
 from servotune.arch.gantry.config import GantryAxis, GantryConfig, GantryMargins
 from servotune.arch.gantry.design import sync_loop_models
 from servotune.plant import Plant
-from servotune.verify.margins import GainSet, LoopMargins, _grid, loop_margins, loop_model
+from servotune.verify.margins import (
+    GainSet,
+    LoopMargins,
+    MarginLimits,
+    _grid,
+    loop_margins,
+    loop_model,
+)
 
-__all__ = ["SYNC_TOPOLOGIES", "GantryCase", "gantry_cases", "gantry_margins", "worst_corner"]
+__all__ = [
+    "LOOP_NAMES",
+    "SYNC_TOPOLOGIES",
+    "GantryCase",
+    "gantry_cases",
+    "gantry_margins",
+    "margin_failures",
+    "worst_corner",
+]
 
 SYNC_TOPOLOGIES = ("listening", "cross")
 """Topologies that run the sync compensator (the others have no sync loop)."""
+
+LOOP_NAMES = {"master": "the master's drive loop", "slave": "the slave's drive loop",
+              "sync": "the sync loop"}  # fmt: skip
+"""The gantry's loops as messages name them."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -122,3 +141,16 @@ def gantry_margins(
             out.append(LoopMargins(axis="sync", loop="sync", cell=None, plant=case.label,
                                    gains=g, period_s=dt, **figures))  # fmt: skip
     return tuple(out)
+
+
+def margin_failures(margins: Sequence[LoopMargins], limits: MarginLimits) -> list[str]:
+    """One line per loop that breaks ``limits`` somewhere in the plant set, naming the loop,
+    the plant case where it has least margin and what it breaks (empty: every loop keeps
+    them)."""
+    out = []
+    for loop in LOOP_NAMES:
+        bad = [(m, limits.broken(m)) for m in margins if m.axis == loop and limits.broken(m)]
+        if bad:
+            m, broken = min(bad, key=lambda mb: (mb[0].stable, mb[0].phase_margin_deg))
+            out.append(f"margins: {LOOP_NAMES[loop]} on plant {m.plant}: {'; '.join(broken)}")
+    return out

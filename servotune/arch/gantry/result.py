@@ -70,14 +70,17 @@ class GantryTrace:
     command : ndarray of int64 — the CNC's command [counts]
     ref : ndarray of int64 (n, 2) — each drive's position command [counts]
     y : ndarray of int64 (n, 2) — measured positions [counts]
+    counter : ndarray of int64 (n, 2) — the counter registers the drives latched
     position : ndarray (n, 2) — true positions at the sample instants [counts]
     code, flags : ndarray of int64 (n, 2) — D/A codes and ``FLAG_*`` bits
     sync_error : ndarray of int64 — measured ``y_master − y_slave`` [counts]
     sync_op, sync_input, sync_comp, sync_level : ndarray of int64
         Per cycle: the compensator call (0 none, 1 enter, 2 step), the sync error it saw, its
         compensation [counts], the monitor level (0 ok, 1 warn, 2 trip).
+    resets : ndarray of bool — the operator's resets (:func:`~servotune.arch.gantry.run.
+        run_gantry`)
     trip_cycle : int
-        Cycle the monitor tripped, -1 if it did not.
+        Cycle the monitor first tripped, -1 if it did not.
     stop_bound_cycles : int
     """
 
@@ -87,6 +90,7 @@ class GantryTrace:
     command: np.ndarray
     ref: np.ndarray
     y: np.ndarray
+    counter: np.ndarray
     position: np.ndarray
     code: np.ndarray
     flags: np.ndarray
@@ -95,6 +99,7 @@ class GantryTrace:
     sync_input: np.ndarray
     sync_comp: np.ndarray
     sync_level: np.ndarray
+    resets: np.ndarray
     trip_cycle: int
     stop_bound_cycles: int
 

@@ -48,7 +48,7 @@ from servotune.arch.gantry.config import (
     _case_config,
 )
 from servotune.arch.gantry.design import predicted_load_reduction
-from servotune.arch.gantry.margins import gantry_margins
+from servotune.arch.gantry.margins import gantry_margins, margin_failures
 from servotune.arch.gantry.result import (
     GantryMonteCarlo,
     GantryTrace,
@@ -83,15 +83,16 @@ __all__ = [
     "compare_topologies",
     "gantry_montecarlo",
     "move_profile",
+    "run_gantry",
     "simulate_gantry",
 ]
 
 
 OP_NONE, OP_ENTER, OP_STEP = 0, 1, 2
 _MAX_SUBSTEPS = 64
-# a GantryTrace (128 bytes) and its kernel inputs (load and jitter, 32 bytes; the jitter's
-# draw before scaling, 16 bytes), per cycle
-_TRACE_BYTES_PER_CYCLE = 176
+# a GantryTrace (145 bytes) and its kernel inputs (load and jitter, 32 bytes; the jitter's
+# draw before scaling, 16 bytes; the resets, 1 byte), per cycle
+_TRACE_BYTES_PER_CYCLE = 194
 
 
 def move_profile(move: GantryMove, cycle_s: float, n_cycles: int) -> np.ndarray:
@@ -146,17 +147,19 @@ def _scratch(ring_n: int) -> tuple[np.ndarray, ...]:
 # The working arrays come from :func:`_scratch`: nothing is allocated inside the kernel.
 @jit
 def _gantry_kernel(
-    topo, lat, cmd, load, jit_s, seed, consts, counter_init, bits, dac_lo, lsb,
+    topo, lat, cmd, load, jit_s, resets, seed, consts, counter_init, bits, dac_lo, lsb,
     rows, lag_m, coupled, hs, new, seg_a, seg_b, k_beam, c_beam,
     sc, warn, trip,
-    code, y_out, ref_out, flags_out, pos_out, op_out, in_out, comp_out, level_out,
+    code, y_out, raw_out, ref_out, flags_out, pos_out, op_out, in_out, comp_out, level_out,
     st, ring, pos, spd, w_old, w_new, stop_k,
 ):  # fmt: skip
-    """One gantry run (:func:`simulate_gantry`): fills the per-cycle outputs ``code`` …
-    ``level_out`` and returns the cycle the monitor tripped (-1 if it did not).
+    """One gantry run (:func:`run_gantry`): fills the per-cycle outputs ``code`` …
+    ``level_out`` and returns the cycle the monitor first tripped (-1 if it did not).
 
     Inputs: the topology (``T_*``) and latency [cycles]; per cycle the CNC's command [counts],
-    the load per side [V] and the sample jitter per side [s]; the noise stream's seed; the
+    the load per side [V], the sample jitter per side [s] and the operator's reset (nonzero:
+    the trip and the drives' latched faults cleared, the compensator entered again); the
+    noise stream's seed; the
     drives' law constants, counter registers at power-up, counter bits, D/A low rail [V] and
     LSB [V]; the plant rows (:func:`~servotune.plant.plant_row`) and whole cycles of lag;
     the beam (coupled, its sub-steps from :func:`_segments`, stiffness and damping); the
@@ -170,18 +173,28 @@ def _gantry_kernel(
     integ = np.int64(0)
     e_prev = np.int64(0)
     trip_k = -1
+    first_trip = -1
+    enter = True
     slot = ring_n - 1
     for k in range(nt):
         slot += 1
         if slot == ring_n:
             slot = 0
+        rs = resets[k] != 0
+        if rs:  # the operator's reset: the trip cleared, the drives' faults with their laws
+            # (and their counter reads re-initialised, as the engine's reset does)
+            trip_k = -1
+            stop_k[0] = -1
+            stop_k[1] = -1
+            enter = True
         # 1-2. sample at the sync interrupt (+ jitter: the position moved by speed × jitter),
         # latched whole, and unwrap, both drives
         for a in range(2):
             rng, nz = draw_noise(rng, rows[a, R_NOISE])
             pos_out[k, a] = pos[a]
-            _, y_out[k, a] = read_axis(st, consts, a, pos[a] + spd[a] * jit_s[k, a], 0.0, nz,
-                                       counter_init[a], mask, True, nbytes, 0.0, False)  # fmt: skip
+            p_s = pos[a] + spd[a] * jit_s[k, a]
+            raw_out[k, a], y_out[k, a] = read_axis(st, consts, a, p_s, 0.0, nz, counter_init[a],
+                                                   mask, True, nbytes, 0.0, rs)  # fmt: skip
         # the sync error as the slave / the CNC sees it: measured, latency cycles old
         comp = np.int64(0)
         if k >= lat:
@@ -190,13 +203,16 @@ def _gantry_kernel(
             level_out[k] = lv
             if lv == SYNC_TRIP and trip_k < 0:
                 trip_k = k
+                if first_trip < 0:
+                    first_trip = k
                 stop_k[1] = k if topo == T_LISTENING else k + 1
                 stop_k[0] = k + 1
             if (topo == T_LISTENING or topo == T_CROSS) and trip_k < 0:
                 in_out[k] = e_seen
-                if k == lat:
+                if enter:
                     integ, e_prev = sync_enter(sc[0], sc[1], sc[6], sc[7], e_seen)
                     op_out[k] = OP_ENTER
+                    enter = False
                 else:
                     comp, integ, e_prev = sync_step(
                         sc[0], sc[1], sc[2], sc[3], sc[4], sc[5], sc[6], sc[7], integ, e_prev,
@@ -223,7 +239,10 @@ def _gantry_kernel(
         # 3-4. the drives' laws and D/A; each write kept in its drive's tick-slot ring
         for a in range(2):
             r = r_m if a == 0 else r_s
-            c, fl, _, volts = write_axis(st, consts, a, r, MODE_TASK, False, 0, dac_lo, lsb)
+            # a drive the monitor stops in this very cycle keeps its fault: the reset is refused
+            stopped = stop_k[a] >= 0 and k >= stop_k[a]
+            c, fl, _, volts = write_axis(st, consts, a, r, MODE_TASK, rs and not stopped, 0,
+                                         dac_lo, lsb)  # fmt: skip
             code[k, a] = c
             flags_out[k, a] = fl
             hold(ring[a], slot, volts)
@@ -250,7 +269,7 @@ def _gantry_kernel(
                         rows[a, R_TAU], rows[a, R_COULOMB], rows[a, R_VMAX], rows[a, R_GAIN_NEG],
                         rows[a, R_COULOMB_NEG],
                     )  # fmt: skip
-    return trip_k
+    return first_trip
 
 
 def simulate_gantry(
@@ -259,7 +278,9 @@ def simulate_gantry(
     """Run the gantry for ``cfg.seconds`` in one topology and one case (:data:`CASES`).
 
     In the ``load`` case both sides are copies of the master's drive (plant and gains), so only
-    the load makes a sync error; in ``mismatch`` each side has its own plant and gains.
+    the load makes a sync error; in ``mismatch`` each side has its own plant and gains. The
+    CNC's command is :func:`move_profile`; no reset (:func:`run_gantry` takes any command,
+    load and resets).
 
     Parameters
     ----------
@@ -276,15 +297,59 @@ def simulate_gantry(
     -------
     GantryTrace
     """
+    n = cfg.n_cycles
+    check_memory(n * _TRACE_BYTES_PER_CYCLE, f"a gantry run of {cfg.seconds:g} s",
+                 f"{n:,} cycles × {_TRACE_BYTES_PER_CYCLE} bytes")  # fmt: skip
+    cfg, load = _case_config(cfg, case)
+    cmd = move_profile(cfg.move, cfg.bus.cycle_s, n)
+    return run_gantry(cfg, cmd, load, topology=topology, seed=seed, case=case)
+
+
+def run_gantry(
+    cfg: GantryConfig,
+    command: np.ndarray,
+    load: np.ndarray,
+    *,
+    topology: str | None = None,
+    resets: np.ndarray | None = None,
+    seed: int = 0,
+    case: str = "custom",
+) -> GantryTrace:
+    """Run the gantry on a given command, load and reset sequence (the golden runs' driver;
+    :func:`simulate_gantry` runs the cases).
+
+    Parameters
+    ----------
+    cfg : GantryConfig
+        With resolved gains; each side runs its own drive and plant (no case copying).
+    command : ndarray of int64, shape (n,)
+        The CNC's command per cycle [counts].
+    load : ndarray, shape (n, 2)
+        Load per cycle on the master's and the slave's side [V].
+    topology : str, optional
+        Default ``cfg.topology``.
+    resets : ndarray of bool, shape (n,), optional
+        The operator's reset per cycle: the monitor's trip and both drives' latched faults are
+        cleared (each drive's law re-enters bumplessly), and the compensator enters again.
+    seed : int
+        As :func:`simulate_gantry`.
+    case : str
+        The label the trace carries.
+    """
     topology = cfg.topology if topology is None else topology
     if topology not in TOPOLOGIES:
         raise ValueError(
             f"topology must be one of {', '.join(TOPOLOGIES)}, got {show_value(topology)}"
         )
-    n = cfg.n_cycles
-    check_memory(n * _TRACE_BYTES_PER_CYCLE, f"a gantry run of {cfg.seconds:g} s",
-                 f"{n:,} cycles × {_TRACE_BYTES_PER_CYCLE} bytes")  # fmt: skip
-    cfg, load = _case_config(cfg, case)
+    cmd = np.ascontiguousarray(command, dtype=np.int64)
+    n = cmd.shape[0]
+    load = np.ascontiguousarray(load, dtype=np.float64)
+    if cmd.ndim != 1 or n < 1 or load.shape != (n, 2):
+        raise ValueError(f"command must have shape (n,) and load (n, 2), got {cmd.shape} and "
+                         f"{load.shape}")  # fmt: skip
+    rs = np.zeros(n, dtype=np.int8) if resets is None else np.asarray(resets, dtype=np.int8)
+    if rs.shape != (n,):
+        raise ValueError(f"resets must have shape ({n},), got {rs.shape}")
     plants = (cfg.master.plant, cfg.slave.plant)
     rig = cfg.rig
     dt = cfg.bus.cycle_s
@@ -303,32 +368,28 @@ def simulate_gantry(
     sc_q = cfg.sync_constants
     sc = np.array([sc_q.kp.q, sc_q.kp.f, sc_q.ki_t.q, sc_q.ki_t.f, sc_q.kd_t.q, sc_q.kd_t.f,
                    sc_q.dead_zone_counts, sc_q.limit_counts], dtype=np.int64)  # fmt: skip
-    cmd = move_profile(cfg.move, dt, n)
     i2 = lambda: np.zeros((n, 2), dtype=np.int64)  # noqa: E731
     i1 = lambda: np.zeros(n, dtype=np.int64)  # noqa: E731
-    code, y, ref, flags = i2(), i2(), i2(), i2()
+    code, y, raw, ref, flags = i2(), i2(), i2(), i2(), i2()
     pos = np.zeros((n, 2))
     op, e_in, comp, level = i1(), i1(), i1(), i1()
     init = np.array([cfg.master.counter_init, cfg.slave.counter_init], dtype=np.int64)
     trip_k = call_compiled(
         _gantry_kernel, TOPOLOGIES.index(topology), cfg.bus.latency_cycles, cmd, load, jit_s,
-        np.uint64(seed), consts, init, rig.counter.bits, rig.dac.range_v[0], rig.dac.lsb_v,
+        rs, np.uint64(seed), consts, init, rig.counter.bits, rig.dac.range_v[0], rig.dac.lsb_v,
         rows, lag_m, cfg.beam.coupled, hs, new, seg_a, seg_b,
         cfg.beam.stiffness_v_per_count, cfg.beam.damping_v_s_per_count, sc,
         cfg.sync.warn_counts, cfg.sync.trip_counts,
-        code, y, ref, flags, pos, op, e_in, comp, level, *_scratch(int(lag_m.max()) + 2),
+        code, y, raw, ref, flags, pos, op, e_in, comp, level, *_scratch(int(lag_m.max()) + 2),
     )  # fmt: skip
     return GantryTrace(topology=topology, case=case, cycle_s=cfg.bus.cycle_s, command=cmd,
-                       ref=ref, y=y, position=pos, code=code, flags=flags,
+                       ref=ref, y=y, counter=raw, position=pos, code=code, flags=flags,
                        sync_error=y[:, 0] - y[:, 1], sync_op=op, sync_input=e_in,
-                       sync_comp=comp, sync_level=level, trip_cycle=int(trip_k),
-                       stop_bound_cycles=cfg.stop_bound_cycles)  # fmt: skip
+                       sync_comp=comp, sync_level=level, resets=rs.astype(bool),
+                       trip_cycle=int(trip_k), stop_bound_cycles=cfg.stop_bound_cycles)  # fmt: skip
 
 
 _MC_MAX = 1_000_000  # plant pairs of a Monte-Carlo run
-
-_LOOP_NAMES = {"master": "the master's drive loop", "slave": "the slave's drive loop",
-               "sync": "the sync loop"}  # fmt: skip
 
 
 def compare_topologies(cfg: GantryConfig, *, seed: int = 0, montecarlo: int = 0) -> SyncComparison:
@@ -359,13 +420,7 @@ def compare_topologies(cfg: GantryConfig, *, seed: int = 0, montecarlo: int = 0)
                               f"(|sync error| >= {cfg.sync.trip_counts} counts)")  # fmt: skip
     predicted = predicted_load_reduction(cfg) if not cfg.beam.coupled else None
     margins = gantry_margins(cfg)
-    lim = cfg.margins.limits
-    for loop in ("master", "slave", "sync"):
-        bad = [(m, lim.broken(m)) for m in margins if m.axis == loop and lim.broken(m)]
-        if bad:
-            m, broken = min(bad, key=lambda mb: (mb[0].stable, mb[0].phase_margin_deg))
-            failed.append(f"margins: {_LOOP_NAMES[loop]} on plant {m.plant}: "
-                          f"{'; '.join(broken)}")  # fmt: skip
+    failed += margin_failures(margins, cfg.margins.limits)
     mc = gantry_montecarlo(cfg, montecarlo, seed=seed) if montecarlo else None
     if mc is not None and not mc.passed:
         k, n, *_ = mc.pass_fraction
