@@ -311,6 +311,25 @@ def _cmd_tune(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _verify_linkage(args: argparse.Namespace) -> int:
+    from servotune.arch.linkage import verify_plan_files
+    from servotune.report.text import format_linkage_verification
+
+    for flag, value in (("--rig", args.rig), ("--report", args.report), ("--seed", args.seed),
+                        ("--montecarlo", args.montecarlo)):  # fmt: skip
+        if value is not None:
+            raise ServotuneError(f"{flag} is for a single rig's tuning; {args.tuning} is a "
+                                 "linkage plan (its spec sets the run)")  # fmt: skip
+    _progress(f"verify linkage plan {args.tuning}: every clock case of {args.spec}")
+    result, record, path = verify_plan_files(args.tuning, args.spec, config_path=args.config)
+    if args.json:
+        print(json.dumps(record, indent=2, sort_keys=True))
+    else:
+        print(format_linkage_verification(result), file=sys.stderr)
+    print(f"wrote the verification record to {path}", file=sys.stderr)
+    return EXIT_OK if result.passed else EXIT_FAILED
+
+
 def _verify_gantry(args: argparse.Namespace) -> int:
     from servotune.arch.gantry.verify import verify_gantry_files
     from servotune.report.text import format_gantry_verification
@@ -319,8 +338,8 @@ def _verify_gantry(args: argparse.Namespace) -> int:
         if value is not None:
             raise ServotuneError(f"{flag} is for a single rig's tuning; {args.tuning} is a "
                                  "gantry tuning (its rig is named by its gantry config, "
-                                 "--gantry)")  # fmt: skip
-    result, record, path = verify_gantry_files(args.tuning, args.spec, args.gantry,
+                                 "--config)")  # fmt: skip
+    result, record, path = verify_gantry_files(args.tuning, args.spec, args.config,
                                                seed=args.seed, montecarlo=args.montecarlo,
                                                progress=_progress)  # fmt: skip
     if args.json:
@@ -331,15 +350,46 @@ def _verify_gantry(args: argparse.Namespace) -> int:
     return EXIT_OK if result.passed else EXIT_FAILED
 
 
+def _cmd_plan(args: argparse.Namespace) -> int:
+    from servotune.arch.kind import config_kind
+    from servotune.arch.linkage import plan_linkage, plan_to_string, write_plan
+    from servotune.report.text import format_linkage_plan
+
+    _check_dirs(args.output)
+    kind = config_kind(args.config)
+    if kind != "linkage":
+        raise ServotuneError(f"{args.config} is a {kind} config, not a linkage's ([[cpu]] "
+                             f"tables): `servotune plan` plans a multi-CPU linkage; tune a "
+                             f"{kind} with `servotune tune`")  # fmt: skip
+    _progress(f"plan linkage {args.config}: the bus budget, the queues, the clock sync, the gains")
+    plan = plan_linkage(args.config)
+    if args.json:
+        if not args.output or args.output == "-":
+            raise ServotuneError("--json prints the plan's design on stdout: give -o FILE")
+        print(json.dumps(plan.design, indent=2, sort_keys=True))
+    else:
+        print(format_linkage_plan(plan), file=sys.stderr)
+    if args.output and args.output != "-":
+        write_plan(plan, args.output)
+        print(f"wrote the linkage plan to {args.output}", file=sys.stderr)
+    else:
+        sys.stdout.write(plan_to_string(plan))
+    return EXIT_OK
+
+
 def _cmd_verify(args: argparse.Namespace) -> int:
     from servotune.arch.kind import document_kind
     from servotune.report.text import format_table
     from servotune.verify import verify_files
 
-    if document_kind(args.tuning) == "gantry":
+    kind = document_kind(args.tuning)
+    if kind == "gantry":
         return _verify_gantry(args)
-    if args.gantry is not None:
-        raise ServotuneError(f"--gantry is for a gantry tuning; {args.tuning} is a rig's")
+    if kind == "linkage":
+        return _verify_linkage(args)
+    if args.config is not None:
+        raise ServotuneError(f"--config is for a gantry tuning or a linkage plan; {args.tuning} "
+                             "is a rig's tuning")  # fmt: skip
     if args.report:  # before the run: a report directory that cannot be made fails first
         Path(args.report).mkdir(parents=True, exist_ok=True)
     result, record, path = verify_files(args.tuning, args.spec, args.rig, seed=args.seed,
@@ -384,8 +434,8 @@ def _export_gantry(args: argparse.Namespace, path: Path) -> int:
 
     if args.rig is not None:
         raise ServotuneError(f"--rig is for a single rig's tuning; {path} is a gantry tuning "
-                             "(give its gantry config with --gantry)")  # fmt: skip
-    v = load_gantry_for_export(path, args.gantry, args.spec, unverified=args.unverified)
+                             "(give its gantry config with --config)")  # fmt: skip
+    v = load_gantry_for_export(path, args.config, args.spec, unverified=args.unverified)
     doc = gantry_document(v.tuning, v.config.rig, record=v.record, unverified=args.unverified)
     if args.format == "c":
         Path(args.output).mkdir(parents=True, exist_ok=True)
@@ -399,6 +449,31 @@ def _export_gantry(args: argparse.Namespace, path: Path) -> int:
     return EXIT_OK
 
 
+def _export_linkage(args: argparse.Namespace, path: Path) -> int:
+    from servotune.arch.linkage import load_plan_for_export
+    from servotune.export.linkage import linkage_plan_json, write_linkage_c
+
+    for flag, value in (("--rig", args.rig), ("--config", args.config)):
+        if value is not None:
+            raise ServotuneError(f"{flag} does not apply to a linkage plan ({path}): the plan "
+                                 "binds its config and rig by their hashes")  # fmt: skip
+    plan, record = load_plan_for_export(path, args.spec, unverified=args.unverified)
+    if args.format == "c":
+        Path(args.output).mkdir(parents=True, exist_ok=True)
+        written = write_linkage_c(plan, args.output, record=record, unverified=args.unverified)
+        print(f"wrote {', '.join(p.name for p in written)} to {args.output}", file=sys.stderr)
+        return EXIT_OK
+    text = linkage_plan_json(plan, record, unverified=args.unverified)
+    if args.output and args.output != "-":
+        from servotune.io.files import atomic_write_text
+
+        atomic_write_text(args.output, text)
+        print(f"wrote the linkage export to {args.output}", file=sys.stderr)
+    else:
+        sys.stdout.write(text)
+    return EXIT_OK
+
+
 def _cmd_export_table(args: argparse.Namespace) -> int:
     from servotune.arch.kind import document_kind
     from servotune.export import tables_to_string, write_c, write_tables
@@ -409,10 +484,13 @@ def _cmd_export_table(args: argparse.Namespace) -> int:
     if args.format == "c" and not args.output:
         raise ServotuneError("--format c needs -o DIR (the directory to write the C files into)")
     _check_dirs(args.output if args.format == "json" else None)
-    if document_kind(path) == "gantry":
+    kind = document_kind(path)
+    if kind == "gantry":
         return _export_gantry(args, path)
-    if args.gantry is not None:
-        raise ServotuneError(f"--gantry is for a gantry tuning; {path} is a rig's")
+    if kind == "linkage":
+        return _export_linkage(args, path)
+    if args.config is not None:
+        raise ServotuneError(f"--config is for a gantry tuning; {path} is a rig's tuning")
     v = load_for_export(path, args.rig, args.spec, unverified=args.unverified)
     kw = {"rig": v.rig, "verification": v.record, "unverified": v.record is None}
     if args.format == "c":
@@ -717,8 +795,24 @@ def _parser() -> argparse.ArgumentParser:
     )
     s.set_defaults(func=_cmd_tune)
 
-    s = sub.add_parser("verify", help="verify a tuning against a spec in the bit-true loop")
-    s.add_argument("tuning", help="tuning file (from servotune tune)")
+    s = sub.add_parser(
+        "plan",
+        help="plan a multi-CPU linkage: bus block budget, queue depths and watermarks, clock "
+        "sync, the axes' gains as the CPUs run them",
+    )
+    s.add_argument("config", help="linkage config (TOML)")
+    s.add_argument("-o", "--output", help="plan file to write (default: stdout)")
+    s.add_argument("--json", action="store_true", help="the plan's design as JSON on stdout")
+    s.set_defaults(func=_cmd_plan)
+
+    s = sub.add_parser(
+        "verify",
+        help="verify a tuning (rig or gantry) or a linkage plan against a spec in the bit-true "
+        "loop",
+    )
+    s.add_argument(
+        "tuning", help="tuning file (from servotune tune) or linkage plan (from servotune plan)"
+    )
     s.add_argument("--spec", required=True, help="spec file (TOML)")
     s.add_argument(
         "--rig",
@@ -726,9 +820,10 @@ def _parser() -> argparse.ArgumentParser:
         "plants/<rig name>.toml); another rig is refused (exit 1)",
     )
     s.add_argument(
-        "--gantry",
-        help="gantry config of a gantry tuning: a copy of the one it was tuned from (default: "
-        "the path the tuning records, then plants/<gantry name>.toml); another is refused",
+        "--config",
+        help="the gantry or linkage config a gantry tuning or a linkage plan was made from: a "
+        "copy of it (default: the path the file records, then plants/<name>.toml); another "
+        "is refused",
     )
     s.add_argument("--seed", type=int, default=None, help="Monte-Carlo seed (default: the spec's)")
     s.add_argument(
@@ -760,7 +855,11 @@ def _parser() -> argparse.ArgumentParser:
     s.set_defaults(func=_cmd_margins)
 
     s = sub.add_parser("export-table", help="export a verified tuning's tables (JSON or C)")
-    s.add_argument("tuning", nargs="?", help="tuning file (default: the workbench's current one)")
+    s.add_argument(
+        "tuning",
+        nargs="?",
+        help="tuning file or linkage plan (default: the workbench's current tuning)",
+    )
     s.add_argument("-o", "--output", help="file (JSON) or directory (C); default stdout (JSON)")
     s.add_argument("--format", choices=["json", "c"], default="json")
     s.add_argument(
@@ -769,9 +868,9 @@ def _parser() -> argparse.ArgumentParser:
         "plants/<rig name>.toml); another rig is refused",
     )
     s.add_argument(
-        "--gantry",
-        help="gantry config of a gantry tuning (default: the path the tuning records); another "
-        "is refused",
+        "--config",
+        help="the gantry config of a gantry tuning (default: the path the tuning records); "
+        "another is refused",
     )
     s.add_argument("--spec", help="also require that the verification used this spec file")
     s.add_argument("--unverified", action="store_true", help="export without a passed verify")

@@ -51,10 +51,12 @@ from servotune.tuning import Tuning
 __all__ = [
     "GANTRY_RUNTIME_FILES",
     "HEADER_NAME",
+    "LINK_RUNTIME_FILES",
     "RUNTIME_FILES",
     "runtime_source",
     "to_string",
     "write_c",
+    "write_c_files",
 ]
 
 HEADER_NAME = "servotune_tables.h"
@@ -63,6 +65,8 @@ RUNTIME_FILES = ("servotune_rt.c", "servotune_rt.h")
 GANTRY_RUNTIME_FILES = ("servotune_gantry.c", "servotune_gantry.h")
 """The gantry runtime's sources, on top of :data:`RUNTIME_FILES`
 (:mod:`servotune.export.gantry`)."""
+LINK_RUNTIME_FILES = ("servotune_link.c", "servotune_link.h")
+"""A linkage slave CPU's receive queue and clock sync (:mod:`servotune.export.linkage`)."""
 
 _MAX_AXES = 4  # ST_MAX_AXES default of servotune_rt.h
 _LAW_MACROS = {"none": "ST_LAW_NONE", "pi": "ST_LAW_PI", "fuzzy_pid": "ST_LAW_FUZZY_PID"}
@@ -76,23 +80,28 @@ _TABLE_TITLES = {
 
 def runtime_source(name: str) -> str:
     """Text of one reference-runtime file (of :data:`RUNTIME_FILES`,
-    :data:`GANTRY_RUNTIME_FILES`)."""
-    known = RUNTIME_FILES + GANTRY_RUNTIME_FILES
+    :data:`GANTRY_RUNTIME_FILES`, :data:`LINK_RUNTIME_FILES`)."""
+    known = RUNTIME_FILES + GANTRY_RUNTIME_FILES + LINK_RUNTIME_FILES
     if name not in known:
         raise ExportError(f"no runtime file {name!r}; files: {', '.join(known)}")
     return resources.files("servotune.export").joinpath("runtime", name).read_text(encoding="utf-8")
 
 
-def _identifiers(names: tuple[str, ...]) -> list[str]:
+def _identifiers(
+    names: tuple[str, ...], what: str = "axis", prefix: str = "axis_", upper: bool = False
+) -> list[str]:
+    """C identifiers of ``names`` (non-alphanumerics as ``_``, lower or upper case, ``prefix``
+    before a leading digit); two that clash are refused, naming the ``what`` names."""
     out = []
     for name in names:
-        ident = re.sub(r"[^0-9A-Za-z_]", "_", name).lower()
+        ident = re.sub(r"[^0-9A-Za-z_]", "_", name)
+        ident = ident.upper() if upper else ident.lower()
         if not ident or ident[0].isdigit():
-            ident = "axis_" + ident
+            ident = prefix + ident
         out.append(ident)
     if len(set(out)) != len(out):
         raise ExportError(
-            f"axis names {list(names)} give clashing C identifiers {out}; rename the axes"
+            f"{what} names {list(names)} give clashing C identifiers {out}; rename them"
         )
     return out
 
@@ -335,16 +344,26 @@ def write_c(
         As :func:`~servotune.export.json.tables_document`, or if ``out_dir`` is not a
         directory. Nothing is written then.
     """
+    header = to_string(tuning, rig=rig, verification=verification, unverified=unverified)
+    return write_c_files(out_dir, {HEADER_NAME: header}, RUNTIME_FILES)
+
+
+def write_c_files(
+    out_dir: str | Path, rendered: Mapping[str, str], runtime: tuple[str, ...]
+) -> tuple[Path, ...]:
+    """Write the ``rendered`` files (name → text, rendered in memory first) and the
+    ``runtime`` sources (:func:`runtime_source`) into the existing directory ``out_dir``,
+    each atomically.
+
+    Raises
+    ------
+    ExportError
+        ``out_dir`` is not a directory (nothing is written), or a file cannot be written.
+    """
     d = Path(out_dir)
     if not d.is_dir():
         raise ExportError(f"{d}: not a directory (create it first)")
-    texts = {
-        HEADER_NAME: to_string(tuning, rig=rig, verification=verification, unverified=unverified)
-    }
-    for name in RUNTIME_FILES:
-        texts[name] = runtime_source(name)
-    written = []
+    texts = {**rendered, **{name: runtime_source(name) for name in runtime}}
     for name, text in texts.items():
         _write_export(d / name, text)
-        written.append(d / name)
-    return tuple(written)
+    return tuple(d / name for name in texts)

@@ -50,7 +50,7 @@ from servotune.export.c import (
     _comment_text,
     _digest_bytes_lines,
     _q,
-    runtime_source,
+    write_c_files,
 )
 from servotune.export.gantry_layout import gantry_layout_sha256
 from servotune.export.json import _dumps, _write_export
@@ -274,14 +274,5 @@ def gantry_c_header(doc: Mapping[str, Any]) -> str:
 def write_gantry_c(doc: Mapping[str, Any], out_dir: str | Path) -> tuple[Path, ...]:
     """Write ``servotune_gantry_consts.h`` and the runtime's sources into ``out_dir`` (an
     existing directory); nothing is written if rendering fails."""
-    d = Path(out_dir)
-    if not d.is_dir():
-        raise ExportError(f"{d}: not a directory (create it first)")
-    texts = {GANTRY_HEADER_NAME: gantry_c_header(doc)}
-    for name in RUNTIME_FILES + GANTRY_RUNTIME_FILES:
-        texts[name] = runtime_source(name)
-    written = []
-    for name, text in texts.items():
-        _write_export(d / name, text)
-        written.append(d / name)
-    return tuple(written)
+    return write_c_files(out_dir, {GANTRY_HEADER_NAME: gantry_c_header(doc)},
+                         RUNTIME_FILES + GANTRY_RUNTIME_FILES)  # fmt: skip

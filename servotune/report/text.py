@@ -15,6 +15,7 @@ if TYPE_CHECKING:
     from servotune.arch.gantry.result import SyncComparison
     from servotune.arch.gantry.tuning import GantryTuning
     from servotune.arch.gantry.verify import GantryVerification
+    from servotune.arch.linkage import LinkagePlan, LinkageVerification
     from servotune.arch.linkage.result import LinkageResult
     from servotune.verify.margins import LoopMargins, Margins
     from servotune.verify.result import Verification
@@ -24,7 +25,9 @@ __all__ = [
     "format_comparison",
     "format_gantry_tuning",
     "format_gantry_verification",
+    "format_linkage_plan",
     "format_linkage_summary",
+    "format_linkage_verification",
     "format_margins",
     "format_rig_facts",
     "format_table",
@@ -417,5 +420,37 @@ def format_gantry_verification(v: GantryVerification) -> str:
         note = "; ".join(x for x in (r.unit if not unit else "", r.detail) if x)
         lines.append(f"{r.check:<15}{r.subject:<42}{value:>9}  {limit:<10}{unit:<8}"
                      f"{'ok' if r.passed else 'FAIL'}{'  ' + note if note else ''}")  # fmt: skip
+    lines.append("PASS" if v.passed else "FAIL: " + "; ".join(v.failures))
+    return "\n".join(lines)
+
+
+def format_linkage_plan(plan: LinkagePlan) -> str:
+    """What ``servotune plan`` prints: the bus budget, the clock sync, each CPU's queue."""
+    b = plan.bus
+    lines = [
+        f"linkage {plan.config_name}: {len(plan.axis_names)} axes on {len(plan.cpus)} slave "
+        f"CPUs, tick {plan.period_s * 1e3:g} ms",
+        f"  bus: {plan.frame_bytes}-byte frames ({b.block_size} setpoints per axis), "
+        f"{plan.frame_s * 1e3:.2f} ms every {plan.broadcast_period_s * 1e3:g} ms: utilisation "
+        f"{100 * plan.utilisation:.1f} %, {b.prefill_blocks} blocks prefilled",
+        f"  clock sync every {plan.resync_ticks} ticks"
+        if plan.resync_ticks else "  clock sync at motion start only",
+    ]  # fmt: skip
+    for c in plan.cpus:
+        lines.append(f"  cpu {c.name} ({', '.join(c.axes)}, {c.clock_ppm:+g} ppm): queue "
+                     f"{c.queue_depth}, watermarks low {c.low_watermark} / high "
+                     f"{c.high_watermark} setpoints")  # fmt: skip
+    return "\n".join(lines)
+
+
+def format_linkage_verification(v: LinkageVerification) -> str:
+    """What ``servotune verify PLAN`` prints: one row per check, then the verdict."""
+    head = f"{'check':<30}{'worst case':<18}{'value':>10}  {'limit':<12}{'unit':<12}result"
+    lines = [f"linkage {v.config}: {len(v.cases)} clock case(s): "
+             + ", ".join(label for label, _ in v.cases), head]  # fmt: skip
+    for r in v.rows:
+        limit = f"{r.bound} {show_number(float(r.limit))}"
+        lines.append(f"{r.check:<30}{r.case:<18}{show_number(float(r.value)):>10}  {limit:<12}"
+                     f"{r.unit:<12}{'ok' if r.passed else 'FAIL'}")  # fmt: skip
     lines.append("PASS" if v.passed else "FAIL: " + "; ".join(v.failures))
     return "\n".join(lines)

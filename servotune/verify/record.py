@@ -177,10 +177,13 @@ def matching_file(
     name: str,
     recorded: str,
     error: type[Exception],
+    owner: str = "tuning",
+    flag: str = "",
 ) -> SourceFile:
-    """The ``kind`` file (``rig``, ``gantry`` …) a tuning is used with, read once: the given one
-    (``--<kind>``), else the first of ``candidates`` that exists; its SHA-256 must be ``want``
-    (a moved copy is fine, another file is refused).
+    """The ``kind`` file (``rig``, ``gantry`` …) a tuning (or another ``owner``: a plan) is
+    used with, read once: the given one (``--<kind>``), else the first of ``candidates`` that
+    exists; its SHA-256 must be ``want`` (a moved copy is fine, another file is refused).
+    ``flag``: the option that gives the file (default ``--<kind>``).
 
     Raises
     ------
@@ -191,14 +194,15 @@ def matching_file(
     error
         The given file cannot be read.
     """
+    flag = flag or f"--{kind}"
     if given is not None:
         src = SourceFile.read(given, error, f"{kind} file")
         if src.sha256 != want:
             raise TrustError(
                 f"{kind} file {str(given)!r} (sha256 {_short(src.sha256)}) is not the {kind} the "
-                f"tuning was made for ({name!r}, sha256 {_short(want)}"
+                f"{owner} was made for ({name!r}, sha256 {_short(want)}"
                 + (f", {recorded}" if recorded else "")
-                + f"): tune again for this {kind}, or give that {kind} file"
+                + f"): make the {owner} again for this {kind}, or give that {kind} file"
             )
         return src
     found = []
@@ -210,12 +214,12 @@ def matching_file(
             found.append(f"{p} (sha256 {_short(src.sha256)})")
     if found:
         raise TrustError(
-            f"no {kind} file matches the tuning's {kind} {name!r} (sha256 {_short(want)}): "
-            f"found {', '.join(found)}; give the {kind} file the tuning was made for (--{kind})"
+            f"no {kind} file matches the {owner}'s {kind} {name!r} (sha256 {_short(want)}): "
+            f"found {', '.join(found)}; give the {kind} file the {owner} was made for ({flag})"
         )
     where = recorded or f"plants/{name}.toml"
     raise TuningError(
-        f"no {kind} file {where} for the tuning's {kind} {name!r}; give the {kind} file (--{kind})"
+        f"no {kind} file {where} for the {owner}'s {kind} {name!r}; give the {kind} file ({flag})"
     )
 
 
@@ -411,23 +415,32 @@ def read_record(tuning_path: str | Path, schema: str = RECORD_SCHEMA) -> dict[st
 def check_record(
     record: Mapping[str, Any],
     *,
-    tuning: SourceFile,
+    tuning: SourceFile | None = None,
     rig: SourceFile | None = None,
     spec: SourceFile | None = None,
     **others: SourceFile | None,
 ) -> None:
     """Raise :class:`TrustError` unless ``record`` passed, was made by this servotune version,
-    and holds exactly these files' hashes (each kind only when given; ``others``: the kinds
-    of another architecture's record, e.g. ``gantry``); the message names what differs."""
+    and holds exactly these files' hashes (each kind only when given; ``others``: the kinds of
+    another architecture's record, e.g. ``gantry``, ``plan``); the message names what differs.
+    The first file given (the tuning, else the first of ``others``) is the one the messages
+    name as verified."""
+    given = {"tuning": tuning, "rig": rig, "spec": spec, **others}
+    order = (("tuning", tuning), *others.items(), ("rig", rig), ("spec", spec))
+    kind, subject = next((k, src) for k, src in order if src is not None)
     if record.get("passed") is not True:
-        raise TrustError(f"{tuning.path} failed its verification: fix the tuning and verify again")
+        summary = record.get("summary")
+        why = summary.get("failures") if isinstance(summary, dict) else None
+        first = f" ({why[0]})" if isinstance(why, list) and why and isinstance(why[0], str) else ""
+        raise TrustError(
+            f"{subject.path} failed its verification{first}: fix the {kind} and verify again"
+        )
     if record.get("tool_version") != __version__:
         raise TrustError(
-            f"{tuning.path} was verified by servotune {record.get('tool_version')}, this is "
+            f"{subject.path} was verified by servotune {record.get('tool_version')}, this is "
             f"{__version__}: verify it again with this version"
         )
     files = record.get("files")
-    given = {"tuning": tuning, "rig": rig, "spec": spec, **others}
     for kind, src in given.items():
         if src is None:
             continue

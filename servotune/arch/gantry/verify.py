@@ -383,7 +383,7 @@ def _tuning_and_gantry(
     candidates = candidate_paths(tuning.gantry_path, tuning_path, tuning.gantry_name)
     gantry_file = matching_file(tuning.gantry_sha256, gantry_path, candidates, kind="gantry",
                                 name=tuning.gantry_name, recorded=tuning.gantry_path,
-                                error=ConfigError)  # fmt: skip
+                                error=ConfigError, flag="--config")  # fmt: skip
     # the config's gains are not designed again: the tuning holds every one
     cfg = load_gantry(gantry_file.path, raw=gantry_file.raw, resolve=False)
     rig_file = SourceFile.read(gantry_rig_path(gantry_file.raw, gantry_file.path), ConfigError,

@@ -25,7 +25,15 @@ Submodules, each importing only those above it:
 - :mod:`~servotune.arch.linkage.result`: the result (:class:`LinkageResult`; its text summary
   is :func:`servotune.report.text.format_linkage_summary`);
 - :mod:`~servotune.arch.linkage.run`: the simulation of the whole system
-  (:func:`run_linkage`), the axes' gains (:func:`axis_gains`) and the checks during motion.
+  (:func:`run_linkage`), the axes' gains (:func:`axis_gains`, :func:`axis_controllers`) and
+  the checks during motion;
+- :mod:`~servotune.arch.linkage.plan`: the plan of the integers its CPUs run
+  (:func:`plan_linkage`, :class:`LinkagePlan`, the plan file) and the simulation of those
+  integers (:func:`run_plan`);
+- :mod:`~servotune.arch.linkage.spec`: the linkage spec (:func:`load_linkage_spec`,
+  :class:`LinkageSpec`);
+- :mod:`~servotune.arch.linkage.verify`: a plan verified against a spec, with its trust record
+  (:func:`verify_plan_files`), and what an export may use (:func:`load_plan_for_export`).
 
 This package re-exports the public names of all of them.
 
@@ -106,16 +114,52 @@ from servotune.arch.linkage.config import (
     load_linkage,
 )
 from servotune.arch.linkage.path import ArcGeometry, Interpolation, interpolate
+from servotune.arch.linkage.plan import (
+    PLAN_SCHEMA,
+    LinkagePlan,
+    PlanCpu,
+    PlanPath,
+    drift_ticks,
+    plan_config,
+    plan_linkage,
+    plan_to_string,
+    read_plan,
+    read_plan_bytes,
+    run_plan,
+    watermarks,
+    write_plan,
+)
 from servotune.arch.linkage.result import (
+    EVENT_COLUMNS,
+    EVENT_KINDS,
     ArcResult,
     AxisResult,
     AxisTrace,
     CpuResult,
     LinkageResult,
 )
-from servotune.arch.linkage.run import AxisGains, axis_gains, run_linkage
+from servotune.arch.linkage.run import AxisGains, axis_controllers, axis_gains, run_linkage
+from servotune.arch.linkage.spec import (
+    LinkageSpec,
+    linkage_spec_from_bytes,
+    linkage_spec_from_dict,
+    load_linkage_spec,
+)
+from servotune.arch.linkage.verify import (
+    RECORD_SCHEMA,
+    LinkageRow,
+    LinkageVerification,
+    clock_cases,
+    load_plan_for_export,
+    verify_plan,
+    verify_plan_files,
+)
 
 __all__ = [
+    "EVENT_COLUMNS",
+    "EVENT_KINDS",
+    "PLAN_SCHEMA",
+    "RECORD_SCHEMA",
     "SCHEMA",
     "ArcGeometry",
     "ArcResult",
@@ -131,18 +175,41 @@ __all__ = [
     "LinkageAxis",
     "LinkageCheckError",
     "LinkageConfig",
+    "LinkagePlan",
     "LinkageResult",
+    "LinkageRow",
+    "LinkageSpec",
+    "LinkageVerification",
     "Move",
+    "PlanCpu",
+    "PlanPath",
     "SlaveCpu",
     "Toolpath",
+    "axis_controllers",
     "axis_gains",
     "bus_figures",
     "check_linkage",
+    "clock_cases",
+    "drift_ticks",
     "interpolate",
     "linkage_from_dict",
+    "linkage_spec_from_bytes",
+    "linkage_spec_from_dict",
     "load_linkage",
+    "load_linkage_spec",
+    "load_plan_for_export",
+    "plan_config",
+    "plan_linkage",
+    "plan_to_string",
+    "read_plan",
+    "read_plan_bytes",
     "recommended_resync_interval_s",
     "run_linkage",
+    "run_plan",
+    "verify_plan",
+    "verify_plan_files",
+    "watermarks",
+    "write_plan",
 ]
 
 __getattr__ = moved_names(__name__, {"format_linkage_summary": "servotune.report.text"})

@@ -383,7 +383,11 @@ def _sections(cls: type, tables: Any, where: str) -> list[Any]:
 
 
 def linkage_from_dict(
-    data: Mapping[str, Any], base_dir: str | Path, default_name: str = "linkage"
+    data: Mapping[str, Any],
+    base_dir: str | Path,
+    default_name: str = "linkage",
+    *,
+    rig: Rig | None = None,
 ) -> LinkageConfig:
     """Build and validate a :class:`LinkageConfig` from the parsed contents of a config file.
 
@@ -395,6 +399,9 @@ def linkage_from_dict(
         Directory the ``rig`` path is relative to (the config file's directory).
     default_name : str
         Name if the data has no ``name``.
+    rig : Rig, optional
+        The rig the ``rig`` path names, already read (a caller that hashes the bytes it
+        parsed, as :func:`~servotune.arch.linkage.plan.plan_linkage` does); default: read it.
 
     Returns
     -------
@@ -410,10 +417,11 @@ def linkage_from_dict(
     rig_ref = data.get("rig")
     if not isinstance(rig_ref, str) or not rig_ref:
         raise ConfigError(f"rig must be the path of a rig file (TOML), got {show_value(rig_ref)}")
-    try:
-        rig = load_rig(Path(base_dir) / rig_ref)
-    except RigError as exc:
-        raise ConfigError(f"rig: {exc}") from None
+    if rig is None:
+        try:
+            rig = load_rig(Path(base_dir) / rig_ref)
+        except RigError as exc:
+            raise ConfigError(f"rig: {exc}") from None
     bus = build_section(Bus, _table(data, "bus"), "bus", ConfigError)
     clock = build_section(Clock, _table(data, "clock", required=False), "clock", ConfigError)
     cpus = _sections(SlaveCpu, data.get("cpu"), "cpu")

@@ -4,7 +4,9 @@ The kernel schedules (which CPU ticks when, syncs, block arrivals, measurements)
 (each axis's reference from its CPU's queue); the axis tick itself is composed from
 :mod:`servotune.sim.tick` (noise, latch and read, law and D/A, hold, advance), on a plant row
 built for the CPU's nominal tick (:func:`servotune.plant.plant_row`). Timing model and sync
-semantics: :mod:`servotune.arch.linkage`.
+semantics: :mod:`servotune.arch.linkage`. On request it also logs each CPU's queue events in
+order (blocks, syncs, ticks and what the queue did at each: ``_E_*`` columns), which the
+exported C queue (``servotune_link.c``) replays bit for bit.
 
 Plumbing for speed, the same operations in the same order (bit for bit the same results):
 
@@ -52,6 +54,14 @@ _T_REF, _T_CODE, _T_Y = 0, 1, 2
 _NT = 3
 _T_POS, _T_SPD = 0, 1
 _NTF = 2
+# per-CPU queue event log (run_linkage(trace=True); result.EVENT_COLUMNS names the columns):
+# the kind, its argument (sync: the master's tick index; tick: the command index executed;
+# block: the block index), the queue level before and after, a count (sync: commands discarded;
+# tick: 1 on an underrun; block: setpoints lost to a full queue), the setpoints of a block that
+# came too late (sync: the CPU's next index before the sync) and the CPU's next index after
+_EV_SYNC, _EV_TICK, _EV_BLOCK = 0, 1, 2
+_E_KIND, _E_ARG, _E_BEFORE, _E_AFTER, _E_COUNT, _E_LATE, _E_NEXT = range(7)
+_NE = 7
 
 
 @intrinsic
@@ -101,18 +111,34 @@ def _measure(p, v, ring, slot, c_last, m, h, w_off, row):  # fmt: skip
     return p_h
 
 
+@jit(inline="always")
+def _log(ev, n_ev, s, kind, arg, before, after, count, late, nxt):  # fmt: skip
+    """Append one event to CPU ``s``'s log (``_E_*`` columns) if it has room; count it anyway."""
+    i = n_ev[s]
+    if i < ev.shape[1]:
+        ev[s, i, _E_KIND] = kind
+        ev[s, i, _E_ARG] = arg
+        ev[s, i, _E_BEFORE] = before
+        ev[s, i, _E_AFTER] = after
+        ev[s, i, _E_COUNT] = count
+        ev[s, i, _E_LATE] = late
+        ev[s, i, _E_NEXT] = nxt
+    n_ev[s] = i + 1
+
+
 @jit
 def _kernel(
     n_ticks, period, cmd, ax_cpu, rows, ints, consts, seed, cpu_eps, cpu_depth,
     block, prefill, frame_s, resync_ticks, bits, latched, skew, dac_lo, lsb,
-    actual, q_time, q_level, q_index, cpu_stats, ax_stats, tr_i, tr_f,
+    actual, q_time, q_level, q_index, cpu_stats, ax_stats, tr_i, tr_f, ev, n_ev,
 ):  # fmt: skip
     """Run the linkage for ``n_ticks`` master ticks (arguments: :func:`run_linkage`'s plumbing).
 
     ``rows[a]`` is axis ``a``'s plant row for its CPU's nominal tick ``period / (1 + ε)``,
     ``ints[a]`` its ``_I_*`` integers. Outputs: ``actual`` (positions at the master ticks),
     the per-CPU queue records ``q_*``, the statistics, and, if ``tr_i``/``tr_f`` have rows,
-    the per-axis trace of each CPU tick (``_T_*`` rows).
+    the per-axis trace of each CPU tick (``_T_*`` rows); if ``ev`` has rows, each CPU's queue
+    events in order (``_E_*`` columns; ``n_ev[s]``: how many there were, logged or not).
     """
     # the axis states at their CPU's last tick and the tick-slot rings of their writes,
     # allocated here so that they outlive _events, which uses them (like the plant rows and law
@@ -126,7 +152,7 @@ def _kernel(
     _events(
         n_ticks, period, cmd, ax_cpu, rows, ints, consts, seed, cpu_eps, cpu_depth,
         block, prefill, frame_s, resync_ticks, bits, latched, skew, dac_lo, lsb,
-        actual, q_time, q_level, q_index, cpu_stats, ax_stats, tr_i, tr_f, st, hist,
+        actual, q_time, q_level, q_index, cpu_stats, ax_stats, tr_i, tr_f, ev, n_ev, st, hist,
     )  # fmt: skip
 
 
@@ -134,7 +160,7 @@ def _kernel(
 def _events(
     n_ticks, period, cmd, ax_cpu, rows, ints, consts, seed, cpu_eps, cpu_depth,
     block, prefill, frame_s, resync_ticks, bits, latched, skew, dac_lo, lsb,
-    actual, q_time, q_level, q_index, cpu_stats, ax_stats, tr_i, tr_f, st, hist,
+    actual, q_time, q_level, q_index, cpu_stats, ax_stats, tr_i, tr_f, ev, n_ev, st, hist,
 ):  # fmt: skip
     """:func:`_kernel`'s event loop, given the zeroed axis states ``st`` and rings ``hist``.
 
@@ -177,6 +203,11 @@ def _events(
         cpu_stats[s, _S_T_OVER] = -1.0
         cpu_stats[s, _S_MIN] = 1e18
         cpu_stats[s, _S_MAX] = n_pre
+        # the log: the prefill blocks, then the sync at motion start (master tick 0)
+        for b in range(prefill):
+            lo, hi = min(b * block, n_pre), min((b + 1) * block, n_pre)
+            _log(ev, n_ev, s, _EV_BLOCK, b, lo, hi, 0, 0, 0)
+        _log(ev, n_ev, s, _EV_SYNC, 0, n_pre, n_pre, 0, 0, 0)
     # clocks: next index, the anchor (index, time) of the last sync and the time of the next
     # tick they give; each CPU's own tick count, the time of its last tick, and whether a sync
     # moved its schedule since that tick
@@ -217,6 +248,7 @@ def _events(
             k_r = r_next * resync_ticks
             for s in range(n_cpu):
                 j = next_j[s]
+                lvl = level[s]
                 if j < k_r:  # behind: the commands up to k_r - 1 are consumed and dropped
                     for i in range(max(j, head[s]), min(k_r, n_cmd)):
                         if present[s, i]:
@@ -225,6 +257,7 @@ def _events(
                             cpu_stats[s, _S_SKIP] += 1.0
                     head[s] = max(head[s], k_r)
                     next_j[s] = k_r
+                _log(ev, n_ev, s, _EV_SYNC, k_r, lvl, level[s], lvl - level[s], j, next_j[s])
                 anc_k[s] = k_r
                 anc_t[s] = t
                 t_next[s] = _tick_time(anc_t[s], next_j[s] - anc_k[s], period, cpu_eps[s])
@@ -252,6 +285,7 @@ def _events(
                     cpu_stats[s, _S_T_UNDER] = t
             head[s] = j + 1
             next_j[s] = j + 1
+            _log(ev, n_ev, s, _EV_TICK, j, lvl, level[s], 0 if ok else 1, 0, j + 1)
             t_next[s] = _tick_time(anc_t[s], next_j[s] - anc_k[s], period, cpu_eps[s])
             h = t - t_last[s]
             regular = not stretched[s]
@@ -320,14 +354,20 @@ def _events(
             i1 = min(i0 + block, n_cmd)
             for s in range(n_cpu):
                 dropped = False
+                lvl = level[s]
+                n_late = 0
+                n_lost = 0
                 for i in range(i0, i1):
                     if i < head[s]:
+                        n_late += 1
                         continue  # too late: its tick has passed (counted as an underrun)
                     if level[s] < cpu_depth[s]:
                         present[s, i] = True
                         level[s] += 1
                     else:
                         dropped = True
+                        n_lost += 1
+                _log(ev, n_ev, s, _EV_BLOCK, nb_next, lvl, level[s], n_lost, n_late, next_j[s])
                 if dropped:
                     cpu_stats[s, _S_OVER] += 1.0
                     if cpu_stats[s, _S_T_OVER] < 0.0:

@@ -13,12 +13,36 @@ from servotune.arch.linkage.path import Interpolation
 from servotune.io.files import json_float
 
 __all__ = [
+    "EVENT_COLUMNS",
+    "EVENT_KINDS",
     "ArcResult",
     "AxisResult",
     "AxisTrace",
     "CpuResult",
     "LinkageResult",
 ]
+
+EVENT_KINDS = ("sync", "tick", "block")
+"""The kinds of a CPU's queue events (:attr:`CpuResult.events`), by their code 0, 1, 2."""
+
+EVENT_COLUMNS = ("kind", "arg", "level_before", "level_after", "count", "late", "next")
+"""The columns of :attr:`CpuResult.events`, one row per event of the CPU's queue, in order:
+
+- ``kind``: 0 sync (a clock-sync broadcast; the first, at motion start, is master tick 0),
+  1 tick (the CPU pops and executes one command), 2 block (a block frame has arrived; the
+  prefill blocks come first, before motion);
+- ``arg``: sync: the master's tick index ``k_r``; tick: the command index executed; block:
+  the block index ``b`` (commands ``b·B … b·B + B − 1``);
+- ``level_before``, ``level_after``: queue level around the event [setpoints per axis];
+- ``count``: sync: commands discarded (the CPU was behind); tick: 1 on an underrun (the
+  command was not in the queue: each axis holds its previous one); block: setpoints lost to
+  a full queue (an overrun if > 0);
+- ``late``: block: setpoints whose tick had passed (ignored); sync: the CPU's next index
+  before the sync (``arg − late`` > 0: behind, < 0: ahead);
+- ``next``: the index of the CPU's next tick after the event.
+
+(The kernel's ``_EV_*`` codes and ``_E_*`` columns, in this order.)
+"""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -55,6 +79,10 @@ class CpuResult:
         Commands consumed unexecuted at a sync (the slave was behind by whole ticks).
     resyncs : int
         Sync broadcasts during motion (after the start sync).
+    events : ndarray of int64, shape (events, 7) or None
+        With ``run_linkage(..., trace=True)``: the queue's events in order, one row each,
+        columns :data:`EVENT_COLUMNS` (what the slave's receive queue and clock-sync logic see
+        and do: the exported C replays them). Not in :meth:`to_dict`.
     """
 
     name: str
@@ -72,6 +100,7 @@ class CpuResult:
     max_level: int
     skipped: int
     resyncs: int
+    events: np.ndarray | None = field(default=None, repr=False)
 
     def to_dict(self, arrays: bool = False) -> dict[str, Any]:
         """Plain dict; the per-tick arrays only with ``arrays=True``."""

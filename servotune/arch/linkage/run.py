@@ -26,6 +26,7 @@ from servotune.arch.linkage.kernel import (
     _I_LAG,
     _I_RING,
     _NA,
+    _NE,
     _NI,
     _NS,
     _NT,
@@ -72,6 +73,7 @@ from servotune.validate import check_integer, check_number, show_value
 __all__ = [
     "TUNE_TARGETS",
     "AxisGains",
+    "axis_controllers",
     "axis_gains",
     "run_linkage",
 ]
@@ -143,6 +145,63 @@ def axis_gains(
     return out
 
 
+def axis_controllers(
+    config: LinkageConfig, gains: Mapping[str, AxisGains]
+) -> dict[str, AxisController]:
+    """The quantised constants each axis's slave runs: its lock gain, its PI ``gains`` at the
+    linkage's nominal ``period_s`` (``Ki·T`` folded in) and its following-error limit.
+
+    Parameters
+    ----------
+    config : LinkageConfig
+    gains : mapping of str to AxisGains
+        :func:`axis_gains` (every axis).
+
+    Returns
+    -------
+    dict of str to AxisController
+        By axis name, in column order.
+    """
+    return {
+        a.name: AxisController.from_gains(
+            lock_gain_codes_per_count=a.lock_gain_codes_per_count,
+            task_gains=gains[a.name].gains,
+            period_s=config.period_s,
+            following_error_limit_counts=a.following_error_limit_counts,
+        )
+        for a in config.axes
+    }
+
+
+def _controllers(
+    config: LinkageConfig, given: Mapping[str, AxisController]
+) -> dict[str, AxisController]:
+    """``given`` checked to hold one :class:`AxisController` per axis of ``config``."""
+    names = set(config.axis_names)
+    bad = sorted(set(given) - names)
+    if bad:
+        raise ConfigError(
+            f"controllers for unknown axis {show_value(bad[0])}; axes: {list(config.axis_names)}"
+        )
+    missing = [a for a in config.axis_names if a not in given]
+    if missing:
+        raise ConfigError(f"controllers: no controller for axis {show_value(missing[0])}")
+    for name, c in given.items():
+        if not isinstance(c, AxisController):
+            raise ConfigError(
+                f"controllers.{name} must be an AxisController, got {type(c).__name__}"
+            )
+    return dict(given)
+
+
+def _pi_values(c: AxisController, period: float) -> tuple[float, float]:
+    """``kp`` [codes/count] and ``ki`` [codes/(count·s)] a controller's constants represent."""
+    task = c.task
+    if task is None:
+        return 0.0, 0.0
+    return task.kp.value, task.ki_t.value / period
+
+
 def run_linkage(
     config: LinkageConfig,
     *,
@@ -150,6 +209,8 @@ def run_linkage(
     seed: int = 0,
     gains: Mapping[str, PIGains] | None = None,
     trace: bool = False,
+    controllers: Mapping[str, AxisController] | None = None,
+    resync_ticks: int | None = None,
 ) -> LinkageResult:
     """Simulate the linkage: master interpolation and broadcast, slave queues, clocks, loops.
 
@@ -175,7 +236,15 @@ def run_linkage(
         Gains overriding the file's (and tuning) per axis name.
     trace : bool
         Also record every axis's ticks (:attr:`LinkageResult.traces`: reference, D/A code,
-        unwrapped and true position, speed per CPU tick); 40 more bytes per tick and axis.
+        unwrapped and true position, speed per CPU tick; 40 more bytes per tick and axis) and
+        each CPU's queue events in order (:attr:`CpuResult.events`: prefill blocks, syncs,
+        ticks, block arrivals; 56 more bytes per tick and CPU).
+    controllers : mapping of str to AxisController, optional
+        The quantised constants each axis runs, by axis name (a plan's, exactly as the runtime
+        holds them: nothing is re-quantised or tuned); instead of ``gains``.
+    resync_ticks : int, optional
+        Master ticks between sync broadcasts (0: only the sync at motion start), instead of
+        ``config.clock.resync_interval_s`` rounded to whole ticks (a plan's interval).
 
     Returns
     -------
@@ -187,9 +256,16 @@ def run_linkage(
     LinkageCheckError
         If a check before motion fails (:func:`check_linkage`): nothing is simulated.
     ConfigError
-        If ``seconds`` is not a positive number, ``seed`` is not an integer in range, or a gain
-        is unknown.
+        If ``seconds`` is not a positive number, ``seed`` is not an integer in range, a gain
+        is unknown, ``controllers`` does not hold one controller per axis (or comes with
+        ``gains``), or ``resync_ticks`` is not an integer >= 0.
     """
+    if controllers is not None:
+        if gains is not None:
+            raise ConfigError("give gains or controllers, not both")
+        controllers = _controllers(config, controllers)
+    if resync_ticks is not None:
+        check_integer("resync_ticks", resync_ticks, "ticks", hi=2**40, error=ConfigError)
     period = config.period_s
     ip = interpolate(config)
     pre = check_linkage(config, ip)
@@ -203,7 +279,7 @@ def run_linkage(
         seed = int(seed)
     check_integer("seed", seed, "-", hi=2**64 - 1, error=ConfigError)
     per_tick = (config.n_axes * (_TICK_BYTES_PER_AXIS + (_TRACE_BYTES_PER_AXIS if trace else 0))
-                + len(config.cpus) * 3 * 8 + _TICK_BYTES)  # fmt: skip
+                + len(config.cpus) * (3 + (_NE if trace else 0)) * 8 + _TICK_BYTES)  # fmt: skip
     ticks_f = seconds / period
     check_memory(
         ticks_f * per_tick,
@@ -211,11 +287,19 @@ def run_linkage(
         f"{format_count(ticks_f)} ticks × {per_tick} bytes",
     )
     n_ticks = max(1, round(ticks_f))
-    if resync := config.clock.resync_interval_s:
-        resync_ticks = max(1, round(resync / period))
+    resync_s = config.clock.resync_interval_s
+    if resync_ticks is not None:
+        resync_s = resync_ticks * period
+    elif resync_s:
+        resync_ticks = max(1, round(resync_s / period))
     else:
         resync_ticks = 0
-    gains_used = axis_gains(config, gains)
+    if controllers is None:
+        gains_used = axis_gains(config, gains)
+        shown = {n: (g.gains.kp, g.gains.ki, g.tuned) for n, g in gains_used.items()}
+        controllers = axis_controllers(config, gains_used)
+    else:
+        shown = {n: (*_pi_values(c, period), False) for n, c in controllers.items()}
     rig, bus = config.rig, config.bus
     n_ax, n_cpu = config.n_axes, len(config.cpus)
     eps = np.array([c.clock_ppm * 1e-6 for c in config.cpus])
@@ -237,12 +321,7 @@ def run_linkage(
         ints[i, _I_LAG], ints[i, _I_RING], ints[i, _I_INIT] = m, m + 2, a.counter_init
     consts = np.stack(
         [
-            AxisController.from_gains(
-                lock_gain_codes_per_count=a.lock_gain_codes_per_count,
-                task_gains=gains_used[a.name].gains,
-                period_s=period,
-                following_error_limit_counts=a.following_error_limit_counts,
-            ).consts(
+            controllers[a.name].consts(
                 counter_bits=rig.counter.bits, dac_bits=rig.dac.bits, dac_zero=rig.dac.zero_code
             )
             for a in config.axes
@@ -250,6 +329,9 @@ def run_linkage(
     )
     n_rec = n_ticks + drift_ticks + 16
     n_tr = n_rec if trace else 0
+    # the event log: every tick, block arrival (prefill included) and sync of each CPU
+    n_syncs = n_ticks // resync_ticks + 2 if resync_ticks else 1
+    n_ev = n_rec + n_ticks // bus.block_size + bus.prefill_blocks + 2 + n_syncs if trace else 0
     figs = bus_figures(config)
     actual = np.zeros((n_ticks, n_ax))
     q_time = np.zeros((n_cpu, n_rec))
@@ -259,13 +341,18 @@ def run_linkage(
     ax_stats = np.zeros((n_ax, _NA))
     tr_i = np.zeros((_NT, n_tr, n_ax), dtype=np.int64)
     tr_f = np.zeros((_NTF, n_tr, n_ax))
+    ev = np.zeros((n_cpu, n_ev, _NE), dtype=np.int64)
+    ev_count = np.zeros(n_cpu, dtype=np.int64)
     call_compiled(
         _kernel, n_ticks, period, cmd, ax_cpu, plant_rows, ints, consts, np.uint64(seed), eps,
         np.array([c.queue_depth for c in config.cpus], dtype=np.int64),
         bus.block_size, bus.prefill_blocks, figs.frame_s, resync_ticks, rig.counter.bits,
         bool(rig.counter.latched), float(rig.counter.read_skew_s), float(rig.dac.range_v[0]),
-        rig.dac.lsb_v, actual, q_time, q_level, q_index, cpu_stats, ax_stats, tr_i, tr_f,
+        rig.dac.lsb_v, actual, q_time, q_level, q_index, cpu_stats, ax_stats, tr_i, tr_f, ev,
+        ev_count,
     )  # fmt: skip
+    if trace and np.any(ev_count > n_ev):  # sized above for every event: a bug if not
+        raise RuntimeError(f"linkage event log overflow: {ev_count.tolist()} > {n_ev}")
 
     # per CPU
     cpus = []
@@ -282,6 +369,7 @@ def run_linkage(
             min_level=int(cpu_stats[s, _S_MIN]) if n else 0,
             max_level=int(cpu_stats[s, _S_MAX]),
             skipped=int(cpu_stats[s, _S_SKIP]), resyncs=int(cpu_stats[s, _S_RESYNC]),
+            events=ev[s, : ev_count[s]].copy() if trace else None,
         ))  # fmt: skip
     traces = None
     if trace:
@@ -305,10 +393,9 @@ def run_linkage(
             fault = "following_error"
         elif flags & FLAG_COUNTER_FAULT:
             fault = "counter"
-        g = gains_used[a.name]
+        kp, ki, tuned = shown[a.name]
         axes.append(AxisResult(
-            name=a.name, cpu=config.cpu_of(a.name).name, kp=float(g.gains.kp),
-            ki=float(g.gains.ki), tuned=g.tuned,
+            name=a.name, cpu=config.cpu_of(a.name).name, kp=float(kp), ki=float(ki), tuned=tuned,
             max_abs_err_counts=float(np.max(np.abs(err[:, i]))),
             rms_err_counts=float(np.sqrt(np.mean(err[:, i] ** 2))),
             saturated_ticks=int(ax_stats[i, _A_SAT]), fault=fault,
@@ -340,7 +427,7 @@ def run_linkage(
         rec: float | None = recommended_resync_interval_s(config)
     except LinkageCheckError:
         rec = None
-    checks = list(pre) + _motion_checks(config, cpus, axes, err, rec)
+    checks = list(pre) + _motion_checks(config, cpus, axes, err, rec, resync_s)
     return LinkageResult(
         name=config.name, seed=int(seed), period_s=period, bus=figs,
         resync_interval_s=resync_ticks * period, recommended_resync_interval_s=rec,
@@ -360,10 +447,11 @@ def _motion_checks(
     axes: list[AxisResult],
     err: np.ndarray,
     rec: float | None,
+    resync: float,
 ) -> list[Check]:
-    """Underrun, overrun and fault checks of a run, with their reasons."""
+    """Underrun, overrun and fault checks of a run, with their reasons (``resync``: the
+    interval run [s])."""
     f = bus_figures(config)
-    resync = config.clock.resync_interval_s
     advice = (
         f"resync every <= {rec:g} s (recommended_resync_interval_s)"
         if rec

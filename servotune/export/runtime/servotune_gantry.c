@@ -8,25 +8,6 @@
  */
 #include "servotune_gantry.h"
 
-/* --- modular int64 arithmetic (the simulation's int64 wraps) ---------------------------- */
-
-static int64_t from_u64(uint64_t u)
-{
-    if (u <= (uint64_t)INT64_MAX) {
-        return (int64_t)u;
-    }
-    return -(int64_t)(UINT64_MAX - u) - 1;
-}
-
-static int64_t wrap_add(int64_t a, int64_t b)
-{
-    return from_u64((uint64_t)a + (uint64_t)b);
-}
-
-static int64_t wrap_sub(int64_t a, int64_t b)
-{
-    return from_u64((uint64_t)a - (uint64_t)b);
-}
 
 /* --- power-up ------------------------------------------------------------------------- */
 
@@ -235,7 +216,7 @@ void st_gantry_step(const st_gantry_consts_t *c, st_gantry_state_t *s, const st_
     out->sync_level = ST_SYNC_OK;
     if (seen) {
         /* 2. the sync error as the slave / the CNC sees it: measured, L cycles old */
-        const int64_t e_seen = wrap_sub(s->y_hist[0][slot_old], s->y_hist[1][slot_old]);
+        const int64_t e_seen = st_wrap_sub(s->y_hist[0][slot_old], s->y_hist[1][slot_old]);
         /* 3. the monitor; the first trip latches and schedules the stops */
         const int lv = st_sync_monitor(e_seen, c->sync.warn, c->sync.trip);
         const int64_t next = k < INT64_MAX ? k + 1 : k;
@@ -271,11 +252,11 @@ void st_gantry_step(const st_gantry_consts_t *c, st_gantry_state_t *s, const st_
     if (topo == ST_TOPO_FOLLOWING && seen) {
         r_s = s->y_hist[0][slot_old];
     } else if (listening) {
-        r_s = wrap_add(in->command, comp);
+        r_s = st_wrap_add(in->command, comp);
     } else if (topo == ST_TOPO_CROSS) {
         const int64_t half = st_shift_round(comp, 1); /* |comp| <= limit < 2^31 */
-        r_m = wrap_sub(in->command, half);
-        r_s = wrap_add(in->command, comp - half);
+        r_m = st_wrap_sub(in->command, half);
+        r_s = st_wrap_add(in->command, comp - half);
     }
     out->ref[0] = r_m;
     out->ref[1] = r_s;

@@ -30,12 +30,12 @@ static int64_t from_u64(uint64_t u)
     return -(int64_t)(UINT64_MAX - u) - 1;
 }
 
-static int64_t wrap_add(int64_t a, int64_t b)
+int64_t st_wrap_add(int64_t a, int64_t b)
 {
     return from_u64((uint64_t)a + (uint64_t)b);
 }
 
-static int64_t wrap_sub(int64_t a, int64_t b)
+int64_t st_wrap_sub(int64_t a, int64_t b)
 {
     return from_u64((uint64_t)a - (uint64_t)b);
 }
@@ -133,9 +133,9 @@ int st_unwrap_step(int64_t raw, int64_t *hi_prev, int64_t *wraps, int counter_bi
     const int64_t dh = hi - *hi_prev;
     int fault = 0;
     if (dh == -255) {
-        *wraps = wrap_add(*wraps, 1);
+        *wraps = st_wrap_add(*wraps, 1);
     } else if (dh == 255) {
-        *wraps = wrap_sub(*wraps, 1);
+        *wraps = st_wrap_sub(*wraps, 1);
     } else if (dh > 1 || dh < -1) {
         fault = 1;
     }
@@ -265,7 +265,7 @@ int64_t st_sync_step(const st_sync_consts_t *c, st_sync_state_t *s, int64_t e)
     const int64_t e_d = st_dead_zone(e, c->dead_zone);
     /* e_d - e_prev: |e_d| < 2^31 and e_prev is a previous e_d, so it never wraps; formed
      * modulo 2^64 (as numba does) so that no state can make it undefined */
-    const int64_t d_term = feed_terms(c->kdt_q, c->kdt_f, 0, 0, wrap_sub(e_d, s->e_prev), 0);
+    const int64_t d_term = feed_terms(c->kdt_q, c->kdt_f, 0, 0, st_wrap_sub(e_d, s->e_prev), 0);
     /* the PI core with its rails at +-limit: pi_step's "zero code" is limit, its top 2*limit
      * (2 * limit < 2^32; the integrator is clamped to +-limit * 2^ST_F_U < 2^63) */
     const int64_t u_q = pi_step(c->kp_q, c->kp_f, c->kit_q, c->kit_f, &s->integ, e_d, d_term,
@@ -317,14 +317,14 @@ int64_t st_axis_read(st_axis_state_t *s, const st_axis_consts_t *c, int64_t raw,
     }
     if (reset) {
         s->hi_prev = high_byte(raw, bits);
-        y = wrap_sub(extend(s->wraps, raw, bits), s->origin);
+        y = st_wrap_sub(extend(s->wraps, raw, bits), s->origin);
         s->y = y;
         return y;
     }
     if (st_unwrap_step(raw, &s->hi_prev, &s->wraps, bits, &ext)) {
         s->fault |= ST_FLAG_COUNTER_FAULT;
     }
-    y = wrap_sub(ext, s->origin);
+    y = st_wrap_sub(ext, s->origin);
     s->y = y;
     return y;
 }
@@ -370,17 +370,17 @@ int64_t st_axis_control(st_axis_state_t *s, const st_axis_consts_t *c, int64_t r
     s->mode = mode_cmd;
     u_add_q = st_align(u_add, ST_F_U);
     if (mode_cmd == ST_MODE_LOCK) {
-        e = wrap_sub(s->lock_target, y);
+        e = st_wrap_sub(s->lock_target, y);
         u = st_sat_add(lock_step(c->lock_q, c->lock_f, e), u_add_q);
     } else if (mode_cmd == ST_MODE_TASK) {
         int64_t kp_q = c->kp_q;
         int64_t kit_q = c->kit_q;
-        e = wrap_sub(ref, y);
+        e = st_wrap_sub(ref, y);
         if (c->law == ST_LAW_FUZZY_PID) {
             /* composite law: schedule the gains from the query tables at (E, EC), then the PI
              * core with the derivative and feedforward terms added to its output */
-            const int64_t ec = entering ? 0 : wrap_sub(e, s->e_prev);
-            const int64_t dr = entering ? 0 : wrap_sub(ref, s->r_prev);
+            const int64_t ec = entering ? 0 : st_wrap_sub(e, s->e_prev);
+            const int64_t dr = entering ? 0 : st_wrap_sub(ref, s->r_prev);
             const int64_t n = c->n;
             const int64_t size = 2 * n + 1;
             const int64_t lv_e = fuzzy_level(e, c->ke_q, c->ke_f, n);

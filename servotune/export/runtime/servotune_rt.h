@@ -235,6 +235,8 @@ int64_t st_shift_round(int64_t x, int f);   /* f >= 1, x > INT64_MIN */
 int64_t st_sat_add(int64_t a, int64_t b);   /* saturated to +-INT64_MAX */
 int64_t st_align(int64_t x, int k);         /* x * 2^k, 0 <= k <= 62, saturated */
 int64_t st_clamp_e(int64_t x);              /* clamp to +-(2^31 - 1) */
+int64_t st_wrap_add(int64_t a, int64_t b);  /* a + b modulo 2^64 (as numba's int64 wraps) */
+int64_t st_wrap_sub(int64_t a, int64_t b);  /* a - b modulo 2^64 */
 int64_t st_assemble(const uint8_t *bytes, int counter_bits);
 int st_unwrap_step(int64_t raw, int64_t *hi_prev, int64_t *wraps, int counter_bits,
                    int64_t *position);      /* returns 1 on a counter fault */

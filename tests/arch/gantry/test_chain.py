@@ -162,7 +162,7 @@ def test_a_changed_gantry_or_tuning_is_refused(work: Path, capsys) -> None:
     other.write_text(
         (work / "gantry.toml").read_text().replace("jitter_s = 1e-6", "jitter_s = 2e-6")
     )
-    assert _verify(work, work / "g.json", None, "--gantry", str(other)) == 1
+    assert _verify(work, work / "g.json", None, "--config", str(other)) == 1
     err = capsys.readouterr().err
     assert "is not the gantry the tuning was made for" in err and err.count("\n") == 1
 
