@@ -78,14 +78,16 @@ DEMO_DIGESTS = {
     # and for the demo's quick preset (DECISIONS 9: a 12 x 16 tuning budget, Figure 4 with one
     # seed on held-out scenarios; margins confirmed on 32 sampled plants too, the tuning run's
     # sync-error figures in the design record, Kp0's and Kec's search bounds widened). The
-    # simulated log, the fit and the runtime sources kept their digests.
+    # simulated log, the fit and the runtime sources kept their digests. Session of 2026-11-26:
+    # servotune_rt.c/.h export st_wrap_add/st_wrap_sub (the gantry runtime uses them); the
+    # same arithmetic, only the two functions made public.
     "track_log.csv": "f7d686f065b441cdc05dd4509674df0e02206cb068f00010ec5697e31a7cbf3c",
     "fitted-rig.toml": "fa857aeaed5c4836378857da32ba0a8af7719206d0ef83dd526b8193e7114035",
     "tuning.json": "9546ae9eac0cb2fde8d2700c935bf988fdc70be897d1a0bfa9ab42a814f6b5b8",
     "fuzzy.json": "b7cd9a7d4cbc41965ef419cdb91ad6737b6e5849a03e0300f3dd38b2fced2914",
     "figure4.json": "4aaaffb9d2176bc66f7fb3675c9bf6c0328e6a909635b3ec15fd20a8f012e419",
-    "c/servotune_rt.c": "d36e7d41a3fadb722e75fab4af75ba467f059cbcdfebbc4c9d7d93e34b7723bd",
-    "c/servotune_rt.h": "87feeb024eb20ed602c0d94a2407b198e759b76239e0b4e216af4c457e758e2a",
+    "c/servotune_rt.c": "a730ceb25dfa73219bcd3b6099ecdc0308fca1361bdd9fd13fa726016fba8a98",
+    "c/servotune_rt.h": "706bbc7dcf9b7104823c5e37edc7e7e01412e390243a19881970a93f8cb1e236",
     "c/servotune_tables.h": "a8bb4b0b2e7cef4c6d4114fbb31b03f5a9504e1d898e50539889768b916fd4d3",
 }
 
