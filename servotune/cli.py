@@ -46,13 +46,20 @@ def _on_sigterm(signum: int, frame: object) -> None:
     raise _Terminated
 
 
+_SINK: list[Callable[[str], None]] = []  # this run's progress sink (main sets it)
+
+
 def _progress(message: str) -> None:
-    """A progress line on stderr; long runs report often, so this is also where a run whose
-    SIGTERM exception was swallowed (raised inside a destructor or a C callback, where Python
-    ignores exceptions) ends after all."""
+    """Progress on stderr (:class:`servotune.progress.StderrProgress`: bars on a terminal, lines
+    elsewhere, nothing with ``--quiet``); long runs report often, so this is also where a run
+    whose SIGTERM exception was swallowed (raised inside a destructor or a C callback, where
+    Python ignores exceptions) ends after all."""
     if _SIGNALLED:
         raise _Terminated
-    print(message, file=sys.stderr)
+    if _SINK:
+        _SINK[-1](message)
+    else:
+        print(message, file=sys.stderr)
 
 
 _MAX_MESSAGE = 600  # characters of an error line
@@ -142,6 +149,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     from servotune.identify import fit_log
     from servotune.identify.result import FIT_SCHEMA
     from servotune.rig import load_rig, write_plant
+    from servotune.tuning import file_sha256
 
     _check_dirs(args.output, args.plot)
     rig = load_rig(args.rig) if args.rig else None
@@ -165,14 +173,19 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     if args.output:
         if not axis:
             raise ServotuneError("-o needs --axis NAME for an unprefixed log")
-        vel = result.fit_pct["velocity"]["validation"]
-        prov = (
-            f"fitted by servotune {__version__} from {Path(args.log).name}: {result.method}, "
-            f"{'+'.join(result.structure)}, cross-validated velocity fit "
-            + ("n/a" if vel is None else f"{vel:.1f} %")
-        )
-        write_plant(args.output, axis, result.plant, provenance=prov, fit=result.plant_fit)
-        print(f"wrote [axis.{axis}.plant] to {args.output}", file=sys.stderr)
+        prov = result.provenance(Path(args.log).name, file_sha256(args.log),
+                                 log.metadata.get("date", ""))  # fmt: skip
+        new = not Path(args.output).exists()
+        name = args.name or Path(args.output).stem
+        write_plant(args.output, axis, result.plant, provenance=prov, fit=result.plant_fit,
+                    new_name=name if new else None,
+                    new_header=f"Rig {name}: made by `servotune fit -o` ({prov}).\nUnits are "
+                    "in the key names; gains are D/A codes per count.")  # fmt: skip
+        if new:
+            print(f"wrote a new rig {name!r} with [axis.{axis}.plant] to {args.output} (its "
+                  "hardware facts are the example rig's: check them)", file=sys.stderr)  # fmt: skip
+        else:
+            print(f"wrote [axis.{axis}.plant] to {args.output}", file=sys.stderr)
     if args.json:
         out = {"axis": axis, "schema": FIT_SCHEMA, "version": __version__}
         out.update(result.to_dict())
@@ -269,12 +282,7 @@ def _tune_gantry(args: argparse.Namespace, current: Path | None) -> int:
 
 def _cmd_tune(args: argparse.Namespace) -> int:
     from servotune.arch.kind import config_kind
-    from servotune.report.text import format_tuning_summary
-    from servotune.rig import load_rig
-    from servotune.tune.slave import tune_spec_from
-    from servotune.tune.workflow import tune_rig, tuning_summary
-    from servotune.tuning import current_tuning_path, tuning_to_string, write_tuning
-    from servotune.verify.spec import load_spec
+    from servotune.tuning import current_tuning_path
 
     _check_dirs(args.output)
     current = None if args.no_current else current_tuning_path()
@@ -282,6 +290,14 @@ def _cmd_tune(args: argparse.Namespace) -> int:
         _workbench_dir(current.parent)
     if args.json and (not args.output or args.output == "-"):
         raise ServotuneError("--json prints the summary on stdout: give -o FILE for the tuning")
+    _progress(f"tune {args.rig}: loading the tuner")  # before the imports: they take a second
+    from servotune.report.text import format_tuning_summary
+    from servotune.rig import load_rig
+    from servotune.tune.slave import tune_spec_from
+    from servotune.tune.workflow import tune_rig, tuning_summary
+    from servotune.tuning import tuning_to_string, write_tuning
+    from servotune.verify.spec import load_spec
+
     kind = config_kind(args.rig)
     if kind == "linkage":
         raise ServotuneError(f"{args.rig} is a linkage config: plan it with `servotune plan "
@@ -663,6 +679,12 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--version", action="version", version=f"servotune {__version__}")
     p.add_argument("--debug", action="store_true", help="show tracebacks on errors")
     p.add_argument(
+        "-q",
+        "--quiet",
+        action="store_true",
+        help="no progress on stderr (errors, warnings and summaries still go there)",
+    )
+    p.add_argument(
         "--max-memory",
         metavar="SIZE",
         help="memory budget a run may plan to allocate, e.g. 512M, 8G (default 2G, or "
@@ -691,8 +713,8 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("-o", "--output", required=True, help="log file to write ('-' for stdout)")
     s.set_defaults(func=_cmd_simulate)
 
-    s = sub.add_parser("fit", help="identify an axis model (SPEC §5) from a log")
-    s.add_argument("log", help="log CSV (SPEC §5)")
+    s = sub.add_parser("fit", help="identify an axis's motor + drive model from a logged run")
+    s.add_argument("log", help="log CSV (as `servotune simulate` writes it; see the README)")
     s.add_argument("--axis", help="axis to fit (needed for multi-axis logs)")
     s.add_argument("--rig", help="rig file: D/A, counter, period and compute time fallbacks")
     s.add_argument(
@@ -701,6 +723,11 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
     s.add_argument("-o", "--output", help="write the axis's plant section into this rig file")
     s.add_argument("--plot", help="PNG: measured vs simulated position, velocity, residuals")
+    s.add_argument(
+        "--name",
+        help="name of the rig -o creates (default: the file's name without .toml); an "
+        "existing rig file keeps its name",
+    )
     s.add_argument("--counter-bits", type=int, help="counter width for raw counter columns")
     s.add_argument("--dac-bits", type=int, help="D/A resolution for dac_code columns")
     s.add_argument("--dac-range-v", help="D/A range LOW,HIGH [V]")
@@ -923,7 +950,7 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--json", action="store_true", help="figure4.json on stdout as well")
     s.set_defaults(func=_cmd_compare)
 
-    s = sub.add_parser("sync", help="compare gantry topologies (seed 003) on a gantry config")
+    s = sub.add_parser("sync", help="compare gantry topologies on a gantry config")
     s.add_argument("config", help="gantry config (TOML), e.g. plants/gantry.toml")
     s.add_argument("--seed", type=int, default=0, help="noise and jitter seed (default 0)")
     s.add_argument(
@@ -938,13 +965,16 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--plot", metavar="DIR", help="write sync-error plots (PNG) into DIR")
     s.set_defaults(func=_cmd_sync)
 
-    s = sub.add_parser("linkage", help="simulate a multi-CPU linkage (seed 002) and check it")
+    s = sub.add_parser("linkage", help="simulate a multi-CPU linkage and check it")
     s.add_argument("config", help="linkage config (TOML), e.g. plants/linkage-6axis.toml")
     s.add_argument("--seconds", type=float, help="simulated time [s] (default: path + settle)")
     s.add_argument("--seed", type=int, default=0, help="encoder-noise seed (default 0)")
     s.add_argument("--json", action="store_true", help="the result as JSON on stdout")
     s.add_argument("--plot", metavar="DIR", help="write queue and circular-test PNGs into DIR")
     s.set_defaults(func=_cmd_linkage)
+    for verb in sub.choices.values():  # --quiet also after the verb (where users type it)
+        verb.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
+                          help="no progress on stderr")  # fmt: skip
     return p
 
 
@@ -965,6 +995,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         if args.max_memory is not None:
             set_memory_budget(args.max_memory)
+        if args.quiet or sys.stderr.isatty():  # tqdm only where it draws bars (--help stays lean)
+            from servotune.progress import StderrProgress
+
+            _SINK.append(StderrProgress(quiet=args.quiet))
         return func(args)
     except (ServotuneError, OSError, KeyboardInterrupt, _Terminated) as exc:
         if args.debug:
@@ -976,6 +1010,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         signal.signal(signal.SIGTERM, previous)
         warnings.formatwarning = format_warning
         set_memory_budget(None)
+        while _SINK:
+            close = getattr(_SINK.pop(), "close", None)
+            if close is not None:
+                close()
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -700,6 +700,8 @@ def write_plant(
     template: str | Path = EXAMPLE_RIG_PATH,
     provenance: str | None = None,
     fit: PlantFit | None = None,
+    new_name: str | None = None,
+    new_header: str = "",
 ) -> None:
     """Write one axis's model into the ``[axis.<axis>.plant]`` table of a rig file.
 
@@ -739,6 +741,12 @@ def write_plant(
         (``[axis.master.plant]  # fitted by ...``), replacing whatever comment was there, so
         repeated writes do not accumulate lines. ``""`` removes that comment; ``None`` (default)
         leaves it as it is.
+    new_name, new_header : str
+        For a ``path`` that does not exist yet: make it a rig of its own named ``new_name``,
+        with ``new_header`` (lines) as its leading comment, a description naming the template,
+        and every other axis's plant marked as the template's, not fitted
+        (:func:`servotune.io.rig.new_rig_text`). Without ``new_name`` the template is copied
+        as it is.
 
     Raises
     ------
@@ -769,8 +777,9 @@ def write_plant(
     if not isinstance(plant, Plant):
         raise TypeError(f"plant must be a servotune.plant.Plant, got {type(plant).__name__}")
     target = Path(path)
+    new = None if new_name is None else {"name": new_name, "header": new_header}
     new_text, written = edit_plant_text(target, axis, plant, template=template,
-                                        provenance=provenance,
+                                        provenance=provenance, new=new,
                                         fit=None if fit is None else fit.to_dict())  # fmt: skip
 
     # The result must load as a rig, with the values just written, before anything is written.

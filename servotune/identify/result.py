@@ -6,6 +6,7 @@ import math
 from dataclasses import dataclass, field, fields
 from typing import TYPE_CHECKING, Any
 
+from servotune._version import __version__
 from servotune.identify.model import ALL_PARAMS, PARAMS, UNITS
 from servotune.plant import Plant, discretize
 from servotune.rig import PlantFit
@@ -149,6 +150,19 @@ class FitResult:
     def discrete_model(self) -> control.StateSpace:
         """Exact ZOH model at the log's period with the total lag (compute + delay)."""
         return discretize(self.plant, self.period_s, self.compute_s + self.params["delay_s"])
+
+    def provenance(self, log_name: str, log_sha256: str, log_date: str = "") -> str:
+        """One line saying where the model comes from, for the rig file's plant table: the
+        tool, the log (its name, the start of its SHA-256, its ``date`` metadata if any), the
+        method and structure, the cross-validated velocity fit and the adequacy."""
+        vel = self.fit_pct["velocity"]["validation"]
+        when = f", logged {log_date}" if log_date else ""
+        return (
+            f"fitted by servotune {__version__} from {log_name} (sha256 {log_sha256[:12]}…"
+            f"{when}): {self.method}, {'+'.join(self.structure)}, cross-validated velocity fit "
+            + ("n/a" if vel is None else f"{vel:.1f} %")
+            + f", adequate: {'yes' if self.adequate else 'no (' + self.reason + ')'}"
+        )
 
     def summary(self) -> str:
         """A readable multi-line summary (what ``servotune fit`` prints on stderr)."""

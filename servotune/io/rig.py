@@ -13,6 +13,7 @@ model; the bytes and the TOML themselves are read and written through
 from __future__ import annotations
 
 import errno
+import re
 from collections.abc import Mapping, MutableMapping
 from dataclasses import MISSING, fields
 from pathlib import Path
@@ -26,7 +27,7 @@ from servotune.errors import RigError
 from servotune.plant import Plant
 from servotune.validate import check_keys, is_number, show_value
 
-__all__ = ["FLOAT_SIGNIFICANT_DIGITS", "build_section", "edit_plant_text"]
+__all__ = ["FLOAT_SIGNIFICANT_DIGITS", "build_section", "edit_plant_text", "new_rig_text"]
 
 
 def build_section(
@@ -206,13 +207,60 @@ def _plant_section(
                 f"(plant.tau_s = ...), which leaves no header for the provenance comment; "
                 f"write it as an [axis.{axis}.plant] table or pass provenance=None"
             )
-        if line:
-            trivia.comment_ws = trivia.comment_ws or "  "
-            trivia.comment = f"# {line}"
-        else:
-            trivia.comment_ws = ""
-            trivia.comment = ""
+        _set_comment(table, line)
     return doc.as_string(), written
+
+
+_STALE_COMMENT = re.compile(r"[ \t]+#[^\n\"']*\b(?:SPEC|seed \d{3})\b[^\n\"']*(?=\n|$)")
+
+
+def _set_comment(table: Any, line: str) -> None:
+    """Set (or, with ``""``, clear) the trailing comment of a table's header line."""
+    trivia = table.trivia
+    trivia.comment_ws = (trivia.comment_ws or "  ") if line else ""
+    trivia.comment = f"# {line}" if line else ""
+
+
+def new_rig_text(
+    template_text: str, source: Path, *, name: str, header: str, fitted_axis: str
+) -> str:
+    """A new rig file's text from a template's: named ``name``, with ``header`` (lines) as its
+    leading comment instead of the template's, the template's description replaced by one
+    saying where it came from, and every plant but ``fitted_axis``'s marked as the template's
+    model, not fitted (nothing in it reads as being about another machine).
+
+    Raises
+    ------
+    RigError
+        The template is not TOML or has no ``[rig]`` table.
+    """
+    lines = template_text.splitlines(keepends=True)
+    k = 0
+    while k < len(lines) and (lines[k].startswith("#") or not lines[k].strip()):
+        k += 1
+    head = "".join(f"# {ln}\n" if ln else "#\n" for ln in header.splitlines())
+    # a trailing comment that cites the template machine's own documents does not describe
+    # this machine: dropped (the key and its value stay)
+    body = [_STALE_COMMENT.sub("", ln) for ln in lines[k:]]
+    try:
+        doc = tomlkit.parse(head + "\n" + "".join(body))
+    except tomlkit.exceptions.TOMLKitError as exc:
+        raise RigError(f"template rig file {str(source)!r} is not valid TOML: {exc}") from None
+    rig = doc.get("rig")
+    if not isinstance(rig, MutableMapping):
+        raise RigError(f"template rig file {str(source)!r} has no [rig] table")
+    rig["name"] = name
+    rig["description"] = (
+        f"made by servotune fit from the template {source.name}: check the hardware facts "
+        "(timer, counter, D/A, encoder, limits) against this machine"
+    )
+    axes = doc.get("axis")
+    for other, table in axes.items() if isinstance(axes, Mapping) else ():
+        plant = table.get("plant") if isinstance(table, Mapping) else None
+        if other != fitted_axis and getattr(plant, "trivia", None) is not None:
+            _set_comment(plant, f"NOT FITTED: the template's model ({source.name}); fit this "
+                                f"axis's log with --axis {other} -o into this file")  # fmt: skip
+    return doc.as_string()
 
 
 def edit_plant_text(
@@ -223,6 +271,7 @@ def edit_plant_text(
     template: str | Path,
     provenance: str | None,
     fit: Mapping[str, Any] | None = None,
+    new: Mapping[str, str] | None = None,
 ) -> tuple[str, dict[str, Any]]:
     """The text of the rig file ``path`` with its ``[axis.<axis>.plant]`` table rewritten.
 
@@ -230,6 +279,9 @@ def edit_plant_text(
     rig with the values written. ``path`` is read if it exists, else ``template``; only the
     entries of that one table change (see :func:`servotune.rig.write_plant` for what is written
     and how numbers are rounded).
+
+    ``new``: for a file that does not exist yet, ``{"name": ..., "header": ...}`` make it a rig
+    of its own (:func:`new_rig_text`); without it the template is copied as it is.
 
     Returns
     -------
@@ -273,5 +325,7 @@ def edit_plant_text(
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise RigError(f"rig file {str(source)!r} is not valid TOML: {exc}") from None
-
+    if source != target and new is not None:
+        text = new_rig_text(text, source, name=new["name"], header=new["header"],
+                            fitted_axis=axis)  # fmt: skip
     return _plant_section(text, source, axis, plant, provenance, fit)

@@ -1,0 +1,79 @@
+"""One rig per machine, followed through (issue 20, point 2).
+
+``fit -o NEW.toml`` makes a rig of its own (named after the file or ``--name``, its provenance
+in the file, the axes it did not fit marked as not fitted, no text about the example machine),
+and a tuning made for another rig is refused by ``verify`` with exit 1, naming both rigs.
+The oracle is the written file itself, read back as TOML and as a rig.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from servotune.cli import main
+from servotune.rig import load_rig
+from servotune.tuning import write_tuning
+
+ROOT = Path(__file__).resolve().parents[2]
+EXAMPLE = ROOT / "plants" / "pc-dual-servo.toml"
+
+
+@pytest.fixture(scope="module")
+def log(tmp_path_factory) -> Path:
+    d = tmp_path_factory.mktemp("fitlog")
+    out = d / "my.csv"
+    assert main(["simulate", str(EXAMPLE), "--scenario", "prbs", "--axis", "master",
+                 "--seconds", "8", "--seed", "1", "-o", str(out)]) == 0  # fmt: skip
+    return out
+
+
+def test_fit_o_makes_a_rig_of_its_own(log: Path, tmp_path: Path, capsys) -> None:
+    target = tmp_path / "shop-floor-3.toml"
+    assert main(["fit", str(log), "--axis", "master", "-o", str(target)]) == 0
+    err = capsys.readouterr().err
+    assert "wrote a new rig 'shop-floor-3'" in err
+    text = target.read_text()
+    data = tomllib.loads(text)
+    assert data["rig"]["name"] == "shop-floor-3"
+    assert "pc-dual-servo" not in data["rig"]["name"]
+    # where the numbers come from: the log by name and digest, the method, the adequacy
+    sha = hashlib.sha256(log.read_bytes()).hexdigest()[:12]
+    header = text.splitlines()[0]
+    assert header.startswith("# Rig shop-floor-3: made by `servotune fit -o`") and sha in header
+    plant_line = next(ln for ln in text.splitlines() if ln.startswith("[axis.master.plant]"))
+    assert "my.csv" in plant_line and sha in plant_line and "adequate:" in plant_line
+    # the axis it did not fit says so; nothing speaks of the example machine or its documents
+    slave_line = next(ln for ln in text.splitlines() if ln.startswith("[axis.slave.plant]"))
+    assert "NOT FITTED" in slave_line
+    assert "seed 000" not in text and "SPEC" not in text
+    rig = load_rig(target)
+    assert rig.name == "shop-floor-3" and rig.axis("master").plant_fit is not None
+
+
+def test_fit_o_name_and_an_existing_rig_keeps_its_name(log: Path, tmp_path: Path) -> None:
+    target = tmp_path / "r.toml"
+    assert main(["fit", str(log), "--axis", "master", "-o", str(target), "--name", "cell-7"]) == 0
+    assert load_rig(target).name == "cell-7"
+    # fitting again into it (or --name on an existing file) keeps the file's own name
+    assert main(["fit", str(log), "--axis", "master", "-o", str(target), "--name", "other"]) == 0
+    assert load_rig(target).name == "cell-7"
+
+
+def test_verify_with_a_tuning_of_another_rig_fails_naming_both(
+    log: Path, tmp_path: Path, capsys, quick_tuning
+) -> None:
+    mine = tmp_path / "myrig.toml"
+    assert main(["fit", str(log), "--axis", "master", "-o", str(mine)]) == 0
+    tuning = tmp_path / "tuning.json"  # made for the example rig
+    write_tuning(quick_tuning, tuning)
+    capsys.readouterr()
+    code = main(["verify", str(tuning), "--spec", str(ROOT / "plants" / "pc-dual-servo.spec.toml"),
+                 "--rig", str(mine)])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 1, err
+    assert "myrig.toml" in err and "'pc-dual-servo'" in err and err.count("\n") == 1
+    assert not (tmp_path / "tuning.json.verify.json").exists()
