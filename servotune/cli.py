@@ -159,6 +159,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         counter_bits=args.counter_bits, dac_bits=args.dac_bits, dac_range_v=dac_range,
         period_s=args.period_s, compute_s=args.compute_s, method=args.method,
         friction=args.friction, invert_encoder=args.invert_encoder,
+        need_axis_name=bool(args.output),
     )  # fmt: skip
     print(f"axis {axis or '(unprefixed)'}: " + result.summary(), file=sys.stderr)
     if args.plot:
@@ -171,8 +172,6 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         save_figure(plot_fit(pos, sim, log.period_s, validation_split(sim.size),
                              f"fit of {axis or 'axis'}"), args.plot)  # fmt: skip
     if args.output:
-        if not axis:
-            raise ServotuneError("-o needs --axis NAME for an unprefixed log")
         prov = result.provenance(Path(args.log).name, file_sha256(args.log),
                                  log.metadata.get("date", ""))  # fmt: skip
         new = not Path(args.output).exists()

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from servotune.errors import IdentificationError
+from servotune.errors import IdentificationError, LogFormatError
 from servotune.identify.fitting import fit
 from servotune.identify.result import FitResult
 from servotune.logs import Log, read_log, read_metadata
@@ -31,12 +31,15 @@ def fit_log(
     method: str = "auto",
     friction: str = "auto",
     invert_encoder: bool = False,
+    need_axis_name: bool = False,
 ) -> tuple[FitResult, Log, str]:
     """Read a log and identify one axis (what ``servotune fit`` runs).
 
     Settings come from the keyword options, then the log's metadata, then the rig (SPEC §5).
     ``structure``, ``method``, ``friction`` and ``invert_encoder`` are
-    :func:`servotune.identify.fit_arrays`'s.
+    :func:`servotune.identify.fit_arrays`'s. ``need_axis_name``: the caller will write the
+    model under the axis's name (``fit -o``), so a log without axis prefixes and no ``axis``
+    is refused before the fit runs.
 
     Returns
     -------
@@ -48,7 +51,8 @@ def fit_log(
     Raises
     ------
     LogFormatError
-        If the log cannot be read (:func:`servotune.logs.read_log`).
+        If the log cannot be read (:func:`servotune.logs.read_log`), or ``need_axis_name`` and
+        nothing names its axis.
     IdentificationError
         If the data do not identify the model; the message names the log.
     """
@@ -73,6 +77,11 @@ def fit_log(
         compute_s=compute_s,  # validated with the other options (finite, >= 0, < period)
     )
     log_axis = None if list(log.axes) == [""] else axis
+    if need_axis_name and axis is None and list(log.axes) == [""]:
+        raise LogFormatError(
+            f"log {str(log_path)!r} has no axis prefix in its column names: give the axis's "
+            "name (--axis NAME), under which its model is written"
+        )
     try:
         result = fit(log, axis=log_axis, structure=structure, compute_s=compute_s, method=method,
                      friction=friction, invert_encoder=invert_encoder)  # fmt: skip

@@ -9,6 +9,7 @@ The oracle is the written file itself, read back as TOML and as a rig.
 from __future__ import annotations
 
 import hashlib
+import time
 import tomllib
 from pathlib import Path
 
@@ -77,3 +78,29 @@ def test_verify_with_a_tuning_of_another_rig_fails_naming_both(
     assert code == 1, err
     assert "myrig.toml" in err and "'pc-dual-servo'" in err and err.count("\n") == 1
     assert not (tmp_path / "tuning.json.verify.json").exists()
+
+
+def test_fit_o_without_a_name_for_an_unprefixed_log_stops_before_fitting(
+    log: Path, tmp_path: Path, capsys
+) -> None:
+    # the master's columns without their prefix (and without the slave's): a one-axis log
+    lines = log.read_text().splitlines()
+    head = next(i for i, ln in enumerate(lines) if not ln.startswith("#"))
+    cols = lines[head].split(",")
+    keep = [i for i, c in enumerate(cols) if not c.startswith("slave.")]
+    rows = [",".join(r.split(",")[i] for i in keep) for r in lines[head:]]
+    rows[0] = rows[0].replace("master.", "")
+    bare = tmp_path / "bare.csv"
+    bare.write_text("\n".join(lines[:head] + rows) + "\n")
+    plot, rig = tmp_path / "fit.png", tmp_path / "r.toml"
+    start = time.monotonic()
+    code = main(["fit", str(bare), "--plot", str(plot), "-o", str(rig)])
+    took = time.monotonic() - start
+    err = capsys.readouterr().err
+    assert code == 3 and "--axis NAME" in err and err.count("\n") == 1, err
+    assert not plot.exists() and not rig.exists()
+    assert took < 3.0, f"the refusal came after {took:.1f} s: the fit ran first"
+    # named, the same log fits and writes
+    assert main(["fit", str(bare), "--axis", "x", "-o", str(rig)]) == 3  # no axis x in the rig
+    assert main(["fit", str(bare), "--axis", "master", "-o", str(rig)]) == 0
+    assert load_rig(rig).axis("master").plant_fit is not None
