@@ -159,7 +159,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         counter_bits=args.counter_bits, dac_bits=args.dac_bits, dac_range_v=dac_range,
         period_s=args.period_s, compute_s=args.compute_s, method=args.method,
         friction=args.friction, invert_encoder=args.invert_encoder,
-        need_axis_name=bool(args.output),
+        need_axis_name=bool(args.output), strict=args.strict,
     )  # fmt: skip
     print(f"axis {axis or '(unprefixed)'}: " + result.summary(), file=sys.stderr)
     if args.plot:
@@ -722,6 +722,12 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
     s.add_argument("-o", "--output", help="write the axis's plant section into this rig file")
     s.add_argument("--plot", help="PNG: measured vs simulated position, velocity, residuals")
+    s.add_argument(
+        "--strict",
+        action="store_true",
+        help="an unknown metadata key in the log (# key: value, e.g. a typo) is an error, "
+        "not a warning",
+    )
     s.add_argument(
         "--name",
         help="name of the rig -o creates (default: the file's name without .toml); an "

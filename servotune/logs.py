@@ -337,6 +337,7 @@ def read_log(
     dac_range_v: tuple[float, float] | None = None,
     period_s: float | None = None,
     compute_s: float | None = None,
+    strict: bool = False,
 ) -> Log:
     """Read and validate a log file (SPEC §5).
 
@@ -344,7 +345,9 @@ def read_log(
     is known), else from the log's metadata (``# counter_bits: 24``, ``# dac_bits: 12``,
     ``# dac_range_v: -10,10``, ``# period_s: 0.004``), else from the defaults (24-bit counter,
     12-bit ±10 V D/A; the period from the ``time_s`` column). Malformed metadata is an error
-    even when an option overrides it.
+    even when an option overrides it. An unknown metadata key (a typo such as
+    ``# counter_bitz: 24``) is a :class:`LogMetadataWarning` naming the closest known key, or
+    with ``strict`` an error.
 
     ``dac_code`` is converted to volts through the D/A model, ``counter`` is unwrapped with the
     runtime's high-byte rule relative to the first row; ``cmd_v`` and ``pos_counts`` are taken
@@ -409,8 +412,9 @@ def read_log(
     src = str(path)
     try:
         return _read_log(
-            path, src, counter_bits, dac_bits, dac_range_v, period_s=period_s, compute_s=compute_s
-        )
+            path, src, counter_bits, dac_bits, dac_range_v, period_s=period_s,
+            compute_s=compute_s, strict=strict,
+        )  # fmt: skip
     except LogFormatError as exc:
         if src in str(exc):
             raise
@@ -426,6 +430,7 @@ def _read_log(
     *,
     period_s: float | None,
     compute_s: float | None,
+    strict: bool = False,
 ) -> Log:
     data = _read_bytes(Path(path), src)
     head = _split_ascii_head(data, src)
@@ -456,7 +461,7 @@ def _read_log(
         compute_s = _option("compute_s", compute_s, _parse_compute)
     else:
         compute_s = meta_compute
-    _warn_unknown_metadata(meta, meta_line, src)
+    _warn_unknown_metadata(meta, meta_line, src, strict)
 
     col = None
     if head is not None:
@@ -667,7 +672,11 @@ def read_metadata(path: str | Path) -> dict[str, str]:
     return meta
 
 
-def _warn_unknown_metadata(meta: Mapping[str, str], meta_line: Mapping[str, int], src: str) -> None:
+def _warn_unknown_metadata(
+    meta: Mapping[str, str], meta_line: Mapping[str, int], src: str, strict: bool = False
+) -> None:
+    """Warn (``strict``: refuse, :class:`LogFormatError`) naming each unknown metadata key
+    with its line and the closest known key."""
     unknown = [k for k in meta if k not in METADATA_KEYS]
     if unknown:
 
@@ -677,6 +686,8 @@ def _warn_unknown_metadata(meta: Mapping[str, str], meta_line: Mapping[str, int]
 
         listed = ", ".join(f"{k!r} (line {meta_line[k]}{near(k)})" for k in unknown[:5])
         more = f" and {len(unknown) - 5} more" if len(unknown) > 5 else ""
+        if strict:
+            raise LogFormatError(f"log {src!r}: unknown metadata {listed}{more} (--strict)")
         warnings.warn(
             f"log {src!r}: unknown metadata {listed}{more}, kept but not used (a typo? see "
             f"servotune.logs.METADATA_KEYS)",

@@ -32,6 +32,7 @@ def fit_log(
     friction: str = "auto",
     invert_encoder: bool = False,
     need_axis_name: bool = False,
+    strict: bool = False,
 ) -> tuple[FitResult, Log, str]:
     """Read a log and identify one axis (what ``servotune fit`` runs).
 
@@ -39,7 +40,8 @@ def fit_log(
     ``structure``, ``method``, ``friction`` and ``invert_encoder`` are
     :func:`servotune.identify.fit_arrays`'s. ``need_axis_name``: the caller will write the
     model under the axis's name (``fit -o``), so a log without axis prefixes and no ``axis``
-    is refused before the fit runs.
+    is refused before the fit runs. ``strict``: an unknown metadata key is an error
+    (:func:`servotune.logs.read_log`).
 
     Returns
     -------
@@ -75,6 +77,7 @@ def fit_log(
         dac_range_v=dac_range_v,
         period_s=period_s,
         compute_s=compute_s,  # validated with the other options (finite, >= 0, < period)
+        strict=strict,
     )
     log_axis = None if list(log.axes) == [""] else axis
     if need_axis_name and axis is None and list(log.axes) == [""]:

@@ -16,6 +16,7 @@ from pathlib import Path
 import pytest
 
 from servotune.cli import main
+from servotune.logs import LogMetadataWarning
 from servotune.rig import load_rig
 from servotune.tuning import write_tuning
 
@@ -104,3 +105,14 @@ def test_fit_o_without_a_name_for_an_unprefixed_log_stops_before_fitting(
     assert main(["fit", str(bare), "--axis", "x", "-o", str(rig)]) == 3  # no axis x in the rig
     assert main(["fit", str(bare), "--axis", "master", "-o", str(rig)]) == 0
     assert load_rig(rig).axis("master").plant_fit is not None
+
+
+def test_a_metadata_typo_warns_and_strict_refuses(log: Path, tmp_path: Path, capsys) -> None:
+    typo = tmp_path / "typo.csv"
+    typo.write_text(log.read_text().replace("# counter_bits: 24", "# counter_bitz: 24", 1))
+    with pytest.warns(LogMetadataWarning, match="'counter_bitz' .*did you mean 'counter_bits'"):
+        assert main(["fit", str(typo), "--axis", "master"]) == 0
+    capsys.readouterr()
+    assert main(["fit", str(typo), "--axis", "master", "--strict"]) == 3
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "counter_bitz" in err and "--strict" in err
