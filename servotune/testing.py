@@ -15,7 +15,8 @@ Registered as a pytest plugin (entry point ``servotune``), so in a user's reposi
 
 The fixtures ``servotune_rig`` and ``servotune_tuning`` load the files named by the ini options
 (paths relative to the rootdir) or the command-line options ``--servotune-rig`` and
-``--servotune-tuning``; a missing option skips the test with the reason.
+``--servotune-tuning``. A test that asks for one of them while its option is not set is an
+error that says how to set it, never a skip: a CI that checked nothing must not be green.
 """
 
 from __future__ import annotations
@@ -148,7 +149,13 @@ def _configured(request: Any, name: str) -> Path:
 
     value = request.config.getoption(f"--{name.replace('_', '-')}") or request.config.getini(name)
     if not value:
-        pytest.skip(f"set the ini option {name} (or --{name.replace('_', '-')}) to a file")
+        flag = f"--{name.replace('_', '-')}"
+        pytest.fail(
+            f"the {name} fixture has no file to load: set `{name} = path/to/file` under "
+            f"[tool.pytest.ini_options] in pyproject.toml (or [pytest] in pytest.ini), or pass "
+            f"{flag} FILE",
+            pytrace=False,
+        )
     p = Path(value)
     return p if p.is_absolute() else Path(request.config.rootpath) / p
 

@@ -44,10 +44,13 @@ def test_readme_example_passes_and_fails(pytester, tuning_file: Path) -> None:
     res.stdout.fnmatch_lines(["*master step of 3072 counts: settling time * s > 0.5 s*"])
 
 
-def test_fixture_without_option_skips(pytester) -> None:
+def test_fixture_without_option_is_an_error_saying_how_to_configure(pytester) -> None:
+    # a user's CI must not be green having checked nothing (issue 20): no skip
     pytester.makepyfile("def test_x(servotune_rig):\n    pass\n")
     res = pytester.runpytest()
-    res.assert_outcomes(skipped=1)
+    res.assert_outcomes(errors=1)
+    res.stdout.fnmatch_lines(["*servotune_rig = path/to/file*--servotune-rig FILE*"])
+    assert res.ret != 0
 
 
 def test_step_response_measures_the_loop(tuning_file: Path) -> None:
