@@ -736,8 +736,19 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--counter-bits", type=int, help="counter width for raw counter columns")
     s.add_argument("--dac-bits", type=int, help="D/A resolution for dac_code columns")
     s.add_argument("--dac-range-v", help="D/A range LOW,HIGH [V]")
-    s.add_argument("--period-s", type=float, help="sample period [s] when there is no time_s")
-    s.add_argument("--compute-s", type=float, help="known compute time [s]")
+    s.add_argument(
+        "--period-s",
+        type=float,
+        help="sample period [s], e.g. 0.004; overrides the log's `# period_s:` line and its "
+        "time_s column (default: that line, else the time_s column)",
+    )
+    s.add_argument(
+        "--compute-s",
+        type=float,
+        help="time from the sample to the D/A write [s], e.g. 0.0002, if known (default: the "
+        "log's `# compute_s:` line, else the rig's; the fit then estimates only the rest of "
+        "the delay)",
+    )
     s.add_argument(
         "--method",
         choices=["auto", "iv", "oe"],
@@ -977,10 +988,62 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--json", action="store_true", help="the result as JSON on stdout")
     s.add_argument("--plot", metavar="DIR", help="write queue and circular-test PNGs into DIR")
     s.set_defaults(func=_cmd_linkage)
-    for verb in sub.choices.values():  # --quiet also after the verb (where users type it)
+    for name, verb in sub.choices.items():  # --quiet also after the verb (where users type it)
         verb.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
                           help="no progress on stderr")  # fmt: skip
+        verb.formatter_class = argparse.RawDescriptionHelpFormatter
+        verb.epilog = "examples:\n" + "\n".join(f"  {x}" for x in _EXAMPLES[name])
     return p
+
+
+_EXAMPLES = {
+    "rig": ["servotune rig plants/pc-dual-servo.toml", "servotune rig my-rig.toml --json"],
+    "simulate": [
+        "servotune simulate plants/pc-dual-servo.toml --scenario prbs --axis master "
+        "--seconds 20 -o log.csv",
+        "servotune simulate plants/pc-dual-servo.toml --input exc.csv --closed-loop -o my.csv",
+    ],
+    "fit": [
+        "servotune fit my.csv --axis master                  # summary on stderr",
+        "servotune fit my.csv --axis master -o my-rig.toml   # a new rig named my-rig",
+        "servotune fit my.csv --axis master --json --plot fit.png",
+    ],
+    "excite": [
+        "servotune excite --rig my-rig.toml --axis master --kind prbs --seconds 40 -o exc.csv",
+    ],
+    "tune": [
+        "servotune tune my-rig.toml -o tuning.json",
+        "servotune tune my-rig.toml -o tuning.json --spec plants/pc-dual-servo.spec.toml",
+        "servotune tune plants/gantry.toml -o gantry.tuning.json   # a gantry config",
+    ],
+    "plan": ["servotune plan plants/linkage-6axis.toml -o linkage.plan.json"],
+    "verify": [
+        "servotune verify tuning.json --spec plants/pc-dual-servo.spec.toml --report reports",
+        "servotune verify gantry.tuning.json --spec plants/gantry.spec.toml",
+        "servotune verify linkage.plan.json --spec plants/linkage-6axis.spec.toml",
+    ],
+    "margins": ["servotune margins tuning.json --pm 50 --gm 6 --ms 1.8"],
+    "export-table": [
+        "servotune export-table tuning.json -o fuzzy.json",
+        "servotune export-table tuning.json --format c -o runtime/",
+        "servotune export-table -o fuzzy.json   # the workbench's current tuning",
+    ],
+    "check-table": ["servotune check-table fuzzy.json"],
+    "demo": [
+        "servotune demo plants/pc-dual-servo.toml --out reports",
+        "servotune demo plants/pc-dual-servo.toml --out reports --full",
+    ],
+    "compare": [
+        "servotune compare plants/pc-dual-servo.toml --spec plants/pc-dual-servo.spec.toml "
+        "--seeds 3 --json > figure4.json",
+    ],
+    "sync": [
+        "servotune sync plants/gantry.toml",
+        "servotune sync plants/gantry.toml --montecarlo 1000 --plot reports/",
+    ],
+    "linkage": ["servotune linkage plants/linkage-6axis.toml --json --plot reports/"],
+}
+"""One or more command lines per verb, shown under its ``--help``."""
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -775,3 +775,13 @@ def test_long_field_check_counts_characters_not_bytes(tmp_path: Path) -> None:
     assert "'" + "é" * 40 + "' is not a number" in _error(_log(tmp_path, rows=rows))
     rows[4] = "4,0.016," + "7" * 65 + ",112"
     assert "row 6, column 'dac_code': a field of 65 characters" in _error(_log(tmp_path, rows=rows))
+
+
+@pytest.mark.parametrize(("sep", "word"), [(";", "semicolons"), ("\t", "tabs")])
+def test_a_log_not_separated_by_commas_says_so(tmp_path: Path, sep: str, word: str) -> None:
+    # as a spreadsheet in a comma-decimal locale saves it (issue 20: the hint was misleading)
+    p = tmp_path / "log.csv"
+    p.write_text(sep.join(["tick", "time_s", "dac_code", "counter"]) + "\n"
+                 + sep.join(["0", "0", "2048", "0"]) + "\n")  # fmt: skip
+    with pytest.raises(LogFormatError, match=f"separated by {word}, not commas"):
+        read_log(p)

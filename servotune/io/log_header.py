@@ -172,6 +172,13 @@ def _split_ascii_head(
 
 def _parse_header(header_text: str, line: int) -> list[str]:
     names = [h.strip().strip('"').strip() for h in header_text.split(",")]
+    for sep, what in ((";", "semicolons"), ("\t", "tabs")):
+        if len(names) == 1 and header_text.count(sep) >= 2:
+            raise LogFormatError(
+                f"line {line}: the header is separated by {what}, not commas: save the log as "
+                f"comma-separated values (decimal point '.'), e.g. tick,time_s,master.dac_code,"
+                f"master.counter"
+            )
     for j, h in enumerate(names):
         if len(h) > MAX_NAME_CHARS:
             raise LogFormatError(

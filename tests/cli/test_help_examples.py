@@ -1,0 +1,34 @@
+"""Every verb's ``--help`` ends with examples in users' words (issue 20, point 6), and each
+example is a command line the parser accepts (a stale example would teach a wrong command).
+The help texts name no document users do not have."""
+
+from __future__ import annotations
+
+import shlex
+
+import pytest
+
+from servotune.cli import _EXAMPLES, _parser
+
+
+def _verbs() -> list[str]:
+    sub = next(a for a in _parser()._actions if a.dest == "verb")
+    return sorted(sub.choices)
+
+
+def test_every_verb_has_examples() -> None:
+    assert sorted(_EXAMPLES) == _verbs()
+
+
+@pytest.mark.parametrize("verb", _verbs())
+def test_each_example_parses_and_the_help_shows_it(verb: str, capsys) -> None:
+    for line in _EXAMPLES[verb]:
+        words = shlex.split(line.split("#")[0].split(">")[0])
+        assert words[:2] == ["servotune", verb], line
+        _parser().parse_args(words[1:])  # exits (SystemExit) if an option is wrong
+    with pytest.raises(SystemExit):
+        _parser().parse_args([verb, "--help"])
+    out = capsys.readouterr().out
+    assert "examples:" in out and _EXAMPLES[verb][0].split("#")[0].strip() in out
+    for stale in ("SPEC §", "seed 00", "shared/"):
+        assert stale not in out, (verb, stale)
