@@ -29,7 +29,7 @@ from servotune.digest import DIGEST_FIELD, bytes_sha256, document_sha256
 from servotune.errors import RigError, SpecError, TrustError, TuningError
 from servotune.io.files import atomic_write_text, json_float, parse_json, parse_toml, read_bytes
 from servotune.rig import EXAMPLE_RIG_PATH, Rig, rig_from_dict
-from servotune.tuning import Tuning, read_tuning_bytes
+from servotune.tuning import Tuning, current_tuning_path, file_sha256, read_tuning_bytes
 from servotune.verify.margins import DEFAULT_LIMITS, MarginLimits, Margins, tuning_margins
 from servotune.verify.result import Verification
 from servotune.verify.run import verify
@@ -301,16 +301,32 @@ def _record_text(record: Mapping[str, Any]) -> str:
     return json.dumps(record, sort_keys=True, indent=2, allow_nan=False) + "\n"
 
 
-def write_record(record: Mapping[str, Any], tuning_path: str | Path) -> Path:
+def write_record(
+    record: Mapping[str, Any], tuning_path: str | Path, tuning_sha256: str | None = None
+) -> Path:
     """Write a record next to its tuning as ``<tuning name>.verify.json`` (atomically).
+
+    With ``tuning_sha256`` (the bytes verified), the record is also written next to the
+    workbench's current tuning (:func:`servotune.tuning.current_tuning_path`) when that file
+    holds the same bytes: ``tune -o tuning.json`` records a copy there, and ``export-table``
+    without a file exports that copy, which is then the verified tuning too.
 
     Returns
     -------
     Path
-        The record's path.
+        The record's path (next to ``tuning_path``).
     """
     path = record_path(tuning_path)
-    atomic_write_text(path, _record_text(record))
+    text = _record_text(record)
+    atomic_write_text(path, text)
+    current = current_tuning_path()
+    if (
+        tuning_sha256 is not None
+        and current.is_file()
+        and current.resolve() != Path(tuning_path).resolve()
+        and file_sha256(current) == tuning_sha256
+    ):
+        atomic_write_text(record_path(current), text)
     return path
 
 
@@ -351,7 +367,7 @@ def verify_files(
         spec = replace(spec, montecarlo=replace(spec.montecarlo, count=montecarlo))
     result = verify(tuning, rig, spec, seed=seed, progress=progress)
     record = verification_record(result, tuning=tuning_file, rig=rig_file, spec=spec_file)
-    path = write_record(record, tuning_path) if write else None
+    path = write_record(record, tuning_path, tuning_file.sha256) if write else None
     return result, record, path
 
 

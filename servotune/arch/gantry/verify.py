@@ -429,7 +429,7 @@ def verify_gantry_files(
                           summary=summary, result={"verification": result.to_dict()},
                           files={"gantry": gantry_file, "rig": rig_file, "spec": spec_file,
                                  "tuning": tuning_file})  # fmt: skip
-    path = write_record(record, tuning_path) if write else None
+    path = write_record(record, tuning_path, tuning_file.sha256) if write else None
     return result, record, path
 
 
