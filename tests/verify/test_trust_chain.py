@@ -188,3 +188,28 @@ def test_n_infinity_in_a_tuning_is_not_json(bench, tmp_path, capsys) -> None:
     capsys.readouterr()
     assert main(["verify", str(bad), "--spec", str(bench["spec"])]) == 3
     assert "Infinity" in _err_line(capsys)
+
+
+def test_verify_also_records_the_current_tuning_when_it_is_the_same_bytes(
+    bench, tmp_path, capsys, monkeypatch
+) -> None:
+    # `tune -o tuning.json` also writes the workbench's current tuning (a copy); after
+    # `verify tuning.json`, `export-table` without a file exports the copy (issue 20)
+    monkeypatch.setenv("SERVOTUNE_WORKBENCH", str(tmp_path / "wb"))
+    (tmp_path / "wb").mkdir()
+    tuning = _copy(bench["good"], tmp_path / "tuning.json")
+    current = _copy(bench["good"], tmp_path / "wb" / "tuning.json")
+    assert main(["verify", str(tuning), "--spec", str(bench["spec"])]) == 0
+    assert (tmp_path / "tuning.json.verify.json").is_file()
+    assert (tmp_path / "wb" / "tuning.json.verify.json").read_bytes() == (
+        tmp_path / "tuning.json.verify.json").read_bytes()  # fmt: skip
+    out = tmp_path / "fuzzy.json"
+    assert main(["export-table", "-o", str(out)]) == 0 and out.is_file()
+    # a current tuning of other bytes gets no record of this one
+    (tmp_path / "wb" / "tuning.json.verify.json").unlink()
+    _copy(bench["poor"], current)
+    assert main(["verify", str(tuning), "--spec", str(bench["spec"])]) == 0
+    assert not (tmp_path / "wb" / "tuning.json.verify.json").exists()
+    capsys.readouterr()
+    assert main(["export-table", "-o", str(out)]) == 1
+    assert "has no verification record" in _err_line(capsys)
