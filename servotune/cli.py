@@ -422,7 +422,7 @@ def _cmd_verify(args: argparse.Namespace) -> int:
 
         rig_path = args.rig or default_rig_path(read_tuning(args.tuning), args.tuning)
         out = write_report(args.report, tuning_path=args.tuning, rig_path=rig_path,
-                           verification=result)  # fmt: skip
+                           verification=result, spec_path=args.spec)  # fmt: skip
         print(f"wrote the report to {out}", file=sys.stderr)
     return EXIT_OK if result.passed else EXIT_FAILED
 

@@ -261,6 +261,7 @@ def run_demo(
             "tracking": None if m is None else m.to_dict(),
         }
     identification = {}
+    fits = {}
     say("demo: identify both axes from closed-loop logs")
 
     fitted_rig = out / "fitted-rig.toml"
@@ -273,6 +274,7 @@ def run_demo(
                   metadata=log_metadata(rig, scenario="prbs", axis=name, closed_loop="true",
                                         seed=seed))  # fmt: skip
         result, log, _ = fit_log(log_path, axis=name, rig=rig)
+        fits[name] = result
         ax = log.axis(name)
         sim = simulate_fit(result, ax.cmd_v, ax.pos_counts)
         save_figure(plot_fit(ax.pos_counts, sim, log.period_s, validation_split(sim.size),
@@ -324,7 +326,7 @@ def run_demo(
         write_c(v.tuning, out / "c", rig=v.rig, verification=v.record)
         exported = ["fuzzy.json", "c/"]
     write_report(out, tuning_path=tuning_path, rig_path=fitted_rig, verification=verification,
-                 seed=seed)  # fmt: skip
+                 seed=seed, fits=fits, spec_path=spec_path)  # fmt: skip
     summary = {
         "architectures": architectures,
         "comparison": cmp.to_dict()["table"],

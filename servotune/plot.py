@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -18,6 +19,8 @@ if TYPE_CHECKING:
     from servotune.arch.linkage import LinkageResult
 
 __all__ = [
+    "QUERY_TABLE_LABELS",
+    "MoveEnvelope",
     "plot_bode",
     "plot_comparison",
     "plot_fit",
@@ -28,6 +31,7 @@ __all__ = [
     "plot_radial_deviation",
     "plot_sync_errors",
     "plot_tracking",
+    "residual_step",
     "save_figure",
 ]
 
@@ -54,8 +58,73 @@ def _finish(fig: plt.Figure, axs: Sequence[plt.Axes], title: str) -> plt.Figure:
     return fig
 
 
-def plot_tracking(trace: Trace, title: str = "") -> plt.Figure:
-    """Positions, errors, D/A codes and modes of a trace (one column per axis)."""
+@dataclass(frozen=True, slots=True, kw_only=True)
+class MoveEnvelope:
+    """A verification scenario's limits on a move, drawn over its response (:func:`plot_tracking`).
+
+    Attributes
+    ----------
+    start_s : float
+        When the master's reference starts to move [s] (the step's time zero).
+    initial_counts, target_counts : float
+        Position before the move and the reference's final value [counts].
+    settling_band_pct : float
+        Settling band, % of the move.
+    max_overshoot_pct : float or None
+        Largest run past the target, % of the move.
+    max_settling_time_s : float or None
+        Time from ``start_s`` to settle into the band for good [s].
+    max_sync_error_counts : float or None
+        Largest ``|master − slave|`` [counts].
+    master : int
+        The master's axis column.
+    slaves : tuple of int
+        The slaves' axis columns.
+    """
+
+    start_s: float
+    initial_counts: float
+    target_counts: float
+    settling_band_pct: float
+    max_overshoot_pct: float | None = None
+    max_settling_time_s: float | None = None
+    max_sync_error_counts: float | None = None
+    master: int = 0
+    slaves: tuple[int, ...] = ()
+
+
+def _draw_envelope(axs: Sequence[plt.Axes], trace: Trace, env: MoveEnvelope) -> None:
+    t_end = float(trace.time_s[-1])
+    move = env.target_counts - env.initial_counts
+    sign = 1.0 if move >= 0 else -1.0
+    if env.max_overshoot_pct is not None:
+        y = env.target_counts + sign * abs(move) * env.max_overshoot_pct / 100.0
+        label = f"overshoot limit ({env.max_overshoot_pct:g} % of the move)"
+        axs[0].hlines(y, env.start_s, t_end, colors="C3", linestyles="--", lw=1.0, label=label)
+    if env.max_settling_time_s is not None:
+        band = abs(move) * env.settling_band_pct / 100.0
+        t0 = env.start_s + env.max_settling_time_s
+        if t0 < t_end:
+            axs[0].fill_between([t0, t_end], env.target_counts - band, env.target_counts + band,
+                                color="C2", alpha=0.35, lw=0,
+                                label=f"settled by {env.max_settling_time_s:g} s into "
+                                      f"±{env.settling_band_pct:g} %")  # fmt: skip
+    if env.max_sync_error_counts is not None and env.slaves:
+        for j in env.slaves:
+            e = trace.true_pos_counts[:, env.master] - trace.true_pos_counts[:, j]
+            axs[1].plot(trace.time_s, e, color="k", lw=0.8,
+                        label=f"sync error {trace.axis_names[env.master]} − "
+                              f"{trace.axis_names[j]}")  # fmt: skip
+        lim = env.max_sync_error_counts
+        axs[1].axhline(lim, color="C3", ls="--", lw=1.0, label=f"sync-error limit ±{lim:g} counts")
+        axs[1].axhline(-lim, color="C3", ls="--", lw=1.0)
+
+
+def plot_tracking(trace: Trace, title: str = "", *, envelope: MoveEnvelope | None = None
+                  ) -> plt.Figure:  # fmt: skip
+    """Positions, errors, D/A codes and modes of a trace (one column per axis); with
+    ``envelope``, the spec's limits on the move drawn over it (the overshoot ceiling, the
+    settling band, the sync-error bound and the sync error itself)."""
     t = trace.time_s
     fig, axs = plt.subplots(3, 1, figsize=(9, 8), sharex=True)
     for i, name in enumerate(trace.axis_names):
@@ -64,9 +133,11 @@ def plot_tracking(trace: Trace, title: str = "") -> plt.Figure:
         axs[2].step(t, trace.code[:, i], where="post", label=f"{name} D/A code")
     if trace.ref_counts.shape[1] and np.any(trace.ref_counts):
         axs[0].plot(t, trace.ref_counts[:, 0], "k--", lw=0.8, label="reference")
-    axs[0].set_ylabel("counts")
-    axs[1].set_ylabel("counts")
-    axs[2].set_ylabel("code")
+    if envelope is not None:
+        _draw_envelope(axs, trace, envelope)
+    axs[0].set_ylabel("position [counts]")
+    axs[1].set_ylabel("error [counts]")
+    axs[2].set_ylabel("D/A output [codes]")
     axs[2].set_xlabel("time [s]")
     return _finish(fig, axs, title)
 
@@ -87,7 +158,7 @@ def plot_lock_hold(
         ax.axhline(4, color="C3", ls=":", lw=0.8)
         ax.axhline(-4, color="C3", ls=":", lw=0.8, label="±1 pulse (±4 counts)")
         ax.axvline(settle_s, color="k", ls="--", lw=0.6)
-        ax.set_ylabel("counts")
+        ax.set_ylabel("target − position [counts]")
         ax.grid(True, alpha=0.3)
         ax.legend(loc="upper right", fontsize=8)
     axs[-1, 0].set_xlabel("time [s]")
@@ -95,6 +166,25 @@ def plot_lock_hold(
         axs[0, 0].set_title(title)
     fig.tight_layout()
     return fig
+
+
+def residual_step(residual_counts: np.ndarray, split_index: int) -> float:
+    """How far the position residual steps at the split of a split-half validation [counts]:
+    the median over the second half's first samples (after its restart transient) less the
+    median over the first half's last ones; NaN without a split inside the log.
+
+    >>> residual_step(np.r_[np.zeros(100), np.full(100, 2.0)], 100)
+    2.0
+    """
+    r = np.asarray(residual_counts, dtype=float)
+    n = r.size
+    if not 0 < split_index < n:
+        return float("nan")
+    k = max(1, min(50, split_index, (n - split_index) // 4))
+    after = r[split_index + k : split_index + 2 * k]
+    if after.size == 0:
+        after = r[split_index:]
+    return float(np.median(after) - np.median(r[split_index - k : split_index]))
 
 
 def plot_fit(
@@ -106,6 +196,14 @@ def plot_fit(
 ) -> plt.Figure:
     """Measured vs simulated position and velocity, and the residuals, of an identification.
 
+    The split of the split-half validation is marked on every panel: each half is simulated by
+    the model fitted on the other half, from its own first measured position and a speed taken
+    from its first samples (:func:`servotune.identify.simulate_fit`). The second half's
+    simulation restarts there without the motion in flight (the commands inside the loop
+    delay, the acceleration), so the position residual steps at the split and then stays
+    (position integrates the speed error of the restart); the step is written on the figure
+    (:func:`residual_step`).
+
     Parameters
     ----------
     pos_counts, sim_pos_counts : ndarray
@@ -113,27 +211,44 @@ def plot_fit(
     period_s : float
         Sample period [s].
     split_index : int
-        First sample of the validation part.
+        First sample of the second half (0: no split to mark).
     """
     time_s = np.arange(len(pos_counts), dtype=np.int64) * period_s
     fig, axs = plt.subplots(3, 1, figsize=(9, 8), sharex=True)
     v_m = np.diff(pos_counts) / period_s
     v_s = np.diff(sim_pos_counts) / period_s
     t_v = time_s[:-1]
+    residual = np.asarray(pos_counts, dtype=float) - np.asarray(sim_pos_counts, dtype=float)
     axs[0].plot(time_s, pos_counts, lw=0.8, label="measured")
     axs[0].plot(time_s, sim_pos_counts, lw=0.8, ls="--", label="simulated")
     axs[0].set_ylabel("position [counts]")
     axs[1].plot(t_v, v_m, lw=0.5, label="measured (Δcounts/T)")
     axs[1].plot(t_v, v_s, lw=0.8, label="simulated")
     axs[1].set_ylabel("speed [counts/s]")
-    axs[2].plot(time_s, pos_counts - sim_pos_counts, lw=0.6, label="position residual")
+    axs[2].plot(time_s, residual, lw=0.6, label="position residual (measured − simulated)")
+    axs[2].margins(y=0.25)
     axs[2].set_ylabel("residual [counts]")
     axs[2].set_xlabel("time [s]")
-    for a in axs:
-        a.axvline(time_s[split_index], color="k", ls=":", lw=0.8)
+    split = 0 < split_index < len(pos_counts)
+    if split:
+        t_split = float(time_s[split_index])
+        for i, a in enumerate(axs):
+            a.axvline(t_split, color="k", ls=":", lw=1.0,
+                      label="split: each half simulated by the other half's model"
+                      if i == 0 else None)  # fmt: skip
+        for x, text in ((0.25, "first half"), (0.75, "second half")):
+            axs[0].text(x, 1.01, text, transform=axs[0].transAxes, ha="center", va="bottom",
+                        fontsize=8)  # fmt: skip
+        step = residual_step(residual, split_index)
+        axs[2].text(0.01, 0.96, f"at the split the simulation restarts from the measured "
+                    f"position (the motion in flight is lost):\nthe residual steps by "
+                    f"{step:+.1f} counts there and then stays", transform=axs[2].transAxes,
+                    va="top", fontsize=7.5,
+                    bbox={"facecolor": "white", "alpha": 0.8, "lw": 0})  # fmt: skip
+    for a, where in zip(axs, ("upper right", "upper right", "lower right"), strict=True):
         a.grid(True, alpha=0.3)
-        a.legend(loc="upper right", fontsize=8)
-    axs[0].set_title(title or "identification: estimation | validation")
+        a.legend(loc=where, fontsize=8)
+    fig.suptitle(title or "identification: measured against simulated")
     fig.tight_layout()
     return fig
 
@@ -184,7 +299,7 @@ def plot_pareto(points: Sequence[Any], title: str = "") -> plt.Figure:
     axs[0].set_ylabel("ITAE of the sync error [counts·s²]")
     axs[1].set_ylabel("max |sync error| [counts]")
     for ax in axs:
-        ax.set_xlabel("worst peak sensitivity Ms over the plant set")
+        ax.set_xlabel("worst peak sensitivity Ms over the plant set [1]")
     return _finish(fig, axs, title or "tracking against robustness (each structure's front)")
 
 
@@ -207,17 +322,46 @@ def plot_sync_errors(traces: Sequence[object], case: str, title: str = "") -> pl
     return fig
 
 
+QUERY_TABLE_LABELS: Mapping[str, str] = {
+    "kp": "Kp [codes/count]",
+    "ki": "Ki·T [codes/count per tick]",
+    "kd": "Kd/T [codes/count of change]",
+    "k1": "K1/T [codes/count of change]",
+}
+"""Labels with units of a fuzzy-PID law's scheduled gains (``FuzzyPIDConstants.scheduled``), by
+table name (:data:`servotune.laws.fuzzy_pid.TABLE_NAMES`), for :func:`plot_query_tables`."""
+
+
 def plot_query_tables(tables: dict[str, np.ndarray], n: int, title: str = "") -> plt.Figure:
-    """Heat maps of query tables (row E, column EC, levels −n…n)."""
+    """Heat maps of query tables (row E, column EC, levels −n…n).
+
+    Each panel is titled with its name (give it with its unit, e.g. from
+    :data:`QUERY_TABLE_LABELS`) and the range of its values; its colour bar carries the name.
+    A table whose cells are all equal (a constant table, such as a feedforward gain that is not
+    scheduled) is drawn as one flat tile with its value written on it, not as a colour scale of
+    nothing. NaN cells stay blank.
+    """
     names = list(tables)
-    fig, axs = plt.subplots(1, len(names), figsize=(3.2 * len(names), 3.2), squeeze=False)
+    fig, axs = plt.subplots(1, len(names), figsize=(3.4 * len(names), 3.6), squeeze=False)
     ext = (-n - 0.5, n + 0.5, n + 0.5, -n - 0.5)
     for ax, name in zip(axs[0], names, strict=True):
-        im = ax.imshow(np.asarray(tables[name], dtype=float), extent=ext, cmap="coolwarm")
-        ax.set_title(name, fontsize=9)
-        ax.set_xlabel("EC level")
-        ax.set_ylabel("E level")
-        fig.colorbar(im, ax=ax, fraction=0.046)
+        label = name
+        a = np.asarray(tables[name], dtype=float)
+        finite = a[np.isfinite(a)]
+        lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (np.nan, np.nan)
+        if finite.size and lo == hi:
+            ax.imshow(np.where(np.isfinite(a), 0.0, np.nan), extent=ext, cmap="Greys", vmin=-1,
+                      vmax=4)  # fmt: skip
+            ax.text(0.5, 0.5, f"constant\n{lo:.4g}", transform=ax.transAxes, ha="center",
+                    va="center", fontsize=12, fontweight="bold")  # fmt: skip
+            ax.set_title(f"{label}\nevery cell {lo:.4g}", fontsize=8)
+        else:
+            im = ax.imshow(a, extent=ext, cmap="coolwarm")
+            ax.set_title(f"{label}\n{lo:.4g} … {hi:.4g}", fontsize=8)
+            bar = fig.colorbar(im, ax=ax, fraction=0.046)
+            bar.set_label(label, fontsize=8)
+        ax.set_xlabel("EC: error-change level [1]", fontsize=8)
+        ax.set_ylabel("E: error level [1]", fontsize=8)
     if title:
         fig.suptitle(title)
     fig.tight_layout()
@@ -243,21 +387,10 @@ def plot_bode(responses: dict[str, tuple[np.ndarray, np.ndarray]], title: str = 
     return fig
 
 
-def plot_queue_levels(result: LinkageResult, ax: plt.Axes | None = None) -> plt.Figure:
-    """Queue level of every slave CPU before each pop over master time (seed 002 linkage).
-
-    Each slave's level (setpoints per axis) is drawn with its queue depth (dotted) and its
-    first underrun / overrun (dashed / dash-dot vertical line); the resync instants are grey.
-    """
-    if ax is None:
-        fig, ax = plt.subplots(figsize=(9, 3.8))
-    else:
-        fig = ax.figure
+def _queue_markers(ax: plt.Axes, result: LinkageResult) -> None:
+    """Depth (dotted), first underrun / overrun (dashed / dash-dot) and resyncs (grey)."""
     for i, c in enumerate(result.cpus):
         color = f"C{i}"
-        ax.step(c.tick_time_s, c.queue_level, where="post", lw=0.8, color=color, alpha=0.8,
-                label=f"{c.name} ({c.clock_ppm:+g} ppm): {c.underruns} underruns, "
-                      f"{c.overruns} overruns")  # fmt: skip
         ax.axhline(c.queue_depth, color=color, ls=":", lw=0.8)
         if c.first_underrun_s is not None:
             ax.axvline(c.first_underrun_s, color=color, ls="--", lw=0.8)
@@ -269,13 +402,98 @@ def plot_queue_levels(result: LinkageResult, ax: plt.Axes | None = None) -> plt.
         for r in range(1, n + 1):
             ax.axvline(r * result.resync_interval_s, color="0.6", lw=0.5)
     ax.axhline(0, color="k", lw=0.6)
-    ax.set_xlabel("time [s]")
-    ax.set_ylabel("queue level [setpoints]")
+
+
+def _queue_label(c: Any) -> str:
+    return (f"{c.name} ({c.clock_ppm:+g} ppm): level {c.min_level}–{c.max_level} of "
+            f"{c.queue_depth}, {c.underruns} underruns, {c.overruns} overruns")  # fmt: skip
+
+
+def _queue_window(result: LinkageResult) -> tuple[float, float]:
+    """A window a few broadcast periods wide [s]: around the first underrun or overrun, else
+    at the start of the run (the sawtooth of arrivals and pops is read there)."""
+    width = max(6.0 * result.bus.broadcast_period_s, 40.0 * result.period_s)
+    firsts = [t for c in result.cpus for t in (c.first_underrun_s, c.first_overrun_s)
+              if t is not None]  # fmt: skip
+    t0 = max(0.0, min(firsts) - width / 2) if firsts else 0.0
+    return t0, t0 + width
+
+
+def _overlap_width(i: int, n: int) -> float:
+    """Line width of the ``i``-th of ``n`` lines that may lie on top of each other: the first
+    widest, so that each stays visible under the ones drawn after it."""
+    return 1.0 + 1.6 * (n - 1 - i)
+
+
+def plot_queue_levels(result: LinkageResult, ax: plt.Axes | None = None) -> plt.Figure:
+    """Queue level of every slave CPU before each pop over master time (seed 002 linkage).
+
+    The level is a sawtooth at the broadcast period (a block arrives, each tick pops one), far
+    too fast to read over a whole run. Without ``ax`` the figure has two panels: over the whole
+    run, each CPU's lowest and highest level per time bin (a band, its edges drawn), and below
+    it a window of a few broadcast periods (around the first underrun or overrun, else at the
+    start) with every pop. With ``ax``, every pop is drawn on it (zoom with ``set_xlim``).
+    Each CPU's queue depth is dotted, its first underrun / overrun a dashed / dash-dot
+    vertical line; the resync instants are grey.
+    """
     sync = (f"resync every {result.resync_interval_s:g} s" if result.resync_interval_s
             else "start sync only")  # fmt: skip
-    ax.set_title(f"slave queues, {sync} (dotted: depth)")
-    ax.grid(True, alpha=0.3)
-    ax.legend(loc="best", fontsize=8)
+    if ax is not None:
+        fig = ax.figure
+        for i, c in enumerate(result.cpus):
+            ax.step(c.tick_time_s, c.queue_level, where="post", lw=0.8, color=f"C{i}",
+                    alpha=0.8, label=_queue_label(c))  # fmt: skip
+        _queue_markers(ax, result)
+        ax.set_xlabel("time [s]")
+        ax.set_ylabel("queue level [setpoints]")
+        ax.set_title(f"slave queues, {sync} (dotted: depth)")
+        ax.grid(True, alpha=0.3)
+        ax.legend(loc="best", fontsize=8)
+        fig.tight_layout()
+        return fig
+    fig, (top, zoom) = plt.subplots(2, 1, figsize=(9, 6.4), height_ratios=(1.0, 1.0))
+    bins = 400
+    for i, c in enumerate(result.cpus):
+        color = f"C{i}"
+        t = np.asarray(c.tick_time_s, dtype=float)
+        lvl = np.asarray(c.queue_level, dtype=float)
+        if t.size == 0:
+            continue
+        edges = np.linspace(t[0], t[-1], bins + 1)
+        k = np.clip(np.searchsorted(edges, t, side="right") - 1, 0, bins - 1)
+        lo = np.full(bins, np.inf)
+        hi = np.full(bins, -np.inf)
+        np.minimum.at(lo, k, lvl)
+        np.maximum.at(hi, k, lvl)
+        used = np.isfinite(lo)
+        mid = 0.5 * (edges[:-1] + edges[1:])[used]
+        lw = _overlap_width(i, len(result.cpus))
+        top.fill_between(mid, lo[used], hi[used], color=color, alpha=0.2, lw=0,
+                         label=_queue_label(c))  # fmt: skip
+        top.plot(mid, lo[used], color=color, lw=lw)
+        top.plot(mid, hi[used], color=color, lw=lw, ls="--")
+    _queue_markers(top, result)
+    top.set_xlabel("time [s]")
+    top.set_ylabel("queue level [setpoints]")
+    top.set_title(f"slave queues, {sync}: lowest (solid) and highest (dashed) level per "
+                  f"{(result.time_s.size * result.period_s) / bins * 1e3:.0f} ms; dotted: depth",
+                  fontsize=10)  # fmt: skip
+    t0, t1 = _queue_window(result)
+    for i, c in enumerate(result.cpus):
+        t = np.asarray(c.tick_time_s, dtype=float)
+        sel = (t >= t0) & (t <= t1)
+        zoom.step(t[sel], np.asarray(c.queue_level)[sel], where="post", color=f"C{i}",
+                  lw=_overlap_width(i, len(result.cpus)), label=c.name)  # fmt: skip
+    _queue_markers(zoom, result)
+    zoom.set_xlim(t0, t1)
+    zoom.set_xlabel("time [s]")
+    zoom.set_ylabel("queue level [setpoints]")
+    zoom.set_title(f"{(t1 - t0) * 1e3:.0f} ms from {t0:.3f} s: a block arrives every "
+                   f"{result.bus.broadcast_period_s * 1e3:g} ms, each tick pops one setpoint",
+                   fontsize=10)  # fmt: skip
+    for a in (top, zoom):
+        a.grid(True, alpha=0.3)
+        a.legend(loc="best", fontsize=8)
     fig.tight_layout()
     return fig
 
@@ -293,6 +511,8 @@ def plot_radial_deviation(result: LinkageResult, ax: plt.Axes | None = None) -> 
         fig, ax = plt.subplots(figsize=(6, 6), subplot_kw={"projection": "polar"})
     else:
         fig = ax.figure
+    ax.set_xlabel("angle on the circle [deg]", fontsize=8)
+    ax.set_ylabel("radial deviation [counts]", fontsize=8, labelpad=28)
     if not result.arcs:
         ax.set_title("no arc in the path")
         return fig
@@ -313,6 +533,6 @@ def plot_radial_deviation(result: LinkageResult, ax: plt.Axes | None = None) -> 
     ax.set_rlabel_position(90)
     ax.tick_params(axis="y", labelsize=7)
     ax.set_title("circular test: radial deviation [counts] (magnified)", fontsize=10)
-    ax.legend(loc="lower center", bbox_to_anchor=(0.5, -0.2), fontsize=8)
+    ax.legend(loc="lower center", bbox_to_anchor=(0.5, -0.28), fontsize=8)
     fig.tight_layout()
     return fig

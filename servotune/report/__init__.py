@@ -1,4 +1,5 @@
-"""Results for people: text for the terminal (:mod:`.text`) and the HTML report (:mod:`.html`).
+"""Results for people: text for the terminal (:mod:`.text`), the HTML report (:mod:`.html`) and
+the verdict and next step that head it (:mod:`.summary`).
 
 Formatting lives here, above the layers that compute the results; the library never prints.
 """
