@@ -1,14 +1,33 @@
-"""Notebooks are narrative: stored without outputs, and they run."""
+"""Notebooks are narrative (issue 20): stored without outputs, no test-style asserts, and when
+executed top to bottom they run without error and show at least three figures inline."""
 
 from __future__ import annotations
 
+import ast
+import functools
 from pathlib import Path
 
 import nbformat
 import pytest
+from IPython.core.inputtransformer2 import TransformerManager
 from nbclient import NotebookClient
 
 NOTEBOOKS = sorted((Path(__file__).resolve().parents[1] / "notebooks").glob("*.ipynb"))
+MIN_FIGURES = 3
+
+
+def _code_cells(nb: nbformat.NotebookNode) -> list[nbformat.NotebookNode]:
+    return [c for c in nb.cells if c.cell_type == "code"]
+
+
+@functools.cache
+def _executed(path: Path) -> nbformat.NotebookNode:
+    """The notebook run top to bottom from its own directory (once per session: the tests
+    below share it)."""
+    nb = nbformat.read(path, as_version=4)
+    NotebookClient(nb, timeout=600, kernel_name="python3",
+                   resources={"metadata": {"path": str(path.parent)}}).execute()  # fmt: skip
+    return nb
 
 
 def test_there_are_notebooks() -> None:
@@ -16,10 +35,42 @@ def test_there_are_notebooks() -> None:
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.name)
-def test_notebook_stored_without_outputs_and_runs(path: Path) -> None:
+def test_notebook_stored_without_outputs(path: Path) -> None:
     nb = nbformat.read(path, as_version=4)
-    for cell in nb.cells:
-        if cell.cell_type == "code":
-            assert not cell.outputs and cell.execution_count is None, f"{path.name} has outputs"
-    NotebookClient(nb, timeout=600, kernel_name="python3",
-                   resources={"metadata": {"path": str(path.parent)}}).execute()  # fmt: skip
+    nbformat.validate(nb)
+    for cell in _code_cells(nb):
+        assert not cell.outputs and cell.execution_count is None, f"{path.name} has outputs"
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.name)
+def test_notebook_has_no_asserts(path: Path) -> None:
+    """A notebook explains; checking the library is the tests' job."""
+    nb = nbformat.read(path, as_version=4)
+    to_python = TransformerManager().transform_cell  # `%matplotlib inline` etc. → Python
+    for i, cell in enumerate(nb.cells):
+        if cell.cell_type != "code":
+            continue
+        tree = ast.parse(to_python(cell.source), filename=f"{path.name}, cell {i}")
+        asserts = [n.lineno for n in ast.walk(tree) if isinstance(n, ast.Assert)]
+        assert not asserts, f"{path.name}, cell {i} ({cell.get('id')}): assert on line(s) {asserts}"
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.name)
+def test_notebook_runs(path: Path) -> None:
+    nb = _executed(path)
+    errors = [o for c in _code_cells(nb) for o in c.outputs if o.output_type == "error"]
+    assert not errors, f"{path.name}: {errors[0].ename}: {errors[0].evalue}"
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.name)
+def test_notebook_shows_figures(path: Path) -> None:
+    """At least three figures shown inline (PNG outputs of the executed notebook, whichever
+    way a cell shows them: ``plt.show()``, a figure as the cell's value, ``display``)."""
+    nb = _executed(path)
+    figures = sum(
+        "image/png" in o.get("data", {})
+        for c in _code_cells(nb)
+        for o in c.outputs
+        if o.output_type in ("display_data", "execute_result")
+    )
+    assert figures >= MIN_FIGURES, f"{path.name} shows {figures} figures, want >= {MIN_FIGURES}"
