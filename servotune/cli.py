@@ -250,6 +250,7 @@ _RIG_ONLY_TUNE = {"spec": None, "rule_base": "default", "generations": 40, "popu
 
 
 def _tune_gantry(args: argparse.Namespace, current: Path | None) -> int:
+    from servotune.arch.gantry.load import load_gantry
     from servotune.arch.gantry.tuning import (
         gantry_tuning_to_string,
         tune_gantry,
@@ -262,6 +263,7 @@ def _tune_gantry(args: argparse.Namespace, current: Path | None) -> int:
         flag = "--" + given[0].replace("_", "-")
         raise ServotuneError(f"{flag} tunes a single rig; a gantry's targets are in its config "
                              f"({args.rig}: [sync], [margins])")  # fmt: skip
+    load_gantry(args.rig, resolve=False)  # bad input is one line, before any progress
     _progress(f"tune gantry {args.rig}: each drive's PI, then the sync compensator")
     tuning = tune_gantry(args.rig)
     if args.json:
@@ -289,26 +291,33 @@ def _cmd_tune(args: argparse.Namespace) -> int:
         _workbench_dir(current.parent)
     if args.json and (not args.output or args.output == "-"):
         raise ServotuneError("--json prints the summary on stdout: give -o FILE for the tuning")
-    _progress(f"tune {args.rig}: loading the tuner")  # before the imports: they take a second
-    from servotune.report.text import format_tuning_summary
-    from servotune.rig import load_rig
-    from servotune.tune.slave import tune_spec_from
-    from servotune.tune.workflow import tune_rig, tuning_summary
-    from servotune.tuning import tuning_to_string, write_tuning
-    from servotune.verify.spec import load_spec
-
     kind = config_kind(args.rig)
     if kind == "linkage":
         raise ServotuneError(f"{args.rig} is a linkage config: plan it with `servotune plan "
                              f"{args.rig}`")  # fmt: skip
     if kind == "gantry":
         return _tune_gantry(args, current)
+    from servotune.rig import load_rig
+
     limits = ("max_overshoot_pct", "max_saturation_pct", "min_phase_margin_deg",
               "min_gain_margin_db", "max_sensitivity")  # fmt: skip
     given = {k: getattr(args, k) for k in limits if getattr(args, k) is not None}
     budget = {"generations": args.generations, "population": args.population}
-    spec = tune_spec_from(load_spec(args.spec) if args.spec else None, rig=load_rig(args.rig),
-                          **budget, **given)  # fmt: skip
+    rig = load_rig(args.rig)  # a bad rig is one line, before any progress
+    spec = None
+    if args.spec:  # a spec costs the verifier's imports: read and checked before progress too
+        from servotune.tune.slave import tune_spec_from
+        from servotune.verify.spec import load_spec
+
+        spec = tune_spec_from(load_spec(args.spec), rig=rig, **budget, **given)
+    _progress(f"tune {args.rig}: loading the tuner")  # before the imports: they take a second
+    from servotune.report.text import format_tuning_summary
+    from servotune.tune.slave import tune_spec_from
+    from servotune.tune.workflow import tune_rig, tuning_summary
+    from servotune.tuning import tuning_to_string, write_tuning
+
+    if spec is None:
+        spec = tune_spec_from(None, rig=rig, **budget, **given)
     tuning = tune_rig(args.rig, seed=args.seed, spec=spec, rule_base=args.rule_base,
                       progress=_progress)  # fmt: skip
     if args.json:

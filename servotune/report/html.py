@@ -787,7 +787,7 @@ def _gantry_section(out: Path) -> str:
     files = sorted(out.glob("sync_*.png"))
     if not files:
         return ""
-    parts = ['<section id="gantry"><h2>Gantry with a listening slave (seed 003)</h2>']
+    parts = ['<section id="gantry"><h2>Gantry with a listening slave</h2>']
     doc_path = out / "sync.json"
     if doc_path.is_file():
         doc = json.loads(doc_path.read_text(encoding="utf-8"))
@@ -850,7 +850,7 @@ def _linkage_section(out: Path) -> str:
     files = sorted(out.glob("linkage_*.png"))
     if not files:
         return ""
-    parts = ['<section id="linkage"><h2>Multi-CPU linkage (seed 002)</h2>']
+    parts = ['<section id="linkage"><h2>Multi-CPU linkage</h2>']
     doc_path = out / "linkage.json"
     if doc_path.is_file():
         doc = json.loads(doc_path.read_text(encoding="utf-8"))

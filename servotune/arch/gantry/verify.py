@@ -19,7 +19,7 @@ limit and unit:
   interval.
 
 :func:`verify_gantry_files` is ``servotune verify GANTRY-TUNING --spec SPEC``: each file read
-once, the gantry config found by the hash the tuning records (``--gantry``, else the recorded
+once, the gantry config found by the hash the tuning records (``--config``, else the recorded
 path, else ``plants/<name>.toml``), the record (``servotune.gantry-verify/1``) written next to
 the tuning. :func:`load_gantry_for_export` is what ``export-table`` checks before exporting.
 """
@@ -407,7 +407,7 @@ def verify_gantry_files(
     progress: Callable[[str], None] | None = None,
     write: bool = True,
 ) -> tuple[GantryVerification, dict[str, Any], Path | None]:
-    """What ``servotune verify GANTRY-TUNING --spec SPEC [--gantry CONFIG]`` runs (see the
+    """What ``servotune verify GANTRY-TUNING --spec SPEC [--config CONFIG]`` runs (see the
     module docstring); ``montecarlo`` overrides the spec's count.
 
     Raises
