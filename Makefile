@@ -24,8 +24,9 @@ format: $(STAMP)
 	$(BIN)/ruff format servotune tests bench
 	$(BIN)/ruff check --fix servotune tests bench
 
+# both cores (pytest-xdist); a file's tests stay on one worker, so module fixtures run once
 test: lint
-	$(BIN)/python -m pytest -m "not slow"
+	$(BIN)/python -m pytest -m "not slow" -n 2 --dist loadfile
 
 # The big statistical runs (DECISIONS 8: marker `slow`, not part of `make test`), e.g. the
 # identifier's coverage over 250 closed-loop logs (tests/identify).
