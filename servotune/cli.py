@@ -95,6 +95,34 @@ def _print_product(as_json: bool, doc: Callable[[], object], text: Callable[[], 
         print(text())
 
 
+def _summary(as_json: bool, doc: object, text: Callable[[], str]) -> None:
+    """A verb's summary (DECISIONS 10): with ``--json`` ``doc`` as JSON on stdout, else
+    ``text()`` on stderr."""
+    if as_json:
+        print(json.dumps(doc, indent=2, sort_keys=True))
+    else:
+        print(text(), file=sys.stderr)
+
+
+def _deliver(
+    output: str | None,
+    write: Callable[[str | Path], None],
+    text: Callable[[], str],
+    what: str,
+    current: Path | None = None,
+) -> None:
+    """A file product: written to ``output`` (saying so on stderr), else its ``text()`` on
+    stdout; and recorded as the workbench's ``current`` tuning when given."""
+    if output and output != "-":
+        write(output)
+        print(f"wrote {what} to {output}", file=sys.stderr)
+    else:
+        sys.stdout.write(text())
+    if current is not None:
+        write(current)
+        print(f"recorded it as the current tuning ({current})", file=sys.stderr)
+
+
 def _cmd_rig(args: argparse.Namespace) -> int:
     from servotune.report.text import format_rig_facts
     from servotune.rig import describe_rig, load_rig
@@ -266,18 +294,9 @@ def _tune_gantry(args: argparse.Namespace, current: Path | None) -> int:
     load_gantry(args.rig, resolve=False)  # bad input is one line, before any progress
     _progress(f"tune gantry {args.rig}: each drive's PI, then the sync compensator")
     tuning = tune_gantry(args.rig)
-    if args.json:
-        print(json.dumps(tuning.design, indent=2, sort_keys=True))
-    else:
-        print(format_gantry_tuning(tuning), file=sys.stderr)
-    if args.output and args.output != "-":
-        write_gantry_tuning(tuning, args.output)
-        print(f"wrote the gantry tuning to {args.output}", file=sys.stderr)
-    else:
-        sys.stdout.write(gantry_tuning_to_string(tuning))
-    if current is not None:
-        write_gantry_tuning(tuning, current)
-        print(f"recorded it as the current tuning ({current})", file=sys.stderr)
+    _summary(args.json, tuning.design, lambda: format_gantry_tuning(tuning))
+    _deliver(args.output, lambda p: write_gantry_tuning(tuning, p),
+             lambda: gantry_tuning_to_string(tuning), "the gantry tuning", current)  # fmt: skip
     return EXIT_OK
 
 
@@ -320,18 +339,10 @@ def _cmd_tune(args: argparse.Namespace) -> int:
         spec = tune_spec_from(None, rig=rig, **budget, **given)
     tuning = tune_rig(args.rig, seed=args.seed, spec=spec, rule_base=args.rule_base,
                       progress=_progress)  # fmt: skip
-    if args.json:
-        print(json.dumps(tuning_summary(tuning), indent=2, sort_keys=True))
-    else:
-        print(format_tuning_summary(tuning_summary(tuning)), file=sys.stderr)
-    if args.output and args.output != "-":
-        write_tuning(tuning, args.output)
-        print(f"wrote the tuning to {args.output}", file=sys.stderr)
-    else:
-        sys.stdout.write(tuning_to_string(tuning))
-    if current is not None:
-        write_tuning(tuning, current)
-        print(f"recorded it as the current tuning ({current})", file=sys.stderr)
+    summary = tuning_summary(tuning)
+    _summary(args.json, summary, lambda: format_tuning_summary(summary))
+    _deliver(args.output, lambda p: write_tuning(tuning, p), lambda: tuning_to_string(tuning),
+             "the tuning", current)  # fmt: skip
     return EXIT_OK
 
 
@@ -346,10 +357,7 @@ def _verify_linkage(args: argparse.Namespace) -> int:
                                  "linkage plan (its spec sets the run)")  # fmt: skip
     _progress(f"verify linkage plan {args.tuning}: every clock case of {args.spec}")
     result, record, path = verify_plan_files(args.tuning, args.spec, config_path=args.config)
-    if args.json:
-        print(json.dumps(record, indent=2, sort_keys=True))
-    else:
-        print(format_linkage_verification(result), file=sys.stderr)
+    _summary(args.json, record, lambda: format_linkage_verification(result))
     print(f"wrote the verification record to {path}", file=sys.stderr)
     return EXIT_OK if result.passed else EXIT_FAILED
 
@@ -366,10 +374,7 @@ def _verify_gantry(args: argparse.Namespace) -> int:
     result, record, path = verify_gantry_files(args.tuning, args.spec, args.config,
                                                seed=args.seed, montecarlo=args.montecarlo,
                                                progress=_progress)  # fmt: skip
-    if args.json:
-        print(json.dumps(record, indent=2, sort_keys=True))
-    else:
-        print(format_gantry_verification(result), file=sys.stderr)
+    _summary(args.json, record, lambda: format_gantry_verification(result))
     print(f"wrote the verification record to {path}", file=sys.stderr)
     return EXIT_OK if result.passed else EXIT_FAILED
 
@@ -380,6 +385,8 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     from servotune.report.text import format_linkage_plan
 
     _check_dirs(args.output)
+    if args.json and (not args.output or args.output == "-"):
+        raise ServotuneError("--json prints the plan's design on stdout: give -o FILE")
     kind = config_kind(args.config)
     if kind != "linkage":
         raise ServotuneError(f"{args.config} is a {kind} config, not a linkage's ([[cpu]] "
@@ -387,17 +394,9 @@ def _cmd_plan(args: argparse.Namespace) -> int:
                              f"{kind} with `servotune tune`")  # fmt: skip
     _progress(f"plan linkage {args.config}: the bus budget, the queues, the clock sync, the gains")
     plan = plan_linkage(args.config)
-    if args.json:
-        if not args.output or args.output == "-":
-            raise ServotuneError("--json prints the plan's design on stdout: give -o FILE")
-        print(json.dumps(plan.design, indent=2, sort_keys=True))
-    else:
-        print(format_linkage_plan(plan), file=sys.stderr)
-    if args.output and args.output != "-":
-        write_plan(plan, args.output)
-        print(f"wrote the linkage plan to {args.output}", file=sys.stderr)
-    else:
-        sys.stdout.write(plan_to_string(plan))
+    _summary(args.json, plan.design, lambda: format_linkage_plan(plan))
+    _deliver(args.output, lambda p: write_plan(plan, p), lambda: plan_to_string(plan),
+             "the linkage plan")  # fmt: skip
     return EXIT_OK
 
 
@@ -419,10 +418,7 @@ def _cmd_verify(args: argparse.Namespace) -> int:
     result, record, path = verify_files(args.tuning, args.spec, args.rig, seed=args.seed,
                                         montecarlo=args.montecarlo,
                                         progress=_progress)  # fmt: skip
-    if args.json:  # DECISIONS 10: stdout carries only the product; the summary is stderr's
-        print(json.dumps(record, indent=2, sort_keys=True))
-    else:
-        print(format_table(result), file=sys.stderr)
+    _summary(args.json, record, lambda: format_table(result))
     print(f"wrote the verification record to {path}", file=sys.stderr)
     if args.report:
         from servotune.report import write_report
