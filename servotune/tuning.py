@@ -22,7 +22,6 @@ or under the directory named by the environment variable ``SERVOTUNE_WORKBENCH``
 from __future__ import annotations
 
 import hashlib
-import json
 import math
 import os
 import re
@@ -32,7 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from servotune.errors import TuningError
-from servotune.io.files import atomic_write_text, json_safe, parse_json, read_bytes
+from servotune.io.files import atomic_write_text, json_safe, json_text, parse_json, read_bytes
 from servotune.laws.axis import AxisController
 from servotune.rig import ROLES, Rig
 from servotune.sim.engine import Loop
@@ -266,7 +265,7 @@ def _text(v: object, where: str, max_len: int, *, empty: bool = False) -> str:
 
 def tuning_to_string(tuning: Tuning) -> str:
     """The tuning file's text: sorted keys, deterministic bytes."""
-    return json.dumps(tuning.to_dict(), sort_keys=True, indent=2, allow_nan=False) + "\n"
+    return json_text(tuning.to_dict())
 
 
 def write_tuning(tuning: Tuning, path: str | Path) -> None:

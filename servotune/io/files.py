@@ -39,6 +39,7 @@ __all__ = [
     "atomic_write_text",
     "json_float",
     "json_safe",
+    "json_text",
     "parse_json",
     "parse_toml",
     "read_bytes",
@@ -101,6 +102,12 @@ def _target_error(exc: OSError, target: Path) -> OSError:
     if exc.errno is None:
         return OSError(f"cannot write {str(target)!r}: {why}")
     return OSError(exc.errno, f"cannot write: {why}", str(target))
+
+
+def json_text(doc: Any) -> str:
+    """A document as servotune writes its JSON files (tunings, plans, records): sorted keys,
+    two-space indent, no NaN, a trailing newline; the same document gives the same bytes."""
+    return json.dumps(doc, sort_keys=True, indent=2, allow_nan=False) + "\n"
 
 
 def json_float(x: float) -> float | None:

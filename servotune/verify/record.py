@@ -18,7 +18,6 @@ was made by another servotune version, or holds another tuning, rig or spec than
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -27,7 +26,14 @@ from typing import Any
 from servotune._version import __version__
 from servotune.digest import DIGEST_FIELD, bytes_sha256, document_sha256
 from servotune.errors import RigError, SpecError, TrustError, TuningError
-from servotune.io.files import atomic_write_text, json_float, parse_json, parse_toml, read_bytes
+from servotune.io.files import (
+    atomic_write_text,
+    json_float,
+    json_text,
+    parse_json,
+    parse_toml,
+    read_bytes,
+)
 from servotune.rig import EXAMPLE_RIG_PATH, Rig, rig_from_dict
 from servotune.tuning import Tuning, current_tuning_path, file_sha256, read_tuning_bytes
 from servotune.verify.margins import DEFAULT_LIMITS, MarginLimits, Margins, tuning_margins
@@ -298,7 +304,7 @@ def trust_record(
 
 
 def _record_text(record: Mapping[str, Any]) -> str:
-    return json.dumps(record, sort_keys=True, indent=2, allow_nan=False) + "\n"
+    return json_text(record)
 
 
 def write_record(

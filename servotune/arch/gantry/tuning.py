@@ -20,7 +20,6 @@ of set to their values: what is checked is what runs.
 
 from __future__ import annotations
 
-import json
 import math
 import re
 from collections.abc import Mapping
@@ -35,7 +34,14 @@ from servotune.arch.gantry.margins import gantry_margins
 from servotune.arch.gantry.run import simulate_gantry
 from servotune.digest import bytes_sha256
 from servotune.errors import ConfigError, TuningError
-from servotune.io.files import atomic_write_text, json_safe, parse_json, parse_toml, read_bytes
+from servotune.io.files import (
+    atomic_write_text,
+    json_safe,
+    json_text,
+    parse_json,
+    parse_toml,
+    read_bytes,
+)
 from servotune.laws.axis import LAW_PI, AxisController
 from servotune.laws.sync import SYNC_LAWS, SyncConstants
 from servotune.validate import check_keys, show_value
@@ -246,7 +252,7 @@ def _sync_constants(d: Any) -> SyncConstants:
 
 def gantry_tuning_to_string(tuning: GantryTuning) -> str:
     """The file's text: sorted keys, two-space indent, trailing newline."""
-    return json.dumps(tuning.to_dict(), sort_keys=True, indent=2, allow_nan=False) + "\n"
+    return json_text(tuning.to_dict())
 
 
 def write_gantry_tuning(tuning: GantryTuning, path: str | Path) -> None:

@@ -63,7 +63,6 @@ what you wrote.
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields, replace
@@ -82,7 +81,7 @@ from servotune.arch.linkage.path import Interpolation, interpolate
 from servotune.arch.linkage.result import LinkageResult
 from servotune.arch.linkage.run import axis_controllers, axis_gains, run_linkage
 from servotune.errors import ConfigError, RigError
-from servotune.io.files import atomic_write_text, json_safe, parse_json, parse_toml
+from servotune.io.files import atomic_write_text, json_safe, json_text, parse_json, parse_toml
 from servotune.laws.axis import AxisController
 from servotune.laws.pi import PIConstants
 from servotune.rig import rig_from_dict
@@ -697,7 +696,7 @@ def plan_linkage(config_path: str | Path) -> LinkagePlan:
 
 def plan_to_string(plan: LinkagePlan) -> str:
     """The plan file's text: sorted keys, two-space indent, trailing newline."""
-    return json.dumps(plan.to_dict(), sort_keys=True, indent=2, allow_nan=False) + "\n"
+    return json_text(plan.to_dict())
 
 
 def write_plan(plan: LinkagePlan, path: str | Path) -> None:
