@@ -20,7 +20,7 @@ from servotune.errors import RigError
 from servotune.hw import counter as hw_counter
 from servotune.hw import dac as hw_dac
 from servotune.hw import timer as hw_timer
-from servotune.io.files import atomic_write_bytes, read_toml
+from servotune.io.files import atomic_write_bytes, parse_toml_as, read_bytes
 from servotune.io.rig import FLOAT_SIGNIFICANT_DIGITS as FLOAT_SIGNIFICANT_DIGITS
 from servotune.io.rig import build_section, edit_plant_text
 from servotune.laws.lock import lock_holding_band
@@ -31,6 +31,7 @@ from servotune.validate import (
     check_number,
     check_strings,
     check_table,
+    is_finite,
     is_number,
     show_value,
 )
@@ -48,6 +49,7 @@ __all__ = [
     "check_plant",
     "describe_rig",
     "load_rig",
+    "plant_from_table",
     "rig_from_dict",
     "write_plant",
 ]
@@ -193,7 +195,7 @@ class Dac:
         if (
             not isinstance(r, tuple | list)
             or len(r) != 2
-            or not all(is_number(x) and _finite(x) and abs(x) <= lim for x in r)
+            or not all(is_number(x) and is_finite(x) and abs(x) <= lim for x in r)
             or not r[0] < r[1]
         ):
             raise RigError(
@@ -490,13 +492,6 @@ def _nonneg(name: str, value: Any, unit: str, hi: float | None = None) -> None:
     check_number(name, value, unit, lo=0.0, hi=hi, error=RigError)
 
 
-def _finite(x: Any) -> bool:
-    try:
-        return math.isfinite(x)
-    except OverflowError:
-        return False
-
-
 def check_plant(
     plant: Plant,
     path: str,
@@ -552,6 +547,20 @@ def check_plant(
                      hi=MAX_SPEED_RPM, error=error)  # fmt: skip
 
 
+def plant_from_table(
+    table: Mapping[str, Any],
+    path: str,
+    dac_range_v: tuple[float, float] | None = None,
+    *,
+    error: type[Exception] = RigError,
+) -> Plant:
+    """The :class:`~servotune.plant.Plant` of a file's ``[axis.<name>.plant]`` table (``path``),
+    built and bounded (:func:`check_plant`); ``error`` names ``path.field``, value and unit."""
+    plant = build_section(Plant, table, path, error)
+    check_plant(plant, path, dac_range_v, error=error)
+    return plant
+
+
 def _table(
     data: Mapping[str, Any], key: str, path: str, required: bool = True
 ) -> Mapping[str, Any]:
@@ -587,8 +596,7 @@ def rig_from_dict(data: Mapping[str, Any], default_name: str = "rig") -> Rig:
             raise RigError(f"[axis.{name}.plant] must be a table")
         pt = dict(pt)
         fit_t = pt.pop("fit", None)  # the fit record (servotune fit -o), not a plant field
-        plant = build_section(Plant, pt, f"axis.{name}.plant")
-        check_plant(plant, f"axis.{name}.plant", dac.range_v)
+        plant = plant_from_table(pt, f"axis.{name}.plant", dac.range_v)
         plant_fit = None
         if fit_t is not None:
             if not isinstance(fit_t, Mapping):
@@ -626,11 +634,8 @@ def load_rig(path: str | Path) -> Rig:
         If the file is missing, not TOML, or any field is invalid.
     """
     p = Path(path)
-    data = read_toml(p, RigError, "rig file")
-    try:
-        return rig_from_dict(data, default_name=p.stem)
-    except RigError as exc:
-        raise RigError(f"rig file {str(p)!r}: {exc}") from None
+    raw = read_bytes(p, RigError, "rig file")
+    return parse_toml_as(raw, str(p), RigError, "rig file", lambda d: rig_from_dict(d, p.stem))
 
 
 def describe_rig(rig: Rig) -> dict[str, Any]:

@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from servotune.errors import TuningError
-from servotune.io.files import atomic_write_text, json_safe, json_text, parse_json, read_bytes
+from servotune.io.files import atomic_write_text, json_safe, json_text, parse_json_as, read_bytes
 from servotune.laws.axis import AxisController
 from servotune.rig import ROLES, Rig
 from servotune.sim.engine import Loop
@@ -281,15 +281,7 @@ def read_tuning_bytes(raw: bytes, src: str) -> Tuning:
     TuningError
         Not UTF-8 JSON, or not a valid tuning (one line naming ``src`` and the field).
     """
-    try:
-        text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise TuningError(f"{src}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
-    data = parse_json(text, src, TuningError)
-    try:
-        return Tuning.from_dict(data)
-    except TuningError as exc:
-        raise TuningError(f"{src}: {exc}") from None
+    return parse_json_as(raw, src, TuningError, Tuning.from_dict, "utf-8-sig")
 
 
 def read_tuning(path: str | Path) -> Tuning:

@@ -34,6 +34,7 @@ __all__ = [
     "check_number",
     "check_strings",
     "check_table",
+    "is_finite",
     "is_number",
     "show_number",
     "show_value",
@@ -91,7 +92,8 @@ def show_number(x: float | None, digits: int = 4) -> str:
     return f"{x:.{digits}g}"
 
 
-def _finite(v: object) -> bool:
+def is_finite(v: object) -> bool:
+    """``math.isfinite(v)``, False where it cannot say (an int beyond the float range)."""
     try:
         return math.isfinite(v)  # type: ignore[arg-type]
     except OverflowError:  # an int beyond the float range
@@ -136,7 +138,7 @@ def check_number(
         ``"<name> must be a number > 0 [s], got -0.004"`` (with ``hi``:
         ``"<name> must be a number in (0, 1] [s], got 10"``).
     """
-    ok = is_number(v) and _finite(v)
+    ok = is_number(v) and is_finite(v)
     if ok:
         x = float(v)  # type: ignore[arg-type]
         ok = (x > lo if strict else x >= lo) and (hi is None or (x < hi if hi_strict else x <= hi))

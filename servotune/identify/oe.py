@@ -85,6 +85,17 @@ class _Problem:
         assert self._jac is not None
         return self._jac
 
+    def solve(self, max_nfev: int) -> Any:
+        """``least_squares`` from ``x0`` within the model's bounds (its result object)."""
+        x0, free, period_s = self.x0, self.free, self.period_s
+        lo, hi = model.lower_bounds()[free], model.upper_bounds(period_s)[free]
+        z0 = np.clip(x0[free], lo + 1e-12 * np.abs(lo), hi)
+        scale = np.array([max(abs(x0[0]), 1.0), max(x0[1], 1e-3), period_s, 1e-3, 1e-3,
+                          max(abs(x0[5]), 1.0), 1e-3])[free]  # fmt: skip
+        return least_squares(self.residual, z0, jac=self.jacobian, bounds=(lo, hi),
+                             x_scale=scale, method="trf", max_nfev=max_nfev, xtol=1e-10,
+                             ftol=1e-12, gtol=1e-10)  # fmt: skip
+
 
 def estimate_oe(
     u: np.ndarray,
@@ -119,8 +130,8 @@ def estimate_oe(
     -------
     OEFit
     """
-    prob, sol = _solve(u, dy, x0, free, period_s=period_s, compute_s=compute_s, skip=skip,
-                       max_nfev=max_nfev)  # fmt: skip
+    prob = _Problem(u, dy, x0, free, period_s, compute_s, skip)
+    sol = prob.solve(max_nfev)
     x = prob.full(sol.x)
     jac = prob.jacobian(sol.x)
     np.negative(jac, out=jac)  # the problem is done with: its Jacobian negated in place
@@ -149,28 +160,5 @@ def oe_parameters(
     its residual, its estimating equations): where the fit is only a start, as for the
     structure selection.
     """
-    prob, sol = _solve(u, dy, x0, free, period_s=period_s, compute_s=compute_s, skip=skip,
-                       max_nfev=max_nfev)  # fmt: skip
-    return prob.full(sol.x)
-
-
-def _solve(
-    u: np.ndarray,
-    dy: np.ndarray,
-    x0: np.ndarray,
-    free: np.ndarray,
-    *,
-    period_s: float,
-    compute_s: float,
-    skip: int,
-    max_nfev: int,
-) -> tuple[_Problem, Any]:
     prob = _Problem(u, dy, x0, free, period_s, compute_s, skip)
-    lo, hi = model.lower_bounds()[free], model.upper_bounds(period_s)[free]
-    z0 = np.clip(x0[free], lo + 1e-12 * np.abs(lo), hi)
-    scale = np.array([max(abs(x0[0]), 1.0), max(x0[1], 1e-3), period_s, 1e-3, 1e-3,
-                      max(abs(x0[5]), 1.0), 1e-3])[free]  # fmt: skip
-    sol = least_squares(prob.residual, z0, jac=prob.jacobian, bounds=(lo, hi), x_scale=scale,
-                        method="trf", max_nfev=max_nfev, xtol=1e-10, ftol=1e-12,
-                        gtol=1e-10)  # fmt: skip
-    return prob, sol
+    return prob.full(prob.solve(max_nfev).x)

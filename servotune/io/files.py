@@ -26,7 +26,7 @@ import secrets
 import stat
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -41,11 +41,15 @@ __all__ = [
     "json_safe",
     "json_text",
     "parse_json",
+    "parse_json_as",
     "parse_toml",
+    "parse_toml_as",
     "read_bytes",
     "read_json",
     "read_toml",
 ]
+
+_T = TypeVar("_T")
 
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> None:
@@ -252,6 +256,27 @@ def parse_json(text: str, src: str, error: type[Exception]) -> Any:
     return doc
 
 
+def parse_json_as(
+    raw: bytes,
+    src: str,
+    error: type[Exception],
+    build: Callable[[Any], _T],
+    encoding: str = "utf-8",
+) -> _T:
+    """``build`` of the JSON document in ``raw`` (:func:`parse_json`): a file kind's reader
+    (tunings, plans). Every failure is one line of ``error`` starting ``"<src>: "`` (text
+    that is not UTF-8 names the byte; ``build`` raises ``error`` naming the field)."""
+    try:
+        text = raw.decode(encoding)
+    except UnicodeDecodeError as exc:
+        raise error(f"{src}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    data = parse_json(text, src, error)
+    try:
+        return build(data)
+    except error as exc:
+        raise error(f"{src}: {exc}") from None
+
+
 def read_bytes(
     path: str | Path, error: type[Exception], what: str, missing: str | None = None
 ) -> bytes:
@@ -330,6 +355,19 @@ def parse_toml(
         ) from None
     _check_tree(data, src, error, what)
     return data
+
+
+def parse_toml_as(
+    raw: bytes, src: str, error: type[Exception], what: str, build: Callable[[Any], _T]
+) -> _T:
+    """``build`` of the TOML document in ``raw`` (:func:`parse_toml`): a file kind's reader
+    (rig files, configurations, specs). Every failure is one line of ``error`` naming ``what``
+    and ``src`` (``build`` raises ``error`` naming the field)."""
+    data = parse_toml(raw, src, error, what)
+    try:
+        return build(data)
+    except error as exc:
+        raise error(f"{what} {src!r}: {exc}") from None
 
 
 def read_toml(path: str | Path, error: type[Exception], what: str = "file") -> dict[str, Any]:

@@ -20,7 +20,8 @@ import html
 import io
 import json
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -47,9 +48,9 @@ from servotune.plot import (
     plot_sync_errors,
     plot_tracking,
 )
-from servotune.report.summary import ReportSummary, margin_comment, summarise
+from servotune.report.summary import ReportSummary, margin_comment, search_notes, summarise
 from servotune.rig import Rig, load_rig
-from servotune.scenarios import build_scenario, step_inputs, sync_move
+from servotune.scenarios import _sync_move_for, build_scenario, step_inputs, sync_move
 from servotune.sim.engine import simulate
 from servotune.tune.workflow import tuning_summary
 from servotune.tuning import Tuning, read_tuning
@@ -203,7 +204,7 @@ def _verification_section(v: Any, s: ReportSummary) -> str:
         f'<section id="verification"><h2>Verification: {verdict}</h2>'
         + _p(
             f"Spec {v.spec.name!r} on rig {v.rig_name!r}, seed {v.seed}: every scenario on the "
-            f"nominal plants and {len(v.variants) - 1} Monte-Carlo plant sets; a limit holds "
+            f"nominal plants and {v.plant_sets - 1} Monte-Carlo plant sets; a limit holds "
             "if its worst value over all of them does. Margin: limit − worst (and as % of the "
             "limit)."
         )
@@ -346,10 +347,7 @@ def _gains_section(tuning: Tuning) -> str:
             f"Slave objective (mean ITAE of the sync error over the tuning run's plant "
             f"variants): {s['objective']:.4g} counts·s²."
         )
-    if s.get("binding"):
-        notes.append(f"Constraints the optimum sits on: {', '.join(s['binding'])}.")
-    if s.get("at_bounds"):
-        notes.append(f"Search bounds reached (widen them): {', '.join(s['at_bounds'])}.")
+    notes += [f"{n[0].upper()}{n[1:]}." for n in search_notes(s)]
     return (
         '<section id="gains"><h2>Tuned gains (as the runtime holds them)</h2>'
         + _table(
@@ -563,13 +561,7 @@ def _envelope(rig: Rig, sc: Any, inputs: Any, trace: Any) -> MoveEnvelope:
 def _scenario_inputs(rig: Rig, sc: Any) -> Any:
     """The inputs of a move scenario of a spec (as :mod:`servotune.verify.run` builds them)."""
     if sc.kind == "sync":
-        return sync_move(
-            rig,
-            seconds=sc.seconds,
-            speed_fraction=sc.speed_fraction,
-            accel_s=sc.accel_s,
-            load_step_v=sc.load_step_v,
-        ).inputs
+        return _sync_move_for(rig, sc).inputs
     master = next((a.name for a in rig.axes if a.role == "master"), rig.axes[0].name)
     return build_scenario(rig, "track", axis=master, seconds=sc.seconds).inputs
 
@@ -747,184 +739,186 @@ def _figure4_text(data: Mapping[str, Any]) -> str:
     return "".join(parts)
 
 
-def _figure4_section(out: Path) -> str:
+_FIGURE4_CAPTIONS = {
+    "figure4.png": "The slave's speed and its sync error under each structure, each tuned by the "
+    "same optimiser, budget and margin limits, on the same move.",
+    "pareto.png": "Tracking against robustness: each structure's optima under a sweep of Ms "
+    "ceilings (its front joined).",
+}
+
+
+def _figure4_figures(out: Path) -> list[Path]:
     files = sorted(out.glob("figure4.png"))
-    if not files:
-        return ""
+    if files and (out / "pareto.png").is_file():
+        files.append(out / "pareto.png")
+    return files
+
+
+def _gantry_text(doc: Mapping[str, Any]) -> str:
+    rows, bad = [], []
+    for r in doc.get("results", []):
+        trip = r.get("trip_time_s")
+        rows.append(
+            [
+                r.get("topology"),
+                r.get("case"),
+                _fmt(r.get("max_sync_error_counts")),
+                _fmt(r.get("rms_sync_error_counts")),
+                r.get("warning_cycles"),
+                "no" if trip is None else f"at {_fmt(trip)} s",
+            ]
+        )
+        bad.append(trip is not None)
+    return _p(
+        f"Gantry {doc.get('name', '')!r}: deployed topology "
+        f"{doc.get('topology', '')}, bus cycle {_fmt(doc.get('cycle_s'), 's')}, "
+        f"latency {doc.get('latency_cycles')} cycle(s); "
+        + (
+            "PASSED."
+            if doc.get("passed")
+            else "FAILED: " + "; ".join(map(str, doc.get("failed", [])))
+        )
+    ) + _table(
+        [
+            "topology",
+            "case",
+            "max sync error [counts]",
+            "RMS sync error [counts]",
+            "warning cycles [1]",
+            "tripped",
+        ],
+        rows,
+        bad,
+    )
+
+
+def _gantry_caption(f: Path) -> str:
+    return (
+        f"Sync error over time, one line per topology ({f.stem.split('_', 1)[-1]} case); "
+        "a dotted line marks a trip."
+    )
+
+
+def _linkage_text(doc: Mapping[str, Any]) -> str:
+    bus = doc.get("bus", {})
     parts = [
-        '<section id="figure4"><h2>Figure 4: PID, PID + feedforward and the composite law</h2>'
+        _p(
+            f"Linkage {doc.get('name', '')!r}: bus frame {bus.get('frame_bytes')} bytes every "
+            f"{_fmt(1e3 * bus.get('broadcast_period_s', math.nan), 'ms')} (utilisation "
+            f"{_fmt(100 * bus.get('utilisation', math.nan), '%')}); contour error max "
+            f"{_fmt(doc.get('contour_max_counts'), 'counts')}, RMS "
+            f"{_fmt(doc.get('contour_rms_counts'), 'counts')}; "
+            + ("PASSED." if doc.get("passed") else "FAILED.")
+        )
     ]
-    data = out / "figure4.json"
-    if data.is_file():
-        parts.append(_figure4_text(json.loads(data.read_text(encoding="utf-8"))))
+    rows, bad = [], []
+    for c in doc.get("cpus", []):
+        rows.append(
+            [
+                c.get("name"),
+                f"{c.get('clock_ppm', 0.0):+g} ppm",
+                ", ".join(c.get("axes", [])),
+                f"{c.get('min_level')}–{c.get('max_level')} of {c.get('queue_depth')}",
+                c.get("underruns"),
+                c.get("overruns"),
+            ]
+        )
+        bad.append(bool(c.get("underruns") or c.get("overruns")))
     parts.append(
-        _figure(
-            _file_uri(files[0]),
-            "figure4.png",
-            _esc(
-                "The slave's speed and its sync error under each structure, each tuned by the same "
-                "optimiser, budget and margin limits, on the same move."
-            ),
+        _table(
+            [
+                "cpu",
+                "clock error",
+                "axes",
+                "queue level [setpoints]",
+                "underruns [1]",
+                "overruns [1]",
+            ],
+            rows,
+            bad,
         )
     )
-    pareto = out / "pareto.png"
-    if pareto.is_file():
-        parts.append(
-            _figure(
-                _file_uri(pareto),
-                "pareto.png",
-                _esc(
-                    "Tracking against robustness: each structure's optima under a sweep of Ms "
-                    "ceilings (its front joined)."
-                ),
-            )
-        )
-    parts.append("</section>")
-    return "".join(parts)
-
-
-def _gantry_section(out: Path) -> str:
-    files = sorted(out.glob("sync_*.png"))
-    if not files:
-        return ""
-    parts = ['<section id="gantry"><h2>Gantry with a listening slave</h2>']
-    doc_path = out / "sync.json"
-    if doc_path.is_file():
-        doc = json.loads(doc_path.read_text(encoding="utf-8"))
-        rows, bad = [], []
-        for r in doc.get("results", []):
-            trip = r.get("trip_time_s")
-            rows.append(
-                [
-                    r.get("topology"),
-                    r.get("case"),
-                    _fmt(r.get("max_sync_error_counts")),
-                    _fmt(r.get("rms_sync_error_counts")),
-                    r.get("warning_cycles"),
-                    "no" if trip is None else f"at {_fmt(trip)} s",
-                ]
-            )
-            bad.append(trip is not None)
-        parts.append(
-            _p(
-                f"Gantry {doc.get('name', '')!r}: deployed topology "
-                f"{doc.get('topology', '')}, bus cycle {_fmt(doc.get('cycle_s'), 's')}, "
-                f"latency {doc.get('latency_cycles')} cycle(s); "
-                + (
-                    "PASSED."
-                    if doc.get("passed")
-                    else "FAILED: " + "; ".join(map(str, doc.get("failed", [])))
-                )
-            )
-        )
-        parts.append(
-            _table(
-                [
-                    "topology",
-                    "case",
-                    "max sync error [counts]",
-                    "RMS sync error [counts]",
-                    "warning cycles [1]",
-                    "tripped",
-                ],
-                rows,
-                bad,
-            )
-        )
-    for f in files:
-        parts.append(
-            _figure(
-                _file_uri(f),
-                f.name,
-                _esc(
-                    f"Sync error over time, one line per topology "
-                    f"({f.stem.split('_', 1)[-1]} case); a dotted line marks a trip."
-                ),
-            )
-        )
-    parts.append("</section>")
-    return "".join(parts)
-
-
-def _linkage_section(out: Path) -> str:
-    files = sorted(out.glob("linkage_*.png"))
-    if not files:
-        return ""
-    parts = ['<section id="linkage"><h2>Multi-CPU linkage</h2>']
-    doc_path = out / "linkage.json"
-    if doc_path.is_file():
-        doc = json.loads(doc_path.read_text(encoding="utf-8"))
-        bus = doc.get("bus", {})
-        parts.append(
-            _p(
-                f"Linkage {doc.get('name', '')!r}: bus frame {bus.get('frame_bytes')} bytes every "
-                f"{_fmt(1e3 * bus.get('broadcast_period_s', math.nan), 'ms')} (utilisation "
-                f"{_fmt(100 * bus.get('utilisation', math.nan), '%')}); contour error max "
-                f"{_fmt(doc.get('contour_max_counts'), 'counts')}, RMS "
-                f"{_fmt(doc.get('contour_rms_counts'), 'counts')}; "
-                + ("PASSED." if doc.get("passed") else "FAILED.")
-            )
-        )
-        rows, bad = [], []
-        for c in doc.get("cpus", []):
-            rows.append(
-                [
-                    c.get("name"),
-                    f"{c.get('clock_ppm', 0.0):+g} ppm",
-                    ", ".join(c.get("axes", [])),
-                    f"{c.get('min_level')}–{c.get('max_level')} of {c.get('queue_depth')}",
-                    c.get("underruns"),
-                    c.get("overruns"),
-                ]
-            )
-            bad.append(bool(c.get("underruns") or c.get("overruns")))
-        parts.append(
-            _table(
-                [
-                    "cpu",
-                    "clock error",
-                    "axes",
-                    "queue level [setpoints]",
-                    "underruns [1]",
-                    "overruns [1]",
-                ],
-                rows,
-                bad,
-            )
-        )
-        arcs = [
-            [
-                a.get("move"),
-                "/".join(a.get("plane", [])),
-                f"{a.get('radius_counts', math.nan):g}",
-                _fmt(a.get("circularity_counts")),
-                _fmt(a.get("circularity_whole_counts")),
-            ]
-            for a in doc.get("arcs", [])
+    arcs = [
+        [
+            a.get("move"),
+            "/".join(a.get("plane", [])),
+            f"{a.get('radius_counts', math.nan):g}",
+            _fmt(a.get("circularity_counts")),
+            _fmt(a.get("circularity_whole_counts")),
         ]
-        if arcs:
-            parts.append(
-                _table(
-                    [
-                        "move",
-                        "plane",
-                        "radius [counts]",
-                        "circularity at constant feed [counts]",
-                        "with the ramps [counts]",
-                    ],
-                    arcs,
-                )
+        for a in doc.get("arcs", [])
+    ]
+    if arcs:
+        parts.append(
+            _table(
+                [
+                    "move",
+                    "plane",
+                    "radius [counts]",
+                    "circularity at constant feed [counts]",
+                    "with the ramps [counts]",
+                ],
+                arcs,
             )
-    captions = {
-        "linkage_queues.png": "Each slave CPU's queue level before every pop. Top: over the "
-        "whole run, the lowest and highest level in each time bin (the level is a sawtooth at "
-        "the broadcast period, too fast to draw tick by tick over seconds); bottom: a window "
-        "of a few broadcast periods with every pop.",
-        "linkage_circle.png": "Circular test (ballbar plot): the radial deviation against the "
-        "angle, magnified about the programmed circle.",
-    }
-    for f in files:
-        parts.append(_figure(_file_uri(f), f.name, _esc(captions.get(f.name, ""))))
+        )
+    return "".join(parts)
+
+
+_LINKAGE_CAPTIONS = {
+    "linkage_queues.png": "Each slave CPU's queue level before every pop. Top: over the "
+    "whole run, the lowest and highest level in each time bin (the level is a sawtooth at "
+    "the broadcast period, too fast to draw tick by tick over seconds); bottom: a window "
+    "of a few broadcast periods with every pop.",
+    "linkage_circle.png": "Circular test (ballbar plot): the radial deviation against the "
+    "angle, magnified about the programmed circle.",
+}
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class _DemoSection:
+    """A section on what the demo wrote into the output folder (none of its figures: none)."""
+
+    title: str
+    figures: Callable[[Path], list[Path]]  # its figures in the folder
+    data: str  # the data file, if the demo wrote it
+    text: Callable[[Any], str]  # what the data says
+    caption: Callable[[Path], str]  # a figure's caption
+
+
+_DEMO_SECTIONS = {
+    "figure4": _DemoSection(
+        title="Figure 4: PID, PID + feedforward and the composite law",
+        figures=_figure4_figures,
+        data="figure4.json",
+        text=_figure4_text,
+        caption=lambda f: _FIGURE4_CAPTIONS[f.name],
+    ),
+    "gantry": _DemoSection(
+        title="Gantry with a listening slave",
+        figures=lambda out: sorted(out.glob("sync_*.png")),
+        data="sync.json",
+        text=_gantry_text,
+        caption=_gantry_caption,
+    ),
+    "linkage": _DemoSection(
+        title="Multi-CPU linkage",
+        figures=lambda out: sorted(out.glob("linkage_*.png")),
+        data="linkage.json",
+        text=_linkage_text,
+        caption=lambda f: _LINKAGE_CAPTIONS.get(f.name, ""),
+    ),
+}
+
+
+def _demo_section(out: Path, sid: str) -> str:
+    sec = _DEMO_SECTIONS[sid]
+    figures = sec.figures(out)
+    if not figures:
+        return ""
+    parts = [f'<section id="{sid}"><h2>{sec.title}</h2>']
+    if (out / sec.data).is_file():
+        parts.append(sec.text(json.loads((out / sec.data).read_text(encoding="utf-8"))))
+    parts += [_figure(_file_uri(f), f.name, _esc(sec.caption(f))) for f in figures]
     parts.append("</section>")
     return "".join(parts)
 
@@ -1044,9 +1038,7 @@ def write_report(
         _margins_section(tuning, margins, limits, verification),
         _response_section(rig, tuning, seed, verification),
         _tables_section(tuning),
-        _figure4_section(out),
-        _gantry_section(out),
-        _linkage_section(out),
+        *(_demo_section(out, sid) for sid in _DEMO_SECTIONS),
     ]
     body = "\n".join(s for s in sections if s)
     head = (

@@ -24,6 +24,7 @@ __all__ = [
     "limits_of",
     "margin_comment",
     "next_step",
+    "search_notes",
     "summarise",
 ]
 
@@ -412,3 +413,15 @@ def margin_comment(
         parts.append(f"The {' and '.join(fixed)} runs one fixed-gain loop: its phase margin is "
                      "the one shown.")  # fmt: skip
     return " ".join(parts)
+
+
+def search_notes(slave: Mapping[str, Any]) -> list[str]:
+    """What a slave tuning's search says of its optimum (the ``slave`` entry of
+    :func:`~servotune.tune.workflow.tuning_summary`): the constraints it sits on and the search
+    bounds it reached, each a lower-case clause without a full stop (none: ``[]``)."""
+    notes = []
+    if slave.get("binding"):
+        notes.append(f"constraints the optimum sits on: {', '.join(slave['binding'])}")
+    if slave.get("at_bounds"):
+        notes.append(f"search bounds reached (widen them): {', '.join(slave['at_bounds'])}")
+    return notes

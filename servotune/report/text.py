@@ -9,6 +9,7 @@ from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
 from servotune.arch.gantry.config import CASES, TOPOLOGIES
+from servotune.report.summary import search_notes
 from servotune.validate import show_number, show_value
 
 if TYPE_CHECKING:
@@ -18,7 +19,7 @@ if TYPE_CHECKING:
     from servotune.arch.linkage import LinkagePlan, LinkageVerification
     from servotune.arch.linkage.result import LinkageResult
     from servotune.verify.margins import LoopMargins, Margins
-    from servotune.verify.result import Verification
+    from servotune.verify.result import MonteCarloSummary, Verification
 
 __all__ = [
     "figure4_statement",
@@ -29,6 +30,7 @@ __all__ = [
     "format_linkage_summary",
     "format_linkage_verification",
     "format_margins",
+    "format_montecarlo",
     "format_rig_facts",
     "format_table",
     "format_tuning_summary",
@@ -57,7 +59,7 @@ def format_table(verification: Verification) -> str:
     right = {3, 4, 5, 6}
     out = [
         f"verify: spec {show_value(v.spec.name)} on rig {show_value(v.rig_name)}, seed {v.seed}, "
-        f"{len(v.variants)} plant sets (nominal + {len(v.variants) - 1} Monte Carlo)"
+        f"{v.plant_sets} plant sets (nominal + {v.plant_sets - 1} Monte Carlo)"
     ]
     for row in lines:
         cells = [c.rjust(w) if i in right else c.ljust(w)
@@ -73,8 +75,49 @@ def format_table(verification: Verification) -> str:
         out.append(f"Monte Carlo: {k} of {n} plant variants keep every limit "
                    f"({100 * frac:.1f} %; 95 % interval {100 * lo:.1f}–{100 * hi:.1f} %, "
                    "Clopper–Pearson)")  # fmt: skip
+    if v.montecarlo is not None:
+        out.append(format_montecarlo(v.montecarlo))
     n_fail = sum(not r.passed for r in v.rows) + sum(not c.passed for c in v.checks)
     out.append("PASSED" if v.passed else f"FAILED ({n_fail} of {len(v.rows) + len(v.checks)})")
+    return "\n".join(out)
+
+
+def format_montecarlo(summary: MonteCarloSummary, parameters: int = 3) -> str:
+    """The Monte-Carlo plant sets with the least margin (each with the ``parameters`` drawn
+    values the sensitivity table ranks first) and the sensitivity table."""
+    s = summary
+    if not s.count:
+        return "Monte Carlo: no plant sets drawn"
+    top = [x.parameter for x in s.sensitivity[:parameters]]
+    out = [f"worst plant sets of {s.count:,} from the {s.distribution} (least relative margin "
+           "over every limit):"]  # fmt: skip
+    for w in s.worst:
+        if w.quantity == "fault_runs":
+            fig = f"{w.scenario}: a fault latched on {w.axis}"
+        else:
+            fig = (f"{w.scenario}: {w.quantity} of {w.axis} = {show_number(w.value)} {w.unit} "
+                   f"(limit {show_number(w.limit)})")  # fmt: skip
+        rel = w.relative_margin
+        pct = f"{100.0 * rel:+.0f} %" if math.isfinite(rel) else "fault"
+        params = ", ".join(f"{p} {show_number(w.parameters[p])}" for p in top)
+        out.append(f"  {w.label:<10} {pct:>7}  {'ok  ' if w.passed else 'FAIL'}  {fig}"
+                   + (f"; {params}" if params else ""))  # fmt: skip
+    if s.sensitivity:
+        out.append("sensitivity: failure rate of the plant sets in each parameter's lowest and "
+                   "highest quarter of the draws; ρ = Spearman correlation with the least "
+                   "margin (< 0: larger values leave less margin)")  # fmt: skip
+        head = ("parameter", "lowest quarter", "fail %", "highest quarter", "fail %", "ρ")
+        rows = [head]
+        for x in s.sensitivity:
+            rho = x.rank_correlation
+            rows.append((x.parameter, f"<= {show_number(x.low_edge)}", f"{x.low_fail_pct:.3g}",
+                         f">= {show_number(x.high_edge)}", f"{x.high_fail_pct:.3g}",
+                         f"{rho:+.2f}" if math.isfinite(rho) else "n/a"))  # fmt: skip
+        widths = [max(len(r[i]) for r in rows) for i in range(len(head))]
+        for r in rows:
+            cells = [c.ljust(w) if i == 0 else c.rjust(w)
+                     for i, (c, w) in enumerate(zip(r, widths, strict=True))]  # fmt: skip
+            out.append("  " + "  ".join(cells).rstrip())
     return "\n".join(out)
 
 
@@ -286,10 +329,7 @@ def format_tuning_summary(summary: Mapping[str, Any]) -> str:
             f"saturation {w['saturation_pct']:.1f} %; slave lead {w['overshoot_pct']:.0f} % of "
             f"its lag; {'a fault' if w['fault'] else 'no fault'}"
         )
-    if s.get("binding"):
-        lines.append(f"  constraints the optimum sits on: {', '.join(s['binding'])}")
-    if s.get("at_bounds"):
-        lines.append(f"  search bounds reached (widen them): {', '.join(s['at_bounds'])}")
+    lines += [f"  {n}" for n in search_notes(s)]
     return "\n".join(lines)
 
 

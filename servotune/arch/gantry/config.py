@@ -19,8 +19,8 @@ from servotune.laws.axis import AxisController
 from servotune.laws.pi import PIGains
 from servotune.laws.sync import SYNC_LAWS, SyncConstants, SyncGains
 from servotune.plant import Plant
-from servotune.rig import Rig, build_section, check_plant, load_rig
-from servotune.validate import check_integer, check_keys, check_number, show_value
+from servotune.rig import Rig, build_section, load_rig, plant_from_table
+from servotune.validate import check_integer, check_keys, check_number, check_table, show_value
 from servotune.verify.margins import MarginLimits
 
 __all__ = [
@@ -454,14 +454,7 @@ def gantry_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".") -> Gan
                error=ConfigError, noun="table")  # fmt: skip
 
     def table(key: str, required: bool = False) -> Mapping[str, Any]:
-        t = data.get(key, None)
-        if t is None:
-            if required:
-                raise ConfigError(f"missing table [{key}]")
-            return {}
-        if not isinstance(t, Mapping):
-            raise ConfigError(f"[{key}] must be a table, got {type(t).__name__}")
-        return t
+        return check_table(data, key, error=ConfigError, required=required)
 
     meta = dict(table("gantry", required=True))
     if "rig" not in meta:
@@ -486,8 +479,8 @@ def gantry_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".") -> Gan
         at = dict(at)
         if not isinstance(at.get("plant"), Mapping):
             raise ConfigError(f"missing table [axis.{name}.plant]")
-        plant = build_section(Plant, at.pop("plant"), f"axis.{name}.plant", ConfigError)
-        check_plant(plant, f"axis.{name}.plant", rig.dac.range_v, error=ConfigError)
+        plant = plant_from_table(at.pop("plant"), f"axis.{name}.plant", rig.dac.range_v,
+                                 error=ConfigError)  # fmt: skip
         drives[name] = build_section(GantryAxis, at, f"axis.{name}", ConfigError, plant=plant,
                                      controller=None)  # fmt: skip
     extra = sorted(set(axes_t) - {"master", "slave"})

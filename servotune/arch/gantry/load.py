@@ -7,7 +7,7 @@ from pathlib import Path
 
 from servotune.arch.gantry.config import GantryConfig, gantry_from_dict
 from servotune.errors import ConfigError
-from servotune.io.files import parse_toml, read_toml
+from servotune.io.files import parse_toml_as, read_bytes
 from servotune.tune.sync import resolve_gains
 
 __all__ = ["load_gantry"]
@@ -34,12 +34,8 @@ def load_gantry(
     """
     p = Path(path)
     if raw is None:
-        data = read_toml(p, ConfigError, "gantry config")
-    else:
-        data = parse_toml(raw, str(p), ConfigError, "gantry config")
-    try:
-        cfg = gantry_from_dict(data, base_dir=p.parent)
-    except ConfigError as exc:
-        raise ConfigError(f"gantry config {str(p)!r}: {exc}") from None
+        raw = read_bytes(p, ConfigError, "gantry config")
+    cfg = parse_toml_as(raw, str(p), ConfigError, "gantry config",
+                        lambda d: gantry_from_dict(d, base_dir=p.parent))  # fmt: skip
     cfg = replace(cfg, name=cfg.name if cfg.name != "gantry" else p.stem.removesuffix(".sync"))
     return resolve_gains(cfg) if resolve else cfg

@@ -26,7 +26,7 @@ the tuning. :func:`load_gantry_for_export` is what ``export-table`` checks befor
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -45,7 +45,7 @@ from servotune.arch.gantry.tuning import (
     read_gantry_tuning_bytes,
 )
 from servotune.errors import ConfigError, SpecError, TrustError, TuningError
-from servotune.io.files import json_float, parse_toml
+from servotune.io.files import json_float, parse_toml_as
 from servotune.io.rig import build_section
 from servotune.laws.axis import FLAG_SYNC_TRIP
 from servotune.validate import check_integer, check_keys, check_number
@@ -141,20 +141,20 @@ def gantry_spec_from_bytes(raw: bytes, src: str | Path) -> GantrySpec:
     SpecError
         Not TOML, an unknown or missing table or key, a value out of range (named).
     """
-    data = parse_toml(raw, str(src), SpecError, "gantry spec")
-    try:
-        check_keys(data, "", ("sync",), ("bus", "margins", "montecarlo"), error=SpecError,
-                   noun="table")  # fmt: skip
-        parts = {}
-        for key, cls in (("bus", SpecBus), ("sync", SyncLimits), ("margins", GantryMargins),
-                         ("montecarlo", MonteCarloSpec)):  # fmt: skip
-            t = data.get(key, {})
-            if not isinstance(t, dict):
-                raise SpecError(f"[{key}] must be a table")
-            parts[key] = build_section(cls, t, key, SpecError)
-        return GantrySpec(**parts)
-    except SpecError as exc:
-        raise SpecError(f"gantry spec {str(src)!r}: {exc}") from None
+    return parse_toml_as(raw, str(src), SpecError, "gantry spec", _gantry_spec_from_dict)
+
+
+def _gantry_spec_from_dict(data: Mapping[str, Any]) -> GantrySpec:
+    check_keys(data, "", ("sync",), ("bus", "margins", "montecarlo"), error=SpecError,
+               noun="table")  # fmt: skip
+    parts = {}
+    for key, cls in (("bus", SpecBus), ("sync", SyncLimits), ("margins", GantryMargins),
+                     ("montecarlo", MonteCarloSpec)):  # fmt: skip
+        t = data.get(key, {})
+        if not isinstance(t, dict):
+            raise SpecError(f"[{key}] must be a table")
+        parts[key] = build_section(cls, t, key, SpecError)
+    return GantrySpec(**parts)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

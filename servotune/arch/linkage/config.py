@@ -21,10 +21,10 @@ from servotune.arch.linkage.bus import (
     SlaveCpu,
 )
 from servotune.errors import ConfigError, RigError
-from servotune.io.files import read_toml
+from servotune.io.files import parse_toml_as, read_bytes
 from servotune.laws.pi import PIGains
 from servotune.plant import Plant
-from servotune.rig import MAX_LOCK_GAIN, Rig, build_section, check_plant, load_rig
+from servotune.rig import MAX_LOCK_GAIN, Rig, build_section, load_rig, plant_from_table
 from servotune.validate import (
     check_integer,
     check_keys,
@@ -433,8 +433,7 @@ def linkage_from_dict(
         pt = at.pop("plant", None)
         if not isinstance(pt, Mapping):
             raise ConfigError(f"missing table [axis.{name}.plant]")
-        plant = build_section(Plant, pt, f"axis.{name}.plant", ConfigError)
-        check_plant(plant, f"axis.{name}.plant", rig.dac.range_v, error=ConfigError)
+        plant = plant_from_table(pt, f"axis.{name}.plant", rig.dac.range_v, error=ConfigError)
         axes.append(
             build_section(LinkageAxis, at, f"axis.{name}", ConfigError, name=name, plant=plant)
         )
@@ -531,8 +530,6 @@ def load_linkage(path: str | Path) -> LinkageConfig:
         If the file (or its rig file) cannot be read, is not TOML, or any field is invalid.
     """
     p = Path(path)
-    data = read_toml(p, ConfigError, "linkage config")
-    try:
-        return linkage_from_dict(data, p.parent, p.stem)
-    except ConfigError as exc:
-        raise ConfigError(f"linkage config {str(p)!r}: {exc}") from None
+    raw = read_bytes(p, ConfigError, "linkage config")
+    return parse_toml_as(raw, str(p), ConfigError, "linkage config",
+                         lambda d: linkage_from_dict(d, p.parent, p.stem))  # fmt: skip

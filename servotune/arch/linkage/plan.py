@@ -81,7 +81,7 @@ from servotune.arch.linkage.path import Interpolation, interpolate
 from servotune.arch.linkage.result import LinkageResult
 from servotune.arch.linkage.run import axis_controllers, axis_gains, run_linkage
 from servotune.errors import ConfigError, RigError
-from servotune.io.files import atomic_write_text, json_safe, json_text, parse_json, parse_toml
+from servotune.io.files import atomic_write_text, json_safe, json_text, parse_json_as, parse_toml
 from servotune.laws.axis import AxisController
 from servotune.laws.pi import PIConstants
 from servotune.rig import rig_from_dict
@@ -712,17 +712,7 @@ def read_plan_bytes(raw: bytes, src: str) -> LinkagePlan:
     ConfigError
         Not UTF-8 JSON, or not a valid plan: one line naming ``src`` and the field.
     """
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise ConfigError(
-            f"linkage plan {src!r}: not UTF-8 text ({exc.reason} at byte {exc.start})"
-        ) from None
-    data = parse_json(text, f"linkage plan {src!r}", ConfigError)
-    try:
-        return LinkagePlan.from_dict(data)
-    except ConfigError as exc:
-        raise ConfigError(f"linkage plan {src!r}: {exc}") from None
+    return parse_json_as(raw, f"linkage plan {src!r}", ConfigError, LinkagePlan.from_dict)
 
 
 def read_plan(path: str | Path) -> LinkagePlan:

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 import numpy as np
@@ -43,6 +43,20 @@ EVENT_COLUMNS = ("kind", "arg", "level_before", "level_after", "count", "late", 
 
 (The kernel's ``_EV_*`` codes and ``_E_*`` columns, in this order.)
 """
+
+
+def _plain(
+    obj: Any, arrays: bool = False, skip: tuple[str, ...] = (), **extra: Any
+) -> dict[str, Any]:
+    """A result's fields as a plain dict: the others (tuples as lists) and ``extra`` sorted by
+    name, then, with ``arrays``, its arrays as lists in field order; none of ``skip``."""
+    values = {f.name: getattr(obj, f.name) for f in fields(obj) if f.name not in skip}
+    per_tick = {k: v for k, v in values.items() if isinstance(v, np.ndarray)}
+    d = {k: list(v) if isinstance(v, tuple) else v for k, v in values.items() if k not in per_tick}
+    d = dict(sorted({**d, **extra}.items()))
+    if arrays:
+        d.update((k, v.tolist()) for k, v in per_tick.items())
+    return d
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -103,27 +117,8 @@ class CpuResult:
     events: np.ndarray | None = field(default=None, repr=False)
 
     def to_dict(self, arrays: bool = False) -> dict[str, Any]:
-        """Plain dict; the per-tick arrays only with ``arrays=True``."""
-        d: dict[str, Any] = {
-            "axes": list(self.axes),
-            "clock_ppm": self.clock_ppm,
-            "first_overrun_s": self.first_overrun_s,
-            "first_underrun_s": self.first_underrun_s,
-            "max_level": self.max_level,
-            "min_level": self.min_level,
-            "name": self.name,
-            "overruns": self.overruns,
-            "queue_depth": self.queue_depth,
-            "resyncs": self.resyncs,
-            "skipped": self.skipped,
-            "ticks": int(self.tick_time_s.size),
-            "underruns": self.underruns,
-        }
-        if arrays:
-            d["tick_time_s"] = self.tick_time_s.tolist()
-            d["tick_index"] = self.tick_index.tolist()
-            d["queue_level"] = self.queue_level.tolist()
-        return d
+        """Plain dict; the per-tick arrays only with ``arrays=True`` (the events never)."""
+        return _plain(self, arrays, skip=("events",), ticks=int(self.tick_time_s.size))
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -162,7 +157,7 @@ class AxisResult:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict."""
-        return {k: getattr(self, k) for k in sorted(self.__slots__)}  # type: ignore[attr-defined]
+        return _plain(self)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -203,16 +198,8 @@ class AxisTrace:
         return int(self.code.size)
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain dict, the arrays as lists."""
-        return {
-            "code": self.code.tolist(),
-            "cpu": self.cpu,
-            "name": self.name,
-            "pos_counts": self.pos_counts.tolist(),
-            "ref_counts": self.ref_counts.tolist(),
-            "speed_cps": self.speed_cps.tolist(),
-            "true_pos_counts": self.true_pos_counts.tolist(),
-        }
+        """Plain dict, the arrays as lists (every key sorted)."""
+        return dict(sorted(_plain(self, arrays=True).items()))
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -259,21 +246,7 @@ class ArcResult:
 
     def to_dict(self, arrays: bool = False) -> dict[str, Any]:
         """Plain dict; the per-tick arrays only with ``arrays=True``."""
-        d: dict[str, Any] = {
-            "centre": list(self.centre),
-            "circularity_counts": self.circularity_counts,
-            "circularity_whole_counts": self.circularity_whole_counts,
-            "max_dev_counts": self.max_dev_counts,
-            "min_dev_counts": self.min_dev_counts,
-            "move": self.move,
-            "plane": list(self.plane),
-            "radius_counts": self.radius_counts,
-        }
-        if arrays:
-            d["angle_rad"] = self.angle_rad.tolist()
-            d["radial_dev_counts"] = self.radial_dev_counts.tolist()
-            d["cruise"] = self.cruise.tolist()
-        return d
+        return _plain(self, arrays)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -40,7 +40,7 @@ from typing import Any
 
 from servotune.arch.linkage.bus import MAX_CLOCK_PPM
 from servotune.errors import SpecError
-from servotune.io.files import parse_toml
+from servotune.io.files import parse_toml_as
 from servotune.validate import check_integer, check_keys, check_number, check_strings, check_table
 from servotune.verify.margins import MarginLimits
 from servotune.verify.record import SourceFile
@@ -197,12 +197,9 @@ def linkage_spec_from_bytes(raw: bytes, src: str | Path) -> LinkageSpec:
     ------
     SpecError
     """
-    data = parse_toml(raw, str(src), SpecError, "linkage spec")
     stem = Path(src).name.removesuffix(".toml").removesuffix(".spec")
-    try:
-        return linkage_spec_from_dict(data, default_name=stem)
-    except SpecError as exc:
-        raise SpecError(f"linkage spec {str(src)!r}: {exc}") from None
+    return parse_toml_as(raw, str(src), SpecError, "linkage spec",
+                         lambda d: linkage_spec_from_dict(d, default_name=stem))  # fmt: skip
 
 
 def load_linkage_spec(path: str | Path) -> LinkageSpec:
