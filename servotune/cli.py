@@ -176,18 +176,22 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 def _cmd_fit(args: argparse.Namespace) -> int:
     from servotune.identify import fit_log
     from servotune.identify.result import FIT_SCHEMA
+    from servotune.io.hal import hal_settings
     from servotune.rig import load_rig, write_plant
     from servotune.tuning import file_sha256
 
     _check_dirs(args.output, args.plot)
     rig = load_rig(args.rig) if args.rig else None
     dac_range = _range(args.dac_range_v) if args.dac_range_v else None
+    hal = hal_settings(args.map, format=args.hal_format, columns=args.hal_columns,
+                       position_scale=args.position_scale, output_scale=args.output_scale,
+                       sample_number=args.sample_number, capture=args.log)  # fmt: skip
     result, log, axis = fit_log(
         args.log, axis=args.axis, rig=rig, structure=args.structure,
         counter_bits=args.counter_bits, dac_bits=args.dac_bits, dac_range_v=dac_range,
         period_s=args.period_s, compute_s=args.compute_s, method=args.method,
         friction=args.friction, invert_encoder=args.invert_encoder,
-        need_axis_name=bool(args.output), strict=args.strict,
+        need_axis_name=bool(args.output), strict=args.strict, hal=hal,
     )  # fmt: skip
     print(f"axis {axis or '(unprefixed)'}: " + result.summary(), file=sys.stderr)
     if args.plot:
@@ -497,14 +501,21 @@ def _export_linkage(args: argparse.Namespace, path: Path) -> int:
 def _cmd_export_table(args: argparse.Namespace) -> int:
     from servotune.arch.kind import document_kind
     from servotune.export import tables_to_string, write_c, write_tables
+    from servotune.io.files import atomic_write_text
     from servotune.tuning import current_tuning_path
     from servotune.verify import load_for_export
 
     path = Path(args.tuning) if args.tuning else current_tuning_path()
     if args.format == "c" and not args.output:
         raise ServotuneError("--format c needs -o DIR (the directory to write the C files into)")
-    _check_dirs(args.output if args.format == "json" else None)
+    _check_dirs(args.output if args.format != "c" else None)
     kind = document_kind(path)
+    if args.format.startswith("linuxcnc-") and kind in ("gantry", "linkage"):
+        raise ServotuneError(
+            f"--format {args.format} exports a rig's tuning (one runtime, its master and slave "
+            f"axes); {path} is a {kind} {'plan' if kind == 'linkage' else 'tuning'}: export it "
+            "with --format json or c"
+        )
     if kind == "gantry":
         return _export_gantry(args, path)
     if kind == "linkage":
@@ -513,7 +524,11 @@ def _cmd_export_table(args: argparse.Namespace) -> int:
         raise ServotuneError(f"--config is for a gantry tuning; {path} is a rig's tuning")
     v = load_for_export(path, args.rig, args.spec, unverified=args.unverified)
     kw = {"rig": v.rig, "verification": v.record, "unverified": v.record is None}
-    if args.format == "c":
+    if args.format.startswith("linuxcnc-"):
+        text = _linuxcnc_text(args, v.tuning, kw)
+        what = "HAL file" if args.format == "linuxcnc-hal" else "HAL component"
+        _deliver(args.output, lambda p: atomic_write_text(p, text), lambda: text, f"the {what}")
+    elif args.format == "c":
         Path(args.output).mkdir(parents=True, exist_ok=True)
         written = write_c(v.tuning, args.output, **kw)
         print(f"wrote {', '.join(p.name for p in written)} to {args.output}", file=sys.stderr)
@@ -523,6 +538,24 @@ def _cmd_export_table(args: argparse.Namespace) -> int:
     else:
         sys.stdout.write(tables_to_string(v.tuning, **kw))
     return EXIT_OK
+
+
+def _linuxcnc_text(args: argparse.Namespace, tuning: object, kw: dict) -> str:
+    """The text of a LinuxCNC export of ``tuning`` (``--format linuxcnc-*``)."""
+    if args.format == "linuxcnc-comp":
+        from servotune.export.hal_component import component_source
+
+        return component_source(tuning, name=args.name, **kw)
+    from servotune.export.linuxcnc import pid_hal_text
+
+    if args.position_scale is None:
+        raise ServotuneError(
+            "--format linuxcnc-hal needs --position-scale (encoder counts per machine unit, "
+            "the encoder's position-scale parameter)"
+        )
+    return pid_hal_text(tuning, position_scale=args.position_scale,
+                        output_scale=args.output_scale, pid_name=args.pid,
+                        velocity_feedforward=not args.no_feedforward, **kw)  # fmt: skip
 
 
 def _check_gantry_table(args: argparse.Namespace) -> int:
@@ -718,7 +751,11 @@ def _parser() -> argparse.ArgumentParser:
     s.set_defaults(func=_cmd_simulate)
 
     s = sub.add_parser("fit", help="identify an axis's motor + drive model from a logged run")
-    s.add_argument("log", help="log CSV (as `servotune simulate` writes it; see the README)")
+    s.add_argument(
+        "log",
+        help="log CSV (as `servotune simulate` writes it; see the README), or a LinuxCNC HAL "
+        "capture (halsampler output or halscope's saved data) read with --map",
+    )
     s.add_argument("--axis", help="axis to fit (needed for multi-axis logs)")
     s.add_argument("--rig", help="rig file: D/A, counter, period and compute time fallbacks")
     s.add_argument(
@@ -739,13 +776,16 @@ def _parser() -> argparse.ArgumentParser:
         "existing rig file keeps its name",
     )
     s.add_argument("--counter-bits", type=int, help="counter width for raw counter columns")
-    s.add_argument("--dac-bits", type=int, help="D/A resolution for dac_code columns")
+    s.add_argument(
+        "--dac-bits", type=int, help="D/A resolution for dac_code columns (a capture's code)"
+    )
     s.add_argument("--dac-range-v", help="D/A range LOW,HIGH [V]")
     s.add_argument(
         "--period-s",
         type=float,
         help="sample period [s], e.g. 0.004; overrides the log's `# period_s:` line and its "
-        "time_s column (default: that line, else the time_s column)",
+        "time_s column (default: that line, else the time_s column); a halsampler capture "
+        "needs it (or period_s in the --map file)",
     )
     s.add_argument(
         "--compute-s",
@@ -771,6 +811,52 @@ def _parser() -> argparse.ArgumentParser:
         "--invert-encoder",
         action="store_true",
         help="negate the position first (an encoder counting against the D/A's direction)",
+    )
+    hal = s.add_argument_group(
+        "LinuxCNC HAL captures", "halsampler output or halscope's saved data, read with --map"
+    )
+    hal.add_argument(
+        "--map",
+        metavar="KEY=PIN,...|FILE.toml",
+        help="read LOG as a HAL capture: which pin (or 0-based column) is what, e.g. "
+        "cmd=pid.0.output,pos=encoder.0.position; keys: cmd (pid output units) or code (D/A "
+        "code), pos (machine units) or counts (encoder counts), optional ref (commanded "
+        "position, machine units), exc (excitation, command units) and overruns (the "
+        "sampler.N.overruns pin: a change = lost samples); or a TOML file with a "
+        "[hal] table and [hal.map] (format, period_s, position_scale, output_scale, columns, "
+        "sample_number); the options below override it",
+    )
+    hal.add_argument(
+        "--hal-format",
+        choices=["halsampler", "halscope"],
+        help="the capture's format (default: detected; halscope's begins with '# Sampling "
+        "period is')",
+    )
+    hal.add_argument(
+        "--hal-columns",
+        metavar="PIN,PIN,...",
+        help="halsampler: the sampler's pins in its cfg order (the file names none), e.g. "
+        "pid.0.output,encoder.0.position",
+    )
+    hal.add_argument(
+        "--position-scale",
+        type=float,
+        metavar="COUNTS_PER_UNIT",
+        help="the encoder's position-scale [counts per machine unit], > 0: counts = position "
+        "× scale (needed for pos and ref)",
+    )
+    hal.add_argument(
+        "--output-scale",
+        type=float,
+        metavar="UNITS_PER_V",
+        help="pid output units per volt at the D/A, > 0 (default 1.0: the output is in volts)",
+    )
+    hal.add_argument(
+        "--sample-number",
+        action="store_const",
+        const=True,
+        help="halsampler: written with -t (first field the sample number; a gap, lost "
+        "samples, is an error)",
     )
     s.set_defaults(func=_cmd_fit)
 
@@ -908,8 +994,47 @@ def _parser() -> argparse.ArgumentParser:
         nargs="?",
         help="tuning file or linkage plan (default: the workbench's current tuning)",
     )
-    s.add_argument("-o", "--output", help="file (JSON) or directory (C); default stdout (JSON)")
-    s.add_argument("--format", choices=["json", "c"], default="json")
+    s.add_argument(
+        "-o", "--output",
+        help="file (JSON, HAL, .comp) or directory (C); default stdout (not for C)",
+    )  # fmt: skip
+    s.add_argument(
+        "--format",
+        choices=["json", "c", "linuxcnc-hal", "linuxcnc-comp"],
+        default="json",
+        help="json (default); c: header + runtime sources; linuxcnc-hal: a HAL file setting the "
+        "stock pid component's parameters for the master axis; linuxcnc-comp: a realtime HAL "
+        "component (build it with halcompile) running the verified runtime and its tables",
+    )
+    s.add_argument(
+        "--position-scale",
+        type=float,
+        help="linuxcnc-hal: encoder counts per machine unit (the encoder's position-scale), "
+        "e.g. 2000",
+    )
+    s.add_argument(
+        "--output-scale",
+        type=float,
+        default=1.0,
+        help="linuxcnc-hal: pid output units per volt at the D/A (default 1: output in volts)",
+    )
+    s.add_argument(
+        "--pid",
+        default="pid.x",
+        help="linuxcnc-hal: the pid instance the file sets (default pid.x, as `loadrt pid "
+        "names=pid.x`)",
+    )
+    s.add_argument(
+        "--no-feedforward",
+        action="store_true",
+        help="linuxcnc-hal: FF1 = 0, exactly the verified law (default: FF1 = 1/plant gain, "
+        "velocity feedforward on the command only, margins unchanged)",
+    )
+    s.add_argument(
+        "--name",
+        default="servotune",
+        help="linuxcnc-comp: the component's name (default servotune)",
+    )
     s.add_argument(
         "--rig",
         help="rig file: a copy of the tuning's rig (default: the path the tuning records, then "
@@ -1012,6 +1137,9 @@ _EXAMPLES = {
         "servotune fit my.csv --axis master                  # summary on stderr",
         "servotune fit my.csv --axis master -o my-rig.toml   # a new rig named my-rig",
         "servotune fit my.csv --axis master --json --plot fit.png",
+        "servotune fit capture.txt --axis x --map cmd=pid.0.output,pos=encoder.0.position "
+        "--hal-columns pid.0.output,encoder.0.position --period-s 0.001 "
+        "--position-scale 2000   # LinuxCNC halsampler",
     ],
     "excite": [
         "servotune excite --rig my-rig.toml --axis master --kind prbs --seconds 40 -o exc.csv",
@@ -1032,6 +1160,9 @@ _EXAMPLES = {
         "servotune export-table tuning.json -o fuzzy.json",
         "servotune export-table tuning.json --format c -o runtime/",
         "servotune export-table -o fuzzy.json   # the workbench's current tuning",
+        "servotune export-table tuning.json --format linuxcnc-hal --position-scale 2000 "
+        "-o pid-x.hal",
+        "servotune export-table tuning.json --format linuxcnc-comp -o servotune.comp",
     ],
     "check-table": ["servotune check-table fuzzy.json"],
     "demo": [

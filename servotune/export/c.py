@@ -52,6 +52,7 @@ __all__ = [
     "GANTRY_RUNTIME_FILES",
     "HEADER_NAME",
     "LINK_RUNTIME_FILES",
+    "PLANT_RUNTIME_FILES",
     "RUNTIME_FILES",
     "runtime_source",
     "to_string",
@@ -65,6 +66,8 @@ RUNTIME_FILES = ("servotune_rt.c", "servotune_rt.h")
 GANTRY_RUNTIME_FILES = ("servotune_gantry.c", "servotune_gantry.h")
 """The gantry runtime's sources, on top of :data:`RUNTIME_FILES`
 (:mod:`servotune.export.gantry`)."""
+PLANT_RUNTIME_FILES = ("servotune_plant.h",)
+"""The simulator's plant model in C (header only; :mod:`servotune.export.hal_component`)."""
 LINK_RUNTIME_FILES = ("servotune_link.c", "servotune_link.h")
 """A linkage slave CPU's receive queue and clock sync (:mod:`servotune.export.linkage`)."""
 
@@ -81,7 +84,7 @@ _TABLE_TITLES = {
 def runtime_source(name: str) -> str:
     """Text of one reference-runtime file (of :data:`RUNTIME_FILES`,
     :data:`GANTRY_RUNTIME_FILES`, :data:`LINK_RUNTIME_FILES`)."""
-    known = RUNTIME_FILES + GANTRY_RUNTIME_FILES + LINK_RUNTIME_FILES
+    known = RUNTIME_FILES + GANTRY_RUNTIME_FILES + LINK_RUNTIME_FILES + PLANT_RUNTIME_FILES
     if name not in known:
         raise ExportError(f"no runtime file {name!r}; files: {', '.join(known)}")
     return resources.files("servotune.export").joinpath("runtime", name).read_text(encoding="utf-8")

@@ -1,4 +1,5 @@
-"""A log file read and one axis identified: what ``servotune fit LOG`` runs.
+"""A log file (or a LinuxCNC HAL capture) read and one axis identified: what
+``servotune fit LOG`` runs.
 
 Here rather than in :mod:`servotune.pipeline` so that the fit verb imports the identifier and
 the log reader only (the pipeline imports every subsystem: seconds of a one-verb process).
@@ -9,8 +10,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from servotune.errors import IdentificationError, LogFormatError
-from servotune.identify.fitting import fit
+from servotune.identify.fitting import MIN_SAMPLES, fit
 from servotune.identify.result import FitResult
+from servotune.io.hal import HalSettings, read_hal_log
 from servotune.logs import Log, read_log, read_metadata
 from servotune.rig import Rig
 
@@ -33,6 +35,7 @@ def fit_log(
     invert_encoder: bool = False,
     need_axis_name: bool = False,
     strict: bool = False,
+    hal: HalSettings | None = None,
 ) -> tuple[FitResult, Log, str]:
     """Read a log and identify one axis (what ``servotune fit`` runs).
 
@@ -42,6 +45,12 @@ def fit_log(
     model under the axis's name (``fit -o``), so a log without axis prefixes and no ``axis``
     is refused before the fit runs. ``strict``: an unknown metadata key is an error
     (:func:`servotune.logs.read_log`).
+
+    ``hal``: the file is a LinuxCNC HAL capture (``halsampler`` output or halscope's saved
+    data) read with these settings (:func:`servotune.io.hal.read_hal_log`); ``period_s``
+    overrides the settings' period, the D/A settings and ``compute_s`` come from the options,
+    else the rig (a capture has no metadata; the rig's period is not used: the capture's is
+    LinuxCNC's servo thread's). Its one axis is unnamed (``axis`` names it).
 
     Returns
     -------
@@ -53,11 +62,21 @@ def fit_log(
     Raises
     ------
     LogFormatError
-        If the log cannot be read (:func:`servotune.logs.read_log`), or ``need_axis_name`` and
-        nothing names its axis.
+        If the log cannot be read (:func:`servotune.logs.read_log`,
+        :func:`servotune.io.hal.read_hal_log`), a HAL capture has fewer than
+        :data:`~servotune.identify.MIN_SAMPLES` samples or ``counter_bits`` is given for one
+        (it has no counter register column), or ``need_axis_name`` and nothing names its axis.
     IdentificationError
         If the data do not identify the model; the message names the log.
     """
+    if hal is not None:
+        return _fit_hal_log(
+            log_path, hal, axis=axis, rig=rig, counter_bits=counter_bits, dac_bits=dac_bits,
+            dac_range_v=dac_range_v, period_s=period_s, compute_s=compute_s,
+            need_axis_name=need_axis_name,
+            fit_options={"structure": structure, "method": method, "friction": friction,
+                         "invert_encoder": invert_encoder},
+        )  # fmt: skip
     meta = read_metadata(log_path)
     if rig is not None:
         if counter_bits is None and "counter_bits" not in meta:
@@ -92,3 +111,47 @@ def fit_log(
         raise IdentificationError(f"log {str(log_path)!r}: {exc}") from None
     name = axis if axis is not None else (log_axis or next(iter(log.axes)))
     return result, log, name
+
+
+def _fit_hal_log(
+    log_path: str | Path,
+    hal: HalSettings,
+    *,
+    axis: str | None,
+    rig: Rig | None,
+    counter_bits: int | None,
+    dac_bits: int | None,
+    dac_range_v: tuple[float, float] | None,
+    period_s: float | None,
+    compute_s: float | None,
+    need_axis_name: bool,
+    fit_options: dict,
+) -> tuple[FitResult, Log, str]:
+    """:func:`fit_log` of a HAL capture."""
+    src = str(log_path)
+    if counter_bits is not None:
+        raise LogFormatError(
+            f"HAL capture {src!r}: counter_bits (--counter-bits) is for a log's raw counter "
+            "column; a HAL capture's position is mapped as pos (machine units) or counts"
+        )
+    if rig is not None:
+        dac_bits = rig.dac.bits if dac_bits is None else dac_bits
+        dac_range_v = rig.dac.range_v if dac_range_v is None else dac_range_v
+        compute_s = rig.timer.compute_s if compute_s is None else compute_s
+    log = read_hal_log(log_path, hal, period_s=period_s, dac_bits=dac_bits,
+                       dac_range_v=dac_range_v, compute_s=compute_s)  # fmt: skip
+    if log.n_samples < MIN_SAMPLES:
+        raise LogFormatError(
+            f"HAL capture {src!r} has {log.n_samples} samples; a fit needs at least "
+            f"{MIN_SAMPLES} (capture longer: halsampler -n N, or halscope's record length)"
+        )
+    if need_axis_name and axis is None:
+        raise LogFormatError(
+            f"HAL capture {src!r} does not name its axis: give the axis's name (--axis NAME), "
+            "under which its model is written"
+        )
+    try:
+        result = fit(log, axis=None, compute_s=compute_s, **fit_options)
+    except IdentificationError as exc:  # the data do not allow it: name the capture
+        raise IdentificationError(f"HAL capture {src!r}: {exc}") from None
+    return result, log, axis or ""

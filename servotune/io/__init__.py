@@ -19,6 +19,9 @@ tables JSON     :func:`servotune.export.json.load_tables`        ``check_tables`
 gantry TOML     :func:`servotune.arch.gantry.load.load_gantry`   ``GantryConfig``
 linkage TOML    :func:`servotune.arch.linkage.load_linkage`      ``LinkageConfig``
 EMPS .mat       :func:`servotune.io.emps.read_emps`              ``EmpsLog`` (MATLAB variables)
+HAL capture     :func:`servotune.io.hal.read_halsampler`,        ``HalCapture``, ``HalSettings``
+                :func:`servotune.io.hal.read_halscope`           (``--map``)
+HAL map TOML    :func:`servotune.io.hal_map.read_hal_map`        ``HalSettings`` (``[hal]``)
 ==============  ===============================================  ===============================
 
 The readers of logs, rigs and excitations stay importable from :mod:`servotune.logs`,

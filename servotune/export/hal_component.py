@@ -1,0 +1,162 @@
+"""LinuxCNC HAL components: the verified runtime as a realtime component, and a plant model.
+
+:func:`component_source` writes one ``.comp`` file (``halcompile --compile``/``--install``
+builds it) holding, verbatim, the same C the golden runs prove bit-exact against the simulator
+(``servotune_rt.h``, ``servotune_tables.h``, ``servotune_rt.c``: :mod:`servotune.export.c`)
+around a thin HAL wrapper. The wrapper adds no arithmetic: each servo-thread period it takes
+each axis's encoder count (``<name>.counts-N``, s32: the low ``counter_bits`` bits are what the
+counter card latches), the master's reference (``<name>.command``, counts), the requested mode and
+reset, calls ``st_tick`` once and gives each axis's D/A code (``<name>.code-N``) and the voltage
+it stands for (``<name>.volts-N`` = ``dac_lo + code · lsb`` [V], for a driver that takes volts),
+the flags, the law's error and the extended position. At load (``loadrt``) it recomputes the
+SHA-256 of its compiled-in constants and tables and compares it with the exported digest, and
+checks the constants' ranges: a component whose tables were edited, or mixed with another
+tuning's digest, refuses to load with the reason in HAL's log.
+
+:func:`plant_component` writes a component moving one axis's plant model exactly as the
+simulator does (``servotune_plant.h``, a C mirror of :mod:`servotune.plant`; noiseless): for
+testing the loop in real HAL before a machine runs it, and for LinuxCNC users who want
+servotune's model of their drive in a simulated configuration.
+
+Units: counts, D/A codes, volts. The component is one instance (``option singleton``); several
+runtimes in one HAL session need several names (``name``).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from importlib import resources
+from string import Template
+from typing import Any
+
+from servotune._version import __version__
+from servotune.errors import ExportError
+from servotune.export.c import PLANT_RUNTIME_FILES, RUNTIME_FILES, runtime_source, to_string
+from servotune.plant import NROW, Plant, plant_row
+from servotune.rig import Dac, Rig
+from servotune.tuning import Tuning
+
+__all__ = ["PLANT_HEADER", "component_source", "plant_component"]
+
+PLANT_HEADER = PLANT_RUNTIME_FILES[0]
+_NAME = re.compile(r"[a-z][a-z0-9_]{0,40}")
+_LOCAL_INCLUDE = re.compile(r'^#include "servotune_[a-z]+\.h"\n', re.MULTILINE)
+
+
+def _check_name(name: str) -> str:
+    if not isinstance(name, str) or not _NAME.fullmatch(name):
+        raise ExportError(
+            f"component name {name!r} is not a HAL component name (lower-case letters, digits "
+            "and _, starting with a letter, at most 41 characters)"
+        )
+    return name
+
+
+def _template(template: str, **values: object) -> str:
+    """A ``.comp`` template of the package data, filled in."""
+    text = resources.files("servotune.export").joinpath("runtime", template).read_text("utf-8")
+    return Template(text).substitute(version=__version__, **values)
+
+
+def _inline(*texts: str) -> str:
+    """C sources joined into one translation unit: their includes of each other dropped."""
+    return "\n".join(_LOCAL_INCLUDE.sub("", t) for t in texts)
+
+
+def _c_double(x: float) -> str:
+    """An exact C literal of ``x`` (hex float; ``INFINITY`` for +inf)."""
+    if math.isinf(x) and x > 0:
+        return "INFINITY"
+    if not math.isfinite(x):
+        raise ExportError(f"plant coefficient {x!r} is not finite")
+    return float(x).hex()
+
+
+def component_source(
+    tuning: Tuning,
+    *,
+    rig: Rig | None = None,
+    verification: Any = None,
+    unverified: bool = False,
+    name: str = "servotune",
+) -> str:
+    """The ``.comp`` source of the runtime component for ``tuning`` (arguments as
+    :func:`servotune.export.c.to_string`; ``name`` the component's name: HAL calls it
+    ``name`` with ``_`` as ``-``).
+
+    Pins (``N`` = axis index in the tuning's order; the HAL name and ``.`` before each):
+
+    - ``counts-N`` (s32 in): the encoder count; its low ``counter_bits`` bits are latched;
+    - ``command`` (s32 in): the master's reference [counts];
+    - ``mode-N`` (s32 in): 0 lock, 1 task, 2 open; ``reset-N`` (bit in): clear latched faults;
+      ``u-add-N`` (s32 in): D/A codes added to the output (an excitation; 0 normally);
+    - ``code-N`` (s32 out): the D/A code; ``volts-N`` (float out): its voltage [V];
+    - ``flags-N`` (s32 out, ST_FLAG_*), ``error-N`` (s32 out, the law's error [counts]),
+      ``position-N`` (s32 out, the extended position [counts], modulo 2^32).
+
+    Raises
+    ------
+    ExportError
+        If the name is not a HAL name, or as :func:`servotune.export.c.to_string` (an
+        unverified tuning without ``unverified``, a tuning of another rig, …).
+    """
+    _check_name(name)
+    header = to_string(tuning, rig=rig, verification=verification, unverified=unverified)
+    digest = re.search(r'#define ST_TABLES_SHA256 "([0-9a-f]{64})"', header)
+    assert digest is not None  # the header always defines it
+    dac = rig.dac if rig is not None else Dac()  # the export's default hardware
+    rt_c, rt_h = (runtime_source(f) for f in RUNTIME_FILES)
+    axes = zip(tuning.axis_names, tuning.roles, strict=True)
+    return _template(
+        "hal_runtime.comp.in",
+        name=name,
+        hal=name.replace("_", "-"),
+        digest=digest.group(1),
+        axes=", ".join(f"{i} = {a} ({r})" for i, (a, r) in enumerate(axes)),
+        n=len(tuning.controllers),
+        runtime=_inline(rt_h, header, rt_c),
+        dac_lo=_c_double(dac.range_v[0]),
+        dac_lsb=_c_double(dac.lsb_v),
+    )
+
+
+def plant_component(
+    plant: Plant,
+    period_s: float,
+    compute_s: float = 0.0,
+    *,
+    name: str,
+    counter_init: int = 0,
+    counts_per_rev: float = math.inf,
+) -> str:
+    """The ``.comp`` source of a component moving ``plant`` as the simulator does (noiseless).
+
+    Each period its function (add it to the thread *before* the controller): from the second
+    period on, records the D/A output the controller wrote last period (``volts``, float in
+    [V]) and moves the plant over one tick of ``period_s`` with the simulator's lag and model
+    (:func:`servotune.plant.advance_tick`, row of :func:`~servotune.plant.plant_row`, the
+    ``load`` pin [V] of that period added); then latches ``counts`` = ``counter_init +
+    floor(position)`` (s32 out) and gives ``position`` [counts] and ``speed`` [counts/s]. The
+    HAL thread's own period does not enter: the model's tick is ``period_s``.
+
+    Raises
+    ------
+    ExportError
+        If the name is not a HAL name.
+    """
+    _check_name(name)
+    row, lag = plant_row(plant, period_s, compute_s, counts_per_rev)
+    assert row.size == NROW
+    return _template(
+        "hal_plant.comp.in",
+        name=name,
+        gain=repr(plant.gain_cps_per_v),
+        tau=repr(plant.tau_s),
+        lag=lag,
+        ring=lag + 2,
+        last_slot=lag + 1,
+        counter_init=int(counter_init),
+        plant_h=_inline(runtime_source(PLANT_HEADER)),
+        row=",\n    ".join(_c_double(float(x)) for x in row),
+    )
