@@ -111,3 +111,15 @@ def test_component_source_without_a_rig_uses_the_default_dac(quick_tuning) -> No
     # seed 000's D/A (SPEC: 12 bits over ±10 V): 20 V / 4096 codes per LSB
     assert f"#define ST_DAC_LO_V {(-10.0).hex()}" in src
     assert f"#define ST_DAC_LSB_V {(20.0 / 4096).hex()}" in src
+
+
+def test_the_c_plant_row_layout_is_the_simulators() -> None:
+    # servotune_plant.h indexes the row with ST_R_*: each must be plant.R_* (and ST_NROW NROW)
+    import servotune.plant as plant
+    from servotune.export.c import runtime_source
+    from servotune.export.hal_component import PLANT_HEADER
+
+    defines = dict(re.findall(r"#define ST_(R_\w+|NROW) (\d+)", runtime_source(PLANT_HEADER)))
+    expected = {n: getattr(plant, n) for n in dir(plant) if n.startswith("R_")}
+    expected["NROW"] = plant.NROW
+    assert {k: int(v) for k, v in defines.items()} == expected
