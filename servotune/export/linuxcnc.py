@@ -73,7 +73,6 @@ Why each choice:
 
 from __future__ import annotations
 
-import math
 import re
 from collections.abc import Mapping
 from fractions import Fraction
@@ -87,7 +86,7 @@ from servotune.laws.linuxcnc_pid import PidParameters, thread_period_ns
 from servotune.laws.pi import PIConstants
 from servotune.rig import Rig
 from servotune.tuning import Tuning
-from servotune.validate import show_value
+from servotune.validate import check_number, show_value
 
 __all__ = [
     "DEFAULT_PID_NAME",
@@ -109,14 +108,8 @@ _PID_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.\-]{0,24}")
 
 
 def _scale(name: str, value: object, unit: str) -> Fraction:
-    if (
-        isinstance(value, bool)
-        or not isinstance(value, int | float)
-        or not math.isfinite(value)
-        or value <= 0
-    ):
-        raise ExportError(f"{name} must be a finite number > 0 [{unit}], got {show_value(value)}")
-    return Fraction(value)
+    check_number(name, value, unit, strict=True, error=ExportError)
+    return Fraction(value)  # type: ignore[arg-type]
 
 
 def master_axis(tuning: Tuning) -> tuple[int, str, PIConstants]:

@@ -34,7 +34,7 @@ from servotune.hw.dac import code_from_volts
 from servotune.laws.linuxcnc_pid import PidParameters, PidState, pid_step, thread_period_ns
 from servotune.plant import R_OFFSET, Plant, advance_tick, plant_row
 from servotune.rig import Dac
-from servotune.validate import show_value
+from servotune.validate import check_number
 
 __all__ = ["PidLoopResult", "simulate_pid_loop"]
 
@@ -89,16 +89,8 @@ class PidLoopResult:
 
 
 def _positive(name: str, value: object, unit: str) -> float:
-    if (
-        isinstance(value, bool)
-        or not isinstance(value, int | float)
-        or not math.isfinite(value)
-        or value <= 0
-    ):
-        raise SimulationError(
-            f"{name} must be a finite number > 0 [{unit}], got {show_value(value)}"
-        )
-    return float(value)
+    check_number(name, value, unit, strict=True, error=SimulationError)
+    return float(value)  # type: ignore[arg-type]
 
 
 def _s32(x: int) -> int:
