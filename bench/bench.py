@@ -39,11 +39,12 @@ import numba
 import numpy as np
 
 import servotune
-from servotune import plant as plant_model
 from servotune.arch.gantry import simulate_gantry
 from servotune.arch.gantry.load import load_gantry
 from servotune.arch.linkage import load_linkage, run_linkage
 from servotune.export import write_c
+from servotune.export.c import runtime_source
+from servotune.export.hal_component import PLANT_HEADER
 from servotune.fixed import F_U
 from servotune.hw.counter import unwrap_step
 from servotune.hw.dac import code_from_uq
@@ -154,10 +155,14 @@ class Options:
         Smoke-test sizes.
     rig_path : Path
         The rig file the benchmarks build their loops from.
+    scale_plants : int, optional
+        Plant sets of the ``scale`` benchmark (default :data:`SCALE_PLANTS`; ``1000000`` runs
+        the issue's whole size, about an hour here).
     """
 
     quick: bool = False
     rig_path: Path = RIG_PATH
+    scale_plants: int | None = None
 
     @property
     def sizes(self) -> Sizes:
@@ -851,9 +856,7 @@ def build_c_loop(loop: servotune.Loop, out_dir: Path) -> ctypes.CDLL:
         raise BenchMismatchError("no C compiler (cc) on PATH: the C runtime cannot be built")
     tuning = Tuning.for_rig(loop.rig, loop.controllers, rig_sha256="0" * 64)
     write_c(tuning, out_dir, rig=loop.rig, unverified=True)
-    names = [n for n in dir(plant_model) if n.startswith("R_")] + ["NROW"]
-    defines = "".join(f"#define {n} {getattr(plant_model, n)}\n" for n in sorted(names))
-    (out_dir / "plant_rows.h").write_text("/* servotune.plant row layout */\n" + defines)
+    (out_dir / PLANT_HEADER).write_text(runtime_source(PLANT_HEADER))
     shutil.copy(C_LOOP_SOURCE, out_dir / "c_loop.c")
     res = subprocess.run(
         [cc, *C_LOOP_FLAGS, "-shared", "-fPIC", "c_loop.c", "servotune_rt.c", "-lm", "-o",
@@ -1050,6 +1053,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         help=f"run only these benchmarks ({', '.join(BENCHES)})",
     )  # fmt: skip
     ap.add_argument("--quick", action="store_true", help="small sizes (smoke test)")
+    ap.add_argument("--scale-plants", type=int, default=None, metavar="N",
+                    help="plant sets of the 'scale' benchmark (default 20000; 1000000: the "
+                    "issue's whole run, about an hour on 2 cores)")  # fmt: skip
     return ap.parse_args(argv)
 
 
@@ -1243,6 +1249,126 @@ def bench_montecarlo(opts: Options) -> list[Figure]:
     ]  # fmt: skip
 
 
+SCALE_PLANTS = 20_000
+"""Plant sets the ``scale`` benchmark measures on (1,000,000 is extrapolated from them)."""
+SCALE_TARGET = 1_000_000
+"""The issue's run: plant sets of the example rig through its sync scenario."""
+
+
+@register("scale")
+def bench_scale(opts: Options) -> list[Figure]:
+    """Monte-Carlo verification at scale: the example rig's default tuning over plant sets drawn
+    from its spec's spread, through the spec's ``sync`` scenario (the slave-tuning move), on
+    the in-process executor (the batched engine on 2 numba threads, the Python around it on
+    one) and on a ``LocalCluster`` of 2 and of 1 worker processes (one thread each); the
+    three results must be identical.
+
+    A plant·tick is one axis's plant advanced one tick: a plant set of the example rig is two
+    plants (master and slave), the sync scenario 600 ticks (2.4 s at 4 ms). Each rate is over
+    the Monte-Carlo part of ``verify``: the wall time of the run minus that of a run with no
+    plant sets but the nominal ones (the checks and the loop margins, about a second), each
+    after a warm-up run on the same executor (compiled code loaded, workers' imports done).
+    Measured on :data:`SCALE_PLANTS` plant sets (``--scale-plants``); the time for
+    :data:`SCALE_TARGET` is extrapolated at the measured rate and says so.
+
+    Returns
+    -------
+    list of Figure
+        ``scale_plant_sets`` (measured), ``scale_inprocess_plant_ticks_per_s``,
+        ``scale_cluster2_plant_ticks_per_s``, ``scale_cluster1_plant_ticks_per_s``, their wall
+        times ``scale_*_s``, ``scale_cluster2_vs_inprocess`` (rate ratio; target >= 0.85),
+        ``scale_cluster_2_vs_1_workers``, ``scale_cluster_start_s`` (cluster up and the first
+        task back), ``scale_1e6_plants_cluster2_s_extrapolated``.
+    """
+    from servotune.executor import InProcessExecutor
+    from servotune.tune.workflow import tune_rig
+    from servotune.verify import load_spec, verify
+
+    n = 300 if opts.quick else (opts.scale_plants or SCALE_PLANTS)
+    rig = servotune.load_rig(opts.rig_path)
+    spec = load_spec(opts.rig_path.with_suffix(".spec.toml"))
+    sync = next(sc for sc in spec.scenarios if sc.name == "sync")
+    ticks = round(sync.seconds / rig.period_s)
+    per_set = len(rig.axes) * ticks  # plant·ticks of one plant set
+
+    def spec_of(count: int) -> Any:
+        mc = dataclasses.replace(spec.montecarlo, count=count)
+        return dataclasses.replace(spec, scenarios=(sync,), montecarlo=mc)
+
+    progress("scale: tuning the example rig (not timed)")
+    tuning = tune_rig(opts.rig_path)
+
+    def measure(ex: Any, label: str) -> tuple[float, float, dict[str, Any]]:
+        verify(tuning, rig, spec_of(2), executor=ex)  # warm-up: compiled code, imports
+        t0 = time.perf_counter()
+        verify(tuning, rig, spec_of(0), executor=ex)
+        base = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        v = verify(tuning, rig, spec_of(n), executor=ex)
+        wall = time.perf_counter() - t0
+        rate = n * per_set / max(wall - base, 1e-9)
+        progress(f"scale: {label}: {n:,} plant sets in {wall:.1f} s ({base:.1f} s of it the "
+                 f"checks), {rate:.3g} plant·ticks/s")  # fmt: skip
+        return rate, wall, v.to_dict()
+
+    rates: dict[str, float] = {}
+    walls: dict[str, float] = {}
+    docs: dict[str, Any] = {}
+    rates["inprocess"], walls["inprocess"], docs["inprocess"] = measure(
+        InProcessExecutor(), "in-process"
+    )
+    start_s = math.nan
+    from dask.distributed import Client, LocalCluster
+
+    from servotune.executor import DaskExecutor
+
+    for workers in (2, 1):  # as open_executor starts one (it runs 1 worker in-process)
+        t0 = time.perf_counter()
+        with (
+            LocalCluster(
+                n_workers=workers, processes=True, threads_per_worker=1, dashboard_address=":0"
+            ) as cluster,  # fmt: skip
+            Client(cluster) as client,
+        ):
+            ex = DaskExecutor(client, name=f"LocalCluster ({workers} workers)")
+            ex.map(abs, [-1])  # the cluster answers
+            if workers == 2:
+                start_s = time.perf_counter() - t0
+            key = f"cluster{workers}"
+            rates[key], walls[key], docs[key] = measure(ex, ex.name)
+    for key in ("cluster2", "cluster1"):
+        if json.dumps(docs[key], sort_keys=True) != json.dumps(docs["inprocess"], sort_keys=True):
+            raise BenchMismatchError(f"scale: the {key} result differs from the in-process one")
+    ratio = rates["cluster2"] / rates["inprocess"]
+    growth = rates["cluster2"] / rates["cluster1"]
+    target_s = SCALE_TARGET * per_set / rates["cluster2"]
+    measured = f"measured on {n:,} plant sets ({n * per_set:.3g} plant·ticks)"
+    figures = [
+        Figure(
+            "scale_plant_sets",
+            n,
+            "plant_sets",
+            f"sync scenario, {ticks} ticks, "
+            f"{len(rig.axes)} plants per set; identical results on every executor",
+        )
+    ]
+    for key, label in (("inprocess", "in-process: engine on 2 threads, Python on 1"),
+                       ("cluster2", "LocalCluster, 2 workers x 1 thread"),
+                       ("cluster1", "LocalCluster, 1 worker x 1 thread")):  # fmt: skip
+        figures.append(Figure(f"scale_{key}_plant_ticks_per_s", rates[key], "plant·ticks/s",
+                              f"{label}; {measured}; target >= 5e7"))  # fmt: skip
+        figures.append(Figure(f"scale_{key}_s", walls[key], "s", f"{label}; {measured}"))
+    figures += [
+        Figure("scale_cluster2_vs_inprocess", ratio, "x", "rate ratio; target >= 0.85"),
+        Figure("scale_cluster_2_vs_1_workers", growth, "x", "rate ratio; ideal 2"),
+        Figure("scale_cluster_start_s", start_s, "s", "2 workers up and a first task back"),
+        Figure("scale_1e6_plants_cluster2_s_extrapolated", target_s, "s",
+               f"EXTRAPOLATED from {n:,} plant sets at the 2-worker rate, not measured"
+               if n < SCALE_TARGET else "measured (scale_cluster2_s less the checks)"),
+    ]  # fmt: skip
+    return figures
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the selected benchmarks, print the figures, write the report.
 
@@ -1257,7 +1383,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         Exit status.
     """
     args = parse_args(argv)
-    opts = Options(quick=args.quick)
+    opts = Options(quick=args.quick, scale_plants=args.scale_plants)
     names = [n for n in BENCHES if args.only is None or n in args.only]
     figures: list[Figure] = []
     for name in names:

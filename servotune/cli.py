@@ -355,7 +355,8 @@ def _verify_linkage(args: argparse.Namespace) -> int:
     from servotune.report.text import format_linkage_verification
 
     for flag, value in (("--rig", args.rig), ("--report", args.report), ("--seed", args.seed),
-                        ("--montecarlo", args.montecarlo)):  # fmt: skip
+                        ("--montecarlo", args.montecarlo), ("--scheduler", args.scheduler),
+                        ("--workers", args.workers)):  # fmt: skip
         if value is not None:
             raise ServotuneError(f"{flag} is for a single rig's tuning; {args.tuning} is a "
                                  "linkage plan (its spec sets the run)")  # fmt: skip
@@ -370,7 +371,8 @@ def _verify_gantry(args: argparse.Namespace) -> int:
     from servotune.arch.gantry.verify import verify_gantry_files
     from servotune.report.text import format_gantry_verification
 
-    for flag, value in (("--rig", args.rig), ("--report", args.report)):
+    for flag, value in (("--rig", args.rig), ("--report", args.report),
+                        ("--scheduler", args.scheduler), ("--workers", args.workers)):  # fmt: skip
         if value is not None:
             raise ServotuneError(f"{flag} is for a single rig's tuning; {args.tuning} is a "
                                  "gantry tuning (its rig is named by its gantry config, "
@@ -420,8 +422,9 @@ def _cmd_verify(args: argparse.Namespace) -> int:
     if args.report:  # before the run: a report directory that cannot be made fails first
         Path(args.report).mkdir(parents=True, exist_ok=True)
     result, record, path = verify_files(args.tuning, args.spec, args.rig, seed=args.seed,
-                                        montecarlo=args.montecarlo,
-                                        progress=_progress)  # fmt: skip
+                                        montecarlo=args.montecarlo, progress=_progress,
+                                        scheduler=args.scheduler,
+                                        workers=args.workers)  # fmt: skip
     _summary(args.json, record, lambda: format_table(result))
     print(f"wrote the verification record to {path}", file=sys.stderr)
     if args.report:
@@ -965,7 +968,24 @@ def _parser() -> argparse.ArgumentParser:
         type=int,
         default=None,
         metavar="N",
-        help="plant variants (default: the spec's montecarlo.count; up to 10000)",
+        help="Monte-Carlo plant sets (default: the spec's montecarlo.count; up to 1e8): run in "
+        "chunks, in-process below 100,000, else on a Dask cluster (--scheduler, or one started "
+        "on this machine's cores); the result is the same on any of them",
+    )
+    s.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        default=None,
+        help="run the plant sets on the Dask cluster of this scheduler (tcp://HOST:8786; "
+        "default: $SERVOTUNE_SCHEDULER); see docs/scale.md",
+    )
+    s.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        metavar="N",
+        help="worker processes of a cluster started on this machine, whatever the size "
+        "(1: in-process; default: one per core, from 100,000 plant sets)",
     )
     s.add_argument("--json", action="store_true", help="the verification record as JSON on stdout")
     s.add_argument("--report", help="also write the HTML report into this directory")

@@ -12,10 +12,12 @@ __all__ = [
     "CounterFaultWarning",
     "DigestError",
     "ExportError",
+    "FleetTableError",
     "IdentificationError",
     "InfeasibleError",
     "LogFormatError",
     "RigError",
+    "SchedulerError",
     "ServotuneError",
     "SimulationError",
     "SpecError",
@@ -69,6 +71,10 @@ class ExportError(ServotuneError, ValueError):
     """A table or runtime export cannot be produced."""
 
 
+class FleetTableError(ServotuneError, ValueError):
+    """A fleet table (``servotune fit LOGS --fleet FILE``) cannot be written or read back."""
+
+
 class ConfigError(ServotuneError, ValueError):
     """An architecture configuration (``servotune sync`` / ``linkage``) is invalid."""
 
@@ -83,6 +89,12 @@ class TrustError(ServotuneError):
 class DigestError(ExportError, TrustError):
     """A well-formed tables export whose CRC or digest does not match its content: it was edited
     or damaged after export (the CLI exits 1, like any input that is not the verified one)."""
+
+
+class SchedulerError(ServotuneError, ConnectionError):
+    """A Dask scheduler does not answer (refused, unreachable, timed out), or the executor was
+    asked for something it cannot be (:func:`servotune.executor.open_executor`). The CLI exits
+    3, naming the address."""
 
 
 class CounterFaultWarning(UserWarning):

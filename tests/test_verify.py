@@ -382,7 +382,7 @@ def test_record_hashes_and_trust(tmp_path, tuning_file, good_result) -> None:
     assert files["tuning"]["sha256"] == file_sha256(tuning)
     assert files["rig"]["sha256"] == file_sha256(EXAMPLE_RIG_PATH)
     assert files["spec"]["sha256"] == file_sha256(SPEC_PATH)
-    assert record["passed"] is True and record["schema"] == "servotune.verify/2"
+    assert record["passed"] is True and record["schema"] == "servotune.verify/3"
     assert record["summary"]["limits_failed"] == 0 and record["tool_version"] == st.__version__
     body = {k: v for k, v in record.items() if k != "sha256"}
     canon = json.dumps(body, sort_keys=True, separators=(",", ":"), ensure_ascii=False)

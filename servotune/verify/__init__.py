@@ -1,8 +1,8 @@
 """Verification: a tuning against a spec on the bit-true closed loop (:mod:`.run`; the spec file
 :mod:`.spec`, its plant variants :mod:`.variants`, the checks :mod:`.checks`, the result and its
-table :mod:`.result`), and the trust chain from the verified bytes to the export
-(:mod:`.record`). The pass/fail table for the terminal is
-:func:`servotune.report.text.format_table`."""
+table :mod:`.result`, the Monte-Carlo distribution and summary :mod:`.montecarlo`), and the
+trust chain from the verified bytes to the export (:mod:`.record`). The pass/fail table for the
+terminal is :func:`servotune.report.text.format_table`."""
 
 from servotune._deprecate import moved_names
 from servotune.verify.checks import check_overflow, check_speed, check_timer, max_safe_gain_q
@@ -14,6 +14,7 @@ from servotune.verify.margins import (
     Margins,
     tuning_margins,
 )
+from servotune.verify.montecarlo import PlantDistribution, SpecSpread
 from servotune.verify.record import (
     RECORD_SCHEMA,
     SourceFile,
@@ -29,7 +30,14 @@ from servotune.verify.record import (
     verify_files,
     write_record,
 )
-from servotune.verify.result import Check, Row, Verification
+from servotune.verify.result import (
+    Check,
+    MonteCarloSummary,
+    Row,
+    Sensitivity,
+    Verification,
+    WorstVariant,
+)
 from servotune.verify.run import verify
 from servotune.verify.spec import (
     KINDS,
@@ -54,13 +62,18 @@ __all__ = [
     "MarginLimits",
     "Margins",
     "MonteCarlo",
+    "MonteCarloSummary",
+    "PlantDistribution",
     "Row",
     "ScenarioSpec",
+    "Sensitivity",
     "SourceFile",
     "Spec",
+    "SpecSpread",
     "Variant",
     "Verification",
     "Verified",
+    "WorstVariant",
     "check_overflow",
     "check_record",
     "check_speed",

@@ -2,7 +2,7 @@
 
 ``verify`` reads each input file's bytes **once**: the tuning, the rig and the spec are parsed
 from those bytes and hashed from those same bytes, so a file replaced while verification runs
-cannot be recorded as verified. The record (``<tuning>.verify.json``, ``servotune.verify/2``)
+cannot be recorded as verified. The record (``<tuning>.verify.json``, ``servotune.verify/3``)
 binds the SHA-256 of the three files and the tool version to the verdict, and carries its own
 digest over its canonical JSON (:mod:`servotune.digest`), so an edited record is refused too.
 
@@ -26,6 +26,7 @@ from typing import Any
 from servotune._version import __version__
 from servotune.digest import DIGEST_FIELD, bytes_sha256, document_sha256
 from servotune.errors import RigError, SpecError, TrustError, TuningError
+from servotune.executor import open_executor
 from servotune.io.files import (
     atomic_write_text,
     json_float,
@@ -60,8 +61,10 @@ __all__ = [
     "write_record",
 ]
 
-RECORD_SCHEMA = "servotune.verify/2"
-_OLD_RECORD_SCHEMAS = ("servotune.verify/1",)
+RECORD_SCHEMA = "servotune.verify/3"
+"""/3: the Monte-Carlo summary holds the worst plant sets and the sensitivity table, and a
+run of more than ``LISTED_VARIANTS`` plant sets lists only the ones it names (issue 22)."""
+_OLD_RECORD_SCHEMAS = ("servotune.verify/1", "servotune.verify/2")
 
 
 @dataclass(frozen=True, slots=True)
@@ -261,7 +264,7 @@ def verification_record(
         "failures": v.failures,
         "limits": len(v.rows),
         "limits_failed": sum(not r.passed for r in v.rows),
-        "plant_sets": len(v.variants),
+        "plant_sets": v.plant_sets,
         "tightest": None
         if tight is None
         else {
@@ -345,12 +348,17 @@ def verify_files(
     montecarlo: int | None = None,
     progress: Callable[[str], None] | None = None,
     write: bool = True,
+    scheduler: str | None = None,
+    workers: int | None = None,
 ) -> tuple[Verification, dict[str, Any], Path | None]:
     """What ``servotune verify TUNING --spec SPEC [--rig RIG]`` runs.
 
     Reads each file's bytes once, parses and hashes those bytes, verifies, builds the record
     and (``write``) writes it next to the tuning. ``montecarlo`` overrides the spec's variant
-    count (the record then holds the spec as run).
+    count (the record then holds the spec as run). The plant sets run on the executor
+    :func:`servotune.executor.open_executor` chooses for their number (``scheduler``: a Dask
+    scheduler's address; ``workers``: processes of an embedded cluster, 1 for in-process); the
+    result does not depend on it.
 
     Returns
     -------
@@ -365,13 +373,16 @@ def verify_files(
         The rig is not the one the tuning was made for (:func:`rig_for_tuning`).
     TuningError, RigError, SpecError
         A file is missing or malformed.
+    SchedulerError
+        ``scheduler`` does not answer.
     """
     tuning, tuning_file, rig, rig_file = _tuning_and_rig(tuning_path, rig_path)
     spec_file = SourceFile.read(spec_path, SpecError, "spec file")
     spec = spec_from_bytes(spec_file.raw, spec_path)
     if montecarlo is not None:  # the spec's count overridden (validated as the spec's is)
         spec = replace(spec, montecarlo=replace(spec.montecarlo, count=montecarlo))
-    result = verify(tuning, rig, spec, seed=seed, progress=progress)
+    with open_executor(spec.montecarlo.count + 1, scheduler=scheduler, workers=workers) as ex:
+        result = verify(tuning, rig, spec, seed=seed, progress=progress, executor=ex)
     record = verification_record(result, tuning=tuning_file, rig=rig_file, spec=spec_file)
     path = write_record(record, tuning_path, tuning_file.sha256) if write else None
     return result, record, path
@@ -504,6 +515,8 @@ def load_for_export(
         Anything of :func:`rig_for_tuning`, :func:`read_record` or :func:`check_record`.
     TuningError, RigError, SpecError
         A file is missing or malformed.
+    SchedulerError
+        ``scheduler`` does not answer.
     """
     tuning, tuning_file, rig, rig_file = _tuning_and_rig(tuning_path, rig_path)
     record = None

@@ -17,8 +17,11 @@ from servotune.verify.variants import Variant
 
 __all__ = [
     "Check",
+    "MonteCarloSummary",
     "Row",
+    "Sensitivity",
     "Verification",
+    "WorstVariant",
     "clopper_pearson",
 ]
 
@@ -140,6 +143,144 @@ class Check:
         }
 
 
+def _plain(x: Any) -> Any:
+    """JSON-ready copy of a result field: floats through :func:`json_float`, mappings with
+    sorted keys, tuples as lists."""
+    if isinstance(x, float):
+        return json_float(x)
+    if isinstance(x, Mapping):
+        return {str(k): _plain(x[k]) for k in sorted(x)}
+    if isinstance(x, tuple | list):
+        return [_plain(v) for v in x]
+    return x
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class WorstVariant:
+    """One of the Monte-Carlo plant sets with the least margin.
+
+    Attributes
+    ----------
+    label : str
+        ``"mc<i>"`` (1-based draw index; :func:`~servotune.verify.plant_variants`).
+    relative_margin : float
+        Its least ``(limit − value) / limit`` over every limit of every scenario [1]; negative:
+        the figure below fails; ``-inf``: a fault latched, a value was NaN or a zero limit was
+        exceeded.
+    scenario, quantity, axis, unit : str
+        The figure giving that margin (``fault_runs`` for a latched fault).
+    value : float
+        Its value [unit] (1 for a fault).
+    limit : float
+        Its limit [unit].
+    parameters : mapping of str to float
+        The drawn plant parameters (``"<axis>.<parameter>"``, units in the names).
+    """
+
+    label: str
+    relative_margin: float
+    scenario: str
+    quantity: str
+    axis: str
+    unit: str
+    value: float
+    limit: float
+    parameters: Mapping[str, float] = field(default_factory=dict)
+
+    @property
+    def passed(self) -> bool:
+        """Whether this plant set keeps every limit (its least margin is not negative)."""
+        return bool(self.relative_margin >= 0.0)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dict (non-finite numbers as None)."""
+        return {f: _plain(getattr(self, f)) for f in self.__slots__} | {"passed": self.passed}
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Sensitivity:
+    """How one drawn plant parameter relates to failures (a row of the sensitivity table).
+
+    Read it as: plant sets whose ``parameter`` lies in its lowest quarter of the draws
+    (``<= low_edge``) fail ``low_fail_pct`` % of the time, those in its highest quarter
+    (``>= high_edge``) ``high_fail_pct`` %, against ``fail_pct`` % over all draws; a parameter
+    that drives failures shows a large difference between the two. ``rank_correlation`` is
+    Spearman's ρ between the parameter and each plant set's least relative margin: negative
+    when a larger value leaves less margin; it ranks the parameters even when nothing fails.
+
+    Attributes
+    ----------
+    parameter : str
+        ``"<axis>.<parameter>"`` (unit in the name).
+    low_edge, high_edge : float
+        The parameter's lower and upper quartile over the draws [its unit].
+    low_fail_pct, high_fail_pct, fail_pct : float
+        Failure rates [%]: in the lowest quarter, in the highest quarter, overall.
+    rank_correlation : float
+        Spearman's ρ with the least relative margin [1]; NaN when either does not vary.
+    """
+
+    parameter: str
+    low_edge: float
+    high_edge: float
+    low_fail_pct: float
+    high_fail_pct: float
+    fail_pct: float
+    rank_correlation: float
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dict (non-finite numbers as None)."""
+        return {f: _plain(getattr(self, f)) for f in self.__slots__}
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class MonteCarloSummary:
+    """What the Monte-Carlo plant sets of a verification show, beyond each limit's worst value.
+
+    Attributes
+    ----------
+    count : int
+        Monte-Carlo plant sets run (the nominal plants not counted).
+    passed : int
+        Of them, those that keep every limit of every scenario (no fault).
+    ci95 : tuple of float
+        Exact (Clopper–Pearson) 95 % interval of the pass probability [1].
+    distribution : str
+        Where the plants were drawn from (``"spec spread"``; a fleet's measured spread names
+        itself).
+    worst : tuple of WorstVariant
+        The plant sets with the least margin, least first (ties: lower draw index first).
+    sensitivity : tuple of Sensitivity
+        One row per drawn parameter that varies, the one most tied to failures first
+        (largest difference of the quartiles' failure rates, then largest ``|ρ|``).
+    """
+
+    count: int
+    passed: int
+    ci95: tuple[float, float]
+    distribution: str
+    worst: tuple[WorstVariant, ...] = ()
+    sensitivity: tuple[Sensitivity, ...] = ()
+
+    @property
+    def pass_fraction(self) -> float:
+        """``passed / count`` [1] (NaN without plant sets)."""
+        return self.passed / self.count if self.count else math.nan
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dict, JSON-ready."""
+        return {
+            "ci95": [json_float(x) for x in self.ci95],
+            "count": self.count,
+            "distribution": self.distribution,
+            "interval": "Clopper-Pearson",
+            "pass_fraction": json_float(self.pass_fraction),
+            "passed": self.passed,
+            "sensitivity": [x.to_dict() for x in self.sensitivity],
+            "worst": [x.to_dict() for x in self.worst],
+        }
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Verification:
     """What :func:`verify` found.
@@ -152,12 +293,18 @@ class Verification:
     seed : int
         The seed used (variants and noise).
     variants : tuple of Variant
-        The nominal plants first.
+        The nominal plants first, then every Monte-Carlo plant set up to
+        :data:`~servotune.verify.run.LISTED_VARIANTS` of them; beyond that only those named by
+        a row or by ``montecarlo.worst`` (each is redrawn from the seed by its label).
     rows : tuple of Row
         Every limit of every scenario (empty if the runs were skipped, see ``checks``).
     checks : tuple of Check
     variant_passed : tuple of bool
-        Per variant (``variants`` order), whether it kept every limit of every scenario.
+        Per plant set (index 0 the nominal plants, ``i`` the draw ``mc<i>``), whether it kept
+        every limit of every scenario.
+    montecarlo : MonteCarloSummary or None
+        The worst plant sets and the sensitivity table (None without Monte-Carlo plant sets or
+        runs).
     """
 
     spec: Spec
@@ -168,6 +315,12 @@ class Verification:
     rows: tuple[Row, ...]
     checks: tuple[Check, ...]
     variant_passed: tuple[bool, ...] = ()
+    montecarlo: MonteCarloSummary | None = None
+
+    @property
+    def plant_sets(self) -> int:
+        """Plant sets run: the nominal plants and every Monte-Carlo draw."""
+        return max(len(self.variant_passed), len(self.variants))
 
     @property
     def pass_fraction(self) -> tuple[int, int, float, float, float]:
@@ -219,6 +372,8 @@ class Verification:
         raise KeyError(f"no check {show_value(name)}")
 
     def _montecarlo_dict(self) -> dict[str, Any]:
+        if self.montecarlo is not None:
+            return self.montecarlo.to_dict()
         k, n, frac, lo, hi = self.pass_fraction
         return {"ci95": [json_float(lo), json_float(hi)], "count": n,
                 "interval": "Clopper-Pearson", "pass_fraction": json_float(frac),

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from servotune.errors import SpecError
+from servotune.executor import Executor, InProcessExecutor, chunk_bounds
 from servotune.laws.axis import FAULT_MASK, FLAG_SATURATED, MODE_TASK
 from servotune.metrics import step_info
 from servotune.rig import Rig
@@ -35,15 +36,23 @@ from servotune.verify.checks import (
     check_timer,
 )
 from servotune.verify.margins import plant_cases, tuning_margins
+from servotune.verify.montecarlo import PlantDistribution, SpecSpread, summarise
 from servotune.verify.result import Check, Row, Verification
 from servotune.verify.spec import LIMITS, ScenarioSpec, Spec
-from servotune.verify.variants import Variant, _seed_seqs, plant_variants
+from servotune.verify.variants import Variant, _seed_seqs
 
 __all__ = [
+    "LISTED_VARIANTS",
     "verify",
 ]
 
-_CHUNK = 64  # candidates per engine batch (bounds the memory of the traces)
+LISTED_VARIANTS = 10_000
+"""Monte-Carlo plant sets that a :class:`Verification` (and its record) lists one by one; a
+bigger run lists the nominal plants and the plant sets its rows and its worst list name (the
+others are redrawn from the seed by their label: :func:`~servotune.verify.plant_variants`)."""
+
+_TRACE_BYTES = 64 * 2**20  # traces one engine batch holds at once (bounds a chunk's memory)
+_MAX_CHUNK = 4096  # plant sets per task of the executor
 
 
 # --- running the scenarios -----------------------------------------------------------------
@@ -110,24 +119,6 @@ def _step_values(
     return info.overshoot_pct, (math.inf if math.isnan(settle) else settle)
 
 
-def _worst(values: np.ndarray, labels: Sequence[str]) -> tuple[float, str]:
-    """Largest value (NaN counts as the largest) and the label of its variant."""
-    v = np.where(np.isnan(values), np.inf, values)
-    i = int(np.argmax(v))
-    return float(v[i]), labels[i]
-
-
-def _run(
-    loop: Loop, variants: Sequence[Variant], seeds: Sequence[int], inputs: Inputs
-) -> dict[str, np.ndarray]:
-    """Traces of a chunk of variants (one engine batch)."""
-    batch = prepare_batch(loop, plants=[v.plants for v in variants], seeds=list(seeds))
-    res = run_batch(batch, inputs, metrics_only=False)
-    assert res.traces is not None
-    keys = ("counter", "pos_counts", "err_counts", "flags", "true_pos_counts", "speed_cps")
-    return {key: getattr(res.traces, key) for key in keys}
-
-
 def _evaluate(
     rig: Rig, sc: ScenarioSpec, inputs: Inputs, tr: dict[str, np.ndarray]
 ) -> tuple[dict[tuple[str, str], np.ndarray], dict[str, np.ndarray]]:
@@ -158,12 +149,16 @@ def _evaluate(
             sat = (flags[:, :, a] & FLAG_SATURATED) != 0
             values[("saturation_pct", name)] = 100.0 * sat[:, task].mean(axis=1)
             if rig.axes[a].role == "slave":
+                # sums over C-ordered rows: numpy then adds each plant set's row alone (pairwise),
+                # the same bits however many plant sets the batch holds (a column-ordered
+                # array is summed across the rows, and the order depends on their number)
                 e = pos[:, :, i_m] - pos[:, :, a]
-                et = e[:, task]
+                et = np.ascontiguousarray(e[:, task])
                 values[("max_sync_error_counts", name)] = np.abs(et).max(axis=1)
                 values[("rms_sync_error_counts", name)] = np.sqrt(np.mean(et * et, axis=1))
                 lo, hi = win.steady
-                values[("steady_lag_counts", name)] = np.abs(e[:, lo:hi]).mean(axis=1)
+                steady = np.ascontiguousarray(np.abs(e[:, lo:hi]))
+                values[("steady_lag_counts", name)] = steady.mean(axis=1)
     else:
         k0 = math.ceil(sc.settle_s / rig.period_s)
         bits = rig.counter.bits
@@ -183,33 +178,188 @@ def _evaluate(
     return values, faults
 
 
-def _rows(
-    sc: ScenarioSpec,
-    names: Sequence[str],
-    values: dict[tuple[str, str], np.ndarray],
-    faults: dict[str, np.ndarray],
-    labels: Sequence[str],
-) -> tuple[list[Row], np.ndarray]:
-    """The rows of a scenario (worst over the variants) and which variants keep every limit
-    of it (a NaN or a fault fails)."""
-    rows = []
-    ok = np.ones(len(labels), dtype=bool)
-    for key, lim in sc.limits.items():
-        quantity, unit = LIMITS[key]
-        for name in names:
-            if (quantity, name) in values:
+# --- a chunk of plant sets through every scenario (one task of the executor) -----------------
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class _Shared:
+    """What every chunk of a verification needs (sent to each worker once)."""
+
+    rig: Rig
+    loop: Loop
+    runs: tuple[tuple[ScenarioSpec, Inputs], ...]
+    distribution: PlantDistribution
+    seed: int
+    threads: int | None
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class _Chunk:
+    """Plant sets ``start … stop − 1`` (0 the nominal plants, ``i`` the draw ``mc<i>``) and
+    their noise stream seeds."""
+
+    start: int
+    stop: int
+    noise: np.ndarray
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class _ChunkResult:
+    """A chunk's findings: per limit (``figures`` order) the worst value and where (fault rows:
+    how many latched and the first), per plant set whether it passed, its least relative margin,
+    the limit giving it and that value, the drawn values, and per scenario the fastest motion."""
+
+    figures: tuple[tuple[str, str, str, str, float], ...]
+    worst: np.ndarray
+    where: np.ndarray
+    passed: np.ndarray
+    margin: np.ndarray
+    which: np.ndarray
+    value: np.ndarray
+    drawn: np.ndarray
+    fastest: tuple[tuple[float, int, int, float, int, int], ...]
+
+
+def _relative(v: np.ndarray, limit: float) -> np.ndarray:
+    """``(limit − v) / limit`` [1]; a zero limit gives 0 if kept, ``-inf`` if not; NaN → -inf."""
+    if limit > 0:
+        r = (limit - v) / limit
+    else:
+        r = np.where(v <= limit, 0.0, -np.inf)
+    return np.where(np.isnan(r), -np.inf, r)
+
+
+def _run_chunk(chunk: _Chunk, shared: _Shared) -> _ChunkResult:
+    """Every scenario for the plant sets of ``chunk`` (the executor's task)."""
+    rig, names = shared.rig, shared.rig.axis_names
+    first_draw = max(chunk.start, 1) - 1
+    plant_sets, drawn = shared.distribution.draw(shared.seed, first_draw, chunk.stop - 1)
+    if chunk.start == 0:
+        plant_sets = [tuple(a.plant for a in rig.axes), *plant_sets]
+    n = chunk.stop - chunk.start
+    figures: list[tuple[str, str, str, str, float]] = []
+    worst: list[float] = []
+    where: list[int] = []
+    passed = np.ones(n, dtype=bool)
+    margin = np.full(n, np.inf)
+    which = np.zeros(n, dtype=np.int64)
+    value = np.full(n, np.nan)
+    fastest = []
+    for sc, inputs in shared.runs:
+        per_batch = max(1, _TRACE_BYTES // (inputs.n_ticks * len(names) * 72))
+        parts = []
+        step_best = (0.0, -1, -1)
+        speed_best = (0.0, -1, -1)
+        for k in range(0, n, per_batch):
+            hi = min(n, k + per_batch)
+            batch = prepare_batch(shared.loop, plants=plant_sets[k:hi],
+                                  seeds=[int(x) for x in chunk.noise[k:hi]])  # fmt: skip
+            res = run_batch(batch, inputs, metrics_only=False, threads=shared.threads)
+            assert res.traces is not None
+            tr = res.traces
+            parts.append(_evaluate(rig, sc, inputs, {
+                "counter": tr.counter, "pos_counts": tr.pos_counts, "err_counts": tr.err_counts,
+                "flags": tr.flags, "true_pos_counts": tr.true_pos_counts,
+            }))  # fmt: skip
+            # the first largest motion per tick and speed in (plant set, tick, axis) order
+            step = np.abs(np.diff(tr.true_pos_counts, axis=1))
+            if step.size and step.max() > step_best[0]:
+                b, _, a = np.unravel_index(int(np.argmax(step)), step.shape)
+                step_best = (float(step.max()), chunk.start + k + int(b), int(a))
+            spd = np.abs(tr.speed_cps)
+            if spd.max() > speed_best[0]:
+                b, _, a = np.unravel_index(int(np.argmax(spd)), spd.shape)
+                speed_best = (float(spd.max()), chunk.start + k + int(b), int(a))
+        fastest.append((*step_best, *speed_best))
+        values = {key: np.concatenate([v[key] for v, _ in parts]) for key in parts[0][0]}
+        faults = {nm: np.concatenate([f[nm] for _, f in parts]) for nm in parts[0][1]}
+        for key, lim in sc.limits.items():
+            quantity, unit = LIMITS[key]
+            for name in names:
+                if (quantity, name) not in values:
+                    continue
                 v = values[(quantity, name)]
-                worst, label = _worst(v, labels)
-                ok &= v <= lim
-                rows.append(Row(scenario=sc.name, quantity=quantity, axis=name, unit=unit,
-                                limit=lim, worst=worst, variant=label))  # fmt: skip
-    for name in names:
-        faulted = faults[name]
-        ok &= ~faulted
-        first = labels[int(np.argmax(faulted))] if faulted.any() else labels[0]
-        rows.append(Row(scenario=sc.name, quantity=_FAULT_QUANTITY, axis=name, unit="runs",
-                        limit=0.0, worst=float(faulted.sum()), variant=first))  # fmt: skip
-    return rows, ok
+                w = np.where(np.isnan(v), np.inf, v)  # NaN counts as the largest
+                i = int(np.argmax(w))
+                figures.append((sc.name, quantity, name, unit, float(lim)))
+                worst.append(float(w[i]))
+                where.append(chunk.start + i)
+                passed &= v <= lim
+                rel = _relative(v, float(lim))
+                better = rel < margin
+                margin = np.where(better, rel, margin)
+                which = np.where(better, len(figures) - 1, which)
+                value = np.where(better, v, value)
+        for name in names:
+            faulted = faults[name]
+            figures.append((sc.name, _FAULT_QUANTITY, name, "runs", 0.0))
+            worst.append(float(faulted.sum()))
+            where.append(chunk.start + int(np.argmax(faulted)) if faulted.any() else -1)
+            passed &= ~faulted
+            better = faulted & (margin > -np.inf)
+            margin = np.where(better, -np.inf, margin)
+            which = np.where(better, len(figures) - 1, which)
+            value = np.where(better, 1.0, value)
+    return _ChunkResult(figures=tuple(figures), worst=np.asarray(worst),
+                        where=np.asarray(where, dtype=np.int64), passed=passed, margin=margin,
+                        which=which, value=value, drawn=drawn,
+                        fastest=tuple(fastest))  # fmt: skip
+
+
+def _label(index: int) -> str:
+    """The label of plant set ``index`` (0 the nominal plants)."""
+    return "nominal" if index == 0 else f"mc{index}"
+
+
+def _reduce_rows(parts: Sequence[_ChunkResult]) -> list[Row]:
+    """Each limit's worst value over every chunk, in chunk order (the first worst wins)."""
+    rows = []
+    for j, (scenario, quantity, axis, unit, limit) in enumerate(parts[0].figures):
+        if quantity == _FAULT_QUANTITY:
+            count = sum(float(p.worst[j]) for p in parts)
+            firsts = [int(p.where[j]) for p in parts if p.where[j] >= 0]
+            worst, at = count, (firsts[0] if firsts else 0)
+        else:
+            worst, at = parts[0].worst[j], int(parts[0].where[j])
+            for p in parts[1:]:
+                if p.worst[j] > worst:
+                    worst, at = p.worst[j], int(p.where[j])
+        rows.append(Row(scenario=scenario, quantity=quantity, axis=axis, unit=unit, limit=limit,
+                        worst=float(worst), variant=_label(at)))  # fmt: skip
+    return rows
+
+
+def _reduce_fastest(rig: Rig, runs: Sequence[tuple[ScenarioSpec, Inputs]],
+                    parts: Sequence[_ChunkResult]) -> _Fastest:  # fmt: skip
+    """The largest motion per tick and speed over every scenario and chunk, and where: the
+    first in (scenario, plant set, tick, axis) order."""
+    fastest = _Fastest()
+    for s, (sc, _) in enumerate(runs):
+        for p in parts:
+            step, b_t, a_t, speed, b_s, a_s = p.fastest[s]
+            if step > fastest.counts_per_tick:
+                fastest.counts_per_tick = step
+                fastest.where_tick = f"{sc.name}, {rig.axes[a_t].name}, {_label(b_t)}"
+            if speed > fastest.speed_cps:
+                fastest.speed_cps = speed
+                fastest.where_speed = f"{sc.name}, {rig.axes[a_s].name}, {_label(b_s)}"
+    return fastest
+
+
+def _listed_variants(
+    rig: Rig, distribution: PlantDistribution, seed: int, count: int, named: set[int]
+) -> tuple[Variant, ...]:
+    """The nominal plants and every draw (up to :data:`LISTED_VARIANTS`), else the draws in
+    ``named`` (indices ≥ 1), redrawn by index."""
+    nominal = Variant(label="nominal", plants=tuple(a.plant for a in rig.axes))
+    if count <= LISTED_VARIANTS:
+        plants, _ = distribution.draw(seed, 0, count)
+        return (nominal, *(Variant(label=_label(i + 1), plants=p) for i, p in enumerate(plants)))
+    out = [nominal]
+    for i in sorted(x for x in named if x >= 1):
+        (p,), _ = distribution.draw(seed, i - 1, i)
+        out.append(Variant(label=_label(i), plants=p))
+    return tuple(out)
 
 
 def check_margins(tuning: Tuning, rig: Rig, spec: Spec) -> list[Check]:
@@ -261,16 +411,26 @@ def verify(
     *,
     seed: int | None = None,
     progress: Callable[[str], None] | None = None,
+    executor: Executor | None = None,
+    distribution: PlantDistribution | None = None,
+    chunk_size: int | None = None,
 ) -> Verification:
     """Verify a tuning against a spec on the bit-true closed loop.
 
-    Every scenario runs for the nominal plants and every Monte Carlo variant
-    (:func:`plant_variants`), each with its own noise stream, through the engine with the
-    tuning's quantised constants (nothing is re-quantised). Then the checks: the fastest motion
-    against the counter's limits (:func:`check_speed`), the timer period (:func:`check_timer`)
-    and the overflow bound (:func:`check_overflow`; if it fails the runs are skipped, since the
-    runtime arithmetic is not defined for such constants), and the margins of every loop the
-    runtime can run over the plant set (:func:`check_margins`).
+    Every scenario runs for the nominal plants and every Monte Carlo plant set (``count`` draws
+    from ``distribution``, by default the spec's spread: :func:`plant_variants`), each with its
+    own noise stream, through the engine with the tuning's quantised constants (nothing is
+    re-quantised). The plant sets run in chunks, each chunk through every scenario as one task
+    of ``executor`` (in-process, or a Dask cluster: :mod:`servotune.executor`); the chunks'
+    findings are reduced in chunk order, and every draw and noise stream is keyed by the seed
+    and the plant set's index, so the result is the same whatever the chunk size and the
+    executor. Then the checks: the fastest motion against the counter's limits
+    (:func:`check_speed`), the timer period (:func:`check_timer`) and the overflow bound
+    (:func:`check_overflow`; if it fails the runs are skipped, since the runtime arithmetic is
+    not defined for such constants), and the margins of every loop the runtime can run over
+    the plant set (:func:`check_margins`). The Monte-Carlo plant sets are summarised
+    (:attr:`Verification.montecarlo`: the pass fraction with its exact interval, the plant sets
+    with the least margin and the sensitivity table, :mod:`servotune.verify.montecarlo`).
 
     Parameters
     ----------
@@ -278,11 +438,21 @@ def verify(
     rig : Rig
         The rig to verify on (its axes and period must match the tuning's).
     spec : Spec
+        Its ``montecarlo.count`` is the number of draws.
     seed : int, optional
         Seeds the variants and the noise; default ``spec.montecarlo.seed``. Same inputs and
         seed give the same result.
     progress : callable, optional
         Receives one line per step (the CLI prints them on stderr).
+    executor : Executor, optional
+        Where the chunks run (default in-process;
+        :func:`servotune.executor.open_executor` chooses by size).
+    distribution : PlantDistribution, optional
+        Where the plant sets come from (default :class:`~servotune.verify.montecarlo.SpecSpread`
+        of the spec's ``[montecarlo]`` table).
+    chunk_size : int, optional
+        Plant sets per task (default: a quarter of an even share per worker, 256 … 4096);
+        changes the run's granularity, never its result.
 
     Returns
     -------
@@ -312,46 +482,44 @@ def verify(
                         f"{show_value(rig.name)} has none"
                     )
     used_seed = spec.montecarlo.seed if seed is None else int(seed)
-    variants = plant_variants(rig, spec.montecarlo, used_seed)
-    labels = [v.label for v in variants]
-    noise = [int(s) for s in _seed_seqs(used_seed)[1].generate_state(len(variants), np.uint64)]
+    dist = SpecSpread(rig=rig, montecarlo=spec.montecarlo) if distribution is None else distribution
+    dist.draw(used_seed, 0, 0)  # a distribution that cannot draw for this rig fails first
+    count = spec.montecarlo.count
     overflow = check_overflow(tuning, rig)
     checks: list[Check] = [overflow, check_timer(rig, spec.max_period_error_ppm)]
-    rows: list[Row] = []
     if not overflow.passed:
         say("verify: constants break the overflow bound; closed-loop runs skipped")
         return Verification(spec=spec, rig_name=rig.name, axis_names=rig.axis_names,
-                            seed=used_seed, variants=variants, rows=(),
-                            checks=tuple(checks))  # fmt: skip
-    fastest = _Fastest()
-    passed = np.ones(len(variants), dtype=bool)
+                            seed=used_seed, rows=(), checks=tuple(checks),
+                            variants=_listed_variants(rig, dist, used_seed, count,
+                                                      set()))  # fmt: skip
+    runs = []
     for sc in spec.scenarios:
-        say(f"verify: scenario {sc.name} ({sc.kind}, {sc.seconds:g} s), {len(variants)} plant sets")
         try:
             inputs = _inputs(rig, sc)
         except SpecError as exc:
             raise SpecError(f"scenario.{sc.name}: {exc}") from None
         if sc.kind != "lock":
             _move_windows(rig, sc, inputs)  # a bad scenario fails before the runs
-        parts = []
-        for k in range(0, len(variants), _CHUNK):  # chunks bound the traces' memory
-            tr = _run(loop, variants[k : k + _CHUNK], noise[k : k + _CHUNK], inputs)
-            parts.append(_evaluate(rig, sc, inputs, tr))
-            step = np.abs(np.diff(tr["true_pos_counts"], axis=1))
-            if step.size and step.max() > fastest.counts_per_tick:
-                b, _, a = np.unravel_index(int(np.argmax(step)), step.shape)
-                fastest.counts_per_tick = float(step.max())
-                fastest.where_tick = f"{sc.name}, {rig.axes[a].name}, {labels[k + b]}"
-            spd = np.abs(tr["speed_cps"])
-            if spd.max() > fastest.speed_cps:
-                b, _, a = np.unravel_index(int(np.argmax(spd)), spd.shape)
-                fastest.speed_cps = float(spd.max())
-                fastest.where_speed = f"{sc.name}, {rig.axes[a].name}, {labels[k + b]}"
-        values = {key: np.concatenate([v[key] for v, _ in parts]) for key in parts[0][0]}
-        faults = {n: np.concatenate([f[n] for _, f in parts]) for n in parts[0][1]}
-        sc_rows, sc_ok = _rows(sc, rig.axis_names, values, faults, labels)
-        rows += sc_rows
-        passed &= sc_ok
+        runs.append((sc, inputs))
+    ex = InProcessExecutor() if executor is None else executor
+    n_sets = count + 1
+    if chunk_size is None:
+        chunk_size = min(_MAX_CHUNK, max(256, math.ceil(n_sets / (4 * ex.workers))))
+    noise = _seed_seqs(used_seed)[1].generate_state(n_sets, np.uint64)
+    chunks = [
+        _Chunk(start=a, stop=b, noise=noise[a:b]) for a, b in chunk_bounds(n_sets, chunk_size)
+    ]
+    shared = _Shared(rig=rig, loop=loop, runs=tuple(runs), distribution=dist, seed=used_seed,
+                     threads=ex.threads_per_task)  # fmt: skip
+    for sc, _ in runs:
+        say(f"verify: scenario {sc.name} ({sc.kind}, {sc.seconds:g} s), {n_sets:,} plant sets")
+    say(f"verify: the nominal plants and {count:,} plant sets from the {dist.name} in "
+        f"{len(chunks)} chunks on {ex.name}")  # fmt: skip
+    parts = ex.map(_run_chunk, chunks, shared=shared,
+                   done=lambda k: say(f"verify montecarlo: {k}/{len(chunks)} chunks"))  # fmt: skip
+    rows = _reduce_rows(parts)
+    fastest = _reduce_fastest(rig, runs, parts)
     checks[:0] = check_speed(
         rig,
         fastest.counts_per_tick,
@@ -361,9 +529,20 @@ def verify(
     )
     say("verify: margins of every loop over the plant set")
     checks += check_margins(tuning, rig, spec)
+    passed = np.concatenate([p.passed for p in parts])
+    summary = None
+    if count:
+        cat = {f: np.concatenate([getattr(p, f) for p in parts])[1:]
+               for f in ("margin", "which", "value")}  # fmt: skip
+        summary = summarise(distribution=dist, values=np.concatenate([p.drawn for p in parts]),
+                            passed=passed[1:], margin=cat["margin"], figures=parts[0].figures,
+                            which=cat["which"], figure_values=cat["value"])  # fmt: skip
+    named = {int(r.variant[2:]) for r in rows if r.variant.startswith("mc")}
+    named |= {int(w.label[2:]) for w in (summary.worst if summary else ())}
     result = Verification(spec=spec, rig_name=rig.name, axis_names=rig.axis_names,
-                          seed=used_seed, variants=variants, rows=tuple(rows),
-                          checks=tuple(checks),
-                          variant_passed=tuple(bool(x) for x in passed))  # fmt: skip
+                          seed=used_seed,
+                          variants=_listed_variants(rig, dist, used_seed, count, named),
+                          rows=tuple(rows), checks=tuple(checks),
+                          variant_passed=tuple(passed.tolist()), montecarlo=summary)  # fmt: skip
     say(f"verify: {'PASSED' if result.passed else 'FAILED'}")
     return result

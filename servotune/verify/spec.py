@@ -134,7 +134,7 @@ _UNITS = {
     **{k: u for k, (_, u) in LIMITS.items()},
 }
 _MAX_SECONDS = 600.0
-_MAX_VARIANTS = 10_000
+_MAX_VARIANTS = 100_000_000  # 1e8 plant sets: an hour on a cluster (docs/scale.md)
 
 
 # --- the spec ------------------------------------------------------------------------------

@@ -17,8 +17,11 @@ from servotune.verify.margins import spread_factors
 from servotune.verify.spec import MonteCarlo
 
 __all__ = [
+    "SPREAD_PARAMETERS",
     "Variant",
+    "chunk_generator",
     "plant_variants",
+    "spread_plants",
 ]
 
 
@@ -70,6 +73,41 @@ def plant_variants(rig: Rig, mc: MonteCarlo, seed: int | None = None) -> tuple[V
     SpecError
         If ``mc.axes`` names an axis the rig does not have.
     """
+    nominal = tuple(a.plant for a in rig.axes)
+    out = [Variant(label="nominal", plants=nominal)]
+    plants = spread_plants(rig, mc, mc.seed if seed is None else seed, 0, mc.count)
+    out += [Variant(label=f"mc{i + 1}", plants=p) for i, p in enumerate(plants)]
+    return tuple(out)
+
+
+_DRAWS_PER_AXIS = 4  # uniforms per axis and variant: gain, tau, offset, Coulomb
+SPREAD_PARAMETERS = ("gain_cps_per_v", "tau_s", "offset_v", "coulomb_v")
+"""The plant parameters a spec's spread varies, in draw order (units in the names)."""
+
+
+def chunk_generator(seed: int, start: int, draws_per_item: int) -> np.random.Generator:
+    """The seed's variant stream, jumped to item ``start``: item ``i`` always takes the
+    ``draws_per_item`` uniforms at ``[i·d, (i + 1)·d)`` of the stream (PCG64's ``advance``), so a
+    chunk ``[start, stop)`` draws exactly what one pass over all items draws there, whatever
+    the chunking (DECISIONS 11)."""
+    bits = np.random.PCG64(_seed_seqs(seed)[0])
+    bits.advance(int(start) * int(draws_per_item))
+    return np.random.Generator(bits)
+
+
+def spread_plants(
+    rig: Rig, mc: MonteCarlo, seed: int, start: int, stop: int
+) -> list[tuple[Plant, ...]]:
+    """The plant sets of Monte-Carlo draws ``start … stop − 1`` (0-based: draw ``i`` is variant
+    ``mc<i + 1>`` of :func:`plant_variants`), one plant per rig axis, bit for bit what
+    :func:`plant_variants` gives them, from a generator jumped to ``start``
+    (:func:`chunk_generator`).
+
+    Raises
+    ------
+    SpecError
+        If ``mc.axes`` names an axis the rig does not have.
+    """
     names = rig.axis_names
     for a in mc.axes:
         if a not in names:
@@ -78,13 +116,14 @@ def plant_variants(rig: Rig, mc: MonteCarlo, seed: int | None = None) -> tuple[V
             )
     vary = [n in mc.axes if mc.axes else True for n in names]
     nominal = tuple(a.plant for a in rig.axes)
-    out = [Variant(label="nominal", plants=nominal)]
-    rng = np.random.default_rng(_seed_seqs(mc.seed if seed is None else seed)[0])
-    u = rng.uniform(-1.0, 1.0, size=(mc.count, len(names), 4))
+    n = max(0, int(stop) - int(start))
+    rng = chunk_generator(seed, start, len(names) * _DRAWS_PER_AXIS)
+    u = rng.uniform(-1.0, 1.0, size=(n, len(names), _DRAWS_PER_AXIS))
     # per axis, the draw's map onto each parameter: the spec's spread, or the identified 95 %
     # interval where that is wider (the fit record of a fitted rig)
     maps = [_maps(a.plant, a.plant_fit, mc) for a in rig.axes]
-    for i in range(mc.count):
+    out = []
+    for i in range(n):
         plants = []
         for j, p in enumerate(nominal):
             if not vary[j]:
@@ -104,8 +143,8 @@ def plant_variants(rig: Rig, mc: MonteCarlo, seed: int | None = None) -> tuple[V
                     coulomb_neg_v=_scaled(p.coulomb_neg_v, c_f),
                 )
             )
-        out.append(Variant(label=f"mc{i + 1}", plants=tuple(plants)))
-    return tuple(out)
+        out.append(tuple(plants))
+    return out
 
 
 def _linear(lo: float, hi: float, centre: float, half: float) -> Any:

@@ -16,7 +16,7 @@ import pytest
 
 import servotune
 
-HEAVY = ("numba", "scipy", "matplotlib", "control", "casadi")
+HEAVY = ("numba", "scipy", "matplotlib", "control", "casadi", "dask", "distributed")
 
 
 _PRELUDE = f"""

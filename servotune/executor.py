@@ -1,0 +1,298 @@
+"""Where batches of independent work run: in this process, or on a Dask cluster.
+
+Every batch of independent work (Monte-Carlo chunks of a verification, fits of many logs,
+big tuner candidate batches) goes through one small interface, :class:`Executor`: ``map(fn,
+items)`` returns ``[fn(item) for item in items]`` in input order, and the caller reduces the
+results in that fixed order. Two implementations:
+
+- :class:`InProcessExecutor`: a plain loop in this process (the default for small work; the
+  engine's own numba threads still use every core);
+- :class:`DaskExecutor`: the tasks of a `Dask distributed <https://distributed.dask.org>`_
+  ``Client``: an embedded ``LocalCluster`` on this machine's cores (worker processes, one
+  thread each), or an existing cluster reached by its scheduler's address
+  (``tcp://HOST:8786``; deployment: ``docs/scale.md``). Dask schedules, moves the data and
+  re-runs the tasks of a worker that dies; servotune has no pool or scheduler of its own.
+
+:func:`open_executor` chooses one. Results do not depend on the choice: a task's randomness is
+keyed by the work's seed and each item's index (DECISIONS 11; e.g. a chunk of plants
+``[start, stop)`` of a Monte-Carlo run draws its plants as
+:func:`servotune.verify.variants.chunk_generator` jumps into the seed's stream), never by the
+worker, the chunk or the order in which tasks finish; so a run gives the same bytes on one
+process, two workers or a hundred. (A seed per chunk, ``SeedSequence`` of the seed and the
+chunk's index, would tie the draws to the chunk size: the same seed would give other plants in
+chunks of 1,000 than in chunks of 4,096.)
+
+Dask is imported only here, and only when a cluster is used (``servotune --help`` does not
+load it).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from typing import Any, Protocol, TypeVar
+
+from servotune.errors import SchedulerError
+
+__all__ = [
+    "LOCAL_CLUSTER_MIN_ITEMS",
+    "SCHEDULER_ENV",
+    "DaskExecutor",
+    "Executor",
+    "InProcessExecutor",
+    "chunk_bounds",
+    "local_workers",
+    "open_executor",
+]
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+SCHEDULER_ENV = "SERVOTUNE_SCHEDULER"
+"""Environment variable naming a Dask scheduler (``tcp://HOST:8786``) when none is given."""
+
+LOCAL_CLUSTER_MIN_ITEMS = 100_000
+"""Work items (e.g. plant sets) from which :func:`open_executor` starts an embedded
+``LocalCluster`` rather than running in-process. Below it, the cluster's start (about 2 s:
+worker processes, imports, the compiled kernels' cache) costs more than it gains: the engine
+already runs its candidates on every core's thread in-process, and only the Python around the
+kernel (plant draws, discretisation, evaluation of the traces) runs on one core."""
+
+
+class Executor(Protocol):
+    """Runs ``fn`` over independent items; the results come back in input order.
+
+    Attributes
+    ----------
+    name : str
+        For progress lines (``"in-process"``, ``"dask LocalCluster (2 workers)"``,
+        ``"dask tcp://host:8786 (16 workers)"``).
+    workers : int
+        Workers that run tasks at once [1].
+    threads_per_task : int or None
+        Threads a task may use for compiled kernels (numba): None (every core) in-process, 1
+        on a cluster (Dask runs one task per worker thread).
+    """
+
+    name: str
+    workers: int
+    threads_per_task: int | None
+
+    def map(
+        self,
+        fn: Callable[..., R],
+        items: Sequence[Any],
+        *,
+        shared: Any = None,
+        done: Callable[[int], None] | None = None,
+    ) -> list[R]:
+        """``[fn(item, shared) for item in items]`` (``fn(item)`` if ``shared`` is None), in
+        input order.
+
+        Parameters
+        ----------
+        fn : callable
+            A module-level function (a cluster pickles it by reference).
+        items : sequence
+            Independent work items (picklable).
+        shared : object, optional
+            Data every call needs (sent to each worker once).
+        done : callable, optional
+            Called in the calling thread with the number of finished items after each one
+            finishes (for progress).
+        """
+        ...
+
+
+class InProcessExecutor:
+    """:class:`Executor` running every item in this process, one after the other."""
+
+    name = "in-process"
+    workers = 1
+    threads_per_task: int | None = None
+
+    def map(
+        self,
+        fn: Callable[..., R],
+        items: Sequence[Any],
+        *,
+        shared: Any = None,
+        done: Callable[[int], None] | None = None,
+    ) -> list[R]:
+        """See :meth:`Executor.map`."""
+        out = []
+        for i, item in enumerate(items):
+            out.append(fn(item) if shared is None else fn(item, shared))
+            if done is not None:
+                done(i + 1)
+        return out
+
+
+class DaskExecutor:
+    """:class:`Executor` on a ``dask.distributed.Client`` (one task per item).
+
+    Parameters
+    ----------
+    client : dask.distributed.Client
+        A connected client; the caller owns it (closes it).
+    name : str, optional
+        For progress lines (default: the scheduler's address).
+    retries : int
+        Times a task that *raised* is re-run (a task whose worker died is re-run by the
+        scheduler anyway, up to ``distributed.scheduler.allowed-failures`` times).
+    """
+
+    threads_per_task: int | None = 1
+
+    def __init__(self, client: Any, *, name: str | None = None, retries: int = 0) -> None:
+        self.client = client
+        self.retries = int(retries)
+        self.name = name or f"dask {client.scheduler.address}"
+
+    @property
+    def workers(self) -> int:
+        """Worker threads the scheduler knows now [1] (at least 1)."""
+        info = self.client.scheduler_info()
+        return max(1, sum(int(w.get("nthreads", 1)) for w in info.get("workers", {}).values()))
+
+    def map(
+        self,
+        fn: Callable[..., R],
+        items: Sequence[Any],
+        *,
+        shared: Any = None,
+        done: Callable[[int], None] | None = None,
+    ) -> list[R]:
+        """See :meth:`Executor.map`. ``shared`` is scattered to every worker once."""
+        from dask.distributed import as_completed
+
+        if not items:
+            return []
+        kwargs: dict[str, Any] = {}
+        if shared is not None:
+            # broadcast: every worker holds a copy, so a dead worker loses none of it
+            (kwargs["shared"],) = self.client.scatter([shared], broadcast=True, hash=False)
+        futures = self.client.map(fn, list(items), pure=False, retries=self.retries, **kwargs)
+        try:
+            for n, _ in enumerate(as_completed(futures), start=1):
+                if done is not None:
+                    done(n)
+            return self.client.gather(futures)
+        finally:
+            self.client.cancel(futures)
+
+
+def local_workers() -> int:
+    """Worker processes of an embedded cluster: this process's usable cores [1]."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
+@contextmanager
+def open_executor(
+    n_items: int,
+    *,
+    scheduler: str | None = None,
+    workers: int | None = None,
+    min_items: int = LOCAL_CLUSTER_MIN_ITEMS,
+) -> Iterator[Executor]:
+    """The executor for ``n_items`` items of work, closed (cluster and client) on exit.
+
+    The choice, in order:
+
+    1. ``scheduler`` (or the ``SERVOTUNE_SCHEDULER`` environment variable): a client of that
+       Dask scheduler (``tcp://HOST:8786``), which must answer within Dask's connect timeout
+       (``distributed.comm.timeouts.connect``, 30 s unless configured, e.g.
+       ``DASK_DISTRIBUTED__COMM__TIMEOUTS__CONNECT=5s``);
+    2. ``workers`` > 1, or ``n_items >= min_items`` with ``workers`` unset and more than one
+       core: an embedded ``LocalCluster`` of ``workers`` (default: the usable cores) worker
+       processes with one thread each, its HTTP server (dashboard) on a free port;
+    3. else in-process.
+
+    Parameters
+    ----------
+    n_items : int
+        Items of work to come (e.g. plant sets) [1].
+    scheduler : str, optional
+        Address of a running Dask scheduler.
+    workers : int, optional
+        Worker processes of an embedded cluster; 1 forces in-process. Not with ``scheduler``.
+    min_items : int
+        From how many items an embedded cluster is started (:data:`LOCAL_CLUSTER_MIN_ITEMS`).
+
+    Yields
+    ------
+    Executor
+
+    Raises
+    ------
+    SchedulerError
+        The scheduler does not answer (refused, unreachable, timed out), or ``workers`` is
+        given with a scheduler or is below 1.
+
+    Examples
+    --------
+    >>> with open_executor(10) as ex:
+    ...     ex.name, ex.map(abs, [-2, 3])
+    ('in-process', [2, 3])
+    """
+    address = scheduler or os.environ.get(SCHEDULER_ENV) or None
+    if workers is not None and workers < 1:
+        raise SchedulerError(f"workers must be >= 1, got {workers}")
+    if address is not None:
+        if workers is not None:
+            raise SchedulerError(
+                f"give either a scheduler ({address}) or a number of local workers, not both"
+            )
+        client = _connect(address)
+        try:
+            yield DaskExecutor(client, name=f"dask {address}")
+        finally:
+            client.close()
+        return
+    n_local = workers if workers is not None else local_workers()
+    large = workers is not None or n_items >= min_items
+    if n_local <= 1 or not large:
+        yield InProcessExecutor()
+        return
+    from dask.distributed import Client, LocalCluster
+
+    with (
+        LocalCluster(
+            n_workers=n_local, processes=True, threads_per_worker=1, dashboard_address=":0"
+        ) as cluster,  # fmt: skip
+        Client(cluster) as client,
+    ):
+        yield DaskExecutor(client, name=f"dask LocalCluster ({n_local} workers)")
+
+
+def _connect(address: str) -> Any:
+    """A client of the scheduler at ``address``; :class:`SchedulerError` if it does not
+    answer."""
+    from dask.distributed import Client
+
+    try:
+        return Client(address)
+    except (OSError, TimeoutError, ValueError) as exc:
+        why = " ".join(str(exc).split()) or type(exc).__name__
+        raise SchedulerError(
+            f"no Dask scheduler answers at {address} ({why}); start one (dask scheduler) or "
+            f"fix --scheduler / {SCHEDULER_ENV}"
+        ) from None
+
+
+def chunk_bounds(n_items: int, chunk_size: int) -> list[tuple[int, int]]:
+    """``[start, stop)`` of consecutive chunks of at most ``chunk_size`` items covering
+    ``range(n_items)``.
+
+    >>> chunk_bounds(5, 2)
+    [(0, 2), (2, 4), (4, 5)]
+    """
+    if chunk_size < 1:
+        raise ValueError(f"chunk_size must be >= 1, got {chunk_size}")
+    n_chunks = math.ceil(n_items / chunk_size)
+    return [(i * chunk_size, min(n_items, (i + 1) * chunk_size)) for i in range(n_chunks)]

@@ -1,0 +1,229 @@
+"""Monte-Carlo verification at scale: where the plant sets come from, and what they show.
+
+:func:`servotune.verify.verify` runs the nominal plants and ``count`` plant sets drawn from a
+:class:`PlantDistribution` through every scenario of a spec, in chunks on an executor
+(:mod:`servotune.executor`: in-process, or a Dask cluster for a million plant sets). This
+module holds the two ends of that run:
+
+- the **distribution**: :class:`SpecSpread`, the spec's ``[montecarlo]`` spreads around the
+  rig's plants (:func:`~servotune.verify.variants.plant_variants`' draw, bit for bit), behind
+  the :class:`PlantDistribution` interface, which another source of plants (a fleet's
+  measured spread) implements the same way;
+- the **summary** (:func:`summarise`): the pass fraction with its exact interval, the plant
+  sets with the least margin and the parameter each failure tracks (:func:`sensitivity_table`).
+
+Every draw is keyed by the seed and the draw's index (DECISIONS 11): a chunk ``[start, stop)``
+draws what one pass over all draws would draw there, so the verification is the same bytes
+whatever the chunking, the number of workers or the executor.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from servotune.plant import Plant
+from servotune.rig import Rig
+from servotune.verify.result import MonteCarloSummary, Sensitivity, WorstVariant, clopper_pearson
+from servotune.verify.spec import MonteCarlo
+from servotune.verify.variants import SPREAD_PARAMETERS, spread_plants
+
+__all__ = [
+    "PlantDistribution",
+    "SpecSpread",
+    "sensitivity_table",
+    "summarise",
+]
+
+N_WORST = 5
+"""Plant sets listed in :attr:`MonteCarloSummary.worst` by default."""
+
+
+class PlantDistribution(Protocol):
+    """A source of random plant sets for a Monte-Carlo verification.
+
+    Draw ``i`` must depend only on the seed and ``i`` (not on the chunk it is drawn in), so
+    that a verification is the same whatever the chunking and the executor; the object is sent
+    to the workers, so it must pickle.
+
+    Attributes
+    ----------
+    name : str
+        What the summary calls it (``"spec spread"``).
+    parameters : tuple of str
+        Names of the drawn values that :meth:`draw` returns, ``"<axis>.<parameter>"`` with the
+        unit in the parameter's name (the sensitivity table's rows).
+    """
+
+    name: str
+    parameters: tuple[str, ...]
+
+    def draw(self, seed: int, start: int, stop: int) -> tuple[list[tuple[Plant, ...]], np.ndarray]:
+        """Draws ``start … stop − 1``: per draw one plant per rig axis (rig order), and the
+        drawn values, shape ``(stop − start, len(parameters))``."""
+        ...
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SpecSpread:
+    """:class:`PlantDistribution` of a spec's ``[montecarlo]`` table: each varied axis's gain,
+    time constant, offset and Coulomb level drawn uniformly inside the spreads (widened to the
+    identified 95 % intervals of a fitted rig), exactly as
+    :func:`~servotune.verify.variants.plant_variants` draws them.
+
+    Parameters
+    ----------
+    rig : Rig
+    montecarlo : MonteCarlo
+        The spreads and the axes they apply to (its ``count`` and ``seed`` are not used here).
+    """
+
+    rig: Rig
+    montecarlo: MonteCarlo
+    name: str = "spec spread"
+
+    @property
+    def axes(self) -> tuple[str, ...]:
+        """The axes whose plants vary (rig order)."""
+        names = self.rig.axis_names
+        return tuple(n for n in names if not self.montecarlo.axes or n in self.montecarlo.axes)
+
+    @property
+    def parameters(self) -> tuple[str, ...]:
+        """``"<axis>.<parameter>"`` per varied axis and spread parameter."""
+        return tuple(f"{a}.{k}" for a in self.axes for k in SPREAD_PARAMETERS)
+
+    def draw(self, seed: int, start: int, stop: int) -> tuple[list[tuple[Plant, ...]], np.ndarray]:
+        """See :meth:`PlantDistribution.draw`."""
+        plants = spread_plants(self.rig, self.montecarlo, seed, start, stop)
+        idx = [self.rig.axis_names.index(a) for a in self.axes]
+        values = np.array(
+            [[getattr(ps[j], k) for j in idx for k in SPREAD_PARAMETERS] for ps in plants],
+            dtype=float,
+        ).reshape(len(plants), len(self.parameters))
+        return plants, values
+
+
+def sensitivity_table(
+    names: Sequence[str], values: np.ndarray, passed: np.ndarray, margin: np.ndarray
+) -> tuple[Sensitivity, ...]:
+    """Which drawn parameter drives failures (:class:`~servotune.verify.result.Sensitivity`).
+
+    For each parameter that varies: the failure rate of the plant sets in its lowest and in
+    its highest quarter (by the draws' own quartiles, so a skewed or measured distribution
+    reads the same way), and Spearman's rank correlation with each plant set's least relative
+    margin. A servo engineer reads the first as "a slow slave drive (``slave.tau_s`` in its
+    top quarter) fails 4 % of the time, a fast one never", and the second as the direction and
+    strength of the trend when nothing fails at all. Rows are ordered by the difference of
+    the two failure rates, then by ``|ρ|``, then by name.
+
+    Parameters
+    ----------
+    names : sequence of str
+        Parameter names (columns of ``values``).
+    values : ndarray, shape (n, len(names))
+        The drawn values.
+    passed : ndarray of bool, shape (n,)
+        Whether each plant set kept every limit.
+    margin : ndarray, shape (n,)
+        Each plant set's least relative margin [1] (``-inf`` for a fault).
+
+    Returns
+    -------
+    tuple of Sensitivity
+    """
+    from scipy.stats import spearmanr
+
+    fail = ~np.asarray(passed, dtype=bool)
+    n = fail.size
+    out = []
+    if n == 0:
+        return ()
+    fail_pct = 100.0 * float(fail.mean())
+    m = np.where(np.isnan(margin), -np.inf, margin)  # ranks: a fault's -inf ranks lowest
+    for j, name in enumerate(names):
+        x = values[:, j]
+        if np.ptp(x) == 0.0:
+            continue
+        q1, q3 = (float(q) for q in np.quantile(x, [0.25, 0.75]))
+        lo_sel, hi_sel = x <= q1, x >= q3
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # constant margins: rho is NaN, said so below
+            rho = float(spearmanr(x, m).statistic) if n > 2 else float("nan")
+        out.append(Sensitivity(
+            parameter=name,
+            low_edge=q1,
+            high_edge=q3,
+            low_fail_pct=100.0 * float(fail[lo_sel].mean()),
+            high_fail_pct=100.0 * float(fail[hi_sel].mean()),
+            fail_pct=fail_pct,
+            rank_correlation=rho,
+        ))  # fmt: skip
+
+    def key(s: Sensitivity) -> tuple[float, float, str]:
+        r = abs(s.rank_correlation) if np.isfinite(s.rank_correlation) else -1.0
+        return (-abs(s.high_fail_pct - s.low_fail_pct), -r, s.parameter)
+
+    return tuple(sorted(out, key=key))
+
+
+def summarise(
+    *,
+    distribution: PlantDistribution,
+    values: np.ndarray,
+    passed: np.ndarray,
+    margin: np.ndarray,
+    figures: Sequence[tuple[str, str, str, str, float]],
+    which: np.ndarray,
+    figure_values: np.ndarray,
+    n_worst: int = N_WORST,
+) -> MonteCarloSummary:
+    """The :class:`~servotune.verify.result.MonteCarloSummary` of the Monte-Carlo plant sets.
+
+    Parameters
+    ----------
+    distribution : PlantDistribution
+        Where the draws came from (its name and parameter names).
+    values : ndarray, shape (n, len(distribution.parameters))
+        The drawn values of draws ``0 … n − 1`` (labels ``mc1 … mc<n>``).
+    passed : ndarray of bool, shape (n,)
+    margin : ndarray, shape (n,)
+        Least relative margin of each draw over every limit [1].
+    figures : sequence of (scenario, quantity, axis, unit, limit)
+        The limits, in row order.
+    which : ndarray of int, shape (n,)
+        Per draw, the index in ``figures`` of the limit giving its margin.
+    figure_values : ndarray, shape (n,)
+        Per draw, that limit's value [unit].
+    n_worst : int
+        Plant sets to list.
+    """
+    n = int(passed.size)
+    k = int(passed.sum())
+    ci = clopper_pearson(k, n) if n else (0.0, 1.0)
+    worst: list[WorstVariant] = []
+    if n:
+        # least margin first; a stable sort keeps the lower draw index first among equals
+        order = np.argsort(np.where(np.isnan(margin), -np.inf, margin), kind="stable")
+        for i in order[: max(0, int(n_worst))]:
+            scenario, quantity, axis, unit, limit = figures[int(which[i])]
+            worst.append(WorstVariant(
+                label=f"mc{int(i) + 1}",
+                relative_margin=float(margin[i]),
+                scenario=scenario, quantity=quantity, axis=axis, unit=unit,
+                value=float(figure_values[i]), limit=float(limit),
+                parameters=dict(zip(distribution.parameters, (float(v) for v in values[i]),
+                                    strict=True)),
+            ))  # fmt: skip
+    return MonteCarloSummary(
+        count=n,
+        passed=k,
+        ci95=(float(ci[0]), float(ci[1])),
+        distribution=distribution.name,
+        worst=tuple(worst),
+        sensitivity=sensitivity_table(distribution.parameters, values, passed, margin),
+    )

@@ -1,0 +1,193 @@
+"""The executor seam (servotune.executor) on a real Dask cluster: a ``LocalCluster`` of 2 worker
+processes (one thread each) started here, as `servotune verify --workers 2` starts one.
+
+What must hold (issue 22, point 4): a Monte-Carlo verification gives the same result, to the
+byte of its record, in-process and on the cluster, for any chunk size; a worker killed while its
+task runs changes nothing (Dask re-runs the task elsewhere); a scheduler that refuses gives one
+line and exit 3. Sizes are small (40 plant sets, the sync scenario only): the file runs in
+about half a minute, most of it the cluster's start and the workers' first imports.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import shutil
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+import servotune as st
+from servotune import cli
+from servotune.errors import SchedulerError
+from servotune.executor import (
+    SCHEDULER_ENV,
+    DaskExecutor,
+    InProcessExecutor,
+    chunk_bounds,
+    open_executor,
+)
+from servotune.tuning import read_tuning
+from servotune.verify import load_spec, verify
+
+distributed = pytest.importorskip("dask.distributed")
+
+ROOT = Path(__file__).resolve().parents[1]
+RIG = ROOT / "plants" / "pc-dual-servo.toml"
+SPEC = ROOT / "plants" / "pc-dual-servo.spec.toml"
+TUNING = ROOT / "tests" / "corpus" / "base" / "tuning.json"  # a tuning of the example rig
+COUNT = 40
+
+
+@pytest.fixture(scope="module")
+def client():
+    """A LocalCluster of 2 worker processes, one thread each, and its client."""
+    with (
+        distributed.LocalCluster(
+            n_workers=2, processes=True, threads_per_worker=1, dashboard_address=":0"
+        ) as cluster,  # fmt: skip
+        distributed.Client(cluster) as c,
+    ):
+        c.wait_for_workers(2)
+        yield c
+
+
+@pytest.fixture(scope="module")
+def setup():
+    """The example rig, a tuning of it and its spec reduced to the sync scenario (the one the
+    bench scales) with COUNT Monte-Carlo plant sets."""
+    rig = st.load_rig(RIG)
+    spec = load_spec(SPEC)
+    sync = next(sc for sc in spec.scenarios if sc.name == "sync")
+    mc = dataclasses.replace(spec.montecarlo, count=COUNT)
+    spec = dataclasses.replace(spec, scenarios=(sync,), montecarlo=mc)
+    return read_tuning(TUNING), rig, spec
+
+
+@pytest.fixture(scope="module")
+def in_process(setup):
+    """The reference: the whole run in this process, one chunk."""
+    tuning, rig, spec = setup
+    return verify(tuning, rig, spec, executor=InProcessExecutor())
+
+
+def _same(a: st.Verification, b: st.Verification) -> None:
+    # the record's bytes: canonical JSON of the whole result
+    assert json.dumps(a.to_dict(), sort_keys=True) == json.dumps(b.to_dict(), sort_keys=True)
+    assert a.variant_passed == b.variant_passed
+
+
+def square(x: int, shared: int | None = None) -> int:
+    """A task for the map tests (module level: a cluster pickles it by reference); slower for
+    the earlier items, so they finish last."""
+    time.sleep(0.02 * (5 - x) if x < 5 else 0)
+    return x * x + (shared or 0)
+
+
+def exit_soon() -> None:
+    """Run on a worker: end its process abruptly (no cleanup) a moment after this returns,
+    while its task thread is still computing."""
+    threading.Timer(0.05, os._exit, args=(1,)).start()
+
+
+# --- the interface ---------------------------------------------------------------------------
+
+
+def test_chunk_bounds_cover_every_item_once() -> None:
+    assert chunk_bounds(0, 3) == []
+    assert chunk_bounds(7, 3) == [(0, 3), (3, 6), (6, 7)]
+    with pytest.raises(ValueError, match="chunk_size"):
+        chunk_bounds(7, 0)
+
+
+def test_in_process_map_keeps_order_and_reports_progress() -> None:
+    done: list[int] = []
+    ex = InProcessExecutor()
+    assert ex.map(square, [3, 1, 2], shared=10, done=done.append) == [19, 11, 14]
+    assert done == [1, 2, 3] and ex.threads_per_task is None
+
+
+def test_small_work_runs_in_process(monkeypatch) -> None:
+    monkeypatch.delenv(SCHEDULER_ENV, raising=False)
+    with open_executor(1000) as ex:
+        assert isinstance(ex, InProcessExecutor)
+    with open_executor(10**9, workers=1) as ex:  # one worker: in-process whatever the size
+        assert isinstance(ex, InProcessExecutor)
+    with pytest.raises(SchedulerError, match="workers must be >= 1"):
+        with open_executor(10, workers=0):
+            pass
+
+
+def test_dask_map_returns_results_in_input_order(client) -> None:
+    ex = DaskExecutor(client)
+    done: list[int] = []
+    assert ex.map(square, list(range(8)), shared=1, done=done.append) == [
+        x * x + 1 for x in range(8)
+    ]
+    assert done == list(range(1, 9)) and ex.workers == 2 and ex.threads_per_task == 1
+
+
+def test_scheduler_from_argument_and_environment(client, monkeypatch) -> None:
+    address = client.scheduler.address
+    with open_executor(1, scheduler=address) as ex:
+        assert isinstance(ex, DaskExecutor) and ex.map(square, [6]) == [36]
+    monkeypatch.setenv(SCHEDULER_ENV, address)
+    with open_executor(1) as ex:
+        assert isinstance(ex, DaskExecutor) and address in ex.name
+    with pytest.raises(SchedulerError, match="not both"):
+        with open_executor(1, workers=2):
+            pass
+
+
+# --- Monte Carlo on the cluster ------------------------------------------------------------
+
+
+@pytest.mark.parametrize("chunk_size", [7, 16])
+def test_cluster_result_is_the_in_process_result(client, setup, in_process, chunk_size) -> None:
+    tuning, rig, spec = setup
+    got = verify(tuning, rig, spec, executor=DaskExecutor(client), chunk_size=chunk_size)
+    _same(got, in_process)
+    assert got.montecarlo is not None and got.montecarlo.count == COUNT
+
+
+def test_a_worker_killed_mid_run_changes_nothing(client, setup, in_process) -> None:
+    """One worker process ends (os._exit) while it runs a chunk, after the first chunk is
+    back: Dask re-runs its task on the other worker (and the nanny starts a new one)."""
+    tuning, rig, spec = setup
+    killed: list[str] = []
+
+    def progress(message: str) -> None:
+        if killed or not message.startswith("verify montecarlo: 1/"):
+            return
+        busy = [w for w, keys in client.processing().items() if keys]
+        assert busy, "no task running when the first chunk came back"
+        killed.append(busy[0])
+        client.run(exit_soon, workers=[busy[0]])
+
+    got = verify(tuning, rig, spec, executor=DaskExecutor(client), chunk_size=4,
+                 progress=progress)  # fmt: skip
+    _same(got, in_process)
+    assert killed
+    client.wait_for_workers(2, timeout=60)
+    assert killed[0] not in client.scheduler_info()["workers"]  # it really died
+
+
+# --- the command line ------------------------------------------------------------------------
+
+
+def test_refusing_scheduler_is_one_line_and_exit_3(tmp_path, capsys) -> None:
+    import dask
+
+    tuning = tmp_path / "tuning.json"
+    shutil.copyfile(TUNING, tuning)
+    with dask.config.set({"distributed.comm.timeouts.connect": "1s"}):
+        code = cli.main(["verify", str(tuning), "--spec", str(SPEC), "--montecarlo", "8",
+                         "--scheduler", "tcp://127.0.0.1:1"])  # fmt: skip
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 3
+    assert len(err) == 1 and err[0].startswith("servotune verify: error: ")
+    assert "tcp://127.0.0.1:1" in err[0]
+    assert not (tmp_path / "tuning.json.verify.json").exists()

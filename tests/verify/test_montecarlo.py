@@ -1,0 +1,109 @@
+"""Monte-Carlo verification at scale (servotune.verify.montecarlo, the chunked verify): draws keyed
+by index, results independent of the chunking, the worst plant sets and the sensitivity table.
+The cluster runs of the same are in tests/test_executor.py."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import servotune as st
+from servotune.report.text import format_montecarlo, format_table
+from servotune.tuning import read_tuning
+from servotune.verify import load_spec, plant_variants, verify
+from servotune.verify.montecarlo import SpecSpread, sensitivity_table
+from servotune.verify.run import LISTED_VARIANTS
+from servotune.verify.variants import spread_plants
+
+ROOT = Path(__file__).resolve().parents[2]
+RIG = ROOT / "plants" / "pc-dual-servo.toml"
+SPEC = ROOT / "plants" / "pc-dual-servo.spec.toml"
+TUNING = ROOT / "tests" / "corpus" / "base" / "tuning.json"  # a tuning of the example rig
+
+
+@pytest.fixture(scope="module")
+def rig() -> st.Rig:
+    return st.load_rig(RIG)
+
+
+@pytest.fixture(scope="module")
+def sync_spec():
+    """The shipped spec, its sync scenario only, 30 plant sets."""
+    spec = load_spec(SPEC)
+    sync = next(sc for sc in spec.scenarios if sc.name == "sync")
+    mc = dataclasses.replace(spec.montecarlo, count=30)
+    return dataclasses.replace(spec, scenarios=(sync,), montecarlo=mc)
+
+
+def test_a_chunk_draws_what_the_whole_run_draws(rig) -> None:
+    mc = dataclasses.replace(load_spec(SPEC).montecarlo, count=40)
+    whole = plant_variants(rig, mc, 7)
+    assert spread_plants(rig, mc, 7, 17, 29) == [v.plants for v in whole[18:30]]
+    plants, values = SpecSpread(rig=rig, montecarlo=mc).draw(7, 3, 5)
+    assert plants == [v.plants for v in whole[4:6]]
+    assert values.shape == (2, 8)
+    assert values[1, 1] == whole[5].plants[0].tau_s  # master.tau_s of mc5
+
+
+def test_result_is_the_same_for_any_chunk_size(rig, sync_spec) -> None:
+    tuning = read_tuning(TUNING)
+    one = verify(tuning, rig, sync_spec)
+    for chunk_size in (1, 4, 13):
+        other = verify(tuning, rig, sync_spec, chunk_size=chunk_size)
+        assert json.dumps(other.to_dict(), sort_keys=True) == json.dumps(
+            one.to_dict(), sort_keys=True
+        )
+    mc = one.montecarlo
+    assert mc is not None and mc.count == 30 and mc.passed == sum(one.variant_passed[1:])
+    assert one.pass_fraction[3:] == mc.ci95
+    # least margin first, each names the figure and the drawn parameters
+    margins = [w.relative_margin for w in mc.worst]
+    assert margins == sorted(margins) and len(mc.worst) == 5
+    w = mc.worst[0]
+    assert w.label.startswith("mc") and w.scenario == "sync"
+    assert set(w.parameters) == set(SpecSpread(rig=rig, montecarlo=sync_spec.montecarlo).parameters)
+    assert "worst plant sets of 30" in format_table(one)
+
+
+def test_big_run_lists_only_the_plant_sets_it_names(rig, sync_spec, monkeypatch) -> None:
+    """Above LISTED_VARIANTS, the result (and its record) lists the nominal plants and the
+    plant sets its rows and worst list name, each as drawn."""
+    import servotune.verify.run as run
+
+    monkeypatch.setattr(run, "LISTED_VARIANTS", 10)
+    tuning = read_tuning(TUNING)
+    v = verify(tuning, rig, sync_spec)
+    assert LISTED_VARIANTS == 10_000 and v.plant_sets == 31
+    labels = {x.label for x in v.variants}
+    named = {r.variant for r in v.rows} | {w.label for w in v.montecarlo.worst} | {"nominal"}
+    assert labels == named
+    whole = {x.label: x for x in plant_variants(rig, sync_spec.montecarlo)}
+    assert all(x == whole[x.label] for x in v.variants)
+
+
+def test_sensitivity_finds_the_parameter_that_drives_failures() -> None:
+    rng = np.random.default_rng(3)
+    n = 4000
+    values = rng.uniform(0.0, 1.0, size=(n, 3))
+    values[:, 2] = 0.5  # does not vary: no row
+    margin = 0.5 - values[:, 1] + 0.01 * values[:, 0]  # tau-like: large values fail
+    passed = margin >= 0
+    table = sensitivity_table(("a.gain", "a.tau_s", "a.const"), values, passed, margin)
+    assert [s.parameter for s in table] == ["a.tau_s", "a.gain"]
+    tau = table[0]
+    assert tau.low_fail_pct == 0.0 and tau.high_fail_pct == 100.0
+    assert tau.rank_correlation < -0.99
+    np.testing.assert_allclose(tau.fail_pct, 100.0 * (~passed).mean(), rtol=0, atol=1e-12)
+    np.testing.assert_allclose([tau.low_edge, tau.high_edge], [0.25, 0.75], atol=0.02)
+
+
+def test_montecarlo_text_names_the_figure_and_the_table(rig, sync_spec) -> None:
+    tuning = read_tuning(TUNING)
+    v = verify(tuning, rig, sync_spec)
+    text = format_montecarlo(v.montecarlo)
+    assert text.splitlines()[0].startswith("worst plant sets of 30 from the spec spread")
+    assert "sensitivity:" in text and "slave.tau_s" in text
