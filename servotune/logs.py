@@ -61,6 +61,7 @@ from servotune.io.log_header import (
     _read_text,
     _split_ascii_head,
     _split_text,
+    naming,
 )
 from servotune.io.log_rows import (
     _KIND,
@@ -410,15 +411,11 @@ def read_log(
     (0.001, [0, 1, 4], [0.0, 2.002, 2.002])
     """
     src = str(path)
-    try:
+    with naming(src):
         return _read_log(
             path, src, counter_bits, dac_bits, dac_range_v, period_s=period_s,
             compute_s=compute_s, strict=strict,
         )  # fmt: skip
-    except LogFormatError as exc:
-        if src in str(exc):
-            raise
-        raise LogFormatError(f"log {src!r}: {exc}") from None
 
 
 def _read_log(

@@ -94,6 +94,7 @@ from servotune.io.log_header import (
     _parse_period,
     _parse_range,
     _read_text,
+    naming,
 )
 from servotune.logs import MIN_ROWS, AxisLog, Log
 from servotune.validate import show_value
@@ -494,7 +495,7 @@ def read_halsampler(
         named), fewer than :data:`~servotune.logs.MIN_ROWS` samples.
     """
     src = str(path)
-    try:
+    with naming(src, "HAL capture"):
         names = None if columns is None else tuple(columns)
         text = _read_text(Path(path), src, "HAL capture")
         lines = text.split("\n")
@@ -547,10 +548,6 @@ def read_halsampler(
         _check_rows(values, rows, names)
         return HalCapture(format="halsampler", values=np.ascontiguousarray(values), names=names,
                           lines=rows, sample_numbers=numbers, path=src)  # fmt: skip
-    except LogFormatError as exc:
-        if src in str(exc):
-            raise
-        raise LogFormatError(f"HAL capture {src!r}: {exc}") from None
 
 
 def read_halscope(path: str | Path) -> HalCapture:
@@ -570,7 +567,7 @@ def read_halscope(path: str | Path) -> HalCapture:
         a value that is not finite, fewer than :data:`~servotune.logs.MIN_ROWS` samples.
     """
     src = str(path)
-    try:
+    with naming(src, "HAL capture"):
         text = _read_text(Path(path), src, "HAL capture")
         lines = text.split("\n")
         if not text.strip():
@@ -614,10 +611,6 @@ def read_halscope(path: str | Path) -> HalCapture:
         _check_rows(values, rows, names)
         return HalCapture(format="halscope", values=values, names=names, lines=rows,
                           period_s=period_s, path=src)  # fmt: skip
-    except LogFormatError as exc:
-        if src in str(exc):
-            raise
-        raise LogFormatError(f"HAL capture {src!r}: {exc}") from None
 
 
 def read_hal_capture(

@@ -66,6 +66,18 @@ def _read_errors(src: str, what: str = "log") -> Iterator[None]:
         raise LogFormatError(f"cannot read {what} {src!r}: {exc.strerror or exc}") from None
 
 
+@contextlib.contextmanager
+def naming(src: str, what: str = "log") -> Iterator[None]:
+    """A :class:`LogFormatError` raised inside names the file: ``<what> '<src>': …`` (unless its
+    message names ``src`` already)."""
+    try:
+        yield
+    except LogFormatError as exc:
+        if src in str(exc):
+            raise
+        raise LogFormatError(f"{what} {src!r}: {exc}") from None
+
+
 _READ_BYTES_PER_BYTE = 4  # the bytes, the text, the row lines, the arrays: about 4x the file
 
 
