@@ -174,6 +174,12 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _cmd_fit(args: argparse.Namespace) -> int:
+    if (problem := _fleet_usage(args)) is not None:
+        print(f"servotune fit: error: {problem}", file=sys.stderr)
+        return EXIT_USAGE
+    if args.fleet:
+        return _cmd_fit_fleet(args)
+    args.log = args.log[0]  # one log (the positional takes several for --fleet)
     from servotune.identify import fit_log
     from servotune.identify.result import FIT_SCHEMA
     from servotune.io.hal import hal_settings
@@ -222,6 +228,65 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         out.update(result.to_dict())
         print(json.dumps(out, indent=2, sort_keys=True))
     return EXIT_OK
+
+
+def _fleet_usage(args: argparse.Namespace) -> str | None:
+    """What is wrong with ``fit``'s options for one log or a fleet, if anything."""
+    if args.fleet is None:
+        if len(args.log) > 1:
+            return (f"several logs need --fleet TABLE.parquet|.csv ({len(args.log)} given); "
+                    "without it fit takes one log")  # fmt: skip
+        for flag, v in (("--baseline", args.baseline), ("--fleet-report", args.fleet_report),
+                        ("--scheduler", args.scheduler), ("--workers", args.workers)):  # fmt: skip
+            if v is not None:
+                return f"{flag} needs --fleet TABLE.parquet|.csv"
+        return None
+    for flag, v in (("-o", args.output), ("--plot", args.plot), ("--name", args.name)):
+        if v is not None:
+            return (f"{flag} is for one log, not with --fleet (the fleet's outputs are --fleet "
+                    "and --fleet-report)")  # fmt: skip
+    return None
+
+
+def _cmd_fit_fleet(args: argparse.Namespace) -> int:
+    from servotune.executor import open_executor
+    from servotune.fleet import (
+        FLEET_CLUSTER_MIN_LOGS,
+        FleetFitOptions,
+        fit_fleet,
+        read_fleet_table,
+        write_fleet_table,
+    )
+    from servotune.io.fleet_table import table_format
+    from servotune.io.hal import hal_settings
+    from servotune.rig import load_rig
+
+    table_format(args.fleet)  # a wrong suffix fails before any work
+    _check_dirs(args.fleet, args.fleet_report)
+    baseline = read_fleet_table(args.baseline) if args.baseline else ()
+    hal = hal_settings(args.map, format=args.hal_format, columns=args.hal_columns,
+                       position_scale=args.position_scale, output_scale=args.output_scale,
+                       sample_number=args.sample_number)  # fmt: skip
+    options = FleetFitOptions(
+        axis=args.axis, rig=load_rig(args.rig) if args.rig else None, structure=args.structure,
+        counter_bits=args.counter_bits, dac_bits=args.dac_bits,
+        dac_range_v=_range(args.dac_range_v) if args.dac_range_v else None,
+        period_s=args.period_s, compute_s=args.compute_s, method=args.method,
+        friction=args.friction, invert_encoder=args.invert_encoder, strict=args.strict, hal=hal,
+    )  # fmt: skip
+    with open_executor(len(args.log), scheduler=args.scheduler, workers=args.workers,
+                       min_items=FLEET_CLUSTER_MIN_LOGS) as ex:  # fmt: skip
+        result = fit_fleet(args.log, options=options, executor=ex, baseline=baseline,
+                           progress=_progress)  # fmt: skip
+    write_fleet_table(result, args.fleet)
+    _summary(args.json, result.to_dict(), result.summary.text)
+    print(f"wrote the fleet table ({len(result.rows)} rows) to {args.fleet}", file=sys.stderr)
+    if args.fleet_report:
+        from servotune.report.fleet import write_fleet_report
+
+        write_fleet_report(result, args.fleet_report, title=Path(args.fleet).name)
+        print(f"wrote the fleet report to {args.fleet_report}", file=sys.stderr)
+    return EXIT_OK if result.summary.n_failed < result.summary.n_rows else EXIT_BAD_INPUT
 
 
 def _check_dirs(*paths: str | None) -> None:
@@ -756,8 +821,10 @@ def _parser() -> argparse.ArgumentParser:
     s = sub.add_parser("fit", help="identify an axis's motor + drive model from a logged run")
     s.add_argument(
         "log",
+        nargs="+",
         help="log CSV (as `servotune simulate` writes it; see the README), or a LinuxCNC HAL "
-        "capture (halsampler output or halscope's saved data) read with --map",
+        "capture (halsampler output or halscope's saved data) read with --map; several only "
+        "with --fleet",
     )
     s.add_argument("--axis", help="axis to fit (needed for multi-axis logs)")
     s.add_argument("--rig", help="rig file: D/A, counter, period and compute time fallbacks")
@@ -860,6 +927,40 @@ def _parser() -> argparse.ArgumentParser:
         const=True,
         help="halsampler: written with -t (first field the sample number; a gap, lost "
         "samples, is an error)",
+    )
+    fleet = s.add_argument_group(
+        "fleet", "fit many machines' logs at once: a table, the fleet's spread, outliers, drift"
+    )
+    fleet.add_argument(
+        "--fleet",
+        metavar="TABLE.parquet|.csv",
+        help="fit every LOG (every axis, or --axis) and write one row per log and axis to this "
+        "table: parameters with 95 %% intervals, adequacy, fit %%, SHA-256, machine_id and date "
+        "(a bad log is a row with its error); the summary on stderr (--json: stdout)",
+    )
+    fleet.add_argument(
+        "--fleet-report", metavar="FILE.html", help="also write the report page (histograms)"
+    )
+    fleet.add_argument(
+        "--baseline",
+        "--previous",
+        metavar="TABLE",
+        help="an earlier --fleet table: each machine's previous fit, for drift",
+    )
+    fleet.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        default=None,
+        help="fit on the Dask cluster of this scheduler (tcp://HOST:8786; default: "
+        "$SERVOTUNE_SCHEDULER); see docs/scale.md",
+    )
+    fleet.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        metavar="N",
+        help="worker processes of a cluster started on this machine (1: in-process; default: "
+        "one per core from 200 logs)",
     )
     s.set_defaults(func=_cmd_fit)
 
@@ -1157,6 +1258,7 @@ _EXAMPLES = {
         "servotune fit my.csv --axis master                  # summary on stderr",
         "servotune fit my.csv --axis master -o my-rig.toml   # a new rig named my-rig",
         "servotune fit my.csv --axis master --json --plot fit.png",
+        "servotune fit logs/*.csv --axis master --fleet fleet.parquet --fleet-report fleet.html",
         "servotune fit capture.txt --axis x --map cmd=pid.0.output,pos=encoder.0.position "
         "--hal-columns pid.0.output,encoder.0.position --period-s 0.001 "
         "--position-scale 2000   # LinuxCNC halsampler",

@@ -17,6 +17,7 @@ from servotune.sim.engine import Trace
 
 if TYPE_CHECKING:
     from servotune.arch.linkage import LinkageResult
+    from servotune.fleet import FleetResult
 
 __all__ = [
     "QUERY_TABLE_LABELS",
@@ -24,6 +25,7 @@ __all__ = [
     "plot_bode",
     "plot_comparison",
     "plot_fit",
+    "plot_fleet",
     "plot_lock_hold",
     "plot_pareto",
     "plot_query_tables",
@@ -534,5 +536,66 @@ def plot_radial_deviation(result: LinkageResult, ax: plt.Axes | None = None) -> 
     ax.tick_params(axis="y", labelsize=7)
     ax.set_title("circular test: radial deviation [counts] (magnified)", fontsize=10)
     ax.legend(loc="lower center", bbox_to_anchor=(0.5, -0.28), fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+def plot_fleet(result: FleetResult, *, columns: int = 2) -> plt.Figure:
+    """Histograms of each fitted parameter over a fleet (latest fit of each machine), with the
+    fleet's median, the band within which a value is no outlier (``|robust z| ≤ 3.5``), the
+    outliers (red) and the machines that drifted (orange: an arrow from the previous fit's value
+    to the latest) marked and named (:mod:`servotune.fleet`).
+
+    One panel per axis and parameter with a spread (:attr:`FleetSummary.spreads`); every x axis
+    is labelled with the parameter's unit.
+    """
+    s = result.summary
+    panels = list(s.spreads)
+    n = max(1, len(panels))
+    rows = -(-n // columns)
+    fig, axs = plt.subplots(rows, columns, figsize=(5.2 * columns, 3.2 * rows), squeeze=False)
+    flat = list(axs.ravel())
+    latest: dict[tuple[str, str, str], float] = {}
+    for r in sorted((r for r in result.rows if r.ok), key=lambda r: (r.date, r.file)):
+        for p, v in r.params.items():
+            latest[(r.axis, r.machine_id, p)] = v
+    for a, sp in zip(flat, panels, strict=False):
+        x = np.array([v for (ax, _, p), v in latest.items()
+                      if ax == sp.axis and p == sp.parameter])  # fmt: skip
+        a.hist(x, bins=min(40, max(8, int(np.sqrt(x.size)) * 2)), color="0.7",
+               edgecolor="0.45", lw=0.5, label=f"{x.size} machines (latest fit)")  # fmt: skip
+        a.axvline(sp.median, color="k", lw=1.0, label="median")
+        if sp.spread > 0:
+            half = s.outlier_z * sp.spread
+            a.axvspan(sp.median - half, sp.median + half, color="tab:blue", alpha=0.08,
+                      label=f"|robust z| ≤ {s.outlier_z:g}")  # fmt: skip
+        top = a.get_ylim()[1]
+        outs = [o for o in s.outliers if o.axis == sp.axis and o.parameter == sp.parameter]
+        for i, o in enumerate(outs):
+            a.plot([o.value], [0.92 * top], "v", color="tab:red", ms=7,
+                   label=f"outlier (|z| > {s.outlier_z:g})" if i == 0 else None)  # fmt: skip
+            a.annotate(o.machine_id, (o.value, 0.92 * top), xytext=(0, 5), ha="center",
+                       textcoords="offset points", fontsize=7, color="tab:red")  # fmt: skip
+        drifts = [d for d in s.drifts if d.axis == sp.axis and d.parameter == sp.parameter]
+        for i, d in enumerate(drifts):
+            y = (0.55 + 0.08 * (i % 4)) * top
+            arrow = {"arrowstyle": "->", "color": "tab:orange", "lw": 1.4}
+            a.annotate("", xy=(d.after, y), xytext=(d.before, y), arrowprops=arrow)
+            a.plot([d.after], [y], "o", color="tab:orange", ms=5,
+                   label="drifted: previous → latest fit" if i == 0 else None)  # fmt: skip
+            a.annotate(d.machine_id, (d.after, y), xytext=(0, 4), textcoords="offset points",
+                       ha="center", fontsize=7, color="tab:orange")  # fmt: skip
+        a.xaxis.set_major_locator(plt.MaxNLocator(6))
+        a.set_xlabel(f"{sp.parameter} [{sp.unit}]")
+        a.set_ylabel("machines [1]")
+        a.set_title(f"{sp.parameter}" + (f" (axis {sp.axis})" if sp.axis else ""), fontsize=9)
+        a.grid(True, alpha=0.3)
+        a.legend(loc="best", fontsize=7)
+    for a in flat[len(panels) :]:
+        fig.delaxes(a)
+    if not panels:
+        fig.text(0.5, 0.5, "too few machines per axis: no spread", ha="center", va="center")
+    fig.suptitle(f"fleet: {s.n_machines} machines, {len(s.outliers)} outliers, "
+                 f"{len(s.drifted)} drifted machines")  # fmt: skip
     fig.tight_layout()
     return fig

@@ -22,6 +22,7 @@ EMPS .mat       :func:`servotune.io.emps.read_emps`              ``EmpsLog`` (MA
 HAL capture     :func:`servotune.io.hal.read_halsampler`,        ``HalCapture``, ``HalSettings``
                 :func:`servotune.io.hal.read_halscope`           (``--map``)
 HAL map TOML    :func:`servotune.io.hal_map.read_hal_map`        ``HalSettings`` (``[hal]``)
+fleet table     :func:`servotune.io.fleet_table.read_fleet_records` ``servotune.fleet/1`` columns
 ==============  ===============================================  ===============================
 
 The readers of logs, rigs and excitations stay importable from :mod:`servotune.logs`,
