@@ -17,6 +17,7 @@ import signal
 import sys
 import warnings
 from collections.abc import Callable, Sequence
+from functools import partial
 from pathlib import Path
 
 from servotune._version import __version__
@@ -421,7 +422,8 @@ def _verify_linkage(args: argparse.Namespace) -> int:
 
     for flag, value in (("--rig", args.rig), ("--report", args.report), ("--seed", args.seed),
                         ("--montecarlo", args.montecarlo), ("--scheduler", args.scheduler),
-                        ("--workers", args.workers)):  # fmt: skip
+                        ("--workers", args.workers),
+                        ("--plants-from", args.plants_from)):  # fmt: skip
         if value is not None:
             raise ServotuneError(f"{flag} is for a single rig's tuning; {args.tuning} is a "
                                  "linkage plan (its spec sets the run)")  # fmt: skip
@@ -437,7 +439,8 @@ def _verify_gantry(args: argparse.Namespace) -> int:
     from servotune.report.text import format_gantry_verification
 
     for flag, value in (("--rig", args.rig), ("--report", args.report),
-                        ("--scheduler", args.scheduler), ("--workers", args.workers)):  # fmt: skip
+                        ("--scheduler", args.scheduler), ("--workers", args.workers),
+                        ("--plants-from", args.plants_from)):  # fmt: skip
         if value is not None:
             raise ServotuneError(f"{flag} is for a single rig's tuning; {args.tuning} is a "
                                  "gantry tuning (its rig is named by its gantry config, "
@@ -476,6 +479,10 @@ def _cmd_verify(args: argparse.Namespace) -> int:
     from servotune.report.text import format_table
     from servotune.verify import verify_files
 
+    if (args.plants_from is None) != (args.plants_axis is None):
+        print("servotune verify: error: --plants-from FLEET and --plants-axis AXIS go together",
+              file=sys.stderr)  # fmt: skip
+        return EXIT_USAGE
     kind = document_kind(args.tuning)
     if kind == "gantry":
         return _verify_gantry(args)
@@ -486,10 +493,15 @@ def _cmd_verify(args: argparse.Namespace) -> int:
                              "is a rig's tuning")  # fmt: skip
     if args.report:  # before the run: a report directory that cannot be made fails first
         Path(args.report).mkdir(parents=True, exist_ok=True)
+    dist = None
+    if args.plants_from is not None:
+        from servotune.fleet import fleet_spread
+
+        dist = partial(fleet_spread, args.plants_from, axis=args.plants_axis)
     result, record, path = verify_files(args.tuning, args.spec, args.rig, seed=args.seed,
                                         montecarlo=args.montecarlo, progress=_progress,
-                                        scheduler=args.scheduler,
-                                        workers=args.workers)  # fmt: skip
+                                        scheduler=args.scheduler, workers=args.workers,
+                                        distribution=dist)  # fmt: skip
     _summary(args.json, record, lambda: format_table(result))
     print(f"wrote the verification record to {path}", file=sys.stderr)
     if args.report:
@@ -1087,6 +1099,20 @@ def _parser() -> argparse.ArgumentParser:
         metavar="N",
         help="worker processes of a cluster started on this machine, whatever the size "
         "(1: in-process; default: one per core, from 100,000 plant sets)",
+    )
+    s.add_argument(
+        "--plants-from",
+        metavar="FLEET",
+        default=None,
+        help="draw the Monte-Carlo plants from this fleet table (servotune fit --fleet "
+        "output, .parquet or .csv) instead of the spec's spread: each plant set takes the "
+        "--plants-axis plant of one machine's latest adequate fit, machines drawn uniformly",
+    )
+    s.add_argument(
+        "--plants-axis",
+        metavar="AXIS",
+        default=None,
+        help="the rig axis whose plant --plants-from draws (the fleet's fits of that axis)",
     )
     s.add_argument("--json", action="store_true", help="the verification record as JSON on stdout")
     s.add_argument("--report", help="also write the HTML report into this directory")

@@ -38,6 +38,7 @@ from servotune.io.files import (
 from servotune.rig import EXAMPLE_RIG_PATH, Rig, rig_from_dict
 from servotune.tuning import Tuning, current_tuning_path, file_sha256, read_tuning_bytes
 from servotune.verify.margins import DEFAULT_LIMITS, MarginLimits, Margins, tuning_margins
+from servotune.verify.montecarlo import PlantDistribution
 from servotune.verify.result import Verification
 from servotune.verify.run import verify
 from servotune.verify.spec import spec_from_bytes
@@ -350,6 +351,7 @@ def verify_files(
     write: bool = True,
     scheduler: str | None = None,
     workers: int | None = None,
+    distribution: Callable[[Rig], PlantDistribution] | None = None,
 ) -> tuple[Verification, dict[str, Any], Path | None]:
     """What ``servotune verify TUNING --spec SPEC [--rig RIG]`` runs.
 
@@ -358,7 +360,9 @@ def verify_files(
     count (the record then holds the spec as run). The plant sets run on the executor
     :func:`servotune.executor.open_executor` chooses for their number (``scheduler``: a Dask
     scheduler's address; ``workers``: processes of an embedded cluster, 1 for in-process); the
-    result does not depend on it.
+    result does not depend on it. ``distribution``, given the tuning's rig, gives the Monte-Carlo
+    plant distribution (default: the spec's spread; e.g. ``--plants-from``'s
+    :func:`servotune.fleet.fleet_spread`); the record's ``montecarlo.distribution`` names it.
 
     Returns
     -------
@@ -381,8 +385,10 @@ def verify_files(
     spec = spec_from_bytes(spec_file.raw, spec_path)
     if montecarlo is not None:  # the spec's count overridden (validated as the spec's is)
         spec = replace(spec, montecarlo=replace(spec.montecarlo, count=montecarlo))
+    dist = None if distribution is None else distribution(rig)  # a bad one fails before a run
     with open_executor(spec.montecarlo.count + 1, scheduler=scheduler, workers=workers) as ex:
-        result = verify(tuning, rig, spec, seed=seed, progress=progress, executor=ex)
+        result = verify(tuning, rig, spec, seed=seed, progress=progress, executor=ex,
+                        distribution=dist)  # fmt: skip
     record = verification_record(result, tuning=tuning_file, rig=rig_file, spec=spec_file)
     path = write_record(record, tuning_path, tuning_file.sha256) if write else None
     return result, record, path

@@ -1,0 +1,468 @@
+"""What a fleet's fits say together: the spread of each parameter, the machines that stand out
+against the fleet and the ones that drifted since their previous fit (issue 22).
+
+:func:`summarise_fleet` computes, per axis name:
+
+**The fleet's spread** of each parameter over the latest fit of each machine
+(:func:`~servotune.fleet.rows.latest_fits`: the latest ``date``; a machine's earlier fits would
+count it twice): the median, the median absolute deviation ``MAD = median |x − median|``, the
+robust standard deviation ``spread = MAD / 0.6745`` (= 1.4826 · MAD, consistent with the
+standard deviation for normal data) and the 5 % and 95 % quantiles (``numpy.quantile``'s
+default linear interpolation).
+
+**Outliers against the fleet**: the modified z-score ``z = 0.6745 · (x − median) / MAD`` of
+each machine's latest value; ``|z| > 3.5`` is an outlier (B. Iglewicz and D. C. Hoaglin, *How
+to Detect and Handle Outliers*, ASQC Quality Press, 1993, §2.2: the score and its 3.5 cut-off).
+Where more than half the machines share one value (``MAD = 0``: e.g. a term most fits left
+out), the mean absolute deviation scaled by √(π/2) = 1.2533 (again consistent with the standard
+deviation for normal data) stands in for ``MAD / 0.6745``; if that is 0 too, the parameter has
+no spread and nothing is flagged on it.
+
+**Drift against the machine's previous fit**: the latest fit of a machine and axis is compared
+with its previous one: the fit of the same machine id and axis with the latest earlier date,
+in this run or in a ``baseline`` table (an earlier ``--fleet`` output, ``--baseline``; DECISIONS
+12). A parameter drifted when **both**
+
+1. its 95 % intervals in the two fits do not overlap (the change is not estimation noise; a
+   term a fit left out counts as fixed at 0, its interval ``[0, 0]``), **and**
+2. the change is larger than ``k`` times the fleet's spread of that parameter,
+   ``|x_now − x_before| > k · spread`` with ``k =`` :data:`DRIFT_K` ``= 2`` (the change is
+   large against how much machines differ anyway: a change of two fleet standard deviations
+   moves a median machine to the edge of the fleet).
+
+The first condition alone would flag changes too small to matter on a long, quiet log; the
+second alone would flag a noisy fit. A log without an ISO 8601 date is counted in the spread,
+but not compared for drift (the summary says how many).
+
+Flags need a fleet: with fewer than :data:`MIN_MACHINES` machines of an axis, no spread is
+computed and nothing is flagged on that axis.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, fields
+from typing import Any
+
+import numpy as np
+
+from servotune.fleet.rows import FleetRow, _dated, _plain, latest_fits
+from servotune.identify.model import ALL_PARAMS, UNITS
+
+__all__ = [
+    "DRIFT_K",
+    "MAD_TO_SD",
+    "MIN_MACHINES",
+    "OUTLIER_Z",
+    "Drift",
+    "FleetSummary",
+    "Outlier",
+    "ParameterSpread",
+    "robust_spread",
+    "robust_z",
+    "summarise_fleet",
+]
+
+OUTLIER_Z = 3.5
+"""Modified z-score beyond which a value is an outlier (Iglewicz & Hoaglin 1993) [-]."""
+
+MAD_TO_SD = 0.6745
+"""``Φ⁻¹(0.75)``: ``MAD / 0.6745`` estimates the standard deviation of normal data [-]."""
+
+_MEANAD_TO_SD = math.sqrt(math.pi / 2)  # 1.2533: mean |x − median| → standard deviation
+
+DRIFT_K = 2.0
+"""A drift is larger than this many fleet spreads (:func:`robust_spread`) [-]."""
+
+MIN_MACHINES = 5
+"""Machines of an axis needed before its spread is computed and anything is flagged."""
+
+
+def robust_spread(values: Sequence[float] | np.ndarray) -> tuple[float, float, float]:
+    """Median, MAD and robust standard deviation of ``values`` (module docstring).
+
+    Returns
+    -------
+    median : float
+    mad : float
+        ``median |x − median|``.
+    spread : float
+        ``MAD / 0.6745``; if MAD is 0, ``1.2533 · mean |x − median|``; 0 if that is 0 too.
+
+    Examples
+    --------
+    >>> robust_spread([1.0, 2.0, 3.0, 4.0, 100.0])
+    (3.0, 1.0, 1.4825796886582654)
+    """
+    x = np.asarray(values, dtype=float)
+    med = float(np.median(x))
+    dev = np.abs(x - med)
+    mad = float(np.median(dev))
+    spread = mad / MAD_TO_SD if mad > 0 else _MEANAD_TO_SD * float(np.mean(dev))
+    return med, mad, spread
+
+
+def robust_z(values: Sequence[float] | np.ndarray) -> np.ndarray:
+    """Modified z-scores ``0.6745 · (x − median) / MAD`` (Iglewicz & Hoaglin 1993), with
+    :func:`robust_spread`'s fallback when MAD is 0; NaN where there is no spread.
+
+    >>> robust_z([1.0, 2.0, 3.0, 4.0, 100.0]).round(2).tolist()
+    [-1.35, -0.67, 0.0, 0.67, 65.43]
+    """
+    x = np.asarray(values, dtype=float)
+    med, _, spread = robust_spread(x)
+    if spread <= 0:
+        return np.full(x.shape, np.nan)
+    return (x - med) / spread
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ParameterSpread:
+    """One parameter's spread over a fleet's machines (latest fit each).
+
+    Attributes
+    ----------
+    axis, parameter, unit : str
+    n_machines : int
+    median, mad, spread : float
+        :func:`robust_spread` [the parameter's unit].
+    q05, q95 : float
+        5 % and 95 % quantiles [the parameter's unit].
+    """
+
+    axis: str
+    parameter: str
+    unit: str
+    n_machines: int
+    median: float
+    mad: float
+    spread: float
+    q05: float
+    q95: float
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dict for JSON."""
+        return _plain({f.name: getattr(self, f.name) for f in fields(self)})
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Outlier:
+    """A machine's latest value of a parameter far from the fleet's.
+
+    Attributes
+    ----------
+    machine_id, axis, parameter, unit, file, date : str
+    value : float
+        The machine's value [unit].
+    z : float
+        Its modified z-score [-].
+    median, spread : float
+        The fleet's [unit].
+    """
+
+    machine_id: str
+    axis: str
+    parameter: str
+    unit: str
+    file: str
+    date: str
+    value: float
+    z: float
+    median: float
+    spread: float
+
+    def sentence(self) -> str:
+        """The outlier in words."""
+        return (
+            f"{_who(self.machine_id, self.axis)}: {self.parameter} {_num(self.value)} "
+            f"{self.unit} ({self.date or 'undated'}, {self.file}), robust z {self.z:+.1f} "
+            f"(fleet median {_num(self.median)}, spread {_num(self.spread)} {self.unit})"
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dict for JSON."""
+        return _plain({f.name: getattr(self, f.name) for f in fields(self)})
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Drift:
+    """A parameter of a machine that changed since its previous fit by more than the fleet's
+    spread allows (module docstring).
+
+    Attributes
+    ----------
+    machine_id, axis, parameter, unit : str
+    before_file, before_date, after_file, after_date : str
+        The previous and the latest fit.
+    before_source : str
+        ``"run"`` (this run's logs) or ``"baseline"`` (the ``baseline`` table).
+    before, after : float
+        The values [unit].
+    before_ci95, after_ci95 : tuple of float
+        Their 95 % intervals [unit].
+    change : float
+        ``after − before`` [unit].
+    change_pct : float or None
+        ``change / |before|`` [%] (None if ``before`` is 0).
+    spread : float
+        The fleet's spread of the parameter [unit].
+    k : float
+        ``|change| / spread`` [-] (above :data:`DRIFT_K`).
+    """
+
+    machine_id: str
+    axis: str
+    parameter: str
+    unit: str
+    before_file: str
+    before_date: str
+    before_source: str
+    after_file: str
+    after_date: str
+    before: float
+    after: float
+    before_ci95: tuple[float, float]
+    after_ci95: tuple[float, float]
+    change: float
+    change_pct: float | None
+    spread: float
+    k: float
+
+    def sentence(self) -> str:
+        """The drift in words."""
+        verb = "rose" if self.change > 0 else "fell"
+        pct = "" if self.change_pct is None else f" {abs(self.change_pct):.1f} %"
+        was = " (baseline table)" if self.before_source == "baseline" else ""
+        lo0, hi0 = self.before_ci95
+        lo1, hi1 = self.after_ci95
+        return (
+            f"{_who(self.machine_id, self.axis)}: {self.parameter} {verb}{pct}, "
+            f"{_num(self.before)} → {_num(self.after)} {self.unit} ({self.before_date}{was} → "
+            f"{self.after_date}), {self.k:.1f}× the fleet's spread {_num(self.spread)} "
+            f"{self.unit}; 95 % intervals {lo0:.6g} … {hi0:.6g} and {lo1:.6g} … {hi1:.6g} "
+            "apart"
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dict for JSON."""
+        return _plain({f.name: getattr(self, f.name) for f in fields(self)})
+
+
+def _who(machine: str, axis: str) -> str:
+    return f"machine {machine}" + (f" axis {axis}" if axis else "")
+
+
+def _num(x: float) -> str:
+    return f"{x:.4g}"
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class FleetSummary:
+    """What a fleet's fits say together (:func:`summarise_fleet`).
+
+    Attributes
+    ----------
+    n_logs : int
+        Distinct files in the run.
+    n_rows, n_failed : int
+        Rows (log × axis) and rows with an error.
+    n_machines : int
+        Distinct machine ids with at least one fit.
+    n_inadequate : int
+        Fitted rows whose residual tests did not all pass.
+    n_undated : int
+        Fitted rows without an ISO 8601 date (not compared for drift).
+    n_baseline : int
+        Rows of the baseline table (0 without one).
+    spreads : tuple of ParameterSpread
+        Per axis and parameter.
+    outliers : tuple of Outlier
+    drifts : tuple of Drift
+    small_axes : tuple of str
+        Axes with fewer than :data:`MIN_MACHINES` machines (nothing flagged on them).
+    failures : tuple of tuple of str
+        ``(file, axis, error)`` of each failed row.
+    outlier_z, drift_k : float
+        The thresholds used [-].
+    """
+
+    n_logs: int
+    n_rows: int
+    n_failed: int
+    n_machines: int
+    n_inadequate: int
+    n_undated: int
+    n_baseline: int
+    spreads: tuple[ParameterSpread, ...]
+    outliers: tuple[Outlier, ...]
+    drifts: tuple[Drift, ...]
+    small_axes: tuple[str, ...]
+    failures: tuple[tuple[str, str, str], ...]
+    outlier_z: float = OUTLIER_Z
+    drift_k: float = DRIFT_K
+
+    @property
+    def drifted(self) -> dict[str, tuple[str, ...]]:
+        """Machine id → the parameters that drifted (any axis), sorted."""
+        out: dict[str, set[str]] = {}
+        for d in self.drifts:
+            out.setdefault(d.machine_id, set()).add(d.parameter)
+        return {m: tuple(sorted(p)) for m, p in sorted(out.items())}
+
+    @property
+    def outlying(self) -> dict[str, tuple[str, ...]]:
+        """Machine id → the parameters that are outliers against the fleet, sorted."""
+        out: dict[str, set[str]] = {}
+        for o in self.outliers:
+            out.setdefault(o.machine_id, set()).add(o.parameter)
+        return {m: tuple(sorted(p)) for m, p in sorted(out.items())}
+
+    def text(self) -> str:
+        """The summary in words (what ``servotune fit --fleet`` prints on stderr)."""
+        lines = [
+            f"fleet: {self.n_logs} logs, {self.n_rows} fits (log × axis) of {self.n_machines} "
+            f"machines: {self.n_rows - self.n_failed} fitted ({self.n_inadequate} with a failed "
+            f"residual test), {self.n_failed} failed"
+            + (f"; baseline table: {self.n_baseline} rows" if self.n_baseline else "")
+        ]
+        for axis in sorted({s.axis for s in self.spreads}):
+            rows = [s for s in self.spreads if s.axis == axis]
+            lines.append(f"spread over {rows[0].n_machines} machines (latest fit each)"
+                         + (f", axis {axis}" if axis else "") + ": median, robust spread "
+                         "(MAD/0.6745), 5 % … 95 %")  # fmt: skip
+            lines += [f"  {s.parameter:18s} {_num(s.median):>11s} {_num(s.spread):>11s}   "
+                      f"{_num(s.q05)} … {_num(s.q95)} {s.unit}" for s in rows]  # fmt: skip
+        for axis in self.small_axes:
+            lines.append(f"axis {axis or '(unprefixed)'}: fewer than {MIN_MACHINES} machines, "
+                         "no spread, nothing flagged")  # fmt: skip
+        lines.append(f"outliers against the fleet (|robust z| > {self.outlier_z:g}): "
+                     + (str(len(self.outliers)) if self.outliers else "none"))  # fmt: skip
+        lines += ["  " + o.sentence() for o in self.outliers]
+        n_drift = len(self.drifted)
+        lines.append(
+            f"drift since each machine's previous fit (intervals apart and change > "
+            f"{self.drift_k:g}× the fleet's spread): "
+            + (f"{n_drift} machine{'s' if n_drift != 1 else ''}" if n_drift else "none")
+        )
+        lines += ["  " + d.sentence() for d in self.drifts]
+        if self.n_undated:
+            lines.append(f"{self.n_undated} fits without an ISO 8601 date (# date: YYYY-MM-DD): "
+                         "not compared for drift")  # fmt: skip
+        if self.failures:
+            lines.append(f"failed ({len(self.failures)}; the table's error column):")
+            lines += [f"  {f}{' axis ' + a if a else ''}: {e}" for f, a, e in self.failures[:10]]
+            if len(self.failures) > 10:
+                lines.append(f"  … and {len(self.failures) - 10} more")
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dict for JSON (every field; the nested results through their ``to_dict``)."""
+        d: dict[str, Any] = {}
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if f.name in ("spreads", "outliers", "drifts"):
+                v = [x.to_dict() for x in v]
+            d[f.name] = v
+        d["drifted"] = self.drifted
+        d["outlying"] = self.outlying
+        return _plain(d)
+
+
+def summarise_fleet(
+    rows: Sequence[FleetRow],
+    *,
+    baseline: Sequence[FleetRow] = (),
+    outlier_z: float = OUTLIER_Z,
+    drift_k: float = DRIFT_K,
+) -> FleetSummary:
+    """The fleet's spread, its outliers and its drifted machines (module docstring).
+
+    Parameters
+    ----------
+    rows : sequence of FleetRow
+        This run's rows.
+    baseline : sequence of FleetRow
+        An earlier fleet table's rows (:func:`read_fleet_table`): previous fits for drift only
+        (a baseline row of a file also in ``rows``, same SHA-256, is the same fit: skipped).
+    outlier_z : float
+        Modified z-score beyond which a value is an outlier [-].
+    drift_k : float
+        Fleet spreads a drift must exceed [-].
+
+    Returns
+    -------
+    FleetSummary
+    """
+    fitted = [r for r in rows if r.ok]
+    latest = latest_fits(fitted)
+    spreads, outliers, drifts, small = [], [], [], []
+    spread_of: dict[tuple[str, str], float] = {}
+    for axis in sorted({a for a, _ in latest}):
+        machines = sorted((m, r) for (a, m), r in latest.items() if a == axis)
+        if len(machines) < MIN_MACHINES:
+            small.append(axis)
+            continue
+        for p in ALL_PARAMS:
+            have = [(m, r) for m, r in machines if p in r.params]
+            if len(have) < MIN_MACHINES:
+                continue
+            x = np.array([r.params[p] for _, r in have])
+            med, mad, spread = robust_spread(x)
+            q05, q95 = (float(q) for q in np.quantile(x, [0.05, 0.95]))
+            spreads.append(ParameterSpread(axis=axis, parameter=p, unit=UNITS[p],
+                                           n_machines=len(have), median=med, mad=mad,
+                                           spread=spread, q05=q05, q95=q95))  # fmt: skip
+            spread_of[(axis, p)] = spread
+            if spread <= 0:
+                continue
+            for (m, r), z in zip(have, (x - med) / spread, strict=True):
+                if abs(z) > outlier_z:
+                    outliers.append(Outlier(machine_id=m, axis=axis, parameter=p, unit=UNITS[p],
+                                            file=r.file, date=r.date, value=r.params[p],
+                                            z=float(z), median=med, spread=spread))  # fmt: skip
+    in_run = {r.sha256 for r in rows if r.sha256}
+    earlier = [(r, "run") for r in fitted] + [
+        (r, "baseline") for r in baseline if r.ok and r.sha256 not in in_run
+    ]
+    for (axis, machine), now in sorted(latest.items()):
+        if axis in small or not _dated(now):
+            continue
+        before_all = [(r, src) for r, src in earlier if r.axis == axis and
+                      r.machine_id == machine and _dated(r) and r.date < now.date]  # fmt: skip
+        if not before_all:
+            continue
+        prev, src = max(before_all, key=lambda t: (t[0].date, t[1] == "run", t[0].file))
+        for p in ALL_PARAMS:
+            spread = spread_of.get((axis, p), 0.0)
+            i0, i1 = prev.interval(p), now.interval(p)
+            if spread <= 0 or i0 is None or i1 is None:
+                continue
+            change = now.params[p] - prev.params[p]
+            apart = i0[1] < i1[0] or i1[1] < i0[0]
+            if apart and abs(change) > drift_k * spread:
+                b = prev.params[p]
+                drifts.append(Drift(
+                    machine_id=machine, axis=axis, parameter=p, unit=UNITS[p],
+                    before_file=prev.file, before_date=prev.date, before_source=src,
+                    after_file=now.file, after_date=now.date, before=b, after=now.params[p],
+                    before_ci95=i0, after_ci95=i1, change=change,
+                    change_pct=None if b == 0 else 100.0 * change / abs(b), spread=spread,
+                    k=abs(change) / spread,
+                ))  # fmt: skip
+    return FleetSummary(
+        n_logs=len({r.file for r in rows}),
+        n_rows=len(rows),
+        n_failed=len(rows) - len(fitted),
+        n_machines=len({r.machine_id for r in fitted}),
+        n_inadequate=sum(1 for r in fitted if r.adequate is False),
+        n_undated=sum(1 for r in fitted if not _dated(r)),
+        n_baseline=len(baseline),
+        spreads=tuple(spreads),
+        outliers=tuple(outliers),
+        drifts=tuple(drifts),
+        small_axes=tuple(small),
+        failures=tuple((r.file, r.axis, r.error) for r in rows if not r.ok),
+        outlier_z=outlier_z,
+        drift_k=drift_k,
+    )
