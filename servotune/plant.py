@@ -33,6 +33,7 @@ if TYPE_CHECKING:  # python-control is imported where it is used (it is slow to 
     import control
 
 __all__ = [
+    "NPARAM",
     "NROW",
     "Plant",
     "advance",
@@ -40,6 +41,7 @@ __all__ = [
     "advance_tick",
     "discretize",
     "discretize_lti",
+    "fill_plant_rows",
     "lag_split",
     "plant_row",
     "step_coefficients",
@@ -202,6 +204,7 @@ class Plant:
         }
 
 
+@jit
 def step_coefficients(h_s: float, tau_s: float) -> tuple[float, float]:
     """``a = exp(-h/tau)`` and ``b = tau (1 - a)`` for a constant-input interval of ``h_s``."""
     a = math.exp(-h_s / tau_s)
@@ -361,6 +364,7 @@ def discretize(plant: Plant, period_s: float, lag_s: float = 0.0) -> control.Sta
     return control.ss(a_mat, b_mat, c_mat, np.zeros((1, 1)), dt=period_s)
 
 
+@jit
 def tick_coefficients(
     period_s: float, lam_s: float, gain: float, tau_s: float
 ) -> tuple[float, float, float, float, float, float]:
@@ -381,6 +385,7 @@ def tick_coefficients(
     return b_t, a_t, g1_p + b2 * g1_v, a2 * g1_v, gn_p, gn_v
 
 
+@jit
 def lag_split(lag_s: float, period_s: float) -> tuple[int, float]:
     """Split a lag into whole ticks and a remainder: ``lag_s = m·period_s + λ``, 0 <= λ < T.
 
@@ -429,33 +434,71 @@ def plant_row(
     lag_ticks : int
         ``m`` in ``lag = m·T + λ``: the write of tick ``k − m`` acts from ``λ`` into tick ``k``.
     """
-    m, lam = lag_split(compute_s + plant.delay_s, period_s)
-    a1, b1 = step_coefficients(lam, plant.tau_s)
-    a2, b2 = step_coefficients(period_s - lam, plant.tau_s)
     vmax = plant.max_speed_cps(counts_per_rev) if math.isfinite(counts_per_rev) else math.inf
-    (gain, gain_neg), (coulomb, coulomb_neg) = plant.gains_cps_per_v, plant.coulombs_v
-    linear = coulomb == 0.0 and coulomb_neg == 0.0 and gain_neg == gain
-    row = np.array(
-        [
-            plant.gain_cps_per_v,
-            plant.tau_s,
-            plant.offset_v,
-            plant.coulomb_v,
-            vmax,
-            plant.noise_counts,
-            a1,
-            b1,
-            a2,
-            b2,
-            lam,
-            period_s - lam,
-            *tick_coefficients(period_s, lam, plant.gain_cps_per_v, plant.tau_s),
-            1.0 if linear else 0.0,
-            gain_neg,
-            coulomb_neg,
-        ]
-    )
-    return row, m
+    (_, gain_neg), (_, coulomb_neg) = plant.gains_cps_per_v, plant.coulombs_v
+    params = np.array([[
+        plant.gain_cps_per_v, plant.tau_s, plant.offset_v, plant.coulomb_v, gain_neg, coulomb_neg,
+        vmax, plant.noise_counts, plant.delay_s,
+    ]])  # fmt: skip
+    rows = np.empty((1, NROW))
+    lags = np.empty(1, dtype=np.int64)
+    fill_plant_rows(params, period_s, compute_s, rows, lags)
+    return rows[0], int(lags[0])
+
+
+P_GAIN, P_TAU, P_OFFSET, P_COULOMB, P_GAIN_NEG, P_COULOMB_NEG, P_VMAX, P_NOISE, P_DELAY = range(9)
+NPARAM = 9
+"""Columns of a plant parameter row (:func:`fill_plant_rows`): the positive direction's gain
+[counts/s/V], ``tau_s`` [s], ``offset_v`` [V], the positive direction's Coulomb level [V], the
+negative direction's gain and Coulomb level (resolved: equal to the positive ones for a
+symmetric plant), the speed limit [counts/s] (``inf``: none), ``noise_counts`` [counts],
+``delay_s`` [s]."""
+
+
+@jit
+def fill_plant_rows(
+    params: np.ndarray, period_s: float, compute_s: float, rows: np.ndarray, lags: np.ndarray
+) -> None:
+    """:func:`plant_row` of many plants at once, compiled: ``rows[i], lags[i]`` of the plant
+    whose parameters are ``params[i]`` (columns ``P_*``, :data:`NPARAM`).
+
+    The one place a plant row is computed (:func:`plant_row` calls it for one plant); a
+    Monte-Carlo chunk fills its plant sets' rows here without building a :class:`Plant` each.
+    """
+    for i in range(params.shape[0]):
+        gain = params[i, P_GAIN]
+        tau = params[i, P_TAU]
+        coulomb = params[i, P_COULOMB]
+        gain_neg = params[i, P_GAIN_NEG]
+        coulomb_neg = params[i, P_COULOMB_NEG]
+        m, lam = lag_split(compute_s + params[i, P_DELAY], period_s)
+        a1, b1 = step_coefficients(lam, tau)
+        a2, b2 = step_coefficients(period_s - lam, tau)
+        phi_b, phi_a, go_p, go_v, gn_p, gn_v = tick_coefficients(period_s, lam, gain, tau)
+        linear = coulomb == 0.0 and coulomb_neg == 0.0 and gain_neg == gain
+        row = rows[i]
+        row[R_GAIN] = gain
+        row[R_TAU] = tau
+        row[R_OFFSET] = params[i, P_OFFSET]
+        row[R_COULOMB] = coulomb
+        row[R_VMAX] = params[i, P_VMAX]
+        row[R_NOISE] = params[i, P_NOISE]
+        row[R_A1] = a1
+        row[R_B1] = b1
+        row[R_A2] = a2
+        row[R_B2] = b2
+        row[R_H1] = lam
+        row[R_H2] = period_s - lam
+        row[R_PHI_B] = phi_b
+        row[R_PHI_A] = phi_a
+        row[R_GO_P] = go_p
+        row[R_GO_V] = go_v
+        row[R_GN_P] = gn_p
+        row[R_GN_V] = gn_v
+        row[R_LINEAR] = 1.0 if linear else 0.0
+        row[R_GAIN_NEG] = gain_neg
+        row[R_COULOMB_NEG] = coulomb_neg
+        lags[i] = m
 
 
 @jit(inline="always")

@@ -30,7 +30,7 @@ from servotune.plant import Plant
 from servotune.rig import Rig
 from servotune.verify.result import MonteCarloSummary, Sensitivity, WorstVariant, clopper_pearson
 from servotune.verify.spec import MonteCarlo
-from servotune.verify.variants import SPREAD_PARAMETERS, spread_plants
+from servotune.verify.variants import SPREAD_PARAMETERS, spread_parameters, spread_plants
 
 __all__ = [
     "PlantDistribution",
@@ -100,12 +100,17 @@ class SpecSpread:
     def draw(self, seed: int, start: int, stop: int) -> tuple[list[tuple[Plant, ...]], np.ndarray]:
         """See :meth:`PlantDistribution.draw`."""
         plants = spread_plants(self.rig, self.montecarlo, seed, start, stop)
+        return plants, self.draw_parameters(seed, start, stop)[1]
+
+    def draw_parameters(self, seed: int, start: int, stop: int) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`draw` without a :class:`Plant` each: the plant sets' parameter rows
+        (:func:`~servotune.verify.variants.spread_parameters`, shape ``(stop − start, rig axes,
+        NPARAM)``) and the drawn values. A distribution may offer this method: a Monte-Carlo
+        chunk then builds its plant rows from the parameters directly (much faster)."""
+        params = spread_parameters(self.rig, self.montecarlo, seed, start, stop)
         idx = [self.rig.axis_names.index(a) for a in self.axes]
-        values = np.array(
-            [[getattr(ps[j], k) for j in idx for k in SPREAD_PARAMETERS] for ps in plants],
-            dtype=float,
-        ).reshape(len(plants), len(self.parameters))
-        return plants, values
+        values = params[:, idx, : len(SPREAD_PARAMETERS)].reshape(len(params), len(self.parameters))
+        return params, np.ascontiguousarray(values)
 
 
 def sensitivity_table(

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -23,9 +23,31 @@ from servotune.errors import SpecError
 from servotune.executor import Executor, InProcessExecutor, chunk_bounds
 from servotune.laws.axis import FAULT_MASK, FLAG_SATURATED, MODE_TASK
 from servotune.metrics import step_info
+from servotune.plant import (
+    NPARAM,
+    NROW,
+    P_COULOMB,
+    P_COULOMB_NEG,
+    P_GAIN,
+    P_GAIN_NEG,
+    P_OFFSET,
+    P_TAU,
+    P_VMAX,
+    Plant,
+    fill_plant_rows,
+    plant_row,
+)
 from servotune.rig import Rig
 from servotune.scenarios import Inputs, _sync_move_for, build_scenario
-from servotune.sim.engine import Loop, prepare_batch, run_batch
+from servotune.sim.engine import (
+    Loop,
+    _converter_args,
+    _input_arrays,
+    prepare_batch,
+    run_batch,
+)
+from servotune.sim.lean import CONSTS_CAPACITY
+from servotune.sim.lean_sync import FIGURE_NAMES, SyncWindows, run_sync_figures
 from servotune.tuning import Tuning
 from servotune.validate import show_value
 from servotune.verify.checks import (
@@ -53,6 +75,7 @@ others are redrawn from the seed by their label: :func:`~servotune.verify.plant_
 
 _TRACE_BYTES = 64 * 2**20  # traces one engine batch holds at once (bounds a chunk's memory)
 _MAX_CHUNK = 4096  # plant sets per task of the executor
+_LEAN = True  # moves of a master and a slave run in the lean two-axis kernel (tests: False)
 
 
 # --- running the scenarios -----------------------------------------------------------------
@@ -229,13 +252,213 @@ def _relative(v: np.ndarray, limit: float) -> np.ndarray:
     return np.where(np.isnan(r), -np.inf, r)
 
 
+def _chunk_plants(chunk: _Chunk, shared: _Shared) -> tuple[_ChunkPlants, np.ndarray]:
+    """The chunk's plant sets and drawn values: parameter rows where the distribution offers
+    them (``draw_parameters``: no :class:`Plant` built per plant set), else the plants."""
+    rig = shared.rig
+    first_draw = max(chunk.start, 1) - 1
+    draw_parameters = getattr(shared.distribution, "draw_parameters", None)
+    if draw_parameters is None:
+        plant_sets, drawn = shared.distribution.draw(shared.seed, first_draw, chunk.stop - 1)
+        if chunk.start == 0:
+            plant_sets = [tuple(a.plant for a in rig.axes), *plant_sets]
+        return _ChunkPlants(rig=rig, plant_sets=plant_sets), drawn
+    params, drawn = draw_parameters(shared.seed, first_draw, chunk.stop - 1)
+    if chunk.start == 0:
+        params = np.concatenate([_nominal_parameters(rig)[None], params])
+    return _ChunkPlants(rig=rig, params=params), drawn
+
+
+def _nominal_parameters(rig: Rig) -> np.ndarray:
+    """The rig's plants as parameter rows (``servotune.plant.P_*``), shape (axes, NPARAM)."""
+    out = np.empty((len(rig.axes), NPARAM))
+    cpr = rig.counts_per_rev
+    for j, a in enumerate(rig.axes):
+        p = a.plant
+        (_, gain_neg), (_, coulomb_neg) = p.gains_cps_per_v, p.coulombs_v
+        vmax = p.max_speed_cps(cpr) if math.isfinite(cpr) else math.inf
+        out[j] = (p.gain_cps_per_v, p.tau_s, p.offset_v, p.coulomb_v, gain_neg, coulomb_neg,
+                  vmax, p.noise_counts, p.delay_s)  # fmt: skip
+    return out
+
+
+def _plant_params_ok(params: np.ndarray) -> bool:
+    """Whether every parameter row's drawn columns are values a :class:`Plant` accepts (gains
+    and tau finite and > 0, offset finite, Coulomb levels finite and >= 0); rows are filled
+    without building a plant, which would check them."""
+    x = params[..., :P_VMAX]
+    return bool(np.isfinite(x).all() and (x[..., [P_GAIN, P_TAU, P_GAIN_NEG]] > 0.0).all()
+                and (x[..., [P_COULOMB, P_COULOMB_NEG]] >= 0.0).all())  # fmt: skip
+
+
+@dataclass(slots=True, kw_only=True)
+class _ChunkPlants:
+    """A chunk's plant sets: as parameter rows or as plants; each form built when asked."""
+
+    rig: Rig
+    params: np.ndarray | None = None
+    plant_sets: list[tuple[Plant, ...]] | None = None
+    _rows: tuple[np.ndarray, np.ndarray] | None = None
+
+    def plants(self) -> list[tuple[Plant, ...]]:
+        """One plant per axis per plant set."""
+        if self.plant_sets is None:
+            assert self.params is not None
+            nominal = tuple(a.plant for a in self.rig.axes)
+            self.plant_sets = [
+                tuple(replace(p, gain_cps_per_v=x[P_GAIN], tau_s=x[P_TAU], offset_v=x[P_OFFSET],
+                              coulomb_v=x[P_COULOMB],
+                              gain_neg_cps_per_v=None if p.gain_neg_cps_per_v is None
+                              else x[P_GAIN_NEG],
+                              coulomb_neg_v=None if p.coulomb_neg_v is None
+                              else x[P_COULOMB_NEG])
+                      for p, x in zip(nominal, row, strict=True))
+                for row in self.params.tolist()
+            ]  # fmt: skip
+        return self.plant_sets
+
+    def rows(self) -> tuple[np.ndarray, np.ndarray]:
+        """Plant rows ``(n, axes, NROW)`` and integer rows ``(n, axes, 2)`` (lag, counter
+        start), as :func:`~servotune.sim.engine.prepare_batch` builds them."""
+        if self._rows is None:
+            rig = self.rig
+            if self.params is not None:
+                if not _plant_params_ok(self.params):
+                    self.plants()  # raises the Plant's ValueError, as the traced path does
+                n, n_ax = self.params.shape[:2]
+                pf = np.empty((n * n_ax, NROW))
+                lags = np.empty(n * n_ax, dtype=np.int64)
+                flat = np.ascontiguousarray(self.params.reshape(n * n_ax, NPARAM))
+                fill_plant_rows(flat, float(rig.period_s), float(rig.timer.compute_s), pf, lags)
+                pf = pf.reshape(n, n_ax, NROW)
+                lags = lags.reshape(n, n_ax)
+            else:
+                sets = self.plants()
+                n, n_ax = len(sets), len(rig.axes)
+                pf = np.empty((n, n_ax, NROW))
+                lags = np.empty((n, n_ax), dtype=np.int64)
+                for b, ps in enumerate(sets):
+                    for a, p in enumerate(ps):
+                        pf[b, a], lags[b, a] = plant_row(p, rig.period_s, rig.timer.compute_s,
+                                                         rig.counts_per_rev)  # fmt: skip
+            pi = np.empty((n, n_ax, 2), dtype=np.int64)
+            pi[:, :, 0] = lags
+            pi[:, :, 1] = [a.counter_init for a in rig.axes]
+            self._rows = (pf, pi)
+        return self._rows
+
+
+def _lean_sync_ok(shared: _Shared, sc: ScenarioSpec, pi: np.ndarray) -> bool:
+    """Whether a scenario runs in the lean two-axis kernel: a move (``sync``, ``track``) of a
+    master and one slave following it, lags of at most one whole tick, constants that fit."""
+    loop, rig = shared.loop, shared.rig
+    if sc.kind not in ("sync", "track") or len(rig.axes) != 2:
+        return False
+    roles = [a.role for a in rig.axes]
+    if sorted(roles) != ["master", "slave"]:
+        return False
+    i_m = roles.index("master")
+    src = tuple(loop.ref_source)
+    if src[i_m] != -1 or src[1 - i_m] != i_m:
+        return False
+    consts = _loop_consts(shared)
+    return 2 * consts.shape[1] <= CONSTS_CAPACITY and bool((pi[:, :, 0] <= 1).all())
+
+
+def _loop_consts(shared: _Shared) -> np.ndarray:
+    """The loop's constants per axis, shape (axes, width), padded as a batch pads them."""
+    rig = shared.rig
+    rows = [c.consts(counter_bits=rig.counter.bits, dac_bits=rig.dac.bits,
+                     dac_zero=rig.dac.zero_code) for c in shared.loop.controllers]  # fmt: skip
+    out = np.zeros((len(rows), max(len(r) for r in rows)), dtype=np.int64)
+    for i, r in enumerate(rows):
+        out[i, : len(r)] = r
+    return out
+
+
+_LeanValues = tuple[dict[tuple[str, str], np.ndarray], dict[str, np.ndarray], np.ndarray]
+
+
+def _run_lean_sync(
+    shared: _Shared, sc: ScenarioSpec, inputs: Inputs, pf: np.ndarray, pi: np.ndarray,
+    seeds: np.ndarray,
+) -> _LeanValues | None:  # fmt: skip
+    """:func:`_evaluate`'s values and faults of a move for every plant set, from the lean
+    two-axis kernel (the same bits, no traces), and per plant set its fastest motion
+    (:data:`servotune.sim.lean_sync.N_FAST`); None if a plant set's move is no step response
+    :func:`~servotune.metrics.step_info` accepts (a position not finite, a zero step), where
+    :func:`_evaluate` raises: the caller then runs the traced path, which raises that error."""
+    rig = shared.rig
+    names = rig.axis_names
+    win = _move_windows(rig, sc, inputs)
+    task = inputs.mode == MODE_TASK
+    has_step = task.any(axis=0)
+    windows = SyncWindows(counted=task, step_from=win.start, target=win.target,
+                          threshold=sc.settling_band_pct / 100.0, has_step=has_step,
+                          steady=win.steady)  # fmt: skip
+    figs, fast = run_sync_figures(pf, pi, _loop_consts(shared), seeds,
+                                  np.asarray(shared.loop.ref_source, dtype=np.int64),
+                                  _input_arrays(inputs), _converter_args(rig), windows,
+                                  float(rig.period_s), shared.threads)  # fmt: skip
+    col = {nm: j for j, nm in enumerate(FIGURE_NAMES)}
+    if np.isnan(figs[:, has_step, col["overshoot_pct"]]).any():
+        return None
+    values: dict[tuple[str, str], np.ndarray] = {}
+    for a, name in enumerate(names):
+        if not has_step[a]:
+            continue
+        for q in ("overshoot_pct", "settling_time_s", "saturation_pct"):
+            values[(q, name)] = figs[:, a, col[q]]
+        if rig.axes[a].role == "slave":
+            for q in ("max_sync_error_counts", "rms_sync_error_counts", "steady_lag_counts"):
+                values[(q, name)] = figs[:, a, col[q]]
+    faults = {name: figs[:, a, col["fault"]] != 0.0 for a, name in enumerate(names)}
+    return values, faults, fast
+
+
+def _judge(
+    sc: ScenarioSpec, names: Sequence[str], values: dict[tuple[str, str], np.ndarray],
+    faults: dict[str, np.ndarray], start: int, figures: list[tuple[str, str, str, str, float]],
+    worst: list[float], where: list[int], passed: np.ndarray, margin: np.ndarray,
+    which: np.ndarray, value: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """A scenario's values and faults of a chunk against its limits: appends each limit's row
+    (``figures``, the worst value, where) and returns the plant sets' updated pass flags, least
+    relative margins, the limit giving each and its value."""
+    for key, lim in sc.limits.items():
+        quantity, unit = LIMITS[key]
+        for name in names:
+            if (quantity, name) not in values:
+                continue
+            v = values[(quantity, name)]
+            w = np.where(np.isnan(v), np.inf, v)  # NaN counts as the largest
+            i = int(np.argmax(w))
+            figures.append((sc.name, quantity, name, unit, float(lim)))
+            worst.append(float(w[i]))
+            where.append(start + i)
+            passed &= v <= lim
+            rel = _relative(v, float(lim))
+            better = rel < margin
+            margin = np.where(better, rel, margin)
+            which = np.where(better, len(figures) - 1, which)
+            value = np.where(better, v, value)
+    for name in names:
+        faulted = faults[name]
+        figures.append((sc.name, _FAULT_QUANTITY, name, "runs", 0.0))
+        worst.append(float(faulted.sum()))
+        where.append(start + int(np.argmax(faulted)) if faulted.any() else -1)
+        passed &= ~faulted
+        better = faulted & (margin > -np.inf)
+        margin = np.where(better, -np.inf, margin)
+        which = np.where(better, len(figures) - 1, which)
+        value = np.where(better, 1.0, value)
+    return passed, margin, which, value
+
+
 def _run_chunk(chunk: _Chunk, shared: _Shared) -> _ChunkResult:
     """Every scenario for the plant sets of ``chunk`` (the executor's task)."""
     rig, names = shared.rig, shared.rig.axis_names
-    first_draw = max(chunk.start, 1) - 1
-    plant_sets, drawn = shared.distribution.draw(shared.seed, first_draw, chunk.stop - 1)
-    if chunk.start == 0:
-        plant_sets = [tuple(a.plant for a in rig.axes), *plant_sets]
+    chunk_plants, drawn = _chunk_plants(chunk, shared)
     n = chunk.stop - chunk.start
     figures: list[tuple[str, str, str, str, float]] = []
     worst: list[float] = []
@@ -246,6 +469,28 @@ def _run_chunk(chunk: _Chunk, shared: _Shared) -> _ChunkResult:
     value = np.full(n, np.nan)
     fastest = []
     for sc, inputs in shared.runs:
+        lean = None
+        if _LEAN and _lean_sync_ok(shared, sc, chunk_plants.rows()[1]):
+            pf, pi = chunk_plants.rows()
+            seeds = np.asarray(chunk.noise, dtype=np.uint64)
+            lean = _run_lean_sync(shared, sc, inputs, pf, pi, seeds)
+        if lean is not None:
+            values, faults, fast = lean
+            step_best = (0.0, -1, -1)
+            speed_best = (0.0, -1, -1)
+            if n:
+                b = int(np.argmax(fast[:, 0]))
+                if fast[b, 0] > 0.0:
+                    step_best = (float(fast[b, 0]), chunk.start + b, int(fast[b, 2]))
+                b = int(np.argmax(fast[:, 3]))
+                if fast[b, 3] > 0.0:
+                    speed_best = (float(fast[b, 3]), chunk.start + b, int(fast[b, 5]))
+            fastest.append((*step_best, *speed_best))
+            passed, margin, which, value = _judge(sc, names, values, faults, chunk.start,
+                                                  figures, worst, where, passed, margin, which,
+                                                  value)  # fmt: skip
+            continue
+        plant_sets = chunk_plants.plants()
         per_batch = max(1, _TRACE_BYTES // (inputs.n_ticks * len(names) * 72))
         parts = []
         step_best = (0.0, -1, -1)
@@ -273,33 +518,10 @@ def _run_chunk(chunk: _Chunk, shared: _Shared) -> _ChunkResult:
         fastest.append((*step_best, *speed_best))
         values = {key: np.concatenate([v[key] for v, _ in parts]) for key in parts[0][0]}
         faults = {nm: np.concatenate([f[nm] for _, f in parts]) for nm in parts[0][1]}
-        for key, lim in sc.limits.items():
-            quantity, unit = LIMITS[key]
-            for name in names:
-                if (quantity, name) not in values:
-                    continue
-                v = values[(quantity, name)]
-                w = np.where(np.isnan(v), np.inf, v)  # NaN counts as the largest
-                i = int(np.argmax(w))
-                figures.append((sc.name, quantity, name, unit, float(lim)))
-                worst.append(float(w[i]))
-                where.append(chunk.start + i)
-                passed &= v <= lim
-                rel = _relative(v, float(lim))
-                better = rel < margin
-                margin = np.where(better, rel, margin)
-                which = np.where(better, len(figures) - 1, which)
-                value = np.where(better, v, value)
-        for name in names:
-            faulted = faults[name]
-            figures.append((sc.name, _FAULT_QUANTITY, name, "runs", 0.0))
-            worst.append(float(faulted.sum()))
-            where.append(chunk.start + int(np.argmax(faulted)) if faulted.any() else -1)
-            passed &= ~faulted
-            better = faulted & (margin > -np.inf)
-            margin = np.where(better, -np.inf, margin)
-            which = np.where(better, len(figures) - 1, which)
-            value = np.where(better, 1.0, value)
+        passed, margin, which, value = _judge(
+            sc, names, values, faults, chunk.start, figures, worst, where, passed, margin, which,
+            value,
+        )  # fmt: skip
     return _ChunkResult(figures=tuple(figures), worst=np.asarray(worst),
                         where=np.asarray(where, dtype=np.int64), passed=passed, margin=margin,
                         which=which, value=value, drawn=drawn,

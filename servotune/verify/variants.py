@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Any
@@ -10,7 +11,19 @@ from typing import Any
 import numpy as np
 
 from servotune.errors import SpecError
-from servotune.plant import Plant
+from servotune.plant import (
+    NPARAM,
+    P_COULOMB,
+    P_COULOMB_NEG,
+    P_DELAY,
+    P_GAIN,
+    P_GAIN_NEG,
+    P_NOISE,
+    P_OFFSET,
+    P_TAU,
+    P_VMAX,
+    Plant,
+)
 from servotune.rig import Rig
 from servotune.validate import show_value
 from servotune.verify.margins import spread_factors
@@ -21,6 +34,7 @@ __all__ = [
     "Variant",
     "chunk_generator",
     "plant_variants",
+    "spread_parameters",
     "spread_plants",
 ]
 
@@ -101,7 +115,43 @@ def spread_plants(
     """The plant sets of Monte-Carlo draws ``start … stop − 1`` (0-based: draw ``i`` is variant
     ``mc<i + 1>`` of :func:`plant_variants`), one plant per rig axis, bit for bit what
     :func:`plant_variants` gives them, from a generator jumped to ``start``
-    (:func:`chunk_generator`).
+    (:func:`chunk_generator`); their parameters are :func:`spread_parameters`'.
+
+    Raises
+    ------
+    SpecError
+        If ``mc.axes`` names an axis the rig does not have.
+    """
+    params = spread_parameters(rig, mc, seed, start, stop)
+    nominal = tuple(a.plant for a in rig.axes)
+    out = []
+    for row in params.tolist():
+        plants = []
+        for p, x in zip(nominal, row, strict=True):
+            plants.append(
+                replace(
+                    p,
+                    gain_cps_per_v=x[P_GAIN],
+                    tau_s=x[P_TAU],
+                    offset_v=x[P_OFFSET],
+                    coulomb_v=x[P_COULOMB],
+                    gain_neg_cps_per_v=None if p.gain_neg_cps_per_v is None else x[P_GAIN_NEG],
+                    coulomb_neg_v=None if p.coulomb_neg_v is None else x[P_COULOMB_NEG],
+                )
+            )
+        out.append(tuple(plants))
+    return out
+
+
+def spread_parameters(rig: Rig, mc: MonteCarlo, seed: int, start: int, stop: int) -> np.ndarray:
+    """The plant parameters of Monte-Carlo draws ``start … stop − 1`` (:func:`spread_plants`'
+    plants), as rows for :func:`servotune.plant.fill_plant_rows`, without a :class:`Plant` each.
+
+    Returns
+    -------
+    ndarray, shape (stop − start, rig axes, NPARAM)
+        Columns ``servotune.plant.P_*``; an axis the spread does not vary keeps its nominal
+        plant's values. The speed limit is in counts/s of the rig's counter.
 
     Raises
     ------
@@ -114,36 +164,32 @@ def spread_plants(
             raise SpecError(
                 f"montecarlo.axes names {show_value(a)}, the rig has axes {list(names)}"
             )
-    vary = [n in mc.axes if mc.axes else True for n in names]
-    nominal = tuple(a.plant for a in rig.axes)
     n = max(0, int(stop) - int(start))
     rng = chunk_generator(seed, start, len(names) * _DRAWS_PER_AXIS)
     u = rng.uniform(-1.0, 1.0, size=(n, len(names), _DRAWS_PER_AXIS))
-    # per axis, the draw's map onto each parameter: the spec's spread, or the identified 95 %
-    # interval where that is wider (the fit record of a fitted rig)
-    maps = [_maps(a.plant, a.plant_fit, mc) for a in rig.axes]
-    out = []
-    for i in range(n):
-        plants = []
-        for j, p in enumerate(nominal):
-            if not vary[j]:
-                plants.append(p)
-                continue
-            g, t, o, c = (float(x) for x in u[i, j])
-            gain, tau, offset, coulomb = maps[j]
-            g_f, c_f = gain(g), coulomb(c)
-            plants.append(
-                replace(
-                    p,
-                    gain_cps_per_v=p.gain_cps_per_v * g_f,
-                    tau_s=p.tau_s * tau(t),
-                    offset_v=p.offset_v + offset(o),
-                    coulomb_v=p.coulomb_v * c_f,
-                    gain_neg_cps_per_v=_scaled(p.gain_neg_cps_per_v, g_f),
-                    coulomb_neg_v=_scaled(p.coulomb_neg_v, c_f),
-                )
-            )
-        out.append(tuple(plants))
+    out = np.empty((n, len(names), NPARAM))
+    for j, axis in enumerate(rig.axes):
+        p = axis.plant
+        (_, gain_neg), (_, coulomb_neg) = p.gains_cps_per_v, p.coulombs_v
+        cpr = rig.counts_per_rev
+        out[:, j, P_VMAX] = p.max_speed_cps(cpr) if math.isfinite(cpr) else math.inf
+        out[:, j, P_NOISE] = p.noise_counts
+        out[:, j, P_DELAY] = p.delay_s
+        if mc.axes and axis.name not in mc.axes:
+            out[:, j, :P_VMAX] = (p.gain_cps_per_v, p.tau_s, p.offset_v, p.coulomb_v, gain_neg,
+                                  coulomb_neg)  # fmt: skip
+            continue
+        # the draw's map onto each parameter: the spec's spread, or the identified 95 %
+        # interval where that is wider (the fit record of a fitted rig); element by element the
+        # same IEEE operations as on one draw's floats
+        gain, tau, offset, coulomb = _maps(p, axis.plant_fit, mc)
+        g_f, c_f = gain(u[:, j, 0]), coulomb(u[:, j, 3])
+        out[:, j, P_GAIN] = p.gain_cps_per_v * g_f
+        out[:, j, P_TAU] = p.tau_s * tau(u[:, j, 1])
+        out[:, j, P_OFFSET] = p.offset_v + offset(u[:, j, 2])
+        out[:, j, P_COULOMB] = p.coulomb_v * c_f
+        out[:, j, P_GAIN_NEG] = gain_neg * g_f
+        out[:, j, P_COULOMB_NEG] = coulomb_neg * c_f
     return out
 
 
@@ -177,11 +223,6 @@ def _maps(plant: Plant, fit: Any, mc: MonteCarlo) -> tuple[Any, Any, Any, Any]:
         out.append(_linear(1.0 - mc.coulomb_spread, 1.0 + mc.coulomb_spread, 1.0,
                            mc.coulomb_spread))  # fmt: skip
     return out[0], out[1], out[2], out[3]
-
-
-def _scaled(value: float | None, factor: float) -> float | None:
-    """``value · factor``; None (the positive direction's value) stays None."""
-    return None if value is None else value * factor
 
 
 def _seed_seqs(seed: int) -> list[np.random.SeedSequence]:

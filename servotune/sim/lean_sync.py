@@ -1,0 +1,416 @@
+"""The lean two-axis kernel: a master and an axis following it, verification figures only.
+
+A Monte-Carlo verification runs a million plant sets of a two-axis rig (master, slave reading
+the master's position as its reference) through a move and needs per plant set only a few
+figures: each axis's overshoot and settling time of the move (MATLAB ``stepinfo`` read at the
+samples, :func:`servotune.metrics.step_info`), its share of saturated ticks, whether it
+latched a fault, the sync error's peak, RMS and mean over a steady window, and the fastest
+motion. This kernel computes exactly those, tick by tick, without traces: it composes the
+shared tick (:mod:`servotune.sim.tick`: sample, read, law and D/A, advance) in the order of the
+general kernel (:mod:`servotune.sim.kernel`), with the same float operations, so every figure
+equals the one computed from the general kernel's traces bit for bit
+(``tests/sim/test_lean_sync.py``). The plumbing is the lean one-axis kernel's
+(:mod:`servotune.sim.lean`): one plant set per loop, its state in the function's frame, lags of
+at most one whole tick held in scalars, threads taking plant sets one at a time.
+
+Sums are numpy's: the mean of the squared sync error and of the steady window are summed as
+``numpy.add.reduce`` sums one contiguous row (pairwise, :func:`pairwise_sum`), so the RMS and
+the mean are the bits ``numpy.mean`` gives on the traces.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numba as nb
+import numpy as np
+
+from servotune._numba_cache import call_compiled, jit
+from servotune.laws.axis import FAULT_MASK, FLAG_SATURATED, N_STATE
+from servotune.plant import NROW, R_NOISE, R_OFFSET, advance_tick
+from servotune.sim.kernel import _I_INIT, _I_LAG
+from servotune.sim.lean import CONSTS_CAPACITY, _frame_buffer
+from servotune.sim.tick import draw_noise, read_axis, write_axis
+
+__all__ = [
+    "FIGURE_NAMES",
+    "N_FIGURES",
+    "SyncWindows",
+    "pairwise_sum",
+    "run_sync_figures",
+]
+
+FIGURE_NAMES = (
+    "overshoot_pct",
+    "settling_time_s",
+    "saturation_pct",
+    "fault",
+    "max_sync_error_counts",
+    "rms_sync_error_counts",
+    "steady_lag_counts",
+)
+"""Per plant set and axis (``figures[b, a, j]``): overshoot [%] and settling time [s] of the
+move (``inf`` if still outside the band at the last tick), saturated share of the counted ticks
+[%], 1.0 if a fault latched, and for a following axis its sync error against the master
+[counts]: peak and RMS over its counted ticks, mean over the steady window (0 for the master).
+The overshoot is NaN where :func:`servotune.metrics.step_info` refuses the move as a step
+response (a position in the window not finite, a step ``target − y0`` zero or not finite): the
+traced path raises its ``ValueError`` there, so the caller runs that path instead."""
+N_FIGURES = len(FIGURE_NAMES)
+_F_OVER, _F_SETTLE, _F_SAT, _F_FAULT, _F_SYNC_MAX, _F_SYNC_RMS, _F_STEADY = range(N_FIGURES)
+N_FAST = 6
+"""Per plant set: the largest motion in one tick [counts], its tick and axis; the largest
+speed [counts/s], its tick and axis (the first in (tick, axis) order; -1 if never > 0)."""
+_PW_BLOCK = 128  # numpy's PW_BLOCKSIZE
+_ST_WORDS = 2 * N_STATE  # frame buffers (literal sizes): both axes' law state, plant rows
+_ROW_WORDS = 2 * NROW
+
+
+@jit(inline="always")
+def _pairwise_block(a: np.ndarray, lo: int, n: int) -> float:
+    """numpy's pairwise sum of ``n <= 128`` elements: a plain loop below 8, else eight partial
+    sums combined as a tree, then the rest."""
+    if n < 8:
+        res = 0.0
+        for i in range(n):
+            res += a[lo + i]
+        return res
+    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
+    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
+    i = 8
+    end = n - n % 8
+    while i < end:
+        j = lo + i
+        r0 += a[j]
+        r1 += a[j + 1]
+        r2 += a[j + 2]
+        r3 += a[j + 3]
+        r4 += a[j + 4]
+        r5 += a[j + 5]
+        r6 += a[j + 6]
+        r7 += a[j + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += a[lo + i]
+        i += 1
+    return res
+
+
+@jit
+def pairwise_sum(a: np.ndarray, lo: int, n: int) -> float:
+    """``a[lo : lo + n]`` summed as numpy sums a contiguous float64 row (``numpy.add.reduce``:
+    pairwise, blocks of 128 in eight partial sums; ``numpy/_core/src/umath/loops_utils.h.src``,
+    ``pairwise_sum``), so the result has numpy's bits.
+
+    numpy's recursion (halves rounded down to a multiple of 8, left sum + right sum) runs on an
+    explicit stack: numba's on-disk cache cannot load a self-recursive function.
+    """
+    if n <= _PW_BLOCK:
+        return _pairwise_block(a, lo, n)
+    los = np.empty(64, dtype=np.int64)
+    ns = np.empty(64, dtype=np.int64)
+    phase = np.zeros(64, dtype=np.int64)
+    vals = np.empty(64)
+    sp = 0
+    vsp = 0
+    los[0] = lo
+    ns[0] = n
+    while sp >= 0:
+        m = ns[sp]
+        if m <= _PW_BLOCK:
+            vals[vsp] = _pairwise_block(a, los[sp], m)
+            vsp += 1
+            sp -= 1
+            continue
+        n2 = m // 2
+        n2 -= n2 % 8
+        if phase[sp] == 0:  # the left half first
+            phase[sp] = 1
+            los[sp + 1], ns[sp + 1], phase[sp + 1] = los[sp], n2, 0
+            sp += 1
+        elif phase[sp] == 1:  # then the right half
+            phase[sp] = 2
+            los[sp + 1], ns[sp + 1], phase[sp + 1] = los[sp] + n2, m - n2, 0
+            sp += 1
+        else:  # left + right
+            vsp -= 1
+            vals[vsp - 1] = vals[vsp - 1] + vals[vsp]
+            sp -= 1
+    return vals[0]
+
+
+@jit
+def _run_sync(
+    b, pf, pi, consts, seeds, src, ref, mode, reset, u_add, load, bits, latched, skew, dac_lo,
+    lsb, counted, step_from, target, threshold, has_step, master, follower, steady_lo,
+    steady_hi, period, figures, fast,
+):  # fmt: skip
+    """Run plant set ``b`` of a two-axis batch and write its figures (see :func:`_kernel_sync`)."""
+    nt = ref.shape[0]
+    mask = (np.int64(1) << bits) - 1
+    nbytes = bits // 8
+    width = consts.shape[1]
+    st = nb.carray(_frame_buffer(_ST_WORDS, np.int64), (2, N_STATE))
+    cb = nb.carray(_frame_buffer(CONSTS_CAPACITY, np.int64), (2, width))
+    for a in range(2):
+        for j in range(width):
+            cb[a, j] = consts[a, j]
+    rows = nb.carray(_frame_buffer(_ROW_WORDS, np.float64), (2, NROW))
+    for a in range(2):
+        for j in range(NROW):
+            rows[a, j] = pf[b, a, j]
+    # per axis: position, speed, the last two writes, the read, and the figures' running values
+    pos = nb.carray(_frame_buffer(2, np.float64), 2)
+    spd = nb.carray(_frame_buffer(2, np.float64), 2)
+    v1 = nb.carray(_frame_buffer(2, np.float64), 2)
+    v2 = nb.carray(_frame_buffer(2, np.float64), 2)
+    y = nb.carray(_frame_buffer(2, np.int64), 2)
+    y0 = nb.carray(_frame_buffer(2, np.float64), 2)
+    size = nb.carray(_frame_buffer(2, np.float64), 2)
+    band = nb.carray(_frame_buffer(2, np.float64), 2)
+    dev_max = nb.carray(_frame_buffer(2, np.float64), 2)
+    last_out = nb.carray(_frame_buffer(2, np.int64), 2)
+    n_sat = nb.carray(_frame_buffer(2, np.int64), 2)
+    n_cnt = nb.carray(_frame_buffer(2, np.int64), 2)
+    fault = nb.carray(_frame_buffer(2, np.int64), 2)
+    refused = nb.carray(_frame_buffer(2, np.int64), 2)  # step_info would raise (FIGURE_NAMES)
+    for a in range(2):
+        last_out[a] = -1
+    # the squared sync errors over the follower's counted ticks, then |e| over the steady window
+    buf = np.empty(nt + max(steady_hi - steady_lo, 0))
+    n_sq = 0
+    n_st = 0
+    sync_max = 0.0
+    step_best = 0.0
+    step_k = -1
+    step_a = -1
+    speed_best = 0.0
+    speed_k = -1
+    speed_a = -1
+    rng = seeds[b]
+    for k in range(nt):
+        # 1-2. sample and unwrap, every axis (noise drawn in axis order)
+        for a in range(2):
+            rng, nz = draw_noise(rng, rows[a, R_NOISE])
+            _, y[a] = read_axis(st, cb, a, pos[a], spd[a], nz, pi[b, a, _I_INIT], mask, latched,
+                                nbytes, skew, reset[k, a])  # fmt: skip
+        # the figures of the tick start's state (the traces' true position and speed)
+        if counted[k, follower]:
+            e = pos[master] - pos[follower]
+            ae = abs(e)
+            if ae > sync_max:
+                sync_max = ae
+            buf[n_sq] = e * e
+            n_sq += 1
+        if steady_lo <= k < steady_hi:
+            buf[nt + n_st] = abs(pos[master] - pos[follower])
+            n_st += 1
+        for a in range(2):
+            sp = abs(spd[a])
+            if sp > speed_best:
+                speed_best = sp
+                speed_k = k
+                speed_a = a
+            if has_step[a] and k >= step_from:
+                if k == step_from:
+                    y0[a] = pos[a]
+                    size[a] = abs(target - y0[a])
+                    band[a] = threshold * size[a]
+                    dev_max[a] = 0.0
+                    st_size = target - y0[a]
+                    if st_size == 0.0 or not math.isfinite(st_size):
+                        refused[a] = 1
+                if not math.isfinite(pos[a]):
+                    refused[a] = 1
+                dev = pos[a] - y0[a] if target - y0[a] > 0.0 else y0[a] - pos[a]
+                if dev > dev_max[a]:
+                    dev_max[a] = dev
+                if abs(pos[a] - target) > band[a]:
+                    last_out[a] = k - step_from
+        # 3-4. control law and D/A, every axis
+        for a in range(2):
+            s = src[a]
+            r = ref[k, a] if s < 0 else y[s]
+            _, flags, _, volts = write_axis(st, cb, a, r, mode[k, a], reset[k, a], u_add[k, a],
+                                           dac_lo, lsb)  # fmt: skip
+            fault[a] |= flags & FAULT_MASK
+            if counted[k, a]:
+                n_cnt[a] += 1
+                if flags & FLAG_SATURATED:
+                    n_sat[a] += 1
+            # the writes of ticks k - lag and k - lag - 1 acting in this tick; 0 V before tick 0
+            if pi[b, a, _I_LAG] == 0:
+                v_new = volts
+                v_old = v1[a]
+            else:
+                v_new = v1[a]
+                v_old = v2[a]
+            v2[a] = v1[a]
+            v1[a] = volts
+            w_off = rows[a, R_OFFSET] + load[k, a]
+            p_old = pos[a]
+            pos[a], spd[a] = advance_tick(p_old, spd[a], v_old + w_off, v_new + w_off, rows[a])
+            if k + 1 < nt:
+                step = abs(pos[a] - p_old)
+                if step > step_best:
+                    step_best = step
+                    step_k = k
+                    step_a = a
+    n_win = nt - step_from
+    for a in range(2):
+        if has_step[a]:
+            over = dev_max[a] - size[a]
+            if not over > 0.0:
+                over = 0.0
+            figures[b, a, _F_OVER] = np.nan if refused[a] else 100.0 * over / size[a]
+            if last_out[a] < 0:
+                figures[b, a, _F_SETTLE] = 0.0
+            elif last_out[a] == n_win - 1:
+                figures[b, a, _F_SETTLE] = np.inf
+            else:
+                figures[b, a, _F_SETTLE] = float(last_out[a] + 1) * period
+        if n_cnt[a] > 0:
+            figures[b, a, _F_SAT] = 100.0 * (float(n_sat[a]) / n_cnt[a])
+        figures[b, a, _F_FAULT] = 1.0 if fault[a] != 0 else 0.0
+    if n_sq > 0:
+        figures[b, follower, _F_SYNC_MAX] = sync_max
+        figures[b, follower, _F_SYNC_RMS] = np.sqrt(pairwise_sum(buf, 0, n_sq) / n_sq)
+    if n_st > 0:
+        figures[b, follower, _F_STEADY] = pairwise_sum(buf, nt, n_st) / n_st
+    fast[b, 0] = step_best
+    fast[b, 1] = step_k
+    fast[b, 2] = step_a
+    fast[b, 3] = speed_best
+    fast[b, 4] = speed_k
+    fast[b, 5] = speed_a
+
+
+@jit(parallel=True)
+def _kernel_sync(
+    pf, pi, consts, seeds, src, ref, mode, reset, u_add, load, bits, latched, skew, dac_lo,
+    lsb, counted, step_from, target, threshold, has_step, master, follower, steady_lo,
+    steady_hi, period, figures, fast,
+):  # fmt: skip
+    """Every plant set through :func:`_run_sync`, in parallel, one at a time per thread (numba's
+    chunk size 1): each writes only its own rows, so which thread runs it changes no result."""
+    for b in nb.prange(pf.shape[0]):
+        _run_sync(
+            b, pf, pi, consts, seeds, src, ref, mode, reset, u_add, load, bits, latched, skew,
+            dac_lo, lsb, counted, step_from, target, threshold, has_step, master, follower,
+            steady_lo, steady_hi, period, figures, fast,
+        )  # fmt: skip
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SyncWindows:
+    """Where the figures of :func:`run_sync_figures` are read.
+
+    Attributes
+    ----------
+    counted : ndarray of bool, shape (n_ticks, 2)
+        Per tick and axis, whether it counts for the saturation share and (the follower's
+        column) the sync error's peak and RMS (the axis's task ticks).
+    step_from : int
+        First tick of the step response (the last tick before the master's reference moves).
+    target : float
+        The step's final value [counts].
+    threshold : float
+        Half-width of the settling band as a fraction of the step [1].
+    has_step : ndarray of bool, shape (2,)
+        Which axes get overshoot and settling time.
+    steady : tuple of int
+        ``[lo, hi)`` ticks of the steady window of the sync error.
+    """
+
+    counted: np.ndarray
+    step_from: int
+    target: float
+    threshold: float
+    has_step: np.ndarray
+    steady: tuple[int, int]
+
+
+def run_sync_figures(
+    pf: np.ndarray,
+    pi: np.ndarray,
+    consts: np.ndarray,
+    seeds: np.ndarray,
+    ref_source: np.ndarray,
+    inputs_arrays: tuple[np.ndarray, ...],
+    converter: tuple[int, bool, float, float, float],
+    windows: SyncWindows,
+    period_s: float,
+    threads: int | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The verification figures of every plant set of a two-axis batch (no traces).
+
+    Parameters
+    ----------
+    pf, pi : ndarray, shapes (n, 2, NROW), (n, 2, 2)
+        Plant rows and integer parameters per plant set and axis (as
+        :func:`servotune.sim.engine.prepare_batch` holds them); whole ticks of lag 0 or 1.
+    consts : ndarray of int64, shape (2, width)
+        The law constants of each axis (the same for every plant set), ``2·width`` at most
+        ``CONSTS_CAPACITY``.
+    seeds : ndarray of uint64, shape (n,)
+        Noise stream seeds.
+    ref_source : ndarray of int64, shape (2,)
+        ``-1`` for the scenario's reference, else the axis whose read is the reference.
+    inputs_arrays : tuple of ndarray
+        ref, mode, reset, u_add, load, each shape (n_ticks, 2).
+    converter : tuple
+        Counter bits, latched, read skew [s], D/A low end [V], LSB [V].
+    windows : SyncWindows
+    period_s : float
+        Tick period [s].
+    threads : int, optional
+        Threads (default numba's).
+
+    Returns
+    -------
+    figures : ndarray, shape (n, 2, N_FIGURES)
+        :data:`FIGURE_NAMES`.
+    fast : ndarray, shape (n, N_FAST)
+        :data:`N_FAST`.
+    """
+    n = pf.shape[0]
+    master = int(np.flatnonzero(ref_source < 0)[0])
+    follower = 1 - master
+    figures = np.zeros((n, 2, N_FIGURES))
+    fast = np.zeros((n, N_FAST))
+    if n == 0:
+        return figures, fast
+    old_threads = nb.get_num_threads()
+    if threads is not None:
+        nb.set_num_threads(max(1, min(int(threads), nb.config.NUMBA_NUM_THREADS)))
+    previous = nb.set_parallel_chunksize(1)
+    lo, hi = windows.steady
+    try:
+        call_compiled(
+            _kernel_sync,
+            pf,
+            pi,
+            np.ascontiguousarray(consts, dtype=np.int64),
+            seeds,
+            np.asarray(ref_source, dtype=np.int64),
+            *(np.ascontiguousarray(x) for x in inputs_arrays),
+            *converter,
+            np.ascontiguousarray(windows.counted, dtype=np.bool_),
+            int(windows.step_from),
+            float(windows.target),
+            float(windows.threshold),
+            np.ascontiguousarray(windows.has_step, dtype=np.bool_),
+            master,
+            follower,
+            int(lo),
+            int(hi),
+            float(period_s),
+            figures,
+            fast,
+        )
+    finally:
+        nb.set_parallel_chunksize(previous)
+        nb.set_num_threads(old_threads)
+    return figures, fast
