@@ -88,8 +88,9 @@ class Executor(Protocol):
         shared: Any = None,
         done: Callable[[int], None] | None = None,
     ) -> list[R]:
-        """``[fn(item, shared) for item in items]`` (``fn(item)`` if ``shared`` is None), in
-        input order.
+        """``[fn(item, shared=shared) for item in items]`` (``fn(item)`` if ``shared`` is
+        None), in input order: ``fn``'s second parameter must be named ``shared`` (a cluster
+        passes it by keyword).
 
         Parameters
         ----------
@@ -124,7 +125,7 @@ class InProcessExecutor:
         """See :meth:`Executor.map`."""
         out = []
         for i, item in enumerate(items):
-            out.append(fn(item) if shared is None else fn(item, shared))
+            out.append(fn(item) if shared is None else fn(item, shared=shared))
             if done is not None:
                 done(i + 1)
         return out
