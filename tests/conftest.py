@@ -61,3 +61,28 @@ def linear_one_axis(rig: st.Rig, compute_s: float = 0.0, **plant_changes: object
     return dataclasses.replace(
         r, axes=(ax,), timer=dataclasses.replace(r.timer, compute_s=compute_s)
     )
+
+
+@pytest.fixture(scope="session")
+def quick_workbench(tmp_path_factory):
+    """Factory ``make(name, tuning)``: a new folder holding a copy of the example rig
+    (``my-rig.toml``), ``tuning`` written for that copy's path (``t.json``, as ``tune
+    my-rig.toml`` records it) and the example spec with a 2-plant Monte Carlo
+    (``quick.spec.toml``); returns their paths under "dir", "rig", "tuning", "spec"."""
+    import shutil
+
+    from servotune.tuning import write_tuning
+
+    def make(name: str, tuning: st.Tuning) -> dict[str, Path]:
+        d = tmp_path_factory.mktemp(name)
+        rig = d / "my-rig.toml"
+        shutil.copyfile(EXAMPLE_RIG, rig)
+        path = d / "t.json"
+        write_tuning(dataclasses.replace(tuning, rig_path=rig.as_posix()), path)
+        spec = d / "quick.spec.toml"
+        text = EXAMPLE_RIG.with_name("pc-dual-servo.spec.toml").read_text()
+        assert "count = 64" in text
+        spec.write_text(text.replace("count = 64", "count = 2"))
+        return {"dir": d, "rig": rig, "tuning": path, "spec": spec}
+
+    return make

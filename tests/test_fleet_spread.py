@@ -11,7 +11,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import pickle
-import shutil
 from pathlib import Path
 
 import numpy as np
@@ -28,11 +27,9 @@ from servotune.fleet import (
     write_fleet_table,
 )
 from servotune.rig import Rig, load_rig
-from servotune.tuning import write_tuning
 
 ROOT = Path(__file__).resolve().parents[1]
 RIG = ROOT / "plants" / "pc-dual-servo.toml"
-SPEC = ROOT / "plants" / "pc-dual-servo.spec.toml"
 
 
 def _row(machine: str, date: str, gain: float, tau: float, *, axis: str = "slave",
@@ -167,18 +164,12 @@ def test_errors_are_one_line(rig, rows, axis, words) -> None:
 
 
 @pytest.fixture(scope="module")
-def bench(tmp_path_factory, default_tuning) -> dict[str, Path]:
+def bench(quick_workbench, default_tuning) -> dict[str, Path]:
     """The example rig's default tuning, a quick spec and a small fleet table of its slave."""
-    d = tmp_path_factory.mktemp("fleet_spread")
-    rig = d / "rig.toml"
-    shutil.copyfile(RIG, rig)
-    tuning = d / "t.json"
-    write_tuning(dataclasses.replace(default_tuning, rig_path=rig.as_posix()), tuning)
-    spec = d / "quick.spec.toml"
-    spec.write_text(SPEC.read_text().replace("count = 64", "count = 2"))
-    fleet = d / "fleet.parquet"
-    write_fleet_table(_fleet(), fleet)
-    return {"rig": rig, "tuning": tuning, "spec": spec, "fleet": fleet}
+    bench = quick_workbench("fleet_spread", default_tuning)
+    bench["fleet"] = bench["dir"] / "fleet.parquet"
+    write_fleet_table(_fleet(), bench["fleet"])
+    return bench
 
 
 def test_verify_plants_from_a_fleet(bench, capsys) -> None:

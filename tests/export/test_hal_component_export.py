@@ -9,7 +9,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import re
-import shutil
 from pathlib import Path
 
 import pytest
@@ -20,21 +19,13 @@ from servotune.plant import plant_row
 from servotune.rig import EXAMPLE_RIG_PATH, load_rig
 from servotune.tuning import write_tuning
 
-SPEC = EXAMPLE_RIG_PATH.with_name("pc-dual-servo.spec.toml")
-
 
 @pytest.fixture(scope="module")
-def verified(tmp_path_factory, default_tuning) -> dict[str, Path]:
+def verified(quick_workbench, default_tuning) -> dict[str, Path]:
     """The example rig's default tuning, verified on a copy of the rig (quick Monte Carlo)."""
-    d = tmp_path_factory.mktemp("hal_export")
-    rig = d / "my-rig.toml"
-    shutil.copyfile(EXAMPLE_RIG_PATH, rig)
-    tuning = d / "t.json"
-    write_tuning(dataclasses.replace(default_tuning, rig_path=rig.as_posix()), tuning)
-    spec = d / "quick.spec.toml"
-    spec.write_text(SPEC.read_text().replace("count = 64", "count = 2"))
-    assert main(["-q", "verify", str(tuning), "--spec", str(spec)]) == 0
-    return {"dir": d, "rig": rig, "tuning": tuning}
+    bench = quick_workbench("hal_export", default_tuning)
+    assert main(["-q", "verify", str(bench["tuning"]), "--spec", str(bench["spec"])]) == 0
+    return bench
 
 
 def test_the_component_carries_the_verified_tables_digest(verified, capsys) -> None:
