@@ -21,7 +21,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Generic, NamedTuple, TypeVar
 
 from servotune._version import __version__
 from servotune.digest import DIGEST_FIELD, bytes_sha256, document_sha256
@@ -45,6 +45,7 @@ from servotune.verify.spec import spec_from_bytes
 
 __all__ = [
     "RECORD_SCHEMA",
+    "RecordedVerification",
     "SourceFile",
     "Verified",
     "candidate_paths",
@@ -55,6 +56,7 @@ __all__ = [
     "matching_file",
     "read_record",
     "record_path",
+    "recorded_verification",
     "rig_for_tuning",
     "trust_record",
     "verification_record",
@@ -66,6 +68,8 @@ RECORD_SCHEMA = "servotune.verify/3"
 """/3: the Monte-Carlo summary holds the worst plant sets and the sensitivity table, and a
 run of more than ``LISTED_VARIANTS`` plant sets lists only the ones it names (issue 22)."""
 _OLD_RECORD_SCHEMAS = ("servotune.verify/1", "servotune.verify/2")
+
+_V = TypeVar("_V")
 
 
 @dataclass(frozen=True, slots=True)
@@ -99,6 +103,26 @@ class Verified:
     rig: Rig
     rig_file: SourceFile
     record: dict[str, Any] | None
+
+
+class RecordedVerification(NamedTuple, Generic[_V]):
+    """What a ``verify`` run gives (:func:`verify_files`, and each architecture's): the
+    verification, its record and where that was written; it unpacks as
+    ``verification, record, path``.
+
+    Attributes
+    ----------
+    verification
+        The verdict (:class:`~servotune.verify.result.Verification`, or the architecture's).
+    record : dict
+        Its record (:func:`trust_record`).
+    path : Path or None
+        Where the record was written (None if ``write`` is false).
+    """
+
+    verification: _V
+    record: dict[str, Any]
+    path: Path | None
 
 
 def record_path(tuning_path: str | Path) -> Path:
@@ -340,6 +364,20 @@ def write_record(
     return path
 
 
+def recorded_verification(
+    verification: _V,
+    record: dict[str, Any],
+    path: str | Path,
+    sha256: str | None = None,
+    *,
+    write: bool = True,
+) -> RecordedVerification[_V]:
+    """``verification`` with its ``record``, which (``write``) is written next to the verified
+    file ``path`` (:func:`write_record`; ``sha256``: that file's, as verified)."""
+    written = write_record(record, path, sha256) if write else None
+    return RecordedVerification(verification, record, written)
+
+
 def verify_files(
     tuning_path: str | Path,
     spec_path: str | Path,
@@ -352,7 +390,7 @@ def verify_files(
     scheduler: str | None = None,
     workers: int | None = None,
     distribution: Callable[[Rig], PlantDistribution] | None = None,
-) -> tuple[Verification, dict[str, Any], Path | None]:
+) -> RecordedVerification[Verification]:
     """What ``servotune verify TUNING --spec SPEC [--rig RIG]`` runs.
 
     Reads each file's bytes once, parses and hashes those bytes, verifies, builds the record
@@ -366,10 +404,8 @@ def verify_files(
 
     Returns
     -------
-    verification : Verification
-    record : dict
-    path : Path or None
-        Where the record was written (None if ``write`` is false).
+    RecordedVerification
+        The :class:`~servotune.verify.result.Verification`, its record and its path.
 
     Raises
     ------
@@ -390,8 +426,7 @@ def verify_files(
         result = verify(tuning, rig, spec, seed=seed, progress=progress, executor=ex,
                         distribution=dist)  # fmt: skip
     record = verification_record(result, tuning=tuning_file, rig=rig_file, spec=spec_file)
-    path = write_record(record, tuning_path, tuning_file.sha256) if write else None
-    return result, record, path
+    return recorded_verification(result, record, tuning_path, tuning_file.sha256, write=write)
 
 
 def margins_files(

@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from servotune.arch.bounds import MAX_ACCEL_CPS2, MAX_GAIN, MAX_SECONDS, MAX_SPEED_CPS
 from servotune.errors import ConfigError, RigError, SpecError
 from servotune.laws.axis import AxisController
 from servotune.laws.pi import PIGains
@@ -68,14 +69,10 @@ MIN_CYCLE_S = 1e-6
 """Shortest bus cycle [s]."""
 MAX_LATENCY_CYCLES = 1000
 """Largest feedback latency [cycles]."""
-MAX_SECONDS = 3600.0
-"""Longest run [s] (also at most 5e6 cycles, and at least 100)."""
-MAX_GAIN = 1e6
-"""Largest drive or sync gain (any unit)."""
+# MAX_SECONDS (a run is also at most 5e6 cycles, and at least 100), MAX_GAIN, MAX_SPEED_CPS
+# and MAX_ACCEL_CPS2 are every architecture's (servotune.arch.bounds)
 MAX_COUNTS = 2**31 - 1
 """Largest count threshold or move distance [counts]."""
-MAX_SPEED_CPS = 1e9
-"""Largest speed [counts/s]; acceleration up to 1e12 counts/s²."""
 MAX_BEAM = 1e3
 """Largest beam stiffness [V/count] or damping [V·s/count]."""
 MAX_LOAD_V = 1000.0
@@ -338,7 +335,7 @@ class GantryMove:
         check_number("speed_cps", self.speed_cps, "counts/s", strict=True, hi=MAX_SPEED_CPS,
                      error=ConfigError)  # fmt: skip
         check_number("accel_cps2", self.accel_cps2, "counts/s²", strict=True,
-                     hi=1e3 * MAX_SPEED_CPS, error=ConfigError)  # fmt: skip
+                     hi=MAX_ACCEL_CPS2, error=ConfigError)  # fmt: skip
         check_number("start_s", self.start_s, "s", hi=MAX_SECONDS, error=ConfigError)
 
 

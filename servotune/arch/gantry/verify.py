@@ -50,13 +50,14 @@ from servotune.io.rig import build_section
 from servotune.laws.axis import FLAG_SYNC_TRIP
 from servotune.validate import check_integer, check_keys, check_number
 from servotune.verify.record import (
+    RecordedVerification,
     SourceFile,
     candidate_paths,
     check_record,
     matching_file,
     read_record,
+    recorded_verification,
     trust_record,
-    write_record,
 )
 
 __all__ = [
@@ -406,9 +407,10 @@ def verify_gantry_files(
     montecarlo: int | None = None,
     progress: Callable[[str], None] | None = None,
     write: bool = True,
-) -> tuple[GantryVerification, dict[str, Any], Path | None]:
+) -> RecordedVerification[GantryVerification]:
     """What ``servotune verify GANTRY-TUNING --spec SPEC [--config CONFIG]`` runs (see the
-    module docstring); ``montecarlo`` overrides the spec's count.
+    module docstring); ``montecarlo`` overrides the spec's count. Returns the
+    :class:`GantryVerification`, its record and where that was written.
 
     Raises
     ------
@@ -429,8 +431,7 @@ def verify_gantry_files(
                           summary=summary, result={"verification": result.to_dict()},
                           files={"gantry": gantry_file, "rig": rig_file, "spec": spec_file,
                                  "tuning": tuning_file})  # fmt: skip
-    path = write_record(record, tuning_path, tuning_file.sha256) if write else None
-    return result, record, path
+    return recorded_verification(result, record, tuning_path, tuning_file.sha256, write=write)
 
 
 def load_gantry_for_export(

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from servotune.arch.bounds import MAX_GAIN, MAX_SECONDS
+from servotune.arch.bounds import MAX_SPEED_CPS as MAX_FEED_CPS
 from servotune.errors import ConfigError
 from servotune.validate import check_integer, check_number, show_value
 
@@ -27,15 +29,11 @@ MAX_CLOCK_PPM = 10_000.0
 
 # --- bounds of the configuration's fields ---------------------------------------------------
 # (a typo must not size the simulation's arrays); every field is checked with
-# servotune.validate's check_number / check_integer, raising ConfigError.
+# servotune.validate's check_number / check_integer, raising ConfigError. MAX_SECONDS (dwell,
+# settle, resync interval), MAX_GAIN (PI gains) and MAX_FEED_CPS (the feed: MAX_SPEED_CPS;
+# accelerations up to MAX_ACCEL_CPS2) are every architecture's (servotune.arch.bounds).
 MAX_COUNTS = 1e12
 """Largest position, centre or distance magnitude [counts]."""
-MAX_FEED_CPS = 1e9
-"""Largest feed [counts/s]; accelerations up to 1e12 counts/s²."""
-MAX_SECONDS = 3600.0
-"""Longest dwell, settle or resync interval [s]."""
-MAX_GAIN = 1e6
-"""Largest PI gain [codes/count, codes/(count·s)]."""
 
 
 # --- bus, clock, slave CPUs ----------------------------------------------------------------

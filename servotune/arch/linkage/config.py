@@ -11,15 +11,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from servotune.arch.linkage.bus import (
-    MAX_COUNTS,
-    MAX_FEED_CPS,
-    MAX_GAIN,
-    MAX_SECONDS,
-    Bus,
-    Clock,
-    SlaveCpu,
-)
+from servotune.arch.bounds import MAX_ACCEL_CPS2, MAX_GAIN, MAX_SECONDS, MAX_SPEED_CPS
+from servotune.arch.linkage.bus import MAX_COUNTS, Bus, Clock, SlaveCpu
 from servotune.errors import ConfigError, RigError
 from servotune.io.files import parse_toml_as, read_bytes
 from servotune.laws.pi import PIGains
@@ -160,7 +153,7 @@ class Move:
             return
         if self.dwell_s is not None:
             raise ConfigError(f"dwell_s is for dwells only, got it on a {self.kind}")
-        check_number("feed_cps", self.feed_cps, "counts/s", strict=True, hi=MAX_FEED_CPS,
+        check_number("feed_cps", self.feed_cps, "counts/s", strict=True, hi=MAX_SPEED_CPS,
                      error=ConfigError)  # fmt: skip
         if not isinstance(self.to, Mapping):
             raise ConfigError(
@@ -231,9 +224,9 @@ class Toolpath:
 
     def __post_init__(self) -> None:
         check_number("max_feed_cps", self.max_feed_cps, "counts/s", strict=True,
-                     hi=MAX_FEED_CPS, error=ConfigError)  # fmt: skip
+                     hi=MAX_SPEED_CPS, error=ConfigError)  # fmt: skip
         check_number("max_accel_cps2", self.max_accel_cps2, "counts/s²", strict=True,
-                     hi=1e3 * MAX_FEED_CPS, error=ConfigError)  # fmt: skip
+                     hi=MAX_ACCEL_CPS2, error=ConfigError)  # fmt: skip
         if not self.moves:
             raise ConfigError("move: the path needs at least one [[path.move]]")
 

@@ -59,12 +59,13 @@ from servotune.verify.margins import (
     loop_model,
 )
 from servotune.verify.record import (
+    RecordedVerification,
     SourceFile,
     check_record,
     matching_file,
     read_record,
+    recorded_verification,
     trust_record,
-    write_record,
 )
 
 __all__ = [
@@ -367,7 +368,7 @@ def verify_plan_files(
     *,
     write: bool = True,
     config_path: str | Path | None = None,
-) -> tuple[LinkageVerification, dict[str, Any], Path | None]:
+) -> RecordedVerification[LinkageVerification]:
     """What ``servotune verify PLAN --spec SPEC`` runs for a linkage plan.
 
     Reads the plan, its config (``config_path``, else as the module docstring says), the
@@ -377,10 +378,8 @@ def verify_plan_files(
 
     Returns
     -------
-    verification : LinkageVerification
-    record : dict
-    path : Path or None
-        Where the record was written (None if ``write`` is false).
+    RecordedVerification
+        The :class:`LinkageVerification`, its record and its path.
 
     Raises
     ------
@@ -421,8 +420,7 @@ def verify_plan_files(
                           files={"config": config_file, "plan": plan_file, "rig": rig_file,
                                  "spec": spec_file},
                           result={"verification": result.to_dict()})  # fmt: skip
-    path = write_record(record, plan_path) if write else None
-    return result, record, path
+    return recorded_verification(result, record, plan_path, write=write)
 
 
 def load_plan_for_export(
