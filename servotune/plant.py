@@ -229,7 +229,7 @@ def _target_speed(
     return vinf
 
 
-@jit
+@jit(inline="always")
 def advance(
     p: float,
     v: float,

@@ -34,7 +34,7 @@ from servotune.laws.axis import FAULT_MASK, FLAG_SATURATED, N_STATE, axis_read
 from servotune.plant import NROW, R_NOISE, R_OFFSET, advance_tick
 from servotune.sim.kernel import _I_INIT, _I_LAG
 from servotune.sim.lean import CONSTS_CAPACITY, _frame_buffer
-from servotune.sim.tick import draw_noise, latch, splitmix, write_axis
+from servotune.sim.tick import draw_noise, draw_uniforms, latch, write_axis
 
 __all__ = [
     "FIGURE_NAMES",
@@ -158,7 +158,7 @@ _NZ_MARGIN = 1e-5  # [counts] per (1 + sigma), plus 1e-15·|q| for the sum's rou
 _LN2 = 0.6931471805599453
 _LN1_5 = 0.4054651081081644
 _TWO_PI = 6.283185307179586
-_TWO_GOLDEN = np.uint64(0x3C6EF372FE94F82A)  # 2 · 0x9E3779B97F4A7C15 (splitmix64's gamma)
+_TWO_GOLDEN = np.uint64(0x3C6EF372FE94F82A)  # 2 · 0x9E3779B97F4A7C15: the two outputs of a draw
 
 
 @intrinsic
@@ -217,29 +217,19 @@ def _approx_normal(u1: float, u2: float) -> float:
     return s * ((1.0 - 2.0 * float(j & 1)) * c)
 
 
-@jit(inline="always")
-def _approx_noise(rng: np.uint64, sigma: float) -> tuple[np.uint64, float]:
-    """The next stream state and ``sigma`` times :func:`_approx_normal` of the draw that
-    :func:`servotune.sim.tick.normal` makes from ``rng``."""
-    rng, z1 = splitmix(rng)
-    rng, z2 = splitmix(rng)
-    u1 = (float(np.int64(z1 >> np.uint64(11))) + 0.5) * (1.0 / 9007199254740992.0)
-    u2 = float(np.int64(z2 >> np.uint64(11))) * (1.0 / 9007199254740992.0)
-    return rng, _approx_normal(u1, u2) * sigma
+@jit(fastmath={"contract"}, error_model="numpy")
+def _approx_draws(seed: np.uint64, n: int, out: np.ndarray) -> None:
+    """The stream's first ``n`` normal draws approximated (:func:`_approx_normal`) into ``out``.
 
-
-@jit(fastmath={"contract"})
-def _approx_draws(seed: np.uint64, sig0: float, sig1: float, nt: int, out: np.ndarray) -> None:
-    """Every tick's noise of both axes approximated (:func:`_approx_noise`), in stream order
-    (tick by tick, axis 0 first, an axis without noise drawing none), into ``out[2·k + a]``:
-    a loop of independent draws, with fused multiply-adds allowed (they change only the
-    approximation's last bits)."""
-    rng = seed
-    for k in range(nt):
-        if sig0 > 0.0:
-            rng, out[2 * k] = _approx_noise(rng, sig0)
-        if sig1 > 0.0:
-            rng, out[2 * k + 1] = _approx_noise(rng, sig1)
+    Each draw's uniforms come straight from its place in the stream
+    (:func:`servotune.sim.tick.draw_uniforms`), so the loop has no branch and no carried chain
+    and the compiler runs several draws at a time in vector registers (numpy's error model: no
+    division-by-zero check, whose branch would stop that; ``m + 1.5`` is never 0); fused
+    multiply-adds are allowed (they change only the approximation's last bits).
+    """
+    for d in range(n):
+        u1, u2 = draw_uniforms(seed, d)
+        out[d] = _approx_normal(u1, u2)
 
 
 @jit(inline="always")
@@ -328,16 +318,19 @@ def _run_sync(
     speed_best = 0.0
     speed_k = -1
     speed_a = -1
-    # the noise draws approximated ahead, in stream order (independent: no chain to wait on)
-    nzb = np.empty(2 * nt)
-    _approx_draws(seeds[b], rows[0, R_NOISE], rows[1, R_NOISE], nt, nzb)
+    # the noise draws approximated ahead, in stream order: tick by tick, axis 0 first, an axis
+    # without noise drawing none (``per_tick`` draws a tick)
+    per_tick = (1 if rows[0, R_NOISE] > 0.0 else 0) + (1 if rows[1, R_NOISE] > 0.0 else 0)
+    nzb = np.empty(per_tick * nt)
+    _approx_draws(seeds[b], per_tick * nt, nzb)
     rng = seeds[b]
     for k in range(nt):
         # 1-2. sample and unwrap, every axis (noise drawn in axis order)
         for a in range(2):
             sigma = rows[a, R_NOISE]
             if sigma > 0.0:
-                raw = _latch_noisy(rng, sigma, nzb[2 * k + a], pos[a], spd[a], pi[b, a, _I_INIT],
+                d = per_tick * k + (a if per_tick == 2 else 0)
+                raw = _latch_noisy(rng, sigma, nzb[d] * sigma, pos[a], spd[a], pi[b, a, _I_INIT],
                                    mask, latched, nbytes, skew)  # fmt: skip
                 rng += _TWO_GOLDEN  # the two splitmix64 steps of the draw
             else:

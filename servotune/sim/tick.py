@@ -42,10 +42,12 @@ __all__ = [
     "advance_axis",
     "dac_volts",
     "draw_noise",
+    "draw_uniforms",
     "finish",
     "held",
     "hold",
     "latch",
+    "mix64",
     "normal",
     "read_axis",
     "splitmix",
@@ -60,14 +62,28 @@ _MIX1 = np.uint64(0xBF58476D1CE4E5B9)
 _MIX2 = np.uint64(0x94D049BB133111EB)
 
 
+@jit(inline="always")
+def mix64(z: np.uint64) -> np.uint64:
+    """splitmix64's output function of a state (the stream's ``i``-th output is
+    ``mix64(seed + i·0x9E3779B97F4A7C15)``, so any draw is reached without the ones before)."""
+    z = (z ^ (z >> np.uint64(30))) * _MIX1
+    z = (z ^ (z >> np.uint64(27))) * _MIX2
+    return z ^ (z >> np.uint64(31))
+
+
 @jit
 def splitmix(state: np.uint64) -> tuple[np.uint64, np.uint64]:
     """The next state and 64-bit output of a splitmix64 stream."""
     state = state + _GOLDEN
-    z = state
-    z = (z ^ (z >> np.uint64(30))) * _MIX1
-    z = (z ^ (z >> np.uint64(27))) * _MIX2
-    return state, z ^ (z >> np.uint64(31))
+    return state, mix64(state)
+
+
+@jit(inline="always")
+def _unit_uniforms(z1: np.uint64, z2: np.uint64) -> tuple[float, float]:
+    """Box-Muller's uniforms from two 64-bit outputs: ``u1`` in (0, 1), ``u2`` in [0, 1)."""
+    u1 = (float(np.int64(z1 >> np.uint64(11))) + 0.5) * (1.0 / 9007199254740992.0)
+    u2 = float(np.int64(z2 >> np.uint64(11))) * (1.0 / 9007199254740992.0)
+    return u1, u2
 
 
 @jit
@@ -75,9 +91,17 @@ def normal(state: np.uint64) -> tuple[np.uint64, float]:
     """A standard normal draw (Box-Muller on two splitmix64 outputs) and the next state."""
     state, z1 = splitmix(state)
     state, z2 = splitmix(state)
-    u1 = (float(z1 >> np.uint64(11)) + 0.5) * (1.0 / 9007199254740992.0)
-    u2 = float(z2 >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+    u1, u2 = _unit_uniforms(z1, z2)
     return state, math.sqrt(-2.0 * math.log(u1)) * math.cos(2.0 * math.pi * u2)
+
+
+@jit(inline="always")
+def draw_uniforms(seed: np.uint64, d: int) -> tuple[float, float]:
+    """The uniforms of the ``d``-th :func:`normal` draw of the stream seeded ``seed``, reached
+    directly (its outputs ``2d + 1`` and ``2d + 2``): draws computed independently, e.g. several
+    at a time in vector registers."""
+    s1 = seed + np.uint64(2 * d + 1) * _GOLDEN
+    return _unit_uniforms(mix64(s1), mix64(s1 + _GOLDEN))
 
 
 @jit(inline="always")

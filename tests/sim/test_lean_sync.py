@@ -4,6 +4,8 @@
   path's (:func:`servotune.verify.run._evaluate` on the general kernel's traces) for the
   nominal plants and 64 noisy plant sets of the example spec's spread, ``sync`` and ``track``;
   and ``verify`` gives the same JSON with the lean kernel on and off;
+- with noise on both axes, one or none (the draws' places in the stream);
+- the approximated draws stay far inside the margin that makes them safe;
 - :func:`pairwise_sum` has ``numpy.add.reduce``'s bits;
 - :func:`servotune.plant.fill_plant_rows` (through :func:`plant_row` and in bulk) equals a
   plain-python reference written from the definitions in ``servotune/plant.py``;
@@ -16,13 +18,15 @@ import dataclasses
 import json
 import math
 
+import numba
 import numpy as np
 import pytest
 
 from servotune.plant import NPARAM, NROW, Plant, fill_plant_rows, plant_row
 from servotune.rig import EXAMPLE_RIG_PATH, load_rig
 from servotune.sim.engine import prepare_batch, run_batch
-from servotune.sim.lean_sync import N_FAST, pairwise_sum
+from servotune.sim.lean_sync import _NZ_MARGIN, N_FAST, _approx_draws, pairwise_sum
+from servotune.sim.tick import normal
 from servotune.verify import load_spec, verify
 from servotune.verify import run as vrun
 from servotune.verify.montecarlo import SpecSpread
@@ -84,9 +88,28 @@ def _assert_bits_equal(lean: np.ndarray, traced: np.ndarray, what: str) -> None:
 TUNINGS = ["quick_tuning", "default_tuning"]  # one failing the spec's limits, one passing them
 
 
-@pytest.mark.parametrize("tuning", TUNINGS)
-@pytest.mark.parametrize("scenario", ["sync", "track"])
-def test_lean_figures_equal_traced(request, rig, spec, scenario, tuning) -> None:
+def _noisy_only(rig, noisy: str):
+    """The rig with encoder noise on the axes ``noisy`` names (``both``, ``master``, ``slave``,
+    ``none``): the lean kernel draws each tick's noise by its place in the stream, which
+    depends on which axes draw."""
+    if noisy == "both":
+        return rig
+    keep = {"master": {"master"}, "slave": {"slave"}, "none": set()}[noisy]
+    return dataclasses.replace(rig, axes=tuple(
+        a if a.name in keep else dataclasses.replace(a, plant=dataclasses.replace(
+            a.plant, noise_counts=0.0)) for a in rig.axes
+    ))  # fmt: skip
+
+
+CASES = [(sc, t, "both") for sc in ("sync", "track") for t in TUNINGS] + [
+    ("sync", "default_tuning", noisy) for noisy in ("master", "slave", "none")
+]
+
+
+@pytest.mark.parametrize(("scenario", "tuning", "noisy"), CASES)
+def test_lean_figures_equal_traced(request, rig, spec, scenario, tuning, noisy) -> None:
+    rig = _noisy_only(rig, noisy)
+    assert sum(a.plant.noise_counts > 0 for a in rig.axes) == {"both": 2, "none": 0}.get(noisy, 1)
     shared = _shared(request.getfixturevalue(tuning), rig, spec, (scenario,))
     chunk = _chunk(shared.seed, N_DRAWS)
     sc, inputs = shared.runs[0]
@@ -334,3 +357,29 @@ def test_refused_like_traced(quick_tuning, rig, spec, monkeypatch, axis, gain_sp
     assert errors[True] == errors[False]
     # the lean kernel ran (and declined) only where the plants were valid
     assert lean_results == ([None] if gain_spread == 0.0 else [])
+
+
+@numba.njit
+def _exact_stream(seed, n, out):  # fmt: skip
+    """The stream's draws one after the other, as the general kernel makes them (the state a
+    uint64 throughout: from Python it would come back as an int and lose its type)."""
+    state = seed
+    for d in range(n):
+        state, out[d] = normal(state)
+
+
+def test_approximate_draws_within_the_margin() -> None:
+    """The lean kernel takes ``floor(q + noise)`` on approximated draws only where the exact
+    draw cannot be on the other side of an integer (``_NZ_MARGIN`` per unit of sigma): the
+    approximation must stay far inside that margin. Measured against the exact draws
+    (:func:`servotune.sim.tick.normal`, libm's log and cos) of a stream, draw by draw."""
+    n = 200_000
+    approx = np.empty(n)
+    _approx_draws(np.uint64(0x5EED), n, approx)
+    exact = np.empty(n)
+    _exact_stream(np.uint64(0x5EED), n, exact)
+    err = np.abs(approx - exact)
+    assert err.max() < 1e-7 < _NZ_MARGIN / 50, err.max()
+    # the draws are the stream's, in its order (not merely normal-looking numbers)
+    assert np.corrcoef(approx, exact)[0, 1] > 0.999_999
+    assert abs(exact.mean()) < 0.01 and abs(exact.std() - 1.0) < 0.01
