@@ -40,12 +40,11 @@ import re
 from collections.abc import Mapping
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, Unpack
 
 from servotune.errors import ExportError
-from servotune.export.json import SCHEMA, Summary, _write_export, tables_document
+from servotune.export.json import SCHEMA, TablesOptions, _write_export, tables_document
 from servotune.laws.fuzzy_pid import TABLE_NAMES
-from servotune.rig import Rig
 from servotune.tuning import Tuning
 
 __all__ = [
@@ -304,27 +303,14 @@ def _header(doc: Mapping[str, Any]) -> str:
     return "\n".join(out)
 
 
-def to_string(
-    tuning: Tuning,
-    *,
-    rig: Rig | None = None,
-    verification: Mapping[str, Any] | Summary | None = None,
-    unverified: bool = False,
-) -> str:
+def to_string(tuning: Tuning, **options: Unpack[TablesOptions]) -> str:
     """The text of ``servotune_tables.h`` (arguments as
     :func:`servotune.export.json.tables_document`)."""
-    return _header(
-        tables_document(tuning, rig=rig, verification=verification, unverified=unverified)
-    )
+    return _header(tables_document(tuning, **options))
 
 
 def write_c(
-    tuning: Tuning,
-    out_dir: str | Path,
-    *,
-    rig: Rig | None = None,
-    verification: Mapping[str, Any] | Summary | None = None,
-    unverified: bool = False,
+    tuning: Tuning, out_dir: str | Path, **options: Unpack[TablesOptions]
 ) -> tuple[Path, ...]:
     """Write ``servotune_tables.h``, ``servotune_rt.c`` and ``servotune_rt.h`` into ``out_dir``.
 
@@ -347,8 +333,7 @@ def write_c(
         As :func:`~servotune.export.json.tables_document`, or if ``out_dir`` is not a
         directory. Nothing is written then.
     """
-    header = to_string(tuning, rig=rig, verification=verification, unverified=unverified)
-    return write_c_files(out_dir, {HEADER_NAME: header}, RUNTIME_FILES)
+    return write_c_files(out_dir, {HEADER_NAME: to_string(tuning, **options)}, RUNTIME_FILES)
 
 
 def write_c_files(

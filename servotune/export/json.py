@@ -76,7 +76,7 @@ import re
 import zlib
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Protocol, TypedDict, Unpack
 
 import numpy as np
 
@@ -106,6 +106,7 @@ from servotune.validate import check_keys, show_value
 __all__ = [
     "SCHEMA",
     "Summary",
+    "TablesOptions",
     "check_tables",
     "constants_crc32",
     "controllers_from_tables",
@@ -135,10 +136,8 @@ def table_crc32(q: np.ndarray | Sequence[Sequence[int]], f: int) -> int:
 
     Parameters
     ----------
-    q : array_like of int, shape (2n+1, 2n+1)
-        Entries, row ``E = −n…n``, column ``EC = −n…n``; each must fit int16.
-    f : int
-        The table's fraction bits.
+    q, f
+        The table's entries and fraction bits, as :func:`~.layout.table_bytes` takes them.
 
     Returns
     -------
@@ -251,6 +250,16 @@ def _recorded_sha(record: Mapping[str, Any], kind: str) -> str | None:
     """A verification record's SHA-256 of one of its files (``files.<kind>.sha256``), or None."""
     entry = record.get("files", {}).get(kind) if isinstance(record.get("files"), dict) else None
     return entry.get("sha256") if isinstance(entry, dict) else None
+
+
+class TablesOptions(TypedDict, total=False):
+    """The keywords of :func:`tables_document`, which every tables export passes on to it
+    (:func:`to_string`, :func:`to_file`, :func:`servotune.export.c.to_string`,
+    :func:`~servotune.export.c.write_c`): ``rig``, ``verification`` and ``unverified``."""
+
+    rig: Rig | None
+    verification: Mapping[str, Any] | Summary | None
+    unverified: bool
 
 
 def tables_document(
@@ -372,14 +381,9 @@ def _dumps(doc: Mapping[str, Any]) -> str:
     return text + "\n"
 
 
-def to_string(
-    tuning: Tuning,
-    *,
-    rig: Rig | None = None,
-    verification: Mapping[str, Any] | Summary | None = None,
-    unverified: bool = False,
-) -> str:
-    """The tables export as JSON text (deterministic bytes; see :func:`tables_document`).
+def to_string(tuning: Tuning, **options: Unpack[TablesOptions]) -> str:
+    """The tables export as JSON text (deterministic bytes; arguments as
+    :func:`tables_document`).
 
     Examples
     --------
@@ -387,19 +391,10 @@ def to_string(
     >>> load_tables(text)["schema"]  # doctest: +SKIP
     'servotune.tables/2'
     """
-    return _dumps(
-        tables_document(tuning, rig=rig, verification=verification, unverified=unverified)
-    )
+    return _dumps(tables_document(tuning, **options))
 
 
-def to_file(
-    tuning: Tuning,
-    path: str | Path,
-    *,
-    rig: Rig | None = None,
-    verification: Mapping[str, Any] | Summary | None = None,
-    unverified: bool = False,
-) -> None:
+def to_file(tuning: Tuning, path: str | Path, **options: Unpack[TablesOptions]) -> None:
     """Write the tables export atomically (temp file, then rename); arguments as
     :func:`tables_document`.
 
@@ -408,9 +403,7 @@ def to_file(
     ExportError
         As :func:`tables_document`, or if the file cannot be written (nothing is written then).
     """
-    _write_export(
-        path, to_string(tuning, rig=rig, verification=verification, unverified=unverified)
-    )
+    _write_export(path, to_string(tuning, **options))
 
 
 def _write_export(path: str | Path, text: str) -> None:

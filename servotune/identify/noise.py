@@ -100,6 +100,43 @@ def _short_head(
 
 
 @jit
+def _short_output(
+    coef: tuple[float, ...],
+    nb: int,
+    na: int,
+    u0: float,
+    u1: float,
+    u2: float,
+    u3: float,
+    p1: float,
+    p2: float,
+    p3: float,
+) -> float:
+    """One output of a short filter from its registers, summed as :func:`_lfilter_rows` sums it.
+
+    ``coef`` is ``(b0, b1, b2, b3, a1, a2, a3)``; ``u0 … u3`` the input now and the three
+    before, ``p1 … p3`` the three outputs before. Only the terms of the ``nb`` and ``na``
+    coefficients there are enter the sum, in the plain loop's order. Left to LLVM to inline
+    (``inline="always"`` makes the two-row loop slower).
+    """
+    acc = 0.0
+    acc += coef[0] * u0
+    if nb > 1:
+        acc += coef[1] * u1
+    if nb > 2:
+        acc += coef[2] * u2
+    if nb > 3:
+        acc += coef[3] * u3
+    if na > 1:
+        acc -= coef[4] * p1
+    if na > 2:
+        acc -= coef[5] * p2
+    if na > 3:
+        acc -= coef[6] * p3
+    return acc
+
+
+@jit
 def _short_rows(
     b: np.ndarray,
     a: np.ndarray,
@@ -123,13 +160,8 @@ def _short_rows(
     head = min(_SHORT, n)
     xh = np.zeros(_SHORT)
     raw = np.zeros(_SHORT)
-    b0 = b[0]
-    b1 = b[1] if nb > 1 else 0.0
-    b2 = b[2] if nb > 2 else 0.0
-    b3 = b[3] if nb > 3 else 0.0
-    a1 = a[1] if na > 1 else 0.0
-    a2 = a[2] if na > 2 else 0.0
-    a3 = a[3] if na > 3 else 0.0
+    coef = (b[0], b[1] if nb > 1 else 0.0, b[2] if nb > 2 else 0.0, b[3] if nb > 3 else 0.0,
+            a[1] if na > 1 else 0.0, a[2] if na > 2 else 0.0, a[3] if na > 3 else 0.0)  # fmt: skip
     last = _SHORT - 1  # the registers' start: the head's last samples (used only when n > head)
     for r in range(0, rows - 1, 2):
         xp, yp, xq, yq = x[r], y[r], x[r + 1], y[r + 1]
@@ -143,28 +175,8 @@ def _short_rows(
         for k in range(head, n):
             u0 = (xp[k] - sp) if fused else xp[k]
             v0 = (xq[k] - sq) if fused else xq[k]
-            acc = 0.0
-            bcc = 0.0
-            acc += b0 * u0
-            bcc += b0 * v0
-            if nb > 1:
-                acc += b1 * u1
-                bcc += b1 * v1
-            if nb > 2:
-                acc += b2 * u2
-                bcc += b2 * v2
-            if nb > 3:
-                acc += b3 * u3
-                bcc += b3 * v3
-            if na > 1:
-                acc -= a1 * p1
-                bcc -= a1 * q1
-            if na > 2:
-                acc -= a2 * p2
-                bcc -= a2 * q2
-            if na > 3:
-                acc -= a3 * p3
-                bcc -= a3 * q3
+            acc = _short_output(coef, nb, na, u0, u1, u2, u3, p1, p2, p3)
+            bcc = _short_output(coef, nb, na, v0, v1, v2, v3, q1, q2, q3)
             yp[k] = (acc + dp) if fused else acc
             yq[k] = (bcc + dq) if fused else bcc
             u3, u2, u1 = u2, u1, u0
@@ -179,20 +191,7 @@ def _short_rows(
         p1, p2, p3 = raw[last], raw[last - 1], raw[last - 2]
         for k in range(head, n):
             u0 = (xp[k] - sp) if fused else xp[k]
-            acc = 0.0
-            acc += b0 * u0
-            if nb > 1:
-                acc += b1 * u1
-            if nb > 2:
-                acc += b2 * u2
-            if nb > 3:
-                acc += b3 * u3
-            if na > 1:
-                acc -= a1 * p1
-            if na > 2:
-                acc -= a2 * p2
-            if na > 3:
-                acc -= a3 * p3
+            acc = _short_output(coef, nb, na, u0, u1, u2, u3, p1, p2, p3)
             yp[k] = (acc + dp) if fused else acc
             u3, u2, u1 = u2, u1, u0
             p3, p2, p1 = p2, p1, acc

@@ -18,7 +18,7 @@ the example rig with an AR(1) load, issue 17) — more data does not help. Use `
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NotRequired, TypedDict, Unpack
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -26,7 +26,7 @@ from scipy.optimize import least_squares
 from servotune.identify import model
 from servotune.identify.noise import NoiseModel, fit_noise_model
 
-__all__ = ["OEFit", "estimate_oe", "oe_parameters"]
+__all__ = ["OEFit", "OEOptions", "estimate_oe", "oe_parameters"]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -143,22 +143,23 @@ def estimate_oe(
                  sensitivities=jac.T, simulated=sim, nfev=int(sol.nfev))  # fmt: skip
 
 
+class OEOptions(TypedDict):
+    """The keywords of :func:`estimate_oe` that :func:`oe_parameters` passes on to it:
+    ``period_s``, ``compute_s``, ``skip`` and optionally ``max_nfev``."""
+
+    period_s: float
+    compute_s: float
+    skip: int
+    max_nfev: NotRequired[int]
+
+
 def oe_parameters(
-    u: np.ndarray,
-    dy: np.ndarray,
-    x0: np.ndarray,
-    free: np.ndarray,
-    *,
-    period_s: float,
-    compute_s: float,
-    skip: int,
-    max_nfev: int = 60,
+    u: np.ndarray, dy: np.ndarray, x0: np.ndarray, free: np.ndarray, **options: Unpack[OEOptions]
 ) -> np.ndarray:
     """The parameter vector of :func:`estimate_oe` alone (:data:`~model.ALL_PARAMS` order).
 
-    The same least-squares solution, without what only an estimate needs (the noise model of
-    its residual, its estimating equations): where the fit is only a start, as for the
-    structure selection.
+    The same least-squares solution, without the noise model of its residual (not fitted):
+    where the fit is only a start, as for the structure selection.
     """
-    prob = _Problem(u, dy, x0, free, period_s, compute_s, skip)
-    return prob.full(prob.solve(max_nfev).x)
+    return estimate_oe(u, dy, x0, free, noise0=NoiseModel.identity(), refit_noise=False,
+                       **options).x  # fmt: skip

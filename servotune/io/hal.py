@@ -72,6 +72,7 @@ import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TypedDict, Unpack
 
 import numpy as np
 
@@ -81,6 +82,7 @@ from servotune.io.hal_map import (
     HAL_FORMATS,
     MAP_KEYS,
     HalSettings,
+    _check_own_columns,
     _show_target,
     hal_settings,
     parse_hal_map,
@@ -105,6 +107,7 @@ __all__ = [
     "HAL_FORMATS",
     "MAP_KEYS",
     "HalCapture",
+    "HalLogOptions",
     "HalPrecisionWarning",
     "HalSettings",
     "hal_settings",
@@ -192,6 +195,13 @@ class HalCapture:
 
     def _label(self, j: int) -> str:
         return f"column {j} ({self.names[j]})" if self.names is not None else f"column {j}"
+
+    def _refuse_first(self, bad: np.ndarray, j: int, problem: Callable[[int], str]) -> None:
+        """Raise for the first row ``k`` that is ``bad``, naming its line and column ``j``:
+        ``problem(k)`` says what is wrong there."""
+        if bad.any():
+            k = int(np.argmax(bad))
+            raise LogFormatError(f"line {self.lines[k]}, {self._label(j)}: {problem(k)}")
 
     def column_index(self, target: str | int, key: str = "") -> int:
         """The 0-based column of a pin name or column number.
@@ -315,14 +325,7 @@ class HalCapture:
                 )
         m = settings.mapping
         cols = {key: self.column_index(target, key) for key, target in m.items()}
-        seen: dict[int, str] = {}
-        for key, j in cols.items():
-            if j in seen:
-                raise LogFormatError(
-                    f"map {seen[j]} and {key} both read {self._label(j)}: each mapping key "
-                    "needs its own column"
-                )
-            seen[j] = key
+        _check_own_columns(cols, self._label)
         if "overruns" in m:
             self._check_overruns(cols["overruns"])
         if dac_bits is not None:
@@ -352,14 +355,15 @@ class HalCapture:
         dac_code = ref = exc = None
         if "code" in m:
             dac_code = self._whole("code", cols["code"])
-            bad = (dac_code < 0) | (dac_code > top)
-            if bad.any():
-                k = int(np.argmax(bad))
-                raise LogFormatError(
-                    f"line {self.lines[k]}, {self._label(cols['code'])}: code {dac_code[k]} is "
-                    f"outside the {dac_bits}-bit D/A range 0..{top} (map code takes the D/A's "
-                    "offset-binary code, 0 V at mid-scale; map a command in volts with cmd)"
-                )
+            self._refuse_first(
+                (dac_code < 0) | (dac_code > top),
+                cols["code"],
+                lambda k: (
+                    f"code {dac_code[k]} is outside the {dac_bits}-bit D/A range 0..{top} "
+                    "(map code takes the D/A's offset-binary code, 0 V at mid-scale; map a command "
+                    "in volts with cmd)"
+                ),
+            )
             cmd_v = hw_dac.volts_from_code(dac_code, dac_bits, dac_range_v)
         else:
             cmd_v = self.values[:, cols["cmd"]] / settings.output_scale
@@ -386,14 +390,14 @@ class HalCapture:
                 exc = self._whole("exc", j)
             else:
                 exc = np.rint(self.values[:, j] / settings.output_scale / lsb)
-            bad = np.abs(exc) > top
-            if bad.any():
-                k = int(np.argmax(bad))
-                raise LogFormatError(
-                    f"line {self.lines[k]}, {self._label(j)}: the excitation is "
-                    f"{exc[k]:.0f} D/A codes, beyond the {dac_bits}-bit D/A's span (at most "
-                    f"±{top})"
-                )
+            self._refuse_first(
+                np.abs(exc) > top,
+                j,
+                lambda k: (
+                    f"the excitation is {exc[k]:.0f} D/A codes, beyond the {dac_bits}-bit "
+                    f"D/A's span (at most ±{top})"
+                ),
+            )
             exc = exc.astype(np.int64)
         axis = AxisLog(cmd_v=np.ascontiguousarray(cmd_v, dtype=float), pos_counts=pos,
                        dac_code=dac_code, ref_counts=ref, exc_code=exc, name="")  # fmt: skip
@@ -436,26 +440,25 @@ class HalCapture:
     def _whole(self, key: str, j: int) -> np.ndarray:
         """Column ``j`` as int64, refusing values that are not whole numbers."""
         a = self.values[:, j]
-        bad = (a != np.rint(a)) | (np.abs(a) > _MAX_COUNTS)
-        if bad.any():
-            k = int(np.argmax(bad))
-            raise LogFormatError(
-                f"line {self.lines[k]}, {self._label(j)}: map {key} needs whole numbers (an "
-                f"s32 pin), got {float(a[k])!r}"
-            )
+        self._refuse_first(
+            (a != np.rint(a)) | (np.abs(a) > _MAX_COUNTS),
+            j,
+            lambda k: f"map {key} needs whole numbers (an s32 pin), got {float(a[k])!r}",
+        )
         return a.astype(np.int64)
 
     def _counts(self, key: str, j: int, scale: float) -> np.ndarray:
         """Column ``j`` in machine units as whole counts (``rint(x · scale)``)."""
         c = np.rint(self.values[:, j] * scale)
-        bad = np.abs(c) > _MAX_COUNTS
-        if bad.any():
-            k = int(np.argmax(bad))
-            raise LogFormatError(
-                f"line {self.lines[k]}, {self._label(j)}: map {key} {float(self.values[k, j])!r} "
-                f"machine units is {c[k]:.4g} counts at position_scale {scale:g}, beyond "
-                "whole-count resolution (check position_scale)"
-            )
+        self._refuse_first(
+            np.abs(c) > _MAX_COUNTS,
+            j,
+            lambda k: (
+                f"map {key} {float(self.values[k, j])!r} machine units is {c[k]:.4g} "
+                f"counts at position_scale {scale:g}, beyond whole-count resolution (check "
+                "position_scale)"
+            ),
+        )
         return c.astype(np.int64)
 
 
@@ -647,17 +650,20 @@ def read_hal_capture(
     return read_halsampler(path, columns=columns, sample_number=sample_number)
 
 
-def read_hal_log(
-    path: str | Path,
-    settings: HalSettings,
-    *,
-    period_s: float | None = None,
-    dac_bits: int | None = None,
-    dac_range_v: tuple[float, float] | None = None,
-    compute_s: float | None = None,
-) -> Log:
+class HalLogOptions(TypedDict, total=False):
+    """The keywords of :meth:`HalCapture.to_log`, which :func:`read_hal_log` passes on:
+    ``period_s``, ``dac_bits``, ``dac_range_v`` and ``compute_s``."""
+
+    period_s: float | None
+    dac_bits: int | None
+    dac_range_v: tuple[float, float] | None
+    compute_s: float | None
+
+
+def read_hal_log(path: str | Path, settings: HalSettings, **options: Unpack[HalLogOptions]) -> Log:
     """Read a HAL capture (:func:`read_hal_capture`) and convert it
-    (:meth:`HalCapture.to_log`): what ``servotune fit CAPTURE --map …`` reads.
+    (:meth:`HalCapture.to_log`, whose keywords it takes): what ``servotune fit CAPTURE --map …``
+    reads.
 
     Examples
     --------
@@ -676,8 +682,7 @@ def read_hal_log(
     """
     cap = read_hal_capture(path, format=settings.format, columns=settings.columns,
                            sample_number=settings.sample_number)  # fmt: skip
-    return cap.to_log(settings, period_s=period_s, dac_bits=dac_bits, dac_range_v=dac_range_v,
-                      compute_s=compute_s)  # fmt: skip
+    return cap.to_log(settings, **options)
 
 
 # --- parsing helpers -------------------------------------------------------------------------

@@ -21,10 +21,10 @@ then run against the command).
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Hashable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from servotune.errors import LogFormatError
 from servotune.io.files import read_toml
@@ -45,6 +45,8 @@ HAL_FORMATS = ("halsampler", "halscope")
 MAP_KEYS = ("cmd", "code", "pos", "counts", "ref", "exc", "overruns")
 """Mapping keys (servotune's side): exactly one of ``cmd``/``code``, one of ``pos``/``counts``,
 optionally ``ref``, ``exc`` and ``overruns`` (the sampler's overrun count, a loss witness)."""
+
+_C = TypeVar("_C", bound=Hashable)  # a column: as the settings name it, or its index
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -116,14 +118,7 @@ class HalSettings:
                     f"map needs exactly one of {pair[0]} or {pair[1]}, got {what} (e.g. "
                     f"{'cmd=pid.0.output' if pair[0] == 'cmd' else 'pos=encoder.0.position'})"
                 )
-        seen: dict[str | int, str] = {}
-        for key, target in m.items():
-            if target in seen:
-                raise LogFormatError(
-                    f"map {seen[target]} and {key} both read {_show_target(target)}: each "
-                    "mapping key needs its own column"
-                )
-            seen[target] = key
+        _check_own_columns(m, _show_target)
         object.__setattr__(self, "mapping", m)
         if self.format is not None and self.format not in HAL_FORMATS:
             raise LogFormatError(
@@ -168,6 +163,22 @@ class HalSettings:
 
 def _show_target(target: str | int) -> str:
     return f"column {target}" if isinstance(target, int) else f"pin {target!r}"
+
+
+def _check_own_columns(columns: Mapping[str, _C], show: Callable[[_C], str]) -> None:
+    """Raise naming the first two mapping keys that read the same column.
+
+    ``columns`` maps each key to its column, as the settings name it (a pin or a number) or as
+    a capture resolves it (an index); ``show`` words a column for the message.
+    """
+    seen: dict[_C, str] = {}
+    for key, column in columns.items():
+        if column in seen:
+            raise LogFormatError(
+                f"map {seen[column]} and {key} both read {show(column)}: each mapping key "
+                "needs its own column"
+            )
+        seen[column] = key
 
 
 # --- the settings: --map and its TOML file ---------------------------------------------------

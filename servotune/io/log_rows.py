@@ -188,27 +188,25 @@ def _scan_plain(
                     pos += 1
                 mant = 0
                 digits = 0
-                while pos < n and buf[pos] >= 48 and buf[pos] <= 57:
-                    if digits == _FAST_DIGITS:
-                        return -1
-                    mant = mant * 10 + (np.int64(buf[pos]) - 48)
-                    digits += 1
+                point = -1  # the digits before the decimal point, once a number field has one
+                while pos < n:
+                    c = buf[pos]
+                    if c >= 48 and c <= 57:
+                        if digits == _FAST_DIGITS:
+                            return -1
+                        mant = mant * 10 + (np.int64(c) - 48)
+                        digits += 1
+                    elif c == 46 and kind == 1 and point < 0 and digits > 0:  # .
+                        point = digits
+                    else:
+                        break
                     pos += 1
                 if digits == 0:
                     return -1
                 if kind == 0:
                     ints[slots[j], row] = -mant if neg else mant
                 else:
-                    frac = 0
-                    if pos < n and buf[pos] == 46:  # .
-                        pos += 1
-                        while pos < n and buf[pos] >= 48 and buf[pos] <= 57:
-                            if digits == _FAST_DIGITS:
-                                return -1
-                            mant = mant * 10 + (np.int64(buf[pos]) - 48)
-                            digits += 1
-                            frac += 1
-                            pos += 1
+                    frac = digits - point if point >= 0 else 0
                     exp = 0
                     if pos < n and (buf[pos] == 101 or buf[pos] == 69):  # e E
                         pos += 1
