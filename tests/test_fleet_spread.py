@@ -3,12 +3,14 @@
 Small fleets built from :class:`FleetRow` objects directly (no fitting): the draws are keyed by
 (seed, draw index) whatever the chunking (DECISIONS 11), each draw is one machine's fitted plant
 exactly, a machine counts by its latest adequate fit, errors are one line, and
-``servotune verify --plants-from`` runs on it.
+``servotune verify --plants-from`` runs on it, its record binding the table's bytes; the loop
+margins are judged on every machine (checked against a loop built here with python-control).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 import pickle
 from pathlib import Path
@@ -182,6 +184,11 @@ def test_verify_plants_from_a_fleet(bench, capsys) -> None:
     record = json.loads(Path(f"{bench['tuning']}.verify.json").read_text())
     mc = record["verification"]["montecarlo"]  # the record names the distribution
     assert mc["count"] == 6 and mc["distribution"].startswith("fleet spread (6 machines")
+    # and binds the fleet table's exact bytes beside the tuning, rig and spec
+    sha = hashlib.sha256(bench["fleet"].read_bytes()).hexdigest()
+    assert record["files"]["fleet"] == {"name": "fleet.parquet", "sha256": sha}
+    assert mc["distribution"].endswith(f"of fleet.parquet sha256 {sha[:12]}, axis slave)")
+    assert set(record["files"]) == {"fleet", "rig", "spec", "tuning"}
     assert {s["parameter"] for s in mc["sensitivity"]} <= {
         f"slave.{p}" for p in ("gain_cps_per_v", "tau_s", "delay_s", "offset_v", "coulomb_v")
     }
@@ -194,3 +201,49 @@ def test_verify_plants_from_usage_and_bad_input(bench, capsys) -> None:
     assert main([*base, "--plants-from", str(bench["fleet"]), "--plants-axis", "spindle"]) == 3
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "'spindle' is not an axis of rig" in err[0]
+
+
+def _lock_phase_margin(rig: Rig, kl: float, gain: float, tau: float, lag_s: float,
+                       period_s: float) -> float:  # fmt: skip
+    """The lock loop's phase margin [deg] built here from the textbook pieces, not from
+    servotune's margins code: ``Kl·lsb·gain / (s (tau s + 1))`` behind a ``lag_s`` dead time
+    (Padé, order 8), zero-order-hold discretised by python-control."""
+    import control
+
+    num, den = control.pade(lag_s, 8)
+    p = control.tf([kl * rig.dac.lsb_v * gain], [tau, 1.0, 0.0]) * control.tf(num, den)
+    loop = control.c2d(p, period_s, method="zoh")
+    _, pm, _, _ = control.margin(loop)
+    return float(pm)
+
+
+@pytest.mark.filterwarnings("ignore:stability_margins:UserWarning")  # python-control's own
+def test_margins_are_judged_on_every_machine_of_the_fleet(rig, default_tuning) -> None:
+    """A machine whose measured slave gain is 3x the rig's breaks the slave's lock margins:
+    the spec's corners (±20 % gain) do not reach it, the fleet's machines do."""
+    from servotune.verify import load_spec
+    from servotune.verify.run import check_margins
+
+    spec = load_spec(RIG.with_name("pc-dual-servo.spec.toml"))
+    rows = _fleet()
+    rows[5] = _row("m05", "2025-03-01", 3.0 * 11700.0, 0.030, coulomb_v=0.002)
+
+    def lock_check(distribution):
+        checks = check_margins(default_tuning, rig, spec, distribution)
+        return next(c for c in checks if c.name == "margins:slave:lock")
+
+    assert lock_check(None).passed  # the spec's own plant cases
+    assert lock_check(fleet_spread(_fleet(), rig, axis="slave")).passed  # a tight fleet
+    bad = lock_check(fleet_spread(rows, rig, axis="slave"))
+    assert not bad.passed and "on plant fleet m05" in bad.detail, bad.detail
+
+    # the reported phase margin, against a loop built here for m05 at the case it names
+    # (one tick late, the period at the timer's error limit)
+    case = bad.facts["plant"]
+    assert case == f"fleet m05+{spec.margin_extra_ticks}tick@+{spec.max_period_error_ppm:g}ppm"
+    period = rig.period_s * (1.0 + spec.max_period_error_ppm * 1e-6)
+    lag = rig.timer.compute_s + 0.0012 + spec.margin_extra_ticks * rig.period_s  # _row's delay
+    kl = default_tuning.controller("slave").lock_gain.value  # the quantised gain it runs
+    pm = _lock_phase_margin(rig, kl, 3.0 * 11700.0, 0.030, lag, period)
+    assert pm < spec.margins.min_phase_margin_deg
+    assert bad.facts["phase_margin_deg"] == pytest.approx(pm, abs=0.5), (bad.facts, pm)

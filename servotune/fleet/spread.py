@@ -76,6 +76,10 @@ class FleetSpread:
         machine's fit is asymmetric: a symmetric machine's are its positive direction's).
     source : str
         Where the fleet came from (``"fleet.parquet sha256 1a2b3c4d5e6f"``; ``""`` for rows).
+    source_files : tuple of tuple of str
+        The file the fleet was read from as ``(kind, name, sha256)`` (the whole SHA-256 of its
+        bytes as read; none for rows): a verification record binds it beside the tuning, rig
+        and spec (:attr:`servotune.verify.montecarlo.PlantDistribution.source_files`).
     """
 
     rig: Rig
@@ -86,6 +90,7 @@ class FleetSpread:
     values: tuple[tuple[float, ...], ...]
     drawn: tuple[str, ...]
     source: str = ""
+    source_files: tuple[tuple[str, str, str], ...] = ()
 
     @property
     def name(self) -> str:
@@ -107,14 +112,25 @@ class FleetSpread:
         u = (raw >> np.uint64(11)).astype(np.float64) * _U53
         return np.floor(u * len(self.machines)).astype(np.int64)
 
+    def _plant_set(self, m: int) -> tuple[Plant, ...]:
+        """The rig's plants with machine ``m``'s on :attr:`axis`."""
+        nominal = tuple(a.plant for a in self.rig.axes)
+        j = self.rig.axis_names.index(self.axis)
+        return (*nominal[:j], self.plants[m], *nominal[j + 1 :])
+
+    @property
+    def margin_plant_sets(self) -> tuple[tuple[str, tuple[Plant, ...]], ...]:
+        """Every machine's plant set, labelled ``fleet <machine id>``
+        (:attr:`~servotune.verify.montecarlo.PlantDistribution.margin_plant_sets`): the
+        margins are judged on each measured machine, not only at the spec's corners."""
+        return tuple((f"fleet {m}", self._plant_set(i)) for i, m in enumerate(self.machines))
+
     def draw(self, seed: int, start: int, stop: int) -> tuple[list[tuple[Plant, ...]], np.ndarray]:
         """Draws ``start … stop − 1``: per draw one plant per rig axis (rig order), and the
         drawn values, shape ``(stop − start, len(parameters))``
         (:meth:`~servotune.verify.montecarlo.PlantDistribution.draw`)."""
         k = self.machine_indices(seed, start, stop)
-        nominal = tuple(a.plant for a in self.rig.axes)
-        j = self.rig.axis_names.index(self.axis)
-        sets = [(*nominal[:j], self.plants[m], *nominal[j + 1 :]) for m in k.tolist()]
+        sets = [self._plant_set(m) for m in k.tolist()]
         table = np.array(self.values, dtype=float).reshape(len(self.machines), len(self.drawn))
         return sets, np.ascontiguousarray(table[k])
 
@@ -160,12 +176,15 @@ def fleet_spread(
             f"{', '.join(names)})"
         )
     source = ""
+    source_files: tuple[tuple[str, str, str], ...] = ()
     if isinstance(rows_or_table_path, str | Path):
         path = rows_or_table_path
         raw = read_bytes(path, FleetTableError, "fleet table")
         recs = parse_fleet_table(raw, table_format(path), str(path))
         rows: Sequence[FleetRow] = [FleetRow.from_record(r) for r in recs]
-        source = f"{Path(path).name} sha256 {bytes_sha256(raw)[:12]}"
+        sha = bytes_sha256(raw)
+        source = f"{Path(path).name} sha256 {sha[:12]}"
+        source_files = (("fleet", Path(path).name, sha),)
     else:
         rows = rows_or_table_path
     fitted = [r for r in rows if r.ok]
@@ -205,6 +224,7 @@ def fleet_spread(
         values=tuple(values),
         drawn=drawn,
         source=source,
+        source_files=source_files,
     )
 
 

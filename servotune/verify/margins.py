@@ -596,6 +596,7 @@ def plant_cases(
     period_error_ppm: float = 0.0,
     samples: int = 0,
     seed: int = 0,
+    measured: Sequence[tuple[str, tuple[Plant, ...]]] = (),
 ) -> tuple[PlantCase, ...]:
     """The plant set robustness is judged over: what is not known about the loop.
 
@@ -605,7 +606,9 @@ def plant_cases(
     ``± period_error_ppm``. Then ``samples`` plant sets drawn inside that box (every axis's
     gain and tau, the latency in [0, ``extra_ticks``] ticks and the period error, uniformly and
     independently; labelled ``sample<i>``): a loop's margins need not be worst at a corner.
-    Friction, offset and noise do not enter a linear loop's margins.
+    ``measured`` plant sets (e.g. a fleet's machines) are cases as the corners are (each
+    also late and at the period's ends). Friction, offset and noise do not enter a linear
+    loop's margins.
 
     Parameters
     ----------
@@ -620,6 +623,8 @@ def plant_cases(
         Plant sets drawn inside the box (0: corners only).
     seed : int
         Seeds the draw: the same arguments give the same cases.
+    measured : sequence of (str, tuple of Plant)
+        Labelled plant sets (one plant per rig axis) judged beside the corners.
 
     Returns
     -------
@@ -642,6 +647,7 @@ def plant_cases(
                     plants.append(replace(a.plant, **changes))
                 label = f"gain{'-+'[sg > 0]},tau{'-+'[st_ > 0]}"
                 corners.append((label, tuple(plants)))
+    corners += [(label, tuple(plants)) for label, plants in measured]
     lags = [(0.0, "")] + ([(extra_ticks * rig.period_s, f"+{extra_ticks}tick")]
                           if extra_ticks > 0 else [])  # fmt: skip
     periods = [(rig.period_s, "")]

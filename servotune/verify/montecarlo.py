@@ -57,10 +57,21 @@ class PlantDistribution(Protocol):
     parameters : tuple of str
         Names of the drawn values that :meth:`draw` returns, ``"<axis>.<parameter>"`` with the
         unit in the parameter's name (the sensitivity table's rows).
+    source_files : tuple of tuple of str
+        Files the distribution was read from, as ``(kind, name, sha256)`` (e.g. a fleet table:
+        ``("fleet", "fleet.parquet", "<SHA-256 of its bytes>")``): the verification record
+        binds each beside the tuning, rig and spec. Empty for the spec's spread (the spec is
+        bound already).
+    margin_plant_sets : tuple of (str, tuple of Plant)
+        Labelled plant sets (one plant per rig axis) on which the loop margins are judged too,
+        beside the spec's corners (:func:`servotune.verify.margins.plant_cases`): e.g. every
+        measured machine of a fleet. Empty for the spec's spread (its corners are the cases).
     """
 
     name: str
     parameters: tuple[str, ...]
+    source_files: tuple[tuple[str, str, str], ...]
+    margin_plant_sets: tuple[tuple[str, tuple[Plant, ...]], ...]
 
     def draw(self, seed: int, start: int, stop: int) -> tuple[list[tuple[Plant, ...]], np.ndarray]:
         """Draws ``start … stop − 1``: per draw one plant per rig axis (rig order), and the
@@ -85,6 +96,8 @@ class SpecSpread:
     rig: Rig
     montecarlo: MonteCarlo
     name: str = "spec spread"
+    source_files: tuple[tuple[str, str, str], ...] = ()
+    margin_plant_sets: tuple[tuple[str, tuple[Plant, ...]], ...] = ()
 
     @property
     def axes(self) -> tuple[str, ...]:

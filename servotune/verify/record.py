@@ -268,17 +268,22 @@ def verification_record(
     tuning: SourceFile,
     rig: SourceFile,
     spec: SourceFile,
+    sources: Sequence[tuple[str, str, str]] = (),
 ) -> dict[str, Any]:
     """The record of a verification: which exact bytes were verified, and the verdict.
+
+    ``sources``: further files the verification read, as ``(kind, name, sha256)`` (the
+    Monte-Carlo distribution's :attr:`~servotune.verify.montecarlo.PlantDistribution.source_files`,
+    e.g. the fleet table of ``--plants-from``).
 
     Returns
     -------
     dict
         ``schema``, ``passed``, ``tool``/``tool_version``, ``files`` (name and SHA-256 of the
-        tuning, rig and spec as read), ``seed``, ``summary`` (counts, failures, the smallest
-        relative margin), the full ``verification``, and ``sha256``: the record's own digest
-        (:func:`servotune.digest.document_sha256`). No timestamps: the same inputs give the
-        same bytes.
+        tuning, rig and spec as read, and of each of ``sources``), ``seed``, ``summary``
+        (counts, failures, the smallest relative margin), the full ``verification``, and
+        ``sha256``: the record's own digest (:func:`servotune.digest.document_sha256`). No
+        timestamps: the same inputs give the same bytes.
     """
     v = verification
     rels = [(r.relative_margin, r) for r in v.rows if r.relative_margin is not None]
@@ -299,9 +304,13 @@ def verification_record(
             "scenario": tight[1].scenario,
         },
     }
+    files = {"rig": rig, "spec": spec, "tuning": tuning}
+    for kind, name, sha in sources:
+        if kind in files:
+            raise ValueError(f"a distribution's source file kind {kind!r} is taken")
+        files[kind] = SourceFile(path=name, sha256=sha, raw=b"")
     return trust_record(RECORD_SCHEMA, passed=v.passed, seed=v.seed, summary=summary,
-                        files={"rig": rig, "spec": spec, "tuning": tuning},
-                        result={"verification": v.to_dict()})  # fmt: skip
+                        files=files, result={"verification": v.to_dict()})  # fmt: skip
 
 
 def trust_record(
@@ -425,7 +434,8 @@ def verify_files(
     with open_executor(spec.montecarlo.count + 1, scheduler=scheduler, workers=workers) as ex:
         result = verify(tuning, rig, spec, seed=seed, progress=progress, executor=ex,
                         distribution=dist)  # fmt: skip
-    record = verification_record(result, tuning=tuning_file, rig=rig_file, spec=spec_file)
+    record = verification_record(result, tuning=tuning_file, rig=rig_file, spec=spec_file,
+                                 sources=() if dist is None else dist.source_files)  # fmt: skip
     return recorded_verification(result, record, tuning_path, tuning_file.sha256, write=write)
 
 

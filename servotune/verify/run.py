@@ -584,23 +584,27 @@ def _listed_variants(
     return tuple(out)
 
 
-def check_margins(tuning: Tuning, rig: Rig, spec: Spec) -> list[Check]:
+def check_margins(
+    tuning: Tuning, rig: Rig, spec: Spec, distribution: PlantDistribution | None = None
+) -> list[Check]:
     """One check per axis and loop kind (``margins:<axis>:<lock|task>``): every loop of that
     kind (every query-table cell of a scheduled law) keeps the spec's margin limits on the
     nominal plants and over the plant set (:func:`~servotune.verify.margins.plant_cases`: the
     corners of the identified intervals and of the spec's Monte-Carlo gain and tau spreads,
-    each also ``margins.extra_ticks`` ticks late, at the period ± the timer's error limit;
-    and ``margins.samples`` plant sets drawn inside that box).
+    and the Monte-Carlo ``distribution``'s own plant sets (a fleet's machines), each also
+    ``margins.extra_ticks`` ticks late, at the period ± the timer's error limit; and
+    ``margins.samples`` plant sets drawn inside that box).
 
     The check's value is the worst Ms [1]; its detail names the worst loop (the cell), the
     plant case and the limits it breaks. Every loop on every case is screened on a grid; the
     worst ones (by Ms, phase and gain margin) are judged by python-control.
     """
     mc = spec.montecarlo
+    measured = () if distribution is None else distribution.margin_plant_sets
     cases = plant_cases(rig, gain_spread=mc.gain_spread, tau_spread=mc.tau_spread,
                         extra_ticks=spec.margin_extra_ticks,
                         period_error_ppm=spec.max_period_error_ppm or 0.0,
-                        samples=spec.margin_samples, seed=mc.seed)  # fmt: skip
+                        samples=spec.margin_samples, seed=mc.seed, measured=measured)  # fmt: skip
     m = tuning_margins(tuning, rig, limits=spec.margins, cases=cases, every_loop=False)
     lim = spec.margins
     out = []
@@ -750,7 +754,7 @@ def verify(
         where_speed=fastest.where_speed,
     )
     say("verify: margins of every loop over the plant set")
-    checks += check_margins(tuning, rig, spec)
+    checks += check_margins(tuning, rig, spec, dist)
     passed = np.concatenate([p.passed for p in parts])
     summary = None
     if count:
