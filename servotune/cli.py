@@ -439,7 +439,6 @@ def _verify_gantry(args: argparse.Namespace) -> int:
     from servotune.report.text import format_gantry_verification
 
     for flag, value in (("--rig", args.rig), ("--report", args.report),
-                        ("--scheduler", args.scheduler), ("--workers", args.workers),
                         ("--plants-from", args.plants_from)):  # fmt: skip
         if value is not None:
             raise ServotuneError(f"{flag} is for a single rig's tuning; {args.tuning} is a "
@@ -447,7 +446,8 @@ def _verify_gantry(args: argparse.Namespace) -> int:
                                  "--config)")  # fmt: skip
     result, record, path = verify_gantry_files(args.tuning, args.spec, args.config,
                                                seed=args.seed, montecarlo=args.montecarlo,
-                                               progress=_progress)  # fmt: skip
+                                               progress=_progress, scheduler=args.scheduler,
+                                               workers=args.workers)  # fmt: skip
     _summary(args.json, record, lambda: format_gantry_verification(result))
     print(f"wrote the verification record to {path}", file=sys.stderr)
     return EXIT_OK if result.passed else EXIT_FAILED
@@ -1098,7 +1098,8 @@ def _parser() -> argparse.ArgumentParser:
         default=None,
         metavar="N",
         help="worker processes of a cluster started on this machine, whatever the size "
-        "(1: in-process; default: one per core, from 100,000 plant sets)",
+        "(1: in-process; default: one per core, from 100,000 plant sets, or a gantry's "
+        "10,000 plant pairs)",
     )
     s.add_argument(
         "--plants-from",

@@ -1,8 +1,9 @@
 """The executor seam (servotune.executor) on a real Dask cluster: a ``LocalCluster`` of 2 worker
 processes (one thread each) started here, as `servotune verify --workers 2` starts one.
 
-What must hold (issue 22, point 4): a Monte-Carlo verification gives the same result, to the
-byte of its record, in-process and on the cluster, for any chunk size; a worker killed while its
+What must hold (issue 22, point 4): a Monte-Carlo verification (the single rig's, and the
+gantry's plant pairs) gives the same result, to the byte of its record, in-process and on the
+cluster, for any chunk size; a worker killed while its
 task runs changes nothing (Dask re-runs the task elsewhere); a scheduler that refuses gives one
 line and exit 3. Sizes are small (40 plant sets, the sync scenario only): the file runs in
 about half a minute, most of it the cluster's start and the workers' first imports.
@@ -173,6 +174,21 @@ def test_a_worker_killed_mid_run_changes_nothing(client, setup, in_process) -> N
     assert killed
     client.wait_for_workers(2, timeout=60)
     assert killed[0] not in client.scheduler_info()["workers"]  # it really died
+
+
+def test_gantry_montecarlo_on_the_cluster_is_the_in_process_one(client) -> None:
+    """The gantry's own Monte Carlo goes through the same seam: plant pairs in chunks of 3 and
+    of 5 on the 2 workers give the in-process result, pair by pair."""
+    from servotune.arch.gantry.load import load_gantry
+    from servotune.arch.gantry.run import gantry_montecarlo
+
+    cfg = load_gantry(ROOT / "plants" / "gantry.toml")
+    ref = gantry_montecarlo(cfg, 8, seed=5)
+    assert len({v.max_sync_error_counts for v in ref.variants}) == 8  # 8 different pairs
+    for chunk_size in (3, 5):
+        got = gantry_montecarlo(cfg, 8, seed=5, executor=DaskExecutor(client),
+                                chunk_size=chunk_size)  # fmt: skip
+        assert got == ref
 
 
 # --- the command line ------------------------------------------------------------------------

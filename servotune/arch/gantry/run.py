@@ -56,6 +56,7 @@ from servotune.arch.gantry.result import (
     SyncComparison,
 )
 from servotune.budget import check_memory
+from servotune.executor import Executor, InProcessExecutor, chunk_bounds
 from servotune.fixed import shift_round
 from servotune.laws.axis import FLAG_SYNC_TRIP, MODE_TASK, N_STATE, S_FAULT
 from servotune.laws.sync import SYNC_TRIP, sync_enter, sync_monitor, sync_step
@@ -390,6 +391,11 @@ def run_gantry(
 
 
 _MC_MAX = 1_000_000  # plant pairs of a Monte-Carlo run
+MC_CHUNK = 64
+"""Plant pairs per task of :func:`gantry_montecarlo` on an executor (about 80 ms of work)."""
+MC_CLUSTER_MIN_PAIRS = 10_000
+"""From this many plant pairs (about 12 s on one core) a Monte Carlo is worth an embedded
+``LocalCluster`` (:func:`servotune.executor.open_executor`'s ``min_items``)."""
 
 
 def compare_topologies(cfg: GantryConfig, *, seed: int = 0, montecarlo: int = 0) -> SyncComparison:
@@ -438,12 +444,16 @@ def gantry_montecarlo(
     *,
     seed: int = 0,
     progress: Callable[[str], None] | None = None,
+    executor: Executor | None = None,
+    chunk_size: int = MC_CHUNK,
 ) -> GantryMonteCarlo:
     """Run the deployed topology in every case over ``count`` drawn plant pairs inside the
     drives' spreads (``[margins]``, or a drive's own; each drive's gain and tau independently
     uniform in ``× [1 − s, 1 + s]``), ``cfg``'s resolved gains kept, on the bit-true gantry
     loop. A pair passes if the monitor trips in no case; the same config, count and seed give
-    the same result.
+    the same result, whatever the ``executor`` (default in-process; e.g. a Dask cluster,
+    :mod:`servotune.executor`) and the ``chunk_size`` (plant pairs per task): each pair's
+    factors are drawn up front and its noise is seeded by its index.
 
     Raises
     ------
@@ -458,10 +468,24 @@ def gantry_montecarlo(
     draws = rng.uniform(-1.0, 1.0, (count, 4))
     spreads = np.array([*m.spreads(cfg.master), *m.spreads(cfg.slave)])
     factors = 1.0 + draws * spreads
+    chunks = [(a, factors[a:b]) for a, b in chunk_bounds(count, chunk_size)]
+    ex = InProcessExecutor() if executor is None else executor
+    parts = ex.map(_montecarlo_chunk, chunks, shared=(cfg, seed),
+                   done=lambda k: say(f"sync: Monte Carlo {min(count, k * chunk_size)}/{count} "
+                                      f"({ex.name})"))  # fmt: skip
+    return GantryMonteCarlo(seed=seed, variants=tuple(v for part in parts for v in part))
+
+
+def _montecarlo_chunk(
+    chunk: tuple[int, np.ndarray], shared: tuple[GantryConfig, int]
+) -> list[GantryVariant]:
+    """Plant pairs ``start, start + 1, …`` of :func:`gantry_montecarlo` from their drawn
+    factors (an executor's task): each depends only on the config, the seed and its index."""
+    start, factors = chunk
+    cfg, seed = shared
     out = []
-    for i, (fmg, fmt, fsg, fst) in enumerate(factors):
-        if i and i % 100 == 0:
-            say(f"sync: Monte Carlo {i}/{count}")
+    for j, (fmg, fmt, fsg, fst) in enumerate(factors.tolist()):
+        i = start + j
         plants = {}
         for name, fg, ft in (("master", fmg, fmt), ("slave", fsg, fst)):
             p = getattr(cfg, name).plant
@@ -478,4 +502,4 @@ def gantry_montecarlo(
         out.append(GantryVariant(index=i, factors={
             "master_gain": float(fmg), "master_tau": float(fmt), "slave_gain": float(fsg),
             "slave_tau": float(fst)}, max_sync_error_counts=worst, tripped=tripped))  # fmt: skip
-    return GantryMonteCarlo(seed=seed, variants=tuple(out))
+    return out

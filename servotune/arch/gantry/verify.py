@@ -37,7 +37,13 @@ from servotune.arch.gantry.config import CASES, GantryConfig, GantryMargins
 from servotune.arch.gantry.load import load_gantry
 from servotune.arch.gantry.margins import LOOP_NAMES, gantry_margins, margin_failures
 from servotune.arch.gantry.result import GantryMonteCarlo
-from servotune.arch.gantry.run import gantry_montecarlo, move_profile, run_gantry, simulate_gantry
+from servotune.arch.gantry.run import (
+    MC_CLUSTER_MIN_PAIRS,
+    gantry_montecarlo,
+    move_profile,
+    run_gantry,
+    simulate_gantry,
+)
 from servotune.arch.gantry.tuning import (
     GantryTuning,
     apply_tuning,
@@ -45,6 +51,7 @@ from servotune.arch.gantry.tuning import (
     read_gantry_tuning_bytes,
 )
 from servotune.errors import ConfigError, SpecError, TrustError, TuningError
+from servotune.executor import Executor, open_executor
 from servotune.io.files import json_float, parse_toml_as
 from servotune.io.rig import build_section
 from servotune.laws.axis import FLAG_SYNC_TRIP
@@ -270,6 +277,7 @@ def verify_gantry(
     *,
     seed: int | None = None,
     progress: Callable[[str], None] | None = None,
+    executor: Executor | None = None,
 ) -> GantryVerification:
     """Verify ``tuning``'s integers on the gantry ``cfg`` against ``spec`` (see the module
     docstring).
@@ -284,6 +292,9 @@ def verify_gantry(
         Noise, jitter and Monte-Carlo seed (default: the spec's).
     progress : callable, optional
         Called with a line per stage.
+    executor : Executor, optional
+        Runs the Monte-Carlo plant pairs (default in-process); the result does not depend on
+        it.
     """
     say = progress or (lambda _msg: None)
     seed = spec.montecarlo.seed if seed is None else seed
@@ -346,7 +357,8 @@ def verify_gantry(
     mc = None
     if spec.montecarlo.count:
         say(f"verify gantry: Monte Carlo over {spec.montecarlo.count} plant pairs")
-        mc = gantry_montecarlo(run, spec.montecarlo.count, seed=seed, progress=progress)
+        mc = gantry_montecarlo(run, spec.montecarlo.count, seed=seed, progress=progress,
+                               executor=executor)  # fmt: skip
         k, n, _, lo, hi = mc.pass_fraction
         rows.append(GantryCheck(check="Monte Carlo", subject="plant pairs that trip",
                                 value=float(n - k), limit=0.0, unit="pairs",
@@ -407,9 +419,15 @@ def verify_gantry_files(
     montecarlo: int | None = None,
     progress: Callable[[str], None] | None = None,
     write: bool = True,
+    scheduler: str | None = None,
+    workers: int | None = None,
 ) -> RecordedVerification[GantryVerification]:
     """What ``servotune verify GANTRY-TUNING --spec SPEC [--config CONFIG]`` runs (see the
-    module docstring); ``montecarlo`` overrides the spec's count. Returns the
+    module docstring); ``montecarlo`` overrides the spec's count. The plant pairs run on the
+    executor :func:`servotune.executor.open_executor` chooses for their number (from
+    :data:`~servotune.arch.gantry.run.MC_CLUSTER_MIN_PAIRS` an embedded ``LocalCluster``;
+    ``scheduler``: a Dask scheduler's address; ``workers``: processes of an embedded cluster, 1
+    for in-process); the result does not depend on it. Returns the
     :class:`GantryVerification`, its record and where that was written.
 
     Raises
@@ -418,13 +436,17 @@ def verify_gantry_files(
         The gantry config is not the one the tuning was made for.
     TuningError, ConfigError, SpecError
         A file is missing or malformed.
+    SchedulerError
+        ``scheduler`` does not answer.
     """
     tuning, tuning_file, cfg, gantry_file, rig_file = _tuning_and_gantry(tuning_path, gantry_path)
     spec_file = SourceFile.read(spec_path, SpecError, "spec file")
     spec = gantry_spec_from_bytes(spec_file.raw, spec_path)
     if montecarlo is not None:
         spec = replace(spec, montecarlo=replace(spec.montecarlo, count=montecarlo))
-    result = verify_gantry(cfg, tuning, spec, seed=seed, progress=progress)
+    with open_executor(spec.montecarlo.count, scheduler=scheduler, workers=workers,
+                       min_items=MC_CLUSTER_MIN_PAIRS) as ex:  # fmt: skip
+        result = verify_gantry(cfg, tuning, spec, seed=seed, progress=progress, executor=ex)
     summary = {"checks": len(result.rows), "checks_failed": sum(not r.passed for r in result.rows),
                "failures": list(result.failures)}  # fmt: skip
     record = trust_record(GANTRY_RECORD_SCHEMA, passed=result.passed, seed=result.seed,
