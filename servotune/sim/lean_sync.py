@@ -31,7 +31,7 @@ from numba.extending import intrinsic
 
 from servotune._numba_cache import call_compiled, jit
 from servotune.laws.axis import FAULT_MASK, FLAG_SATURATED, N_STATE, axis_read
-from servotune.plant import NROW, R_NOISE, R_OFFSET, advance_tick
+from servotune.plant import NROW, R_NOISE, R_OFFSET, advance_tick_inlined
 from servotune.sim.kernel import _I_INIT, _I_LAG
 from servotune.sim.lean import CONSTS_CAPACITY, _frame_buffer
 from servotune.sim.tick import draw_noise, draw_uniforms, latch, write_axis
@@ -391,7 +391,9 @@ def _run_sync(
             v1[a] = volts
             w_off = rows[a, R_OFFSET] + load[k, a]
             p_old = pos[a]
-            pos[a], spd[a] = advance_tick(p_old, spd[a], v_old + w_off, v_new + w_off, rows[a])
+            pos[a], spd[a] = advance_tick_inlined(
+                p_old, spd[a], v_old + w_off, v_new + w_off, rows[a]
+            )
             if k + 1 < nt:
                 step = abs(pos[a] - p_old)
                 if step > step_best:
