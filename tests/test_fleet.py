@@ -180,8 +180,8 @@ def test_300_log_fleet_flags_exactly_the_planted_drifts(
     by_file = {r.file: r for r in result.rows}
     assert by_file[f"m121_{DATES[1]}.csv"].drift == ("gain_cps_per_v", "coulomb_v")
     assert by_file[f"m121_{DATES[0]}.csv"].drift == ()
+    # the time is reported, not asserted (benchmarks live in make bench: docs/scale.md)
     print(f"\n300 fits in-process: {seconds:.1f} s, {300 / seconds:.1f} fits/s")
-    assert seconds < 60.0
 
 
 @pytest.mark.slow

@@ -1,0 +1,217 @@
+"""The verbs on a rig and its logs: ``rig``, ``simulate``, ``excite`` and ``fit`` (one log, or a
+fleet's with ``--fleet``)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from servotune._version import __version__
+from servotune.cli.output import (
+    EXIT_BAD_INPUT,
+    EXIT_OK,
+    EXIT_USAGE,
+    _check_dirs,
+    _progress,
+    _summary,
+)
+from servotune.errors import ServotuneError
+
+# The library is imported inside each handler, not here, so that ``servotune --help`` (and any
+# verb) pays only for what it uses: numba, scipy, matplotlib and python-control stay unloaded
+# until a handler needs them (tests/cli/test_help_imports.py). That is the only reason for an
+# import inside a function in this module; none of them works around an import cycle.
+
+
+def _cmd_rig(args: argparse.Namespace) -> int:
+    from servotune.report.text import format_rig_facts
+    from servotune.rig import describe_rig, load_rig
+
+    facts = describe_rig(load_rig(args.rig))
+    if args.json:
+        from servotune.io.files import json_safe
+
+        print(json.dumps(json_safe(facts), indent=2, sort_keys=True, allow_nan=False))
+    else:
+        print(format_rig_facts(facts))
+    return EXIT_OK
+
+
+def _cmd_simulate(args: argparse.Namespace) -> int:
+    from servotune.logs import format_log, write_log
+    from servotune.pipeline import log_metadata, run_scenario, trace_log_columns
+    from servotune.rig import load_rig
+    from servotune.scenarios import Scenario, build_scenario
+
+    _check_dirs(args.output)
+    rig = load_rig(args.rig)
+    if (args.scenario is None) == (args.input is None):
+        raise ServotuneError("give exactly one of --scenario NAME or --input EXCITATION.csv")
+    if args.input:
+        from servotune.excite import excitation_inputs, read_excitation
+
+        axis, codes = read_excitation(args.input, rig)
+        inputs = excitation_inputs(rig, axis, codes, closed_loop=args.closed_loop)
+        scen = Scenario(name="input", axis=axis, inputs=inputs)
+    else:
+        axis = args.axis or next(a.name for a in rig.axes if a.role == "master")
+        scen = build_scenario(
+            rig, args.scenario, axis=axis, seconds=args.seconds, closed_loop=args.closed_loop
+        )
+    trace = run_scenario(rig, scen, seed=args.seed, noise=not args.no_noise)
+    meta = log_metadata(
+        rig, scenario=scen.name, axis=scen.axis, closed_loop=str(args.closed_loop).lower(),
+        seed=args.seed,
+    )  # fmt: skip
+    cols = trace_log_columns(trace, scen.inputs.dac_add_codes)  # with exc_code (DECISIONS 5)
+    kwargs = {"period_s": rig.period_s, "columns": cols, "metadata": meta}
+    if args.output == "-":
+        sys.stdout.write(format_log(**kwargs))
+    else:
+        write_log(args.output, **kwargs)
+        print(f"wrote {trace.n_ticks} ticks to {args.output}", file=sys.stderr)
+    return EXIT_OK
+
+
+def _cmd_fit(args: argparse.Namespace) -> int:
+    if (problem := _fleet_usage(args)) is not None:
+        print(f"servotune fit: error: {problem}", file=sys.stderr)
+        return EXIT_USAGE
+    if args.fleet:
+        return _cmd_fit_fleet(args)
+    args.log = args.log[0]  # one log (the positional takes several for --fleet)
+    from servotune.identify import fit_log
+    from servotune.identify.result import FIT_SCHEMA
+    from servotune.io.hal import hal_settings
+    from servotune.rig import load_rig, write_plant
+    from servotune.tuning import file_sha256
+
+    _check_dirs(args.output, args.plot)
+    rig = load_rig(args.rig) if args.rig else None
+    dac_range = _range(args.dac_range_v) if args.dac_range_v else None
+    hal = hal_settings(args.map, format=args.hal_format, columns=args.hal_columns,
+                       position_scale=args.position_scale, output_scale=args.output_scale,
+                       sample_number=args.sample_number, capture=args.log)  # fmt: skip
+    result, log, axis = fit_log(
+        args.log, axis=args.axis, rig=rig, structure=args.structure,
+        counter_bits=args.counter_bits, dac_bits=args.dac_bits, dac_range_v=dac_range,
+        period_s=args.period_s, compute_s=args.compute_s, method=args.method,
+        friction=args.friction, invert_encoder=args.invert_encoder,
+        need_axis_name=bool(args.output), strict=args.strict, hal=hal,
+    )  # fmt: skip
+    print(f"axis {axis or '(unprefixed)'}: " + result.summary(), file=sys.stderr)
+    if args.plot:
+        from servotune.identify import simulate_fit, validation_split
+        from servotune.plot import plot_fit, save_figure
+
+        ax = log.axis(None if list(log.axes) == [""] else axis)
+        pos = -ax.pos_counts if result.inverted_encoder else ax.pos_counts
+        sim = simulate_fit(result, ax.cmd_v, pos)
+        save_figure(plot_fit(pos, sim, log.period_s, validation_split(sim.size),
+                             f"fit of {axis or 'axis'}"), args.plot)  # fmt: skip
+    if args.output:
+        prov = result.provenance(Path(args.log).name, file_sha256(args.log),
+                                 log.metadata.get("date", ""))  # fmt: skip
+        new = not Path(args.output).exists()
+        name = args.name or Path(args.output).stem
+        write_plant(args.output, axis, result.plant, provenance=prov, fit=result.plant_fit,
+                    new_name=name if new else None,
+                    new_header=f"Rig {name}: made by `servotune fit -o` ({prov}).\nUnits are "
+                    "in the key names; gains are D/A codes per count.")  # fmt: skip
+        if new:
+            print(f"wrote a new rig {name!r} with [axis.{axis}.plant] to {args.output} (its "
+                  "hardware facts are the example rig's: check them)", file=sys.stderr)  # fmt: skip
+        else:
+            print(f"wrote [axis.{axis}.plant] to {args.output}", file=sys.stderr)
+    if args.json:
+        out = {"axis": axis, "schema": FIT_SCHEMA, "version": __version__}
+        out.update(result.to_dict())
+        print(json.dumps(out, indent=2, sort_keys=True))
+    return EXIT_OK
+
+
+def _fleet_usage(args: argparse.Namespace) -> str | None:
+    """What is wrong with ``fit``'s options for one log or a fleet, if anything."""
+    if args.fleet is None:
+        if len(args.log) > 1:
+            return (f"several logs need --fleet TABLE.parquet|.csv ({len(args.log)} given); "
+                    "without it fit takes one log")  # fmt: skip
+        for flag, v in (("--baseline", args.baseline), ("--fleet-report", args.fleet_report),
+                        ("--scheduler", args.scheduler), ("--workers", args.workers)):  # fmt: skip
+            if v is not None:
+                return f"{flag} needs --fleet TABLE.parquet|.csv"
+        return None
+    for flag, v in (("-o", args.output), ("--plot", args.plot), ("--name", args.name)):
+        if v is not None:
+            return (f"{flag} is for one log, not with --fleet (the fleet's outputs are --fleet "
+                    "and --fleet-report)")  # fmt: skip
+    return None
+
+
+def _cmd_fit_fleet(args: argparse.Namespace) -> int:
+    from servotune.executor import open_executor
+    from servotune.fleet import (
+        FLEET_CLUSTER_MIN_LOGS,
+        FleetFitOptions,
+        fit_fleet,
+        read_fleet_table,
+        write_fleet_table,
+    )
+    from servotune.io.fleet_table import table_format
+    from servotune.io.hal import hal_settings
+    from servotune.rig import load_rig
+
+    table_format(args.fleet)  # a wrong suffix fails before any work
+    _check_dirs(args.fleet, args.fleet_report)
+    baseline = read_fleet_table(args.baseline) if args.baseline else ()
+    hal = hal_settings(args.map, format=args.hal_format, columns=args.hal_columns,
+                       position_scale=args.position_scale, output_scale=args.output_scale,
+                       sample_number=args.sample_number)  # fmt: skip
+    options = FleetFitOptions(
+        axis=args.axis, rig=load_rig(args.rig) if args.rig else None, structure=args.structure,
+        counter_bits=args.counter_bits, dac_bits=args.dac_bits,
+        dac_range_v=_range(args.dac_range_v) if args.dac_range_v else None,
+        period_s=args.period_s, compute_s=args.compute_s, method=args.method,
+        friction=args.friction, invert_encoder=args.invert_encoder, strict=args.strict, hal=hal,
+    )  # fmt: skip
+    with open_executor(len(args.log), scheduler=args.scheduler, workers=args.workers,
+                       min_items=FLEET_CLUSTER_MIN_LOGS) as ex:  # fmt: skip
+        result = fit_fleet(args.log, options=options, executor=ex, baseline=baseline,
+                           progress=_progress)  # fmt: skip
+    write_fleet_table(result, args.fleet)
+    _summary(args.json, result.to_dict(), result.summary.text)
+    print(f"wrote the fleet table ({len(result.rows)} rows) to {args.fleet}", file=sys.stderr)
+    if args.fleet_report:
+        from servotune.report.fleet import write_fleet_report
+
+        write_fleet_report(result, args.fleet_report, title=Path(args.fleet).name)
+        print(f"wrote the fleet report to {args.fleet_report}", file=sys.stderr)
+    return EXIT_OK if result.summary.n_failed < result.summary.n_rows else EXIT_BAD_INPUT
+
+
+def _range(text: str) -> tuple[float, float]:
+    try:
+        lo, hi = (float(x) for x in text.split(","))
+    except ValueError:
+        raise ServotuneError(f"--dac-range-v must be LOW,HIGH in volts, got {text!r}") from None
+    return lo, hi
+
+
+def _cmd_excite(args: argparse.Namespace) -> int:
+    from servotune.excite import design_excitation, write_excitation
+    from servotune.rig import load_rig
+
+    _check_dirs(args.output)
+    rig = load_rig(args.rig)
+    axis = args.axis or next(a.name for a in rig.axes if a.role == "master")
+    exc = design_excitation(rig, axis, args.kind, args.seconds, seed=args.seed,
+                            amplitude_codes=args.amplitude_codes)  # fmt: skip
+    write_excitation(args.output, exc, rig)
+    lo, hi = exc.predicted_travel_counts
+    print(f"wrote {exc.n_ticks} ticks of {args.kind} on {axis} to {args.output}: amplitude "
+          f"{exc.amplitude_codes} codes (limited by {exc.limited_by}), predicted max speed "
+          f"{exc.predicted_max_speed_rpm:.0f} r/min, travel {lo:.0f} … {hi:.0f} counts",
+          file=sys.stderr)  # fmt: skip
+    return EXIT_OK

@@ -1,0 +1,134 @@
+"""What every verb shares: exit codes, signals, progress, error lines and the product.
+
+stdout carries only the product (:func:`_print_product`, :func:`_deliver`); progress,
+summaries and diagnostics go to stderr. :func:`_check_dirs` and :func:`_workbench_dir` check
+where outputs go before any work, so a run that cannot write fails first.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+from servotune.errors import InfeasibleError, ServotuneError, TrustError
+
+EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_BAD_INPUT = 0, 1, 2, 3
+EXIT_INTERRUPTED, EXIT_TERMINATED = 128 + signal.SIGINT, 128 + signal.SIGTERM
+
+
+class _Terminated(BaseException):
+    """Raised in the main thread by the SIGTERM handler, so cleanup (``finally``) runs."""
+
+
+_SIGNALLED: list[int] = []  # the signal that asked this run to end, once one has
+
+
+def _on_sigterm(signum: int, frame: object) -> None:
+    _SIGNALLED.append(signum)
+    raise _Terminated
+
+
+_SINK: list[Callable[[str], None]] = []  # this run's progress sink (main sets it)
+
+
+def _progress(message: str) -> None:
+    """Progress on stderr (:class:`servotune.progress.StderrProgress`: bars on a terminal, lines
+    elsewhere, nothing with ``--quiet``); long runs report often, so this is also where a run
+    whose SIGTERM exception was swallowed (raised inside a destructor or a C callback, where
+    Python ignores exceptions) ends after all."""
+    if _SIGNALLED:
+        raise _Terminated
+    if _SINK:
+        _SINK[-1](message)
+    else:
+        print(message, file=sys.stderr)
+
+
+_MAX_MESSAGE = 600  # characters of an error line
+
+
+def _outcome(exc: BaseException) -> tuple[str, int]:
+    """The one line (after ``servotune VERB:``) and the exit code for a run that raised."""
+    if isinstance(exc, KeyboardInterrupt):
+        return "interrupted", EXIT_INTERRUPTED
+    if isinstance(exc, _Terminated):
+        return "terminated", EXIT_TERMINATED
+    if isinstance(exc, TrustError):
+        return f"refused: {_line(exc)}", EXIT_FAILED
+    if isinstance(exc, InfeasibleError):
+        return f"failed: {_line(exc)}", EXIT_FAILED
+    if isinstance(exc, OSError) and not isinstance(exc, ServotuneError):
+        where = f" {_line(repr(exc.filename))}:" if getattr(exc, "filename", None) else ""
+        return f"error:{where} {_line(exc.strerror or exc)}", EXIT_BAD_INPUT
+    return f"error: {_line(exc)}", EXIT_BAD_INPUT
+
+
+def _line(exc: object) -> str:
+    """An error as one line of at most :data:`_MAX_MESSAGE` characters."""
+    text = " ".join(str(exc).split())
+    return text if len(text) <= _MAX_MESSAGE else text[: _MAX_MESSAGE - 1] + "…"
+
+
+def _print_product(as_json: bool, doc: Callable[[], object], text: Callable[[], str]) -> None:
+    """The product on stdout: ``doc()`` as indented, key-sorted JSON, or else ``text()``."""
+    if as_json:
+        print(json.dumps(doc(), indent=2, sort_keys=True))
+    else:
+        print(text())
+
+
+def _summary(as_json: bool, doc: object, text: Callable[[], str]) -> None:
+    """A verb's summary (DECISIONS 10): with ``--json`` ``doc`` as JSON on stdout, else
+    ``text()`` on stderr."""
+    if as_json:
+        print(json.dumps(doc, indent=2, sort_keys=True))
+    else:
+        print(text(), file=sys.stderr)
+
+
+def _deliver(
+    output: str | None,
+    write: Callable[[str | Path], None],
+    text: Callable[[], str],
+    what: str,
+    current: Path | None = None,
+) -> None:
+    """A file product: written to ``output`` (saying so on stderr), else its ``text()`` on
+    stdout; and recorded as the workbench's ``current`` tuning when given."""
+    if output and output != "-":
+        write(output)
+        print(f"wrote {what} to {output}", file=sys.stderr)
+    else:
+        sys.stdout.write(text())
+    if current is not None:
+        write(current)
+        print(f"recorded it as the current tuning ({current})", file=sys.stderr)
+
+
+def _check_dirs(*paths: str | None) -> None:
+    """Fail before any work when an output's directory is missing (nothing gets written)."""
+    for p in paths:
+        if p and p != "-" and not Path(p).resolve().parent.is_dir():
+            raise FileNotFoundError(
+                2, f"the directory of {p!r} does not exist (create it first)", p
+            )
+
+
+def _workbench_dir(d: Path) -> None:
+    """Create the workbench directory and check it is writable, before any work or output."""
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ServotuneError(
+            f"cannot create the workbench directory {str(d)!r}: {exc.strerror or exc} "
+            "(set SERVOTUNE_WORKBENCH, or pass --no-current)"
+        ) from None
+    if not os.access(d, os.W_OK | os.X_OK):
+        raise ServotuneError(
+            f"the workbench directory {str(d)!r} is not writable (set SERVOTUNE_WORKBENCH, or "
+            "pass --no-current)"
+        )

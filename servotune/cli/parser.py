@@ -1,0 +1,559 @@
+"""The verbs, their options, help texts and examples: :func:`_parser` builds the argparse
+parser, each verb pointing at its handler (``func``).
+
+It imports only the handlers' modules, which import the library inside each handler: building
+the parser (``servotune --help``) loads no heavy dependency.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from servotune._version import __version__
+from servotune.cli.design import _cmd_margins, _cmd_plan, _cmd_tune, _cmd_verify
+from servotune.cli.measure import _cmd_excite, _cmd_fit, _cmd_rig, _cmd_simulate
+from servotune.cli.studies import _cmd_compare, _cmd_demo, _cmd_linkage, _cmd_sync
+from servotune.cli.tables import _cmd_check_table, _cmd_export_table
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="servotune",
+        description="Control design and tuning workbench for synchronised position servos.",
+    )
+    p.add_argument("--version", action="version", version=f"servotune {__version__}")
+    p.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    p.add_argument(
+        "-q",
+        "--quiet",
+        action="store_true",
+        help="no progress on stderr (errors, warnings and summaries still go there)",
+    )
+    p.add_argument(
+        "--max-memory",
+        metavar="SIZE",
+        help="memory budget a run may plan to allocate, e.g. 512M, 8G (default 2G, or "
+        "$SERVOTUNE_MAX_MEMORY); a larger run is refused before it starts (exit 3)",
+    )
+    sub = p.add_subparsers(dest="verb", required=True, metavar="VERB")
+
+    s = sub.add_parser("rig", help="print the derived facts of a rig file")
+    s.add_argument("rig", help="rig file (TOML), e.g. plants/pc-dual-servo.toml")
+    s.add_argument("--json", action="store_true", help="JSON on stdout")
+    s.set_defaults(func=_cmd_rig)
+
+    s = sub.add_parser("simulate", help="run a scenario on the virtual rig and write a log")
+    s.add_argument("rig", help="rig file (TOML)")
+    s.add_argument("--scenario", help="prbs, steps, chirp or track")
+    s.add_argument("--input", help="excitation CSV to play (from servotune excite)")
+    s.add_argument("--axis", help="axis to excite or move (default: the master)")
+    s.add_argument("--seconds", type=float, default=10.0, help="duration [s] (default 10)")
+    s.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    s.add_argument(
+        "--closed-loop",
+        action="store_true",
+        help="excite with the lock module active (identification in closed loop)",
+    )
+    s.add_argument("--no-noise", action="store_true", help="switch the encoder noise off")
+    s.add_argument("-o", "--output", required=True, help="log file to write ('-' for stdout)")
+    s.set_defaults(func=_cmd_simulate)
+
+    s = sub.add_parser("fit", help="identify an axis's motor + drive model from a logged run")
+    s.add_argument(
+        "log",
+        nargs="+",
+        help="log CSV (as `servotune simulate` writes it; see the README), or a LinuxCNC HAL "
+        "capture (halsampler output or halscope's saved data) read with --map; several only "
+        "with --fleet",
+    )
+    s.add_argument("--axis", help="axis to fit (needed for multi-axis logs)")
+    s.add_argument("--rig", help="rig file: D/A, counter, period and compute time fallbacks")
+    s.add_argument(
+        "--structure", default=None, help="auto (default: BIC) or a list from delay,offset,coulomb"
+    )
+    s.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
+    s.add_argument("-o", "--output", help="write the axis's plant section into this rig file")
+    s.add_argument("--plot", help="PNG: measured vs simulated position, velocity, residuals")
+    s.add_argument(
+        "--strict",
+        action="store_true",
+        help="an unknown metadata key in the log (# key: value, e.g. a typo) is an error, "
+        "not a warning",
+    )
+    s.add_argument(
+        "--name",
+        help="name of the rig -o creates (default: the file's name without .toml); an "
+        "existing rig file keeps its name",
+    )
+    s.add_argument("--counter-bits", type=int, help="counter width for raw counter columns")
+    s.add_argument(
+        "--dac-bits", type=int, help="D/A resolution for dac_code columns (a capture's code)"
+    )
+    s.add_argument("--dac-range-v", help="D/A range LOW,HIGH [V]")
+    s.add_argument(
+        "--period-s",
+        type=float,
+        help="sample period [s], e.g. 0.004; overrides the log's `# period_s:` line and its "
+        "time_s column (default: that line, else the time_s column); a halsampler capture "
+        "needs it (or period_s in the --map file)",
+    )
+    s.add_argument(
+        "--compute-s",
+        type=float,
+        help="time from the sample to the D/A write [s], e.g. 0.0002, if known (default: the "
+        "log's `# compute_s:` line, else the rig's; the fit then estimates only the rest of "
+        "the delay)",
+    )
+    s.add_argument(
+        "--method",
+        choices=["auto", "iv", "oe"],
+        default="auto",
+        help="iv: instrumental variables, consistent in closed loop (needs exc_code or a moving "
+        "reference); oe: least squares; auto (default): iv when the log allows it",
+    )
+    s.add_argument(
+        "--friction",
+        choices=["auto", "sym", "asym"],
+        default="auto",
+        help="friction form: sym, asym (gain and Coulomb level per direction), auto (default: BIC)",
+    )
+    s.add_argument(
+        "--invert-encoder",
+        action="store_true",
+        help="negate the position first (an encoder counting against the D/A's direction)",
+    )
+    hal = s.add_argument_group(
+        "LinuxCNC HAL captures", "halsampler output or halscope's saved data, read with --map"
+    )
+    hal.add_argument(
+        "--map",
+        metavar="KEY=PIN,...|FILE.toml",
+        help="read LOG as a HAL capture: which pin (or 0-based column) is what, e.g. "
+        "cmd=pid.0.output,pos=encoder.0.position; keys: cmd (pid output units) or code (D/A "
+        "code), pos (machine units) or counts (encoder counts), optional ref (commanded "
+        "position, machine units), exc (excitation, command units) and overruns (the "
+        "sampler.N.overruns pin: a change = lost samples); or a TOML file with a "
+        "[hal] table and [hal.map] (format, period_s, position_scale, output_scale, columns, "
+        "sample_number); the options below override it",
+    )
+    hal.add_argument(
+        "--hal-format",
+        choices=["halsampler", "halscope"],
+        help="the capture's format (default: detected; halscope's begins with '# Sampling "
+        "period is')",
+    )
+    hal.add_argument(
+        "--hal-columns",
+        metavar="PIN,PIN,...",
+        help="halsampler: the sampler's pins in its cfg order (the file names none), e.g. "
+        "pid.0.output,encoder.0.position",
+    )
+    hal.add_argument(
+        "--position-scale",
+        type=float,
+        metavar="COUNTS_PER_UNIT",
+        help="the encoder's position-scale [counts per machine unit], > 0: counts = position "
+        "× scale (needed for pos and ref)",
+    )
+    hal.add_argument(
+        "--output-scale",
+        type=float,
+        metavar="UNITS_PER_V",
+        help="pid output units per volt at the D/A, > 0 (default 1.0: the output is in volts)",
+    )
+    hal.add_argument(
+        "--sample-number",
+        action="store_const",
+        const=True,
+        help="halsampler: written with -t (first field the sample number; a gap, lost "
+        "samples, is an error)",
+    )
+    fleet = s.add_argument_group(
+        "fleet", "fit many machines' logs at once: a table, the fleet's spread, outliers, drift"
+    )
+    fleet.add_argument(
+        "--fleet",
+        metavar="TABLE.parquet|.csv",
+        help="fit every LOG (every axis, or --axis) and write one row per log and axis to this "
+        "table: parameters with 95 %% intervals, adequacy, fit %%, SHA-256, machine_id and date "
+        "(a bad log is a row with its error); the summary on stderr (--json: stdout)",
+    )
+    fleet.add_argument(
+        "--fleet-report", metavar="FILE.html", help="also write the report page (histograms)"
+    )
+    fleet.add_argument(
+        "--baseline",
+        "--previous",
+        metavar="TABLE",
+        help="an earlier --fleet table: each machine's previous fit, for drift",
+    )
+    fleet.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        default=None,
+        help="fit on the Dask cluster of this scheduler (tcp://HOST:8786; default: "
+        "$SERVOTUNE_SCHEDULER); see docs/scale.md",
+    )
+    fleet.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        metavar="N",
+        help="worker processes of a cluster started on this machine (1: in-process; default: "
+        "one per core from 200 logs)",
+    )
+    s.set_defaults(func=_cmd_fit)
+
+    s = sub.add_parser("excite", help="design an identification excitation (D/A codes)")
+    s.add_argument("--rig", required=True, help="rig file (TOML)")
+    s.add_argument("--axis", help="axis (default: the master)")
+    s.add_argument("--kind", required=True, choices=["prbs", "multisine", "steps"])
+    s.add_argument("--seconds", type=float, required=True, help="duration [s]")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--amplitude-codes", type=int, help="requested amplitude [D/A codes]")
+    s.add_argument("-o", "--output", required=True, help="excitation CSV to write")
+    s.set_defaults(func=_cmd_excite)
+
+    s = sub.add_parser(
+        "tune",
+        help="tune the master's PI and the slave's fuzzy-PID tables (a rig), or both drives' PI "
+        "and the sync compensator (a gantry config)",
+    )
+    s.add_argument("rig", help="rig file or gantry config (TOML)")
+    s.add_argument("-o", "--output", help="tuning file to write (default: stdout)")
+    s.add_argument("--seed", type=int, default=0, help="optimiser and noise seed (default 0)")
+    s.add_argument("--rule-base", default="default", choices=["default", "classic"])
+    s.add_argument("--generations", type=int, default=40, help="optimiser budget (default 40)")
+    s.add_argument("--population", type=int, default=32, help="candidates per generation")
+    s.add_argument(
+        "--max-overshoot-pct",
+        type=float,
+        help="largest lead of the slave over the master, %% of its largest lag (default 100)",
+    )
+    s.add_argument(
+        "--max-saturation-pct",
+        type=float,
+        help="largest share of task ticks on a D/A rail, %% (default 2, or the spec's sync "
+        "scenario's)",
+    )
+    s.add_argument(
+        "--pm",
+        type=float,
+        dest="min_phase_margin_deg",
+        help="least phase margin of every loop over the plant set [deg] (default 45, or the "
+        "spec's)",
+    )
+    s.add_argument(
+        "--gm",
+        type=float,
+        dest="min_gain_margin_db",
+        help="least gain margin of every loop over the plant set [dB] (default 6, or the spec's)",
+    )
+    s.add_argument(
+        "--ms",
+        type=float,
+        dest="max_sensitivity",
+        help="largest peak sensitivity of every loop over the plant set (default 2, or the spec's)",
+    )
+    s.add_argument(
+        "--spec",
+        help="verification spec (TOML) to design for: its [margins] limits and latency, timer "
+        "error, Monte-Carlo gain/tau spreads and its 'sync' scenario's run (other scenarios stay "
+        "held out); flags given here win",
+    )
+    s.add_argument(
+        "--json",
+        action="store_true",
+        help="the summary (gains, margins) as JSON on stdout (needs -o)",
+    )
+    s.add_argument(
+        "--no-current",
+        action="store_true",
+        help="do not record the result as the workbench's current tuning",
+    )
+    s.set_defaults(func=_cmd_tune)
+
+    s = sub.add_parser(
+        "plan",
+        help="plan a multi-CPU linkage: bus block budget, queue depths and watermarks, clock "
+        "sync, the axes' gains as the CPUs run them",
+    )
+    s.add_argument("config", help="linkage config (TOML)")
+    s.add_argument("-o", "--output", help="plan file to write (default: stdout)")
+    s.add_argument("--json", action="store_true", help="the plan's design as JSON on stdout")
+    s.set_defaults(func=_cmd_plan)
+
+    s = sub.add_parser(
+        "verify",
+        help="verify a tuning (rig or gantry) or a linkage plan against a spec in the bit-true "
+        "loop",
+    )
+    s.add_argument(
+        "tuning", help="tuning file (from servotune tune) or linkage plan (from servotune plan)"
+    )
+    s.add_argument("--spec", required=True, help="spec file (TOML)")
+    s.add_argument(
+        "--rig",
+        help="rig file: a copy of the tuning's rig (default: the path the tuning records, then "
+        "plants/<rig name>.toml); another rig is refused (exit 1)",
+    )
+    s.add_argument(
+        "--config",
+        help="the gantry or linkage config a gantry tuning or a linkage plan was made from: a "
+        "copy of it (default: the path the file records, then plants/<name>.toml); another "
+        "is refused",
+    )
+    s.add_argument("--seed", type=int, default=None, help="Monte-Carlo seed (default: the spec's)")
+    s.add_argument(
+        "--montecarlo",
+        type=int,
+        default=None,
+        metavar="N",
+        help="Monte-Carlo plant sets (default: the spec's montecarlo.count; up to 1e8): run in "
+        "chunks, in-process below 100,000, else on a Dask cluster (--scheduler, or one started "
+        "on this machine's cores); the result is the same on any of them",
+    )
+    s.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        default=None,
+        help="run the plant sets on the Dask cluster of this scheduler (tcp://HOST:8786; "
+        "default: $SERVOTUNE_SCHEDULER); see docs/scale.md",
+    )
+    s.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        metavar="N",
+        help="worker processes of a cluster started on this machine, whatever the size "
+        "(1: in-process; default: one per core, from 100,000 plant sets, or a gantry's "
+        "10,000 plant pairs)",
+    )
+    s.add_argument(
+        "--plants-from",
+        metavar="FLEET",
+        default=None,
+        help="draw the Monte-Carlo plants from this fleet table (servotune fit --fleet "
+        "output, .parquet or .csv) instead of the spec's spread: each plant set takes the "
+        "--plants-axis plant of one machine's latest adequate fit, machines drawn uniformly",
+    )
+    s.add_argument(
+        "--plants-axis",
+        metavar="AXIS",
+        default=None,
+        help="the rig axis whose plant --plants-from draws (the fleet's fits of that axis)",
+    )
+    s.add_argument("--json", action="store_true", help="the verification record as JSON on stdout")
+    s.add_argument("--report", help="also write the HTML report into this directory")
+    s.set_defaults(func=_cmd_verify)
+
+    s = sub.add_parser(
+        "margins",
+        help="gain, phase and delay margins, Ms and Mt of every loop a tuning can run "
+        "(exit 1 if one breaks a limit)",
+    )
+    s.add_argument("tuning", help="tuning file (from servotune tune)")
+    s.add_argument(
+        "--rig",
+        help="rig file: a copy of the tuning's rig (default: the path the tuning records, then "
+        "plants/<rig name>.toml); another rig is refused (exit 1)",
+    )
+    s.add_argument("--pm", type=float, default=45.0, help="least phase margin [deg] (default 45)")
+    s.add_argument("--gm", type=float, default=6.0, help="least gain margin [dB] (default 6)")
+    s.add_argument("--ms", type=float, default=2.0, help="largest peak sensitivity (default 2.0)")
+    s.add_argument("--json", action="store_true", help="every loop's figures as JSON on stdout")
+    s.set_defaults(func=_cmd_margins)
+
+    s = sub.add_parser("export-table", help="export a verified tuning's tables (JSON or C)")
+    s.add_argument(
+        "tuning",
+        nargs="?",
+        help="tuning file or linkage plan (default: the workbench's current tuning)",
+    )
+    s.add_argument(
+        "-o", "--output",
+        help="file (JSON, HAL, .comp) or directory (C); default stdout (not for C)",
+    )  # fmt: skip
+    s.add_argument(
+        "--format",
+        choices=["json", "c", "linuxcnc-hal", "linuxcnc-comp"],
+        default="json",
+        help="json (default); c: header + runtime sources; linuxcnc-hal: a HAL file setting the "
+        "stock pid component's parameters for the master axis; linuxcnc-comp: a realtime HAL "
+        "component (build it with halcompile) running the verified runtime and its tables",
+    )
+    s.add_argument(
+        "--position-scale",
+        type=float,
+        help="linuxcnc-hal: encoder counts per machine unit (the encoder's position-scale), "
+        "e.g. 2000",
+    )
+    s.add_argument(
+        "--output-scale",
+        type=float,
+        default=1.0,
+        help="linuxcnc-hal: pid output units per volt at the D/A (default 1: output in volts)",
+    )
+    s.add_argument(
+        "--pid",
+        default="pid.x",
+        help="linuxcnc-hal: the pid instance the file sets (default pid.x, as `loadrt pid "
+        "names=pid.x`)",
+    )
+    s.add_argument(
+        "--no-feedforward",
+        action="store_true",
+        help="linuxcnc-hal: FF1 = 0, exactly the verified law (default: FF1 = 1/plant gain, "
+        "velocity feedforward on the command only, margins unchanged)",
+    )
+    s.add_argument(
+        "--name",
+        default="servotune",
+        help="linuxcnc-comp: the component's name (default servotune)",
+    )
+    s.add_argument(
+        "--rig",
+        help="rig file: a copy of the tuning's rig (default: the path the tuning records, then "
+        "plants/<rig name>.toml); another rig is refused",
+    )
+    s.add_argument(
+        "--config",
+        help="the gantry config of a gantry tuning (default: the path the tuning records); "
+        "another is refused",
+    )
+    s.add_argument("--spec", help="also require that the verification used this spec file")
+    s.add_argument("--unverified", action="store_true", help="export without a passed verify")
+    s.set_defaults(func=_cmd_export_table)
+
+    s = sub.add_parser(
+        "check-table", help="check a tables export: every CRC and digest (any edit is refused)"
+    )
+    s.add_argument("file", help="tables export (JSON, from servotune export-table)")
+    s.add_argument("--json", action="store_true", help="the check's summary as JSON on stdout")
+    s.set_defaults(func=_cmd_check_table)
+
+    s = sub.add_parser("demo", help="run the whole job on a rig and write into a directory")
+    s.add_argument("rig", help="rig file (TOML)")
+    s.add_argument("--out", default="reports", help="output directory (default reports)")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument(
+        "--full",
+        action="store_true",
+        help="the whole study: the default tuning budget, Figure 4 over three seeds and the "
+        "tracking/robustness sweep (several minutes; default: the quick preset)",
+    )
+    s.set_defaults(func=_cmd_demo)
+
+    s = sub.add_parser(
+        "compare",
+        help="Figure 4: PID, PID + feedforward and composite tuned alike, compared on held-out "
+        "scenarios",
+    )
+    s.add_argument("rig", help="rig file (TOML)")
+    s.add_argument("--spec", required=True, help="verification spec (TOML): limits, tuning run "
+                   "and the held-out scenarios")  # fmt: skip
+    s.add_argument("--out", default="reports", help="directory for figure4.png/json, pareto.png")
+    s.add_argument("--seeds", type=int, default=3, help="optimiser seeds (default 3)")
+    s.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
+    s.add_argument("--generations", type=int, default=40, help="optimiser budget (default 40)")
+    s.add_argument("--population", type=int, default=32, help="candidates per generation")
+    s.add_argument(
+        "--heldout-count",
+        type=int,
+        default=64,
+        help="Monte-Carlo plant draws per held-out verification (default 64)",
+    )
+    s.add_argument(
+        "--pareto",
+        default="",
+        metavar="MS,MS,...",
+        help="peak-sensitivity ceilings of the trade-off sweep, e.g. 1.3,1.5,1.7,2",
+    )
+    s.add_argument("--json", action="store_true", help="figure4.json on stdout as well")
+    s.set_defaults(func=_cmd_compare)
+
+    s = sub.add_parser("sync", help="compare gantry topologies on a gantry config")
+    s.add_argument("config", help="gantry config (TOML), e.g. plants/gantry.toml")
+    s.add_argument("--seed", type=int, default=0, help="noise and jitter seed (default 0)")
+    s.add_argument(
+        "--montecarlo",
+        type=int,
+        default=0,
+        metavar="N",
+        help="also run the deployed topology over N plant pairs drawn inside the [margins] "
+        "spreads; a trip in any fails (default 0: none)",
+    )
+    s.add_argument("--json", action="store_true", help="JSON on stdout")
+    s.add_argument("--plot", metavar="DIR", help="write sync-error plots (PNG) into DIR")
+    s.set_defaults(func=_cmd_sync)
+
+    s = sub.add_parser("linkage", help="simulate a multi-CPU linkage and check it")
+    s.add_argument("config", help="linkage config (TOML), e.g. plants/linkage-6axis.toml")
+    s.add_argument("--seconds", type=float, help="simulated time [s] (default: path + settle)")
+    s.add_argument("--seed", type=int, default=0, help="encoder-noise seed (default 0)")
+    s.add_argument("--json", action="store_true", help="the result as JSON on stdout")
+    s.add_argument("--plot", metavar="DIR", help="write queue and circular-test PNGs into DIR")
+    s.set_defaults(func=_cmd_linkage)
+    for name, verb in sub.choices.items():  # --quiet also after the verb (where users type it)
+        verb.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
+                          help="no progress on stderr")  # fmt: skip
+        verb.formatter_class = argparse.RawDescriptionHelpFormatter
+        verb.epilog = "examples:\n" + "\n".join(f"  {x}" for x in _EXAMPLES[name])
+    return p
+
+
+_EXAMPLES = {
+    "rig": ["servotune rig plants/pc-dual-servo.toml", "servotune rig my-rig.toml --json"],
+    "simulate": [
+        "servotune simulate plants/pc-dual-servo.toml --scenario prbs --axis master "
+        "--seconds 20 -o log.csv",
+        "servotune simulate plants/pc-dual-servo.toml --input exc.csv --closed-loop -o my.csv",
+    ],
+    "fit": [
+        "servotune fit my.csv --axis master                  # summary on stderr",
+        "servotune fit my.csv --axis master -o my-rig.toml   # a new rig named my-rig",
+        "servotune fit my.csv --axis master --json --plot fit.png",
+        "servotune fit logs/*.csv --axis master --fleet fleet.parquet --fleet-report fleet.html",
+        "servotune fit capture.txt --axis x --map cmd=pid.0.output,pos=encoder.0.position "
+        "--hal-columns pid.0.output,encoder.0.position --period-s 0.001 "
+        "--position-scale 2000   # LinuxCNC halsampler",
+    ],
+    "excite": [
+        "servotune excite --rig my-rig.toml --axis master --kind prbs --seconds 40 -o exc.csv",
+    ],
+    "tune": [
+        "servotune tune my-rig.toml -o tuning.json",
+        "servotune tune my-rig.toml -o tuning.json --spec plants/pc-dual-servo.spec.toml",
+        "servotune tune plants/gantry.toml -o gantry.tuning.json   # a gantry config",
+    ],
+    "plan": ["servotune plan plants/linkage-6axis.toml -o linkage.plan.json"],
+    "verify": [
+        "servotune verify tuning.json --spec plants/pc-dual-servo.spec.toml --report reports",
+        "servotune verify gantry.tuning.json --spec plants/gantry.spec.toml",
+        "servotune verify linkage.plan.json --spec plants/linkage-6axis.spec.toml",
+    ],
+    "margins": ["servotune margins tuning.json --pm 50 --gm 6 --ms 1.8"],
+    "export-table": [
+        "servotune export-table tuning.json -o fuzzy.json",
+        "servotune export-table tuning.json --format c -o runtime/",
+        "servotune export-table -o fuzzy.json   # the workbench's current tuning",
+        "servotune export-table tuning.json --format linuxcnc-hal --position-scale 2000 "
+        "-o pid-x.hal",
+        "servotune export-table tuning.json --format linuxcnc-comp -o servotune.comp",
+    ],
+    "check-table": ["servotune check-table fuzzy.json"],
+    "demo": [
+        "servotune demo plants/pc-dual-servo.toml --out reports",
+        "servotune demo plants/pc-dual-servo.toml --out reports --full",
+    ],
+    "compare": [
+        "servotune compare plants/pc-dual-servo.toml --spec plants/pc-dual-servo.spec.toml "
+        "--seeds 3 --json > figure4.json",
+    ],
+    "sync": [
+        "servotune sync plants/gantry.toml",
+        "servotune sync plants/gantry.toml --montecarlo 1000 --plot reports/",
+    ],
+    "linkage": ["servotune linkage plants/linkage-6axis.toml --json --plot reports/"],
+}
+"""One or more command lines per verb, shown under its ``--help``."""

@@ -1,0 +1,119 @@
+"""The whole-job and architecture studies: ``demo``, ``compare`` (Figure 4), ``sync`` (gantry
+topologies) and ``linkage`` (a multi-CPU linkage run)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from servotune.cli.output import EXIT_FAILED, EXIT_OK, _print_product, _progress
+from servotune.errors import ServotuneError
+
+# The library is imported inside each handler, not here, so that ``servotune --help`` (and any
+# verb) pays only for what it uses: numba, scipy, matplotlib and python-control stay unloaded
+# until a handler needs them (tests/cli/test_help_imports.py). That is the only reason for an
+# import inside a function in this module; none of them works around an import cycle.
+
+
+def _cmd_compare(args: argparse.Namespace) -> int:
+    from servotune.pipeline import DemoPreset, comparison_statement, run_comparison
+    from servotune.rig import load_rig
+    from servotune.verify.spec import load_spec
+
+    try:
+        ms = tuple(float(x) for x in args.pareto.split(",") if x.strip())
+    except ValueError:
+        raise ServotuneError(
+            f"--pareto takes numbers separated by commas, got {args.pareto!r}"
+        ) from None
+    if args.seeds < 1:
+        raise ServotuneError(f"--seeds must be >= 1, got {args.seeds}")
+    rig, spec = load_rig(args.rig), load_spec(args.spec)
+    Path(args.out).mkdir(parents=True, exist_ok=True)
+    preset = DemoPreset(generations=args.generations, population=args.population,
+                        seeds=tuple(range(args.seeds)), heldout_count=args.heldout_count,
+                        pareto_ms=ms)  # fmt: skip
+    cmp = run_comparison(rig, spec, args.out, preset=preset, seed=args.seed,
+                         progress=_progress)  # fmt: skip
+    print("\n".join(comparison_statement(cmp)), file=sys.stderr)
+    if args.json:
+        sys.stdout.write((Path(args.out) / "figure4.json").read_text())
+    print(f"wrote figure4.png, figure4.json{', pareto.png' if ms else ''} to {args.out}",
+          file=sys.stderr)  # fmt: skip
+    return EXIT_OK
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    from servotune.pipeline import comparison_table_text, run_demo
+
+    Path(args.out).mkdir(parents=True, exist_ok=True)
+    summary = run_demo(args.rig, args.out, seed=args.seed,
+                       preset="full" if args.full else "quick",
+                       progress=_progress)  # fmt: skip
+    for name, h in summary["lock_hold"].items():
+        print(f"lock hold {name}: observed {h['observed_counts']} "
+              f"predicted {h['predicted_counts']} counts", file=sys.stderr)  # fmt: skip
+    for name, f in summary["identification"].items():
+        err = f["relative_error"]
+        print(f"fit {name}: {'+'.join(f['structure'])}; gain {err['gain_cps_per_v']:+.2%}, "
+              f"tau {err['tau_s']:+.2%} vs the virtual rig's truth", file=sys.stderr)  # fmt: skip
+    print("Figure 4 (slave tracking, each structure tuned with the same budget):\n"
+          + comparison_table_text(summary["comparison"]), file=sys.stderr)  # fmt: skip
+    print("\n".join(summary["figure4_statement"]), file=sys.stderr)
+    v = summary["verification"]
+    print("verify: " + ("PASSED" if v["passed"] else "FAILED: " + "; ".join(v["failures"])),
+          file=sys.stderr)  # fmt: skip
+    for name, a in summary["architectures"].items():
+        print(f"{name}: {'checks passed' if a['passed'] else 'a check FAILED'}", file=sys.stderr)
+    print(f"wrote demo_summary.json, report.html, lock_hold.png, track.png, fit_*.png, "
+          f"fitted-rig.toml, tuning.json, figure4.png, sync.json, sync_*.png, linkage.json, "
+          f"linkage_*.png, "
+          f"{', '.join(summary['exported']) or 'no exports'} and logs to {args.out}",
+          file=sys.stderr)  # fmt: skip
+    return EXIT_OK
+
+
+def _cmd_sync(args: argparse.Namespace) -> int:
+    from servotune.arch.gantry import compare_topologies
+    from servotune.arch.gantry.load import load_gantry
+    from servotune.report.text import format_comparison
+
+    cmp = compare_topologies(load_gantry(args.config), seed=args.seed,
+                             montecarlo=args.montecarlo)  # fmt: skip
+    _print_product(args.json, cmp.to_dict, lambda: format_comparison(cmp))
+    if args.plot:
+        from servotune.arch.gantry import CASES
+        from servotune.plot import plot_sync_errors, save_figure
+
+        Path(args.plot).mkdir(parents=True, exist_ok=True)
+        for case in CASES:
+            save_figure(plot_sync_errors(cmp.traces, case), Path(args.plot) / f"sync_{case}.png")
+        print(f"wrote sync_{{{','.join(CASES)}}}.png to {args.plot}", file=sys.stderr)
+    for reason in cmp.failed:
+        print(f"servotune sync: check failed: {reason}", file=sys.stderr)
+    return EXIT_OK if cmp.passed else EXIT_FAILED
+
+
+def _cmd_linkage(args: argparse.Namespace) -> int:
+    from servotune.arch.linkage import LinkageCheckError, load_linkage, run_linkage
+    from servotune.report.text import format_linkage_summary
+
+    config = load_linkage(args.config)
+    try:
+        result = run_linkage(config, seconds=args.seconds, seed=args.seed)
+    except LinkageCheckError as exc:
+        for check in exc.checks:
+            print(f"servotune linkage: check failed: {check.detail}", file=sys.stderr)
+        return EXIT_FAILED
+    _print_product(args.json, result.to_dict, lambda: format_linkage_summary(result))
+    if args.plot:
+        from servotune.plot import plot_queue_levels, plot_radial_deviation, save_figure
+
+        Path(args.plot).mkdir(parents=True, exist_ok=True)
+        save_figure(plot_queue_levels(result), Path(args.plot) / "linkage_queues.png")
+        save_figure(plot_radial_deviation(result), Path(args.plot) / "linkage_circle.png")
+        print(f"wrote linkage_queues.png, linkage_circle.png to {args.plot}", file=sys.stderr)
+    for check in result.failed_checks:
+        print(f"servotune linkage: check failed: {check.detail}", file=sys.stderr)
+    return EXIT_OK if result.passed else EXIT_FAILED

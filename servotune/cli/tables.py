@@ -1,0 +1,175 @@
+"""The verbs on the deliverable: ``export-table`` (JSON, C, LinuxCNC HAL or component) and
+``check-table`` (every CRC and digest of an export)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from servotune.cli.output import EXIT_OK, _check_dirs, _deliver
+from servotune.errors import ServotuneError
+
+# The library is imported inside each handler, not here, so that ``servotune --help`` (and any
+# verb) pays only for what it uses: numba, scipy, matplotlib and python-control stay unloaded
+# until a handler needs them (tests/cli/test_help_imports.py). That is the only reason for an
+# import inside a function in this module; none of them works around an import cycle.
+
+
+def _export_gantry(args: argparse.Namespace, path: Path) -> int:
+    from servotune.arch.gantry.verify import load_gantry_for_export
+    from servotune.export.gantry import (
+        gantry_document,
+        gantry_tables_to_string,
+        write_gantry_c,
+        write_gantry_tables,
+    )
+
+    if args.rig is not None:
+        raise ServotuneError(f"--rig is for a single rig's tuning; {path} is a gantry tuning "
+                             "(give its gantry config with --config)")  # fmt: skip
+    v = load_gantry_for_export(path, args.config, args.spec, unverified=args.unverified)
+    doc = gantry_document(v.tuning, v.config.rig, record=v.record, unverified=args.unverified)
+    if args.format == "c":
+        Path(args.output).mkdir(parents=True, exist_ok=True)
+        written = write_gantry_c(doc, args.output)
+        print(f"wrote {', '.join(p.name for p in written)} to {args.output}", file=sys.stderr)
+    elif args.output and args.output != "-":
+        write_gantry_tables(doc, args.output)
+        print(f"wrote the gantry tables to {args.output}", file=sys.stderr)
+    else:
+        sys.stdout.write(gantry_tables_to_string(doc))
+    return EXIT_OK
+
+
+def _export_linkage(args: argparse.Namespace, path: Path) -> int:
+    from servotune.arch.linkage import load_plan_for_export
+    from servotune.export.linkage import linkage_plan_json, write_linkage_c
+
+    for flag, value in (("--rig", args.rig), ("--config", args.config)):
+        if value is not None:
+            raise ServotuneError(f"{flag} does not apply to a linkage plan ({path}): the plan "
+                                 "binds its config and rig by their hashes")  # fmt: skip
+    plan, record = load_plan_for_export(path, args.spec, unverified=args.unverified)
+    if args.format == "c":
+        Path(args.output).mkdir(parents=True, exist_ok=True)
+        written = write_linkage_c(plan, args.output, record=record, unverified=args.unverified)
+        print(f"wrote {', '.join(p.name for p in written)} to {args.output}", file=sys.stderr)
+        return EXIT_OK
+    text = linkage_plan_json(plan, record, unverified=args.unverified)
+    if args.output and args.output != "-":
+        from servotune.io.files import atomic_write_text
+
+        atomic_write_text(args.output, text)
+        print(f"wrote the linkage export to {args.output}", file=sys.stderr)
+    else:
+        sys.stdout.write(text)
+    return EXIT_OK
+
+
+def _cmd_export_table(args: argparse.Namespace) -> int:
+    from servotune.arch.kind import document_kind
+    from servotune.export import tables_to_string, write_c, write_tables
+    from servotune.io.files import atomic_write_text
+    from servotune.tuning import current_tuning_path
+    from servotune.verify import load_for_export
+
+    path = Path(args.tuning) if args.tuning else current_tuning_path()
+    if args.format == "c" and not args.output:
+        raise ServotuneError("--format c needs -o DIR (the directory to write the C files into)")
+    _check_dirs(args.output if args.format != "c" else None)
+    kind = document_kind(path)
+    if args.format.startswith("linuxcnc-") and kind in ("gantry", "linkage"):
+        raise ServotuneError(
+            f"--format {args.format} exports a rig's tuning (one runtime, its master and slave "
+            f"axes); {path} is a {kind} {'plan' if kind == 'linkage' else 'tuning'}: export it "
+            "with --format json or c"
+        )
+    if kind == "gantry":
+        return _export_gantry(args, path)
+    if kind == "linkage":
+        return _export_linkage(args, path)
+    if args.config is not None:
+        raise ServotuneError(f"--config is for a gantry tuning; {path} is a rig's tuning")
+    v = load_for_export(path, args.rig, args.spec, unverified=args.unverified)
+    kw = {"rig": v.rig, "verification": v.record, "unverified": v.record is None}
+    if args.format.startswith("linuxcnc-"):
+        text = _linuxcnc_text(args, v.tuning, kw)
+        what = "HAL file" if args.format == "linuxcnc-hal" else "HAL component"
+        _deliver(args.output, lambda p: atomic_write_text(p, text), lambda: text, f"the {what}")
+    elif args.format == "c":
+        Path(args.output).mkdir(parents=True, exist_ok=True)
+        written = write_c(v.tuning, args.output, **kw)
+        print(f"wrote {', '.join(p.name for p in written)} to {args.output}", file=sys.stderr)
+    elif args.output and args.output != "-":
+        write_tables(v.tuning, args.output, **kw)
+        print(f"wrote the tables to {args.output}", file=sys.stderr)
+    else:
+        sys.stdout.write(tables_to_string(v.tuning, **kw))
+    return EXIT_OK
+
+
+def _linuxcnc_text(args: argparse.Namespace, tuning: object, kw: dict) -> str:
+    """The text of a LinuxCNC export of ``tuning`` (``--format linuxcnc-*``)."""
+    if args.format == "linuxcnc-comp":
+        from servotune.export.hal_component import component_source
+
+        return component_source(tuning, name=args.name, **kw)
+    from servotune.export.linuxcnc import pid_hal_text
+
+    if args.position_scale is None:
+        raise ServotuneError(
+            "--format linuxcnc-hal needs --position-scale (encoder counts per machine unit, "
+            "the encoder's position-scale parameter)"
+        )
+    return pid_hal_text(tuning, position_scale=args.position_scale,
+                        output_scale=args.output_scale, pid_name=args.pid,
+                        velocity_feedforward=not args.no_feedforward, **kw)  # fmt: skip
+
+
+def _check_gantry_table(args: argparse.Namespace) -> int:
+    from servotune.errors import ExportError
+    from servotune.export.gantry import check_gantry_tables
+    from servotune.io.files import read_bytes
+
+    raw = read_bytes(args.file, ExportError, "gantry tables export")
+    doc = check_gantry_tables(raw.decode("utf-8", errors="replace"), args.file)
+    data = doc["data"]
+    if args.json:
+        print(json.dumps({"c_layout_sha256": data["c_layout_sha256"], "file": args.file,
+                          "gantry": data["gantry_name"], "ok": True, "schema": doc["schema"],
+                          "sha256": doc["sha256"], "verified": doc["verified"]},
+                         indent=2, sort_keys=True))  # fmt: skip
+    verified = "verified" if doc["verified"] else "NOT verified (exported --unverified)"
+    print(f"{args.file}: ok: {doc['schema']}, gantry {data['gantry_name']} "
+          f"({data['topology']}), {verified}; both digests match (sha256 "
+          f"{doc['sha256'][:12]}…)", file=sys.stderr)  # fmt: skip
+    return EXIT_OK
+
+
+def _cmd_check_table(args: argparse.Namespace) -> int:
+    from servotune.arch.kind import document_kind
+    from servotune.export.json import load_tables
+
+    if document_kind(args.file) == "gantry":
+        return _check_gantry_table(args)
+    doc = load_tables(args.file)
+    data = doc["data"]
+    summary = {
+        "axes": [a["name"] for a in data["axes"]],
+        "c_layout_sha256": data["c_layout_sha256"],
+        "file": args.file,
+        "ok": True,
+        "rig": data["rig_name"],
+        "schema": doc["schema"],
+        "sha256": doc["sha256"],
+        "verified": doc["verified"],
+    }
+    if args.json:
+        print(json.dumps(summary, indent=2, sort_keys=True))
+    verified = "verified" if doc["verified"] else "NOT verified (exported --unverified)"
+    print(f"{args.file}: ok: {doc['schema']}, rig {data['rig_name']}, axes "
+          f"{', '.join(summary['axes'])}, {verified}; every CRC and digest matches "
+          f"(sha256 {doc['sha256'][:12]}…)", file=sys.stderr)  # fmt: skip
+    return EXIT_OK
