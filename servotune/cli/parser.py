@@ -8,12 +8,32 @@ the parser (``servotune --help``) loads no heavy dependency.
 from __future__ import annotations
 
 import argparse
+from typing import Any
 
 from servotune._version import __version__
 from servotune.cli.design import _cmd_margins, _cmd_plan, _cmd_tune, _cmd_verify
 from servotune.cli.measure import _cmd_excite, _cmd_fit, _cmd_rig, _cmd_simulate
 from servotune.cli.studies import _cmd_compare, _cmd_demo, _cmd_linkage, _cmd_sync
 from servotune.cli.tables import _cmd_check_table, _cmd_export_table
+
+
+def _executor_options(group: Any, what: str, from_size: str) -> None:
+    """``--scheduler`` and ``--workers`` (where the work runs: servotune.executor)."""
+    group.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        default=None,
+        help=f"{what} on the Dask cluster of this scheduler (tcp://HOST:8786; default: "
+        "$SERVOTUNE_SCHEDULER); see docs/scale.md",
+    )
+    group.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        metavar="N",
+        help="worker processes of a cluster started on this machine, whatever the size "
+        f"(1: in-process; default: one per core from {from_size})",
+    )
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -187,21 +207,7 @@ def _parser() -> argparse.ArgumentParser:
         metavar="TABLE",
         help="an earlier --fleet table: each machine's previous fit, for drift",
     )
-    fleet.add_argument(
-        "--scheduler",
-        metavar="ADDRESS",
-        default=None,
-        help="fit on the Dask cluster of this scheduler (tcp://HOST:8786; default: "
-        "$SERVOTUNE_SCHEDULER); see docs/scale.md",
-    )
-    fleet.add_argument(
-        "--workers",
-        type=int,
-        default=None,
-        metavar="N",
-        help="worker processes of a cluster started on this machine (1: in-process; default: "
-        "one per core from 200 logs)",
-    )
+    _executor_options(fleet, "fit", "200 logs")
     s.set_defaults(func=_cmd_fit)
 
     s = sub.add_parser("excite", help="design an identification excitation (D/A codes)")
@@ -313,22 +319,8 @@ def _parser() -> argparse.ArgumentParser:
         "chunks, in-process below 100,000, else on a Dask cluster (--scheduler, or one started "
         "on this machine's cores); the result is the same on any of them",
     )
-    s.add_argument(
-        "--scheduler",
-        metavar="ADDRESS",
-        default=None,
-        help="run the plant sets on the Dask cluster of this scheduler (tcp://HOST:8786; "
-        "default: $SERVOTUNE_SCHEDULER); see docs/scale.md",
-    )
-    s.add_argument(
-        "--workers",
-        type=int,
-        default=None,
-        metavar="N",
-        help="worker processes of a cluster started on this machine, whatever the size "
-        "(1: in-process; default: one per core, from 100,000 plant sets, or a gantry's "
-        "10,000 plant pairs)",
-    )
+    _executor_options(s, "run the plant sets",
+                      "100,000 plant sets, or a gantry's 10,000 plant pairs")  # fmt: skip
     s.add_argument(
         "--plants-from",
         metavar="FLEET",
