@@ -23,6 +23,7 @@ from scipy import fft as sp_fft
 from scipy.optimize import least_squares
 
 from servotune._numba_cache import call_compiled, jit
+from servotune.errors import IdentificationError
 
 __all__ = [
     "NoiseModel",
@@ -461,6 +462,14 @@ def fit_noise_model(
     -------
     NoiseModel
         The identity (``A = C = 1``) if the residual is constant or too short.
+
+    Raises
+    ------
+    IdentificationError
+        The best model's whitening filter needs as many samples to settle as the residual has
+        (:attr:`NoiseModel.settle_samples`: ~920 for a root at :data:`MAX_ROOT`): the filtered
+        sequences start after it, so on such a short log nothing would be left to estimate or
+        test with, and a lesser model would give intervals that are too narrow.
     """
     e = np.asarray(e, dtype=float)
     e = e[:REGRESSION_SAMPLES] - np.mean(e[:REGRESSION_SAMPLES])
@@ -492,7 +501,14 @@ def fit_noise_model(
             continue
         bic = w.size * math.log(var) + theta.size * math.log(w.size)
         if bic < best.bic:
-            best = NoiseModel(ar=np.concatenate([one, theta[:p]]),
-                              ma=np.concatenate([one, theta[p:]]), variance=var,
-                              bic=bic)  # fmt: skip
+            model = NoiseModel(ar=np.concatenate([one, theta[:p]]),
+                               ma=np.concatenate([one, theta[p:]]), variance=var,
+                               bic=bic)  # fmt: skip
+            if model.settle_samples >= n:  # its start-up outlasts the residual it fits
+                raise IdentificationError(
+                    f"the disturbance in this log needs a noise model whose start-up lasts "
+                    f"{model.settle_samples} samples, and the residual has {n}: the log is too "
+                    "short to identify it (record a longer one)"
+                )
+            best = model
     return best
