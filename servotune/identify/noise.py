@@ -501,14 +501,13 @@ def fit_noise_model(
             continue
         bic = w.size * math.log(var) + theta.size * math.log(w.size)
         if bic < best.bic:
-            model = NoiseModel(ar=np.concatenate([one, theta[:p]]),
-                               ma=np.concatenate([one, theta[p:]]), variance=var,
-                               bic=bic)  # fmt: skip
-            if model.settle_samples >= n:  # its start-up outlasts the residual it fits
-                raise IdentificationError(
-                    f"the disturbance in this log needs a noise model whose start-up lasts "
-                    f"{model.settle_samples} samples, and the residual has {n}: the log is too "
-                    "short to identify it (record a longer one)"
-                )
-            best = model
+            best = NoiseModel(ar=np.concatenate([one, theta[:p]]),
+                              ma=np.concatenate([one, theta[p:]]), variance=var,
+                              bic=bic)  # fmt: skip
+    if best.settle_samples >= n:  # its start-up outlasts the residual it was fitted on
+        raise IdentificationError(
+            f"the disturbance in this log needs a noise model whose start-up lasts "
+            f"{best.settle_samples} samples, and the residual has {n}: the log is too short to "
+            "identify it (record a longer one)"
+        )
     return best
