@@ -85,13 +85,15 @@ DEMO_DIGESTS = {
     # distribution, worst plant sets and sensitivity table, and RMS sync errors are summed per
     # plant set (independent of the chunking), which changed their last bit (683.6138006794951
     # -> 683.6138006794952 counts, checked against the demo of commit 070927d); nothing else.
+    # Session of 2026-11-26 (issue 16): servotune_rt.c/.h export st_axis_init (one axis's
+    # power-up state, which st_init and the gantry runtime now share); no arithmetic changed.
     "track_log.csv": "f7d686f065b441cdc05dd4509674df0e02206cb068f00010ec5697e31a7cbf3c",
     "fitted-rig.toml": "fa857aeaed5c4836378857da32ba0a8af7719206d0ef83dd526b8193e7114035",
     "tuning.json": "9546ae9eac0cb2fde8d2700c935bf988fdc70be897d1a0bfa9ab42a814f6b5b8",
     "fuzzy.json": "9fe17ad47390455100a95c66ca5cf0fb6de2febd5e38dd0d72bb7911ff4dca21",
     "figure4.json": "a384cf31c4d659fe72fa0ea60d1ff6f343ec6112168504e3a5c8a96369348958",
-    "c/servotune_rt.c": "a730ceb25dfa73219bcd3b6099ecdc0308fca1361bdd9fd13fa726016fba8a98",
-    "c/servotune_rt.h": "706bbc7dcf9b7104823c5e37edc7e7e01412e390243a19881970a93f8cb1e236",
+    "c/servotune_rt.c": "67c50305bbd484338ce53b638730f79f78b57254521a3f141420f9a7785bad20",
+    "c/servotune_rt.h": "406f72064291dd55a051e586d83e7adb115d078b56fac2583bdfbba83257b610",
     "c/servotune_tables.h": "a8bb4b0b2e7cef4c6d4114fbb31b03f5a9504e1d898e50539889768b916fd4d3",
 }
 

@@ -11,28 +11,12 @@
 
 /* --- power-up ------------------------------------------------------------------------- */
 
-static void zero_axis(st_axis_state_t *x)
-{
-    x->init = 0;
-    x->hi_prev = 0;
-    x->wraps = 0;
-    x->y = 0;
-    x->mode = 0;
-    x->fault = 0;
-    x->lock_target = 0;
-    x->integ = 0;
-    x->u_last = 0;
-    x->e_prev = 0;
-    x->r_prev = 0;
-    x->origin = 0;
-}
-
 void st_gantry_init(st_gantry_state_t *s)
 {
     int a;
     int j;
     for (a = 0; a < 2; a++) {
-        zero_axis(&s->drive[a]);
+        st_axis_init(&s->drive[a]);
         for (j = 0; j <= ST_GANTRY_MAX_LATENCY; j++) {
             s->y_hist[a][j] = 0;
         }
@@ -47,47 +31,29 @@ void st_gantry_init(st_gantry_state_t *s)
 
 /* --- constants check -------------------------------------------------------------------- */
 
-static int f_ok(int64_t f)
-{
-    return f >= 0 && f <= ST_F_U;
-}
-
-/* one drive: 0 or the field code f of the header (100 * (drive + 1) is added by the caller) */
+/* one drive: 0 or the field code f of the header (100 * (drive + 1) is added by the caller).
+ * The drive is checked as servotune_rt checks a one-axis runtime (st_check_consts), whose
+ * codes 1 + (2..7) name the same fields as codes 2..7 here (lock_f, kp_f, kit_f, fe_limit,
+ * counter_bits, the D/A range); a gantry drive must also run the PI law (1) and have no
+ * reference axis (8); any other field st_check_consts refuses is 9. */
 static int check_drive(const st_axis_consts_t *x)
 {
     st_consts_t one;
+    int r;
     if (x->law != ST_LAW_PI) {
         return 1;
     }
-    if (!f_ok(x->lock_f)) {
-        return 2;
-    }
-    if (!f_ok(x->kp_f)) {
-        return 3;
-    }
-    if (!f_ok(x->kit_f)) {
-        return 4;
-    }
-    if (x->fe_limit < 0) {
-        return 5;
-    }
-    if (x->counter_bits != 16 && x->counter_bits != 24 && x->counter_bits != 32) {
-        return 6;
-    }
-    if (x->dac_zero < 0 || x->dac_max < x->dac_zero || x->dac_max > 65535) {
-        return 7;
-    }
-    if (x->ref_source != -1) {
-        return 8;
-    }
-    /* everything else servotune_rt's own check asks of an axis (a one-axis runtime) */
     one.n_axes = 1;
     one.timer_divisor = 0;
     one.axis[0] = *x;
-    if (st_check_consts(&one) != 0) {
-        return 9;
+    r = st_check_consts(&one);
+    if (r == 0) {
+        return 0;
     }
-    return 0;
+    if (r - 1 >= 2 && r - 1 <= 7) {
+        return r - 1;
+    }
+    return x->ref_source != -1 ? 8 : 9;
 }
 
 int st_gantry_check(const st_gantry_consts_t *c)

@@ -431,23 +431,27 @@ int64_t st_axis_control(st_axis_state_t *s, const st_axis_consts_t *c, int64_t r
 
 /* --- the tick (engine._run_group, steps 1-4) ------------------------------------------- */
 
+void st_axis_init(st_axis_state_t *x)
+{
+    x->init = 0;
+    x->hi_prev = 0;
+    x->wraps = 0;
+    x->y = 0;
+    x->mode = 0;
+    x->fault = 0;
+    x->lock_target = 0;
+    x->integ = 0;
+    x->u_last = 0;
+    x->e_prev = 0;
+    x->r_prev = 0;
+    x->origin = 0;
+}
+
 void st_init(st_state_t *s)
 {
     int a;
     for (a = 0; a < ST_MAX_AXES; a++) {
-        st_axis_state_t *x = &s->axis[a];
-        x->init = 0;
-        x->hi_prev = 0;
-        x->wraps = 0;
-        x->y = 0;
-        x->mode = 0;
-        x->fault = 0;
-        x->lock_target = 0;
-        x->integ = 0;
-        x->u_last = 0;
-        x->e_prev = 0;
-        x->r_prev = 0;
-        x->origin = 0;
+        st_axis_init(&s->axis[a]);
     }
 }
 

@@ -167,8 +167,9 @@ typedef struct st_axis_out {
 
 /* --- the tick ------------------------------------------------------------------------- */
 
-/* Power-up state (all zero). */
+/* Power-up state (all zero): of every axis, or of one. */
 void st_init(st_state_t *s);
+void st_axis_init(st_axis_state_t *x);
 
 /* Check constants (ranges the no-overflow bounds rely on). 0 if valid, else
  * 1 + 100 * axis + field code (see servotune_rt.c) for the first bad field. */
