@@ -30,9 +30,10 @@ from __future__ import annotations
 
 import math
 import os
+from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from typing import Any, Protocol, TypeVar
+from typing import Any, TypeVar
 
 from servotune.errors import SchedulerError
 
@@ -61,8 +62,15 @@ already runs its candidates on every core's thread in-process, and only the Pyth
 kernel (plant draws, discretisation, evaluation of the traces) runs on one core."""
 
 
-class Executor(Protocol):
+Done = Callable[[int], None] | None
+"""The progress callback of :meth:`Executor.map` (None: no progress)."""
+
+
+class Executor(ABC):
     """Runs ``fn`` over independent items; the results come back in input order.
+
+    An implementation subclasses it and writes ``_map`` (the items as a list, the other
+    arguments positional); :meth:`map` is the one public entry.
 
     Attributes
     ----------
@@ -104,25 +112,21 @@ class Executor(Protocol):
             Called in the calling thread with the number of finished items after each one
             finishes (for progress).
         """
-        ...
+        return self._map(fn, list(items), shared, done)
+
+    @abstractmethod
+    def _map(self, fn: Callable[..., R], items: list[Any], shared: Any, done: Done) -> list[R]:
+        """:meth:`map` of this implementation."""
 
 
-class InProcessExecutor:
+class InProcessExecutor(Executor):
     """:class:`Executor` running every item in this process, one after the other."""
 
     name = "in-process"
     workers = 1
     threads_per_task: int | None = None
 
-    def map(
-        self,
-        fn: Callable[..., R],
-        items: Sequence[Any],
-        *,
-        shared: Any = None,
-        done: Callable[[int], None] | None = None,
-    ) -> list[R]:
-        """See :meth:`Executor.map`."""
+    def _map(self, fn: Callable[..., R], items: list[Any], shared: Any, done: Done) -> list[R]:
         out = []
         for i, item in enumerate(items):
             out.append(fn(item) if shared is None else fn(item, shared=shared))
@@ -131,8 +135,9 @@ class InProcessExecutor:
         return out
 
 
-class DaskExecutor:
-    """:class:`Executor` on a ``dask.distributed.Client`` (one task per item).
+class DaskExecutor(Executor):
+    """:class:`Executor` on a ``dask.distributed.Client`` (one task per item; ``shared`` is
+    scattered to every worker once).
 
     Parameters
     ----------
@@ -158,15 +163,7 @@ class DaskExecutor:
         info = self.client.scheduler_info()
         return max(1, sum(int(w.get("nthreads", 1)) for w in info.get("workers", {}).values()))
 
-    def map(
-        self,
-        fn: Callable[..., R],
-        items: Sequence[Any],
-        *,
-        shared: Any = None,
-        done: Callable[[int], None] | None = None,
-    ) -> list[R]:
-        """See :meth:`Executor.map`. ``shared`` is scattered to every worker once."""
+    def _map(self, fn: Callable[..., R], items: list[Any], shared: Any, done: Done) -> list[R]:
         from dask.distributed import as_completed
 
         if not items:
@@ -175,7 +172,7 @@ class DaskExecutor:
         if shared is not None:
             # broadcast: every worker holds a copy, so a dead worker loses none of it
             (kwargs["shared"],) = self.client.scatter([shared], broadcast=True, hash=False)
-        futures = self.client.map(fn, list(items), pure=False, retries=self.retries, **kwargs)
+        futures = self.client.map(fn, items, pure=False, retries=self.retries, **kwargs)
         try:
             for n, _ in enumerate(as_completed(futures), start=1):
                 if done is not None:

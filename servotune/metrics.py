@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 import operator
 from dataclasses import dataclass, fields
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -267,21 +268,24 @@ def step_info(
     low, high = _rise_limits(rise_limits)
     if not isinstance(refine, (bool, np.bool_)):
         raise ValueError(f"refine must be True or False, got {refine!r}")
-    if refine:
-        return _step_info_refined(t_arr, y_arr, y0, y1, threshold, low, high)
-    return _step_info_sampled(t_arr, y_arr, y0, y1, threshold, low, high)
+    levels = _Levels(y0, y1, threshold, low, high)
+    return (_step_info_refined if refine else _step_info_sampled)(t_arr, y_arr, levels)
 
 
-def _step_info_sampled(
-    t: NDArray[np.float64],
-    y: NDArray[np.float64],
-    y0: float,
-    y1: float,
-    threshold: float,
-    low: float,
-    high: float,
-) -> StepInfo:
+class _Levels(NamedTuple):
+    """What :func:`step_info` reads a response against: the initial and final values, the
+    settling band (a fraction of the step) and the two rise levels (fractions of it)."""
+
+    y0: float
+    y1: float
+    threshold: float
+    low: float
+    high: float
+
+
+def _step_info_sampled(t: NDArray[np.float64], y: NDArray[np.float64], lv: _Levels) -> StepInfo:
     """:func:`step_info` read at the samples (python-control's ``step_info`` conventions)."""
+    y0, y1, threshold, low, high = lv
     step = y1 - y0
     size = abs(step)
     # Deviation from y_init in the direction of the step: it is `size` at y_final. Levels are
@@ -331,24 +335,15 @@ def _step_info_sampled(
 
 
 def _step_info_refined(
-    t_arr: NDArray[np.float64],
-    y_arr: NDArray[np.float64],
-    y0: float,
-    y1: float,
-    threshold: float,
-    low: float,
-    high: float,
+    t_arr: NDArray[np.float64], y_arr: NDArray[np.float64], lv: _Levels
 ) -> StepInfo:
     """:func:`step_info` with interpolated crossings and parabola-refined extrema."""
+    y0, y1, threshold, low, high = lv
     z = (y_arr - y0) / (y1 - y0)
 
     # Rise time: first crossings of the two rise levels.
     t_low = _first_crossing(t_arr, z, low)
     t_high = _first_crossing(t_arr, z, high)
-    rise_time = t_high - t_low
-
-    # Settling time: exit from the band after the last sample outside it.
-    settling_time = _settling_time(t_arr, z, threshold)
 
     # Settling min / max: extrema of y from the upper rise crossing on.
     if math.isnan(t_high):
@@ -360,8 +355,6 @@ def _step_info_refined(
     # Overshoot / undershoot of the normalised response.
     _, z_max = _refined_max(t_arr, z, int(np.argmax(z)))
     _, neg_z_min = _refined_max(t_arr, -z, int(np.argmin(z)))
-    overshoot = 100.0 * max(0.0, z_max - 1.0)
-    undershoot = 100.0 * max(0.0, neg_z_min)
 
     # Peak of |y - y_init|, refined on the signed deviation to avoid the kink of abs().
     dev = y_arr - y0
@@ -370,12 +363,13 @@ def _step_info_refined(
     peak_time, peak = _refined_max(t_arr, sign * dev, i_peak)
 
     return StepInfo(
-        rise_time_s=rise_time,
-        settling_time_s=settling_time,
+        rise_time_s=t_high - t_low,
+        # exit from the band after the last sample outside it
+        settling_time_s=_settling_time(t_arr, z, threshold),
         settling_min=settling_min,
         settling_max=settling_max,
-        overshoot_pct=overshoot,
-        undershoot_pct=undershoot,
+        overshoot_pct=100.0 * max(0.0, z_max - 1.0),
+        undershoot_pct=100.0 * max(0.0, neg_z_min),
         peak=peak,
         peak_time_s=peak_time,
     )

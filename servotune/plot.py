@@ -72,27 +72,27 @@ class MoveEnvelope:
         Position before the move and the reference's final value [counts].
     settling_band_pct : float
         Settling band, % of the move.
+    master : int
+        The master's axis column.
+    slaves : tuple of int
+        The slaves' axis columns.
     max_overshoot_pct : float or None
         Largest run past the target, % of the move.
     max_settling_time_s : float or None
         Time from ``start_s`` to settle into the band for good [s].
     max_sync_error_counts : float or None
         Largest ``|master − slave|`` [counts].
-    master : int
-        The master's axis column.
-    slaves : tuple of int
-        The slaves' axis columns.
     """
 
     start_s: float
     initial_counts: float
     target_counts: float
     settling_band_pct: float
+    master: int = 0
+    slaves: tuple[int, ...] = ()
     max_overshoot_pct: float | None = None
     max_settling_time_s: float | None = None
     max_sync_error_counts: float | None = None
-    master: int = 0
-    slaves: tuple[int, ...] = ()
 
 
 def _draw_envelope(axs: Sequence[plt.Axes], trace: Trace, env: MoveEnvelope) -> None:

@@ -17,6 +17,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from servotune import rig_model
 from servotune.errors import RigError
 from servotune.hw import counter as hw_counter
 from servotune.io.files import atomic_write_bytes, parse_toml_as, read_bytes
@@ -32,7 +33,6 @@ from servotune.rig_model import MAX_COUNTS as MAX_COUNTS
 from servotune.rig_model import (
     MAX_DAC_RANGE_V,
     MAX_SPEED_RPM,
-    ROLES,
     Axis,
     Counter,
     Dac,
@@ -45,18 +45,18 @@ from servotune.rig_model import MAX_LOCK_GAIN as MAX_LOCK_GAIN
 from servotune.rig_model import MAX_PULSES as MAX_PULSES
 from servotune.rig_model import MAX_READ_SKEW_S as MAX_READ_SKEW_S
 from servotune.rig_model import MIN_SPEED_LIMIT_RPM as MIN_SPEED_LIMIT_RPM
-from servotune.validate import check_keys, check_number, check_strings, check_table, show_value
+from servotune.rig_model import ROLES as ROLES
+from servotune.validate import (
+    check_keys,
+    check_number,
+    check_table,
+    name_and_description,
+    show_value,
+)
 
 __all__ = [
+    *rig_model.__all__,  # the model's names, re-exported
     "EXAMPLE_RIG_PATH",
-    "ROLES",
-    "Axis",
-    "Counter",
-    "Dac",
-    "Encoder",
-    "PlantFit",
-    "Rig",
-    "Timer",
     "check_plant",
     "describe_rig",
     "load_rig",
@@ -188,10 +188,8 @@ def rig_from_dict(data: Mapping[str, Any], default_name: str = "rig") -> Rig:
             plant_fit = build_section(PlantFit, fit_t, f"axis.{name}.plant.fit")
         axes.append(build_section(Axis, at, f"axis.{name}", name=name, plant=plant,
                                   plant_fit=plant_fit))  # fmt: skip
-    check_strings(meta, "rig", ("name", "description"), error=RigError)
     return Rig(
-        name=str(meta.get("name", default_name)),
-        description=str(meta.get("description", "")),
+        **name_and_description(meta, "rig", default_name, error=RigError),
         timer=timer,
         counter=ctr,
         dac=dac,

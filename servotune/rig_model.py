@@ -211,7 +211,7 @@ class Encoder:
     Parameters
     ----------
     pulses_per_rev : float
-        Quadrature cycles per motor revolution [pulses/rev].
+        Quadrature cycles per revolution of the motor shaft [pulses/rev].
     counts_per_mm : float or None
         For a linear axis, counts per millimetre of travel [counts/mm].
     """

@@ -406,17 +406,14 @@ def sync_move(
     return Scenario(name="sync", axis=master.name, inputs=inp, needs_task_law=True)
 
 
+_SYNC_MOVE_FIELDS = ("seconds", "speed_fraction", "accel_s", "load_step_v")
+
+
 def _sync_move_for(rig: Rig, run: Any) -> Scenario:
     """:func:`sync_move` with the run ``run`` describes: its ``seconds``, ``speed_fraction``,
     ``accel_s`` and ``load_step_v`` (a slave tuning's ``SlaveTuneSpec``, a verification spec's
     sync ``ScenarioSpec``)."""
-    return sync_move(
-        rig,
-        seconds=run.seconds,
-        speed_fraction=run.speed_fraction,
-        accel_s=run.accel_s,
-        load_step_v=run.load_step_v,
-    )
+    return sync_move(rig, **{name: getattr(run, name) for name in _SYNC_MOVE_FIELDS})
 
 
 def step_inputs(rig: Rig, *, step_counts: int, seconds: float = 2.0) -> Inputs:

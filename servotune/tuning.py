@@ -73,7 +73,7 @@ class Tuning:
     Parameters
     ----------
     rig_name : str
-        The rig's name.
+        The rig's name (its file's ``name``).
     rig_sha256 : str
         SHA-256 of the rig file the tuning was made for.
     rig_path : str
@@ -95,9 +95,9 @@ class Tuning:
 
     rig_name: str
     rig_sha256: str
+    axis_names: tuple[str, ...]
     period_s: float
     timer_divisor: int
-    axis_names: tuple[str, ...]
     roles: tuple[str, ...]
     controllers: tuple[AxisController, ...]
     design: Mapping[str, Any] = field(default_factory=dict, compare=False)

@@ -36,6 +36,7 @@ __all__ = [
     "check_table",
     "is_finite",
     "is_number",
+    "name_and_description",
     "show_number",
     "show_value",
 ]
@@ -105,8 +106,8 @@ def check_number(
     v: object,
     unit: str,
     *,
-    lo: float = 0.0,
     strict: bool = False,
+    lo: float = 0.0,
     hi: float | None = None,
     hi_strict: bool = False,
     error: type[Exception] = ValueError,
@@ -236,6 +237,15 @@ def check_strings(
     for k in keys:
         if k in d and not isinstance(d[k], str):
             raise error(f"{prefix}{k} must be a string, got {show_value(d[k])}")
+
+
+def name_and_description(
+    d: Mapping[str, Any], path: str, default_name: str, *, error: type[Exception] = ValueError
+) -> dict[str, str]:
+    """A file's ``name`` (default ``default_name``) and ``description`` (default ``""``), each
+    checked to be a string (:func:`check_strings`): keywords for the dataclass it describes."""
+    check_strings(d, path, ("name", "description"), error=error)
+    return {"name": str(d.get("name", default_name)), "description": str(d.get("description", ""))}
 
 
 def check_table(

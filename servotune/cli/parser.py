@@ -8,6 +8,7 @@ the parser (``servotune --help``) loads no heavy dependency.
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 from typing import Any
 
 from servotune._version import __version__
@@ -36,6 +37,13 @@ def _executor_options(group: Any, what: str, from_size: str) -> None:
     )
 
 
+def _verb(sub: Any, func: Callable[..., int], name: str, **options: Any) -> Any:
+    """A verb's sub-parser, running ``func`` (its handler; ``options``: ``add_parser``'s)."""
+    s = sub.add_parser(name, **options)
+    s.set_defaults(func=func)
+    return s
+
+
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="servotune",
@@ -57,12 +65,13 @@ def _parser() -> argparse.ArgumentParser:
     )
     sub = p.add_subparsers(dest="verb", required=True, metavar="VERB")
 
-    s = sub.add_parser("rig", help="print the derived facts of a rig file")
+    s = _verb(sub, _cmd_rig, "rig", help="print the derived facts of a rig file")
     s.add_argument("rig", help="rig file (TOML), e.g. plants/pc-dual-servo.toml")
     s.add_argument("--json", action="store_true", help="JSON on stdout")
-    s.set_defaults(func=_cmd_rig)
 
-    s = sub.add_parser("simulate", help="run a scenario on the virtual rig and write a log")
+    s = _verb(
+        sub, _cmd_simulate, "simulate", help="run a scenario on the virtual rig and write a log"
+    )
     s.add_argument("rig", help="rig file (TOML)")
     s.add_argument("--scenario", help="prbs, steps, chirp or track")
     s.add_argument("--input", help="excitation CSV to play (from servotune excite)")
@@ -76,9 +85,8 @@ def _parser() -> argparse.ArgumentParser:
     )
     s.add_argument("--no-noise", action="store_true", help="switch the encoder noise off")
     s.add_argument("-o", "--output", required=True, help="log file to write ('-' for stdout)")
-    s.set_defaults(func=_cmd_simulate)
 
-    s = sub.add_parser("fit", help="identify an axis's motor + drive model from a logged run")
+    s = _verb(sub, _cmd_fit, "fit", help="identify an axis's motor + drive model from a logged run")
     s.add_argument(
         "log",
         nargs="+",
@@ -208,9 +216,8 @@ def _parser() -> argparse.ArgumentParser:
         help="an earlier --fleet table: each machine's previous fit, for drift",
     )
     _executor_options(fleet, "fit", "200 logs")
-    s.set_defaults(func=_cmd_fit)
 
-    s = sub.add_parser("excite", help="design an identification excitation (D/A codes)")
+    s = _verb(sub, _cmd_excite, "excite", help="design an identification excitation (D/A codes)")
     s.add_argument("--rig", required=True, help="rig file (TOML)")
     s.add_argument("--axis", help="axis (default: the master)")
     s.add_argument("--kind", required=True, choices=["prbs", "multisine", "steps"])
@@ -218,9 +225,10 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--amplitude-codes", type=int, help="requested amplitude [D/A codes]")
     s.add_argument("-o", "--output", required=True, help="excitation CSV to write")
-    s.set_defaults(func=_cmd_excite)
 
-    s = sub.add_parser(
+    s = _verb(
+        sub,
+        _cmd_tune,
         "tune",
         help="tune the master's PI and the slave's fuzzy-PID tables (a rig), or both drives' PI "
         "and the sync compensator (a gantry config)",
@@ -277,19 +285,21 @@ def _parser() -> argparse.ArgumentParser:
         action="store_true",
         help="do not record the result as the workbench's current tuning",
     )
-    s.set_defaults(func=_cmd_tune)
 
-    s = sub.add_parser(
+    s = _verb(
+        sub,
+        _cmd_plan,
         "plan",
         help="plan a multi-CPU linkage: bus block budget, queue depths and watermarks, clock "
         "sync, the axes' gains as the CPUs run them",
     )
     s.add_argument("config", help="linkage config (TOML)")
-    s.add_argument("-o", "--output", help="plan file to write (default: stdout)")
     s.add_argument("--json", action="store_true", help="the plan's design as JSON on stdout")
-    s.set_defaults(func=_cmd_plan)
+    s.add_argument("-o", "--output", help="plan file to write (default: stdout)")
 
-    s = sub.add_parser(
+    s = _verb(
+        sub,
+        _cmd_verify,
         "verify",
         help="verify a tuning (rig or gantry) or a linkage plan against a spec in the bit-true "
         "loop",
@@ -337,9 +347,10 @@ def _parser() -> argparse.ArgumentParser:
     )
     s.add_argument("--json", action="store_true", help="the verification record as JSON on stdout")
     s.add_argument("--report", help="also write the HTML report into this directory")
-    s.set_defaults(func=_cmd_verify)
 
-    s = sub.add_parser(
+    s = _verb(
+        sub,
+        _cmd_margins,
         "margins",
         help="gain, phase and delay margins, Ms and Mt of every loop a tuning can run "
         "(exit 1 if one breaks a limit)",
@@ -354,9 +365,10 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--gm", type=float, default=6.0, help="least gain margin [dB] (default 6)")
     s.add_argument("--ms", type=float, default=2.0, help="largest peak sensitivity (default 2.0)")
     s.add_argument("--json", action="store_true", help="every loop's figures as JSON on stdout")
-    s.set_defaults(func=_cmd_margins)
 
-    s = sub.add_parser("export-table", help="export a verified tuning's tables (JSON or C)")
+    s = _verb(
+        sub, _cmd_export_table, "export-table", help="export a verified tuning's tables (JSON or C)"
+    )
     s.add_argument(
         "tuning",
         nargs="?",
@@ -415,16 +427,17 @@ def _parser() -> argparse.ArgumentParser:
     )
     s.add_argument("--spec", help="also require that the verification used this spec file")
     s.add_argument("--unverified", action="store_true", help="export without a passed verify")
-    s.set_defaults(func=_cmd_export_table)
 
-    s = sub.add_parser(
-        "check-table", help="check a tables export: every CRC and digest (any edit is refused)"
+    s = _verb(
+        sub,
+        _cmd_check_table,
+        "check-table",
+        help="check a tables export: every CRC and digest (any edit is refused)",
     )
     s.add_argument("file", help="tables export (JSON, from servotune export-table)")
     s.add_argument("--json", action="store_true", help="the check's summary as JSON on stdout")
-    s.set_defaults(func=_cmd_check_table)
 
-    s = sub.add_parser("demo", help="run the whole job on a rig and write into a directory")
+    s = _verb(sub, _cmd_demo, "demo", help="run the whole job on a rig and write into a directory")
     s.add_argument("rig", help="rig file (TOML)")
     s.add_argument("--out", default="reports", help="output directory (default reports)")
     s.add_argument("--seed", type=int, default=0)
@@ -434,9 +447,10 @@ def _parser() -> argparse.ArgumentParser:
         help="the whole study: the default tuning budget, Figure 4 over three seeds and the "
         "tracking/robustness sweep (several minutes; default: the quick preset)",
     )
-    s.set_defaults(func=_cmd_demo)
 
-    s = sub.add_parser(
+    s = _verb(
+        sub,
+        _cmd_compare,
         "compare",
         help="Figure 4: PID, PID + feedforward and composite tuned alike, compared on held-out "
         "scenarios",
@@ -462,9 +476,8 @@ def _parser() -> argparse.ArgumentParser:
         help="peak-sensitivity ceilings of the trade-off sweep, e.g. 1.3,1.5,1.7,2",
     )
     s.add_argument("--json", action="store_true", help="figure4.json on stdout as well")
-    s.set_defaults(func=_cmd_compare)
 
-    s = sub.add_parser("sync", help="compare gantry topologies on a gantry config")
+    s = _verb(sub, _cmd_sync, "sync", help="compare gantry topologies on a gantry config")
     s.add_argument("config", help="gantry config (TOML), e.g. plants/gantry.toml")
     s.add_argument("--seed", type=int, default=0, help="noise and jitter seed (default 0)")
     s.add_argument(
@@ -477,15 +490,13 @@ def _parser() -> argparse.ArgumentParser:
     )
     s.add_argument("--json", action="store_true", help="JSON on stdout")
     s.add_argument("--plot", metavar="DIR", help="write sync-error plots (PNG) into DIR")
-    s.set_defaults(func=_cmd_sync)
 
-    s = sub.add_parser("linkage", help="simulate a multi-CPU linkage and check it")
+    s = _verb(sub, _cmd_linkage, "linkage", help="simulate a multi-CPU linkage and check it")
     s.add_argument("config", help="linkage config (TOML), e.g. plants/linkage-6axis.toml")
     s.add_argument("--seconds", type=float, help="simulated time [s] (default: path + settle)")
     s.add_argument("--seed", type=int, default=0, help="encoder-noise seed (default 0)")
     s.add_argument("--json", action="store_true", help="the result as JSON on stdout")
     s.add_argument("--plot", metavar="DIR", help="write queue and circular-test PNGs into DIR")
-    s.set_defaults(func=_cmd_linkage)
     for name, verb in sub.choices.items():  # --quiet also after the verb (where users type it)
         verb.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
                           help="no progress on stderr")  # fmt: skip

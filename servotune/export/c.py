@@ -325,7 +325,7 @@ def write_c(
     Returns
     -------
     tuple of Path
-        The files written.
+        The files written: the tables header, then the runtime's two sources.
 
     Raises
     ------

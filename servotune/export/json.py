@@ -87,6 +87,7 @@ from servotune.export.layout import (
     _INT16,
     _INT32,
     c_layout_sha256,
+    constants_bytes,
     constants_pairs,
     pairs_bytes,
     table_bytes,
@@ -152,10 +153,6 @@ def table_crc32(q: np.ndarray | Sequence[Sequence[int]], f: int) -> int:
     return zlib.crc32(table_bytes(q, f))
 
 
-def _pairs_crc(pairs: Sequence[tuple[int, int]]) -> int:
-    return zlib.crc32(pairs_bytes(pairs))
-
-
 def constants_crc32(tuning: Tuning, *, rig: Rig | None = None) -> int:
     """The constants CRC of a tuning's export (order in the module docstring).
 
@@ -171,16 +168,11 @@ def constants_crc32(tuning: Tuning, *, rig: Rig | None = None) -> int:
     int
     """
     hw = _hardware(tuning, rig)
-    return _pairs_crc(
-        constants_pairs(
-            tuning.controllers,
-            _ref_sources(tuning.roles),
-            timer_divisor=tuning.timer_divisor,
-            counter_bits=hw["counter_bits"],
-            dac_bits=hw["dac"]["bits"],
-            dac_zero=hw["dac"]["zero_code"],
-        )
-    )
+    dac = hw["dac"]
+    pairs = constants_pairs(tuning.controllers, _ref_sources(tuning.roles),
+                            timer_divisor=tuning.timer_divisor, counter_bits=hw["counter_bits"],
+                            dac_bits=dac["bits"], dac_zero=dac["zero_code"])  # fmt: skip
+    return zlib.crc32(pairs_bytes(pairs))
 
 
 # --- building the document -------------------------------------------------------------------
@@ -322,16 +314,7 @@ def tables_document(
             zip(tuning.axis_names, tuning.roles, tuning.controllers, refs, strict=True)
         )
     ]
-    crc = _pairs_crc(
-        constants_pairs(
-            tuning.controllers,
-            refs,
-            timer_divisor=tuning.timer_divisor,
-            counter_bits=hw["counter_bits"],
-            dac_bits=hw["dac"]["bits"],
-            dac_zero=hw["dac"]["zero_code"],
-        )
-    )
+    crc = constants_crc32(tuning, rig=rig)
     summary = None if verification is None else _plain(verification, "verification")
     spec_sha = tuning_sha = None
     if summary is not None:
@@ -537,12 +520,12 @@ def _check_document(doc: Any) -> tuple[AxisController, ...]:
     dac_bits = _need_int(dac, "bits", "data.dac")
     if not 1 <= dac_bits <= 16:
         raise ExportError(f"data.dac.bits must be an integer in 1..16 [bits], got {dac_bits}")
-    dac_zero = _need_int(dac, "zero_code", "data.dac")
+    _need_int(dac, "zero_code", "data.dac")
     if _need_int(dac, "code_max", "data.dac") != 2**dac_bits - 1:
         raise ExportError(f"data.dac.code_max must be 2**bits - 1 = {2**dac_bits - 1}")
     if _need_int(data, "f_u", "data") != F_U:
         raise ExportError(f"data.f_u must be {F_U}, got {data['f_u']}")
-    divisor = _need_int(data, "timer_divisor", "data")
+    _need_int(data, "timer_divisor", "data")
     period = _need(data, "period_s", "data")
     if not isinstance(period, float) or not period > 0:
         raise ExportError(f"data.period_s must be a number > 0 [s], got {show_value(period)}")
@@ -558,16 +541,7 @@ def _check_document(doc: Any) -> tuple[AxisController, ...]:
             raise ExportError(f"{where}.ref_source must be -1 or another axis's index, got {src}")
         refs.append(src)
         ctls.append(_controller(ax, where))
-    computed = _pairs_crc(
-        constants_pairs(
-            ctls,
-            refs,
-            timer_divisor=divisor,
-            counter_bits=bits,
-            dac_bits=dac_bits,
-            dac_zero=dac_zero,
-        )
-    )
+    computed = zlib.crc32(constants_bytes(data))  # from the fields checked above
     if computed != stored:
         raise DigestError(
             f"data.constants_crc32: CRC mismatch (stored 0x{stored:08x}, computed "

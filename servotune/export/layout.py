@@ -86,6 +86,7 @@ from servotune.laws.fuzzy_pid import FuzzyPIDConstants
 __all__ = [
     "c_layout_bytes",
     "c_layout_sha256",
+    "constants_bytes",
     "constants_pairs",
     "pairs_bytes",
     "table_bytes",
@@ -271,6 +272,22 @@ def c_layout_bytes(data: Mapping[str, Any]) -> bytes:
         A missing or malformed field, ``dac.code_max`` other than ``2**dac.bits − 1``, or a
         constant that does not fit its C type.
     """
+    constants, ctls = _constants_part(data)
+    parts = [constants]
+    for ctl in ctls:
+        if isinstance(ctl.task, FuzzyPIDConstants):
+            parts.extend(table_bytes(q, f_t) for q, f_t in ctl.task.tables)
+    return b"".join(parts)
+
+
+def constants_bytes(data: Mapping[str, Any]) -> bytes:
+    """Part 1 of :func:`c_layout_bytes` (the constants; ``data.constants_crc32`` is its
+    CRC-32). Raises as :func:`c_layout_bytes`."""
+    return _constants_part(data)[0]
+
+
+def _constants_part(data: Mapping[str, Any]) -> tuple[bytes, list[AxisController]]:
+    """Part 1 of the layout, and the axes' controllers it was built from."""
     try:
         axes = data["axes"]
         dac = data["dac"]
@@ -287,22 +304,9 @@ def c_layout_bytes(data: Mapping[str, Any]) -> bytes:
     if not 1 <= dac_bits <= 16 or code_max != 2**dac_bits - 1:
         raise ExportError(f"data.dac.code_max must be 2**bits - 1, got {code_max} for {dac_bits}")
     ctls = _controllers(axes)
-    parts = [
-        pairs_bytes(
-            constants_pairs(
-                ctls,
-                refs,
-                timer_divisor=divisor,
-                counter_bits=bits,
-                dac_bits=dac_bits,
-                dac_zero=dac_zero,
-            )
-        )
-    ]
-    for ctl in ctls:
-        if isinstance(ctl.task, FuzzyPIDConstants):
-            parts.extend(table_bytes(q, f_t) for q, f_t in ctl.task.tables)
-    return b"".join(parts)
+    pairs = constants_pairs(ctls, refs, timer_divisor=divisor, counter_bits=bits,
+                            dac_bits=dac_bits, dac_zero=dac_zero)  # fmt: skip
+    return pairs_bytes(pairs), ctls
 
 
 def c_layout_sha256(data: Mapping[str, Any]) -> str:

@@ -648,6 +648,7 @@ def fit(
     Returns
     -------
     FitResult
+        The axis's model, its intervals and its diagnostics.
 
     Raises
     ------

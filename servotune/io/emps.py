@@ -136,10 +136,10 @@ class EmpsPhysics:
 
     mass_kg: float
     viscous_n_s_per_m: float
-    coulomb_n: float
-    offset_n: float
     viscous_neg_n_s_per_m: float | None = None
+    coulomb_n: float
     coulomb_neg_n: float | None = None
+    offset_n: float
 
     def __post_init__(self) -> None:
         check_number("mass_kg", self.mass_kg, "kg", strict=True)

@@ -279,6 +279,7 @@ class HalCapture:
         Returns
         -------
         Log
+            The capture as a servotune log (SPEC §5 columns).
 
         Raises
         ------

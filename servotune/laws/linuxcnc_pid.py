@@ -165,6 +165,8 @@ class PidState:
 
     Parameters
     ----------
+    prev_ie : bool
+        Last call's ``index-enable``.
     error_i : float
         ``errorI``: the error integral [machine unit·s].
     error_d : float
@@ -178,10 +180,9 @@ class PidState:
     commandv, feedbackv : float
         The ``command-deriv`` and ``feedback-deriv`` pins, unconnected: the derivatives the
         component last computed [machine units/s].
-    prev_ie : bool
-        Last call's ``index-enable``.
     """
 
+    prev_ie: bool = False
     error_i: float = 0.0
     error_d: float = 0.0
     prev_cmd: float = 0.0
@@ -192,7 +193,6 @@ class PidState:
     cmd_ddd: float = 0.0
     commandv: float = 0.0
     feedbackv: float = 0.0
-    prev_ie: bool = False
 
 
 def thread_period_ns(period_s: float) -> int:
@@ -313,6 +313,7 @@ def pid_step(
         out = 0.0
         limit_state = 0.0
     state = PidState(
+        prev_ie=bool(index_enable),
         error_i=error_i,
         error_d=error_d,
         prev_cmd=command,
@@ -323,6 +324,5 @@ def pid_step(
         cmd_ddd=cmd_ddd,
         commandv=commandv,
         feedbackv=feedbackv,
-        prev_ie=bool(index_enable),
     )
     return out, error, state

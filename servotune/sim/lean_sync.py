@@ -282,31 +282,33 @@ def _run_sync(
     nbytes = bits // 8
     width = consts.shape[1]
     st = nb.carray(_frame_buffer(_ST_WORDS, np.int64), (2, N_STATE))
-    cb = nb.carray(_frame_buffer(CONSTS_CAPACITY, np.int64), (2, width))
-    for a in range(2):
-        for j in range(width):
-            cb[a, j] = consts[a, j]
-    rows = nb.carray(_frame_buffer(_ROW_WORDS, np.float64), (2, NROW))
-    for a in range(2):
-        for j in range(NROW):
-            rows[a, j] = pf[b, a, j]
-    # per axis: position, speed, the last two writes, the read, and the figures' running values
+    # per axis: position, speed, the last two writes, the read
     pos = nb.carray(_frame_buffer(2, np.float64), 2)
     spd = nb.carray(_frame_buffer(2, np.float64), 2)
     v1 = nb.carray(_frame_buffer(2, np.float64), 2)
     v2 = nb.carray(_frame_buffer(2, np.float64), 2)
     y = nb.carray(_frame_buffer(2, np.int64), 2)
+    cb = nb.carray(_frame_buffer(CONSTS_CAPACITY, np.int64), (2, width))
+    for a in range(2):
+        for j in range(width):
+            cb[a, j] = consts[a, j]
+    # per axis, the figures' running values: ticks counted, the fault, a refusal of step_info
+    n_cnt = nb.carray(_frame_buffer(2, np.int64), 2)
+    fault = nb.carray(_frame_buffer(2, np.int64), 2)
+    refused = nb.carray(_frame_buffer(2, np.int64), 2)  # step_info would raise (FIGURE_NAMES)
+    rows = nb.carray(_frame_buffer(_ROW_WORDS, np.float64), (2, NROW))
+    for a in range(2):
+        for j in range(NROW):
+            rows[a, j] = pf[b, a, j]
+    last_out = nb.carray(_frame_buffer(2, np.int64), 2)
+    for a in range(2):
+        last_out[a] = -1
+    # ... and the step's start, size, band, largest deviation, saturated ticks
     y0 = nb.carray(_frame_buffer(2, np.float64), 2)
     size = nb.carray(_frame_buffer(2, np.float64), 2)
     band = nb.carray(_frame_buffer(2, np.float64), 2)
     dev_max = nb.carray(_frame_buffer(2, np.float64), 2)
-    last_out = nb.carray(_frame_buffer(2, np.int64), 2)
     n_sat = nb.carray(_frame_buffer(2, np.int64), 2)
-    n_cnt = nb.carray(_frame_buffer(2, np.int64), 2)
-    fault = nb.carray(_frame_buffer(2, np.int64), 2)
-    refused = nb.carray(_frame_buffer(2, np.int64), 2)  # step_info would raise (FIGURE_NAMES)
-    for a in range(2):
-        last_out[a] = -1
     # the squared sync errors over the follower's counted ticks, then |e| over the steady window
     buf = np.empty(nt + max(steady_hi - steady_lo, 0))
     n_sq = 0

@@ -167,6 +167,7 @@ class BatchResult:
     Attributes
     ----------
     metrics : BatchMetrics
+        Every candidate's figures, each axis's.
     traces : BatchTraces or None
         With ``metrics_only=False``.
     """

@@ -590,13 +590,13 @@ def spread_factors(plant: Plant, fit: Any, key: str, spread: float) -> tuple[flo
 def plant_cases(
     rig: Rig,
     *,
+    measured: Sequence[tuple[str, tuple[Plant, ...]]] = (),
     gain_spread: float = 0.0,
     tau_spread: float = 0.0,
     extra_ticks: int = 1,
     period_error_ppm: float = 0.0,
     samples: int = 0,
     seed: int = 0,
-    measured: Sequence[tuple[str, tuple[Plant, ...]]] = (),
 ) -> tuple[PlantCase, ...]:
     """The plant set robustness is judged over: what is not known about the loop.
 

@@ -21,7 +21,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Generic, NamedTuple, TypeVar
+from typing import Any, Generic, NamedTuple, TypedDict, TypeVar, Unpack
 
 from servotune._version import __version__
 from servotune.digest import DIGEST_FIELD, bytes_sha256, document_sha256
@@ -48,6 +48,7 @@ __all__ = [
     "RecordedVerification",
     "SourceFile",
     "Verified",
+    "VerifyRunOptions",
     "candidate_paths",
     "check_record",
     "default_rig_path",
@@ -103,6 +104,21 @@ class Verified:
     rig: Rig
     rig_file: SourceFile
     record: dict[str, Any] | None
+
+
+class VerifyRunOptions(TypedDict, total=False):
+    """How a verification of files runs (:func:`verify_files`,
+    :func:`servotune.arch.gantry.verify_gantry_files`): ``seed`` (default: the spec's),
+    ``montecarlo`` (overrides the spec's count), ``progress`` (one line per step), ``write``
+    (the record next to the tuning; default True), ``scheduler`` and ``workers`` (the executor,
+    :func:`servotune.executor.open_executor`)."""
+
+    seed: int | None
+    montecarlo: int | None
+    progress: Callable[[str], None] | None
+    write: bool
+    scheduler: str | None
+    workers: int | None
 
 
 class RecordedVerification(NamedTuple, Generic[_V]):
@@ -392,13 +408,8 @@ def verify_files(
     spec_path: str | Path,
     rig_path: str | Path | None = None,
     *,
-    seed: int | None = None,
-    montecarlo: int | None = None,
-    progress: Callable[[str], None] | None = None,
-    write: bool = True,
-    scheduler: str | None = None,
-    workers: int | None = None,
     distribution: Callable[[Rig], PlantDistribution] | None = None,
+    **options: Unpack[VerifyRunOptions],
 ) -> RecordedVerification[Verification]:
     """What ``servotune verify TUNING --spec SPEC [--rig RIG]`` runs.
 
@@ -428,15 +439,17 @@ def verify_files(
     tuning, tuning_file, rig, rig_file = _tuning_and_rig(tuning_path, rig_path)
     spec_file = SourceFile.read(spec_path, SpecError, "spec file")
     spec = spec_from_bytes(spec_file.raw, spec_path)
-    if montecarlo is not None:  # the spec's count overridden (validated as the spec's is)
-        spec = replace(spec, montecarlo=replace(spec.montecarlo, count=montecarlo))
+    if (count := options.get("montecarlo")) is not None:  # validated as the spec's count is
+        spec = replace(spec, montecarlo=replace(spec.montecarlo, count=count))
     dist = None if distribution is None else distribution(rig)  # a bad one fails before a run
-    with open_executor(spec.montecarlo.count + 1, scheduler=scheduler, workers=workers) as ex:
-        result = verify(tuning, rig, spec, seed=seed, progress=progress, executor=ex,
-                        distribution=dist)  # fmt: skip
+    with open_executor(spec.montecarlo.count + 1, scheduler=options.get("scheduler"),
+                       workers=options.get("workers")) as ex:  # fmt: skip
+        result = verify(tuning, rig, spec, seed=options.get("seed"), executor=ex,
+                        progress=options.get("progress"), distribution=dist)  # fmt: skip
     record = verification_record(result, tuning=tuning_file, rig=rig_file, spec=spec_file,
                                  sources=() if dist is None else dist.source_files)  # fmt: skip
-    return recorded_verification(result, record, tuning_path, tuning_file.sha256, write=write)
+    return recorded_verification(result, record, tuning_path, tuning_file.sha256,
+                                 write=options.get("write", True))  # fmt: skip
 
 
 def margins_files(

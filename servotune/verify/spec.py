@@ -351,6 +351,7 @@ class Spec:
     Parameters
     ----------
     name : str
+        The spec's name, quoted by reports and verification records.
     scenarios : tuple of ScenarioSpec
         At least one, unique names.
     montecarlo : MonteCarlo

@@ -66,6 +66,7 @@ class GantryTrace:
     Attributes
     ----------
     topology, case : str
+        The topology it ran (:data:`~servotune.arch.gantry.TOPOLOGIES`) and its case's label.
     cycle_s : float
     command : ndarray of int64 — the CNC's command [counts]
     ref : ndarray of int64 (n, 2) — each drive's position command [counts]
@@ -160,6 +161,7 @@ class GantryMonteCarlo:
     Attributes
     ----------
     seed : int
+        The study's seed (each variant's factors and noise are keyed by it and its index).
     variants : tuple of GantryVariant
     """
 

@@ -38,7 +38,7 @@ from servotune.io.files import (
     atomic_write_text,
     json_safe,
     json_text,
-    parse_json,
+    parse_json_as,
     parse_toml,
     read_bytes,
 )
@@ -256,20 +256,19 @@ def gantry_tuning_to_string(tuning: GantryTuning) -> str:
 
 
 def write_gantry_tuning(tuning: GantryTuning, path: str | Path) -> None:
-    """Write the tuning file atomically."""
+    """Write the tuning file atomically (:func:`~servotune.io.files.atomic_write_bytes`).
+
+    Raises
+    ------
+    OSError
+        The folder is missing or not writable; nothing is left half-written.
+    """
     atomic_write_text(path, gantry_tuning_to_string(tuning))
 
 
 def read_gantry_tuning_bytes(raw: bytes, src: str) -> GantryTuning:
     """Parse a gantry tuning from the bytes a caller already holds (``src`` names them)."""
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError:
-        raise TuningError(f"{src}: not UTF-8 text") from None
-    try:
-        return GantryTuning.from_dict(parse_json(text, src, TuningError))
-    except TuningError as exc:
-        raise TuningError(f"{src}: {exc}") from None
+    return parse_json_as(raw, src, TuningError, GantryTuning.from_dict)
 
 
 def read_gantry_tuning(path: str | Path) -> GantryTuning:

@@ -29,7 +29,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Unpack
 
 import numpy as np
 
@@ -56,16 +56,8 @@ from servotune.io.files import json_float, parse_toml_as
 from servotune.io.rig import build_section
 from servotune.laws.axis import FLAG_SYNC_TRIP
 from servotune.validate import check_integer, check_keys, check_number
-from servotune.verify.record import (
-    RecordedVerification,
-    SourceFile,
-    candidate_paths,
-    check_record,
-    matching_file,
-    read_record,
-    recorded_verification,
-    trust_record,
-)
+from servotune.verify import record as rec
+from servotune.verify.record import RecordedVerification, SourceFile, VerifyRunOptions
 
 __all__ = [
     "GANTRY_RECORD_SCHEMA",
@@ -393,10 +385,10 @@ def _tuning_and_gantry(
     rig, each parsed from the bytes read once; the config runs the tuning's integers."""
     tuning_file = SourceFile.read(tuning_path, TuningError, "tuning file")
     tuning = read_gantry_tuning_bytes(tuning_file.raw, tuning_file.path)
-    candidates = candidate_paths(tuning.gantry_path, tuning_path, tuning.gantry_name)
-    gantry_file = matching_file(tuning.gantry_sha256, gantry_path, candidates, kind="gantry",
-                                name=tuning.gantry_name, recorded=tuning.gantry_path,
-                                error=ConfigError, flag="--config")  # fmt: skip
+    candidates = rec.candidate_paths(tuning.gantry_path, tuning_path, tuning.gantry_name)
+    gantry_file = rec.matching_file(tuning.gantry_sha256, gantry_path, candidates, kind="gantry",
+                                    name=tuning.gantry_name, recorded=tuning.gantry_path,
+                                    error=ConfigError, flag="--config")  # fmt: skip
     # the config's gains are not designed again: the tuning holds every one
     cfg = load_gantry(gantry_file.path, raw=gantry_file.raw, resolve=False)
     rig_file = SourceFile.read(gantry_rig_path(gantry_file.raw, gantry_file.path), ConfigError,
@@ -414,13 +406,7 @@ def verify_gantry_files(
     tuning_path: str | Path,
     spec_path: str | Path,
     gantry_path: str | Path | None = None,
-    *,
-    seed: int | None = None,
-    montecarlo: int | None = None,
-    progress: Callable[[str], None] | None = None,
-    write: bool = True,
-    scheduler: str | None = None,
-    workers: int | None = None,
+    **options: Unpack[VerifyRunOptions],
 ) -> RecordedVerification[GantryVerification]:
     """What ``servotune verify GANTRY-TUNING --spec SPEC [--config CONFIG]`` runs (see the
     module docstring); ``montecarlo`` overrides the spec's count. The plant pairs run on the
@@ -442,18 +428,20 @@ def verify_gantry_files(
     tuning, tuning_file, cfg, gantry_file, rig_file = _tuning_and_gantry(tuning_path, gantry_path)
     spec_file = SourceFile.read(spec_path, SpecError, "spec file")
     spec = gantry_spec_from_bytes(spec_file.raw, spec_path)
-    if montecarlo is not None:
-        spec = replace(spec, montecarlo=replace(spec.montecarlo, count=montecarlo))
-    with open_executor(spec.montecarlo.count, scheduler=scheduler, workers=workers,
-                       min_items=MC_CLUSTER_MIN_PAIRS) as ex:  # fmt: skip
-        result = verify_gantry(cfg, tuning, spec, seed=seed, progress=progress, executor=ex)
+    if (count := options.get("montecarlo")) is not None:
+        spec = replace(spec, montecarlo=replace(spec.montecarlo, count=count))
+    where = {"scheduler": options.get("scheduler"), "workers": options.get("workers")}
+    with open_executor(spec.montecarlo.count, min_items=MC_CLUSTER_MIN_PAIRS, **where) as ex:
+        result = verify_gantry(cfg, tuning, spec, seed=options.get("seed"),
+                               progress=options.get("progress"), executor=ex)  # fmt: skip
     summary = {"checks": len(result.rows), "checks_failed": sum(not r.passed for r in result.rows),
                "failures": list(result.failures)}  # fmt: skip
-    record = trust_record(GANTRY_RECORD_SCHEMA, passed=result.passed, seed=result.seed,
-                          summary=summary, result={"verification": result.to_dict()},
-                          files={"gantry": gantry_file, "rig": rig_file, "spec": spec_file,
-                                 "tuning": tuning_file})  # fmt: skip
-    return recorded_verification(result, record, tuning_path, tuning_file.sha256, write=write)
+    record = rec.trust_record(GANTRY_RECORD_SCHEMA, passed=result.passed, seed=result.seed,
+                              summary=summary, result={"verification": result.to_dict()},
+                              files={"gantry": gantry_file, "rig": rig_file, "spec": spec_file,
+                                     "tuning": tuning_file})  # fmt: skip
+    return rec.recorded_verification(result, record, tuning_path, tuning_file.sha256,
+                                     write=options.get("write", True))  # fmt: skip
 
 
 def load_gantry_for_export(
@@ -475,8 +463,8 @@ def load_gantry_for_export(
     record = None
     if not unverified:
         spec = None if spec_path is None else SourceFile.read(spec_path, SpecError, "spec file")
-        record = read_record(tuning_path, schema=GANTRY_RECORD_SCHEMA)
-        check_record(record, tuning=tuning_file, rig=rig_file, spec=spec, gantry=gantry_file)
+        record = rec.read_record(tuning_path, schema=GANTRY_RECORD_SCHEMA)
+        rec.check_record(record, tuning=tuning_file, rig=rig_file, spec=spec, gantry=gantry_file)
     elif spec_path is not None:
         raise TrustError("--spec checks a verification record; --unverified exports without one")
     return GantryVerified(tuning=tuning, tuning_file=tuning_file, config=cfg,

@@ -1,6 +1,7 @@
 """The serial bus the master broadcasts on, the clock sync, the slave CPUs (seed 002).
 
-Also the bounds every configuration field is checked against (:data:`MAX_COUNTS`, ...).
+Their fields are checked against :mod:`servotune.arch.bounds` (re-exported here) and
+:data:`MAX_CLOCK_PPM`; a typo must not size the simulation's arrays.
 """
 
 from __future__ import annotations
@@ -14,7 +15,6 @@ from servotune.validate import check_integer, check_number, show_value
 
 __all__ = [
     "MAX_CLOCK_PPM",
-    "MAX_COUNTS",
     "MAX_FEED_CPS",
     "MAX_GAIN",
     "MAX_SECONDS",
@@ -25,15 +25,8 @@ __all__ = [
 
 MAX_CLOCK_PPM = 10_000.0
 """Largest clock error accepted [ppm] (1 %, beyond a ceramic resonator's tolerance)."""
-
-
-# --- bounds of the configuration's fields ---------------------------------------------------
-# (a typo must not size the simulation's arrays); every field is checked with
-# servotune.validate's check_number / check_integer, raising ConfigError. MAX_SECONDS (dwell,
-# settle, resync interval), MAX_GAIN (PI gains) and MAX_FEED_CPS (the feed: MAX_SPEED_CPS;
-# accelerations up to MAX_ACCEL_CPS2) are every architecture's (servotune.arch.bounds).
-MAX_COUNTS = 1e12
-"""Largest position, centre or distance magnitude [counts]."""
+# MAX_SECONDS (dwell, settle, resync interval), MAX_GAIN (PI gains) and MAX_FEED_CPS (the feed:
+# MAX_SPEED_CPS; accelerations up to MAX_ACCEL_CPS2) are every architecture's (arch.bounds).
 
 
 # --- bus, clock, slave CPUs ----------------------------------------------------------------
@@ -119,7 +112,7 @@ class SlaveCpu:
     Parameters
     ----------
     name : str
-        Name of the CPU.
+        Its name, unique among the config's CPUs.
     axes : tuple of str
         The 2–4 axes it drives.
     queue_depth : int

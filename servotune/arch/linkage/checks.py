@@ -194,31 +194,26 @@ def check_linkage(
             f"{bus.baud:g} baud) takes {f.frame_s * 1e3:.2f} ms but the broadcast period is "
             f"{f.broadcast_period_s * 1e3:.2f} ms (utilisation {u * 100:.0f} % > "
             f"{m * 100:.0f} %) — {hint}")))  # fmt: skip
-    p_blocks = bus.prefill_blocks
-    if f.lead_s > 0:
-        checks.append(Check(name="prefill", passed=True, detail=(
-            f"each block arrives {f.lead_s * 1e3:.2f} ms before its first command is "
-            f"needed (prefill {p_blocks} blocks; worst queue level before a pop "
-            f"{f.nominal_min_level} setpoints)")))  # fmt: skip
-    else:
-        p_min = math.floor(f.frame_s / f.broadcast_period_s) + 1
-        checks.append(Check(name="prefill", passed=False, detail=(
-            f"prefill too short: the first block broadcast during motion arrives "
-            f"{f.frame_s * 1e3:.2f} ms after the start but its first command is needed at "
-            f"{p_blocks * f.broadcast_period_s * 1e3:.2f} ms (prefill {p_blocks} blocks of "
-            f"{bus.block_size}) — raise prefill_blocks to >= {p_min}")))  # fmt: skip
+    p_blocks, p_min = bus.prefill_blocks, math.floor(f.frame_s / f.broadcast_period_s) + 1
+    early = f.lead_s > 0
+    checks.append(Check(name="prefill", passed=early, detail=(
+        f"each block arrives {f.lead_s * 1e3:.2f} ms before its first command is "
+        f"needed (prefill {p_blocks} blocks; worst queue level before a pop "
+        f"{f.nominal_min_level} setpoints)" if early else
+        f"prefill too short: the first block broadcast during motion arrives "
+        f"{f.frame_s * 1e3:.2f} ms after the start but its first command is needed at "
+        f"{p_blocks * f.broadcast_period_s * 1e3:.2f} ms (prefill {p_blocks} blocks of "
+        f"{bus.block_size}) — raise prefill_blocks to >= {p_min}")))  # fmt: skip
     need = f.required_queue_depth
     for c in config.cpus:
-        if c.queue_depth >= need:
-            checks.append(Check(name=f"queue:{c.name}", passed=True, detail=(
-                f"cpu {c.name}: queue_depth {c.queue_depth} >= the prefill plus one block "
-                f"({need} setpoints per axis)")))  # fmt: skip
-        else:
-            checks.append(Check(name=f"queue:{c.name}", passed=False, detail=(
-                f"queue too short on cpu {c.name}: queue_depth {c.queue_depth} setpoints per "
-                f"axis, but the prefill ({p_blocks} blocks × {bus.block_size}) plus the block "
-                f"in flight need {need} — raise queue_depth to >= {need} or lower "
-                f"prefill_blocks / block_size")))  # fmt: skip
+        deep = c.queue_depth >= need
+        checks.append(Check(name=f"queue:{c.name}", passed=deep, detail=(
+            f"cpu {c.name}: queue_depth {c.queue_depth} >= the prefill plus one block "
+            f"({need} setpoints per axis)" if deep else
+            f"queue too short on cpu {c.name}: queue_depth {c.queue_depth} setpoints per "
+            f"axis, but the prefill ({p_blocks} blocks × {bus.block_size}) plus the block "
+            f"in flight need {need} — raise queue_depth to >= {need} or lower "
+            f"prefill_blocks / block_size")))  # fmt: skip
     speed = np.abs(np.diff(ip.positions, axis=0)) / period
     for i, a in enumerate(config.axes):
         limit, what = _speed_limits(config, a)

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from servotune.arch.bounds import MAX_ACCEL_CPS2, MAX_GAIN, MAX_SECONDS, MAX_SPEED_CPS
-from servotune.arch.linkage.bus import MAX_COUNTS, Bus, Clock, SlaveCpu
+from servotune.arch.linkage.bus import Bus, Clock, SlaveCpu
 from servotune.errors import ConfigError, RigError
 from servotune.io.files import parse_toml_as, read_bytes
 from servotune.laws.pi import PIGains
@@ -22,13 +22,14 @@ from servotune.validate import (
     check_integer,
     check_keys,
     check_number,
-    check_strings,
     check_table,
     is_number,
+    name_and_description,
     show_value,
 )
 
 __all__ = [
+    "MAX_COUNTS",
     "SCHEMA",
     "LinkageAxis",
     "LinkageConfig",
@@ -41,6 +42,8 @@ __all__ = [
 SCHEMA = "servotune.linkage/1"
 """Version tag of :meth:`LinkageResult.to_dict`."""
 
+MAX_COUNTS = 1e12
+"""Largest position, centre or distance magnitude of the path [counts]."""
 _MAX_LAG_TICKS = 60  # longest lag compute_s + delay_s accepted [periods]
 
 
@@ -261,13 +264,13 @@ class LinkageConfig:
     """
 
     name: str
+    axes: tuple[LinkageAxis, ...]
+    cpus: tuple[SlaveCpu, ...]
     rig: Rig
     rig_file: str
     period_s: float
     bus: Bus
     clock: Clock
-    cpus: tuple[SlaveCpu, ...]
-    axes: tuple[LinkageAxis, ...]
     path: Toolpath
     settle_s: float = 0.5
     description: str = ""
@@ -399,6 +402,7 @@ def linkage_from_dict(
     Returns
     -------
     LinkageConfig
+        The configuration, with its rig.
 
     Raises
     ------
@@ -439,17 +443,15 @@ def linkage_from_dict(
             top[key] = data[key]
     if "period_s" not in top:
         raise ConfigError("missing key period_s (the nominal sampling period [s])")
-    check_strings(data, "", ("name", "description"), error=ConfigError)
     return LinkageConfig(
-        name=str(data.get("name", default_name)),
-        description=str(data.get("description", "")),
+        **name_and_description(data, "", default_name, error=ConfigError),
+        path=path,
+        axes=tuple(axes),
+        cpus=tuple(cpus),
         rig=rig,
         rig_file=rig_ref,
         bus=bus,
         clock=clock,
-        cpus=tuple(cpus),
-        axes=tuple(axes),
-        path=path,
         **top,
     )
 
@@ -516,6 +518,7 @@ def load_linkage(path: str | Path) -> LinkageConfig:
     Returns
     -------
     LinkageConfig
+        The configuration, with the rig its ``rig`` path names, read and checked.
 
     Raises
     ------

@@ -33,7 +33,7 @@ class ArcGeometry:
     Parameters
     ----------
     move : int
-        Index of the move.
+        Index of the move in the path's list of moves.
     plane : tuple of int
         Column indices of the plane axes.
     centre : tuple of float

@@ -45,6 +45,7 @@ from pathlib import Path
 from typing import Any
 
 from servotune._version import __version__
+from servotune.arch.linkage import plan_file
 from servotune.arch.linkage.bus import Bus, Clock, SlaveCpu
 from servotune.arch.linkage.checks import (
     bus_figures,
@@ -53,17 +54,12 @@ from servotune.arch.linkage.checks import (
 )
 from servotune.arch.linkage.config import LinkageConfig, linkage_from_dict
 from servotune.arch.linkage.path import Interpolation, interpolate
-from servotune.arch.linkage.plan_file import (
-    PLAN_SCHEMA,
-    LinkagePlan,
-    PlanCpu,
-    PlanPath,
-    drift_ticks,
-    plan_to_string,
-    read_plan,
-    read_plan_bytes,
-    write_plan,
-)
+from servotune.arch.linkage.plan_file import PLAN_SCHEMA as PLAN_SCHEMA
+from servotune.arch.linkage.plan_file import LinkagePlan, PlanCpu, PlanPath, drift_ticks
+from servotune.arch.linkage.plan_file import plan_to_string as plan_to_string
+from servotune.arch.linkage.plan_file import read_plan as read_plan
+from servotune.arch.linkage.plan_file import read_plan_bytes as read_plan_bytes
+from servotune.arch.linkage.plan_file import write_plan as write_plan
 from servotune.arch.linkage.result import LinkageResult
 from servotune.arch.linkage.run import axis_controllers, axis_gains, run_linkage
 from servotune.errors import ConfigError, RigError
@@ -73,19 +69,11 @@ from servotune.validate import show_value
 from servotune.verify.record import SourceFile
 
 __all__ = [
-    "PLAN_SCHEMA",
-    "LinkagePlan",
-    "PlanCpu",
-    "PlanPath",
-    "drift_ticks",
+    *plan_file.__all__,  # the plan file's names, re-exported
     "plan_config",
     "plan_linkage",
-    "plan_to_string",
-    "read_plan",
-    "read_plan_bytes",
     "run_plan",
     "watermarks",
-    "write_plan",
 ]
 
 

@@ -110,6 +110,7 @@ class PlanCpu:
     Parameters
     ----------
     name : str
+        As in the config (:class:`~servotune.arch.linkage.bus.SlaveCpu`).
     axes : tuple of str
         The 2–4 axes it drives, in its queue's column order.
     clock_ppm : float

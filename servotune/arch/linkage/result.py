@@ -66,6 +66,7 @@ class CpuResult:
     Attributes
     ----------
     name : str
+        The CPU's name in the config.
     axes : tuple of str
     clock_ppm : float
         Its clock's error [ppm].
@@ -128,6 +129,7 @@ class AxisResult:
     Attributes
     ----------
     name, cpu : str
+        The axis, and the slave CPU that drives it.
     kp : float
         [codes/count]
     ki : float
@@ -256,7 +258,7 @@ class LinkageResult:
     Attributes
     ----------
     name : str
-        The configuration's name.
+        The name of the configuration that ran.
     seed : int
     period_s : float
         Nominal period [s].

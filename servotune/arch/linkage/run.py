@@ -478,15 +478,13 @@ def _motion_checks(
                 f"underrun on cpu {c.name}: {c.underruns} ticks found no command, the first at "
                 f"{c.first_underrun_s:.3f} s ({clock}, {sync}; a block arrives "
                 f"{lead * 1e3:.2f} ms before it is needed{expect}) — {advice}")))  # fmt: skip
-        if c.overruns == 0:
-            out.append(Check(name=f"overrun:{c.name}", passed=True, detail=(
-                f"cpu {c.name}: no overrun; highest queue level {c.max_level} of "
-                f"{c.queue_depth} setpoints")))  # fmt: skip
-        else:
-            out.append(Check(name=f"overrun:{c.name}", passed=False, detail=(
-                f"overrun on cpu {c.name}: {c.overruns} blocks did not fit its "
-                f"{c.queue_depth}-setpoint queue, the first at {c.first_overrun_s:.3f} s "
-                f"({clock}, {sync}) — {advice}")))  # fmt: skip
+        fits = c.overruns == 0
+        out.append(Check(name=f"overrun:{c.name}", passed=fits, detail=(
+            f"cpu {c.name}: no overrun; highest queue level {c.max_level} of "
+            f"{c.queue_depth} setpoints" if fits else
+            f"overrun on cpu {c.name}: {c.overruns} blocks did not fit its "
+            f"{c.queue_depth}-setpoint queue, the first at {c.first_overrun_s:.3f} s "
+            f"({clock}, {sync}) — {advice}")))  # fmt: skip
     for i, a in enumerate(axes):
         limit = config.axes[i].following_error_limit_counts
         if a.fault is None:

@@ -10,15 +10,7 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 
 from servotune.plant import Plant, discretize, discretize_lti
-from servotune.tune.pi.spec import (
-    _MAX_LAG_PHASE_STEP,
-    _MAX_STABILITY_CHECKS,
-    _TOL_GM_DB,
-    _TOL_MS_REL,
-    _TOL_PM_DEG,
-    _TOL_WC_REL,
-    _Spec,
-)
+from servotune.tune.pi.spec import _TOL_GM_DB, _TOL_MS_REL, _TOL_PM_DEG, _TOL_WC_REL, _Spec
 from servotune.verify.margins import controller_basis, grid_margins
 
 if TYPE_CHECKING:  # python-control is imported where used (slow to import)
@@ -30,6 +22,8 @@ POINTS_PER_DECADE = 150
 """Design grid density: log-spaced frequencies per decade (see :func:`tune_pi`)."""
 DECADES_BELOW = 3.0
 """The design grid starts this many decades below the slowest plant feature."""
+_MAX_STABILITY_CHECKS = 64  # start-point candidates that pass the grid checks, at most
+_MAX_LAG_PHASE_STEP = 0.2  # [rad]: grid step times the lag (the delay's phase per step)
 
 
 class _Ctx(NamedTuple):

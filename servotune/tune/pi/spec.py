@@ -33,8 +33,6 @@ _REFINE_ROUNDS = 8  # NLP solves at most
 _MAX_BUILDS = 3  # NLP rebuilds for a changed crossing structure at most
 _GUARD_GAIN = 0.95  # |L| at a guard against a new gain crossover, at most
 _PEAK_STENCIL = np.array([0.995, 0.998, 1.0, 1.002, 1.005])  # added around a missed Ms peak
-_MAX_STABILITY_CHECKS = 64  # start-point candidates that pass the grid checks, at most
-_MAX_LAG_PHASE_STEP = 0.2  # [rad]: grid step times the lag (the delay's phase per step)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
