@@ -27,6 +27,7 @@ if TYPE_CHECKING:  # what type checkers and IDEs see; at run time the names load
         IdentificationError,
         LogFormatError,
         RigError,
+        SchedulerError,
         ServotuneError,
         SimulationError,
         SpecError,
@@ -35,6 +36,7 @@ if TYPE_CHECKING:  # what type checkers and IDEs see; at run time the names load
     )
     from servotune.export.json import check_tables, load_tables
     from servotune.fixed import Fixed, quantize
+    from servotune.fleet import FleetResult, FleetSpread, fit_fleet, fleet_spread
     from servotune.identify import FitResult, PoorFitWarning, fit, fit_arrays
     from servotune.laws import AxisController, PIGains, lock_holding_band
     from servotune.laws.fuzzy_pid import FuzzyPIDGains
@@ -82,6 +84,7 @@ _LAZY: dict[str, str] = {
     "IdentificationError": "servotune.errors",
     "LogFormatError": "servotune.errors",
     "RigError": "servotune.errors",
+    "SchedulerError": "servotune.errors",
     "ServotuneError": "servotune.errors",
     "SimulationError": "servotune.errors",
     "SpecError": "servotune.errors",
@@ -91,6 +94,10 @@ _LAZY: dict[str, str] = {
     "load_tables": "servotune.export.json",
     "Fixed": "servotune.fixed",
     "quantize": "servotune.fixed",
+    "FleetResult": "servotune.fleet",
+    "FleetSpread": "servotune.fleet",
+    "fit_fleet": "servotune.fleet",
+    "fleet_spread": "servotune.fleet",
     "FitResult": "servotune.identify",
     "PoorFitWarning": "servotune.identify",
     "fit": "servotune.identify",
@@ -149,6 +156,8 @@ __all__ = [
     "ExportError",
     "FitResult",
     "Fixed",
+    "FleetResult",
+    "FleetSpread",
     "FuzzyPIDGains",
     "GantryConfig",
     "IdentificationError",
@@ -165,6 +174,7 @@ __all__ = [
     "PoorFitWarning",
     "Rig",
     "RigError",
+    "SchedulerError",
     "ServotuneError",
     "SimulationError",
     "SpecError",
@@ -182,6 +192,8 @@ __all__ = [
     "discretize_lti",
     "fit",
     "fit_arrays",
+    "fit_fleet",
+    "fleet_spread",
     "load_gantry",
     "load_linkage",
     "load_rig",

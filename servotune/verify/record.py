@@ -45,6 +45,7 @@ from servotune.verify.spec import spec_from_bytes
 
 __all__ = [
     "RECORD_SCHEMA",
+    "FileDigest",
     "RecordedVerification",
     "SourceFile",
     "Verified",
@@ -86,6 +87,18 @@ class SourceFile:
         """Read ``path``'s bytes once (a failure is one line of ``error`` naming ``what``)."""
         raw = read_bytes(path, error, what)
         return cls(path=str(path), sha256=bytes_sha256(raw), raw=raw)
+
+    def entry(self) -> dict[str, str]:
+        """The record's entry for this file: its name and SHA-256."""
+        return FileDigest(self.path, self.sha256).entry()
+
+
+class FileDigest(NamedTuple):
+    """A file a record binds by its path and SHA-256 alone, its bytes read elsewhere (the fleet
+    table a plant distribution was drawn from)."""
+
+    path: str
+    sha256: str
 
     def entry(self) -> dict[str, str]:
         """The record's entry for this file: its name and SHA-256."""
@@ -320,11 +333,11 @@ def verification_record(
             "scenario": tight[1].scenario,
         },
     }
-    files = {"rig": rig, "spec": spec, "tuning": tuning}
+    files: dict[str, SourceFile | FileDigest] = {"rig": rig, "spec": spec, "tuning": tuning}
     for kind, name, sha in sources:
         if kind in files:
             raise ValueError(f"a distribution's source file kind {kind!r} is taken")
-        files[kind] = SourceFile(path=name, sha256=sha, raw=b"")
+        files[kind] = FileDigest(name, sha)
     return trust_record(RECORD_SCHEMA, passed=v.passed, seed=v.seed, summary=summary,
                         files=files, result={"verification": v.to_dict()})  # fmt: skip
 
@@ -333,7 +346,7 @@ def trust_record(
     schema: str,
     *,
     passed: bool,
-    files: Mapping[str, SourceFile],
+    files: Mapping[str, SourceFile | FileDigest],
     seed: int | None,
     summary: Mapping[str, Any],
     result: Mapping[str, Any],
