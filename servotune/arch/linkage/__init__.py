@@ -12,10 +12,10 @@ realigns the slave clocks to the master's.
 
 Submodules, each importing only those above it:
 
-- :mod:`~servotune.arch.linkage.bus`: the serial bus, the clock sync, the slave CPUs and the
-  bounds of the configuration's fields;
+- :mod:`~servotune.arch.linkage.bus`: the serial bus, the clock sync, the slave CPUs (fields
+  bounded by :mod:`servotune.arch.bounds` and the clock error's ``MAX_CLOCK_PPM``);
 - :mod:`~servotune.arch.linkage.config`: the configuration (:func:`load_linkage`, frozen
-  dataclasses validated on load);
+  dataclasses validated on load; the path's positions bounded by ``MAX_COUNTS``);
 - :mod:`~servotune.arch.linkage.path`: the master's interpolation (:func:`interpolate`) and
   the contour-error search;
 - :mod:`~servotune.arch.linkage.kernel`: the compiled kernel of the event-driven simulation
