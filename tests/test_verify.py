@@ -178,6 +178,21 @@ def test_spec_for_another_rig_or_axis_is_refused(good, rig, spec) -> None:
         verify(good, rig, dataclasses.replace(small(spec), montecarlo=mc))
 
 
+def test_a_hold_whose_settling_leaves_no_tick_is_refused(good, rig, spec) -> None:
+    """``settle_s < seconds`` passes the spec's own check, yet 0.099 s of a 0.1-s hold leaves
+    no whole tick at 4.000235 ms (``seconds`` gives 25 ticks, the window starts at tick
+    ceil(0.099 / 0.004000235) = 25): one SpecError before any run (it used to end in numpy's
+    "zero-size array" traceback). One tick earlier the hold runs."""
+    lock = dataclasses.replace(spec.scenario("lock"), seconds=0.1, settle_s=0.099)
+    mc = dataclasses.replace(spec.montecarlo, count=2)
+    bad = dataclasses.replace(spec, scenarios=(lock,), montecarlo=mc)
+    with pytest.raises(SpecError, match=r"'lock': settle_s \(0\.099 s\) leaves no tick of its 25"):
+        verify(good, rig, bad)
+    last = dataclasses.replace(lock, settle_s=0.095)  # ceil(23.75) = 24: the last tick
+    result = verify(good, rig, dataclasses.replace(bad, scenarios=(last,)))
+    assert {r.quantity for r in result.rows} >= {"holding_band_counts"}
+
+
 def test_plant_variants_widen_to_the_identified_intervals(rig, spec) -> None:
     # issue 18 (2): the plant set is the identification's intervals, widened by the spec's
     # spreads; an identified gain interval of -35 %/+40 % is wider than the spec's ±20 %

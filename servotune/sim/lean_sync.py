@@ -1,11 +1,12 @@
 """The lean two-axis kernel: a master and an axis following it, verification figures only.
 
 A Monte-Carlo verification runs a million plant sets of a two-axis rig (master, slave reading
-the master's position as its reference) through a move and needs per plant set only a few
-figures: each axis's overshoot and settling time of the move (MATLAB ``stepinfo`` read at the
-samples, :func:`servotune.metrics.step_info`), its share of saturated ticks, whether it
-latched a fault, the sync error's peak, RMS and mean over a steady window, and the fastest
-motion. This kernel computes exactly those, tick by tick, without traces: it composes the
+the master's position as its reference) through a move, or holds both axes (the position-lock
+module against their drift), and needs per plant set only a few figures: each axis's overshoot
+and settling time of the move (MATLAB ``stepinfo`` read at the samples,
+:func:`servotune.metrics.step_info`), its share of saturated ticks, whether it latched a fault,
+the sync error's peak, RMS and mean over a steady window, the holding band of a hold, and the
+fastest motion. This kernel computes exactly those, tick by tick, without traces: it composes the
 shared tick (:mod:`servotune.sim.tick`: sample, read, law and D/A, advance) in the order of the
 general kernel (:mod:`servotune.sim.kernel`), with the same float operations, so every figure
 equals the one computed from the general kernel's traces bit for bit
@@ -52,16 +53,26 @@ FIGURE_NAMES = (
     "max_sync_error_counts",
     "rms_sync_error_counts",
     "steady_lag_counts",
+    "holding_band_counts",
 )
 """Per plant set and axis (``figures[b, a, j]``): overshoot [%] and settling time [s] of the
 move (``inf`` if still outside the band at the last tick), saturated share of the counted ticks
 [%], 1.0 if a fault latched, and for a following axis its sync error against the master
-[counts]: peak and RMS over its counted ticks, mean over the steady window (0 for the master).
+[counts]: peak and RMS over its counted ticks, mean over the steady window (0 for the master);
+the holding band over the holding window (:attr:`SyncWindows.hold_from`; 0 without one)
+[counts]: the largest ``|target − plant count|``, the target being the runtime's (its read plus
+its error) and the plant count the plant's whole count in the runtime's frame (``floor`` of the
+true position less the count of the first read), NaN where a position in the window is not
+finite or beyond ±2**62 counts (the traced path's integer cast is not defined there, so the
+caller runs that path instead).
 The overshoot is NaN where :func:`servotune.metrics.step_info` refuses the move as a step
 response (a position in the window not finite, a step ``target − y0`` zero or not finite): the
 traced path raises its ``ValueError`` there, so the caller runs that path instead."""
 N_FIGURES = len(FIGURE_NAMES)
-_F_OVER, _F_SETTLE, _F_SAT, _F_FAULT, _F_SYNC_MAX, _F_SYNC_RMS, _F_STEADY = range(N_FIGURES)
+_F_OVER, _F_SETTLE, _F_SAT, _F_FAULT, _F_SYNC_MAX, _F_SYNC_RMS, _F_STEADY, _F_HOLD = range(
+    N_FIGURES
+)
+_HOLD_SPAN = 4.0e18  # [counts] |position| a holding figure takes (int64 holds ±9.2e18)
 N_FAST = 6
 """Per plant set: the largest motion in one tick [counts], its tick and axis; the largest
 speed [counts/s], its tick and axis (the first in (tick, axis) order; -1 if never > 0)."""
@@ -274,7 +285,7 @@ def _latch_noisy(rng, sigma, nz_a, p, v, init, mask, latched, nbytes, skew):  # 
 def _run_sync(
     b, pf, pi, consts, seeds, src, ref, mode, reset, u_add, load, bits, latched, skew, dac_lo,
     lsb, counted, step_from, target, threshold, has_step, master, follower, steady_lo,
-    steady_hi, period, figures, fast,
+    steady_hi, hold_from, period, figures, fast,
 ):  # fmt: skip
     """Run plant set ``b`` of a two-axis batch and write its figures (see :func:`_kernel_sync`)."""
     nt = ref.shape[0]
@@ -309,6 +320,10 @@ def _run_sync(
     band = nb.carray(_frame_buffer(2, np.float64), 2)
     dev_max = nb.carray(_frame_buffer(2, np.float64), 2)
     n_sat = nb.carray(_frame_buffer(2, np.int64), 2)
+    # ... the holding window's first read, largest |target - plant count|, a position refused
+    first = nb.carray(_frame_buffer(2, np.int64), 2)
+    hold_max = nb.carray(_frame_buffer(2, np.int64), 2)
+    hold_bad = nb.carray(_frame_buffer(2, np.int64), 2)
     # the squared sync errors over the follower's counted ticks, then |e| over the steady window
     buf = np.empty(nt + max(steady_hi - steady_lo, 0))
     n_sq = 0
@@ -337,6 +352,10 @@ def _run_sync(
                 rng += _TWO_GOLDEN  # the two splitmix64 steps of the draw
             else:
                 raw = latch(pos[a], spd[a], 0.0, pi[b, a, _I_INIT], mask, latched, nbytes, skew)
+            if k == 0:  # the runtime's frame: its first read is count 0
+                first[a] = (raw - pi[b, a, _I_INIT]) & mask
+                if first[a] >= np.int64(1) << (bits - 1):
+                    first[a] -= np.int64(1) << bits
             y[a] = axis_read(st, cb, a, raw, reset[k, a])
         # the figures of the tick start's state (the traces' true position and speed)
         if counted[k, follower]:
@@ -375,9 +394,16 @@ def _run_sync(
         for a in range(2):
             s = src[a]
             r = ref[k, a] if s < 0 else y[s]
-            _, flags, _, volts = write_axis(st, cb, a, r, mode[k, a], reset[k, a], u_add[k, a],
-                                           dac_lo, lsb)  # fmt: skip
+            _, flags, e_a, volts = write_axis(st, cb, a, r, mode[k, a], reset[k, a], u_add[k, a],
+                                             dac_lo, lsb)  # fmt: skip
             fault[a] |= flags & FAULT_MASK
+            if k >= hold_from:
+                if abs(pos[a]) < _HOLD_SPAN:  # also False for NaN
+                    dh = abs(y[a] + e_a - (np.int64(math.floor(pos[a])) - first[a]))
+                    if dh > hold_max[a]:
+                        hold_max[a] = dh
+                else:
+                    hold_bad[a] = 1
             if counted[k, a]:
                 n_cnt[a] += 1
                 if flags & FLAG_SATURATED:
@@ -418,6 +444,8 @@ def _run_sync(
         if n_cnt[a] > 0:
             figures[b, a, _F_SAT] = 100.0 * (float(n_sat[a]) / n_cnt[a])
         figures[b, a, _F_FAULT] = 1.0 if fault[a] != 0 else 0.0
+        if hold_from < nt:
+            figures[b, a, _F_HOLD] = np.nan if hold_bad[a] else float(hold_max[a])
     if n_sq > 0:
         figures[b, follower, _F_SYNC_MAX] = sync_max
         figures[b, follower, _F_SYNC_RMS] = np.sqrt(pairwise_sum(buf, 0, n_sq) / n_sq)
@@ -435,7 +463,7 @@ def _run_sync(
 def _kernel_sync(
     pf, pi, consts, seeds, src, ref, mode, reset, u_add, load, bits, latched, skew, dac_lo,
     lsb, counted, step_from, target, threshold, has_step, master, follower, steady_lo,
-    steady_hi, period, figures, fast,
+    steady_hi, hold_from, period, figures, fast,
 ):  # fmt: skip
     """Every plant set through :func:`_run_sync`, in parallel, one at a time per thread (numba's
     chunk size 1): each writes only its own rows, so which thread runs it changes no result."""
@@ -443,7 +471,7 @@ def _kernel_sync(
         _run_sync(
             b, pf, pi, consts, seeds, src, ref, mode, reset, u_add, load, bits, latched, skew,
             dac_lo, lsb, counted, step_from, target, threshold, has_step, master, follower,
-            steady_lo, steady_hi, period, figures, fast,
+            steady_lo, steady_hi, hold_from, period, figures, fast,
         )  # fmt: skip
 
 
@@ -466,6 +494,8 @@ class SyncWindows:
         Which axes get overshoot and settling time.
     steady : tuple of int
         ``[lo, hi)`` ticks of the steady window of the sync error.
+    hold_from : int
+        First tick of the holding window (to the last tick); ``n_ticks``: no holding band.
     """
 
     counted: np.ndarray
@@ -474,6 +504,7 @@ class SyncWindows:
     threshold: float
     has_step: np.ndarray
     steady: tuple[int, int]
+    hold_from: int
 
 
 def run_sync_figures(
@@ -550,6 +581,7 @@ def run_sync_figures(
             follower,
             int(lo),
             int(hi),
+            int(windows.hold_from),
             float(period_s),
             figures,
             fast,

@@ -75,7 +75,7 @@ others are redrawn from the seed by their label: :func:`~servotune.verify.plant_
 
 _TRACE_BYTES = 64 * 2**20  # traces one engine batch holds at once (bounds a chunk's memory)
 _MAX_CHUNK = 4096  # plant sets per task of the executor
-_LEAN = True  # moves of a master and a slave run in the lean two-axis kernel (tests: False)
+_LEAN = True  # a master and a slave's runs go through the lean two-axis kernel (tests: False)
 
 
 # --- running the scenarios -----------------------------------------------------------------
@@ -134,6 +134,17 @@ def _move_windows(rig: Rig, sc: ScenarioSpec, inputs: Inputs) -> _MoveWindows:
     return _MoveWindows(start=start, target=float(ref[-1]), steady=(lo, hi))
 
 
+def _hold_from(rig: Rig, sc: ScenarioSpec, inputs: Inputs) -> int:
+    """First tick of a hold's holding window (``settle_s`` in); SpecError if none is left."""
+    k0 = math.ceil(sc.settle_s / rig.period_s)
+    if k0 >= inputs.n_ticks:
+        raise SpecError(
+            f"scenario {show_value(sc.name)}: settle_s ({sc.settle_s:g} s) leaves no tick of "
+            f"its {inputs.n_ticks} to measure the holding band; shorten settle_s"
+        )
+    return k0
+
+
 def _step_values(
     t: np.ndarray, y: np.ndarray, y_init: float, target: float, band_pct: float
 ) -> tuple[float, float]:
@@ -183,7 +194,7 @@ def _evaluate(
                 steady = np.ascontiguousarray(np.abs(e[:, lo:hi]))
                 values[("steady_lag_counts", name)] = steady.mean(axis=1)
     else:
-        k0 = math.ceil(sc.settle_s / rig.period_s)
+        k0 = _hold_from(rig, sc, inputs)
         bits = rig.counter.bits
         for a, name in enumerate(names):
             # the plant's whole count in the runtime's frame (relative to its first read)
@@ -349,10 +360,11 @@ class _ChunkPlants:
 
 
 def _lean_sync_ok(shared: _Shared, sc: ScenarioSpec, pi: np.ndarray) -> bool:
-    """Whether a scenario runs in the lean two-axis kernel: a move (``sync``, ``track``) of a
-    master and one slave following it, lags of at most one whole tick, constants that fit."""
+    """Whether a scenario runs in the lean two-axis kernel: a move (``sync``, ``track``) or a
+    hold (``lock``) of a master and one slave following it, lags of at most one whole tick,
+    constants that fit."""
     loop, rig = shared.loop, shared.rig
-    if sc.kind not in ("sync", "track") or len(rig.axes) != 2:
+    if sc.kind not in ("sync", "track", "lock") or len(rig.axes) != 2:
         return False
     roles = [a.role for a in rig.axes]
     if sorted(roles) != ["master", "slave"]:
@@ -383,19 +395,26 @@ def _run_lean_sync(
     shared: _Shared, sc: ScenarioSpec, inputs: Inputs, pf: np.ndarray, pi: np.ndarray,
     seeds: np.ndarray,
 ) -> _LeanValues | None:  # fmt: skip
-    """:func:`_evaluate`'s values and faults of a move for every plant set, from the lean
-    two-axis kernel (the same bits, no traces), and per plant set its fastest motion
-    (:data:`servotune.sim.lean_sync.N_FAST`); None if a plant set's move is no step response
+    """:func:`_evaluate`'s values and faults of a move or a hold for every plant set, from the
+    lean two-axis kernel (the same bits, no traces), and per plant set its fastest motion
+    (:data:`servotune.sim.lean_sync.N_FAST`). None if a plant set's move is no step response
     :func:`~servotune.metrics.step_info` accepts (a position not finite, a zero step), where
-    :func:`_evaluate` raises: the caller then runs the traced path, which raises that error."""
+    :func:`_evaluate` raises, or a hold's position is not finite or out of int64's range: the
+    caller then runs the traced path (which raises that error, or casts as it casts)."""
     rig = shared.rig
     names = rig.axis_names
-    win = _move_windows(rig, sc, inputs)
-    task = inputs.mode == MODE_TASK
-    has_step = task.any(axis=0)
-    windows = SyncWindows(counted=task, step_from=win.start, target=win.target,
-                          threshold=sc.settling_band_pct / 100.0, has_step=has_step,
-                          steady=win.steady)  # fmt: skip
+    n_t = inputs.n_ticks
+    if sc.kind == "lock":  # every tick counts for the saturation share; no step, no sync
+        windows = SyncWindows(counted=np.ones((n_t, 2), dtype=bool), step_from=0, target=0.0,
+                              threshold=0.0, has_step=np.zeros(2, dtype=bool), steady=(0, 0),
+                              hold_from=_hold_from(rig, sc, inputs))  # fmt: skip
+    else:
+        win = _move_windows(rig, sc, inputs)
+        task = inputs.mode == MODE_TASK
+        windows = SyncWindows(counted=task, step_from=win.start, target=win.target,
+                              threshold=sc.settling_band_pct / 100.0, has_step=task.any(axis=0),
+                              steady=win.steady, hold_from=n_t)  # fmt: skip
+    has_step = windows.has_step
     figs, fast = run_sync_figures(pf, pi, _loop_consts(shared), seeds,
                                   np.asarray(shared.loop.ref_source, dtype=np.int64),
                                   _input_arrays(inputs), _converter_args(rig), windows,
@@ -403,7 +422,15 @@ def _run_lean_sync(
     col = {nm: j for j, nm in enumerate(FIGURE_NAMES)}
     if np.isnan(figs[:, has_step, col["overshoot_pct"]]).any():
         return None
+    faults = {name: figs[:, a, col["fault"]] != 0.0 for a, name in enumerate(names)}
     values: dict[tuple[str, str], np.ndarray] = {}
+    if sc.kind == "lock":
+        if np.isnan(figs[:, :, col["holding_band_counts"]]).any():
+            return None
+        for a, name in enumerate(names):
+            for q in ("holding_band_counts", "saturation_pct"):
+                values[(q, name)] = figs[:, a, col[q]]
+        return values, faults, fast
     for a, name in enumerate(names):
         if not has_step[a]:
             continue
@@ -412,7 +439,6 @@ def _run_lean_sync(
         if rig.axes[a].role == "slave":
             for q in ("max_sync_error_counts", "rms_sync_error_counts", "steady_lag_counts"):
                 values[(q, name)] = figs[:, a, col[q]]
-    faults = {name: figs[:, a, col["fault"]] != 0.0 for a, name in enumerate(names)}
     return values, faults, fast
 
 
@@ -725,8 +751,11 @@ def verify(
             inputs = _inputs(rig, sc)
         except SpecError as exc:
             raise SpecError(f"scenario.{sc.name}: {exc}") from None
-        if sc.kind != "lock":
-            _move_windows(rig, sc, inputs)  # a bad scenario fails before the runs
+        # a bad scenario fails before the runs
+        if sc.kind == "lock":
+            _hold_from(rig, sc, inputs)
+        else:
+            _move_windows(rig, sc, inputs)
         runs.append((sc, inputs))
     ex = InProcessExecutor() if executor is None else executor
     n_sets = count + 1

@@ -2,8 +2,9 @@
 
 - every figure of :func:`servotune.verify.run._run_lean_sync` (the lean kernel) equals the traced
   path's (:func:`servotune.verify.run._evaluate` on the general kernel's traces) for the
-  nominal plants and 64 noisy plant sets of the example spec's spread, ``sync`` and ``track``;
-  and ``verify`` gives the same JSON with the lean kernel on and off;
+  nominal plants and 64 noisy plant sets of the example spec's spread, ``sync``, ``track`` and
+  ``lock`` (the holding band); and ``verify`` gives the same JSON with the lean kernel on and
+  off;
 - with noise on both axes, one or none (the draws' places in the stream);
 - the approximated draws stay far inside the margin that makes them safe;
 - :func:`pairwise_sum` has ``numpy.add.reduce``'s bits;
@@ -101,9 +102,16 @@ def _noisy_only(rig, noisy: str):
     ))  # fmt: skip
 
 
-CASES = [(sc, t, "both") for sc in ("sync", "track") for t in TUNINGS] + [
-    ("sync", "default_tuning", noisy) for noisy in ("master", "slave", "none")
+CASES = [(sc, t, "both") for sc in ("sync", "track", "lock") for t in TUNINGS] + [
+    (sc, "default_tuning", noisy)
+    for sc in ("sync", "lock")
+    for noisy in ("master", "slave", "none")
 ]
+QUANTITIES = {
+    "move": {"overshoot_pct", "settling_time_s", "saturation_pct", "max_sync_error_counts",
+             "rms_sync_error_counts", "steady_lag_counts"},
+    "lock": {"holding_band_counts", "saturation_pct"},
+}  # fmt: skip
 
 
 @pytest.mark.parametrize(("scenario", "tuning", "noisy"), CASES)
@@ -123,10 +131,7 @@ def test_lean_figures_equal_traced(request, rig, spec, scenario, tuning, noisy) 
 
     # the same quantities, every one of them bit for bit
     assert sorted(values) == sorted(t_values)
-    assert {q for q, _ in values} == {
-        "overshoot_pct", "settling_time_s", "saturation_pct", "max_sync_error_counts",
-        "rms_sync_error_counts", "steady_lag_counts",
-    }  # fmt: skip
+    assert {q for q, _ in values} == QUANTITIES["lock" if sc.kind == "lock" else "move"]
     for key in values:
         _assert_bits_equal(values[key], t_values[key], f"{scenario} {key}")
     assert sorted(faults) == sorted(t_faults)
@@ -146,9 +151,15 @@ def test_lean_figures_equal_traced(request, rig, spec, scenario, tuning, noisy) 
         np.testing.assert_array_equal(fast[:, col + 2], best % n_ax)
 
     # the plant sets differ (the comparison is not one plant set 65 times), and the scenario
-    # has a transient to measure
-    assert np.unique(values[("overshoot_pct", "slave")]).size > N_DRAWS // 2
-    assert (values[("max_sync_error_counts", "slave")] > 0).all()
+    # has a transient to measure (a hold: the drift pushes each axis off its target)
+    assert np.unique(fast[:, 3]).size > N_DRAWS // 2
+    if sc.kind == "lock":
+        for name in ("master", "slave"):
+            band = values[("holding_band_counts", name)]
+            assert band.max() >= 2 and np.unique(band).size >= 2, (name, band)
+    else:
+        assert np.unique(values[("overshoot_pct", "slave")]).size > N_DRAWS // 2
+        assert (values[("max_sync_error_counts", "slave")] > 0).all()
 
 
 @pytest.mark.parametrize("tuning", TUNINGS)
@@ -168,15 +179,14 @@ def test_verify_same_json_lean_and_traced(request, rig, spec, monkeypatch, tunin
 
 
 def test_verify_runs_the_lean_kernel(quick_tuning, rig, spec, monkeypatch) -> None:
-    """The comparison above compares two paths: with ``_LEAN`` on, the moves of the example rig
-    do not reach the traced engine."""
+    """The comparison above compares two paths: with ``_LEAN`` on, no scenario of the example
+    spec (moves, the hold, the held-out move) reaches the traced engine."""
     calls = []
     real = vrun.run_batch
     monkeypatch.setattr(vrun, "_LEAN", True)
     monkeypatch.setattr(vrun, "run_batch", lambda *a, **k: calls.append(1) or real(*a, **k))
-    small = dataclasses.replace(spec, montecarlo=dataclasses.replace(spec.montecarlo, count=2),
-                                scenarios=tuple(s for s in spec.scenarios
-                                                if s.kind in ("sync", "track")))  # fmt: skip
+    assert {s.kind for s in spec.scenarios} == {"sync", "track", "lock"}
+    small = dataclasses.replace(spec, montecarlo=dataclasses.replace(spec.montecarlo, count=2))
     verify(quick_tuning, rig, small)
     assert calls == []
 
@@ -357,6 +367,34 @@ def test_refused_like_traced(quick_tuning, rig, spec, monkeypatch, axis, gain_sp
     assert errors[True] == errors[False]
     # the lean kernel ran (and declined) only where the plants were valid
     assert lean_results == ([None] if gain_spread == 0.0 else [])
+
+
+@pytest.mark.filterwarnings("ignore:overflow encountered:RuntimeWarning")
+@pytest.mark.parametrize("axis", ["master", "slave"])
+def test_hold_not_finite_is_left_to_the_traced_path(quick_tuning, rig, spec, axis) -> None:
+    """A hold whose position runs beyond int64 (a drive gain of 1.7e308 counts/s/V): the traced
+    path casts its ``floor`` to int64 as numpy casts it (no error, a RuntimeWarning); the lean
+    kernel does not imitate that cast, it declines (None) and
+    :func:`~servotune.verify.run._run_chunk` runs the traced path."""
+    spec = dataclasses.replace(spec, montecarlo=dataclasses.replace(spec.montecarlo,
+                                                                   gain_spread=0.0))  # fmt: skip
+    shared = _shared(quick_tuning, _huge_gain(rig, axis), spec, ("lock",))
+    chunk = _chunk(shared.seed, 2)
+    sc, inputs = shared.runs[0]
+    chunk_plants, _ = vrun._chunk_plants(chunk, shared)
+    pf, pi = chunk_plants.rows()
+    assert vrun._lean_sync_ok(shared, sc, pi)
+    seeds = np.asarray(chunk.noise, dtype=np.uint64)
+    assert vrun._run_lean_sync(shared, sc, inputs, pf, pi, seeds) is None
+    with pytest.warns(RuntimeWarning, match="invalid value encountered in cast"):
+        _, _, true_pos, _ = _traced(shared, sc, inputs, chunk_plants, chunk)
+    # where it ends, no position has an int64 floor (beyond ±2**63 counts, or NaN)
+    assert not (np.abs(true_pos[:, -1, rig.axis_names.index(axis)]) < 2.0**63).any()
+    # the same hold on the rig as shipped runs lean
+    shared = _shared(quick_tuning, rig, spec, ("lock",))
+    chunk_plants, _ = vrun._chunk_plants(chunk, shared)
+    pf, pi = chunk_plants.rows()
+    assert vrun._run_lean_sync(shared, sc, inputs, pf, pi, seeds) is not None
 
 
 @numba.njit
