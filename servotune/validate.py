@@ -38,6 +38,7 @@ __all__ = [
     "is_number",
     "name_and_description",
     "show_number",
+    "show_share",
     "show_value",
 ]
 
@@ -69,6 +70,23 @@ def show_value(v: object, limit: int = _SHOW_CHARS) -> str:
     except ValueError:  # e.g. the int-to-str digit limit
         return f"a {type(v).__name__}"
     return text if len(text) <= limit else text[: limit - 1] + "…"
+
+
+def show_share(p: float) -> str:
+    """A share in [0, 1] as a percentage (no unit) with one decimal, or as many more (up to six)
+    as a share strictly between 0 and 1 needs not to print as ``0.0`` or ``100.0``: 99,996 of
+    99,999 runs passing is not "100.0 %".
+
+    Examples
+    --------
+    >>> show_share(63 / 64), show_share(1.0), show_share(99_996 / 99_999), show_share(2e-5)
+    ('98.4', '100.0', '99.997', '0.002')
+    """
+    x = 100.0 * p
+    d = 1
+    while 0.0 < p < 1.0 and d < 7 and float(f"{x:.{d}f}") in (0.0, 100.0):
+        d += 1
+    return f"{x:.{d}f}"
 
 
 def show_number(x: float | None, digits: int = 4) -> str:

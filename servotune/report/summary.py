@@ -15,6 +15,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields
 from typing import TYPE_CHECKING, Any
 
+from servotune.validate import show_share
+
 if TYPE_CHECKING:
     from servotune.verify.result import Verification
 
@@ -24,6 +26,7 @@ __all__ = [
     "limits_of",
     "margin_comment",
     "next_step",
+    "pass_fraction_text",
     "search_notes",
     "summarise",
 ]
@@ -120,9 +123,7 @@ class ReportSummary:
         """The Monte-Carlo pass fraction with its interval, or "" without variants."""
         if self.montecarlo is None:
             return ""
-        k, n, frac, lo, hi = self.montecarlo
-        return (f"Monte Carlo: {k} of {n} plant variants keep every limit ({100 * frac:.1f} %; "
-                f"95 % interval {100 * lo:.1f}–{100 * hi:.1f} %, Clopper–Pearson)")  # fmt: skip
+        return pass_fraction_text(self.montecarlo)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict (non-finite numbers as None)."""
@@ -137,6 +138,18 @@ class ReportSummary:
                                  "ci95": [lo, hi], "interval": "Clopper-Pearson"}  # fmt: skip
         out["verdict"] = self.verdict
         return out
+
+
+def pass_fraction_text(
+    pass_fraction: tuple[int, int, float, float, float],
+    what: str = "plant variants keep every limit",
+) -> str:
+    """``Monte Carlo: k of n <what> (p %; 95 % interval lo–hi %, Clopper–Pearson)`` from a
+    ``(k, n, fraction, low, high)`` pass fraction (shares by
+    :func:`~servotune.validate.show_share`: never 100.0 % while one run failed)."""
+    k, n, frac, lo, hi = pass_fraction
+    return (f"Monte Carlo: {k} of {n} {what} ({show_share(frac)} %; 95 % interval "
+            f"{show_share(lo)}–{show_share(hi)} %, Clopper–Pearson)")  # fmt: skip
 
 
 def _finite(x: Any) -> Any:

@@ -9,7 +9,7 @@ from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
 from servotune.arch.gantry.config import CASES, TOPOLOGIES
-from servotune.report.summary import search_notes
+from servotune.report.summary import pass_fraction_text, search_notes
 from servotune.validate import show_number, show_value
 
 if TYPE_CHECKING:
@@ -70,11 +70,8 @@ def format_table(verification: Verification) -> str:
     out.append("checks")
     for c in v.checks:
         out.append(f"  {'ok  ' if c.passed else 'FAIL'}  {c.name}: {c.detail}")
-    k, n, frac, lo, hi = v.pass_fraction
-    if n:
-        out.append(f"Monte Carlo: {k} of {n} plant variants keep every limit "
-                   f"({100 * frac:.1f} %; 95 % interval {100 * lo:.1f}–{100 * hi:.1f} %, "
-                   "Clopper–Pearson)")  # fmt: skip
+    if v.pass_fraction[1]:
+        out.append(pass_fraction_text(v.pass_fraction))
     if v.montecarlo is not None:
         out.append(format_montecarlo(v.montecarlo))
     n_fail = sum(not r.passed for r in v.rows) + sum(not c.passed for c in v.checks)
@@ -150,11 +147,10 @@ def format_comparison(cmp: SyncComparison) -> str:
                      f"{show_number(m.gain_margin_db)} dB, Ms {show_number(m.max_sensitivity)} "
                      f"(plant {m.plant})")  # fmt: skip
     if cmp.montecarlo is not None:
-        k, n, frac, lo, hi = cmp.montecarlo.pass_fraction
         w = cmp.montecarlo.worst
-        lines.append(f"Monte Carlo: {k} of {n} plant pairs never trip ({100 * frac:.1f} %; 95 % "
-                     f"interval {100 * lo:.1f}–{100 * hi:.1f} %, Clopper–Pearson); largest sync "
-                     f"error {w.max_sync_error_counts:.0f} counts ({w.label})")  # fmt: skip
+        lines.append(pass_fraction_text(cmp.montecarlo.pass_fraction, "plant pairs never trip")
+                     + f"; largest sync error {w.max_sync_error_counts:.0f} counts "
+                     f"({w.label})")  # fmt: skip
     lines.append("PASS" if cmp.passed else "FAIL: " + "; ".join(cmp.failed))
     return "\n".join(lines)
 

@@ -14,7 +14,7 @@ import pytest
 
 from report.conftest import EXAMPLE_SPEC, ReportBuild
 from servotune.report.html import _summary_section
-from servotune.report.summary import margin_comment, next_step, summarise
+from servotune.report.summary import margin_comment, next_step, pass_fraction_text, summarise
 from servotune.verify.result import Check, Row, Verification
 from servotune.verify.spec import load_spec
 
@@ -57,6 +57,31 @@ def test_a_pass_says_export_and_names_the_tightest_limit(passed: Verification) -
     # Monte Carlo over the variants after the nominal one: 8 of 9
     assert s.montecarlo is not None and s.montecarlo[:2] == (8, 9)
     assert "8 of 9 plant variants keep every limit (88.9 %" in s.montecarlo_text()
+
+
+@pytest.mark.parametrize(
+    ("k", "n", "text"),
+    [
+        # the 100,000-plant-set verification of the example spec (2026-11-26): 3 failures
+        (99_996, 99_999, "99996 of 99999 plant variants keep every limit (99.997 %; 95 % "
+                         "interval 99.99–99.999 %"),
+        (99_999, 99_999, "99999 of 99999 plant variants keep every limit (100.0 %; 95 % "
+                         "interval 99.996–100.0 %"),
+        (1, 99_999, "1 of 99999 plant variants keep every limit (0.001 %; 95 % interval "
+                    "0.00003–0.01 %"),
+        (63, 64, "63 of 64 plant variants keep every limit (98.4 %; 95 % interval 91.6–99.96 %"),
+    ],
+)  # fmt: skip
+def test_a_share_below_one_never_reads_100_percent(k: int, n: int, text: str) -> None:
+    """The sentence's shares: one decimal, more where one would print a share strictly between
+    0 and 1 as 0.0 or 100.0 ("99996 of 99999 … (100.0 %)" was printed). Intervals from scipy's
+    beta distribution (the Clopper–Pearson bounds are its 2.5 % and 97.5 % quantiles), not from
+    the code under test."""
+    from scipy.stats import beta
+
+    lo = 0.0 if k == 0 else float(beta.ppf(0.025, k, n - k + 1))
+    hi = 1.0 if k == n else float(beta.ppf(0.975, k + 1, n - k))
+    assert pass_fraction_text((k, n, k / n, lo, hi)) == f"Monte Carlo: {text}, Clopper–Pearson)"
 
 
 def test_swapping_the_verdict_swaps_the_sentence(passed: Verification) -> None:

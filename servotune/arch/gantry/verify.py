@@ -55,7 +55,7 @@ from servotune.executor import Executor, open_executor
 from servotune.io.files import json_float, parse_toml_as
 from servotune.io.rig import build_section
 from servotune.laws.axis import FLAG_SYNC_TRIP
-from servotune.validate import check_integer, check_keys, check_number
+from servotune.validate import check_integer, check_keys, check_number, show_share
 from servotune.verify import record as rec
 from servotune.verify.record import RecordedVerification, SourceFile, VerifyRunOptions
 
@@ -354,8 +354,8 @@ def verify_gantry(
         k, n, _, lo, hi = mc.pass_fraction
         rows.append(GantryCheck(check="Monte Carlo", subject="plant pairs that trip",
                                 value=float(n - k), limit=0.0, unit="pairs",
-                                detail=f"pass {k}/{n}, 95 % interval {100 * lo:.1f}–"
-                                       f"{100 * hi:.1f} %"))  # fmt: skip
+                                detail=f"pass {k}/{n}, 95 % interval {show_share(lo)}–"
+                                       f"{show_share(hi)} %"))  # fmt: skip
         if not mc.passed:
             w = mc.worst
             drawn = ", ".join(f"{key.replace('_', ' ')} x{v:.3f}" for key, v in w.factors.items())
