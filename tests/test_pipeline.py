@@ -87,10 +87,13 @@ DEMO_DIGESTS = {
     # -> 683.6138006794952 counts, checked against the demo of commit 070927d); nothing else.
     # Session of 2026-11-26 (issue 16): servotune_rt.c/.h export st_axis_init (one axis's
     # power-up state, which st_init and the gantry runtime now share); no arithmetic changed.
+    # Session of 2026-11-26 (issue 22): fuzzy.json re-pinned: each row of the record's
+    # sensitivity table gained fail_p_value and beyond_chance (null and false here: nothing
+    # fails); compared with the demo of commit 3f51ca5, those 16 keys are the only change.
     "track_log.csv": "f7d686f065b441cdc05dd4509674df0e02206cb068f00010ec5697e31a7cbf3c",
     "fitted-rig.toml": "fa857aeaed5c4836378857da32ba0a8af7719206d0ef83dd526b8193e7114035",
     "tuning.json": "9546ae9eac0cb2fde8d2700c935bf988fdc70be897d1a0bfa9ab42a814f6b5b8",
-    "fuzzy.json": "9fe17ad47390455100a95c66ca5cf0fb6de2febd5e38dd0d72bb7911ff4dca21",
+    "fuzzy.json": "39edd1caa1e5ad20223cb18969bc710dc6cb139d8b96cec90b5ae3637d1b66a7",
     "figure4.json": "a384cf31c4d659fe72fa0ea60d1ff6f343ec6112168504e3a5c8a96369348958",
     "c/servotune_rt.c": "67c50305bbd484338ce53b638730f79f78b57254521a3f141420f9a7785bad20",
     "c/servotune_rt.h": "406f72064291dd55a051e586d83e7adb115d078b56fac2583bdfbba83257b610",

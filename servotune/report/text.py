@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Any
 from servotune.arch.gantry.config import CASES, TOPOLOGIES
 from servotune.report.summary import pass_fraction_text, search_notes
 from servotune.validate import show_number, show_value
+from servotune.verify.montecarlo import BEYOND_CHANCE
 
 if TYPE_CHECKING:
     from servotune.arch.gantry.result import SyncComparison
@@ -100,21 +101,35 @@ def format_montecarlo(summary: MonteCarloSummary, parameters: int = 3) -> str:
         out.append(f"  {w.label:<10} {pct:>7}  {'ok  ' if w.passed else 'FAIL'}  {fig}"
                    + (f"; {params}" if params else ""))  # fmt: skip
     if s.sensitivity:
+        tested = any(math.isfinite(x.fail_p_value) for x in s.sensitivity)
         out.append("sensitivity: failure rate of the plant sets in each parameter's lowest and "
-                   "highest quarter of the draws; ρ = Spearman correlation with the least "
-                   "margin (< 0: larger values leave less margin)")  # fmt: skip
-        head = ("parameter", "lowest quarter", "fail %", "highest quarter", "fail %", "ρ")
+                   "highest quarter of the draws; "
+                   + ("p = rank-sum test of the failing against the passing plant sets' values "
+                      "(two-sided); " if tested else "")
+                   + "ρ = Spearman correlation with the least margin (< 0: larger values leave "
+                   "less margin)")  # fmt: skip
+        head = ("parameter", "lowest quarter", "fail %", "highest quarter", "fail %",
+                *(("p",) if tested else ()), "ρ")  # fmt: skip
         rows = [head]
         for x in s.sensitivity:
             rho = x.rank_correlation
             rows.append((x.parameter, f"<= {show_number(x.low_edge)}", f"{x.low_fail_pct:.3g}",
                          f">= {show_number(x.high_edge)}", f"{x.high_fail_pct:.3g}",
+                         *((show_number(x.fail_p_value),) if tested else ()),
                          f"{rho:+.2f}" if math.isfinite(rho) else "n/a"))  # fmt: skip
         widths = [max(len(r[i]) for r in rows) for i in range(len(head))]
         for r in rows:
             cells = [c.ljust(w) if i == 0 else c.rjust(w)
                      for i, (c, w) in enumerate(zip(r, widths, strict=True))]  # fmt: skip
             out.append("  " + "  ".join(cells).rstrip())
+        if tested:
+            n_fail = s.count - s.passed
+            rule = f"p < {BEYOND_CHANCE:g}/{len(s.sensitivity)}, Bonferroni"
+            apart = [x.parameter for x in s.sensitivity if x.beyond_chance]
+            out.append(f"the {n_fail} failing plant sets differ beyond chance ({rule}) in: "
+                       + ", ".join(apart) if apart else
+                       f"no parameter sets the {n_fail} failing plant sets apart beyond chance "
+                       f"({rule}): the table's failure rates may be chance")  # fmt: skip
     return "\n".join(out)
 
 

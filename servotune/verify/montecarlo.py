@@ -19,6 +19,7 @@ whatever the chunking, the number of workers or the executor.
 
 from __future__ import annotations
 
+import math
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -41,6 +42,8 @@ __all__ = [
 
 N_WORST = 5
 """Plant sets listed in :attr:`MonteCarloSummary.worst` by default."""
+BEYOND_CHANCE = 0.05
+"""Family-wise error rate of the sensitivity table's ``beyond_chance`` (Bonferroni)."""
 
 
 class PlantDistribution(Protocol):
@@ -136,8 +139,11 @@ def sensitivity_table(
     reads the same way), and Spearman's rank correlation with each plant set's least relative
     margin. A servo engineer reads the first as "a slow slave drive (``slave.tau_s`` in its
     top quarter) fails 4 % of the time, a fast one never", and the second as the direction and
-    strength of the trend when nothing fails at all. Rows are ordered by the difference of
-    the two failure rates, then by ``|ρ|``, then by name.
+    strength of the trend when nothing fails at all. Where some plant sets fail and others
+    pass, each parameter's failing values are tested against its passing ones (scipy's
+    Wilcoxon–Mann–Whitney rank-sum test, two-sided; Bonferroni over the parameters tested for
+    ``beyond_chance``). Rows are ordered by that p-value (where there is one), then by the
+    difference of the two failure rates, then by ``|ρ|``, then by name.
 
     Parameters
     ----------
@@ -154,7 +160,7 @@ def sensitivity_table(
     -------
     tuple of Sensitivity
     """
-    from scipy.stats import spearmanr
+    from scipy.stats import mannwhitneyu, spearmanr
 
     fail = ~np.asarray(passed, dtype=bool)
     n = fail.size
@@ -163,28 +169,32 @@ def sensitivity_table(
         return ()
     fail_pct = 100.0 * float(fail.mean())
     m = np.where(np.isnan(margin), -np.inf, margin)  # ranks: a fault's -inf ranks lowest
-    for j, name in enumerate(names):
+    varied = [j for j in range(len(names)) if np.ptp(values[:, j]) > 0.0]
+    tested = 0 < int(fail.sum()) < n
+    for j in varied:
         x = values[:, j]
-        if np.ptp(x) == 0.0:
-            continue
         q1, q3 = (float(q) for q in np.quantile(x, [0.25, 0.75]))
         lo_sel, hi_sel = x <= q1, x >= q3
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # constant margins: rho is NaN, said so below
             rho = float(spearmanr(x, m).statistic) if n > 2 else float("nan")
+        p = float(mannwhitneyu(x[fail], x[~fail]).pvalue) if tested else math.nan
         out.append(Sensitivity(
-            parameter=name,
+            parameter=names[j],
             low_edge=q1,
             high_edge=q3,
             low_fail_pct=100.0 * float(fail[lo_sel].mean()),
             high_fail_pct=100.0 * float(fail[hi_sel].mean()),
             fail_pct=fail_pct,
             rank_correlation=rho,
+            fail_p_value=p,
+            beyond_chance=p < BEYOND_CHANCE / len(varied),
         ))  # fmt: skip
 
-    def key(s: Sensitivity) -> tuple[float, float, str]:
+    def key(s: Sensitivity) -> tuple[float, float, float, str]:
         r = abs(s.rank_correlation) if np.isfinite(s.rank_correlation) else -1.0
-        return (-abs(s.high_fail_pct - s.low_fail_pct), -r, s.parameter)
+        p = s.fail_p_value if np.isfinite(s.fail_p_value) else 2.0
+        return (p, -abs(s.high_fail_pct - s.low_fail_pct), -r, s.parameter)
 
     return tuple(sorted(out, key=key))
 

@@ -204,7 +204,12 @@ class Sensitivity:
     Read it as: plant sets whose ``parameter`` lies in its lowest quarter of the draws
     (``<= low_edge``) fail ``low_fail_pct`` % of the time, those in its highest quarter
     (``>= high_edge``) ``high_fail_pct`` %, against ``fail_pct`` % over all draws; a parameter
-    that drives failures shows a large difference between the two. ``rank_correlation`` is
+    that drives failures shows a large difference between the two. Quarters are coarse (a
+    failure window in a parameter's last percent, or three failures that all fall in one quarter
+    by chance, look alike there), so ``fail_p_value`` tests what they suggest: the two-sided
+    p-value of the Wilcoxon–Mann–Whitney rank-sum test between the failing and the passing plant
+    sets' values of the parameter, and ``beyond_chance`` says whether it stays below 5 % after
+    Bonferroni's correction for the number of parameters tested. ``rank_correlation`` is
     Spearman's ρ between the parameter and each plant set's least relative margin: negative
     when a larger value leaves less margin; it ranks the parameters even when nothing fails.
 
@@ -218,6 +223,11 @@ class Sensitivity:
         Failure rates [%]: in the lowest quarter, in the highest quarter, overall.
     rank_correlation : float
         Spearman's ρ with the least relative margin [1]; NaN when either does not vary.
+    fail_p_value : float
+        The rank-sum test's p-value, failing against passing plant sets [1]; NaN when none or
+        every plant set fails.
+    beyond_chance : bool
+        ``fail_p_value < 0.05 / (parameters tested)``.
     """
 
     parameter: str
@@ -227,6 +237,8 @@ class Sensitivity:
     high_fail_pct: float
     fail_pct: float
     rank_correlation: float
+    fail_p_value: float = math.nan
+    beyond_chance: bool = False
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict (non-finite numbers as None)."""

@@ -101,6 +101,86 @@ def test_sensitivity_finds_the_parameter_that_drives_failures() -> None:
     np.testing.assert_allclose([tau.low_edge, tau.high_edge], [0.25, 0.75], atol=0.02)
 
 
+def _few_failures(seed: int, n: int = 100_000) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The shape of the example spec's 100,000-plant-set run (2026-11-26: 3 failures, all with
+    the slave's drift in the last percent of its spread, and by chance all three in the master
+    gain's lowest quarter, whose Spearman ρ with the least margin was +0.86): column 0 a
+    "master gain" that sets every passing plant set's margin and has nothing to do with the
+    failures; column 1 a "slave drift" whose last 0.05 % fails; column 2 noise. Failures are
+    then moved, among the tail's plant sets, to the lowest quarter of column 0."""
+    rng = np.random.default_rng(seed)
+    values = rng.uniform(0.0, 1.0, size=(n, 3))
+    fail = values[:, 1] < 5e-4
+    # the coincidence: the failing plant sets' column 0 drawn again from its lowest quarter
+    values[fail, 0] = rng.uniform(0.0, 0.24, size=int(fail.sum()))
+    margin = np.where(fail, -0.25, 0.1 + values[:, 0])
+    return values, ~fail, margin
+
+
+def test_sensitivity_tests_few_failures_instead_of_trusting_quarters() -> None:
+    """A handful of failures that all fall in one parameter's lowest quarter by chance must not
+    rank that parameter first because its ρ over the passing plant sets is large: the rank-sum
+    test puts the parameter whose failing values sit in its last percent first, and says which
+    ones set the failures apart beyond chance."""
+    values, passed, margin = _few_failures(1)
+    k = int((~passed).sum())
+    assert 20 <= k <= 80  # about 0.05 % of 100,000
+    table = sensitivity_table(("m.gain", "s.offset", "s.noise"), values, passed, margin)
+    by = {s.parameter: s for s in table}
+    # the quarters alone cannot tell the two apart: every failure in both lowest quarters …
+    assert by["m.gain"].low_fail_pct == by["s.offset"].low_fail_pct > 0.0
+    assert by["m.gain"].high_fail_pct == by["s.offset"].high_fail_pct == 0.0
+    # … and ρ favours the gain (it sets every passing margin); the old order put it first
+    assert abs(by["m.gain"].rank_correlation) > abs(by["s.offset"].rank_correlation)
+    assert table[0].parameter == "s.offset"
+    assert by["s.offset"].fail_p_value < 1e-12 and by["s.offset"].beyond_chance
+    # the gain's failing values are low as well (drawn so), so its test finds that too: the
+    # table states what the data show, the order says which is stronger
+    assert by["s.offset"].fail_p_value < by["m.gain"].fail_p_value
+    assert not by["s.noise"].beyond_chance
+    # reference: scipy's test on the same split (the table passes failing, then passing values)
+    from scipy.stats import mannwhitneyu
+
+    x = values[:, 1]
+    assert by["s.offset"].fail_p_value == mannwhitneyu(x[~passed], x[passed]).pvalue
+
+
+def test_beyond_chance_holds_its_error_rate_when_nothing_drives_failures() -> None:
+    """Under the null (failures drawn independently of every parameter), ``beyond_chance`` names
+    a parameter in at most about 5 % of verifications (Bonferroni over the parameters keeps the
+    family-wise rate at or below 0.05). 400 simulated verifications of 2,000 plant sets, 5
+    parameters, 1 % failing: expected at most 20 with a flag; 33 is beyond the binomial
+    (400, 0.05) 99.9 % quantile. Each p-value also lies in [0, 1] and they spread out (a test
+    that always returned 1 would pass the count alone)."""
+    rng = np.random.default_rng(11)
+    flagged = 0
+    ps = []
+    for _ in range(400):
+        values = rng.standard_normal((2000, 5))
+        passed = rng.random(2000) >= 0.01
+        passed[0], passed[1] = False, True  # at least one of each
+        margin = np.where(passed, 1.0, -1.0)
+        table = sensitivity_table(tuple("abcde"), values, passed, margin)
+        flagged += any(s.beyond_chance for s in table)
+        ps += [s.fail_p_value for s in table]
+    assert flagged <= 33
+    ps = np.array(ps)
+    assert ((ps >= 0) & (ps <= 1)).all()
+    # uniform under the null: each decile holds about a tenth of the 2,000 p-values
+    counts = np.histogram(ps, bins=10, range=(0, 1))[0]
+    assert counts.min() > 140 and counts.max() < 260, counts
+
+
+def test_nothing_failing_or_everything_failing_has_no_test() -> None:
+    rng = np.random.default_rng(5)
+    values = rng.uniform(size=(500, 2))
+    for passed in (np.ones(500, dtype=bool), np.zeros(500, dtype=bool)):
+        table = sensitivity_table(("a", "b"), values, passed, values[:, 0] - 0.5)
+        assert all(np.isnan(s.fail_p_value) and not s.beyond_chance for s in table)
+        # ordered as before the test existed: by |ρ| (a drives the margin)
+        assert [s.parameter for s in table] == ["a", "b"]
+
+
 def test_montecarlo_text_names_the_figure_and_the_table(rig, sync_spec) -> None:
     tuning = read_tuning(TUNING)
     v = verify(tuning, rig, sync_spec)
