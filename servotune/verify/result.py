@@ -264,7 +264,8 @@ class MonteCarloSummary:
         The plant sets with the least margin, least first (ties: lower draw index first).
     sensitivity : tuple of Sensitivity
         One row per drawn parameter that varies, the one most tied to failures first
-        (largest difference of the quartiles' failure rates, then largest ``|ρ|``).
+        (:func:`~servotune.verify.montecarlo.sensitivity_table`: smallest rank-sum p-value,
+        then largest difference of the quartiles' failure rates, then largest ``|ρ|``).
     """
 
     count: int

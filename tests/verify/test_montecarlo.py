@@ -181,6 +181,38 @@ def test_nothing_failing_or_everything_failing_has_no_test() -> None:
         assert [s.parameter for s in table] == ["a", "b"]
 
 
+def test_the_text_says_which_parameters_set_failures_apart() -> None:
+    """The closing line follows the table: the same draws with the failures tied to a parameter
+    name it; with the failures drawn independently of every parameter it says none does; with
+    nothing failing there is no test, no p column and no line."""
+    values, passed, margin = _few_failures(2, n=20_000)
+    names = ("m.gain", "s.offset", "s.noise")
+
+    def text(passed: np.ndarray) -> str:
+        table = sensitivity_table(names, values, passed, margin)
+        summary = st.verify.MonteCarloSummary(count=passed.size, passed=int(passed.sum()),
+                                              ci95=(0.0, 1.0), distribution="spec spread",
+                                              sensitivity=table)  # fmt: skip
+        return format_montecarlo(summary)
+
+    k = int((~passed).sum())
+    tied = text(passed)
+    last = tied.splitlines()[-1]
+    assert last.startswith(f"the {k} failing plant sets differ beyond chance (p < 0.05/3, ")
+    assert last.split(" in: ")[1].split(", ")[0] == "s.offset"
+    head = next(ln for ln in tied.splitlines() if ln.strip().startswith("parameter"))
+    assert head.split()[-2:] == ["p", "ρ"]
+    chance = np.ones(passed.size, dtype=bool)
+    chance[np.random.default_rng(0).choice(passed.size, k, replace=False)] = False
+    untied = text(chance)
+    assert untied.splitlines()[-1] == (
+        f"no parameter sets the {k} failing plant sets apart beyond chance (p < 0.05/3, "
+        "Bonferroni): the table's failure rates may be chance"
+    )
+    none = text(np.ones(passed.size, dtype=bool))
+    assert "rank-sum" not in none and "beyond chance" not in none
+
+
 def test_montecarlo_text_names_the_figure_and_the_table(rig, sync_spec) -> None:
     tuning = read_tuning(TUNING)
     v = verify(tuning, rig, sync_spec)
