@@ -1278,7 +1278,8 @@ def bench_scale(opts: Options) -> list[Figure]:
         ``scale_cluster2_plant_ticks_per_s``, ``scale_cluster1_plant_ticks_per_s``, their wall
         times ``scale_*_s``, ``scale_cluster2_vs_inprocess`` (rate ratio; target >= 0.85),
         ``scale_cluster_2_vs_1_workers``, ``scale_cluster_start_s`` (cluster up and the first
-        task back), ``scale_1e6_plants_cluster2_s_extrapolated``.
+        task back), ``scale_whole_spec_inprocess_plant_ticks_per_s`` and ``_s`` (every scenario
+        of the spec, in-process), ``scale_1e6_plants_cluster2_s_extrapolated``.
     """
     from servotune.executor import InProcessExecutor
     from servotune.tune.workflow import tune_rig
@@ -1291,22 +1292,25 @@ def bench_scale(opts: Options) -> list[Figure]:
     ticks = round(sync.seconds / rig.period_s)
     per_set = len(rig.axes) * ticks  # plant·ticks of one plant set
 
-    def spec_of(count: int) -> Any:
+    def spec_of(count: int, scenarios: tuple[Any, ...] = (sync,)) -> Any:
         mc = dataclasses.replace(spec.montecarlo, count=count)
-        return dataclasses.replace(spec, scenarios=(sync,), montecarlo=mc)
+        return dataclasses.replace(spec, scenarios=scenarios, montecarlo=mc)
 
     progress("scale: tuning the example rig (not timed)")
     tuning = tune_rig(opts.rig_path)
 
-    def measure(ex: Any, label: str) -> tuple[float, float, dict[str, Any]]:
-        verify(tuning, rig, spec_of(2), executor=ex)  # warm-up: compiled code, imports
+    def measure(
+        ex: Any, label: str, scenarios: tuple[Any, ...] = (sync,)
+    ) -> tuple[float, float, dict[str, Any]]:
+        verify(tuning, rig, spec_of(2, scenarios), executor=ex)  # warm-up: compiled code, imports
         t0 = time.perf_counter()
-        verify(tuning, rig, spec_of(0), executor=ex)
+        verify(tuning, rig, spec_of(0, scenarios), executor=ex)
         base = time.perf_counter() - t0
         t0 = time.perf_counter()
-        v = verify(tuning, rig, spec_of(n), executor=ex)
+        v = verify(tuning, rig, spec_of(n, scenarios), executor=ex)
         wall = time.perf_counter() - t0
-        rate = n * per_set / max(wall - base, 1e-9)
+        per = len(rig.axes) * sum(round(sc.seconds / rig.period_s) for sc in scenarios)
+        rate = n * per / max(wall - base, 1e-9)
         progress(f"scale: {label}: {n:,} plant sets in {wall:.1f} s ({base:.1f} s of it the "
                  f"checks), {rate:.3g} plant·ticks/s")  # fmt: skip
         return rate, wall, v.to_dict()
@@ -1317,6 +1321,10 @@ def bench_scale(opts: Options) -> list[Figure]:
     rates["inprocess"], walls["inprocess"], docs["inprocess"] = measure(
         InProcessExecutor(), "in-process"
     )
+    # the whole shipped spec (every scenario: the moves, the hold, the held-out move), in-process
+    whole_rate, whole_wall, _ = measure(InProcessExecutor(), "in-process, whole spec",
+                                        spec.scenarios)  # fmt: skip
+    whole_ticks = sum(round(sc.seconds / rig.period_s) for sc in spec.scenarios)
     start_s = math.nan
     from dask.distributed import Client, LocalCluster
 
@@ -1362,6 +1370,11 @@ def bench_scale(opts: Options) -> list[Figure]:
         Figure("scale_cluster2_vs_inprocess", ratio, "x", "rate ratio; target >= 0.85"),
         Figure("scale_cluster_2_vs_1_workers", growth, "x", "rate ratio; ideal 2"),
         Figure("scale_cluster_start_s", start_s, "s", "2 workers up and a first task back"),
+        Figure("scale_whole_spec_inprocess_plant_ticks_per_s", whole_rate, "plant·ticks/s",
+               f"every scenario of the spec ({whole_ticks} ticks per plant set), in-process; "
+               f"measured on {n:,} plant sets"),
+        Figure("scale_whole_spec_inprocess_s", whole_wall, "s",
+               f"every scenario of the spec, in-process, {n:,} plant sets"),
         Figure("scale_1e6_plants_cluster2_s_extrapolated", target_s, "s",
                f"EXTRAPOLATED from {n:,} plant sets at the 2-worker rate, not measured"
                if n < SCALE_TARGET else "measured (scale_cluster2_s less the checks)"),
