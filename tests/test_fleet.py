@@ -30,8 +30,10 @@ from servotune.errors import FleetTableError
 from servotune.excite import design_excitation, excitation_inputs
 from servotune.fleet import (
     DRIFT_K,
+    OUTLIER_Z,
     FleetResult,
     FleetRow,
+    chance_outlier_rate,
     fit_fleet,
     machine_and_date,
     read_fleet_table,
@@ -335,6 +337,56 @@ def test_robust_z_reference_values() -> None:
     assert (med, mad) == (5.0, 0.0)
     np.testing.assert_allclose(spread, np.sqrt(np.pi / 2) * 1.0, rtol=1e-12)
     assert np.isnan(robust_z([2.0, 2.0, 2.0])).all()
+
+
+def test_robust_z_of_rows_is_each_row_alone() -> None:
+    rows = np.array([[1.0, 2.0, 3.0, 4.0, 100.0], [5.0, 5.0, 5.0, 6.0, 9.0], [2.0] * 5])
+    got = robust_z(rows)
+    for r, z in zip(rows, got, strict=True):
+        np.testing.assert_array_equal(z, robust_z(r))
+
+
+def test_chance_outlier_rate_against_independent_references() -> None:
+    """The outlier rule's false-flag rate: for a large fleet, the normal tail beyond 3.5 on
+    both sides (scipy's ``norm.sf``); for 5 machines, a loop of :func:`robust_spread` (the
+    scalar path) over fleets drawn from another generator; smaller fleets flag more."""
+    from scipy.stats import norm
+
+    big = chance_outlier_rate(20_000)
+    assert abs(big / (2.0 * norm.sf(OUTLIER_Z)) - 1.0) < 0.12, big  # 4.65e-4; ±3.3 % noise
+    rng = np.random.Generator(np.random.MT19937(42))
+    hits = total = 0
+    for _ in range(40_000):
+        x = rng.standard_normal(5)
+        med, _, spread = robust_spread(x)
+        hits += int((np.abs(x - med) / spread > OUTLIER_Z).sum())
+        total += 5
+    five = chance_outlier_rate(5)
+    assert abs(five / (hits / total) - 1.0) < 0.08, (five, hits / total)  # ±2 % and ±1 % noise
+    rates = [chance_outlier_rate(n) for n in (5, 10, 30, 150, 20_000)]
+    assert rates == sorted(rates, reverse=True) and rates[0] > 50 * rates[-1]
+    assert chance_outlier_rate(10) == chance_outlier_rate(10)  # seeded: the same every run
+    with pytest.raises(ValueError, match="n_machines must be >= 3"):
+        chance_outlier_rate(2)
+
+
+def test_summary_states_the_outliers_chance_would_show(small_fleet: FleetResult) -> None:
+    """The outlier line sets the count found beside the count a fleet of this size would show
+    by chance: the sum over the judged parameters of machines × the rule's false-flag rate."""
+    s = small_fleet.summary
+    judged = [sp for sp in s.spreads if sp.spread > 0]
+    assert s.judged_values == sum(sp.n_machines for sp in judged) > 0
+    want = sum(sp.n_machines * chance_outlier_rate(sp.n_machines) for sp in judged)
+    assert s.chance_outliers == pytest.approx(want, rel=1e-12)
+    assert 0.1 < s.chance_outliers < 5.0  # a small fleet: far above 4.65e-4 per value
+    line = next(ln for ln in s.text().splitlines() if ln.startswith("outliers against"))
+    assert line.endswith(f"of {s.judged_values} values; a fleet of this size would show about "
+                         f"{s.chance_outliers:.2g} by chance alone (every parameter spread "
+                         "normally)")  # fmt: skip
+    # the figure follows the fleet's size: the same fits with fewer machines expect more per value
+    fewer = summarise_fleet([r for r in small_fleet.rows if r.machine_id < "m010"])
+    assert fewer.judged_values < s.judged_values
+    assert (fewer.chance_outliers / fewer.judged_values) > (s.chance_outliers / s.judged_values)
 
 
 def test_machine_and_date_rules() -> None:

@@ -36,6 +36,14 @@ but not compared for drift (the summary says how many).
 
 Flags need a fleet: with fewer than :data:`MIN_MACHINES` machines of an axis, no spread is
 computed and nothing is flagged on that axis.
+
+**Outliers by chance.** The 3.5 cut-off is calibrated for large samples: there a parameter that
+spreads normally over the fleet puts a value beyond it with probability 2·(1 − Φ(3.5)) =
+4.65e-4. A small fleet's median and MAD are themselves uncertain, so the same rule flags far
+more often: 5.3 % of the values at 5 machines, 1.6 % at 10, 0.37 % at 30, 0.09 % at 150
+(:func:`chance_outlier_rate`). The summary states how many outliers a fleet of its size would
+show by chance alone (every parameter spread normally, no machine out of line) beside the
+count it found, so three outliers among 24 machines' 144 values read as what they are.
 """
 
 from __future__ import annotations
@@ -43,6 +51,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, fields
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -59,6 +68,7 @@ __all__ = [
     "FleetSummary",
     "Outlier",
     "ParameterSpread",
+    "chance_outlier_rate",
     "robust_spread",
     "robust_z",
     "summarise_fleet",
@@ -105,16 +115,56 @@ def robust_spread(values: Sequence[float] | np.ndarray) -> tuple[float, float, f
 
 def robust_z(values: Sequence[float] | np.ndarray) -> np.ndarray:
     """Modified z-scores ``0.6745 · (x − median) / MAD`` (Iglewicz & Hoaglin 1993), with
-    :func:`robust_spread`'s fallback when MAD is 0; NaN where there is no spread.
+    :func:`robust_spread`'s fallback when MAD is 0; NaN where there is no spread. A 2-D array:
+    each row on its own.
 
     >>> robust_z([1.0, 2.0, 3.0, 4.0, 100.0]).round(2).tolist()
     [-1.35, -0.67, 0.0, 0.67, 65.43]
     """
     x = np.asarray(values, dtype=float)
-    med, _, spread = robust_spread(x)
-    if spread <= 0:
-        return np.full(x.shape, np.nan)
-    return (x - med) / spread
+    med = np.median(x, axis=-1, keepdims=True)
+    dev = np.abs(x - med)
+    mad = np.median(dev, axis=-1, keepdims=True)
+    mean_dev = np.mean(dev, axis=-1, keepdims=True)
+    spread = np.where(mad > 0, mad / MAD_TO_SD, _MEANAD_TO_SD * mean_dev)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(spread > 0, (x - med) / spread, np.nan)
+
+
+CHANCE_VALUES = 2_000_000
+"""Normal values :func:`chance_outlier_rate` draws per fleet size (about ±3 % at 300 machines,
+where about 1,200 of them pass the cut-off)."""
+
+
+@lru_cache(maxsize=256)
+def chance_outlier_rate(n_machines: int, outlier_z: float = OUTLIER_Z) -> float:
+    """The share of values that ``|robust z| > outlier_z`` flags in a fleet of ``n_machines``
+    whose parameter spreads normally (no machine out of line): the outlier rule's false-flag
+    rate at that fleet size.
+
+    Estimated by simulation: :data:`CHANCE_VALUES` standard normal values in fleets of
+    ``n_machines``, seeded by ``n_machines`` (the same figure on every run and machine). It
+    tends to ``2·(1 − Φ(outlier_z))`` for large fleets (4.65e-4 at 3.5) and is much larger
+    for small ones.
+
+    Parameters
+    ----------
+    n_machines : int
+        Machines with the parameter, >= 3.
+    outlier_z : float
+        The cut-off [-].
+
+    Returns
+    -------
+    float
+        The share [1].
+    """
+    if n_machines < 3:
+        raise ValueError(f"n_machines must be >= 3, got {n_machines}")
+    rng = np.random.default_rng([0x0F1EE7, n_machines])
+    fleets = max(1, CHANCE_VALUES // n_machines)
+    z = robust_z(rng.standard_normal((fleets, n_machines)))
+    return float(np.mean(np.abs(z) > outlier_z))
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -285,6 +335,11 @@ class FleetSummary:
         ``(file, axis, error)`` of each failed row.
     outlier_z, drift_k : float
         The thresholds used [-].
+    chance_outliers : float
+        Outliers a fleet of the same size would show by chance alone, every parameter spread
+        normally: the sum over the parameters judged of machines × :func:`chance_outlier_rate`.
+    judged_values : int
+        Values judged for outliers (machines × parameters, every axis).
     """
 
     n_logs: int
@@ -301,6 +356,8 @@ class FleetSummary:
     failures: tuple[tuple[str, str, str], ...]
     outlier_z: float = OUTLIER_Z
     drift_k: float = DRIFT_K
+    chance_outliers: float = 0.0
+    judged_values: int = 0
 
     @property
     def drifted(self) -> dict[str, tuple[str, ...]]:
@@ -337,7 +394,10 @@ class FleetSummary:
             lines.append(f"axis {axis or '(unprefixed)'}: fewer than {MIN_MACHINES} machines, "
                          "no spread, nothing flagged")  # fmt: skip
         lines.append(f"outliers against the fleet (|robust z| > {self.outlier_z:g}): "
-                     + (str(len(self.outliers)) if self.outliers else "none"))  # fmt: skip
+                     + (str(len(self.outliers)) if self.outliers else "none")
+                     + (f" of {self.judged_values} values; a fleet of this size would show "
+                        f"about {self.chance_outliers:.2g} by chance alone (every parameter "
+                        "spread normally)" if self.judged_values else ""))  # fmt: skip
         lines += ["  " + o.sentence() for o in self.outliers]
         n_drift = len(self.drifted)
         lines.append(
@@ -398,6 +458,7 @@ def summarise_fleet(
     latest = latest_fits(fitted)
     spreads, outliers, drifts, small = [], [], [], []
     spread_of: dict[tuple[str, str], float] = {}
+    judged, chance = 0, 0.0
     for axis in sorted({a for a, _ in latest}):
         machines = sorted((m, r) for (a, m), r in latest.items() if a == axis)
         if len(machines) < MIN_MACHINES:
@@ -416,6 +477,8 @@ def summarise_fleet(
             spread_of[(axis, p)] = spread
             if spread <= 0:
                 continue
+            judged += len(have)
+            chance += len(have) * chance_outlier_rate(len(have), outlier_z)
             for (m, r), z in zip(have, (x - med) / spread, strict=True):
                 if abs(z) > outlier_z:
                     outliers.append(Outlier(machine_id=m, axis=axis, parameter=p, unit=UNITS[p],
@@ -465,4 +528,6 @@ def summarise_fleet(
         failures=tuple((r.file, r.axis, r.error) for r in rows if not r.ok),
         outlier_z=outlier_z,
         drift_k=drift_k,
+        chance_outliers=chance,
+        judged_values=judged,
     )
