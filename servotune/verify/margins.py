@@ -684,14 +684,16 @@ def plant_cases(
 
 
 def plant_response(plant: Plant, rig: Rig, case: PlantCase, w: np.ndarray) -> np.ndarray:
-    """``lsb·P(e^{jωT})`` of one axis's plant in a case, by python-control, on ``w``."""
+    """``lsb·P(e^{jωT})`` of one axis's plant in a case, by python-control, on ``w``: a transfer
+    function (the whole grid at once), its coefficients by ``scipy.signal.ss2tf`` as
+    ``control.ss2tf`` gets them without slycot (the same bits, half the time: no failed import
+    per call; an installed slycot cannot change the screen)."""
     import control
+    from scipy.signal import ss2tf
 
-    lag = rig.timer.compute_s + plant.delay_s + case.extra_lag_s
-    # as a transfer function: evaluated on the whole grid at once (a state-space model solves
-    # one linear system per frequency; the two agree to ~1e-12 on these low orders)
-    p = control.ss2tf(discretize(plant, case.period_s, lag) * rig.dac.lsb_v)
-    return control.frequency_response(p, w).complex.ravel()
+    d = discretize(plant, case.period_s, rig.timer.compute_s + plant.delay_s + case.extra_lag_s)
+    num, den = ss2tf(d.A, d.B, d.C * rig.dac.lsb_v, d.D * rig.dac.lsb_v)
+    return control.frequency_response(control.tf(num[0], den, d.dt), w).complex.ravel()
 
 
 def controller_response(gains: np.ndarray, w: np.ndarray, period_s: float) -> np.ndarray:

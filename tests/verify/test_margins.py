@@ -137,6 +137,35 @@ def test_margins_agree_with_an_independent_python_control_loop(case, rig) -> Non
         assert got.max_complementary_sensitivity == pytest.approx(want["mt"], rel=5e-3), got.name
 
 
+def test_plant_response_is_python_controls_own_route(rig) -> None:
+    """``plant_response`` takes the transfer function's coefficients from scipy directly: the
+    bits of ``control.ss2tf`` without slycot (its fallback is that call), on every corner and
+    sample of the example rig's plant set; with slycot installed python-control would take
+    ``tb04ad`` (then the two agree to rounding)."""
+    import importlib.util
+
+    from servotune.plant import discretize
+    from servotune.verify.margins import _grid, plant_cases, plant_response
+
+    cases = plant_cases(rig, gain_spread=0.2, tau_spread=0.3, extra_ticks=1,
+                        period_error_ppm=100, samples=8)  # fmt: skip
+    exact = importlib.util.find_spec("slycot") is None
+    n = 0
+    for c in cases:
+        for plant in c.plants:
+            w = _grid(plant, c.period_s)
+            lag = rig.timer.compute_s + plant.delay_s + c.extra_lag_s
+            tf = control.ss2tf(discretize(plant, c.period_s, lag) * rig.dac.lsb_v)
+            want = control.frequency_response(tf, w).complex.ravel()
+            got = plant_response(plant, rig, c, w)
+            if exact:
+                np.testing.assert_array_equal(got, want)
+            else:
+                np.testing.assert_allclose(got, want, rtol=1e-9)
+            n += 1
+    assert n >= 2 * 16  # both axes, the corners and the samples
+
+
 def test_the_worst_cell_is_the_one_with_the_largest_ms(case) -> None:
     m = case["margins"]
     cells = list(m.select("slave", "task"))
