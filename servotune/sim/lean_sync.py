@@ -63,8 +63,8 @@ the holding band over the holding window (:attr:`SyncWindows.hold_from`; 0 witho
 [counts]: the largest ``|target − plant count|``, the target being the runtime's (its read plus
 its error) and the plant count the plant's whole count in the runtime's frame (``floor`` of the
 true position less the count of the first read), NaN where a position in the window is not
-finite or beyond ±2**62 counts (the traced path's integer cast is not defined there, so the
-caller runs that path instead).
+finite or beyond ±4e18 counts (near int64's end, where the traced path's integer cast is not
+defined, so the caller runs that path instead).
 The overshoot is NaN where :func:`servotune.metrics.step_info` refuses the move as a step
 response (a position in the window not finite, a step ``target − y0`` zero or not finite): the
 traced path raises its ``ValueError`` there, so the caller runs that path instead."""
@@ -320,7 +320,8 @@ def _run_sync(
     band = nb.carray(_frame_buffer(2, np.float64), 2)
     dev_max = nb.carray(_frame_buffer(2, np.float64), 2)
     n_sat = nb.carray(_frame_buffer(2, np.int64), 2)
-    # ... the holding window's first read, largest |target - plant count|, a position refused
+    # ... the first read's count (the runtime's frame), the holding window's largest
+    # |target - plant count|, whether a position there was refused
     first = nb.carray(_frame_buffer(2, np.int64), 2)
     hold_max = nb.carray(_frame_buffer(2, np.int64), 2)
     hold_bad = nb.carray(_frame_buffer(2, np.int64), 2)

@@ -686,8 +686,8 @@ def plant_cases(
 def plant_response(plant: Plant, rig: Rig, case: PlantCase, w: np.ndarray) -> np.ndarray:
     """``lsb·P(e^{jωT})`` of one axis's plant in a case, by python-control, on ``w``: a transfer
     function (the whole grid at once), its coefficients by ``scipy.signal.ss2tf`` as
-    ``control.ss2tf`` gets them without slycot (the same bits, half the time: no failed import
-    per call; an installed slycot cannot change the screen)."""
+    ``control.ss2tf`` gets them without slycot (the same bits in about a quarter of the time:
+    no failed import per call; an installed slycot cannot change the screen)."""
     import control
     from scipy.signal import ss2tf
 
