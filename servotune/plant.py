@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from servotune._control import scipy_paths
 from servotune._numba_cache import jit
 from servotune.validate import show_value
 
@@ -587,6 +588,7 @@ def advance_span(
     return _advance_for(p, v, w_new, h - lam, row)
 
 
+@scipy_paths
 def discretize_lti(
     sys: control.TransferFunction | control.StateSpace, period_s: float, lag_s: float = 0.0
 ) -> control.StateSpace:

@@ -10,6 +10,7 @@ from typing import Any
 import control
 import numpy as np
 
+from servotune._control import scipy_paths
 from servotune.laws.axis import MODE_TASK
 from servotune.laws.fuzzy_pid import FuzzyPIDConstants
 from servotune.plant import discretize
@@ -26,6 +27,7 @@ from servotune.verify.margins import MarginLimits, Margins
 __all__ = ["loop_response"]
 
 
+@scipy_paths
 def loop_response(rig: Rig, tuning: Tuning, axis: str, omega_rad_s: np.ndarray) -> Any:
     """Frequency response of one axis's task loop at the table centre (E = EC = 0).
 
@@ -56,6 +58,7 @@ def loop_response(rig: Rig, tuning: Tuning, axis: str, omega_rad_s: np.ndarray) 
     return control.frequency_response(control.series(ctrl, plant), omega_rad_s)
 
 
+@scipy_paths
 def _bode_section(rig: Rig, tuning: Tuning, margins: Margins, limits: MarginLimits) -> str:
     w = np.logspace(-1, math.log10(math.pi / rig.period_s) - 1e-3, 600)
     responses, rows, centre = {}, [], {}

@@ -15,6 +15,7 @@ from typing import Any
 import control
 import numpy as np
 
+from servotune._control import scipy_paths
 from servotune.arch.gantry.config import GantryConfig, SyncSettings
 from servotune.arch.gantry.design import _compensator_tf, _sync_open_loop, sync_loop_models
 from servotune.arch.gantry.margins import gantry_margins, worst_corner
@@ -26,6 +27,7 @@ from servotune.tune.robust import design_limits
 __all__ = ["resolve_gains", "tune_sync"]
 
 
+@scipy_paths
 def tune_sync(cfg: GantryConfig) -> SyncSettings:
     """Synthesise the sync compensator on the linear sync loop (:func:`sync_loop_models`).
 

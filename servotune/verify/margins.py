@@ -23,11 +23,11 @@ out: the margins are those of the linear loop between them. Loop ``L(z) = C(z)·
 Every figure is computed with python-control: the loop's frequency response
 (``control.frequency_response``) on a grid up to the Nyquist frequency, its gain and phase
 margins and their crossovers from ``control.stability_margins`` on that response (an FRD,
-python-control's interpolating method), stability from the poles of ``control.feedback(L, 1)``.
-The delay margin is the smallest ``PM_i/ω_i`` over the gain crossovers [s] (the extra
-loop delay that brings the phase margin to zero); ``Ms = max|1/(1 + L)|``,
-``Mt = max|L/(1 + L)|``; the bandwidth is the lowest frequency where ``|T|`` falls below
-``1/√2`` (−3 dB).
+python-control's interpolating method), stability from the poles of ``control.feedback(L, 1)``,
+all on python-control's scipy paths (:func:`servotune._control.scipy_paths`: the same bits with
+slycot installed). The delay margin is the smallest ``PM_i/ω_i`` over the gain crossovers [s]
+(the extra loop delay that brings the phase margin to zero); ``Ms = max|1/(1 + L)|``,
+``Mt = max|L/(1 + L)|``; the bandwidth is the lowest frequency where ``|T|`` falls below −3 dB.
 
 The default limits (PM ≥ 45°, GM ≥ 6 dB, Ms ≤ 2.0) follow Åström & Hägglund, *Advanced PID
 Control* (ISA, 2006), §4.2: Ms between 1.2 and 2.0 is the usual robust range, and Ms ≤ 2.0
@@ -43,6 +43,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from servotune._control import scipy_paths
 from servotune._numba_cache import jit
 from servotune.errors import SpecError
 from servotune.laws.fuzzy_pid import FuzzyPIDConstants
@@ -169,6 +170,7 @@ def controller_tf(g: GainSet, period_s: float) -> control.TransferFunction:
     return c
 
 
+@scipy_paths
 def loop_model(
     plant: Plant, g: GainSet, *, period_s: float, lag_s: float, lsb_volts: float
 ) -> control.StateSpace:
@@ -178,10 +180,8 @@ def loop_model(
     ----------
     plant : Plant
     g : GainSet
-    period_s : float
-        Achieved tick period [s].
-    lag_s : float
-        Total lag from the tick start to the motor input [s] (compute time + drive delay).
+    period_s, lag_s : float
+        Achieved tick period [s]; total lag from the tick start to the motor input [s].
     lsb_volts : float
         D/A gain [V/code].
     """
@@ -314,6 +314,7 @@ def _grid(plant: Plant, period_s: float) -> np.ndarray:
     return np.logspace(math.log10(lo), math.log10(top), GRID_POINTS)
 
 
+@scipy_paths
 def loop_margins(loop: control.StateSpace, w: np.ndarray) -> dict[str, float | bool]:
     """Margins, peaks, bandwidth and stability of a discrete loop, by python-control.
 
@@ -685,9 +686,8 @@ def plant_cases(
 
 def plant_response(plant: Plant, rig: Rig, case: PlantCase, w: np.ndarray) -> np.ndarray:
     """``lsb·P(e^{jωT})`` of one axis's plant in a case, by python-control, on ``w``: a transfer
-    function (the whole grid at once), its coefficients by ``scipy.signal.ss2tf`` as
-    ``control.ss2tf`` gets them without slycot (the same bits in about a quarter of the time:
-    no failed import per call; an installed slycot cannot change the screen)."""
+    function (the whole grid at once), its coefficients by ``scipy.signal.ss2tf`` (the path
+    ``control.ss2tf`` takes without slycot: the same bits, in about a quarter of the time)."""
     import control
     from scipy.signal import ss2tf
 

@@ -13,6 +13,7 @@ from typing import Any
 import control
 import numpy as np
 
+from servotune._control import scipy_paths
 from servotune.arch.gantry.config import (
     GantryConfig,
     _case_config,
@@ -99,6 +100,7 @@ def _compensator_tf(g: SyncGains, dt: float) -> control.TransferFunction:
     return control.tf([g.kp + g.kd / dt, -g.kd / dt], [1.0, 0.0], dt)
 
 
+@scipy_paths
 def _sync_open_loop(
     comp: control.TransferFunction, t_slave: control.StateSpace, cfg: GantryConfig
 ) -> control.StateSpace:
@@ -108,6 +110,7 @@ def _sync_open_loop(
     return control.ss(comp) * control.ss(delay) * t_slave
 
 
+@scipy_paths
 def sync_loop_models(cfg: GantryConfig) -> SyncLoopModels:
     """Linear discrete models of the sync loop (friction, quantisation and beam left out).
 
@@ -135,6 +138,7 @@ def sync_loop_models(cfg: GantryConfig) -> SyncLoopModels:
     return SyncLoopModels(compensator=comp, loop=loop, sensitivity=sensitivity, **out)
 
 
+@scipy_paths
 def predicted_load_reduction(cfg: GantryConfig) -> LoadPrediction:
     """What the loop gains predict for the ``load`` case: max |sync error| of the parallel
     topology (the slave's closed-loop load response) and of the listening one (that error

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from servotune._control import scipy_paths
 from servotune.errors import InfeasibleError, SpecError
 from servotune.hw import dac as hw_dac
 from servotune.plant import Plant, lag_split
@@ -41,6 +42,7 @@ if TYPE_CHECKING:  # python-control is imported where used (slow to import)
 __all__ = ["tune_pi", "tune_pi_axis"]
 
 
+@scipy_paths
 def tune_pi(
     plant: Plant | control.TransferFunction,
     *,
