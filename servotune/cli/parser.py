@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Callable
-from typing import Any
+from typing import Any, NoReturn
 
 from servotune._version import __version__
 from servotune.cli.design import _cmd_margins, _cmd_plan, _cmd_tune, _cmd_verify
@@ -37,6 +37,15 @@ def _executor_options(group: Any, what: str, from_size: str) -> None:
     )
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse's parser with a usage error in one line on stderr, exit 2: what is wrong and
+    where the usage is (argparse prints the whole usage block first); every verb's parser is
+    one (``add_subparsers`` makes its parsers of the parent's class)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def _verb(sub: Any, func: Callable[..., int], name: str, **options: Any) -> Any:
     """A verb's sub-parser, running ``func`` (its handler; ``options``: ``add_parser``'s)."""
     s = sub.add_parser(name, **options)
@@ -45,7 +54,7 @@ def _verb(sub: Any, func: Callable[..., int], name: str, **options: Any) -> Any:
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = _Parser(
         prog="servotune",
         description="Control design and tuning workbench for synchronised position servos.",
     )

@@ -349,3 +349,29 @@ def test_unwritable_directory_names_the_target(
                             "1", "-o", str(out)], str(out), "Permission denied",
                    not_written=out)  # fmt: skip
     assert ".tmp" not in line
+
+
+@pytest.mark.parametrize(
+    ("args", "mentions"),
+    [
+        (["simulate", str(EXAMPLE_RIG), "--seconds", "abc", "-o", "x.csv"],
+         ("servotune simulate: error:", "--seconds", "'abc'", "servotune simulate --help")),
+        (["verify", "tuning.json"], ("servotune verify: error:", "--spec", "verify --help")),
+        (["verify", "t.json", "--spec", "s.toml", "--montecarlo", "1e6"],
+         ("--montecarlo", "'1e6'")),
+        (["frobnicate"], ("servotune: error:", "'frobnicate'", "servotune --help")),
+    ],
+)  # fmt: skip
+def test_a_usage_error_is_one_line(
+    args: list[str], mentions: tuple[str, ...], capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A wrong option value or a missing argument: one line naming it and where the usage is
+    (argparse would print its whole usage block first), exit 2, as argparse exits."""
+    with pytest.raises(SystemExit) as stop:
+        main(args)
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1, err
+    for m in mentions:
+        assert m in lines[0], (m, lines[0])
