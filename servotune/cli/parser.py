@@ -46,6 +46,21 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
+SEED_MAX = 2**64 - 1
+"""Largest ``--seed``: every random stream takes a seed of 64 bits."""
+
+
+def _seed(text: str) -> int:
+    """A ``--seed`` value: an integer in ``0..SEED_MAX`` (argparse's type; a usage error if not)."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if not 0 <= value <= SEED_MAX:
+        raise argparse.ArgumentTypeError(f"must be an integer in 0..{SEED_MAX}, got {text!r}")
+    return value
+
+
 def _verb(sub: Any, func: Callable[..., int], name: str, **options: Any) -> Any:
     """A verb's sub-parser, running ``func`` (its handler; ``options``: ``add_parser``'s)."""
     s = sub.add_parser(name, **options)
@@ -86,7 +101,7 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--input", help="excitation CSV to play (from servotune excite)")
     s.add_argument("--axis", help="axis to excite or move (default: the master)")
     s.add_argument("--seconds", type=float, default=10.0, help="duration [s] (default 10)")
-    s.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    s.add_argument("--seed", type=_seed, default=0, help="noise seed (default 0)")
     s.add_argument(
         "--closed-loop",
         action="store_true",
@@ -231,7 +246,7 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--axis", help="axis (default: the master)")
     s.add_argument("--kind", required=True, choices=["prbs", "multisine", "steps"])
     s.add_argument("--seconds", type=float, required=True, help="duration [s]")
-    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--seed", type=_seed, default=0)
     s.add_argument("--amplitude-codes", type=int, help="requested amplitude [D/A codes]")
     s.add_argument("-o", "--output", required=True, help="excitation CSV to write")
 
@@ -244,7 +259,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     s.add_argument("rig", help="rig file or gantry config (TOML)")
     s.add_argument("-o", "--output", help="tuning file to write (default: stdout)")
-    s.add_argument("--seed", type=int, default=0, help="optimiser and noise seed (default 0)")
+    s.add_argument("--seed", type=_seed, default=0, help="optimiser and noise seed (default 0)")
     s.add_argument("--rule-base", default="default", choices=["default", "classic"])
     s.add_argument("--generations", type=int, default=40, help="optimiser budget (default 40)")
     s.add_argument("--population", type=int, default=32, help="candidates per generation")
@@ -328,7 +343,9 @@ def _parser() -> argparse.ArgumentParser:
         "copy of it (default: the path the file records, then plants/<name>.toml); another "
         "is refused",
     )
-    s.add_argument("--seed", type=int, default=None, help="Monte-Carlo seed (default: the spec's)")
+    s.add_argument(
+        "--seed", type=_seed, default=None, help="Monte-Carlo seed (default: the spec's)"
+    )
     s.add_argument(
         "--montecarlo",
         type=int,
@@ -449,7 +466,7 @@ def _parser() -> argparse.ArgumentParser:
     s = _verb(sub, _cmd_demo, "demo", help="run the whole job on a rig and write into a directory")
     s.add_argument("rig", help="rig file (TOML)")
     s.add_argument("--out", default="reports", help="output directory (default reports)")
-    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--seed", type=_seed, default=0)
     s.add_argument(
         "--full",
         action="store_true",
@@ -469,7 +486,7 @@ def _parser() -> argparse.ArgumentParser:
                    "and the held-out scenarios")  # fmt: skip
     s.add_argument("--out", default="reports", help="directory for figure4.png/json, pareto.png")
     s.add_argument("--seeds", type=int, default=3, help="optimiser seeds (default 3)")
-    s.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
+    s.add_argument("--seed", type=_seed, default=0, help="first seed (default 0)")
     s.add_argument("--generations", type=int, default=40, help="optimiser budget (default 40)")
     s.add_argument("--population", type=int, default=32, help="candidates per generation")
     s.add_argument(
@@ -488,7 +505,7 @@ def _parser() -> argparse.ArgumentParser:
 
     s = _verb(sub, _cmd_sync, "sync", help="compare gantry topologies on a gantry config")
     s.add_argument("config", help="gantry config (TOML), e.g. plants/gantry.toml")
-    s.add_argument("--seed", type=int, default=0, help="noise and jitter seed (default 0)")
+    s.add_argument("--seed", type=_seed, default=0, help="noise and jitter seed (default 0)")
     s.add_argument(
         "--montecarlo",
         type=int,
@@ -503,7 +520,7 @@ def _parser() -> argparse.ArgumentParser:
     s = _verb(sub, _cmd_linkage, "linkage", help="simulate a multi-CPU linkage and check it")
     s.add_argument("config", help="linkage config (TOML), e.g. plants/linkage-6axis.toml")
     s.add_argument("--seconds", type=float, help="simulated time [s] (default: path + settle)")
-    s.add_argument("--seed", type=int, default=0, help="encoder-noise seed (default 0)")
+    s.add_argument("--seed", type=_seed, default=0, help="encoder-noise seed (default 0)")
     s.add_argument("--json", action="store_true", help="the result as JSON on stdout")
     s.add_argument("--plot", metavar="DIR", help="write queue and circular-test PNGs into DIR")
     for name, verb in sub.choices.items():  # --quiet also after the verb (where users type it)
