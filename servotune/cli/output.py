@@ -7,6 +7,7 @@ where outputs go before any work, so a run that cannot write fails first.
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import signal
@@ -110,9 +111,16 @@ def _deliver(
 
 
 def _check_dirs(*paths: str | None) -> None:
-    """Fail before any work when an output's directory is missing (nothing gets written)."""
+    """Fail before any work when an output file's directory is missing, or the output names a
+    directory (nothing gets written)."""
     for p in paths:
-        if p and p != "-" and not Path(p).resolve().parent.is_dir():
+        if not p or p == "-":
+            continue
+        if Path(p).is_dir():
+            raise IsADirectoryError(
+                errno.EISDIR, "is a directory: give the name of the file to write", p
+            )
+        if not Path(p).resolve().parent.is_dir():
             raise FileNotFoundError(
                 2, f"the directory of {p!r} does not exist (create it first)", p
             )

@@ -408,3 +408,22 @@ def test_the_largest_seed_runs(tmp_path: Path, capsys: pytest.CaptureFixture[str
     code = main(["simulate", str(EXAMPLE_RIG), "--scenario", "prbs", "--seconds", "0.1",
                  "-o", str(out), "--seed", str(2**64 - 1)])  # fmt: skip
     assert code == 0 and out.stat().st_size > 0, capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "verb",
+    [
+        ["simulate", str(EXAMPLE_RIG), "--scenario", "prbs", "--seconds", "0.1", "-o"],
+        ["tune", str(EXAMPLE_RIG), "-o"],
+        ["fit", str(ROOT / "tests" / "data" / "missing.csv"), "-o"],
+    ],
+    ids=lambda v: v[0],
+)
+def test_an_output_that_is_a_directory_is_refused_first(
+    verb: list[str], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``-o DIR``: one line before any work (``fit`` used to fit the whole log, print its
+    summary, then fail on reading the directory as a rig file)."""
+    line = refused(capsys, [*verb, str(tmp_path)], str(tmp_path), "is a directory")
+    assert "file to write" in line
+    assert list(tmp_path.iterdir()) == []
