@@ -273,6 +273,14 @@ SYNC_CASES = {
     "distance_float": ("distance_counts = 150000", "distance_counts = 1.5e5",
                        "move.distance_counts", "integer"),
     "empty_sync_law": ('law = "pi"', 'law = ""', "sync.law", "pi, pd"),
+    # found by a bad-input sweep (2026-11-26): these three ended in a ZeroDivisionError traceback
+    "distance_zero": ("distance_counts = 150000", "distance_counts = 0", "move.distance_counts",
+                      "needs a move"),
+    "load_after_the_run": ("time_s = 0.8", "time_s = 50", "load.time_s", "gantry.seconds (2 s)",
+                           "inside the run"),
+    "load_zero_volts": ("volts = -0.3", "volts = 0.0", "load.volts", "needs a load step"),
+    "move_after_the_run": ("start_s = 0.05", "start_s = 2.0", "move.start_s", "inside the run"),
+    "montecarlo_negative": ("[gantry]", "[gantry]", "Monte-Carlo count", "1..1,000,000"),
 }  # fmt: skip
 
 
@@ -280,7 +288,12 @@ SYNC_CASES = {
 def test_sync_config(case: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     old, new, *mentions = SYNC_CASES[case]
     cfg = variant(tmp_path, PLANTS / "gantry.toml", old, new)
-    refused(capsys, ["sync", str(cfg)], str(cfg), *mentions)
+    if case == "montecarlo_negative":  # an option, not the file
+        refused(capsys, ["sync", str(cfg), "--montecarlo", "-1"], *mentions)
+    elif case == "load_after_the_run":  # refused where the load case runs, without the file
+        refused(capsys, ["sync", str(cfg)], *mentions)
+    else:
+        refused(capsys, ["sync", str(cfg)], str(cfg), *mentions)
 
 
 LINKAGE_CASES = {

@@ -332,6 +332,8 @@ class GantryMove:
     def __post_init__(self) -> None:
         check_integer("distance_counts", self.distance_counts, "counts", lo=-MAX_COUNTS,
                       hi=MAX_COUNTS, error=ConfigError)  # fmt: skip
+        if self.distance_counts == 0:
+            raise ConfigError("distance_counts must not be 0 [counts]: the study needs a move")
         check_number("speed_cps", self.speed_cps, "counts/s", strict=True, hi=MAX_SPEED_CPS,
                      error=ConfigError)  # fmt: skip
         check_number("accel_cps2", self.accel_cps2, "counts/s²", strict=True,
@@ -362,6 +364,8 @@ class GantryLoad:
             raise ConfigError(f"axis must be 'master' or 'slave', got {show_value(self.axis)}")
         check_number("time_s", self.time_s, "s", hi=MAX_SECONDS, error=ConfigError)
         check_number("volts", self.volts, "V", lo=-MAX_LOAD_V, hi=MAX_LOAD_V, error=ConfigError)
+        if self.volts == 0.0:
+            raise ConfigError("volts must not be 0 [V]: the load case needs a load step")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -407,6 +411,11 @@ class GantryConfig:
             raise ConfigError(
                 f"seconds must be {_MIN_CYCLES} to 5e6 bus cycles ({_MIN_CYCLES * cyc:g} … "
                 f"{5e6 * cyc:g} s at cycle_s {cyc:g}) [s], got {show_value(self.seconds)}"
+            )
+        if not self.move.start_s < self.seconds:
+            raise ConfigError(
+                f"seconds ({self.seconds:g} s) must be longer than move.start_s "
+                f"({show_value(self.move.start_s)} s): the move must start inside the run"
             )
 
     @property
@@ -499,6 +508,11 @@ def _case_config(cfg: GantryConfig, case: str) -> tuple[GantryConfig, np.ndarray
     n = cfg.n_cycles
     load = np.zeros((n, 2))
     if case == "load":
+        if not cfg.load.time_s < cfg.seconds:
+            raise ConfigError(
+                f"gantry.seconds ({cfg.seconds:g} s) must be longer than load.time_s "
+                f"({show_value(cfg.load.time_s)} s): the load step must fall inside the run"
+            )
         cfg = replace(cfg, slave=replace(cfg.master, counter_init=cfg.slave.counter_init))
         k0 = min(n, round(cfg.load.time_s / cfg.bus.cycle_s))
         load[k0:, 0 if cfg.load.axis == "master" else 1] = cfg.load.volts

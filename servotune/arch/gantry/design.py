@@ -7,6 +7,7 @@ tuning of the drives and of the compensator is in :mod:`servotune.tune.sync`.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields
 from typing import Any
 
@@ -157,4 +158,5 @@ def predicted_load_reduction(cfg: GantryConfig) -> LoadPrediction:
     e_par = np.squeeze(resp.outputs) * (1.0 if side == 0 else -1.0)
     e_lis = np.squeeze(control.forced_response(models.sensitivity, U=e_par).outputs)
     p, li = float(np.max(np.abs(e_par[:n]))), float(np.max(np.abs(e_lis[:n])))
-    return LoadPrediction(parallel_max_counts=p, listening_max_counts=li, ratio=li / p)
+    ratio = li / p if p > 0.0 else math.nan  # no error to reduce: no ratio
+    return LoadPrediction(parallel_max_counts=p, listening_max_counts=li, ratio=ratio)

@@ -56,6 +56,7 @@ from servotune.arch.gantry.result import (
     SyncComparison,
 )
 from servotune.budget import check_memory
+from servotune.errors import ConfigError
 from servotune.executor import Executor, InProcessExecutor, chunk_bounds
 from servotune.fixed import shift_round
 from servotune.laws.axis import FLAG_SYNC_TRIP, MODE_TASK, N_STATE, S_FAULT
@@ -457,11 +458,12 @@ def gantry_montecarlo(
 
     Raises
     ------
-    ValueError
-        If ``count`` is not in 1..1,000,000.
+    ConfigError
+        If ``count`` is not in 1..1,000,000 (a ``ValueError``).
     """
     if not isinstance(count, int) or not 1 <= count <= _MC_MAX:
-        raise ValueError(f"count must be an integer in 1..{_MC_MAX:,}, got {count!r}")
+        raise ConfigError(f"the Monte-Carlo count must be an integer in 1..{_MC_MAX:,} [plant "
+                          f"pairs], got {count!r}")  # fmt: skip
     say = progress or (lambda _msg: None)
     m = cfg.margins
     rng = np.random.default_rng([seed, 0x67616E74])  # a stream of its own ("gant")
