@@ -141,16 +141,28 @@ class Tuning:
         )
 
     def check_rig(self, rig: Rig) -> None:
-        """Raise :class:`TuningError` unless ``rig`` has the axes and period of this tuning."""
+        """Raise :class:`TuningError` unless ``rig`` has the axes, roles, period and timer
+        divisor of this tuning (the divisor is exported: the runtime programs its timer with
+        it, so one the rig's clock does not turn into the verified period is refused)."""
         if rig.axis_names != self.axis_names:
             raise TuningError(
                 f"tuning is for axes {list(self.axis_names)}, rig {rig.name!r} has "
                 f"{list(rig.axis_names)}"
             )
+        roles = tuple(a.role for a in rig.axes)
+        if roles != self.roles:
+            raise TuningError(
+                f"tuning is for axis roles {list(self.roles)}, rig {rig.name!r} has {list(roles)}"
+            )
         if abs(rig.period_s - self.period_s) > _PERIOD_RTOL * self.period_s:
             raise TuningError(
                 f"tuning is for a period of {self.period_s!r} s, rig {rig.name!r} runs at "
                 f"{rig.period_s!r} s"
+            )
+        if rig.timer.divisor != self.timer_divisor:
+            raise TuningError(
+                f"tuning is for timer divisor {self.timer_divisor}, rig {rig.name!r} programs "
+                f"{rig.timer.divisor}"
             )
 
     def loop(self, rig: Rig) -> Loop:

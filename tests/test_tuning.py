@@ -99,6 +99,13 @@ def test_rig_mismatch_is_refused(rig: st.Rig) -> None:
     )
     with pytest.raises(TuningError, match="axes"):
         t.loop(renamed)
+    # the divisor is exported (the runtime programs its timer with it): the rig's must match,
+    # whatever the period says (found by a bad-input sweep: a tuning with another divisor
+    # verified and exported as verified)
+    with pytest.raises(TuningError, match="timer divisor 4000, rig 'pc-dual-servo' programs"):
+        dataclasses.replace(t, timer_divisor=4000).loop(rig)
+    with pytest.raises(TuningError, match="roles"):
+        dataclasses.replace(t, roles=tuple(reversed(t.roles))).loop(rig)
 
 
 def test_current_tuning_location(monkeypatch, tmp_path) -> None:
