@@ -12,7 +12,7 @@ import json
 import os
 import signal
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from servotune.errors import InfeasibleError, ServotuneError, TrustError
@@ -110,9 +110,10 @@ def _deliver(
         print(f"recorded it as the current tuning ({current})", file=sys.stderr)
 
 
-def _check_dirs(*paths: str | None) -> None:
-    """Fail before any work when an output file's directory is missing, or the output names a
-    directory (nothing gets written)."""
+def _check_dirs(*paths: str | None, inputs: Sequence[str | Path | None] = ()) -> None:
+    """Fail before any work when an output file's directory is missing, the output names a
+    directory, or it is one of the command's ``inputs`` (writing it would replace what was
+    read): nothing gets written."""
     for p in paths:
         if not p or p == "-":
             continue
@@ -120,6 +121,13 @@ def _check_dirs(*paths: str | None) -> None:
             raise IsADirectoryError(
                 errno.EISDIR, "is a directory: give the name of the file to write", p
             )
+        for i in inputs:
+            if i and Path(p).exists() and Path(i).exists() and os.path.samefile(p, i):
+                named = f" ({str(i)!r})" if str(i) != str(p) else ""
+                raise ServotuneError(
+                    f"{str(p)!r} is also an input of this command{named}: writing it would "
+                    "replace it; give another output file"
+                )
         if not Path(p).resolve().parent.is_dir():
             raise FileNotFoundError(
                 2, f"the directory of {p!r} does not exist (create it first)", p

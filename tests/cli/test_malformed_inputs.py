@@ -440,3 +440,41 @@ def test_an_output_that_is_a_directory_is_refused_first(
     line = refused(capsys, [*verb, str(tmp_path)], str(tmp_path), "is a directory")
     assert "file to write" in line
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_population_over_the_memory_budget_is_refused_first(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``tune --population 100000000`` grew past 6 GB within 25 s and ran on (found by a
+    bad-input sweep); a generation is one batch of population × plant variants runs, so its
+    memory is estimated and held to the budget before any candidate is drawn."""
+    out = tmp_path / "t.json"
+    refused(capsys, ["tune", str(EXAMPLE_RIG), "-q", "--no-current", "--generations", "2",
+                     "--population", "100000000", "-o", str(out)],
+            "population of 100,000,000", "memory budget", not_written=out)  # fmt: skip
+
+
+def test_an_output_that_is_an_input_is_refused_first(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], default_tuning
+) -> None:
+    """``export-table T.json -o T.json`` replaced the tuning with the tables, ``tune R.toml -o
+    R.toml`` the rig with a tuning (found by a bad-input sweep): the output may not be a file the
+    command reads, named by any path (here through a symbolic link too)."""
+    from servotune.tuning import write_tuning
+
+    rig = tmp_path / EXAMPLE_RIG.name
+    rig.write_bytes(EXAMPLE_RIG.read_bytes())
+    tuning = tmp_path / "tuning.json"
+    write_tuning(default_tuning, tuning)
+    link = tmp_path / "same.json"
+    link.symlink_to(tuning)
+    before = {p: p.read_bytes() for p in (rig, tuning)}
+    cases = [
+        (["export-table", str(tuning), "--unverified", "-o", str(tuning)], str(tuning)),
+        (["export-table", str(tuning), "--unverified", "-o", str(link)], str(link)),
+        (["tune", str(rig), "-q", "--no-current", "-o", str(rig)], str(rig)),
+    ]
+    for args, named in cases:
+        line = refused(capsys, args, named, "is also an input")
+        assert "give another output file" in line
+    assert {p: p.read_bytes() for p in (rig, tuning)} == before
