@@ -245,7 +245,8 @@ def parse_json(text: str, src: str, error: type[Exception]) -> Any:
             parse_float=_json_number(float),
         )
     except json.JSONDecodeError as exc:
-        raise error(f"{src}: not JSON ({exc.msg} at line {exc.lineno})") from None
+        where = "" if exc.msg.endswith(" at") else " at"  # "Unterminated string starting at"
+        raise error(f"{src}: not JSON ({exc.msg}{where} line {exc.lineno})") from None
     except _JsonLimit as exc:
         raise error(f"{src}: not accepted JSON: {exc}") from None
     except RecursionError:

@@ -59,7 +59,8 @@ def _read_errors(src: str, what: str = "log") -> Iterator[None]:
     try:
         yield
     except FileNotFoundError:
-        raise LogFormatError(f"{what} file {src!r} does not exist") from None
+        noun = what if what.endswith("file") else f"{what} file"
+        raise LogFormatError(f"{noun} {src!r} does not exist") from None
     except IsADirectoryError:
         raise LogFormatError(f"{what} {src!r} is a directory, not a file") from None
     except OSError as exc:

@@ -436,7 +436,8 @@ def _timebase(
             k = int(np.argmax(back)) + 1
             what = "repeats" if dt[k - 1] == 0 else "goes back"
             raise LogFormatError(
-                f"row {rows(k)}, column 'time_s': {time_s[k]!r} after {time_s[k - 1]!r}: time "
+                f"row {rows(k)}, column 'time_s': {float(time_s[k])!r} after "
+                f"{float(time_s[k - 1])!r}: time "
                 f"{what} (it must increase)"
             )
         med = float(np.median(dt))

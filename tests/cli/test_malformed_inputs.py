@@ -478,3 +478,29 @@ def test_an_output_that_is_an_input_is_refused_first(
         line = refused(capsys, args, named, "is also an input")
         assert "give another output file" in line
     assert {p: p.read_bytes() for p in (rig, tuning)} == before
+
+
+def test_messages_read_as_written(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Three messages a bad-input sweep found garbled: numpy's repr of the times of a log whose
+    time goes back, "starting at at line" of a cut JSON string, "excitation file file"."""
+    log = tmp_path / "log.csv"
+    assert main(["simulate", str(EXAMPLE_RIG), "--scenario", "prbs", "--seconds", "0.2", "-q",
+                 "-o", str(log)]) == 0  # fmt: skip
+    rows = log.read_text(encoding="utf-8").splitlines()
+    header = next(i for i, r in enumerate(rows) if r.startswith("tick,"))
+    col = rows[header].split(",").index("time_s")
+    cells = rows[header + 5].split(",")
+    cells[col] = "1e+308"
+    rows[header + 5] = ",".join(cells)
+    log.write_text("\n".join(rows) + "\n", encoding="utf-8")
+    capsys.readouterr()
+    line = refused(capsys, ["fit", str(log), "--axis", "master", "-q"], "time goes back")
+    assert "np.float64" not in line
+    cut = tmp_path / "cut.json"
+    cut.write_text('{"a": "abc', encoding="utf-8")
+    line = refused(capsys, ["check-table", str(cut)], "Unterminated string starting at line 1")
+    assert "at at" not in line
+    missing = tmp_path / "missing.csv"
+    args = ["simulate", str(EXAMPLE_RIG), "--input", str(missing), "-o", str(tmp_path / "o.csv")]
+    line = refused(capsys, args, "excitation file", "does not exist")
+    assert "file file" not in line
