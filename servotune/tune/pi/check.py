@@ -10,7 +10,6 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 from scipy.optimize import brentq, minimize_scalar
 
-from servotune._control import scipy_paths
 from servotune.tune.pi.grid import _Ctx, _q_im, _spectral_radius, _ss_response
 from servotune.tune.pi.nlp import _Nlp, _NlpResult
 from servotune.tune.pi.spec import _TOL_GM_DB, _TOL_MS_REL, _TOL_PM_DEG, _TOL_WC_REL, _Spec
@@ -160,7 +159,6 @@ def _fast_check(ctx: _Ctx, kp: float, ki: float, w: np.ndarray) -> _Check:
     return _Check(pm, wgc, wc_top, float(gm_db), wpc, ms, w_ms, found, rho, wgcs, l_peaks, w)
 
 
-@scipy_paths
 def _python_control_check(
     p_scaled: control.StateSpace, kp: float, ki: float, w: np.ndarray
 ) -> _Check:

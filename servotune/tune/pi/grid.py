@@ -9,7 +9,6 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
-from servotune._control import scipy_paths
 from servotune.plant import Plant, discretize, discretize_lti
 from servotune.tune.pi.spec import _TOL_GM_DB, _TOL_MS_REL, _TOL_PM_DEG, _TOL_WC_REL, _Spec
 from servotune.verify.margins import controller_basis, grid_margins
@@ -43,7 +42,6 @@ class _Ctx(NamedTuple):
     q_im: np.ndarray  # Im of T·z/(z−1) on the grid; Re is T/2
 
 
-@scipy_paths
 def _plant_model(
     plant: Plant | control.TransferFunction, period_s: float, compute_s: float
 ) -> tuple[Callable[[float], control.StateSpace], float, float]:
@@ -74,7 +72,6 @@ def _plant_model(
     )
 
 
-@scipy_paths
 def _discrete_plant_model(
     plant: control.TransferFunction | control.StateSpace, period_s: float, compute_s: float
 ) -> tuple[Callable[[float], control.StateSpace], float, float]:
@@ -88,7 +85,6 @@ def _discrete_plant_model(
         )
     ss = control.ss(plant)
 
-    @scipy_paths
     def delayed(lag_s: float) -> control.StateSpace:
         m = round(lag_s / period_s)
         if abs(lag_s - m * period_s) > 1e-9 * period_s:
