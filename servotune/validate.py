@@ -29,6 +29,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 __all__ = [
+    "SEED_MAX",
     "check_integer",
     "check_keys",
     "check_number",
@@ -43,6 +44,10 @@ __all__ = [
 ]
 
 _SHOW_CHARS = 40
+
+SEED_MAX = 2**64 - 1
+"""Largest seed anywhere (a run's, a Monte Carlo's, the CLI's ``--seed``): every random
+stream takes a seed of 64 bits."""
 
 
 def is_number(v: object) -> bool:

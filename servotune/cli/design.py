@@ -12,7 +12,7 @@ from servotune.cli.output import (
     EXIT_FAILED,
     EXIT_OK,
     EXIT_USAGE,
-    _check_dirs,
+    _check_outputs,
     _deliver,
     _print_product,
     _progress,
@@ -60,7 +60,7 @@ def _cmd_tune(args: argparse.Namespace) -> int:
     from servotune.arch.kind import config_kind
     from servotune.tuning import current_tuning_path
 
-    _check_dirs(args.output, inputs=(args.rig, args.spec))
+    _check_outputs(args.output, inputs=(args.rig, args.spec))
     current = None if args.no_current else current_tuning_path()
     if current is not None:
         _workbench_dir(current.parent)
@@ -144,7 +144,7 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     from servotune.arch.linkage import plan_linkage, plan_to_string, write_plan
     from servotune.report.text import format_linkage_plan
 
-    _check_dirs(args.output, inputs=(args.config,))
+    _check_outputs(args.output, inputs=(args.config,))
     if args.json and (not args.output or args.output == "-"):
         raise ServotuneError("--json prints the plan's design on stdout: give -o FILE")
     kind = config_kind(args.config)

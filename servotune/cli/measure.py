@@ -13,7 +13,7 @@ from servotune.cli.output import (
     EXIT_BAD_INPUT,
     EXIT_OK,
     EXIT_USAGE,
-    _check_dirs,
+    _check_outputs,
     _progress,
     _summary,
 )
@@ -45,7 +45,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     from servotune.rig import load_rig
     from servotune.scenarios import Scenario, build_scenario
 
-    _check_dirs(args.output, inputs=(args.rig, args.input))
+    _check_outputs(args.output, inputs=(args.rig, args.input))
     rig = load_rig(args.rig)
     if (args.scenario is None) == (args.input is None):
         raise ServotuneError("give exactly one of --scenario NAME or --input EXCITATION.csv")
@@ -88,7 +88,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     from servotune.rig import load_rig, write_plant
     from servotune.tuning import file_sha256
 
-    _check_dirs(args.output, args.plot, inputs=(args.log,))
+    _check_outputs(args.output, args.plot, inputs=(args.log,))
     rig = load_rig(args.rig) if args.rig else None
     dac_range = _range(args.dac_range_v) if args.dac_range_v else None
     hal = hal_settings(args.map, format=args.hal_format, columns=args.hal_columns,
@@ -164,7 +164,7 @@ def _cmd_fit_fleet(args: argparse.Namespace) -> int:
     from servotune.rig import load_rig
 
     table_format(args.fleet)  # a wrong suffix fails before any work
-    _check_dirs(args.fleet, args.fleet_report, inputs=(*args.log, args.baseline, args.rig))
+    _check_outputs(args.fleet, args.fleet_report, inputs=(*args.log, args.baseline, args.rig))
     baseline = read_fleet_table(args.baseline) if args.baseline else ()
     hal = hal_settings(args.map, format=args.hal_format, columns=args.hal_columns,
                        position_scale=args.position_scale, output_scale=args.output_scale,
@@ -203,7 +203,7 @@ def _cmd_excite(args: argparse.Namespace) -> int:
     from servotune.excite import design_excitation, write_excitation
     from servotune.rig import load_rig
 
-    _check_dirs(args.output, inputs=(args.rig,))
+    _check_outputs(args.output, inputs=(args.rig,))
     rig = load_rig(args.rig)
     axis = args.axis or next(a.name for a in rig.axes if a.role == "master")
     exc = design_excitation(rig, axis, args.kind, args.seconds, seed=args.seed,

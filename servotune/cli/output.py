@@ -1,7 +1,7 @@
 """What every verb shares: exit codes, signals, progress, error lines and the product.
 
 stdout carries only the product (:func:`_print_product`, :func:`_deliver`); progress,
-summaries and diagnostics go to stderr. :func:`_check_dirs` and :func:`_workbench_dir` check
+summaries and diagnostics go to stderr. :func:`_check_outputs` and :func:`_workbench_dir` check
 where outputs go before any work, so a run that cannot write fails first.
 """
 
@@ -110,7 +110,7 @@ def _deliver(
         print(f"recorded it as the current tuning ({current})", file=sys.stderr)
 
 
-def _check_dirs(*paths: str | None, inputs: Sequence[str | Path | None] = ()) -> None:
+def _check_outputs(*paths: str | None, inputs: Sequence[str | Path | None] = ()) -> None:
     """Fail before any work when an output file's directory is missing, the output names a
     directory, or it is one of the command's ``inputs`` (writing it would replace what was
     read): nothing gets written."""

@@ -16,6 +16,7 @@ from servotune.cli.design import _cmd_margins, _cmd_plan, _cmd_tune, _cmd_verify
 from servotune.cli.measure import _cmd_excite, _cmd_fit, _cmd_rig, _cmd_simulate
 from servotune.cli.studies import _cmd_compare, _cmd_demo, _cmd_linkage, _cmd_sync
 from servotune.cli.tables import _cmd_check_table, _cmd_export_table
+from servotune.validate import SEED_MAX
 
 
 def _executor_options(group: Any, what: str, from_size: str) -> None:
@@ -44,10 +45,6 @@ class _Parser(argparse.ArgumentParser):
 
     def error(self, message: str) -> NoReturn:
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
-
-
-SEED_MAX = 2**64 - 1
-"""Largest ``--seed``: every random stream takes a seed of 64 bits."""
 
 
 def _seed(text: str) -> int:

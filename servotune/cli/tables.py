@@ -8,7 +8,7 @@ import json
 import sys
 from pathlib import Path
 
-from servotune.cli.output import EXIT_OK, _check_dirs, _deliver
+from servotune.cli.output import EXIT_OK, _check_outputs, _deliver
 from servotune.errors import ServotuneError
 
 # The library is imported inside each handler, not here, so that ``servotune --help`` (and any
@@ -78,7 +78,7 @@ def _cmd_export_table(args: argparse.Namespace) -> int:
     path = Path(args.tuning) if args.tuning else current_tuning_path()
     if args.format == "c" and not args.output:
         raise ServotuneError("--format c needs -o DIR (the directory to write the C files into)")
-    _check_dirs(args.output if args.format != "c" else None, inputs=(path, args.rig, args.spec))
+    _check_outputs(args.output if args.format != "c" else None, inputs=(path, args.rig, args.spec))
     kind = document_kind(path)
     if args.format.startswith("linuxcnc-") and kind in ("gantry", "linkage"):
         raise ServotuneError(

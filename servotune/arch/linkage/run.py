@@ -68,7 +68,7 @@ from servotune.laws.axis import FLAG_COUNTER_FAULT, FLAG_FOLLOWING_ERROR, AxisCo
 from servotune.laws.pi import PIGains
 from servotune.plant import NROW, plant_row
 from servotune.tune.pi import DEFAULT_TARGETS, tune_pi
-from servotune.validate import check_integer, check_number, show_value
+from servotune.validate import SEED_MAX, check_integer, check_number, show_value
 
 __all__ = [
     "TUNE_TARGETS",
@@ -277,7 +277,7 @@ def run_linkage(
     check_number("seconds", seconds, "s", strict=True, hi=1e6, error=ConfigError)
     if isinstance(seed, np.integer):
         seed = int(seed)
-    check_integer("seed", seed, "-", hi=2**64 - 1, error=ConfigError)
+    check_integer("seed", seed, "-", hi=SEED_MAX, error=ConfigError)
     per_tick = (config.n_axes * (_TICK_BYTES_PER_AXIS + (_TRACE_BYTES_PER_AXIS if trace else 0))
                 + len(config.cpus) * (3 + (_NE if trace else 0)) * 8 + _TICK_BYTES)  # fmt: skip
     ticks_f = seconds / period
