@@ -31,7 +31,7 @@ from numba.core import types
 from numba.extending import intrinsic
 
 from servotune._numba_cache import call_compiled, jit
-from servotune.laws.axis import FAULT_MASK, FLAG_SATURATED, N_STATE, axis_read
+from servotune.laws.axis import FAULT_MASK, FLAG_SATURATED, MODE_TASK, N_STATE, axis_read
 from servotune.plant import NROW, R_NOISE, R_OFFSET, advance_tick_inlined
 from servotune.sim.kernel import _I_INIT, _I_LAG
 from servotune.sim.lean import CONSTS_CAPACITY, _frame_buffer
@@ -343,6 +343,7 @@ def _run_sync(
     _approx_draws(seeds[b], per_tick * nt, nzb)
     rng = seeds[b]
     for k in range(nt):
+        i = np.uint64(k)  # an unsigned index: no negative-index wraparound code
         # 1-2. sample and unwrap, every axis (noise drawn in axis order)
         for a in range(2):
             sigma = rows[a, R_NOISE]
@@ -357,9 +358,12 @@ def _run_sync(
                 first[a] = (raw - pi[b, a, _I_INIT]) & mask
                 if first[a] >= np.int64(1) << (bits - 1):
                     first[a] -= np.int64(1) << bits
-            y[a] = axis_read(st, cb, a, raw, reset[k, a])
+            if reset[i, a]:
+                y[a] = axis_read(st, cb, a, raw, True)
+            else:  # the common read, with the flag a constant (below)
+                y[a] = axis_read(st, cb, a, raw, False)
         # the figures of the tick start's state (the traces' true position and speed)
-        if counted[k, follower]:
+        if counted[i, follower]:
             e = pos[master] - pos[follower]
             ae = abs(e)
             if ae > sync_max:
@@ -394,9 +398,16 @@ def _run_sync(
         # 3-4. control law and D/A, every axis
         for a in range(2):
             s = src[a]
-            r = ref[k, a] if s < 0 else y[s]
-            _, flags, e_a, volts = write_axis(st, cb, a, r, mode[k, a], reset[k, a], u_add[k, a],
-                                             dac_lo, lsb)  # fmt: skip
+            r = ref[i, a] if s < 0 else y[s]
+            rs = reset[i, a]
+            md = mode[i, a]
+            ua = u_add[i, a]
+            if not rs and md == MODE_TASK and ua == 0:
+                # the common tick, its inputs as constants: the same call with the same values,
+                # which LLVM folds (no reset, lock or excitation paths), as in sim.lean
+                _, flags, e_a, volts = write_axis(st, cb, a, r, MODE_TASK, False, 0, dac_lo, lsb)
+            else:
+                _, flags, e_a, volts = write_axis(st, cb, a, r, md, rs, ua, dac_lo, lsb)
             fault[a] |= flags & FAULT_MASK
             if k >= hold_from:
                 if abs(pos[a]) < _HOLD_SPAN:  # also False for NaN
@@ -405,7 +416,7 @@ def _run_sync(
                         hold_max[a] = dh
                 else:
                     hold_bad[a] = 1
-            if counted[k, a]:
+            if counted[i, a]:
                 n_cnt[a] += 1
                 if flags & FLAG_SATURATED:
                     n_sat[a] += 1
@@ -418,7 +429,7 @@ def _run_sync(
                 v_old = v2[a]
             v2[a] = v1[a]
             v1[a] = volts
-            w_off = rows[a, R_OFFSET] + load[k, a]
+            w_off = rows[a, R_OFFSET] + load[i, a]
             p_old = pos[a]
             pos[a], spd[a] = advance_tick_inlined(
                 p_old, spd[a], v_old + w_off, v_new + w_off, rows[a]
