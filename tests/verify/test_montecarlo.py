@@ -15,7 +15,7 @@ import servotune as st
 from servotune.report.text import format_montecarlo, format_table
 from servotune.tuning import read_tuning
 from servotune.verify import load_spec, plant_variants, verify
-from servotune.verify.montecarlo import SpecSpread, sensitivity_table
+from servotune.verify.montecarlo import SpecSpread, least, sensitivity_table
 from servotune.verify.run import LISTED_VARIANTS
 from servotune.verify.variants import spread_plants
 
@@ -169,6 +169,40 @@ def test_beyond_chance_holds_its_error_rate_when_nothing_drives_failures() -> No
     # uniform under the null: each decile holds about a tenth of the 2,000 p-values
     counts = np.histogram(ps, bins=10, range=(0, 1))[0]
     assert counts.min() > 140 and counts.max() < 260, counts
+
+
+def test_sensitivity_figures_are_scipy_s_own() -> None:
+    """The table ranks the margin once and the parameters on threads; each ρ and p must still
+    be what scipy.stats.spearmanr and mannwhitneyu give for that column, to the bit (ties in
+    the margin, faults' -inf and NaN margins included), and a constant margin has no ρ."""
+    from scipy.stats import mannwhitneyu, spearmanr
+
+    rng = np.random.default_rng(11)
+    n = 3000
+    values = rng.normal(size=(n, 4))
+    margin = np.round(0.3 - 0.2 * values[:, 2] + 0.1 * rng.normal(size=n), 2)  # ties
+    margin[:40] = -np.inf
+    margin[40:45] = np.nan
+    passed = np.isfinite(margin) & (margin >= 0)
+    names = ("a", "b", "c", "d")
+    table = {s.parameter: s for s in sensitivity_table(names, values, passed, margin)}
+    m = np.where(np.isnan(margin), -np.inf, margin)
+    for j, name in enumerate(names):
+        x = values[:, j]
+        assert table[name].rank_correlation == float(spearmanr(x, m).statistic)
+        assert table[name].fail_p_value == float(mannwhitneyu(x[~passed], x[passed]).pvalue)
+    assert table["c"].rank_correlation < -0.8
+    flat = sensitivity_table(names, values, passed, np.full(n, 0.5))
+    assert all(np.isnan(s.rank_correlation) for s in flat)
+
+
+def test_least_is_the_head_of_a_stable_sort() -> None:
+    rng = np.random.default_rng(2)
+    for n, k in ((1, 5), (10, 5), (1000, 5), (1000, 0), (5000, 40)):
+        x = np.round(rng.normal(size=n), 1)  # many ties
+        x[: n // 7] = -np.inf
+        want = np.argsort(x, kind="stable")[:k]
+        np.testing.assert_array_equal(least(x, k), want)
 
 
 def test_nothing_failing_or_everything_failing_has_no_test() -> None:
