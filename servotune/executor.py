@@ -173,11 +173,17 @@ class DaskExecutor(Executor):
             # broadcast: every worker holds a copy, so a dead worker loses none of it
             (kwargs["shared"],) = self.client.scatter([shared], broadcast=True, hash=False)
         futures = self.client.map(fn, items, pure=False, retries=self.retries, **kwargs)
+        index = {f.key: i for i, f in enumerate(futures)}
+        results: list[Any] = [None] * len(futures)
         try:
-            for n, _ in enumerate(as_completed(futures), start=1):
+            # each result fetched as its task ends, while the others run (gathered at the end,
+            # a million plant sets' 88 MB of results came over after the workers had finished)
+            done_tasks = as_completed(futures, with_results=True)
+            for n, (future, result) in enumerate(done_tasks, start=1):
+                results[index[future.key]] = result
                 if done is not None:
                     done(n)
-            return self.client.gather(futures)
+            return results
         finally:
             self.client.cancel(futures)
 

@@ -88,6 +88,13 @@ def square(x: int, shared: int | None = None) -> int:
     return x * x + (shared or 0)
 
 
+def fail_on_three(x: int, shared: None = None) -> int:
+    """A task that raises for one item (module level, for the cluster)."""
+    if x == 3:
+        raise ValueError(f"item {x} is bad")
+    return x
+
+
 def exit_soon() -> None:
     """Run on a worker: end its process abruptly (no cleanup) a moment after this returns,
     while its task thread is still computing."""
@@ -129,6 +136,15 @@ def test_dask_map_returns_results_in_input_order(client) -> None:
         x * x + 1 for x in range(8)
     ]
     assert done == list(range(1, 9)) and ex.workers == 2 and ex.threads_per_task == 1
+
+
+def test_dask_map_raises_a_failed_task_s_error(client) -> None:
+    """Results come back as their tasks end; a task that raised raises its own error here (as
+    in-process), not a result list with a hole in it."""
+    with pytest.raises(ValueError, match="item 3 is bad"):
+        DaskExecutor(client).map(fail_on_three, list(range(6)))
+    with pytest.raises(ValueError, match="item 3 is bad"):
+        InProcessExecutor().map(fail_on_three, list(range(6)))
 
 
 def test_scheduler_from_argument_and_environment(client, monkeypatch) -> None:
