@@ -43,7 +43,7 @@ from servotune.report.text import figure4_statement
 from servotune.rig import Rig, describe_rig, load_rig, write_plant
 from servotune.scenarios import Inputs, Scenario, build_scenario, check_run_memory
 from servotune.sim.engine import Loop, Trace, simulate
-from servotune.tune.compare import compare_structures, pareto_front
+from servotune.tune.compare import compare_structures, pareto_front, pareto_specs
 from servotune.tune.pi import pi_loop_shaping
 from servotune.tune.slave import tune_spec_from
 from servotune.tune.workflow import tune_rig
@@ -447,6 +447,8 @@ def run_comparison(
 
     out = Path(out_dir)
     tune = tune_spec_from(spec, generations=preset.generations, population=preset.population)
+    pareto_specs(tune, preset.pareto_ms)  # a ceiling the tuner refuses fails before the work
+    out.mkdir(parents=True, exist_ok=True)
     cmp = compare_structures(rig, spec, tune=tune, seeds=[seed + s for s in preset.seeds],
                              heldout_count=preset.heldout_count, progress=progress)  # fmt: skip
     slave = [a.role for a in rig.axes].index("slave")

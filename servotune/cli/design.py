@@ -12,6 +12,7 @@ from servotune.cli.output import (
     EXIT_FAILED,
     EXIT_OK,
     EXIT_USAGE,
+    _check_dirs,
     _check_outputs,
     _deliver,
     _print_product,
@@ -177,8 +178,7 @@ def _cmd_verify(args: argparse.Namespace) -> int:
     if args.config is not None:
         raise ServotuneError(f"--config is for a gantry tuning or a linkage plan; {args.tuning} "
                              "is a rig's tuning")  # fmt: skip
-    if args.report:  # before the run: a report directory that cannot be made fails first
-        Path(args.report).mkdir(parents=True, exist_ok=True)
+    _check_dirs(args.report)  # before the run: a report directory that cannot be made fails first
     dist = None
     if args.plants_from is not None:
         from servotune.fleet import fleet_spread
@@ -196,6 +196,7 @@ def _cmd_verify(args: argparse.Namespace) -> int:
         from servotune.verify import default_rig_path
 
         rig_path = args.rig or default_rig_path(read_tuning(args.tuning), args.tuning)
+        Path(args.report).mkdir(parents=True, exist_ok=True)
         out = write_report(args.report, tuning_path=args.tuning, rig_path=rig_path,
                            verification=result, spec_path=args.spec)  # fmt: skip
         print(f"wrote the report to {out}", file=sys.stderr)

@@ -75,6 +75,23 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _rig_to_extend(path: str, axis: str | None) -> None:
+    """Check, before a fit, that an existing ``-o`` file is a rig the fitted plant can be
+    written into (with ``axis`` among its axes when it is given)."""
+    from servotune.errors import RigError
+    from servotune.rig import load_rig
+
+    try:
+        names = load_rig(path).axis_names
+    except RigError as exc:
+        raise RigError(
+            f"-o {path!r} exists but is not a rig to write the fit into ({exc})"
+        ) from None
+    if axis is not None and axis not in names:
+        raise RigError(f"-o {path!r} has no axis {axis!r} to write the fit into (its axes: "
+                       f"{', '.join(names)})")  # fmt: skip
+
+
 def _cmd_fit(args: argparse.Namespace) -> int:
     if (problem := _fleet_usage(args)) is not None:
         print(f"servotune fit: error: {problem}", file=sys.stderr)
@@ -89,6 +106,8 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     from servotune.tuning import file_sha256
 
     _check_outputs(args.output, args.plot, inputs=(args.log,))
+    if args.output and Path(args.output).exists():  # the rig the fit goes into: read first
+        _rig_to_extend(args.output, args.axis)
     rig = load_rig(args.rig) if args.rig else None
     dac_range = _range(args.dac_range_v) if args.dac_range_v else None
     hal = hal_settings(args.map, format=args.hal_format, columns=args.hal_columns,

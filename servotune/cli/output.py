@@ -1,8 +1,9 @@
 """What every verb shares: exit codes, signals, progress, error lines and the product.
 
 stdout carries only the product (:func:`_print_product`, :func:`_deliver`); progress,
-summaries and diagnostics go to stderr. :func:`_check_outputs` and :func:`_workbench_dir` check
-where outputs go before any work, so a run that cannot write fails first.
+summaries and diagnostics go to stderr. :func:`_check_outputs`, :func:`_check_dirs` and
+:func:`_workbench_dir` check where outputs go before any work, so a run that cannot write fails
+first.
 """
 
 from __future__ import annotations
@@ -131,6 +132,35 @@ def _check_outputs(*paths: str | None, inputs: Sequence[str | Path | None] = ())
         if not Path(p).resolve().parent.is_dir():
             raise FileNotFoundError(
                 2, f"the directory of {p!r} does not exist (create it first)", p
+            )
+
+
+def _check_dirs(*dirs: str | None) -> None:
+    """Fail before any work when an output directory (``--out``, ``--report``, ``--plot``, the C
+    export's ``-o``) names an existing file, or cannot be created under its nearest existing
+    parent (a file in the way, or no write permission). Nothing is created here: a command
+    that then fails on its inputs leaves no empty directory behind."""
+    for d in dirs:
+        if not d:
+            continue
+        p = Path(d)
+        if p.exists() and not p.is_dir():
+            raise ServotuneError(
+                f"{d!r} is a file, not a directory: give a directory to write into "
+                "(it is created if missing)"
+            )
+        if p.is_dir():
+            if not os.access(p, os.W_OK | os.X_OK):
+                raise ServotuneError(f"the directory {d!r} is not writable")
+            continue
+        parent = p.absolute().parent
+        while not parent.exists() and parent != parent.parent:
+            parent = parent.parent
+        if not parent.is_dir():
+            raise ServotuneError(f"cannot create the directory {d!r}: {str(parent)!r} is a file")
+        if not os.access(parent, os.W_OK | os.X_OK):
+            raise ServotuneError(
+                f"cannot create the directory {d!r}: {str(parent)!r} is not writable"
             )
 
 

@@ -7,7 +7,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from servotune.cli.output import EXIT_FAILED, EXIT_OK, _print_product, _progress
+from servotune.cli.output import EXIT_FAILED, EXIT_OK, _check_dirs, _print_product, _progress
 from servotune.errors import ServotuneError
 
 # The library is imported inside each handler, not here, so that ``servotune --help`` (and any
@@ -29,8 +29,8 @@ def _cmd_compare(args: argparse.Namespace) -> int:
         ) from None
     if args.seeds < 1:
         raise ServotuneError(f"--seeds must be >= 1, got {args.seeds}")
+    _check_dirs(args.out)
     rig, spec = load_rig(args.rig), load_spec(args.spec)
-    Path(args.out).mkdir(parents=True, exist_ok=True)
     preset = DemoPreset(generations=args.generations, population=args.population,
                         seeds=tuple(range(args.seeds)), heldout_count=args.heldout_count,
                         pareto_ms=ms)  # fmt: skip
@@ -46,7 +46,10 @@ def _cmd_compare(args: argparse.Namespace) -> int:
 
 def _cmd_demo(args: argparse.Namespace) -> int:
     from servotune.pipeline import comparison_table_text, run_demo
+    from servotune.rig import load_rig
 
+    _check_dirs(args.out)
+    load_rig(args.rig)  # a bad rig fails before the output directory is made
     Path(args.out).mkdir(parents=True, exist_ok=True)
     summary = run_demo(args.rig, args.out, seed=args.seed,
                        preset="full" if args.full else "quick",
@@ -79,6 +82,7 @@ def _cmd_sync(args: argparse.Namespace) -> int:
     from servotune.arch.gantry.load import load_gantry
     from servotune.report.text import format_comparison
 
+    _check_dirs(args.plot)
     cmp = compare_topologies(load_gantry(args.config), seed=args.seed,
                              montecarlo=args.montecarlo)  # fmt: skip
     _print_product(args.json, cmp.to_dict, lambda: format_comparison(cmp))
@@ -99,6 +103,7 @@ def _cmd_linkage(args: argparse.Namespace) -> int:
     from servotune.arch.linkage import LinkageCheckError, load_linkage, run_linkage
     from servotune.report.text import format_linkage_summary
 
+    _check_dirs(args.plot)
     config = load_linkage(args.config)
     try:
         result = run_linkage(config, seconds=args.seconds, seed=args.seed)

@@ -8,7 +8,7 @@ import json
 import sys
 from pathlib import Path
 
-from servotune.cli.output import EXIT_OK, _check_outputs, _deliver
+from servotune.cli.output import EXIT_OK, _check_dirs, _check_outputs, _deliver
 from servotune.errors import ServotuneError
 
 # The library is imported inside each handler, not here, so that ``servotune --help`` (and any
@@ -79,6 +79,7 @@ def _cmd_export_table(args: argparse.Namespace) -> int:
     if args.format == "c" and not args.output:
         raise ServotuneError("--format c needs -o DIR (the directory to write the C files into)")
     _check_outputs(args.output if args.format != "c" else None, inputs=(path, args.rig, args.spec))
+    _check_dirs(args.output if args.format == "c" else None)
     kind = document_kind(path)
     if args.format.startswith("linuxcnc-") and kind in ("gantry", "linkage"):
         raise ServotuneError(

@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from servotune.errors import SpecError
 from servotune.io.files import json_float
 from servotune.laws.axis import AxisController
 from servotune.metrics import step_info
@@ -56,6 +57,7 @@ __all__ = [
     "compare_structures",
     "pareto_front",
     "pareto_mask",
+    "pareto_specs",
 ]
 
 METRICS = (
@@ -368,6 +370,19 @@ class ParetoPoint:
                 for k, v in dataclasses.asdict(self).items()}  # fmt: skip
 
 
+def pareto_specs(tune: SlaveTuneSpec, ms_limits: Sequence[float]) -> list[SlaveTuneSpec]:
+    """``tune`` under each peak-sensitivity ceiling of a sweep; a ceiling the tuner refuses
+    raises its :class:`~servotune.errors.SpecError` (``pareto: max_sensitivity must be …``),
+    so a caller can check a sweep before the work that precedes it."""
+    out = []
+    for ms in ms_limits:
+        try:
+            out.append(dataclasses.replace(tune, max_sensitivity=float(ms)))
+        except SpecError as exc:
+            raise SpecError(f"pareto: {exc}") from None
+    return out
+
+
 def pareto_front(
     rig: Rig,
     tune: SlaveTuneSpec,
@@ -385,12 +400,13 @@ def pareto_front(
     that only the slave's law moves along the sweep.
     """
     say = progress or (lambda _msg: None)
+    specs = pareto_specs(tune, ms_limits)
     start = _robust_start(rig, tune)
     tables = rule_tables(rule_base)
     points: list[ParetoPoint] = []
     for structure in structures:
         mine = []
-        for ms in ms_limits:
+        for ms, spec in zip(ms_limits, specs, strict=True):
             say(f"pareto: {structure}, Ms <= {ms:g}")
             res = tune_slave(
                 start.rig,
@@ -398,7 +414,7 @@ def pareto_front(
                 structure=structure,
                 tables=tables if structure == "composite" else None,
                 start=start.slave_pi.gains,
-                spec=dataclasses.replace(tune, max_sensitivity=float(ms)),
+                spec=spec,
                 seed=seed,
             )
             w = res.worst

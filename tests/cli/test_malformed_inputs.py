@@ -504,3 +504,67 @@ def test_messages_read_as_written(tmp_path: Path, capsys: pytest.CaptureFixture[
     args = ["simulate", str(EXAMPLE_RIG), "--input", str(missing), "-o", str(tmp_path / "o.csv")]
     line = refused(capsys, args, "excitation file", "does not exist")
     assert "file file" not in line
+
+
+CORPUS = ROOT / "tests" / "corpus" / "base"
+
+
+@pytest.mark.parametrize(
+    "verb",
+    [
+        ["demo", str(EXAMPLE_RIG), "--out"],
+        ["compare", str(EXAMPLE_RIG), "--spec", str(PLANTS / "pc-dual-servo.spec.toml"), "--out"],
+        ["sync", str(PLANTS / "gantry.toml"), "--plot"],
+        ["linkage", str(PLANTS / "linkage-6axis.toml"), "--plot"],
+        ["verify", str(CORPUS / "tuning.json"), "--spec", str(PLANTS / "pc-dual-servo.spec.toml"),
+         "--report"],
+        ["export-table", str(CORPUS / "tuning.json"), "--unverified", "--format", "c", "-o"],
+    ],
+    ids=lambda v: v[0],
+)  # fmt: skip
+def test_a_directory_output_that_is_a_file_is_refused_first(
+    verb: list[str], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """An output directory given as an existing file (or below one): one line before any work
+    (``sync --plot FILE`` ran its 9 s comparison, then failed with 'File exists'; ``compare
+    --out FILE`` tried to make the directory; ``export-table --format c -o FILE`` loaded and
+    checked the tuning first); the file is left as it was."""
+    f = tmp_path / "a-file"
+    f.write_text("keep\n", encoding="utf-8")
+    refused(capsys, [*verb, str(f), "-q"], str(f), "is a file, not a directory")
+    refused(capsys, [*verb, str(f / "sub"), "-q"], "cannot create the directory", "is a file")
+    assert f.read_text(encoding="utf-8") == "keep\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a-file"]
+
+
+def test_bad_inputs_leave_no_output_directory(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``demo`` with a bad rig and ``compare`` with a sweep ceiling the tuner refuses (``--pareto
+    0.5``: it ran the whole comparison and wrote figure4.png first) fail before the output
+    directory is made."""
+    out = tmp_path / "out"
+    refused(capsys, ["demo", str(tmp_path / "missing.toml"), "--out", str(out)], "missing.toml")
+    assert not out.exists()
+    refused(capsys, ["compare", str(EXAMPLE_RIG), "--spec", str(PLANTS / "pc-dual-servo.spec.toml"),
+                     "--out", str(out), "--pareto", "1.5,0.5", "-q"],
+            "pareto: max_sensitivity", "got 0.5")  # fmt: skip
+    assert not out.exists()
+
+
+def test_fit_into_a_file_that_is_not_a_rig_is_refused_before_the_fit(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``fit LOG -o FILE`` with FILE an existing file that is no rig (or lacks the axis) fitted
+    the whole log, printed its summary, then failed on writing: now one line, before the fit."""
+    not_rig = tmp_path / "notes.toml"
+    not_rig.write_text("x = 1\n", encoding="utf-8")
+    log = str(CORPUS / "log.csv")
+    refused(capsys, ["fit", log, "--axis", "master", "-o", str(not_rig)], str(not_rig),
+            "is not a rig to write the fit into")  # fmt: skip
+    assert not_rig.read_text(encoding="utf-8") == "x = 1\n"
+    rig = tmp_path / "rig.toml"
+    rig.write_bytes(EXAMPLE_RIG.read_bytes())
+    refused(capsys, ["fit", log, "--axis", "nope", "-o", str(rig)], "has no axis 'nope'",
+            "master, slave")  # fmt: skip
+    assert rig.read_bytes() == EXAMPLE_RIG.read_bytes()
