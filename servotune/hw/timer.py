@@ -48,7 +48,8 @@ def divisor(period_s: float | np.ndarray, clock_hz: float = PC_PIT_CLOCK_HZ) -> 
     if clock_hz <= 0 or not np.isfinite(clock_hz):
         raise ValueError(f"clock_hz must be > 0 [Hz], got {show_value(clock_hz)}")
     p = np.asarray(period_s, dtype=float)
-    d = np.floor(p * clock_hz + 0.5)
+    with np.errstate(over="ignore"):  # a huge period overflows to inf, refused just below
+        d = np.floor(p * clock_hz + 0.5)
     bad = ~np.isfinite(d) | (d < DIVISOR_MIN) | (d > DIVISOR_MAX)
     if np.any(bad):
         first = float(p.reshape(-1)[np.argmax(bad.reshape(-1))])

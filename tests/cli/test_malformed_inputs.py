@@ -568,3 +568,14 @@ def test_fit_into_a_file_that_is_not_a_rig_is_refused_before_the_fit(
     refused(capsys, ["fit", log, "--axis", "nope", "-o", str(rig)], "has no axis 'nope'",
             "master, slave")  # fmt: skip
     assert rig.read_bytes() == EXAMPLE_RIG.read_bytes()
+
+
+def test_a_huge_period_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``period_s = 1e308`` printed numpy's 'overflow encountered in multiply' as a warning line
+    before the error (found by a bad-input sweep)."""
+    rig = variant(tmp_path, EXAMPLE_RIG, "period_s = 0.004 ", "period_s = 1e308 ")
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        line = refused(capsys, ["rig", str(rig)], "period_s 1e+308", "divisor outside 2..65536")
+    assert "overflow" not in line
+    assert not [w for w in seen if "overflow" in str(w.message)]
