@@ -48,6 +48,7 @@ from servotune.tune.pi import pi_loop_shaping
 from servotune.tune.slave import tune_spec_from
 from servotune.tune.workflow import tune_rig
 from servotune.tuning import write_tuning
+from servotune.validate import check_seed
 from servotune.verify import load_for_export, verify_files
 from servotune.verify.spec import Spec, load_spec
 
@@ -230,6 +231,7 @@ def run_demo(
         raise FileNotFoundError(f"output directory {str(out)!r} does not exist")
     if preset not in PRESETS:
         raise ValueError(f"preset must be one of {', '.join(PRESETS)}, got {preset!r}")
+    check_seed(seed)
     say = progress or (lambda _msg: None)
     rig = load_rig(rig_path)
     facts = describe_rig(rig)

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import difflib
 import math
+import operator
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -33,6 +34,7 @@ __all__ = [
     "check_integer",
     "check_keys",
     "check_number",
+    "check_seed",
     "check_strings",
     "check_table",
     "is_finite",
@@ -196,6 +198,20 @@ def check_integer(
     if type(v) is not int or v < lo or (hi is not None and v > hi):
         rule = f">= {lo}" if hi is None else f"in {lo}..{hi}"
         raise error(f"{name} must be an integer {rule} [{unit}], got {show_value(v)}")
+
+
+def check_seed(seed: object, name: str = "seed", *, error: type[Exception] = ValueError) -> int:
+    """``seed`` as an ``int`` in ``0..SEED_MAX`` (an ``int`` or a numpy integer; not a bool,
+    not ``1.5``), else ``error``: ``"seed must be an integer in 0..18446744073709551615 [-],
+    got -1"`` (numpy's own refusals, ``expected non-negative integer`` or ``Python integer -1
+    out of bounds for uint64``, named no seed; a float was silently truncated)."""
+    try:
+        value = None if isinstance(seed, bool) else operator.index(seed)  # type: ignore[arg-type]
+    except TypeError:
+        value = None
+    if value is None or not 0 <= value <= SEED_MAX:
+        raise error(f"{name} must be an integer in 0..{SEED_MAX} [-], got {show_value(seed)}")
+    return value
 
 
 def check_keys(

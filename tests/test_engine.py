@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import dataclasses
 import warnings
+from functools import partial
 
 import control
 import numpy as np
 import pytest
-from conftest import linear_one_axis, one_axis
+from conftest import ROOT, linear_one_axis, one_axis
 
 import servotune as st
 from servotune.fixed import F_U, round_half_away, shift_round
@@ -209,6 +210,44 @@ def test_same_seed_same_bytes_other_seed_differs(rig: st.Rig) -> None:
     assert a.code.tobytes() == b.code.tobytes()
     assert a.counter.tobytes() == b.counter.tobytes()
     assert a.counter.tobytes() != c.counter.tobytes()
+
+
+def test_a_seed_outside_64_bits_is_refused_at_every_entry(rig: st.Rig, tmp_path) -> None:
+    """A library caller's seed: an integer in 0..2**64 - 1 (a numpy integer too) or one
+    ValueError naming the seed; numpy's own refusals named nothing ('expected non-negative
+    integer') and a float was silently truncated (seed=1.5 ran as 1)."""
+    from servotune.arch.gantry import compare_topologies
+    from servotune.arch.gantry.load import load_gantry
+    from servotune.arch.gantry.run import gantry_montecarlo
+    from servotune.pipeline import run_demo
+    from servotune.tune.workflow import tune_rig
+    from servotune.tuning import read_tuning
+    from servotune.verify import load_spec, verify
+
+    loop = st.Loop.from_rig(rig)
+    inputs = st.Inputs.hold(50, 2)
+    want = st.simulate(loop, inputs, seed=3).counter.tobytes()
+    assert st.simulate(loop, inputs, seed=np.uint64(3)).counter.tobytes() == want
+    gantry = load_gantry(ROOT / "plants" / "gantry.toml")
+    tuning = read_tuning(ROOT / "tests" / "corpus" / "base" / "tuning.json")
+    spec = load_spec(ROOT / "plants" / "pc-dual-servo.spec.toml")
+    entries = [
+        partial(st.simulate, loop, inputs),
+        partial(verify, tuning, rig, spec),
+        partial(tune_rig, ROOT / "plants" / "pc-dual-servo.toml"),
+        partial(compare_topologies, gantry),
+        partial(gantry_montecarlo, gantry, 2),
+        partial(run_demo, ROOT / "plants" / "pc-dual-servo.toml", tmp_path),
+    ]
+    plants = [tuple(a.plant for a in rig.axes)] * 2
+    refusal = r"seed must be an integer in 0\.\.18446744073709551615 \[-\], got "
+    for bad in (-1, 2**64, 1.5, True, "3"):
+        for entry in entries:
+            with pytest.raises(ValueError, match=refusal):
+                entry(seed=bad)
+        with pytest.raises(ValueError, match=refusal):
+            st.prepare_batch(loop, plants=plants, seeds=[0, bad])
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_following_error_trip_latches_until_reset(rig: st.Rig) -> None:

@@ -32,6 +32,7 @@ from servotune.sim.kernel import _G_KIT, _G_KP, _G_LOCK, _I_LAG, _NPI, LANES, _k
 from servotune.sim.lean import CONSTS_CAPACITY, _kernel_lean
 from servotune.sim.result import BatchMetrics, BatchResult, BatchTraces, Trace
 from servotune.sim.tick import METRIC_NAMES, N_METRICS
+from servotune.validate import check_seed
 
 __all__ = [
     "METRIC_NAMES",
@@ -219,14 +220,15 @@ def prepare_batch(
     for b, rows in enumerate(rows_c):
         for i, r in enumerate(rows):
             consts[b, i, : len(r)] = r
-    if isinstance(seeds, int | np.integer):
-        seed_arr = (
-            np.array([int(seeds)], dtype=np.uint64)
-            if n == 1
-            else np.random.SeedSequence(int(seeds)).generate_state(n, dtype=np.uint64)
-        )
+    if np.ndim(seeds) == 0:  # one base seed
+        base = check_seed(seeds, error=SimulationError)
+        if n == 1:
+            seed_arr = np.array([base], dtype=np.uint64)
+        else:
+            seed_arr = np.random.SeedSequence(base).generate_state(n, dtype=np.uint64)
     else:
-        seed_arr = np.asarray([int(s) for s in seeds], dtype=np.uint64)
+        checked = [check_seed(s, error=SimulationError) for s in seeds]  # type: ignore[union-attr]
+        seed_arr = np.asarray(checked, dtype=np.uint64)
         if seed_arr.shape != (n,):
             raise SimulationError(f"need {n} seeds, got {seed_arr.size}")
     ring = int(pi[:, :, _I_LAG].max()) + 2
@@ -395,9 +397,7 @@ def simulate(
     -------
     Trace
     """
-    batch = prepare_batch(
-        loop, plants=None if plants is None else [tuple(plants)], seeds=[int(seed)]
-    )
+    batch = prepare_batch(loop, plants=None if plants is None else [tuple(plants)], seeds=[seed])
     res = run_batch(batch, inputs, metrics_only=False, ideal=ideal, threads=1)
     t = res.traces
     assert t is not None

@@ -31,6 +31,7 @@ from servotune.tune.slave import (
     tune_slave,
 )
 from servotune.tuning import Tuning, file_sha256
+from servotune.validate import check_seed
 from servotune.verify.margins import tuning_margins
 
 __all__ = [
@@ -123,6 +124,7 @@ def tune_rig(
         No tuning keeps the constraints (the message names the loop and the binding limit);
         nothing is returned, so nothing is written.
     """
+    check_seed(seed)
     rig = load_rig(rig_path)
     spec = spec or SlaveTuneSpec()
     say = progress or (lambda _msg: None)

@@ -202,7 +202,7 @@ def sensitivity_table(
     # average ranks, numpy.corrcoef), with the margin ranked once rather than once per
     # parameter; the parameters' ranks and tests run on threads (numpy's sorts release the
     # GIL): a million plant sets' table took 2.5 s on one core, most of it in the sorts
-    m_ranks = rankdata(m) if n > 2 and np.ptp(m) > 0.0 else None
+    m_ranks = rankdata(m) if n > 2 and bool((m != m[0]).any()) else None  # not constant
 
     def row(j: int) -> Sensitivity:
         return _sensitivity_row(names[j], values[:, j], fail, fail_pct, m_ranks, tested,

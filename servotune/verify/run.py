@@ -49,7 +49,7 @@ from servotune.sim.engine import (
 from servotune.sim.lean import CONSTS_CAPACITY
 from servotune.sim.lean_sync import FIGURE_NAMES, SyncWindows, run_sync_figures
 from servotune.tuning import Tuning
-from servotune.validate import show_value
+from servotune.validate import check_seed, show_value
 from servotune.verify.checks import (
     _FAULT_QUANTITY,
     _Fastest,
@@ -733,7 +733,7 @@ def verify(
                         f"scenario.{sc.name}.{k} needs a slave axis; rig "
                         f"{show_value(rig.name)} has none"
                     )
-    used_seed = spec.montecarlo.seed if seed is None else int(seed)
+    used_seed = spec.montecarlo.seed if seed is None else check_seed(seed)
     dist = SpecSpread(rig=rig, montecarlo=spec.montecarlo) if distribution is None else distribution
     dist.draw(used_seed, 0, 0)  # a distribution that cannot draw for this rig fails first
     count = spec.montecarlo.count

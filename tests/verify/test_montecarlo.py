@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -194,6 +195,10 @@ def test_sensitivity_figures_are_scipy_s_own() -> None:
     assert table["c"].rank_correlation < -0.8
     flat = sensitivity_table(names, values, passed, np.full(n, 0.5))
     assert all(np.isnan(s.rank_correlation) for s in flat)
+    with warnings.catch_warnings():  # every plant set faulted: no rho, and no numpy warning
+        warnings.simplefilter("error")
+        faulted = sensitivity_table(names, values, np.zeros(n, bool), np.full(n, -np.inf))
+    assert all(np.isnan(s.rank_correlation) for s in faulted)
 
 
 def test_least_is_the_head_of_a_stable_sort() -> None:

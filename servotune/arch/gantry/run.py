@@ -79,7 +79,7 @@ from servotune.plant import (
 )
 from servotune.scenarios import trapezoid_ref
 from servotune.sim.tick import advance_axis, draw_noise, held, hold, read_axis, write_axis
-from servotune.validate import show_value
+from servotune.validate import check_seed, show_value
 
 __all__ = [
     "compare_topologies",
@@ -338,6 +338,7 @@ def run_gantry(
     case : str
         The label the trace carries.
     """
+    check_seed(seed)
     topology = cfg.topology if topology is None else topology
     if topology not in TOPOLOGIES:
         raise ValueError(
@@ -464,6 +465,7 @@ def gantry_montecarlo(
     if not isinstance(count, int) or not 1 <= count <= _MC_MAX:
         raise ConfigError(f"the Monte-Carlo count must be an integer in 1..{_MC_MAX:,} [plant "
                           f"pairs], got {count!r}")  # fmt: skip
+    check_seed(seed)
     say = progress or (lambda _msg: None)
     m = cfg.margins
     rng = np.random.default_rng([seed, 0x67616E74])  # a stream of its own ("gant")
