@@ -16,7 +16,7 @@ from servotune.cli.design import _cmd_margins, _cmd_plan, _cmd_tune, _cmd_verify
 from servotune.cli.measure import _cmd_excite, _cmd_fit, _cmd_rig, _cmd_simulate
 from servotune.cli.studies import _cmd_compare, _cmd_demo, _cmd_linkage, _cmd_sync
 from servotune.cli.tables import _cmd_check_table, _cmd_export_table
-from servotune.validate import SEED_MAX
+from servotune.validate import SEED_MAX, check_seed
 
 
 def _executor_options(group: Any, what: str, from_size: str) -> None:
@@ -48,14 +48,14 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _seed(text: str) -> int:
-    """A ``--seed`` value: an integer in ``0..SEED_MAX`` (argparse's type; a usage error if not)."""
+    """A ``--seed`` value: an integer in ``0..SEED_MAX`` (:func:`~servotune.validate.check_seed`;
+    argparse's type: a usage error if not)."""
     try:
-        value = int(text)
-    except ValueError:
-        value = -1
-    if not 0 <= value <= SEED_MAX:
-        raise argparse.ArgumentTypeError(f"must be an integer in 0..{SEED_MAX}, got {text!r}")
-    return value
+        return check_seed(int(text))
+    except ValueError:  # not an integer, or out of range
+        raise argparse.ArgumentTypeError(
+            f"must be an integer in 0..{SEED_MAX}, got {text!r}"
+        ) from None
 
 
 def _verb(sub: Any, func: Callable[..., int], name: str, **options: Any) -> Any:

@@ -68,7 +68,7 @@ from servotune.laws.axis import FLAG_COUNTER_FAULT, FLAG_FOLLOWING_ERROR, AxisCo
 from servotune.laws.pi import PIGains
 from servotune.plant import NROW, plant_row
 from servotune.tune.pi import DEFAULT_TARGETS, tune_pi
-from servotune.validate import SEED_MAX, check_integer, check_number, show_value
+from servotune.validate import check_integer, check_number, check_seed, show_value
 
 __all__ = [
     "TUNE_TARGETS",
@@ -275,9 +275,7 @@ def run_linkage(
     if seconds is None:
         seconds = ip.duration_s + config.settle_s
     check_number("seconds", seconds, "s", strict=True, hi=1e6, error=ConfigError)
-    if isinstance(seed, np.integer):
-        seed = int(seed)
-    check_integer("seed", seed, "-", hi=SEED_MAX, error=ConfigError)
+    seed = check_seed(seed, error=ConfigError)
     per_tick = (config.n_axes * (_TICK_BYTES_PER_AXIS + (_TRACE_BYTES_PER_AXIS if trace else 0))
                 + len(config.cpus) * (3 + (_NE if trace else 0)) * 8 + _TICK_BYTES)  # fmt: skip
     ticks_f = seconds / period

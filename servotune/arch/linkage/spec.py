@@ -42,10 +42,10 @@ from servotune.arch.linkage.bus import MAX_CLOCK_PPM
 from servotune.errors import SpecError
 from servotune.io.files import parse_toml_as
 from servotune.validate import (
-    SEED_MAX,
     check_integer,
     check_keys,
     check_number,
+    check_seed,
     check_strings,
     check_table,
 )
@@ -140,7 +140,7 @@ class LinkageSpec:
                       ("name", "description"), error=e)  # fmt: skip
         if self.config is not None:
             check_strings({"config": self.config}, "spec", ("config",), error=e)
-        check_integer("run.seed", self.seed, "-", hi=SEED_MAX, error=e)
+        check_seed(self.seed, "run.seed", error=e)
         if self.seconds is not None:
             check_number("run.seconds", self.seconds, "s", strict=True, hi=1e5, error=e)
         check_number("clock.tolerance_ppm", self.clock_tolerance_ppm, "ppm", hi=MAX_CLOCK_PPM,
