@@ -1266,8 +1266,10 @@ def bench_scale(opts: Options) -> list[Figure]:
     A plant·tick is one axis's plant advanced one tick: a plant set of the example rig is two
     plants (master and slave), the sync scenario 600 ticks (2.4 s at 4 ms). Each rate is over
     the Monte-Carlo part of ``verify``: the wall time of the run minus that of a run with no
-    plant sets but the nominal ones (the checks and the loop margins, about a second), each
-    after a warm-up run on the same executor (compiled code loaded, workers' imports done).
+    plant sets but the nominal ones (the checks and the loop margins, about half a second),
+    each after a warm-up run on the same executor (compiled code loaded, workers' imports
+    done). The loop margins run while the chunks run, so the difference is the time the plant
+    sets add; the wall times are reported beside the rates.
     Measured on :data:`SCALE_PLANTS` plant sets (``--scale-plants``); the time for
     :data:`SCALE_TARGET` is extrapolated at the measured rate and says so.
 
