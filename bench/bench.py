@@ -1328,19 +1328,11 @@ def bench_scale(opts: Options) -> list[Figure]:
                                         spec.scenarios)  # fmt: skip
     whole_ticks = sum(round(sc.seconds / rig.period_s) for sc in spec.scenarios)
     start_s = math.nan
-    from dask.distributed import Client, LocalCluster
+    from servotune.executor import local_cluster
 
-    from servotune.executor import DaskExecutor
-
-    for workers in (2, 1):  # as open_executor starts one (it runs 1 worker in-process)
+    for workers in (2, 1):  # the cluster open_executor starts (it runs 1 worker in-process)
         t0 = time.perf_counter()
-        with (
-            LocalCluster(
-                n_workers=workers, processes=True, threads_per_worker=1, dashboard_address=":0"
-            ) as cluster,  # fmt: skip
-            Client(cluster) as client,
-        ):
-            ex = DaskExecutor(client, name=f"LocalCluster ({workers} workers)")
+        with local_cluster(workers) as ex:
             ex.map(abs, [-1])  # the cluster answers
             if workers == 2:
                 start_s = time.perf_counter() - t0

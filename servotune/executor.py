@@ -38,12 +38,15 @@ from typing import Any, TypeVar
 from servotune.errors import SchedulerError
 
 __all__ = [
+    "EMBEDDED_CLUSTER_CONFIG",
     "LOCAL_CLUSTER_MIN_ITEMS",
     "SCHEDULER_ENV",
     "DaskExecutor",
     "Executor",
     "InProcessExecutor",
     "chunk_bounds",
+    "guided_chunk_bounds",
+    "local_cluster",
     "local_workers",
     "open_executor",
 ]
@@ -214,7 +217,7 @@ def open_executor(
        ``DASK_DISTRIBUTED__COMM__TIMEOUTS__CONNECT=5s``);
     2. ``workers`` > 1, or ``n_items >= min_items`` with ``workers`` unset and more than one
        core: an embedded ``LocalCluster`` of ``workers`` (default: the usable cores) worker
-       processes with one thread each, its HTTP server (dashboard) on a free port;
+       processes with one thread each (:func:`local_cluster`);
     3. else in-process.
 
     Parameters
@@ -263,15 +266,49 @@ def open_executor(
     if n_local <= 1 or not large:
         yield InProcessExecutor()
         return
+    with local_cluster(n_local) as ex:
+        yield ex
+
+
+EMBEDDED_CLUSTER_CONFIG = {
+    "distributed.admin.tick.interval": "1s",
+    "distributed.admin.system-monitor.interval": "5s",
+    "distributed.worker.profile.enabled": False,
+}
+"""Dask settings of an embedded ``LocalCluster`` (:func:`local_cluster`), over Dask's defaults:
+the event loops' health check every second instead of every 20 ms, the resource monitor every
+5 s instead of every 0.5 s, no statistical profiler in the workers (it samples their stacks
+every 10 ms for a dashboard nobody opens here). Idle, Dask's defaults cost a 2-worker cluster
+on this 2-core VM about 2.2 s of CPU per 20 s (the client's process 0.8 s, the workers 1.4 s);
+these, 0.7 s: on a 25 s Monte-Carlo run, about a second of CPU the workers get back (measured
+2026-11-27, ``docs/scale.md``). A cluster reached by its address keeps its own settings."""
+
+
+@contextmanager
+def local_cluster(workers: int) -> Iterator[DaskExecutor]:
+    """A :class:`DaskExecutor` on a ``LocalCluster`` started on this machine, closed on exit.
+
+    ``workers`` worker processes with one thread each (the compiled kernels run one thread per
+    task), its HTTP server (dashboard, where bokeh is installed) on a free port, Dask's settings
+    :data:`EMBEDDED_CLUSTER_CONFIG` (set while the cluster starts: its processes keep them, the
+    caller's configuration is left as it was).
+
+    Parameters
+    ----------
+    workers : int
+        Worker processes [1], >= 1.
+    """
+    import dask
     from dask.distributed import Client, LocalCluster
 
-    with (
-        LocalCluster(
-            n_workers=n_local, processes=True, threads_per_worker=1, dashboard_address=":0"
-        ) as cluster,  # fmt: skip
-        Client(cluster) as client,
-    ):
-        yield DaskExecutor(client, name=f"dask LocalCluster ({n_local} workers)")
+    if workers < 1:
+        raise SchedulerError(f"workers must be >= 1, got {workers}")
+    with dask.config.set(EMBEDDED_CLUSTER_CONFIG):
+        cluster = LocalCluster(
+            n_workers=workers, processes=True, threads_per_worker=1, dashboard_address=":0"
+        )
+    with cluster, Client(cluster) as client:
+        yield DaskExecutor(client, name=f"dask LocalCluster ({workers} workers)")
 
 
 def _connect(address: str) -> Any:
@@ -300,3 +337,33 @@ def chunk_bounds(n_items: int, chunk_size: int) -> list[tuple[int, int]]:
         raise ValueError(f"chunk_size must be >= 1, got {chunk_size}")
     n_chunks = math.ceil(n_items / chunk_size)
     return [(i * chunk_size, min(n_items, (i + 1) * chunk_size)) for i in range(n_chunks)]
+
+
+def guided_chunk_bounds(
+    n_items: int, workers: int, *, smallest: int, largest: int
+) -> list[tuple[int, int]]:
+    """``[start, stop)`` of consecutive chunks covering ``range(n_items)``, large first and
+    shrinking towards the end (guided self-scheduling).
+
+    Each chunk takes a quarter of an even share of what is left, ``ceil(left / (4 ·
+    workers))`` items, within ``smallest … largest`` (the last may be smaller). Few large
+    tasks cost the caller little per item (on a cluster, every task's result passes through
+    the client), and the small ones at the end keep every worker busy until the last: a run
+    ends at most one small chunk after the first worker falls idle, not one large one.
+
+    >>> guided_chunk_bounds(100, 2, smallest=4, largest=10)[:4]
+    [(0, 10), (10, 20), (20, 30), (30, 39)]
+    >>> guided_chunk_bounds(100, 2, smallest=4, largest=10)[-3:]
+    [(88, 92), (92, 96), (96, 100)]
+    """
+    if workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
+    if not 1 <= smallest <= largest:
+        raise ValueError(f"need 1 <= smallest <= largest, got {smallest}, {largest}")
+    out = []
+    start = 0
+    while start < n_items:
+        size = min(largest, max(smallest, math.ceil((n_items - start) / (4 * workers))))
+        out.append((start, min(n_items, start + size)))
+        start += size
+    return out

@@ -25,10 +25,13 @@ import servotune as st
 from servotune import cli
 from servotune.errors import SchedulerError
 from servotune.executor import (
+    EMBEDDED_CLUSTER_CONFIG,
     SCHEDULER_ENV,
     DaskExecutor,
     InProcessExecutor,
     chunk_bounds,
+    guided_chunk_bounds,
+    local_cluster,
     open_executor,
 )
 from servotune.tuning import read_tuning
@@ -45,15 +48,11 @@ COUNT = 40
 
 @pytest.fixture(scope="module")
 def client():
-    """A LocalCluster of 2 worker processes, one thread each, and its client."""
-    with (
-        distributed.LocalCluster(
-            n_workers=2, processes=True, threads_per_worker=1, dashboard_address=":0"
-        ) as cluster,  # fmt: skip
-        distributed.Client(cluster) as c,
-    ):
-        c.wait_for_workers(2)
-        yield c
+    """The embedded LocalCluster of 2 worker processes, one thread each (the one
+    ``open_executor`` starts), and its client."""
+    with local_cluster(2) as ex:
+        ex.client.wait_for_workers(2)
+        yield ex.client
 
 
 @pytest.fixture(scope="module")
@@ -104,6 +103,26 @@ def exit_soon() -> None:
 # --- the interface ---------------------------------------------------------------------------
 
 
+@pytest.mark.parametrize("n, workers", [(0, 2), (1, 1), (999, 2), (100_001, 2), (5_000, 7)])
+def test_guided_chunks_cover_every_item_once_large_first(n, workers) -> None:
+    bounds = guided_chunk_bounds(n, workers, smallest=16, largest=1000)
+    assert [i for a, b in bounds for i in range(a, b)] == list(range(n))  # in order, once
+    sizes = [b - a for a, b in bounds]
+    assert all(16 <= s <= 1000 for s in sizes[:-1]) and all(s >= 1 for s in sizes)
+    assert sizes == sorted(sizes, reverse=True)  # shrinking towards the end
+    if n >= 100_000:  # the largest first, the smallest last: far fewer tasks than fixed 16
+        assert sizes[0] == 1000 and sizes[-2] == 16 and len(bounds) < n // 500
+
+
+def test_guided_chunks_refuse_impossible_sizes() -> None:
+    with pytest.raises(ValueError, match="workers"):
+        guided_chunk_bounds(10, 0, smallest=1, largest=4)
+    with pytest.raises(ValueError, match="smallest"):
+        guided_chunk_bounds(10, 2, smallest=5, largest=4)
+    with pytest.raises(ValueError, match="smallest"):
+        guided_chunk_bounds(10, 2, smallest=0, largest=4)
+
+
 def test_chunk_bounds_cover_every_item_once() -> None:
     assert chunk_bounds(0, 3) == []
     assert chunk_bounds(7, 3) == [(0, 3), (3, 6), (6, 7)]
@@ -136,6 +155,28 @@ def test_dask_map_returns_results_in_input_order(client) -> None:
         x * x + 1 for x in range(8)
     ]
     assert done == list(range(1, 9)) and ex.workers == 2 and ex.threads_per_task == 1
+
+
+def get_config(key: str) -> object:
+    """Run on a worker: its Dask setting ``key``."""
+    import dask
+
+    return dask.config.get(key)
+
+
+def test_embedded_cluster_runs_with_its_quiet_settings(client) -> None:
+    """Its processes got EMBEDDED_CLUSTER_CONFIG (the workers their copy from the nanny, the
+    scheduler its timers); the caller's configuration is left as it was (Dask's defaults)."""
+    import dask
+
+    for key, value in EMBEDDED_CLUSTER_CONFIG.items():
+        got = client.run(get_config, key)
+        assert len(got) == 2 and set(got.values()) == {value}, key
+        assert dask.config.get(key) != value, key  # not leaked into this process's settings
+    assert client.run_on_scheduler(lambda dask_scheduler: dask_scheduler._tick_interval) == 1.0
+    with pytest.raises(SchedulerError, match="workers"):
+        with local_cluster(0):
+            pass
 
 
 def test_dask_map_raises_a_failed_task_s_error(client) -> None:

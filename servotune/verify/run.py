@@ -21,7 +21,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from servotune.errors import SpecError
-from servotune.executor import Executor, InProcessExecutor, chunk_bounds
+from servotune.executor import Executor, InProcessExecutor, chunk_bounds, guided_chunk_bounds
 from servotune.laws.axis import FAULT_MASK, FLAG_SATURATED, MODE_TASK
 from servotune.metrics import step_info
 from servotune.plant import (
@@ -75,7 +75,7 @@ bigger run lists the nominal plants and the plant sets its rows and its worst li
 others are redrawn from the seed by their label: :func:`~servotune.verify.plant_variants`)."""
 
 _TRACE_BYTES = 64 * 2**20  # traces one engine batch holds at once (bounds a chunk's memory)
-_MAX_CHUNK = 4096  # plant sets per task of the executor
+_CHUNK_RANGE = (256, 16384)  # plant sets per task of the executor, from the first to the last
 _LEAN = True  # a master and a slave's runs go through the lean two-axis kernel (tests: False)
 
 
@@ -704,8 +704,10 @@ def verify(
         Where the plant sets come from (default :class:`~servotune.verify.montecarlo.SpecSpread`
         of the spec's ``[montecarlo]`` table).
     chunk_size : int, optional
-        Plant sets per task (default: a quarter of an even share per worker, 256 … 4096);
-        changes the run's granularity, never its result.
+        Plant sets per task (default: chunks shrinking from large to small, each a quarter
+        of an even share of what is left per worker, 256 … 16384:
+        :func:`~servotune.executor.guided_chunk_bounds`); changes the run's granularity,
+        never its result.
 
     Returns
     -------
@@ -761,11 +763,12 @@ def verify(
     ex = InProcessExecutor() if executor is None else executor
     n_sets = count + 1
     if chunk_size is None:
-        chunk_size = min(_MAX_CHUNK, max(256, math.ceil(n_sets / (4 * ex.workers))))
+        smallest, largest = _CHUNK_RANGE
+        bounds = guided_chunk_bounds(n_sets, ex.workers, smallest=smallest, largest=largest)
+    else:
+        bounds = chunk_bounds(n_sets, chunk_size)
     noise = _seed_seqs(used_seed)[1].generate_state(n_sets, np.uint64)
-    chunks = [
-        _Chunk(start=a, stop=b, noise=noise[a:b]) for a, b in chunk_bounds(n_sets, chunk_size)
-    ]
+    chunks = [_Chunk(start=a, stop=b, noise=noise[a:b]) for a, b in bounds]
     shared = _Shared(rig=rig, loop=loop, runs=tuple(runs), distribution=dist, seed=used_seed,
                      threads=ex.threads_per_task)  # fmt: skip
     for sc, _ in runs:

@@ -16,7 +16,8 @@ import servotune as st
 from servotune.report.text import format_montecarlo, format_table
 from servotune.tuning import read_tuning
 from servotune.verify import load_spec, plant_variants, verify
-from servotune.verify.montecarlo import SpecSpread, least, sensitivity_table
+from servotune.verify import run as run_module
+from servotune.verify.montecarlo import SpecSpread, average_ranks, least, sensitivity_table
 from servotune.verify.run import LISTED_VARIANTS
 from servotune.verify.variants import spread_plants
 
@@ -50,7 +51,7 @@ def test_a_chunk_draws_what_the_whole_run_draws(rig) -> None:
     assert values[1, 1] == whole[5].plants[0].tau_s  # master.tau_s of mc5
 
 
-def test_result_is_the_same_for_any_chunk_size(rig, sync_spec) -> None:
+def test_result_is_the_same_for_any_chunk_size(rig, sync_spec, monkeypatch) -> None:
     tuning = read_tuning(TUNING)
     one = verify(tuning, rig, sync_spec)
     for chunk_size in (1, 4, 13):
@@ -58,6 +59,11 @@ def test_result_is_the_same_for_any_chunk_size(rig, sync_spec) -> None:
         assert json.dumps(other.to_dict(), sort_keys=True) == json.dumps(
             one.to_dict(), sort_keys=True
         )
+    # the default plan (large chunks first, shrinking: executor.guided_chunk_bounds), made to
+    # give chunks of 8 down to 2 plant sets here
+    monkeypatch.setattr(run_module, "_CHUNK_RANGE", (2, 8))
+    guided = verify(tuning, rig, sync_spec)
+    assert json.dumps(guided.to_dict(), sort_keys=True) == json.dumps(one.to_dict(), sort_keys=True)
     mc = one.montecarlo
     assert mc is not None and mc.count == 30 and mc.passed == sum(one.variant_passed[1:])
     assert one.pass_fraction[3:] == mc.ci95
@@ -199,6 +205,29 @@ def test_sensitivity_figures_are_scipy_s_own() -> None:
         warnings.simplefilter("error")
         faulted = sensitivity_table(names, values, np.zeros(n, bool), np.full(n, -np.inf))
     assert all(np.isnan(s.rank_correlation) for s in faulted)
+
+
+def test_average_ranks_are_scipy_s_rankdata() -> None:
+    """The table's ranks (numpy's unstable sort, ties averaged) are scipy.stats.rankdata's
+    values, to the bit: runs of ties, -0.0 beside 0.0, infinities, one value, a NaN (scipy's
+    own policy), and a column taken out of a 2-D array (strided)."""
+    from scipy.stats import rankdata
+
+    rng = np.random.default_rng(3)
+    cases = [
+        np.round(rng.normal(size=20_000), 1),  # long runs of ties
+        rng.normal(size=5_000),
+        np.array([0.0, -0.0, 1.0, -np.inf, np.inf, 0.0, -np.inf]),
+        np.array([2.5]),
+        np.array([1.0, np.nan, 0.5]),
+        np.round(rng.normal(size=(4_000, 3)), 2)[:, 1],
+        np.zeros(0),
+    ]
+    for x in cases:
+        want = rankdata(x)
+        got = average_ranks(x)
+        assert got.dtype == np.float64 and got.shape == x.shape
+        np.testing.assert_array_equal(got, want)
 
 
 def test_least_is_the_head_of_a_stable_sort() -> None:
