@@ -245,11 +245,15 @@ def _approx_draws(seed: np.uint64, n: int, out: np.ndarray) -> None:
 
 @jit(inline="always")
 def _noisy_floor(q: float, nz: float, margin: float) -> tuple[bool, np.int64]:
-    """``floor(q + nz)`` and whether it holds for every noise within ``margin`` of ``nz``."""
+    """``floor(q + nz)`` and whether it holds for every noise within ``margin`` of ``nz``.
+
+    The floor stays a float for the test (``math.floor`` gives an integer, whose conversion
+    back would lengthen the tick's chain); beyond ±2**53, where the two could differ, and for
+    a value not finite, the test fails and the caller takes the exact read."""
     x = q + nz
-    fl = math.floor(x)
+    fl = np.floor(x)
     m = margin + 1e-15 * abs(q)
-    ok = (x - fl) > m and (fl + 1.0 - x) > m
+    ok = ((x - fl) > m) & ((fl + 1.0 - x) > m)
     if ok:
         return True, np.int64(fl)
     return False, np.int64(0)

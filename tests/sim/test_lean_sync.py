@@ -26,7 +26,7 @@ import pytest
 from servotune.plant import NPARAM, NROW, Plant, fill_plant_rows, plant_row
 from servotune.rig import EXAMPLE_RIG_PATH, load_rig
 from servotune.sim.engine import prepare_batch, run_batch
-from servotune.sim.lean_sync import _NZ_MARGIN, N_FAST, _approx_draws, pairwise_sum
+from servotune.sim.lean_sync import _NZ_MARGIN, N_FAST, _approx_draws, _noisy_floor, pairwise_sum
 from servotune.sim.tick import normal
 from servotune.verify import load_spec, verify
 from servotune.verify import run as vrun
@@ -421,3 +421,28 @@ def test_approximate_draws_within_the_margin() -> None:
     # the draws are the stream's, in its order (not merely normal-looking numbers)
     assert np.corrcoef(approx, exact)[0, 1] > 0.999_999
     assert abs(exact.mean()) < 0.01 and abs(exact.std() - 1.0) < 0.01
+
+
+def test_noisy_floor_is_the_floor_or_declines() -> None:
+    """Where the lean kernel's shortcut floor answers, it is ``math.floor`` of the sum; it
+    declines (the caller reads exactly) within the margin of an integer, for a value not
+    finite, and from 2**53 on (where every double is an integer)."""
+    rng = np.random.default_rng(8)
+    q = np.concatenate([rng.uniform(-1e6, 1e6, 20_000), rng.uniform(-3.0, 3.0, 20_000)])
+    nz = rng.normal(scale=0.3, size=q.size)
+    margin = _NZ_MARGIN * 1.3
+    answered = 0
+    for qi, ni in zip(q, nz, strict=True):
+        ok, c = _noisy_floor(float(qi), float(ni), margin)
+        x = float(qi) + float(ni)
+        near = min(x - math.floor(x), math.floor(x) + 1.0 - x) <= margin + 1e-15 * abs(qi)
+        assert ok is (not near), (qi, ni)
+        if ok:
+            assert c == math.floor(x)
+            answered += 1
+    assert answered > 0.99 * q.size
+    for qi in (5.0 + 0.5 * margin, -7.0 - 0.5 * margin, 3.0):  # within the margin: declined
+        assert _noisy_floor(qi, 0.0, margin)[0] is False
+    assert _noisy_floor(-0.5, 0.0, margin) == (True, -1)
+    for qi in (math.nan, math.inf, -math.inf, 2.0**53, -(2.0**60), 2.0**70):
+        assert _noisy_floor(qi, 0.25, margin)[0] is False, qi
