@@ -75,7 +75,7 @@ bigger run lists the nominal plants and the plant sets its rows and its worst li
 others are redrawn from the seed by their label: :func:`~servotune.verify.plant_variants`)."""
 
 _TRACE_BYTES = 64 * 2**20  # traces one engine batch holds at once (bounds a chunk's memory)
-_CHUNK_RANGE = (256, 16384)  # plant sets per task of the executor, from the first to the last
+_CHUNK_RANGE = (256, 16384)  # plant sets per task: the last (smallest) and the first (largest)
 _LEAN = True  # a master and a slave's runs go through the lean two-axis kernel (tests: False)
 
 
