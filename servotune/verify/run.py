@@ -76,6 +76,10 @@ others are redrawn from the seed by their label: :func:`~servotune.verify.plant_
 
 _TRACE_BYTES = 64 * 2**20  # traces one engine batch holds at once (bounds a chunk's memory)
 _CHUNK_RANGE = (256, 16384)  # plant sets per task: the last (smallest) and the first (largest)
+_CHUNK_WORK = 16384 * 1200  # plant·ticks a task holds at most (the example rig's sync scenario:
+# 0.6 s on one core here); a spec's longer scenarios get fewer plant sets per task, so a task
+# keeps its worker's event loop (Dask's heartbeats, its 3 s unresponsiveness warning) waiting
+# no longer than that, and a worker lost mid-task loses no more
 _LEAN = True  # a master and a slave's runs go through the lean two-axis kernel (tests: False)
 
 
@@ -705,9 +709,9 @@ def verify(
         of the spec's ``[montecarlo]`` table).
     chunk_size : int, optional
         Plant sets per task (default: chunks shrinking from large to small, each a quarter
-        of an even share of what is left per worker, 256 … 16384:
-        :func:`~servotune.executor.guided_chunk_bounds`); changes the run's granularity,
-        never its result.
+        of an even share of what is left per worker, from 256 up to 16384 or fewer, at most
+        about 2e7 plant·ticks a task: :func:`~servotune.executor.guided_chunk_bounds`);
+        changes the run's granularity, never its result.
 
     Returns
     -------
@@ -764,6 +768,8 @@ def verify(
     n_sets = count + 1
     if chunk_size is None:
         smallest, largest = _CHUNK_RANGE
+        per_set = len(rig.axes) * sum(inputs.n_ticks for _, inputs in runs)  # plant·ticks
+        largest = max(smallest, min(largest, _CHUNK_WORK // max(per_set, 1)))
         bounds = guided_chunk_bounds(n_sets, ex.workers, smallest=smallest, largest=largest)
     else:
         bounds = chunk_bounds(n_sets, chunk_size)

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 import servotune as st
+from servotune.executor import InProcessExecutor
 from servotune.report.text import format_montecarlo, format_table
 from servotune.tuning import read_tuning
 from servotune.verify import load_spec, plant_variants, verify
@@ -51,6 +52,17 @@ def test_a_chunk_draws_what_the_whole_run_draws(rig) -> None:
     assert values[1, 1] == whole[5].plants[0].tau_s  # master.tau_s of mc5
 
 
+class _Recording(InProcessExecutor):
+    """In-process, noting the plant sets of each task."""
+
+    def __init__(self) -> None:
+        self.sizes: list[int] = []
+
+    def _map(self, fn, items, shared, done):
+        self.sizes += [c.stop - c.start for c in items]
+        return super()._map(fn, items, shared, done)
+
+
 def test_result_is_the_same_for_any_chunk_size(rig, sync_spec, monkeypatch) -> None:
     tuning = read_tuning(TUNING)
     one = verify(tuning, rig, sync_spec)
@@ -62,8 +74,19 @@ def test_result_is_the_same_for_any_chunk_size(rig, sync_spec, monkeypatch) -> N
     # the default plan (large chunks first, shrinking: executor.guided_chunk_bounds), made to
     # give chunks of 8 down to 2 plant sets here
     monkeypatch.setattr(run_module, "_CHUNK_RANGE", (2, 8))
-    guided = verify(tuning, rig, sync_spec)
+    ex = _Recording()
+    guided = verify(tuning, rig, sync_spec, executor=ex)
     assert json.dumps(guided.to_dict(), sort_keys=True) == json.dumps(one.to_dict(), sort_keys=True)
+    assert ex.sizes[0] == 8 and ex.sizes[-1] <= 2 and sum(ex.sizes) == 31
+    # ... and a task holds at most _CHUNK_WORK plant·ticks: the sync scenario is 2 × 600 per
+    # plant set, so a budget of 3 plant sets' ticks gives chunks of 3 at most (never below 2)
+    monkeypatch.setattr(run_module, "_CHUNK_WORK", 3 * 1200 + 5)
+    ex = _Recording()
+    bounded = verify(tuning, rig, sync_spec, executor=ex)
+    assert max(ex.sizes) == 3 and sum(ex.sizes) == 31
+    assert json.dumps(bounded.to_dict(), sort_keys=True) == json.dumps(
+        one.to_dict(), sort_keys=True
+    )
     mc = one.montecarlo
     assert mc is not None and mc.count == 30 and mc.passed == sum(one.variant_passed[1:])
     assert one.pass_fraction[3:] == mc.ci95
