@@ -212,23 +212,34 @@ def test_cluster_result_is_the_in_process_result(client, setup, in_process, chun
 
 
 def test_a_worker_killed_mid_run_changes_nothing(client, setup, in_process) -> None:
-    """One worker process ends (os._exit) while it runs a chunk, after the first chunk is
-    back: Dask re-runs its task on the other worker (and the nanny starts a new one)."""
+    """One worker process ends (os._exit) while it runs a chunk: Dask re-runs its task on the
+    other worker (and the nanny starts a new one).
+
+    A thread watches the scheduler and kills the first worker it sees holding a task, so the
+    test waits on that condition, not on the driver's pace (on a loaded machine the driver
+    may take the first result only once every chunk has run)."""
     tuning, rig, spec = setup
     killed: list[str] = []
+    done = threading.Event()
 
-    def progress(message: str) -> None:
-        if killed or not message.startswith("verify montecarlo: 1/"):
-            return
-        busy = [w for w, keys in client.processing().items() if keys]
-        assert busy, "no task running when the first chunk came back"
-        killed.append(busy[0])
-        client.run(exit_soon, workers=[busy[0]])
+    def watch() -> None:
+        while not done.is_set() and not killed:
+            busy = [w for w, keys in client.processing().items() if keys]
+            if busy:
+                killed.append(busy[0])
+                client.run(exit_soon, workers=[busy[0]])
+                return
+            time.sleep(0.005)
 
-    got = verify(tuning, rig, spec, executor=DaskExecutor(client), chunk_size=4,
-                 progress=progress)  # fmt: skip
+    watcher = threading.Thread(target=watch, daemon=True)
+    watcher.start()
+    try:
+        got = verify(tuning, rig, spec, executor=DaskExecutor(client), chunk_size=4)
+    finally:
+        done.set()
+        watcher.join(timeout=60)
     _same(got, in_process)
-    assert killed
+    assert killed, "the watcher saw no worker holding a task"
     client.wait_for_workers(2, timeout=60)
     assert killed[0] not in client.scheduler_info()["workers"]  # it really died
 

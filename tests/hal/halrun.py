@@ -105,12 +105,25 @@ def share(workdir: Path) -> None:
 def run_as_hal_user(
     argv: list[str], workdir: Path, timeout: float = 120.0
 ) -> subprocess.CompletedProcess:
-    """Run ``argv`` in ``workdir`` as the HAL user; the caller judges the result."""
+    """Run ``argv`` in ``workdir`` as the HAL user; the caller judges the result.
+
+    On a timeout every ``rtapi_app`` is killed before the session: ``rtapi_app`` (setuid root,
+    started by ``halrun``) holds the session's output pipes, and a session that hung would
+    otherwise keep them open, so that reading them after the kill waited forever.
+    """
     share(workdir)
-    return subprocess.run(
-        _as_user(argv, workdir), cwd=workdir, capture_output=True, text=True, timeout=timeout,
-        stdin=subprocess.DEVNULL,
-    )  # fmt: skip
+    proc = subprocess.Popen(_as_user(argv, workdir), cwd=workdir, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True,
+                            stdin=subprocess.DEVNULL)  # fmt: skip
+    try:
+        out, err = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        if os.geteuid() == 0:
+            subprocess.run(["pkill", "-KILL", "-x", "rtapi_app"], check=False)
+        proc.kill()
+        proc.communicate()
+        raise
+    return subprocess.CompletedProcess(proc.args, proc.returncode, out, err)
 
 
 @contextlib.contextmanager
