@@ -12,6 +12,11 @@ function is decorated with ``cache=True``. :func:`jit` therefore sets it for the
 own decoration call and restores it (the environment is never touched): other packages'
 functions, decorated before or after, keep numba's defaults. The one exception the public API
 leaves open is a function decorated by another thread during those microseconds.
+
+Two more services for a visible first run (:mod:`servotune.warmup`): :func:`cached_overloads`
+reads a function's cache index without compiling anything, and numba's ``numba:compile`` event
+(sent when numba really compiles, not when it loads from the cache) is passed on to
+:func:`servotune.warmup.compile_started` and :func:`~servotune.warmup.compile_ended`.
 """
 
 from __future__ import annotations
@@ -28,10 +33,20 @@ from typing import Any
 
 import numba
 import numba.core.errors
+import numba.core.event
 
+from servotune import warmup
 from servotune.errors import CompileError
 
-__all__ = ["cache_dir", "call_compiled", "jit", "keyed_by_sources", "source_digest"]
+__all__ = [
+    "cache_dir",
+    "cached_overloads",
+    "call_compiled",
+    "jit",
+    "kernel_cache_dir",
+    "keyed_by_sources",
+    "source_digest",
+]
 
 _PACKAGE = Path(__file__).resolve().parent
 _PREFIX = "numba-"
@@ -89,6 +104,13 @@ def cache_dir(root: Path = _PACKAGE) -> Path | None:
 def _package_cache_dir() -> Path | None:
     """:func:`cache_dir` of the installed package, computed once per process."""
     return cache_dir()
+
+
+def kernel_cache_dir() -> Path | None:
+    """Where numba caches servotune's functions: ``NUMBA_CACHE_DIR`` if set, else
+    :func:`cache_dir` of the installed package (None: no writable directory)."""
+    user = os.environ.get("NUMBA_CACHE_DIR")
+    return Path(user) if user else _package_cache_dir()
 
 
 @contextmanager
@@ -156,3 +178,36 @@ def call_compiled(kernel: Any, *args: Any) -> Any:
             f"({type(exc).__name__}: {cause}); servotune is tested with the numba range in "
             "its pyproject.toml"
         ) from exc
+
+
+def cached_overloads(kernel: Any) -> int | None:
+    """How many compiled versions of ``kernel`` numba's on-disk cache holds that this process
+    can load: the index file of the function in its cache directory (wherever numba looks:
+    ``NUMBA_CACHE_DIR`` or :func:`cache_dir`), the entries written by this numba for this
+    function's source file as it is now (numba's stamp: its time and size), this CPU and this
+    bytecode. Nothing is compiled or loaded.
+
+    numba has no public API for this: it is read through the dispatcher's cache object (its
+    index and its key, numba 0.6x), and anything unexpected there gives None (not known).
+    """
+    try:
+        cache = kernel._cache
+        index = cache._cache_file._load_index()
+        _, machine, code = cache._index_key((), kernel.targetctx.codegen())
+        return sum(1 for key in index if tuple(key[1:]) == (machine, code))
+    except Exception:  # numba internals moved (or caching is off): not known
+        return None
+
+
+class _CompileEvents(numba.core.event.Listener):
+    """numba's ``numba:compile`` event, passed on to :mod:`servotune.warmup` (which reports
+    it only where the caller asked, :func:`servotune.warmup.compile_notices`)."""
+
+    def on_start(self, event: numba.core.event.Event) -> None:
+        warmup.compile_started(event.data["dispatcher"])
+
+    def on_end(self, event: numba.core.event.Event) -> None:
+        warmup.compile_ended(event.data["dispatcher"])
+
+
+numba.core.event.register("numba:compile", _CompileEvents())

@@ -28,7 +28,7 @@ import difflib
 import io
 import math
 import warnings
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -69,9 +69,11 @@ from servotune.io.log_rows import (
     _check_range,
     _data_rows,
     _fast_columns,
+    _kinds,
     _modes,
     _RowLines,
     _timebase,
+    _whole_counts,
 )
 from servotune.laws.axis import MODE_NAMES
 
@@ -352,7 +354,9 @@ def read_log(
 
     ``dac_code`` is converted to volts through the D/A model, ``counter`` is unwrapped with the
     runtime's high-byte rule relative to the first row; ``cmd_v`` and ``pos_counts`` are taken
-    as they are.
+    as they are. ``pos_counts`` and ``ref_counts`` may be written as numbers (``0.0``, as a
+    logger that writes every column as a float does) when every value is within 1e-9 of an
+    integer: they are read as those integers (:data:`servotune.io.log_rows.WHOLE_TOL`).
 
     Parameters
     ----------
@@ -383,7 +387,8 @@ def read_log(
         number in the file) and the column: missing or unreadable file, not UTF-8 text, empty
         file, no header, header only, unknown (with the closest valid name), duplicate or
         missing columns, wrong number of fields, text in a number, NaN or inf, a non-integer or
-        out-of-range ``dac_code`` or ``counter``, an unknown ``mode``, time not increasing,
+        out-of-range ``dac_code`` or ``counter``, a ``pos_counts`` or ``ref_counts`` value that
+        is not whole (the first one named, with its row), an unknown ``mode``, time not increasing,
         irregular sampling, ``tick`` and ``time_s`` disagreeing, malformed metadata, fewer than
         :data:`MIN_ROWS` rows; also invalid options. Bounds: a field of more than
         :data:`MAX_NUMBER_CHARS` characters, a metadata value of more than
@@ -485,6 +490,7 @@ def _read_log(
             if bad.any():
                 k = int(np.argmax(bad))
                 raise LogFormatError(f"row {rows(k)}, column {h!r}: {a[k]} is not finite")
+    _whole_counts(col, header, _kinds(header), rows)  # pos_counts, ref_counts written as 12.0
 
     period = _timebase(
         col.get("tick"),
@@ -545,7 +551,8 @@ class Table:
         1-based line of the header.
     columns : dict of str to ndarray
         Per column: int64 (tick, dac_code, counter, pos_counts, ref_counts, exc_code), float64
-        (time_s, cmd_v) or text (mode).
+        (time_s, cmd_v) or text (mode); as ``kinds`` says when it is given (its ``"skip"``
+        columns left out).
     row_lines : ndarray of int64
         The 1-based file line of each data row.
     """
@@ -569,6 +576,7 @@ def read_table(
     *,
     what: str = "log",
     check_header: Callable[[list[str], int], None] | None = None,
+    kinds: Callable[[list[str], int], Sequence[str]] | None = None,
 ) -> Table:
     """Read a log-format CSV file: metadata, header and typed columns, with the log's checks.
 
@@ -586,7 +594,13 @@ def read_table(
     check_header : callable, optional
         Called with the header and its line before the rows are parsed; raises to refuse it.
         Columns must be log columns (``tick``, ``time_s``, ``[axis.]dac_code``, ...) in any
-        case.
+        case, unless ``kinds`` is given.
+    kinds : callable, optional
+        Called with the header and its line (after ``check_header``); returns each column's
+        kind: ``"int"``, ``"counts"``, ``"float"``, ``"text"`` or ``"skip"`` (read as text
+        and not kept: a column the caller does not use). Then any column names are accepted,
+        and the caller's mapping (:func:`servotune.io.hal.read_mapped_csv`) gives them their
+        meaning. Default: the log columns' kinds, by name.
 
     Returns
     -------
@@ -603,26 +617,37 @@ def read_table(
         meta, meta_line, header_line, header_text, body = _split_text(text, src, what)
         del text
         header = _parse_header(header_text, header_line)
-        for h in header:
-            if _base(h) not in _KIND:
-                raise LogFormatError(f"line {header_line}: unknown column {h!r}; {_COLUMNS_HELP}")
+        if kinds is None:
+            for h in header:
+                if _base(h) not in _KIND:
+                    raise LogFormatError(
+                        f"line {header_line}: unknown column {h!r}; {_COLUMNS_HELP}"
+                    )
         if check_header is not None:
             check_header(header, header_line)
+        kind = _kinds(header) if kinds is None else list(kinds(header, header_line))
         table, rows = _data_rows(
             body,
             header_line,
             header,
             f"the header (line {header_line}) is followed by no data rows",
+            kind,
         )
         del body
         n = len(table)
-        cols = {h: np.ascontiguousarray(table[f"c{j}"]) for j, h in enumerate(header)}
+        cols = {
+            h: np.ascontiguousarray(table[f"c{j}"])
+            for j, (h, k) in enumerate(zip(header, kind, strict=True))
+            if k != "skip"
+        }
         for h, a in cols.items():
             if a.dtype.kind == "f":
                 bad = ~np.isfinite(a)
                 if bad.any():
                     k = int(np.argmax(bad))
                     raise LogFormatError(f"row {rows(k)}, column {h!r}: {a[k]} is not finite")
+        _whole_counts(cols, [h for h, k in zip(header, kind, strict=True) if k != "skip"],
+                      [k for k in kind if k != "skip"], rows)  # fmt: skip
         lines = np.zeros(0, dtype=np.int64)
         if n:
             rows(0)  # works the line numbers out once

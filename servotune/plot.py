@@ -389,9 +389,12 @@ def plot_bode(responses: dict[str, tuple[np.ndarray, np.ndarray]], title: str = 
     return fig
 
 
-def _queue_markers(ax: plt.Axes, result: LinkageResult) -> None:
-    """Depth (dotted), first underrun / overrun (dashed / dash-dot) and resyncs (grey)."""
+def _queue_markers(ax: plt.Axes, result: LinkageResult, only: int | None = None) -> None:
+    """Depth (dotted), first underrun / overrun (dashed / dash-dot) of every CPU (or of the
+    ``only``-th), each in its colour, and the resyncs (grey)."""
     for i, c in enumerate(result.cpus):
+        if only is not None and i != only:
+            continue
         color = f"C{i}"
         ax.axhline(c.queue_depth, color=color, ls=":", lw=0.8)
         if c.first_underrun_s is not None:
@@ -421,30 +424,44 @@ def _queue_window(result: LinkageResult) -> tuple[float, float]:
     return t0, t0 + width
 
 
-def _overlap_width(i: int, n: int) -> float:
-    """Line width of the ``i``-th of ``n`` lines that may lie on top of each other: the first
-    widest, so that each stays visible under the ones drawn after it."""
-    return 1.0 + 1.6 * (n - 1 - i)
+_OVERLAP_DASHES = ((), (6, 3), (2, 2), (8, 2, 2, 2), (1, 3), (4, 1, 1, 1, 1, 1))
+"""Dash patterns [points] of the lines that may lie on top of each other (the first solid)."""
+
+
+def _overlap_style(i: int, n: int) -> dict[str, Any]:
+    """Line style of the ``i``-th of ``n`` lines that may lie on top of each other (the same
+    data on several CPUs): each in its colour, the first solid and widest, every later one
+    narrower, drawn above and dashed in its own pattern, so that each stays visible through
+    the gaps of the ones drawn after it. No line is moved off its data."""
+    dashes = _OVERLAP_DASHES[i % len(_OVERLAP_DASHES)]
+    style: dict[str, Any] = {"color": f"C{i}", "lw": 1.0 + 1.6 * (n - 1 - i), "zorder": 2 + i}
+    if dashes:
+        style["dashes"] = dashes
+    return style
 
 
 def plot_queue_levels(result: LinkageResult, ax: plt.Axes | None = None) -> plt.Figure:
     """Queue level of every slave CPU before each pop over master time (seed 002 linkage).
 
     The level is a sawtooth at the broadcast period (a block arrives, each tick pops one), far
-    too fast to read over a whole run. Without ``ax`` the figure has two panels: over the whole
-    run, each CPU's lowest and highest level per time bin (a band, its edges drawn), and below
-    it a window of a few broadcast periods (around the first underrun or overrun, else at the
-    start) with every pop. With ``ax``, every pop is drawn on it (zoom with ``set_xlim``).
-    Each CPU's queue depth is dotted, its first underrun / overrun a dashed / dash-dot
-    vertical line; the resync instants are grey.
+    too fast to read over a whole run. Without ``ax`` the figure has one row of panels per CPU,
+    every panel on the same level scale (CPUs whose queues move alike would hide each other on
+    one panel): on the left, over the whole run, the CPU's lowest and highest level per time
+    bin (a band, its edges drawn); on the right, a window of a few broadcast periods (around
+    the first underrun or overrun, else at the start; the same window for every CPU) with
+    every pop. With ``ax``, every CPU's pops are drawn on it (zoom with ``set_xlim``), each in
+    its colour and its own dash pattern, the first widest, so that identical levels stay
+    readable. Each CPU's queue depth is dotted, its first underrun / overrun a dashed /
+    dash-dot vertical line; the resync instants are grey.
     """
     sync = (f"resync every {result.resync_interval_s:g} s" if result.resync_interval_s
             else "start sync only")  # fmt: skip
+    n = len(result.cpus)
     if ax is not None:
         fig = ax.figure
         for i, c in enumerate(result.cpus):
-            ax.step(c.tick_time_s, c.queue_level, where="post", lw=0.8, color=f"C{i}",
-                    alpha=0.8, label=_queue_label(c))  # fmt: skip
+            ax.step(c.tick_time_s, c.queue_level, where="post", alpha=0.9,
+                    label=_queue_label(c), **_overlap_style(i, n))  # fmt: skip
         _queue_markers(ax, result)
         ax.set_xlabel("time [s]")
         ax.set_ylabel("queue level [setpoints]")
@@ -453,49 +470,49 @@ def plot_queue_levels(result: LinkageResult, ax: plt.Axes | None = None) -> plt.
         ax.legend(loc="best", fontsize=8)
         fig.tight_layout()
         return fig
-    fig, (top, zoom) = plt.subplots(2, 1, figsize=(9, 6.4), height_ratios=(1.0, 1.0))
+    rows = max(n, 1)
+    fig, axs = plt.subplots(rows, 2, figsize=(12, 1.4 + 2.5 * rows), squeeze=False,
+                            sharex="col", sharey=True, width_ratios=(1.6, 1.0))  # fmt: skip
     bins = 400
-    for i, c in enumerate(result.cpus):
-        color = f"C{i}"
-        t = np.asarray(c.tick_time_s, dtype=float)
-        lvl = np.asarray(c.queue_level, dtype=float)
-        if t.size == 0:
-            continue
-        edges = np.linspace(t[0], t[-1], bins + 1)
-        k = np.clip(np.searchsorted(edges, t, side="right") - 1, 0, bins - 1)
-        lo = np.full(bins, np.inf)
-        hi = np.full(bins, -np.inf)
-        np.minimum.at(lo, k, lvl)
-        np.maximum.at(hi, k, lvl)
-        used = np.isfinite(lo)
-        mid = 0.5 * (edges[:-1] + edges[1:])[used]
-        lw = _overlap_width(i, len(result.cpus))
-        top.fill_between(mid, lo[used], hi[used], color=color, alpha=0.2, lw=0,
-                         label=_queue_label(c))  # fmt: skip
-        top.plot(mid, lo[used], color=color, lw=lw)
-        top.plot(mid, hi[used], color=color, lw=lw, ls="--")
-    _queue_markers(top, result)
-    top.set_xlabel("time [s]")
-    top.set_ylabel("queue level [setpoints]")
-    top.set_title(f"slave queues, {sync}: lowest (solid) and highest (dashed) level per "
-                  f"{(result.time_s.size * result.period_s) / bins * 1e3:.0f} ms; dotted: depth",
-                  fontsize=10)  # fmt: skip
     t0, t1 = _queue_window(result)
     for i, c in enumerate(result.cpus):
+        color = f"C{i}"
+        whole, zoom = axs[i]
         t = np.asarray(c.tick_time_s, dtype=float)
-        sel = (t >= t0) & (t <= t1)
-        zoom.step(t[sel], np.asarray(c.queue_level)[sel], where="post", color=f"C{i}",
-                  lw=_overlap_width(i, len(result.cpus)), label=c.name)  # fmt: skip
-    _queue_markers(zoom, result)
-    zoom.set_xlim(t0, t1)
-    zoom.set_xlabel("time [s]")
-    zoom.set_ylabel("queue level [setpoints]")
-    zoom.set_title(f"{(t1 - t0) * 1e3:.0f} ms from {t0:.3f} s: a block arrives every "
-                   f"{result.bus.broadcast_period_s * 1e3:g} ms, each tick pops one setpoint",
-                   fontsize=10)  # fmt: skip
-    for a in (top, zoom):
-        a.grid(True, alpha=0.3)
-        a.legend(loc="best", fontsize=8)
+        lvl = np.asarray(c.queue_level, dtype=float)
+        if t.size:
+            edges = np.linspace(t[0], t[-1], bins + 1)
+            k = np.clip(np.searchsorted(edges, t, side="right") - 1, 0, bins - 1)
+            lo = np.full(bins, np.inf)
+            hi = np.full(bins, -np.inf)
+            np.minimum.at(lo, k, lvl)
+            np.maximum.at(hi, k, lvl)
+            used = np.isfinite(lo)
+            mid = 0.5 * (edges[:-1] + edges[1:])[used]
+            whole.fill_between(mid, lo[used], hi[used], color=color, alpha=0.2, lw=0,
+                               label=_queue_label(c))  # fmt: skip
+            whole.plot(mid, lo[used], color=color, lw=1.2)
+            whole.plot(mid, hi[used], color=color, lw=1.2, ls="--")
+            sel = (t >= t0) & (t <= t1)
+            zoom.step(t[sel], lvl[sel], where="post", color=color, lw=1.2, label=c.name)
+        for a in (whole, zoom):
+            _queue_markers(a, result, only=i)
+            a.set_ylabel(f"{c.name} queue [setpoints]")
+            a.grid(True, alpha=0.3)
+            a.legend(loc="best", fontsize=8)
+    bottom_whole, bottom_zoom = axs[-1]
+    bottom_whole.set_xlabel("time [s]")
+    bottom_zoom.set_xlabel("time [s]")
+    bottom_zoom.set_xlim(t0, t1)
+    top_whole, top_zoom = axs[0]
+    top_whole.set_title(f"whole run: lowest (solid) and highest (dashed) level per "
+                        f"{(result.time_s.size * result.period_s) / bins * 1e3:.0f} ms",
+                        fontsize=10)  # fmt: skip
+    top_zoom.set_title(f"{(t1 - t0) * 1e3:.0f} ms from {t0:.3f} s: a block every "
+                       f"{result.bus.broadcast_period_s * 1e3:g} ms, a pop every tick",
+                       fontsize=10)  # fmt: skip
+    fig.suptitle(f"slave queues, one row per CPU on the same scales, {sync}; dotted: depth",
+                 fontsize=11)  # fmt: skip
     fig.tight_layout()
     return fig
 

@@ -71,7 +71,10 @@ class StderrProgress:
             self._bar = tqdm(total=n, desc=stage, file=self.stream, leave=True,
                              dynamic_ncols=True)  # fmt: skip
             self._stage = stage
-        self._bar.update(max(0, k - self._bar.n))
+        if k > self._bar.n:
+            self._bar.update(k - self._bar.n)
+        else:  # the same step again (a heartbeat while it lasts): redraw, so its clock runs on
+            self._bar.refresh()
         if k >= n:
             self.close()
 

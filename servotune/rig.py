@@ -19,6 +19,7 @@ from typing import Any
 
 from servotune import rig_model
 from servotune.errors import RigError
+from servotune.examples import EXAMPLES_DIR
 from servotune.hw import counter as hw_counter
 from servotune.io.files import atomic_write_bytes, parse_toml_as, read_bytes
 from servotune.io.rig import FLOAT_SIGNIFICANT_DIGITS as FLOAT_SIGNIFICANT_DIGITS
@@ -26,6 +27,7 @@ from servotune.io.rig import build_section, edit_plant_text
 from servotune.laws.lock import lock_holding_band
 from servotune.plant import Plant
 from servotune.rig_model import FIT_METHODS as FIT_METHODS
+from servotune.rig_model import FIT_PCT_KEYS as FIT_PCT_KEYS
 from servotune.rig_model import FRICTION_FORMS as FRICTION_FORMS
 from servotune.rig_model import MAX_CHANNEL as MAX_CHANNEL
 from servotune.rig_model import MAX_CLOCK_HZ as MAX_CLOCK_HZ
@@ -275,8 +277,9 @@ def describe_rig(rig: Rig) -> dict[str, Any]:
 
 # --- writing a plant section ---------------------------------------------------------------
 
-EXAMPLE_RIG_PATH = Path(__file__).resolve().parents[1] / "plants" / "pc-dual-servo.toml"
-"""The example rig of seed 000, the template :func:`write_plant` starts a new rig file from."""
+EXAMPLE_RIG_PATH = EXAMPLES_DIR / "pc-dual-servo.toml"
+"""The example rig of seed 000, the template :func:`write_plant` starts a new rig file from: the
+package's copy (:mod:`servotune.examples`), so it is there without a checkout."""
 
 
 def write_plant(
@@ -307,7 +310,11 @@ def write_plant(
     - Numbers are rounded to 7 significant digits (:data:`FLOAT_SIGNIFICANT_DIGITS`, relative
       error <= 5e-7) and written as the shortest text that reads back exactly as the rounded
       number (``12288.049999999999`` → ``12288.05``). An entry that already holds the rounded
-      value keeps its text; a replaced entry keeps its trailing comment.
+      value keeps its text and its comments.
+    - A replaced (or removed) entry's comments, trailing or on the lines directly above it, stay
+      when they name the quantity (``# analog zero drift``) and go when they state a number or
+      cite a source (``# 600 r/min at 10 V with 12288 counts/rev``, ``# from the data sheet``):
+      those described the old value. Every other comment of the file stays.
     - Same inputs, same bytes.
 
     Parameters
@@ -321,7 +328,7 @@ def write_plant(
         The model to write (units as in :class:`~servotune.plant.Plant`).
     template : str or Path
         Rig file a new ``path`` starts from; default the example rig
-        ``plants/pc-dual-servo.toml`` (:data:`EXAMPLE_RIG_PATH`).
+        ``pc-dual-servo.toml`` shipped in the package (:data:`EXAMPLE_RIG_PATH`).
     provenance : str or None
         One line saying where the numbers come from, e.g. ``"fitted by servotune 0.1.0 from
         log.csv, fit 98.1 %"``. It becomes the trailing comment of the table header

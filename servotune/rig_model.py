@@ -23,6 +23,7 @@ from servotune.validate import check_integer, check_number, is_finite, is_number
 
 __all__ = [
     "FIT_METHODS",
+    "FIT_PCT_KEYS",
     "FRICTION_FORMS",
     "ROLES",
     "Axis",
@@ -229,6 +230,9 @@ FIT_METHODS = ("iv", "oe")
 """Identification methods a plant's fit record may name (``servotune fit --method``)."""
 FRICTION_FORMS = ("sym", "asym")
 """Friction forms a plant's fit record may name (``servotune fit --friction``)."""
+FIT_PCT_KEYS = ("velocity_fit_pct", "velocity_fit_cv_pct", "position_fit_pct",
+                "position_fit_cv_pct")  # fmt: skip
+"""The fit figures a plant's fit record may hold (:class:`PlantFit`), in the order written."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -259,6 +263,12 @@ class PlantFit:
         How the intervals were made.
     ci95 : dict of str to (float, float)
         95 % interval of each estimated parameter [the parameter's unit].
+    velocity_fit_pct, position_fit_pct : float or None
+        Fit % (MATLAB ``compare``, 100 is perfect) of the whole-log model's simulated speed
+        and position on the whole log [%]; None: not recorded (the key is left out).
+    velocity_fit_cv_pct, position_fit_cv_pct : float or None
+        The same, split-half cross-validated [%]; None: not recorded (or a half could not be
+        fitted).
     """
 
     method: str
@@ -267,6 +277,10 @@ class PlantFit:
     adequate: bool
     reason: str = ""
     interval: str = ""
+    velocity_fit_pct: float | None = None
+    velocity_fit_cv_pct: float | None = None
+    position_fit_pct: float | None = None
+    position_fit_cv_pct: float | None = None
     ci95: Mapping[str, tuple[float, float]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -285,6 +299,15 @@ class PlantFit:
         for name in ("reason", "interval"):
             if not isinstance(getattr(self, name), str):
                 raise ValueError(f"{name} must be a string, got {show_value(getattr(self, name))}")
+        for name in FIT_PCT_KEYS:
+            value = getattr(self, name)
+            if value is not None and not (is_number(value) and is_finite(value) and value <= 100):
+                raise ValueError(
+                    f"{name} must be a finite number of percent, at most 100 (100: a perfect "
+                    f"fit), got {show_value(value)}"
+                )
+            if value is not None:
+                object.__setattr__(self, name, float(value))
         known = [f.name for f in fields(Plant)]
         structure = tuple(self.structure) if isinstance(self.structure, tuple | list) else None
         if structure is None or any(p not in known for p in structure):
@@ -316,10 +339,14 @@ class PlantFit:
         object.__setattr__(self, "ci95", ci)
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain dict, the keys of the TOML table."""
-        return {"adequate": self.adequate, "ci95": {k: list(v) for k, v in self.ci95.items()},
-                "friction": self.friction, "interval": self.interval, "method": self.method,
-                "reason": self.reason, "structure": list(self.structure)}  # fmt: skip
+        """Plain dict, the keys of the TOML table (a fit % not recorded is left out)."""
+        out = {"adequate": self.adequate, "ci95": {k: list(v) for k, v in self.ci95.items()},
+               "friction": self.friction, "interval": self.interval, "method": self.method,
+               "reason": self.reason, "structure": list(self.structure)}  # fmt: skip
+        for name in FIT_PCT_KEYS:
+            if getattr(self, name) is not None:
+                out[name] = getattr(self, name)
+        return out
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import ast
 import functools
+import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import nbformat
@@ -74,3 +77,26 @@ def test_notebook_shows_figures(path: Path) -> None:
         if o.output_type in ("display_data", "execute_result")
     )
     assert figures >= MIN_FIGURES, f"{path.name} shows {figures} figures, want >= {MIN_FIGURES}"
+
+
+def _figures(nb: nbformat.NotebookNode) -> int:
+    return sum("image/png" in o.get("data", {}) for c in _code_cells(nb) for o in c.outputs
+               if o.output_type in ("display_data", "execute_result"))  # fmt: skip
+
+
+def test_a_notebook_runs_with_jupyter_execute_away_from_the_repository(tmp_path: Path) -> None:
+    """``jupyter execute NAME.ipynb`` (the README's command; the venv's ``jupyter-execute``)
+    on a copy of a notebook in a directory with no ``plants/`` near it: the notebook finds the
+    example files itself (the package's copies), whatever its working directory."""
+    jupyter = Path(sys.executable).with_name("jupyter")
+    assert jupyter.is_file(), f"no {jupyter}: pip install -e .[notebooks] installs it"
+    nb_path = tmp_path / "elsewhere" / "01_rig_and_loop.ipynb"
+    nb_path.parent.mkdir()
+    shutil.copy(next(p for p in NOTEBOOKS if p.name == nb_path.name), nb_path)
+    assert not any((d / "plants").exists() for d in (nb_path.parent, *nb_path.parents))
+    run = subprocess.run([str(jupyter), "execute", "--inplace", "elsewhere/" + nb_path.name],
+                         cwd=tmp_path, capture_output=True, text=True, timeout=600)  # fmt: skip
+    assert run.returncode == 0, run.stderr[-3000:]
+    nb = nbformat.read(nb_path, as_version=4)
+    errors = [o for c in _code_cells(nb) for o in c.outputs if o.output_type == "error"]
+    assert not errors and _figures(nb) >= MIN_FIGURES

@@ -47,15 +47,26 @@ def _split_at_table(text: str, header: str) -> tuple[str, str, str]:
 
 
 def test_example_template_is_the_example_rig() -> None:
-    assert EXAMPLE_RIG_PATH == EXAMPLE_RIG
+    # the package's copy (an installed wheel has no plants/), the same bytes as plants/'s
+    assert EXAMPLE_RIG_PATH.parent == Path(st.__file__).resolve().parent / "examples"
+    assert EXAMPLE_RIG_PATH.read_bytes() == EXAMPLE_RIG.read_bytes()
+
+
+STALE = "# 600 r/min at 10 V with 12288 counts/rev"  # the example's gain: true of 12288 only
 
 
 def test_comments_survive(tmp_path: Path) -> None:
     p = _copy_example(tmp_path)
     before = p.read_text()
     assert len(_comments(before)) > 10  # full-line and trailing comments of the example rig
+    assert _comments(before).count(STALE) == 1
     write_plant(p, "master", FITTED)
-    assert _comments(p.read_text()) == _comments(before)
+    # every comment but the one that stated the replaced gain's old value
+    assert _comments(p.read_text()) == [c for c in _comments(before) if c != STALE]
+    # the same value written again: the comment beside it stays true, and stays
+    p.write_bytes(EXAMPLE_RIG.read_bytes())
+    write_plant(p, "master", st.load_rig(EXAMPLE_RIG).axis("master").plant)
+    assert p.read_text() == before
 
 
 def test_only_the_target_table_changes(tmp_path: Path) -> None:
@@ -76,10 +87,12 @@ def test_only_the_target_table_changes(tmp_path: Path) -> None:
     head_new, table_new, tail_new = _split_at_table(after, "[axis.master.plant]")
     assert (head_new, tail_new) == (head_old, tail_old)
     assert table_new != table_old
-    # the replaced entries keep their trailing comments, at the same column where they fit
-    assert "gain_cps_per_v = 12288.05  # 600 r/min at 10 V with 12288 counts/rev\n" in table_new
+    # a replaced entry keeps a trailing comment naming the quantity, at the same column where
+    # it fits; one stating the old value (600 r/min at 10 V is 12288 counts/s/V) goes
     assert "offset_v = -0.004812346   # analog zero drift\n" in table_new  # same column as
     assert "offset_v = 0.005          # analog zero drift\n" in table_old  # before
+    assert f"gain_cps_per_v = 12288.0  {STALE}\n" in table_old
+    assert "gain_cps_per_v = 12288.05\n" in table_new
 
 
 def test_round_trip_through_load_rig(tmp_path: Path) -> None:
@@ -98,7 +111,7 @@ def test_floats_are_rounded_to_seven_significant_digits(tmp_path: Path) -> None:
     p = _copy_example(tmp_path)
     write_plant(p, "master", FITTED)
     _, table, _ = _split_at_table(p.read_text(), "[axis.master.plant]")
-    assert "gain_cps_per_v = 12288.05 " in table  # not 12288.049999999999
+    assert "gain_cps_per_v = 12288.05\n" in table  # not 12288.049999999999
     assert "tau_s = 0.02623457\n" in table
     assert "delay_s = 0.0009123457\n" in table
     assert "coulomb_v = 0.00213\n" in table

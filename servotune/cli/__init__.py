@@ -9,9 +9,10 @@ file and renamed into place, and the temporary file is removed when the run stop
 
 The package, its imports running down: :mod:`~servotune.cli.output` (exit codes, signals,
 progress, error lines, the product) ← the verbs' handlers, by concept
-(:mod:`~servotune.cli.measure`: rig, simulate, excite, fit; :mod:`~servotune.cli.design`:
+(:mod:`~servotune.cli.measure`: init, rig, simulate, excite, fit; :mod:`~servotune.cli.design`:
 tune, plan, verify, margins; :mod:`~servotune.cli.tables`: export-table, check-table;
-:mod:`~servotune.cli.studies`: demo, compare, sync, linkage) ← :mod:`~servotune.cli.parser`
+:mod:`~servotune.cli.studies`: demo, compare, sync, linkage; :mod:`~servotune.cli.warmup`:
+warmup, and the compile step the others take first) ← :mod:`~servotune.cli.parser`
 (the verbs and their options) ← this module (:func:`main`, the ``servotune`` script).
 """
 
@@ -22,12 +23,14 @@ import signal
 import sys
 import warnings
 from collections.abc import Callable, Sequence
+from contextlib import nullcontext
 
 from servotune.budget import set_memory_budget
-from servotune.cli.output import _SIGNALLED, _SINK, _on_sigterm, _outcome, _Terminated
+from servotune.cli.output import _SIGNALLED, _SINK, _on_sigterm, _outcome, _progress, _Terminated
 from servotune.cli.parser import _EXAMPLES as _EXAMPLES  # re-exported: tests/cli
 from servotune.cli.parser import _parser
 from servotune.errors import ServotuneError
+from servotune.warmup import compile_notices
 
 __all__ = ["main"]
 
@@ -53,7 +56,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             from servotune.progress import StderrProgress
 
             _SINK.append(StderrProgress(quiet=args.quiet))
-        return func(args)
+        # the verbs' warm-up steps say when kernels compile; on a terminal, so does any other
+        # compiling (a small kernel, a specialisation no step covers). Not in a log or a pipe:
+        # there a failed run's stderr stays its one error line, whatever the cache holds
+        with compile_notices(_progress) if sys.stderr.isatty() else nullcontext():
+            return func(args)
     except (ServotuneError, OSError, KeyboardInterrupt, _Terminated) as exc:
         if args.debug:
             raise

@@ -20,6 +20,7 @@ from servotune.cli.output import (
     _summary,
     _workbench_dir,
 )
+from servotune.cli.warmup import _compile_kernels
 from servotune.errors import ServotuneError
 
 # The library is imported inside each handler, not here, so that ``servotune --help`` (and any
@@ -50,6 +51,7 @@ def _tune_gantry(args: argparse.Namespace, current: Path | None) -> int:
                              f"({args.rig}: [sync], [margins])")  # fmt: skip
     load_gantry(args.rig, resolve=False)  # bad input is one line, before any progress
     _progress(f"tune gantry {args.rig}: each drive's PI, then the sync compensator")
+    _compile_kernels("margins", "gantry")
     tuning = tune_gantry(args.rig)
     _summary(args.json, tuning.design, lambda: format_gantry_tuning(tuning))
     _deliver(args.output, lambda p: write_gantry_tuning(tuning, p),
@@ -87,6 +89,7 @@ def _cmd_tune(args: argparse.Namespace) -> int:
 
         spec = tune_spec_from(load_spec(args.spec), rig=rig, **budget, **given)
     _progress(f"tune {args.rig}: loading the tuner")  # before the imports: they take a second
+    _compile_kernels("simulation", "margins")
     from servotune.report.text import format_tuning_summary
     from servotune.tune.slave import tune_spec_from
     from servotune.tune.workflow import tune_rig, tuning_summary
@@ -115,7 +118,8 @@ def _verify_linkage(args: argparse.Namespace) -> int:
             raise ServotuneError(f"{flag} is for a single rig's tuning; {args.tuning} is a "
                                  "linkage plan (its spec sets the run)")  # fmt: skip
     _progress(f"verify linkage plan {args.tuning}: every clock case of {args.spec}")
-    result, record, path = verify_plan_files(args.tuning, args.spec, config_path=args.config)
+    result, record, path = verify_plan_files(args.tuning, args.spec, config_path=args.config,
+                                             progress=_progress)  # fmt: skip
     _summary(args.json, record, lambda: format_linkage_verification(result))
     print(f"wrote the verification record to {path}", file=sys.stderr)
     return EXIT_OK if result.passed else EXIT_FAILED

@@ -1,5 +1,6 @@
-"""The verbs on a rig and its logs: ``rig``, ``simulate``, ``excite`` and ``fit`` (one log, or a
-fleet's with ``--fleet``)."""
+"""The verbs on a rig and its logs: ``init`` (the example rig, specs and map, written into
+``plants/``), ``rig``, ``simulate``, ``excite`` and ``fit`` (one log, or a fleet's with
+``--fleet``)."""
 
 from __future__ import annotations
 
@@ -17,12 +18,34 @@ from servotune.cli.output import (
     _progress,
     _summary,
 )
+from servotune.cli.warmup import _compile_kernels
 from servotune.errors import ServotuneError
 
 # The library is imported inside each handler, not here, so that ``servotune --help`` (and any
 # verb) pays only for what it uses: numba, scipy, matplotlib and python-control stay unloaded
 # until a handler needs them (tests/cli/test_help_imports.py). That is the only reason for an
 # import inside a function in this module; none of them works around an import cycle.
+
+
+def _cmd_init(args: argparse.Namespace) -> int:
+    import shlex
+
+    from servotune.examples import ExamplesDifferError, write_examples
+
+    root = Path(args.dir)
+    try:
+        done = write_examples(root / "plants", force=args.force)
+    except ExamplesDifferError as exc:
+        them = "it" if len(exc.paths) == 1 else "them"
+        raise ServotuneError(f"{exc.strerror} (--force replaces {them})") from None
+    said = {"wrote": "wrote {}", "replaced": "replaced {}",
+            "unchanged": "{} is already there, the same bytes: left alone"}  # fmt: skip
+    for f in done:
+        print(said[f.action].format(f.path), file=sys.stderr)
+    cd = "" if root == Path(".") else f"cd {shlex.quote(args.dir)}, then "
+    print(f"next: {cd}servotune rig plants/pc-dual-servo.toml; the README's commands "
+          "(plants/...) run there as written", file=sys.stderr)  # fmt: skip
+    return EXIT_OK
 
 
 def _cmd_rig(args: argparse.Namespace) -> int:
@@ -40,8 +63,6 @@ def _cmd_rig(args: argparse.Namespace) -> int:
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
-    from servotune.logs import format_log, write_log
-    from servotune.pipeline import log_metadata, run_scenario, trace_log_columns
     from servotune.rig import load_rig
     from servotune.scenarios import Scenario, build_scenario
 
@@ -60,6 +81,10 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         scen = build_scenario(
             rig, args.scenario, axis=axis, seconds=args.seconds, closed_loop=args.closed_loop
         )
+    _compile_kernels("simulation")  # inputs checked; before the slow imports, so it says so early
+    from servotune.logs import format_log, write_log
+    from servotune.pipeline import log_metadata, run_scenario, trace_log_columns
+
     trace = run_scenario(rig, scen, seed=args.seed, noise=not args.no_noise)
     meta = log_metadata(
         rig, scenario=scen.name, axis=scen.axis, closed_loop=str(args.closed_loop).lower(),
@@ -195,6 +220,7 @@ def _cmd_fit_fleet(args: argparse.Namespace) -> int:
         period_s=args.period_s, compute_s=args.compute_s, method=args.method,
         friction=args.friction, invert_encoder=args.invert_encoder, strict=args.strict, hal=hal,
     )  # fmt: skip
+    _compile_kernels("identification")  # here, not in each worker of a cluster
     with open_executor(len(args.log), scheduler=args.scheduler, workers=args.workers,
                        min_items=FLEET_CLUSTER_MIN_LOGS) as ex:  # fmt: skip
         result = fit_fleet(args.log, options=options, executor=ex, baseline=baseline,

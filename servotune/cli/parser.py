@@ -13,10 +13,12 @@ from typing import Any, NoReturn
 
 from servotune._version import __version__
 from servotune.cli.design import _cmd_margins, _cmd_plan, _cmd_tune, _cmd_verify
-from servotune.cli.measure import _cmd_excite, _cmd_fit, _cmd_rig, _cmd_simulate
+from servotune.cli.measure import _cmd_excite, _cmd_fit, _cmd_init, _cmd_rig, _cmd_simulate
 from servotune.cli.studies import _cmd_compare, _cmd_demo, _cmd_linkage, _cmd_sync
 from servotune.cli.tables import _cmd_check_table, _cmd_export_table
+from servotune.cli.warmup import _cmd_warmup
 from servotune.validate import SEED_MAX, check_seed
+from servotune.warmup import GROUPS
 
 
 def _executor_options(group: Any, what: str, from_size: str) -> None:
@@ -58,6 +60,16 @@ def _seed(text: str) -> int:
         ) from None
 
 
+def _group(text: str) -> str:
+    """A kernel group's name (``servotune warmup GROUP``; argparse's type: a usage error if
+    not one of :data:`servotune.warmup.GROUPS`)."""
+    names = [g.name for g in GROUPS]
+    if text not in names:
+        raise argparse.ArgumentTypeError(f"{text!r} is no kernel group; the groups: "
+                                         f"{', '.join(names)}")  # fmt: skip
+    return text
+
+
 def _verb(sub: Any, func: Callable[..., int], name: str, **options: Any) -> Any:
     """A verb's sub-parser, running ``func`` (its handler; ``options``: ``add_parser``'s)."""
     s = sub.add_parser(name, **options)
@@ -86,6 +98,22 @@ def _parser() -> argparse.ArgumentParser:
     )
     sub = p.add_subparsers(dest="verb", required=True, metavar="VERB")
 
+    s = _verb(
+        sub,
+        _cmd_init,
+        "init",
+        help="write the example rig, gantry and linkage configs, their specs and a LinuxCNC "
+        "capture map into DIR/plants/ (where the README's commands look for them)",
+    )
+    s.add_argument("dir", nargs="?", default=".", metavar="DIR",
+                   help="directory to set up (default: the current one)")  # fmt: skip
+    s.add_argument(
+        "--force",
+        action="store_true",
+        help="replace example files that are there with other content (default: refuse, "
+        "writing nothing)",
+    )
+
     s = _verb(sub, _cmd_rig, "rig", help="print the derived facts of a rig file")
     s.add_argument("rig", help="rig file (TOML), e.g. plants/pc-dual-servo.toml")
     s.add_argument("--json", action="store_true", help="JSON on stdout")
@@ -112,8 +140,8 @@ def _parser() -> argparse.ArgumentParser:
         "log",
         nargs="+",
         help="log CSV (as `servotune simulate` writes it; see the README), or a LinuxCNC HAL "
-        "capture (halsampler output or halscope's saved data) read with --map; several only "
-        "with --fleet",
+        "capture (halsampler output or halscope's saved data) or a CSV with other column "
+        "names, read with --map; several only with --fleet",
     )
     s.add_argument("--axis", help="axis to fit (needed for multi-axis logs)")
     s.add_argument("--rig", help="rig file: D/A, counter, period and compute time fallbacks")
@@ -172,16 +200,20 @@ def _parser() -> argparse.ArgumentParser:
         help="negate the position first (an encoder counting against the D/A's direction)",
     )
     hal = s.add_argument_group(
-        "LinuxCNC HAL captures", "halsampler output or halscope's saved data, read with --map"
+        "LinuxCNC HAL captures and CSV logs with their own column names",
+        "halsampler output, halscope's saved data or your logger's CSV, read with --map",
     )
     hal.add_argument(
         "--map",
         metavar="KEY=PIN,...|FILE.toml",
-        help="read LOG as a HAL capture: which pin (or 0-based column) is what, e.g. "
-        "cmd=pid.0.output,pos=encoder.0.position; keys: cmd (pid output units) or code (D/A "
-        "code), pos (machine units) or counts (encoder counts), optional ref (commanded "
-        "position, machine units), exc (excitation, command units) and overruns (the "
-        "sampler.N.overruns pin: a change = lost samples); or a TOML file with a "
+        help="read LOG through a mapping: a HAL capture, or a CSV log with its own column names "
+        "(told apart by their content): which pin or CSV column (or 0-based column) is what, "
+        "e.g. cmd=pid.0.output,pos=encoder.0.position or cmd=drive_volts,pos=encoder,"
+        "ref=setpoint,time=t; keys: cmd (pid output units) or code (D/A code), pos (machine "
+        "units; a CSV's, without --position-scale: counts) or counts (encoder counts, "
+        "unwrapped), optional ref (commanded position, as pos), exc (excitation, command "
+        "units), overruns (the sampler.N.overruns pin: a change = lost samples) and, for a "
+        "CSV, time (its time column [s]) and tick; or a TOML file with a "
         "[hal] table and [hal.map] (format, period_s, position_scale, output_scale, columns, "
         "sample_number); the options below override it",
     )
@@ -202,7 +234,7 @@ def _parser() -> argparse.ArgumentParser:
         type=float,
         metavar="COUNTS_PER_UNIT",
         help="the encoder's position-scale [counts per machine unit], > 0: counts = position "
-        "× scale (needed for pos and ref)",
+        "× scale (needed for a HAL capture's pos and ref; a CSV's are counts without it)",
     )
     hal.add_argument(
         "--output-scale",
@@ -520,6 +552,24 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--seed", type=_seed, default=0, help="encoder-noise seed (default 0)")
     s.add_argument("--json", action="store_true", help="the result as JSON on stdout")
     s.add_argument("--plot", metavar="DIR", help="write queue and circular-test PNGs into DIR")
+
+    s = _verb(
+        sub,
+        _cmd_warmup,
+        "warmup",
+        help="compile every kernel the commands use now (numba, cached on disk): after an "
+        "install or an update, so no later command stops to compile; a second run finds them "
+        "compiled",
+    )
+    s.add_argument(
+        "groups",
+        nargs="*",
+        type=_group,
+        metavar="GROUP",
+        help="only these kernel groups (default: all): "
+        + "; ".join(f"{g.name} ({g.what})" for g in GROUPS),
+    )
+    s.add_argument("--json", action="store_true", help="what was compiled, as JSON on stdout")
     for name, verb in sub.choices.items():  # --quiet also after the verb (where users type it)
         verb.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
                           help="no progress on stderr")  # fmt: skip
@@ -529,6 +579,10 @@ def _parser() -> argparse.ArgumentParser:
 
 
 _EXAMPLES = {
+    "init": [
+        "servotune init                  # plants/: the example rig, configs, specs, HAL map",
+        "servotune init my-lab --force   # into my-lab/plants/, replacing edited copies",
+    ],
     "rig": ["servotune rig plants/pc-dual-servo.toml", "servotune rig my-rig.toml --json"],
     "simulate": [
         "servotune simulate plants/pc-dual-servo.toml --scenario prbs --axis master "
@@ -543,6 +597,8 @@ _EXAMPLES = {
         "servotune fit capture.txt --axis x --map cmd=pid.0.output,pos=encoder.0.position "
         "--hal-columns pid.0.output,encoder.0.position --period-s 0.001 "
         "--position-scale 2000   # LinuxCNC halsampler",
+        "servotune fit own.csv --axis x --map cmd=drive_volts,pos=encoder,ref=setpoint,"
+        "exc=exc_volts,time=t   # your logger's CSV: volts, counts, time [s]",
     ],
     "excite": [
         "servotune excite --rig my-rig.toml --axis master --kind prbs --seconds 40 -o exc.csv",
@@ -578,8 +634,12 @@ _EXAMPLES = {
     ],
     "sync": [
         "servotune sync plants/gantry.toml",
-        "servotune sync plants/gantry.toml --montecarlo 1000 --plot reports/",
+        "servotune sync plants/gantry.toml --montecarlo 200 --plot reports/",
     ],
     "linkage": ["servotune linkage plants/linkage-6axis.toml --json --plot reports/"],
+    "warmup": [
+        "servotune warmup                          # every kernel, once after an install",
+        "servotune warmup simulation               # only what simulate needs",
+    ],
 }
 """One or more command lines per verb, shown under its ``--help``."""

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from servotune.cli.output import EXIT_FAILED, EXIT_OK, _check_dirs, _print_product, _progress
+from servotune.cli.warmup import _compile_kernels
 from servotune.errors import ServotuneError
 
 # The library is imported inside each handler, not here, so that ``servotune --help`` (and any
@@ -31,6 +32,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
         raise ServotuneError(f"--seeds must be >= 1, got {args.seeds}")
     _check_dirs(args.out)
     rig, spec = load_rig(args.rig), load_spec(args.spec)
+    _compile_kernels("simulation", "margins", "verification")
     preset = DemoPreset(generations=args.generations, population=args.population,
                         seeds=tuple(range(args.seeds)), heldout_count=args.heldout_count,
                         pareto_ms=ms)  # fmt: skip
@@ -51,6 +53,8 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     _check_dirs(args.out)
     load_rig(args.rig)  # a bad rig fails before the output directory is made
     Path(args.out).mkdir(parents=True, exist_ok=True)
+    _compile_kernels("simulation", "margins", "verification", "identification", "gantry",
+                     "linkage")  # fmt: skip
     summary = run_demo(args.rig, args.out, seed=args.seed,
                        preset="full" if args.full else "quick",
                        progress=_progress)  # fmt: skip
@@ -83,7 +87,9 @@ def _cmd_sync(args: argparse.Namespace) -> int:
     from servotune.report.text import format_comparison
 
     _check_dirs(args.plot)
-    cmp = compare_topologies(load_gantry(args.config), seed=args.seed,
+    cfg = load_gantry(args.config)  # a bad config is one line, before the gantry's compiling
+    _compile_kernels("gantry")
+    cmp = compare_topologies(cfg, seed=args.seed,
                              montecarlo=args.montecarlo)  # fmt: skip
     _print_product(args.json, cmp.to_dict, lambda: format_comparison(cmp))
     if args.plot:
@@ -105,6 +111,7 @@ def _cmd_linkage(args: argparse.Namespace) -> int:
 
     _check_dirs(args.plot)
     config = load_linkage(args.config)
+    _compile_kernels("linkage")
     try:
         result = run_linkage(config, seconds=args.seconds, seed=args.seed)
     except LinkageCheckError as exc:

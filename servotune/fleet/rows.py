@@ -35,7 +35,7 @@ from servotune.identify import fit_log
 from servotune.identify.model import ALL_PARAMS
 from servotune.identify.result import FitResult
 from servotune.io.fleet_table import read_fleet_records
-from servotune.io.hal import HalSettings
+from servotune.io.hal import HalSettings, capture_format
 from servotune.logs import read_log, read_metadata
 from servotune.rig import Rig
 
@@ -306,7 +306,7 @@ def fit_fleet_log(path: str | Path, options: FleetFitOptions | None = None) -> t
                          error=f"cannot read {name!r}: {why}"),)  # fmt: skip
     sha = bytes_sha256(raw)
     meta: dict[str, str] = {}
-    if opts.hal is None:
+    if opts.hal is None or capture_format(path) == "csv":  # a CSV's own machine_id and date
         try:
             meta = read_metadata(path)
         except (ServotuneError, OSError):

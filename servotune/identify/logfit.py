@@ -1,5 +1,5 @@
-"""A log file (or a LinuxCNC HAL capture) read and one axis identified: what
-``servotune fit LOG`` runs.
+"""A log file (a LinuxCNC HAL capture, or a CSV log mapped with ``--map``) read and one axis
+identified: what ``servotune fit LOG`` runs.
 
 Here rather than in :mod:`servotune.pipeline` so that the fit verb imports the identifier and
 the log reader only (the pipeline imports every subsystem: seconds of a one-verb process).
@@ -12,7 +12,7 @@ from pathlib import Path
 from servotune.errors import IdentificationError, LogFormatError
 from servotune.identify.fitting import MIN_SAMPLES, fit
 from servotune.identify.result import FitResult
-from servotune.io.hal import HalSettings, read_hal_log
+from servotune.io.hal import HalSettings, capture_format, read_hal_log
 from servotune.logs import Log, read_log, read_metadata
 from servotune.rig import Rig
 
@@ -46,11 +46,14 @@ def fit_log(
     is refused before the fit runs. ``strict``: an unknown metadata key is an error
     (:func:`servotune.logs.read_log`).
 
-    ``hal``: the file is a LinuxCNC HAL capture (``halsampler`` output or halscope's saved
-    data) read with these settings (:func:`servotune.io.hal.read_hal_log`); ``period_s``
-    overrides the settings' period, the D/A settings and ``compute_s`` come from the options,
-    else the rig (a capture has no metadata; the rig's period is not used: the capture's is
-    LinuxCNC's servo thread's). Its one axis is unnamed (``axis`` names it).
+    ``hal``: the file is read with these settings (:func:`servotune.io.hal.read_hal_log`): a
+    LinuxCNC HAL capture (``halsampler`` output or halscope's saved data) or a CSV log with its
+    own column names, told apart by their content (:func:`servotune.io.hal.capture_format`).
+    ``period_s`` overrides the settings' period. For a capture the D/A settings and
+    ``compute_s`` come from the options, else the rig (a capture has no metadata; the rig's
+    period is not used: the capture's is LinuxCNC's servo thread's). For a CSV they come, with
+    the period, as for a log: the options, else its ``# key: value`` lines, else the rig.
+    Its one axis is unnamed (``axis`` names it).
 
     Returns
     -------
@@ -73,7 +76,7 @@ def fit_log(
         return _fit_hal_log(
             log_path, hal, axis=axis, rig=rig, counter_bits=counter_bits, dac_bits=dac_bits,
             dac_range_v=dac_range_v, period_s=period_s, compute_s=compute_s,
-            need_axis_name=need_axis_name,
+            need_axis_name=need_axis_name, strict=strict,
             fit_options={"structure": structure, "method": method, "friction": friction,
                          "invert_encoder": invert_encoder},
         )  # fmt: skip
@@ -125,33 +128,45 @@ def _fit_hal_log(
     period_s: float | None,
     compute_s: float | None,
     need_axis_name: bool,
+    strict: bool,
     fit_options: dict,
 ) -> tuple[FitResult, Log, str]:
-    """:func:`fit_log` of a HAL capture."""
+    """:func:`fit_log` of a HAL capture or a mapped CSV log."""
     src = str(log_path)
+    csv = hal.format is None and capture_format(log_path) == "csv"
+    noun = "log" if csv else "HAL capture"
     if counter_bits is not None:
         raise LogFormatError(
-            f"HAL capture {src!r}: counter_bits (--counter-bits) is for a log's raw counter "
-            "column; a HAL capture's position is mapped as pos (machine units) or counts"
+            f"{noun} {src!r}: counter_bits (--counter-bits) is for a log's raw counter "
+            f"column; a mapped position is pos ({'counts, or ' if csv else ''}machine units) "
+            "or counts, taken as they are (unwrapped)"
         )
     if rig is not None:
-        dac_bits = rig.dac.bits if dac_bits is None else dac_bits
-        dac_range_v = rig.dac.range_v if dac_range_v is None else dac_range_v
-        compute_s = rig.timer.compute_s if compute_s is None else compute_s
+        meta = read_metadata(log_path) if csv else {}  # a CSV's own lines come first
+        if dac_bits is None and "dac_bits" not in meta:
+            dac_bits = rig.dac.bits
+        if dac_range_v is None and "dac_range_v" not in meta:
+            dac_range_v = rig.dac.range_v
+        if compute_s is None and "compute_s" not in meta:
+            compute_s = rig.timer.compute_s
+        if csv and period_s is None and hal.period_s is None and "period_s" not in meta:
+            period_s = rig.period_s  # as for a log: checked against its time column
     log = read_hal_log(log_path, hal, period_s=period_s, dac_bits=dac_bits,
-                       dac_range_v=dac_range_v, compute_s=compute_s)  # fmt: skip
+                       dac_range_v=dac_range_v, compute_s=compute_s, strict=strict)  # fmt: skip
     if log.n_samples < MIN_SAMPLES:
+        longer = "log longer" if csv else "capture longer: halsampler -n N, or halscope's "
+        longer += "" if csv else "record length"
         raise LogFormatError(
-            f"HAL capture {src!r} has {log.n_samples} samples; a fit needs at least "
-            f"{MIN_SAMPLES} (capture longer: halsampler -n N, or halscope's record length)"
+            f"{noun} {src!r} has {log.n_samples} samples; a fit needs at least "
+            f"{MIN_SAMPLES} ({longer})"
         )
     if need_axis_name and axis is None:
         raise LogFormatError(
-            f"HAL capture {src!r} does not name its axis: give the axis's name (--axis NAME), "
+            f"{noun} {src!r} does not name its axis: give the axis's name (--axis NAME), "
             "under which its model is written"
         )
     try:
         result = fit(log, axis=None, compute_s=compute_s, **fit_options)
     except IdentificationError as exc:  # the data do not allow it: name the capture
-        raise IdentificationError(f"HAL capture {src!r}: {exc}") from None
+        raise IdentificationError(f"{noun} {src!r}: {exc}") from None
     return result, log, axis or ""

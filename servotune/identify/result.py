@@ -138,6 +138,10 @@ class FitResult:
             adequate=self.adequate,
             reason="; ".join(self.inadequacy),
             interval=self.interval_method,
+            velocity_fit_pct=_finite(self.fit_pct["velocity"]["estimation"]),
+            velocity_fit_cv_pct=_finite(self.fit_pct["velocity"]["validation"]),
+            position_fit_pct=_finite(self.fit_pct["position"]["estimation"]),
+            position_fit_cv_pct=_finite(self.fit_pct["position"]["validation"]),
             ci95={k: (float(lo), float(hi)) for k, (lo, hi) in self.ci95.items()},
         )
 

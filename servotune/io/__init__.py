@@ -21,6 +21,8 @@ linkage TOML    :func:`servotune.arch.linkage.load_linkage`      ``LinkageConfig
 EMPS .mat       :func:`servotune.io.emps.read_emps`              ``EmpsLog`` (MATLAB variables)
 HAL capture     :func:`servotune.io.hal.read_halsampler`,        ``HalCapture``, ``HalSettings``
                 :func:`servotune.io.hal.read_halscope`           (``--map``)
+mapped CSV      :func:`servotune.io.hal.read_mapped_csv`         the log's rows (``read_table``),
+                                                                 ``HalSettings`` (``--map``)
 HAL map TOML    :func:`servotune.io.hal_map.read_hal_map`        ``HalSettings`` (``[hal]``)
 fleet table     :func:`servotune.io.fleet_table.read_fleet_records` ``servotune.fleet/1`` columns
 ==============  ===============================================  ===============================

@@ -1,4 +1,5 @@
-"""LinuxCNC HAL captures: ``halsampler`` output and halscope's saved data, read into a log.
+"""LinuxCNC HAL captures (``halsampler`` output, halscope's saved data) and CSV logs with
+their own column names, read into a log through a mapping.
 
 LinuxCNC users log a servo loop in one of two ways, and servotune reads both (one reader per
 format, :func:`read_halsampler` and :func:`read_halscope`, each into a :class:`HalCapture`):
@@ -62,6 +63,25 @@ mapping key   the HAL pin holds               servotune gets
 ``position_scale`` and ``output_scale`` are the settings' scales (:mod:`servotune.io.hal_map`):
 the encoder's ``position-scale`` [counts per machine unit] and the pid output units per volt at
 the D/A [units/V].
+
+CSV logs with their own column names
+------------------------------------
+A machine's own logger writes CSV with its own column names (``t,drive_volts,encoder,…``).
+The same mapping reads it (:func:`read_mapped_csv`): each key names a column of the header
+(or its 0-based number), the keys and their units are the table's, with two differences and
+two additions. Without ``position_scale``, ``pos`` and ``ref`` are in counts (with it, in
+machine units as above); counts (``pos``, ``counts``, ``ref``, and ``code``, ``overruns``)
+may be written as numbers (``0.0``) but must be whole within 1e-9, as the log reader's
+``pos_counts`` and ``ref_counts``. A position in counts is taken as it is: unwrapped (a raw
+counter register that wraps is a log's ``counter`` column, read without ``--map``). ``time``
+maps the time column [s] and ``tick`` the sample number; columns named ``time_s`` or ``tick``
+are the time base without being mapped; the other columns the mapping does not name are
+ignored. The rest is the log format's: ``# key: value`` metadata (``period_s``, ``dac_bits``,
+``dac_range_v``, ``compute_s``, kept as the log's metadata), the period from the option, else
+``# period_s:``, else the time column, all checked as a log's.
+
+Which reader a file needs is read from its content (:func:`capture_format`): halscope's
+first line, halsampler's rows of numbers, or a CSV's header naming its columns.
 """
 
 from __future__ import annotations
@@ -69,10 +89,10 @@ from __future__ import annotations
 import difflib
 import re
 import warnings
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TypedDict, Unpack
+from typing import Any, TypedDict, Unpack
 
 import numpy as np
 
@@ -90,15 +110,18 @@ from servotune.io.hal_map import (
 )
 from servotune.io.log_header import (
     PERIOD_RANGE_S,
+    _meta_setting,
     _option,
     _parse_compute,
+    _parse_counter_bits,
     _parse_dac_bits,
     _parse_period,
     _parse_range,
     _read_text,
     naming,
 )
-from servotune.logs import MIN_ROWS, AxisLog, Log
+from servotune.io.log_rows import _REL_TOL, _not_whole, _RowLines, _timebase, _whole_problem
+from servotune.logs import MIN_ROWS, AxisLog, Log, _warn_unknown_metadata, read_table
 from servotune.validate import show_value
 
 __all__ = [
@@ -110,6 +133,7 @@ __all__ = [
     "HalLogOptions",
     "HalPrecisionWarning",
     "HalSettings",
+    "capture_format",
     "hal_settings",
     "parse_hal_map",
     "read_hal_capture",
@@ -117,6 +141,7 @@ __all__ = [
     "read_hal_map",
     "read_halsampler",
     "read_halscope",
+    "read_mapped_csv",
 ]
 
 CMD_LOG_DAC_BITS = 16
@@ -131,6 +156,8 @@ _HALSCOPE_PERIOD_RE = re.compile(r"# Sampling period is (-?\d+) ns\s*")
 _PRINTED_DECIMALS = 6  # halsampler prints float pins with %f
 _MAX_COUNTS = 2.0**53  # beyond this a float position is no longer whole counts
 _SHOW_NAMES = 8  # column names listed in a message
+_SHOW_CSV_NAMES = 24  # a CSV header's names listed in a message
+_DETECT_BYTES = 1 << 16  # how much of a file capture_format looks at
 _MORE_DEPTH = "load sampler with a deeper FIFO, depth=…, or record fewer pins"
 
 
@@ -149,21 +176,28 @@ class HalCapture:
     Attributes
     ----------
     format : str
-        ``"halsampler"`` or ``"halscope"``.
+        ``"halsampler"``, ``"halscope"`` or ``"csv"`` (a CSV log with its own column names,
+        :func:`read_mapped_csv`).
     values : ndarray of float, shape (n, m)
         The samples, one row per line, one column per pin (the sample number not included),
-        in the units HAL printed them.
+        in the units HAL printed them. A CSV's columns the mapping does not read are NaN.
     names : tuple of str or None
         The columns' pin (signal, parameter) names: halscope's header, or the ``columns``
-        given for a halsampler capture; None when nothing names them.
+        given for a halsampler capture, or a CSV's header; None when nothing names them.
     lines : ndarray of int64
         The 1-based file line of each row (for the messages).
     sample_numbers : ndarray of int64 or None
         halsampler ``-t``'s sample numbers (consecutive: a gap is refused on reading).
     period_s : float or None
-        The sample period [s] from halscope's header (halsampler records none).
+        The sample period [s] from halscope's header (halsampler records none), or a CSV's
+        (its time column, ``# period_s:`` line or the period given when it was read).
     path : str
         Where it was read from.
+    metadata : dict of str to str
+        A CSV's ``# key: value`` lines (kept as the log's metadata).
+    log_settings : dict
+        The D/A (``dac_bits``, ``dac_range_v``) and ``compute_s`` a CSV's metadata states:
+        used where :meth:`to_log` is given none.
     """
 
     format: str
@@ -173,6 +207,8 @@ class HalCapture:
     sample_numbers: np.ndarray | None = None
     period_s: float | None = None
     path: str = ""
+    metadata: dict[str, str] = field(default_factory=dict)
+    log_settings: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.values.ndim != 2 or self.lines.shape != (self.values.shape[0],):
@@ -193,15 +229,23 @@ class HalCapture:
         """Number of value columns (the sample number not counted)."""
         return int(self.values.shape[1])
 
+    @property
+    def _noun(self) -> str:
+        return "log" if self.format == "csv" else "HAL capture"
+
     def _label(self, j: int) -> str:
+        if self.format == "csv" and self.names is not None:
+            return f"column {self.names[j]!r}"
         return f"column {j} ({self.names[j]})" if self.names is not None else f"column {j}"
 
     def _refuse_first(self, bad: np.ndarray, j: int, problem: Callable[[int], str]) -> None:
         """Raise for the first row ``k`` that is ``bad``, naming its line and column ``j``:
-        ``problem(k)`` says what is wrong there."""
+        ``problem(k)`` says what is wrong there (a CSV's line is a ``row``, as the log reader
+        says)."""
         if bad.any():
             k = int(np.argmax(bad))
-            raise LogFormatError(f"line {self.lines[k]}, {self._label(j)}: {problem(k)}")
+            where = "row" if self.format == "csv" else "line"
+            raise LogFormatError(f"{where} {self.lines[k]}, {self._label(j)}: {problem(k)}")
 
     def column_index(self, target: str | int, key: str = "") -> int:
         """The 0-based column of a pin name or column number.
@@ -212,39 +256,7 @@ class HalCapture:
             A column number out of range, a name when nothing names the columns, a name not
             among them (with the closest one), a name on two columns.
         """
-        who = f"map {key}: " if key else ""
-        if isinstance(target, int):
-            if not 0 <= target < self.n_columns:
-                raise LogFormatError(
-                    f"{who}column {target} is out of range: the capture has {self.n_columns} "
-                    f"value column{'s' if self.n_columns != 1 else ''} (0..{self.n_columns - 1})"
-                )
-            return target
-        if self.names is None:
-            raise LogFormatError(
-                f"{who}pin {target!r}: a halsampler capture does not name its columns; give "
-                "the sampler's pin order (--hal-columns pid.0.output,encoder.0.position, or "
-                "columns = [...] under [hal]) or map by column number (pos=1)"
-            )
-        hits = [j for j, n in enumerate(self.names) if n == target]
-        if not hits:
-            listed = ", ".join(self.names[:_SHOW_NAMES])
-            more = (
-                f" and {len(self.names) - _SHOW_NAMES} more"
-                if len(self.names) > _SHOW_NAMES
-                else ""
-            )
-            near = difflib.get_close_matches(target, self.names, n=1)
-            hint = f"; did you mean {near[0]!r}?" if near else ""
-            raise LogFormatError(
-                f"{who}pin {target!r} is not in the capture's columns: {listed}{more}{hint}"
-            )
-        if len(hits) > 1:
-            raise LogFormatError(
-                f"{who}pin {target!r} is in {len(hits)} columns ({', '.join(map(str, hits))}): "
-                "map it by column number"
-            )
-        return hits[0]
+        return _find_column(self.names, self.n_columns, target, key, self.format)
 
     def to_log(
         self,
@@ -302,7 +314,7 @@ class HalCapture:
         except LogFormatError as exc:
             if self.path and repr(self.path) in str(exc):
                 raise
-            raise LogFormatError(f"HAL capture {self.path!r}: {exc}") from None
+            raise LogFormatError(f"{self._noun} {self.path!r}: {exc}") from None
 
     def _to_log(
         self,
@@ -316,23 +328,36 @@ class HalCapture:
             raise LogFormatError(
                 f"the settings are for a {settings.format} capture, the file is {self.format}"
             )
+        m = settings.mapping
+        if self.format != "csv" and ("time" in m or "tick" in m):
+            key = "time" if "time" in m else "tick"
+            raise LogFormatError(
+                f"map {key} names a CSV log's time column; a {self.format} capture has none "
+                "(its period: --period-s, period_s under [hal], or halscope's header)"
+            )
         period = self._period(settings, period_s)
-        if compute_s is not None:
+        if compute_s is None:
+            compute_s = self.log_settings.get("compute_s")  # a CSV's '# compute_s:' line
+        else:
             compute_s = _option("compute_s", compute_s, _parse_compute)
+        if compute_s is not None:
             if compute_s >= period:
                 raise LogFormatError(
                     f"compute_s must be shorter than the sample period {period:.6g} s [s], "
                     f"got {compute_s!r}"
                 )
-        m = settings.mapping
         cols = {key: self.column_index(target, key) for key, target in m.items()}
         _check_own_columns(cols, self._label)
         if "overruns" in m:
             self._check_overruns(cols["overruns"])
         if dac_bits is not None:
             dac_bits = _option("dac_bits", dac_bits, _parse_dac_bits)
+        else:
+            dac_bits = self.log_settings.get("dac_bits")  # a CSV's '# dac_bits:' line
         if dac_range_v is not None:
             dac_range_v = _option("dac_range_v", dac_range_v, _parse_range)
+        else:
+            dac_range_v = self.log_settings.get("dac_range_v")
         if "code" in m:
             if dac_bits is None or dac_range_v is None:
                 raise LogFormatError(
@@ -347,7 +372,7 @@ class HalCapture:
         top = (1 << dac_bits) - 1
         scale = settings.position_scale
         for key in ("pos", "ref"):
-            if key in m and scale is None:
+            if key in m and scale is None and self.format != "csv":  # a CSV's: counts
                 raise LogFormatError(
                     f"map {key} ({_show_target(m[key])}) is in machine units: give the "
                     "encoder's position-scale [counts per machine unit] (--position-scale, or "
@@ -368,7 +393,9 @@ class HalCapture:
             cmd_v = hw_dac.volts_from_code(dac_code, dac_bits, dac_range_v)
         else:
             cmd_v = self.values[:, cols["cmd"]] / settings.output_scale
-        if "pos" in m:
+        if "pos" in m and scale is None:
+            pos = self._whole("pos", cols["pos"])  # a CSV's position in counts
+        elif "pos" in m:
             assert scale is not None
             pos = self._counts("pos", cols["pos"], scale)
             if self.format == "halsampler" and scale * 10.0**-_PRINTED_DECIMALS > 1.0:
@@ -383,8 +410,8 @@ class HalCapture:
         else:
             pos = self._whole("counts", cols["counts"])
         if "ref" in m:
-            assert scale is not None
-            ref = self._counts("ref", cols["ref"], scale)
+            j = cols["ref"]
+            ref = self._whole("ref", j) if scale is None else self._counts("ref", j, scale)
         if "exc" in m:
             j = cols["exc"]
             if "code" in m:
@@ -403,6 +430,8 @@ class HalCapture:
         axis = AxisLog(cmd_v=np.ascontiguousarray(cmd_v, dtype=float), pos_counts=pos,
                        dac_code=dac_code, ref_counts=ref, exc_code=exc, name="")  # fmt: skip
         meta = {"kind": f"LinuxCNC {self.format} capture", "period_s": f"{period!r}"}
+        if self.format == "csv":
+            meta = dict(self.metadata)  # as the log reader keeps them
         return Log(period_s=period, axes={"": axis}, metadata=meta, dac_bits=dac_bits,
                    dac_range_v=dac_range_v, compute_s=compute_s, path=self.path)  # fmt: skip
 
@@ -410,6 +439,14 @@ class HalCapture:
         given, source = settings.period_s, "the map's period_s"
         if period_s is not None:
             given, source = _option("period_s", period_s, _parse_period), "--period-s"
+        if self.format == "csv" and self.period_s is not None:
+            # chosen when the CSV was read (read_mapped_csv), from this same period if given
+            if given is not None and abs(given - self.period_s) > _REL_TOL * self.period_s:
+                raise LogFormatError(
+                    f"{source} {given:.9g} s disagrees with the period the log was read with, "
+                    f"{self.period_s:.9g} s (its time column or '# period_s:' line)"
+                )
+            return self.period_s
         if self.period_s is None:
             if given is None:
                 raise LogFormatError(
@@ -439,8 +476,18 @@ class HalCapture:
             )
 
     def _whole(self, key: str, j: int) -> np.ndarray:
-        """Column ``j`` as int64, refusing values that are not whole numbers."""
+        """Column ``j`` as int64, refusing values that are not whole numbers (a CSV's: within
+        :data:`~servotune.io.log_rows.WHOLE_TOL`, as the log reader's counts columns)."""
         a = self.values[:, j]
+        if self.format == "csv":
+            units = {"pos": " (in counts; in machine units give --position-scale)",
+                     "ref": " (in counts; in machine units give --position-scale)"}  # fmt: skip
+            self._refuse_first(
+                _not_whole(a),
+                j,
+                lambda k: f"map {key}{units.get(key, '')}: {_whole_problem(float(a[k]))}",
+            )
+            return np.rint(a).astype(np.int64)
         self._refuse_first(
             (a != np.rint(a)) | (np.abs(a) > _MAX_COUNTS),
             j,
@@ -617,27 +664,231 @@ def read_halscope(path: str | Path) -> HalCapture:
                           period_s=period_s, path=src)  # fmt: skip
 
 
+def read_mapped_csv(
+    path: str | Path,
+    mapping: Mapping[str, str | int],
+    *,
+    period_s: float | None = None,
+    strict: bool = False,
+) -> HalCapture:
+    """Read a CSV log whose header names its columns in its own words, for ``mapping``.
+
+    The file is read by the log reader (:func:`servotune.logs.read_table`: metadata lines,
+    header, rows, every check and message of a log) with the mapped columns as numbers (a
+    mapped ``tick`` as whole numbers) and the others read but not kept: a column the mapping
+    does not name may hold anything. The time base is checked as a log's
+    (:func:`servotune.io.log_rows._timebase`): the column mapped as ``time`` [s] (else one
+    named ``time_s``) and the one mapped as ``tick`` (else one named ``tick``); the period is
+    ``period_s`` if given (checked against the time column within 0.1 %), else the
+    ``# period_s:`` line, else the time column's. The ``# dac_bits:``, ``# dac_range_v:`` and
+    ``# compute_s:`` lines are kept as :attr:`HalCapture.log_settings`, the metadata as
+    :attr:`HalCapture.metadata`. :meth:`HalCapture.to_log` then converts the mapped columns
+    as a HAL capture's (module docstring), except that without a ``position_scale`` ``pos``
+    and ``ref`` are in counts.
+
+    Parameters
+    ----------
+    path : str or Path
+    mapping : mapping of str to str or int
+        :data:`MAP_KEYS` → a column name of the header, or a 0-based column number.
+    period_s : float, optional
+        Sample period [s].
+    strict : bool
+        An unknown metadata key is an error (else a
+        :class:`~servotune.logs.LogMetadataWarning`).
+
+    Returns
+    -------
+    HalCapture
+        ``format`` ``"csv"``, ``names`` the header, ``period_s`` the period.
+
+    Raises
+    ------
+    LogFormatError
+        One line naming the file: anything the log reader refuses, a mapped column that is not
+        in the header (the header's columns listed, the closest named), a time column that
+        does not increase regularly, no time column and no period, a period outside
+        :data:`~servotune.logs.PERIOD_RANGE_S`.
+    """
+    src = str(path)
+    times: dict[str, int] = {}  # "time", "tick" → the column
+
+    def kinds(header: list[str], line: int) -> list[str]:
+        names = tuple(header)
+        found = {key: _find_column(names, len(names), target, key, "csv", line)
+                 for key, target in mapping.items()}  # fmt: skip
+        out = ["skip"] * len(header)
+        for key, j in found.items():
+            out[j] = "counts" if key == "tick" else "float"
+        for key, name in (("time", "time_s"), ("tick", "tick")):
+            if key in found:
+                times[key] = found[key]
+            elif name in header and out[header.index(name)] == "skip":
+                times[key] = header.index(name)
+                out[times[key]] = "counts" if key == "tick" else "float"
+        return out
+
+    table = read_table(path, what="log", kinds=kinds)
+    with naming(src):
+        header, cols = table.header, table.columns
+        rows = _RowLines(None, table.header_line + 1, table.row_lines)
+        meta, meta_line = table.metadata, table.metadata_lines
+        if table.n_rows < MIN_ROWS:
+            raise LogFormatError(
+                f"{table.n_rows} data row{'' if table.n_rows == 1 else 's'}; at least "
+                f"{MIN_ROWS} are needed"
+            )
+        settings: dict[str, Any] = {}
+        parsers = {"counter_bits": _parse_counter_bits, "dac_bits": _parse_dac_bits,
+                   "dac_range_v": _parse_range, "compute_s": _parse_compute}  # fmt: skip
+        for key, parse in parsers.items():
+            value = _meta_setting(key, meta, meta_line, parse)  # checked even if not used
+            if value is not None and key != "counter_bits":
+                settings[key] = value
+        meta_period = _meta_setting("period_s", meta, meta_line, _parse_period)
+        if period_s is not None:
+            period_s = _option("period_s", period_s, _parse_period)
+        _warn_unknown_metadata(meta, meta_line, src, strict)
+        tick = cols[header[times["tick"]]] if "tick" in times else None
+        time_s = cols[header[times["time"]]] if "time" in times else None
+        if tick is None and time_s is None and period_s is None and meta_period is None:
+            raise LogFormatError(
+                "no time column and no period: map the time column (time=COLUMN, in seconds, "
+                "or tick=COLUMN), add a '# period_s: <seconds>' line or give --period-s"
+            )
+        period = _timebase(
+            tick, time_s, rows,
+            meta_period=meta_period,
+            meta_source=f"metadata 'period_s' (line {meta_line.get('period_s')})",
+            opt_period=period_s,
+            names=(header[times.get("tick", 0)], header[times.get("time", 0)]),
+        )  # fmt: skip
+        lo, hi = PERIOD_RANGE_S
+        if not lo <= period <= hi:
+            raise LogFormatError(
+                f"the sample period from the time column, {period:.6g} s, is outside "
+                f"{lo:g} … {hi:g} s (is the time column in seconds?)"
+            )
+        values = np.full((table.n_rows, len(header)), np.nan)
+        for j, h in enumerate(header):
+            if h in cols:
+                values[:, j] = cols[h]
+    return HalCapture(format="csv", values=values, names=tuple(header), lines=table.row_lines,
+                      period_s=float(period), path=src, metadata=dict(meta),
+                      log_settings=settings)  # fmt: skip
+
+
+def _find_column(
+    names: tuple[str, ...] | None,
+    n_columns: int,
+    target: str | int,
+    key: str = "",
+    format: str = "halsampler",
+    header_line: int | None = None,
+) -> int:
+    """The 0-based column of a pin (a CSV's column) name or column number
+    (:meth:`HalCapture.column_index`)."""
+    who = f"map {key}: " if key else ""
+    csv = format == "csv"
+    if isinstance(target, int):
+        if not 0 <= target < n_columns:
+            what = "log" if csv else "capture"
+            raise LogFormatError(
+                f"{who}column {target} is out of range: the {what} has {n_columns} "
+                f"{'' if csv else 'value '}column{'s' if n_columns != 1 else ''} "
+                f"(0..{n_columns - 1})"
+            )
+        return target
+    if names is None:
+        raise LogFormatError(
+            f"{who}pin {target!r}: a halsampler capture does not name its columns; give "
+            "the sampler's pin order (--hal-columns pid.0.output,encoder.0.position, or "
+            "columns = [...] under [hal]) or map by column number (pos=1)"
+        )
+    hits = [j for j, n in enumerate(names) if n == target]
+    if not hits:
+        show = _SHOW_CSV_NAMES if csv else _SHOW_NAMES
+        listed = ", ".join(names[:show])
+        more = f" and {len(names) - show} more" if len(names) > show else ""
+        near = difflib.get_close_matches(target, names, n=1)
+        hint = f"; did you mean {near[0]!r}?" if near else ""
+        if csv:
+            line = f" (line {header_line})" if header_line is not None else ""
+            raise LogFormatError(
+                f"{who}column {target!r} is not in the log's header{line}, whose columns are "
+                f"{listed}{more}{hint}"
+            )
+        raise LogFormatError(
+            f"{who}pin {target!r} is not in the capture's columns: {listed}{more}{hint}"
+        )
+    if len(hits) > 1:
+        raise LogFormatError(
+            f"{who}pin {target!r} is in {len(hits)} columns ({', '.join(map(str, hits))}): "
+            "map it by column number"
+        )
+    return hits[0]
+
+
+def capture_format(path: str | Path) -> str:
+    """What a file mapped with ``--map`` is, from its content: ``"halscope"`` (it begins with
+    ``# Sampling period is``), ``"csv"`` (its first line that is not blank is a ``#`` line,
+    as a CSV log's metadata, or holds a comma, or is not all numbers: a header naming the
+    columns) or ``"halsampler"`` (numbers separated by spaces; also an unreadable or empty
+    file, whose reader then names the problem)."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(_DETECT_BYTES)
+    except OSError:
+        return "halsampler"
+    text = head.decode("utf-8", errors="replace").lstrip("\ufeff")
+    if text.startswith(HALSCOPE_PERIOD_LINE):
+        return "halscope"
+    for line in text.splitlines():
+        line = line.strip()
+        if not line:
+            continue
+        if line.startswith("#") or "," in line:
+            return "csv"
+        if line == "overrun":  # halsampler's mark of lost samples: its reader names it
+            return "halsampler"
+        numbers = all(
+            _NUMBER_RE.fullmatch(t) or t.lower().lstrip("+-") in ("nan", "inf")
+            for t in line.split()
+        )
+        return "halsampler" if numbers else "csv"
+    return "halsampler"
+
+
 def read_hal_capture(
     path: str | Path,
     *,
     format: str | None = None,
     columns: Sequence[str] | None = None,
     sample_number: bool = False,
+    mapping: Mapping[str, str | int] | None = None,
+    period_s: float | None = None,
+    strict: bool = False,
 ) -> HalCapture:
-    """Read a HAL capture in either format; ``format`` None detects it from the first line
-    (halscope's begins with ``# Sampling period is``, halsampler's with numbers)."""
+    """Read a HAL capture in either format, or a CSV log with its own column names; ``format``
+    None detects which from the content (:func:`capture_format`).
+
+    ``mapping``, ``period_s`` and ``strict`` are for a CSV (:func:`read_mapped_csv`): the
+    mapping says which columns to read, the period (if given) is checked against its time
+    column, ``strict`` refuses unknown metadata keys."""
     if format is None:
-        format = "halsampler"
-        try:
-            with open(path, "rb") as fh:
-                if (
-                    fh.read(len(HALSCOPE_PERIOD_LINE) + 3)
-                    .lstrip(b"\xef\xbb\xbf")
-                    .startswith(HALSCOPE_PERIOD_LINE.encode())
-                ):
-                    format = "halscope"
-        except OSError:
-            pass  # the reader names the problem
+        format = capture_format(path)
+    if format == "csv":
+        if columns is not None or sample_number:
+            what = "columns (--hal-columns)" if columns is not None else "--sample-number"
+            raise LogFormatError(
+                f"log {str(path)!r} is a CSV log whose header names its columns: {what} is for "
+                "halsampler captures"
+            )
+        if mapping is None:
+            raise LogFormatError(
+                f"log {str(path)!r} is a CSV log: give the mapping of its columns (--map)"
+            )
+        return read_mapped_csv(path, mapping, period_s=period_s, strict=strict)
     if format == "halscope":
         if columns is not None or sample_number:
             what = "columns (--hal-columns)" if columns is not None else "--sample-number"
@@ -661,10 +912,17 @@ class HalLogOptions(TypedDict, total=False):
     compute_s: float | None
 
 
-def read_hal_log(path: str | Path, settings: HalSettings, **options: Unpack[HalLogOptions]) -> Log:
-    """Read a HAL capture (:func:`read_hal_capture`) and convert it
-    (:meth:`HalCapture.to_log`, whose keywords it takes): what ``servotune fit CAPTURE --map …``
-    reads.
+def read_hal_log(
+    path: str | Path,
+    settings: HalSettings,
+    *,
+    strict: bool = False,
+    **options: Unpack[HalLogOptions],
+) -> Log:
+    """Read a HAL capture or a CSV log with its own column names (:func:`read_hal_capture`)
+    and convert it (:meth:`HalCapture.to_log`, whose keywords it takes): what
+    ``servotune fit FILE --map …`` reads. ``strict``: a CSV's unknown metadata key is an
+    error, not a :class:`~servotune.logs.LogMetadataWarning`.
 
     Examples
     --------
@@ -681,8 +939,11 @@ def read_hal_log(path: str | Path, settings: HalSettings, **options: Unpack[HalL
     >>> log.axis().cmd_v.tolist(), log.axis().pos_counts.tolist(), log.period_s
     ([0.0, 1.0, 0.0, 1.0], [0, 2, 4, 6], 0.001)
     """
+    period = options.get("period_s")
     cap = read_hal_capture(path, format=settings.format, columns=settings.columns,
-                           sample_number=settings.sample_number)  # fmt: skip
+                           sample_number=settings.sample_number, mapping=settings.mapping,
+                           period_s=settings.period_s if period is None else period,
+                           strict=strict)  # fmt: skip
     return cap.to_log(settings, **options)
 
 

@@ -5,7 +5,10 @@ A :class:`HalSettings` says how to read a capture of :mod:`servotune.io.hal`: th
 ``overruns``, each a pin name or a 0-based column number; :data:`MAP_KEYS`), the format
 (:data:`HAL_FORMATS`), the sample period, the halsampler columns' names and whether they were
 written with ``-t``, and LinuxCNC's scales. :meth:`servotune.io.hal.HalCapture.to_log`
-converts the mapped columns with them (the units: :mod:`servotune.io.hal`).
+converts the mapped columns with them (the units: :mod:`servotune.io.hal`). The same settings
+read a CSV log whose header names its columns in its own words
+(:func:`servotune.io.hal.read_mapped_csv`): the keys then name header columns, and ``time``
+and ``tick`` its time base.
 
 The settings come from ``servotune fit``'s options, built by :func:`hal_settings`: ``--map``
 as ``KEY=PIN,…`` (:func:`parse_hal_map`) or a TOML file with a ``[hal]`` table
@@ -42,9 +45,10 @@ __all__ = [
 
 HAL_FORMATS = ("halsampler", "halscope")
 """The capture formats: ``halsampler`` output and halscope's saved data."""
-MAP_KEYS = ("cmd", "code", "pos", "counts", "ref", "exc", "overruns")
+MAP_KEYS = ("cmd", "code", "pos", "counts", "ref", "exc", "overruns", "time", "tick")
 """Mapping keys (servotune's side): exactly one of ``cmd``/``code``, one of ``pos``/``counts``,
-optionally ``ref``, ``exc`` and ``overruns`` (the sampler's overrun count, a loss witness)."""
+optionally ``ref``, ``exc`` and ``overruns`` (the sampler's overrun count, a loss witness);
+for a CSV log also ``time`` (its time column [s]) and ``tick`` (its sample number)."""
 
 _C = TypeVar("_C", bound=Hashable)  # a column: as the settings name it, or its index
 
@@ -57,7 +61,8 @@ class HalSettings:
     ----------
     mapping : mapping of str to str or int
         :data:`MAP_KEYS` → a HAL pin (or signal) name, or a 0-based column number (for
-        halsampler: ``sampler.0.pin.N`` is column N, the sample number not counted).
+        halsampler: ``sampler.0.pin.N`` is column N, the sample number not counted); for a
+        CSV log (:func:`servotune.io.hal.read_mapped_csv`) a column name of its header.
     format : str, optional
         ``"halsampler"`` or ``"halscope"``; None: detected from the content (halscope's files
         begin with ``# Sampling period is``).
@@ -67,7 +72,7 @@ class HalSettings:
         value here must agree with it).
     position_scale : float, optional
         The encoder's ``position-scale`` [counts per machine unit], > 0; needed when ``pos`` or
-        ``ref`` is mapped.
+        ``ref`` of a HAL capture is mapped (a CSV's are in counts without it).
     output_scale : float
         Pid output units per volt at the D/A [units/V], > 0 (default 1.0: volts).
     columns : tuple of str, optional
@@ -103,7 +108,8 @@ class HalSettings:
                 m[key] = target.strip()
                 if not m[key] or len(m[key].split()) != 1:
                     raise LogFormatError(
-                        f"map {key} must be a HAL pin name or a column number, got {target!r}"
+                        f"map {key} must be a pin or column name (no spaces; a CSV column with "
+                        f"spaces by its number) or a column number, got {target!r}"
                     )
             elif type(target) is not int or target < 0:
                 raise LogFormatError(

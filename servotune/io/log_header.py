@@ -229,6 +229,8 @@ def _classify_columns(header: list[str], line: int) -> dict[str, dict[str, str]]
             candidates += [f"{a}.{c}" for a in dict.fromkeys(prefixes) for c in _AXIS_COLUMNS]
             close = difflib.get_close_matches(h, candidates, n=1, cutoff=0.6)
             hint = f"; did you mean {close[0]!r}?" if close else f"; {_COLUMNS_HELP}"
+            if not close:  # a logger's own names, most likely
+                hint += " (or keep your own names and map them: servotune fit --map)"
             raise LogFormatError(f"line {line}: unknown column {h!r}{hint}")
         axes.setdefault(ax, {})[col] = h
     if not any(h in _TIME_COLUMNS for h in header):

@@ -6,10 +6,12 @@ pass (:func:`_fast_columns`, about 0.05 s per million rows); any other body, and
 of :func:`servotune.logs.read_table`, is parsed with ``numpy.loadtxt`` (one typed field per
 column, about 0.7 s per million rows), and only when that fails are the rows scanned to find the
 first bad row, which is then explained field by field with its 1-based file line and column.
-Both give the same values (integers exact, numbers correctly rounded). Also here: the time
-base (``tick`` and ``time_s`` checked, the period chosen), counter and D/A range checks and the
-``mode`` column. The internals of :func:`servotune.logs.read_log` and
-:func:`servotune.logs.read_table`; every error is a one-line :class:`LogFormatError`.
+Both give the same values (integers exact, numbers correctly rounded). The counts columns
+(``pos_counts``, ``ref_counts``) may also be written as numbers (``0.0``) if every value is
+whole within :data:`WHOLE_TOL` (:func:`_whole_counts`). Also here: the time base (``tick`` and
+``time_s`` checked, the period chosen), counter and D/A range checks and the ``mode`` column.
+The internals of :func:`servotune.logs.read_log` and :func:`servotune.logs.read_table`; every
+error is a one-line :class:`LogFormatError`.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ import io
 import math
 import re
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -35,13 +37,23 @@ _KIND = {
     "dac_code": "int",
     "cmd_v": "float",
     "counter": "int",
-    "pos_counts": "int",
-    "ref_counts": "int",
+    "pos_counts": "counts",
+    "ref_counts": "counts",
     "exc_code": "int",
     "mode": "text",
 }
 _MODE_WIDTH = 16  # mode fields are read as U16; a value that fills it may be truncated: invalid
-_DTYPES: dict[str, Any] = {"int": np.int64, "float": np.float64, "text": f"U{_MODE_WIDTH}"}
+_DTYPES: dict[str, Any] = {
+    "int": np.int64,
+    "counts": np.int64,  # integers; numbers too when every one is whole (:func:`_whole_counts`)
+    "float": np.float64,
+    "text": f"U{_MODE_WIDTH}",
+    "skip": "U1",  # a column read but not used (a mapped CSV's unmapped columns): any text
+}
+WHOLE_TOL = 1e-9
+"""How far from an integer a number in a counts column may be (``12.0000000001`` is 12)."""
+MAX_WHOLE = 2.0**53
+"""Beyond this a number no longer holds every whole count exactly."""
 _INT_RE = re.compile(r"[+-]?[0-9]+")
 _LONG_FIELD_RE = re.compile(rf"[^,\n]{{{MAX_NUMBER_CHARS + 1}}}")
 
@@ -125,7 +137,7 @@ def _check_field_lengths(body: str, header_line: int, header: list[str]) -> None
 
 # --- the plain form, parsed from the bytes ------------------------------------------------------
 
-_FAST_KIND = {"int": 0, "float": 1, "text": 2}
+_FAST_KIND = {"int": 0, "counts": 0, "float": 1, "text": 2}
 _FAST_DIGITS = 18  # most digits of a number the fast pass reads (no int64 overflow)
 _POW10 = np.array([float(10**k) for k in range(23)])  # 1e0 … 1e22, each exact in a double
 _MODE_BYTES = np.array([list(m.encode("ascii")) for m in MODE_NAMES], dtype=np.uint8)
@@ -292,33 +304,64 @@ def _fast_columns(data: bytes, start: int, header: list[str]) -> dict[str, np.nd
 
 
 def _data_rows(
-    body: str, header_line: int, header: list[str], empty: str
+    body: str,
+    header_line: int,
+    header: list[str],
+    empty: str,
+    kinds: Sequence[str] | None = None,
 ) -> tuple[np.ndarray, _RowLines]:
-    """The data rows under the header, parsed (``empty``: the message when there are none)."""
+    """The data rows under the header, parsed (``empty``: the message when there are none).
+
+    ``kinds``: each column's kind (a key of :data:`_DTYPES`); default the log's, by name."""
     if not body or body.isspace():
         raise LogFormatError(empty)
     _check_field_lengths(body, header_line, header)
-    return _parse_body(body, header_line, header)
+    return _parse_body(body, header_line, header, kinds)
 
 
-def _parse_body(body: str, header_line: int, header: list[str]) -> tuple[np.ndarray, _RowLines]:
+def _kinds(header: list[str]) -> list[str]:
+    """Each log column's kind (:data:`_KIND`), by its name."""
+    return [_KIND[_base(h)] for h in header]
+
+
+def _parse_body(
+    body: str, header_line: int, header: list[str], kinds: Sequence[str] | None = None
+) -> tuple[np.ndarray, _RowLines]:
     """All data rows as a structured array (field ``c<j>`` per column) and their line numbers.
 
     The fast path parses the whole body with ``numpy.loadtxt`` (one typed field per column),
     which skips empty lines. If that fails, whitespace-only lines are dropped and, if the rest
     still fails, the first bad row is found by bisection (``loadtxt`` judges rows one by one,
     so a block fails exactly when it holds a bad row) and then explained field by field.
+
+    A ``counts`` column is read as integers; if any of its fields is written as a number
+    (``0.0``) the body is read again with those columns as numbers, which
+    :func:`_whole_counts` then turns into integers if every value is whole.
     """
-    dtype = np.dtype([(f"c{j}", _DTYPES[_KIND[_base(h)]]) for j, h in enumerate(header)])
+    kinds = _kinds(header) if kinds is None else list(kinds)
+    dtype = np.dtype([(f"c{j}", _DTYPES[k]) for j, k in enumerate(kinds)])
+    loose = dtype
+    if "counts" in kinds:
+        loose = np.dtype(
+            [(f"c{j}", np.float64 if k == "counts" else _DTYPES[k]) for j, k in enumerate(kinds)]
+        )
     first = header_line + 1
 
-    def load(lines: str | list[str]) -> np.ndarray:
+    def load_as(lines: str | list[str], dt: np.dtype) -> np.ndarray:
         src = io.StringIO(lines) if isinstance(lines, str) else lines
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)  # "input contained no data"
             # numpy < 2 parses "12.5" in an integer column as 12 with a DeprecationWarning
             warnings.simplefilter("error", DeprecationWarning)
-            return np.loadtxt(src, delimiter=",", dtype=dtype, comments=None, ndmin=1)
+            return np.loadtxt(src, delimiter=",", dtype=dt, comments=None, ndmin=1)
+
+    def load(lines: str | list[str]) -> np.ndarray:
+        if loose is dtype:
+            return load_as(lines, dtype)
+        try:
+            return load_as(lines, dtype)
+        except (ValueError, OverflowError, DeprecationWarning):
+            return load_as(lines, loose)  # a counts column written as numbers?
 
     def reason(exc: Exception) -> str:
         text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
@@ -341,14 +384,46 @@ def _parse_body(body: str, header_line: int, header: list[str]) -> tuple[np.ndar
     while hi - lo > 1:
         mid = (lo + hi) // 2
         try:
-            load(kept[lo:mid])
+            load_as(kept[lo:mid], loose)
             lo = mid
         except (ValueError, OverflowError, DeprecationWarning) as exc:
             why = reason(exc)
             hi = mid
     raise LogFormatError(
-        _row_problem(kept[lo], rows(lo), header, header_line) or f"row {rows(lo)}: {why}"
+        _row_problem(kept[lo], rows(lo), header, header_line, kinds) or f"row {rows(lo)}: {why}"
     )
+
+
+def _not_whole(a: np.ndarray) -> np.ndarray:
+    """Where the numbers ``a`` are not whole counts: more than :data:`WHOLE_TOL` from an
+    integer, not finite, or beyond :data:`MAX_WHOLE`."""
+    with np.errstate(invalid="ignore"):
+        return ~(np.abs(a - np.rint(a)) <= WHOLE_TOL) | ~(np.abs(a) < MAX_WHOLE)
+
+
+def _whole_problem(x: float) -> str:
+    """Why the number ``x`` (:func:`_not_whole`) is not a whole count."""
+    if not math.isfinite(x):
+        return f"{x!r} is not finite"
+    if abs(x) >= MAX_WHOLE:
+        return f"{x!r} is beyond the counts a number holds exactly (below 2**53)"
+    return f"{x!r} is not an integer (a count written as a number must be whole, within 1e-9)"
+
+
+def _whole_counts(
+    col: dict[str, np.ndarray], header: list[str], kinds: Sequence[str], rows: _RowLines
+) -> None:
+    """Turn each ``counts`` column read as numbers (``0.0``) into int64 in place, refusing the
+    first value that is not whole (within :data:`WHOLE_TOL`) with its row and column."""
+    for h, kind in zip(header, kinds, strict=True):
+        a = col[h]
+        if kind != "counts" or a.dtype.kind != "f":
+            continue
+        bad = _not_whole(a)
+        if bad.any():
+            k = int(np.argmax(bad))
+            raise LogFormatError(f"row {rows(k)}, column {h!r}: {_whole_problem(float(a[k]))}")
+        col[h] = np.rint(a).astype(np.int64)
 
 
 def _check_range(
@@ -367,7 +442,9 @@ def _base(h: str) -> str:
     return h.rpartition(".")[2]
 
 
-def _row_problem(line: str, row: int, header: list[str], header_line: int) -> str | None:
+def _row_problem(
+    line: str, row: int, header: list[str], header_line: int, kinds: Sequence[str]
+) -> str | None:
     """What is wrong with one data row (wrong number of fields, a bad field), or None."""
     fields = line.split(",")
     if len(fields) != len(header):
@@ -375,20 +452,21 @@ def _row_problem(line: str, row: int, header: list[str], header_line: int) -> st
             f"row {row} has {len(fields)} field{'' if len(fields) == 1 else 's'}; the header "
             f"(line {header_line}) has {len(header)}"
         )
-    for s, name in zip(fields, header, strict=True):
-        problem = _field_problem(s, _KIND[_base(name)])
+    for s, name, kind in zip(fields, header, kinds, strict=True):
+        problem = _field_problem(s, kind)
         if problem:
             return f"row {row}, column {name!r}: {problem}"
     return None
 
 
 def _field_problem(s: str, kind: str) -> str | None:
-    """What is wrong with one field of a column of ``kind`` (int, float, text), or None."""
-    if kind == "text":
+    """What is wrong with one field of a column of ``kind`` (int, counts, float, text, skip), or
+    None. A ``counts`` field may be any number here (:func:`_whole_counts` judges it)."""
+    if kind in ("text", "skip"):
         return None
     t = s.strip()
     if not t:
-        return "empty value" + (" (an integer is expected)" if kind == "int" else "")
+        return "empty value" + (" (an integer is expected)" if kind in ("int", "counts") else "")
     if len(t) > MAX_NUMBER_CHARS:
         return f"a field of {len(t)} characters (a number has at most {MAX_NUMBER_CHARS})"
     if kind == "int":
@@ -416,8 +494,12 @@ def _timebase(
     meta_period: float | None,
     meta_source: str,
     opt_period: float | None,
+    names: tuple[str, str] = ("tick", "time_s"),
 ) -> float:
-    """Check the time columns and choose the period [s]: option, metadata, else ``time_s``."""
+    """Check the time columns and choose the period [s]: option, metadata, else ``time_s``.
+
+    ``names``: the tick and time columns' names in the file, for the messages."""
+    tick_name, time_name = names
     if tick is not None:
         step = np.diff(tick)
         bad = step != 1
@@ -425,8 +507,8 @@ def _timebase(
             k = int(np.argmax(bad)) + 1
             what = "does not increase" if step[k - 1] <= 0 else "skips"
             raise LogFormatError(
-                f"row {rows(k)}, column 'tick': {tick[k]} after {tick[k - 1]}: the tick {what} "
-                f"(it must step by 1; a dropped sample is not interpolated)"
+                f"row {rows(k)}, column {tick_name!r}: {tick[k]} after {tick[k - 1]}: the tick "
+                f"{what} (it must step by 1; a dropped sample is not interpolated)"
             )
     estimate = None
     if time_s is not None:
@@ -436,7 +518,7 @@ def _timebase(
             k = int(np.argmax(back)) + 1
             what = "repeats" if dt[k - 1] == 0 else "goes back"
             raise LogFormatError(
-                f"row {rows(k)}, column 'time_s': {float(time_s[k])!r} after "
+                f"row {rows(k)}, column {time_name!r}: {float(time_s[k])!r} after "
                 f"{float(time_s[k - 1])!r}: time "
                 f"{what} (it must increase)"
             )
@@ -445,15 +527,15 @@ def _timebase(
         if off.any():
             k = int(np.argmax(off)) + 1
             raise LogFormatError(
-                f"row {rows(k)}, column 'time_s': irregular sampling: interval {dt[k - 1]:.9g} s "
-                f"vs the median {med:.9g} s (more than 0.1 % apart; a dropped sample is not "
-                f"interpolated)"
+                f"row {rows(k)}, column {time_name!r}: irregular sampling: interval "
+                f"{dt[k - 1]:.9g} s vs the median {med:.9g} s (more than 0.1 % apart; a dropped "
+                f"sample is not interpolated)"
             )
         for value, source in ((meta_period, meta_source), (opt_period, "option period_s")):
             if value is not None and abs(value - med) > _REL_TOL * med:
                 raise LogFormatError(
-                    f"{source} = {value!r} s disagrees with the time_s column (median interval "
-                    f"{med:.9g} s) by more than 0.1 %"
+                    f"{source} = {value!r} s disagrees with the {time_name} column (median "
+                    f"interval {med:.9g} s) by more than 0.1 %"
                 )
         # end to end: unlike the median, not limited by the resolution time_s is written with
         estimate = float(time_s[-1] - time_s[0]) / (time_s.shape[0] - 1)
@@ -462,11 +544,11 @@ def _timebase(
             bad = np.abs(tick * p - time_s) > _REL_TOL * p
             if bad.any():
                 k = int(np.argmax(bad))
-                src = "from time_s" if meta_period is None else meta_source
+                src = f"from {time_name}" if meta_period is None else meta_source
                 raise LogFormatError(
                     f"row {rows(k)}: tick {tick[k]} × period {p:.9g} s ({src}) = "
-                    f"{tick[k] * p:.9g} s but time_s = {time_s[k]!r} s; tick and time_s must agree "
-                    f"within 0.1 % of a period"
+                    f"{tick[k] * p:.9g} s but {time_name} = {time_s[k]!r} s; {tick_name} and "
+                    f"{time_name} must agree within 0.1 % of a period"
                 )
     for p in (opt_period, meta_period, estimate):
         if p is not None:

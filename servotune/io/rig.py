@@ -4,7 +4,8 @@ Reading: :func:`build_section` builds one validated dataclass from one TOML tabl
 sections, and the architecture configurations' of ``servotune.arch.gantry`` and
 ``servotune.arch.linkage``), errors naming ``path.field``. Writing: :func:`edit_plant_text`
 rewrites one ``[axis.<name>.plant]`` table of a rig file's text in place, every comment and the
-layout of the rest kept byte for byte. :func:`servotune.rig.load_rig` and
+layout of the rest kept byte for byte (in that table, a comment that described a replaced value
+goes with it). :func:`servotune.rig.load_rig` and
 :func:`servotune.rig.write_plant` check the result against the :class:`~servotune.rig.Rig`
 model; the bytes and the TOML themselves are read and written through
 :mod:`servotune.io.files`.
@@ -25,6 +26,7 @@ import tomlkit.items
 
 from servotune.errors import RigError
 from servotune.plant import Plant
+from servotune.rig_model import FIT_PCT_KEYS
 from servotune.validate import check_keys, is_number, show_value
 
 __all__ = ["FLOAT_SIGNIFICANT_DIGITS", "build_section", "edit_plant_text", "new_rig_text"]
@@ -97,11 +99,40 @@ def _toml_float(value: float) -> str:
     return repr(x)
 
 
+# A comment that states a number or cites a source describes the value it was written beside
+# (``# 600 r/min at 10 V with 12288 counts/rev``, ``# from the drive's data sheet``): once a
+# fit replaces the value it is false. A comment without either names the quantity
+# (``# analog zero drift``) and stays true.
+_STATES_VALUE_OR_SOURCE = re.compile(
+    r"\d|[§≈~=<>±]|://|\.\./|\b(?:spec|decisions?|seed|issue|data ?sheet|manual|catalog(?:ue)?"
+    r"|measured|measurement|fit|fitted|estimated|identified|tuned|calibrated|nominal|typical"
+    r"|guess(?:ed)?|assumed|approx(?:imately)?|about|around|roughly|from|see|per|according|was"
+    r"|old|default|template|example|pc-dual-servo)\b",
+    re.IGNORECASE,
+)
+
+
+def _outlives_new_value(comment: str) -> bool:
+    """Whether a comment written beside (or directly above) a value stays true when a fit
+    replaces the value: it neither states a number nor cites a source.
+
+    >>> _outlives_new_value("# analog zero drift")
+    True
+    >>> _outlives_new_value("# 600 r/min at 10 V with 12288 counts/rev")
+    False
+    >>> _outlives_new_value("# from the drive's data sheet")
+    False
+    """
+    return _STATES_VALUE_OR_SOURCE.search(comment.lstrip("#")) is None
+
+
 def _set_float(table: MutableMapping[str, Any], key: str, value: float) -> float:
     """Set ``table[key]`` to ``value`` (rounded, see :func:`_toml_float`); return what is written.
 
-    An existing entry that already holds that value keeps its text (``0.030`` stays ``0.030``).
-    A replaced entry keeps its trailing comment, at the same column where the new value allows.
+    An existing entry that already holds that value keeps its text (``0.030`` stays ``0.030``)
+    and its comment. A replaced entry keeps a trailing comment that names the quantity, at the
+    same column where the new value allows; one that states a number or a source described the
+    old value and is dropped (:func:`_outlives_new_value`).
     """
     text = _toml_float(value)
     number = float(text)
@@ -109,12 +140,16 @@ def _set_float(table: MutableMapping[str, Any], key: str, value: float) -> float
     if is_number(old) and float(old) == number:
         return float(old)
     item = tomlkit.value(text)
-    if isinstance(old, tomlkit.items.Item) and old.trivia.comment:
+    comment = old.trivia.comment if isinstance(old, tomlkit.items.Item) else ""
+    if comment and _outlives_new_value(comment):
         ws = old.trivia.comment_ws
         column = len(old.as_string()) + len(ws)
         item.trivia.comment_ws = " " * max(column - len(text), min(len(ws), 2), 1)
-        item.trivia.comment = old.trivia.comment
+        item.trivia.comment = comment
     table[key] = item
+    if comment and not _outlives_new_value(comment):  # tomlkit copies the old comment over
+        new = table[key]
+        new.trivia.comment_ws = new.trivia.comment = ""
     return number
 
 
@@ -132,7 +167,8 @@ def _one_line(provenance: str) -> str:
 def _fit_table(fit: Mapping[str, Any]) -> tuple[Any, dict[str, Any]]:
     """The ``[axis.<name>.plant.fit]`` table of a fit record, and the record as it reads back.
 
-    Keys in a fixed order; interval ends rounded like the plant's values (:func:`_toml_float`).
+    Keys in a fixed order; the fit figures and the interval ends rounded like the plant's values
+    (:func:`_toml_float`).
     """
     table = tomlkit.table()
     back: dict[str, Any] = {}
@@ -140,6 +176,10 @@ def _fit_table(fit: Mapping[str, Any]) -> tuple[Any, dict[str, Any]]:
         value = fit[key]
         table[key] = list(value) if isinstance(value, tuple) else value
         back[key] = list(value) if isinstance(value, tuple | list) else value
+    for key in FIT_PCT_KEYS:  # the fit figures, those recorded (a None is left out)
+        if fit.get(key) is not None:
+            table[key] = tomlkit.value(_toml_float(fit[key]))
+            back[key] = float(_toml_float(fit[key]))
     ci = tomlkit.table()
     back["ci95"] = {}
     for name, (lo, hi) in fit["ci95"].items():
@@ -180,6 +220,8 @@ def _plant_section(
     if not isinstance(table, MutableMapping):
         raise RigError(f"[axis.{axis}.plant] in {str(source)!r} must be a table")
 
+    before = {k: _entry_text(table, k) for k in (*_FITTED_KEYS, *_DIRECTION_KEYS, *_KEPT_KEYS)}
+    above = _comments_above(table)
     written = {key: _set_float(table, key, getattr(plant, key)) for key in _FITTED_KEYS}
     for key in _DIRECTION_KEYS:
         if getattr(plant, key) is not None:
@@ -191,6 +233,13 @@ def _plant_section(
         value = getattr(plant, key)
         if value != defaults[key]:
             written[key] = _set_float(table, key, value)
+
+    # a full-line comment directly above an entry that changed described the old value too
+    for key, old_text in before.items():
+        if _entry_text(table, key) != old_text:
+            for comment in above.get(key, ()):
+                if not _outlives_new_value(comment.trivia.comment):
+                    _blank(comment)
 
     # the fit record (DECISIONS 6) describes these values: written with them, or removed (a
     # record left from an earlier fit would describe other numbers)
@@ -209,6 +258,33 @@ def _plant_section(
             )
         _set_comment(table, line)
     return doc.as_string(), written
+
+
+def _entry_text(table: Any, key: str) -> str | None:
+    """The TOML text of one entry of a table (None: no such entry)."""
+    item = table.get(key)
+    return item.as_string() if isinstance(item, tomlkit.items.Item) else None
+
+
+def _comments_above(table: Any) -> dict[str, list[tomlkit.items.Comment]]:
+    """Per key of a table, the full-line comments directly above it (no blank line between)."""
+    body = getattr(getattr(table, "value", None), "body", None) or []
+    out: dict[str, list[tomlkit.items.Comment]] = {}
+    run: list[tomlkit.items.Comment] = []
+    for key, item in body:
+        if isinstance(item, tomlkit.items.Comment):
+            run.append(item)
+            continue
+        if key is not None:
+            out[key.key] = run
+        run = []
+    return out
+
+
+def _blank(comment: tomlkit.items.Comment) -> None:
+    """Remove a full-line comment from the text (the item stays, rendering as nothing)."""
+    trivia = comment.trivia
+    trivia.indent = trivia.comment_ws = trivia.comment = trivia.trail = ""
 
 
 _STALE_COMMENT = re.compile(r"[ \t]+#[^\n\"']*\b(?:SPEC|seed \d{3})\b[^\n\"']*(?=\n|$)")

@@ -225,10 +225,11 @@ def _linkage_text(doc: Mapping[str, Any]) -> str:
 
 
 _LINKAGE_CAPTIONS = {
-    "linkage_queues.png": "Each slave CPU's queue level before every pop. Top: over the "
-    "whole run, the lowest and highest level in each time bin (the level is a sawtooth at "
-    "the broadcast period, too fast to draw tick by tick over seconds); bottom: a window "
-    "of a few broadcast periods with every pop.",
+    "linkage_queues.png": "Each slave CPU's queue level before every pop, one row per CPU "
+    "on the same scales (CPUs whose queues move alike would hide each other on one panel). "
+    "Left: over the whole run, the lowest and highest level in each time bin (the level is "
+    "a sawtooth at the broadcast period, too fast to draw tick by tick over seconds); right: "
+    "a window of a few broadcast periods with every pop.",
     "linkage_circle.png": "Circular test (ballbar plot): the radial deviation against the "
     "angle, magnified about the programmed circle.",
 }

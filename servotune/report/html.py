@@ -121,7 +121,8 @@ def write_report(
         Noise seed of the responses drawn.
     fits : mapping, optional
         Per axis, its identification (:class:`~servotune.identify.FitResult`, or its
-        ``to_dict()``): the fit % is shown from it.
+        ``to_dict()``): the fit % is shown from it; without it, from the rig's fit record
+        when that records the fit % (``servotune fit -o`` does).
     spec_path : str or Path, optional
         The spec file verified against (named in the next step's commands).
 

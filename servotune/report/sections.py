@@ -16,7 +16,7 @@ from servotune.laws.fuzzy_pid import TABLE_NAMES, FuzzyPIDConstants
 from servotune.plot import QUERY_TABLE_LABELS, plot_query_tables
 from servotune.report.page import _code, _esc, _figure, _file_uri, _fmt, _p, _png, _table
 from servotune.report.summary import ReportSummary, search_notes
-from servotune.rig import Rig
+from servotune.rig import FIT_PCT_KEYS, PlantFit, Rig
 from servotune.tune.workflow import tuning_summary
 from servotune.tuning import Tuning
 from servotune.validate import show_number
@@ -152,15 +152,25 @@ def _identification_section(rig: Rig, out: Path, fits: Mapping[str, Any] | None)
         pct = getattr(result, "fit_pct", None)
         if pct is None and isinstance(result, Mapping):
             pct = result.get("fit_pct")
+        where = ""
+        if not pct and fit is not None:
+            pct = _recorded_fit_pct(fit)
+            where = " as recorded in the rig file"
         if pct:
             v, y = pct.get("velocity", {}), pct.get("position", {})
             note += (
-                f" Fit (MATLAB compare, 100 % is perfect): speed {_pct(v.get('estimation'))} "
-                f"on the whole log, {_pct(v.get('validation'))} cross-validated; position "
-                f"{_pct(y.get('estimation'))} / {_pct(y.get('validation'))}."
+                f" Fit (MATLAB compare, 100 % is perfect){where}: speed "
+                f"{_pct(v.get('estimation'))} on the whole log, {_pct(v.get('validation'))} "
+                f"cross-validated; position {_pct(y.get('estimation'))} / "
+                f"{_pct(y.get('validation'))}."
+            )
+        elif fit is not None:
+            note += (
+                " Fit %: not recorded in the rig file's fit record (`servotune fit -o` "
+                "records it; fit the log again to have it here)."
             )
         else:
-            note += " Fit %: not given to the report (see `servotune fit`'s output)."
+            note += " Fit %: none (not fitted)."
         parts.append(
             head + _p(note) + _table(["parameter", "value", "unit", "95 % interval", ""], rows)
         )
@@ -168,6 +178,17 @@ def _identification_section(rig: Rig, out: Path, fits: Mapping[str, Any] | None)
         parts.append(_figure(_file_uri(f), f.name, _esc(_FIT_CAPTION)))
     parts.append("</section>")
     return "".join(parts)
+
+
+def _recorded_fit_pct(fit: PlantFit) -> dict[str, dict[str, float | None]] | None:
+    """The fit figures a rig's fit record holds, shaped like a fit's ``fit_pct`` (None: none)."""
+    if all(getattr(fit, k) is None for k in FIT_PCT_KEYS):
+        return None
+    return {
+        q: {"estimation": getattr(fit, f"{q}_fit_pct"),
+            "validation": getattr(fit, f"{q}_fit_cv_pct")}
+        for q in ("velocity", "position")
+    }  # fmt: skip
 
 
 def _with_interval(value: float, lo: float, hi: float) -> tuple[str, str]:

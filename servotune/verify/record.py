@@ -7,9 +7,10 @@ binds the SHA-256 of the three files and the tool version to the verdict, and ca
 digest over its canonical JSON (:mod:`servotune.digest`), so an edited record is refused too.
 
 Which rig: a tuning records its rig's name, path and SHA-256. ``verify`` and ``export-table``
-use that rig: the given ``--rig`` file, else the recorded path, else ``plants/<rig name>.toml``,
-else the example rig; a file is used only if its SHA-256 is the tuning's (a moved copy is fine,
-another rig is refused).
+use that rig: the given ``--rig`` file, else the recorded path, else ``plants/<rig name>.toml``
+(in the working directory), else the example rig shipped in the package
+(:data:`~servotune.rig.EXAMPLE_RIG_PATH`); a file is used only if its SHA-256 is the tuning's (a
+moved copy is fine, another rig is refused).
 
 ``export-table`` (:func:`load_for_export`) refuses, with :class:`~servotune.errors.TrustError`
 naming what differs, when there is no record, the record fails its own digest, did not pass,

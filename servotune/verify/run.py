@@ -63,6 +63,7 @@ from servotune.verify.montecarlo import PlantDistribution, SpecSpread, summarise
 from servotune.verify.result import Check, Row, Verification
 from servotune.verify.spec import LIMITS, ScenarioSpec, Spec
 from servotune.verify.variants import Variant, _seed_seqs
+from servotune.warmup import warm_up
 
 __all__ = [
     "LISTED_VARIANTS",
@@ -785,6 +786,12 @@ def verify(
     def done(k: int) -> None:
         say(f"verify montecarlo: {k}/{len(chunks)} chunks")
 
+    # the kernels compile first, if the cache lacks them, with their progress lines: here once,
+    # not in every worker of a cluster, and not beside the margins thread (compiled beside it,
+    # the two-axis kernel took 152 s on 2 cores, against about 50 s alone); a two-axis master
+    # and slave runs in the lean two-axis kernel, anything else in the general one
+    two_axis = sorted(a.role for a in rig.axes) == ["master", "slave"]
+    warm_up(("margins", "verification" if two_axis else "simulation"), progress=progress)
     # the loop margins depend on neither the runs nor their plant sets: a thread computes them
     # while the chunks run (the caller only waits on the executor then)
     with ThreadPoolExecutor(max_workers=1) as pool:

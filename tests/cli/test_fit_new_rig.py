@@ -9,6 +9,7 @@ The oracle is the written file itself, read back as TOML and as a rig.
 from __future__ import annotations
 
 import hashlib
+import json
 import tomllib
 from pathlib import Path
 
@@ -117,3 +118,64 @@ def test_a_metadata_typo_warns_and_strict_refuses(log: Path, tmp_path: Path, cap
     assert main(["fit", str(typo), "--axis", "master", "--strict"]) == 3
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "counter_bitz" in err and "--strict" in err
+
+
+def _plant_lines(text: str, axis: str) -> dict[str, str]:
+    """``key -> whole line`` of the ``[axis.<axis>.plant]`` table's entries."""
+    lines = text.splitlines()
+    start = lines.index(next(ln for ln in lines if ln.startswith(f"[axis.{axis}.plant]")))
+    out = {}
+    for ln in lines[start + 1 :]:
+        if ln.startswith("["):
+            break
+        if "=" in ln and not ln.startswith("#"):
+            out[ln.split("=")[0].strip()] = ln
+    return out
+
+
+def test_fit_o_into_an_existing_rig_drops_the_comments_it_makes_false(
+    log: Path, tmp_path: Path, capsys
+) -> None:
+    # the example rig, with a source cited beside one value and above another, and comments
+    # that only name a quantity
+    text = EXAMPLE.read_text()
+    text = text.replace("tau_s = 0.025\n", "# the drive's velocity loop and the load\n"
+                        "tau_s = 0.025             # from the drive's data sheet\n", 1)  # fmt: skip
+    text = text.replace("delay_s = 0.0008\n", "# measured with a scope in 2019\n"
+                        "delay_s = 0.0008\n", 1)  # fmt: skip
+    rig = tmp_path / "existing.toml"
+    rig.write_text(text)
+    before = _plant_lines(text, "master")
+    assert "# 600 r/min at 10 V with 12288 counts/rev" in before["gain_cps_per_v"]
+    assert "# analog zero drift" in before["offset_v"]
+
+    assert main(["fit", str(log), "--axis", "master", "-o", str(rig), "--json"]) == 0
+    fitted = json.loads(capsys.readouterr().out)
+    after_text = rig.read_text()
+    after = _plant_lines(after_text, "master")
+    rewritten = [k for k in before if k in after and after[k] != before[k]]
+    assert {"gain_cps_per_v", "tau_s", "delay_s", "offset_v"} <= set(rewritten)
+    for key in rewritten:  # no comment left beside a new value states the old one or a source
+        old_value = before[key].split("=")[1].split("#")[0].strip()
+        comment = after[key].partition("#")[2]
+        assert old_value not in comment and not any(c.isdigit() for c in comment), after[key]
+        assert "data sheet" not in comment, after[key]
+    assert "600 r/min" not in after_text and "data sheet" not in after_text
+    assert "measured with a scope" not in after_text
+    # the comments that name a quantity survive, as does every comment outside the table
+    assert after["offset_v"].endswith("# analog zero drift")
+    assert "# the drive's velocity loop and the load\ntau_s = " in after_text
+    outside = [ln for ln in text.splitlines() if "#" in ln and "=" in ln
+               and ln.split("=")[0].strip() not in before]  # fmt: skip
+    assert len(outside) > 8 and all(ln in after_text.splitlines() for ln in outside)
+    # the header says where the new numbers come from, and the record holds the fit figures
+    header = next(ln for ln in after_text.splitlines() if ln.startswith("[axis.master.plant]"))
+    assert "fitted by servotune" in header and log.name in header
+    record = load_rig(rig).axis("master").plant_fit
+    assert record is not None
+    for quantity in ("velocity", "position"):
+        pct = fitted["fit_pct"][quantity]
+        assert getattr(record, f"{quantity}_fit_pct") == pytest.approx(pct["estimation"], 1e-6)
+        cv = pct["validation"]  # None on this short log: a half could not be fitted
+        assert getattr(record, f"{quantity}_fit_cv_pct") == (None if cv is None else
+                                                              pytest.approx(cv, 1e-6))  # fmt: skip

@@ -5,9 +5,13 @@ from __future__ import annotations
 
 import doctest
 import re
+from types import SimpleNamespace
 
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.axes import Axes
+from matplotlib.colors import to_hex
+from matplotlib.lines import Line2D
 
 import servotune.plot
 import servotune.report.html
@@ -74,17 +78,66 @@ def test_the_fit_plot_marks_the_split_and_states_the_residual_step() -> None:
 def test_the_queue_plot_reads_as_a_band_and_a_window() -> None:
     link = _fake_linkage()
     fig = plot_queue_levels(link)
-    whole, window = fig.axes
-    # the whole run as each CPU's lowest/highest level per bin, not 3000 steps per line
-    assert max(len(ln.get_xdata()) for ln in whole.get_lines()) <= 400
-    lo, hi = window.get_xlim()
-    assert 0 < hi - lo <= 0.1 * float(link.time_s[-1])  # a few broadcast periods
+    assert len(fig.axes) == 2 * len(link.cpus)  # a row per CPU: the whole run | a window
+    wholes, windows = fig.axes[0::2], fig.axes[1::2]
+    for whole, window in zip(wholes, windows, strict=True):
+        # the whole run as the CPU's lowest/highest level per bin, not 3000 steps per line
+        assert max(len(ln.get_xdata()) for ln in whole.get_lines()) <= 400
+        lo, hi = window.get_xlim()
+        assert 0 < hi - lo <= 0.1 * float(link.time_s[-1])  # a few broadcast periods
     assert not axis_unit_problems(fig)
     plt.close(fig)
     # on a given axes (the notebooks zoom it with set_xlim): every pop drawn
     fig, ax = plt.subplots()
     plot_queue_levels(link, ax=ax)
     assert max(len(ln.get_xdata()) for ln in ax.get_lines()) >= link.time_s.size
+    plt.close(fig)
+
+
+def _twin_cpus() -> SimpleNamespace:
+    """The stand-in linkage with three CPUs whose queues hold exactly the same levels."""
+    link = _fake_linkage()
+    c = link.cpus[0]
+    twins = tuple(SimpleNamespace(**{**vars(c), "name": name}) for name in ("s1", "s2", "s3"))
+    return SimpleNamespace(**{**vars(link), "cpus": twins})
+
+
+def _data_lines(ax: Axes) -> list[Line2D]:
+    """The lines that draw queue levels (not the horizontal and vertical markers)."""
+    return [ln for ln in ax.get_lines() if len(ln.get_xdata()) > 2]
+
+
+def test_every_cpu_keeps_a_visible_line_when_the_queues_coincide() -> None:
+    link = _twin_cpus()
+    colors = [to_hex(f"C{i}") for i in range(3)]
+    fig = plot_queue_levels(link)
+    rows = [fig.axes[2 * i : 2 * i + 2] for i in range(3)]
+    for i, row in enumerate(rows):
+        for ax in row:
+            # the CPU's own panels: its levels, in its colour and no other CPU's, unshifted
+            lines = _data_lines(ax)
+            assert lines and {to_hex(ln.get_color()) for ln in lines} == {colors[i]}
+            ys = np.concatenate([np.asarray(ln.get_ydata(), dtype=float) for ln in lines])
+            assert (ys.min(), ys.max()) == (9, 13)  # the stand-in's levels 9..13
+            assert f"s{i + 1}" in ax.get_ylabel()
+            # every row on the same level scale: shared with the first row's
+            assert ax.get_ylim() == rows[0][0].get_ylim()
+    assert [row[1].get_xlim() for row in rows] == [rows[0][1].get_xlim()] * 3  # same window
+    plt.close(fig)
+    # on one axes: each CPU a line of its own style, the later ones above and narrower, so
+    # that every one shows through the gaps of those above it; the legend names each
+    fig, ax = plt.subplots()
+    plot_queue_levels(link, ax=ax)
+    lines = _data_lines(ax)
+    assert [to_hex(ln.get_color()) for ln in lines] == colors
+    assert len({(ln.get_linestyle(), str(ln._dash_pattern)) for ln in lines}) == 3
+    assert [ln.get_zorder() for ln in lines] == sorted({ln.get_zorder() for ln in lines})
+    widths = [ln.get_linewidth() for ln in lines]
+    assert widths == sorted(widths, reverse=True) and len(set(widths)) == 3
+    for ln in lines:  # the data itself, not moved to make room
+        assert np.array_equal(ln.get_ydata(), link.cpus[0].queue_level)
+    legend = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert [t.split(" ")[0] for t in legend] == ["s1", "s2", "s3"]
     plt.close(fig)
 
 

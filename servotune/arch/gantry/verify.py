@@ -58,6 +58,7 @@ from servotune.laws.axis import FLAG_SYNC_TRIP
 from servotune.validate import check_integer, check_keys, check_number, show_share
 from servotune.verify import record as rec
 from servotune.verify.record import RecordedVerification, SourceFile, VerifyRunOptions
+from servotune.warmup import warm_up
 
 __all__ = [
     "GANTRY_RECORD_SCHEMA",
@@ -303,6 +304,7 @@ def verify_gantry(
     ]  # fmt: skip
     failures: list[str] = []
     say("verify gantry: sync error in each case")
+    warm_up(("gantry",), progress=progress)  # a cold cache compiles here, saying so (once)
     for case in CASES:
         m = simulate_gantry(run, case=case, seed=seed).metrics()
         rows += [

@@ -30,6 +30,7 @@ record against the plan (and the spec, if given) with
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -67,6 +68,7 @@ from servotune.verify.record import (
     recorded_verification,
     trust_record,
 )
+from servotune.warmup import warm_up
 
 __all__ = [
     "RECORD_SCHEMA",
@@ -368,13 +370,16 @@ def verify_plan_files(
     *,
     write: bool = True,
     config_path: str | Path | None = None,
+    progress: Callable[[str], None] | None = None,
 ) -> RecordedVerification[LinkageVerification]:
     """What ``servotune verify PLAN --spec SPEC`` runs for a linkage plan.
 
     Reads the plan, its config (``config_path``, else as the module docstring says), the
     config's rig and the spec once each, parses and hashes those bytes, checks the config and
     rig are the ones the plan was made from, verifies (:func:`verify_plan`), builds the record
-    and (``write``) writes it next to the plan (``<plan>.verify.json``).
+    and (``write``) writes it next to the plan (``<plan>.verify.json``). ``progress`` gets the
+    lines of the linkage kernels' compiling, if the cache lacks them
+    (:func:`servotune.warmup.warm_up`).
 
     Returns
     -------
@@ -402,6 +407,7 @@ def verify_plan_files(
             f"plan was made with ({plan.rig_name!r}, sha256 {plan.rig_sha256[:12]}…): plan "
             f"the config again"
         )
+    warm_up(("linkage",), progress=progress)
     try:
         result = verify_plan(plan, config, spec)
     except ConfigError as exc:

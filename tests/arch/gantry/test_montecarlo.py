@@ -5,6 +5,7 @@ check naming the pair, and the named pair trips when run on its own."""
 from __future__ import annotations
 
 import dataclasses
+import re
 from pathlib import Path
 
 import pytest
@@ -12,7 +13,7 @@ from scipy.stats import binomtest
 
 from servotune.arch.gantry import CASES, compare_topologies, gantry_montecarlo, simulate_gantry
 from servotune.arch.gantry.load import load_gantry
-from servotune.cli import main
+from servotune.cli import _EXAMPLES, main
 
 ROOT = Path(__file__).resolve().parents[3]
 GANTRY = ROOT / "plants" / "gantry.toml"
@@ -83,3 +84,64 @@ def test_each_drive_draws_by_its_own_spread(cfg) -> None:
     master = [v.factors["master_gain"] for v in mc.variants]
     assert all(0.5 <= f <= 1.5 for f in slave) and max(abs(f - 1) for f in slave) > 0.3
     assert all(0.8 <= f <= 1.2 for f in master)
+
+
+README = ROOT / "README.md"
+
+
+def _number(text: str) -> float:
+    """A README number: ``1,525`` → 1525, ``−15`` → -15."""
+    return float(text.replace(",", "").replace("−", "-"))
+
+
+def _readme_sync_command() -> list[str]:
+    """The README's ``servotune sync … --montecarlo N`` reference line, as arguments."""
+    m = re.search(r"^servotune (sync plants/gantry\.toml --montecarlo \d+)\s", README.read_text(),
+                  re.M)  # fmt: skip
+    assert m is not None, "the README has no `servotune sync plants/gantry.toml --montecarlo N`"
+    return m.group(1).split()
+
+
+def test_the_readme_montecarlo_size_passes_as_the_readme_says(capsys) -> None:
+    # the command as the README and `sync --help` write it, run on the example gantry
+    words = _readme_sync_command()
+    n = int(words[-1])
+    help_line = next(e for e in _EXAMPLES["sync"] if "--montecarlo" in e)
+    assert f"--montecarlo {n} " in help_line + " "  # the help's example: the same size
+    args = [str(GANTRY) if w == "plants/gantry.toml" else w for w in words]
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    assert f"Monte Carlo: {n} of {n} plant pairs never trip" in out
+    # the README's statement of that run: its count and its largest sync error
+    said = re.search(r"On the example, ([\d,]+) pairs of ([\d,]+) pass \(95 % interval "
+                     r"([\d.]+)–100 %\); the largest sync error of\s+any pair is ([\d,]+) "
+                     r"counts against the ([\d,]+)-count trip", README.read_text())  # fmt: skip
+    assert said is not None
+    k, total, lo, largest, trip = (_number(g) for g in said.groups())
+    assert k == total == n
+    assert f"95 % interval {lo:.1f}–100.0 %" in out
+    assert f"largest sync error {largest:.0f} counts" in out
+    assert trip == load_gantry(GANTRY).sync.trip_counts
+
+
+def test_the_readme_account_of_a_thousand_pairs(cfg) -> None:
+    """At 1,000 pairs the README says which pair trips, by how much and where in the set."""
+    text = " ".join(README.read_text().split())
+    said = re.search(r"At ([\d,]+) pairs one pair trips \(([\d,]+) of ([\d,]+) pass, 95 % "
+                     r"interval ([\d.]+)–([\d.]+) %; `mc(\d+)`, ([\d,]+) counts\), near the "
+                     r"set's corner where the strong, fast master \(gain ([+−\d]+) %, tau "
+                     r"([+−\d]+) %\) meets the weakest, slowest slave \(gain ([+−\d]+) %, "
+                     r"tau ([+−\d]+) %\)", text)  # fmt: skip
+    assert said is not None
+    n, k, n2, lo, hi, index, largest, mg, mt, sg, st = (_number(g) for g in said.groups())
+    mc = gantry_montecarlo(cfg, int(n), seed=0)
+    kk, nn, _, ci_lo, ci_hi = mc.pass_fraction
+    assert (kk, nn) == (k, n2) == (n - 1, n)
+    assert (round(100 * ci_lo, 1), round(100 * ci_hi, 3)) == (lo, hi)
+    tripped = [v for v in mc.variants if v.tripped]
+    assert [v.index for v in tripped] == [index] and mc.worst.label == f"mc{index:.0f}"
+    assert round(mc.worst.max_sync_error_counts) == largest
+    f = mc.worst.factors
+    for key, pct in (("master_gain", mg), ("master_tau", mt), ("slave_gain", sg),
+                     ("slave_tau", st)):  # fmt: skip
+        assert round(100 * (f[key] - 1)) == pct, key
