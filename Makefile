@@ -49,7 +49,7 @@ format: $(STAMP)
 
 # both cores (pytest-xdist); a file's tests stay on one worker, so module fixtures run once
 test: lint
-	$(BIN)/python -m pytest -m "not slow and not wheel" -n 2 --dist loadfile
+	$(BIN)/python -m pytest -m "not slow and not wheel" -n 2 --dist loadfile $(PYTEST_ARGS)
 
 # A pip user's first hour (tests/test_wheel.py): the built wheel in a fresh venv outside the
 # repository runs the README's chain from an empty directory (about 4 minutes: numba compiles
