@@ -57,8 +57,8 @@ test: lint
 test-wheel: $(STAMP)
 	$(BIN)/python -m pytest -m wheel
 
-# The big statistical runs (DECISIONS 8: marker `slow`, not part of `make test`), e.g. the
-# identifier's coverage over 250 closed-loop logs (tests/identify).
+# The big statistical runs (docs/decisions.md#8-test-time: marker `slow`, not part of
+# `make test`), e.g. the identifier's coverage over 250 closed-loop logs (tests/identify).
 test-slow: $(STAMP)
 	$(BIN)/python -m pytest -m slow
 

@@ -156,7 +156,7 @@ class Options:
     rig_path : Path
         The rig file the benchmarks build their loops from.
     scale_plants : int, optional
-        Plant sets of the ``scale`` benchmark (default :data:`SCALE_PLANTS`, the issue's whole
+        Plant sets of the ``scale`` benchmark (default :data:`SCALE_PLANTS`, the whole target
         run: about 4.5 minutes here for its four runs; fewer for a quick look, extrapolated).
     """
 
@@ -924,7 +924,7 @@ def bench_c_runtime(opts: Options) -> list[Figure]:
 
 @register("arch")
 def bench_arch(opts: Options) -> list[Figure]:
-    """The gantry (seed 003) and linkage (seed 002) kernels: ns per tick, beside their baseline.
+    """The gantry and linkage kernels (docs/systems.md): ns per tick, beside their baseline.
 
     The baseline is :data:`ARCH_BASELINE_NS`: the same runs timed on the kernels as they were
     before they were composed from the shared tick (commit 5e122fc, this 2-core VM).
@@ -1054,8 +1054,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     )  # fmt: skip
     ap.add_argument("--quick", action="store_true", help="small sizes (smoke test)")
     ap.add_argument("--scale-plants", type=int, default=None, metavar="N",
-                    help="plant sets of the 'scale' benchmark (default 1000000: the issue's "
-                    "whole run, about 4.5 minutes on 2 cores; fewer: extrapolated)")  # fmt: skip
+                    help="plant sets of the 'scale' benchmark (default 1000000: the whole "
+                    "target run, about 4.5 minutes on 2 cores; fewer: extrapolated)")  # fmt: skip
     return ap.parse_args(argv)
 
 
@@ -1192,7 +1192,8 @@ def bench_demo(opts: Options) -> list[Figure]:
     Returns
     -------
     list of Figure
-        ``demo_quick_warm_s``; goal under 30 s (DECISIONS 9).
+        ``demo_quick_warm_s``; goal under 30 s
+        (docs/decisions.md#9-the-demo-preset).
     """
     import subprocess
 
@@ -1250,10 +1251,10 @@ def bench_montecarlo(opts: Options) -> list[Figure]:
 
 
 SCALE_PLANTS = 1_000_000
-"""Plant sets the ``scale`` benchmark measures on: the issue's run, measured, not extrapolated
+"""Plant sets the ``scale`` benchmark measures on: the target run, measured, not extrapolated
 (``--scale-plants`` fewer: then the time for :data:`SCALE_TARGET` is extrapolated and says so)."""
 SCALE_TARGET = 1_000_000
-"""The issue's run: plant sets of the example rig through its sync scenario."""
+"""The target run: plant sets of the example rig through its sync scenario (docs/scale.md)."""
 
 
 @register("scale")

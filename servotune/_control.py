@@ -6,7 +6,7 @@ package ``slycot``) when it can import it: the frequency response of a state-spa
 and back (``tb04ad``), a state-space system's zeros (``ab08nd``). Both paths give the same
 numbers up to the last bits, but the last bits differ, and servotune writes them: the margins in
 a tuning file, hence its SHA-256, which a verification record and an export bind. Measured
-(2026-11-26, python-control 0.10.2, slycot 0.7.1): with slycot installed the example rig's
+with python-control 0.10.2 and slycot 0.7.1: with slycot installed the example rig's
 ``make demo`` wrote a ``tuning.json`` whose margins differed in the 14th-16th digit (a phase
 margin 45.50000108055275 against 45.500001080552494), so the same input and seed gave other bytes
 and the pinned demo digests failed.

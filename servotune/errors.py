@@ -35,7 +35,7 @@ class RigError(ServotuneError, ValueError):
 
 
 class LogFormatError(ServotuneError, ValueError):
-    """A log file does not follow the log format (SPEC §5)."""
+    """A log file does not follow the log format (docs/formats.md#log-file)."""
 
 
 class IdentificationError(ServotuneError, ValueError):

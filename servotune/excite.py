@@ -8,12 +8,12 @@ from about 0.2 Hz to 0.4 · Nyquist) or ``steps`` (+A, −A/2, +A/2, −A, ... w
 :func:`design_excitation` scales the amplitude down until the sequence fits the D/A range and
 the motion the rig's nominal plant predicts for it stays within 90 % of the axis speed limit and
 of its travel (10 % margin for friction, drift and model error). The prediction is the exact
-response of the linear axis model (SPEC §5) to the held codes, with the analog drift
-``offset_v`` acting from the start and Coulomb friction left out (it only slows the axis).
+response of the linear axis model (docs/formats.md#axis-model) to the held codes, with the analog
+drift ``offset_v`` acting from the start and Coulomb friction left out (it only slows the axis).
 
 Files (:func:`write_excitation`, :func:`read_excitation`, both in
-:mod:`servotune.io.excitation`) are log-format CSV (SPEC §5) with the columns
-``tick,time_s,<axis>.dac_code`` (absolute codes); :func:`excitation_inputs` turns codes into
+:mod:`servotune.io.excitation`) are log-format CSV (docs/formats.md#excitation-file) with the
+columns ``tick,time_s,<axis>.dac_code`` (absolute codes); :func:`excitation_inputs` turns codes into
 engine inputs, open loop or with the lock module active.
 """
 
@@ -146,7 +146,8 @@ class Excitation:
         return self.codes + self.zero_code
 
     def to_columns(self) -> dict[str, np.ndarray]:
-        """Log columns (SPEC §5): ``{"<axis>.dac_code": absolute codes}`` (int64)."""
+        """Log columns (docs/formats.md#columns): ``{"<axis>.dac_code": absolute codes}``
+        (int64)."""
         return {f"{self.axis}.dac_code": self.absolute_codes}
 
     def to_dict(self) -> dict[str, Any]:

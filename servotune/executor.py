@@ -14,8 +14,8 @@ results in that fixed order. Two implementations:
   re-runs the tasks of a worker that dies; servotune has no pool or scheduler of its own.
 
 :func:`open_executor` chooses one. Results do not depend on the choice: a task's randomness is
-keyed by the work's seed and each item's index (DECISIONS 11; e.g. a chunk of plants
-``[start, stop)`` of a Monte-Carlo run draws its plants as
+keyed by the work's seed and each item's index (docs/decisions.md#11-random-numbers; e.g. a chunk of
+plants ``[start, stop)`` of a Monte-Carlo run draws its plants as
 :func:`servotune.verify.variants.chunk_generator` jumps into the seed's stream), never by the
 worker, the chunk or the order in which tasks finish; so a run gives the same bytes on one
 process, two workers or a hundred. (A seed per chunk, ``SeedSequence`` of the seed and the
@@ -279,9 +279,9 @@ EMBEDDED_CLUSTER_CONFIG = {
 the event loops' health check every second instead of every 20 ms, the resource monitor every
 5 s instead of every 0.5 s, no statistical profiler in the workers (it samples their stacks
 every 10 ms for a dashboard nobody opens here). Idle, Dask's defaults cost a 2-worker cluster
-on this 2-core VM about 2.2 s of CPU per 20 s (the client's process 0.8 s, the workers 1.4 s);
-these, 0.7 s: on a 25 s Monte-Carlo run, about a second of CPU the workers get back (measured
-2026-11-27, ``docs/scale.md``). A cluster reached by its address keeps its own settings."""
+on a 2-core machine about 2.2 s of CPU per 20 s (the client's process 0.8 s, the workers 1.4 s);
+these, 0.7 s: on a 25 s Monte-Carlo run, about a second of CPU the workers get back (measured:
+``docs/scale.md``). A cluster reached by its address keeps its own settings."""
 
 
 @contextmanager

@@ -1,4 +1,5 @@
-"""Runtime fixed-point arithmetic (SPEC §6): the one quantiser and the integer primitives.
+"""Runtime fixed-point arithmetic (docs/runtime.md#fixed-point-constants): the one quantiser and the
+integer primitives.
 
 Every design constant that reaches the runtime is turned into a pair ``(q, f)`` by
 :func:`quantize`: ``q`` a signed integer, ``f`` its fraction bits, value ``q * 2**-f``.

@@ -1,4 +1,5 @@
-"""Log files (SPEC §5): what ``servotune simulate`` writes and ``servotune fit`` reads.
+"""Log files (docs/formats.md#log-file): what ``servotune simulate`` writes and ``servotune fit``
+reads.
 
 A log is CSV: optional ``# key: value`` metadata lines, one header row, then one row per tick.
 Time is ``time_s`` and/or ``tick``; per axis, columns prefixed ``<axis>.`` (a single-axis log may
@@ -7,11 +8,12 @@ register or ``pos_counts`` unwrapped) and optionally ``ref_counts``, ``exc_code`
 (``lock`` / ``task`` / ``open``). Sampling is uniform. Writes are atomic (temp file, then rename).
 
 ``exc_code`` is the excitation the law adds to its output [D/A codes, signed, relative to the
-zero code] (DECISIONS 5): ``servotune simulate`` writes it, ``servotune fit`` builds its
-instruments from it (:mod:`servotune.identify.iv`); a log without it still reads and fits. Log
-files carry no format version (they come from other tools too): the column is an optional
-addition, so every older log reads as before, and a servotune that predates it refuses a log that
-has it with one line naming the unknown column (exit 3) — never a silent misread (DECISIONS 17).
+zero code] (docs/decisions.md#5-excitation-is-logged): ``servotune simulate`` writes it,
+``servotune fit`` builds its instruments from it (:mod:`servotune.identify.iv`); a log without
+it still reads and fits. Log files carry no format version (they come from other tools too): the
+column is an optional addition, so every older log reads as before, and a servotune that predates
+it refuses a log that has it with one line naming the unknown column (exit 3) — never a silent
+misread (docs/decisions.md#17-file-versions).
 
 :func:`read_log` validates everything and names the first problem in one line, with its row
 (the 1-based line number in the file) and column. The data rows are parsed in bulk: rows in
@@ -185,7 +187,8 @@ class Log:
     dac_range_v : (float, float)
         D/A range [V] used to convert ``dac_code`` columns.
     compute_s : float or None
-        Metadata ``compute_s`` [s] (code written at t_k + compute_s, SPEC §4), if present.
+        Metadata ``compute_s`` [s] (code written at t_k + compute_s,
+        docs/runtime.md#one-tick), if present.
     path : str
         Where the log was read from (``""`` if built in memory).
     """
@@ -342,7 +345,7 @@ def read_log(
     compute_s: float | None = None,
     strict: bool = False,
 ) -> Log:
-    """Read and validate a log file (SPEC §5).
+    """Read and validate a log file (docs/formats.md#log-file).
 
     Each setting comes from the keyword option if given (the command line, or the rig when one
     is known), else from the log's metadata (``# counter_bits: 24``, ``# dac_bits: 12``,
@@ -533,7 +536,7 @@ def _read_log(
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Table:
-    """A log-format CSV file (SPEC §5) parsed without the log's column-set rules.
+    """A log-format CSV file (docs/formats.md#log-file) parsed without the log's column-set rules.
 
     What :func:`read_table` returns, for files that share the log format but not its columns
     (the excitation files of :mod:`servotune.excite`).

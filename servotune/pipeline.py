@@ -87,10 +87,12 @@ def run_scenario(rig: Rig, scenario: Scenario, *, seed: int = 0, noise: bool = T
 
 
 def trace_log_columns(trace: Trace, excitation: np.ndarray | None = None) -> dict[str, np.ndarray]:
-    """Log columns (SPEC §5) of a trace: per axis dac_code, counter, ref_counts, mode.
+    """Log columns (docs/formats.md#columns) of a trace: per axis dac_code, counter, ref_counts,
+    mode.
 
     With ``excitation`` (the run's ``Inputs.dac_add_codes``, shape (ticks, axes) [D/A codes])
-    each axis also gets ``exc_code``, the excitation its law added (DECISIONS 5), from which
+    each axis also gets ``exc_code``, the excitation its law added
+    (docs/decisions.md#5-excitation-is-logged), from which
     ``servotune fit`` builds its instruments.
     """
     cols: dict[str, np.ndarray] = {}
@@ -105,7 +107,7 @@ def trace_log_columns(trace: Trace, excitation: np.ndarray | None = None) -> dic
 
 
 def log_metadata(rig: Rig, **extra: object) -> dict[str, object]:
-    """Metadata lines of a log written from a rig (SPEC §5)."""
+    """Metadata lines of a log written from a rig (docs/formats.md#metadata)."""
     lo, hi = rig.dac.range_v
     meta: dict[str, object] = {
         "rig": rig.name,
@@ -167,8 +169,8 @@ def lock_hold(rig: Rig, *, seconds: float = 60.0, settle_s: float = 2.0, seed: i
 def run_architectures(plants_dir: str | Path, out_dir: str | Path, *, seed: int = 0) -> dict:
     """Run the synchronisation architectures whose example configs sit in ``plants_dir``.
 
-    ``gantry.toml`` (seed 003): every topology in both cases → ``sync.json``,
-    ``sync_load.png``, ``sync_mismatch.png``; ``linkage-6axis.toml`` (seed 002) →
+    ``gantry.toml`` (the fieldbus gantry): every topology in both cases → ``sync.json``,
+    ``sync_load.png``, ``sync_mismatch.png``; ``linkage-6axis.toml`` (the multi-CPU linkage) →
     ``linkage.json``, ``linkage_queues.png``, ``linkage_circle.png``. Returns a summary per
     architecture (whether it passed its checks, and its headline figures).
     """

@@ -1,4 +1,5 @@
-"""The axis model (SPEC §5): D/A volts → encoder counts, with its exact integration.
+"""The axis model (docs/formats.md#axis-model): D/A volts → encoder counts, with its exact
+integration.
 
 A speed-command drive and motor, position ``p`` [counts], speed ``v = dp/dt`` [counts/s]::
 
@@ -6,10 +7,10 @@ A speed-command drive and motor, position ``p`` [counts], speed ``v = dp/dt`` [c
 
 with ``d = sign(v)`` the direction of motion, and at rest the direction the net input pushes
 (``d = +1`` if it exceeds ``coulomb_v``, ``d = −1`` if it is below ``−coulomb_neg``). The
-asymmetric model (issue 17) gives each direction its own viscous gain and Coulomb level:
-``gain_d, coulomb_d`` are ``gain_cps_per_v, coulomb_v`` for ``d = +1`` and
+asymmetric model (docs/formats.md#asymmetric-friction) gives each direction its own viscous gain and
+Coulomb level: ``gain_d, coulomb_d`` are ``gain_cps_per_v, coulomb_v`` for ``d = +1`` and
 ``gain_neg_cps_per_v, coulomb_neg_v`` for ``d = −1`` (each ``None``: the positive direction's
-value, the symmetric model of SPEC §5). The speed the drive aims at is limited to
+value, the symmetric model). The speed the drive aims at is limited to
 ``±max_speed`` (the drive's speed limit, the same both ways), and at rest the motor stays at
 rest while ``−coulomb_neg_v <= u + offset_v + load_v <= coulomb_v`` (no chattering through
 zero). Between input changes the input is constant, so position and speed have a closed form;
@@ -62,7 +63,7 @@ def _check_finite_ge(name: str, value: float, lo: float, unit: str, strict: bool
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Plant:
-    """Dynamics of one axis (SPEC §5), volts at the D/A output → encoder counts.
+    """Dynamics of one axis (docs/formats.md#axis-model), volts at the D/A output → encoder counts.
 
     Parameters
     ----------
@@ -92,7 +93,7 @@ class Plant:
     Notes
     -----
     With both ``*_neg`` fields None (or equal to the positive direction's values) the model is
-    SPEC §5's symmetric one, and every simulation gives the same bytes as before they existed.
+    the symmetric one, and every simulation gives the same bytes as before they existed.
     The linear model (:meth:`to_tf`, :func:`discretize`) uses the mean gain
     (:attr:`mean_gain_cps_per_v`) and, as always, leaves the friction out.
     """
@@ -137,7 +138,7 @@ class Plant:
 
     @property
     def symmetric(self) -> bool:
-        """True if both directions have the same gain and Coulomb level (SPEC §5's model)."""
+        """True if both directions have the same gain and Coulomb level (the symmetric model)."""
         (g_p, g_n), (c_p, c_n) = self.gains_cps_per_v, self.coulombs_v
         return g_p == g_n and c_p == c_n
 
@@ -193,7 +194,7 @@ class Plant:
         return cls(gain_cps_per_v=float(num[0] / den[1]), tau_s=float(den[0] / den[1]), **extra)
 
     def to_dict(self) -> dict[str, float | None]:
-        """Plain dict with the SPEC parameter names."""
+        """Plain dict with the axis model's parameter names (docs/formats.md#axis-model)."""
         return {
             "coulomb_neg_v": self.coulomb_neg_v,
             "coulomb_v": self.coulomb_v,

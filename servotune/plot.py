@@ -441,7 +441,7 @@ def _overlap_style(i: int, n: int) -> dict[str, Any]:
 
 
 def plot_queue_levels(result: LinkageResult, ax: plt.Axes | None = None) -> plt.Figure:
-    """Queue level of every slave CPU before each pop over master time (seed 002 linkage).
+    """Queue level of every slave CPU before each pop over master time (multi-CPU linkage).
 
     The level is a sawtooth at the broadcast period (a block arrives, each tick pops one), far
     too fast to read over a whole run. Without ``ax`` the figure has one row of panels per CPU,

@@ -1,11 +1,11 @@
 """The rig: loading, validating and describing ``plants/*.toml``, and writing a plant into one.
 
-A rig file (SPEC §5) describes the hardware around the loop and one ``[axis.<name>]`` table per
-axis with its plant under ``[axis.<name>.plant]``. Every field is validated on load; an error
-names the field, the value and the unit. Unknown keys are errors (a misspelt key would otherwise
-be silently ignored). The model itself (:class:`Rig`, its sections and their bounds) is
-:mod:`servotune.rig_model`, re-exported here: ``servotune.rig`` is where the rig is imported from.
-The TOML machinery (tables built into dataclasses, a plant table edited in place) is
+A rig file (docs/formats.md#rig-file) describes the hardware around the loop and one
+``[axis.<name>]`` table per axis with its plant under ``[axis.<name>.plant]``. Every field is
+validated on load; an error names the field, the value and the unit. Unknown keys are errors (a
+misspelt key would otherwise be silently ignored). The model itself (:class:`Rig`, its sections and
+their bounds) is :mod:`servotune.rig_model`, re-exported here: ``servotune.rig`` is where the rig is
+imported from. The TOML machinery (tables built into dataclasses, a plant table edited in place) is
 :mod:`servotune.io.rig`; this module checks files against the model.
 """
 
@@ -231,7 +231,8 @@ def describe_rig(rig: Rig) -> dict[str, Any]:
         Timer divisor, achieved period and its error, counts per revolution, D/A LSB, the
         counter's speed limits (high-byte unwrap and input frequency) against each axis's speed
         limit, the time to wrap the counter at that speed, and the lock module's predicted
-        holding band (SPEC §1a) for each axis's drift and friction.
+        holding band (docs/runtime.md#position-lock-and-its-holding-band) for each axis's drift and
+        friction.
     """
     t, c = rig.timer, rig.counter
     unwrap_rpm = hw_counter.unwrap_speed_limit_rpm(c.bits, rig.counts_per_rev, rig.period_s)
@@ -278,8 +279,9 @@ def describe_rig(rig: Rig) -> dict[str, Any]:
 # --- writing a plant section ---------------------------------------------------------------
 
 EXAMPLE_RIG_PATH = EXAMPLES_DIR / "pc-dual-servo.toml"
-"""The example rig of seed 000, the template :func:`write_plant` starts a new rig file from: the
-package's copy (:mod:`servotune.examples`), so it is there without a checkout."""
+"""The example rig (docs/systems.md#pc-dual-servo-synchronisation), the template :func:`write_plant`
+starts a new rig file from: the package's copy (:mod:`servotune.examples`), so it is there without a
+checkout."""
 
 
 def write_plant(

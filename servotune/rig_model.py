@@ -1,4 +1,5 @@
-"""The rig model (SPEC §5): timer, counter, D/A, encoder and axes, each checked when built.
+"""The rig model (docs/formats.md#rig-file): timer, counter, D/A, encoder and axes, each checked
+when built.
 
 Every field is validated in ``__post_init__``; an error names the field, the value and the unit.
 The bounds of the hardware's and the axes' values are the module constants (``MAX_*``; a
@@ -237,14 +238,15 @@ FIT_PCT_KEYS = ("velocity_fit_pct", "velocity_fit_cv_pct", "position_fit_pct",
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class PlantFit:
-    """How an axis's plant was identified: ``[axis.<name>.plant.fit]`` (DECISIONS 6).
+    """How an axis's plant was identified: ``[axis.<name>.plant.fit]``
+    (docs/decisions.md#6-the-fit-record).
 
     ``servotune fit -o`` writes it beside the fitted values; robust tuning and Monte-Carlo
     studies read their plant set from the intervals. A rig file without it is a hand-written
     (or older) model. Rig files carry no format version: the table is an optional addition,
     every older rig file reads as before, and a servotune that predates it refuses a file that
     has it with one line naming the unknown key (exit 3) — never a silent misread
-    (DECISIONS 17).
+    (docs/decisions.md#17-file-versions).
 
     Parameters
     ----------

@@ -1,9 +1,10 @@
 """The tuning file: what ``servotune tune`` produces and ``verify`` and ``export-table`` read.
 
 A tuning holds, per axis, the runtime's constants exactly as they run: every constant as its
-quantised ``(q, f)`` pair (SPEC §6: nothing is re-quantised later), the query tables as int16
-entries with their fraction bits, the tick period and the timer divisor, the design values they
-came from (floats, for people), and provenance (rig hash, tool version, seed).
+quantised ``(q, f)`` pair (docs/runtime.md#fixed-point-constants: nothing is re-quantised later),
+the query tables as int16 entries with their fraction bits, the tick period and the timer divisor,
+the design values they came from (floats, for people), and provenance (rig hash, tool version,
+seed).
 
 The file is JSON with sorted keys, two-space indent and a trailing newline: the same tuning
 gives the same bytes. ``"schema": "servotune.tuning/2"`` (``/2`` added the rig file's path;

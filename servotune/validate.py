@@ -8,7 +8,7 @@ must be exact ``int`` values (``24.0`` and ``"24"`` are not integers). Values to
 are shortened in the message (a 10**400 integer does not flood the terminal). Unknown keys are
 refused with the allowed ones and the closest of them (``did you mean 'period_s'?``).
 
-Why hand-written checks and not pydantic v2 or msgspec (issue 15 asked to prefer a library;
+Why hand-written checks and not pydantic v2 or msgspec (a library was the first choice;
 msgspec 0.22 was tried on the tuning format): both give exact types, enumerations, unknown-key
 refusal and bounds, but their messages (``Expected `int`, got `float` - at `$.k.q` ``) carry
 neither the unit nor the allowed range in our words nor a did-you-mean, so every field would

@@ -35,7 +35,7 @@ def quick_tuning() -> st.Tuning:
 
 @pytest.fixture(scope="session")
 def rig() -> st.Rig:
-    """The example rig of seed 000 (plants/pc-dual-servo.toml)."""
+    """The example rig, the PC dual-servo rig (plants/pc-dual-servo.toml)."""
     return st.load_rig(EXAMPLE_RIG)
 
 

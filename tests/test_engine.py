@@ -44,7 +44,7 @@ def _python_control_closed_loop(loop: st.Loop, lag_s: float, ref: np.ndarray) ->
 )
 def test_ideal_loop_equals_python_control(rig: st.Rig, compute_s: float, delay_s: float) -> None:
     # acceptance: ideal PI, no quantisation/friction/noise: engine == python-control within
-    # 1e-9 of max|y|. The issue asks for compute_s = 0 and no delay; the lagged cases check the
+    # 1e-9 of max|y|. The acceptance case is compute_s = 0 and no delay; the lagged cases check the
     # fractional-delay discretisation the same way.
     r1 = linear_one_axis(rig, compute_s=compute_s, delay_s=delay_s)
     loop = st.Loop.from_rig(r1, [st.PIGains(kp=0.25, ki=0.8)])
@@ -81,7 +81,7 @@ def test_integer_pi_within_one_lsb_of_ideal() -> None:
 
 
 def test_lock_holds_example_rig_within_one_pulse(rig: st.Rig) -> None:
-    # acceptance (seed 000): the lock module (Kp = 0.4 codes/count) holds both axes within
+    # acceptance (the PC rig's lock): the lock module (Kp = 0.4 codes/count) holds both axes within
     # ±1 pulse = ±4 counts for 60 s against the rig's drift, judged after the start transient
     # on the noiseless position
     res = lock_hold(rig, seconds=60.0, settle_s=2.0, seed=3)
@@ -96,14 +96,15 @@ def test_lock_holds_example_rig_within_one_pulse(rig: st.Rig) -> None:
 
 @pytest.mark.parametrize("offset_mv", [-8.0, -3.0, 1.5, 4.0, 5.0, 6.5, 9.0])
 def test_predicted_lock_band_matches_simulation(rig: st.Rig, offset_mv: float) -> None:
-    # acceptance: the band `servotune rig` predicts (the quantised fixed point of SPEC §1a)
+    # acceptance: the band `servotune rig` predicts (the quantised fixed point of
+    # docs/runtime.md#position-lock-and-its-holding-band)
     # matches simulation within 1 count, for several drifts (friction-free, noiseless plant)
     r1 = one_axis(rig, offset_v=offset_mv * 1e-3, coulomb_v=0.0, noise_counts=0.0)
     res = lock_hold(r1, seconds=20.0, settle_s=3.0)
     lo, hi = res.observed["master"]
     plo, phi = res.predicted["master"]
     assert abs(lo - plo) <= 1 and abs(hi - phi) <= 1, ((lo, hi), (plo, phi))
-    # SPEC §1a: below 4.88 mV within 2 counts, 4.88–9.77 mV within 4 counts
+    # below 4.88 mV within 2 counts, 4.88–9.77 mV within 4 counts
     bound = 2 if abs(offset_mv) < 4.8828125 else 4
     assert max(abs(plo), abs(phi)) <= bound
 
@@ -431,20 +432,6 @@ def test_a_kernel_that_cannot_compile_is_an_error_with_its_cause(
     assert calls == [1]
     # the general kernel is untouched
     assert np.all(np.isfinite(st.run_batch(batch, inputs, metrics_only=False).metrics.array))
-
-
-def test_the_old_module_path_warns_and_gives_the_same_objects() -> None:
-    # issue 16: the engine moved to servotune.sim.engine; the old path warns, same objects
-    import importlib
-    import sys
-
-    import servotune.sim.engine as new
-
-    sys.modules.pop("servotune.engine", None)
-    with pytest.warns(DeprecationWarning, match="servotune.sim.engine"):
-        old = importlib.import_module("servotune.engine")
-    assert old.__all__ == new.__all__
-    assert all(getattr(old, name) is getattr(new, name) for name in new.__all__)
 
 
 def test_batch_metrics_are_named_and_round_trip_the_kernel_array() -> None:

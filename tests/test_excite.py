@@ -29,7 +29,8 @@ from servotune.rig import Dac
 
 # plants/pc-dual-servo.toml: 600 r/min × 3072 pulses/rev × 4 (x4) / 60 = 122,880 counts/s
 SPEED_LIMIT_CPS = 122_880.0
-# 10 s at the achieved period 4.000235 ms (divisor 4773, SPEC §1a) rounds to 2500 ticks
+# 10 s at the achieved period 4.000235 ms (divisor 4773, docs/runtime.md#timer-and-achieved-period)
+# rounds to 2500 ticks
 N_10S = 2500
 
 
@@ -90,12 +91,13 @@ def test_excitation_plays_within_dac_speed_and_travel(rig: st.Rig, kind: str, va
     assert speed.max() > 0.5 * pred_cps and speed.min() < -0.5 * pred_cps
     big = speed[np.abs(speed) > 0.25 * pred_cps]
     assert np.count_nonzero(np.diff(np.sign(big))) >= 4
-    # the other axis stays in lock: within ±1 pulse (±4 counts at x4, SPEC §1a)
+    # the other axis stays in lock: within ±1 pulse (±4 counts at x4,
+    # docs/runtime.md#position-lock-and-its-holding-band)
     assert np.ptp(tr.pos_counts[:, tr.axis("slave")]) <= 8
 
 
 def test_step_amplitude_set_by_the_speed_limit(rig: st.Rig) -> None:
-    # steady speed of a level (SPEC §5 axis model): K (A·LSB + offset_v) <= 0.9 · limit, so
+    # steady speed of a level (docs/formats.md#axis-model): K (A·LSB + offset_v) <= 0.9 · limit, so
     # A = floor((0.9 · 122880 / 12288 − 0.005) / (20 / 4096)) = floor(1842.18) = 1842
     ex = design_excitation(rig, "master", "steps", 10.0)
     assert ex.amplitude_codes == 1842
@@ -138,7 +140,7 @@ def test_closed_loop_play_keeps_the_axis_nearer_home(rig: st.Rig) -> None:
     i = rig.axis_names.index("master")
     open_tr, closed_tr = _play(rig, ex), _play(rig, ex, closed_loop=True)
     assert np.ptp(closed_tr.pos_counts[:, i]) < np.ptp(open_tr.pos_counts[:, i])
-    # open loop writes exactly the designed codes (D/A as written, SPEC §4)
+    # open loop writes exactly the designed codes (D/A as written, docs/runtime.md#da-quantisation)
     np.testing.assert_array_equal(open_tr.code[:, i], ex.absolute_codes)
 
 

@@ -1,9 +1,9 @@
 """The executor seam (servotune.executor) on a real Dask cluster: a ``LocalCluster`` of 2 worker
 processes (one thread each) started here, as `servotune verify --workers 2` starts one.
 
-What must hold (issue 22, point 4): a Monte-Carlo verification (the single rig's, and the
-gantry's plant pairs) gives the same result, to the byte of its record, in-process and on the
-cluster, for any chunk size; a worker killed while its
+What must hold (docs/decisions.md#11-random-numbers): a Monte-Carlo verification (the single rig's,
+and the gantry's plant pairs) gives the same result, to the byte of its record, in-process and on
+the cluster, for any chunk size; a worker killed while its
 task runs changes nothing (Dask re-runs the task elsewhere); a scheduler that refuses gives one
 line and exit 3. Sizes are small (40 plant sets, the sync scenario only): the file runs in
 about half a minute, most of it the cluster's start and the workers' first imports.

@@ -48,7 +48,8 @@ def test_fit_json_rig_file_and_plot(
     assert "method: iv" in cap.err and "intervals: moving-block bootstrap" in cap.err
     assert "counts/s/V 95 %:" in cap.err
     # the rig file was created from the example rig, with the fitted plant, its provenance and
-    # the fit record (DECISIONS 6): intervals, method, structure, friction form, adequacy
+    # the fit record (docs/decisions.md#6-the-fit-record): intervals, method, structure, friction
+    # form, adequacy
     ax = st.load_rig(rig_out).axis("master")
     assert ax.plant.tau_s == pytest.approx(d["params"]["tau_s"], rel=1e-6)
     assert "fitted by servotune" in rig_out.read_text()

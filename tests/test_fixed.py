@@ -1,4 +1,5 @@
-"""Tests for servotune.fixed: the one quantiser and the integer primitives (SPEC §6)."""
+"""Tests for servotune.fixed: the one quantiser and the integer primitives
+(docs/runtime.md#fixed-point-constants)."""
 
 from __future__ import annotations
 
@@ -25,7 +26,8 @@ from servotune.fixed import (
 
 IMAX = 2**63 - 1  # INT64_MAX as a Python int
 IMIN = -(2**63)  # INT64_MIN, never produced by the saturating primitives
-LIM32 = 2**31 - 1  # SPEC §6 / fixed.py: |q| <= 2**(bits−1) − 1, the most negative value excluded
+# docs/runtime.md#fixed-point-constants: |q| <= 2**(bits−1) − 1, the most negative value excluded
+LIM32 = 2**31 - 1
 LIM16 = 2**15 - 1
 
 
@@ -36,7 +38,7 @@ def _rha(x: Fraction) -> int:
 
 
 def test_constants():
-    # SPEC §6: f_u = 32 fraction bits; clamp to ±(2**31 − 1); saturation at ±INT64_MAX
+    # docs/runtime.md: f_u = 32 fraction bits; clamp to ±(2**31 − 1); saturation at ±INT64_MAX
     assert F_U == 32
     assert int(E_MAX) == 2**31 - 1
     assert int(INT64_MAX) == IMAX
@@ -59,7 +61,7 @@ def test_constants():
     ],
 )
 def test_round_half_away(x, expected):
-    # SPEC §6: one rounding, half away from zero
+    # docs/runtime.md#rounding: one rounding, half away from zero
     assert round_half_away(x) == expected
     assert_array_equal(round_half_away(np.array([x])), [expected])
 
@@ -72,7 +74,7 @@ def test_round_half_away(x, expected):
 @pytest.mark.parametrize(
     ("x", "q", "f"),
     [
-        # SPEC §1a: Kp = 0.4; fixed.py docstring: 0.4 → (1717986918, 32)
+        # the lock's Kp = 0.4; fixed.py docstring: 0.4 → (1717986918, 32)
         # computed by hand: 0.4 · 2**32 = 1,717,986,918.4 → 1,717,986,918 <= 2**31 − 1
         (0.4, 1_717_986_918, 32),
         # computed by hand: 3e6 · 2**9 = 1.536e9 fits, 3e6 · 2**10 = 3.07e9 does not
@@ -257,7 +259,8 @@ def _shift_round_cases() -> list[tuple[int, int]]:
 
 
 def test_shift_round_is_exact_round_half_away():
-    # SPEC §6: shift_round(x, f) = round half away from zero of x / 2**f, f >= 1, x > INT64_MIN
+    # docs/runtime.md#rounding: shift_round(x, f) = round half away from zero of x / 2**f, f >= 1, x
+    # > INT64_MIN
     cases = _shift_round_cases()
     assert all(-IMAX <= x <= IMAX for x, _ in cases)
     got = [shift_round(x, f) for x, f in cases]
@@ -387,7 +390,8 @@ def test_align_random():
 @pytest.mark.parametrize(
     ("x", "expected"),
     [
-        # SPEC §6: e, ec and Δr clamped to ±(2**31 − 1) before any product
+        # docs/runtime.md#saturation-and-clamps: e, ec and Δr clamped to ±(2**31 − 1) before any
+        # product
         (0, 0),
         (2**31 - 1, 2**31 - 1),
         (2**31, 2**31 - 1),
@@ -405,7 +409,8 @@ def test_clamp_e(x, expected):
 
 
 def test_products_after_clamp_cannot_overflow():
-    # SPEC §6: int32 q × clamped int32 e fits int64: (2**31 − 1)**2 < INT64_MAX
+    # docs/runtime.md#saturation-and-clamps: int32 q × clamped int32 e fits int64: (2**31 − 1)**2 <
+    # INT64_MAX
     e = clamp_e(IMAX)
     assert LIM32 * e <= IMAX
     assert (-LIM32) * clamp_e(-IMAX) <= IMAX

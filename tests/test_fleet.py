@@ -1,16 +1,17 @@
-"""Fleet fits (``servotune fit LOGS --fleet``, issue 22 part 2): generated fleets with planted
+"""Fleet fits (``servotune fit LOGS --fleet``): generated fleets with planted
 drifts, the table's two forms, bad logs, determinism, the baseline table, the CLI.
 
 The logs are made the way the README's "Your own machine" makes one (``servotune excite
 --kind multisine`` played by ``servotune simulate --input … --closed-loop``, the lock module
 holding the axis), each machine with its own plant drawn around the example rig's master plant.
 Each machine's spread is drawn from a counter-based generator keyed by (seed, machine index)
-(DECISIONS 11), clipped at ±2.5 standard deviations (a production tolerance: no machine is a
-true outlier unless planted). Drifts are planted in a machine's second log only: friction up
-(``coulomb_v`` × 2.5), gain down (``gain_cps_per_v`` × 0.85), or both.
+(docs/decisions.md#11-random-numbers), clipped at ±2.5 standard deviations (a production tolerance:
+no machine is a true outlier unless planted). Drifts are planted in a machine's second log only:
+friction up (``coulomb_v`` × 2.5), gain down (``gain_cps_per_v`` × 0.85), or both.
 
-The 300-log fleet of the issue (150 machines × commissioning and now) is marked ``slow``
-(DECISIONS 8: ``make test-slow``); a 24-machine fleet checks the rest in ``make test``.
+The 300-log fleet (150 machines × commissioning and now) is marked ``slow``
+(docs/decisions.md#8-test-time: ``make test-slow``); a 24-machine fleet checks the rest in ``make
+test``.
 """
 
 from __future__ import annotations
@@ -138,7 +139,7 @@ def flagged(result: FleetResult) -> dict[str, tuple[str, ...]]:
     return result.summary.drifted
 
 
-# --- the issue's fleet: 300 logs, three planted drifts ---------------------------------------
+# --- the big fleet: 300 logs, three planted drifts ------------------------------------------
 
 BIG_MACHINES = 150
 BIG_DRIFTS = {17: FRICTION_UP, 58: GAIN_DOWN, 121: BOTH}
@@ -161,7 +162,7 @@ def test_300_log_fleet_flags_exactly_the_planted_drifts(
     s = result.summary
     assert len(paths) == 300 and s.n_rows == 300 and s.n_failed == 0
     assert s.n_machines == BIG_MACHINES
-    # the issue's question, answered: these machines drifted, in these parameters, no others
+    # the question, answered: these machines drifted, in these parameters, no others
     assert s.drifted == {
         "m017": ("coulomb_v",),
         "m058": ("gain_cps_per_v",),
@@ -510,7 +511,7 @@ def test_cli_fleet(
     )
     cap = capsys.readouterr()
     assert code == 0
-    doc = json.loads(cap.out)  # --json: the summary on stdout (DECISIONS 10), nothing else
+    doc = json.loads(cap.out)  # --json: the summary on stdout (docs/decisions.md#10-output-streams)
     assert doc["schema"] == "servotune.fleet/1" and doc["summary"]["drifted"] == {
         "m005": ["coulomb_v", "gain_cps_per_v"]
     }

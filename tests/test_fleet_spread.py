@@ -1,9 +1,9 @@
-"""The fleet's measured spread as a Monte-Carlo plant distribution (issue 22 item 3).
+"""The fleet's measured spread as a Monte-Carlo plant distribution.
 
 Small fleets built from :class:`FleetRow` objects directly (no fitting): the draws are keyed by
-(seed, draw index) whatever the chunking (DECISIONS 11), each draw is one machine's fitted plant
-exactly, a machine counts by its latest adequate fit, errors are one line, and
-``servotune verify --plants-from`` runs on it, its record binding the table's bytes; the loop
+(seed, draw index) whatever the chunking (docs/decisions.md#11-random-numbers), each draw is one
+machine's fitted plant exactly, a machine counts by its latest adequate fit, errors are one line,
+and ``servotune verify --plants-from`` runs on it, its record binding the table's bytes; the loop
 margins are judged on every machine (checked against a loop built here with python-control).
 """
 

@@ -1,4 +1,4 @@
-"""Fuzzing the file readers (issue 15, the reliability contract).
+"""Fuzzing the file readers (the reliability contract: one line, exit 3).
 
 Property: on any input, every reader returns or raises a :class:`ServotuneError` whose message
 is one line (the CLI prints it as its one line on stderr, exit 3). Anything else escaping it

@@ -40,7 +40,7 @@ def _log(tmp_path: Path, rig: st.Rig, scenario: str, closed: bool, seed: int) ->
 def test_fit_recovers_truth_over_ten_seeds(
     tmp_path: Path, rig: st.Rig, scenario: str, closed: bool
 ) -> None:
-    # acceptance (issue 3): gain and tau within 2 %, offset within 5 mV, Coulomb within 10 %,
+    # acceptance: gain and tau within 2 %, offset within 5 mV, Coulomb within 10 %,
     # delay within a quarter tick; open loop and closed loop (lock module active), the 24-bit
     # counter wrapping during the log, noise 0.3 counts, quantised encoder and D/A
     r = _rig_near_wrap(rig)
@@ -102,7 +102,7 @@ def test_uncertainty_covers_truth_and_result_is_complete(rig: st.Rig) -> None:
 
 @pytest.mark.parametrize("period_s", [0.001, 0.02])
 def test_other_sample_periods(rig: st.Rig, period_s: float) -> None:
-    # 1 ms and 20 ms logs must work (issue 3)
+    # 1 ms and 20 ms logs must work too
     timer = dataclasses.replace(rig.timer, period_s=period_s, compute_s=period_s / 20)
     r = dataclasses.replace(_rig_near_wrap(rig), timer=timer)
     truth = r.axis("master").plant

@@ -1,4 +1,4 @@
-"""The multi-CPU linkage of seed 002 (servotune.arch.linkage): interpolation, checks, clocks,
+"""The multi-CPU linkage (servotune.arch.linkage; docs/systems.md): interpolation, checks, clocks,
 contour.
 
 Reference values are computed by hand from the example config plants/linkage-6axis.toml
@@ -319,7 +319,7 @@ def test_contour_error_matches_the_tracking_errors_on_the_circle(result: Linkage
 
 def test_counter_wrap_is_transparent(config: LinkageConfig) -> None:
     """Axis x's 24-bit counter starting 100 counts below the top wraps at once (the high-byte
-    unwrap, SPEC §1a); the motion is the same bit for bit."""
+    unwrap, docs/runtime.md#counter-overflow-high-byte-rule); the motion is the same bit for bit."""
     x = dataclasses.replace(config.axes[0], counter_init=(1 << 24) - 100)
     wrapped = dataclasses.replace(config, axes=(x, *config.axes[1:]))
     a = run_linkage(config, seconds=2.0, seed=1)
@@ -480,17 +480,3 @@ def test_cli_plot_writes_pngs(tmp_path: Path, capsys: pytest.CaptureFixture[str]
     assert "PASSED" in cap.out and "circularity" in cap.out
     for name in ("linkage_queues.png", "linkage_circle.png"):
         assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-
-
-def test_the_old_module_path_warns_and_gives_the_same_objects() -> None:
-    # issue 16: the public API unchanged, or deprecated with a warning
-    import importlib
-    import sys
-
-    import servotune.arch.linkage as new
-
-    sys.modules.pop("servotune.linkage", None)
-    with pytest.warns(DeprecationWarning, match="servotune.arch.linkage"):
-        old = importlib.import_module("servotune.linkage")
-    assert old.__all__ == new.__all__
-    assert all(getattr(old, name) is getattr(new, name) for name in new.__all__)

@@ -1,4 +1,5 @@
-"""Tests for servotune.logs: reading and validating log files (SPEC §5), round trip with the writer.
+"""Tests for servotune.logs: reading and validating log files (docs/formats.md#log-file), round trip
+with the writer.
 
 Row numbers in the messages are 1-based line numbers in the file: with no metadata the header is
 line 1 and the first data row is line 2.
@@ -17,7 +18,8 @@ from servotune.errors import LogFormatError, ServotuneError
 from servotune.hw import dac as hw_dac
 from servotune.logs import MIN_ROWS, AxisLog, Log, format_log, read_log
 
-# SPEC §4: 12-bit D/A, LSB = 20 V / 4096, rails -10 V (code 0) and +9.99512 V (code 4095)
+# docs/runtime.md#da-quantisation: 12-bit D/A, LSB = 20 V / 4096, rails -10 V (code 0) and +9.99512
+# V (code 4095)
 LSB12 = 20.0 / 4096
 TOP24 = 2**24 - 1
 HEADER = "tick,time_s,dac_code,counter"
@@ -117,7 +119,7 @@ def test_cmd_v_and_pos_counts_taken_as_they_are(tmp_path: Path) -> None:
 def test_dac_codes_at_both_rails(tmp_path: Path) -> None:
     rows = [f"{k},{k * 0.004:.3f},{c},0" for k, c in enumerate([0, 2048, 4095])]
     ax = read_log(_log(tmp_path, rows=rows)).axis()
-    assert_allclose(ax.cmd_v, [-10.0, 0.0, 10.0 - LSB12], rtol=0, atol=1e-12)  # SPEC §4 rails
+    assert_allclose(ax.cmd_v, [-10.0, 0.0, 10.0 - LSB12], rtol=0, atol=1e-12)  # the D/A's rails
     assert_array_equal(ax.cmd_v, hw_dac.volts_from_code(np.array([0, 2048, 4095])))
 
 
@@ -549,7 +551,7 @@ def test_data_objects_validate_their_fields() -> None:
         Log(period_s=0.004, axes={"a": ax, "b": short}, metadata={})
 
 
-# --- issue 15: bounds, options, JSON and TOML, atomic writes ----------------------------------
+# --- reliability: bounds, options, JSON and TOML, atomic writes ------------------------------
 
 
 @pytest.mark.parametrize(
@@ -710,7 +712,7 @@ def test_read_table(tmp_path: Path) -> None:
         read_table(bad, what="table")
 
 
-# --- the excitation column (issue 17, DECISIONS 5) ---------------------------------------------
+# --- the excitation column (docs/decisions.md#5-excitation-is-logged) --------------------------
 
 
 def test_exc_code_is_read_per_axis_and_optional(tmp_path: Path) -> None:
@@ -721,7 +723,7 @@ def test_exc_code_is_read_per_axis_and_optional(tmp_path: Path) -> None:
     log = read_log(_log(tmp_path, header=HEADER + ",exc_code", rows=rows))
     assert_array_equal(log.axis().exc_code, [0, -5, 10, -15, 20, -25])
     assert log.axis().exc_code.dtype == np.int64
-    # a log without it reads as before (DECISIONS 5: optional)
+    # a log without it reads as before (the column is optional)
     assert read_log(_log(tmp_path, name="old.csv")).axis().exc_code is None
     two = "tick,a.dac_code,a.counter,a.exc_code,b.dac_code,b.counter"
     rows2 = [f"{k},2048,{k},{k},2048,{2 * k}" for k in range(5)]
@@ -779,7 +781,7 @@ def test_long_field_check_counts_characters_not_bytes(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize(("sep", "word"), [(";", "semicolons"), ("\t", "tabs")])
 def test_a_log_not_separated_by_commas_says_so(tmp_path: Path, sep: str, word: str) -> None:
-    # as a spreadsheet in a comma-decimal locale saves it (issue 20: the hint was misleading)
+    # as a spreadsheet in a comma-decimal locale saves it (the hint once misled)
     p = tmp_path / "log.csv"
     p.write_text(sep.join(["tick", "time_s", "dac_code", "counter"]) + "\n"
                  + sep.join(["0", "0", "2048", "0"]) + "\n")  # fmt: skip

@@ -1,4 +1,4 @@
-"""Notebooks are narrative (issue 20): stored without outputs, no test-style asserts, and when
+"""Notebooks are narrative: stored without outputs, no test-style asserts, and when
 executed top to bottom they run without error and show at least three figures inline."""
 
 from __future__ import annotations

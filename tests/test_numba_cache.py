@@ -86,7 +86,7 @@ def test_numba_cache_dir_set_by_the_user_rules(tmp_path: Path) -> None:
 
 
 def test_numba_is_used_through_its_public_api_only() -> None:
-    # issue 16: no private options or internals (``_nrt``, cgutils, arrayobj), and every compiled
+    # no private options or internals (``_nrt``, cgutils, arrayobj), and every compiled
     # function through the one decorator (_numba_cache.jit), so each caches under the digest
     package = Path(servotune.__file__).resolve().parent
     private = ("_nrt", "numba.core.cgutils", "from numba.core import cgutils", "numba.np.arrayobj",

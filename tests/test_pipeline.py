@@ -42,14 +42,16 @@ def test_demo_writes_its_products(tmp_path: Path) -> None:
     assert set(table) == {"pid", "pid_ff", "composite"}
     on_disk = json.loads((tmp_path / "demo_summary.json").read_text())
     assert on_disk["schema"] == "servotune.demo/2" and on_disk["preset"] == "quick"
-    # Figure 4 on the quick preset (DECISIONS 9: one seed), judged on the held-out scenarios
+    # Figure 4 on the quick preset (docs/decisions.md#9-the-demo-preset: one seed), judged on the
+    # held-out scenarios
     fig4 = json.loads((tmp_path / "figure4.json").read_text())
     assert fig4["seeds"] == [0] and fig4["heldout_scenarios"] == ["track", "lock", "heldout"]
     assert fig4["budget"]["generations"] == 12 and fig4["pareto"] == []
     assert summary["figure4_statement"] == fig4["statement"]
     for name, hold in summary["lock_hold"].items():
         lo, hi = hold["observed_counts"]
-        assert -4 <= lo <= hi <= 4, name  # seed 000: ±1 pulse
+        # ±1 pulse (docs/runtime.md#position-lock-and-its-holding-band)
+        assert -4 <= lo <= hi <= 4, name
     for name, ident in summary["identification"].items():
         for key, err in ident["relative_error"].items():
             assert abs(err) < 0.02, (name, key, err)

@@ -14,7 +14,8 @@ from servotune.plant import Plant, advance, discretize, step_coefficients
 
 
 def _ode(gain: float, tau: float, w: float, coulomb: float, vmax: float):
-    """Reference right-hand side (SPEC §5), integrated with tight tolerances by scipy."""
+    """Reference right-hand side (docs/formats.md#axis-model), integrated with tight tolerances by
+    scipy."""
 
     def rhs(_t: float, x: np.ndarray) -> list[float]:
         v = x[1]
@@ -60,7 +61,8 @@ def test_advance_matches_ode(v0: float, w: float, coulomb: float, vmax: float) -
 
 
 def test_sticks_at_rest_within_coulomb_band() -> None:
-    # SPEC §5: at rest the motor stays at rest while |u + offset + load| <= coulomb_v
+    # docs/formats.md#axis-model: at rest the motor stays at rest while |u + offset + load| <=
+    # coulomb_v
     a, b = step_coefficients(0.004, 0.03)
     for w in (0.0, 0.002, -0.002, 0.0025):
         assert advance(5.0, 0.0, w, 0.004, a, b, 12000.0, 0.03, 0.0025, math.inf) == (5.0, 0.0)

@@ -21,7 +21,7 @@ Blocks run in document order in one workspace: a temporary directory holding a c
 ``plants/``. ``SERVOTUNE_WORKBENCH`` is removed from the environment, so the current tuning goes
 where a user's goes by default, the working directory's ``.servotune/`` (and the messages name
 it as the README shows). Pointing it at the workspace itself would make the current tuning and
-``-o tuning.json`` one file and hide the workflow issue 20 reports (``export-table`` of the
+``-o tuning.json`` one file and hide a workflow that once broke (``export-table`` of the
 current tuning after ``verify tuning.json``).
 
 The C steps need ``cc``: without one they are left out and the test is reported skipped after
@@ -219,8 +219,8 @@ def test_every_block_is_run_or_marked() -> None:
 
 
 def test_the_tutorial_runs_the_whole_chain() -> None:
-    """The quick start and the 'your own machine' path hold the commands issue 20 names, in
-    order (the quick start is the workflow the issue found broken), so a README edit cannot drop
+    """The quick start and the 'your own machine' path hold the commands a new user
+    needs, in order (the quick start is a workflow that once broke), so a README edit cannot drop
     a step from what the test runs."""
     blocks = readme_blocks(README.read_text(encoding="utf-8"))
     commands = [c.text for b in blocks if b.kind == "console" for c in console_commands(b)]

@@ -15,9 +15,9 @@ from servotune.rig import describe_rig
 
 def test_example_rig_facts(rig: st.Rig) -> None:
     f = describe_rig(rig)
-    assert f["timer_divisor"] == 4773  # SPEC §1a
-    assert f["achieved_period_s"] == pytest.approx(0.004000235, abs=1e-9)  # SPEC §1a
-    assert f["period_error_ppm"] == pytest.approx(58.7, abs=0.05)  # SPEC §1a
+    assert f["timer_divisor"] == 4773  # docs/runtime.md#timer-and-achieved-period
+    assert f["achieved_period_s"] == pytest.approx(0.004000235, abs=1e-9)
+    assert f["period_error_ppm"] == pytest.approx(58.7, abs=0.05)
     assert f["counts_per_rev"] == 12288  # 3072 pulses/rev, x4
     assert f["dac_lsb_mv"] == pytest.approx(4.8828125)  # 20 V / 4096
     assert f["binding_speed_limit"] == "input_frequency"  # 46,875 < 79,995 r/min
@@ -25,7 +25,7 @@ def test_example_rig_facts(rig: st.Rig) -> None:
         assert a["speed_limit_ok"]
         assert a["time_to_wrap_at_speed_limit_s"] == pytest.approx(2**24 / 122880)
         assert a["lock_band_within_one_pulse"]
-    # issue 2: 600 r/min at 10 V is 12,288 counts/s/V; tau at most ~30 ms; drift about 5 mV
+    # the example rig: 600 r/min at 10 V is 12,288 counts/s/V; tau at most ~30 ms; drift about 5 mV
     assert rig.axis("master").plant.gain_cps_per_v == 12288
     assert all(a.plant.tau_s <= 0.030 for a in rig.axes)
     assert rig.axis("master").plant != rig.axis("slave").plant
@@ -97,7 +97,7 @@ def _write(tmp_path: Path, text: str) -> Path:
          r"encoder.pulses_per_rev must be a number in \(0, 1e\+09\] \[pulses/rev\]"),
         ("range_v = [-10.0, 10.0]", "range_v = [10.0, -10.0]",
          r"dac.range_v must be \[low, high\]"),
-        # the asymmetric model's keys (issue 17): checked as their positive-direction peers
+        # the asymmetric model's keys: checked as their positive-direction peers
         ("coulomb_v = 0.002", "coulomb_v = 0.002\ncoulomb_neg_v = -0.003",
          r"axis.master.plant.coulomb_neg_v must be >= 0 \[V\], got -0.003"),
         ("coulomb_v = 0.002", "coulomb_v = 0.002\ncoulomb_neg_v = nan",

@@ -1,4 +1,5 @@
-"""`servotune simulate`: logs of the virtual rig (SPEC §5), determinism and bad input."""
+"""`servotune simulate`: logs of the virtual rig (docs/formats.md#log-file), determinism and bad
+input."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The fieldbus gantry (servotune.arch.gantry, seed 003): topologies, compensator, monitor, beam."""
+"""The fieldbus gantry (servotune.arch.gantry): topologies, compensator, monitor, beam."""
 
 from __future__ import annotations
 
@@ -114,8 +114,8 @@ def test_comparison_table_covers_every_topology_and_case(gantry, comparison) -> 
 
 
 def test_results_are_named_objects_and_sync_json_keeps_its_keys(gantry, comparison) -> None:
-    # issue 16: named results (GantryMetrics, LoadPrediction, SyncLoopModels), the JSON's
-    # rows and prediction keyed as before; schema servotune.sync/2 added the margins (issue 19)
+    # named results (GantryMetrics, LoadPrediction, SyncLoopModels), the JSON's
+    # rows and prediction keyed as before; schema servotune.sync/2 added the margins
     doc = json.loads(json.dumps(comparison.to_dict(), sort_keys=True))
     assert set(doc) == {
         "schema", "name", "topology", "cycle_s", "latency_cycles", "stop_bound_cycles",
@@ -346,26 +346,6 @@ def test_resolve_keeps_given_gains(gantry) -> None:
     out = resolve_gains(cfg)
     assert (out.master.kp, out.master.ki) == (0.3, 1.0)
     assert out.sync == cfg.sync  # already resolved: not re-tuned
-
-
-def test_the_old_module_path_warns_and_gives_the_same_objects() -> None:
-    # issue 16: the public API unchanged, or deprecated with a warning
-    import importlib
-    import sys
-
-    import servotune.arch.gantry as new
-
-    sys.modules.pop("servotune.sync", None)
-    with pytest.warns(DeprecationWarning, match="servotune.arch.gantry"):
-        old = importlib.import_module("servotune.sync")
-    # the gantry's tuning moved to servotune.tune.sync and its reader to arch.gantry.load
-    import servotune.arch.gantry.load as load
-    import servotune.tune.sync as tune
-
-    assert old.__all__ == [*new.__all__, "load_gantry", "resolve_gains", "tune_sync"]
-    assert all(getattr(old, name) is getattr(new, name) for name in new.__all__)
-    assert old.load_gantry is load.load_gantry
-    assert (old.resolve_gains, old.tune_sync) == (tune.resolve_gains, tune.tune_sync)
 
 
 def test_the_gantry_package_and_its_tuning_import_in_either_order() -> None:

@@ -45,7 +45,7 @@ def test_readme_example_passes_and_fails(pytester, tuning_file: Path) -> None:
 
 
 def test_fixture_without_option_is_an_error_saying_how_to_configure(pytester) -> None:
-    # a user's CI must not be green having checked nothing (issue 20): no skip
+    # a user's CI must not be green having checked nothing: no skip
     pytester.makepyfile("def test_x(servotune_rig):\n    pass\n")
     res = pytester.runpytest()
     res.assert_outcomes(errors=1)

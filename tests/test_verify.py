@@ -100,7 +100,8 @@ def test_shipped_spec_loads(spec) -> None:
         "max_steady_lag_counts",
         "max_saturation_pct",
     }
-    # SPEC §1a: the lock holds each motor within ±1 pulse = ±4 counts at x4
+    # docs/runtime.md#position-lock-and-its-holding-band: the lock holds each motor within ±1 pulse
+    # = ±4 counts at x4
     assert spec.scenario("lock").limits == {"max_holding_band_counts": 4.0}
     assert spec.montecarlo.count >= 32 and spec.max_period_error_ppm == 100.0
 
@@ -194,7 +195,7 @@ def test_a_hold_whose_settling_leaves_no_tick_is_refused(good, rig, spec) -> Non
 
 
 def test_plant_variants_widen_to_the_identified_intervals(rig, spec) -> None:
-    # issue 18 (2): the plant set is the identification's intervals, widened by the spec's
+    # the plant set is the identification's intervals, widened by the spec's
     # spreads; an identified gain interval of -35 %/+40 % is wider than the spec's ±20 %
     slave = rig.axis("slave")
     g0, off0 = slave.plant.gain_cps_per_v, slave.plant.offset_v
@@ -251,7 +252,8 @@ def test_good_tuning_passes_shipped_spec_with_margin(good_result) -> None:
         # the spec's limits are the example machine's (its comments); a default-budget tuning
         # keeps at least 5 % on each, so that a small change is not decided by noise
         assert r.relative_margin >= 0.05, r
-    # the lock holds every axis within ±1 pulse (SPEC §1a), the physics of the quantised P loop
+    # the lock holds every axis within ±1 pulse
+    # (docs/runtime.md#position-lock-and-its-holding-band), the physics of the quantised P loop
     assert v.row("lock", "holding_band_counts", "master").worst <= 4
     assert v.check("overflow").passed and v.check("timer_period").passed
 
@@ -267,7 +269,7 @@ def test_fastest_motion_is_the_cruise(good_result, rig) -> None:
 
 
 def test_timer_period_is_reported_and_judged_only_with_a_limit(rig) -> None:
-    # SPEC §1a: divisor 4773 gives 4.000235 ms, +58.7 ppm
+    # docs/runtime.md#timer-and-achieved-period: divisor 4773 gives 4.000235 ms, +58.7 ppm
     c = check_timer(rig)
     assert c.passed and c.limit is None and c.value == pytest.approx(58.7, abs=0.05)
     assert not check_timer(rig, 50.0).passed and check_timer(rig, 60.0).passed
@@ -401,7 +403,8 @@ def test_record_hashes_and_trust(tmp_path, tuning_file, good_result) -> None:
     assert record["summary"]["limits_failed"] == 0 and record["tool_version"] == st.__version__
     body = {k: v for k, v in record.items() if k != "sha256"}
     canon = json.dumps(body, sort_keys=True, separators=(",", ":"), ensure_ascii=False)
-    assert record["sha256"] == hashlib.sha256(canon.encode()).hexdigest()  # DECISIONS 3
+    # docs/decisions.md#3-digests
+    assert record["sha256"] == hashlib.sha256(canon.encode()).hexdigest()
     path = write_record(record, tuning)
     assert path == tmp_path / "tuning.json.verify.json" == record_path(tuning)
     text = path.read_text()
@@ -456,7 +459,7 @@ def test_verify_files_end_to_end(tmp_path, tuning_file, spec) -> None:
     assert not any(math.isnan(r.worst) for r in v.rows)
 
 
-# --- margins: every loop the runtime can run (issue 18) -----------------------------------
+# --- margins: every loop the runtime can run ---------------------------------------------
 
 
 def _value(fx: dict) -> float:
@@ -480,7 +483,7 @@ def _independent_loop(plant, rig, kp: float, ki_t: float, kd_t: float, extra_lag
 def test_default_tuning_keeps_the_margin_limits_on_every_cell_and_corner(tuning_file, rig):
     """The default tuning, read from its file, meets PM >= 45°, GM >= 6 dB, Ms <= 2 on every
     loop over the spec's corners (gain ±20 %, tau ±30 %) one tick late, by python-control on
-    loops built here (issue 18: an independent check of the tool's margins)."""
+    loops built here (an independent check of the tool's margins)."""
     import control
 
     doc = json.loads(tuning_file.read_text())
@@ -584,7 +587,7 @@ def test_spec_margins_table_is_read_and_checked(tmp_path) -> None:
         load_spec(p)
 
 
-# --- Monte Carlo: pass fraction with its interval (issue 18, point 2) ----------------------
+# --- Monte Carlo: pass fraction with its interval -----------------------------------------
 
 
 def test_pass_fraction_is_the_same_on_one_and_two_threads(good, rig, spec) -> None:

@@ -29,7 +29,7 @@ def test_passing_tuning_exits_0_and_records(tunings, capsys, tmp_path) -> None:
     rc = main(["verify", str(tunings["good"]), "--spec", str(SPEC), "--rig", str(RIG),
                "--report", str(tmp_path / "rep")])  # fmt: skip
     cap = capsys.readouterr()
-    # the human summary on stderr, stdout left for products (DECISIONS 10)
+    # the human summary on stderr, stdout left for products (docs/decisions.md#10-output-streams)
     assert rc == 0 and cap.out == "" and "PASSED\nwrote the verification record" in cap.err
     rec = json.loads(Path(str(tunings["good"]) + ".verify.json").read_text())
     assert rec["passed"] is True

@@ -90,7 +90,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         rig, scenario=scen.name, axis=scen.axis, closed_loop=str(args.closed_loop).lower(),
         seed=args.seed,
     )  # fmt: skip
-    cols = trace_log_columns(trace, scen.inputs.dac_add_codes)  # with exc_code (DECISIONS 5)
+    # with exc_code (docs/decisions.md#5-excitation-is-logged)
+    cols = trace_log_columns(trace, scen.inputs.dac_add_codes)
     kwargs = {"period_s": rig.period_s, "columns": cols, "metadata": meta}
     if args.output == "-":
         sys.stdout.write(format_log(**kwargs))

@@ -84,8 +84,8 @@ def _print_product(as_json: bool, doc: Callable[[], object], text: Callable[[], 
 
 
 def _summary(as_json: bool, doc: object, text: Callable[[], str]) -> None:
-    """A verb's summary (DECISIONS 10): with ``--json`` ``doc`` as JSON on stdout, else
-    ``text()`` on stderr."""
+    """A verb's summary (docs/decisions.md#10-output-streams): with ``--json`` ``doc`` as JSON on
+    stdout, else ``text()`` on stderr."""
     if as_json:
         print(json.dumps(doc, indent=2, sort_keys=True))
     else:

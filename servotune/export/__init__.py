@@ -1,6 +1,6 @@
 """Exports of a tuning to the runtime: the tables as JSON, and C (tables header + runtime).
 
-- :mod:`servotune.export.json`: ``servotune.tables/1`` documents (``to_string``, ``to_file``,
+- :mod:`servotune.export.json`: ``servotune.tables/2`` documents (``to_string``, ``to_file``,
   ``load_tables`` which checks every CRC);
 - :mod:`servotune.export.c`: ``servotune_tables.h`` and the reference runtime
   ``servotune_rt.c/.h`` (``write_c``).

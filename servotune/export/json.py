@@ -1,7 +1,8 @@
 """The tables export (JSON): a tuning's runtime constants, with CRCs, for the target.
 
 The document (``"schema": "servotune.tables/2"``) holds exactly the constants of the tuning
-file, as the runtime runs them: nothing is re-quantised (SPEC §6, verified = exported). It is
+file, as the runtime runs them: nothing is re-quantised (verified = exported:
+docs/runtime.md#fixed-point-constants). It is
 JSON with sorted keys, two-space indent (the rows of a table and other lists of numbers on one
 line each) and a trailing newline; the same tuning, rig and verification give the same bytes.
 There is no timestamp anywhere::
@@ -133,7 +134,8 @@ class Summary(Protocol):
 
 
 def table_crc32(q: np.ndarray | Sequence[Sequence[int]], f: int) -> int:
-    """CRC-32 of one query table (SPEC §6): ``zlib.crc32`` of :func:`~.layout.table_bytes`.
+    """CRC-32 of one query table (docs/runtime.md#integrity-crcs-and-the-c-layout): ``zlib.crc32``
+    of :func:`~.layout.table_bytes`.
 
     Parameters
     ----------
@@ -160,7 +162,7 @@ def constants_crc32(tuning: Tuning, *, rig: Rig | None = None) -> int:
     ----------
     tuning : Tuning
     rig : Rig, optional
-        The rig the tuning runs on (counter and D/A facts); default the hardware of seed 000
+        The rig the tuning runs on (counter and D/A facts); default the example rig's hardware
         (24-bit counter, 12-bit ±10 V D/A).
 
     Returns
@@ -269,7 +271,7 @@ def tables_document(
         The tuning to export; its constants are copied, never re-quantised.
     rig : Rig, optional
         The rig (checked against the tuning) giving the counter width and the D/A coding;
-        default the hardware of seed 000 (24-bit counter, 12-bit ±10 V D/A).
+        default the example rig's hardware (24-bit counter, 12-bit ±10 V D/A).
     verification : mapping or Verification, optional
         The verification summary (a :class:`servotune.verify.Verification` or its
         ``to_dict()``); it goes into the provenance whole. A key ``"passed"`` that is false

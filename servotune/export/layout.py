@@ -1,11 +1,12 @@
-"""The C layout: the bytes the C runtime compiles in, and their SHA-256 (SPEC §6).
+"""The C layout: the bytes the C runtime compiles in, and their SHA-256
+(docs/runtime.md#integrity-crcs-and-the-c-layout).
 
 The C runtime has no loader: ``servotune_tables.h`` compiles a tuning's constants and query
 tables into an ``st_consts_t`` (``SERVOTUNE_TABLES_INIT``). The header carries the SHA-256 of
 those constants serialised in the *C layout* below (``ST_TABLES_SHA256``); the runtime's
 ``st_check_digest`` serialises its compiled-in ``st_consts_t`` the same way at start-up and
 compares. This module computes the same bytes from a tables document's ``data`` section
-(``servotune.tables/1``, :func:`servotune.export.json.tables_document`), so the JSON export,
+(``servotune.tables/2``, :func:`servotune.export.json.tables_document`), so the JSON export,
 the header and the runtime agree on one digest. It is an integrity check against accidental
 edits, stale files and mix-ups, not against an attacker.
 

@@ -53,8 +53,9 @@ Why each choice:
   quantisation by ``1/T²``; it is left 0.
 - **bias = 0**: servotune models the analog zero drift (``offset_v``) and verifies the PI law
   against it: the integrator cancels it. The drift is the slow, temperature-dependent part of
-  the analog chain (SPEC §1a), so a fixed ``bias = −offset_v·O`` would be right only on the day
-  of the fit, and it is not in the verified law.
+  the analog chain (docs/systems.md#pc-dual-servo-synchronisation), so a fixed
+  ``bias = −offset_v·O`` would be right only on the day of the fit, and it is not in the
+  verified law.
 - **deadband = 0**: servotune's law acts on every count of error (one count,
   ``1/S`` machine units, is the error's resolution anyway, and the D/A's half-LSB quantisation
   is in the verified simulation). A deadband would stop the integrator inside it and let the

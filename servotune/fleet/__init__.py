@@ -1,6 +1,6 @@
 """Fleet fits: the logs of many machines identified at once, their spread, the machines that
 stand out against the fleet, the ones that drifted since their previous fit, and the fleet's
-measured spread as a Monte-Carlo plant distribution (issue 22).
+measured spread as a Monte-Carlo plant distribution.
 
 One module per concept:
 

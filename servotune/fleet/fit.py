@@ -1,4 +1,4 @@
-"""A fleet fit: every log of many machines fitted at once, then summarised (issue 22).
+"""A fleet fit: every log of many machines fitted at once, then summarised.
 
 ``servotune fit logs/*.csv --fleet out.parquet`` runs :func:`fit_fleet`: every log (every axis
 of it, or one named axis) is fitted by :func:`~servotune.fleet.rows.fit_fleet_log` as one task

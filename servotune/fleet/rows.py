@@ -4,12 +4,12 @@
 :func:`servotune.identify.fit_log` into one :class:`FleetRow` per axis. A log that cannot be
 read or fitted is a row with its error message: it never stops a fleet's run.
 
-**Machine and date**: the machine id is the log's ``# machine_id:`` metadata line (DECISIONS
-1), else the file name's stem before its last ``_`` (``m017_2025-03-01.csv`` → ``m017``; a stem
-without ``_`` is the id). The date is the ``# date:`` line, else the stem's part after its last
-``_`` if that is an ISO date. (Not ``-``: dates hold it.) A HAL capture has no metadata: its
-file name gives both. Dates are compared as text, so they must be ISO 8601 (``2025-03-01``,
-optionally with a time).
+**Machine and date**: the machine id is the log's ``# machine_id:`` metadata line
+(docs/formats.md#metadata), else the file name's stem before its last ``_`` (``m017_2025-03-01.csv``
+→ ``m017``; a stem without ``_`` is the id). The date is the ``# date:`` line, else the stem's part
+after its last ``_`` if that is an ISO date. (Not ``-``: dates hold it.) A HAL capture has no
+metadata: its file name gives both. Dates are compared as text, so they must be ISO 8601
+(``2025-03-01``, optionally with a time).
 
 **Latest fit**: a machine's fits of one axis count once in the fleet, by its latest fit
 (:func:`latest_fits`).

@@ -1,4 +1,4 @@
-"""The fleet's measured spread as a Monte-Carlo plant distribution (issue 22, item 3).
+"""The fleet's measured spread as a Monte-Carlo plant distribution.
 
 ``servotune verify TUNING --plants-from fleet.parquet --plants-axis master`` verifies the
 tuning on plants resampled from the fleet instead of the spec's ``[montecarlo]`` spreads:
@@ -18,7 +18,8 @@ Which machine: draw ``i`` picks machine ``⌊u · n⌋`` of the ``n`` machines (
 ``u`` uniform in [0, 1) from the first 53 bits of block ``i`` of a Philox-4×64 counter-based
 generator keyed by the seed's third stream (``SeedSequence(seed, spawn_key=(2,))``; the
 spec's spread draws from the first, the noise from the second): draw ``i`` depends only on
-the seed and ``i``, so a verification is the same whatever its chunking (DECISIONS 11). The
+the seed and ``i``, so a verification is the same whatever its chunking
+(docs/decisions.md#11-random-numbers). The
 bias of ``⌊u · n⌋`` is below ``n / 2**53``.
 """
 

@@ -1,5 +1,5 @@
 """What a fleet's fits say together: the spread of each parameter, the machines that stand out
-against the fleet and the ones that drifted since their previous fit (issue 22).
+against the fleet and the ones that drifted since their previous fit.
 
 :func:`summarise_fleet` computes, per axis name:
 
@@ -20,8 +20,8 @@ no spread and nothing is flagged on it.
 
 **Drift against the machine's previous fit**: the latest fit of a machine and axis is compared
 with its previous one: the fit of the same machine id and axis with the latest earlier date,
-in this run or in a ``baseline`` table (an earlier ``--fleet`` output, ``--baseline``; DECISIONS
-12). A parameter drifted when **both**
+in this run or in a ``baseline`` table (an earlier ``--fleet`` output, ``--baseline``;
+docs/decisions.md#12-fleet-drift). A parameter drifted when **both**
 
 1. its 95 % intervals in the two fits do not overlap (the change is not estimation noise; a
    term a fit left out counts as fixed at 0, its interval ``[0, 0]``), **and**

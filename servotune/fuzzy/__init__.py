@@ -1,4 +1,5 @@
-"""Fuzzy rule bases, Mamdani inference and query tables for the slave's fuzzy-PID (seed 000).
+"""Fuzzy rule bases, Mamdani inference and query tables for the slave's fuzzy-PID
+(docs/systems.md#pc-dual-servo-synchronisation).
 
 Each tick the runtime quantises the error ``e`` [counts] and its change ``ec`` [counts/tick] to
 integer levels ``E, EC`` in ``−n…n`` (the scaling factors ``Ke``, ``Kec`` belong to the law,

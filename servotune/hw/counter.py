@@ -2,7 +2,8 @@
 
 The card counts quadrature edges (x1, x2 or x4 per encoder pulse) into a ``bits``-wide register
 that wraps modulo ``2**bits`` (absolute cyclic counting). The runtime reads it as bytes, low
-first, and decides overflow from the **high byte only** (seed 000):
+first, and decides overflow from the **high byte only**
+(docs/runtime.md#counter-overflow-high-byte-rule):
 
 - high byte change 0 or ±1: no wrap;
 - change −255 (0xFF → 0x00): the register wrapped upward (overflow), add ``2**bits``;

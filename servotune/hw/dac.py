@@ -1,4 +1,5 @@
-"""12-bit D/A converter (PCL728 style), offset-binary coding (SPEC §4).
+"""12-bit D/A converter (PCL728 style), offset-binary coding
+(docs/runtime.md#da-quantisation).
 
 LSB = span / 2**bits; the code for 0 V is ``zero_code`` (2048 for ±10 V, 12 bits); rails are
 code 0 (−10 V) and code 4095 (+9.99512 V). Volts are coded by round-half-away-from-zero.

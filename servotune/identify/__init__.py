@@ -1,4 +1,5 @@
-"""Identify the axis model (SPEC §5) from a logged experiment (``servotune fit``).
+"""Identify the axis model from a logged experiment (``servotune fit``;
+docs/formats.md#axis-model).
 
 The package, by concept:
 

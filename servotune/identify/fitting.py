@@ -82,7 +82,7 @@ def validation_split(n_samples: int) -> int:
 
 
 def _params(x: np.ndarray, free: np.ndarray) -> dict[str, float]:
-    """Every SPEC parameter (0 when left out), and the negative direction's when estimated."""
+    """Every axis-model parameter (0 when left out), and the negative direction's when estimated."""
     out = {}
     for i, p in enumerate(ALL_PARAMS):
         if i < len(PARAMS):
@@ -405,7 +405,7 @@ def fit_arrays(
     compute_s : float
         Known tick-start → write time [s]; ``delay_s`` is identified beyond it.
     structure : str or sequence of str, optional
-        Terms to estimate besides gain and tau (``"delay,offset"``, names or SPEC names);
+        Terms to estimate besides gain and tau (``"delay,offset"``, short or full names);
         None or ``"auto"`` selects by BIC.
     method : str
         ``"auto"`` (default: ``iv`` when the log allows it, else ``oe`` with a warning),

@@ -37,7 +37,7 @@ Automatica 41, 2005; refined with the noise model's prefilter, Young, Automatica
    tries refined, then basic, then falls back to least squares with a warning.
 
 Assumes: the excitation (and the reference, where used) is independent of the load disturbance
-and of the measurement noise; the model structure (SPEC §5 with the chosen terms) holds; the
+and of the measurement noise; the model structure (the axis model with the chosen terms) holds; the
 disturbance acts additively on the drive input (then its effect on the increments is linear away
 from speed reversals). Biased when: the logged excitation is not the one the drive received (a
 clipped D/A hides it in ``u`` but not in ``exc_code``: harmless; an excitation computed from the

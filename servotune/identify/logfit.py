@@ -8,6 +8,7 @@ the log reader only (the pipeline imports every subsystem: seconds of a one-verb
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 from servotune.errors import IdentificationError, LogFormatError
 from servotune.identify.fitting import MIN_SAMPLES, fit
@@ -39,7 +40,8 @@ def fit_log(
 ) -> tuple[FitResult, Log, str]:
     """Read a log and identify one axis (what ``servotune fit`` runs).
 
-    Settings come from the keyword options, then the log's metadata, then the rig (SPEC §5).
+    Settings come from the keyword options, then the log's metadata, then the rig
+    (docs/formats.md#metadata).
     ``structure``, ``method``, ``friction`` and ``invert_encoder`` are
     :func:`servotune.identify.fit_arrays`'s. ``need_axis_name``: the caller will write the
     model under the axis's name (``fit -o``), so a log without axis prefixes and no ``axis``
@@ -80,18 +82,11 @@ def fit_log(
             fit_options={"structure": structure, "method": method, "friction": friction,
                          "invert_encoder": invert_encoder},
         )  # fmt: skip
-    meta = read_metadata(log_path)
     if rig is not None:
-        if counter_bits is None and "counter_bits" not in meta:
-            counter_bits = rig.counter.bits
-        if dac_bits is None and "dac_bits" not in meta:
-            dac_bits = rig.dac.bits
-        if dac_range_v is None and "dac_range_v" not in meta:
-            dac_range_v = rig.dac.range_v
-        if period_s is None and "period_s" not in meta:
-            period_s = rig.period_s
-        if compute_s is None and "compute_s" not in meta:
-            compute_s = rig.timer.compute_s
+        counter_bits, dac_bits, dac_range_v, period_s, compute_s = _from_rig(
+            rig, read_metadata(log_path), counter_bits=counter_bits, dac_bits=dac_bits,
+            dac_range_v=dac_range_v, period_s=period_s, compute_s=compute_s,
+        ).values()  # fmt: skip
     log = read_log(
         log_path,
         counter_bits=counter_bits,
@@ -114,6 +109,15 @@ def fit_log(
         raise IdentificationError(f"log {str(log_path)!r}: {exc}") from None
     name = axis if axis is not None else (log_axis or next(iter(log.axes)))
     return result, log, name
+
+
+def _from_rig(rig: Rig, meta: dict[str, Any], **given: Any) -> dict[str, Any]:
+    """Each setting in ``given`` as given, else (when the log's metadata ``meta`` does not
+    state it) the rig's, in the order given."""
+    rig_values = {"counter_bits": rig.counter.bits, "dac_bits": rig.dac.bits,
+                  "dac_range_v": rig.dac.range_v, "period_s": rig.period_s,
+                  "compute_s": rig.timer.compute_s}  # fmt: skip
+    return {k: v if v is not None or k in meta else rig_values[k] for k, v in given.items()}
 
 
 def _fit_hal_log(
@@ -143,14 +147,11 @@ def _fit_hal_log(
         )
     if rig is not None:
         meta = read_metadata(log_path) if csv else {}  # a CSV's own lines come first
-        if dac_bits is None and "dac_bits" not in meta:
-            dac_bits = rig.dac.bits
-        if dac_range_v is None and "dac_range_v" not in meta:
-            dac_range_v = rig.dac.range_v
-        if compute_s is None and "compute_s" not in meta:
-            compute_s = rig.timer.compute_s
-        if csv and period_s is None and hal.period_s is None and "period_s" not in meta:
-            period_s = rig.period_s  # as for a log: checked against its time column
+        dac_bits, dac_range_v, compute_s = _from_rig(
+            rig, meta, dac_bits=dac_bits, dac_range_v=dac_range_v, compute_s=compute_s
+        ).values()
+        if csv and hal.period_s is None:  # as for a log: checked against its time column
+            (period_s,) = _from_rig(rig, meta, period_s=period_s).values()
     log = read_hal_log(log_path, hal, period_s=period_s, dac_bits=dac_bits,
                        dac_range_v=dac_range_v, compute_s=compute_s, strict=strict)  # fmt: skip
     if log.n_samples < MIN_SAMPLES:

@@ -1,9 +1,9 @@
 """The model the identifier fits, simulated from a command: parameters, bounds, sensitivities.
 
-The axis model of SPEC §5 (:class:`servotune.plant.Plant`) is simulated tick by tick with the
-engine's exact step (:func:`servotune.plant.advance_tick`: ZOH, fractional lag, Coulomb
-stick/slip, a per-direction gain and Coulomb level for the asymmetric form), driven by a command
-sequence; what is compared with a log is the position increment per tick (the increment form
+The axis model (docs/formats.md#axis-model, :class:`servotune.plant.Plant`) is simulated tick by
+tick with the engine's exact step (:func:`servotune.plant.advance_tick`: ZOH, fractional lag,
+Coulomb stick/slip, a per-direction gain and Coulomb level for the asymmetric form), driven by a
+command sequence; what is compared with a log is the position increment per tick (the increment form
 keeps the simulation of an integrating plant stable, and needs no initial position).
 
 The parameter vector has a fixed order (:data:`ALL_PARAMS`); a boolean mask says which entries
@@ -52,9 +52,10 @@ __all__ = [
 ]
 
 PARAMS = ("gain_cps_per_v", "tau_s", "delay_s", "offset_v", "coulomb_v")
-"""The SPEC §5 parameters, in the order of the internal vector."""
+"""The axis model's parameters, in the order of the internal vector."""
 ASYM_PARAMS = ("gain_neg_cps_per_v", "coulomb_neg_v")
-"""The negative direction's gain and Coulomb level (asymmetric friction form, issue 17)."""
+"""The negative direction's gain and Coulomb level (asymmetric friction form,
+docs/formats.md#asymmetric-friction)."""
 ALL_PARAMS = PARAMS + ASYM_PARAMS
 """The internal parameter vector."""
 OPTIONAL_PARAMS = ("delay_s", "offset_v", "coulomb_v")
@@ -151,7 +152,7 @@ def parse_terms(structure: str | tuple[str, ...] | list[str] | None) -> tuple[st
     Raises
     ------
     IdentificationError
-        For a name that is not one of delay, offset, coulomb (or their SPEC names).
+        For a name that is not one of delay, offset, coulomb (or their full names).
     """
     if structure is None or structure == "auto":
         return None

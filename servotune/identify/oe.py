@@ -11,7 +11,7 @@ only when nothing but white measurement noise disturbs the axis. Biased when: th
 and a disturbance that the controller reacts to acts on the axis (a load, a coloured drift): the
 command then carries the controller's reaction to it, correlated with the residual, and the gain
 comes out low by roughly the share of the command's variance that reaction makes up (6–12 % on
-the example rig with an AR(1) load, issue 17) — more data does not help. Use ``iv``
+the example rig with an AR(1) load) — more data does not help. Use ``iv``
 (:mod:`servotune.identify.iv`) when the log has an external signal.
 """
 

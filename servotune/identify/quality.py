@@ -56,7 +56,8 @@ BOOTSTRAP_REPLICATES = 999
 MAX_BLOCKS = 1000
 """Most blocks in one replicate (the block length grows with longer logs beyond that)."""
 BOOTSTRAP_KEY = (17, 0)
-"""Key of the bootstrap's Philox generator (DECISIONS 11: counter-based, fixed)."""
+"""Key of the bootstrap's Philox generator (docs/decisions.md#11-random-numbers: counter-based,
+fixed)."""
 SIGNIFICANCE = 0.01
 """Family-wise level of the residual tests: the probability that a correctly modelled log is
 called not adequate (by any of its tests)."""

@@ -43,7 +43,7 @@ class FitResult:
         friction form also ``gain_neg_cps_per_v`` and, with Coulomb friction,
         ``coulomb_neg_v``).
     params : dict
-        Fitted value of every SPEC parameter (0 for terms left out), and of the negative
+        Fitted value of every axis-model parameter (0 for terms left out), and of the negative
         direction's ones for the asymmetric form [units in the names, :attr:`units`].
     std : dict
         Standard deviation of each estimated parameter (:attr:`interval_method`).

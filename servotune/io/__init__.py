@@ -10,7 +10,7 @@ their one reader each:
 ==============  ===============================================  ===============================
 file            reader                                           schema (checked there)
 ==============  ===============================================  ===============================
-log CSV         :func:`servotune.logs.read_log`                  SPEC §5 columns, metadata
+log CSV         :func:`servotune.logs.read_log`                  docs/formats.md#log-file
 excitation CSV  :func:`servotune.io.excitation.read_excitation`  the log's rows (``read_table``)
 rig TOML        :func:`servotune.rig.load_rig`                   ``Rig`` and its sections
 spec TOML       :func:`servotune.verify.load_spec`               ``Spec``, ``ScenarioSpec``

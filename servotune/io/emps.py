@@ -12,8 +12,8 @@ experiment, ``pulses_N``.
 :data:`ENCODER_QUANTUM_M`, reference, pulses as excitation), :meth:`EmpsLog.fit_inputs` the
 arguments of :func:`servotune.identify.fit_arrays`.
 
-Physics: the EMPS model is SPEC §5's axis model
-------------------------------------------------
+Physics: the EMPS model is servotune's axis model
+-------------------------------------------------
 The benchmark's model of the drive (the inverse model its IDIM-LS scripts estimate) is, with the
 load speed ``v`` [m/s]::
 
@@ -24,8 +24,9 @@ force ``offset`` [N], the drive's force constant ``gtau`` [N/V]). Dividing by ``
 
     (m / Fv) · dv/dt + v = (gtau / Fv) · (vir − offset / gtau − (Fc / gtau) · sign(v))
 
-which is SPEC §5's ``tau · dv/dt + v = K · (u + offset_v − coulomb_v · sign(v))`` with ``u = vir``
-and the speed in counts/s (``v / q``, ``q`` = :data:`ENCODER_QUANTUM_M` = 5e-8 m per count):
+which is the axis model (docs/formats.md#axis-model),
+``tau · dv/dt + v = K · (u + offset_v − coulomb_v · sign(v))``, with ``u = vir`` and the speed
+in counts/s (``v / q``, ``q`` = :data:`ENCODER_QUANTUM_M` = 5e-8 m per count):
 
 ==============  ====================  ================================================
 servotune       EMPS                  units
@@ -52,8 +53,8 @@ the motor received, pulses included. (The label does not fit the size: a 5 N pul
 5 / gtau = 0.14 V, the logged step is 5.07 V.) This module therefore treats the pulses as a
 measured input: they are in ``cmd_v`` already and are not added a second time, so a fit and a
 comparison may use the whole log, pulse stretches included. Being known and independent of
-the drive's disturbances, they are also what SPEC §5 logs call the excitation the law adds
-(DECISIONS 5): :meth:`EmpsLog.to_log` carries them as ``exc_code`` (at
+the drive's disturbances, they are also what logs call the excitation the law adds
+(docs/decisions.md#5-excitation-is-logged): :meth:`EmpsLog.to_log` carries them as ``exc_code`` (at
 :data:`PULSE_V_PER_UNIT`), so an instrumental-variable fit may build instruments from them.
 The PULSES file's ``qm`` is not on the encoder grid (rounding it to counts moves it by at
 most half a count, 2.5e-8 m; :attr:`EmpsLog.grid_error_counts` says by how much).
@@ -154,7 +155,7 @@ class EmpsPhysics:
             check_number("coulomb_neg_n", self.coulomb_neg_n, "N")
 
     def to_plant(self, gtau_n_per_v: float) -> Plant:
-        """The same drive as servotune's axis model (SPEC §5), position in encoder counts.
+        """The same drive as servotune's axis model, position in encoder counts.
 
         Parameters
         ----------

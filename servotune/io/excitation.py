@@ -1,4 +1,5 @@
-"""Excitation files (SPEC §5): what ``servotune excite`` writes and ``servotune simulate`` plays.
+"""Excitation files (docs/formats.md#excitation-file): what ``servotune excite`` writes and
+``servotune simulate`` plays.
 
 An excitation file is a log-format CSV with the columns ``tick,time_s,<axis>.dac_code``
 (absolute D/A codes) and metadata saying how it was designed. :func:`write_excitation` writes
@@ -31,7 +32,7 @@ __all__ = ["MIN_TICKS", "read_excitation", "write_excitation"]
 MIN_TICKS = 10
 """Shortest excitation [ticks]."""
 
-_PERIOD_RTOL = 1e-3  # a file's period may differ from the rig's by 0.1 % (SPEC §5 uniformity)
+_PERIOD_RTOL = 1e-3  # a file's period may differ from the rig's by 0.1 % (docs/formats.md#sampling)
 
 
 def _check_period(period_s: float, rig: Rig, where: str, error: type[Exception]) -> None:
@@ -101,8 +102,8 @@ def write_excitation(path: str | Path, excitation: Excitation, rig: Rig) -> None
 def read_excitation(path: str | Path, rig: Rig) -> tuple[str, np.ndarray]:
     """Read and validate an excitation file for playing on ``rig``.
 
-    The file is a log (SPEC §5) with time columns (``tick`` and/or ``time_s``) and exactly one
-    ``<axis>.dac_code`` column (``dac_code`` alone on a one-axis rig); nothing else.
+    The file is a log (docs/formats.md#log-file) with time columns (``tick`` and/or ``time_s``) and
+    exactly one ``<axis>.dac_code`` column (``dac_code`` alone on a one-axis rig); nothing else.
 
     Parameters
     ----------

@@ -14,8 +14,8 @@ the same records give the same bytes (no time stamps; the CSV's lines are ``\\n`
   row with the column names in :data:`COLUMNS` order, then one line per record. An empty cell
   is None for a number or a flag and ``""`` for text; flags are ``true``/``false``.
 
-The version line is provenance: a reader checks the schema only (DECISIONS 17: a table of
-another schema is refused with one line, never misread).
+The version line is provenance: a reader checks the schema only (docs/decisions.md#17-file-versions:
+a table of another schema is refused with one line, never misread).
 """
 
 from __future__ import annotations

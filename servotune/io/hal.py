@@ -45,7 +45,7 @@ mapping key   the HAL pin holds               servotune gets
 ``cmd``       the drive command in pid        ``cmd_v = cmd / output_scale`` [V]
               output units (``pid.0.output``)
 ``code``      a D/A code (s32), offset binary ``dac_code`` [codes] → volts through the D/A
-              0 … 2^bits − 1 (SPEC §5's)      (``dac_bits``, ``dac_range_v``)
+              0 … 2^bits − 1 (the log's)      (``dac_bits``, ``dac_range_v``)
 ``pos``       position in machine units       ``pos_counts = rint(pos · position_scale)``
               (``encoder.0.position``)        [counts]
 ``counts``    raw encoder counts              ``pos_counts`` as they are [counts]
@@ -286,12 +286,12 @@ class HalCapture:
         dac_range_v : (float, float), optional
             D/A range [V]; default for ``cmd``: :data:`CMD_LOG_DAC_RANGE_V`.
         compute_s : float, optional
-            Sample → D/A write time [s] (SPEC §4), >= 0 and below the period.
+            Sample → D/A write time [s] (docs/runtime.md#one-tick), >= 0 and below the period.
 
         Returns
         -------
         Log
-            The capture as a servotune log (SPEC §5 columns).
+            The capture as a servotune log (docs/formats.md#columns).
 
         Raises
         ------

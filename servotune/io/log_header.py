@@ -1,4 +1,5 @@
-"""The text, metadata lines and header row of a log-format CSV (SPEC §5).
+"""The text, metadata lines and header row of a log-format CSV
+(docs/formats.md#log-file).
 
 A log is read as one UTF-8 text (NUL bytes refused, line ends normalised, the memory budget
 checked), split into its ``# key: value`` metadata lines, its header row and the body; the

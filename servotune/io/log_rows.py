@@ -1,4 +1,5 @@
-"""Data rows of a log-format CSV (SPEC §5): parsed in bulk, the first bad one explained.
+"""Data rows of a log-format CSV (docs/formats.md#log-file): parsed in bulk, the first bad one
+explained.
 
 A log whose rows are all in the plain form servotune writes (ASCII, no blank lines, no spaces,
 integers, decimal numbers, mode names) is parsed straight from the file's bytes by one compiled
@@ -30,7 +31,8 @@ from servotune.errors import LogFormatError
 from servotune.io.files import MAX_NUMBER_CHARS
 from servotune.laws.axis import MODE_NAMES
 
-_REL_TOL = 1e-3  # SPEC §5: intervals within 0.1 % of the median; tick·period ≈ time_s
+# docs/formats.md#sampling: intervals within 0.1 % of the median; tick·period ≈ time_s
+_REL_TOL = 1e-3
 _KIND = {
     "tick": "int",
     "time_s": "float",

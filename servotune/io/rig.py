@@ -1,4 +1,5 @@
-"""The rig file's TOML (SPEC §5): its tables built into dataclasses, its plant table edited.
+"""The rig file's TOML (docs/formats.md#rig-file): its tables built into dataclasses, its plant
+table edited.
 
 Reading: :func:`build_section` builds one validated dataclass from one TOML table (the rig's
 sections, and the architecture configurations' of ``servotune.arch.gantry`` and
@@ -241,8 +242,8 @@ def _plant_section(
                 if not _outlives_new_value(comment.trivia.comment):
                     _blank(comment)
 
-    # the fit record (DECISIONS 6) describes these values: written with them, or removed (a
-    # record left from an earlier fit would describe other numbers)
+    # the fit record (docs/decisions.md#6-the-fit-record) describes these values: written with them,
+    # or removed (a record left from an earlier fit would describe other numbers)
     if "fit" in table:
         del table["fit"]
     if fit is not None:
@@ -287,7 +288,9 @@ def _blank(comment: tomlkit.items.Comment) -> None:
     trivia.indent = trivia.comment_ws = trivia.comment = trivia.trail = ""
 
 
-_STALE_COMMENT = re.compile(r"[ \t]+#[^\n\"']*\b(?:SPEC|seed \d{3})\b[^\n\"']*(?=\n|$)")
+_STALE_COMMENT = re.compile(
+    r"[ \t]+#[^\n\"']*\b(?:SPEC|seed \d{3}|docs/systems\.md)\b[^\n\"']*(?=\n|$)"
+)
 
 
 def _set_comment(table: Any, line: str) -> None:
@@ -315,8 +318,9 @@ def new_rig_text(
     while k < len(lines) and (lines[k].startswith("#") or not lines[k].strip()):
         k += 1
     head = "".join(f"# {ln}\n" if ln else "#\n" for ln in header.splitlines())
-    # a trailing comment that cites the template machine's own documents does not describe
-    # this machine: dropped (the key and its value stay)
+    # a trailing comment that cites the template machine's own description (the example rig's
+    # docs/systems.md, or an older template's sources) does not describe this machine: dropped
+    # (the key and its value stay)
     body = [_STALE_COMMENT.sub("", ln) for ln in lines[k:]]
     try:
         doc = tomlkit.parse(head + "\n" + "".join(body))

@@ -1,4 +1,5 @@
-"""Control laws as tick step functions in the runtime arithmetic (SPEC §6).
+"""Control laws as tick step functions in the runtime arithmetic
+(docs/runtime.md).
 
 Each law is written once here (numba-compiled, integer arithmetic) and mirrored line by line in
 the C runtime. ``axis`` holds the runtime's per-axis tick: counter read and unwrap, mode

@@ -8,9 +8,10 @@ shared with the C runtime's structs.
 
 Modes (``MODE_*``): *lock* (the position-lock module holds the lock target), *task* (the task
 law follows the reference), *open* (the output is the additive command alone, for open-loop
-experiments). Switches are bumpless (SPEC §6): entering a task sets ``I := u_last − Kp·e`` and
-``e_prev := e``, ``r_prev := r``; leaving it latches the lock target at the current position.
-Faults (counter fault, following-error trip) latch: the code goes to 0 V until a reset.
+experiments). Switches are bumpless (docs/runtime.md#modes-and-bumpless-switches): entering a task
+sets ``I := u_last − Kp·e`` and ``e_prev := e``, ``r_prev := r``; leaving it latches the lock target
+at the current position. Faults (counter fault, following-error trip) latch: the code goes to 0 V
+until a reset.
 """
 
 from __future__ import annotations

@@ -1,4 +1,5 @@
-"""Composite control of the slave axis: fuzzy-PID plus feedforward differential (seed 000).
+"""Composite control of the slave axis: fuzzy-PID plus feedforward differential
+(docs/systems.md#pc-dual-servo-synchronisation).
 
 Design terms (``T`` the tick period, ``e = r − y`` [counts], ``ec = e(k) − e(k−1)``,
 ``Δr = r(k) − r(k−1)``, ``r`` the slave's reference, i.e. the master's position)::
@@ -12,15 +13,15 @@ where each ``ΔKx`` is read from its **query table** at the fuzzy levels
 ideal velocity feedforward (``ΔK1 = 0``). Conventional PID is the same law with zero tables and
 ``K1 = 0``; PID + feedforward has zero tables.
 
-At run time (SPEC §6) the period is folded into the constants: ``Kp``, ``Ki·T``, ``Kd/T``,
-``K1/T``, every base gain an int32 ``(q, f)`` pair, every table int16 entries with their own
-``f_t ≤ f``. A scheduled gain is ``q + t·2^(f − f_t)`` at ``f`` fraction bits (exact, no shift of
-a negative value). The base gain's ``f`` is chosen from the largest magnitude the scheduled gain
-can take (:meth:`FuzzyPIDGains.quantize`), which bounds every scheduled gain by ``2^32`` and so
-every product with a clamped error (``< 2^31``) by ``2^63``: the products cannot overflow. The
-terms are aligned to ``F_U`` fraction bits (saturating) and summed with saturating adds; the
-integrator, its conditional integration and the bumpless entry are the PI's
-(:func:`~servotune.laws.pi.pi_step`, :func:`~servotune.laws.pi.pi_enter`): a change of the
+At run time (docs/runtime.md#the-period-folded-into-the-gains) the period is folded into the
+constants: ``Kp``, ``Ki·T``, ``Kd/T``, ``K1/T``, every base gain an int32 ``(q, f)`` pair, every
+table int16 entries with their own ``f_t ≤ f``. A scheduled gain is ``q + t·2^(f − f_t)`` at ``f``
+fraction bits (exact, no shift of a negative value). The base gain's ``f`` is chosen from the
+largest magnitude the scheduled gain can take (:meth:`FuzzyPIDGains.quantize`), which bounds every
+scheduled gain by ``2^32`` and so every product with a clamped error (``< 2^31``) by ``2^63``: the
+products cannot overflow. The terms are aligned to ``F_U`` fraction bits (saturating) and summed
+with saturating adds; the integrator, its conditional integration and the bumpless entry are the
+PI's (:func:`~servotune.laws.pi.pi_step`, :func:`~servotune.laws.pi.pi_enter`): a change of the
 scheduled ``Ki·T`` never makes ``u`` jump because ``I`` is stored as output.
 """
 
@@ -355,7 +356,8 @@ def int_rows(rows: object, size: int, where: str) -> np.ndarray:
 
 @jit(inline="always")
 def fuzzy_level(x: int, k_q: int, k_f: int, n: int) -> int:
-    """Fuzzy level ``clamp(shift_round(clamp_e(x)·K_q, f_K), −n, n)`` (SPEC §6).
+    """Fuzzy level ``clamp(shift_round(clamp_e(x)·K_q, f_K), −n, n)``
+    (docs/runtime.md#fuzzy-levels-and-scheduled-gains).
 
     ``|clamp_e(x)| < 2^31`` and ``|K_q| < 2^31``, so the product fits int64.
     """

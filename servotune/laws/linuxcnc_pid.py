@@ -1,4 +1,4 @@
-"""LinuxCNC's stock ``pid`` HAL component, its law in floating point (issue 21).
+"""LinuxCNC's stock ``pid`` HAL component, its law in floating point.
 
 servotune exports the master axis's verified PI law as parameters of LinuxCNC's stock ``pid``
 component (:mod:`servotune.export.linuxcnc`). To say what that loop does we need the component's

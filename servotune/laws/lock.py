@@ -1,4 +1,5 @@
-"""Position-lock module (seed 000): zero-input proportional control against analog drift.
+"""Position-lock module (docs/systems.md#position-lock): zero-input proportional control against
+analog drift.
 
 While no task runs, the lock holds the axis at its target with ``u = Kp_lock · (target − y)``
 [D/A LSB], ``Kp_lock`` in codes per count (0.4 on the example rig).
@@ -30,12 +31,13 @@ def lock_holding_band(
 ) -> tuple[int, int]:
     """Error band [counts] in which the lock module holds an axis against a drift.
 
-    The quantised fixed point of SPEC §1a. The lock outputs code ``c(e) = round(Kp·e)`` (the
-    integer law itself is evaluated); the motor sees ``c·LSB + offset_v`` and, being an
-    integrator, settles only where that is within the Coulomb band. Where some codes hold
-    (``|c·LSB + offset| <= coulomb``) the band is the errors that give one of those codes; where
-    none does, the axis limit-cycles across the switch between the two codes that bracket
-    ``-offset / LSB``, so the band is the two errors on either side of that switch.
+    The quantised fixed point of docs/runtime.md#position-lock-and-its-holding-band. The lock
+    outputs code ``c(e) = round(Kp·e)`` (the integer law itself is evaluated); the motor sees
+    ``c·LSB + offset_v`` and, being an integrator, settles only where that is within the Coulomb
+    band. Where some codes hold (``|c·LSB + offset| <= coulomb``) the band is the errors that give
+    one of those codes; where none does, the axis limit-cycles across the switch between the two
+    codes that bracket ``-offset / LSB``, so the band is the two errors on either side of that
+    switch.
 
     Parameters
     ----------

@@ -1,8 +1,10 @@
-"""PI position control (the master axis of seed 000), integer and ideal.
+"""PI position control (the master axis of the PC dual-servo rig,
+docs/systems.md#pc-dual-servo-synchronisation), integer and ideal.
 
 Design terms: ``u = Kp·e + I``, ``I(k) = I(k−1) + Ki·T·e(k)`` (backward Euler, so the discrete
 controller is ``Kp + Ki·T·z/(z−1)``), ``u`` in D/A LSB, ``e = r − y`` in counts.
-At run time the period is folded into ``Ki·T``, so there is no division (SPEC §6).
+At run time the period is folded into ``Ki·T``, so there is no division
+(docs/runtime.md#the-period-folded-into-the-gains).
 """
 
 from __future__ import annotations
@@ -122,10 +124,10 @@ def pi_step(
 
     Notes
     -----
-    The sums saturate (SPEC §6). When ``Kp·e``, ``Ki·T·e``, ``I`` and ``u_add`` are all below
-    2**60 in magnitude, which is every tick of an ordinary loop, no sum can reach 2**62, so
-    they are done as plain adds (the C runtime saturates every one; the integers are the same).
-    The saturating checks cost about a fifth of a batched one-axis run.
+    The sums saturate (docs/runtime.md#saturation-and-clamps). When ``Kp·e``, ``Ki·T·e``, ``I`` and
+    ``u_add`` are all below 2**60 in magnitude, which is every tick of an ordinary loop, no sum can
+    reach 2**62, so they are done as plain adds (the C runtime saturates every one; the integers are
+    the same). The saturating checks cost about a fifth of a batched one-axis run.
     """
     ec = clamp_e(e)
     p_term = align(kp_q * ec, F_U - kp_f)

@@ -1,5 +1,6 @@
-"""The synchronisation compensator and the sync-error monitor (seed 003, SPEC §1c), in the
-runtime arithmetic of SPEC §6.
+"""The synchronisation compensator and the sync-error monitor
+(docs/systems.md#fieldbus-gantry-with-a-listening-slave), in the runtime arithmetic
+(docs/runtime.md).
 
 The listening slave (or, cross-coupled, the CNC) feeds the **sync error** ``e = y_master −
 y_slave`` [counts] through a SISO controller whose output is a **compensation added to the
@@ -255,7 +256,8 @@ def sync_step(
 def sync_monitor(e: int, warn: int, trip: int) -> int:
     """Monitor level of a sync error: ``SYNC_TRIP`` if ``|e| >= trip`` (trip > 0),
     ``SYNC_WARN`` if ``|e| >= warn`` (warn > 0), else ``SYNC_OK``; ``|e|`` saturates at
-    2^31 − 1 (the clamp of SPEC §6), so thresholds are meaningful up to that."""
+    2^31 − 1 (the clamp of docs/runtime.md#saturation-and-clamps), so thresholds are meaningful up
+    to that."""
     a = clamp_e(e)  # |e| of any int64 (INT64_MIN included), saturated at 2^31 − 1
     if a < 0:
         a = -a

@@ -1,4 +1,5 @@
-"""The single-rig closed-loop engine (SPEC §4): one trajectory or a batch of candidates.
+"""The single-rig closed-loop engine (docs/runtime.md#one-tick): one trajectory or a batch of
+candidates.
 
 Tick ``k`` starts at ``t_k = k · period_s`` (the achieved timer period). For every axis the
 counter latches the encoder count (``floor`` of position plus noise), the runtime reads and
@@ -61,7 +62,8 @@ class Loop:
     ref_source : tuple of int
         Per axis, ``-1`` if its task reference comes from the scenario, else the index of the
         axis whose position (read in the same tick) is its reference: a slave following its
-        master (SPEC §6). Default: external for the master, the master for slaves.
+        master (docs/runtime.md#modes-and-bumpless-switches). Default: external for the master, the
+        master for slaves.
     """
 
     rig: Rig

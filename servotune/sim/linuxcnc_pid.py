@@ -1,6 +1,6 @@
 """LinuxCNC's stock ``pid`` closing the loop around a servotune plant, in floating point.
 
-What a HAL servo thread does each period when it runs, in this order (issue 21)::
+What a HAL servo thread does each period when it runs, in this order::
 
     plant   moves the plant over one tick by the D/A output written last period (the
             simulator's lag and model: :func:`servotune.plant.advance_tick`), then latches the

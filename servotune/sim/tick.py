@@ -1,6 +1,6 @@
 """The axis tick, written once: every closed-loop kernel composes these compiled steps.
 
-One tick of one axis (SPEC §4) is
+One tick of one axis (docs/runtime.md#one-tick) is
 
 1. **sample**: the counter latches ``floor(position + noise)`` (:func:`latch`), the encoder noise
    drawn from the axis's stream (:func:`draw_noise`);

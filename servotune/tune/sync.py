@@ -1,4 +1,5 @@
-"""Tuning of the gantry's controllers (seed 003): each drive's PI and the sync compensator.
+"""Tuning of the gantry's controllers: each drive's PI and the sync compensator
+(docs/systems.md#fieldbus-gantry-with-a-listening-slave).
 
 :func:`tune_sync` synthesises the compensator on the linear sync loop
 (:func:`servotune.arch.gantry.design.sync_loop_models`); :func:`resolve_gains` fills in the gains

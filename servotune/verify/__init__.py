@@ -4,7 +4,6 @@ table :mod:`.result`, the Monte-Carlo distribution and summary :mod:`.montecarlo
 trust chain from the verified bytes to the export (:mod:`.record`). The pass/fail table for the
 terminal is :func:`servotune.report.text.format_table`."""
 
-from servotune._deprecate import moved_names
 from servotune.verify.checks import check_overflow, check_speed, check_timer, max_safe_gain_q
 from servotune.verify.margins import (
     DEFAULT_LIMITS,
@@ -95,5 +94,3 @@ __all__ = [
     "verify_files",
     "write_record",
 ]
-
-__getattr__ = moved_names(__name__, {"format_table": "servotune.report.text"})

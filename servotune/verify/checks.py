@@ -34,7 +34,8 @@ _FAULT_QUANTITY = "fault_runs"
 def max_safe_gain_q() -> int:
     """Largest gain magnitude ``|q|`` whose product with a clamped error fits int64.
 
-    Errors are clamped to ``±(2^31 − 1)`` before any product (SPEC §6), so ``|q · e| <= |q| ·
+    Errors are clamped to ``±(2^31 − 1)`` before any product
+    (docs/runtime.md#saturation-and-clamps), so ``|q · e| <= |q| ·
     (2^31 − 1)``; that is at most ``2^63 − 1`` for ``|q| <= 2^32 + 2``.
 
     Examples
@@ -72,7 +73,7 @@ def _gain_terms(c: AxisController) -> list[tuple[str, int, int]]:
 def check_overflow(tuning: Tuning, rig: Rig) -> Check:
     """Prove, on the tuning's own constants, that no runtime sum or product can overflow.
 
-    The bound (SPEC §6):
+    The bound (docs/runtime.md#saturation-and-clamps):
 
     - errors, error changes and reference changes are clamped to ``|e| <= 2^31 − 1`` before
       any product, so a product ``q · e`` fits int64 if ``|q| <= 2^32 + 2``

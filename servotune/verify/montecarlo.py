@@ -12,9 +12,9 @@ module holds the two ends of that run:
 - the **summary** (:func:`summarise`): the pass fraction with its exact interval, the plant
   sets with the least margin and the parameter each failure tracks (:func:`sensitivity_table`).
 
-Every draw is keyed by the seed and the draw's index (DECISIONS 11): a chunk ``[start, stop)``
-draws what one pass over all draws would draw there, so the verification is the same bytes
-whatever the chunking, the number of workers or the executor.
+Every draw is keyed by the seed and the draw's index (docs/decisions.md#11-random-numbers): a chunk
+``[start, stop)`` draws what one pass over all draws would draw there, so the verification is the
+same bytes whatever the chunking, the number of workers or the executor.
 """
 
 from __future__ import annotations

@@ -69,7 +69,7 @@ __all__ = [
 
 RECORD_SCHEMA = "servotune.verify/3"
 """/3: the Monte-Carlo summary holds the worst plant sets and the sensitivity table, and a
-run of more than ``LISTED_VARIANTS`` plant sets lists only the ones it names (issue 22)."""
+run of more than ``LISTED_VARIANTS`` plant sets lists only the ones it names."""
 _OLD_RECORD_SCHEMAS = ("servotune.verify/1", "servotune.verify/2")
 
 _V = TypeVar("_V")

@@ -17,6 +17,7 @@ import math
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
+from typing import Literal
 
 import numpy as np
 
@@ -81,7 +82,6 @@ _CHUNK_WORK = 16384 * 1200  # plant·ticks a task holds at most (the example rig
 # 0.6 s on one core here); a spec's longer scenarios get fewer plant sets per task, so a task
 # keeps its worker's event loop (Dask's heartbeats, its 3 s unresponsiveness warning) waiting
 # no longer than that, and a worker lost mid-task loses no more
-_LEAN = True  # a master and a slave's runs go through the lean two-axis kernel (tests: False)
 
 
 # --- running the scenarios -----------------------------------------------------------------
@@ -231,6 +231,7 @@ class _Shared:
     distribution: PlantDistribution
     seed: int
     threads: int | None
+    kernel: Literal["auto", "general"] = "auto"
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -502,7 +503,7 @@ def _run_chunk(chunk: _Chunk, shared: _Shared) -> _ChunkResult:
     fastest = []
     for sc, inputs in shared.runs:
         lean = None
-        if _LEAN and _lean_sync_ok(shared, sc, chunk_plants.rows()[1]):
+        if shared.kernel == "auto" and _lean_sync_ok(shared, sc, chunk_plants.rows()[1]):
             pf, pi = chunk_plants.rows()
             seeds = np.asarray(chunk.noise, dtype=np.uint64)
             lean = _run_lean_sync(shared, sc, inputs, pf, pi, seeds)
@@ -672,6 +673,7 @@ def verify(
     executor: Executor | None = None,
     distribution: PlantDistribution | None = None,
     chunk_size: int | None = None,
+    kernel: Literal["auto", "general"] = "auto",
 ) -> Verification:
     """Verify a tuning against a spec on the bit-true closed loop.
 
@@ -713,6 +715,12 @@ def verify(
         of an even share of what is left per worker, from 256 up to 16384 or fewer, at most
         about 2e7 plant·ticks a task: :func:`~servotune.executor.guided_chunk_bounds`);
         changes the run's granularity, never its result.
+    kernel : {"auto", "general"}
+        Which compiled kernel runs the scenarios: ``"auto"`` runs a master and one slave
+        following it in the lean two-axis kernel (no traces; each scenario it cannot take,
+        and every other rig, in the general one), ``"general"`` runs every scenario in the
+        general, traced kernel. Both give the same result, bit for bit; ``"general"`` is
+        slower and exists to check that.
 
     Returns
     -------
@@ -724,7 +732,11 @@ def verify(
         If the tuning does not belong to the rig (axes, period).
     SpecError
         If the spec names another rig, an axis the rig lacks, or a scenario cannot be built.
+    ValueError
+        If ``kernel`` is neither ``"auto"`` nor ``"general"``.
     """
+    if kernel not in ("auto", "general"):
+        raise ValueError(f"kernel must be 'auto' or 'general', got {kernel!r}")
     say = progress or (lambda _msg: None)
     if spec.rig is not None and spec.rig != rig.name:
         raise SpecError(
@@ -777,7 +789,7 @@ def verify(
     noise = _seed_seqs(used_seed)[1].generate_state(n_sets, np.uint64)
     chunks = [_Chunk(start=a, stop=b, noise=noise[a:b]) for a, b in bounds]
     shared = _Shared(rig=rig, loop=loop, runs=tuple(runs), distribution=dist, seed=used_seed,
-                     threads=ex.threads_per_task)  # fmt: skip
+                     threads=ex.threads_per_task, kernel=kernel)  # fmt: skip
     for sc, _ in runs:
         say(f"verify: scenario {sc.name} ({sc.kind}, {sc.seconds:g} s), {n_sets:,} plant sets")
     say(f"verify: the nominal plants and {count:,} plant sets from the {dist.name} in "
@@ -789,8 +801,9 @@ def verify(
     # the kernels compile first, if the cache lacks them, with their progress lines: here once,
     # not in every worker of a cluster, and not beside the margins thread (compiled beside it,
     # the two-axis kernel took 152 s on 2 cores, against about 50 s alone); a two-axis master
-    # and slave runs in the lean two-axis kernel, anything else in the general one
-    two_axis = sorted(a.role for a in rig.axes) == ["master", "slave"]
+    # and slave runs in the lean two-axis kernel (unless kernel="general"), anything else in
+    # the general one
+    two_axis = kernel == "auto" and sorted(a.role for a in rig.axes) == ["master", "slave"]
     warm_up(("margins", "verification" if two_axis else "simulation"), progress=progress)
     # the loop margins depend on neither the runs nor their plant sets: a thread computes them
     # while the chunks run (the caller only waits on the executor then)

@@ -103,7 +103,7 @@ def chunk_generator(seed: int, start: int, draws_per_item: int) -> np.random.Gen
     """The seed's variant stream, jumped to item ``start``: item ``i`` always takes the
     ``draws_per_item`` uniforms at ``[i·d, (i + 1)·d)`` of the stream (PCG64's ``advance``), so a
     chunk ``[start, stop)`` draws exactly what one pass over all items draws there, whatever
-    the chunking (DECISIONS 11)."""
+    the chunking (docs/decisions.md#11-random-numbers)."""
     bits = np.random.PCG64(_seed_seqs(seed)[0])
     bits.advance(int(start) * int(draws_per_item))
     return np.random.Generator(bits)

@@ -1,4 +1,4 @@
-"""Issue 15, the reliability contract: malformed inputs end in one line on stderr naming the
+"""The reliability contract: malformed inputs end in one line on stderr naming the
 file, the field and the expected form or unit, exit code 3, no traceback, no file written.
 
 Every case goes through the command line (``servotune.cli.main``), as a user meets it.
@@ -178,8 +178,8 @@ def test_unknown_metadata_warns_and_bom_is_accepted(
 def test_a_metadata_typo_is_one_warning_line_with_a_suggestion(
     sim_log: Path, tmp_path: Path
 ) -> None:
-    """Issue 20/DECISIONS 1: an unknown metadata key warns (not an error), in one line on
-    stderr naming the closest declared key; the fit still runs."""
+    """docs/decisions.md#1-unknown-keys: an unknown metadata key warns (not an error), in one line
+    on stderr naming the closest declared key; the fit still runs."""
     log = tmp_path / "typo.csv"
     log.write_text("# counter_bitz: 24\n" + sim_log.read_text())
     run = subprocess.run([sys.executable, "-m", "servotune.cli", "fit", str(log), "--axis",

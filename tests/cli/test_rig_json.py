@@ -1,4 +1,4 @@
-"""`servotune rig --json` prints strict JSON (issue 15: it printed ``Infinity``)."""
+"""`servotune rig --json` prints strict JSON (it once printed ``Infinity``)."""
 
 from __future__ import annotations
 
@@ -36,4 +36,5 @@ def test_rig_json_never_prints_infinity(capsys, monkeypatch) -> None:
     monkeypatch.undo()
     assert main(["rig", str(RIG), "--json"]) == 0
     facts = _strict(capsys.readouterr().out)
-    assert facts["timer_divisor"] == 4773  # SPEC §1a: round(1,193,180 Hz × 4 ms)
+    # docs/runtime.md#timer-and-achieved-period: round(1,193,180 Hz × 4 ms)
+    assert facts["timer_divisor"] == 4773

@@ -1,4 +1,4 @@
-"""Signals and partial files (issue 15): Ctrl-C and SIGTERM end a run with one line, exit 130 or
+"""Signals and partial files: Ctrl-C and SIGTERM end a run with one line, exit 130 or
 143, no traceback, and no partial or temporary file; an unusable workbench stops before any
 output is written."""
 

@@ -1,4 +1,4 @@
-"""The exported gantry header runs what was verified (issue 19, point 1).
+"""The exported gantry header runs what was verified.
 
 ``servotune_gantry_consts.h`` as ``export-table --format c`` writes it for a verified gantry
 tuning, compiled with the exported runtime (strict C99), passes its own digest and range checks

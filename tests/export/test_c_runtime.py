@@ -524,7 +524,7 @@ def test_primitives_match_python_at_the_edges(runtime: Runtime) -> None:
         for b in [*edges, -(2**63)]:
             assert lib.h_sat_add(x, b) == sat_add(x, b), (x, b)
     assert lib.h_sat_add(-(2**63), 0) == -INT64_MAX  # the most negative value is never produced
-    # round half away from zero: ±1.5 → ±2, ±2.5 → ±3 (SPEC §6)
+    # round half away from zero: ±1.5 → ±2, ±2.5 → ±3 (docs/runtime.md#rounding)
     assert [lib.h_shift_round(v, 1) for v in (3, -3, 5, -5)] == [2, -2, 3, -3]
 
 

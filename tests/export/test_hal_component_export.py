@@ -99,7 +99,7 @@ def test_the_plant_component_holds_the_simulators_row_exactly() -> None:
 
 def test_component_source_without_a_rig_uses_the_default_dac(quick_tuning) -> None:
     src = component_source(quick_tuning, unverified=True, name="st")
-    # seed 000's D/A (SPEC: 12 bits over ±10 V): 20 V / 4096 codes per LSB
+    # the example rig's D/A (12 bits over ±10 V): 20 V / 4096 codes per LSB
     assert f"#define ST_DAC_LO_V {(-10.0).hex()}" in src
     assert f"#define ST_DAC_LSB_V {(20.0 / 4096).hex()}" in src
 

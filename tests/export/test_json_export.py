@@ -74,7 +74,8 @@ def fixed_tuning() -> Tuning:
         dk1=0.01 * s,
     )
     master = PIGains(kp=0.35, ki=1.4)
-    # seed 000: lock gain 0.4 codes/count; following-error limit one revolution (12288 counts)
+    # the example rig: lock gain 0.4 codes/count; following-error limit one revolution (12288
+    # counts)
     ctls = tuple(
         AxisController.from_gains(
             lock_gain_codes_per_count=0.4,
@@ -148,7 +149,7 @@ def test_export_holds_the_tuning_exactly(tuning: Tuning) -> None:
         assert tab["q"] == q.tolist() and tab["f"] == f_t and tab["n"] == 3
     master = doc["data"]["axes"][0]
     assert master["law"] == "pi" and master["ref_source"] == -1 and slave["ref_source"] == 0
-    assert doc["data"]["timer_divisor"] == 4773  # SPEC §1a: 4 ms → 4773
+    assert doc["data"]["timer_divisor"] == 4773  # docs/runtime.md#timer-and-achieved-period
     prov = doc["provenance"]
     assert prov["verification"] == SUMMARY and prov["spec_sha256"] == SUMMARY["spec_sha256"]
     assert len(prov["tuning_sha256"]) == 64 and prov["rig"]["name"] == "pc-dual-servo"
@@ -156,7 +157,8 @@ def test_export_holds_the_tuning_exactly(tuning: Tuning) -> None:
 
 def test_table_crc_is_zlib_crc32_of_the_documented_bytes() -> None:
     q = np.array([[0, 1, -2], [32767, -32768, 5], [6, 7, -8]])
-    # SPEC §6: little-endian int16 n, int16 f, then the entries row-major
+    # docs/runtime.md#integrity-crcs-and-the-c-layout: little-endian int16 n, int16 f, then the
+    # entries row-major
     raw = struct.pack("<hh", 1, 9) + struct.pack("<9h", *q.reshape(-1).tolist())
     assert table_crc32(q, 9) == zlib.crc32(raw)
 
@@ -239,13 +241,13 @@ def test_wrong_schema_and_malformed_documents_are_rejected(tuning: Tuning, tmp_p
     doc = _doc(tuning)
     doc["schema"] = "servotune.tables/3"
     _reject(doc, "schema must be 'servotune.tables/2'", "servotune.tables/3")
-    doc["schema"] = "servotune.tables/1"  # DECISIONS 17: an older file gets one line
+    doc["schema"] = "servotune.tables/1"  # docs/decisions.md#17-file-versions
     _reject(doc, "written by an older servotune", "export the tuning again")
     doc = _doc(tuning)
     del doc["data"]["axes"][1]["task"]["tables"]["k1"]
     _reject(doc, "missing the field 'k1'")
     doc = _doc(tuning)
-    doc["data"]["rig_nmae"] = "x"  # DECISIONS 1: unknown keys refused with a did-you-mean
+    doc["data"]["rig_nmae"] = "x"  # docs/decisions.md#1-unknown-keys
     _reject(doc, "unknown key data.rig_nmae", "did you mean 'rig_name'?")
     doc = _doc(tuning)
     doc["data"]["axes"][1]["task"]["tables"]["kp"]["q"][3].pop()
@@ -340,19 +342,20 @@ def test_write_c_writes_nothing_when_the_export_fails(tuning: Tuning, tmp_path) 
         write_c(tuning, tmp_path / "missing", verification=SUMMARY)
 
 
-# --- tampering: the document's digest (issue 15) --------------------------------------------
+# --- tampering: the document's digest -------------------------------------------------------
 
 
 def _redigest(doc: dict) -> dict:
-    """The document's digest recomputed independently (DECISIONS 3: canonical JSON, sorted
-    keys, no whitespace, UTF-8, the digest field left out), as a careful tamperer would."""
+    """The document's digest recomputed independently (docs/decisions.md#3-digests: canonical JSON,
+    sorted keys, no whitespace, UTF-8, the digest field left out), as a careful tamperer would."""
     body = {k: v for k, v in doc.items() if k != "sha256"}
     canon = json.dumps(body, sort_keys=True, separators=(",", ":"), ensure_ascii=False)
     return {**body, "sha256": hashlib.sha256(canon.encode("utf-8")).hexdigest()}
 
 
 def _table_crc(q: list, f: int) -> int:
-    """SPEC §6 table CRC, built here with struct and zlib (not the exporter's function)."""
+    """The table CRC (docs/runtime.md#integrity-crcs-and-the-c-layout), built here with struct and
+    zlib (not the exporter's function)."""
     n = (len(q) - 1) // 2
     raw = struct.pack("<hh", n, f) + b"".join(struct.pack("<h", v) for row in q for v in row)
     return zlib.crc32(raw)
@@ -407,7 +410,7 @@ def test_every_edited_field_is_refused(tuning: Tuning, tmp_path) -> None:
         node[path[-1]] = _changed(node[path[-1]])
         with pytest.raises(ExportError):  # malformed (exit 3) or a digest mismatch (exit 1)
             load_tables(json.dumps(doc))
-    # through the CLI, for the fields the issue names: exit 1 (not the verified bytes: a
+    # through the CLI, for the fields above: exit 1 (not the verified bytes: a
     # DigestError is a TrustError), one line, the digest named
     for path in sorted(named, key=str):
         doc = copy.deepcopy(base)
@@ -442,9 +445,9 @@ def test_a_table_with_its_own_crc_recomputed_is_refused(tuning: Tuning) -> None:
 
 
 def test_an_edit_with_every_digest_recomputed_is_a_new_document(tuning: Tuning) -> None:
-    """Threat model (DECISIONS 3): accidents, not a tamperer holding the tool. A document whose
-    every CRC and digest is recomputed is self-consistent; it is still not the verified one:
-    its provenance digest no longer names the verification's tuning bytes."""
+    """Threat model (docs/decisions.md#3-digests): accidents, not a tamperer holding the tool. A
+    document whose every CRC and digest is recomputed is self-consistent; it is still not the
+    verified one: its provenance digest no longer names the verification's tuning bytes."""
     doc = _doc(tuning)
     doc["verified"] = False
     assert load_tables(json.dumps(_redigest(doc)))["verified"] is False

@@ -1,4 +1,4 @@
-"""The verified runtime as a LinuxCNC HAL component, run in real HAL (issue 21, points 3-4).
+"""The verified runtime as a LinuxCNC HAL component, run in real HAL.
 
 The runtime component (``servotune export-table --format linuxcnc-comp``) and the rig's two
 plant components (:func:`servotune.export.hal_component.plant_component`) are built with
@@ -31,7 +31,7 @@ from servotune.scenarios import Inputs, trapezoid_ref
 from servotune.sim.engine import Loop, Trace, simulate
 from servotune.tuning import Tuning
 
-N_TICKS = 10_240  # issue 21: >= 10,000 ticks bit for bit
+N_TICKS = 10_240  # at least 10,000 ticks bit for bit, through the 24-bit counter's wrap
 # capture columns, in the sampler's cfg order (halsampler prints them in this order)
 COLUMNS = ("counts-0", "counts-1", "code-0", "code-1", "flags-0", "flags-1", "u-add-0")
 

@@ -22,9 +22,11 @@ from servotune.hw.counter import (
     unwrap_step,
 )
 
-# SPEC §1a: PCL833, 24-bit up/down counters, absolute cyclic counting (wraps modulo 2**24)
+# docs/runtime.md#counter-overflow-high-byte-rule: PCL833, 24-bit up/down counters, absolute cyclic
+# counting (wraps modulo 2**24)
 TOP24 = 2**24 - 1
-# counter.py docstring / SPEC §1a: the high-byte rule holds for motions up to 2**(24-8) counts
+# counter.py docstring / docs/runtime.md#counter-overflow-high-byte-rule: the high-byte rule holds
+# for motions up to 2**(24-8) counts
 LIMIT24 = 65_536
 PHASES = 2**16  # phases of the low 16 bits relative to a high-byte boundary (24-bit register)
 
@@ -410,17 +412,18 @@ def test_unwrap_limit_at_65537_faults_from_exactly_one_phase():
 
 def test_unwrap_speed_limit_example_rig():
     # computed by hand: 65,536 counts/tick / 12,288 counts/rev = 16/3 rev per tick;
-    # 16/3 / 0.004000235 s · 60 = 79,995.30 r/min (SPEC §1a: 3072 pulses/rev, x4, 4.000235 ms)
+    # 16/3 / 0.004000235 s · 60 = 79,995.30 r/min (the example rig: 3072 pulses/rev, x4, 4.000235
+    # ms)
     assert_allclose(unwrap_speed_limit_rpm(24, 12288, 0.004000235), 79_995.30, rtol=0, atol=0.01)
 
 
 def test_input_speed_limit_example_rig():
-    # SPEC §1a: max 2.4 MHz input; computed by hand: 2.4e6 / 3072 · 60 = 46,875 r/min
+    # the PCL833's max 2.4 MHz input; computed by hand: 2.4e6 / 3072 · 60 = 46,875 r/min
     assert_allclose(input_speed_limit_rpm(2.4e6, 3072), 46_875.0, rtol=0, atol=1e-9)
 
 
 def test_input_limit_binds_first_on_the_example_rig():
-    # SPEC §1a: 3072 pulses/rev at x4 → 12,288 counts/rev; 4773 / 1,193,180 s per tick
+    # the example rig: 3072 pulses/rev at x4 → 12,288 counts/rev; 4773 / 1,193,180 s per tick
     period_s = 4773 / 1_193_180
     v_in = input_speed_limit_rpm(2.4e6, 3072)
     v_unwrap = unwrap_speed_limit_rpm(24, 3072 * 4, period_s)

@@ -12,7 +12,8 @@ from servotune.hw.dac import code_from_uq, code_from_volts, lsb_v, volts_from_co
 
 # PCL728: 12-bit, ±10 V: LSB = 20/4096 V = 4.8828125 mV (exact in binary: 5 · 2**-10)
 LSB = 20.0 / 4096.0
-# SPEC §4 / §6: u_q has f_u = 32 fraction bits; code = clamp(shift_round(u_q, 32) + 2048, 0, 4095)
+# docs/runtime.md#da-quantisation: u_q has f_u = 32 fraction bits; code = clamp(shift_round(u_q, 32)
+# + 2048, 0, 4095)
 F_U = 32
 ALL_CODES = np.arange(4096)
 
@@ -40,7 +41,7 @@ def test_lsb():
 @pytest.mark.parametrize(
     ("volts", "code"),
     [
-        # SPEC §4: rails −10 V (code 0) and +9.99512 V (code 4095)
+        # docs/runtime.md#da-quantisation: rails −10 V (code 0) and +9.99512 V (code 4095)
         (-10.0, 0),
         (-10.0 + LSB, 1),
         (9.99512, 4095),
@@ -71,7 +72,7 @@ def test_code_from_volts_rails_and_zero(volts, code):
 @pytest.mark.parametrize(
     ("lsbs", "code"),
     [
-        # SPEC §4: round_half_away(u / LSB) + 2048 — ties go away from zero
+        # docs/runtime.md#da-quantisation: round_half_away(u / LSB) + 2048 — ties go away from zero
         (0.5, 2049),
         (-0.5, 2047),
         (1.5, 2050),
@@ -143,7 +144,7 @@ def _volt_sweep() -> np.ndarray:
 
 
 def test_code_from_uq_agrees_with_code_from_volts():
-    # SPEC §4: code = clamp(shift_round(u_q, f_u) + 2048, 0, 4095) equals
+    # docs/runtime.md#da-quantisation: code = clamp(shift_round(u_q, f_u) + 2048, 0, 4095) equals
     # clamp(round_half_away(u_volts / LSB) + 2048, 0, 4095) in volts
     volts = _volt_sweep()
     expected = code_from_volts(volts)
@@ -181,7 +182,7 @@ def test_code_from_uq_edges_and_rails(u_q, code):
 
 
 def test_zero_code():
-    # PCL728 ±10 V, 12 bits: mid-scale 2048 (SPEC §4)
+    # PCL728 ±10 V, 12 bits: mid-scale 2048 (docs/runtime.md#da-quantisation)
     assert zero_code() == 2048
     assert zero_code(12, (-10.0, 10.0)) == 2048
     # computed by hand: −lo / LSB

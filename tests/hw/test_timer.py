@@ -16,12 +16,12 @@ POW2_CLOCK_HZ = 2.0**20
 
 
 def test_pc_clock_is_the_8253_input_clock():
-    # SPEC §1a: 8253 PIT, input clock 1,193,180 Hz
+    # docs/runtime.md#timer-and-achieved-period: 8253 PIT, input clock 1,193,180 Hz
     assert PC_PIT_CLOCK_HZ == 1_193_180.0
 
 
 def test_4ms_divisor_achieved_period_and_error():
-    # SPEC §1a: 4 ms → divisor 4773 → 4.000235 ms, +58.7 ppm
+    # docs/runtime.md#timer-and-achieved-period: 4 ms → divisor 4773 → 4.000235 ms, +58.7 ppm
     # computed by hand: 0.004 · 1,193,180 = 4772.72 → 4773; 4773 / 1,193,180 = 4.0002347 ms
     div = divisor(0.004)
     assert div == 4773
@@ -31,7 +31,7 @@ def test_4ms_divisor_achieved_period_and_error():
 
 
 def test_default_divisor_65536_is_18_2_hz():
-    # SPEC §1a: default divisor 65536 = 18.2 Hz; computed by hand: 1,193,180 / 65,536 = 18.2065 Hz
+    # the PC's default divisor 65536 = 18.2 Hz; computed by hand: 1,193,180 / 65,536 = 18.2065 Hz
     assert_allclose(1.0 / achieved_period_s(65536), 18.2065, rtol=0, atol=5e-5)
     # the longest period the PIT can make maps back to the largest divisor (programmed as 0)
     assert divisor(65536 / PC_PIT_CLOCK_HZ) == 65536

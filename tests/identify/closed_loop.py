@@ -1,21 +1,22 @@
-"""An independent closed-loop log simulator for the identification tests (issue 17).
+"""An independent closed-loop log simulator for the identification tests.
 
-What makes it independent of the identifier: the plant is the *continuous* model of SPEC §5
-integrated here with a fixed-step fourth-order Runge–Kutta scheme (``SUBSTEPS`` steps per
-constant-input segment, each Coulomb stick/slip event located by bisection), not with
-:func:`servotune.plant.advance_tick` (the closed-form tick step the identifier simulates its
-model with). What it shares with the product is only what a real rig shares with it: the
+What makes it independent of the identifier: the plant is the *continuous* axis model
+(docs/formats.md#axis-model) integrated here with a fixed-step fourth-order Runge–Kutta scheme
+(``SUBSTEPS`` steps per constant-input segment, each Coulomb stick/slip event located by bisection),
+not with :func:`servotune.plant.advance_tick` (the closed-form tick step the identifier simulates
+its model with). What it shares with the product is only what a real rig shares with it: the
 runtime PI law (:func:`servotune.laws.pi.pi_step`, the integer law that runs on the target) and
-the hardware conventions of SPEC §4 — the counter latches ``floor(position + noise)`` at the
-tick start into a 24-bit register, the law's output goes through the 12-bit D/A (code =
-clamp(round(u) + 2048)), the code is written at ``t_k + compute_s`` and reaches the motor
+the hardware conventions of docs/runtime.md#one-tick — the counter latches ``floor(position +
+noise)`` at the tick start into a 24-bit register, the law's output goes through the 12-bit D/A
+(code = clamp(round(u) + 2048)), the code is written at ``t_k + compute_s`` and reaches the motor
 ``delay_s`` later.
 
 The log has the columns ``servotune simulate`` writes (``dac_code``, ``counter``, ``ref_counts``,
-``mode``) and the excitation the law adds, ``exc_code`` (DECISIONS 5). The load disturbance is
-AR(1) with pole :data:`LOAD_POLE` per tick, held over each tick, and the encoder noise is
-Gaussian; both are drawn from a counter-based generator keyed by ``(seed, index)`` (Philox,
-DECISIONS 11), so log ``index`` of a study is the same whatever runs it.
+``mode``) and the excitation the law adds, ``exc_code`` (docs/decisions.md#5-excitation-is-logged).
+The load disturbance is AR(1) with pole :data:`LOAD_POLE` per tick, held over each tick, and the
+encoder noise is Gaussian; both are drawn from a counter-based generator keyed by ``(seed, index)``
+(Philox, docs/decisions.md#11-random-numbers), so log ``index`` of a study is the same whatever runs
+it.
 """
 
 from __future__ import annotations
@@ -42,7 +43,8 @@ DAC_RANGE_V = (-10.0, 10.0)
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class TruePlant:
-    """The true axis (SPEC §5), with optional per-direction gain and Coulomb friction.
+    """The true axis (docs/formats.md#axis-model), with optional per-direction gain and Coulomb
+    friction.
 
     ``gain_neg_cps_per_v`` / ``coulomb_neg_v`` act while the motor moves (or starts) in the
     negative direction; None means the same as the positive one.

@@ -1,4 +1,4 @@
-"""Closed-loop identification with a coloured load (issue 17): consistency and honest intervals.
+"""Closed-loop identification with a coloured load: consistency and honest intervals.
 
 The logs come from :mod:`closed_loop` (this directory): the continuous model integrated by its
 own RK4 scheme, the runtime PI law, the 24-bit counter and the 12-bit D/A, an AR(1) load of pole
@@ -73,7 +73,7 @@ def fast_study() -> dict[str, np.ndarray]:
 
 
 def test_the_simulator_integrates_the_continuous_model() -> None:
-    # the test fixture itself, against the closed form of SPEC §5 for a constant command in open
+    # the test fixture itself, against the axis model's closed form for a constant command in open
     # loop (PI gains 0, so the D/A writes the excitation alone; no drift, so the motor rests until
     # the command arrives): after the lag (compute_s + delay_s) the speed rises as
     # K·w·(1 − exp(−t/τ)), w = u − coulomb·sign(u), so p(t) = K·w·(t − τ·(1 − exp(−t/τ)))
@@ -102,7 +102,7 @@ def test_the_default_is_consistent_where_least_squares_is_biased(
     assert s["method"].all()  # the logs carry exc_code: the default is iv
     for name in ("gain", "tau"):
         assert abs(s[name].mean()) < 0.02, (name, s[name].mean())
-    # the logs are hard: least squares on the same logs is biased (the bias the issue reports)
+    # the logs are hard: least squares on the same logs is biased (the bias IV removes)
     assert s["oe_gain"].mean() < -0.04, s["oe_gain"].mean()
     assert abs(s["oe_tau"].mean()) > 0.04, s["oe_tau"].mean()
     # and the default is not just unbiased on average: every log is within 2 %
@@ -111,8 +111,8 @@ def test_the_default_is_consistent_where_least_squares_is_biased(
 
 def test_the_intervals_are_honest_small(fast_study: dict[str, np.ndarray]) -> None:
     # 50 logs: a 95 % interval misses 2.5 times on average; 8 or more misses (84 %) has a
-    # probability of 1 % if the intervals are right — and is certain for the intervals the issue
-    # reports (the truth in 1 of 30 logs)
+    # probability of 1 % if the intervals are right — and is certain for the former
+    # white-residual intervals (the truth in 1 of 30 logs)
     s = fast_study
     for name in ("gain", "tau"):
         assert s[name + "_in"].mean() >= 0.84, (name, s[name + "_in"].mean())
@@ -126,8 +126,8 @@ def test_the_intervals_are_honest_small(fast_study: dict[str, np.ndarray]) -> No
 
 @pytest.mark.slow
 def test_the_intervals_are_honest_over_250_logs() -> None:
-    # issue 17: over >= 200 closed-loop logs the 95 % intervals hold the true gain and tau in
-    # 90–98 % of the logs (binomial sd at 95 %: 1.4 %)
+    # honest intervals: over >= 200 closed-loop logs the 95 % intervals hold the true gain and tau
+    # in 90–98 % of the logs (binomial sd at 95 %: 1.4 %)
     s = _study(SLOW_SEED, SLOW_LOGS, with_oe=False)
     for name in ("gain", "tau"):
         coverage = s[name + "_in"].mean()

@@ -9,7 +9,7 @@ at 1 % flag about 3 % of correctly modelled logs.
 
 The logs come from :mod:`closed_loop` (this directory), an independent simulator whose logs are,
 up to the encoder's quantisation and the PI law's integer arithmetic, in the model class. The
-rates quoted below were measured on these logs for this change (issue: the diagnostics flag
+rates quoted below were measured on these logs for this change (the diagnostics flagged
 7–8 % of correctly modelled logs): 15 of 200 default logs (seed 7) and 29 of 100 short logs of
 3000 ticks (seed 11) flagged before; with the family-wise level alone 10 of 200 and 28 of 100
 (every one the noise-model order below); with the family-wise level and a noise model whose order
@@ -133,7 +133,7 @@ def test_correctly_modelled_short_logs_are_rarely_called_inadequate() -> None:
 @pytest.mark.slow
 def test_the_false_alarm_rate_over_200_logs() -> None:
     # 200 default logs (12,000 ticks). At a family-wise level of 1 %: P(X >= 7 | n = 200,
-    # p = 0.01) = 0.0043, so at most 6 flagged; the issue's 7.5 % (15 of 200, seed 7) gives
+    # p = 0.01) = 0.0043, so at most 6 flagged; the former 7.5 % (15 of 200, seed 7) gives
     # P(X <= 6) = 0.006. And the whiteness p-values are uniform: none is tiny (a noise model of
     # the wrong order gives p ~ 1e-28) and their median is 0.5 (sd 0.035 over 200).
     fits = [_fit(simulate_closed_loop(PLANT, Experiment(), seed=7, index=i)) for i in range(200)]

@@ -1,6 +1,7 @@
-"""Real data: the EMPS drive's two logs (issue 17 item 6, DECISIONS 7), read, fitted, compared.
+"""Real data: the EMPS drive's two logs (docs/decisions.md#7-real-data-emps), read, fitted,
+compared.
 
-The data live outside the repository, in ``../shared/data/real/EMPS`` (its README names the
+The data live outside the repository, in ``shared/data/real/EMPS`` beside it (its README names the
 source: Janot, Gautier, Brunot, "Data Set and Reference Models of EMPS", 2019), or where the
 environment variable ``SERVOTUNE_REAL_DATA`` points; CI has them. Without them every test that
 needs them skips and says why; the reader's error cases and unit mapping run anyway.
@@ -135,8 +136,9 @@ def fitted(emps: dict[str, EmpsLog]) -> Callable[[str, str], FitResult]:
 
 
 def _speed_by_solve_ivp(plant: Plant, log: EmpsLog) -> np.ndarray:
-    """Mean speed over each tick [counts/s] of the fitted continuous model (SPEC §5), driven open
-    loop by the log's command held over each tick, integrated by scipy's ``solve_ivp`` (RK45).
+    """Mean speed over each tick [counts/s] of the fitted continuous model
+    (docs/formats.md#axis-model), driven open loop by the log's command held over each tick,
+    integrated by scipy's ``solve_ivp`` (RK45).
 
     Between reversals the direction ``d`` is fixed and the model is linear,
     ``tau·dv/dt + v = K_d·(w(t) − c_d)`` with ``w(t) = u(t − delay) + offset`` and ``c_d`` the
@@ -350,7 +352,7 @@ def test_the_two_logs_agree_within_their_intervals(
 
     Measured (oe with moving-block bootstrap intervals, 2025-11-25): |difference| / allowed =
     0.29 (gain), 0.36 (tau), 0.15 (offset), 0.22 (Coulomb). The previous release's estimator
-    (white-residual intervals) gave 2.13, 2.65, 2.45, 2.02: issue 17's "2–2.6×"."""
+    (white-residual intervals) gave 2.13, 2.65, 2.45, 2.02: intervals 2–2.6× too narrow."""
     a, b = fitted("EMPS", method), fitted("PULSES", method)
     assert a.structure == b.structure
     ratios = {}

@@ -1,4 +1,5 @@
-"""The fit record in the rig's plant section (DECISIONS 6): written by ``fit -o``, read back.
+"""The fit record in the rig's plant section (docs/decisions.md#6-the-fit-record): written by ``fit
+-o``, read back.
 
 ``[axis.<name>.plant.fit]`` holds each estimated parameter's 95 % interval, the method, the
 structure, the friction form and the adequacy; the rig reader accepts exactly those keys.

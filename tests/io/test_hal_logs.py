@@ -1,4 +1,4 @@
-"""LinuxCNC HAL captures read and fitted (issue 21, part 1): ``servotune fit CAPTURE --map …``.
+"""LinuxCNC HAL captures read and fitted: ``servotune fit CAPTURE --map …``.
 
 Three kinds of evidence:
 
@@ -45,7 +45,7 @@ from servotune.io.hal import (
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "hal"))  # the shared HAL harness
 import halrun
 
-# --- the motor of the synthetic captures (SPEC §5's axis model without delay and friction) ---
+# --- the motor of the synthetic captures (the axis model without delay and friction) ---
 GAIN_CPS_PER_V = 3000.0  # counts/s per V
 TAU_S = 0.05  # s
 PERIOD_S = 0.004

@@ -20,7 +20,8 @@ from servotune.laws.axis import (
 from servotune.laws.fuzzy_pid import TABLE_NAMES, FuzzyPIDConstants, FuzzyPIDGains
 from servotune.laws.pi import PIGains
 
-PERIOD_S = 0.004000235  # the example rig's achieved 8253 period (SPEC §1a)
+# the example rig's achieved 8253 period (docs/runtime.md#timer-and-achieved-period)
+PERIOD_S = 0.004000235
 
 
 def _controller(task: object) -> AxisController:
@@ -50,7 +51,7 @@ def _random_tables(rng: np.random.Generator, n: int, scale: dict[str, float]) ->
     return {"d" + t: rng.uniform(-1.0, 1.0, (size, size)) * scale[t] for t in TABLE_NAMES}
 
 
-# --- an independent reference: Python integers, the SPEC §6 formulas written out ------------
+# --- an independent reference: Python integers, the runtime's formulas written out -----------
 
 
 def _rha_shift(x: int, f: int) -> int:
@@ -70,7 +71,7 @@ def _reference_law(k: FuzzyPIDConstants, errors, refs, f_u: int = 32) -> list[in
     """Codes of the composite law for an error/reference sequence (task mode from tick 0).
 
     Tick 0 enters the task from lock with u_last = 0 (bumpless: I = −Kp·e, no derivative or
-    feedforward); later ticks follow SPEC §6. No term here comes near saturation.
+    feedforward); later ticks follow docs/runtime.md. No term here comes near saturation.
     """
     n = k.n
     em = 2**31 - 1
@@ -215,4 +216,6 @@ def test_constants_round_trip_and_compare_by_value() -> None:
     other = _controller(_gains(np.random.default_rng(99))).task
     assert other != k  # tables differ: not equal even though every scalar field matches
     for name, base, (_, f_t) in zip(TABLE_NAMES, k.bases, k.tables, strict=True):
-        assert f_t <= base.f, name  # SPEC §6: table fraction bits never exceed the base's
+        # docs/runtime.md#fuzzy-levels-and-scheduled-gains: table fraction bits never exceed the
+        # base's
+        assert f_t <= base.f, name

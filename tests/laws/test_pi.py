@@ -1,8 +1,9 @@
-"""The integer PI tick against an exact model of its arithmetic (SPEC §6).
+"""The integer PI tick against an exact model of its arithmetic
+(docs/runtime.md#integrator-and-conditional-integration).
 
 ``pi_step`` adds its four terms with plain adds when each is below 2**60 in magnitude (the
 common case, a speed path) and with saturating adds otherwise. The model below does every step
-in Python's unbounded integers and saturates after each one, as SPEC §6 defines the runtime
+in Python's unbounded integers and saturates after each one, as docs/runtime.md defines the runtime
 arithmetic; both paths must give its integers exactly, including at the switch between them.
 """
 

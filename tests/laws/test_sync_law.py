@@ -36,7 +36,7 @@ def _run(g: SyncGains, errors: list[int]) -> tuple[list[int], list[int]]:
 def test_dead_zone_moves_towards_zero_and_clamps() -> None:
     assert [dead_zone(e, 3) for e in (-5, -4, -3, 0, 3, 4, 5)] == [-2, -1, 0, 0, 0, 1, 2]
     assert dead_zone(0, 0) == 0 and dead_zone(-7, 0) == -7
-    assert dead_zone(2**40, 0) == 2**31 - 1  # SPEC §6: errors clamped to ±(2^31 − 1)
+    assert dead_zone(2**40, 0) == 2**31 - 1  # docs/runtime.md#saturation-and-clamps: errors clamped
     assert dead_zone(-(2**40), 10) == -(2**31 - 1) + 10
 
 

@@ -1,4 +1,5 @@
-"""The asymmetric axis model (issue 17, item 2): gain and Coulomb friction per direction.
+"""The asymmetric axis model (docs/formats.md#asymmetric-friction): gain and Coulomb friction per
+direction.
 
 Oracles, each independent of :func:`servotune.plant.advance`'s closed form:
 
@@ -149,7 +150,7 @@ def test_the_direction_decides_gain_and_friction() -> None:
 
 
 def test_stiction_band_is_asymmetric() -> None:
-    # at rest the motor stays at rest while -coulomb_neg <= w <= coulomb (SPEC §5, per way)
+    # at rest the motor stays at rest while -coulomb_neg <= w <= coulomb (the axis model, per way)
     a, b = step_coefficients(0.004, TAU)
     for w in (0.0, C_POS, -C_NEG, 0.02, -0.05, -0.079):
         got = advance(5.0, 0.0, w, 0.004, a, b, GAIN, TAU, C_POS, math.inf, GAIN_NEG, C_NEG)

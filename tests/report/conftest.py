@@ -55,7 +55,7 @@ class ReportBuild:
 def _fake_linkage() -> Any:
     """What :func:`plot_queue_levels` and :func:`plot_radial_deviation` read of a
     :class:`~servotune.arch.linkage.LinkageResult`: two CPUs whose queues saw-tooth at a
-    10 ms broadcast over 6 s (the solid band of issue 20), one arc."""
+    10 ms broadcast over 6 s (a saw-tooth that once plotted as a solid band), one arc."""
     period = 0.002
     n = 3000
     t = np.arange(n, dtype=np.int64) * period

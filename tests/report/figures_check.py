@@ -1,4 +1,4 @@
-"""What every figure of the report must carry: axis labels with units (issue 20, point 4)."""
+"""What every figure of the report must carry: axis labels with units."""
 
 from __future__ import annotations
 

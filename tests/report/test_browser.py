@@ -1,4 +1,4 @@
-"""The report in a real browser (issue 20, point 4): headless Chromium renders the page at
+"""The report in a real browser: headless Chromium renders the page at
 1280 px; it loads without a console message or an error, shows the summary, needs no
 horizontal scrolling, and every figure is a decoded data-URI image drawn at its size.
 

@@ -1,4 +1,5 @@
-"""The Figure-4 statement is derived from the measured numbers (issue 18, point 5): swapping the
+"""The Figure-4 statement is derived from the measured numbers
+(docs/systems.md#figure-4): swapping the
 numbers changes the words."""
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """Every figure the report embeds has its axes labelled with units, checked on the matplotlib
-figure objects (issue 20, point 4); the figures the issue found unreadable say what they show."""
+figure objects; the figures that were once unreadable say what they show."""
 
 from __future__ import annotations
 
@@ -35,7 +35,7 @@ def test_every_embedded_figure_has_units_on_its_axes(report_build: ReportBuild) 
 
 def test_the_check_finds_a_label_without_a_unit() -> None:
     fig, (a, b) = plt.subplots(2, 1, sharex=True)
-    a.set_ylabel("counts")  # issue 20: a bare word is not a unit
+    a.set_ylabel("counts")  # a bare word is not a unit
     b.set_ylabel("code [codes]")
     b.set_xlabel("time [s]")
     problems = axis_unit_problems(fig)

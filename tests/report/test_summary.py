@@ -1,4 +1,4 @@
-"""The report's summary follows from the numbers (issue 20, point 4): the verdict, the count of
+"""The report's summary follows from the numbers: the verdict, the count of
 failures, the tightest margin, the Monte-Carlo fraction and what to do next; swapping the
 verdict swaps the sentences."""
 
@@ -146,7 +146,7 @@ def test_the_margin_comment_follows_the_numbers() -> None:
     def cells(pms: list[float]) -> list[SimpleNamespace]:
         return [SimpleNamespace(phase_margin_deg=pm, cell=(i - 1, 0)) for i, pm in enumerate(pms)]
 
-    # issue 20: a slave at 25° beside a master at 50°
+    # a slave at 25° beside a master at 50°
     low = margin_comment({"master": 50.0, "slave": 25.0}, {"slave": cells([22.0, 25.0, 61.0])},
                          min_phase_margin_deg=45.0)  # fmt: skip
     assert "master 50°, slave 25°" in low and "centre cell" in low

@@ -3,8 +3,8 @@
 - every figure of :func:`servotune.verify.run._run_lean_sync` (the lean kernel) equals the traced
   path's (:func:`servotune.verify.run._evaluate` on the general kernel's traces) for the
   nominal plants and 64 noisy plant sets of the example spec's spread, ``sync``, ``track`` and
-  ``lock`` (the holding band); and ``verify`` gives the same JSON with the lean kernel on and
-  off;
+  ``lock`` (the holding band); and ``verify`` gives the same JSON with ``kernel="auto"`` (the
+  lean kernel) and ``kernel="general"``;
 - with noise on both axes, one or none (the draws' places in the stream);
 - the approximated draws stay far inside the margin that makes them safe;
 - :func:`pairwise_sum` has ``numpy.add.reduce``'s bits;
@@ -163,15 +163,13 @@ def test_lean_figures_equal_traced(request, rig, spec, scenario, tuning, noisy) 
 
 
 @pytest.mark.parametrize("tuning", TUNINGS)
-def test_verify_same_json_lean_and_traced(request, rig, spec, monkeypatch, tuning) -> None:
+def test_verify_same_json_lean_and_traced(request, rig, spec, tuning) -> None:
     """The shipped spec (sync, track, lock and the held-out sync scenario; 64 draws)."""
     tuning = request.getfixturevalue(tuning)
     assert spec.montecarlo.count == N_DRAWS
     assert {"sync", "track"} <= {sc.kind for sc in spec.scenarios}
-    monkeypatch.setattr(vrun, "_LEAN", True)
-    lean = verify(tuning, rig, spec)
-    monkeypatch.setattr(vrun, "_LEAN", False)
-    traced = verify(tuning, rig, spec)
+    lean = verify(tuning, rig, spec)  # kernel="auto": the lean two-axis kernel
+    traced = verify(tuning, rig, spec, kernel="general")
     assert lean.rows  # the runs were not skipped (overflow check passed)
     a = json.dumps(lean.to_dict(), sort_keys=True)
     b = json.dumps(traced.to_dict(), sort_keys=True)
@@ -179,16 +177,20 @@ def test_verify_same_json_lean_and_traced(request, rig, spec, monkeypatch, tunin
 
 
 def test_verify_runs_the_lean_kernel(quick_tuning, rig, spec, monkeypatch) -> None:
-    """The comparison above compares two paths: with ``_LEAN`` on, no scenario of the example
-    spec (moves, the hold, the held-out move) reaches the traced engine."""
+    """The comparison above compares two paths: with ``kernel="auto"`` no scenario of the
+    example spec (moves, the hold, the held-out move) reaches the traced engine; with
+    ``kernel="general"`` every one does."""
     calls = []
     real = vrun.run_batch
-    monkeypatch.setattr(vrun, "_LEAN", True)
     monkeypatch.setattr(vrun, "run_batch", lambda *a, **k: calls.append(1) or real(*a, **k))
     assert {s.kind for s in spec.scenarios} == {"sync", "track", "lock"}
     small = dataclasses.replace(spec, montecarlo=dataclasses.replace(spec.montecarlo, count=2))
     verify(quick_tuning, rig, small)
     assert calls == []
+    verify(quick_tuning, rig, small, kernel="general")
+    assert len(calls) >= len(spec.scenarios)  # at least a batch per scenario
+    with pytest.raises(ValueError, match="kernel must be 'auto' or 'general'"):
+        verify(quick_tuning, rig, small, kernel="lean")  # type: ignore[arg-type]
 
 
 # --- pairwise_sum ----------------------------------------------------------------------------
@@ -360,9 +362,8 @@ def test_refused_like_traced(quick_tuning, rig, spec, monkeypatch, axis, gain_sp
     )
     errors = {}
     for lean in (False, True):
-        monkeypatch.setattr(vrun, "_LEAN", lean)
         with pytest.raises(ValueError, match=message) as exc:
-            verify(quick_tuning, bad_rig, small)
+            verify(quick_tuning, bad_rig, small, kernel="auto" if lean else "general")
         errors[lean] = str(exc.value)
     assert errors[True] == errors[False]
     # the lean kernel ran (and declined) only where the plants were valid

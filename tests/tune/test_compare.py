@@ -1,4 +1,4 @@
-"""Figure 4 done fairly and the tracking/robustness trade-off (issue 18, points 5 and 6),
+"""Figure 4 done fairly and the tracking/robustness trade-off (docs/systems.md#figure-4),
 computed live on the example rig with a small budget.
 
 The held-out figures come from ``verify`` on scenarios the tuner never ran (the spec's

@@ -1,4 +1,4 @@
-"""Robust designs (issue 18, point 4): the lock gains and PIs keep the margin limits over the
+"""Robust designs: the lock gains and PIs keep the margin limits over the
 plant set; the tuner refuses what it cannot make robust; its screen agrees with python-control.
 
 The verdicts here are python-control's (:func:`servotune.verify.margins.loop_margins` on loops

@@ -31,7 +31,8 @@ def test_cli_tune_writes_file_and_current_tuning(tmp_path, monkeypatch, capsys) 
     t = read_tuning(out)
     rig = st.load_rig(RIG)
     assert t.controller("master").law == 1 and t.controller("slave").law == 2
-    assert t.period_s == rig.period_s and t.timer_divisor == 4773  # SPEC §1a: 4 ms → 4773
+    # docs/runtime.md#timer-and-achieved-period
+    assert t.period_s == rig.period_s and t.timer_divisor == 4773
     prov = t.provenance
     assert prov["seed"] == 0 and prov["tool_version"] == st.__version__
     assert len(prov["rig_sha256"]) == 64
@@ -67,7 +68,7 @@ def test_impossible_tuning_spec_is_refused(tmp_path) -> None:
 
 
 def test_cli_tuning_that_fails_its_spec_exits_1_writing_nothing(tmp_path, capsys) -> None:
-    # issue 15: exit 1 is "a verification or tuning failed its spec"; 3 is bad input
+    # exit 1 is "a verification or tuning failed its spec"; 3 is bad input
     out = tmp_path / "t.json"
     budget = ["--generations", "1", "--population", "6"]
     limits = ["--max-overshoot-pct", "0", "--max-saturation-pct", "0"]

@@ -1,4 +1,4 @@
-"""Margins of every loop a tuning can run (issue 18, point 1), checked independently.
+"""Margins of every loop a tuning can run, checked independently.
 
 The oracle never calls servotune's loop builder or margin function: each loop is rebuilt here
 from the tuning file's JSON constants (``q·2^-f``) and the rig's plant numbers, the plant
@@ -58,7 +58,8 @@ def _value(fx: dict) -> float:
 
 
 def _cell_gains(task: dict, e: int, ec: int) -> tuple[float, float, float]:
-    """Scheduled (Kp, Ki·T, Kd/T) at cell (E, EC), from the file's integers (SPEC §6)."""
+    """Scheduled (Kp, Ki·T, Kd/T) at cell (E, EC), from the file's integers
+    (docs/runtime.md#fuzzy-levels-and-scheduled-gains)."""
     n = task["n"]
     out = []
     for base, tab in (("kp", "kp"), ("ki_t", "ki"), ("kd_t", "kd")):

@@ -1,4 +1,5 @@
-"""The verify → export trust chain through the CLI (issue 15, DECISIONS 2 and 3).
+"""The verify → export trust chain through the CLI (docs/decisions.md#2-which-rig,
+docs/decisions.md#3-digests).
 
 Every hash here is recomputed with hashlib over the files' bytes, never taken from the code under
 test; every refusal is checked as a user sees it: exit code, one line on stderr, nothing written.
@@ -194,7 +195,7 @@ def test_verify_also_records_the_current_tuning_when_it_is_the_same_bytes(
     bench, tmp_path, capsys, monkeypatch
 ) -> None:
     # `tune -o tuning.json` also writes the workbench's current tuning (a copy); after
-    # `verify tuning.json`, `export-table` without a file exports the copy (issue 20)
+    # `verify tuning.json`, `export-table` without a file exports the copy
     monkeypatch.setenv("SERVOTUNE_WORKBENCH", str(tmp_path / "wb"))
     (tmp_path / "wb").mkdir()
     tuning = _copy(bench["good"], tmp_path / "tuning.json")

@@ -1,7 +1,9 @@
-"""Fieldbus gantry with a listening slave (seed 003, SPEC §1c): topologies, bus, beam, monitor.
+"""Fieldbus gantry with a listening slave (docs/systems.md#fieldbus-gantry-with-a-listening-slave):
+topologies, bus, beam, monitor.
 
 Two drives move the two sides of a gantry beam from one command. Each drive is a servotune
-axis (SPEC §5 plant, the runtime's PI law in the SPEC §6 arithmetic) that takes a position
+axis (docs/formats.md#axis-model, the runtime's PI law in its integer arithmetic,
+docs/runtime.md) that takes a position
 command from the fieldbus and closes its own position loop at the **bus cycle**. The beam may
 couple the sides (a spring and a damper between them: the sync error loads both motors).
 
@@ -56,7 +58,6 @@ each cycle is split into sub-steps over which the beam force is held (chosen so 
 mode is resolved, :func:`~servotune.plant.advance` on each).
 """
 
-from servotune._deprecate import moved_names
 from servotune.arch.gantry.config import (
     CASES,
     TOPOLOGIES,
@@ -120,5 +121,3 @@ __all__ = [
     "simulate_gantry",
     "sync_loop_models",
 ]
-
-__getattr__ = moved_names(__name__, {"format_comparison": "servotune.report.text"})

@@ -1,4 +1,4 @@
-"""Margins of the gantry's loops over what is not known (seed 003; issue 19, point 3).
+"""Margins of the gantry's loops over what is not known.
 
 The loops the gantry runs: each drive's position PI, closed in the drive at the bus cycle
 (ZOH, the drive's compute time and the plant's delay, the D/A LSB), and, where the deployed

@@ -1,4 +1,5 @@
-"""Multi-CPU multi-axis linkage (seed 002, SPEC §1b): interpolate, broadcast, queue, follow.
+"""Multi-CPU multi-axis linkage (docs/systems.md#multi-cpu-linkage):
+interpolate, broadcast, queue, follow.
 
 One **master CPU** interpolates the path of every axis ahead of time into a queue of position
 commands, one per axis per sampling period. It broadcasts that queue in **data blocks** on one
@@ -72,11 +73,11 @@ Timing model (all times in master time, the master's clock being the reference)
   Between two ticks with no sync in between the motor moves over exactly one ``Tc``
   (:func:`~servotune.sim.tick.advance_axis`); across a sync it moves over the actual interval,
   the same held writes switching at ``λ`` (:func:`~servotune.plant.advance_span`).
-  *Modelling change* (issue 16): the write lag was timed in master seconds, a write landing
-  ``compute_s + delay_s`` after its tick whatever happened in between; it is now counted on
-  the CPU's own ticks. Between syncs that is the same instant (``m·Tc + λ`` is the lag, with
-  ``Tc`` the drifting CPU's tick, to rounding). A write still pending when a sync moves the
-  CPU's next tick (``m >= 1``, or a tick the sync shortened to less than ``λ``) moves with
+  *Modelling change* (when the kernels came to share one tick): the write lag was timed in master
+  seconds, a write landing ``compute_s + delay_s`` after its tick whatever happened in between; it
+  is now counted on the CPU's own ticks. Between syncs that is the same instant (``m·Tc + λ`` is the
+  lag, with ``Tc`` the drifting CPU's tick, to rounding). A write still pending when a sync moves
+  the CPU's next tick (``m >= 1``, or a tick the sync shortened to less than ``λ``) moves with
   the CPU's ticks, by the sync's phase correction (the drift since the last sync: within
   half a period at the recommended resync interval). Without noise, the positions of
   ``plants/linkage-6axis.toml`` agree with the former kernel's to 1e-9 counts.
@@ -94,7 +95,6 @@ for each arc the radial deviation ``|actual − centre| − R`` against the angl
 ISO 230-4 circular test (circularity = max − min).
 """
 
-from servotune._deprecate import moved_names
 from servotune.arch.linkage.bus import Bus, Clock, SlaveCpu
 from servotune.arch.linkage.checks import (
     BusFigures,
@@ -211,5 +211,3 @@ __all__ = [
     "watermarks",
     "write_plan",
 ]
-
-__getattr__ = moved_names(__name__, {"format_linkage_summary": "servotune.report.text"})

@@ -1,4 +1,5 @@
-"""The serial bus the master broadcasts on, the clock sync, the slave CPUs (seed 002).
+"""The serial bus the master broadcasts on, the clock sync, the slave CPUs
+(docs/systems.md#multi-cpu-linkage).
 
 Their fields are checked against :mod:`servotune.arch.bounds` (re-exported here) and
 :data:`MAX_CLOCK_PPM`; a typo must not size the simulation's arrays.

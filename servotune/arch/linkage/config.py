@@ -56,13 +56,14 @@ class LinkageAxis:
     name : str
         Axis name (the key of ``[axis.<name>]``).
     plant : Plant
-        Axis model (SPEC §5).
+        Axis model (docs/formats.md#axis-model).
     kp : float or None
         PI proportional gain [codes/count]; None (with ``ki``): tuned.
     ki : float or None
         PI integral gain [codes/(count·s)]; None (with ``kp``): tuned.
     lock_gain_codes_per_count : float
-        Position-lock gain [codes/count] (the runtime's lock module; seed 000: 0.4).
+        Position-lock gain [codes/count] (the runtime's lock module; 0.4 on the
+        example rig).
     following_error_limit_counts : int
         Following-error trip threshold [counts]; 0 disables the trip.
     counter_init : int
@@ -490,7 +491,7 @@ def load_linkage(path: str | Path) -> LinkageConfig:
         following_error_limit_counts = 12288   # optional, 0 = no trip
         lock_gain_codes_per_count = 0.4   # optional
         counter_init = 0                  # optional
-        [axis.x.plant]                    # SPEC §5 names: gain_cps_per_v, tau_s, ...
+        [axis.x.plant]                    # the axis model's names: gain_cps_per_v, ...
 
         [path]
         max_feed_cps = 60000              # [counts/s]

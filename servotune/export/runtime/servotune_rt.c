@@ -2,7 +2,8 @@
  * servotune_rt.c -- reference runtime of servotune (C99, integer only, no I/O).
  *
  * Every function below mirrors one Python function line by line; the Python name is given
- * above each. Arithmetic rules (SPEC section 6):
+ * above each. Arithmetic rules (servotune's
+ * docs/runtime.md#fixed-point-constants and the sections after it):
  *   - no right shift of a negative value and no left shift of a negative value (shift_round
  *     rounds the magnitude and restores the sign; align multiplies by 2^k);
  *   - products are int64 of an int32-bounded gain and an error clamped to +-(2^31 - 1), so
@@ -621,7 +622,7 @@ int st_check_sync_consts(const st_sync_consts_t *c)
     return 0;
 }
 
-/* --- integrity: the byte streams (SPEC section 6) --------------------------------------- */
+/* --- integrity: the byte streams (docs/runtime.md#integrity-crcs-and-the-c-layout) ---- */
 
 /* The constants and tables are serialised once, here, into a sink: the CRC-32s and the
  * SHA-256 of the C layout read the same bytes (servotune/export/layout.py). */

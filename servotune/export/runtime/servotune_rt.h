@@ -3,7 +3,8 @@
  *
  * A line-by-line mirror of the Python laws (servotune/laws/axis.py, pi.py, fuzzy_pid.py,
  * lock.py, servotune/fixed.py, servotune/hw/counter.py): the same integer arithmetic gives
- * the same D/A codes and fault flags, bit for bit (SPEC section 6).
+ * the same D/A codes and fault flags, bit for bit (servotune's
+ * docs/runtime.md).
  *
  * One tick (st_tick): for every axis, assemble the latched counter bytes (low, mid, high),
  * unwrap with the high-byte rule and flag a counter fault (st_axis_read); then for every axis,
@@ -12,7 +13,8 @@
  * reference is the position of the axis it follows, read in the same tick. The firmware reads
  * the counter card, calls st_tick and writes the returned codes to the D/A itself.
  *
- * The synchronisation compensator of a listening slave (servotune/laws/sync.py, SPEC 1c) is a
+ * The synchronisation compensator of a listening slave (servotune/laws/sync.py;
+ * docs/systems.md#fieldbus-gantry-with-a-listening-slave) is a
  * separate set of calls (st_sync_enter, st_sync_step, st_sync_monitor) on its own constants
  * and state: the firmware feeds it the sync error y_master - y_slave [counts], adds the
  * returned compensation to the slave's position command, and on a monitor trip latches
@@ -51,10 +53,10 @@
 extern "C" {
 #endif
 
-#define ST_RT_VERSION 1 /* servotune.tables/1 */
+#define ST_RT_VERSION 1 /* servotune.tables/2 */
 
 #ifndef ST_MAX_AXES
-#define ST_MAX_AXES 4 /* a slave CPU drives 2 to 4 axes (seed 002) */
+#define ST_MAX_AXES 4 /* a slave CPU drives 2 to 4 axes (multi-CPU linkage) */
 #endif
 
 #define ST_F_U 32         /* fraction bits of u_q and of the integrator (fixed.F_U) */

@@ -1,1 +1,1 @@
-"""Tests of the gantry (servotune.arch.gantry, seed 003)."""
+"""Tests of the gantry (servotune.arch.gantry; docs/systems.md)."""

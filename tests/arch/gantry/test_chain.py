@@ -1,4 +1,4 @@
-"""The gantry through the whole chain (issue 19, point 1): ``tune`` → ``verify`` → ``export-table``
+"""The gantry through the whole chain: ``tune`` → ``verify`` → ``export-table``
 as a user runs them, what verify catches, and the trust chain to the export.
 
 Oracles that are not the code under test: the tuning file's integers read as plain JSON; the

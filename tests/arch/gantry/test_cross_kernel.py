@@ -1,4 +1,4 @@
-"""The gantry's kernel against the single-rig engine, bit for bit (issue 16: one tick engine).
+"""The gantry's kernel against the single-rig engine, bit for bit (one tick engine).
 
 Both compose the axis tick of :mod:`servotune.sim.tick`. A gantry the engine can express —
 topology ``parallel`` (both drives follow the CNC's command), no sync jitter, the beam

@@ -1,4 +1,4 @@
-"""Margins and robustness of the gantry's loops (issue 19, point 3), checked independently.
+"""Margins and robustness of the gantry's loops, checked independently.
 
 The oracle rebuilds each loop from the config's numbers with python-control's own primitives:
 the drive plant ``K/(s(τs+1))`` with its input lag (drive compute time + plant delay, plus the

@@ -1,4 +1,4 @@
-"""Monte-Carlo over the gantry's drives (issue 19, point 3): deterministic by seed, its interval
+"""Monte-Carlo over the gantry's drives: deterministic by seed, its interval
 the exact binomial one (checked against scipy's ``binomtest``), a trip in a drawn pair fails the
 check naming the pair, and the named pair trips when run on its own."""
 

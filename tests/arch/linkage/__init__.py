@@ -1,1 +1,1 @@
-"""Tests of the multi-CPU linkage (servotune.arch.linkage, seed 002)."""
+"""Tests of the multi-CPU linkage (servotune.arch.linkage; docs/systems.md)."""

@@ -1,4 +1,4 @@
-"""The linkage through the chain as a user runs it (issue 19, point 2): ``servotune plan`` →
+"""The linkage through the chain as a user runs it: ``servotune plan`` →
 ``verify`` → ``export-table`` (JSON and C), a plan edited by hand failing verify and then
 refused by the export, and the verbs' refusals. The library behind the verbs is tested in
 ``test_plan.py`` and ``tests/export/test_c_linkage.py``; here the oracle is the plan file's own

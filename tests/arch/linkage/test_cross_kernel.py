@@ -1,4 +1,4 @@
-"""The linkage's kernel against the single-rig engine, bit for bit (issue 16: one tick engine).
+"""The linkage's kernel against the single-rig engine, bit for bit (one tick engine).
 
 Both compose the axis tick of :mod:`servotune.sim.tick`. A linkage the engine can express —
 every axis on one slave CPU, no resync, a queue that never runs dry — is a rig whose axes each
