@@ -47,8 +47,12 @@ format: $(STAMP)
 	$(BIN)/ruff format servotune tests bench
 	$(BIN)/ruff check --fix servotune tests bench
 
-# both cores (pytest-xdist); a file's tests stay on one worker, so module fixtures run once
+# both cores (pytest-xdist); a file's tests stay on one worker, so module fixtures run once.
+# The kernels are compiled first, once, if an edit of servotune's sources made them stale
+# (otherwise the first tests would each compile what they use). PYTEST_ARGS adds options
+# (e.g. make test PYTEST_ARGS="--durations=30").
 test: lint
+	$(BIN)/servotune warmup
 	$(BIN)/python -m pytest -m "not slow and not wheel" -n 2 --dist loadfile $(PYTEST_ARGS)
 
 # A pip user's first hour (tests/test_wheel.py): the built wheel in a fresh venv outside the

@@ -32,6 +32,9 @@ PLANT = TruePlant()  # the example rig's master: 12288 counts/s/V, 25 ms, 0.8 ms
 EXPERIMENT = Experiment()  # 12,000 ticks of 4 ms, PI 0.5 / 5, load 0.25 V rms
 LSB_V = 20.0 / 4096
 FAST_SEED, FAST_LOGS = 17, 50
+OE_LOGS = 20
+"""Least squares on the first 20 of them: its bias is systematic (about -10 % in gain and tau on
+every log), so 20 show it as clearly as 50 (mean gain error -0.108 on 20, -0.096 on 50)."""
 SLOW_SEED, SLOW_LOGS = 2024, 250
 
 
@@ -44,16 +47,16 @@ def _fit(log: ClosedLoopLog, **options: Any) -> FitResult:
                       **kw)  # fmt: skip
 
 
-def _study(seed: int, n_logs: int, with_oe: bool) -> dict[str, np.ndarray]:
+def _study(seed: int, n_logs: int, oe_logs: int) -> dict[str, np.ndarray]:
     """Per log: relative errors of gain and tau, whether the 95 % intervals hold the truth,
-    the reported standard deviations; the same for least squares on the same logs."""
+    the reported standard deviations; the same for least squares on the first ``oe_logs``."""
     out: dict[str, list[float]] = {}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", InadequateModelWarning)
         for i in range(n_logs):
             log = simulate_closed_loop(PLANT, EXPERIMENT, seed=seed, index=i)
             fits = [("", _fit(log))]
-            if with_oe:  # least squares with the true structure: its bias is not a structure's
+            if i < oe_logs:  # least squares with the true structure: its bias is not a structure's
                 fits.append(("oe_", _fit(log, method="oe", structure="delay,offset,coulomb",
                                          friction="sym")))  # fmt: skip
             for prefix, r in fits:
@@ -69,7 +72,7 @@ def _study(seed: int, n_logs: int, with_oe: bool) -> dict[str, np.ndarray]:
 
 @pytest.fixture(scope="module")
 def fast_study() -> dict[str, np.ndarray]:
-    return _study(FAST_SEED, FAST_LOGS, with_oe=True)
+    return _study(FAST_SEED, FAST_LOGS, oe_logs=OE_LOGS)
 
 
 def test_the_simulator_integrates_the_continuous_model() -> None:
@@ -128,7 +131,7 @@ def test_the_intervals_are_honest_small(fast_study: dict[str, np.ndarray]) -> No
 def test_the_intervals_are_honest_over_250_logs() -> None:
     # honest intervals: over >= 200 closed-loop logs the 95 % intervals hold the true gain and tau
     # in 90–98 % of the logs (binomial sd at 95 %: 1.4 %)
-    s = _study(SLOW_SEED, SLOW_LOGS, with_oe=False)
+    s = _study(SLOW_SEED, SLOW_LOGS, oe_logs=0)
     for name in ("gain", "tau"):
         coverage = s[name + "_in"].mean()
         assert 0.90 <= coverage <= 0.98, (name, coverage)
