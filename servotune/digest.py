@@ -6,6 +6,10 @@ no insignificant whitespace (``","`` and ``":"`` separators), non-ASCII characte
 (not ``\\u`` escapes), no NaN or infinity, encoded as UTF-8. Floats are written as Python's
 shortest round-trip ``repr``, so a document read back and serialised again gives the same bytes.
 
+A text export (the LinuxCNC HAL file, the HAL component) carries its digest on one comment
+line, ``<comment> sha256 of this file without this line: <hex>``: the SHA-256 of the file's
+UTF-8 bytes with that line taken out (:func:`with_digest_line`, :func:`text_digest_problem`).
+
 Threat model: accidental edits, stale files and mix-ups of rigs and tunings, not an attacker
 holding the tool (there are no keys).
 """
@@ -14,10 +18,18 @@ from __future__ import annotations
 
 import hashlib
 import json
+import re
 from collections.abc import Mapping
 from typing import Any
 
-__all__ = ["DIGEST_FIELD", "bytes_sha256", "canonical_json", "document_sha256"]
+__all__ = [
+    "DIGEST_FIELD",
+    "bytes_sha256",
+    "canonical_json",
+    "document_sha256",
+    "text_digest_problem",
+    "with_digest_line",
+]
 
 DIGEST_FIELD = "sha256"
 """The top-level field of a document that holds its own digest."""
@@ -45,3 +57,30 @@ def canonical_json(doc: Mapping[str, Any], *, omit: str = DIGEST_FIELD) -> bytes
 def document_sha256(doc: Mapping[str, Any], *, omit: str = DIGEST_FIELD) -> str:
     """SHA-256 (hex) of :func:`canonical_json` of ``doc``."""
     return bytes_sha256(canonical_json(doc, omit=omit))
+
+
+_TEXT_DIGEST = " sha256 of this file without this line: "
+
+
+def with_digest_line(text: str, comment: str, *, line: int = 1) -> str:
+    """``text`` with its digest line inserted as line ``line`` (0-based): ``<comment> sha256 of
+    this file without this line: <hex>``, the SHA-256 of ``text``'s UTF-8 bytes."""
+    lines = text.splitlines(keepends=True)
+    digest = bytes_sha256(text.encode("utf-8"))
+    lines.insert(line, f"{comment}{_TEXT_DIGEST}{digest}\n")
+    return "".join(lines)
+
+
+def text_digest_problem(text: str, comment: str) -> str | None:
+    """What is wrong with a text export's digest line (:func:`with_digest_line`), or ``None``
+    when it matches the rest of the file."""
+    pattern = re.compile(rf"^{re.escape(comment)}{_TEXT_DIGEST}([0-9a-f]{{64}})\n", re.MULTILINE)
+    found = list(pattern.finditer(text))
+    if len(found) != 1:
+        return (f"{len(found)} digest lines ('{comment}{_TEXT_DIGEST.rstrip()} …'), expected "
+                "one")  # fmt: skip
+    m = found[0]
+    rest = text[: m.start()] + text[m.end() :]
+    if bytes_sha256(rest.encode("utf-8")) != m.group(1):
+        return "the file's sha256 does not match its content: it was edited after export"
+    return None

@@ -44,6 +44,7 @@ __all__ = [
     "DaskExecutor",
     "Executor",
     "InProcessExecutor",
+    "check_workers",
     "chunk_bounds",
     "guided_chunk_bounds",
     "local_cluster",
@@ -199,6 +200,46 @@ def local_workers() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+def check_workers(workers: int | None, scheduler: str | None = None) -> None:
+    """Refuse a number of worker processes no run should start, before anything starts.
+
+    ``workers`` counts the processes of a cluster started on this machine (one thread each),
+    so it is at least 1 and at most :func:`local_workers`, this process's usable cores (more
+    would only share the same cores, each process holding its own copy of the compiled
+    kernels and of the work's shared data; ``--workers 10000`` would start processes until
+    the machine runs out of memory). A cluster reached by its scheduler's address
+    (``scheduler``, or the ``SERVOTUNE_SCHEDULER`` environment variable) has the workers it
+    was deployed with: ``workers`` is refused with it.
+
+    Parameters
+    ----------
+    workers : int, optional
+        Worker processes asked for (``None``: not given, always accepted).
+    scheduler : str, optional
+        Address of a Dask scheduler.
+
+    Raises
+    ------
+    SchedulerError
+        ``workers`` is below 1, above :func:`local_workers`, or given with a scheduler.
+    """
+    if workers is None:
+        return
+    if workers < 1:
+        raise SchedulerError(f"workers must be >= 1, got {workers}")
+    address = scheduler or os.environ.get(SCHEDULER_ENV) or None
+    if address is not None:
+        raise SchedulerError(
+            f"give either a scheduler ({address}) or a number of local workers, not both"
+        )
+    cap = local_workers()
+    if workers > cap:
+        raise SchedulerError(
+            f"workers must be at most {cap} (the usable cores of this machine: one worker "
+            f"process per core), got {workers}"
+        )
+
+
 @contextmanager
 def open_executor(
     n_items: int,
@@ -227,7 +268,8 @@ def open_executor(
     scheduler : str, optional
         Address of a running Dask scheduler.
     workers : int, optional
-        Worker processes of an embedded cluster; 1 forces in-process. Not with ``scheduler``.
+        Worker processes of an embedded cluster; 1 forces in-process; at most the usable
+        cores (:func:`check_workers`). Not with ``scheduler``.
     min_items : int
         From how many items an embedded cluster is started (:data:`LOCAL_CLUSTER_MIN_ITEMS`).
 
@@ -239,7 +281,7 @@ def open_executor(
     ------
     SchedulerError
         The scheduler does not answer (refused, unreachable, timed out), or ``workers`` is
-        given with a scheduler or is below 1.
+        given with a scheduler, is below 1 or is above the usable cores.
 
     Examples
     --------
@@ -247,14 +289,9 @@ def open_executor(
     ...     ex.name, ex.map(abs, [-2, 3])
     ('in-process', [2, 3])
     """
+    check_workers(workers, scheduler)  # before anything starts
     address = scheduler or os.environ.get(SCHEDULER_ENV) or None
-    if workers is not None and workers < 1:
-        raise SchedulerError(f"workers must be >= 1, got {workers}")
     if address is not None:
-        if workers is not None:
-            raise SchedulerError(
-                f"give either a scheduler ({address}) or a number of local workers, not both"
-            )
         client = _connect(address)
         try:
             yield DaskExecutor(client, name=f"dask {address}")

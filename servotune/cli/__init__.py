@@ -52,6 +52,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         if args.max_memory is not None:
             set_memory_budget(args.max_memory)
+        if getattr(args, "workers", None) is not None:  # no cluster of 10,000 processes
+            from servotune.executor import check_workers
+
+            check_workers(args.workers, args.scheduler)  # one line, exit 3, before any work
         if args.quiet or sys.stderr.isatty():  # tqdm only where it draws bars (--help stays lean)
             from servotune.progress import StderrProgress
 

@@ -168,13 +168,14 @@ def _cmd_plan(args: argparse.Namespace) -> int:
 def _cmd_verify(args: argparse.Namespace) -> int:
     from servotune.arch.kind import document_kind
     from servotune.report.text import format_table
-    from servotune.verify import verify_files
+    from servotune.verify import record_path, verify_files
 
     if (args.plants_from is None) != (args.plants_axis is None):
         print("servotune verify: error: --plants-from FLEET and --plants-axis AXIS go together",
               file=sys.stderr)  # fmt: skip
         return EXIT_USAGE
     kind = document_kind(args.tuning)
+    _check_outputs(str(record_path(args.tuning)))  # the record, written beside the tuning
     if kind == "gantry":
         return _verify_gantry(args)
     if kind == "linkage":

@@ -11,7 +11,6 @@ from pathlib import Path
 
 from servotune._version import __version__
 from servotune.cli.output import (
-    EXIT_BAD_INPUT,
     EXIT_OK,
     EXIT_USAGE,
     _check_outputs,
@@ -226,15 +225,24 @@ def _cmd_fit_fleet(args: argparse.Namespace) -> int:
                        min_items=FLEET_CLUSTER_MIN_LOGS) as ex:  # fmt: skip
         result = fit_fleet(args.log, options=options, executor=ex, baseline=baseline,
                            progress=_progress)  # fmt: skip
+    s = result.summary
+    if s.n_failed == s.n_rows:  # no log fitted: exit 3 and no table (README, "A fleet of machines")
+        first = s.failures[0][2] if s.failures else "no rows"
+        raise ServotuneError(f"none of the {s.n_logs} logs fitted, no table written; first "
+                             f"error: {first}")  # fmt: skip
     write_fleet_table(result, args.fleet)
-    _summary(args.json, result.to_dict(), result.summary.text)
+    _summary(args.json, result.to_dict(), s.text)
+    if s.n_failed:
+        failed = len({f for f, _, _ in s.failures})
+        print(f"{failed} of {s.n_logs} logs failed to fit (their rows in the table hold the "
+              "error)", file=sys.stderr)  # fmt: skip
     print(f"wrote the fleet table ({len(result.rows)} rows) to {args.fleet}", file=sys.stderr)
     if args.fleet_report:
         from servotune.report.fleet import write_fleet_report
 
         write_fleet_report(result, args.fleet_report, title=Path(args.fleet).name)
         print(f"wrote the fleet report to {args.fleet_report}", file=sys.stderr)
-    return EXIT_OK if result.summary.n_failed < result.summary.n_rows else EXIT_BAD_INPUT
+    return EXIT_OK
 
 
 def _range(text: str) -> tuple[float, float]:

@@ -13,6 +13,7 @@ import json
 import os
 import signal
 import sys
+import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -129,16 +130,36 @@ def _check_outputs(*paths: str | None, inputs: Sequence[str | Path | None] = ())
                     f"{str(p)!r} is also an input of this command{named}: writing it would "
                     "replace it; give another output file"
                 )
-        if not Path(p).resolve().parent.is_dir():
+        parent = Path(p).resolve().parent
+        if not parent.is_dir():
             raise FileNotFoundError(
                 2, f"the directory of {p!r} does not exist (create it first)", p
             )
+        _probe(parent, f"cannot write {p!r}")
+
+
+def _probe(directory: Path, what: str) -> None:
+    """Create and remove a file of a unique name in ``directory``, as every output is written
+    (a temporary file there, renamed into place): a directory where no file can be created
+    (read-only, ``/proc``, full) fails before any work instead of after it. ``what`` begins
+    the error line. The file is removed whatever happens."""
+    try:
+        fd, name = tempfile.mkstemp(prefix=".servotune-probe-", dir=directory)
+    except OSError as exc:
+        raise ServotuneError(
+            f"{what}: cannot create a file in {str(directory)!r} ({exc.strerror or exc})"
+        ) from None
+    try:
+        os.close(fd)
+    finally:
+        os.unlink(name)
 
 
 def _check_dirs(*dirs: str | None) -> None:
     """Fail before any work when an output directory (``--out``, ``--report``, ``--plot``, the C
     export's ``-o``) names an existing file, or cannot be created under its nearest existing
-    parent (a file in the way, or no write permission). Nothing is created here: a command
+    parent (a file in the way, or no file can be created there: :func:`_probe`, in the
+    directory if it exists, else in that parent). No directory is created here: a command
     that then fails on its inputs leaves no empty directory behind."""
     for d in dirs:
         if not d:
@@ -150,18 +171,14 @@ def _check_dirs(*dirs: str | None) -> None:
                 "(it is created if missing)"
             )
         if p.is_dir():
-            if not os.access(p, os.W_OK | os.X_OK):
-                raise ServotuneError(f"the directory {d!r} is not writable")
+            _probe(p, f"the directory {d!r} is not writable")
             continue
         parent = p.absolute().parent
         while not parent.exists() and parent != parent.parent:
             parent = parent.parent
         if not parent.is_dir():
             raise ServotuneError(f"cannot create the directory {d!r}: {str(parent)!r} is a file")
-        if not os.access(parent, os.W_OK | os.X_OK):
-            raise ServotuneError(
-                f"cannot create the directory {d!r}: {str(parent)!r} is not writable"
-            )
+        _probe(parent, f"cannot create the directory {d!r}")
 
 
 def _workbench_dir(d: Path) -> None:
@@ -173,8 +190,5 @@ def _workbench_dir(d: Path) -> None:
             f"cannot create the workbench directory {str(d)!r}: {exc.strerror or exc} "
             "(set SERVOTUNE_WORKBENCH, or pass --no-current)"
         ) from None
-    if not os.access(d, os.W_OK | os.X_OK):
-        raise ServotuneError(
-            f"the workbench directory {str(d)!r} is not writable (set SERVOTUNE_WORKBENCH, or "
-            "pass --no-current)"
-        )
+    _probe(d, f"the workbench directory {str(d)!r} is not writable (set SERVOTUNE_WORKBENCH, "
+           "or pass --no-current)")  # fmt: skip

@@ -17,6 +17,7 @@ from servotune.cli.measure import _cmd_excite, _cmd_fit, _cmd_init, _cmd_rig, _c
 from servotune.cli.studies import _cmd_compare, _cmd_demo, _cmd_linkage, _cmd_sync
 from servotune.cli.tables import _cmd_check_table, _cmd_export_table
 from servotune.cli.warmup import _cmd_warmup
+from servotune.executor import local_workers
 from servotune.validate import SEED_MAX, check_seed
 from servotune.warmup import GROUPS
 
@@ -36,7 +37,8 @@ def _executor_options(group: Any, what: str, from_size: str) -> None:
         default=None,
         metavar="N",
         help="worker processes of a cluster started on this machine, whatever the size "
-        f"(1: in-process; default: one per core from {from_size})",
+        f"(1: in-process; default: one per core from {from_size}); at most the usable cores "
+        f"({local_workers()} here), not with --scheduler: refused before any work (exit 3)",
     )
 
 
@@ -257,7 +259,8 @@ def _parser() -> argparse.ArgumentParser:
         metavar="TABLE.parquet|.csv",
         help="fit every LOG (every axis, or --axis) and write one row per log and axis to this "
         "table: parameters with 95 %% intervals, adequacy, fit %%, SHA-256, machine_id and date "
-        "(a bad log is a row with its error); the summary on stderr (--json: stdout)",
+        "(a bad log is a row with its error); the summary on stderr (--json: stdout). Exit "
+        "0 when at least one log fitted; 3 and no table when none did",
     )
     fleet.add_argument(
         "--fleet-report", metavar="FILE.html", help="also write the report page (histograms)"
@@ -487,9 +490,10 @@ def _parser() -> argparse.ArgumentParser:
         sub,
         _cmd_check_table,
         "check-table",
-        help="check a tables export: every CRC and digest (any edit is refused)",
+        help="check an export: every CRC and digest (any edit is refused)",
     )
-    s.add_argument("file", help="tables export (JSON, from servotune export-table)")
+    s.add_argument("file", help="an export of servotune export-table: tables, gantry or linkage "
+                   "JSON, a LinuxCNC HAL file or HAL component (.comp)")  # fmt: skip
     s.add_argument("--json", action="store_true", help="the check's summary as JSON on stdout")
 
     s = _verb(sub, _cmd_demo, "demo", help="run the whole job on a rig and write into a directory")

@@ -37,7 +37,7 @@ from typing import Any
 from servotune._version import __version__
 from servotune.arch.linkage.plan import PLAN_SCHEMA, LinkagePlan, plan_to_string
 from servotune.digest import DIGEST_FIELD, document_sha256
-from servotune.errors import ExportError
+from servotune.errors import DigestError, ExportError
 from servotune.export.c import (
     LINK_RUNTIME_FILES,
     RUNTIME_FILES,
@@ -46,12 +46,13 @@ from servotune.export.c import (
     write_c_files,
 )
 from servotune.export.json import _dumps, _recorded_sha
-from servotune.io.files import json_safe
+from servotune.io.files import json_safe, parse_json
 from servotune.laws.pi import PIConstants
 
 __all__ = [
     "EXPORT_SCHEMA",
     "LINK_HEADER_NAME",
+    "check_linkage_export",
     "linkage_c_header",
     "linkage_plan_document",
     "linkage_plan_json",
@@ -142,6 +143,38 @@ def linkage_plan_json(
     """The JSON export's text: sorted keys, two-space indent, trailing newline
     (:func:`linkage_plan_document`)."""
     return _dumps(linkage_plan_document(plan, record, unverified=unverified))
+
+
+def check_linkage_export(text: str, src: str = "<text>") -> dict[str, Any]:
+    """Parse a linkage JSON export (:func:`linkage_plan_json`) and check its digest, computed
+    as the writer does (:func:`servotune.digest.document_sha256`): any edit is refused.
+
+    Returns
+    -------
+    dict
+        The document.
+
+    Raises
+    ------
+    DigestError
+        The digest does not match (the document was edited).
+    ExportError
+        Not a linkage export.
+    """
+    doc = parse_json(text, src, ExportError)
+    if not isinstance(doc, dict) or doc.get("schema") != EXPORT_SCHEMA:
+        raise ExportError(f"{src}: not a linkage export ({EXPORT_SCHEMA})")
+    try:
+        computed = document_sha256(doc)
+    except (TypeError, ValueError):
+        computed = None
+    if doc.get(DIGEST_FIELD) != computed:
+        raise DigestError(f"{src}: the document's sha256 does not match its content: a field "
+                          "was edited after export (export the plan again)")  # fmt: skip
+    if not isinstance(doc.get("data"), dict) or not isinstance(doc.get("verified"), bool):
+        raise ExportError(f"{src}: a linkage export holds an object 'data' and a bool "
+                          "'verified'")  # fmt: skip
+    return doc
 
 
 def linkage_c_header(

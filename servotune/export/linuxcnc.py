@@ -81,7 +81,8 @@ from pathlib import Path
 from typing import Any
 
 from servotune._version import __version__
-from servotune.errors import ExportError
+from servotune.digest import text_digest_problem, with_digest_line
+from servotune.errors import DigestError, ExportError
 from servotune.export.json import Summary, _write_export, tables_document
 from servotune.laws.linuxcnc_pid import PidParameters, thread_period_ns
 from servotune.laws.pi import PIConstants
@@ -91,7 +92,9 @@ from servotune.validate import check_number, show_value
 
 __all__ = [
     "DEFAULT_PID_NAME",
+    "HAL_FILE_FIRST_LINE",
     "PidParameters",
+    "check_hal_file",
     "master_axis",
     "pid_hal_text",
     "pid_parameters",
@@ -101,6 +104,10 @@ __all__ = [
 
 DEFAULT_PID_NAME = "pid.x"
 """The pid instance the HAL file sets by default (``loadrt pid names=pid.x``)."""
+
+HAL_FILE_FIRST_LINE = "# LinuxCNC HAL file:"
+"""How a HAL file :func:`pid_hal_text` writes begins; its third line is its digest (a
+comment: ``# sha256 of this file without this line: <hex>``, :mod:`servotune.digest`)."""
 
 # a pid instance name: a HAL name that halcmd reads as one word (no '#' comment, no '$' or '['
 # substitution, no ',' of the names= list); 25 characters leave room for the longest pin,
@@ -322,7 +329,7 @@ def pid_hal_text(
         else "0 (no feedforward: the verified law alone)"
     )
     lines = [
-        f"# LinuxCNC HAL file: the stock pid's parameters for the master axis {axis!r}",
+        f"{HAL_FILE_FIRST_LINE} the stock pid's parameters for the master axis {axis!r}",
         f"# written by servotune {__version__} (export-table --format linuxcnc-hal): export "
         "again, do not edit",
         "#",
@@ -360,7 +367,26 @@ def pid_hal_text(
         "# .tune-mode unconnected.",
     ]
     lines += [f"setp {n}.{pin} {_value(v)}" for pin, v in params.hal_pins()]
-    return "\n".join(lines) + "\n"
+    return with_digest_line("\n".join(lines) + "\n", "#", line=2)
+
+
+def check_hal_file(text: str, src: str = "<text>") -> None:
+    """Check a HAL file :func:`pid_hal_text` wrote: its digest line matches the rest of it
+    (``servotune check-table``); any edit is refused.
+
+    Raises
+    ------
+    DigestError
+        The file was edited after export.
+    ExportError
+        Not such a HAL file, or without its one digest line.
+    """
+    if not text.startswith(HAL_FILE_FIRST_LINE):
+        raise ExportError(f"{src}: not a HAL file of servotune export-table --format linuxcnc-hal")
+    problem = text_digest_problem(text, "#")
+    if problem is not None:
+        error = DigestError if problem.startswith("the file's sha256") else ExportError
+        raise error(f"{src}: {problem}")
 
 
 def to_string(tuning: Tuning, **kwargs: Any) -> str:

@@ -130,6 +130,8 @@ def fit_fleet(
     ------
     FleetTableError
         If ``baseline`` is a file that is not a fleet table.
+    BudgetError
+        A log would need more memory than the budget (``--max-memory``): the run stops.
     """
     opts = FleetFitOptions() if options is None else options
     if axis is not None:

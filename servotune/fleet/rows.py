@@ -29,6 +29,7 @@ from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
+from servotune.budget import BudgetError
 from servotune.digest import bytes_sha256
 from servotune.errors import ServotuneError
 from servotune.identify import fit_log
@@ -290,6 +291,12 @@ def fit_fleet_log(path: str | Path, options: FleetFitOptions | None = None) -> t
     warnings a fit raises are kept in its row, not shown. (A task of :func:`fit_fleet`: a
     module-level function, so a Dask worker can run it.)
 
+    Raises
+    ------
+    BudgetError
+        A log would need more memory than the budget (``--max-memory``): that refuses the
+        whole run (no table is written), it is not the log's row.
+
     Returns
     -------
     tuple of FleetRow
@@ -315,6 +322,8 @@ def fit_fleet_log(path: str | Path, options: FleetFitOptions | None = None) -> t
     base = FleetRow(machine_id=machine, date=date, file=name, axis=opts.axis or "", sha256=sha)
     try:
         axes = _axes(path, opts)
+    except BudgetError:  # the memory budget refuses the whole run, not one log's row
+        raise
     except Exception as exc:  # a log that cannot be read is a row, never the end of the run
         return (replace(base, error=_error(exc, name, src)),)
     rows = []
@@ -323,6 +332,8 @@ def fit_fleet_log(path: str | Path, options: FleetFitOptions | None = None) -> t
             warnings.simplefilter("always")
             try:
                 result, _, _ = fit_log(path, axis=ax, **opts.fit_kwargs())
+            except BudgetError:
+                raise
             except Exception as exc:  # any failure of one fit is its row's error
                 rows.append(replace(base, axis=ax or "", error=_error(exc, name, src)))
                 continue
