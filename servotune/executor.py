@@ -32,6 +32,7 @@ import math
 import os
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import CancelledError
 from contextlib import contextmanager
 from typing import Any, TypeVar
 
@@ -179,12 +180,28 @@ class DaskExecutor(Executor):
         futures = self.client.map(fn, items, pure=False, retries=self.retries, **kwargs)
         index = {f.key: i for i, f in enumerate(futures)}
         results: list[Any] = [None] * len(futures)
+        lost = [0] * len(futures)
         try:
             # each result fetched as its task ends, while the others run (gathered at the end,
             # a million plant sets' 88 MB of results came over after the workers had finished)
             done_tasks = as_completed(futures, with_results=True)
-            for n, (future, result) in enumerate(done_tasks, start=1):
-                results[index[future.key]] = result
+            n = 0
+            for future, result in done_tasks:
+                i = index.pop(future.key)
+                if isinstance(result, CancelledError):
+                    # a result lost with a worker that died before it was fetched comes back
+                    # cancelled: the item runs again (a task's own error raises instead)
+                    lost[i] += 1
+                    if lost[i] > self.retries + 1:
+                        raise result
+                    again = self.client.submit(fn, items[i], pure=False, retries=self.retries,
+                                               **kwargs)  # fmt: skip
+                    index[again.key] = i
+                    futures.append(again)
+                    done_tasks.add(again)
+                    continue
+                results[i] = result
+                n += 1
                 if done is not None:
                     done(n)
             return results

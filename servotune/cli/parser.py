@@ -480,8 +480,8 @@ def _parser() -> argparse.ArgumentParser:
     )
     s.add_argument(
         "--config",
-        help="the gantry config of a gantry tuning (default: the path the tuning records); "
-        "another is refused",
+        help="the gantry config of a gantry tuning or the linkage config of a plan (default: "
+        "the path it records); another is refused",
     )
     s.add_argument("--spec", help="also require that the verification used this spec file")
     s.add_argument("--unverified", action="store_true", help="export without a passed verify")

@@ -9,7 +9,7 @@ import json
 import sys
 from pathlib import Path
 
-from servotune.cli.output import EXIT_OK, _check_dirs, _check_outputs, _deliver
+from servotune.cli.output import EXIT_OK, _check_dirs, _check_outputs, _deliver, _progress
 from servotune.errors import ServotuneError
 
 # The library is imported inside each handler, not here, so that ``servotune --help`` (and any
@@ -26,11 +26,14 @@ def _export_gantry(args: argparse.Namespace, path: Path) -> int:
         write_gantry_c,
         write_gantry_tables,
     )
+    from servotune.verify.record import fallback_notice
 
     if args.rig is not None:
         raise ServotuneError(f"--rig is for a single rig's tuning; {path} is a gantry tuning "
                              "(give its gantry config with --config)")  # fmt: skip
     v = load_gantry_for_export(path, args.config, args.spec, unverified=args.unverified)
+    if (note := fallback_notice(v.gantry_file, "gantry")) is not None:
+        _progress(note)
     doc = gantry_document(v.tuning, v.config.rig, record=v.record, unverified=args.unverified)
     if args.format == "c":
         Path(args.output).mkdir(parents=True, exist_ok=True)
@@ -48,11 +51,12 @@ def _export_linkage(args: argparse.Namespace, path: Path) -> int:
     from servotune.arch.linkage import load_plan_for_export
     from servotune.export.linkage import linkage_plan_json, write_linkage_c
 
-    for flag, value in (("--rig", args.rig), ("--config", args.config)):
-        if value is not None:
-            raise ServotuneError(f"{flag} does not apply to a linkage plan ({path}): the plan "
-                                 "binds its config and rig by their hashes")  # fmt: skip
-    plan, record = load_plan_for_export(path, args.spec, unverified=args.unverified)
+    if args.rig is not None:
+        raise ServotuneError(f"--rig does not apply to a linkage plan ({path}): the plan binds "
+                             "its config and rig by their hashes (a moved config: "
+                             "--config)")  # fmt: skip
+    plan, record = load_plan_for_export(path, args.spec, unverified=args.unverified,
+                                        config_path=args.config, progress=_progress)  # fmt: skip
     if args.format == "c":
         Path(args.output).mkdir(parents=True, exist_ok=True)
         written = write_linkage_c(plan, args.output, record=record, unverified=args.unverified)
@@ -74,7 +78,7 @@ def _cmd_export_table(args: argparse.Namespace) -> int:
     from servotune.export import tables_to_string, write_c, write_tables
     from servotune.io.files import atomic_write_text
     from servotune.tuning import current_tuning_path
-    from servotune.verify import load_for_export
+    from servotune.verify import fallback_notice, load_for_export
 
     path = Path(args.tuning) if args.tuning else current_tuning_path()
     if args.format == "c" and not args.output:
@@ -95,6 +99,8 @@ def _cmd_export_table(args: argparse.Namespace) -> int:
     if args.config is not None:
         raise ServotuneError(f"--config is for a gantry tuning; {path} is a rig's tuning")
     v = load_for_export(path, args.rig, args.spec, unverified=args.unverified)
+    if (note := fallback_notice(v.rig_file)) is not None:
+        _progress(note)
     kw = {"rig": v.rig, "verification": v.record, "unverified": v.record is None}
     if args.format.startswith("linuxcnc-"):
         text = _linuxcnc_text(args, v.tuning, kw)

@@ -10,7 +10,11 @@ Which rig: a tuning records its rig's name, path and SHA-256. ``verify`` and ``e
 use that rig: the given ``--rig`` file, else the recorded path, else ``plants/<rig name>.toml``
 (in the working directory), else the example rig shipped in the package
 (:data:`~servotune.rig.EXAMPLE_RIG_PATH`); a file is used only if its SHA-256 is the tuning's (a
-moved copy is fine, another rig is refused).
+moved copy is fine, another rig is refused). The other places are searched only when the
+recorded file is gone: a recorded file that exists with other bytes (the rig edited since) is
+refused, naming both hashes, even if a copy of the recorded bytes lies elsewhere. A file found
+elsewhere says so (:attr:`SourceFile.instead_of`, :func:`fallback_notice`), for the command line
+to tell the user.
 
 ``export-table`` (:func:`load_for_export`) refuses, with :class:`~servotune.errors.TrustError`
 naming what differs, when there is no record, the record fails its own digest, did not pass,
@@ -54,11 +58,13 @@ __all__ = [
     "candidate_paths",
     "check_record",
     "default_rig_path",
+    "fallback_notice",
     "load_for_export",
     "margins_files",
     "matching_file",
     "read_record",
     "record_path",
+    "recorded_paths",
     "recorded_verification",
     "rig_for_tuning",
     "trust_record",
@@ -77,11 +83,17 @@ _V = TypeVar("_V")
 
 @dataclass(frozen=True, slots=True)
 class SourceFile:
-    """One input file as read once: its path as given, its SHA-256 and its bytes."""
+    """One input file as read once: its path as given, its SHA-256 and its bytes.
+
+    ``instead_of``: set when the file was found elsewhere than where its owner recorded it
+    (:func:`matching_file`): the recorded path, gone (``""``: none was recorded); None for the
+    recorded file itself or a file the user gave.
+    """
 
     path: str
     sha256: str
     raw: bytes = field(repr=False, compare=False)
+    instead_of: str | None = field(default=None, compare=False)
 
     @classmethod
     def read(cls, path: str | Path, error: type[Exception], what: str) -> SourceFile:
@@ -180,17 +192,22 @@ def _short(sha: str) -> str:
     return sha[:12] + "…"
 
 
+def recorded_paths(recorded: str, tuning_path: str | Path) -> list[Path]:
+    """Where a tuning's ``recorded`` file is: that path and, if relative, the same relative to
+    the tuning's directory (none if nothing was recorded)."""
+    if not recorded:
+        return []
+    p = Path(recorded)
+    return [p] if p.is_absolute() else list(dict.fromkeys([p, Path(tuning_path).parent / p]))
+
+
 def candidate_paths(
     recorded: str, tuning_path: str | Path, name: str, extra: Sequence[Path] = ()
 ) -> list[Path]:
     """Where a tuning's ``recorded`` file may be: that path, the same relative to the tuning's
-    directory, ``plants/<name>.toml``, then ``extra`` (duplicates dropped)."""
-    out: list[Path] = []
-    if recorded:
-        p = Path(recorded)
-        out.append(p)
-        if not p.is_absolute():
-            out.append(Path(tuning_path).parent / p)
+    directory (:func:`recorded_paths`), ``plants/<name>.toml``, then ``extra`` (duplicates
+    dropped)."""
+    out: list[Path] = recorded_paths(recorded, tuning_path)
     out.append(Path("plants") / f"{name}.toml")
     out.extend(extra)
     seen: list[Path] = []
@@ -229,7 +246,8 @@ def rig_for_tuning(
     """
     return matching_file(tuning.rig_sha256, rig_path, _rig_candidates(tuning, tuning_path),
                          kind="rig", name=tuning.rig_name, recorded=tuning.rig_path,
-                         error=RigError)  # fmt: skip
+                         error=RigError,
+                         recorded_at=recorded_paths(tuning.rig_path, tuning_path))  # fmt: skip
 
 
 def matching_file(
@@ -243,16 +261,22 @@ def matching_file(
     error: type[Exception],
     owner: str = "tuning",
     flag: str = "",
+    recorded_at: Sequence[Path] = (),
 ) -> SourceFile:
     """The ``kind`` file (``rig``, ``gantry`` …) a tuning (or another ``owner``: a plan) is
-    used with, read once: the given one (``--<kind>``), else the first of ``candidates`` that
-    exists; its SHA-256 must be ``want`` (a moved copy is fine, another file is refused).
-    ``flag``: the option that gives the file (default ``--<kind>``).
+    used with, read once: the given one (``--<kind>``), else the recorded file (``recorded_at``:
+    the recorded path, as read from each place it may mean), else, only if none of those
+    exists, the first of the other ``candidates`` that exists; its SHA-256 must be ``want`` (a
+    moved copy is fine, another file is refused, and so is a recorded file that changed, even
+    if a copy of the recorded bytes lies elsewhere). A file found elsewhere than recorded has
+    :attr:`SourceFile.instead_of` set (:func:`fallback_notice`). ``flag``: the option that gives
+    the file (default ``--<kind>``).
 
     Raises
     ------
     TrustError
-        The given file, or every candidate found, differs (names both hashes).
+        The given file, the recorded file, or every candidate found, differs (names both
+        hashes).
     TuningError
         No candidate exists (give ``--<kind>``).
     error
@@ -269,12 +293,26 @@ def matching_file(
                 + f"): make the {owner} again for this {kind}, or give that {kind} file"
             )
         return src
+    at = [SourceFile.read(p, error, f"{kind} file") for p in recorded_at if p.is_file()]
+    for src in at:
+        if src.sha256 == want:
+            return src
+    if at:  # the recorded file is there with other bytes: changed since, not to be replaced
+        src = at[0]
+        raise TrustError(
+            f"{kind} file {src.path} changed since the {owner} recorded it: sha256 "
+            f"{_short(src.sha256)} found, sha256 {_short(want)} recorded ({kind} {name!r}); if the "
+            f"change is meant, make the {owner} for it and verify again, or give the verified "
+            f"file with {flag}"
+        )
     found = []
     for p in candidates:
+        if p in recorded_at:
+            continue
         if p.is_file():
             src = SourceFile.read(p, error, f"{kind} file")
             if src.sha256 == want:
-                return src
+                return replace(src, instead_of=recorded)
             found.append(f"{p} (sha256 {_short(src.sha256)})")
     if found:
         raise TrustError(
@@ -285,6 +323,17 @@ def matching_file(
     raise TuningError(
         f"no {kind} file {where} for the {owner}'s {kind} {name!r}; give the {kind} file ({flag})"
     )
+
+
+def fallback_notice(src: SourceFile, kind: str = "rig", owner: str = "tuning") -> str | None:
+    """The line telling the user which ``kind`` file was used when it was found elsewhere than
+    the ``owner`` recorded (:attr:`SourceFile.instead_of`); None for the recorded or given
+    file."""
+    if src.instead_of is None:
+        return None
+    why = (f"the recorded {src.instead_of} is gone" if src.instead_of
+           else f"the {owner} records no path")  # fmt: skip
+    return f"using {kind} file {src.path} ({why}; it has the recorded sha256 {_short(src.sha256)})"
 
 
 def default_rig_path(tuning: Tuning, tuning_path: str | Path = ".") -> Path:
@@ -451,6 +500,8 @@ def verify_files(
         ``scheduler`` does not answer.
     """
     tuning, tuning_file, rig, rig_file = _tuning_and_rig(tuning_path, rig_path)
+    if (note := fallback_notice(rig_file)) is not None and options.get("progress") is not None:
+        options["progress"](note)
     spec_file = SourceFile.read(spec_path, SpecError, "spec file")
     spec = spec_from_bytes(spec_file.raw, spec_path)
     if (count := options.get("montecarlo")) is not None:  # validated as the spec's count is
@@ -586,6 +637,12 @@ def load_for_export(
         If given (``--spec``), the record must hold this spec.
     unverified : bool
         Skip the record (the export is marked ``"verified": false``).
+
+    Returns
+    -------
+    Verified
+        Its ``rig_file.instead_of`` says whether the rig was found elsewhere than recorded
+        (:func:`fallback_notice` gives the line to tell the user).
 
     Raises
     ------

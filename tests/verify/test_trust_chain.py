@@ -214,3 +214,63 @@ def test_verify_also_records_the_current_tuning_when_it_is_the_same_bytes(
     capsys.readouterr()
     assert main(["export-table", "-o", str(out)]) == 1
     assert "has no verification record" in _err_line(capsys)
+
+
+def _gain_edited(path: Path) -> None:
+    """One plant gain changed in ``path`` (the master's), as a user edits a rig file."""
+    text = path.read_text()
+    edited = text.replace("gain_cps_per_v = 12288.0", "gain_cps_per_v = 12300.0", 1)
+    assert edited != text
+    path.write_text(edited)
+
+
+def test_an_edited_recorded_rig_is_refused_not_replaced_by_a_copy_elsewhere(
+    bench, default_tuning, tmp_path, capsys
+) -> None:
+    # the tuning records its rig at a path of the user's; plants/pc-dual-servo.toml of the
+    # working directory (and the package's example rig) hold the same, verified bytes
+    rig = _copy(RIG, tmp_path / "mine.toml")
+    verified = _sha(rig)
+    assert _sha(Path("plants") / "pc-dual-servo.toml") == verified
+    t = tmp_path / "t.json"
+    write_tuning(dataclasses.replace(default_tuning, rig_path=rig.as_posix()), t)
+    assert main(["verify", str(t), "--spec", str(bench["spec"])]) == 0
+    _gain_edited(rig)
+    edited = _sha(rig)
+    out = tmp_path / "fuzzy.json"
+    capsys.readouterr()
+    assert main(["export-table", str(t), "-o", str(out)]) == 1
+    line = _err_line(capsys)
+    assert line.startswith("servotune export-table: refused: rig file")
+    assert str(rig) in line and verified[:12] in line and edited[:12] in line
+    assert "verify again, or give the verified file with --rig" in line
+    assert not out.exists()
+    # verify refuses it too (the tuning was not made for it), one line
+    assert main(["verify", str(t), "--spec", str(bench["spec"])]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "changed since the tuning recorded it" in err
+    # the verified bytes given: accepted, no note
+    copy = _copy(RIG, tmp_path / "verified.toml")
+    assert main(["export-table", str(t), "--rig", str(copy), "-o", str(out)]) == 0
+    assert "using rig file" not in capsys.readouterr().err
+
+
+def test_a_recorded_rig_gone_is_found_elsewhere_and_named(
+    bench, default_tuning, tmp_path, capsys
+) -> None:
+    rig = _copy(RIG, tmp_path / "mine.toml")
+    t = tmp_path / "t.json"
+    write_tuning(dataclasses.replace(default_tuning, rig_path=rig.as_posix()), t)
+    assert main(["verify", str(t), "--spec", str(bench["spec"])]) == 0
+    rig.rename(tmp_path / "moved-away.toml")  # the recorded path is gone
+    out = tmp_path / "fuzzy.json"
+    capsys.readouterr()
+    assert main(["export-table", str(t), "-o", str(out)]) == 0
+    notes = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("using rig")]
+    assert len(notes) == 1, notes
+    used = Path("plants") / "pc-dual-servo.toml"  # the first place searched after the record
+    assert str(used) in notes[0] and str(rig) in notes[0] and "is gone" in notes[0]
+    assert json.loads(out.read_text())["provenance"]["rig"]["sha256"] == _sha(RIG)
+    # verify says it as well
+    assert main(["verify", str(t), "--spec", str(bench["spec"])]) == 0
+    assert f"using rig file {used}" in capsys.readouterr().err

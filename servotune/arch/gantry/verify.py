@@ -20,8 +20,10 @@ limit and unit:
 
 :func:`verify_gantry_files` is ``servotune verify GANTRY-TUNING --spec SPEC``: each file read
 once, the gantry config found by the hash the tuning records (``--config``, else the recorded
-path, else ``plants/<name>.toml``), the record (``servotune.gantry-verify/1``) written next to
-the tuning. :func:`load_gantry_for_export` is what ``export-table`` checks before exporting.
+path, else, only if that is gone, ``plants/<name>.toml``: a recorded config edited since is
+refused, :func:`servotune.verify.record.matching_file`), the record
+(``servotune.gantry-verify/1``) written next to the tuning. :func:`load_gantry_for_export` is
+what ``export-table`` checks before exporting.
 """
 
 from __future__ import annotations
@@ -390,7 +392,9 @@ def _tuning_and_gantry(
     candidates = rec.candidate_paths(tuning.gantry_path, tuning_path, tuning.gantry_name)
     gantry_file = rec.matching_file(tuning.gantry_sha256, gantry_path, candidates, kind="gantry",
                                     name=tuning.gantry_name, recorded=tuning.gantry_path,
-                                    error=ConfigError, flag="--config")  # fmt: skip
+                                    error=ConfigError, flag="--config",
+                                    recorded_at=rec.recorded_paths(tuning.gantry_path,
+                                                                   tuning_path))  # fmt: skip
     # the config's gains are not designed again: the tuning holds every one
     cfg = load_gantry(gantry_file.path, raw=gantry_file.raw, resolve=False)
     rig_file = SourceFile.read(gantry_rig_path(gantry_file.raw, gantry_file.path), ConfigError,
@@ -428,6 +432,9 @@ def verify_gantry_files(
         ``scheduler`` does not answer.
     """
     tuning, tuning_file, cfg, gantry_file, rig_file = _tuning_and_gantry(tuning_path, gantry_path)
+    note = rec.fallback_notice(gantry_file, "gantry")
+    if note is not None and options.get("progress") is not None:
+        options["progress"](note)
     spec_file = SourceFile.read(spec_path, SpecError, "spec file")
     spec = gantry_spec_from_bytes(spec_file.raw, spec_path)
     if (count := options.get("montecarlo")) is not None:
@@ -454,7 +461,9 @@ def load_gantry_for_export(
     unverified: bool = False,
 ) -> GantryVerified:
     """What ``export-table`` exports for a gantry: the tuning, its gantry config and its checked
-    record (passed, this version, exactly these tuning, gantry and spec bytes).
+    record (passed, this version, exactly these tuning, gantry and spec bytes). Its
+    ``gantry_file.instead_of`` says whether the config was found elsewhere than recorded
+    (:func:`servotune.verify.record.fallback_notice` gives the line to tell the user).
 
     Raises
     ------

@@ -20,11 +20,13 @@ The record (``<plan>.verify.json``, ``"schema": "servotune.linkage-verify/1"``,
 spec as read (each read once, parsed from those bytes), the verdict and the rows.
 
 Which config: the one given (``--config``), else the first found of its recorded path, the
-same path relative to the plan's directory and its file name beside the plan; it is used only
-if its SHA-256 is the plan's (:func:`servotune.verify.record.matching_file`), and its rig
-(the config's ``rig``) only if its SHA-256 is the one the plan holds. An export checks the
-record against the plan (and the spec, if given) with
-:func:`servotune.verify.record.check_record`.
+same path relative to the plan's directory and, only if those are gone, its file name beside
+the plan; it is used only if its SHA-256 is the plan's (:func:`servotune.verify.record.
+matching_file`: a recorded config edited since is refused, not replaced by a copy elsewhere),
+and its rig (the config's ``rig``) only if its SHA-256 is the one the plan holds. An export
+checks the record against the plan (and the spec, if given) with
+:func:`servotune.verify.record.check_record`, and the config the same way (when none is found
+the plan's recorded hashes stand for it).
 """
 
 from __future__ import annotations
@@ -48,7 +50,7 @@ from servotune.arch.linkage.plan import (
     run_plan,
 )
 from servotune.arch.linkage.spec import LinkageSpec, linkage_spec_from_bytes
-from servotune.errors import ConfigError, SpecError, TrustError
+from servotune.errors import ConfigError, SpecError, TrustError, TuningError
 from servotune.io.files import json_float
 from servotune.laws.pi import PIConstants
 from servotune.verify.margins import (
@@ -63,8 +65,10 @@ from servotune.verify.record import (
     RecordedVerification,
     SourceFile,
     check_record,
+    fallback_notice,
     matching_file,
     read_record,
+    recorded_paths,
     recorded_verification,
     trust_record,
 )
@@ -358,10 +362,11 @@ def _config_file(plan: LinkagePlan, plan_path: str | Path, given: str | Path | N
     """
     recorded = Path(plan.config_path)
     beside = Path(plan_path).parent
-    candidates = list(dict.fromkeys([recorded, beside / recorded, beside / recorded.name]))
+    at = recorded_paths(plan.config_path, plan_path)
+    candidates = list(dict.fromkeys([*at, beside / recorded.name]))
     return matching_file(plan.config_sha256, given, candidates, kind="config",
                          name=plan.config_name, recorded=plan.config_path, error=ConfigError,
-                         owner="plan")  # fmt: skip
+                         owner="plan", recorded_at=at)  # fmt: skip
 
 
 def verify_plan_files(
@@ -400,6 +405,9 @@ def verify_plan_files(
     spec_file = SourceFile.read(spec_path, SpecError, "linkage spec")
     spec = linkage_spec_from_bytes(spec_file.raw, spec_file.path)
     config_file = _config_file(plan, plan_path, config_path)
+    note = fallback_notice(config_file, "config", "plan")
+    if note is not None and progress is not None:
+        progress(note)
     config, rig_file, _ = _read_config(config_file)
     if rig_file.sha256 != plan.rig_sha256:
         raise TrustError(
@@ -434,6 +442,8 @@ def load_plan_for_export(
     spec_path: str | Path | None = None,
     *,
     unverified: bool = False,
+    config_path: str | Path | None = None,
+    progress: Callable[[str], None] | None = None,
 ) -> tuple[LinkagePlan, dict[str, Any] | None]:
     """What ``export-table`` exports for a linkage: the plan and its checked record.
 
@@ -446,13 +456,19 @@ def load_plan_for_export(
         If given, the record must hold this spec.
     unverified : bool
         Skip the record (the export is marked unverified); the record returned is None.
+    config_path : str or Path, optional
+        The plan's config (``--config``), else found as the module docstring says; it must be
+        the verified one (none found: the plan's recorded hashes stand for it).
+    progress : callable, optional
+        Told which config file was used when it was found elsewhere than the plan records.
 
     Raises
     ------
     TrustError
         No record, an edited one (its digest), one of another tool version, a failed
-        verification, or a record of other plan or spec bytes (names which;
-        :func:`~servotune.verify.record.check_record`).
+        verification, a record of other plan or spec bytes (names which;
+        :func:`~servotune.verify.record.check_record`), or a config that is not the plan's
+        (the recorded one edited since, or the one given).
     ConfigError, SpecError
         A file is missing or malformed.
     """
@@ -462,8 +478,17 @@ def load_plan_for_export(
         return plan, None
     record = read_record(plan_path, schema=RECORD_SCHEMA)
     spec_file = None if spec_path is None else SourceFile.read(spec_path, SpecError, "linkage spec")
-    # the plan and the spec are enough: the config and the rig are bound through the plan's own
-    # recorded hashes (verify_plan_files checked both files against them), and the record's
-    # hash of the plan file covers those hashes
-    check_record(record, plan=plan_file, spec=spec_file)
+    # the plan and the spec bind the rest: the config and the rig are bound through the plan's
+    # own recorded hashes (verify_plan_files checked both files against them), and the record's
+    # hash of the plan file covers those hashes. A config found is still checked: one edited
+    # since verification describes another machine than the one verified
+    try:
+        config_file = _config_file(plan, plan_path, config_path)
+    except TuningError:  # no config anywhere: the plan's hashes stand for it
+        config_file = None
+    if config_file is not None:
+        note = fallback_notice(config_file, "config", "plan")
+        if note is not None and progress is not None:
+            progress(note)
+    check_record(record, plan=plan_file, spec=spec_file, config=config_file)
     return plan, record

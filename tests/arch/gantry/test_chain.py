@@ -231,3 +231,44 @@ def test_the_config_runs_the_tunings_integers(work: Path) -> None:
     a = simulate_gantry(run, case="mismatch")
     b = simulate_gantry(apply_tuning(cfg, edited), case="mismatch")
     assert not np.array_equal(a.sync_comp, b.sync_comp)
+
+
+def _own_gantry(tmp_path: Path) -> tuple[Path, Path]:
+    """A gantry config (and its rig) at a path of the user's, tuned; the working directory's
+    plants/gantry.toml holds the same bytes."""
+    d = tmp_path / "mine"
+    d.mkdir()
+    for name in ("gantry.toml", "pc-dual-servo.toml"):
+        shutil.copy(ROOT / "plants" / name, d / name)
+    tuning = tmp_path / "g.json"
+    assert main(["tune", str(d / "gantry.toml"), "-o", str(tuning), "--no-current"]) == 0
+    return d / "gantry.toml", tuning
+
+
+def test_an_edited_recorded_gantry_is_refused_a_gone_one_found_and_named(
+    work: Path, capsys, tmp_path: Path
+) -> None:
+    import hashlib
+
+    config, tuning = _own_gantry(tmp_path)
+    verified = hashlib.sha256(config.read_bytes()).hexdigest()
+    assert hashlib.sha256(Path("plants/gantry.toml").read_bytes()).hexdigest() == verified
+    assert _verify(work, tuning) == 0
+    text = config.read_text()
+    config.write_text(text.replace("gain_cps_per_v = 12288.0", "gain_cps_per_v = 12300.0", 1))
+    edited = hashlib.sha256(config.read_bytes()).hexdigest()
+    assert edited != verified
+    out = tmp_path / "tables.json"
+    capsys.readouterr()
+    assert main(["export-table", str(tuning), "-o", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "refused: gantry file" in err, err
+    assert str(config) in err and verified[:12] in err and edited[:12] in err
+    assert "verify again, or give the verified file with --config" in err
+    assert not out.exists()
+    # the recorded config gone: plants/gantry.toml (the verified bytes) is used, and named
+    config.unlink()
+    assert main(["export-table", str(tuning), "-o", str(out)]) == 0
+    notes = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("using gantry")]
+    assert len(notes) == 1 and "plants/gantry.toml" in notes[0] and str(config) in notes[0]
+    assert out.is_file()

@@ -83,3 +83,42 @@ def test_the_verbs_refuse_what_does_not_apply(work: Path, capsys) -> None:
     assert main(["plan", str(work / "pc-dual-servo.toml")]) == 3
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "error" in err
+
+
+def test_an_edited_recorded_config_is_refused_a_gone_one_found_and_named(
+    work: Path, capsys, tmp_path: Path
+) -> None:
+    # the plan records its config in cfg/; a copy of the same bytes lies beside the plan
+    cfg = tmp_path / "cfg"
+    cfg.mkdir()
+    for name in ("linkage-6axis.toml", "pc-dual-servo.toml"):
+        shutil.copy(ROOT / "plants" / name, cfg / name)
+    config = cfg / "linkage-6axis.toml"
+    shutil.copy(config, tmp_path / "linkage-6axis.toml")
+    plan = tmp_path / "plan.json"
+    assert main(["plan", str(config), "-o", str(plan)]) == 0
+    assert main(["verify", str(plan), "--spec", _spec(work)]) == 0
+    verified = hashlib.sha256(config.read_bytes()).hexdigest()
+    text = config.read_text()
+    config.write_text(text.replace("gain_cps_per_v = 12288.0", "gain_cps_per_v = 12300.0", 1))
+    edited = hashlib.sha256(config.read_bytes()).hexdigest()
+    assert edited != verified
+    out = tmp_path / "export.json"
+    capsys.readouterr()
+    assert main(["export-table", str(plan), "-o", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "refused: config file" in err, err
+    assert str(config) in err and verified[:12] in err and edited[:12] in err
+    assert "verify again, or give the verified file with --config" in err
+    assert not out.exists()
+    # the verified bytes given with --config: accepted
+    assert main(["export-table", str(plan), "--config", str(tmp_path / "linkage-6axis.toml"),
+                 "-o", str(out)]) == 0  # fmt: skip
+    out.unlink()
+    # the recorded config gone: the copy beside the plan is used, and named
+    config.unlink()
+    capsys.readouterr()
+    assert main(["export-table", str(plan), "-o", str(out)]) == 0
+    notes = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("using config")]
+    assert len(notes) == 1 and str(tmp_path / "linkage-6axis.toml") in notes[0], notes
+    assert str(config) in notes[0] and out.is_file()

@@ -346,7 +346,7 @@ def test_config_or_rig_edited_after_planning_is_refused(tmp_path: Path) -> None:
         verify_plan_files(plan_path, SPEC)
     msg = str(exc.value)
     assert f"sha256 {bytes_sha256(cfg.read_bytes())[:12]}" in msg  # the file as it is now
-    assert f"sha256 {planned[:12]}" in msg and "give the config file" in msg  # and as planned
+    assert f"sha256 {planned[:12]}" in msg and "give the verified file" in msg  # and as planned
     # the same when the config is given (--config)
     with pytest.raises(TrustError) as exc:
         verify_plan_files(plan_path, SPEC, config_path=cfg)
