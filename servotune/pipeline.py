@@ -23,7 +23,7 @@ from servotune.arch.gantry.load import load_gantry
 from servotune.arch.linkage import load_linkage, run_linkage
 from servotune.export import write_c, write_tables
 from servotune.identify import fit_log, simulate_fit, validation_split
-from servotune.io.files import atomic_write_text
+from servotune.io.files import atomic_write_text, staged_directory
 from servotune.laws.lock import lock_holding_band
 from servotune.logs import write_log
 from servotune.metrics import tracking_metrics
@@ -326,7 +326,6 @@ def run_demo(
     if verification.passed:
         v = load_for_export(tuning_path, spec_path=spec_path)
         write_tables(v.tuning, out / "fuzzy.json", rig=v.rig, verification=v.record)
-        (out / "c").mkdir(exist_ok=True)
         write_c(v.tuning, out / "c", rig=v.rig, verification=v.record)
         exported = ["fuzzy.json", "c/"]
     write_report(out, tuning_path=tuning_path, rig_path=fitted_rig, verification=verification,
@@ -452,18 +451,18 @@ def run_comparison(
     out = Path(out_dir)
     tune = tune_spec_from(spec, generations=preset.generations, population=preset.population)
     pareto_specs(tune, preset.pareto_ms)  # a ceiling the tuner refuses fails before the work
-    out.mkdir(parents=True, exist_ok=True)
     cmp = compare_structures(rig, spec, tune=tune, seeds=[seed + s for s in preset.seeds],
                              heldout_count=preset.heldout_count, progress=progress)  # fmt: skip
-    slave = [a.role for a in rig.axes].index("slave")
-    save_figure(plot_comparison(dict(cmp.traces), slave), out / "figure4.png")
     data = {"schema": "servotune.figure4/2", "seed": seed, "version": __version__}
     data.update(cmp.to_dict())
     data["statement"] = comparison_statement(cmp)
-    data["pareto"] = []
-    if preset.pareto_ms:
-        points = pareto_front(rig, tune, preset.pareto_ms, seed=seed, progress=progress)
-        save_figure(plot_pareto(points), out / "pareto.png")
-        data["pareto"] = [p.to_dict() for p in points]
-    atomic_write_text(out / "figure4.json", json.dumps(data, indent=2, sort_keys=True) + "\n")
+    points = pareto_front(rig, tune, preset.pareto_ms, seed=seed, progress=progress) if (
+        preset.pareto_ms) else []  # fmt: skip
+    data["pareto"] = [p.to_dict() for p in points]
+    slave = [a.role for a in rig.axes].index("slave")
+    with staged_directory(out) as stage:  # the three files as a whole, or none
+        save_figure(plot_comparison(dict(cmp.traces), slave), stage / "figure4.png")
+        if points:
+            save_figure(plot_pareto(points), stage / "pareto.png")
+        atomic_write_text(stage / "figure4.json", json.dumps(data, indent=2, sort_keys=True) + "\n")
     return cmp

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -13,6 +14,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
+from servotune.io.files import atomic_write_bytes
 from servotune.sim.engine import Trace
 
 if TYPE_CHECKING:
@@ -42,11 +44,12 @@ _PNG_META = {"Software": None}
 
 def save_figure(fig: plt.Figure, path: str | Path) -> None:
     """Save a figure as PNG without a software stamp (same input → same bytes), then close it."""
-    p = Path(path)
-    tmp = p.with_name(f".{p.name}.tmp.png")
-    fig.savefig(tmp, dpi=110, metadata=_PNG_META)
-    plt.close(fig)
-    tmp.replace(p)
+    buf = io.BytesIO()
+    try:
+        fig.savefig(buf, format="png", dpi=110, metadata=_PNG_META)
+    finally:
+        plt.close(fig)
+    atomic_write_bytes(path, buf.getvalue())
 
 
 def _finish(fig: plt.Figure, axs: Sequence[plt.Axes], title: str) -> plt.Figure:

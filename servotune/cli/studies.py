@@ -94,11 +94,12 @@ def _cmd_sync(args: argparse.Namespace) -> int:
     _print_product(args.json, cmp.to_dict, lambda: format_comparison(cmp))
     if args.plot:
         from servotune.arch.gantry import CASES
+        from servotune.io.files import staged_directory
         from servotune.plot import plot_sync_errors, save_figure
 
-        Path(args.plot).mkdir(parents=True, exist_ok=True)
-        for case in CASES:
-            save_figure(plot_sync_errors(cmp.traces, case), Path(args.plot) / f"sync_{case}.png")
+        with staged_directory(args.plot) as stage:
+            for case in CASES:
+                save_figure(plot_sync_errors(cmp.traces, case), stage / f"sync_{case}.png")
         print(f"wrote sync_{{{','.join(CASES)}}}.png to {args.plot}", file=sys.stderr)
     for reason in cmp.failed:
         print(f"servotune sync: check failed: {reason}", file=sys.stderr)
@@ -120,11 +121,12 @@ def _cmd_linkage(args: argparse.Namespace) -> int:
         return EXIT_FAILED
     _print_product(args.json, result.to_dict, lambda: format_linkage_summary(result))
     if args.plot:
+        from servotune.io.files import staged_directory
         from servotune.plot import plot_queue_levels, plot_radial_deviation, save_figure
 
-        Path(args.plot).mkdir(parents=True, exist_ok=True)
-        save_figure(plot_queue_levels(result), Path(args.plot) / "linkage_queues.png")
-        save_figure(plot_radial_deviation(result), Path(args.plot) / "linkage_circle.png")
+        with staged_directory(args.plot) as stage:
+            save_figure(plot_queue_levels(result), stage / "linkage_queues.png")
+            save_figure(plot_radial_deviation(result), stage / "linkage_circle.png")
         print(f"wrote linkage_queues.png, linkage_circle.png to {args.plot}", file=sys.stderr)
     for check in result.failed_checks:
         print(f"servotune linkage: check failed: {check.detail}", file=sys.stderr)

@@ -36,7 +36,6 @@ def _export_gantry(args: argparse.Namespace, path: Path) -> int:
         _progress(note)
     doc = gantry_document(v.tuning, v.config.rig, record=v.record, unverified=args.unverified)
     if args.format == "c":
-        Path(args.output).mkdir(parents=True, exist_ok=True)
         written = write_gantry_c(doc, args.output)
         print(f"wrote {', '.join(p.name for p in written)} to {args.output}", file=sys.stderr)
     elif args.output and args.output != "-":
@@ -58,7 +57,6 @@ def _export_linkage(args: argparse.Namespace, path: Path) -> int:
     plan, record = load_plan_for_export(path, args.spec, unverified=args.unverified,
                                         config_path=args.config, progress=_progress)  # fmt: skip
     if args.format == "c":
-        Path(args.output).mkdir(parents=True, exist_ok=True)
         written = write_linkage_c(plan, args.output, record=record, unverified=args.unverified)
         print(f"wrote {', '.join(p.name for p in written)} to {args.output}", file=sys.stderr)
         return EXIT_OK
@@ -107,7 +105,6 @@ def _cmd_export_table(args: argparse.Namespace) -> int:
         what = "HAL file" if args.format == "linuxcnc-hal" else "HAL component"
         _deliver(args.output, lambda p: atomic_write_text(p, text), lambda: text, f"the {what}")
     elif args.format == "c":
-        Path(args.output).mkdir(parents=True, exist_ok=True)
         written = write_c(v.tuning, args.output, **kw)
         print(f"wrote {', '.join(p.name for p in written)} to {args.output}", file=sys.stderr)
     elif args.output and args.output != "-":

@@ -43,7 +43,8 @@ from pathlib import Path
 from typing import Any, Unpack
 
 from servotune.errors import ExportError
-from servotune.export.json import SCHEMA, TablesOptions, _write_export, tables_document
+from servotune.export.json import SCHEMA, TablesOptions, tables_document
+from servotune.io.files import write_files
 from servotune.laws.fuzzy_pid import TABLE_NAMES
 from servotune.tuning import Tuning
 
@@ -318,7 +319,7 @@ def write_c(
     ----------
     tuning : Tuning
     out_dir : str or Path
-        An existing directory.
+        The directory (created if missing; written as a whole, :func:`write_c_files`).
     rig, verification, unverified
         As :func:`servotune.export.json.tables_document`.
 
@@ -340,18 +341,20 @@ def write_c_files(
     out_dir: str | Path, rendered: Mapping[str, str], runtime: tuple[str, ...]
 ) -> tuple[Path, ...]:
     """Write the ``rendered`` files (name → text, rendered in memory first) and the
-    ``runtime`` sources (:func:`runtime_source`) into the existing directory ``out_dir``,
-    each atomically.
+    ``runtime`` sources (:func:`runtime_source`) into the directory ``out_dir`` (created if
+    missing) as a whole (:func:`servotune.io.files.write_files`): all of them or none.
 
     Raises
     ------
     ExportError
-        ``out_dir`` is not a directory (nothing is written), or a file cannot be written.
+        ``out_dir`` is a file, or the files cannot be written (a full disk, no permission):
+        nothing new is left in ``out_dir`` then, and the files it held are unchanged.
     """
     d = Path(out_dir)
-    if not d.is_dir():
-        raise ExportError(f"{d}: not a directory (create it first)")
+    if d.exists() and not d.is_dir():
+        raise ExportError(f"{d}: not a directory")
     texts = {**rendered, **{name: runtime_source(name) for name in runtime}}
-    for name, text in texts.items():
-        _write_export(d / name, text)
-    return tuple(d / name for name in texts)
+    try:
+        return write_files(d, texts)
+    except OSError as exc:
+        raise ExportError(f"{d}: cannot write the C files: {exc}") from None

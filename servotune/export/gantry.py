@@ -272,7 +272,7 @@ def gantry_c_header(doc: Mapping[str, Any]) -> str:
 
 
 def write_gantry_c(doc: Mapping[str, Any], out_dir: str | Path) -> tuple[Path, ...]:
-    """Write ``servotune_gantry_consts.h`` and the runtime's sources into ``out_dir`` (an
-    existing directory); nothing is written if rendering fails."""
+    """Write ``servotune_gantry_consts.h`` and the runtime's sources into ``out_dir`` as a
+    whole (:func:`~servotune.export.c.write_c_files`): all of them or none."""
     return write_c_files(out_dir, {GANTRY_HEADER_NAME: gantry_c_header(doc)},
                          RUNTIME_FILES + GANTRY_RUNTIME_FILES)  # fmt: skip

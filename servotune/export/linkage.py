@@ -314,7 +314,8 @@ def write_linkage_c(
     ----------
     plan : LinkagePlan
     out_dir : str or Path
-        An existing directory.
+        The directory (created if missing; written as a whole,
+        :func:`~servotune.export.c.write_c_files`).
     record : mapping, optional
         The plan's verification record (:func:`~servotune.arch.linkage.load_plan_for_export`).
     unverified : bool

@@ -11,7 +11,11 @@ the file as the user gave it.
 
 Writes are atomic (:func:`atomic_write_bytes`): a temporary file in the same directory, then a
 rename; on any error, Ctrl-C or SIGTERM (the CLI turns it into an exception) the temporary file
-is removed and the target is untouched.
+is removed and the target is untouched. An output of several files (a C export, a directory of
+figures) is written as a whole (:func:`staged_directory`, :func:`write_files`): every file into a
+new temporary directory beside the output, then moved into place by renames alone, with signals
+held back while they run; a failure before that leaves nothing new at the output, and a failure
+during it (which a full disk cannot cause: a rename allocates no data) puts back what was there.
 """
 
 from __future__ import annotations
@@ -23,8 +27,11 @@ import math
 import os
 import re
 import secrets
+import shutil
+import signal
 import stat
-from collections.abc import Callable, Mapping
+import threading
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -47,6 +54,8 @@ __all__ = [
     "read_bytes",
     "read_json",
     "read_toml",
+    "staged_directory",
+    "write_files",
 ]
 
 _T = TypeVar("_T")
@@ -85,10 +94,11 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
             raise _target_error(exc, target) from None
         break
     try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
+        try:
+            _write_all(fd, data)
+            os.fsync(fd)
+        finally:
+            os.close(fd)
         if mode is not None:
             os.chmod(tmp, mode)
         os.replace(tmp, target)
@@ -98,6 +108,13 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
         if isinstance(exc, OSError):
             raise _target_error(exc, target) from None
         raise
+
+
+def _write_all(fd: int, data: bytes) -> None:
+    """Write all of ``data`` to the open file ``fd`` (``os.write`` until done)."""
+    view = memoryview(data)
+    while view:
+        view = view[os.write(fd, view) :]
 
 
 def _target_error(exc: OSError, target: Path) -> OSError:
@@ -383,3 +400,121 @@ def read_toml(path: str | Path, error: type[Exception], what: str = "file") -> d
 def atomic_write_text(path: str | Path, text: str) -> None:
     """Write UTF-8 text atomically (:func:`atomic_write_bytes`), newlines as given."""
     atomic_write_bytes(path, text.encode("utf-8"))
+
+
+@contextlib.contextmanager
+def staged_directory(path: str | Path) -> Iterator[Path]:
+    """A new empty directory to write an output of several files into, moved to ``path`` as a
+    whole when the ``with`` block ends without an exception.
+
+    The staging directory is a hidden sibling of ``path`` (of its nearest existing ancestor
+    when ``path``'s parents are missing), so every move is a rename on one file system. When
+    the block ends: if ``path`` does not exist, the staging directory is renamed to it (its
+    missing parents created first); if it is a directory, each staged entry is renamed into it
+    (a subdirectory merged entry by entry), an entry it replaces kept aside until all moves
+    have succeeded, and deleted then; SIGINT and SIGTERM wait until the moves are done. On an
+    exception in the block (a full disk, Ctrl-C, an error) the staging directory is removed
+    and ``path`` is as it was; an error during the moves puts back every entry moved so far.
+
+    Raises
+    ------
+    OSError
+        ``path`` is a file, or the staging directory cannot be created (naming ``path``).
+    """
+    target = Path(path)
+    if target.exists() and not target.is_dir():
+        raise NotADirectoryError(errno.ENOTDIR, "not a directory", str(target))
+    anchor = target.absolute().parent
+    while not anchor.exists() and anchor != anchor.parent:
+        anchor = anchor.parent
+    try:
+        stage = Path(_new_hidden_dir(anchor, target.name))
+    except OSError as exc:
+        raise _target_error(exc, target) from None
+    try:
+        yield stage
+        with _signals_held():
+            if target.exists():
+                _merge_into(stage, target)
+            else:
+                target.parent.mkdir(parents=True, exist_ok=True)
+                os.rename(stage, target)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+
+
+def write_files(path: str | Path, files: Mapping[str, str | bytes]) -> tuple[Path, ...]:
+    """Write ``files`` (file name → text or bytes) into the directory ``path`` as a whole
+    (:func:`staged_directory`): all of them or, on any failure, none. Returns their paths."""
+    with staged_directory(path) as stage:
+        for name, data in files.items():
+            (stage / name).parent.mkdir(parents=True, exist_ok=True)
+            with open(stage / name, "xb") as f:
+                fd = f.fileno()
+                _write_all(fd, data.encode("utf-8") if isinstance(data, str) else data)
+                os.fsync(fd)
+    return tuple(Path(path) / name for name in files)
+
+
+def _new_hidden_dir(parent: Path, name: str) -> str:
+    """A new directory ``.<name>.<random>.stage`` in ``parent``."""
+    while True:
+        d = parent / f".{name}.{secrets.token_hex(6)}.stage"
+        try:
+            d.mkdir(mode=0o777)
+        except FileExistsError:
+            continue
+        return str(d)
+
+
+def _merge_into(stage: Path, target: Path) -> None:
+    """Rename every entry of ``stage`` into the directory ``target`` (see
+    :func:`staged_directory`); on an error, undo the renames done and re-raise."""
+    aside = Path(_new_hidden_dir(stage, "replaced"))
+    undo: list[tuple[Path, Path]] = []  # (from, to) renames to run backwards on an error
+    try:
+        _merge_entries(stage, target, aside, undo)
+    except BaseException:
+        for src, dst in reversed(undo):
+            with contextlib.suppress(OSError):
+                os.rename(dst, src)
+        raise
+
+
+def _merge_entries(stage: Path, target: Path, aside: Path, undo: list[tuple[Path, Path]]) -> None:
+    for entry in sorted(stage.iterdir()):
+        if entry == aside:
+            continue
+        dst = target / entry.name
+        if entry.is_dir() and dst.is_dir() and not dst.is_symlink():
+            _merge_entries(entry, dst, Path(_new_hidden_dir(aside, entry.name)), undo)
+            continue
+        if dst.exists() or dst.is_symlink():
+            kept = aside / entry.name
+            os.rename(dst, kept)
+            undo.append((dst, kept))
+        os.rename(entry, dst)
+        undo.append((entry, dst))
+
+
+@contextlib.contextmanager
+def _signals_held() -> Iterator[None]:
+    """SIGINT and SIGTERM that arrive in the block are held and raised again when it ends
+    (their handlers swapped for one that notes them: blocking the signal in this thread would
+    not do, another thread of the process could take it). Outside the main thread, where no
+    handler can be set, nothing changes."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    pending: list[int] = []
+    previous = {}
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        if signal.getsignal(sig) is not None:  # None: a handler set outside Python, left alone
+            previous[sig] = signal.signal(sig, lambda signum, _frame: pending.append(signum))
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        if pending:
+            signal.raise_signal(pending[0])

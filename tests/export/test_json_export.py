@@ -338,8 +338,15 @@ def test_write_c_writes_nothing_when_the_export_fails(tuning: Tuning, tmp_path) 
     with pytest.raises(ExportError, match="no verification summary"):
         write_c(tuning, tmp_path)
     assert list(tmp_path.iterdir()) == []
+    (tmp_path / "a-file").write_text("x\n")
     with pytest.raises(ExportError, match="not a directory"):
-        write_c(tuning, tmp_path / "missing", verification=SUMMARY)
+        write_c(tuning, tmp_path / "a-file", verification=SUMMARY)
+    # a missing directory is created with the files in it (written as a whole,
+    # tests/io/test_whole_outputs.py), its missing parents too
+    written = write_c(tuning, tmp_path / "new" / "c", verification=SUMMARY)
+    assert sorted(p.name for p in (tmp_path / "new" / "c").iterdir()) == sorted(
+        p.name for p in written
+    )
 
 
 # --- tampering: the document's digest -------------------------------------------------------
