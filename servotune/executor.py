@@ -28,12 +28,15 @@ load it).
 
 from __future__ import annotations
 
+import logging
 import math
 import os
+import signal
+import threading
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import CancelledError
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from typing import Any, TypeVar
 
 from servotune.errors import SchedulerError
@@ -51,6 +54,7 @@ __all__ = [
     "local_cluster",
     "local_workers",
     "open_executor",
+    "quiet_cluster",
 ]
 
 T = TypeVar("T")
@@ -157,10 +161,13 @@ class DaskExecutor(Executor):
 
     threads_per_task: int | None = 1
 
-    def __init__(self, client: Any, *, name: str | None = None, retries: int = 0) -> None:
+    def __init__(
+        self, client: Any, *, name: str | None = None, retries: int = 0, embedded: bool = False
+    ) -> None:
         self.client = client
         self.retries = int(retries)
         self.name = name or f"dask {client.scheduler.address}"
+        self.embedded = embedded  # a cluster of this run's own (:func:`local_cluster`)
 
     @property
     def workers(self) -> int:
@@ -205,6 +212,10 @@ class DaskExecutor(Executor):
                 if done is not None:
                     done(n)
             return results
+        except BaseException as exc:
+            if self.embedded and not isinstance(exc, Exception):  # Ctrl-C, SIGTERM, an exit
+                quiet_cluster(self.client)  # before the cancel below makes the workers talk
+            raise
         finally:
             self.client.cancel(futures)
 
@@ -357,12 +368,55 @@ def local_cluster(workers: int) -> Iterator[DaskExecutor]:
 
     if workers < 1:
         raise SchedulerError(f"workers must be >= 1, got {workers}")
-    with dask.config.set(EMBEDDED_CLUSTER_CONFIG):
+    with dask.config.set(EMBEDDED_CLUSTER_CONFIG), _without_ctrl_c():
         cluster = LocalCluster(
             n_workers=workers, processes=True, threads_per_worker=1, dashboard_address=":0"
         )
-    with cluster, Client(cluster) as client:
-        yield DaskExecutor(client, name=f"dask LocalCluster ({workers} workers)")
+    quiet = False
+    try:
+        with cluster, Client(cluster) as client:
+            try:
+                yield DaskExecutor(client, name=f"dask LocalCluster ({workers} workers)",
+                                   embedded=True)  # fmt: skip
+            except BaseException as exc:
+                quiet = not isinstance(exc, Exception)  # a signal or an exit ends the run
+                if quiet:
+                    quiet_cluster(client)
+                raise
+    finally:
+        if quiet:
+            logging.disable(logging.NOTSET)  # the cluster is closed: this process logs again
+
+
+@contextmanager
+def _without_ctrl_c() -> Iterator[None]:
+    """SIGINT ignored in this process while the block starts the cluster's worker processes:
+    a process started with a signal ignored keeps it ignored, so a Ctrl-C at the terminal,
+    which reaches every process of the group, ends the run through this process alone (its
+    workers are closed with it), not also as a traceback from each worker. A Ctrl-C during
+    the start itself (about 2 s) is lost; the next one ends the run. (Blocking SIGINT here
+    instead would not reach the workers: Dask's event-loop thread, which starts them, runs
+    with an empty signal mask.)"""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    before = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, before)
+
+
+def quiet_cluster(client: Any) -> None:
+    """Silence Dask's loggers in this process (the embedded cluster's scheduler and nannies
+    run here) and in the cluster's worker processes, before a run stopped by a signal closes
+    it: tasks cancelled mid-run, connections closed under a task, coroutines never awaited
+    are what a shutdown is, not news (dozens of lines of them otherwise, ahead of the run's
+    one line). :func:`local_cluster` turns this process's logging back on once the cluster
+    is closed; the worker processes end with it."""
+    logging.disable(logging.CRITICAL)
+    with suppress(Exception):
+        client.run(logging.disable, logging.CRITICAL, on_error="ignore")
 
 
 def _connect(address: str) -> Any:
