@@ -1153,6 +1153,38 @@ def bench_fit(opts: Options) -> list[Figure]:
     return figures
 
 
+@register("capture")
+def bench_capture(opts: Options) -> list[Figure]:
+    """Reading a long halsampler capture (:func:`servotune.io.hal.read_halsampler`, a chunk of
+    lines at a time): 10,000,000 lines of three pins (about 180 MB; the quick preset 1,000,000),
+    written here as halsampler prints them, then read once, warm.
+
+    Returns
+    -------
+    list of Figure
+        ``capture_read_s`` (the read) and ``capture_read_mb_per_s``.
+    """
+    from servotune.io.hal import read_halsampler
+
+    lines = 1_000_000 if opts.quick else 10_000_000
+    block = "".join(f"{np.sin(i / 7):f} {i % 13 - 6} {i // 5} \n" for i in range(100_000))
+    with tempfile.TemporaryDirectory() as d:
+        path = Path(d) / "capture.txt"
+        with open(path, "w") as f:
+            for _ in range(lines // 100_000):
+                f.write(block)
+        size = path.stat().st_size
+        read_halsampler(path, columns=["cmd", "pos", "ref"])  # the page cache warm
+        times, cap = timed_runs(lambda: read_halsampler(path, columns=["cmd", "pos", "ref"]), 1)
+    if cap.n_samples != lines:
+        raise RuntimeError(f"read {cap.n_samples} samples of {lines}")
+    progress(f"capture: {lines:,} lines, {size / 1e6:.0f} MB in {times[0]:.1f} s")
+    return [
+        Figure("capture_read_s", times[0], "s", f"{lines:,} lines, {size / 1e6:.0f} MB"),
+        Figure("capture_read_mb_per_s", size / 1e6 / times[0], "MB/s", None),
+    ]
+
+
 @register("tune")
 def bench_tune(opts: Options) -> list[Figure]:
     """``servotune tune`` end to end on the example rig (default budget, fresh process).

@@ -39,12 +39,14 @@ from concurrent.futures import CancelledError
 from contextlib import contextmanager, suppress
 from typing import Any, TypeVar
 
+from servotune.budget import check_memory, format_bytes, memory_budget
 from servotune.errors import SchedulerError
 
 __all__ = [
     "EMBEDDED_CLUSTER_CONFIG",
     "LOCAL_CLUSTER_MIN_ITEMS",
     "SCHEDULER_ENV",
+    "WORKER_BYTES",
     "DaskExecutor",
     "Executor",
     "InProcessExecutor",
@@ -250,6 +252,8 @@ def check_workers(workers: int | None, scheduler: str | None = None) -> None:
     ------
     SchedulerError
         ``workers`` is below 1, above :func:`local_workers`, or given with a scheduler.
+    BudgetError
+        ``workers`` worker processes (:data:`WORKER_BYTES` each) exceed the memory budget.
     """
     if workers is None:
         return
@@ -266,6 +270,20 @@ def check_workers(workers: int | None, scheduler: str | None = None) -> None:
             f"workers must be at most {cap} (the usable cores of this machine: one worker "
             f"process per core), got {workers}"
         )
+    if workers > 1:
+        check_memory(
+            workers * WORKER_BYTES,
+            f"an embedded Dask cluster of {workers} workers",
+            f"{workers} × {format_bytes(WORKER_BYTES)} a worker process",
+        )
+
+
+WORKER_BYTES = 256 * 1024**2
+"""Memory a worker process of an embedded cluster is counted at against the memory budget
+(:mod:`servotune.budget`): the interpreter, numpy and scipy, the compiled kernels and a task's
+arrays (about 235 MB resident each, measured on a Monte-Carlo verification of the example
+rig). ``--workers N`` beyond the budget is refused; without ``--workers``, the cluster gets
+as many workers as the budget holds (at most the usable cores)."""
 
 
 @contextmanager
@@ -326,13 +344,18 @@ def open_executor(
         finally:
             client.close()
         return
-    n_local = workers if workers is not None else local_workers()
+    n_local = workers if workers is not None else min(local_workers(), _workers_in_budget())
     large = workers is not None or n_items >= min_items
     if n_local <= 1 or not large:
         yield InProcessExecutor()
         return
     with local_cluster(n_local) as ex:
         yield ex
+
+
+def _workers_in_budget() -> int:
+    """Worker processes the memory budget holds (:data:`WORKER_BYTES` each), at least 1."""
+    return max(1, memory_budget() // WORKER_BYTES)
 
 
 EMBEDDED_CLUSTER_CONFIG = {

@@ -143,7 +143,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         counter_bits=args.counter_bits, dac_bits=args.dac_bits, dac_range_v=dac_range,
         period_s=args.period_s, compute_s=args.compute_s, method=args.method,
         friction=args.friction, invert_encoder=args.invert_encoder,
-        need_axis_name=bool(args.output), strict=args.strict, hal=hal,
+        need_axis_name=bool(args.output), strict=args.strict, hal=hal, progress=_progress,
     )  # fmt: skip
     print(f"axis {axis or '(unprefixed)'}: " + result.summary(), file=sys.stderr)
     if args.plot:

@@ -7,6 +7,7 @@ the log reader only (the pipeline imports every subsystem: seconds of a one-verb
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -37,6 +38,7 @@ def fit_log(
     need_axis_name: bool = False,
     strict: bool = False,
     hal: HalSettings | None = None,
+    progress: Callable[[str], None] | None = None,
 ) -> tuple[FitResult, Log, str]:
     """Read a log and identify one axis (what ``servotune fit`` runs).
 
@@ -55,7 +57,8 @@ def fit_log(
     ``compute_s`` come from the options, else the rig (a capture has no metadata; the rig's
     period is not used: the capture's is LinuxCNC's servo thread's). For a CSV they come, with
     the period, as for a log: the options, else its ``# key: value`` lines, else the rig.
-    Its one axis is unnamed (``axis`` names it).
+    Its one axis is unnamed (``axis`` names it). ``progress`` gets lines while a large
+    capture is read.
 
     Returns
     -------
@@ -78,7 +81,7 @@ def fit_log(
         return _fit_hal_log(
             log_path, hal, axis=axis, rig=rig, counter_bits=counter_bits, dac_bits=dac_bits,
             dac_range_v=dac_range_v, period_s=period_s, compute_s=compute_s,
-            need_axis_name=need_axis_name, strict=strict,
+            need_axis_name=need_axis_name, strict=strict, progress=progress,
             fit_options={"structure": structure, "method": method, "friction": friction,
                          "invert_encoder": invert_encoder},
         )  # fmt: skip
@@ -134,6 +137,7 @@ def _fit_hal_log(
     need_axis_name: bool,
     strict: bool,
     fit_options: dict,
+    progress: Callable[[str], None] | None = None,
 ) -> tuple[FitResult, Log, str]:
     """:func:`fit_log` of a HAL capture or a mapped CSV log."""
     src = str(log_path)
@@ -153,7 +157,8 @@ def _fit_hal_log(
         if csv and hal.period_s is None:  # as for a log: checked against its time column
             (period_s,) = _from_rig(rig, meta, period_s=period_s).values()
     log = read_hal_log(log_path, hal, period_s=period_s, dac_bits=dac_bits,
-                       dac_range_v=dac_range_v, compute_s=compute_s, strict=strict)  # fmt: skip
+                       dac_range_v=dac_range_v, compute_s=compute_s, strict=strict,
+                       progress=progress)  # fmt: skip
     if log.n_samples < MIN_SAMPLES:
         longer = "log longer" if csv else "capture longer: halsampler -n N, or halscope's "
         longer += "" if csv else "record length"

@@ -96,6 +96,7 @@ from typing import Any, TypedDict, Unpack
 
 import numpy as np
 
+from servotune.budget import check_memory, format_bytes, format_count
 from servotune.errors import LogFormatError
 from servotune.hw import dac as hw_dac
 from servotune.io.hal_map import (
@@ -110,6 +111,7 @@ from servotune.io.hal_map import (
 )
 from servotune.io.log_header import (
     PERIOD_RANGE_S,
+    TEXT_CHUNK_BYTES,
     _meta_setting,
     _option,
     _parse_compute,
@@ -118,7 +120,9 @@ from servotune.io.log_header import (
     _parse_period,
     _parse_range,
     _read_text,
+    file_size,
     naming,
+    read_text_chunks,
 )
 from servotune.io.log_rows import _REL_TOL, _not_whole, _RowLines, _timebase, _whole_problem
 from servotune.logs import MIN_ROWS, AxisLog, Log, _warn_unknown_metadata, read_table
@@ -518,8 +522,11 @@ def read_halsampler(
     *,
     columns: Sequence[str] | None = None,
     sample_number: bool = False,
+    progress: Callable[[str], None] | None = None,
 ) -> HalCapture:
-    """Read ``halsampler`` output (module docstring).
+    """Read ``halsampler`` output (module docstring), a chunk of lines at a time: memory is
+    the capture's array and a chunk, not the text (:func:`_check_capture_memory` checks the
+    estimate against the memory budget before reading).
 
     Parameters
     ----------
@@ -530,6 +537,8 @@ def read_halsampler(
     sample_number : bool
         The file was written with ``halsampler -t``: the first field is the sample number
         (not a column); the numbers must run on by one.
+    progress : callable, optional
+        Gets a line at each tenth of a large file read.
 
     Returns
     -------
@@ -544,22 +553,12 @@ def read_halsampler(
         number, a value that is not finite, a sample number that is not a whole number, a gap
         in the sample numbers or halsampler's ``overrun`` line (lost samples: the first one
         named), fewer than :data:`~servotune.logs.MIN_ROWS` samples.
+    BudgetError
+        The capture's arrays would not fit in the memory budget (nothing read).
     """
     src = str(path)
     with naming(src, "HAL capture"):
         names = None if columns is None else tuple(columns)
-        text = _read_text(Path(path), src, "HAL capture")
-        lines = text.split("\n")
-        first = next((i for i, ln in enumerate(lines) if ln.strip()), None)
-        if first is not None and lines[first].lstrip().startswith("#"):
-            hint = (
-                " (halscope's saved data: --hal-format halscope)"
-                if lines[first].startswith(HALSCOPE_PERIOD_LINE)
-                else ""
-            )
-            raise LogFormatError(
-                f"line {first + 1} is a comment; halsampler writes only numbers{hint}"
-            )
         lead = 1 if sample_number else 0
 
         def label(j: int) -> str:
@@ -569,14 +568,39 @@ def read_halsampler(
             known = names is not None and c < len(names)
             return f"column {c} ({names[c]})" if known else f"column {c}"  # type: ignore[index]
 
-        if "overrun" in text:  # halsampler's mark of a gap, on a line by itself
-            k = next((i for i, ln in enumerate(lines) if ln.strip() == "overrun"), None)
-            if k is not None:
+        _check_capture_memory(Path(path), src)
+        parts: list[np.ndarray] = []
+        row_parts: list[np.ndarray] = []
+        chunks = read_text_chunks(Path(path), src, "HAL capture", progress=progress)
+        for line0, lines in chunks:
+            if not parts:
+                _no_comment(lines, line0)
+            if any(ln.strip() == "overrun" for ln in lines):  # halsampler's mark of a gap
+                k = next(i for i, ln in enumerate(lines) if ln.strip() == "overrun")
                 raise LogFormatError(
-                    f"lost samples: line {k + 1} is halsampler's 'overrun' mark (the sampler's "
-                    f"FIFO was full; {_MORE_DEPTH})"
+                    f"lost samples: line {line0 + k + 1} is halsampler's 'overrun' mark (the "
+                    f"sampler's FIFO was full; {_MORE_DEPTH})"
                 )
-        values, rows = _numbers(lines, 0, None, "halsampler", label)
+            if not any(ln.strip() for ln in lines):
+                continue
+            values, rows = _numbers(lines, 0, None, "halsampler", label, line0=line0, min_rows=0)
+            if parts and values.shape[1] != parts[0].shape[1]:
+                raise LogFormatError(
+                    f"line {rows[0]} has {values.shape[1]} fields, the rows before it "
+                    f"{parts[0].shape[1]} (line {row_parts[0][0]})"
+                )
+            parts.append(values)
+            row_parts.append(rows)
+        if not parts:
+            raise LogFormatError("the halsampler capture is empty (no samples)")
+        values = parts[0] if len(parts) == 1 else np.concatenate(parts)
+        rows = row_parts[0] if len(row_parts) == 1 else np.concatenate(row_parts)
+        del parts, row_parts
+        if values.shape[0] < MIN_ROWS:
+            n = values.shape[0]
+            raise LogFormatError(
+                f"{n} sample{'s' if n != 1 else ''}; at least {MIN_ROWS} are needed"
+            )
         width = values.shape[1]
         expect = None if names is None else len(names) + lead
         if expect is not None and width != expect:
@@ -599,6 +623,47 @@ def read_halsampler(
         _check_rows(values, rows, names)
         return HalCapture(format="halsampler", values=np.ascontiguousarray(values), names=names,
                           lines=rows, sample_numbers=numbers, path=src)  # fmt: skip
+
+
+def _no_comment(lines: list[str], line0: int) -> None:
+    """halsampler writes only numbers: a first non-blank line that is a comment is refused
+    (halscope's saved data, which starts with one, named as such)."""
+    first = next((i for i, ln in enumerate(lines) if ln.strip()), None)
+    if first is not None and lines[first].lstrip().startswith("#"):
+        hint = (
+            " (halscope's saved data: --hal-format halscope)"
+            if lines[first].startswith(HALSCOPE_PERIOD_LINE)
+            else ""
+        )
+        raise LogFormatError(
+            f"line {line0 + first + 1} is a comment; halsampler writes only numbers{hint}"
+        )
+
+
+_SAMPLE_BYTES = 64 * 1024  # the head of a capture its rows are estimated from
+
+
+def _check_capture_memory(path: Path, src: str) -> None:
+    """Refuse, before reading, a capture whose arrays would not fit in the memory budget:
+    rows estimated from the file's size and the bytes per row of its first 64 KiB; per row,
+    its fields as float64 and its line number, three times (the chunks, the whole array, the
+    sample-number checks and the pins' contiguous copy), and the chunk being parsed (its
+    text, lines and numbers: about 8 times its bytes)."""
+    size = file_size(path, src, "HAL capture")
+    with open(path, "rb") as fh:
+        head = fh.read(_SAMPLE_BYTES)
+    end = head.rfind(b"\n") + 1
+    sample = head[:end] if end else head
+    first = next((ln for ln in sample.split(b"\n") if ln.strip()), b"")
+    fields = max(1, len(first.split()))
+    rows = size * max(1, sample.count(b"\n")) / max(1, len(sample))
+    per_row = 3 * (8 * fields + 8)
+    check_memory(
+        rows * per_row + 8 * TEXT_CHUNK_BYTES,
+        f"reading HAL capture {src!r}",
+        f"{format_bytes(size)}: about {format_count(rows)} rows × {fields} fields × "
+        f"{per_row // 3} bytes, three times",
+    )
 
 
 def read_halscope(path: str | Path) -> HalCapture:
@@ -868,13 +933,15 @@ def read_hal_capture(
     mapping: Mapping[str, str | int] | None = None,
     period_s: float | None = None,
     strict: bool = False,
+    progress: Callable[[str], None] | None = None,
 ) -> HalCapture:
     """Read a HAL capture in either format, or a CSV log with its own column names; ``format``
     None detects which from the content (:func:`capture_format`).
 
     ``mapping``, ``period_s`` and ``strict`` are for a CSV (:func:`read_mapped_csv`): the
     mapping says which columns to read, the period (if given) is checked against its time
-    column, ``strict`` refuses unknown metadata keys."""
+    column, ``strict`` refuses unknown metadata keys. ``progress``: lines while a large
+    halsampler capture is read (:func:`read_halsampler`)."""
     if format is None:
         format = capture_format(path)
     if format == "csv":
@@ -899,7 +966,8 @@ def read_hal_capture(
         return read_halscope(path)
     if format != "halsampler":
         raise LogFormatError(f"format must be one of {', '.join(HAL_FORMATS)}, got {format!r}")
-    return read_halsampler(path, columns=columns, sample_number=sample_number)
+    return read_halsampler(path, columns=columns, sample_number=sample_number,
+                           progress=progress)  # fmt: skip
 
 
 class HalLogOptions(TypedDict, total=False):
@@ -917,12 +985,14 @@ def read_hal_log(
     settings: HalSettings,
     *,
     strict: bool = False,
+    progress: Callable[[str], None] | None = None,
     **options: Unpack[HalLogOptions],
 ) -> Log:
     """Read a HAL capture or a CSV log with its own column names (:func:`read_hal_capture`)
     and convert it (:meth:`HalCapture.to_log`, whose keywords it takes): what
     ``servotune fit FILE --map …`` reads. ``strict``: a CSV's unknown metadata key is an
-    error, not a :class:`~servotune.logs.LogMetadataWarning`.
+    error, not a :class:`~servotune.logs.LogMetadataWarning`. ``progress``: lines while a
+    large capture is read.
 
     Examples
     --------
@@ -943,7 +1013,7 @@ def read_hal_log(
     cap = read_hal_capture(path, format=settings.format, columns=settings.columns,
                            sample_number=settings.sample_number, mapping=settings.mapping,
                            period_s=settings.period_s if period is None else period,
-                           strict=strict)  # fmt: skip
+                           strict=strict, progress=progress)  # fmt: skip
     return cap.to_log(settings, **options)
 
 
@@ -958,24 +1028,28 @@ def _numbers(
     delimiter: str | None,
     what: str,
     label: Callable[[int], str],
+    *,
+    line0: int = 0,
+    min_rows: int = MIN_ROWS,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The non-blank lines from ``start`` as an (n, m) float array, and their 1-based line
-    numbers. Bulk-parsed by ``numpy.loadtxt``; on failure the lines are scanned one by one to
-    name the first bad one (``label(j)`` names field ``j``)."""
+    numbers (``line0``: lines of the file before ``lines``, a chunk of it). Bulk-parsed by
+    ``numpy.loadtxt``; on failure the lines are scanned one by one to name the first bad one
+    (``label(j)`` names field ``j``). Fewer than ``min_rows`` rows are refused."""
     idx = [i for i in range(start, len(lines)) if lines[i].strip()]
     if not idx:
         raise LogFormatError(f"the {what} capture is empty (no samples)")
-    rows = np.asarray(idx, dtype=np.int64) + 1
+    rows = np.asarray(idx, dtype=np.int64) + (1 + line0)
     body = [lines[i] for i in idx]
     try:
         values = np.loadtxt(body, dtype=float, delimiter=delimiter, comments=None, ndmin=2)
     except ValueError:
         _first_bad(body, rows, delimiter, label)
         raise  # pragma: no cover  (_first_bad raises: loadtxt refused something it finds)
-    if values.shape[0] < MIN_ROWS:
+    if values.shape[0] < min_rows:
         raise LogFormatError(
             f"{values.shape[0]} sample{'s' if values.shape[0] != 1 else ''}; at least "
-            f"{MIN_ROWS} are needed"
+            f"{min_rows} are needed"
         )
     return values, rows
 

@@ -25,7 +25,14 @@ from servotune.errors import LogFormatError
 from servotune.io.files import MAX_NUMBER_CHARS
 from servotune.io.log_rows import _INT_RE, _to_float
 
-__all__ = ["MAX_METADATA_CHARS", "MAX_NAME_CHARS", "PERIOD_RANGE_S"]
+__all__ = [
+    "MAX_METADATA_CHARS",
+    "MAX_NAME_CHARS",
+    "PERIOD_RANGE_S",
+    "TEXT_CHUNK_BYTES",
+    "file_size",
+    "read_text_chunks",
+]
 
 _AXIS_COLUMNS = ("dac_code", "cmd_v", "counter", "pos_counts", "ref_counts", "exc_code", "mode")
 _TIME_COLUMNS = ("tick", "time_s")
@@ -100,18 +107,19 @@ def _read_bytes(p: Path, src: str, what: str = "log") -> bytes:
             return fh.read()
 
 
-def _decode(data: bytes, src: str, what: str = "log") -> str:
-    """The file's text: UTF-8 (a byte-order mark dropped), no NUL, line ends normalised."""
+def _decode(data: bytes, src: str, what: str = "log", line0: int = 0) -> str:
+    """The file's text: UTF-8 (a byte-order mark dropped), no NUL, line ends normalised.
+    ``line0``: lines of the file before ``data`` (a chunk of it), for the line named."""
     try:
-        text = data.decode("utf-8-sig")
+        text = data.decode("utf-8-sig" if line0 == 0 else "utf-8")
     except UnicodeDecodeError as exc:
-        line = data.count(b"\n", 0, exc.start) + 1
+        line = line0 + data.count(b"\n", 0, exc.start) + 1
         raise LogFormatError(
             f"{what} {src!r} is not UTF-8 text (byte 0x{data[exc.start]:02x} at line {line})"
         ) from None
     nul = text.find("\x00")
     if nul >= 0:
-        line = text.count("\n", 0, nul) + 1
+        line = line0 + text.count("\n", 0, nul) + 1
         raise LogFormatError(f"{what} {src!r} is not a text file (NUL byte at line {line})")
     if "\r" in text:
         text = text.replace("\r\n", "\n").replace("\r", "\n")
@@ -353,3 +361,61 @@ def _parse_compute(s: str) -> float:
     if v is None or not (math.isfinite(v) and v >= 0):
         raise ValueError("a finite number of seconds >= 0")
     return v
+
+
+TEXT_CHUNK_BYTES = 8 * 1024**2
+"""Bytes read at a time by :func:`read_text_chunks` (whole lines: a chunk ends at a newline)."""
+
+
+def file_size(p: Path, src: str, what: str = "log") -> int:
+    """The size of the file [bytes] (one line naming it when it cannot be read)."""
+    with _read_errors(src, what):
+        with open(p, "rb") as fh:
+            return os.fstat(fh.fileno()).st_size
+
+
+def read_text_chunks(
+    p: Path,
+    src: str,
+    what: str = "log",
+    *,
+    chunk_bytes: int | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> Iterator[tuple[int, list[str]]]:
+    """The file's lines, a chunk of about ``chunk_bytes`` at a time: ``(lines before the
+    chunk, its lines)``, each chunk decoded and checked as the whole text would be (UTF-8, no
+    NUL, line ends normalised; a problem named by its line in the file). Memory: a chunk, not
+    the file. ``chunk_bytes`` None: :data:`TEXT_CHUNK_BYTES`. ``progress`` gets a line at each
+    tenth of the file read, for files over ``4 * chunk_bytes``."""
+    chunk_bytes = TEXT_CHUNK_BYTES if chunk_bytes is None else chunk_bytes
+    with _read_errors(src, what):
+        fh = open(p, "rb")  # closed below, after the last chunk
+    with fh:
+        size = os.fstat(fh.fileno()).st_size
+        line0, rest, done, told = 0, b"", 0, 0
+        while True:
+            with _read_errors(src, what):
+                block = fh.read(chunk_bytes)
+            done += len(block)
+            data = rest + block
+            if block:
+                cut = data.rfind(b"\n") + 1
+                if cut == 0:  # no line end yet: read on
+                    rest = data
+                    continue
+                data, rest = data[:cut], data[cut:]
+            elif not data:
+                return
+            else:
+                rest = b""
+            lines = _decode(data, src, what, line0).split("\n")
+            if lines[-1] == "":
+                lines.pop()  # the text after the chunk's last newline: the next chunk's
+            yield line0, lines
+            line0 += len(lines)
+            tenth = 10 * done // max(size, 1)
+            if progress is not None and size > 4 * chunk_bytes and tenth > told:
+                told = tenth
+                progress(f"reading {what} {src}: {format_bytes(done)} of {format_bytes(size)}")
+            if not block:
+                return

@@ -191,3 +191,30 @@ def test_the_help_states_the_maximum(capsys) -> None:
         main(["verify", "--help"])
     out = " ".join(capsys.readouterr().out.split())
     assert f"at most the usable cores ({local_workers()} here)" in out
+
+
+def test_workers_count_against_the_memory_budget(tmp_path, capsys, no_cluster) -> None:
+    """Each worker process of an embedded cluster is counted at WORKER_BYTES (256 MiB): two
+    workers under a 300 MiB budget are refused in one line naming both numbers, before any
+    process starts; without --workers, the cluster gets the workers the budget holds (here
+    none beyond this process: the run stays in-process)."""
+    from servotune.budget import BudgetError, set_memory_budget
+
+    if local_workers() < 2:
+        pytest.skip("one usable core: no cluster of 2 to refuse")
+    args = ["--max-memory", "300M", "verify", str(BASE / "tuning.json"), "--spec", str(SPEC),
+            "--rig", str(EXAMPLE_RIG), "--montecarlo", "8", "--workers", "2"]  # fmt: skip
+    line = one_line(capsys, args, "cluster of 2 workers", "512 MiB")
+    assert "2 × 256 MiB" in line and "300 MiB" in line
+    assert no_cluster == []
+    try:
+        set_memory_budget("300M")
+        with pytest.raises(BudgetError, match="2 workers"):
+            check_workers(2)
+        with executor.open_executor(10**6) as ex:  # large work, no --workers: in-process
+            assert ex.name == "in-process"
+        set_memory_budget("1G")
+        check_workers(2)  # 512 MiB fits
+    finally:
+        set_memory_budget(None)
+    assert no_cluster == []
