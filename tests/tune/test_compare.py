@@ -9,14 +9,17 @@ python-control's. The statement's words are derived from the numbers
 
 from __future__ import annotations
 
+import errno
 import json
 import math
+import os
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 import servotune as st
+import servotune.io.files as files
 from servotune.cli import main
 from servotune.report.text import figure4_statement
 from servotune.tune.compare import METRICS, compare_structures, pareto_front, pareto_mask
@@ -117,11 +120,32 @@ def test_pareto_front_trades_tracking_for_robustness(rig: st.Rig, spec) -> None:
     assert [p.front_itae for p in points] == mask.tolist() == [True, True]
 
 
-def test_cli_compare_writes_figure4_and_the_sweep(tmp_path, capsys) -> None:
+def test_cli_compare_writes_figure4_and_the_sweep(tmp_path, capsys, monkeypatch) -> None:
     out = tmp_path / "cmp"
-    rc = main(["compare", str(RIG), "--spec", str(SPEC), "--out", str(out), "--seeds", "1",
-               "--generations", "1", "--population", "5", "--heldout-count", "2",
-               "--pareto", "2", "--json"])  # fmt: skip
+    args = ["compare", str(RIG), "--spec", str(SPEC), "--out", str(out), "--seeds", "1",
+            "--generations", "1", "--population", "5", "--heldout-count", "2",
+            "--pareto", "2", "--json"]  # fmt: skip
+    # the three files as a whole (docs/formats.md#outputs): the disk full at the last of them
+    # leaves an earlier output as it was, the two figures not half replaced
+    out.mkdir()
+    (out / "figure4.json").write_text("{}\n")
+    calls = [0]
+    real_write = os.write
+
+    def write(fd: int, data) -> int:
+        calls[0] += 1
+        if calls[0] == 3:  # figure4.png, pareto.png, then figure4.json
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real_write(fd, data)
+
+    with monkeypatch.context() as m:
+        m.setattr(files.os, "write", write)
+        assert main(args) == 3
+    assert "No space left on device" in capsys.readouterr().err
+    assert sorted(p.name for p in out.iterdir()) == ["figure4.json"]
+    assert (out / "figure4.json").read_text() == "{}\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cmp"]  # no staging left
+    rc = main(args)
     cap = capsys.readouterr()
     assert rc == 0, cap.err
     data = json.loads(cap.out)
