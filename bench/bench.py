@@ -859,15 +859,36 @@ def build_c_loop(loop: servotune.Loop, out_dir: Path) -> ctypes.CDLL:
     (out_dir / PLANT_HEADER).write_text(runtime_source(PLANT_HEADER))
     shutil.copy(C_LOOP_SOURCE, out_dir / "c_loop.c")
     res = subprocess.run(
-        [cc, *C_LOOP_FLAGS, "-shared", "-fPIC", "c_loop.c", "servotune_rt.c", "-lm", "-o",
-         "libloop.so"], cwd=out_dir, capture_output=True, text=True,
-    )  # fmt: skip
+        [
+            cc,
+            *C_LOOP_FLAGS,
+            "-shared",
+            "-fPIC",
+            "c_loop.c",
+            "servotune_rt.c",
+            "-lm",
+            "-o",
+            "libloop.so",
+        ],
+        cwd=out_dir,
+        capture_output=True,
+        text=True,
+    )
     if res.returncode != 0:
         raise BenchMismatchError(f"building the C loop failed:\n{res.stderr}")
     lib = ctypes.CDLL(str(out_dir / "libloop.so"))
     p_d, p_i = ctypes.POINTER(ctypes.c_double), ctypes.c_void_p
-    lib.c_loop.argtypes = [ctypes.c_int64, p_d, ctypes.c_int64, ctypes.c_int64, ctypes.c_int,
-                           ctypes.c_double, ctypes.c_double, p_i, p_i]  # fmt: skip
+    lib.c_loop.argtypes = [
+        ctypes.c_int64,
+        p_d,
+        ctypes.c_int64,
+        ctypes.c_int64,
+        ctypes.c_int,
+        ctypes.c_double,
+        ctypes.c_double,
+        p_i,
+        p_i,
+    ]
     lib.c_loop.restype = ctypes.c_int
     return lib
 
@@ -898,9 +919,17 @@ def bench_c_runtime(opts: Options) -> list[Figure]:
     codes = np.zeros(n, dtype=np.int32)
     with tempfile.TemporaryDirectory(prefix="servotune-bench-") as tmp:
         lib = build_c_loop(loop, Path(tmp))
-        args = (n, row.ctypes.data_as(ctypes.POINTER(ctypes.c_double)), lag,
-                rig.axes[0].counter_init, rig.counter.bits, rig.dac.range_v[0], rig.dac.lsb_v,
-                ref.ctypes.data, codes.ctypes.data)  # fmt: skip
+        args = (
+            n,
+            row.ctypes.data_as(ctypes.POINTER(ctypes.c_double)),
+            lag,
+            rig.axes[0].counter_init,
+            rig.counter.bits,
+            rig.dac.range_v[0],
+            rig.dac.lsb_v,
+            ref.ctypes.data,
+            codes.ctypes.data,
+        )
         if lib.c_loop(*args) != 0:
             raise BenchMismatchError("c_loop: the lag needs a longer ring")
         c_times, _ = timed_runs(lambda: lib.c_loop(*args), opts.sizes.engine_runs)
@@ -954,11 +983,19 @@ def bench_arch(opts: Options) -> list[Figure]:
     l_ns = statistics.median(times) / n_ticks * 1e9
     progress(f"arch: linkage {n_ticks} ticks x {linkage.n_axes} axes, {l_ns:.4g} ns/tick")
     return [
-        Figure("gantry_ns_per_cycle", g_ns, "ns/cycle",
-               f"before the shared tick: {ARCH_BASELINE_NS['gantry']:.4g} ns/cycle"),
-        Figure("linkage_ns_per_tick", l_ns, "ns/tick",
-               f"before the shared tick: {ARCH_BASELINE_NS['linkage']:.4g} ns/tick"),
-    ]  # fmt: skip
+        Figure(
+            "gantry_ns_per_cycle",
+            g_ns,
+            "ns/cycle",
+            f"before the shared tick: {ARCH_BASELINE_NS['gantry']:.4g} ns/cycle",
+        ),
+        Figure(
+            "linkage_ns_per_tick",
+            l_ns,
+            "ns/tick",
+            f"before the shared tick: {ARCH_BASELINE_NS['linkage']:.4g} ns/tick",
+        ),
+    ]
 
 
 # --- report ----------------------------------------------------------------------------------
@@ -1049,13 +1086,21 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, help="write the JSON report here (e.g. reports/bench.json)")
     ap.add_argument(
-        "--only", nargs="+", choices=sorted(BENCHES), metavar="NAME",
+        "--only",
+        nargs="+",
+        choices=sorted(BENCHES),
+        metavar="NAME",
         help=f"run only these benchmarks ({', '.join(BENCHES)})",
-    )  # fmt: skip
+    )
     ap.add_argument("--quick", action="store_true", help="small sizes (smoke test)")
-    ap.add_argument("--scale-plants", type=int, default=None, metavar="N",
-                    help="plant sets of the 'scale' benchmark (default 1000000: the whole "
-                    "target run, about 4.5 minutes on 2 cores; fewer: extrapolated)")  # fmt: skip
+    ap.add_argument(
+        "--scale-plants",
+        type=int,
+        default=None,
+        metavar="N",
+        help="plant sets of the 'scale' benchmark (default 1000000: the whole "
+        "target run, about 4.5 minutes on 2 cores; fewer: extrapolated)",
+    )
     return ap.parse_args(argv)
 
 
@@ -1101,10 +1146,12 @@ def bench_fit(opts: Options) -> list[Figure]:
     figures = []
     with tempfile.TemporaryDirectory() as d:
         path = Path(d) / "long.csv"
-        cols = {k: v for k, v in trace_log_columns(trace, scen.inputs.dac_add_codes).items()
-                if k.startswith("master.")}  # fmt: skip
-        write_log(path, period_s=rig.period_s, columns=cols,
-                  metadata=log_metadata(rig, seed=7))  # fmt: skip
+        cols = {
+            k: v
+            for k, v in trace_log_columns(trace, scen.inputs.dac_add_codes).items()
+            if k.startswith("master.")
+        }
+        write_log(path, period_s=rig.period_s, columns=cols, metadata=log_metadata(rig, seed=7))
         exe = str(Path(sys.executable).parent / "servotune")
         base = [exe, "fit", str(path), "--axis", "master", "--json"]
         subprocess.run(base, check=True, capture_output=True)  # warm the numba cache
@@ -1120,8 +1167,9 @@ def bench_fit(opts: Options) -> list[Figure]:
             if err > 0.02:
                 raise RuntimeError(f"fit{label} on the bench log is off by {err:.1%} in gain")
             note = f"method {doc['method']}; goal < 2 s, at most 5 s" if not label else None
-            figures.append(Figure(f"fit_{tag}_samples{label}_s", statistics.median(times), "s",
-                                  note))  # fmt: skip
+            figures.append(
+                Figure(f"fit_{tag}_samples{label}_s", statistics.median(times), "s", note)
+            )
         # the same model fitted by a bare scipy least_squares on all samples
         ax = read_log(path).axis("master")
         u, y = ax.cmd_v, ax.pos_counts
@@ -1134,8 +1182,9 @@ def bench_fit(opts: Options) -> list[Figure]:
         def residual(z: np.ndarray) -> np.ndarray:
             x = x0.copy()
             x[free] = z
-            sim = id_model.simulate_increments(inputs, [x], free, [0], period_s=rig.period_s,
-                                               compute_s=rig.timer.compute_s, v0=v0)  # fmt: skip
+            sim = id_model.simulate_increments(
+                inputs, [x], free, [0], period_s=rig.period_s, compute_s=rig.timer.compute_s, v0=v0
+            )
             return (dy - sim[0])[50:]
 
         lo, hi = id_model.lower_bounds()[free], id_model.upper_bounds(rig.period_s)[free]
@@ -1143,13 +1192,15 @@ def bench_fit(opts: Options) -> list[Figure]:
         times = []
         for i in range(opts.sizes.fit_runs):
             t0 = time.perf_counter()
-            sol = least_squares(residual, z0, bounds=(lo, hi), method="trf",
-                                x_scale=np.maximum(np.abs(z0), 1e-3))  # fmt: skip
+            sol = least_squares(
+                residual, z0, bounds=(lo, hi), method="trf", x_scale=np.maximum(np.abs(z0), 1e-3)
+            )
             times.append(time.perf_counter() - t0)
             progress(f"fit scipy least_squares: run {i + 1}: {times[-1]:.2f} s ({sol.nfev} nfev)")
         note = "in-process, the fit call only (no reading, no process)"
-        figures.append(Figure(f"fit_{tag}_samples_scipy_least_squares_s",
-                              statistics.median(times), "s", note))  # fmt: skip
+        figures.append(
+            Figure(f"fit_{tag}_samples_scipy_least_squares_s", statistics.median(times), "s", note)
+        )
     return figures
 
 
@@ -1263,23 +1314,31 @@ def bench_montecarlo(opts: Options) -> list[Figure]:
     spec = dataclasses.replace(spec, montecarlo=dataclasses.replace(spec.montecarlo, count=n))
     progress("montecarlo: tuning the example rig (not timed)")
     tuning = tune_rig(opts.rig_path)
-    verify(tuning, rig, dataclasses.replace(spec, montecarlo=dataclasses.replace(
-        spec.montecarlo, count=2)))  # compile or cache load  # fmt: skip
+    verify(
+        tuning,
+        rig,
+        dataclasses.replace(spec, montecarlo=dataclasses.replace(spec.montecarlo, count=2)),
+    )  # compile or cache load
     t0 = time.perf_counter()
     v = verify(tuning, rig, spec)
     dt = time.perf_counter() - t0
     k, count, frac, lo, hi = v.pass_fraction
     ticks = sum(round(sc.seconds / rig.period_s) for sc in spec.scenarios)
     rate = (count + 1) * len(rig.axes) * ticks / dt
-    progress(f"montecarlo: {count} plants in {dt:.1f} s, {k} keep every limit "
-             f"({100 * frac:.2f} %, 95 % CI {100 * lo:.2f}–{100 * hi:.2f} %)")  # fmt: skip
+    progress(
+        f"montecarlo: {count} plants in {dt:.1f} s, {k} keep every limit "
+        f"({100 * frac:.2f} %, 95 % CI {100 * lo:.2f}–{100 * hi:.2f} %)"
+    )
     tag = "10000" if n == 10_000 else str(n)
     return [
-        Figure(f"montecarlo_{tag}_plants_s", dt, "s",
-               f"pass fraction {100 * frac:.2f} % [{100 * lo:.2f}, {100 * hi:.2f}]; "
-               "target < 60 s"),
+        Figure(
+            f"montecarlo_{tag}_plants_s",
+            dt,
+            "s",
+            f"pass fraction {100 * frac:.2f} % [{100 * lo:.2f}, {100 * hi:.2f}]; target < 60 s",
+        ),
         Figure("montecarlo_plant_ticks_per_s", rate, "axis·ticks/s", None),
-    ]  # fmt: skip
+    ]
 
 
 SCALE_PLANTS = 1_000_000
@@ -1348,8 +1407,10 @@ def bench_scale(opts: Options) -> list[Figure]:
         wall = time.perf_counter() - t0
         per = len(rig.axes) * sum(round(sc.seconds / rig.period_s) for sc in scenarios)
         rate = n * per / max(wall - base, 1e-9)
-        progress(f"scale: {label}: {n:,} plant sets in {wall:.1f} s ({base:.1f} s of it the "
-                 f"checks), {rate:.3g} plant·ticks/s")  # fmt: skip
+        progress(
+            f"scale: {label}: {n:,} plant sets in {wall:.1f} s ({base:.1f} s of it the "
+            f"checks), {rate:.3g} plant·ticks/s"
+        )
         return rate, wall, v.to_dict()
 
     rates: dict[str, float] = {}
@@ -1359,8 +1420,9 @@ def bench_scale(opts: Options) -> list[Figure]:
         InProcessExecutor(), "in-process"
     )
     # the whole shipped spec (every scenario: the moves, the hold, the held-out move), in-process
-    whole_rate, whole_wall, _ = measure(InProcessExecutor(), "in-process, whole spec",
-                                        spec.scenarios)  # fmt: skip
+    whole_rate, whole_wall, _ = measure(
+        InProcessExecutor(), "in-process, whole spec", spec.scenarios
+    )
     whole_ticks = sum(round(sc.seconds / rig.period_s) for sc in spec.scenarios)
     start_s = math.nan
     from servotune.executor import local_cluster
@@ -1389,25 +1451,46 @@ def bench_scale(opts: Options) -> list[Figure]:
             f"{len(rig.axes)} plants per set; identical results on every executor",
         )
     ]
-    for key, label in (("inprocess", "in-process: engine on 2 threads, Python on 1"),
-                       ("cluster2", "LocalCluster, 2 workers x 1 thread"),
-                       ("cluster1", "LocalCluster, 1 worker x 1 thread")):  # fmt: skip
-        figures.append(Figure(f"scale_{key}_plant_ticks_per_s", rates[key], "plant·ticks/s",
-                              f"{label}; {measured}; target >= 5e7"))  # fmt: skip
+    for key, label in (
+        ("inprocess", "in-process: engine on 2 threads, Python on 1"),
+        ("cluster2", "LocalCluster, 2 workers x 1 thread"),
+        ("cluster1", "LocalCluster, 1 worker x 1 thread"),
+    ):
+        figures.append(
+            Figure(
+                f"scale_{key}_plant_ticks_per_s",
+                rates[key],
+                "plant·ticks/s",
+                f"{label}; {measured}; target >= 5e7",
+            )
+        )
         figures.append(Figure(f"scale_{key}_s", walls[key], "s", f"{label}; {measured}"))
     figures += [
         Figure("scale_cluster2_vs_inprocess", ratio, "x", "rate ratio; target >= 0.85"),
         Figure("scale_cluster_2_vs_1_workers", growth, "x", "rate ratio; ideal 2"),
         Figure("scale_cluster_start_s", start_s, "s", "2 workers up and a first task back"),
-        Figure("scale_whole_spec_inprocess_plant_ticks_per_s", whole_rate, "plant·ticks/s",
-               f"every scenario of the spec ({whole_ticks} ticks per plant set), in-process; "
-               f"measured on {n:,} plant sets"),
-        Figure("scale_whole_spec_inprocess_s", whole_wall, "s",
-               f"every scenario of the spec, in-process, {n:,} plant sets"),
-        Figure("scale_1e6_plants_cluster2_s_extrapolated", target_s, "s",
-               f"EXTRAPOLATED from {n:,} plant sets at the 2-worker rate, not measured"
-               if n < SCALE_TARGET else "measured (scale_cluster2_s less the checks)"),
-    ]  # fmt: skip
+        Figure(
+            "scale_whole_spec_inprocess_plant_ticks_per_s",
+            whole_rate,
+            "plant·ticks/s",
+            f"every scenario of the spec ({whole_ticks} ticks per plant set), in-process; "
+            f"measured on {n:,} plant sets",
+        ),
+        Figure(
+            "scale_whole_spec_inprocess_s",
+            whole_wall,
+            "s",
+            f"every scenario of the spec, in-process, {n:,} plant sets",
+        ),
+        Figure(
+            "scale_1e6_plants_cluster2_s_extrapolated",
+            target_s,
+            "s",
+            f"EXTRAPOLATED from {n:,} plant sets at the 2-worker rate, not measured"
+            if n < SCALE_TARGET
+            else "measured (scale_cluster2_s less the checks)",
+        ),
+    ]
     return figures
 
 

@@ -49,8 +49,9 @@ def canonical_json(doc: Mapping[str, Any], *, omit: str = DIGEST_FIELD) -> bytes
         If the document holds NaN or infinity (JSON cannot).
     """
     body = {k: v for k, v in doc.items() if k != omit}
-    text = json.dumps(body, sort_keys=True, separators=(",", ":"), ensure_ascii=False,
-                      allow_nan=False)  # fmt: skip
+    text = json.dumps(
+        body, sort_keys=True, separators=(",", ":"), ensure_ascii=False, allow_nan=False
+    )
     return text.encode("utf-8")
 
 
@@ -77,8 +78,7 @@ def text_digest_problem(text: str, comment: str) -> str | None:
     pattern = re.compile(rf"^{re.escape(comment)}{_TEXT_DIGEST}([0-9a-f]{{64}})\n", re.MULTILINE)
     found = list(pattern.finditer(text))
     if len(found) != 1:
-        return (f"{len(found)} digest lines ('{comment}{_TEXT_DIGEST.rstrip()} …'), expected "
-                "one")  # fmt: skip
+        return f"{len(found)} digest lines ('{comment}{_TEXT_DIGEST.rstrip()} …'), expected one"
     m = found[0]
     rest = text[: m.start()] + text[m.end() :]
     if bytes_sha256(rest.encode("utf-8")) != m.group(1):

@@ -203,8 +203,9 @@ class DaskExecutor(Executor):
                     lost[i] += 1
                     if lost[i] > self.retries + 1:
                         raise result
-                    again = self.client.submit(fn, items[i], pure=False, retries=self.retries,
-                                               **kwargs)  # fmt: skip
+                    again = self.client.submit(
+                        fn, items[i], pure=False, retries=self.retries, **kwargs
+                    )
                     index[again.key] = i
                     futures.append(again)
                     done_tasks.add(again)
@@ -399,8 +400,9 @@ def local_cluster(workers: int) -> Iterator[DaskExecutor]:
     try:
         with cluster, Client(cluster) as client:
             try:
-                yield DaskExecutor(client, name=f"dask LocalCluster ({workers} workers)",
-                                   embedded=True)  # fmt: skip
+                yield DaskExecutor(
+                    client, name=f"dask LocalCluster ({workers} workers)", embedded=True
+                )
             except BaseException as exc:
                 quiet = not isinstance(exc, Exception)  # a signal or an exit ends the run
                 if quiet:

@@ -421,9 +421,15 @@ def read_log(
     src = str(path)
     with naming(src):
         return _read_log(
-            path, src, counter_bits, dac_bits, dac_range_v, period_s=period_s,
-            compute_s=compute_s, strict=strict,
-        )  # fmt: skip
+            path,
+            src,
+            counter_bits,
+            dac_bits,
+            dac_range_v,
+            period_s=period_s,
+            compute_s=compute_s,
+            strict=strict,
+        )
 
 
 def _read_log(
@@ -649,8 +655,12 @@ def read_table(
                 if bad.any():
                     k = int(np.argmax(bad))
                     raise LogFormatError(f"row {rows(k)}, column {h!r}: {a[k]} is not finite")
-        _whole_counts(cols, [h for h, k in zip(header, kind, strict=True) if k != "skip"],
-                      [k for k in kind if k != "skip"], rows)  # fmt: skip
+        _whole_counts(
+            cols,
+            [h for h, k in zip(header, kind, strict=True) if k != "skip"],
+            [k for k in kind if k != "skip"],
+            rows,
+        )
         lines = np.zeros(0, dtype=np.int64)
         if n:
             rows(0)  # works the line numbers out once
@@ -659,8 +669,15 @@ def read_table(
         if src in str(exc):
             raise
         raise LogFormatError(f"{what} {src!r}: {exc}") from None
-    return Table(path=src, metadata=meta, metadata_lines=meta_line, header=header,
-                 header_line=header_line, columns=cols, row_lines=lines)  # fmt: skip
+    return Table(
+        path=src,
+        metadata=meta,
+        metadata_lines=meta_line,
+        header=header,
+        header_line=header_line,
+        columns=cols,
+        row_lines=lines,
+    )
 
 
 # --- file, metadata and header ---------------------------------------------------------------
@@ -736,16 +753,23 @@ def _axis_log(
     if "dac_code" in names:
         name = names["dac_code"]
         dac_code = col[name]
-        _check_range(dac_code, dac_bits, rows, name, "code {v} is outside the {bits}-bit D/A "
-                     "range 0..{top}")  # fmt: skip
+        _check_range(
+            dac_code, dac_bits, rows, name, "code {v} is outside the {bits}-bit D/A range 0..{top}"
+        )
         cmd_v = hw_dac.volts_from_code(dac_code, dac_bits, dac_range_v)
     else:
         cmd_v = col[names["cmd_v"]]
     if "counter" in names:
         name = names["counter"]
         counter = col[name]
-        _check_range(counter, counter_bits, rows, name, "{v} is outside the {bits}-bit counter "
-                     "register 0..{top} (set counter_bits if the register is wider)")  # fmt: skip
+        _check_range(
+            counter,
+            counter_bits,
+            rows,
+            name,
+            "{v} is outside the {bits}-bit counter "
+            "register 0..{top} (set counter_bits if the register is wider)",
+        )
         pos, fault = hw_counter.unwrap(counter, counter_bits)
         pos = pos - pos[0]
         faults = np.flatnonzero(fault).astype(np.int64)

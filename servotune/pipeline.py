@@ -143,8 +143,14 @@ class LockHoldResult:
     predicted: dict[str, tuple[int, int]]
 
 
-def lock_hold(rig: Rig, *, seconds: float = 60.0, settle_s: float = 2.0, seed: int = 0,
-              plants: list | None = None) -> LockHoldResult:  # fmt: skip
+def lock_hold(
+    rig: Rig,
+    *,
+    seconds: float = 60.0,
+    settle_s: float = 2.0,
+    seed: int = 0,
+    plants: list | None = None,
+) -> LockHoldResult:
     """Run the lock module alone on every axis and compare the hold with the prediction."""
     check_run_memory(rig, seconds / rig.period_s, f"a lock hold of {seconds:g} s")
     n = math.floor(seconds / rig.period_s + 0.5)
@@ -184,8 +190,11 @@ def run_architectures(plants_dir: str | Path, out_dir: str | Path, *, seed: int 
         atomic_write_text(out / "sync.json", json.dumps(doc, indent=2, sort_keys=True) + "\n")
         for case in CASES:
             save_figure(plot_sync_errors(cmp.traces, case), out / f"sync_{case}.png")
-        summary["gantry"] = {"passed": cmp.passed, "results": doc["results"],
-                             "predicted_load": doc["predicted_load"]}  # fmt: skip
+        summary["gantry"] = {
+            "passed": cmp.passed,
+            "results": doc["results"],
+            "predicted_load": doc["predicted_load"],
+        }
     linkage_path = plants / "linkage-6axis.toml"
     if linkage_path.is_file():
         res = run_linkage(load_linkage(linkage_path), seed=seed)
@@ -193,10 +202,13 @@ def run_architectures(plants_dir: str | Path, out_dir: str | Path, *, seed: int 
         atomic_write_text(out / "linkage.json", json.dumps(doc, indent=2, sort_keys=True) + "\n")
         save_figure(plot_queue_levels(res), out / "linkage_queues.png")
         save_figure(plot_radial_deviation(res), out / "linkage_circle.png")
-        summary["linkage"] = {"passed": res.passed, "bus": doc["bus"],
-                              "contour_max_counts": doc["contour_max_counts"],
-                              "worst_underrun_margin": doc["worst_underrun_margin"],
-                              "arcs": doc["arcs"]}  # fmt: skip
+        summary["linkage"] = {
+            "passed": res.passed,
+            "bus": doc["bus"],
+            "contour_max_counts": doc["contour_max_counts"],
+            "worst_underrun_margin": doc["worst_underrun_margin"],
+            "arcs": doc["arcs"],
+        }
     return summary
 
 
@@ -273,16 +285,22 @@ def run_demo(
         scen_id = build_scenario(rig, "prbs", axis=name, seconds=40.0, closed_loop=True)
         id_trace = run_scenario(rig, scen_id, seed=seed)
         log_path = out / f"ident_log_{name}.csv"
-        write_log(log_path, period_s=rig.period_s,
-                  columns=trace_log_columns(id_trace, scen_id.inputs.dac_add_codes),
-                  metadata=log_metadata(rig, scenario="prbs", axis=name, closed_loop="true",
-                                        seed=seed))  # fmt: skip
+        write_log(
+            log_path,
+            period_s=rig.period_s,
+            columns=trace_log_columns(id_trace, scen_id.inputs.dac_add_codes),
+            metadata=log_metadata(rig, scenario="prbs", axis=name, closed_loop="true", seed=seed),
+        )
         result, log, _ = fit_log(log_path, axis=name, rig=rig)
         fits[name] = result
         ax = log.axis(name)
         sim = simulate_fit(result, ax.cmd_v, ax.pos_counts)
-        save_figure(plot_fit(ax.pos_counts, sim, log.period_s, validation_split(sim.size),
-                             f"fit of {name}"), out / f"fit_{name}.png")  # fmt: skip
+        save_figure(
+            plot_fit(
+                ax.pos_counts, sim, log.period_s, validation_split(sim.size), f"fit of {name}"
+            ),
+            out / f"fit_{name}.png",
+        )
         write_plant(
             fitted_rig,
             name,
@@ -306,14 +324,15 @@ def run_demo(
     chosen = PRESETS[preset]
     spec_path = Path(rig_path).with_suffix(".spec.toml")
     spec = load_spec(spec_path)
-    say(f"demo: tune on the fitted rig ({chosen.generations} generations of "
-        f"{chosen.population})")  # fmt: skip
+    say(f"demo: tune on the fitted rig ({chosen.generations} generations of {chosen.population})")
     budget = {"generations": chosen.generations, "population": chosen.population}
     tuning = tune_rig(fitted_rig, seed=seed, spec=tune_spec_from(spec, **budget))
     tuning_path = out / "tuning.json"
     write_tuning(tuning, tuning_path)
-    say(f"demo: Figure 4 ({len(chosen.seeds)} seed(s), held-out scenarios)"
-        + (", trade-off sweep" if chosen.pareto_ms else ""))  # fmt: skip
+    say(
+        f"demo: Figure 4 ({len(chosen.seeds)} seed(s), held-out scenarios)"
+        + (", trade-off sweep" if chosen.pareto_ms else "")
+    )
     cmp = run_comparison(rig, spec, out, preset=chosen, seed=seed)
     # verify on the rig the tuning was made for (the fitted models: what a user has; the spec's
     # Monte-Carlo spreads cover the model error), then export exactly the verified bytes
@@ -328,8 +347,15 @@ def run_demo(
         write_tables(v.tuning, out / "fuzzy.json", rig=v.rig, verification=v.record)
         write_c(v.tuning, out / "c", rig=v.rig, verification=v.record)
         exported = ["fuzzy.json", "c/"]
-    write_report(out, tuning_path=tuning_path, rig_path=fitted_rig, verification=verification,
-                 seed=seed, fits=fits, spec_path=spec_path)  # fmt: skip
+    write_report(
+        out,
+        tuning_path=tuning_path,
+        rig_path=fitted_rig,
+        verification=verification,
+        seed=seed,
+        fits=fits,
+        spec_path=spec_path,
+    )
     summary = {
         "architectures": architectures,
         "comparison": cmp.to_dict()["table"],
@@ -451,13 +477,22 @@ def run_comparison(
     out = Path(out_dir)
     tune = tune_spec_from(spec, generations=preset.generations, population=preset.population)
     pareto_specs(tune, preset.pareto_ms)  # a ceiling the tuner refuses fails before the work
-    cmp = compare_structures(rig, spec, tune=tune, seeds=[seed + s for s in preset.seeds],
-                             heldout_count=preset.heldout_count, progress=progress)  # fmt: skip
+    cmp = compare_structures(
+        rig,
+        spec,
+        tune=tune,
+        seeds=[seed + s for s in preset.seeds],
+        heldout_count=preset.heldout_count,
+        progress=progress,
+    )
     data = {"schema": "servotune.figure4/2", "seed": seed, "version": __version__}
     data.update(cmp.to_dict())
     data["statement"] = comparison_statement(cmp)
-    points = pareto_front(rig, tune, preset.pareto_ms, seed=seed, progress=progress) if (
-        preset.pareto_ms) else []  # fmt: skip
+    points = (
+        pareto_front(rig, tune, preset.pareto_ms, seed=seed, progress=progress)
+        if (preset.pareto_ms)
+        else []
+    )
     data["pareto"] = [p.to_dict() for p in points]
     slave = [a.role for a in rig.axes].index("slave")
     with staged_directory(out) as stage:  # the three files as a whole, or none

@@ -217,9 +217,14 @@ def step_coefficients(h_s: float, tau_s: float) -> tuple[float, float]:
 
 @jit(inline="always")
 def _target_speed(
-    s: float, w: float, gain: float, coulomb: float, gain_neg: float, coulomb_neg: float,
+    s: float,
+    w: float,
+    gain: float,
+    coulomb: float,
+    gain_neg: float,
+    coulomb_neg: float,
     vmax: float,
-) -> float:  # fmt: skip
+) -> float:
     """The speed [counts/s] the motor tends to moving in direction ``s`` (±1) under the net
     input ``w`` [V]: that direction's ``gain · (w − coulomb · s)``, within ``±vmax``."""
     if s > 0.0:
@@ -440,10 +445,21 @@ def plant_row(
     """
     vmax = plant.max_speed_cps(counts_per_rev) if math.isfinite(counts_per_rev) else math.inf
     (_, gain_neg), (_, coulomb_neg) = plant.gains_cps_per_v, plant.coulombs_v
-    params = np.array([[
-        plant.gain_cps_per_v, plant.tau_s, plant.offset_v, plant.coulomb_v, gain_neg, coulomb_neg,
-        vmax, plant.noise_counts, plant.delay_s,
-    ]])  # fmt: skip
+    params = np.array(
+        [
+            [
+                plant.gain_cps_per_v,
+                plant.tau_s,
+                plant.offset_v,
+                plant.coulomb_v,
+                gain_neg,
+                coulomb_neg,
+                vmax,
+                plant.noise_counts,
+                plant.delay_s,
+            ]
+        ]
+    )
     rows = np.empty((1, NROW))
     lags = np.empty(1, dtype=np.int64)
     fill_plant_rows(params, period_s, compute_s, rows, lags)
@@ -512,7 +528,7 @@ bits), faster in a kernel where it is the hot path (the lean Monte-Carlo kernel,
 
 
 @jit(inline="always")
-def _advance_tick_with(step, p, v, w_old, w_new, row):  # fmt: skip
+def _advance_tick_with(step, p, v, w_old, w_new, row):
     """:func:`advance_tick`'s body, with ``step`` (:func:`advance` or :data:`advance_inlined`)
     for the sub-intervals."""
     vmax = row[R_VMAX]
@@ -522,10 +538,34 @@ def _advance_tick_with(step, p, v, w_old, w_new, row):  # fmt: skip
         v_n = row[R_PHI_A] * v + row[R_GO_V] * w_old + row[R_GN_V] * w_new
         return p_n, v_n
     if row[R_H1] > 0.0:
-        p, v = step(p, v, w_old, row[R_H1], row[R_A1], row[R_B1], gain, row[R_TAU],
-                    row[R_COULOMB], vmax, row[R_GAIN_NEG], row[R_COULOMB_NEG])  # fmt: skip
-    return step(p, v, w_new, row[R_H2], row[R_A2], row[R_B2], gain, row[R_TAU],
-                row[R_COULOMB], vmax, row[R_GAIN_NEG], row[R_COULOMB_NEG])  # fmt: skip
+        p, v = step(
+            p,
+            v,
+            w_old,
+            row[R_H1],
+            row[R_A1],
+            row[R_B1],
+            gain,
+            row[R_TAU],
+            row[R_COULOMB],
+            vmax,
+            row[R_GAIN_NEG],
+            row[R_COULOMB_NEG],
+        )
+    return step(
+        p,
+        v,
+        w_new,
+        row[R_H2],
+        row[R_A2],
+        row[R_B2],
+        gain,
+        row[R_TAU],
+        row[R_COULOMB],
+        vmax,
+        row[R_GAIN_NEG],
+        row[R_COULOMB_NEG],
+    )
 
 
 @jit(inline="always")
@@ -555,8 +595,20 @@ def advance_tick_inlined(
 def _advance_for(p: float, v: float, w: float, h: float, row: np.ndarray) -> tuple[float, float]:
     """:func:`advance` over ``h`` seconds, its coefficients computed for ``h``."""
     tau = row[R_TAU]
-    return advance(p, v, w, h, math.exp(-h / tau), -tau * math.expm1(-h / tau), row[R_GAIN], tau,
-                   row[R_COULOMB], row[R_VMAX], row[R_GAIN_NEG], row[R_COULOMB_NEG])  # fmt: skip
+    return advance(
+        p,
+        v,
+        w,
+        h,
+        math.exp(-h / tau),
+        -tau * math.expm1(-h / tau),
+        row[R_GAIN],
+        tau,
+        row[R_COULOMB],
+        row[R_VMAX],
+        row[R_GAIN_NEG],
+        row[R_COULOMB_NEG],
+    )
 
 
 @jit(inline="always")

@@ -110,23 +110,33 @@ def _draw_envelope(axs: Sequence[plt.Axes], trace: Trace, env: MoveEnvelope) -> 
         band = abs(move) * env.settling_band_pct / 100.0
         t0 = env.start_s + env.max_settling_time_s
         if t0 < t_end:
-            axs[0].fill_between([t0, t_end], env.target_counts - band, env.target_counts + band,
-                                color="C2", alpha=0.35, lw=0,
-                                label=f"settled by {env.max_settling_time_s:g} s into "
-                                      f"±{env.settling_band_pct:g} %")  # fmt: skip
+            axs[0].fill_between(
+                [t0, t_end],
+                env.target_counts - band,
+                env.target_counts + band,
+                color="C2",
+                alpha=0.35,
+                lw=0,
+                label=f"settled by {env.max_settling_time_s:g} s into ±{env.settling_band_pct:g} %",
+            )
     if env.max_sync_error_counts is not None and env.slaves:
         for j in env.slaves:
             e = trace.true_pos_counts[:, env.master] - trace.true_pos_counts[:, j]
-            axs[1].plot(trace.time_s, e, color="k", lw=0.8,
-                        label=f"sync error {trace.axis_names[env.master]} − "
-                              f"{trace.axis_names[j]}")  # fmt: skip
+            axs[1].plot(
+                trace.time_s,
+                e,
+                color="k",
+                lw=0.8,
+                label=f"sync error {trace.axis_names[env.master]} − {trace.axis_names[j]}",
+            )
         lim = env.max_sync_error_counts
         axs[1].axhline(lim, color="C3", ls="--", lw=1.0, label=f"sync-error limit ±{lim:g} counts")
         axs[1].axhline(-lim, color="C3", ls="--", lw=1.0)
 
 
-def plot_tracking(trace: Trace, title: str = "", *, envelope: MoveEnvelope | None = None
-                  ) -> plt.Figure:  # fmt: skip
+def plot_tracking(
+    trace: Trace, title: str = "", *, envelope: MoveEnvelope | None = None
+) -> plt.Figure:
     """Positions, errors, D/A codes and modes of a trace (one column per axis); with
     ``envelope``, the spec's limits on the move drawn over it (the overshoot ceiling, the
     settling band, the sync-error bound and the sync error itself)."""
@@ -152,8 +162,13 @@ def plot_lock_hold(
 ) -> plt.Figure:
     """Lock-module hold: noiseless position error vs the predicted band, per axis."""
     t = trace.time_s
-    fig, axs = plt.subplots(len(trace.axis_names), 1, figsize=(9, 2.8 * len(trace.axis_names)),
-                            sharex=True, squeeze=False)  # fmt: skip
+    fig, axs = plt.subplots(
+        len(trace.axis_names),
+        1,
+        figsize=(9, 2.8 * len(trace.axis_names)),
+        sharex=True,
+        squeeze=False,
+    )
     for i, name in enumerate(trace.axis_names):
         ax = axs[i, 0]
         e = -np.floor(trace.true_pos_counts[:, i])
@@ -238,18 +253,29 @@ def plot_fit(
     if split:
         t_split = float(time_s[split_index])
         for i, a in enumerate(axs):
-            a.axvline(t_split, color="k", ls=":", lw=1.0,
-                      label="split: each half simulated by the other half's model"
-                      if i == 0 else None)  # fmt: skip
+            a.axvline(
+                t_split,
+                color="k",
+                ls=":",
+                lw=1.0,
+                label="split: each half simulated by the other half's model" if i == 0 else None,
+            )
         for x, text in ((0.25, "first half"), (0.75, "second half")):
-            axs[0].text(x, 1.01, text, transform=axs[0].transAxes, ha="center", va="bottom",
-                        fontsize=8)  # fmt: skip
+            axs[0].text(
+                x, 1.01, text, transform=axs[0].transAxes, ha="center", va="bottom", fontsize=8
+            )
         step = residual_step(residual, split_index)
-        axs[2].text(0.01, 0.96, f"at the split the simulation restarts from the measured "
-                    f"position (the motion in flight is lost):\nthe residual steps by "
-                    f"{step:+.1f} counts there and then stays", transform=axs[2].transAxes,
-                    va="top", fontsize=7.5,
-                    bbox={"facecolor": "white", "alpha": 0.8, "lw": 0})  # fmt: skip
+        axs[2].text(
+            0.01,
+            0.96,
+            f"at the split the simulation restarts from the measured "
+            f"position (the motion in flight is lost):\nthe residual steps by "
+            f"{step:+.1f} counts there and then stays",
+            transform=axs[2].transAxes,
+            va="top",
+            fontsize=7.5,
+            bbox={"facecolor": "white", "alpha": 0.8, "lw": 0},
+        )
     for a, where in zip(axs, ("upper right", "upper right", "lower right"), strict=True):
         a.grid(True, alpha=0.3)
         a.legend(loc=where, fontsize=8)
@@ -294,13 +320,22 @@ def plot_pareto(points: Sequence[Any], title: str = "") -> plt.Figure:
     labels = {"pid": "PID", "pid_ff": "PID + feedforward", "composite": "fuzzy-PID + feedforward"}
     for structure in dict.fromkeys(p.structure for p in points):
         mine = [p for p in points if p.structure == structure and p.feasible]
-        for ax, key, front in ((axs[0], "itae", "front_itae"), (axs[1], "max_sync_counts",
-                                                                 "front_max")):  # fmt: skip
-            line = ax.plot([p.worst_ms for p in mine], [getattr(p, key) for p in mine], "o",
-                           ms=4, alpha=0.5)[0]  # fmt: skip
+        for ax, key, front in (
+            (axs[0], "itae", "front_itae"),
+            (axs[1], "max_sync_counts", "front_max"),
+        ):
+            line = ax.plot(
+                [p.worst_ms for p in mine], [getattr(p, key) for p in mine], "o", ms=4, alpha=0.5
+            )[0]
             on = sorted((p for p in mine if getattr(p, front)), key=lambda p: p.worst_ms)
-            ax.plot([p.worst_ms for p in on], [getattr(p, key) for p in on], "-o", ms=5,
-                    color=line.get_color(), label=labels.get(structure, structure))  # fmt: skip
+            ax.plot(
+                [p.worst_ms for p in on],
+                [getattr(p, key) for p in on],
+                "-o",
+                ms=5,
+                color=line.get_color(),
+                label=labels.get(structure, structure),
+            )
     axs[0].set_ylabel("ITAE of the sync error [counts·s²]")
     axs[1].set_ylabel("max |sync error| [counts]")
     for ax in axs:
@@ -355,10 +390,19 @@ def plot_query_tables(tables: dict[str, np.ndarray], n: int, title: str = "") ->
         finite = a[np.isfinite(a)]
         lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (np.nan, np.nan)
         if finite.size and lo == hi:
-            ax.imshow(np.where(np.isfinite(a), 0.0, np.nan), extent=ext, cmap="Greys", vmin=-1,
-                      vmax=4)  # fmt: skip
-            ax.text(0.5, 0.5, f"constant\n{lo:.4g}", transform=ax.transAxes, ha="center",
-                    va="center", fontsize=12, fontweight="bold")  # fmt: skip
+            ax.imshow(
+                np.where(np.isfinite(a), 0.0, np.nan), extent=ext, cmap="Greys", vmin=-1, vmax=4
+            )
+            ax.text(
+                0.5,
+                0.5,
+                f"constant\n{lo:.4g}",
+                transform=ax.transAxes,
+                ha="center",
+                va="center",
+                fontsize=12,
+                fontweight="bold",
+            )
             ax.set_title(f"{label}\nevery cell {lo:.4g}", fontsize=8)
         else:
             im = ax.imshow(a, extent=ext, cmap="coolwarm")
@@ -413,16 +457,19 @@ def _queue_markers(ax: plt.Axes, result: LinkageResult, only: int | None = None)
 
 
 def _queue_label(c: Any) -> str:
-    return (f"{c.name} ({c.clock_ppm:+g} ppm): level {c.min_level}–{c.max_level} of "
-            f"{c.queue_depth}, {c.underruns} underruns, {c.overruns} overruns")  # fmt: skip
+    return (
+        f"{c.name} ({c.clock_ppm:+g} ppm): level {c.min_level}–{c.max_level} of "
+        f"{c.queue_depth}, {c.underruns} underruns, {c.overruns} overruns"
+    )
 
 
 def _queue_window(result: LinkageResult) -> tuple[float, float]:
     """A window a few broadcast periods wide [s]: around the first underrun or overrun, else
     at the start of the run (the sawtooth of arrivals and pops is read there)."""
     width = max(6.0 * result.bus.broadcast_period_s, 40.0 * result.period_s)
-    firsts = [t for c in result.cpus for t in (c.first_underrun_s, c.first_overrun_s)
-              if t is not None]  # fmt: skip
+    firsts = [
+        t for c in result.cpus for t in (c.first_underrun_s, c.first_overrun_s) if t is not None
+    ]
     t0 = max(0.0, min(firsts) - width / 2) if firsts else 0.0
     return t0, t0 + width
 
@@ -457,14 +504,23 @@ def plot_queue_levels(result: LinkageResult, ax: plt.Axes | None = None) -> plt.
     readable. Each CPU's queue depth is dotted, its first underrun / overrun a dashed /
     dash-dot vertical line; the resync instants are grey.
     """
-    sync = (f"resync every {result.resync_interval_s:g} s" if result.resync_interval_s
-            else "start sync only")  # fmt: skip
+    sync = (
+        f"resync every {result.resync_interval_s:g} s"
+        if result.resync_interval_s
+        else "start sync only"
+    )
     n = len(result.cpus)
     if ax is not None:
         fig = ax.figure
         for i, c in enumerate(result.cpus):
-            ax.step(c.tick_time_s, c.queue_level, where="post", alpha=0.9,
-                    label=_queue_label(c), **_overlap_style(i, n))  # fmt: skip
+            ax.step(
+                c.tick_time_s,
+                c.queue_level,
+                where="post",
+                alpha=0.9,
+                label=_queue_label(c),
+                **_overlap_style(i, n),
+            )
         _queue_markers(ax, result)
         ax.set_xlabel("time [s]")
         ax.set_ylabel("queue level [setpoints]")
@@ -474,8 +530,15 @@ def plot_queue_levels(result: LinkageResult, ax: plt.Axes | None = None) -> plt.
         fig.tight_layout()
         return fig
     rows = max(n, 1)
-    fig, axs = plt.subplots(rows, 2, figsize=(12, 1.4 + 2.5 * rows), squeeze=False,
-                            sharex="col", sharey=True, width_ratios=(1.6, 1.0))  # fmt: skip
+    fig, axs = plt.subplots(
+        rows,
+        2,
+        figsize=(12, 1.4 + 2.5 * rows),
+        squeeze=False,
+        sharex="col",
+        sharey=True,
+        width_ratios=(1.6, 1.0),
+    )
     bins = 400
     t0, t1 = _queue_window(result)
     for i, c in enumerate(result.cpus):
@@ -492,8 +555,9 @@ def plot_queue_levels(result: LinkageResult, ax: plt.Axes | None = None) -> plt.
             np.maximum.at(hi, k, lvl)
             used = np.isfinite(lo)
             mid = 0.5 * (edges[:-1] + edges[1:])[used]
-            whole.fill_between(mid, lo[used], hi[used], color=color, alpha=0.2, lw=0,
-                               label=_queue_label(c))  # fmt: skip
+            whole.fill_between(
+                mid, lo[used], hi[used], color=color, alpha=0.2, lw=0, label=_queue_label(c)
+            )
             whole.plot(mid, lo[used], color=color, lw=1.2)
             whole.plot(mid, hi[used], color=color, lw=1.2, ls="--")
             sel = (t >= t0) & (t <= t1)
@@ -508,14 +572,19 @@ def plot_queue_levels(result: LinkageResult, ax: plt.Axes | None = None) -> plt.
     bottom_zoom.set_xlabel("time [s]")
     bottom_zoom.set_xlim(t0, t1)
     top_whole, top_zoom = axs[0]
-    top_whole.set_title(f"whole run: lowest (solid) and highest (dashed) level per "
-                        f"{(result.time_s.size * result.period_s) / bins * 1e3:.0f} ms",
-                        fontsize=10)  # fmt: skip
-    top_zoom.set_title(f"{(t1 - t0) * 1e3:.0f} ms from {t0:.3f} s: a block every "
-                       f"{result.bus.broadcast_period_s * 1e3:g} ms, a pop every tick",
-                       fontsize=10)  # fmt: skip
-    fig.suptitle(f"slave queues, one row per CPU on the same scales, {sync}; dotted: depth",
-                 fontsize=11)  # fmt: skip
+    top_whole.set_title(
+        f"whole run: lowest (solid) and highest (dashed) level per "
+        f"{(result.time_s.size * result.period_s) / bins * 1e3:.0f} ms",
+        fontsize=10,
+    )
+    top_zoom.set_title(
+        f"{(t1 - t0) * 1e3:.0f} ms from {t0:.3f} s: a block every "
+        f"{result.bus.broadcast_period_s * 1e3:g} ms, a pop every tick",
+        fontsize=10,
+    )
+    fig.suptitle(
+        f"slave queues, one row per CPU on the same scales, {sync}; dotted: depth", fontsize=11
+    )
     fig.tight_layout()
     return fig
 
@@ -547,9 +616,14 @@ def plot_radial_deviation(result: LinkageResult, ax: plt.Axes | None = None) -> 
         color = f"C{i}"
         ax.plot(a.angle_rad, a.radial_dev_counts, color=color, lw=0.5, alpha=0.35)
         dev = np.where(a.cruise, a.radial_dev_counts, np.nan)
-        ax.plot(a.angle_rad, dev, color=color, lw=1.2,
-                label=f"move {a.move} ({'/'.join(a.plane)}, R {a.radius_counts:g}): "
-                      f"circularity {a.circularity_counts:.1f} counts")  # fmt: skip
+        ax.plot(
+            a.angle_rad,
+            dev,
+            color=color,
+            lw=1.2,
+            label=f"move {a.move} ({'/'.join(a.plane)}, R {a.radius_counts:g}): "
+            f"circularity {a.circularity_counts:.1f} counts",
+        )
     ax.set_ylim(lo - 0.15 * span, hi + 0.15 * span)
     ax.set_rorigin(lo - 1.0 * span)
     ax.set_rlabel_position(90)
@@ -580,31 +654,67 @@ def plot_fleet(result: FleetResult, *, columns: int = 2) -> plt.Figure:
         for p, v in r.params.items():
             latest[(r.axis, r.machine_id, p)] = v
     for a, sp in zip(flat, panels, strict=False):
-        x = np.array([v for (ax, _, p), v in latest.items()
-                      if ax == sp.axis and p == sp.parameter])  # fmt: skip
-        a.hist(x, bins=min(40, max(8, int(np.sqrt(x.size)) * 2)), color="0.7",
-               edgecolor="0.45", lw=0.5, label=f"{x.size} machines (latest fit)")  # fmt: skip
+        x = np.array([v for (ax, _, p), v in latest.items() if ax == sp.axis and p == sp.parameter])
+        a.hist(
+            x,
+            bins=min(40, max(8, int(np.sqrt(x.size)) * 2)),
+            color="0.7",
+            edgecolor="0.45",
+            lw=0.5,
+            label=f"{x.size} machines (latest fit)",
+        )
         a.axvline(sp.median, color="k", lw=1.0, label="median")
         if sp.spread > 0:
             half = s.outlier_z * sp.spread
-            a.axvspan(sp.median - half, sp.median + half, color="tab:blue", alpha=0.08,
-                      label=f"|robust z| ≤ {s.outlier_z:g}")  # fmt: skip
+            a.axvspan(
+                sp.median - half,
+                sp.median + half,
+                color="tab:blue",
+                alpha=0.08,
+                label=f"|robust z| ≤ {s.outlier_z:g}",
+            )
         top = a.get_ylim()[1]
         outs = [o for o in s.outliers if o.axis == sp.axis and o.parameter == sp.parameter]
         for i, o in enumerate(outs):
-            a.plot([o.value], [0.92 * top], "v", color="tab:red", ms=7,
-                   label=f"outlier (|z| > {s.outlier_z:g})" if i == 0 else None)  # fmt: skip
-            a.annotate(o.machine_id, (o.value, 0.92 * top), xytext=(0, 5), ha="center",
-                       textcoords="offset points", fontsize=7, color="tab:red")  # fmt: skip
+            a.plot(
+                [o.value],
+                [0.92 * top],
+                "v",
+                color="tab:red",
+                ms=7,
+                label=f"outlier (|z| > {s.outlier_z:g})" if i == 0 else None,
+            )
+            a.annotate(
+                o.machine_id,
+                (o.value, 0.92 * top),
+                xytext=(0, 5),
+                ha="center",
+                textcoords="offset points",
+                fontsize=7,
+                color="tab:red",
+            )
         drifts = [d for d in s.drifts if d.axis == sp.axis and d.parameter == sp.parameter]
         for i, d in enumerate(drifts):
             y = (0.55 + 0.08 * (i % 4)) * top
             arrow = {"arrowstyle": "->", "color": "tab:orange", "lw": 1.4}
             a.annotate("", xy=(d.after, y), xytext=(d.before, y), arrowprops=arrow)
-            a.plot([d.after], [y], "o", color="tab:orange", ms=5,
-                   label="drifted: previous → latest fit" if i == 0 else None)  # fmt: skip
-            a.annotate(d.machine_id, (d.after, y), xytext=(0, 4), textcoords="offset points",
-                       ha="center", fontsize=7, color="tab:orange")  # fmt: skip
+            a.plot(
+                [d.after],
+                [y],
+                "o",
+                color="tab:orange",
+                ms=5,
+                label="drifted: previous → latest fit" if i == 0 else None,
+            )
+            a.annotate(
+                d.machine_id,
+                (d.after, y),
+                xytext=(0, 4),
+                textcoords="offset points",
+                ha="center",
+                fontsize=7,
+                color="tab:orange",
+            )
         a.xaxis.set_major_locator(plt.MaxNLocator(6))
         a.set_xlabel(f"{sp.parameter} [{sp.unit}]")
         a.set_ylabel("machines [1]")
@@ -615,7 +725,9 @@ def plot_fleet(result: FleetResult, *, columns: int = 2) -> plt.Figure:
         fig.delaxes(a)
     if not panels:
         fig.text(0.5, 0.5, "too few machines per axis: no spread", ha="center", va="center")
-    fig.suptitle(f"fleet: {s.n_machines} machines, {len(s.outliers)} outliers, "
-                 f"{len(s.drifted)} drifted machines")  # fmt: skip
+    fig.suptitle(
+        f"fleet: {s.n_machines} machines, {len(s.outliers)} outliers, "
+        f"{len(s.drifted)} drifted machines"
+    )
     fig.tight_layout()
     return fig

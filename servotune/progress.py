@@ -35,8 +35,9 @@ class StderrProgress:
         Draw bars (default: whether the stream is a terminal).
     """
 
-    def __init__(self, stream: TextIO | None = None, *, quiet: bool = False,
-                 tty: bool | None = None) -> None:  # fmt: skip
+    def __init__(
+        self, stream: TextIO | None = None, *, quiet: bool = False, tty: bool | None = None
+    ) -> None:
         self._stream = stream
         self.quiet = quiet
         self._tty = tty
@@ -68,8 +69,7 @@ class StderrProgress:
         stage, k, n = m["stage"], int(m["k"]), int(m["n"])
         if self._bar is None or stage != self._stage or self._bar.total != n:
             self.close()
-            self._bar = tqdm(total=n, desc=stage, file=self.stream, leave=True,
-                             dynamic_ncols=True)  # fmt: skip
+            self._bar = tqdm(total=n, desc=stage, file=self.stream, leave=True, dynamic_ncols=True)
             self._stage = stage
         if k > self._bar.n:
             self._bar.update(k - self._bar.n)

@@ -126,11 +126,19 @@ def check_plant(
     for name, unit, lo, strict, hi in checks:
         if getattr(plant, name) is None:  # a *_neg field left to the positive direction's
             continue
-        check_number(f"{path}.{name}", getattr(plant, name), unit, lo=lo, strict=strict, hi=hi,
-                     error=error)  # fmt: skip
+        check_number(
+            f"{path}.{name}", getattr(plant, name), unit, lo=lo, strict=strict, hi=hi, error=error
+        )
     if plant.max_speed_rpm is not None:
-        check_number(f"{path}.max_speed_rpm", plant.max_speed_rpm, "r/min", lo=0.0, strict=True,
-                     hi=MAX_SPEED_RPM, error=error)  # fmt: skip
+        check_number(
+            f"{path}.max_speed_rpm",
+            plant.max_speed_rpm,
+            "r/min",
+            lo=0.0,
+            strict=True,
+            hi=MAX_SPEED_RPM,
+            error=error,
+        )
 
 
 def plant_from_table(
@@ -161,8 +169,14 @@ def rig_from_dict(data: Mapping[str, Any], default_name: str = "rig") -> Rig:
     RigError
         Naming the first invalid field, its value and unit.
     """
-    check_keys(data, "", (), ("rig", "timer", "counter", "dac", "encoder", "axis"),
-               error=RigError, noun="table")  # fmt: skip
+    check_keys(
+        data,
+        "",
+        (),
+        ("rig", "timer", "counter", "dac", "encoder", "axis"),
+        error=RigError,
+        noun="table",
+    )
     meta = _table(data, "rig", "rig", required=False)
     check_keys(meta, "rig", (), ("name", "description"), error=RigError)
     timer = build_section(Timer, _table(data, "timer", "timer"), "timer")
@@ -188,8 +202,9 @@ def rig_from_dict(data: Mapping[str, Any], default_name: str = "rig") -> Rig:
             if not isinstance(fit_t, Mapping):
                 raise RigError(f"[axis.{name}.plant.fit] must be a table")
             plant_fit = build_section(PlantFit, fit_t, f"axis.{name}.plant.fit")
-        axes.append(build_section(Axis, at, f"axis.{name}", name=name, plant=plant,
-                                  plant_fit=plant_fit))  # fmt: skip
+        axes.append(
+            build_section(Axis, at, f"axis.{name}", name=name, plant=plant, plant_fit=plant_fit)
+        )
     return Rig(
         **name_and_description(meta, "rig", default_name, error=RigError),
         timer=timer,
@@ -374,9 +389,15 @@ def write_plant(
         raise TypeError(f"plant must be a servotune.plant.Plant, got {type(plant).__name__}")
     target = Path(path)
     new = None if new_name is None else {"name": new_name, "header": new_header}
-    new_text, written = edit_plant_text(target, axis, plant, template=template,
-                                        provenance=provenance, new=new,
-                                        fit=None if fit is None else fit.to_dict())  # fmt: skip
+    new_text, written = edit_plant_text(
+        target,
+        axis,
+        plant,
+        template=template,
+        provenance=provenance,
+        new=new,
+        fit=None if fit is None else fit.to_dict(),
+    )
 
     # The result must load as a rig, with the values just written, before anything is written.
     try:

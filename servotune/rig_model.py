@@ -342,9 +342,15 @@ class PlantFit:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict, the keys of the TOML table (a fit % not recorded is left out)."""
-        out = {"adequate": self.adequate, "ci95": {k: list(v) for k, v in self.ci95.items()},
-               "friction": self.friction, "interval": self.interval, "method": self.method,
-               "reason": self.reason, "structure": list(self.structure)}  # fmt: skip
+        out = {
+            "adequate": self.adequate,
+            "ci95": {k: list(v) for k, v in self.ci95.items()},
+            "friction": self.friction,
+            "interval": self.interval,
+            "method": self.method,
+            "reason": self.reason,
+            "structure": list(self.structure),
+        }
         for name in FIT_PCT_KEYS:
             if getattr(self, name) is not None:
                 out[name] = getattr(self, name)
@@ -395,12 +401,28 @@ class Axis:
         p = f"axis.{self.name}"
         if self.role not in ROLES:
             raise RigError(f"{p}.role must be 'master' or 'slave', got {show_value(self.role)}")
-        _positive(f"{p}.lock_gain_codes_per_count", self.lock_gain_codes_per_count,
-                  "codes/count", hi=MAX_LOCK_GAIN)  # fmt: skip
-        check_number(f"{p}.speed_limit_rpm", self.speed_limit_rpm, "r/min",
-                     lo=MIN_SPEED_LIMIT_RPM, hi=MAX_SPEED_RPM, error=RigError)  # fmt: skip
-        check_integer(f"{p}.following_error_limit_counts", self.following_error_limit_counts,
-                      "counts", lo=0, hi=MAX_COUNTS, error=RigError)  # fmt: skip
+        _positive(
+            f"{p}.lock_gain_codes_per_count",
+            self.lock_gain_codes_per_count,
+            "codes/count",
+            hi=MAX_LOCK_GAIN,
+        )
+        check_number(
+            f"{p}.speed_limit_rpm",
+            self.speed_limit_rpm,
+            "r/min",
+            lo=MIN_SPEED_LIMIT_RPM,
+            hi=MAX_SPEED_RPM,
+            error=RigError,
+        )
+        check_integer(
+            f"{p}.following_error_limit_counts",
+            self.following_error_limit_counts,
+            "counts",
+            lo=0,
+            hi=MAX_COUNTS,
+            error=RigError,
+        )
         if self.travel_counts is not None:
             t = self.travel_counts
             if (
@@ -414,11 +436,18 @@ class Axis:
                     f"{p}.travel_counts must be [low, high], integers with low < 0 < high, each "
                     f"within ±2**62 [counts], got {shown}"
                 )
-        check_integer(f"{p}.counter_init", self.counter_init, "register value", lo=0,
-                      hi=2**32 - 1, error=RigError)  # fmt: skip
+        check_integer(
+            f"{p}.counter_init",
+            self.counter_init,
+            "register value",
+            lo=0,
+            hi=2**32 - 1,
+            error=RigError,
+        )
         for ch in ("counter_channel", "dac_channel"):
-            check_integer(f"{p}.{ch}", getattr(self, ch), "channel", lo=0, hi=MAX_CHANNEL,
-                          error=RigError)  # fmt: skip
+            check_integer(
+                f"{p}.{ch}", getattr(self, ch), "channel", lo=0, hi=MAX_CHANNEL, error=RigError
+            )
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -200,9 +200,13 @@ def chirp_codes(
 
 
 def trapezoid_ref(
-    n_ticks: int, period_s: float, distance_counts: float, speed_cps: float, accel_cps2: float,
+    n_ticks: int,
+    period_s: float,
+    distance_counts: float,
+    speed_cps: float,
+    accel_cps2: float,
     start_tick: int = 0,
-) -> np.ndarray:  # fmt: skip
+) -> np.ndarray:
     """Trapezoidal-velocity move of ``distance_counts`` starting at ``start_tick`` [counts].
 
     Returns the reference rounded to whole counts (int64), holding at the end.

@@ -212,8 +212,12 @@ class Tuning:
         if schema != SCHEMA:
             raise TuningError(f"schema must be {SCHEMA!r}, got {show_value(schema)}")
         try:
-            check_keys(d, "", ("axes", "period_s", "rig", "schema", "timer_divisor"),
-                       ("design", "provenance"))  # fmt: skip
+            check_keys(
+                d,
+                "",
+                ("axes", "period_s", "rig", "schema", "timer_divisor"),
+                ("design", "provenance"),
+            )
             rig = check_keys(d["rig"], "rig", ("name", "path", "sha256"))
             axes = d["axes"]
             if not isinstance(axes, list) or not 1 <= len(axes) <= 16:

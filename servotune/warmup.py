@@ -274,8 +274,13 @@ def _run_margins() -> None:
     discretize(plant, rig.period_s, rig.timer.compute_s + plant.delay_s)
     w = np.logspace(-1.0, 2.0, 16)
     g = rig.dac.lsb_v * plant.gain_cps_per_v / (1j * w * (1j * w * plant.tau_s + 1.0))
-    grid_margins(w, np.array([[0.5, 0.01, 0.0]]), controller_basis(w, rig.period_s), g[None, :],
-                 unwrapped_phase(g)[None, :])  # fmt: skip
+    grid_margins(
+        w,
+        np.array([[0.5, 0.01, 0.0]]),
+        controller_basis(w, rig.period_s),
+        g[None, :],
+        unwrapped_phase(g)[None, :],
+    )
 
 
 def _run_batch() -> None:
@@ -326,10 +331,12 @@ def _run_identification() -> None:
     trace = run_scenario(rig, scen)
     with tempfile.TemporaryDirectory(prefix="servotune-warmup-") as tmp:
         path = Path(tmp) / "log.csv"
-        write_log(path, period_s=rig.period_s,
-                  columns=trace_log_columns(trace, scen.inputs.dac_add_codes),
-                  metadata=log_metadata(rig, scenario="prbs", axis=name, closed_loop="true",
-                                        seed=0))  # fmt: skip
+        write_log(
+            path,
+            period_s=rig.period_s,
+            columns=trace_log_columns(trace, scen.inputs.dac_add_codes),
+            metadata=log_metadata(rig, scenario="prbs", axis=name, closed_loop="true", seed=0),
+        )
         fit_log(path, axis=name)
 
 
@@ -341,9 +348,12 @@ def _run_gantry() -> None:
 
     cfg = load_gantry(_example("gantry.toml"), resolve=False)
     # gains given rather than designed (a design takes seconds): the kernel is the same
-    cfg = replace(cfg, master=replace(cfg.master, kp=0.5, ki=1.0),
-                  slave=replace(cfg.slave, kp=0.5, ki=1.0),
-                  sync=replace(cfg.sync, kp=0.01, ki=0.01))  # fmt: skip
+    cfg = replace(
+        cfg,
+        master=replace(cfg.master, kp=0.5, ki=1.0),
+        slave=replace(cfg.slave, kp=0.5, ki=1.0),
+        sync=replace(cfg.sync, kp=0.01, ki=0.01),
+    )
     simulate_gantry(cfg)
 
 
@@ -380,8 +390,9 @@ class _Heartbeat:
     started (the compiling thread is busy in numba). A sink that raises (the CLI's, once a
     SIGTERM came) ends the heartbeat, not the process; the main thread sees that signal too."""
 
-    def __init__(self, progress: Progress | None, line: Callable[[float], str],
-                 every_s: float) -> None:  # fmt: skip
+    def __init__(
+        self, progress: Progress | None, line: Callable[[float], str], every_s: float
+    ) -> None:
         self.progress, self.line, self.every_s = progress, line, every_s
         self.beats = 0
         self.t0 = time.monotonic()
@@ -398,8 +409,9 @@ class _Heartbeat:
 
     def start(self) -> _Heartbeat:
         if self.progress is not None:
-            self._thread = threading.Thread(target=self._beat, daemon=True,
-                                            name="servotune-compile-heartbeat")  # fmt: skip
+            self._thread = threading.Thread(
+                target=self._beat, daemon=True, name="servotune-compile-heartbeat"
+            )
             self._thread.start()
         return self
 
@@ -464,8 +476,9 @@ def warm_up(
     t0 = time.monotonic()
     names = _names(groups)
     if _MUTE[0]:  # inside a warm-up's workload (one runs verify): that warm-up does the work
-        return Warmup(compiled=(), cached=(), seconds=0.0, group_seconds={}, still_cold=(),
-                      cache_dir=None)  # fmt: skip
+        return Warmup(
+            compiled=(), cached=(), seconds=0.0, group_seconds={}, still_cold=(), cache_dir=None
+        )
     cold = cold_groups(names)
     cached = tuple(n for n in names if n not in cold)
     took: dict[str, float] = {}
@@ -478,19 +491,28 @@ def warm_up(
             for k, name in enumerate(cold):
                 what = f"compiling {name} kernels: {k}/{n} groups done"
                 _say(progress, f"{what}, this one about {_BY_NAME[name].about_s} s")
-                beat = _Heartbeat(progress, lambda s, what=what: f"{what}, {s:.0f} s on this one…",
-                                  heartbeat_s).start()  # fmt: skip
+                beat = _Heartbeat(
+                    progress, lambda s, what=what: f"{what}, {s:.0f} s on this one…", heartbeat_s
+                ).start()
                 try:
                     with warnings.catch_warnings():
                         warnings.simplefilter("ignore")  # a workload's findings are not the user's
                         _WORKLOADS[name]()
                 finally:
                     took[name] = beat.stop()
-                _say(progress, f"compiling {name} kernels: {k + 1}/{n} groups done, in "
-                               f"{took[name]:.0f} s")  # fmt: skip
+                _say(
+                    progress,
+                    f"compiling {name} kernels: {k + 1}/{n} groups done, in {took[name]:.0f} s",
+                )
     still = cold_groups(cold) if cold else ()
-    return Warmup(compiled=cold, cached=cached, seconds=time.monotonic() - t0,
-                  group_seconds=took, still_cold=still, cache_dir=_cache_dir())  # fmt: skip
+    return Warmup(
+        compiled=cold,
+        cached=cached,
+        seconds=time.monotonic() - t0,
+        group_seconds=took,
+        still_cold=still,
+        cache_dir=_cache_dir(),
+    )
 
 
 # --- compile notices: numba's compile event, reported -------------------------------------
@@ -512,8 +534,11 @@ class _Notices:
             about = "" if about_s is None else f", about {about_s} s"
             _say(self.progress, f"compiling {label} kernels (first run only{about})…")
         self.label = label
-        self.beating = _Heartbeat(self.progress, lambda s: f"compiling {label} kernels: 0/1, "
-                                  f"{s:.0f} s so far…", self.heartbeat_s).start()  # fmt: skip
+        self.beating = _Heartbeat(
+            self.progress,
+            lambda s: f"compiling {label} kernels: 0/1, {s:.0f} s so far…",
+            self.heartbeat_s,
+        ).start()
 
     def ended(self) -> None:
         beat, self.beating = self.beating, None

@@ -149,8 +149,9 @@ def _number(text: str) -> int | float | str:
 
 def _csv(text: str) -> dict[str, Any]:
     meta = [ln for ln in text.splitlines() if ln.startswith("#")]
-    rows = list(csv.reader(io.StringIO("\n".join(ln for ln in text.splitlines()
-                                                 if not ln.startswith("#")))))  # fmt: skip
+    rows = list(
+        csv.reader(io.StringIO("\n".join(ln for ln in text.splitlines() if not ln.startswith("#"))))
+    )
     header, body = rows[0], rows[1:]
     table: dict[str, Any] = {"meta": meta}
     for j, name in enumerate(header):

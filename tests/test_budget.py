@@ -58,9 +58,16 @@ def test_unbounded_estimates() -> None:
 
 @pytest.mark.parametrize(
     ("text", "nbytes"),
-    [("1048576", 1024**2), ("512M", 512 * 1024**2), ("8G", 8 * 1024**3), ("1.5g", 1536 * 1024**2),
-     ("64K", 65536), ("1T", 1024**4), (" 2GiB ", 2 * 1024**3)],
-)  # fmt: skip
+    [
+        ("1048576", 1024**2),
+        ("512M", 512 * 1024**2),
+        ("8G", 8 * 1024**3),
+        ("1.5g", 1536 * 1024**2),
+        ("64K", 65536),
+        ("1T", 1024**4),
+        (" 2GiB ", 2 * 1024**3),
+    ],
+)
 def test_parse_bytes(text: str, nbytes: int) -> None:
     assert parse_bytes(text) == nbytes
 

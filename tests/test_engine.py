@@ -197,9 +197,10 @@ def test_metrics_only_agree_with_traces(rig: st.Rig) -> None:
     task = res.traces.mode[0, :, 0] == MODE_TASK
     assert res.metric("max_abs_err_counts")[0, 0] == np.max(np.abs(e[task]))
     np.testing.assert_allclose(
-        res.metric("rms_err_counts")[0, 0], np.sqrt(np.mean(e[task].astype(float) ** 2)),
+        res.metric("rms_err_counts")[0, 0],
+        np.sqrt(np.mean(e[task].astype(float) ** 2)),
         rtol=1e-12,
-    )  # fmt: skip
+    )
 
 
 def test_same_seed_same_bytes_other_seed_differs(rig: st.Rig) -> None:
@@ -347,9 +348,16 @@ def test_one_axis_metrics_only_equal_traced_run(
     size = 7
     gen = np.random.default_rng(5)
     fuzzy = FuzzyPIDGains(
-        kp0=0.5, ki0=3.0, kd0=0.002, k10=0.0, ke=0.04, kec=0.4, n=3,
-        dkp=gen.uniform(-0.2, 0.2, (size, size)), dki=gen.uniform(-1, 1, (size, size)),
-    )  # fmt: skip
+        kp0=0.5,
+        ki0=3.0,
+        kd0=0.002,
+        k10=0.0,
+        ke=0.04,
+        kec=0.4,
+        n=3,
+        dkp=gen.uniform(-0.2, 0.2, (size, size)),
+        dki=gen.uniform(-1, 1, (size, size)),
+    )
 
     def ctl(gains: object, fe_limit: int = 0) -> tuple[AxisController]:
         return (

@@ -167,11 +167,18 @@ def test_the_linuxcnc_map_is_read_by_map_and_is_the_readme_s(tmp_path: Path) -> 
     path = example_path(MAP)
     settings = hal_settings(str(path))  # what `servotune fit CAPTURE --map FILE` reads
     assert settings is not None
-    assert dict(settings.mapping) == {"cmd": "x-output", "pos": "x-pos-fb", "ref": "x-pos-cmd",
-                                      "overruns": "sampler-overruns"}  # fmt: skip
+    assert dict(settings.mapping) == {
+        "cmd": "x-output",
+        "pos": "x-pos-fb",
+        "ref": "x-pos-cmd",
+        "overruns": "sampler-overruns",
+    }
     assert settings.columns == ("x-output", "x-pos-fb", "x-pos-cmd", "sampler-overruns")
-    assert (settings.format, settings.period_s, settings.sample_number) == ("halsampler", 0.001,
-                                                                            True)  # fmt: skip
+    assert (settings.format, settings.period_s, settings.sample_number) == (
+        "halsampler",
+        0.001,
+        True,
+    )
     assert (settings.position_scale, settings.output_scale) == (2000, 1.0)
     # the README's block says the same (comments aside)
     assert tomllib.loads(_readme_map()) == tomllib.loads(path.read_text())

@@ -254,8 +254,9 @@ def test_gantry_montecarlo_on_the_cluster_is_the_in_process_one(client) -> None:
     ref = gantry_montecarlo(cfg, 8, seed=5)
     assert len({v.max_sync_error_counts for v in ref.variants}) == 8  # 8 different pairs
     for chunk_size in (3, 5):
-        got = gantry_montecarlo(cfg, 8, seed=5, executor=DaskExecutor(client),
-                                chunk_size=chunk_size)  # fmt: skip
+        got = gantry_montecarlo(
+            cfg, 8, seed=5, executor=DaskExecutor(client), chunk_size=chunk_size
+        )
         assert got == ref
 
 
@@ -268,8 +269,18 @@ def test_refusing_scheduler_is_one_line_and_exit_3(tmp_path, capsys) -> None:
     tuning = tmp_path / "tuning.json"
     shutil.copyfile(TUNING, tuning)
     with dask.config.set({"distributed.comm.timeouts.connect": "1s"}):
-        code = cli.main(["verify", str(tuning), "--spec", str(SPEC), "--montecarlo", "8",
-                         "--scheduler", "tcp://127.0.0.1:1"])  # fmt: skip
+        code = cli.main(
+            [
+                "verify",
+                str(tuning),
+                "--spec",
+                str(SPEC),
+                "--montecarlo",
+                "8",
+                "--scheduler",
+                "tcp://127.0.0.1:1",
+            ]
+        )
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 3
     assert len(err) == 1 and err[0].startswith("servotune verify: error: ")

@@ -17,8 +17,24 @@ from servotune.identify import ClosedLoopBiasWarning
 @pytest.fixture(scope="module")
 def good_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("fit") / "log.csv"
-    assert main(["simulate", str(EXAMPLE_RIG), "--scenario", "steps", "--closed-loop",
-                 "--seconds", "30", "--seed", "3", "-o", str(out)]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                "simulate",
+                str(EXAMPLE_RIG),
+                "--scenario",
+                "steps",
+                "--closed-loop",
+                "--seconds",
+                "30",
+                "--seed",
+                "3",
+                "-o",
+                str(out),
+            ]
+        )
+        == 0
+    )
     return out
 
 
@@ -27,15 +43,37 @@ def test_fit_json_rig_file_and_plot(
 ) -> None:
     rig_out = tmp_path / "fitted.toml"
     png = tmp_path / "fit.png"
-    args = ["fit", str(good_log), "--axis", "master", "--json", "-o", str(rig_out),
-            "--plot", str(png)]  # fmt: skip
+    args = [
+        "fit",
+        str(good_log),
+        "--axis",
+        "master",
+        "--json",
+        "-o",
+        str(rig_out),
+        "--plot",
+        str(png),
+    ]
     assert main(args) == 0
     cap = capsys.readouterr()
     d = json.loads(cap.out)
     assert d["schema"] == "servotune.fit/2" and d["axis"] == "master"
-    assert set(d) >= {"structure", "params", "std", "ci95", "fit_pct", "whiteness", "period_s",
-                      "method", "interval_method", "adequate", "cross_correlation",
-                      "parameters", "units", "friction"}  # fmt: skip
+    assert set(d) >= {
+        "structure",
+        "params",
+        "std",
+        "ci95",
+        "fit_pct",
+        "whiteness",
+        "period_s",
+        "method",
+        "interval_method",
+        "adequate",
+        "cross_correlation",
+        "parameters",
+        "units",
+        "friction",
+    }
     # simulate logs the excitation (exc_code): the default is the consistent method
     assert d["method"] == "iv" and "exc_code" in d["instruments"]["signals"]
     assert "moving-block bootstrap" in d["interval_method"]
@@ -68,10 +106,28 @@ def test_fit_json_rig_file_and_plot(
 def test_excite_simulate_input_fit(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     exc = tmp_path / "exc.csv"
     log = tmp_path / "log.csv"
-    assert main(["excite", "--rig", str(EXAMPLE_RIG), "--axis", "master", "--kind", "multisine",
-                 "--seconds", "30", "-o", str(exc)]) == 0  # fmt: skip
-    assert main(["simulate", str(EXAMPLE_RIG), "--input", str(exc), "--seed", "1",
-                 "-o", str(log)]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                "excite",
+                "--rig",
+                str(EXAMPLE_RIG),
+                "--axis",
+                "master",
+                "--kind",
+                "multisine",
+                "--seconds",
+                "30",
+                "-o",
+                str(exc),
+            ]
+        )
+        == 0
+    )
+    assert (
+        main(["simulate", str(EXAMPLE_RIG), "--input", str(exc), "--seed", "1", "-o", str(log)])
+        == 0
+    )
     assert main(["fit", str(log), "--axis", "master", "--json"]) == 0
     d = json.loads(capsys.readouterr().out)
     truth = st.load_rig(EXAMPLE_RIG).axis("master").plant
@@ -141,8 +197,9 @@ def test_counter_column_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str
         assert words in err and err.count("\n") == 1
 
 
-def test_output_into_missing_directory(good_log: Path, tmp_path: Path,
-                                       capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+def test_output_into_missing_directory(
+    good_log: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     out = tmp_path / "nope" / "rig.toml"
     assert main(["fit", str(good_log), "--axis", "master", "-o", str(out)]) == 3
     err = capsys.readouterr().err
@@ -198,8 +255,9 @@ def test_method_option(good_log: Path, tmp_path: Path, capsys: pytest.CaptureFix
     plain = tmp_path / "plain.csv"
     plain.write_text(_rows(n, u, y))
     with pytest.warns(ClosedLoopBiasWarning, match=r"no external signal.*least squares \(oe\)"):
-        assert main(["fit", str(plain), "--structure", "offset", "--friction", "sym",
-                     "--json"]) == 0  # fmt: skip
+        assert (
+            main(["fit", str(plain), "--structure", "offset", "--friction", "sym", "--json"]) == 0
+        )
     assert json.loads(capsys.readouterr().out)["method"] == "oe"
     # iv asked for on that log: one line, exit 3
     assert main(["fit", str(plain), "--method", "iv"]) == 3

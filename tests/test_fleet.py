@@ -381,9 +381,11 @@ def test_summary_states_the_outliers_chance_would_show(small_fleet: FleetResult)
     assert s.chance_outliers == pytest.approx(want, rel=1e-12)
     assert 0.1 < s.chance_outliers < 5.0  # a small fleet: far above 4.65e-4 per value
     line = next(ln for ln in s.text().splitlines() if ln.startswith("outliers against"))
-    assert line.endswith(f"of {s.judged_values} values; a fleet of this size would show about "
-                         f"{s.chance_outliers:.2g} by chance alone (every parameter spread "
-                         "normally)")  # fmt: skip
+    assert line.endswith(
+        f"of {s.judged_values} values; a fleet of this size would show about "
+        f"{s.chance_outliers:.2g} by chance alone (every parameter spread "
+        "normally)"
+    )
     # the figure follows the fleet's size: the same fits with fewer machines expect more per value
     fewer = summarise_fleet([r for r in small_fleet.rows if r.machine_id < "m010"])
     assert fewer.judged_values < s.judged_values
@@ -619,13 +621,29 @@ def test_cli_fleet_of_hal_captures_with_one_map(
     for i, (name, gain) in enumerate(gains.items()):
         _halsampler_capture(tmp_path / f"{name}_2025-03-01.txt", i, gain, 0.05)
     logs = sorted(str(p) for p in tmp_path.glob("*.txt"))
-    code = main(["fit", *logs, "--fleet", str(tmp_path / "f.csv"), "--axis", "x",
-                 "--map", "cmd=pid.0.output,pos=encoder.0.position",
-                 "--hal-columns", "pid.0.output,encoder.0.position", "--period-s", "0.004",
-                 "--position-scale", "2000"])  # fmt: skip
+    code = main(
+        [
+            "fit",
+            *logs,
+            "--fleet",
+            str(tmp_path / "f.csv"),
+            "--axis",
+            "x",
+            "--map",
+            "cmd=pid.0.output,pos=encoder.0.position",
+            "--hal-columns",
+            "pid.0.output,encoder.0.position",
+            "--period-s",
+            "0.004",
+            "--position-scale",
+            "2000",
+        ]
+    )
     assert code == 0, capsys.readouterr().err
     rows = read_fleet_table(tmp_path / "f.csv")
     assert [(r.machine_id, r.date, r.axis) for r in rows] == [
-        ("mill-a", "2025-03-01", "x"), ("mill-b", "2025-03-01", "x")]  # fmt: skip
+        ("mill-a", "2025-03-01", "x"),
+        ("mill-b", "2025-03-01", "x"),
+    ]
     for r in rows:
         np.testing.assert_allclose(r.params["gain_cps_per_v"], gains[r.machine_id], rtol=0.02)

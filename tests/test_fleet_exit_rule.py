@@ -29,8 +29,17 @@ def logs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[Path]]:
 def test_no_log_fitted_exits_3_with_one_line_and_no_table(logs, tmp_path, capsys) -> None:
     _, bad = logs
     out = tmp_path / "fleet.parquet"
-    code = main(["fit", *map(str, bad), "--fleet", str(out), "--fleet-report",
-                 str(tmp_path / "f.html"), "-q"])  # fmt: skip
+    code = main(
+        [
+            "fit",
+            *map(str, bad),
+            "--fleet",
+            str(out),
+            "--fleet-report",
+            str(tmp_path / "f.html"),
+            "-q",
+        ]
+    )
     cap = capsys.readouterr()
     assert code == 3 and cap.out == ""
     lines = cap.err.strip().splitlines()
@@ -57,8 +66,19 @@ def test_one_log_fitted_exits_0_with_the_error_rows(logs, tmp_path, capsys) -> N
 def test_a_tiny_memory_budget_refuses_before_writing(logs, tmp_path, capsys) -> None:
     good, bad = logs
     out = tmp_path / "fleet.parquet"
-    code = main(["--max-memory", "1K", "fit", str(good), *map(str, bad), "--fleet", str(out),
-                 "--axis", "master"])  # fmt: skip
+    code = main(
+        [
+            "--max-memory",
+            "1K",
+            "fit",
+            str(good),
+            *map(str, bad),
+            "--fleet",
+            str(out),
+            "--axis",
+            "master",
+        ]
+    )
     cap = capsys.readouterr()
     assert code == 3 and cap.out == ""
     assert "over the memory budget of 1 KiB" in cap.err

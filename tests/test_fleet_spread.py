@@ -34,19 +34,49 @@ ROOT = Path(__file__).resolve().parents[1]
 RIG = ROOT / "plants" / "pc-dual-servo.toml"
 
 
-def _row(machine: str, date: str, gain: float, tau: float, *, axis: str = "slave",
-         adequate: bool | None = True, error: str = "", **extra: float) -> FleetRow:  # fmt: skip
-    params = {"gain_cps_per_v": gain, "tau_s": tau, "delay_s": 0.0012, "offset_v": -0.004,
-              "coulomb_v": 0.0} | extra  # fmt: skip
-    return FleetRow(machine_id=machine, date=date, file=f"{machine}_{date}.csv", axis=axis,
-                    sha256=f"{machine}{date}", adequate=adequate, error=error,
-                    params={} if error else params)  # fmt: skip
+def _row(
+    machine: str,
+    date: str,
+    gain: float,
+    tau: float,
+    *,
+    axis: str = "slave",
+    adequate: bool | None = True,
+    error: str = "",
+    **extra: float,
+) -> FleetRow:
+    params = {
+        "gain_cps_per_v": gain,
+        "tau_s": tau,
+        "delay_s": 0.0012,
+        "offset_v": -0.004,
+        "coulomb_v": 0.0,
+    } | extra
+    return FleetRow(
+        machine_id=machine,
+        date=date,
+        file=f"{machine}_{date}.csv",
+        axis=axis,
+        sha256=f"{machine}{date}",
+        adequate=adequate,
+        error=error,
+        params={} if error else params,
+    )
 
 
 def _fleet(n: int = 6, axis: str = "slave") -> list[FleetRow]:
     """``n`` machines around the example rig's slave plant, one fit each."""
-    return [_row(f"m{k:02d}", "2025-03-01", 11700.0 * (0.95 + 0.02 * k), 0.030 + 0.001 * k,
-                 axis=axis, coulomb_v=0.002 + 0.0001 * k) for k in range(n)]  # fmt: skip
+    return [
+        _row(
+            f"m{k:02d}",
+            "2025-03-01",
+            11700.0 * (0.95 + 0.02 * k),
+            0.030 + 0.001 * k,
+            axis=axis,
+            coulomb_v=0.002 + 0.0001 * k,
+        )
+        for k in range(n)
+    ]
 
 
 @pytest.fixture(scope="module")
@@ -72,8 +102,13 @@ def test_draws_are_the_same_for_any_chunking(rig) -> None:
 def test_each_draw_is_one_machines_fit_exactly(rig) -> None:
     rows = _fleet()
     d = fleet_spread(rows, rig, axis="slave")
-    assert d.parameters == ("slave.gain_cps_per_v", "slave.tau_s", "slave.delay_s",
-                            "slave.offset_v", "slave.coulomb_v")  # fmt: skip
+    assert d.parameters == (
+        "slave.gain_cps_per_v",
+        "slave.tau_s",
+        "slave.delay_s",
+        "slave.offset_v",
+        "slave.coulomb_v",
+    )
     assert d.machines == tuple(r.machine_id for r in rows)
     by_machine = {r.machine_id: r for r in rows}
     plants, values = d.draw(3, 0, 40)
@@ -83,12 +118,19 @@ def test_each_draw_is_one_machines_fit_exactly(rig) -> None:
         k = d.plants.index(s_plant)
         fit = by_machine[d.machines[k]].params
         assert v.tolist() == [fit[p.split(".")[1]] for p in d.parameters]  # bit for bit
-        assert (s_plant.gain_cps_per_v, s_plant.tau_s, s_plant.delay_s, s_plant.offset_v,
-                s_plant.coulomb_v) == tuple(v.tolist())  # fmt: skip
+        assert (
+            s_plant.gain_cps_per_v,
+            s_plant.tau_s,
+            s_plant.delay_s,
+            s_plant.offset_v,
+            s_plant.coulomb_v,
+        ) == tuple(v.tolist())
         assert s_plant.gain_neg_cps_per_v is None and s_plant.coulomb_neg_v is None
         slave = rig.axis("slave").plant  # the rig's speed limit and noise are kept
-        assert (s_plant.max_speed_rpm, s_plant.noise_counts) == (slave.max_speed_rpm,
-                                                                 slave.noise_counts)  # fmt: skip
+        assert (s_plant.max_speed_rpm, s_plant.noise_counts) == (
+            slave.max_speed_rpm,
+            slave.noise_counts,
+        )
 
 
 def test_a_left_out_term_is_zero_and_an_asymmetric_fit_draws_its_negative_side(rig) -> None:
@@ -175,8 +217,18 @@ def bench(quick_workbench, default_tuning) -> dict[str, Path]:
 
 
 def test_verify_plants_from_a_fleet(bench, capsys) -> None:
-    argv = ["verify", str(bench["tuning"]), "--spec", str(bench["spec"]), "--montecarlo", "6",
-            "--plants-from", str(bench["fleet"]), "--plants-axis", "slave"]  # fmt: skip
+    argv = [
+        "verify",
+        str(bench["tuning"]),
+        "--spec",
+        str(bench["spec"]),
+        "--montecarlo",
+        "6",
+        "--plants-from",
+        str(bench["fleet"]),
+        "--plants-axis",
+        "slave",
+    ]
     code = main(argv)
     err = capsys.readouterr().err
     assert code in (0, 1) and "Traceback" not in err
@@ -203,8 +255,9 @@ def test_verify_plants_from_usage_and_bad_input(bench, capsys) -> None:
     assert len(err) == 1 and "'spindle' is not an axis of rig" in err[0]
 
 
-def _lock_phase_margin(rig: Rig, kl: float, gain: float, tau: float, lag_s: float,
-                       period_s: float) -> float:  # fmt: skip
+def _lock_phase_margin(
+    rig: Rig, kl: float, gain: float, tau: float, lag_s: float, period_s: float
+) -> float:
     """The lock loop's phase margin [deg] built here from the textbook pieces, not from
     servotune's margins code: ``Kl·lsb·gain / (s (tau s + 1))`` behind a ``lag_s`` dead time
     (Padé, order 8), zero-order-hold discretised by python-control."""

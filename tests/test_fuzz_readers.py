@@ -61,14 +61,23 @@ _HEALTH = [
     HealthCheck.filter_too_much,
 ]
 settings.register_profile(
-    "ci", max_examples=60, deadline=None, derandomize=True, database=None,
-    suppress_health_check=_HEALTH, print_blob=True,
-)  # fmt: skip
+    "ci",
+    max_examples=60,
+    deadline=None,
+    derandomize=True,
+    database=None,
+    suppress_health_check=_HEALTH,
+    print_blob=True,
+)
 settings.register_profile(
-    "fuzz", max_examples=int(os.environ.get("FUZZ_EXAMPLES", "2000")), deadline=None,
-    derandomize=False, suppress_health_check=_HEALTH, print_blob=True,
+    "fuzz",
+    max_examples=int(os.environ.get("FUZZ_EXAMPLES", "2000")),
+    deadline=None,
+    derandomize=False,
+    suppress_health_check=_HEALTH,
+    print_blob=True,
     database=DirectoryBasedExampleDatabase(ROOT / ".pytest_cache" / "hypothesis-fuzz"),
-)  # fmt: skip
+)
 PROFILE = settings.get_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 
@@ -209,9 +218,19 @@ def _record(kind: str, source: str, problem: str, where: str, detail: str, data:
     path.write_bytes(data)
     if new:
         with (out / "findings.jsonl").open("a") as f:
-            f.write(json.dumps({"kind": kind, "source": source, "problem": problem,
-                                "where": where, "detail": detail[:300],
-                                "file": path.name}) + "\n")  # fmt: skip
+            f.write(
+                json.dumps(
+                    {
+                        "kind": kind,
+                        "source": source,
+                        "problem": problem,
+                        "where": where,
+                        "detail": detail[:300],
+                        "file": path.name,
+                    }
+                )
+                + "\n"
+            )
 
 
 def check(kind: str, workdir: Path, data: bytes, source: str) -> None:

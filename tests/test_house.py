@@ -147,8 +147,10 @@ def _text_files() -> list[tuple[str, str]]:
         pytest.skip("not a git checkout: the scanned files are git's list")
     out = subprocess.run(
         ["git", "ls-files", "--cached", "--others", "--exclude-standard", "-z"],
-        cwd=ROOT, capture_output=True, check=True,
-    ).stdout  # fmt: skip
+        cwd=ROOT,
+        capture_output=True,
+        check=True,
+    ).stdout
     files = []
     for rel in sorted({p for p in out.decode("utf-8").split("\0") if p}):
         path = ROOT / rel

@@ -30,9 +30,12 @@ def _log(tmp_path: Path, rig: st.Rig, scenario: str, closed: bool, seed: int) ->
     tr = run_scenario(rig, scen, seed=seed)
     path = tmp_path / f"{scenario}-{closed}-{seed}.csv"
     # as servotune simulate writes it: with the excitation (exc_code), so the default is iv
-    write_log(path, period_s=rig.period_s,
-              columns=trace_log_columns(tr, scen.inputs.dac_add_codes),
-              metadata=log_metadata(rig, seed=seed))  # fmt: skip
+    write_log(
+        path,
+        period_s=rig.period_s,
+        columns=trace_log_columns(tr, scen.inputs.dac_add_codes),
+        metadata=log_metadata(rig, seed=seed),
+    )
     return path
 
 
@@ -72,8 +75,9 @@ def test_structure_selection_finds_the_true_structure(
     r = _rig_near_wrap(rig, delay_s=delay_s, offset_v=offset_v, coulomb_v=coulomb_v)
     scen = st.build_scenario(r, "prbs", axis="master", seconds=40.0, closed_loop=True)
     tr = run_scenario(r, scen, seed=11)
-    res = fit_arrays(tr.volts[:, 0], tr.pos_counts[:, 0], period_s=r.period_s,
-                     compute_s=r.timer.compute_s)  # fmt: skip
+    res = fit_arrays(
+        tr.volts[:, 0], tr.pos_counts[:, 0], period_s=r.period_s, compute_s=r.timer.compute_s
+    )
     truth = {"delay_s": delay_s > 0, "offset_v": offset_v != 0, "coulomb_v": coulomb_v > 0}
     got = {k: k in res.structure for k in truth}
     assert got == truth, res.reason
@@ -86,8 +90,9 @@ def test_uncertainty_covers_truth_and_result_is_complete(rig: st.Rig) -> None:
     truth = r.axis("master").plant
     scen = st.build_scenario(r, "steps", axis="master", seconds=40.0, closed_loop=True)
     tr = run_scenario(r, scen, seed=5)
-    res = fit_arrays(tr.volts[:, 0], tr.pos_counts[:, 0], period_s=r.period_s,
-                     compute_s=r.timer.compute_s)  # fmt: skip
+    res = fit_arrays(
+        tr.volts[:, 0], tr.pos_counts[:, 0], period_s=r.period_s, compute_s=r.timer.compute_s
+    )
     d = res.to_dict()
     assert set(d) >= {"structure", "params", "std", "ci95", "fit_pct", "whiteness", "period_s"}
     for name in res.structure:
@@ -108,8 +113,9 @@ def test_other_sample_periods(rig: st.Rig, period_s: float) -> None:
     truth = r.axis("master").plant
     scen = st.build_scenario(r, "steps", axis="master", seconds=60.0, closed_loop=True)
     tr = run_scenario(r, scen, seed=2)
-    res = fit_arrays(tr.volts[:, 0], tr.pos_counts[:, 0], period_s=r.period_s,
-                     compute_s=r.timer.compute_s)  # fmt: skip
+    res = fit_arrays(
+        tr.volts[:, 0], tr.pos_counts[:, 0], period_s=r.period_s, compute_s=r.timer.compute_s
+    )
     assert res.params["gain_cps_per_v"] == pytest.approx(truth.gain_cps_per_v, rel=0.02)
     assert res.params["tau_s"] == pytest.approx(truth.tau_s, rel=0.05)
 
@@ -131,8 +137,13 @@ def test_structure_given_and_bad_structure(rig: st.Rig) -> None:
     r = _rig_near_wrap(rig)
     scen = st.build_scenario(r, "steps", axis="master", seconds=20.0, closed_loop=True)
     tr = run_scenario(r, scen, seed=1)
-    res = fit_arrays(tr.volts[:, 0], tr.pos_counts[:, 0], period_s=r.period_s,
-                     structure="offset", compute_s=r.timer.compute_s)  # fmt: skip
+    res = fit_arrays(
+        tr.volts[:, 0],
+        tr.pos_counts[:, 0],
+        period_s=r.period_s,
+        structure="offset",
+        compute_s=r.timer.compute_s,
+    )
     assert res.structure == ("gain_cps_per_v", "tau_s", "offset_v")
     assert res.params["coulomb_v"] == 0.0 and res.selection == []
     with pytest.raises(st.IdentificationError, match="unknown structure parameter 'friction'"):

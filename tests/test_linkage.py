@@ -76,9 +76,14 @@ def test_example_bus_figures_and_resync(config: LinkageConfig) -> None:
     assert f.required_queue_depth == (2 + 1) * 5
     # the result and linkage.json carry the same figures under the same keys
     assert sorted(f.to_dict()) == [
-        "broadcast_period_s", "frame_bytes", "frame_s", "lead_s", "nominal_min_level",
-        "required_queue_depth", "utilisation",
-    ]  # fmt: skip
+        "broadcast_period_s",
+        "frame_bytes",
+        "frame_s",
+        "lead_s",
+        "nominal_min_level",
+        "required_queue_depth",
+        "utilisation",
+    ]
     # half a period of drift at the worst clock (80 ppm): 0.5 · 2 ms / 80e-6 = 12.5 s
     assert recommended_resync_interval_s(config) == pytest.approx(12.5, abs=1e-12)
     assert config.clock.resync_interval_s == recommended_resync_interval_s(config)
@@ -154,9 +159,15 @@ def test_arc_to_an_end_point_clockwise() -> None:
     d = example_data()
     d["path"]["move"] = [
         {"kind": "line", "to": {"x": 30_000}, "feed_cps": 30_000},
-        {"kind": "arc", "plane": ["x", "y"], "centre": [0, 0], "to": {"x": 0, "y": -30_000},
-         "direction": "cw", "feed_cps": 20_000},
-    ]  # fmt: skip
+        {
+            "kind": "arc",
+            "plane": ["x", "y"],
+            "centre": [0, 0],
+            "to": {"x": 0, "y": -30_000},
+            "direction": "cw",
+            "feed_cps": 20_000,
+        },
+    ]
     ip = interpolate(config_from(d))
     (arc,) = ip.arcs
     assert arc.sweep_rad == pytest.approx(-math.pi / 2)  # a quarter, clockwise
@@ -191,10 +202,13 @@ def test_bus_too_slow_is_rejected_before_motion() -> None:
 def test_queue_or_prefill_too_short_is_rejected_before_motion() -> None:
     d = example_data()
     d["cpu"][0]["queue_depth"] = 12
-    with pytest.raises(LinkageCheckError, match=(
-        r"queue too short on cpu s1: queue_depth 12 setpoints per axis, but the prefill "
-        r"\(2 blocks × 5\) plus the block in flight need 15 — raise queue_depth to >= 15"
-    )):  # fmt: skip
+    with pytest.raises(
+        LinkageCheckError,
+        match=(
+            r"queue too short on cpu s1: queue_depth 12 setpoints per axis, but the prefill "
+            r"\(2 blocks × 5\) plus the block in flight need 15 — raise queue_depth to >= 15"
+        ),
+    ):
         run_linkage(config_from(d))
     d = example_data()
     d["bus"]["prefill_blocks"] = 0
@@ -369,8 +383,14 @@ def test_gains_absent_are_tuned_with_tune_pi() -> None:
     g = gains["x"].gains
     assert gains["x"].tuned and not gains["y"].tuned
     assert gains["y"].to_dict() == {"ki": 1.051, "kp": 0.3168, "tuned": False}  # the file's
-    ref = tune_pi(cfg.axes[0].plant, period_s=0.002, compute_s=0.0002, phase_margin_deg=50,
-                  gain_margin_db=8, max_sensitivity=1.6)  # fmt: skip
+    ref = tune_pi(
+        cfg.axes[0].plant,
+        period_s=0.002,
+        compute_s=0.0002,
+        phase_margin_deg=50,
+        gain_margin_db=8,
+        max_sensitivity=1.6,
+    )
     assert (g.kp, g.ki) == (ref.kp, ref.ki)
     # the example's stored gains are these, rounded to 4 significant digits
     assert _DATA["axis"]["x"]["kp"] == float(f"{ref.kp:.4g}")
@@ -381,37 +401,56 @@ def test_gains_absent_are_tuned_with_tune_pi() -> None:
     ("change", "message"),
     [
         (lambda d: d["bus"].update(bauds=1), r"unknown key bus\.bauds"),
-        (lambda d: d["bus"].update(baud=-1),
-         r"bus\.baud must be a number in \(0, 1e\+09\] \[bits/s\], got -1"),
-        (lambda d: d["bus"].update(block_size=5.0),
-         r"bus\.block_size must be an integer in 1\.\.10000 \[setpoints\], got 5\.0"),
+        (
+            lambda d: d["bus"].update(baud=-1),
+            r"bus\.baud must be a number in \(0, 1e\+09\] \[bits/s\], got -1",
+        ),
+        (
+            lambda d: d["bus"].update(block_size=5.0),
+            r"bus\.block_size must be an integer in 1\.\.10000 \[setpoints\], got 5\.0",
+        ),
         (lambda d: d["bus"].update(baud=True), r"bus\.baud must be a number .*got True"),
         (lambda d: d["bus"].update(baud="fast"), r"bus\.baud must be a number .*got 'fast'"),
-        (lambda d: d["bus"].update(prefill_blocks=10**400),
-         r"bus\.prefill_blocks must be a number within ±2\*\*63 \(int64\), got an integer of 401"),
-        (lambda d: d["path"]["move"][0]["to"].update(x=1e300),
-         r"path\.move\[0\]\.to\.x must be a number in \[-1e\+12, 1e\+12\] \[counts\]"),
-        (lambda d: d["path"]["move"][1].update(dwell_s=1e12),
-         r"path\.move\[1\]\.dwell_s must be a number in \(0, 3600\] \[s\], got 1000000000000\.0"),
-        (lambda d: d["path"]["move"][2].update(centre=[1e300, 0]),
-         r"path\.move\[2\]\.centre must be \[first, second\]"),
-        (lambda d: d["axis"]["x"]["plant"].update(delay_s=1e300),
-         r"axis\.x\.plant\.delay_s must be a number in \[0, 1\] \[s\]"),
+        (
+            lambda d: d["bus"].update(prefill_blocks=10**400),
+            r"bus\.prefill_blocks must be a number within ±2\*\*63 \(int64\), "
+            r"got an integer of 401",
+        ),
+        (
+            lambda d: d["path"]["move"][0]["to"].update(x=1e300),
+            r"path\.move\[0\]\.to\.x must be a number in \[-1e\+12, 1e\+12\] \[counts\]",
+        ),
+        (
+            lambda d: d["path"]["move"][1].update(dwell_s=1e12),
+            r"path\.move\[1\]\.dwell_s must be a number in \(0, 3600\] \[s\], got 1000000000000\.0",
+        ),
+        (
+            lambda d: d["path"]["move"][2].update(centre=[1e300, 0]),
+            r"path\.move\[2\]\.centre must be \[first, second\]",
+        ),
+        (
+            lambda d: d["axis"]["x"]["plant"].update(delay_s=1e300),
+            r"axis\.x\.plant\.delay_s must be a number in \[0, 1\] \[s\]",
+        ),
         (lambda d: d.update(settle_s=1e12), r"settle_s must be a number in \[0, 3600\]"),
         (lambda d: d.update(period_s=0), r"period_s must be a number in \[1e-06, 1\]"),
         (lambda d: d.update(rig=7), r"rig must be the path of a rig file \(TOML\), got 7"),
         (lambda d: d.update(bus=[]), r"\[bus\] must be a table"),
-        (lambda d: d["cpu"][0].update(axes=["x", "z", "a", "y", "b"]),
-         r"cpu\[0\]\.axes must name 2 to 4 axes"),
+        (
+            lambda d: d["cpu"][0].update(axes=["x", "z", "a", "y", "b"]),
+            r"cpu\[0\]\.axes must name 2 to 4 axes",
+        ),
         (lambda d: d["cpu"][1].update(axes=["y", "b"]), r"axis 'c' is on no CPU"),
         (lambda d: d["axis"]["x"]["plant"].update(tau_s=-0.01), r"axis\.x\.plant\.tau_s must be"),
         (lambda d: d["axis"]["y"].pop("ki"), r"axis\.y\.kp and ki must be given together"),
-        (lambda d: d["cpu"][0].update(clock_ppm=20000),
-         r"cpu\[0\]\.clock_ppm must be a number in \[-10000, 10000\] \[ppm\]"),
+        (
+            lambda d: d["cpu"][0].update(clock_ppm=20000),
+            r"cpu\[0\]\.clock_ppm must be a number in \[-10000, 10000\] \[ppm\]",
+        ),
         (lambda d: d["path"]["move"][0].update(kind="spline"), r"path\.move\[0\]\.kind must be"),
         (lambda d: d.update(rig="missing.toml"), r"rig: cannot read rig file"),
     ],
-)  # fmt: skip
+)
 def test_bad_config_names_the_field(change: Any, message: str) -> None:
     d = example_data()
     change(d)

@@ -727,8 +727,9 @@ def test_exc_code_is_read_per_axis_and_optional(tmp_path: Path) -> None:
     assert read_log(_log(tmp_path, name="old.csv")).axis().exc_code is None
     two = "tick,a.dac_code,a.counter,a.exc_code,b.dac_code,b.counter"
     rows2 = [f"{k},2048,{k},{k},2048,{2 * k}" for k in range(5)]
-    log2 = read_log(_log(tmp_path, header=two, rows=rows2, meta=[("period_s", "0.004")],
-                         name="two.csv"))  # fmt: skip
+    log2 = read_log(
+        _log(tmp_path, header=two, rows=rows2, meta=[("period_s", "0.004")], name="two.csv")
+    )
     assert_array_equal(log2.axis("a").exc_code, np.arange(5))
     assert log2.axis("b").exc_code is None
 
@@ -743,8 +744,9 @@ def test_exc_code_beyond_the_dac_span_or_not_an_integer(tmp_path: Path) -> None:
         read_log(_log(tmp_path, header=HEADER + ",exc_code", rows=rows)).axis().exc_code[3] == -4095
     )
     rows[2] = "2,0.008000000,2048,2,1.5"
-    assert "row 4, column 'exc_code'" in _error(_log(tmp_path, header=HEADER + ",exc_code",
-                                                      rows=rows))  # fmt: skip
+    assert "row 4, column 'exc_code'" in _error(
+        _log(tmp_path, header=HEADER + ",exc_code", rows=rows)
+    )
 
 
 def test_exc_code_is_a_known_column_and_listed_in_the_help(tmp_path: Path) -> None:
@@ -783,7 +785,11 @@ def test_long_field_check_counts_characters_not_bytes(tmp_path: Path) -> None:
 def test_a_log_not_separated_by_commas_says_so(tmp_path: Path, sep: str, word: str) -> None:
     # as a spreadsheet in a comma-decimal locale saves it (the hint once misled)
     p = tmp_path / "log.csv"
-    p.write_text(sep.join(["tick", "time_s", "dac_code", "counter"]) + "\n"
-                 + sep.join(["0", "0", "2048", "0"]) + "\n")  # fmt: skip
+    p.write_text(
+        sep.join(["tick", "time_s", "dac_code", "counter"])
+        + "\n"
+        + sep.join(["0", "0", "2048", "0"])
+        + "\n"
+    )
     with pytest.raises(LogFormatError, match=f"separated by {word}, not commas"):
         read_log(p)

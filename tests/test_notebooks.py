@@ -28,8 +28,9 @@ def _executed(path: Path) -> nbformat.NotebookNode:
     """The notebook run top to bottom from its own directory (once per session: the tests
     below share it)."""
     nb = nbformat.read(path, as_version=4)
-    NotebookClient(nb, timeout=600, kernel_name="python3",
-                   resources={"metadata": {"path": str(path.parent)}}).execute()  # fmt: skip
+    NotebookClient(
+        nb, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(path.parent)}}
+    ).execute()
     return nb
 
 
@@ -80,8 +81,12 @@ def test_notebook_shows_figures(path: Path) -> None:
 
 
 def _figures(nb: nbformat.NotebookNode) -> int:
-    return sum("image/png" in o.get("data", {}) for c in _code_cells(nb) for o in c.outputs
-               if o.output_type in ("display_data", "execute_result"))  # fmt: skip
+    return sum(
+        "image/png" in o.get("data", {})
+        for c in _code_cells(nb)
+        for o in c.outputs
+        if o.output_type in ("display_data", "execute_result")
+    )
 
 
 def test_a_notebook_runs_with_jupyter_execute_away_from_the_repository(tmp_path: Path) -> None:
@@ -94,8 +99,13 @@ def test_a_notebook_runs_with_jupyter_execute_away_from_the_repository(tmp_path:
     nb_path.parent.mkdir()
     shutil.copy(next(p for p in NOTEBOOKS if p.name == nb_path.name), nb_path)
     assert not any((d / "plants").exists() for d in (nb_path.parent, *nb_path.parents))
-    run = subprocess.run([str(jupyter), "execute", "--inplace", "elsewhere/" + nb_path.name],
-                         cwd=tmp_path, capture_output=True, text=True, timeout=600)  # fmt: skip
+    run = subprocess.run(
+        [str(jupyter), "execute", "--inplace", "elsewhere/" + nb_path.name],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert run.returncode == 0, run.stderr[-3000:]
     nb = nbformat.read(nb_path, as_version=4)
     errors = [o for c in _code_cells(nb) for o in c.outputs if o.output_type == "error"]

@@ -89,8 +89,14 @@ def test_numba_is_used_through_its_public_api_only() -> None:
     # no private options or internals (``_nrt``, cgutils, arrayobj), and every compiled
     # function through the one decorator (_numba_cache.jit), so each caches under the digest
     package = Path(servotune.__file__).resolve().parent
-    private = ("_nrt", "numba.core.cgutils", "from numba.core import cgutils", "numba.np.arrayobj",
-               "make_array", "populate_array")  # fmt: skip
+    private = (
+        "_nrt",
+        "numba.core.cgutils",
+        "from numba.core import cgutils",
+        "numba.np.arrayobj",
+        "make_array",
+        "populate_array",
+    )
     found = []
     for path in sorted(package.rglob("*.py")):
         text = path.read_text()

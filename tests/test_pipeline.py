@@ -20,20 +20,45 @@ from servotune.pipeline import run_demo
 
 def test_demo_writes_its_products(tmp_path: Path) -> None:
     summary = run_demo(EXAMPLE_RIG, tmp_path, seed=0)
-    for name in ("demo_summary.json", "lock_hold.png", "track.png", "track_log.csv",
-                 "fit_master.png", "fit_slave.png", "fitted-rig.toml", "tuning.json",
-                 "tuning.json.verify.json", "figure4.png", "figure4.json", "fuzzy.json",
-                 "c/servotune_tables.h", "c/servotune_rt.c", "report.html", "sync.json",
-                 "sync_load.png", "sync_mismatch.png", "linkage.json", "linkage_queues.png",
-                 "linkage_circle.png"):  # fmt: skip
+    for name in (
+        "demo_summary.json",
+        "lock_hold.png",
+        "track.png",
+        "track_log.csv",
+        "fit_master.png",
+        "fit_slave.png",
+        "fitted-rig.toml",
+        "tuning.json",
+        "tuning.json.verify.json",
+        "figure4.png",
+        "figure4.json",
+        "fuzzy.json",
+        "c/servotune_tables.h",
+        "c/servotune_rt.c",
+        "report.html",
+        "sync.json",
+        "sync_load.png",
+        "sync_mismatch.png",
+        "linkage.json",
+        "linkage_queues.png",
+        "linkage_circle.png",
+    ):
         assert (tmp_path / name).stat().st_size > 0, name
     # the whole chain: tuned on the fitted rig, verified on the example rig, exported
     assert summary["verification"]["passed"], summary["verification"]["failures"]
     assert st.export.load_tables(tmp_path / "fuzzy.json")["verified"] is True
     page = (tmp_path / "report.html").read_text()
-    for section in ("Verification: PASSED", "Loops (Bode", "Query tables", "Margins of every loop",
-                    "(the tuning objective)", "Identification",
-                    "Figure 4", "Gantry with a listening slave", "Multi-CPU linkage"):  # fmt: skip
+    for section in (
+        "Verification: PASSED",
+        "Loops (Bode",
+        "Query tables",
+        "Margins of every loop",
+        "(the tuning objective)",
+        "Identification",
+        "Figure 4",
+        "Gantry with a listening slave",
+        "Multi-CPU linkage",
+    ):
         assert section in page, section
     assert summary["architectures"]["gantry"]["passed"]
     assert summary["architectures"]["linkage"]["passed"]
@@ -179,9 +204,12 @@ def test_the_demo_comparison_passes_the_reference_and_fails_a_changed_product(tm
     set_kp(kp)
 
     def shift_code(by: int) -> None:
-        _edit_json(out / "fuzzy.json",
-                   lambda d: d["data"]["axes"][0]["lock_gain"].update(
-                       q=d["data"]["axes"][0]["lock_gain"]["q"] + by))  # fmt: skip
+        _edit_json(
+            out / "fuzzy.json",
+            lambda d: d["data"]["axes"][0]["lock_gain"].update(
+                q=d["data"]["axes"][0]["lock_gain"]["q"] + by
+            ),
+        )
 
     shift_code(1)  # one integer off: a gain rounded the other way
     assert demo_differences(out) == []
@@ -250,10 +278,17 @@ def test_demo_on_an_emulated_other_machine(tmp_path: Path) -> None:
     out = tmp_path / "out"
     out.mkdir()
     env = {**os.environ, **OTHER_MACHINE, "NUMBA_CACHE_DIR": str(tmp_path / "numba")}
-    code = "import sys; from pathlib import Path; from servotune.pipeline import run_demo; " \
-        "run_demo(Path(sys.argv[1]), Path(sys.argv[2]), seed=0)"  # fmt: skip
-    proc = subprocess.run([sys.executable, "-c", code, str(EXAMPLE_RIG), str(out)], env=env,
-                          capture_output=True, text=True, timeout=1800)  # fmt: skip
+    code = (
+        "import sys; from pathlib import Path; from servotune.pipeline import run_demo; "
+        "run_demo(Path(sys.argv[1]), Path(sys.argv[2]), seed=0)"
+    )
+    proc = subprocess.run(
+        [sys.executable, "-c", code, str(EXAMPLE_RIG), str(out)],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=1800,
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
     found = demo_differences(out)
     assert not found, "\n".join(found[:20])

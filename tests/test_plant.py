@@ -52,8 +52,9 @@ def test_advance_matches_ode(v0: float, w: float, coulomb: float, vmax: float) -
     if sol.status == 1:  # stopped: sticks or restarts the other way
         t0 = sol.t_events[0][0]
         if abs(w) > coulomb:
-            sol2 = solve_ivp(_ode(gain, tau, w, coulomb, vmax), (t0, h), [x[0], 0.0],
-                             rtol=1e-11, atol=1e-9)  # fmt: skip
+            sol2 = solve_ivp(
+                _ode(gain, tau, w, coulomb, vmax), (t0, h), [x[0], 0.0], rtol=1e-11, atol=1e-9
+            )
             x = sol2.y[:, -1]
         else:
             x = np.array([x[0], 0.0])
@@ -74,9 +75,15 @@ def test_discretize_equals_scipy_zoh_without_lag() -> None:
     pl = Plant(gain_cps_per_v=12288.0, tau_s=0.025)
     d = discretize(pl, 0.004, 0.0)
     ref = cont2discrete(
-        (np.array([[0, 1], [0, -1 / 0.025]]), np.array([[0], [12288 / 0.025]]),
-         np.array([[1, 0]]), np.array([[0]])), 0.004, method="zoh",
-    )  # fmt: skip
+        (
+            np.array([[0, 1], [0, -1 / 0.025]]),
+            np.array([[0], [12288 / 0.025]]),
+            np.array([[1, 0]]),
+            np.array([[0]]),
+        ),
+        0.004,
+        method="zoh",
+    )
     np.testing.assert_allclose(d.A, ref[0], rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(d.B, ref[1], rtol=1e-12, atol=1e-9)
 

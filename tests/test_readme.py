@@ -182,9 +182,14 @@ def _env() -> dict[str, str]:
 def run_command(cmd: Command, workspace: Path, env: dict[str, str]) -> str:
     """Run one README command as the user's shell would; fail the test unless it does as shown."""
     res = subprocess.run(
-        ["bash", "-e", "-o", "pipefail", "-c", cmd.text], cwd=workspace, env=env,
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=COMMAND_TIMEOUT_S,
-    )  # fmt: skip
+        ["bash", "-e", "-o", "pipefail", "-c", cmd.text],
+        cwd=workspace,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        timeout=COMMAND_TIMEOUT_S,
+    )
     assert res.returncode == 0, (
         f"README.md:{cmd.line}: `{cmd.text}` exited {res.returncode}:\n{res.stdout}"
     )

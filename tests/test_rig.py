@@ -40,80 +40,162 @@ def _write(tmp_path: Path, text: str) -> Path:
 @pytest.mark.parametrize(
     ("old", "new", "message"),
     [
-        ("period_s = 0.004 ", "period_s = -0.004 ",
-         r"timer.period_s must be a number > 0 \[s\], got -0.004"),
+        (
+            "period_s = 0.004 ",
+            "period_s = -0.004 ",
+            r"timer.period_s must be a number > 0 \[s\], got -0.004",
+        ),
         ("period_s = 0.004 ", "period_s = 1.0 ", r"timer.period_s.*divisor outside 2..65536"),
-        ("bits = 24", "bits = 20",
-         r"counter.bits must be the integer 16, 24 or 32 \[bits\], got "
-         r"20"),
-        ("bits = 24", "bits = 24.0",
-         r"counter.bits must be the integer 16, 24 or 32 \[bits\], got "
-         r"24.0"),
-        ("bits = 24", 'bits = "24"',
-         r"counter.bits must be the integer 16, 24 or 32 \[bits\], got "
-         r"'24'"),
+        (
+            "bits = 24",
+            "bits = 20",
+            r"counter.bits must be the integer 16, 24 or 32 \[bits\], got "
+            r"20",
+        ),
+        (
+            "bits = 24",
+            "bits = 24.0",
+            r"counter.bits must be the integer 16, 24 or 32 \[bits\], got "
+            r"24.0",
+        ),
+        (
+            "bits = 24",
+            'bits = "24"',
+            r"counter.bits must be the integer 16, 24 or 32 \[bits\], got "
+            r"'24'",
+        ),
         ("bits = 12", "bits = 12.0", r"dac.bits must be an integer in 8..16 \[bits\], got 12.0"),
         ("bits = 12", "bits = true", r"dac.bits must be an integer in 8..16 \[bits\], got True"),
-        ("multiplier = 4", "multiplier = 3",
-         r"counter.multiplier must be the integer 1, 2 or 4 \[-\], got "
-         r"3"),
+        (
+            "multiplier = 4",
+            "multiplier = 3",
+            r"counter.multiplier must be the integer 1, 2 or 4 \[-\], got "
+            r"3",
+        ),
         ("latched = true", 'latched = "yes"', "counter.latched must be true or false, got 'yes'"),
-        ("lock_gain_codes_per_count = 0.4 ", "lock_gain_codes_per_count = 1e10 ",
-         r"axis.master.lock_gain_codes_per_count must be a number in \("
-         r"0, 65536\] \[codes/count\], got 10000000000.0"),
-        ("offset_v = 0.005", "offset_v = 1000.0",
-         r"axis.master.plant.offset_v must be a number in \[-10, 10\] \[V\], got 1000.0"),
-        ("delay_s = 0.0008", "delay_s = 1e300",
-         r"axis.master.plant.delay_s must be a number in \[0, 1\] \[s\]"),
-        ("gain_cps_per_v = 12288.0", "gain_cps_per_v = 1" + "0" * 400,
-         r"axis.master.plant.gain_cps_per_v must be a number within "
-         r"±2\*\*63 \(int64\), got an integer of 401 digits"),
-        ("max_input_hz = 2.4e6", "max_input_hz = 1e300",
-         r"counter.max_input_hz must be a number in \(0, 1e\+10\] \[Hz\]"),
-        ("clock_hz = 1193180", "clock_hz = inf",
-         r"timer.clock_hz must be a number in \(0, 1e\+10\] \[Hz\], got"
-         r" inf"),
-        ("range_v = [-10.0, 10.0]", "range_v = [-1e300, 1e300]",
-         r"dac.range_v must be \[low, high\] .*±1000 \[V\]"),
-        ("range_v = [-10.0, 10.0]", "range_v = [-10.0, 0.0, 10.0]",
-         r"dac.range_v must be \[low, high\]"),
-        ("travel_counts = [-2000000, 2000000]", "travel_counts = [-2e6, 2e6]",
-         r"axis.master.travel_counts must be \[low, high\], integers"),
-        ("counter_channel = 0", "counter_channel = 1e3",
-         r"axis.master.counter_channel must be an integer in 0..255 \[c"
-         r"hannel\], got 1000.0"),
+        (
+            "lock_gain_codes_per_count = 0.4 ",
+            "lock_gain_codes_per_count = 1e10 ",
+            r"axis.master.lock_gain_codes_per_count must be a number in \("
+            r"0, 65536\] \[codes/count\], got 10000000000.0",
+        ),
+        (
+            "offset_v = 0.005",
+            "offset_v = 1000.0",
+            r"axis.master.plant.offset_v must be a number in \[-10, 10\] \[V\], got 1000.0",
+        ),
+        (
+            "delay_s = 0.0008",
+            "delay_s = 1e300",
+            r"axis.master.plant.delay_s must be a number in \[0, 1\] \[s\]",
+        ),
+        (
+            "gain_cps_per_v = 12288.0",
+            "gain_cps_per_v = 1" + "0" * 400,
+            r"axis.master.plant.gain_cps_per_v must be a number within "
+            r"±2\*\*63 \(int64\), got an integer of 401 digits",
+        ),
+        (
+            "max_input_hz = 2.4e6",
+            "max_input_hz = 1e300",
+            r"counter.max_input_hz must be a number in \(0, 1e\+10\] \[Hz\]",
+        ),
+        (
+            "clock_hz = 1193180",
+            "clock_hz = inf",
+            r"timer.clock_hz must be a number in \(0, 1e\+10\] \[Hz\], got"
+            r" inf",
+        ),
+        (
+            "range_v = [-10.0, 10.0]",
+            "range_v = [-1e300, 1e300]",
+            r"dac.range_v must be \[low, high\] .*±1000 \[V\]",
+        ),
+        (
+            "range_v = [-10.0, 10.0]",
+            "range_v = [-10.0, 0.0, 10.0]",
+            r"dac.range_v must be \[low, high\]",
+        ),
+        (
+            "travel_counts = [-2000000, 2000000]",
+            "travel_counts = [-2e6, 2e6]",
+            r"axis.master.travel_counts must be \[low, high\], integers",
+        ),
+        (
+            "counter_channel = 0",
+            "counter_channel = 1e3",
+            r"axis.master.counter_channel must be an integer in 0..255 \[c"
+            r"hannel\], got 1000.0",
+        ),
         ('name = "pc-dual-servo"', "name = 5", "rig.name must be a string, got 5"),
-        ("period_s = 0.004 ", 'period_s = "4 ms" ',
-         r"timer.period_s must be a number > 0 \[s\], got '4 ms'"),
+        (
+            "period_s = 0.004 ",
+            'period_s = "4 ms" ',
+            r"timer.period_s must be a number > 0 \[s\], got '4 ms'",
+        ),
         ("period_s = 0.004 ", "period_s_typo = 0.004 ", "unknown key timer.period_s_typo"),
         ("tau_s = 0.025", "tau_s = 0", r"axis.master.plant.tau_s must be > 0 \[s\], got 0"),
-        ("tau_s = 0.025", "tau_s = 1e-300",
-         r"axis.master.plant.tau_s must be a number in \[1e-06, 1000\]"),
+        (
+            "tau_s = 0.025",
+            "tau_s = 1e-300",
+            r"axis.master.plant.tau_s must be a number in \[1e-06, 1000\]",
+        ),
         ("tau_s = 0.025", "tau_sec = 0.025", "unknown key axis.master.plant.tau_sec"),
         ('role = "slave"', 'role = "follower"', "axis.slave.role must be 'master' or 'slave'"),
-        ("counter_init = 0xFFC000", "counter_init = 0x1FFC000",
-         "axis.master.counter_init must fit"),
-        ("pulses_per_rev = 3072", "pulses_per_rev = -3072",
-         r"encoder.pulses_per_rev must be a number in \(0, 1e\+09\] \[pulses/rev\]"),
-        ("range_v = [-10.0, 10.0]", "range_v = [10.0, -10.0]",
-         r"dac.range_v must be \[low, high\]"),
+        (
+            "counter_init = 0xFFC000",
+            "counter_init = 0x1FFC000",
+            "axis.master.counter_init must fit",
+        ),
+        (
+            "pulses_per_rev = 3072",
+            "pulses_per_rev = -3072",
+            r"encoder.pulses_per_rev must be a number in \(0, 1e\+09\] \[pulses/rev\]",
+        ),
+        (
+            "range_v = [-10.0, 10.0]",
+            "range_v = [10.0, -10.0]",
+            r"dac.range_v must be \[low, high\]",
+        ),
         # the asymmetric model's keys: checked as their positive-direction peers
-        ("coulomb_v = 0.002", "coulomb_v = 0.002\ncoulomb_neg_v = -0.003",
-         r"axis.master.plant.coulomb_neg_v must be >= 0 \[V\], got -0.003"),
-        ("coulomb_v = 0.002", "coulomb_v = 0.002\ncoulomb_neg_v = nan",
-         r"axis.master.plant.coulomb_neg_v must be a finite number \[V\], got nan"),
-        ("coulomb_v = 0.002", "coulomb_v = 0.002\ncoulomb_neg_v = 11.0",
-         r"axis.master.plant.coulomb_neg_v must be a number in \[0, 10\] \[V\], got 11.0"),
-        ("coulomb_v = 0.002", "coulomb_v = 0.002\ngain_neg_cps_per_v = -9000.0",
-         r"axis.master.plant.gain_neg_cps_per_v must be > 0 \[counts/s/V\], got -9000.0"),
-        ("coulomb_v = 0.002", "coulomb_v = 0.002\ngain_neg_cps_per_v = inf",
-         r"axis.master.plant.gain_neg_cps_per_v must be a finite number \[counts/s/V\], got inf"),
-        ("coulomb_v = 0.002", "coulomb_v = 0.002\ngain_neg_cps_per_v = 1e12",
-         r"axis.master.plant.gain_neg_cps_per_v must be a number in \(0, 1e\+09\] \[counts/s/V\]"),
-        ("coulomb_v = 0.002", "coulomb_v = 0.002\ncoulomb_negative_v = 0.003",
-         r"unknown key axis.master.plant.coulomb_negative_v.*did you mean 'coulomb_neg_v'\?"),
+        (
+            "coulomb_v = 0.002",
+            "coulomb_v = 0.002\ncoulomb_neg_v = -0.003",
+            r"axis.master.plant.coulomb_neg_v must be >= 0 \[V\], got -0.003",
+        ),
+        (
+            "coulomb_v = 0.002",
+            "coulomb_v = 0.002\ncoulomb_neg_v = nan",
+            r"axis.master.plant.coulomb_neg_v must be a finite number \[V\], got nan",
+        ),
+        (
+            "coulomb_v = 0.002",
+            "coulomb_v = 0.002\ncoulomb_neg_v = 11.0",
+            r"axis.master.plant.coulomb_neg_v must be a number in \[0, 10\] \[V\], got 11.0",
+        ),
+        (
+            "coulomb_v = 0.002",
+            "coulomb_v = 0.002\ngain_neg_cps_per_v = -9000.0",
+            r"axis.master.plant.gain_neg_cps_per_v must be > 0 \[counts/s/V\], got -9000.0",
+        ),
+        (
+            "coulomb_v = 0.002",
+            "coulomb_v = 0.002\ngain_neg_cps_per_v = inf",
+            r"axis.master.plant.gain_neg_cps_per_v must be a finite number \[counts/s/V\], got inf",
+        ),
+        (
+            "coulomb_v = 0.002",
+            "coulomb_v = 0.002\ngain_neg_cps_per_v = 1e12",
+            r"axis.master.plant.gain_neg_cps_per_v must be a number in \(0, 1e\+09\] "
+            r"\[counts/s/V\]",
+        ),
+        (
+            "coulomb_v = 0.002",
+            "coulomb_v = 0.002\ncoulomb_negative_v = 0.003",
+            r"unknown key axis.master.plant.coulomb_negative_v.*did you mean 'coulomb_neg_v'\?",
+        ),
     ],
-)  # fmt: skip
+)
 def test_rig_errors_name_field_value_unit(tmp_path: Path, old: str, new: str, message: str) -> None:
     text = EXAMPLE_RIG.read_text()
     assert old in text

@@ -87,8 +87,10 @@ def test_bad_requests_one_line_exit_3(
 
 def test_output_into_missing_directory(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "missing" / "x.csv"
-    assert main(["simulate", str(EXAMPLE_RIG), "--scenario", "prbs", "--seconds", "1",
-                 "-o", str(out)]) == 3  # fmt: skip
+    assert (
+        main(["simulate", str(EXAMPLE_RIG), "--scenario", "prbs", "--seconds", "1", "-o", str(out)])
+        == 3
+    )
     err = capsys.readouterr().err
     assert "does not exist" in err and err.count("\n") == 1
     assert not out.parent.exists()
@@ -97,8 +99,17 @@ def test_output_into_missing_directory(tmp_path: Path, capsys: pytest.CaptureFix
 
 def test_debug_shows_traceback(tmp_path: Path) -> None:
     with pytest.raises(st.SpecError):
-        main(["--debug", "simulate", str(EXAMPLE_RIG), "--scenario", "nope", "-o",
-              str(tmp_path / "x.csv")])  # fmt: skip
+        main(
+            [
+                "--debug",
+                "simulate",
+                str(EXAMPLE_RIG),
+                "--scenario",
+                "nope",
+                "-o",
+                str(tmp_path / "x.csv"),
+            ]
+        )
 
 
 def test_installed_console_script_runs() -> None:
@@ -107,7 +118,12 @@ def test_installed_console_script_runs() -> None:
     import sys
 
     exe = shutil.which("servotune") or str(Path(sys.executable).parent / "servotune")
-    r = subprocess.run([exe, "rig", str(EXAMPLE_RIG), "--json"], capture_output=True, text=True,
-                       check=False, timeout=120)  # fmt: skip
+    r = subprocess.run(
+        [exe, "rig", str(EXAMPLE_RIG), "--json"],
+        capture_output=True,
+        text=True,
+        check=False,
+        timeout=120,
+    )
     assert r.returncode == 0, r.stderr
     assert '"timer_divisor": 4773' in r.stdout

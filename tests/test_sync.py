@@ -101,13 +101,18 @@ def test_a_trip_stops_both_axes_within_the_stated_cycles(gantry, latency, topolo
 
 def test_comparison_table_covers_every_topology_and_case(gantry, comparison) -> None:
     assert {(r.topology, r.case) for r in comparison.rows} == {
-        (t, c) for t in TOPOLOGIES for c in ("load", "mismatch")}  # fmt: skip
+        (t, c) for t in TOPOLOGIES for c in ("load", "mismatch")
+    }
     # mismatched plants: the listening compensator also cuts the error parallel leaves
-    assert (comparison.row("listening", "mismatch").rms_sync_error_counts
-            < 0.6 * comparison.row("parallel", "mismatch").rms_sync_error_counts)  # fmt: skip
+    assert (
+        comparison.row("listening", "mismatch").rms_sync_error_counts
+        < 0.6 * comparison.row("parallel", "mismatch").rms_sync_error_counts
+    )
     # following the master's feedback adds the slave's own lag: worse than parallel here
-    assert (comparison.row("following", "mismatch").max_sync_error_counts
-            > comparison.row("parallel", "mismatch").max_sync_error_counts)  # fmt: skip
+    assert (
+        comparison.row("following", "mismatch").max_sync_error_counts
+        > comparison.row("parallel", "mismatch").max_sync_error_counts
+    )
     assert comparison.passed  # the deployed (listening) topology does not trip
     text = format_comparison(comparison)
     assert all(t in text for t in TOPOLOGIES) and text.endswith("PASS")
@@ -118,11 +123,32 @@ def test_results_are_named_objects_and_sync_json_keeps_its_keys(gantry, comparis
     # rows and prediction keyed as before; schema servotune.sync/2 added the margins
     doc = json.loads(json.dumps(comparison.to_dict(), sort_keys=True))
     assert set(doc) == {
-        "schema", "name", "topology", "cycle_s", "latency_cycles", "stop_bound_cycles",
-        "drives", "sync", "sync_constants", "results", "predicted_load", "passed", "failed",
-        "version", "margins", "montecarlo"}  # fmt: skip
-    row_keys = {"case", "topology", "max_sync_error_counts", "rms_sync_error_counts",
-                "warning_cycles", "tripped", "trip_time_s"}  # fmt: skip
+        "schema",
+        "name",
+        "topology",
+        "cycle_s",
+        "latency_cycles",
+        "stop_bound_cycles",
+        "drives",
+        "sync",
+        "sync_constants",
+        "results",
+        "predicted_load",
+        "passed",
+        "failed",
+        "version",
+        "margins",
+        "montecarlo",
+    }
+    row_keys = {
+        "case",
+        "topology",
+        "max_sync_error_counts",
+        "rms_sync_error_counts",
+        "warning_cycles",
+        "tripped",
+        "trip_time_s",
+    }
     assert all(set(r) == row_keys for r in doc["results"])
     assert [r.to_dict() for r in comparison.rows] == doc["results"]
     assert set(doc["predicted_load"]) == {"parallel_max_counts", "listening_max_counts", "ratio"}
@@ -135,8 +161,15 @@ def test_results_are_named_objects_and_sync_json_keeps_its_keys(gantry, comparis
         comparison.row("ring", "load")
     models = sync_loop_models(gantry)
     assert isinstance(models, SyncLoopModels)
-    assert set(models.to_dict()) == {"t_master", "t_slave", "load_master", "load_slave",
-                                     "compensator", "loop", "sensitivity"}  # fmt: skip
+    assert set(models.to_dict()) == {
+        "t_master",
+        "t_slave",
+        "load_master",
+        "load_slave",
+        "compensator",
+        "loop",
+        "sensitivity",
+    }
     assert all(sys.dt == gantry.bus.cycle_s for sys in models.to_dict().values())
 
 
@@ -164,14 +197,21 @@ def test_compensator_synthesis_meets_its_targets_on_the_sync_loop(gantry) -> Non
     assert 20 * math.log10(gm) >= gantry.sync.gain_margin_db - 0.1
     assert ms <= gantry.sync.max_sensitivity * 1.01
     # and one target binds: tune_pi maximised Ki up to a limit
-    assert min(pm - gantry.sync.phase_margin_deg, 20 * math.log10(gm) - gantry.sync.gain_margin_db,
-               100 * (gantry.sync.max_sensitivity - ms)) < 1.0  # fmt: skip
+    assert (
+        min(
+            pm - gantry.sync.phase_margin_deg,
+            20 * math.log10(gm) - gantry.sync.gain_margin_db,
+            100 * (gantry.sync.max_sensitivity - ms),
+        )
+        < 1.0
+    )
     assert np.all(np.abs(control.feedback(loop, 1).poles()) < 1)
 
 
 def test_pd_synthesis_takes_the_largest_kp_meeting_the_targets(gantry) -> None:
-    cfg = dataclasses.replace(gantry, sync=dataclasses.replace(
-        gantry.sync, law="pd", kp=None, ki=None, kd=0.002))  # fmt: skip
+    cfg = dataclasses.replace(
+        gantry, sync=dataclasses.replace(gantry.sync, law="pd", kp=None, ki=None, kd=0.002)
+    )
     s = tune_sync(cfg)
     assert s.law == "pd" and s.kd == 0.002 and s.ki == 0.0 and s.kp > 0
 
@@ -188,8 +228,9 @@ def test_pd_synthesis_takes_the_largest_kp_meeting_the_targets(gantry) -> None:
 def test_impossible_sync_targets_are_refused(gantry) -> None:
     # a derivative gain that alone destabilises the sync loop: no kp can meet the targets
     # (1 s with the robust drive gains; 0.5 s was enough against the faster nominal design)
-    cfg = dataclasses.replace(gantry, sync=dataclasses.replace(
-        gantry.sync, law="pd", kp=None, ki=None, kd=1.0))  # fmt: skip
+    cfg = dataclasses.replace(
+        gantry, sync=dataclasses.replace(gantry.sync, law="pd", kp=None, ki=None, kd=1.0)
+    )
     with pytest.raises(SpecError, match=r"no PD sync compensator with kd=1 s"):
         tune_sync(cfg)
     with pytest.raises(ValueError, match=r"phase_margin_deg must be a number in \(0, 90\)"):
@@ -199,8 +240,11 @@ def test_impossible_sync_targets_are_refused(gantry) -> None:
 def test_tune_pi_takes_a_discrete_plant_with_whole_cycles_of_lag() -> None:
     plant = control.ss(control.tf([0.2], [1.0, -0.8], 0.001))
     r = tune_pi(plant, period_s=0.001, compute_s=0.002, phase_margin_deg=60)
-    loop = control.tf([r.kp + r.ki * 0.001, -r.kp], [1, -1], 0.001) * plant * control.tf(
-        [1], [1, 0, 0], 0.001)  # fmt: skip
+    loop = (
+        control.tf([r.kp + r.ki * 0.001, -r.kp], [1, -1], 0.001)
+        * plant
+        * control.tf([1], [1, 0, 0], 0.001)
+    )
     w = np.geomspace(1e-2, math.pi / 0.001, 4000)
     assert control.stability_margins(loop.frequency_response(w))[1] == pytest.approx(60, abs=0.5)
     with pytest.raises(ValueError, match="whole periods"):
@@ -227,27 +271,32 @@ def test_coupled_beam_moves_as_the_exact_linear_model(gantry) -> None:
     # drives off (zero gains: 0 V out), no friction, noise or jitter; the two sides' offsets
     # drive them apart, against the beam's spring and damper
     def quiet(ax, gain, tau, off):
-        p = dataclasses.replace(ax.plant, gain_cps_per_v=gain, tau_s=tau, offset_v=off,
-                                coulomb_v=0.0, noise_counts=0.0)  # fmt: skip
+        p = dataclasses.replace(
+            ax.plant, gain_cps_per_v=gain, tau_s=tau, offset_v=off, coulomb_v=0.0, noise_counts=0.0
+        )
         return dataclasses.replace(ax, plant=p, kp=0.0, ki=0.0, following_error_limit_counts=0)
 
     k_b, c_b = 2e-3, 2e-5
     cfg = dataclasses.replace(
-        gantry, seconds=0.5, master=quiet(gantry.master, 12000.0, 0.025, 0.5),
+        gantry,
+        seconds=0.5,
+        master=quiet(gantry.master, 12000.0, 0.025, 0.5),
         slave=quiet(gantry.slave, 11000.0, 0.03, -0.2),
         bus=dataclasses.replace(gantry.bus, jitter_s=0.0),
         beam=dataclasses.replace(gantry.beam, stiffness_v_per_count=k_b, damping_v_s_per_count=c_b),
         sync=dataclasses.replace(gantry.sync, warn_counts=0, trip_counts=0),
-    )  # fmt: skip
+    )
     tr = simulate_gantry(cfg, "parallel", case="mismatch")
     # exact: x = (p_m, v_m, p_s, v_s), v' = (g·(w ∓ k·Δp ∓ c·Δv) − v)/τ, ZOH-discretised
     (gm, tm), (gs, ts) = (12000.0, 0.025), (11000.0, 0.03)
-    a = np.array([
-        [0, 1, 0, 0],
-        [-gm * k_b / tm, -(1 + gm * c_b) / tm, gm * k_b / tm, gm * c_b / tm],
-        [0, 0, 0, 1],
-        [gs * k_b / ts, gs * c_b / ts, -gs * k_b / ts, -(1 + gs * c_b) / ts],
-    ])  # fmt: skip
+    a = np.array(
+        [
+            [0, 1, 0, 0],
+            [-gm * k_b / tm, -(1 + gm * c_b) / tm, gm * k_b / tm, gm * c_b / tm],
+            [0, 0, 0, 1],
+            [gs * k_b / ts, gs * c_b / ts, -gs * k_b / ts, -(1 + gs * c_b) / ts],
+        ]
+    )
     b = np.array([[0, 0], [gm / tm, 0], [0, 0], [0, gs / ts]])
     sys = control.c2d(control.ss(a, b, np.eye(4)[[0, 2]], 0), cfg.bus.cycle_s)
     u = np.tile([0.5, -0.2], (cfg.n_cycles, 1)).T
@@ -262,8 +311,11 @@ def test_coupled_beam_moves_as_the_exact_linear_model(gantry) -> None:
 
 def _write(tmp_path: Path, text: str) -> Path:
     p = tmp_path / "g.toml"
-    p.write_text(text.replace('rig = "pc-dual-servo.toml"',
-                              f'rig = "{ROOT / "plants" / "pc-dual-servo.toml"}"'))  # fmt: skip
+    p.write_text(
+        text.replace(
+            'rig = "pc-dual-servo.toml"', f'rig = "{ROOT / "plants" / "pc-dual-servo.toml"}"'
+        )
+    )
     return p
 
 
@@ -328,8 +380,11 @@ def test_cli_sync_json_plots_and_exit_codes(gantry, tmp_path, capsys) -> None:
     assert len(out["results"]) == 2 * len(TOPOLOGIES)
     assert (tmp_path / "plots" / "sync_load.png").stat().st_size > 1000
     # a trip of the deployed topology is a failed check: exit 1 and the reason
-    text = CONFIG.read_text().replace("warn_counts = 300", "warn_counts = 20").replace(
-        "trip_counts = 1500", "trip_counts = 40")  # fmt: skip
+    text = (
+        CONFIG.read_text()
+        .replace("warn_counts = 300", "warn_counts = 20")
+        .replace("trip_counts = 1500", "trip_counts = 40")
+    )
     assert main(["sync", str(_write(tmp_path, text))]) == 1
     err = capsys.readouterr().err
     assert "check failed: sync trip" in err

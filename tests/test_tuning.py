@@ -25,9 +25,15 @@ def _tuning(rig: st.Rig) -> Tuning:
     size = 13
     rng = np.random.default_rng(0)
     slave = FuzzyPIDGains(
-        kp0=0.9, ki0=3.0, kd0=0.002, k10=0.0175, ke=0.04, kec=0.4,
-        dkp=rng.uniform(-0.5, 0.5, (size, size)), dki=rng.uniform(-1, 1, (size, size)),
-    )  # fmt: skip
+        kp0=0.9,
+        ki0=3.0,
+        kd0=0.002,
+        k10=0.0175,
+        ke=0.04,
+        kec=0.4,
+        dkp=rng.uniform(-0.5, 0.5, (size, size)),
+        dki=rng.uniform(-1, 1, (size, size)),
+    )
     ctls = st.Loop.from_rig(rig, [PIGains(kp=0.5, ki=1.2), slave]).controllers
     return Tuning.for_rig(
         rig,
@@ -63,17 +69,35 @@ def test_bad_files_name_the_problem(rig: st.Rig, tmp_path) -> None:
         "schema": ({**good, "schema": "servotune.tuning/0"}, "schema must be"),
         "missing": ({k: v for k, v in good.items() if k != "period_s"}, "missing key period_s"),
         "law": (
-            {**good, "axes": [{**good["axes"][0], "controller": {
-                **good["axes"][0]["controller"], "law": "pid"}}, good["axes"][1]]},
+            {
+                **good,
+                "axes": [
+                    {
+                        **good["axes"][0],
+                        "controller": {**good["axes"][0]["controller"], "law": "pid"},
+                    },
+                    good["axes"][1],
+                ],
+            },
             "axes\\[0\\].controller: law must be one of",
         ),
         "float q": (
-            {**good, "axes": [{**good["axes"][0], "controller": {
-                **good["axes"][0]["controller"], "lock_gain": {"q": 1.5, "f": 3}}},
-                good["axes"][1]]},
+            {
+                **good,
+                "axes": [
+                    {
+                        **good["axes"][0],
+                        "controller": {
+                            **good["axes"][0]["controller"],
+                            "lock_gain": {"q": 1.5, "f": 3},
+                        },
+                    },
+                    good["axes"][1],
+                ],
+            },
             "q and f must be integers",
         ),
-    }  # fmt: skip
+    }
     for name, (data, msg) in cases.items():
         p = tmp_path / f"{name.replace(' ', '_')}.json"
         p.write_text(json.dumps(data))

@@ -199,9 +199,13 @@ def test_plant_variants_widen_to_the_identified_intervals(rig, spec) -> None:
     # spreads; an identified gain interval of -35 %/+40 % is wider than the spec's ±20 %
     slave = rig.axis("slave")
     g0, off0 = slave.plant.gain_cps_per_v, slave.plant.offset_v
-    fit = PlantFit(method="iv", structure=("gain_cps_per_v", "offset_v"), friction="sym",
-                      adequate=True, ci95={"gain_cps_per_v": (0.65 * g0, 1.4 * g0),
-                                           "offset_v": (off0 - 0.01, off0 + 0.001)})  # fmt: skip
+    fit = PlantFit(
+        method="iv",
+        structure=("gain_cps_per_v", "offset_v"),
+        friction="sym",
+        adequate=True,
+        ci95={"gain_cps_per_v": (0.65 * g0, 1.4 * g0), "offset_v": (off0 - 0.01, off0 + 0.001)},
+    )
     fitted = dataclasses.replace(rig, axes=(rig.axes[0], dataclasses.replace(slave, plant_fit=fit)))
     mc = dataclasses.replace(spec.montecarlo, count=3000)
     v = plant_variants(fitted, mc)[1:]
@@ -278,10 +282,15 @@ def test_timer_period_is_reported_and_judged_only_with_a_limit(rig) -> None:
 def test_cut_slave_gains_fail_max_sync_error(good, rig, spec) -> None:
     g = good.design["slave"]["tuning"]["gains"]
     cut = FuzzyPIDGains(
-        kp0=0.1 * g["kp0"], ki0=0.1 * g["ki0"], kd0=0.1 * g["kd0"], k10=0.1 * g["k10"],
-        ke=g["ke"], kec=g["kec"], n=g["n"],
+        kp0=0.1 * g["kp0"],
+        ki0=0.1 * g["ki0"],
+        kd0=0.1 * g["kd0"],
+        k10=0.1 * g["k10"],
+        ke=g["ke"],
+        kec=g["kec"],
+        n=g["n"],
         **{k: 0.1 * np.asarray(g[k]) for k in ("dkp", "dki", "dkd", "dk1")},
-    )  # fmt: skip
+    )
     weak = with_slave_task(good, cut.quantize(good.period_s))
     v = verify(weak, rig, dataclasses.replace(spec, montecarlo=small(spec).montecarlo))
     assert not v.passed
@@ -338,8 +347,15 @@ def test_good_tuning_keeps_the_overflow_bound(good, rig) -> None:
     c = check_overflow(good, rig)
     assert c.passed and c.value < 63 and c.limit == 63
     slave = c.facts["axes"]["slave"]
-    assert {"lock_gain", "scheduled kp", "scheduled ki_t", "scheduled kd_t", "scheduled k1_t",
-            "ke", "kec"} <= set(slave)  # fmt: skip
+    assert {
+        "lock_gain",
+        "scheduled kp",
+        "scheduled ki_t",
+        "scheduled kd_t",
+        "scheduled k1_t",
+        "ke",
+        "kec",
+    } <= set(slave)
     assert all(t["product_bound"] <= int(INT64_MAX) for t in slave.values())
     assert c.facts["integrator_bound"] == 2**43  # 12-bit D/A: 2^11 LSB at F_U = 32 bits
     assert c.facts["position_overflow_years"] > 1e6
@@ -514,8 +530,9 @@ def test_default_tuning_keeps_the_margin_limits_on_every_cell_and_corner(tuning_
         plant = rig.axis(name).plant
         for fg in (0.8, 1.2):
             for ft in (0.7, 1.3):
-                p = dataclasses.replace(plant, gain_cps_per_v=plant.gain_cps_per_v * fg,
-                                        tau_s=plant.tau_s * ft)  # fmt: skip
+                p = dataclasses.replace(
+                    plant, gain_cps_per_v=plant.gain_cps_per_v * fg, tau_s=plant.tau_s * ft
+                )
                 lp = _independent_loop(p, rig, kp, ki_t, kd_t, t)
                 lw = lp(np.exp(1j * w * t))
                 ms = float(np.max(np.abs(1 / (1 + lw))))
@@ -560,8 +577,12 @@ def test_a_cell_that_breaks_the_margins_fails_verify_with_the_cell_named(good, r
 
 
 def test_margins_limits_come_from_the_spec(good, rig, spec):
-    loose = dataclasses.replace(small(spec, count=0), margins=st.verify.MarginLimits(
-        min_phase_margin_deg=10.0, min_gain_margin_db=1.0, max_sensitivity=10.0))  # fmt: skip
+    loose = dataclasses.replace(
+        small(spec, count=0),
+        margins=st.verify.MarginLimits(
+            min_phase_margin_deg=10.0, min_gain_margin_db=1.0, max_sensitivity=10.0
+        ),
+    )
     bad = _with_hot_cell(good, (6, 6), 2.5)  # Ms between the two limits
     hot = verify(bad, rig, loose).check("margins:slave:task")
     strict = verify(bad, rig, small(spec, count=0)).check("margins:slave:task")

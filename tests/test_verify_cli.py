@@ -26,8 +26,18 @@ def tunings(tmp_path_factory, default_tuning, quick_tuning) -> dict[str, Path]:
 
 
 def test_passing_tuning_exits_0_and_records(tunings, capsys, tmp_path) -> None:
-    rc = main(["verify", str(tunings["good"]), "--spec", str(SPEC), "--rig", str(RIG),
-               "--report", str(tmp_path / "rep")])  # fmt: skip
+    rc = main(
+        [
+            "verify",
+            str(tunings["good"]),
+            "--spec",
+            str(SPEC),
+            "--rig",
+            str(RIG),
+            "--report",
+            str(tmp_path / "rep"),
+        ]
+    )
     cap = capsys.readouterr()
     # the human summary on stderr, stdout left for products (docs/decisions.md#10-output-streams)
     assert rc == 0 and cap.out == "" and "PASSED\nwrote the verification record" in cap.err
@@ -98,8 +108,10 @@ def test_export_table_trusts_only_a_passed_verify(tunings, tmp_path, capsys, mon
     good.write_text(good.read_text().replace('"seed": 0', '"seed": 1'))
     assert main(["export-table", str(good), "--rig", str(RIG), "-o", str(refused)]) == 1
     # --unverified exports it, marked so
-    assert main(["export-table", str(good), "--rig", str(RIG), "-o", str(refused),
-                 "--unverified"]) == 0  # fmt: skip
+    assert (
+        main(["export-table", str(good), "--rig", str(RIG), "-o", str(refused), "--unverified"])
+        == 0
+    )
     assert load_tables(refused)["verified"] is False
     # no argument: the workbench's current tuning
     wb = tmp_path / "wb"
@@ -122,8 +134,11 @@ def test_export_c_compiles(tunings, tmp_path) -> None:
     assert (
         main(["export-table", str(good), "--rig", str(RIG), "--format", "c", "-o", str(out)]) == 0
     )
-    assert {p.name for p in out.iterdir()} == {"servotune_tables.h", "servotune_rt.c",
-                                                "servotune_rt.h"}  # fmt: skip
+    assert {p.name for p in out.iterdir()} == {
+        "servotune_tables.h",
+        "servotune_rt.c",
+        "servotune_rt.h",
+    }
     cc = shutil.which("cc")
     if cc is None:
         pytest.skip("no C compiler")
@@ -131,5 +146,18 @@ def test_export_c_compiles(tunings, tmp_path) -> None:
     src.write_text(
         '#include "servotune_tables.h"\n#include "servotune_rt.h"\nint main(void){return 0;}\n'
     )
-    subprocess.run([cc, "-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-c",
-                    str(out / "servotune_rt.c"), str(src)], cwd=tmp_path, check=True)  # fmt: skip
+    subprocess.run(
+        [
+            cc,
+            "-std=c99",
+            "-Wall",
+            "-Wextra",
+            "-Werror",
+            "-pedantic",
+            "-c",
+            str(out / "servotune_rt.c"),
+            str(src),
+        ],
+        cwd=tmp_path,
+        check=True,
+    )

@@ -40,9 +40,14 @@ def _env(cache: Path) -> dict[str, str]:
 
 
 def _servotune(args: list[str], cache: Path, timeout: float) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "servotune.cli", *args], cwd=ROOT,
-                          env=_env(cache), capture_output=True, text=True,
-                          timeout=timeout)  # fmt: skip
+    return subprocess.run(
+        [sys.executable, "-m", "servotune.cli", *args],
+        cwd=ROOT,
+        env=_env(cache),
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
 
 
 def _compiling(stderr: str) -> list[str]:
@@ -54,9 +59,14 @@ def test_cold_simulate_says_it_compiles_within_5_s_and_keeps_saying_it(tmp_path:
     stops the run once it has seen both."""
     lines: queue.Queue[tuple[float, str]] = queue.Queue()
     t0 = time.monotonic()
-    p = subprocess.Popen([sys.executable, "-m", "servotune.cli", *SIMULATE, "-o",
-                          str(tmp_path / "log.csv")], cwd=ROOT, env=_env(tmp_path / "numba"),
-                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    p = subprocess.Popen(
+        [sys.executable, "-m", "servotune.cli", *SIMULATE, "-o", str(tmp_path / "log.csv")],
+        cwd=ROOT,
+        env=_env(tmp_path / "numba"),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
 
     def read() -> None:
         for line in p.stderr:
@@ -198,8 +208,12 @@ def test_a_long_compilation_beats_and_a_group_is_said_once() -> None:
 def test_unknown_group_is_refused() -> None:
     with pytest.raises(ValueError, match="unknown kernel group 'engine'"):
         warmup.cold_groups(["simulation", "engine"])
-    usage = subprocess.run([sys.executable, "-m", "servotune.cli", "warmup", "engine"],
-                           capture_output=True, text=True, timeout=60)  # fmt: skip
+    usage = subprocess.run(
+        [sys.executable, "-m", "servotune.cli", "warmup", "engine"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert usage.returncode == 2 and "'engine' is no kernel group" in usage.stderr
 
 

@@ -48,8 +48,9 @@ TIMEOUT_S = 900  # one command, numba's compilation included
 
 
 def _run(argv: list[str | Path], **kw: object) -> subprocess.CompletedProcess[str]:
-    proc = subprocess.run([str(a) for a in argv], capture_output=True, text=True,
-                          timeout=TIMEOUT_S, **kw)  # fmt: skip
+    proc = subprocess.run(
+        [str(a) for a in argv], capture_output=True, text=True, timeout=TIMEOUT_S, **kw
+    )
     assert proc.returncode == 0, (
         f"{' '.join(map(str, argv))} exited {proc.returncode}\n{proc.stdout}\n{proc.stderr}"
     )
@@ -70,8 +71,9 @@ def _setuptools_builds_the_project() -> bool:
 
 def _build_wheel(base: Path) -> Path:
     src, dist = base / "src", base / "dist"
-    shutil.copytree(ROOT / "servotune", src / "servotune",
-                    ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))  # fmt: skip
+    shutil.copytree(
+        ROOT / "servotune", src / "servotune", ignore=shutil.ignore_patterns("__pycache__", "*.pyc")
+    )
     for name in ("pyproject.toml", "README.md"):
         shutil.copy(ROOT / name, src / name)
     isolation = ["--no-build-isolation"] if _setuptools_builds_the_project() else []
@@ -86,8 +88,11 @@ def _fresh_venv(base: Path, wheel: Path) -> Path:
     base_python = getattr(sys, "_base_executable", None) or sys.executable
     _run([base_python, "-m", "venv", venv])
     python = venv / "bin" / "python"
-    site = Path(_run([python, "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"])
-                .stdout.strip())  # fmt: skip
+    site = Path(
+        _run(
+            [python, "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"]
+        ).stdout.strip()
+    )
     ours = dict.fromkeys([sysconfig.get_paths()["purelib"], sysconfig.get_paths()["platlib"]])
     (site / "_servotune_test_deps.pth").write_text("".join(f"{p}\n" for p in ours))
     _run([python, "-m", "pip", "install", "--no-deps", "--no-index", wheel])
@@ -120,11 +125,21 @@ def test_the_wheel_runs_the_readme_chain_without_a_checkout(
     env["XDG_CACHE_HOME"] = str(base / "cache")  # numba's fallback cache, if any
     env["MPLCONFIGDIR"] = str(base / "mpl")
 
-    where = json.loads(_run([python, "-c", (
-        "import json, sys, servotune, servotune.rig, numpy; print(json.dumps({"
-        "'servotune': servotune.__file__, 'rig': str(servotune.rig.EXAMPLE_RIG_PATH), "
-        "'numpy': numpy.__file__, 'path': sys.path}))"
-    )], cwd=work, env=env).stdout)  # fmt: skip
+    where = json.loads(
+        _run(
+            [
+                python,
+                "-c",
+                (
+                    "import json, sys, servotune, servotune.rig, numpy; print(json.dumps({"
+                    "'servotune': servotune.__file__, 'rig': str(servotune.rig.EXAMPLE_RIG_PATH), "
+                    "'numpy': numpy.__file__, 'path': sys.path}))"
+                ),
+            ],
+            cwd=work,
+            env=env,
+        ).stdout
+    )
     site = base / "venv" / "lib"
     assert Path(where["servotune"]).is_relative_to(site), where["servotune"]
     assert Path(where["rig"]).is_relative_to(site) and Path(where["rig"]).is_file()
@@ -147,10 +162,28 @@ def test_the_wheel_runs_the_readme_chain_without_a_checkout(
     assert "kernels in" in cold.stderr and "later runs load them" in cold.stderr
     warm = servotune("warmup")
     assert "nothing to compile" in warm.stderr and not _compiling(warm.stderr), warm.stderr
-    servotune("excite", "--rig", "plants/pc-dual-servo.toml", "--axis", "master",
-              "--kind", "multisine", "--seconds", "40", "-o", "exc.csv")  # fmt: skip
-    servotune("simulate", "plants/pc-dual-servo.toml", "--input", "exc.csv", "--closed-loop",
-              "-o", "my.csv")  # fmt: skip
+    servotune(
+        "excite",
+        "--rig",
+        "plants/pc-dual-servo.toml",
+        "--axis",
+        "master",
+        "--kind",
+        "multisine",
+        "--seconds",
+        "40",
+        "-o",
+        "exc.csv",
+    )
+    servotune(
+        "simulate",
+        "plants/pc-dual-servo.toml",
+        "--input",
+        "exc.csv",
+        "--closed-loop",
+        "-o",
+        "my.csv",
+    )
     fit = servotune("fit", "my.csv", "--axis", "master", "-o", "myrig.toml")
     assert "adequate: yes" in fit.stderr
     rig_text = (work / "myrig.toml").read_text()
@@ -161,8 +194,18 @@ def test_the_wheel_runs_the_readme_chain_without_a_checkout(
         assert f'\n{key} = "pc-dual-servo"' in spec
         spec = spec.replace(f'\n{key} = "pc-dual-servo"', f'\n{key} = "myrig"', 1)
     (work / "myrig.spec.toml").write_text(spec)
-    servotune("tune", "myrig.toml", "-o", "tuning.json", "--spec", "myrig.spec.toml",
-              "--generations", "12", "--population", "16")  # fmt: skip
+    servotune(
+        "tune",
+        "myrig.toml",
+        "-o",
+        "tuning.json",
+        "--spec",
+        "myrig.spec.toml",
+        "--generations",
+        "12",
+        "--population",
+        "16",
+    )
     verify = servotune("verify", "tuning.json", "--spec", "myrig.spec.toml")
     assert "PASSED" in verify.stderr
     servotune("export-table", "-o", "fuzzy.json")
@@ -171,7 +214,13 @@ def test_the_wheel_runs_the_readme_chain_without_a_checkout(
 
     for proc in ran[2:]:  # after the warmup, no command of the chain compiled a kernel
         assert not _compiling(proc.stderr), (proc.args, _compiling(proc.stderr))
-    for name in ("exc.csv", "my.csv", "myrig.toml", "tuning.json", "tuning.json.verify.json",
-                 "fuzzy.json"):  # fmt: skip
+    for name in (
+        "exc.csv",
+        "my.csv",
+        "myrig.toml",
+        "tuning.json",
+        "tuning.json.verify.json",
+        "fuzzy.json",
+    ):
         assert (work / name).stat().st_size > 0, name
     print(f"\nwheel chain: {time.monotonic() - start:.0f} s", file=sys.stderr)  # pytest -s

@@ -37,8 +37,9 @@ def document_kind(path: str | Path) -> str:
     ``"gantry"`` (``servotune.gantry-…``), ``"linkage"`` (``servotune.linkage-…``), else
     ``"rig"``."""
     try:
-        doc = parse_json(read_bytes(path, ServotuneError, "file").decode("utf-8"), str(path),
-                         ServotuneError)  # fmt: skip
+        doc = parse_json(
+            read_bytes(path, ServotuneError, "file").decode("utf-8"), str(path), ServotuneError
+        )
     except (OSError, ValueError, ServotuneError):
         return "rig"
     schema = doc.get("schema") if isinstance(doc, dict) else None

@@ -47,15 +47,22 @@ def _tune_gantry(args: argparse.Namespace, current: Path | None) -> int:
     given = [k for k, v in _RIG_ONLY_TUNE.items() if getattr(args, k) != v]
     if given:
         flag = "--" + given[0].replace("_", "-")
-        raise ServotuneError(f"{flag} tunes a single rig; a gantry's targets are in its config "
-                             f"({args.rig}: [sync], [margins])")  # fmt: skip
+        raise ServotuneError(
+            f"{flag} tunes a single rig; a gantry's targets are in its config "
+            f"({args.rig}: [sync], [margins])"
+        )
     load_gantry(args.rig, resolve=False)  # bad input is one line, before any progress
     _progress(f"tune gantry {args.rig}: each drive's PI, then the sync compensator")
     _compile_kernels("margins", "gantry")
     tuning = tune_gantry(args.rig)
     _summary(args.json, tuning.design, lambda: format_gantry_tuning(tuning))
-    _deliver(args.output, lambda p: write_gantry_tuning(tuning, p),
-             lambda: gantry_tuning_to_string(tuning), "the gantry tuning", current)  # fmt: skip
+    _deliver(
+        args.output,
+        lambda p: write_gantry_tuning(tuning, p),
+        lambda: gantry_tuning_to_string(tuning),
+        "the gantry tuning",
+        current,
+    )
     return EXIT_OK
 
 
@@ -71,14 +78,20 @@ def _cmd_tune(args: argparse.Namespace) -> int:
         raise ServotuneError("--json prints the summary on stdout: give -o FILE for the tuning")
     kind = config_kind(args.rig)
     if kind == "linkage":
-        raise ServotuneError(f"{args.rig} is a linkage config: plan it with `servotune plan "
-                             f"{args.rig}`")  # fmt: skip
+        raise ServotuneError(
+            f"{args.rig} is a linkage config: plan it with `servotune plan {args.rig}`"
+        )
     if kind == "gantry":
         return _tune_gantry(args, current)
     from servotune.rig import load_rig
 
-    limits = ("max_overshoot_pct", "max_saturation_pct", "min_phase_margin_deg",
-              "min_gain_margin_db", "max_sensitivity")  # fmt: skip
+    limits = (
+        "max_overshoot_pct",
+        "max_saturation_pct",
+        "min_phase_margin_deg",
+        "min_gain_margin_db",
+        "max_sensitivity",
+    )
     given = {k: getattr(args, k) for k in limits if getattr(args, k) is not None}
     budget = {"generations": args.generations, "population": args.population}
     rig = load_rig(args.rig)  # a bad rig is one line, before any progress
@@ -97,12 +110,18 @@ def _cmd_tune(args: argparse.Namespace) -> int:
 
     if spec is None:
         spec = tune_spec_from(None, rig=rig, **budget, **given)
-    tuning = tune_rig(args.rig, seed=args.seed, spec=spec, rule_base=args.rule_base,
-                      progress=_progress)  # fmt: skip
+    tuning = tune_rig(
+        args.rig, seed=args.seed, spec=spec, rule_base=args.rule_base, progress=_progress
+    )
     summary = tuning_summary(tuning)
     _summary(args.json, summary, lambda: format_tuning_summary(summary))
-    _deliver(args.output, lambda p: write_tuning(tuning, p), lambda: tuning_to_string(tuning),
-             "the tuning", current)  # fmt: skip
+    _deliver(
+        args.output,
+        lambda p: write_tuning(tuning, p),
+        lambda: tuning_to_string(tuning),
+        "the tuning",
+        current,
+    )
     return EXIT_OK
 
 
@@ -110,16 +129,24 @@ def _verify_linkage(args: argparse.Namespace) -> int:
     from servotune.arch.linkage import verify_plan_files
     from servotune.report.text import format_linkage_verification
 
-    for flag, value in (("--rig", args.rig), ("--report", args.report), ("--seed", args.seed),
-                        ("--montecarlo", args.montecarlo), ("--scheduler", args.scheduler),
-                        ("--workers", args.workers),
-                        ("--plants-from", args.plants_from)):  # fmt: skip
+    for flag, value in (
+        ("--rig", args.rig),
+        ("--report", args.report),
+        ("--seed", args.seed),
+        ("--montecarlo", args.montecarlo),
+        ("--scheduler", args.scheduler),
+        ("--workers", args.workers),
+        ("--plants-from", args.plants_from),
+    ):
         if value is not None:
-            raise ServotuneError(f"{flag} is for a single rig's tuning; {args.tuning} is a "
-                                 "linkage plan (its spec sets the run)")  # fmt: skip
+            raise ServotuneError(
+                f"{flag} is for a single rig's tuning; {args.tuning} is a "
+                "linkage plan (its spec sets the run)"
+            )
     _progress(f"verify linkage plan {args.tuning}: every clock case of {args.spec}")
-    result, record, path = verify_plan_files(args.tuning, args.spec, config_path=args.config,
-                                             progress=_progress)  # fmt: skip
+    result, record, path = verify_plan_files(
+        args.tuning, args.spec, config_path=args.config, progress=_progress
+    )
     _summary(args.json, record, lambda: format_linkage_verification(result))
     print(f"wrote the verification record to {path}", file=sys.stderr)
     return EXIT_OK if result.passed else EXIT_FAILED
@@ -129,16 +156,27 @@ def _verify_gantry(args: argparse.Namespace) -> int:
     from servotune.arch.gantry.verify import verify_gantry_files
     from servotune.report.text import format_gantry_verification
 
-    for flag, value in (("--rig", args.rig), ("--report", args.report),
-                        ("--plants-from", args.plants_from)):  # fmt: skip
+    for flag, value in (
+        ("--rig", args.rig),
+        ("--report", args.report),
+        ("--plants-from", args.plants_from),
+    ):
         if value is not None:
-            raise ServotuneError(f"{flag} is for a single rig's tuning; {args.tuning} is a "
-                                 "gantry tuning (its rig is named by its gantry config, "
-                                 "--config)")  # fmt: skip
-    result, record, path = verify_gantry_files(args.tuning, args.spec, args.config,
-                                               seed=args.seed, montecarlo=args.montecarlo,
-                                               progress=_progress, scheduler=args.scheduler,
-                                               workers=args.workers)  # fmt: skip
+            raise ServotuneError(
+                f"{flag} is for a single rig's tuning; {args.tuning} is a "
+                "gantry tuning (its rig is named by its gantry config, "
+                "--config)"
+            )
+    result, record, path = verify_gantry_files(
+        args.tuning,
+        args.spec,
+        args.config,
+        seed=args.seed,
+        montecarlo=args.montecarlo,
+        progress=_progress,
+        scheduler=args.scheduler,
+        workers=args.workers,
+    )
     _summary(args.json, record, lambda: format_gantry_verification(result))
     print(f"wrote the verification record to {path}", file=sys.stderr)
     return EXIT_OK if result.passed else EXIT_FAILED
@@ -154,14 +192,17 @@ def _cmd_plan(args: argparse.Namespace) -> int:
         raise ServotuneError("--json prints the plan's design on stdout: give -o FILE")
     kind = config_kind(args.config)
     if kind != "linkage":
-        raise ServotuneError(f"{args.config} is a {kind} config, not a linkage's ([[cpu]] "
-                             f"tables): `servotune plan` plans a multi-CPU linkage; tune a "
-                             f"{kind} with `servotune tune`")  # fmt: skip
+        raise ServotuneError(
+            f"{args.config} is a {kind} config, not a linkage's ([[cpu]] "
+            f"tables): `servotune plan` plans a multi-CPU linkage; tune a "
+            f"{kind} with `servotune tune`"
+        )
     _progress(f"plan linkage {args.config}: the bus budget, the queues, the clock sync, the gains")
     plan = plan_linkage(args.config)
     _summary(args.json, plan.design, lambda: format_linkage_plan(plan))
-    _deliver(args.output, lambda p: write_plan(plan, p), lambda: plan_to_string(plan),
-             "the linkage plan")  # fmt: skip
+    _deliver(
+        args.output, lambda p: write_plan(plan, p), lambda: plan_to_string(plan), "the linkage plan"
+    )
     return EXIT_OK
 
 
@@ -171,8 +212,10 @@ def _cmd_verify(args: argparse.Namespace) -> int:
     from servotune.verify import record_path, verify_files
 
     if (args.plants_from is None) != (args.plants_axis is None):
-        print("servotune verify: error: --plants-from FLEET and --plants-axis AXIS go together",
-              file=sys.stderr)  # fmt: skip
+        print(
+            "servotune verify: error: --plants-from FLEET and --plants-axis AXIS go together",
+            file=sys.stderr,
+        )
         return EXIT_USAGE
     kind = document_kind(args.tuning)
     _check_outputs(str(record_path(args.tuning)))  # the record, written beside the tuning
@@ -181,18 +224,26 @@ def _cmd_verify(args: argparse.Namespace) -> int:
     if kind == "linkage":
         return _verify_linkage(args)
     if args.config is not None:
-        raise ServotuneError(f"--config is for a gantry tuning or a linkage plan; {args.tuning} "
-                             "is a rig's tuning")  # fmt: skip
+        raise ServotuneError(
+            f"--config is for a gantry tuning or a linkage plan; {args.tuning} is a rig's tuning"
+        )
     _check_dirs(args.report)  # before the run: a report directory that cannot be made fails first
     dist = None
     if args.plants_from is not None:
         from servotune.fleet import fleet_spread
 
         dist = partial(fleet_spread, args.plants_from, axis=args.plants_axis)
-    result, record, path = verify_files(args.tuning, args.spec, args.rig, seed=args.seed,
-                                        montecarlo=args.montecarlo, progress=_progress,
-                                        scheduler=args.scheduler, workers=args.workers,
-                                        distribution=dist)  # fmt: skip
+    result, record, path = verify_files(
+        args.tuning,
+        args.spec,
+        args.rig,
+        seed=args.seed,
+        montecarlo=args.montecarlo,
+        progress=_progress,
+        scheduler=args.scheduler,
+        workers=args.workers,
+        distribution=dist,
+    )
     _summary(args.json, record, lambda: format_table(result))
     print(f"wrote the verification record to {path}", file=sys.stderr)
     if args.report:
@@ -202,8 +253,13 @@ def _cmd_verify(args: argparse.Namespace) -> int:
 
         rig_path = args.rig or default_rig_path(read_tuning(args.tuning), args.tuning)
         Path(args.report).mkdir(parents=True, exist_ok=True)
-        out = write_report(args.report, tuning_path=args.tuning, rig_path=rig_path,
-                           verification=result, spec_path=args.spec)  # fmt: skip
+        out = write_report(
+            args.report,
+            tuning_path=args.tuning,
+            rig_path=rig_path,
+            verification=result,
+            spec_path=args.spec,
+        )
         print(f"wrote the report to {out}", file=sys.stderr)
     return EXIT_OK if result.passed else EXIT_FAILED
 
@@ -212,8 +268,9 @@ def _cmd_margins(args: argparse.Namespace) -> int:
     from servotune.report.text import format_margins
     from servotune.verify import MarginLimits, margins_files
 
-    limits = MarginLimits(min_phase_margin_deg=args.pm, min_gain_margin_db=args.gm,
-                          max_sensitivity=args.ms)  # fmt: skip
+    limits = MarginLimits(
+        min_phase_margin_deg=args.pm, min_gain_margin_db=args.gm, max_sensitivity=args.ms
+    )
     m = margins_files(args.tuning, args.rig, limits=limits)
     _print_product(args.json, m.to_dict, lambda: format_margins(m))
     return EXIT_OK if m.passed else EXIT_FAILED

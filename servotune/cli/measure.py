@@ -37,13 +37,19 @@ def _cmd_init(args: argparse.Namespace) -> int:
     except ExamplesDifferError as exc:
         them = "it" if len(exc.paths) == 1 else "them"
         raise ServotuneError(f"{exc.strerror} (--force replaces {them})") from None
-    said = {"wrote": "wrote {}", "replaced": "replaced {}",
-            "unchanged": "{} is already there, the same bytes: left alone"}  # fmt: skip
+    said = {
+        "wrote": "wrote {}",
+        "replaced": "replaced {}",
+        "unchanged": "{} is already there, the same bytes: left alone",
+    }
     for f in done:
         print(said[f.action].format(f.path), file=sys.stderr)
     cd = "" if root == Path(".") else f"cd {shlex.quote(args.dir)}, then "
-    print(f"next: {cd}servotune rig plants/pc-dual-servo.toml; the README's commands "
-          "(plants/...) run there as written", file=sys.stderr)  # fmt: skip
+    print(
+        f"next: {cd}servotune rig plants/pc-dual-servo.toml; the README's commands "
+        "(plants/...) run there as written",
+        file=sys.stderr,
+    )
     return EXIT_OK
 
 
@@ -86,9 +92,12 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
     trace = run_scenario(rig, scen, seed=args.seed, noise=not args.no_noise)
     meta = log_metadata(
-        rig, scenario=scen.name, axis=scen.axis, closed_loop=str(args.closed_loop).lower(),
+        rig,
+        scenario=scen.name,
+        axis=scen.axis,
+        closed_loop=str(args.closed_loop).lower(),
         seed=args.seed,
-    )  # fmt: skip
+    )
     # with exc_code (docs/decisions.md#5-excitation-is-logged)
     cols = trace_log_columns(trace, scen.inputs.dac_add_codes)
     kwargs = {"period_s": rig.period_s, "columns": cols, "metadata": meta}
@@ -113,8 +122,9 @@ def _rig_to_extend(path: str, axis: str | None) -> None:
             f"-o {path!r} exists but is not a rig to write the fit into ({exc})"
         ) from None
     if axis is not None and axis not in names:
-        raise RigError(f"-o {path!r} has no axis {axis!r} to write the fit into (its axes: "
-                       f"{', '.join(names)})")  # fmt: skip
+        raise RigError(
+            f"-o {path!r} has no axis {axis!r} to write the fit into (its axes: {', '.join(names)})"
+        )
 
 
 def _cmd_fit(args: argparse.Namespace) -> int:
@@ -135,16 +145,33 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         _rig_to_extend(args.output, args.axis)
     rig = load_rig(args.rig) if args.rig else None
     dac_range = _range(args.dac_range_v) if args.dac_range_v else None
-    hal = hal_settings(args.map, format=args.hal_format, columns=args.hal_columns,
-                       position_scale=args.position_scale, output_scale=args.output_scale,
-                       sample_number=args.sample_number, capture=args.log)  # fmt: skip
+    hal = hal_settings(
+        args.map,
+        format=args.hal_format,
+        columns=args.hal_columns,
+        position_scale=args.position_scale,
+        output_scale=args.output_scale,
+        sample_number=args.sample_number,
+        capture=args.log,
+    )
     result, log, axis = fit_log(
-        args.log, axis=args.axis, rig=rig, structure=args.structure,
-        counter_bits=args.counter_bits, dac_bits=args.dac_bits, dac_range_v=dac_range,
-        period_s=args.period_s, compute_s=args.compute_s, method=args.method,
-        friction=args.friction, invert_encoder=args.invert_encoder,
-        need_axis_name=bool(args.output), strict=args.strict, hal=hal, progress=_progress,
-    )  # fmt: skip
+        args.log,
+        axis=args.axis,
+        rig=rig,
+        structure=args.structure,
+        counter_bits=args.counter_bits,
+        dac_bits=args.dac_bits,
+        dac_range_v=dac_range,
+        period_s=args.period_s,
+        compute_s=args.compute_s,
+        method=args.method,
+        friction=args.friction,
+        invert_encoder=args.invert_encoder,
+        need_axis_name=bool(args.output),
+        strict=args.strict,
+        hal=hal,
+        progress=_progress,
+    )
     print(f"axis {axis or '(unprefixed)'}: " + result.summary(), file=sys.stderr)
     if args.plot:
         from servotune.identify import simulate_fit, validation_split
@@ -153,20 +180,34 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         ax = log.axis(None if list(log.axes) == [""] else axis)
         pos = -ax.pos_counts if result.inverted_encoder else ax.pos_counts
         sim = simulate_fit(result, ax.cmd_v, pos)
-        save_figure(plot_fit(pos, sim, log.period_s, validation_split(sim.size),
-                             f"fit of {axis or 'axis'}"), args.plot)  # fmt: skip
+        save_figure(
+            plot_fit(
+                pos, sim, log.period_s, validation_split(sim.size), f"fit of {axis or 'axis'}"
+            ),
+            args.plot,
+        )
     if args.output:
-        prov = result.provenance(Path(args.log).name, file_sha256(args.log),
-                                 log.metadata.get("date", ""))  # fmt: skip
+        prov = result.provenance(
+            Path(args.log).name, file_sha256(args.log), log.metadata.get("date", "")
+        )
         new = not Path(args.output).exists()
         name = args.name or Path(args.output).stem
-        write_plant(args.output, axis, result.plant, provenance=prov, fit=result.plant_fit,
-                    new_name=name if new else None,
-                    new_header=f"Rig {name}: made by `servotune fit -o` ({prov}).\nUnits are "
-                    "in the key names; gains are D/A codes per count.")  # fmt: skip
+        write_plant(
+            args.output,
+            axis,
+            result.plant,
+            provenance=prov,
+            fit=result.plant_fit,
+            new_name=name if new else None,
+            new_header=f"Rig {name}: made by `servotune fit -o` ({prov}).\nUnits are "
+            "in the key names; gains are D/A codes per count.",
+        )
         if new:
-            print(f"wrote a new rig {name!r} with [axis.{axis}.plant] to {args.output} (its "
-                  "hardware facts are the example rig's: check them)", file=sys.stderr)  # fmt: skip
+            print(
+                f"wrote a new rig {name!r} with [axis.{axis}.plant] to {args.output} (its "
+                "hardware facts are the example rig's: check them)",
+                file=sys.stderr,
+            )
         else:
             print(f"wrote [axis.{axis}.plant] to {args.output}", file=sys.stderr)
     if args.json:
@@ -180,17 +221,25 @@ def _fleet_usage(args: argparse.Namespace) -> str | None:
     """What is wrong with ``fit``'s options for one log or a fleet, if anything."""
     if args.fleet is None:
         if len(args.log) > 1:
-            return (f"several logs need --fleet TABLE.parquet|.csv ({len(args.log)} given); "
-                    "without it fit takes one log")  # fmt: skip
-        for flag, v in (("--baseline", args.baseline), ("--fleet-report", args.fleet_report),
-                        ("--scheduler", args.scheduler), ("--workers", args.workers)):  # fmt: skip
+            return (
+                f"several logs need --fleet TABLE.parquet|.csv ({len(args.log)} given); "
+                "without it fit takes one log"
+            )
+        for flag, v in (
+            ("--baseline", args.baseline),
+            ("--fleet-report", args.fleet_report),
+            ("--scheduler", args.scheduler),
+            ("--workers", args.workers),
+        ):
             if v is not None:
                 return f"{flag} needs --fleet TABLE.parquet|.csv"
         return None
     for flag, v in (("-o", args.output), ("--plot", args.plot), ("--name", args.name)):
         if v is not None:
-            return (f"{flag} is for one log, not with --fleet (the fleet's outputs are --fleet "
-                    "and --fleet-report)")  # fmt: skip
+            return (
+                f"{flag} is for one log, not with --fleet (the fleet's outputs are --fleet "
+                "and --fleet-report)"
+            )
     return None
 
 
@@ -210,32 +259,53 @@ def _cmd_fit_fleet(args: argparse.Namespace) -> int:
     table_format(args.fleet)  # a wrong suffix fails before any work
     _check_outputs(args.fleet, args.fleet_report, inputs=(*args.log, args.baseline, args.rig))
     baseline = read_fleet_table(args.baseline) if args.baseline else ()
-    hal = hal_settings(args.map, format=args.hal_format, columns=args.hal_columns,
-                       position_scale=args.position_scale, output_scale=args.output_scale,
-                       sample_number=args.sample_number)  # fmt: skip
+    hal = hal_settings(
+        args.map,
+        format=args.hal_format,
+        columns=args.hal_columns,
+        position_scale=args.position_scale,
+        output_scale=args.output_scale,
+        sample_number=args.sample_number,
+    )
     options = FleetFitOptions(
-        axis=args.axis, rig=load_rig(args.rig) if args.rig else None, structure=args.structure,
-        counter_bits=args.counter_bits, dac_bits=args.dac_bits,
+        axis=args.axis,
+        rig=load_rig(args.rig) if args.rig else None,
+        structure=args.structure,
+        counter_bits=args.counter_bits,
+        dac_bits=args.dac_bits,
         dac_range_v=_range(args.dac_range_v) if args.dac_range_v else None,
-        period_s=args.period_s, compute_s=args.compute_s, method=args.method,
-        friction=args.friction, invert_encoder=args.invert_encoder, strict=args.strict, hal=hal,
-    )  # fmt: skip
+        period_s=args.period_s,
+        compute_s=args.compute_s,
+        method=args.method,
+        friction=args.friction,
+        invert_encoder=args.invert_encoder,
+        strict=args.strict,
+        hal=hal,
+    )
     _compile_kernels("identification")  # here, not in each worker of a cluster
-    with open_executor(len(args.log), scheduler=args.scheduler, workers=args.workers,
-                       min_items=FLEET_CLUSTER_MIN_LOGS) as ex:  # fmt: skip
-        result = fit_fleet(args.log, options=options, executor=ex, baseline=baseline,
-                           progress=_progress)  # fmt: skip
+    with open_executor(
+        len(args.log),
+        scheduler=args.scheduler,
+        workers=args.workers,
+        min_items=FLEET_CLUSTER_MIN_LOGS,
+    ) as ex:
+        result = fit_fleet(
+            args.log, options=options, executor=ex, baseline=baseline, progress=_progress
+        )
     s = result.summary
     if s.n_failed == s.n_rows:  # no log fitted: exit 3 and no table (README, "A fleet of machines")
         first = s.failures[0][2] if s.failures else "no rows"
-        raise ServotuneError(f"none of the {s.n_logs} logs fitted, no table written; first "
-                             f"error: {first}")  # fmt: skip
+        raise ServotuneError(
+            f"none of the {s.n_logs} logs fitted, no table written; first error: {first}"
+        )
     write_fleet_table(result, args.fleet)
     _summary(args.json, result.to_dict(), s.text)
     if s.n_failed:
         failed = len({f for f, _, _ in s.failures})
-        print(f"{failed} of {s.n_logs} logs failed to fit (their rows in the table hold the "
-              "error)", file=sys.stderr)  # fmt: skip
+        print(
+            f"{failed} of {s.n_logs} logs failed to fit (their rows in the table hold the error)",
+            file=sys.stderr,
+        )
     print(f"wrote the fleet table ({len(result.rows)} rows) to {args.fleet}", file=sys.stderr)
     if args.fleet_report:
         from servotune.report.fleet import write_fleet_report
@@ -260,12 +330,15 @@ def _cmd_excite(args: argparse.Namespace) -> int:
     _check_outputs(args.output, inputs=(args.rig,))
     rig = load_rig(args.rig)
     axis = args.axis or next(a.name for a in rig.axes if a.role == "master")
-    exc = design_excitation(rig, axis, args.kind, args.seconds, seed=args.seed,
-                            amplitude_codes=args.amplitude_codes)  # fmt: skip
+    exc = design_excitation(
+        rig, axis, args.kind, args.seconds, seed=args.seed, amplitude_codes=args.amplitude_codes
+    )
     write_excitation(args.output, exc, rig)
     lo, hi = exc.predicted_travel_counts
-    print(f"wrote {exc.n_ticks} ticks of {args.kind} on {axis} to {args.output}: amplitude "
-          f"{exc.amplitude_codes} codes (limited by {exc.limited_by}), predicted max speed "
-          f"{exc.predicted_max_speed_rpm:.0f} r/min, travel {lo:.0f} … {hi:.0f} counts",
-          file=sys.stderr)  # fmt: skip
+    print(
+        f"wrote {exc.n_ticks} ticks of {args.kind} on {axis} to {args.output}: amplitude "
+        f"{exc.amplitude_codes} codes (limited by {exc.limited_by}), predicted max speed "
+        f"{exc.predicted_max_speed_rpm:.0f} r/min, travel {lo:.0f} … {hi:.0f} counts",
+        file=sys.stderr,
+    )
     return EXIT_OK

@@ -190,5 +190,8 @@ def _workbench_dir(d: Path) -> None:
             f"cannot create the workbench directory {str(d)!r}: {exc.strerror or exc} "
             "(set SERVOTUNE_WORKBENCH, or pass --no-current)"
         ) from None
-    _probe(d, f"the workbench directory {str(d)!r} is not writable (set SERVOTUNE_WORKBENCH, "
-           "or pass --no-current)")  # fmt: skip
+    _probe(
+        d,
+        f"the workbench directory {str(d)!r} is not writable (set SERVOTUNE_WORKBENCH, "
+        "or pass --no-current)",
+    )

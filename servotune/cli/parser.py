@@ -67,8 +67,9 @@ def _group(text: str) -> str:
     not one of :data:`servotune.warmup.GROUPS`)."""
     names = [g.name for g in GROUPS]
     if text not in names:
-        raise argparse.ArgumentTypeError(f"{text!r} is no kernel group; the groups: "
-                                         f"{', '.join(names)}")  # fmt: skip
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is no kernel group; the groups: {', '.join(names)}"
+        )
     return text
 
 
@@ -107,8 +108,13 @@ def _parser() -> argparse.ArgumentParser:
         help="write the example rig, gantry and linkage configs, their specs and a LinuxCNC "
         "capture map into DIR/plants/ (where the README's commands look for them)",
     )
-    s.add_argument("dir", nargs="?", default=".", metavar="DIR",
-                   help="directory to set up (default: the current one)")  # fmt: skip
+    s.add_argument(
+        "dir",
+        nargs="?",
+        default=".",
+        metavar="DIR",
+        help="directory to set up (default: the current one)",
+    )
     s.add_argument(
         "--force",
         action="store_true",
@@ -387,8 +393,9 @@ def _parser() -> argparse.ArgumentParser:
         "chunks, in-process below 100,000, else on a Dask cluster (--scheduler, or one started "
         "on this machine's cores); the result is the same on any of them",
     )
-    _executor_options(s, "run the plant sets",
-                      "100,000 plant sets, or a gantry's 10,000 plant pairs")  # fmt: skip
+    _executor_options(
+        s, "run the plant sets", "100,000 plant sets, or a gantry's 10,000 plant pairs"
+    )
     s.add_argument(
         "--plants-from",
         metavar="FLEET",
@@ -433,9 +440,10 @@ def _parser() -> argparse.ArgumentParser:
         help="tuning file or linkage plan (default: the workbench's current tuning)",
     )
     s.add_argument(
-        "-o", "--output",
+        "-o",
+        "--output",
         help="file (JSON, HAL, .comp) or directory (C); default stdout (not for C)",
-    )  # fmt: skip
+    )
     s.add_argument(
         "--format",
         choices=["json", "c", "linuxcnc-hal", "linuxcnc-comp"],
@@ -492,8 +500,11 @@ def _parser() -> argparse.ArgumentParser:
         "check-table",
         help="check an export: every CRC and digest (any edit is refused)",
     )
-    s.add_argument("file", help="an export of servotune export-table: tables, gantry or linkage "
-                   "JSON, a LinuxCNC HAL file or HAL component (.comp)")  # fmt: skip
+    s.add_argument(
+        "file",
+        help="an export of servotune export-table: tables, gantry or linkage "
+        "JSON, a LinuxCNC HAL file or HAL component (.comp)",
+    )
     s.add_argument("--json", action="store_true", help="the check's summary as JSON on stdout")
 
     s = _verb(sub, _cmd_demo, "demo", help="run the whole job on a rig and write into a directory")
@@ -515,8 +526,11 @@ def _parser() -> argparse.ArgumentParser:
         "scenarios",
     )
     s.add_argument("rig", help="rig file (TOML)")
-    s.add_argument("--spec", required=True, help="verification spec (TOML): limits, tuning run "
-                   "and the held-out scenarios")  # fmt: skip
+    s.add_argument(
+        "--spec",
+        required=True,
+        help="verification spec (TOML): limits, tuning run and the held-out scenarios",
+    )
     s.add_argument("--out", default="reports", help="directory for figure4.png/json, pareto.png")
     s.add_argument("--seeds", type=int, default=3, help="optimiser seeds (default 3)")
     s.add_argument("--seed", type=_seed, default=0, help="first seed (default 0)")
@@ -575,8 +589,13 @@ def _parser() -> argparse.ArgumentParser:
     )
     s.add_argument("--json", action="store_true", help="what was compiled, as JSON on stdout")
     for name, verb in sub.choices.items():  # --quiet also after the verb (where users type it)
-        verb.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
-                          help="no progress on stderr")  # fmt: skip
+        verb.add_argument(
+            "-q",
+            "--quiet",
+            action="store_true",
+            default=argparse.SUPPRESS,
+            help="no progress on stderr",
+        )
         verb.formatter_class = argparse.RawDescriptionHelpFormatter
         verb.epilog = "examples:\n" + "\n".join(f"  {x}" for x in _EXAMPLES[name])
     return p

@@ -33,16 +33,21 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     _check_dirs(args.out)
     rig, spec = load_rig(args.rig), load_spec(args.spec)
     _compile_kernels("simulation", "margins", "verification")
-    preset = DemoPreset(generations=args.generations, population=args.population,
-                        seeds=tuple(range(args.seeds)), heldout_count=args.heldout_count,
-                        pareto_ms=ms)  # fmt: skip
-    cmp = run_comparison(rig, spec, args.out, preset=preset, seed=args.seed,
-                         progress=_progress)  # fmt: skip
+    preset = DemoPreset(
+        generations=args.generations,
+        population=args.population,
+        seeds=tuple(range(args.seeds)),
+        heldout_count=args.heldout_count,
+        pareto_ms=ms,
+    )
+    cmp = run_comparison(rig, spec, args.out, preset=preset, seed=args.seed, progress=_progress)
     print("\n".join(comparison_statement(cmp)), file=sys.stderr)
     if args.json:
         sys.stdout.write((Path(args.out) / "figure4.json").read_text())
-    print(f"wrote figure4.png, figure4.json{', pareto.png' if ms else ''} to {args.out}",
-          file=sys.stderr)  # fmt: skip
+    print(
+        f"wrote figure4.png, figure4.json{', pareto.png' if ms else ''} to {args.out}",
+        file=sys.stderr,
+    )
     return EXIT_OK
 
 
@@ -53,31 +58,47 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     _check_dirs(args.out)
     load_rig(args.rig)  # a bad rig fails before the output directory is made
     Path(args.out).mkdir(parents=True, exist_ok=True)
-    _compile_kernels("simulation", "margins", "verification", "identification", "gantry",
-                     "linkage")  # fmt: skip
-    summary = run_demo(args.rig, args.out, seed=args.seed,
-                       preset="full" if args.full else "quick",
-                       progress=_progress)  # fmt: skip
+    _compile_kernels("simulation", "margins", "verification", "identification", "gantry", "linkage")
+    summary = run_demo(
+        args.rig,
+        args.out,
+        seed=args.seed,
+        preset="full" if args.full else "quick",
+        progress=_progress,
+    )
     for name, h in summary["lock_hold"].items():
-        print(f"lock hold {name}: observed {h['observed_counts']} "
-              f"predicted {h['predicted_counts']} counts", file=sys.stderr)  # fmt: skip
+        print(
+            f"lock hold {name}: observed {h['observed_counts']} "
+            f"predicted {h['predicted_counts']} counts",
+            file=sys.stderr,
+        )
     for name, f in summary["identification"].items():
         err = f["relative_error"]
-        print(f"fit {name}: {'+'.join(f['structure'])}; gain {err['gain_cps_per_v']:+.2%}, "
-              f"tau {err['tau_s']:+.2%} vs the virtual rig's truth", file=sys.stderr)  # fmt: skip
-    print("Figure 4 (slave tracking, each structure tuned with the same budget):\n"
-          + comparison_table_text(summary["comparison"]), file=sys.stderr)  # fmt: skip
+        print(
+            f"fit {name}: {'+'.join(f['structure'])}; gain {err['gain_cps_per_v']:+.2%}, "
+            f"tau {err['tau_s']:+.2%} vs the virtual rig's truth",
+            file=sys.stderr,
+        )
+    print(
+        "Figure 4 (slave tracking, each structure tuned with the same budget):\n"
+        + comparison_table_text(summary["comparison"]),
+        file=sys.stderr,
+    )
     print("\n".join(summary["figure4_statement"]), file=sys.stderr)
     v = summary["verification"]
-    print("verify: " + ("PASSED" if v["passed"] else "FAILED: " + "; ".join(v["failures"])),
-          file=sys.stderr)  # fmt: skip
+    print(
+        "verify: " + ("PASSED" if v["passed"] else "FAILED: " + "; ".join(v["failures"])),
+        file=sys.stderr,
+    )
     for name, a in summary["architectures"].items():
         print(f"{name}: {'checks passed' if a['passed'] else 'a check FAILED'}", file=sys.stderr)
-    print(f"wrote demo_summary.json, report.html, lock_hold.png, track.png, fit_*.png, "
-          f"fitted-rig.toml, tuning.json, figure4.png, sync.json, sync_*.png, linkage.json, "
-          f"linkage_*.png, "
-          f"{', '.join(summary['exported']) or 'no exports'} and logs to {args.out}",
-          file=sys.stderr)  # fmt: skip
+    print(
+        f"wrote demo_summary.json, report.html, lock_hold.png, track.png, fit_*.png, "
+        f"fitted-rig.toml, tuning.json, figure4.png, sync.json, sync_*.png, linkage.json, "
+        f"linkage_*.png, "
+        f"{', '.join(summary['exported']) or 'no exports'} and logs to {args.out}",
+        file=sys.stderr,
+    )
     return EXIT_OK
 
 
@@ -89,8 +110,7 @@ def _cmd_sync(args: argparse.Namespace) -> int:
     _check_dirs(args.plot)
     cfg = load_gantry(args.config)  # a bad config is one line, before the gantry's compiling
     _compile_kernels("gantry")
-    cmp = compare_topologies(cfg, seed=args.seed,
-                             montecarlo=args.montecarlo)  # fmt: skip
+    cmp = compare_topologies(cfg, seed=args.seed, montecarlo=args.montecarlo)
     _print_product(args.json, cmp.to_dict, lambda: format_comparison(cmp))
     if args.plot:
         from servotune.arch.gantry import CASES

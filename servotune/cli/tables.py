@@ -29,8 +29,10 @@ def _export_gantry(args: argparse.Namespace, path: Path) -> int:
     from servotune.verify.record import fallback_notice
 
     if args.rig is not None:
-        raise ServotuneError(f"--rig is for a single rig's tuning; {path} is a gantry tuning "
-                             "(give its gantry config with --config)")  # fmt: skip
+        raise ServotuneError(
+            f"--rig is for a single rig's tuning; {path} is a gantry tuning "
+            "(give its gantry config with --config)"
+        )
     v = load_gantry_for_export(path, args.config, args.spec, unverified=args.unverified)
     if (note := fallback_notice(v.gantry_file, "gantry")) is not None:
         _progress(note)
@@ -51,11 +53,14 @@ def _export_linkage(args: argparse.Namespace, path: Path) -> int:
     from servotune.export.linkage import linkage_plan_json, write_linkage_c
 
     if args.rig is not None:
-        raise ServotuneError(f"--rig does not apply to a linkage plan ({path}): the plan binds "
-                             "its config and rig by their hashes (a moved config: "
-                             "--config)")  # fmt: skip
-    plan, record = load_plan_for_export(path, args.spec, unverified=args.unverified,
-                                        config_path=args.config, progress=_progress)  # fmt: skip
+        raise ServotuneError(
+            f"--rig does not apply to a linkage plan ({path}): the plan binds "
+            "its config and rig by their hashes (a moved config: "
+            "--config)"
+        )
+    plan, record = load_plan_for_export(
+        path, args.spec, unverified=args.unverified, config_path=args.config, progress=_progress
+    )
     if args.format == "c":
         written = write_linkage_c(plan, args.output, record=record, unverified=args.unverified)
         print(f"wrote {', '.join(p.name for p in written)} to {args.output}", file=sys.stderr)
@@ -128,9 +133,14 @@ def _linuxcnc_text(args: argparse.Namespace, tuning: object, kw: dict) -> str:
             "--format linuxcnc-hal needs --position-scale (encoder counts per machine unit, "
             "the encoder's position-scale parameter)"
         )
-    return pid_hal_text(tuning, position_scale=args.position_scale,
-                        output_scale=args.output_scale, pid_name=args.pid,
-                        velocity_feedforward=not args.no_feedforward, **kw)  # fmt: skip
+    return pid_hal_text(
+        tuning,
+        position_scale=args.position_scale,
+        output_scale=args.output_scale,
+        pid_name=args.pid,
+        velocity_feedforward=not args.no_feedforward,
+        **kw,
+    )
 
 
 def _check_gantry_table(args: argparse.Namespace) -> int:
@@ -142,14 +152,28 @@ def _check_gantry_table(args: argparse.Namespace) -> int:
     doc = check_gantry_tables(raw.decode("utf-8", errors="replace"), args.file)
     data = doc["data"]
     if args.json:
-        print(json.dumps({"c_layout_sha256": data["c_layout_sha256"], "file": args.file,
-                          "gantry": data["gantry_name"], "ok": True, "schema": doc["schema"],
-                          "sha256": doc["sha256"], "verified": doc["verified"]},
-                         indent=2, sort_keys=True))  # fmt: skip
+        print(
+            json.dumps(
+                {
+                    "c_layout_sha256": data["c_layout_sha256"],
+                    "file": args.file,
+                    "gantry": data["gantry_name"],
+                    "ok": True,
+                    "schema": doc["schema"],
+                    "sha256": doc["sha256"],
+                    "verified": doc["verified"],
+                },
+                indent=2,
+                sort_keys=True,
+            )
+        )
     verified = "verified" if doc["verified"] else "NOT verified (exported --unverified)"
-    print(f"{args.file}: ok: {doc['schema']}, gantry {data['gantry_name']} "
-          f"({data['topology']}), {verified}; both digests match (sha256 "
-          f"{doc['sha256'][:12]}…)", file=sys.stderr)  # fmt: skip
+    print(
+        f"{args.file}: ok: {doc['schema']}, gantry {data['gantry_name']} "
+        f"({data['topology']}), {verified}; both digests match (sha256 "
+        f"{doc['sha256'][:12]}…)",
+        file=sys.stderr,
+    )
     return EXIT_OK
 
 
@@ -174,8 +198,13 @@ def _check_text_export(args: argparse.Namespace, text: str) -> int | None:
     else:
         return None
     if args.json:
-        print(json.dumps({"file": args.file, "kind": what.split(" (")[0], "ok": True},
-                         indent=2, sort_keys=True))  # fmt: skip
+        print(
+            json.dumps(
+                {"file": args.file, "kind": what.split(" (")[0], "ok": True},
+                indent=2,
+                sort_keys=True,
+            )
+        )
     print(f"{args.file}: ok: {what}; its sha256 line matches its content", file=sys.stderr)
     return EXIT_OK
 
@@ -187,13 +216,25 @@ def _check_linkage_export(args: argparse.Namespace, text: str) -> int:
     config = doc["data"].get("config")
     name = config.get("name", "?") if isinstance(config, dict) else "?"
     if args.json:
-        print(json.dumps({"file": args.file, "ok": True, "schema": doc["schema"],
-                          "sha256": doc["sha256"], "verified": doc["verified"]},
-                         indent=2, sort_keys=True))  # fmt: skip
+        print(
+            json.dumps(
+                {
+                    "file": args.file,
+                    "ok": True,
+                    "schema": doc["schema"],
+                    "sha256": doc["sha256"],
+                    "verified": doc["verified"],
+                },
+                indent=2,
+                sort_keys=True,
+            )
+        )
     verified = "verified" if doc["verified"] else "NOT verified (exported --unverified)"
-    print(f"{args.file}: ok: {doc['schema']}, linkage {name}, "
-          f"{verified}; the digest matches (sha256 {doc['sha256'][:12]}…)",
-          file=sys.stderr)  # fmt: skip
+    print(
+        f"{args.file}: ok: {doc['schema']}, linkage {name}, "
+        f"{verified}; the digest matches (sha256 {doc['sha256'][:12]}…)",
+        file=sys.stderr,
+    )
     return EXIT_OK
 
 
@@ -236,7 +277,10 @@ def _cmd_check_table(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(summary, indent=2, sort_keys=True))
     verified = "verified" if doc["verified"] else "NOT verified (exported --unverified)"
-    print(f"{args.file}: ok: {doc['schema']}, rig {data['rig_name']}, axes "
-          f"{', '.join(summary['axes'])}, {verified}; every CRC and digest matches "
-          f"(sha256 {doc['sha256'][:12]}…)", file=sys.stderr)  # fmt: skip
+    print(
+        f"{args.file}: ok: {doc['schema']}, rig {data['rig_name']}, axes "
+        f"{', '.join(summary['axes'])}, {verified}; every CRC and digest matches "
+        f"(sha256 {doc['sha256'][:12]}…)",
+        file=sys.stderr,
+    )
     return EXIT_OK

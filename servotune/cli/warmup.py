@@ -29,14 +29,19 @@ def _cmd_warmup(args: argparse.Namespace) -> int:
     asked = "every kernel group" if len(names) == len(GROUPS) else ", ".join(names)
     where = f" in {result.cache_dir}" if result.cache_dir is not None else ""
     if result.compiled:
-        print(f"compiled the {', '.join(result.compiled)} kernels in {result.seconds:.0f} s, "
-              f"cached{where}: later runs load them", file=sys.stderr)  # fmt: skip
+        print(
+            f"compiled the {', '.join(result.compiled)} kernels in {result.seconds:.0f} s, "
+            f"cached{where}: later runs load them",
+            file=sys.stderr,
+        )
     else:
         print(f"nothing to compile: {asked} already compiled (cached{where})", file=sys.stderr)
     for name in result.still_cold:
-        print(f"servotune warmup: warning: the {name} kernels compiled but could not be cached "
-              f"(is the cache directory writable?): every run compiles them again",
-              file=sys.stderr)  # fmt: skip
+        print(
+            f"servotune warmup: warning: the {name} kernels compiled but could not be cached "
+            f"(is the cache directory writable?): every run compiles them again",
+            file=sys.stderr,
+        )
     if args.json:
         _print_product(True, result.to_dict, str)
     return EXIT_OK

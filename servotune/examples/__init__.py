@@ -44,8 +44,11 @@ class ExamplesDifferError(FileExistsError):
         self.paths = tuple(paths)
         names = ", ".join(repr(str(p)) for p in paths)
         verbs = "exists and differs" if len(paths) == 1 else "exist and differ"
-        super().__init__(errno.EEXIST, f"{names} {verbs} from servotune's example; nothing "
-                         "written", str(paths[0]))  # fmt: skip
+        super().__init__(
+            errno.EEXIST,
+            f"{names} {verbs} from servotune's example; nothing written",
+            str(paths[0]),
+        )
 
 
 class ExampleFile(NamedTuple):
@@ -122,9 +125,10 @@ def write_examples(directory: str | Path, *, force: bool = False) -> list[Exampl
         nearest = nearest.parent
     if nearest.exists() and not nearest.is_dir():
         raise NotADirectoryError(
-            errno.ENOTDIR, "is a file, not a directory: give a directory for the example files",
+            errno.ENOTDIR,
+            "is a file, not a directory: give a directory for the example files",
             str(nearest),
-        )  # fmt: skip
+        )
     plan: list[tuple[Path, bytes, Literal["wrote", "replaced", "unchanged"]]] = []
     differ: list[Path] = []
     for name in example_names():

@@ -99,8 +99,10 @@ def gantry_document(
     """
     if not unverified:
         if record is None:
-            raise ExportError("no verification record: verify the gantry tuning first, or "
-                              "export it marked unverified (--unverified)")  # fmt: skip
+            raise ExportError(
+                "no verification record: verify the gantry tuning first, or "
+                "export it marked unverified (--unverified)"
+            )
         if record.get("passed") is not True:
             raise ExportError("the verification failed: fix the tuning and verify it again")
     files = record.get("files", {}) if record is not None else {}
@@ -131,8 +133,13 @@ def gantry_document(
     data["c_layout_sha256"] = gantry_layout_sha256(data)
     summary = None
     if record is not None:
-        summary = json_safe({"passed": record.get("passed"), "record_sha256": record.get(
-            DIGEST_FIELD), "summary": record.get("summary")})  # fmt: skip
+        summary = json_safe(
+            {
+                "passed": record.get("passed"),
+                "record_sha256": record.get(DIGEST_FIELD),
+                "summary": record.get("summary"),
+            }
+        )
     doc: dict[str, Any] = {
         "data": data,
         "provenance": {
@@ -199,8 +206,18 @@ def _sync_lines(sync: Mapping[str, Any]) -> tuple[list[str], list[str]]:
         f"#define ST_GANTRY_SYNC_WARN {sync['warn_counts']} /* warning [counts], 0 = off */",
         f"#define ST_GANTRY_SYNC_TRIP {sync['trip_counts']} /* trip [counts], 0 = off */",
     ]
-    fields = ("kp_q", "kp_f", "kit_q", "kit_f", "kdt_q", "kdt_f", "dead_zone", "limit", "warn",
-              "trip")  # fmt: skip
+    fields = (
+        "kp_q",
+        "kp_f",
+        "kit_q",
+        "kit_f",
+        "kdt_q",
+        "kdt_f",
+        "dead_zone",
+        "limit",
+        "warn",
+        "trip",
+    )
     init = [f".{f} = ST_GANTRY_SYNC_{f.upper()}" for f in fields]
     return lines, init
 
@@ -246,8 +263,7 @@ def gantry_c_header(doc: Mapping[str, Any]) -> str:
     ]
     inits = []
     for i, d in enumerate(data["drives"]):
-        ax = {**d["controller"], "index": i, "name": d["name"], "role": d["name"],
-              "ref_source": -1}  # fmt: skip
+        ax = {**d["controller"], "index": i, "name": d["name"], "role": d["name"], "ref_source": -1}
         lines, init = _axis_lines(ax, d["name"])
         out.extend(lines)
         inits.append(init)
@@ -274,5 +290,6 @@ def gantry_c_header(doc: Mapping[str, Any]) -> str:
 def write_gantry_c(doc: Mapping[str, Any], out_dir: str | Path) -> tuple[Path, ...]:
     """Write ``servotune_gantry_consts.h`` and the runtime's sources into ``out_dir`` as a
     whole (:func:`~servotune.export.c.write_c_files`): all of them or none."""
-    return write_c_files(out_dir, {GANTRY_HEADER_NAME: gantry_c_header(doc)},
-                         RUNTIME_FILES + GANTRY_RUNTIME_FILES)  # fmt: skip
+    return write_c_files(
+        out_dir, {GANTRY_HEADER_NAME: gantry_c_header(doc)}, RUNTIME_FILES + GANTRY_RUNTIME_FILES
+    )

@@ -21,8 +21,14 @@ from servotune.arch.gantry.config import TOPOLOGIES
 from servotune.errors import ExportError
 from servotune.laws.axis import LAW_NAMES, LAW_PI
 
-__all__ = ["DRIVE_FIELDS", "GANTRY_LAYOUT_FIELDS", "SYNC_FIELDS", "gantry_layout_bytes",
-           "gantry_layout_sha256", "gantry_layout_values"]  # fmt: skip
+__all__ = [
+    "DRIVE_FIELDS",
+    "GANTRY_LAYOUT_FIELDS",
+    "SYNC_FIELDS",
+    "gantry_layout_bytes",
+    "gantry_layout_sha256",
+    "gantry_layout_values",
+]
 
 DRIVE_FIELDS = ("law", "lock_q", "lock_f", "kp_q", "kp_f", "kit_q", "kit_f", "fe_limit",
                 "counter_bits", "dac_zero", "dac_max")  # fmt: skip
@@ -67,14 +73,33 @@ def gantry_layout_values(data: Mapping[str, Any]) -> tuple[int, ...]:
         if law != LAW_NAMES[LAW_PI] or task is None:
             raise ExportError(f"gantry export: the {name} drive must run a PI law, got {law!r}")
         lock, kp, kit = c["lock_gain"], task["kp"], task["ki_t"]
-        out += [LAW_NAMES.index(law), lock["q"], lock["f"], kp["q"], kp["f"], kit["q"], kit["f"],
-                c["following_error_limit_counts"], _get(data, "counter_bits", "data"),
-                dac["zero_code"], dac["code_max"]]  # fmt: skip
+        out += [
+            LAW_NAMES.index(law),
+            lock["q"],
+            lock["f"],
+            kp["q"],
+            kp["f"],
+            kit["q"],
+            kit["f"],
+            c["following_error_limit_counts"],
+            _get(data, "counter_bits", "data"),
+            dac["zero_code"],
+            dac["code_max"],
+        ]
     s = _get(data, "sync", "data")
     k = _get(s, "constants", "data.sync")
-    out += [k["kp"]["q"], k["kp"]["f"], k["ki_t"]["q"], k["ki_t"]["f"], k["kd_t"]["q"],
-            k["kd_t"]["f"], k["dead_zone_counts"], k["limit_counts"], s["warn_counts"],
-            s["trip_counts"]]  # fmt: skip
+    out += [
+        k["kp"]["q"],
+        k["kp"]["f"],
+        k["ki_t"]["q"],
+        k["ki_t"]["f"],
+        k["kd_t"]["q"],
+        k["kd_t"]["f"],
+        k["dead_zone_counts"],
+        k["limit_counts"],
+        s["warn_counts"],
+        s["trip_counts"],
+    ]
     for name, v in zip(GANTRY_LAYOUT_FIELDS, out, strict=True):
         if type(v) is not int or not -(2**63) <= v < 2**63:
             raise ExportError(f"gantry export: {name} must be an int64, got {v!r}")

@@ -171,9 +171,14 @@ def constants_crc32(tuning: Tuning, *, rig: Rig | None = None) -> int:
     """
     hw = _hardware(tuning, rig)
     dac = hw["dac"]
-    pairs = constants_pairs(tuning.controllers, _ref_sources(tuning.roles),
-                            timer_divisor=tuning.timer_divisor, counter_bits=hw["counter_bits"],
-                            dac_bits=dac["bits"], dac_zero=dac["zero_code"])  # fmt: skip
+    pairs = constants_pairs(
+        tuning.controllers,
+        _ref_sources(tuning.roles),
+        timer_divisor=tuning.timer_divisor,
+        counter_bits=hw["counter_bits"],
+        dac_bits=dac["bits"],
+        dac_zero=dac["zero_code"],
+    )
     return zlib.crc32(pairs_bytes(pairs))
 
 
@@ -443,8 +448,21 @@ def _check_table(tab: Any, name: str, n: int, where: str) -> None:
 
 
 def _controller(ax: Any, where: str) -> AxisController:
-    check_keys(ax, where, ("following_error_limit_counts", "index", "law", "lock_gain", "name",
-                           "ref_source", "role", "task"), error=ExportError)  # fmt: skip
+    check_keys(
+        ax,
+        where,
+        (
+            "following_error_limit_counts",
+            "index",
+            "law",
+            "lock_gain",
+            "name",
+            "ref_source",
+            "role",
+            "task",
+        ),
+        error=ExportError,
+    )
     task = _need(ax, "task", where)
     law = _need(ax, "law", where)
     if law not in LAW_NAMES:
@@ -501,24 +519,42 @@ def _check_document(doc: Any) -> tuple[AxisController, ...]:
         raise ExportError(f"{schema} was written by an older servotune; export the tuning again")
     if schema != SCHEMA:
         raise ExportError(f"schema must be {SCHEMA!r}, got {str(schema)[:60]!r}")
-    check_keys(doc, "document", ("data", DIGEST_FIELD, "provenance", "schema", "verified"),
-               error=ExportError)  # fmt: skip
+    check_keys(
+        doc,
+        "document",
+        ("data", DIGEST_FIELD, "provenance", "schema", "verified"),
+        error=ExportError,
+    )
     if not isinstance(doc["verified"], bool):
         raise ExportError("verified must be true or false")
     data = check_keys(
-        doc["data"], "data",
-        ("axes", "c_layout_sha256", "constants_crc32", "counter_bits", "dac", "f_u", "period_s",
-         "rig_name", "timer_divisor"),
+        doc["data"],
+        "data",
+        (
+            "axes",
+            "c_layout_sha256",
+            "constants_crc32",
+            "counter_bits",
+            "dac",
+            "f_u",
+            "period_s",
+            "rig_name",
+            "timer_divisor",
+        ),
         error=ExportError,
-    )  # fmt: skip
+    )
     axes = _need(data, "axes", "data")
     if not isinstance(axes, list) or not axes:
         raise ExportError("data.axes must be a non-empty list")
     bits = _need_int(data, "counter_bits", "data")
     if bits not in (16, 24, 32):
         raise ExportError(f"data.counter_bits must be 16, 24 or 32, got {show_value(bits)}")
-    dac = check_keys(_need(data, "dac", "data"), "data.dac",
-                     ("bits", "code_max", "range_v", "zero_code"), error=ExportError)  # fmt: skip
+    dac = check_keys(
+        _need(data, "dac", "data"),
+        "data.dac",
+        ("bits", "code_max", "range_v", "zero_code"),
+        error=ExportError,
+    )
     dac_bits = _need_int(dac, "bits", "data.dac")
     if not 1 <= dac_bits <= 16:
         raise ExportError(f"data.dac.bits must be an integer in 1..16 [bits], got {dac_bits}")

@@ -305,8 +305,9 @@ def _constants_part(data: Mapping[str, Any]) -> tuple[bytes, list[AxisController
     if not 1 <= dac_bits <= 16 or code_max != 2**dac_bits - 1:
         raise ExportError(f"data.dac.code_max must be 2**bits - 1, got {code_max} for {dac_bits}")
     ctls = _controllers(axes)
-    pairs = constants_pairs(ctls, refs, timer_divisor=divisor, counter_bits=bits,
-                            dac_bits=dac_bits, dac_zero=dac_zero)  # fmt: skip
+    pairs = constants_pairs(
+        ctls, refs, timer_divisor=divisor, counter_bits=bits, dac_bits=dac_bits, dac_zero=dac_zero
+    )
     return pairs_bytes(pairs), ctls
 
 

@@ -169,11 +169,12 @@ def check_linkage_export(text: str, src: str = "<text>") -> dict[str, Any]:
     except (TypeError, ValueError):
         computed = None
     if doc.get(DIGEST_FIELD) != computed:
-        raise DigestError(f"{src}: the document's sha256 does not match its content: a field "
-                          "was edited after export (export the plan again)")  # fmt: skip
+        raise DigestError(
+            f"{src}: the document's sha256 does not match its content: a field "
+            "was edited after export (export the plan again)"
+        )
     if not isinstance(doc.get("data"), dict) or not isinstance(doc.get("verified"), bool):
-        raise ExportError(f"{src}: a linkage export holds an object 'data' and a bool "
-                          "'verified'")  # fmt: skip
+        raise ExportError(f"{src}: a linkage export holds an object 'data' and a bool 'verified'")
     return doc
 
 
@@ -249,8 +250,9 @@ def linkage_c_header(
         "",
         "/* axes: their column in a block row, their CPU, the constants their loop runs */",
     ]
-    for i, (name, ident, ctl) in enumerate(zip(plan.axis_names, axis_ids, plan.controllers,
-                                               strict=True)):  # fmt: skip
+    for i, (name, ident, ctl) in enumerate(
+        zip(plan.axis_names, axis_ids, plan.controllers, strict=True)
+    ):
         task = ctl.task
         if not isinstance(task, PIConstants):  # LinkagePlan holds PI controllers only
             raise ExportError(f"axis {name!r}: a linkage axis runs PI")

@@ -299,9 +299,13 @@ def pid_hal_text(
             f"pid_name {show_value(pid_name)} is not a pid instance name (letters, digits, "
             "'_', '.', '-', at most 25 characters), e.g. pid.x or pid.0"
         )
-    params = pid_parameters(tuning, rig, position_scale=position_scale,
-                            output_scale=output_scale,
-                            velocity_feedforward=velocity_feedforward)  # fmt: skip
+    params = pid_parameters(
+        tuning,
+        rig,
+        position_scale=position_scale,
+        output_scale=output_scale,
+        velocity_feedforward=velocity_feedforward,
+    )
     doc = tables_document(tuning, rig=rig, verification=verification, unverified=unverified)
     _, axis, pi = master_axis(tuning)
     ax = rig.axis(axis)

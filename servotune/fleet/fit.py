@@ -141,8 +141,9 @@ def fit_fleet(
     ex = InProcessExecutor() if executor is None else executor
     say = progress or (lambda _m: None)
     say(f"fit fleet: {len(items)} logs on {ex.name}")
-    parts = ex.map(_fit_task, items, shared=opts,
-                   done=lambda k: say(f"fit fleet: {k}/{len(items)} logs"))  # fmt: skip
+    parts = ex.map(
+        _fit_task, items, shared=opts, done=lambda k: say(f"fit fleet: {k}/{len(items)} logs")
+    )
     rows = sorted((r for part in parts for r in part), key=lambda r: r.key)
     summary = summarise_fleet(rows, baseline=base, outlier_z=outlier_z, drift_k=drift_k)
     return FleetResult(rows=tuple(_flag(rows, summary)), summary=summary, executor=ex.name)
@@ -156,9 +157,14 @@ def _flag(rows: Sequence[FleetRow], s: FleetSummary) -> list[FleetRow]:
     drift_of: dict[tuple[str, str, str], list[str]] = {}
     for d in s.drifts:
         drift_of.setdefault((d.after_file, d.axis, d.machine_id), []).append(d.parameter)
-    return [replace(r, outliers=tuple(out_of.get((r.file, r.axis, r.machine_id), ())),
-                    drift=tuple(drift_of.get((r.file, r.axis, r.machine_id), ())))
-            for r in rows]  # fmt: skip
+    return [
+        replace(
+            r,
+            outliers=tuple(out_of.get((r.file, r.axis, r.machine_id), ())),
+            drift=tuple(drift_of.get((r.file, r.axis, r.machine_id), ())),
+        )
+        for r in rows
+    ]
 
 
 def write_fleet_table(result: FleetResult | Sequence[FleetRow], path: str | Path) -> None:

@@ -183,41 +183,68 @@ class FleetRow:
     def to_record(self) -> dict[str, Any]:
         """The row as a record of the fleet table (:data:`servotune.io.fleet_table.COLUMNS`)."""
         rec: dict[str, Any] = {
-            "machine_id": self.machine_id, "date": self.date, "file": self.file,
-            "axis": self.axis, "sha256": self.sha256, "status": "error" if self.error else "ok",
-            "error": self.error, "method": self.method, "structure": self.structure,
-            "friction": self.friction, "adequate": self.adequate,
-            "failed_tests": self.failed_tests, "velocity_fit_pct": self.velocity_fit_pct,
+            "machine_id": self.machine_id,
+            "date": self.date,
+            "file": self.file,
+            "axis": self.axis,
+            "sha256": self.sha256,
+            "status": "error" if self.error else "ok",
+            "error": self.error,
+            "method": self.method,
+            "structure": self.structure,
+            "friction": self.friction,
+            "adequate": self.adequate,
+            "failed_tests": self.failed_tests,
+            "velocity_fit_pct": self.velocity_fit_pct,
             "velocity_fit_cv_pct": self.velocity_fit_cv_pct,
             "position_fit_pct": self.position_fit_pct,
             "position_fit_cv_pct": self.position_fit_cv_pct,
-        }  # fmt: skip
+        }
         for p in ALL_PARAMS:
             lo, hi = self.ci95.get(p, (None, None))
             rec[p], rec[f"{p}_lo"], rec[f"{p}_hi"] = self.params.get(p), lo, hi
-        rec.update(n_samples=self.n_samples, period_s=self.period_s,
-                   outliers=",".join(self.outliers), drift=",".join(self.drift),
-                   warnings=self.warnings)  # fmt: skip
+        rec.update(
+            n_samples=self.n_samples,
+            period_s=self.period_s,
+            outliers=",".join(self.outliers),
+            drift=",".join(self.drift),
+            warnings=self.warnings,
+        )
         return rec
 
     @classmethod
     def from_record(cls, rec: Mapping[str, Any]) -> FleetRow:
         """A row from a fleet table's record (:meth:`to_record`'s inverse)."""
         params = {p: float(rec[p]) for p in ALL_PARAMS if rec.get(p) is not None}
-        ci95 = {p: (float(rec[f"{p}_lo"]), float(rec[f"{p}_hi"])) for p in ALL_PARAMS
-                if rec.get(f"{p}_lo") is not None and rec.get(f"{p}_hi") is not None}  # fmt: skip
+        ci95 = {
+            p: (float(rec[f"{p}_lo"]), float(rec[f"{p}_hi"]))
+            for p in ALL_PARAMS
+            if rec.get(f"{p}_lo") is not None and rec.get(f"{p}_hi") is not None
+        }
         return cls(
-            machine_id=rec["machine_id"], date=rec["date"], file=rec["file"], axis=rec["axis"],
-            sha256=rec["sha256"], error=rec["error"], method=rec["method"],
-            structure=rec["structure"], friction=rec["friction"], adequate=rec["adequate"],
-            failed_tests=rec["failed_tests"], velocity_fit_pct=rec["velocity_fit_pct"],
+            machine_id=rec["machine_id"],
+            date=rec["date"],
+            file=rec["file"],
+            axis=rec["axis"],
+            sha256=rec["sha256"],
+            error=rec["error"],
+            method=rec["method"],
+            structure=rec["structure"],
+            friction=rec["friction"],
+            adequate=rec["adequate"],
+            failed_tests=rec["failed_tests"],
+            velocity_fit_pct=rec["velocity_fit_pct"],
             velocity_fit_cv_pct=rec["velocity_fit_cv_pct"],
             position_fit_pct=rec["position_fit_pct"],
-            position_fit_cv_pct=rec["position_fit_cv_pct"], params=params, ci95=ci95,
-            n_samples=rec["n_samples"], period_s=rec["period_s"],
-            outliers=_split(rec["outliers"]), drift=_split(rec["drift"]),
+            position_fit_cv_pct=rec["position_fit_cv_pct"],
+            params=params,
+            ci95=ci95,
+            n_samples=rec["n_samples"],
+            period_s=rec["period_s"],
+            outliers=_split(rec["outliers"]),
+            drift=_split(rec["drift"]),
             warnings=rec["warnings"],
-        )  # fmt: skip
+        )
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict for JSON (every field; intervals as lists, non-finite floats as None)."""
@@ -253,8 +280,11 @@ def machine_and_date(path: str | Path, metadata: Mapping[str, str]) -> tuple[str
 
 def _failed_tests(r: FitResult) -> str:
     failed = [] if r.whiteness.get("white", True) else ["whiteness"]
-    failed += [f"cross-correlation with {c['input']}" for c in r.cross_correlation
-               if not c.get("uncorrelated", True)]  # fmt: skip
+    failed += [
+        f"cross-correlation with {c['input']}"
+        for c in r.cross_correlation
+        if not c.get("uncorrelated", True)
+    ]
     return "; ".join(failed)
 
 
@@ -309,8 +339,15 @@ def fit_fleet_log(path: str | Path, options: FleetFitOptions | None = None) -> t
     except OSError as exc:
         machine, date = machine_and_date(path, {})
         why = exc.strerror or str(exc)
-        return (FleetRow(machine_id=machine, date=date, file=name, axis=opts.axis or "",
-                         error=f"cannot read {name!r}: {why}"),)  # fmt: skip
+        return (
+            FleetRow(
+                machine_id=machine,
+                date=date,
+                file=name,
+                axis=opts.axis or "",
+                error=f"cannot read {name!r}: {why}",
+            ),
+        )
     sha = bytes_sha256(raw)
     meta: dict[str, str] = {}
     if opts.hal is None or capture_format(path) == "csv":  # a CSV's own machine_id and date
@@ -337,8 +374,11 @@ def fit_fleet_log(path: str | Path, options: FleetFitOptions | None = None) -> t
             except Exception as exc:  # any failure of one fit is its row's error
                 rows.append(replace(base, axis=ax or "", error=_error(exc, name, src)))
                 continue
-        said = " | ".join(dict.fromkeys(_one_line(f"{w.category.__name__}: {w.message}", name,
-                                                  src) for w in caught))  # fmt: skip
+        said = " | ".join(
+            dict.fromkeys(
+                _one_line(f"{w.category.__name__}: {w.message}", name, src) for w in caught
+            )
+        )
         rows.append(_fit_row(replace(base, axis=ax or ""), result, _one_line(said, name, src)))
     return tuple(sorted(rows, key=lambda r: r.axis))
 

@@ -212,9 +212,15 @@ def fleet_spread(
         plant = _plant(base, r, m)
         plants.append(plant)
         (g, g_neg), (c, c_neg) = plant.gains_cps_per_v, plant.coulombs_v
-        resolved = {"gain_cps_per_v": g, "tau_s": plant.tau_s, "delay_s": plant.delay_s,
-                    "offset_v": plant.offset_v, "coulomb_v": c, "gain_neg_cps_per_v": g_neg,
-                    "coulomb_neg_v": c_neg}  # fmt: skip
+        resolved = {
+            "gain_cps_per_v": g,
+            "tau_s": plant.tau_s,
+            "delay_s": plant.delay_s,
+            "offset_v": plant.offset_v,
+            "coulomb_v": c,
+            "gain_neg_cps_per_v": g_neg,
+            "coulomb_neg_v": c_neg,
+        }
         values.append(tuple(float(resolved[p]) for p in drawn))
     return FleetSpread(
         rig=rig,

@@ -385,19 +385,33 @@ class FleetSummary:
         ]
         for axis in sorted({s.axis for s in self.spreads}):
             rows = [s for s in self.spreads if s.axis == axis]
-            lines.append(f"spread over {rows[0].n_machines} machines (latest fit each)"
-                         + (f", axis {axis}" if axis else "") + ": median, robust spread "
-                         "(MAD/0.6745), 5 % … 95 %")  # fmt: skip
-            lines += [f"  {s.parameter:18s} {_num(s.median):>11s} {_num(s.spread):>11s}   "
-                      f"{_num(s.q05)} … {_num(s.q95)} {s.unit}" for s in rows]  # fmt: skip
+            lines.append(
+                f"spread over {rows[0].n_machines} machines (latest fit each)"
+                + (f", axis {axis}" if axis else "")
+                + ": median, robust spread "
+                "(MAD/0.6745), 5 % … 95 %"
+            )
+            lines += [
+                f"  {s.parameter:18s} {_num(s.median):>11s} {_num(s.spread):>11s}   "
+                f"{_num(s.q05)} … {_num(s.q95)} {s.unit}"
+                for s in rows
+            ]
         for axis in self.small_axes:
-            lines.append(f"axis {axis or '(unprefixed)'}: fewer than {MIN_MACHINES} machines, "
-                         "no spread, nothing flagged")  # fmt: skip
-        lines.append(f"outliers against the fleet (|robust z| > {self.outlier_z:g}): "
-                     + (str(len(self.outliers)) if self.outliers else "none")
-                     + (f" of {self.judged_values} values; a fleet of this size would show "
-                        f"about {self.chance_outliers:.2g} by chance alone (every parameter "
-                        "spread normally)" if self.judged_values else ""))  # fmt: skip
+            lines.append(
+                f"axis {axis or '(unprefixed)'}: fewer than {MIN_MACHINES} machines, "
+                "no spread, nothing flagged"
+            )
+        lines.append(
+            f"outliers against the fleet (|robust z| > {self.outlier_z:g}): "
+            + (str(len(self.outliers)) if self.outliers else "none")
+            + (
+                f" of {self.judged_values} values; a fleet of this size would show "
+                f"about {self.chance_outliers:.2g} by chance alone (every parameter "
+                "spread normally)"
+                if self.judged_values
+                else ""
+            )
+        )
         lines += ["  " + o.sentence() for o in self.outliers]
         n_drift = len(self.drifted)
         lines.append(
@@ -407,8 +421,10 @@ class FleetSummary:
         )
         lines += ["  " + d.sentence() for d in self.drifts]
         if self.n_undated:
-            lines.append(f"{self.n_undated} fits without an ISO 8601 date (# date: YYYY-MM-DD): "
-                         "not compared for drift")  # fmt: skip
+            lines.append(
+                f"{self.n_undated} fits without an ISO 8601 date (# date: YYYY-MM-DD): "
+                "not compared for drift"
+            )
         if self.failures:
             lines.append(f"failed ({len(self.failures)}; the table's error column):")
             lines += [f"  {f}{' axis ' + a if a else ''}: {e}" for f, a, e in self.failures[:10]]
@@ -471,9 +487,19 @@ def summarise_fleet(
             x = np.array([r.params[p] for _, r in have])
             med, mad, spread = robust_spread(x)
             q05, q95 = (float(q) for q in np.quantile(x, [0.05, 0.95]))
-            spreads.append(ParameterSpread(axis=axis, parameter=p, unit=UNITS[p],
-                                           n_machines=len(have), median=med, mad=mad,
-                                           spread=spread, q05=q05, q95=q95))  # fmt: skip
+            spreads.append(
+                ParameterSpread(
+                    axis=axis,
+                    parameter=p,
+                    unit=UNITS[p],
+                    n_machines=len(have),
+                    median=med,
+                    mad=mad,
+                    spread=spread,
+                    q05=q05,
+                    q95=q95,
+                )
+            )
             spread_of[(axis, p)] = spread
             if spread <= 0:
                 continue
@@ -481,9 +507,20 @@ def summarise_fleet(
             chance += len(have) * chance_outlier_rate(len(have), outlier_z)
             for (m, r), z in zip(have, (x - med) / spread, strict=True):
                 if abs(z) > outlier_z:
-                    outliers.append(Outlier(machine_id=m, axis=axis, parameter=p, unit=UNITS[p],
-                                            file=r.file, date=r.date, value=r.params[p],
-                                            z=float(z), median=med, spread=spread))  # fmt: skip
+                    outliers.append(
+                        Outlier(
+                            machine_id=m,
+                            axis=axis,
+                            parameter=p,
+                            unit=UNITS[p],
+                            file=r.file,
+                            date=r.date,
+                            value=r.params[p],
+                            z=float(z),
+                            median=med,
+                            spread=spread,
+                        )
+                    )
     in_run = {r.sha256 for r in rows if r.sha256}
     earlier = [(r, "run") for r in fitted] + [
         (r, "baseline") for r in baseline if r.ok and r.sha256 not in in_run
@@ -491,8 +528,11 @@ def summarise_fleet(
     for (axis, machine), now in sorted(latest.items()):
         if axis in small or not _dated(now):
             continue
-        before_all = [(r, src) for r, src in earlier if r.axis == axis and
-                      r.machine_id == machine and _dated(r) and r.date < now.date]  # fmt: skip
+        before_all = [
+            (r, src)
+            for r, src in earlier
+            if r.axis == axis and r.machine_id == machine and _dated(r) and r.date < now.date
+        ]
         if not before_all:
             continue
         prev, src = max(before_all, key=lambda t: (t[0].date, t[1] == "run", t[0].file))
@@ -505,14 +545,27 @@ def summarise_fleet(
             apart = i0[1] < i1[0] or i1[1] < i0[0]
             if apart and abs(change) > drift_k * spread:
                 b = prev.params[p]
-                drifts.append(Drift(
-                    machine_id=machine, axis=axis, parameter=p, unit=UNITS[p],
-                    before_file=prev.file, before_date=prev.date, before_source=src,
-                    after_file=now.file, after_date=now.date, before=b, after=now.params[p],
-                    before_ci95=i0, after_ci95=i1, change=change,
-                    change_pct=None if b == 0 else 100.0 * change / abs(b), spread=spread,
-                    k=abs(change) / spread,
-                ))  # fmt: skip
+                drifts.append(
+                    Drift(
+                        machine_id=machine,
+                        axis=axis,
+                        parameter=p,
+                        unit=UNITS[p],
+                        before_file=prev.file,
+                        before_date=prev.date,
+                        before_source=src,
+                        after_file=now.file,
+                        after_date=now.date,
+                        before=b,
+                        after=now.params[p],
+                        before_ci95=i0,
+                        after_ci95=i1,
+                        change=change,
+                        change_pct=None if b == 0 else 100.0 * change / abs(b),
+                        spread=spread,
+                        k=abs(change) / spread,
+                    )
+                )
     return FleetSummary(
         n_logs=len({r.file for r in rows}),
         n_rows=len(rows),

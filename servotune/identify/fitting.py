@@ -122,9 +122,15 @@ def _estimate(
     refit_noise: bool = True,
 ) -> tuple[model.Estimate, dict[str, Any]]:
     if method.startswith("iv"):  # iv: refined, else basic; iv-refined, iv-basic: only that
-        kw = {"period_s": period_s, "compute_s": compute_s, "skip": skip,
-              "projection": projection, "noise0": noise0, "max_outer": max_outer,
-              "refit_noise": refit_noise}  # fmt: skip
+        kw = {
+            "period_s": period_s,
+            "compute_s": compute_s,
+            "skip": skip,
+            "projection": projection,
+            "noise0": noise0,
+            "max_outer": max_outer,
+            "refit_noise": refit_noise,
+        }
         try:
             if method == "iv-basic":
                 raise iv.NotConverged("basic IV asked for")
@@ -133,25 +139,46 @@ def _estimate(
             if method == "iv-refined":
                 raise
             r = iv.estimate_iv(u1, dy, sigs, x0, free, prefilter=False, **kw)
-        info = {"converged": r.converged, "iterations": r.iterations, "lags": r.projection.lags,
-                "r2": r.projection.r2, "prefilter": r.prefilter}  # fmt: skip
+        info = {
+            "converged": r.converged,
+            "iterations": r.iterations,
+            "lags": r.projection.lags,
+            "r2": r.projection.r2,
+            "prefilter": r.prefilter,
+        }
         return r, info
-    f = oe.estimate_oe(u1, dy, x0, free, period_s=period_s, compute_s=compute_s, skip=skip,
-                       max_nfev=max_nfev, noise0=noise0, refit_noise=refit_noise)  # fmt: skip
+    f = oe.estimate_oe(
+        u1,
+        dy,
+        x0,
+        free,
+        period_s=period_s,
+        compute_s=compute_s,
+        skip=skip,
+        max_nfev=max_nfev,
+        noise0=noise0,
+        refit_noise=refit_noise,
+    )
     return f, {"nfev": f.nfev}
 
 
 def _choose_method(
-    method: str, u1: np.ndarray, sigs: list[np.ndarray], labels: list[str], period_s: float,
+    method: str,
+    u1: np.ndarray,
+    sigs: list[np.ndarray],
+    labels: list[str],
+    period_s: float,
     open_loop: bool,
-) -> tuple[str, str, iv.Projection | None]:  # fmt: skip
+) -> tuple[str, str, iv.Projection | None]:
     if method not in METHODS:
         raise IdentificationError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
     if method == "oe":
         return "oe", "output-error least squares, as asked", None
     if not sigs:
-        why = ("the log has no external signal (no exc_code column that varies, no reference "
-               "that moves in task mode)")  # fmt: skip
+        why = (
+            "the log has no external signal (no exc_code column that varies, no reference "
+            "that moves in task mode)"
+        )
         if method == "iv":
             raise IdentificationError(f"method iv needs instruments, but {why}")
         if open_loop:
@@ -179,8 +206,11 @@ def _choose_method(
             f"output-error least squares: {names} explain only {share} of the command",
             None,
         )
-    return ("iv", f"instrumental variables, instruments from {names} (they explain {share} "
-            "of the command)", proj)  # fmt: skip
+    return (
+        "iv",
+        f"instrumental variables, instruments from {names} (they explain {share} of the command)",
+        proj,
+    )
 
 
 _Selection = tuple[
@@ -189,9 +219,17 @@ _Selection = tuple[
 
 
 def _select(
-    method: str, u: np.ndarray, y: np.ndarray, dy: np.ndarray, sigs: list[np.ndarray],
-    terms: tuple[str, ...] | None, friction: str, *, period_s: float, compute_s: float,
-) -> _Selection:  # fmt: skip
+    method: str,
+    u: np.ndarray,
+    y: np.ndarray,
+    dy: np.ndarray,
+    sigs: list[np.ndarray],
+    terms: tuple[str, ...] | None,
+    friction: str,
+    *,
+    period_s: float,
+    compute_s: float,
+) -> _Selection:
     """Structure and friction form by BIC on the first samples; the start of the estimate.
 
     Every candidate is estimated with the method of the final estimate (least squares would
@@ -202,15 +240,27 @@ def _select(
     """
     n_s = min(dy.size, SELECTION_SAMPLES)
     form = "sym" if friction == "auto" else friction
-    candidates = [terms] if terms is not None else [
-        tuple(t for t, on in zip(model.OPTIONAL_PARAMS, bits, strict=True) if on)
-        for bits in ((m & 1, m & 2, m & 4) for m in range(8))
-    ]  # fmt: skip
+    candidates = (
+        [terms]
+        if terms is not None
+        else [
+            tuple(t for t, on in zip(model.OPTIONAL_PARAMS, bits, strict=True) if on)
+            for bits in ((m & 1, m & 2, m & 4) for m in range(8))
+        ]
+    )
     largest = model.free_mask(terms if terms is not None else model.OPTIONAL_PARAMS, form)
     x_ls = model.ls_start(u[: n_s + 1], y[: n_s + 1], period_s, compute_s, largest)
     skip_s = _skip(x_ls, period_s, n_s)
-    x_oe = oe.oe_parameters(u[:n_s], dy[:n_s], x_ls, largest, period_s=period_s,
-                            compute_s=compute_s, skip=skip_s, max_nfev=40)  # fmt: skip
+    x_oe = oe.oe_parameters(
+        u[:n_s],
+        dy[:n_s],
+        x_ls,
+        largest,
+        period_s=period_s,
+        compute_s=compute_s,
+        skip=skip_s,
+        max_nfev=40,
+    )
     sigs_s = [sg[:n_s] for sg in sigs]
     proj = iv.project(u[:n_s], sigs_s, iv.projection_lags(period_s)) if method == "iv" else None
     noise: NoiseModel | None = None
@@ -220,10 +270,22 @@ def _select(
 
     def score(free: np.ndarray, x0: np.ndarray) -> tuple[float, float, np.ndarray, NoiseModel]:
         try:
-            est, _ = _estimate(variant, u[:n_s], dy[:n_s], sigs_s, x0, free, period_s=period_s,
-                               compute_s=compute_s, skip=skip_s, projection=proj,
-                               noise0=noise, max_nfev=40, max_outer=4,
-                               refit_noise=noise is None)  # fmt: skip
+            est, _ = _estimate(
+                variant,
+                u[:n_s],
+                dy[:n_s],
+                sigs_s,
+                x0,
+                free,
+                period_s=period_s,
+                compute_s=compute_s,
+                skip=skip_s,
+                projection=proj,
+                noise0=noise,
+                max_nfev=40,
+                max_outer=4,
+                refit_noise=noise is None,
+            )
         except iv.NotConverged:  # this candidate has no IV solution: it cannot win
             return math.inf, math.inf, x0, noise or NoiseModel.identity()
         # each method's own criterion: iv solves its equations in the prefiltered domain (the
@@ -244,8 +306,15 @@ def _select(
             bic, var, x, nm = score(free, x0)
             if math.isfinite(bic):
                 noise = noise or nm
-            out.append({"bic": bic, "params": list(model.names(free)), "variance": var,
-                        "_free": free, "_x": x})  # fmt: skip
+            out.append(
+                {
+                    "bic": bic,
+                    "params": list(model.names(free)),
+                    "variance": var,
+                    "_free": free,
+                    "_x": x,
+                }
+            )
         return out
 
     scored = score_all()
@@ -260,16 +329,19 @@ def _select(
         ordered = sorted(scored, key=lambda e: e["bic"])
         selection = [{k: v for k, v in e.items() if not k.startswith("_")} for e in ordered]
         runner = ordered[1]
-        reason = (f"smallest BIC ({ordered[0]['bic']:.1f}, {method} fits) of {len(scored)} "
-                  f"structures on {n_s - skip_s} samples; next: {'+'.join(runner['params'])} "
-                  f"at {runner['bic']:.1f}")  # fmt: skip
+        reason = (
+            f"smallest BIC ({ordered[0]['bic']:.1f}, {method} fits) of {len(scored)} "
+            f"structures on {n_s - skip_s} samples; next: {'+'.join(runner['params'])} "
+            f"at {runner['bic']:.1f}"
+        )
     else:
         reason = "structure given by the user"
     free, x = best["_free"], best["_x"]
     friction_selection: dict[str, Any] = {}
     if friction == "auto":
-        free_a = model.free_mask(tuple(p for p in model.OPTIONAL_PARAMS if free[PARAMS.index(p)]),
-                                 "asym")  # fmt: skip
+        free_a = model.free_mask(
+            tuple(p for p in model.OPTIONAL_PARAMS if free[PARAMS.index(p)]), "asym"
+        )
         xa0 = x.copy()
         xa0[5], xa0[6] = x[I_GAIN], x[I_COULOMB]
         bic_a, _, xa, _ = score(free_a, xa0)
@@ -277,35 +349,54 @@ def _select(
         chosen = "asym" if bic_a < best["bic"] else "sym"
         other = "sym" if chosen == "asym" else "asym"
         friction_selection = {
-            "chosen": chosen, "criterion": f"BIC of {method} fits on {n_s - skip_s} samples",
-            "runner_up": other, "scores": scores,
+            "chosen": chosen,
+            "criterion": f"BIC of {method} fits on {n_s - skip_s} samples",
+            "runner_up": other,
+            "scores": scores,
             "reason": f"BIC {scores[chosen]:.1f}; {other} at {scores[other]:.1f}",
-        }  # fmt: skip
+        }
         if chosen == "asym":
             free, x = free_a, xa
     noise = noise or NoiseModel.identity()
     return free, x, selection, reason, friction_selection, noise, variant
 
 
-def _simulate(u: np.ndarray, dy: np.ndarray, x: np.ndarray, free: np.ndarray, period_s: float,
-              compute_s: float) -> np.ndarray:  # fmt: skip
+def _simulate(
+    u: np.ndarray,
+    dy: np.ndarray,
+    x: np.ndarray,
+    free: np.ndarray,
+    period_s: float,
+    compute_s: float,
+) -> np.ndarray:
     v0 = float(np.mean(dy[: max(1, min(5, dy.size))]) / period_s)
-    return model.simulate_increments(np.asarray(u, dtype=float)[None, :], [x], free, [0],
-                                     period_s=period_s, compute_s=compute_s, v0=v0)[0]  # fmt: skip
+    return model.simulate_increments(
+        np.asarray(u, dtype=float)[None, :],
+        [x],
+        free,
+        [0],
+        period_s=period_s,
+        compute_s=compute_s,
+        v0=v0,
+    )[0]
 
 
 def _fit_pcts(
     y: np.ndarray, dy: np.ndarray, dp: np.ndarray, period_s: float
 ) -> tuple[float, float]:
     pos = y[0] + np.concatenate([[0.0], np.cumsum(dp)])
-    return (quality.fit_pct(dy / period_s, dp / period_s),
-            quality.fit_pct(y.astype(float), pos))  # fmt: skip
+    return (quality.fit_pct(dy / period_s, dp / period_s), quality.fit_pct(y.astype(float), pos))
 
 
 def _cross_validate(
-    est: model.Estimate, u: np.ndarray, y: np.ndarray, free: np.ndarray, *, period_s: float,
+    est: model.Estimate,
+    u: np.ndarray,
+    y: np.ndarray,
+    free: np.ndarray,
+    *,
+    period_s: float,
     compute_s: float,
-) -> tuple[list[np.ndarray], list[tuple[float, float]] | None]:  # fmt: skip
+) -> tuple[list[np.ndarray], list[tuple[float, float]] | None]:
     """Split-half: each half's estimate, and its fit % (velocity, position) on the other half.
 
     Each half's estimate is the one-step estimate from the whole log's: one Gauss–Newton step
@@ -343,9 +434,13 @@ def _cross_validate(
 
 
 def _diagnostics(
-    est: model.Estimate, method: str, u1: np.ndarray, sigs: list[np.ndarray], labels: list[str],
+    est: model.Estimate,
+    method: str,
+    u1: np.ndarray,
+    sigs: list[np.ndarray],
+    labels: list[str],
     skip: int,
-) -> tuple[dict[str, Any], list[dict[str, Any]], list[str]]:  # fmt: skip
+) -> tuple[dict[str, Any], list[dict[str, Any]], list[str]]:
     # the residual tests judge the final residual, so its noise model is fitted afresh (order
     # by BIC): the estimator's own model was chosen at its start and kept, and when that order
     # is too small the innovations are coloured by it, not by the plant model (a false alarm
@@ -357,8 +452,10 @@ def _diagnostics(
         innov, fitted = est.whitened, sum(est.noise.order)
     white = quality.ljung_box(innov, fitted=fitted)
     if method == "iv":
-        cross = [quality.cross_correlation_test(innov, s, name=lab)
-                 for s, lab in zip(sigs, labels, strict=True)]  # fmt: skip
+        cross = [
+            quality.cross_correlation_test(innov, s, name=lab)
+            for s, lab in zip(sigs, labels, strict=True)
+        ]
     else:
         cross = [quality.cross_correlation_test(innov, u1, name="command")]
     reasons = []
@@ -454,8 +551,11 @@ def fit_arrays(
             f"friction must be one of {', '.join(FRICTION_FORMS)}, got {friction!r}"
         )
     terms = model.parse_terms(structure)
-    check_memory(n * _BYTES_PER_SAMPLE, f"identifying a log of {n:,} samples",
-                 f"{n:,} samples × {_BYTES_PER_SAMPLE} bytes")  # fmt: skip
+    check_memory(
+        n * _BYTES_PER_SAMPLE,
+        f"identifying a log of {n:,} samples",
+        f"{n:,} samples × {_BYTES_PER_SAMPLE} bytes",
+    )
     model.check_direction(u, y, period_s, compute_s)
     dy = np.diff(y).astype(float)
     u1 = u[:-1]
@@ -470,9 +570,19 @@ def fit_arrays(
         )
         skip = _skip(x0, period_s, n)
         final = "iv" if variant == "iv-refined" else variant  # refined may still fall back
-        est, info = _estimate(final, u1, dy, sigs, x0, free, period_s=period_s,
-                              compute_s=compute_s, skip=skip, projection=proj,
-                              noise0=noise0)  # fmt: skip
+        est, info = _estimate(
+            final,
+            u1,
+            dy,
+            sigs,
+            x0,
+            free,
+            period_s=period_s,
+            compute_s=compute_s,
+            skip=skip,
+            projection=proj,
+            noise0=noise0,
+        )
     except iv.NotConverged as exc:
         if method == "iv":
             raise IdentificationError(f"method iv: {exc}; try --method oe") from None
@@ -487,13 +597,24 @@ def fit_arrays(
             chosen, u, y, dy, sigs, terms, friction, period_s=period_s, compute_s=compute_s
         )
         skip = _skip(x0, period_s, n)
-        est, info = _estimate(chosen, u1, dy, sigs, x0, free, period_s=period_s,
-                              compute_s=compute_s, skip=skip, noise0=noise0)  # fmt: skip
+        est, info = _estimate(
+            chosen,
+            u1,
+            dy,
+            sigs,
+            x0,
+            free,
+            period_s=period_s,
+            compute_s=compute_s,
+            skip=skip,
+            noise0=noise0,
+        )
     if chosen == "iv":
         method_reason += (
-            "; refined: prefiltered by the noise model" if info["prefilter"]
+            "; refined: prefiltered by the noise model"
+            if info["prefilter"]
             else "; basic: the noise-model prefilter found no solution on this log"
-        )  # fmt: skip
+        )
     x = est.x
     if x[I_GAIN] <= 10 * model.lower_bounds()[I_GAIN]:
         raise IdentificationError(
@@ -503,8 +624,11 @@ def fit_arrays(
         )
     # validation: split-half cross-validation, and the whole-log model on the whole log
     xs, folds = _cross_validate(est, u, y, free, period_s=period_s, compute_s=compute_s)
-    sim = est.simulated if est.simulated is not None else _simulate(u1, dy, x, free, period_s,
-                                                                      compute_s)  # fmt: skip
+    sim = (
+        est.simulated
+        if est.simulated is not None
+        else _simulate(u1, dy, x, free, period_s, compute_s)
+    )
     vel_est, pos_est = _fit_pcts(y, dy, sim, period_s)
     del sim
     white, cross, reasons = _diagnostics(est, chosen, u1, sigs, labels, skip)
@@ -518,9 +642,13 @@ def fit_arrays(
     params = _params(x, free)
     lo_b = model.lower_bounds()[free]
     std = {p: float(s) for p, s in zip(names, std_v, strict=True)}
-    ci95 = {p: (max(params[p] - float(hd), float(lb)) if lb >= 0 else params[p] - float(hd),
-                params[p] - float(ld))
-            for p, ld, hd, lb in zip(names, lo_dev, hi_dev, lo_b, strict=True)}  # fmt: skip
+    ci95 = {
+        p: (
+            max(params[p] - float(hd), float(lb)) if lb >= 0 else params[p] - float(hd),
+            params[p] - float(ld),
+        )
+        for p, ld, hd, lb in zip(names, lo_dev, hi_dev, lo_b, strict=True)
+    }
     interval_method = (
         f"moving-block bootstrap of the {chosen} estimating equations "
         f"({quality.BOOTSTRAP_REPLICATES} replicates, blocks of {block} samples), basic 95 % "
@@ -529,23 +657,31 @@ def fit_arrays(
     fit_pct: dict[str, dict[str, Any]] = {}
     for j, key in enumerate(("velocity", "position")):
         vals = None if folds is None else [f[j] for f in folds]
-        fit_pct[key] = {"estimation": vel_est if j == 0 else pos_est,
-                        "folds": vals, "validation": None if vals is None else float(np.mean(vals)),
-                        "cross_validation": "split-half"}  # fmt: skip
+        fit_pct[key] = {
+            "estimation": vel_est if j == 0 else pos_est,
+            "folds": vals,
+            "validation": None if vals is None else float(np.mean(vals)),
+            "cross_validation": "split-half",
+        }
     if reasons:
-        warnings.warn("the model is not adequate: " + "; ".join(reasons),
-                      InadequateModelWarning, stacklevel=2)  # fmt: skip
+        warnings.warn(
+            "the model is not adequate: " + "; ".join(reasons), InadequateModelWarning, stacklevel=2
+        )
     val = fit_pct["velocity"]["validation"]
     if val is not None and val < 50:
-        warnings.warn(f"cross-validated velocity fit is only {val:.1f} %", PoorFitWarning,
-                      stacklevel=2)  # fmt: skip
+        warnings.warn(
+            f"cross-validated velocity fit is only {val:.1f} %", PoorFitWarning, stacklevel=2
+        )
     instruments: dict[str, Any] = {}
     if chosen == "iv":
         instruments = {
-            "signals": labels, "projection_lags": info["lags"], "r2": info["r2"],
-            "converged": info["converged"], "iterations": info["iterations"],
+            "signals": labels,
+            "projection_lags": info["lags"],
+            "r2": info["r2"],
+            "converged": info["converged"],
+            "iterations": info["iterations"],
             "prefilter": "noise model A/C" if info["prefilter"] else "none",
-        }  # fmt: skip
+        }
     return FitResult(
         structure=names,
         params=params,
@@ -664,7 +800,16 @@ def fit(
     if compute_s is None:
         compute_s = log.compute_s if log.compute_s is not None else 0.0
     exc_v = None if ax.exc_code is None else ax.exc_code * log.dac_lsb_v
-    return fit_arrays(ax.cmd_v, ax.pos_counts, period_s=log.period_s, compute_s=compute_s,
-                      structure=structure, method=method, friction=friction, exc_v=exc_v,
-                      ref_counts=ax.ref_counts, mode=ax.mode,
-                      invert_encoder=invert_encoder)  # fmt: skip
+    return fit_arrays(
+        ax.cmd_v,
+        ax.pos_counts,
+        period_s=log.period_s,
+        compute_s=compute_s,
+        structure=structure,
+        method=method,
+        friction=friction,
+        exc_v=exc_v,
+        ref_counts=ax.ref_counts,
+        mode=ax.mode,
+        invert_encoder=invert_encoder,
+    )

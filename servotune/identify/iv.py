@@ -253,8 +253,9 @@ def estimate_iv(
     rel = np.inf
 
     def simulate(x: np.ndarray) -> np.ndarray:
-        return model.simulate_increments(inputs, [x], free, [0], period_s=period_s,
-                                         compute_s=compute_s, v0=v0)[0]  # fmt: skip
+        return model.simulate_increments(
+            inputs, [x], free, [0], period_s=period_s, compute_s=compute_s, v0=v0
+        )[0]
 
     for outer in range(max_outer):
         del jf, zf  # the last refresh's, released before the next one is made (memory)
@@ -322,10 +323,21 @@ def estimate_iv(
         noise = fit_noise_model(eps[skip:], start=noise0)
         whitened = noise.whiten(eps)[skip + noise.settle_samples :]
     # a_mat: the last refresh's zf @ jf.T (the instruments and sensitivities kept)
-    return IVFit(x=x, a_mat=a_mat, scores=(zf * weighed).T, residual=eps[cut:],
-                 whitened=whitened, noise=noise, instruments=zf, sensitivities=jf,
-                 simulated=sim, projection=proj, iterations=iterations, converged=converged,
-                 prefilter=prefilter)  # fmt: skip
+    return IVFit(
+        x=x,
+        a_mat=a_mat,
+        scores=(zf * weighed).T,
+        residual=eps[cut:],
+        whitened=whitened,
+        noise=noise,
+        instruments=zf,
+        sensitivities=jf,
+        simulated=sim,
+        projection=proj,
+        iterations=iterations,
+        converged=converged,
+        prefilter=prefilter,
+    )
 
 
 def _step(a: np.ndarray, g: np.ndarray, scale: np.ndarray, active: np.ndarray) -> np.ndarray:

@@ -79,17 +79,35 @@ def fit_log(
     """
     if hal is not None:
         return _fit_hal_log(
-            log_path, hal, axis=axis, rig=rig, counter_bits=counter_bits, dac_bits=dac_bits,
-            dac_range_v=dac_range_v, period_s=period_s, compute_s=compute_s,
-            need_axis_name=need_axis_name, strict=strict, progress=progress,
-            fit_options={"structure": structure, "method": method, "friction": friction,
-                         "invert_encoder": invert_encoder},
-        )  # fmt: skip
+            log_path,
+            hal,
+            axis=axis,
+            rig=rig,
+            counter_bits=counter_bits,
+            dac_bits=dac_bits,
+            dac_range_v=dac_range_v,
+            period_s=period_s,
+            compute_s=compute_s,
+            need_axis_name=need_axis_name,
+            strict=strict,
+            progress=progress,
+            fit_options={
+                "structure": structure,
+                "method": method,
+                "friction": friction,
+                "invert_encoder": invert_encoder,
+            },
+        )
     if rig is not None:
         counter_bits, dac_bits, dac_range_v, period_s, compute_s = _from_rig(
-            rig, read_metadata(log_path), counter_bits=counter_bits, dac_bits=dac_bits,
-            dac_range_v=dac_range_v, period_s=period_s, compute_s=compute_s,
-        ).values()  # fmt: skip
+            rig,
+            read_metadata(log_path),
+            counter_bits=counter_bits,
+            dac_bits=dac_bits,
+            dac_range_v=dac_range_v,
+            period_s=period_s,
+            compute_s=compute_s,
+        ).values()
     log = read_log(
         log_path,
         counter_bits=counter_bits,
@@ -106,8 +124,15 @@ def fit_log(
             "name (--axis NAME), under which its model is written"
         )
     try:
-        result = fit(log, axis=log_axis, structure=structure, compute_s=compute_s, method=method,
-                     friction=friction, invert_encoder=invert_encoder)  # fmt: skip
+        result = fit(
+            log,
+            axis=log_axis,
+            structure=structure,
+            compute_s=compute_s,
+            method=method,
+            friction=friction,
+            invert_encoder=invert_encoder,
+        )
     except IdentificationError as exc:  # the data do not allow it: name the log
         raise IdentificationError(f"log {str(log_path)!r}: {exc}") from None
     name = axis if axis is not None else (log_axis or next(iter(log.axes)))
@@ -117,9 +142,13 @@ def fit_log(
 def _from_rig(rig: Rig, meta: dict[str, Any], **given: Any) -> dict[str, Any]:
     """Each setting in ``given`` as given, else (when the log's metadata ``meta`` does not
     state it) the rig's, in the order given."""
-    rig_values = {"counter_bits": rig.counter.bits, "dac_bits": rig.dac.bits,
-                  "dac_range_v": rig.dac.range_v, "period_s": rig.period_s,
-                  "compute_s": rig.timer.compute_s}  # fmt: skip
+    rig_values = {
+        "counter_bits": rig.counter.bits,
+        "dac_bits": rig.dac.bits,
+        "dac_range_v": rig.dac.range_v,
+        "period_s": rig.period_s,
+        "compute_s": rig.timer.compute_s,
+    }
     return {k: v if v is not None or k in meta else rig_values[k] for k, v in given.items()}
 
 
@@ -156,9 +185,16 @@ def _fit_hal_log(
         ).values()
         if csv and hal.period_s is None:  # as for a log: checked against its time column
             (period_s,) = _from_rig(rig, meta, period_s=period_s).values()
-    log = read_hal_log(log_path, hal, period_s=period_s, dac_bits=dac_bits,
-                       dac_range_v=dac_range_v, compute_s=compute_s, strict=strict,
-                       progress=progress)  # fmt: skip
+    log = read_hal_log(
+        log_path,
+        hal,
+        period_s=period_s,
+        dac_bits=dac_bits,
+        dac_range_v=dac_range_v,
+        compute_s=compute_s,
+        strict=strict,
+        progress=progress,
+    )
     if log.n_samples < MIN_SAMPLES:
         longer = "log longer" if csv else "capture longer: halsampler -n N, or halscope's "
         longer += "" if csv else "record length"

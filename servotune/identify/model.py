@@ -179,14 +179,24 @@ def upper_bounds(period_s: float) -> np.ndarray:
 
 def fd_steps(x: np.ndarray, period_s: float) -> np.ndarray:
     """Forward-difference steps of the sensitivities, per parameter [parameter units]."""
-    return np.array([max(abs(x[0]) * 1e-5, 1e-6), max(abs(x[1]) * 1e-4, 1e-7), period_s * 1e-3,
-                     2e-6, 2e-6, max(abs(x[5]) * 1e-5, 1e-6), 2e-6])  # fmt: skip
+    return np.array(
+        [
+            max(abs(x[0]) * 1e-5, 1e-6),
+            max(abs(x[1]) * 1e-4, 1e-7),
+            period_s * 1e-3,
+            2e-6,
+            2e-6,
+            max(abs(x[5]) * 1e-5, 1e-6),
+            2e-6,
+        ]
+    )
 
 
 def typical_scale(x: np.ndarray, period_s: float) -> np.ndarray:
     """A typical size of each parameter, for scaled steps and tolerances [parameter units]."""
-    return np.array([max(abs(x[0]), 1.0), max(abs(x[1]), 1e-3), period_s, 1e-3, 1e-3,
-                     max(abs(x[5]), 1.0), 1e-3])  # fmt: skip
+    return np.array(
+        [max(abs(x[0]), 1.0), max(abs(x[1]), 1e-3), period_s, 1e-3, 1e-3, max(abs(x[5]), 1.0), 1e-3]
+    )
 
 
 def plant_from(x: np.ndarray, free: np.ndarray) -> Plant:
@@ -318,8 +328,9 @@ def sensitivities(
             xi[i] += steps[i]
             xs.append(xi)
             which.append(w)
-    sim = simulate_increments(inputs, xs, free, which, period_s=period_s, compute_s=compute_s,
-                              v0=v0)  # fmt: skip
+    sim = simulate_increments(
+        inputs, xs, free, which, period_s=period_s, compute_s=compute_s, v0=v0
+    )
     out = []
     per = idx.size + 1
     for j in range(len(which_inputs)):

@@ -161,8 +161,15 @@ def _short_rows(
     head = min(_SHORT, n)
     xh = np.zeros(_SHORT)
     raw = np.zeros(_SHORT)
-    coef = (b[0], b[1] if nb > 1 else 0.0, b[2] if nb > 2 else 0.0, b[3] if nb > 3 else 0.0,
-            a[1] if na > 1 else 0.0, a[2] if na > 2 else 0.0, a[3] if na > 3 else 0.0)  # fmt: skip
+    coef = (
+        b[0],
+        b[1] if nb > 1 else 0.0,
+        b[2] if nb > 2 else 0.0,
+        b[3] if nb > 3 else 0.0,
+        a[1] if na > 1 else 0.0,
+        a[2] if na > 2 else 0.0,
+        a[3] if na > 3 else 0.0,
+    )
     last = _SHORT - 1  # the registers' start: the head's last samples (used only when n > head)
     for r in range(0, rows - 1, 2):
         xp, yp, xq, yq = x[r], y[r], x[r + 1], y[r + 1]
@@ -214,8 +221,9 @@ def _filter(
     a = np.asarray(a, dtype=float)
     fused = shift is not None and add is not None
     short = b.size <= _SHORT and a.size <= _SHORT and rows.shape[0] > 0
-    if out is not None and not (short and out.shape == x.shape and out.dtype == np.float64
-                                and out.flags.c_contiguous):  # fmt: skip
+    if out is not None and not (
+        short and out.shape == x.shape and out.dtype == np.float64 and out.flags.c_contiguous
+    ):
         out[...] = _filter(b, a, x, shift, add)
         return out
     y = np.empty_like(rows) if out is None else out.reshape(rows.shape)
@@ -394,8 +402,11 @@ class NoiseModel:
 
     def to_dict(self) -> dict[str, object]:
         """Plain dict for JSON."""
-        return {"ar": [float(v) for v in self.ar], "ma": [float(v) for v in self.ma],
-                "innovation_variance": self.variance}  # fmt: skip
+        return {
+            "ar": [float(v) for v in self.ar],
+            "ma": [float(v) for v in self.ma],
+            "innovation_variance": self.variance,
+        }
 
 
 ORDERS = ((1, 1), (2, 2), (2, 3), (3, 3))
@@ -492,8 +503,12 @@ def fit_noise_model(
         theta0s = [_hannan_rissanen(e, innov, p, q, begin) for p, q in orders]
     best = identity
     for (p, _q), theta0 in zip(orders, theta0s, strict=True):
-        sol = least_squares(lambda th, p=p: _innovations(e, th, p, begin), theta0, method="lm",
-                            max_nfev=50 * (theta0.size + 1))  # fmt: skip
+        sol = least_squares(
+            lambda th, p=p: _innovations(e, th, p, begin),
+            theta0,
+            method="lm",
+            max_nfev=50 * (theta0.size + 1),
+        )
         theta = sol.x if np.all(np.isfinite(sol.x)) else theta0
         w = _innovations(e, theta, p, begin)
         var = float(np.dot(w, w)) / w.size
@@ -501,9 +516,12 @@ def fit_noise_model(
             continue
         bic = w.size * math.log(var) + theta.size * math.log(w.size)
         if bic < best.bic:
-            best = NoiseModel(ar=np.concatenate([one, theta[:p]]),
-                              ma=np.concatenate([one, theta[p:]]), variance=var,
-                              bic=bic)  # fmt: skip
+            best = NoiseModel(
+                ar=np.concatenate([one, theta[:p]]),
+                ma=np.concatenate([one, theta[p:]]),
+                variance=var,
+                bic=bic,
+            )
     if best.settle_samples >= n:  # its start-up outlasts the residual it was fitted on
         raise IdentificationError(
             f"the disturbance in this log needs a noise model whose start-up lasts "

@@ -49,8 +49,16 @@ class OEFit(model.Estimate):
 class _Problem:
     """Residual and Jacobian of the output error, the last simulation cached."""
 
-    def __init__(self, u: np.ndarray, dy: np.ndarray, x0: np.ndarray, free: np.ndarray,
-                 period_s: float, compute_s: float, skip: int) -> None:  # fmt: skip
+    def __init__(
+        self,
+        u: np.ndarray,
+        dy: np.ndarray,
+        x0: np.ndarray,
+        free: np.ndarray,
+        period_s: float,
+        compute_s: float,
+        skip: int,
+    ) -> None:
         self.inputs = np.ascontiguousarray(u, dtype=float)[None, :]
         self.dy = np.ascontiguousarray(dy, dtype=float)
         self.x0, self.free = x0, free
@@ -65,9 +73,15 @@ class _Problem:
         return x
 
     def simulate(self, z: np.ndarray) -> np.ndarray:
-        return model.simulate_increments(self.inputs, [self.full(z)], self.free, [0],
-                                         period_s=self.period_s, compute_s=self.compute_s,
-                                         v0=self.v0)[0]  # fmt: skip
+        return model.simulate_increments(
+            self.inputs,
+            [self.full(z)],
+            self.free,
+            [0],
+            period_s=self.period_s,
+            compute_s=self.compute_s,
+            v0=self.v0,
+        )[0]
 
     def residual(self, z: np.ndarray) -> np.ndarray:
         return (self.dy - self.simulate(z))[self.skip :]
@@ -75,9 +89,15 @@ class _Problem:
     def jacobian(self, z: np.ndarray) -> np.ndarray:
         key = z.tobytes()
         if key != self._key:
-            ((_, jac),) = model.sensitivities(self.inputs, self.full(z), self.free, (0,),
-                                              period_s=self.period_s, compute_s=self.compute_s,
-                                              v0=self.v0)  # fmt: skip
+            ((_, jac),) = model.sensitivities(
+                self.inputs,
+                self.full(z),
+                self.free,
+                (0,),
+                period_s=self.period_s,
+                compute_s=self.compute_s,
+                v0=self.v0,
+            )
             used = jac[:, self.skip :].T
             minus = np.empty(used.shape)  # one copy, in C order
             np.negative(used, out=minus)
@@ -90,11 +110,29 @@ class _Problem:
         x0, free, period_s = self.x0, self.free, self.period_s
         lo, hi = model.lower_bounds()[free], model.upper_bounds(period_s)[free]
         z0 = np.clip(x0[free], lo + 1e-12 * np.abs(lo), hi)
-        scale = np.array([max(abs(x0[0]), 1.0), max(x0[1], 1e-3), period_s, 1e-3, 1e-3,
-                          max(abs(x0[5]), 1.0), 1e-3])[free]  # fmt: skip
-        return least_squares(self.residual, z0, jac=self.jacobian, bounds=(lo, hi),
-                             x_scale=scale, method="trf", max_nfev=max_nfev, xtol=1e-10,
-                             ftol=1e-12, gtol=1e-10)  # fmt: skip
+        scale = np.array(
+            [
+                max(abs(x0[0]), 1.0),
+                max(x0[1], 1e-3),
+                period_s,
+                1e-3,
+                1e-3,
+                max(abs(x0[5]), 1.0),
+                1e-3,
+            ]
+        )[free]
+        return least_squares(
+            self.residual,
+            z0,
+            jac=self.jacobian,
+            bounds=(lo, hi),
+            x_scale=scale,
+            method="trf",
+            max_nfev=max_nfev,
+            xtol=1e-10,
+            ftol=1e-12,
+            gtol=1e-10,
+        )
 
 
 def estimate_oe(
@@ -138,9 +176,18 @@ def estimate_oe(
     sim = prob.simulate(sol.x)
     r = (prob.dy - sim)[skip:]
     nm = fit_noise_model(r, start=noise0) if refit_noise or noise0 is None else noise0
-    return OEFit(x=x, a_mat=jac.T @ jac, scores=jac * r[:, None], residual=r,
-                 whitened=nm.whiten(r)[nm.settle_samples :], noise=nm, instruments=jac.T,
-                 sensitivities=jac.T, simulated=sim, nfev=int(sol.nfev))  # fmt: skip
+    return OEFit(
+        x=x,
+        a_mat=jac.T @ jac,
+        scores=jac * r[:, None],
+        residual=r,
+        whitened=nm.whiten(r)[nm.settle_samples :],
+        noise=nm,
+        instruments=jac.T,
+        sensitivities=jac.T,
+        simulated=sim,
+        nfev=int(sol.nfev),
+    )
 
 
 class OEOptions(TypedDict):
@@ -161,5 +208,6 @@ def oe_parameters(
     The same least-squares solution, without the noise model of its residual (not fitted):
     where the fit is only a start, as for the structure selection.
     """
-    return estimate_oe(u, dy, x0, free, noise0=NoiseModel.identity(), refit_noise=False,
-                       **options).x  # fmt: skip
+    return estimate_oe(
+        u, dy, x0, free, noise0=NoiseModel.identity(), refit_noise=False, **options
+    ).x

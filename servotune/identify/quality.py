@@ -111,16 +111,26 @@ def ljung_box(w: np.ndarray, lags: int = TEST_LAGS, fitted: int = 0) -> dict[str
     n = w.size
     r = autocorrelation(w, lags) if n > lags + 1 else np.zeros(lags + 1)
     if r[0] <= 0 or n <= lags + 1:
-        return {"lag1_autocorrelation": float("nan"), "lags": lags, "p_value": float("nan"),
-                "max_abs_autocorrelation": float("nan"), "statistic": float("nan"),
-                "white": False}  # fmt: skip
+        return {
+            "lag1_autocorrelation": float("nan"),
+            "lags": lags,
+            "p_value": float("nan"),
+            "max_abs_autocorrelation": float("nan"),
+            "statistic": float("nan"),
+            "white": False,
+        }
     rho = r[1:] / r[0]
     q = float(n * (n + 2) * np.sum(rho**2 / (n - np.arange(1, lags + 1))))
     p = _chi2_sf(q, max(1, lags - fitted))
     big = float(np.max(np.abs(rho)))
-    return {"lag1_autocorrelation": float(rho[0]), "lags": lags, "p_value": p,
-            "max_abs_autocorrelation": big, "statistic": q,
-            "white": bool(p >= TEST_LEVEL or big < MATERIAL_CORRELATION)}  # fmt: skip
+    return {
+        "lag1_autocorrelation": float(rho[0]),
+        "lags": lags,
+        "p_value": p,
+        "max_abs_autocorrelation": big,
+        "statistic": q,
+        "white": bool(p >= TEST_LEVEL or big < MATERIAL_CORRELATION),
+    }
 
 
 def cross_correlation_test(
@@ -146,8 +156,12 @@ def cross_correlation_test(
     n = w.size
     out: dict[str, Any] = {"input": name, "lags": lags}
     if n <= lags + 1 or not np.any(x) or not np.any(w):
-        out.update(max_abs_correlation=float("nan"), p_value=float("nan"),
-                   statistic=float("nan"), uncorrelated=False)  # fmt: skip
+        out.update(
+            max_abs_correlation=float("nan"),
+            p_value=float("nan"),
+            statistic=float("nan"),
+            uncorrelated=False,
+        )
         return out
     # prewhitened by a long autoregression (Levinson–Durbin): a well-conditioned fit, the same
     # bytes on every run (an ARMA fit to a piecewise-constant excitation is ill-conditioned)
@@ -159,8 +173,12 @@ def cross_correlation_test(
     q = float(n * np.sum(rho**2))
     p = _chi2_sf(q, lags + 1)
     big = float(np.max(np.abs(rho)))
-    out.update(max_abs_correlation=big, p_value=p, statistic=q,
-               uncorrelated=bool(p >= TEST_LEVEL or big < MATERIAL_CORRELATION))  # fmt: skip
+    out.update(
+        max_abs_correlation=big,
+        p_value=p,
+        statistic=q,
+        uncorrelated=bool(p >= TEST_LEVEL or big < MATERIAL_CORRELATION),
+    )
     return out
 
 

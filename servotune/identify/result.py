@@ -170,15 +170,19 @@ class FitResult:
 
     def summary(self) -> str:
         """A readable multi-line summary (what ``servotune fit`` prints on stderr)."""
-        lines = [f"method: {self.method} ({self.method_reason})",
-                 f"structure: {' + '.join(self.structure)} ({self.reason})"]  # fmt: skip
+        lines = [
+            f"method: {self.method} ({self.method_reason})",
+            f"structure: {' + '.join(self.structure)} ({self.reason})",
+        ]
         fs = self.friction_selection
         lines.append(f"friction: {self.friction}" + (f" ({fs['reason']})" if fs else ""))
         for p in self.params:
             if p in self.structure:
                 lo, hi = self.ci95[p]
-                lines.append(f"  {p:18s} {self.params[p]:12.6g} {UNITS[p]:10s} 95 %: "
-                             f"{lo:.6g} … {hi:.6g} (± {self.std[p]:.2g})")  # fmt: skip
+                lines.append(
+                    f"  {p:18s} {self.params[p]:12.6g} {UNITS[p]:10s} 95 %: "
+                    f"{lo:.6g} … {hi:.6g} (± {self.std[p]:.2g})"
+                )
             else:
                 lines.append(f"  {p:18s} {'left out':>12s}")
         lines.append(f"intervals: {self.interval_method}")
@@ -190,14 +194,19 @@ class FitResult:
         )
         w = self.whiteness
         tests = [f"innovations whiteness (Ljung-Box, {w['lags']} lags) p = {w['p_value']:.3g}"]
-        tests += [f"cross-correlation with {c['input']} p = {c['p_value']:.3g}"
-                  for c in self.cross_correlation]  # fmt: skip
+        tests += [
+            f"cross-correlation with {c['input']} p = {c['p_value']:.3g}"
+            for c in self.cross_correlation
+        ]
         lines.append("residual tests: " + "; ".join(tests))
-        lines.append("adequate: yes" if self.adequate
-                     else "adequate: NO: " + "; ".join(self.inadequacy))  # fmt: skip
-        lines.append(f"period {self.period_s * 1e3:.6g} ms, {self.n_samples} samples, "
-                     f"delay counted beyond compute_s = {self.compute_s * 1e3:g} ms"
-                     + (", encoder inverted" if self.inverted_encoder else ""))  # fmt: skip
+        lines.append(
+            "adequate: yes" if self.adequate else "adequate: NO: " + "; ".join(self.inadequacy)
+        )
+        lines.append(
+            f"period {self.period_s * 1e3:.6g} ms, {self.n_samples} samples, "
+            f"delay counted beyond compute_s = {self.compute_s * 1e3:g} ms"
+            + (", encoder inverted" if self.inverted_encoder else "")
+        )
         return "\n".join(lines)
 
     def to_dict(self) -> dict[str, Any]:
@@ -212,11 +221,15 @@ class FitResult:
             d[f.name] = v
         d["units"] = self.units
         d["parameters"] = {
-            p: {"value": float(self.params[p]), "unit": UNITS[p], "estimated": p in self.ci95,
+            p: {
+                "value": float(self.params[p]),
+                "unit": UNITS[p],
+                "estimated": p in self.ci95,
                 "ci95": [float(x) for x in self.ci95[p]] if p in self.ci95 else None,
-                "std": float(self.std[p]) if p in self.std else None}
+                "std": float(self.std[p]) if p in self.std else None,
+            }
             for p in self.params
-        }  # fmt: skip
+        }
         return _finite(d)
 
 

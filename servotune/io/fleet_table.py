@@ -225,8 +225,12 @@ def _parse_csv(raw: bytes, src: str) -> list[dict[str, Any]]:
             raise FleetTableError(
                 f"fleet table {src!r} line {i}: {len(row)} cells, {len(_NAMES)} columns"
             )
-        out.append({n: _parse_cell(c, _TYPES[n], f"fleet table {src!r} line {i} column {n}")
-                    for n, c in zip(_NAMES, row, strict=True)})  # fmt: skip
+        out.append(
+            {
+                n: _parse_cell(c, _TYPES[n], f"fleet table {src!r} line {i} column {n}")
+                for n, c in zip(_NAMES, row, strict=True)
+            }
+        )
     return out
 
 

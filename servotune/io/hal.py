@@ -431,13 +431,26 @@ class HalCapture:
                 ),
             )
             exc = exc.astype(np.int64)
-        axis = AxisLog(cmd_v=np.ascontiguousarray(cmd_v, dtype=float), pos_counts=pos,
-                       dac_code=dac_code, ref_counts=ref, exc_code=exc, name="")  # fmt: skip
+        axis = AxisLog(
+            cmd_v=np.ascontiguousarray(cmd_v, dtype=float),
+            pos_counts=pos,
+            dac_code=dac_code,
+            ref_counts=ref,
+            exc_code=exc,
+            name="",
+        )
         meta = {"kind": f"LinuxCNC {self.format} capture", "period_s": f"{period!r}"}
         if self.format == "csv":
             meta = dict(self.metadata)  # as the log reader keeps them
-        return Log(period_s=period, axes={"": axis}, metadata=meta, dac_bits=dac_bits,
-                   dac_range_v=dac_range_v, compute_s=compute_s, path=self.path)  # fmt: skip
+        return Log(
+            period_s=period,
+            axes={"": axis},
+            metadata=meta,
+            dac_bits=dac_bits,
+            dac_range_v=dac_range_v,
+            compute_s=compute_s,
+            path=self.path,
+        )
 
     def _period(self, settings: HalSettings, period_s: float | None) -> float:
         given, source = settings.period_s, "the map's period_s"
@@ -484,8 +497,10 @@ class HalCapture:
         :data:`~servotune.io.log_rows.WHOLE_TOL`, as the log reader's counts columns)."""
         a = self.values[:, j]
         if self.format == "csv":
-            units = {"pos": " (in counts; in machine units give --position-scale)",
-                     "ref": " (in counts; in machine units give --position-scale)"}  # fmt: skip
+            units = {
+                "pos": " (in counts; in machine units give --position-scale)",
+                "ref": " (in counts; in machine units give --position-scale)",
+            }
             self._refuse_first(
                 _not_whole(a),
                 j,
@@ -621,8 +636,14 @@ def read_halsampler(
             numbers = _sample_numbers(values[:, 0], rows)
             values = values[:, 1:]
         _check_rows(values, rows, names)
-        return HalCapture(format="halsampler", values=np.ascontiguousarray(values), names=names,
-                          lines=rows, sample_numbers=numbers, path=src)  # fmt: skip
+        return HalCapture(
+            format="halsampler",
+            values=np.ascontiguousarray(values),
+            names=names,
+            lines=rows,
+            sample_numbers=numbers,
+            path=src,
+        )
 
 
 def _no_comment(lines: list[str], line0: int) -> None:
@@ -716,17 +737,21 @@ def read_halscope(path: str | Path) -> HalCapture:
         while start < len(lines) and lines[start].lstrip().startswith("#"):
             start += 1  # '# Position: …', '# Scale: …' (display settings)
         values, rows = _numbers(
-            lines, start, ";", "halscope",
+            lines,
+            start,
+            ";",
+            "halscope",
             lambda j: f"column {j} ({names[j]})" if j < len(names) else f"field {j + 1}",
-        )  # fmt: skip
+        )
         if values.shape[1] != len(names):
             raise LogFormatError(
                 f"line {rows[0]} has {values.shape[1]} fields; line 2 names {len(names)} "
                 f"channels ({', '.join(names[:_SHOW_NAMES])})"
             )
         _check_rows(values, rows, names)
-        return HalCapture(format="halscope", values=values, names=names, lines=rows,
-                          period_s=period_s, path=src)  # fmt: skip
+        return HalCapture(
+            format="halscope", values=values, names=names, lines=rows, period_s=period_s, path=src
+        )
 
 
 def read_mapped_csv(
@@ -780,8 +805,10 @@ def read_mapped_csv(
 
     def kinds(header: list[str], line: int) -> list[str]:
         names = tuple(header)
-        found = {key: _find_column(names, len(names), target, key, "csv", line)
-                 for key, target in mapping.items()}  # fmt: skip
+        found = {
+            key: _find_column(names, len(names), target, key, "csv", line)
+            for key, target in mapping.items()
+        }
         out = ["skip"] * len(header)
         for key, j in found.items():
             out[j] = "counts" if key == "tick" else "float"
@@ -804,8 +831,12 @@ def read_mapped_csv(
                 f"{MIN_ROWS} are needed"
             )
         settings: dict[str, Any] = {}
-        parsers = {"counter_bits": _parse_counter_bits, "dac_bits": _parse_dac_bits,
-                   "dac_range_v": _parse_range, "compute_s": _parse_compute}  # fmt: skip
+        parsers = {
+            "counter_bits": _parse_counter_bits,
+            "dac_bits": _parse_dac_bits,
+            "dac_range_v": _parse_range,
+            "compute_s": _parse_compute,
+        }
         for key, parse in parsers.items():
             value = _meta_setting(key, meta, meta_line, parse)  # checked even if not used
             if value is not None and key != "counter_bits":
@@ -822,12 +853,14 @@ def read_mapped_csv(
                 "or tick=COLUMN), add a '# period_s: <seconds>' line or give --period-s"
             )
         period = _timebase(
-            tick, time_s, rows,
+            tick,
+            time_s,
+            rows,
             meta_period=meta_period,
             meta_source=f"metadata 'period_s' (line {meta_line.get('period_s')})",
             opt_period=period_s,
             names=(header[times.get("tick", 0)], header[times.get("time", 0)]),
-        )  # fmt: skip
+        )
         lo, hi = PERIOD_RANGE_S
         if not lo <= period <= hi:
             raise LogFormatError(
@@ -838,9 +871,16 @@ def read_mapped_csv(
         for j, h in enumerate(header):
             if h in cols:
                 values[:, j] = cols[h]
-    return HalCapture(format="csv", values=values, names=tuple(header), lines=table.row_lines,
-                      period_s=float(period), path=src, metadata=dict(meta),
-                      log_settings=settings)  # fmt: skip
+    return HalCapture(
+        format="csv",
+        values=values,
+        names=tuple(header),
+        lines=table.row_lines,
+        period_s=float(period),
+        path=src,
+        metadata=dict(meta),
+        log_settings=settings,
+    )
 
 
 def _find_column(
@@ -966,8 +1006,7 @@ def read_hal_capture(
         return read_halscope(path)
     if format != "halsampler":
         raise LogFormatError(f"format must be one of {', '.join(HAL_FORMATS)}, got {format!r}")
-    return read_halsampler(path, columns=columns, sample_number=sample_number,
-                           progress=progress)  # fmt: skip
+    return read_halsampler(path, columns=columns, sample_number=sample_number, progress=progress)
 
 
 class HalLogOptions(TypedDict, total=False):
@@ -1010,10 +1049,16 @@ def read_hal_log(
     ([0.0, 1.0, 0.0, 1.0], [0, 2, 4, 6], 0.001)
     """
     period = options.get("period_s")
-    cap = read_hal_capture(path, format=settings.format, columns=settings.columns,
-                           sample_number=settings.sample_number, mapping=settings.mapping,
-                           period_s=settings.period_s if period is None else period,
-                           strict=strict, progress=progress)  # fmt: skip
+    cap = read_hal_capture(
+        path,
+        format=settings.format,
+        columns=settings.columns,
+        sample_number=settings.sample_number,
+        mapping=settings.mapping,
+        period_s=settings.period_s if period is None else period,
+        strict=strict,
+        progress=progress,
+    )
     return cap.to_log(settings, **options)
 
 

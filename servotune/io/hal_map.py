@@ -133,10 +133,20 @@ class HalSettings:
         if self.period_s is not None:
             object.__setattr__(self, "period_s", _option("period_s", self.period_s, _parse_period))
         if self.position_scale is not None:
-            check_number("position_scale", self.position_scale, "counts per machine unit",
-                         strict=True, error=LogFormatError)  # fmt: skip
-        check_number("output_scale", self.output_scale, "pid output units per V", strict=True,
-                     error=LogFormatError)  # fmt: skip
+            check_number(
+                "position_scale",
+                self.position_scale,
+                "counts per machine unit",
+                strict=True,
+                error=LogFormatError,
+            )
+        check_number(
+            "output_scale",
+            self.output_scale,
+            "pid output units per V",
+            strict=True,
+            error=LogFormatError,
+        )
         if self.columns is not None:
             cols = tuple(self.columns) if not isinstance(self.columns, str) else (self.columns,)
             for c in cols:
@@ -310,8 +320,13 @@ def hal_settings(
         An option without ``--map``, or a map or value the settings refuse (the map file
         named).
     """
-    opts = {"format": format, "columns": columns, "position_scale": position_scale,
-            "output_scale": output_scale, "sample_number": sample_number}  # fmt: skip
+    opts = {
+        "format": format,
+        "columns": columns,
+        "position_scale": position_scale,
+        "output_scale": output_scale,
+        "sample_number": sample_number,
+    }
     given = [k for k, v in opts.items() if v is not None]
     where = "" if capture is None else f"HAL capture {str(capture)!r}: "
     if map_ is None:

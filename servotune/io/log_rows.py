@@ -295,8 +295,18 @@ def _fast_columns(data: bytes, start: int, header: list[str]) -> dict[str, np.nd
     floats = np.empty((counts[1], cap), dtype=np.float64)
     modes = np.empty((counts[2], cap), dtype=np.int8)
     buf = np.frombuffer(data, dtype=np.uint8, offset=start)
-    n = call_compiled(_plain_kernel(), buf, kinds, slots, _MODE_BYTES, MAX_NUMBER_CHARS, _POW10,
-                      ints, floats, modes)  # fmt: skip
+    n = call_compiled(
+        _plain_kernel(),
+        buf,
+        kinds,
+        slots,
+        _MODE_BYTES,
+        MAX_NUMBER_CHARS,
+        _POW10,
+        ints,
+        floats,
+        modes,
+    )
     if n < 1:
         return None
     out = (ints, floats, modes)

@@ -53,9 +53,10 @@ def build_section(
 def _build(cls: type, table: Mapping[str, Any], path: str, **fixed: Any) -> Any:
     allowed = [f.name for f in fields(cls) if f.init and f.name not in fixed]
     required = [
-        f.name for f in fields(cls)
+        f.name
+        for f in fields(cls)
         if f.name in allowed and f.default is MISSING and f.default_factory is MISSING
-    ]  # fmt: skip
+    ]
     kwargs = check_keys(table, path, required, allowed, error=RigError)
     for k, v in kwargs.items():
         for x in v if isinstance(v, list) else (v,):
@@ -338,8 +339,11 @@ def new_rig_text(
     for other, table in axes.items() if isinstance(axes, Mapping) else ():
         plant = table.get("plant") if isinstance(table, Mapping) else None
         if other != fitted_axis and getattr(plant, "trivia", None) is not None:
-            _set_comment(plant, f"NOT FITTED: the template's model ({source.name}); fit this "
-                                f"axis's log with --axis {other} -o into this file")  # fmt: skip
+            _set_comment(
+                plant,
+                f"NOT FITTED: the template's model ({source.name}); fit this "
+                f"axis's log with --axis {other} -o into this file",
+            )
     return doc.as_string()
 
 
@@ -406,6 +410,5 @@ def edit_plant_text(
     except UnicodeDecodeError as exc:
         raise RigError(f"rig file {str(source)!r} is not valid TOML: {exc}") from None
     if source != target and new is not None:
-        text = new_rig_text(text, source, name=new["name"], header=new["header"],
-                            fitted_axis=axis)  # fmt: skip
+        text = new_rig_text(text, source, name=new["name"], header=new["header"], fitted_axis=axis)
     return _plant_section(text, source, axis, plant, provenance, fit)

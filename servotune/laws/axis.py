@@ -200,8 +200,11 @@ class AxisController:
                     f"following_error_limit_counts must be an integer in 0..2**31-1 [counts] "
                     f"(0 = off), got {show_value(fe)}"
                 )
-            return cls(lock_gain=Fixed.from_dict(d["lock_gain"]), task=task,
-                       following_error_limit_counts=fe)  # fmt: skip
+            return cls(
+                lock_gain=Fixed.from_dict(d["lock_gain"]),
+                task=task,
+                following_error_limit_counts=fe,
+            )
         except KeyError as exc:
             raise ValueError(f"controller is missing the field {show_value(exc.args[0])}") from None
         except TypeError as exc:

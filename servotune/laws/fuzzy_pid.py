@@ -313,8 +313,16 @@ class FuzzyPIDConstants:
             except ValueError as exc:
                 raise ValueError(f"task.{key}: {exc}") from None
 
-        return cls(kp=fx("kp"), ki_t=fx("ki_t"), kd_t=fx("kd_t"), k1_t=fx("k1_t"), ke=fx("ke"),
-                   kec=fx("kec"), n=n, tables=tuple(tables))  # fmt: skip
+        return cls(
+            kp=fx("kp"),
+            ki_t=fx("ki_t"),
+            kd_t=fx("kd_t"),
+            k1_t=fx("k1_t"),
+            ke=fx("ke"),
+            kec=fx("kec"),
+            n=n,
+            tables=tuple(tables),
+        )
 
 
 def int_rows(rows: object, size: int, where: str) -> np.ndarray:

@@ -29,30 +29,49 @@ def fleet_report_html(result: FleetResult, *, title: str = "fleet") -> str:
     uri = _png(plot_fleet(result))
     parts.append(
         '<section id="distributions"><h2>Distributions</h2>'
-        + _figure(uri, "histograms of the fleet's parameters",
-                  "Latest fit of each machine. Blue band: no outlier (|robust z| within the "
-                  "limit); red: outliers against the fleet; orange arrows: drift from a "
-                  "machine's previous fit to its latest (intervals apart, change above "
-                  f"{result.summary.drift_k:g}× the fleet's spread).")
+        + _figure(
+            uri,
+            "histograms of the fleet's parameters",
+            "Latest fit of each machine. Blue band: no outlier (|robust z| within the "
+            "limit); red: outliers against the fleet; orange arrows: drift from a "
+            "machine's previous fit to its latest (intervals apart, change above "
+            f"{result.summary.drift_k:g}× the fleet's spread).",
+        )
         + "</section>"
-    )  # fmt: skip
-    head = ["axis", "parameter", "unit", "machines", "median", "spread (MAD/0.6745)", "5 %",
-            "95 %"]  # fmt: skip
-    rows = [[sp.axis, sp.parameter, sp.unit, sp.n_machines, _fmt(sp.median), _fmt(sp.spread),
-             _fmt(sp.q05), _fmt(sp.q95)] for sp in s.spreads]  # fmt: skip
+    )
+    head = ["axis", "parameter", "unit", "machines", "median", "spread (MAD/0.6745)", "5 %", "95 %"]
+    rows = [
+        [
+            sp.axis,
+            sp.parameter,
+            sp.unit,
+            sp.n_machines,
+            _fmt(sp.median),
+            _fmt(sp.spread),
+            _fmt(sp.q05),
+            _fmt(sp.q95),
+        ]
+        for sp in s.spreads
+    ]
     parts.append('<section id="spread"><h2>Spread</h2>' + _table(head, rows) + "</section>")
     flagged = [r for r in result.rows if r.outliers or r.drift]
     head = ["machine", "date", "file", "axis", "outlier in", "drifted in"]
-    rows = [[r.machine_id, r.date, r.file, r.axis, ", ".join(r.outliers), ", ".join(r.drift)]
-            for r in flagged]  # fmt: skip
-    parts.append('<section id="flagged"><h2>Flagged machines</h2>'
-                 + (_table(head, rows, [True] * len(rows)) if rows else _p("None."))
-                 + "</section>")  # fmt: skip
+    rows = [
+        [r.machine_id, r.date, r.file, r.axis, ", ".join(r.outliers), ", ".join(r.drift)]
+        for r in flagged
+    ]
+    parts.append(
+        '<section id="flagged"><h2>Flagged machines</h2>'
+        + (_table(head, rows, [True] * len(rows)) if rows else _p("None."))
+        + "</section>"
+    )
     if s.failures:
         rows = [list(f) for f in s.failures]
-        parts.append('<section id="failed"><h2>Failed logs</h2>'
-                     + _table(["file", "axis", "error"], rows, [True] * len(rows))
-                     + "</section>")  # fmt: skip
+        parts.append(
+            '<section id="failed"><h2>Failed logs</h2>'
+            + _table(["file", "axis", "error"], rows, [True] * len(rows))
+            + "</section>"
+        )
     data = {"schema": FLEET_SCHEMA, "version": __version__, "summary": s.to_dict()}
     return (
         '<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'

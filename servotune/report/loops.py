@@ -304,11 +304,14 @@ def _response_section(rig: Rig, tuning: Tuning, seed: int, verification: Any) ->
         if env.max_overshoot_pct is not None:
             drawn.append("the overshoot ceiling (red dashed)")
         if env.max_settling_time_s is not None:
-            drawn.append("the settling band the position must be in from the settling deadline "
-                         "on (green)")  # fmt: skip
+            drawn.append(
+                "the settling band the position must be in from the settling deadline on (green)"
+            )
         if env.max_sync_error_counts is not None and env.slaves:
-            drawn.append("in the middle panel the sync error master − slave (black) against its "
-                         "limit (red dashed)")  # fmt: skip
+            drawn.append(
+                "in the middle panel the sync error master − slave (black) against its "
+                "limit (red dashed)"
+            )
         cap = (
             f"Scenario {sc.name!r} on the nominal plants, seed {seed}. Drawn from the spec: "
             + (", ".join(drawn) if drawn else "no limit on this run")

@@ -185,10 +185,12 @@ def _recorded_fit_pct(fit: PlantFit) -> dict[str, dict[str, float | None]] | Non
     if all(getattr(fit, k) is None for k in FIT_PCT_KEYS):
         return None
     return {
-        q: {"estimation": getattr(fit, f"{q}_fit_pct"),
-            "validation": getattr(fit, f"{q}_fit_cv_pct")}
+        q: {
+            "estimation": getattr(fit, f"{q}_fit_pct"),
+            "validation": getattr(fit, f"{q}_fit_cv_pct"),
+        }
         for q in ("velocity", "position")
-    }  # fmt: skip
+    }
 
 
 def _with_interval(value: float, lo: float, hi: float) -> tuple[str, str]:

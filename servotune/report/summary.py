@@ -68,8 +68,10 @@ class Limit:
         u = f" {self.unit}" if self.unit and self.unit != "1" else ""
         left = self.relative_margin * 100.0
         state = f"{left:.0f} % left" if left >= 0 else f"{-left:.0f} % over"
-        return (f"{self.name} is {_num(self.worst)}{u} against a limit of "
-                f"{_num(self.limit)}{u} ({state})")  # fmt: skip
+        return (
+            f"{self.name} is {_num(self.worst)}{u} against a limit of "
+            f"{_num(self.limit)}{u} ({state})"
+        )
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -129,13 +131,20 @@ class ReportSummary:
         """Plain dict (non-finite numbers as None)."""
         out: dict[str, Any] = {f.name: getattr(self, f.name) for f in fields(self)}
         out["failures"] = list(self.failures)
-        out["tightest"] = None if self.tightest is None else {
-            f.name: _finite(getattr(self.tightest, f.name)) for f in fields(self.tightest)
-        }  # fmt: skip
+        out["tightest"] = (
+            None
+            if self.tightest is None
+            else {f.name: _finite(getattr(self.tightest, f.name)) for f in fields(self.tightest)}
+        )
         if self.montecarlo is not None:
             k, n, frac, lo, hi = self.montecarlo
-            out["montecarlo"] = {"passed": k, "count": n, "fraction": _finite(frac),
-                                 "ci95": [lo, hi], "interval": "Clopper-Pearson"}  # fmt: skip
+            out["montecarlo"] = {
+                "passed": k,
+                "count": n,
+                "fraction": _finite(frac),
+                "ci95": [lo, hi],
+                "interval": "Clopper-Pearson",
+            }
         out["verdict"] = self.verdict
         return out
 
@@ -148,8 +157,10 @@ def pass_fraction_text(
     ``(k, n, fraction, low, high)`` pass fraction (shares by
     :func:`~servotune.validate.show_share`: never 100.0 % while one run failed)."""
     k, n, frac, lo, hi = pass_fraction
-    return (f"Monte Carlo: {k} of {n} {what} ({show_share(frac)} %; 95 % interval "
-            f"{show_share(lo)}–{show_share(hi)} %, Clopper–Pearson)")  # fmt: skip
+    return (
+        f"Monte Carlo: {k} of {n} {what} ({show_share(frac)} %; 95 % interval "
+        f"{show_share(lo)}–{show_share(hi)} %, Clopper–Pearson)"
+    )
 
 
 def _finite(x: Any) -> Any:
@@ -169,18 +180,33 @@ def limits_of(v: Verification) -> list[Limit]:
         if r.quantity == _FAULT or not r.limit > 0:
             continue
         rel = r.relative_margin
-        out.append(Limit(name=f"{r.scenario}: {r.quantity} of {r.axis}", worst=float(r.worst),
-                         limit=float(r.limit), unit=r.unit, passed=r.passed,
-                         relative_margin=-math.inf if rel is None or math.isnan(rel) else rel,
-                         where=f"variant {r.variant}"))  # fmt: skip
+        out.append(
+            Limit(
+                name=f"{r.scenario}: {r.quantity} of {r.axis}",
+                worst=float(r.worst),
+                limit=float(r.limit),
+                unit=r.unit,
+                passed=r.passed,
+                relative_margin=-math.inf if rel is None or math.isnan(rel) else rel,
+                where=f"variant {r.variant}",
+            )
+        )
     for c in v.checks:
         if c.limit is None or not c.limit > 0 or not math.isfinite(c.value):
             continue
         # a check's bound is an upper bound on |value| (Ms, ppm, counts per tick)
         worst = abs(float(c.value))
-        out.append(Limit(name=f"check {c.name}", worst=worst, limit=float(c.limit), unit=c.unit,
-                         passed=c.passed, relative_margin=(c.limit - worst) / c.limit,
-                         where=c.detail))  # fmt: skip
+        out.append(
+            Limit(
+                name=f"check {c.name}",
+                worst=worst,
+                limit=float(c.limit),
+                unit=c.unit,
+                passed=c.passed,
+                relative_margin=(c.limit - worst) / c.limit,
+                where=c.detail,
+            )
+        )
     return out
 
 
@@ -312,23 +338,34 @@ def next_step(
         spec = f"SPEC (the spec {verification.spec.name!r})"
     names = {"rig": rig_path, "tuning": tuning_path, "spec": spec}
     if verification is None:
-        return (f"Not verified: judge the tuning against your limits with `servotune verify "
-                f"{tuning_path} --spec {spec} --report DIR`; export-table refuses an unverified "
-                "tuning.")  # fmt: skip
+        return (
+            f"Not verified: judge the tuning against your limits with `servotune verify "
+            f"{tuning_path} --spec {spec} --report DIR`; export-table refuses an unverified "
+            "tuning."
+        )
     v = verification
     if v.passed:
-        text = (f"Passed: export the verified tables with `servotune export-table {tuning_path} "
-                f"-o fuzzy.json` (or `--format c -o c/` for the C runtime).")  # fmt: skip
+        text = (
+            f"Passed: export the verified tables with `servotune export-table {tuning_path} "
+            f"-o fuzzy.json` (or `--format c -o c/` for the C runtime)."
+        )
         limits = limits_of(v)
         if limits:
             t = min(limits, key=lambda x: x.relative_margin)
             if t.relative_margin < 0.10:
-                text += (f" Keep an eye on the tightest limit: {t.describe()}; it will fail "
-                         "first if the machine differs from its model.")  # fmt: skip
+                text += (
+                    f" Keep an eye on the tightest limit: {t.describe()}; it will fail "
+                    "first if the machine differs from its model."
+                )
         return text
     if not v.rows:
-        return ("Failed before the closed-loop runs: " + "; ".join(v.failures) + ". "
-                + _knob(_CHECK_KNOBS["overflow"], **names).capitalize() + ".")  # fmt: skip
+        return (
+            "Failed before the closed-loop runs: "
+            + "; ".join(v.failures)
+            + ". "
+            + _knob(_CHECK_KNOBS["overflow"], **names).capitalize()
+            + "."
+        )
     # the failure that weighs most: a failed check, else the row most over its limit
     bad_checks = [c for c in v.checks if not c.passed]
     bad_rows = [r for r in v.rows if not r.passed]
@@ -338,8 +375,10 @@ def next_step(
         c = bad_checks[0]
         key = c.name.split(":", 1)[0]
         knob = _CHECK_KNOBS.get(key, "see the check's detail")
-        return (f"Failed: check {c.name}: {c.detail}. Next: "
-                f"{_knob(knob, **names, axis='', scenario='')}.{more}")  # fmt: skip
+        return (
+            f"Failed: check {c.name}: {c.detail}. Next: "
+            f"{_knob(knob, **names, axis='', scenario='')}.{more}"
+        )
 
     def excess(r: Any) -> float:
         rel = r.relative_margin
@@ -348,11 +387,12 @@ def next_step(
     finite = [r for r in bad_rows if r.quantity != _FAULT]
     r = min(finite, key=excess) if finite else bad_rows[0]
     u = f" {r.unit}"
-    what = (f"{r.scenario}: {r.quantity} of {r.axis} is {_num(float(r.worst))}{u} against a "
-            f"limit of {_num(float(r.limit))}{u} (variant {r.variant})")  # fmt: skip
+    what = (
+        f"{r.scenario}: {r.quantity} of {r.axis} is {_num(float(r.worst))}{u} against a "
+        f"limit of {_num(float(r.limit))}{u} (variant {r.variant})"
+    )
     knob = _KNOBS.get(r.quantity, "see the failing row")
-    return (f"Failed: {what}. Next: "
-            f"{_knob(knob, **names, axis=r.axis, scenario=r.scenario)}.{more}")  # fmt: skip
+    return f"Failed: {what}. Next: {_knob(knob, **names, axis=r.axis, scenario=r.scenario)}.{more}"
 
 
 def margin_comment(
@@ -423,8 +463,10 @@ def margin_comment(
                 "the verification's margins checks judge them over the whole plant set."
             )
     if fixed:
-        parts.append(f"The {' and '.join(fixed)} runs one fixed-gain loop: its phase margin is "
-                     "the one shown.")  # fmt: skip
+        parts.append(
+            f"The {' and '.join(fixed)} runs one fixed-gain loop: its phase margin is "
+            "the one shown."
+        )
     return " ".join(parts)
 
 

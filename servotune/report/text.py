@@ -45,17 +45,19 @@ def format_table(verification: Verification) -> str:
     lines = [head]
     for r in v.rows:
         rel = r.relative_margin
-        lines.append((
-            r.scenario,
-            r.quantity,
-            r.axis,
-            f"{show_number(r.limit)} {r.unit}",
-            f"{show_number(r.worst)} {r.unit}",
-            show_number(r.margin),
-            "n/a" if rel is None or not math.isfinite(rel) else f"{100.0 * rel:.0f}",
-            r.variant,
-            "ok" if r.passed else "FAIL",
-        ))  # fmt: skip
+        lines.append(
+            (
+                r.scenario,
+                r.quantity,
+                r.axis,
+                f"{show_number(r.limit)} {r.unit}",
+                f"{show_number(r.worst)} {r.unit}",
+                show_number(r.margin),
+                "n/a" if rel is None or not math.isfinite(rel) else f"{100.0 * rel:.0f}",
+                r.variant,
+                "ok" if r.passed else "FAIL",
+            )
+        )
     widths = [max(len(row[i]) for row in lines) for i in range(len(head))]
     right = {3, 4, 5, 6}
     out = [
@@ -63,8 +65,10 @@ def format_table(verification: Verification) -> str:
         f"{v.plant_sets} plant sets (nominal + {v.plant_sets - 1} Monte Carlo)"
     ]
     for row in lines:
-        cells = [c.rjust(w) if i in right else c.ljust(w)
-                 for i, (c, w) in enumerate(zip(row, widths, strict=True))]  # fmt: skip
+        cells = [
+            c.rjust(w) if i in right else c.ljust(w)
+            for i, (c, w) in enumerate(zip(row, widths, strict=True))
+        ]
         out.append("  ".join(cells).rstrip())
     if not v.rows:
         out.append("(closed-loop runs skipped)")
@@ -87,49 +91,80 @@ def format_montecarlo(summary: MonteCarloSummary, parameters: int = 3) -> str:
     if not s.count:
         return "Monte Carlo: no plant sets drawn"
     top = [x.parameter for x in s.sensitivity[:parameters]]
-    out = [f"worst plant sets of {s.count:,} from the {s.distribution} (least relative margin "
-           "over every limit):"]  # fmt: skip
+    out = [
+        f"worst plant sets of {s.count:,} from the {s.distribution} (least relative margin "
+        "over every limit):"
+    ]
     for w in s.worst:
         if w.quantity == "fault_runs":
             fig = f"{w.scenario}: a fault latched on {w.axis}"
         else:
-            fig = (f"{w.scenario}: {w.quantity} of {w.axis} = {show_number(w.value)} {w.unit} "
-                   f"(limit {show_number(w.limit)})")  # fmt: skip
+            fig = (
+                f"{w.scenario}: {w.quantity} of {w.axis} = {show_number(w.value)} {w.unit} "
+                f"(limit {show_number(w.limit)})"
+            )
         rel = w.relative_margin
         pct = f"{100.0 * rel:+.0f} %" if math.isfinite(rel) else "fault"
         params = ", ".join(f"{p} {show_number(w.parameters[p])}" for p in top)
-        out.append(f"  {w.label:<10} {pct:>7}  {'ok  ' if w.passed else 'FAIL'}  {fig}"
-                   + (f"; {params}" if params else ""))  # fmt: skip
+        out.append(
+            f"  {w.label:<10} {pct:>7}  {'ok  ' if w.passed else 'FAIL'}  {fig}"
+            + (f"; {params}" if params else "")
+        )
     if s.sensitivity:
         tested = any(math.isfinite(x.fail_p_value) for x in s.sensitivity)
-        out.append("sensitivity: failure rate of the plant sets in each parameter's lowest and "
-                   "highest quarter of the draws; "
-                   + ("p = rank-sum test of the failing against the passing plant sets' values "
-                      "(two-sided); " if tested else "")
-                   + "ρ = Spearman correlation with the least margin (< 0: larger values leave "
-                   "less margin)")  # fmt: skip
-        head = ("parameter", "lowest quarter", "fail %", "highest quarter", "fail %",
-                *(("p",) if tested else ()), "ρ")  # fmt: skip
+        out.append(
+            "sensitivity: failure rate of the plant sets in each parameter's lowest and "
+            "highest quarter of the draws; "
+            + (
+                "p = rank-sum test of the failing against the passing plant sets' values "
+                "(two-sided); "
+                if tested
+                else ""
+            )
+            + "ρ = Spearman correlation with the least margin (< 0: larger values leave "
+            "less margin)"
+        )
+        head = (
+            "parameter",
+            "lowest quarter",
+            "fail %",
+            "highest quarter",
+            "fail %",
+            *(("p",) if tested else ()),
+            "ρ",
+        )
         rows = [head]
         for x in s.sensitivity:
             rho = x.rank_correlation
-            rows.append((x.parameter, f"<= {show_number(x.low_edge)}", f"{x.low_fail_pct:.3g}",
-                         f">= {show_number(x.high_edge)}", f"{x.high_fail_pct:.3g}",
-                         *((show_number(x.fail_p_value),) if tested else ()),
-                         f"{rho:+.2f}" if math.isfinite(rho) else "n/a"))  # fmt: skip
+            rows.append(
+                (
+                    x.parameter,
+                    f"<= {show_number(x.low_edge)}",
+                    f"{x.low_fail_pct:.3g}",
+                    f">= {show_number(x.high_edge)}",
+                    f"{x.high_fail_pct:.3g}",
+                    *((show_number(x.fail_p_value),) if tested else ()),
+                    f"{rho:+.2f}" if math.isfinite(rho) else "n/a",
+                )
+            )
         widths = [max(len(r[i]) for r in rows) for i in range(len(head))]
         for r in rows:
-            cells = [c.ljust(w) if i == 0 else c.rjust(w)
-                     for i, (c, w) in enumerate(zip(r, widths, strict=True))]  # fmt: skip
+            cells = [
+                c.ljust(w) if i == 0 else c.rjust(w)
+                for i, (c, w) in enumerate(zip(r, widths, strict=True))
+            ]
             out.append("  " + "  ".join(cells).rstrip())
         if tested:
             n_fail = s.count - s.passed
             rule = f"p < {BEYOND_CHANCE:g}/{len(s.sensitivity)}, Bonferroni"
             apart = [x.parameter for x in s.sensitivity if x.beyond_chance]
-            out.append(f"the {n_fail} failing plant sets differ beyond chance ({rule}) in: "
-                       + ", ".join(apart) if apart else
-                       f"no parameter sets the {n_fail} failing plant sets apart beyond chance "
-                       f"({rule}): the table's failure rates may be chance")  # fmt: skip
+            out.append(
+                f"the {n_fail} failing plant sets differ beyond chance ({rule}) in: "
+                + ", ".join(apart)
+                if apart
+                else f"no parameter sets the {n_fail} failing plant sets apart beyond chance "
+                f"({rule}): the table's failure rates may be chance"
+            )
     return "\n".join(out)
 
 
@@ -139,8 +174,11 @@ def format_comparison(cmp: SyncComparison) -> str:
     head = f"{'topology':<11}" + "".join(
         f"{case + ' max':>13}{case + ' RMS':>13}" for case in CASES
     )
-    lines = [f"gantry {c.name}: sync error [counts], bus cycle {c.bus.cycle_s * 1e3:g} ms, "
-             f"latency {c.bus.latency_cycles} cycle(s), deployed: {c.topology}", head]  # fmt: skip
+    lines = [
+        f"gantry {c.name}: sync error [counts], bus cycle {c.bus.cycle_s * 1e3:g} ms, "
+        f"latency {c.bus.latency_cycles} cycle(s), deployed: {c.topology}",
+        head,
+    ]
     for topo in TOPOLOGIES:
         cells = ""
         for case in CASES:
@@ -150,22 +188,30 @@ def format_comparison(cmp: SyncComparison) -> str:
         lines.append(f"{topo:<11}{cells}")
     if cmp.predicted is not None:
         p = cmp.predicted
-        lines.append(f"predicted (linear) load-case max: parallel {p.parallel_max_counts:.1f}, "
-                     f"listening {p.listening_max_counts:.1f} (x{p.ratio:.3f})")  # fmt: skip
+        lines.append(
+            f"predicted (linear) load-case max: parallel {p.parallel_max_counts:.1f}, "
+            f"listening {p.listening_max_counts:.1f} (x{p.ratio:.3f})"
+        )
     lim = c.margins
-    lines.append(f"margins over the plant set (gain ±{lim.gain_spread:.0%}, tau "
-                 f"±{lim.tau_spread:.0%}, +{lim.extra_cycles} cycle; limits PM >= "
-                 f"{lim.min_phase_margin_deg:g}°, GM >= {lim.min_gain_margin_db:g} dB, Ms <= "
-                 f"{lim.max_sensitivity:g}), the least phase margin of each loop:")  # fmt: skip
+    lines.append(
+        f"margins over the plant set (gain ±{lim.gain_spread:.0%}, tau "
+        f"±{lim.tau_spread:.0%}, +{lim.extra_cycles} cycle; limits PM >= "
+        f"{lim.min_phase_margin_deg:g}°, GM >= {lim.min_gain_margin_db:g} dB, Ms <= "
+        f"{lim.max_sensitivity:g}), the least phase margin of each loop:"
+    )
     for loop, m in cmp.worst_margins().items():
-        lines.append(f"  {loop:<7}PM {show_number(m.phase_margin_deg)}°, GM "
-                     f"{show_number(m.gain_margin_db)} dB, Ms {show_number(m.max_sensitivity)} "
-                     f"(plant {m.plant})")  # fmt: skip
+        lines.append(
+            f"  {loop:<7}PM {show_number(m.phase_margin_deg)}°, GM "
+            f"{show_number(m.gain_margin_db)} dB, Ms {show_number(m.max_sensitivity)} "
+            f"(plant {m.plant})"
+        )
     if cmp.montecarlo is not None:
         w = cmp.montecarlo.worst
-        lines.append(pass_fraction_text(cmp.montecarlo.pass_fraction, "plant pairs never trip")
-                     + f"; largest sync error {w.max_sync_error_counts:.0f} counts "
-                     f"({w.label})")  # fmt: skip
+        lines.append(
+            pass_fraction_text(cmp.montecarlo.pass_fraction, "plant pairs never trip")
+            + f"; largest sync error {w.max_sync_error_counts:.0f} counts "
+            f"({w.label})"
+        )
     lines.append("PASS" if cmp.passed else "FAIL: " + "; ".join(cmp.failed))
     return "\n".join(lines)
 
@@ -288,8 +334,10 @@ def format_margins(margins: Margins) -> str:
             n_bad = sum(bool(lim.broken(m)) for m in ms)
             cells = len({m.cell for m in ms})
             lines.append(_margin_row(worst, f"task worst of {cells} cells", lim.broken(worst)))
-            lines.append(f"{'':<8}   at E={worst.cell[0]:+d} EC={worst.cell[1]:+d}; "
-                         f"{n_bad} of {len(ms)} cell loops break a limit")  # fmt: skip
+            lines.append(
+                f"{'':<8}   at E={worst.cell[0]:+d} EC={worst.cell[1]:+d}; "
+                f"{n_bad} of {len(ms)} cell loops break a limit"
+            )
             centre = [m for m in ms if m.cell == (0, 0) and m.plant == worst.plant]
             if centre:
                 lines.append(_margin_row(centre[0], "task centre cell", lim.broken(centre[0])))
@@ -300,8 +348,10 @@ def format_margins(margins: Margins) -> str:
         lines.append(f"margins: PASS ({len(margins.loops)} loops)")
     else:
         m, b = bad[0]
-        lines.append(f"margins: FAIL ({len(bad)} of {len(margins.loops)} loops break a limit; "
-                     f"worst {m.name} on {m.plant}: {'; '.join(b)})")  # fmt: skip
+        lines.append(
+            f"margins: FAIL ({len(bad)} of {len(margins.loops)} loops break a limit; "
+            f"worst {m.name} on {m.plant}: {'; '.join(b)})"
+        )
     return "\n".join(lines)
 
 
@@ -328,8 +378,10 @@ def format_tuning_summary(summary: Mapping[str, Any]) -> str:
             )
     s = summary.get("slave") or {}
     if s.get("objective") is not None:
-        lines.append(f"  slave objective (mean ITAE of the sync error over the variants): "
-                     f"{s['objective']:.4g} counts·s²")  # fmt: skip
+        lines.append(
+            f"  slave objective (mean ITAE of the sync error over the variants): "
+            f"{s['objective']:.4g} counts·s²"
+        )
     w = s.get("worst") or {}
     if "max_sync_counts" in w:
         run = summary.get("run") or {}
@@ -401,12 +453,19 @@ def figure4_statement(
         lines.append("Values are means over the seeds, ranges over the seeds in brackets.")
     failed = [_structure(s) for s, row in table.items() if not _finite(row, "itae")]
     if failed:
-        lines.append(f"No tuning within the constraints and budget for {', '.join(failed)} "
-                     "(on some seed): its figures are its closest candidate's, and it takes "
-                     "no part in the objective's verdict.")  # fmt: skip
-    for key, what, fmt in (("itae", "on the objective", "{:.4g} counts·s²"),
-                           ("heldout_max_sync_counts", "on the held-out scenarios' worst max "
-                            "sync error", "{:.0f} counts")):  # fmt: skip
+        lines.append(
+            f"No tuning within the constraints and budget for {', '.join(failed)} "
+            "(on some seed): its figures are its closest candidate's, and it takes "
+            "no part in the objective's verdict."
+        )
+    for key, what, fmt in (
+        ("itae", "on the objective", "{:.4g} counts·s²"),
+        (
+            "heldout_max_sync_counts",
+            "on the held-out scenarios' worst max sync error",
+            "{:.0f} counts",
+        ),
+    ):
         vals = {s: row[key] for s, row in table.items() if _finite(row, key)}
         if "composite" not in vals or len(vals) < 2:
             continue
@@ -421,14 +480,17 @@ def figure4_statement(
             None not in ranges and ranges[0][0] <= ranges[1][1] and ranges[1][0] <= ranges[0][1]
         )
         if c < r and not overlap:
-            lines.append(f"The composite law wins {what}: {versus}, as the seed's Figure 4 "
-                         "claims.")  # fmt: skip
+            lines.append(f"The composite law wins {what}: {versus}, as the seed's Figure 4 claims.")
         elif c < r:
-            lines.append(f"The composite law is ahead {what} on average ({versus}), but not "
-                         "clearly: the ranges over the seeds overlap.")  # fmt: skip
+            lines.append(
+                f"The composite law is ahead {what} on average ({versus}), but not "
+                "clearly: the ranges over the seeds overlap."
+            )
         else:
-            lines.append(f"The composite law does not win {what}: {versus} (same optimiser, "
-                         "budget and margin limits), contrary to the seed's Figure 4.")  # fmt: skip
+            lines.append(
+                f"The composite law does not win {what}: {versus} (same optimiser, "
+                "budget and margin limits), contrary to the seed's Figure 4."
+            )
     return "\n".join(lines)
 
 
@@ -437,40 +499,54 @@ def format_gantry_tuning(tuning: GantryTuning) -> str:
     the plant set and each case's sync error on the nominal drives."""
     d = tuning.design
     g = d.get("gains", {})
-    lines = [f"gantry {tuning.gantry_name}: {tuning.topology}, bus cycle "
-             f"{tuning.cycle_s * 1e3:g} ms, latency {tuning.latency_cycles} cycle(s)"]  # fmt: skip
+    lines = [
+        f"gantry {tuning.gantry_name}: {tuning.topology}, bus cycle "
+        f"{tuning.cycle_s * 1e3:g} ms, latency {tuning.latency_cycles} cycle(s)"
+    ]
     for name in ("master", "slave"):
         if name in g:
-            lines.append(f"  {name} drive PI: Kp {show_number(g[name]['kp'])} codes/count, Ki "
-                         f"{show_number(g[name]['ki'])} codes/(count·s)")  # fmt: skip
+            lines.append(
+                f"  {name} drive PI: Kp {show_number(g[name]['kp'])} codes/count, Ki "
+                f"{show_number(g[name]['ki'])} codes/(count·s)"
+            )
     if "sync" in g:
         s = g["sync"]
-        lines.append(f"  sync compensator ({tuning.sync_law}): Kp {show_number(s['kp'])}, Ki "
-                     f"{show_number(s['ki'])} 1/s, Kd {show_number(s['kd'])} s; dead zone "
-                     f"{tuning.sync.dead_zone_counts}, limit {tuning.sync.limit_counts}, warn "
-                     f"{tuning.warn_counts}, trip {tuning.trip_counts} counts")  # fmt: skip
+        lines.append(
+            f"  sync compensator ({tuning.sync_law}): Kp {show_number(s['kp'])}, Ki "
+            f"{show_number(s['ki'])} 1/s, Kd {show_number(s['kd'])} s; dead zone "
+            f"{tuning.sync.dead_zone_counts}, limit {tuning.sync.limit_counts}, warn "
+            f"{tuning.warn_counts}, trip {tuning.trip_counts} counts"
+        )
     for loop, m in d.get("worst_margins", {}).items():
-        lines.append(f"  least margin, {loop:<6} PM {show_number(m['phase_margin_deg'])}°, GM "
-                     f"{show_number(m['gain_margin_db'])} dB, Ms "
-                     f"{show_number(m['max_sensitivity'])} (plant {m['plant']})")  # fmt: skip
+        lines.append(
+            f"  least margin, {loop:<6} PM {show_number(m['phase_margin_deg'])}°, GM "
+            f"{show_number(m['gain_margin_db'])} dB, Ms "
+            f"{show_number(m['max_sensitivity'])} (plant {m['plant']})"
+        )
     for case, c in d.get("cases", {}).items():
         trip = ", TRIPS" if c["tripped"] else ""
-        lines.append(f"  {case} case: sync error max {c['max_sync_error_counts']:.0f}, RMS "
-                     f"{c['rms_sync_error_counts']:.1f} counts{trip}")  # fmt: skip
+        lines.append(
+            f"  {case} case: sync error max {c['max_sync_error_counts']:.0f}, RMS "
+            f"{c['rms_sync_error_counts']:.1f} counts{trip}"
+        )
     return "\n".join(lines)
 
 
 def format_gantry_verification(v: GantryVerification) -> str:
     """What ``servotune verify GANTRY-TUNING`` prints: one row per check, then the verdict."""
-    lines = [f"gantry {v.gantry}: verified at a bus latency of {v.latency_cycles} cycle(s)",
-             f"{'check':<15}{'what':<42}{'value':>9}  {'limit':<10}{'unit':<8}result"]  # fmt: skip
+    lines = [
+        f"gantry {v.gantry}: verified at a bus latency of {v.latency_cycles} cycle(s)",
+        f"{'check':<15}{'what':<42}{'value':>9}  {'limit':<10}{'unit':<8}result",
+    ]
     for r in v.rows:
         value = show_number(r.value)
         limit = f"{r.kind} {show_number(r.limit)}"
         unit = r.unit if len(r.unit) <= 7 else ""
         note = "; ".join(x for x in (r.unit if not unit else "", r.detail) if x)
-        lines.append(f"{r.check:<15}{r.subject:<42}{value:>9}  {limit:<10}{unit:<8}"
-                     f"{'ok' if r.passed else 'FAIL'}{'  ' + note if note else ''}")  # fmt: skip
+        lines.append(
+            f"{r.check:<15}{r.subject:<42}{value:>9}  {limit:<10}{unit:<8}"
+            f"{'ok' if r.passed else 'FAIL'}{'  ' + note if note else ''}"
+        )
     lines.append("PASS" if v.passed else "FAIL: " + "; ".join(v.failures))
     return "\n".join(lines)
 
@@ -485,23 +561,31 @@ def format_linkage_plan(plan: LinkagePlan) -> str:
         f"{plan.frame_s * 1e3:.2f} ms every {plan.broadcast_period_s * 1e3:g} ms: utilisation "
         f"{100 * plan.utilisation:.1f} %, {b.prefill_blocks} blocks prefilled",
         f"  clock sync every {plan.resync_ticks} ticks"
-        if plan.resync_ticks else "  clock sync at motion start only",
-    ]  # fmt: skip
+        if plan.resync_ticks
+        else "  clock sync at motion start only",
+    ]
     for c in plan.cpus:
-        lines.append(f"  cpu {c.name} ({', '.join(c.axes)}, {c.clock_ppm:+g} ppm): queue "
-                     f"{c.queue_depth}, watermarks low {c.low_watermark} / high "
-                     f"{c.high_watermark} setpoints")  # fmt: skip
+        lines.append(
+            f"  cpu {c.name} ({', '.join(c.axes)}, {c.clock_ppm:+g} ppm): queue "
+            f"{c.queue_depth}, watermarks low {c.low_watermark} / high "
+            f"{c.high_watermark} setpoints"
+        )
     return "\n".join(lines)
 
 
 def format_linkage_verification(v: LinkageVerification) -> str:
     """What ``servotune verify PLAN`` prints: one row per check, then the verdict."""
     head = f"{'check':<30}{'worst case':<18}{'value':>10}  {'limit':<12}{'unit':<12}result"
-    lines = [f"linkage {v.config}: {len(v.cases)} clock case(s): "
-             + ", ".join(label for label, _ in v.cases), head]  # fmt: skip
+    lines = [
+        f"linkage {v.config}: {len(v.cases)} clock case(s): "
+        + ", ".join(label for label, _ in v.cases),
+        head,
+    ]
     for r in v.rows:
         limit = f"{r.bound} {show_number(float(r.limit))}"
-        lines.append(f"{r.check:<30}{r.case:<18}{show_number(float(r.value)):>10}  {limit:<12}"
-                     f"{r.unit:<12}{'ok' if r.passed else 'FAIL'}")  # fmt: skip
+        lines.append(
+            f"{r.check:<30}{r.case:<18}{show_number(float(r.value)):>10}  {limit:<12}"
+            f"{r.unit:<12}{'ok' if r.passed else 'FAIL'}"
+        )
     lines.append("PASS" if v.passed else "FAIL: " + "; ".join(v.failures))
     return "\n".join(lines)

@@ -331,8 +331,13 @@ def run_batch(
         nb.set_num_threads(max(1, min(int(threads), nb.config.NUMBA_NUM_THREADS)))
     # one-axis metrics-only runs (candidate sweeps) take the lean kernel: same results, about
     # twice as fast; it holds lags of at most one whole tick (ring = largest lag + 2)
-    lean = (metrics_only and not ideal and n_ax == 1 and batch.ring <= 3
-            and batch.consts.shape[2] <= CONSTS_CAPACITY)  # fmt: skip
+    lean = (
+        metrics_only
+        and not ideal
+        and n_ax == 1
+        and batch.ring <= 3
+        and batch.consts.shape[2] <= CONSTS_CAPACITY
+    )
     try:
         if lean:
             _run_lean_batch(batch, inputs, metric_from_tick, metrics)

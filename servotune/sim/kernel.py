@@ -41,9 +41,32 @@ LANES = 2
 
 @jit
 def _run_group(
-    b0, n_group, pf, pi, consts, gains, seeds, src, ref, mode, reset, u_add, load,
-    bits, latched, skew, dac_lo, lsb, ideal, ring, m_from, period, out_i, out_f, metrics,
-):  # fmt: skip
+    b0,
+    n_group,
+    pf,
+    pi,
+    consts,
+    gains,
+    seeds,
+    src,
+    ref,
+    mode,
+    reset,
+    u_add,
+    load,
+    bits,
+    latched,
+    skew,
+    dac_lo,
+    lsb,
+    ideal,
+    ring,
+    m_from,
+    period,
+    out_i,
+    out_f,
+    metrics,
+):
     # lane ln = g * n_ax + a runs axis a of candidate b0 + g; lanes never interact across
     # candidates and each candidate draws its own noise stream, so grouping changes no result
     n_ax = pf.shape[1]
@@ -86,8 +109,20 @@ def _run_group(
             if ideal:
                 yf[ln] = pos[ln] + nz
                 continue
-            raw, y[ln] = read_axis(st, cb, ln, pos[ln], spd[ln], nz, pib[ln, _I_INIT], mask,
-                                   latched, nbytes, skew, reset[k, a])  # fmt: skip
+            raw, y[ln] = read_axis(
+                st,
+                cb,
+                ln,
+                pos[ln],
+                spd[ln],
+                nz,
+                pib[ln, _I_INIT],
+                mask,
+                latched,
+                nbytes,
+                skew,
+                reset[k, a],
+            )
             if rec:
                 out_i[1, b0 + g_l, k, a] = raw
         # 3-4. control law and D/A, every axis
@@ -117,8 +152,9 @@ def _run_group(
                 cur_mode = md
             else:
                 r = ref[k, a] if s < 0 else y[base + s]
-                code, flags, e, volts = write_axis(st, cb, ln, r, mode[k, a], reset[k, a],
-                                                   u_add[k, a], dac_lo, lsb)  # fmt: skip
+                code, flags, e, volts = write_axis(
+                    st, cb, ln, r, mode[k, a], reset[k, a], u_add[k, a], dac_lo, lsb
+                )
                 cur_mode = st[ln, S_MODE]
             hold(hist[ln], slot, volts)
             if rec:
@@ -136,23 +172,68 @@ def _run_group(
         for ln in range(n_l):
             a = lane_ax[ln]
             w_off = pfb[ln, R_OFFSET] + load[k, a]
-            pos[ln], spd[ln] = advance_axis(pos[ln], spd[ln], hist[ln], slot, pib[ln, _I_LAG], k,
-                                            w_off, pfb[ln])  # fmt: skip
+            pos[ln], spd[ln] = advance_axis(
+                pos[ln], spd[ln], hist[ln], slot, pib[ln, _I_LAG], k, w_off, pfb[ln]
+            )
     for ln in range(n_l):
         finish(mt, ln, metrics, b0 + lane_g[ln], lane_ax[ln])
 
 
 @jit(parallel=True)
 def _kernel(
-    pf, pi, consts, gains, seeds, src, ref, mode, reset, u_add, load,
-    bits, latched, skew, dac_lo, lsb, ideal, ring, m_from, period, out_i, out_f, metrics, lanes,
-):  # fmt: skip
+    pf,
+    pi,
+    consts,
+    gains,
+    seeds,
+    src,
+    ref,
+    mode,
+    reset,
+    u_add,
+    load,
+    bits,
+    latched,
+    skew,
+    dac_lo,
+    lsb,
+    ideal,
+    ring,
+    m_from,
+    period,
+    out_i,
+    out_f,
+    metrics,
+    lanes,
+):
     n = pf.shape[0]
     n_groups = (n + lanes - 1) // lanes
     for gi in nb.prange(n_groups):
         b0 = gi * lanes
         _run_group(
-            b0, min(lanes, n - b0), pf, pi, consts, gains, seeds, src, ref, mode, reset, u_add,
-            load, bits, latched, skew, dac_lo, lsb, ideal, ring, m_from, period, out_i, out_f,
+            b0,
+            min(lanes, n - b0),
+            pf,
+            pi,
+            consts,
+            gains,
+            seeds,
+            src,
+            ref,
+            mode,
+            reset,
+            u_add,
+            load,
+            bits,
+            latched,
+            skew,
+            dac_lo,
+            lsb,
+            ideal,
+            ring,
+            m_from,
+            period,
+            out_i,
+            out_f,
             metrics,
-        )  # fmt: skip
+        )

@@ -81,9 +81,25 @@ def _frame_buffer(typingctx, n, dtype):
 
 @jit
 def _run_lean(
-    b, pf, pi, consts, seeds, ref, mode, reset, u_add, load,
-    bits, latched, skew, dac_lo, lsb, m_from, period, metrics,
-):  # fmt: skip
+    b,
+    pf,
+    pi,
+    consts,
+    seeds,
+    ref,
+    mode,
+    reset,
+    u_add,
+    load,
+    bits,
+    latched,
+    skew,
+    dac_lo,
+    lsb,
+    m_from,
+    period,
+    metrics,
+):
     """Run candidate ``b`` of a one-axis batch and write its metrics (arguments as _kernel).
 
     Needs whole ticks of lag 0 or 1 (``Batch.ring <= 3``); integer runtime, no traces. The
@@ -146,9 +162,24 @@ def _run_lean(
 
 @jit(parallel=True)
 def _kernel_lean(
-    pf, pi, consts, seeds, ref, mode, reset, u_add, load,
-    bits, latched, skew, dac_lo, lsb, m_from, period, metrics,
-):  # fmt: skip
+    pf,
+    pi,
+    consts,
+    seeds,
+    ref,
+    mode,
+    reset,
+    u_add,
+    load,
+    bits,
+    latched,
+    skew,
+    dac_lo,
+    lsb,
+    m_from,
+    period,
+    metrics,
+):
     """Every candidate of a one-axis batch through :func:`_run_lean`, in parallel.
 
     Called with numba's parallel chunk size 1 (:func:`_run_lean_batch`), threads take
@@ -158,6 +189,22 @@ def _kernel_lean(
     """
     for b in nb.prange(pf.shape[0]):
         _run_lean(
-            b, pf, pi, consts, seeds, ref, mode, reset, u_add, load,
-            bits, latched, skew, dac_lo, lsb, m_from, period, metrics,
-        )  # fmt: skip
+            b,
+            pf,
+            pi,
+            consts,
+            seeds,
+            ref,
+            mode,
+            reset,
+            u_add,
+            load,
+            bits,
+            latched,
+            skew,
+            dac_lo,
+            lsb,
+            m_from,
+            period,
+            metrics,
+        )

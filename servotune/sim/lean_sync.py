@@ -260,7 +260,7 @@ def _noisy_floor(q: float, nz: float, margin: float) -> tuple[bool, np.int64]:
 
 
 @jit(inline="always")
-def _latch_noisy(rng, sigma, nz_a, p, v, init, mask, latched, nbytes, skew):  # fmt: skip
+def _latch_noisy(rng, sigma, nz_a, p, v, init, mask, latched, nbytes, skew):
     """:func:`servotune.sim.tick.latch` of ``p`` plus the noise ``sigma`` times
     :func:`servotune.sim.tick.normal` drawn from ``rng`` (``sigma > 0``), ``nz_a`` that noise
     approximated (:func:`_approx_draws`): the floor taken on ``nz_a`` where it is safe."""
@@ -287,10 +287,36 @@ def _latch_noisy(rng, sigma, nz_a, p, v, init, mask, latched, nbytes, skew):  # 
 
 @jit
 def _run_sync(
-    b, pf, pi, consts, seeds, src, ref, mode, reset, u_add, load, bits, latched, skew, dac_lo,
-    lsb, counted, step_from, target, threshold, has_step, master, follower, steady_lo,
-    steady_hi, hold_from, period, figures, fast,
-):  # fmt: skip
+    b,
+    pf,
+    pi,
+    consts,
+    seeds,
+    src,
+    ref,
+    mode,
+    reset,
+    u_add,
+    load,
+    bits,
+    latched,
+    skew,
+    dac_lo,
+    lsb,
+    counted,
+    step_from,
+    target,
+    threshold,
+    has_step,
+    master,
+    follower,
+    steady_lo,
+    steady_hi,
+    hold_from,
+    period,
+    figures,
+    fast,
+):
     """Run plant set ``b`` of a two-axis batch and write its figures (see :func:`_kernel_sync`)."""
     nt = ref.shape[0]
     mask = (np.int64(1) << bits) - 1
@@ -353,8 +379,18 @@ def _run_sync(
             sigma = rows[a, R_NOISE]
             if sigma > 0.0:
                 d = per_tick * k + (a if per_tick == 2 else 0)
-                raw = _latch_noisy(rng, sigma, nzb[d] * sigma, pos[a], spd[a], pi[b, a, _I_INIT],
-                                   mask, latched, nbytes, skew)  # fmt: skip
+                raw = _latch_noisy(
+                    rng,
+                    sigma,
+                    nzb[d] * sigma,
+                    pos[a],
+                    spd[a],
+                    pi[b, a, _I_INIT],
+                    mask,
+                    latched,
+                    nbytes,
+                    skew,
+                )
                 rng += _TWO_GOLDEN  # the two splitmix64 steps of the draw
             else:
                 raw = latch(pos[a], spd[a], 0.0, pi[b, a, _I_INIT], mask, latched, nbytes, skew)
@@ -477,18 +513,69 @@ def _run_sync(
 
 @jit(parallel=True)
 def _kernel_sync(
-    pf, pi, consts, seeds, src, ref, mode, reset, u_add, load, bits, latched, skew, dac_lo,
-    lsb, counted, step_from, target, threshold, has_step, master, follower, steady_lo,
-    steady_hi, hold_from, period, figures, fast,
-):  # fmt: skip
+    pf,
+    pi,
+    consts,
+    seeds,
+    src,
+    ref,
+    mode,
+    reset,
+    u_add,
+    load,
+    bits,
+    latched,
+    skew,
+    dac_lo,
+    lsb,
+    counted,
+    step_from,
+    target,
+    threshold,
+    has_step,
+    master,
+    follower,
+    steady_lo,
+    steady_hi,
+    hold_from,
+    period,
+    figures,
+    fast,
+):
     """Every plant set through :func:`_run_sync`, in parallel, one at a time per thread (numba's
     chunk size 1): each writes only its own rows, so which thread runs it changes no result."""
     for b in nb.prange(pf.shape[0]):
         _run_sync(
-            b, pf, pi, consts, seeds, src, ref, mode, reset, u_add, load, bits, latched, skew,
-            dac_lo, lsb, counted, step_from, target, threshold, has_step, master, follower,
-            steady_lo, steady_hi, hold_from, period, figures, fast,
-        )  # fmt: skip
+            b,
+            pf,
+            pi,
+            consts,
+            seeds,
+            src,
+            ref,
+            mode,
+            reset,
+            u_add,
+            load,
+            bits,
+            latched,
+            skew,
+            dac_lo,
+            lsb,
+            counted,
+            step_from,
+            target,
+            threshold,
+            has_step,
+            master,
+            follower,
+            steady_lo,
+            steady_hi,
+            hold_from,
+            period,
+            figures,
+            fast,
+        )
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

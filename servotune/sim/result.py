@@ -156,8 +156,9 @@ class BatchTraces:
     @classmethod
     def concatenate(cls, parts: list[BatchTraces]) -> BatchTraces:
         """The candidates of several batches (same ticks and axes), in order."""
-        return cls(**{f.name: np.concatenate([getattr(p, f.name) for p in parts])
-                      for f in fields(cls)})  # fmt: skip
+        return cls(
+            **{f.name: np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(cls)}
+        )
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

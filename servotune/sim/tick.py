@@ -117,7 +117,7 @@ def draw_noise(state: np.uint64, sigma: float) -> tuple[np.uint64, float]:
 
 
 @jit(inline="always")
-def latch(p, v, nz, init, mask, latched, nbytes, skew):  # fmt: skip
+def latch(p, v, nz, init, mask, latched, nbytes, skew):
     """The counter register read at the tick start: position ``p`` [counts] plus noise ``nz``.
 
     ``(init + floor(p + nz)) & mask``. Latched: one read of the whole register. Not latched:
@@ -141,7 +141,7 @@ def dac_volts(code: int, dac_lo: float, lsb: float) -> float:
 
 
 @jit(inline="always")
-def read_axis(st, c, a, p, v, nz, init, mask, latched, nbytes, skew, reset):  # fmt: skip
+def read_axis(st, c, a, p, v, nz, init, mask, latched, nbytes, skew, reset):
     """Steps 1-2 for axis ``a``: latch the register and let the runtime read it.
 
     Returns the register ``raw`` and the unwrapped position ``y`` [counts].
@@ -151,7 +151,7 @@ def read_axis(st, c, a, p, v, nz, init, mask, latched, nbytes, skew, reset):  # 
 
 
 @jit(inline="always")
-def write_axis(st, c, a, r, mode, reset, u_add, dac_lo, lsb):  # fmt: skip
+def write_axis(st, c, a, r, mode, reset, u_add, dac_lo, lsb):
     """Steps 3-4 for axis ``a``: the runtime's law, then the D/A.
 
     Returns ``code``, ``flags``, the error ``e`` [counts] and the volts written.
@@ -188,7 +188,7 @@ def held(ring: np.ndarray, slot: int, m: int, k: int) -> tuple[float, float]:
 
 
 @jit(inline="always")
-def advance_axis(p, v, ring, slot, m, k, w_off, row):  # fmt: skip
+def advance_axis(p, v, ring, slot, m, k, w_off, row):
     """Step 5: move the motor over tick ``k`` through the held writes plus ``w_off`` [V]
     (offset and load), exactly (:func:`servotune.plant.advance_tick`)."""
     v_old, v_new = held(ring, slot, m, k)
@@ -214,7 +214,7 @@ N_METRICS = len(METRIC_NAMES)
 
 
 @jit(inline="always")
-def accumulate(mt, ln, k, e, flags, cur_mode, m_from, period):  # fmt: skip
+def accumulate(mt, ln, k, e, flags, cur_mode, m_from, period):
     """Add tick ``k`` to the metrics row ``mt[ln]`` (``METRIC_NAMES`` order; rms as a sum)."""
     if flags & 3 and mt[ln, 4] < 0.0:
         mt[ln, 4] = k
@@ -235,7 +235,7 @@ def accumulate(mt, ln, k, e, flags, cur_mode, m_from, period):  # fmt: skip
 
 
 @jit(inline="always")
-def finish(mt, ln, metrics, b, a):  # fmt: skip
+def finish(mt, ln, metrics, b, a):
     """Turn the sums of ``mt[ln]`` into the metrics of candidate ``b``, axis ``a``."""
     cnt = mt[ln, 6]
     mt[ln, 1] = math.sqrt(mt[ln, 1] / cnt) if cnt > 0 else 0.0

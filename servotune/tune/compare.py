@@ -303,16 +303,20 @@ def compare_structures(
                 "itae": res.objective,
                 **_heldout_row(tuning, rig, held_spec, seed),
             }
-            runs.append(StructureRun(structure=structure, seed=seed, tuning=res,
-                                     metrics=metrics))  # fmt: skip
+            runs.append(StructureRun(structure=structure, seed=seed, tuning=res, metrics=metrics))
     budget = {
         "generations": tune.generations,
         "population": tune.population,
         "limits": tune.limits.to_dict(),
         "heldout_count": heldout_count,
     }
-    return Comparison(seeds=tuple(seeds), runs=tuple(runs), traces=traces,
-                      heldout=tuple(s.name for s in held), budget=budget)  # fmt: skip
+    return Comparison(
+        seeds=tuple(seeds),
+        runs=tuple(runs),
+        traces=traces,
+        heldout=tuple(s.name for s in held),
+        budget=budget,
+    )
 
 
 # --- the trade-off ---------------------------------------------------------------------------
@@ -366,8 +370,10 @@ class ParetoPoint:
     front_max: bool = False
 
     def to_dict(self) -> dict[str, Any]:
-        return {k: json_float(v) if isinstance(v, float) else v
-                for k, v in dataclasses.asdict(self).items()}  # fmt: skip
+        return {
+            k: json_float(v) if isinstance(v, float) else v
+            for k, v in dataclasses.asdict(self).items()
+        }
 
 
 def pareto_specs(tune: SlaveTuneSpec, ms_limits: Sequence[float]) -> list[SlaveTuneSpec]:
@@ -419,13 +425,21 @@ def pareto_front(
             )
             w = res.worst
             nan = float("nan")
-            mine.append(ParetoPoint(
-                structure=structure, ms_limit=float(ms), feasible=res.feasible,
-                worst_ms=w["max_sensitivity"], itae=res.objective if res.feasible else nan,
-                max_sync_counts=w["max_sync_counts"] if res.feasible else nan))  # fmt: skip
+            mine.append(
+                ParetoPoint(
+                    structure=structure,
+                    ms_limit=float(ms),
+                    feasible=res.feasible,
+                    worst_ms=w["max_sensitivity"],
+                    itae=res.objective if res.feasible else nan,
+                    max_sync_counts=w["max_sync_counts"] if res.feasible else nan,
+                )
+            )
         ms_v = [p.worst_ms for p in mine]
         f_itae = pareto_mask(ms_v, [p.itae for p in mine])
         f_max = pareto_mask(ms_v, [p.max_sync_counts for p in mine])
-        points += [dataclasses.replace(p, front_itae=bool(a), front_max=bool(b))
-                   for p, a, b in zip(mine, f_itae, f_max, strict=True)]  # fmt: skip
+        points += [
+            dataclasses.replace(p, front_itae=bool(a), front_max=bool(b))
+            for p, a, b in zip(mine, f_itae, f_max, strict=True)
+        ]
     return tuple(points)

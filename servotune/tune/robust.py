@@ -101,19 +101,22 @@ class MarginScreen:
 
 
 def _meets(limits: MarginLimits, pm: np.ndarray, gm: np.ndarray, ms: np.ndarray) -> np.ndarray:
-    return ((pm >= limits.min_phase_margin_deg) & (gm >= limits.min_gain_margin_db)
-            & (ms <= limits.max_sensitivity))  # fmt: skip
+    return (
+        (pm >= limits.min_phase_margin_deg)
+        & (gm >= limits.min_gain_margin_db)
+        & (ms <= limits.max_sensitivity)
+    )
 
 
 def _binding(limits: MarginLimits, pm: float, gm: float, ms: float) -> str:
     shortfall = {
-        f"PM {pm:.1f}° < {limits.min_phase_margin_deg:g}°":
-            (limits.min_phase_margin_deg - pm) / limits.min_phase_margin_deg,
-        f"GM {gm:.1f} dB < {limits.min_gain_margin_db:g} dB":
-            (limits.min_gain_margin_db - gm) / max(limits.min_gain_margin_db, 1.0),
-        f"Ms {ms:.2f} > {limits.max_sensitivity:g}":
-            (ms - limits.max_sensitivity) / limits.max_sensitivity,
-    }  # fmt: skip
+        f"PM {pm:.1f}° < {limits.min_phase_margin_deg:g}°": (limits.min_phase_margin_deg - pm)
+        / limits.min_phase_margin_deg,
+        f"GM {gm:.1f} dB < {limits.min_gain_margin_db:g} dB": (limits.min_gain_margin_db - gm)
+        / max(limits.min_gain_margin_db, 1.0),
+        f"Ms {ms:.2f} > {limits.max_sensitivity:g}": (ms - limits.max_sensitivity)
+        / limits.max_sensitivity,
+    }
     return max(shortfall, key=lambda k: shortfall[k])
 
 

@@ -213,8 +213,9 @@ def tune_spec_from(spec: Any = None, *, rig: Rig | None = None, **overrides: Any
         kw["period_error_ppm"] = spec.max_period_error_ppm
     run = tuning_run(spec)
     if run is not None:
-        kw.update(speed_fraction=run.speed_fraction, accel_s=run.accel_s,
-                  load_step_v=run.load_step_v)  # fmt: skip
+        kw.update(
+            speed_fraction=run.speed_fraction, accel_s=run.accel_s, load_step_v=run.load_step_v
+        )
         if run.seconds is not None:
             kw["seconds"] = run.seconds
         if run.max_saturation_pct is not None:

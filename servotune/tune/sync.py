@@ -46,9 +46,14 @@ def tune_sync(cfg: GantryConfig) -> SyncSettings:
     dt = cfg.bus.cycle_s
     t_s = sync_loop_models(replace(cfg, sync=replace(s, kp=0.0, ki=0.0, kd=0.0))).t_slave
     if s.law == "pi":
-        r = tune_pi(t_s, period_s=dt, compute_s=cfg.bus.latency_cycles * dt,
-                    phase_margin_deg=s.phase_margin_deg, gain_margin_db=s.gain_margin_db,
-                    max_sensitivity=s.max_sensitivity)  # fmt: skip
+        r = tune_pi(
+            t_s,
+            period_s=dt,
+            compute_s=cfg.bus.latency_cycles * dt,
+            phase_margin_deg=s.phase_margin_deg,
+            gain_margin_db=s.gain_margin_db,
+            max_sensitivity=s.max_sensitivity,
+        )
         return replace(s, kp=float(r.kp), ki=float(r.ki), kd=0.0)
     kd = s.kd or 0.0
 
@@ -88,8 +93,11 @@ def _aim(cfg: GantryConfig) -> dict[str, float]:
     """The margin limits tightened as robust designs aim (:func:`~servotune.tune.robust.
     design_limits`), as :func:`~servotune.tune.pi.tune_pi` targets."""
     a = design_limits(cfg.margins.limits)
-    return {"phase_margin_deg": a.min_phase_margin_deg, "gain_margin_db": a.min_gain_margin_db,
-            "max_sensitivity": a.max_sensitivity}  # fmt: skip
+    return {
+        "phase_margin_deg": a.min_phase_margin_deg,
+        "gain_margin_db": a.min_gain_margin_db,
+        "max_sensitivity": a.max_sensitivity,
+    }
 
 
 def _with_drive_pi(
@@ -97,10 +105,19 @@ def _with_drive_pi(
 ) -> GantryConfig:
     """``cfg`` with drive ``name``'s missing PI gains designed on ``plant``."""
     ax = getattr(cfg, name)
-    r = tune_pi(plant, period_s=cfg.bus.cycle_s, compute_s=compute_s, lsb_v=cfg.rig.dac.lsb_v,
-                **targets)  # fmt: skip
-    return replace(cfg, **{name: replace(ax, kp=float(r.kp) if ax.kp is None else ax.kp,
-                                         ki=float(r.ki) if ax.ki is None else ax.ki)})  # fmt: skip
+    r = tune_pi(
+        plant, period_s=cfg.bus.cycle_s, compute_s=compute_s, lsb_v=cfg.rig.dac.lsb_v, **targets
+    )
+    return replace(
+        cfg,
+        **{
+            name: replace(
+                ax,
+                kp=float(r.kp) if ax.kp is None else ax.kp,
+                ki=float(r.ki) if ax.ki is None else ax.ki,
+            )
+        },
+    )
 
 
 def _with_robust_sync(cfg: GantryConfig, slave_plant: Any, more_pm_deg: float) -> GantryConfig:
@@ -110,8 +127,7 @@ def _with_robust_sync(cfg: GantryConfig, slave_plant: Any, more_pm_deg: float) -
     aim = _aim(cfg)
     aim["phase_margin_deg"] = min(aim["phase_margin_deg"] + more_pm_deg, 85.0)
     bus = replace(cfg.bus, latency_cycles=cfg.bus.latency_cycles + m.extra_cycles)
-    at = replace(cfg, bus=bus, slave=replace(cfg.slave, plant=slave_plant),
-                 sync=replace(s, **aim))  # fmt: skip
+    at = replace(cfg, bus=bus, slave=replace(cfg.slave, plant=slave_plant), sync=replace(s, **aim))
     return replace(cfg, sync=replace(tune_sync(at), **{k: getattr(s, k) for k in aim}))
 
 
@@ -147,8 +163,10 @@ def resolve_gains(cfg: GantryConfig) -> GantryConfig:
         out = replace(cfg, sync=tune_sync(cfg))
         if not _keeps(out, "sync"):
             high = worst_corner(cfg.slave, m)
-            low = replace(high, gain_cps_per_v=cfg.slave.plant.gain_cps_per_v
-                          * (1.0 - m.spreads(cfg.slave)[0]))  # fmt: skip
+            low = replace(
+                high,
+                gain_cps_per_v=cfg.slave.plant.gain_cps_per_v * (1.0 - m.spreads(cfg.slave)[0]),
+            )
             # the sync loop's worst corner moves with its gains: aim at each candidate with a
             # little more phase until every case keeps the limits
             for more in (0.0, 1.0, 2.0, 4.0, 8.0):

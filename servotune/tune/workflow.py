@@ -73,9 +73,13 @@ def _robust_start(rig: Rig, spec: SlaveTuneSpec) -> _RobustStart:
     i_m, i_s = _master_slave(rig)
     cases = spec.plant_cases(rig)
     locks = tuple(robust_lock_gain(rig, a.name, cases, spec.limits) for a in rig.axes)
-    robust = dataclasses.replace(rig, axes=tuple(
-        dataclasses.replace(a, lock_gain_codes_per_count=k)
-        for a, k in zip(rig.axes, locks, strict=True)))  # fmt: skip
+    robust = dataclasses.replace(
+        rig,
+        axes=tuple(
+            dataclasses.replace(a, lock_gain_codes_per_count=k)
+            for a, k in zip(rig.axes, locks, strict=True)
+        ),
+    )
     return _RobustStart(
         rig=robust,
         master_pi=robust_pi(robust, rig.axes[i_m].name, cases, spec.limits),
@@ -149,19 +153,29 @@ def tune_rig(
             text
             for bad, text in (
                 (w["fault"] > 0, "a fault (following-error trip) on some variant"),
-                (w["saturation_pct"] > spec.max_saturation_pct,
-                 f"saturation {w['saturation_pct']:.1f} % > {spec.max_saturation_pct:g} %"),
-                (w["overshoot_pct"] > spec.max_overshoot_pct,
-                 f"overshoot {w['overshoot_pct']:.0f} % > {spec.max_overshoot_pct:g} %"),
-                (w["phase_margin_deg"] < spec.min_phase_margin_deg,
-                 f"PM {w['phase_margin_deg']:.1f}° < {spec.min_phase_margin_deg:g}°"),
-                (w["gain_margin_db"] < spec.min_gain_margin_db,
-                 f"GM {w['gain_margin_db']:.1f} dB < {spec.min_gain_margin_db:g} dB"),
-                (w["max_sensitivity"] > spec.max_sensitivity,
-                 f"Ms {w['max_sensitivity']:.2f} > {spec.max_sensitivity:g}"),
+                (
+                    w["saturation_pct"] > spec.max_saturation_pct,
+                    f"saturation {w['saturation_pct']:.1f} % > {spec.max_saturation_pct:g} %",
+                ),
+                (
+                    w["overshoot_pct"] > spec.max_overshoot_pct,
+                    f"overshoot {w['overshoot_pct']:.0f} % > {spec.max_overshoot_pct:g} %",
+                ),
+                (
+                    w["phase_margin_deg"] < spec.min_phase_margin_deg,
+                    f"PM {w['phase_margin_deg']:.1f}° < {spec.min_phase_margin_deg:g}°",
+                ),
+                (
+                    w["gain_margin_db"] < spec.min_gain_margin_db,
+                    f"GM {w['gain_margin_db']:.1f} dB < {spec.min_gain_margin_db:g} dB",
+                ),
+                (
+                    w["max_sensitivity"] > spec.max_sensitivity,
+                    f"Ms {w['max_sensitivity']:.2f} > {spec.max_sensitivity:g}",
+                ),
             )
             if bad
-        ]  # fmt: skip
+        ]
         raise InfeasibleError(
             f"no slave tuning met the constraints within the budget ({spec.generations} "
             f"generations of {spec.population}); the closest breaks: "
@@ -173,8 +187,10 @@ def tune_rig(
     gains[i_m], gains[i_s] = master_pi.gains, slave.gains
     ctls = Loop.from_rig(rig, gains).controllers
     kept = "keeps" if slave.start_feasible else "breaks"
-    say(f"tune: sync-error ITAE {slave.start_objective:.4g} counts·s² at the start (which {kept} "
-        f"the constraints), {slave.objective:.4g} tuned")  # fmt: skip
+    say(
+        f"tune: sync-error ITAE {slave.start_objective:.4g} counts·s² at the start (which {kept} "
+        f"the constraints), {slave.objective:.4g} tuned"
+    )
     rig_sha256 = file_sha256(rig_path)
     tuning = Tuning.for_rig(
         rig,

@@ -104,11 +104,18 @@ class MarginLimits:
 
     def __post_init__(self) -> None:
         e = SpecError
-        check_number("min_phase_margin_deg", self.min_phase_margin_deg, "deg", hi=90.0,
-                     hi_strict=True, error=e)  # fmt: skip
+        check_number(
+            "min_phase_margin_deg",
+            self.min_phase_margin_deg,
+            "deg",
+            hi=90.0,
+            hi_strict=True,
+            error=e,
+        )
         check_number("min_gain_margin_db", self.min_gain_margin_db, "dB", hi=60.0, error=e)
-        check_number("max_sensitivity", self.max_sensitivity, "1", lo=1.0, strict=True, hi=100.0,
-                     error=e)  # fmt: skip
+        check_number(
+            "max_sensitivity", self.max_sensitivity, "1", lo=1.0, strict=True, hi=100.0, error=e
+        )
 
     @classmethod
     def of(cls, owner: Any) -> MarginLimits:
@@ -641,21 +648,25 @@ def plant_cases(
                     g = spread_factors(a.plant, a.plant_fit, "gain_cps_per_v", gain_spread)
                     tt = spread_factors(a.plant, a.plant_fit, "tau_s", tau_spread)
                     fg, ft = g[sg > 0], tt[st_ > 0]
-                    changes: dict[str, Any] = {"gain_cps_per_v": a.plant.gain_cps_per_v * fg,
-                                               "tau_s": a.plant.tau_s * ft}  # fmt: skip
+                    changes: dict[str, Any] = {
+                        "gain_cps_per_v": a.plant.gain_cps_per_v * fg,
+                        "tau_s": a.plant.tau_s * ft,
+                    }
                     if a.plant.gain_neg_cps_per_v is not None:
                         changes["gain_neg_cps_per_v"] = a.plant.gain_neg_cps_per_v * fg
                     plants.append(replace(a.plant, **changes))
                 label = f"gain{'-+'[sg > 0]},tau{'-+'[st_ > 0]}"
                 corners.append((label, tuple(plants)))
     corners += [(label, tuple(plants)) for label, plants in measured]
-    lags = [(0.0, "")] + ([(extra_ticks * rig.period_s, f"+{extra_ticks}tick")]
-                          if extra_ticks > 0 else [])  # fmt: skip
+    lags = [(0.0, "")] + (
+        [(extra_ticks * rig.period_s, f"+{extra_ticks}tick")] if extra_ticks > 0 else []
+    )
     periods = [(rig.period_s, "")]
     if period_error_ppm > 0:
         for s in (-1, 1):
-            periods.append((rig.period_s * (1 + s * period_error_ppm * 1e-6),
-                            f"@{s * period_error_ppm:+g}ppm"))  # fmt: skip
+            periods.append(
+                (rig.period_s * (1 + s * period_error_ppm * 1e-6), f"@{s * period_error_ppm:+g}ppm")
+            )
     cases = [
         PlantCase(
             label=(label + lt + pt) if (lt or pt) else label,
@@ -679,8 +690,9 @@ def plant_cases(
             plants.append(replace(a.plant, **changes))
         lag = rng.uniform(0.0, extra_ticks * rig.period_s)
         per = rig.period_s * (1.0 + rng.uniform(-1.0, 1.0) * period_error_ppm * 1e-6)
-        cases.append(PlantCase(label=f"sample{i}", plants=tuple(plants), extra_lag_s=lag,
-                               period_s=per))  # fmt: skip
+        cases.append(
+            PlantCase(label=f"sample{i}", plants=tuple(plants), extra_lag_s=lag, period_s=per)
+        )
     return tuple(cases)
 
 
@@ -704,14 +716,26 @@ def controller_response(gains: np.ndarray, w: np.ndarray, period_s: float) -> np
 
 
 def _margins_of(
-    axis: str, loop: str, cell: tuple[int, int] | None, g: GainSet, plant: Plant, rig: Rig,
+    axis: str,
+    loop: str,
+    cell: tuple[int, int] | None,
+    g: GainSet,
+    plant: Plant,
+    rig: Rig,
     case: PlantCase,
-) -> LoopMargins:  # fmt: skip
+) -> LoopMargins:
     lag = rig.timer.compute_s + plant.delay_s + case.extra_lag_s
     model = loop_model(plant, g, period_s=case.period_s, lag_s=lag, lsb_volts=rig.dac.lsb_v)
     figures = loop_margins(model, _grid(plant, case.period_s))
-    return LoopMargins(axis=axis, loop=loop, cell=cell, plant=case.label, gains=g,
-                       period_s=case.period_s, **figures)  # type: ignore[arg-type]  # fmt: skip
+    return LoopMargins(
+        axis=axis,
+        loop=loop,
+        cell=cell,
+        plant=case.label,
+        gains=g,
+        period_s=case.period_s,
+        **figures,
+    )  # type: ignore[arg-type]
 
 
 def tuning_margins(
@@ -752,8 +776,9 @@ def tuning_margins(
         row ``E`` then column ``EC``), then the worst cases found over the plant set.
     """
     tuning.check_rig(rig)
-    nominal = PlantCase(label="nominal", plants=tuple(a.plant for a in rig.axes),
-                        period_s=rig.period_s)  # fmt: skip
+    nominal = PlantCase(
+        label="nominal", plants=tuple(a.plant for a in rig.axes), period_s=rig.period_s
+    )
     others = [c for c in (cases or ()) if c.label != "nominal" or not every_loop]
     if not every_loop and not any(c.label == "nominal" for c in others):
         others.insert(0, nominal)
@@ -780,17 +805,18 @@ def tuning_margins(
                 plant = case.plants[a]
                 w = _grid(plant, case.period_s)
                 gr = plant_response(plant, rig, case, w)[None, :]
-                m = grid_margins(w, gains, controller_basis(w, case.period_s), gr,
-                                 unwrapped_phase(gr))  # fmt: skip
+                m = grid_margins(
+                    w, gains, controller_basis(w, case.period_s), gr, unwrapped_phase(gr)
+                )
                 scores.append((ci, m["ms"][:, 0], m["pm"][:, 0], m["gm"][:, 0]))
             for pick in (lambda s: -s[1], lambda s: s[2], lambda s: s[3]):  # Ms, PM, GM
-                best = min((float(pick(s)[u]), s[0], u) for s in scores
-                            for u in range(len(uniq)))  # fmt: skip
+                best = min((float(pick(s)[u]), s[0], u) for s in scores for u in range(len(uniq)))
                 found[(best[1], best[2])] = None
             for ci, u in found:
                 cell = next(cell for cell, g in kind_sets if g == uniq[u])
-                worst.append(_margins_of(name, kind, cell, uniq[u], others[ci].plants[a], rig,
-                                         others[ci]))  # fmt: skip
+                worst.append(
+                    _margins_of(name, kind, cell, uniq[u], others[ci].plants[a], rig, others[ci])
+                )
     return Margins(loops=tuple(out + worst), limits=limits)
 
 

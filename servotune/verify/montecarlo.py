@@ -159,9 +159,14 @@ def average_ranks(x: np.ndarray) -> np.ndarray:
 
 
 def _sensitivity_row(
-    name: str, x: np.ndarray, fail: np.ndarray, fail_pct: float, m_ranks: np.ndarray | None,
-    tested: bool, n_tested: int,
-) -> Sensitivity:  # fmt: skip
+    name: str,
+    x: np.ndarray,
+    fail: np.ndarray,
+    fail_pct: float,
+    m_ranks: np.ndarray | None,
+    tested: bool,
+    n_tested: int,
+) -> Sensitivity:
     """One parameter's row of :func:`sensitivity_table` (``m_ranks``: the least margins'
     average ranks, None where Spearman's rho is not defined: a constant margin, n <= 2)."""
     from scipy.stats import mannwhitneyu
@@ -231,8 +236,9 @@ def sensitivity_table(
     m_ranks = average_ranks(m) if n > 2 and bool((m != m[0]).any()) else None  # not constant
 
     def row(j: int) -> Sensitivity:
-        return _sensitivity_row(names[j], values[:, j], fail, fail_pct, m_ranks, tested,
-                                len(varied))  # fmt: skip
+        return _sensitivity_row(
+            names[j], values[:, j], fail, fail_pct, m_ranks, tested, len(varied)
+        )
 
     with ThreadPoolExecutor(max_workers=max(1, min(len(varied), os.cpu_count() or 1))) as pool:
         out = list(pool.map(row, varied))
@@ -295,14 +301,21 @@ def summarise(
     if n:
         for i in least(np.where(np.isnan(margin), -np.inf, margin), int(n_worst)):
             scenario, quantity, axis, unit, limit = figures[int(which[i])]
-            worst.append(WorstVariant(
-                label=f"mc{int(i) + 1}",
-                relative_margin=float(margin[i]),
-                scenario=scenario, quantity=quantity, axis=axis, unit=unit,
-                value=float(figure_values[i]), limit=float(limit),
-                parameters=dict(zip(distribution.parameters, (float(v) for v in values[i]),
-                                    strict=True)),
-            ))  # fmt: skip
+            worst.append(
+                WorstVariant(
+                    label=f"mc{int(i) + 1}",
+                    relative_margin=float(margin[i]),
+                    scenario=scenario,
+                    quantity=quantity,
+                    axis=axis,
+                    unit=unit,
+                    value=float(figure_values[i]),
+                    limit=float(limit),
+                    parameters=dict(
+                        zip(distribution.parameters, (float(v) for v in values[i]), strict=True)
+                    ),
+                )
+            )
     return MonteCarloSummary(
         count=n,
         passed=k,

@@ -244,10 +244,16 @@ def rig_for_tuning(
     RigError
         The given rig file cannot be read.
     """
-    return matching_file(tuning.rig_sha256, rig_path, _rig_candidates(tuning, tuning_path),
-                         kind="rig", name=tuning.rig_name, recorded=tuning.rig_path,
-                         error=RigError,
-                         recorded_at=recorded_paths(tuning.rig_path, tuning_path))  # fmt: skip
+    return matching_file(
+        tuning.rig_sha256,
+        rig_path,
+        _rig_candidates(tuning, tuning_path),
+        kind="rig",
+        name=tuning.rig_name,
+        recorded=tuning.rig_path,
+        error=RigError,
+        recorded_at=recorded_paths(tuning.rig_path, tuning_path),
+    )
 
 
 def matching_file(
@@ -331,8 +337,11 @@ def fallback_notice(src: SourceFile, kind: str = "rig", owner: str = "tuning") -
     file."""
     if src.instead_of is None:
         return None
-    why = (f"the recorded {src.instead_of} is gone" if src.instead_of
-           else f"the {owner} records no path")  # fmt: skip
+    why = (
+        f"the recorded {src.instead_of} is gone"
+        if src.instead_of
+        else f"the {owner} records no path"
+    )
     return f"using {kind} file {src.path} ({why}; it has the recorded sha256 {_short(src.sha256)})"
 
 
@@ -388,8 +397,14 @@ def verification_record(
         if kind in files:
             raise ValueError(f"a distribution's source file kind {kind!r} is taken")
         files[kind] = FileDigest(name, sha)
-    return trust_record(RECORD_SCHEMA, passed=v.passed, seed=v.seed, summary=summary,
-                        files=files, result={"verification": v.to_dict()})  # fmt: skip
+    return trust_record(
+        RECORD_SCHEMA,
+        passed=v.passed,
+        seed=v.seed,
+        summary=summary,
+        files=files,
+        result={"verification": v.to_dict()},
+    )
 
 
 def trust_record(
@@ -507,14 +522,30 @@ def verify_files(
     if (count := options.get("montecarlo")) is not None:  # validated as the spec's count is
         spec = replace(spec, montecarlo=replace(spec.montecarlo, count=count))
     dist = None if distribution is None else distribution(rig)  # a bad one fails before a run
-    with open_executor(spec.montecarlo.count + 1, scheduler=options.get("scheduler"),
-                       workers=options.get("workers")) as ex:  # fmt: skip
-        result = verify(tuning, rig, spec, seed=options.get("seed"), executor=ex,
-                        progress=options.get("progress"), distribution=dist)  # fmt: skip
-    record = verification_record(result, tuning=tuning_file, rig=rig_file, spec=spec_file,
-                                 sources=() if dist is None else dist.source_files)  # fmt: skip
-    return recorded_verification(result, record, tuning_path, tuning_file.sha256,
-                                 write=options.get("write", True))  # fmt: skip
+    with open_executor(
+        spec.montecarlo.count + 1,
+        scheduler=options.get("scheduler"),
+        workers=options.get("workers"),
+    ) as ex:
+        result = verify(
+            tuning,
+            rig,
+            spec,
+            seed=options.get("seed"),
+            executor=ex,
+            progress=options.get("progress"),
+            distribution=dist,
+        )
+    record = verification_record(
+        result,
+        tuning=tuning_file,
+        rig=rig_file,
+        spec=spec_file,
+        sources=() if dist is None else dist.source_files,
+    )
+    return recorded_verification(
+        result, record, tuning_path, tuning_file.sha256, write=options.get("write", True)
+    )
 
 
 def margins_files(
@@ -659,5 +690,6 @@ def load_for_export(
         spec = None if spec_path is None else SourceFile.read(spec_path, SpecError, "spec file")
         record = read_record(tuning_path)
         check_record(record, tuning=tuning_file, rig=rig_file, spec=spec)
-    return Verified(tuning=tuning, tuning_file=tuning_file, rig=rig, rig_file=rig_file,
-                    record=record)  # fmt: skip
+    return Verified(
+        tuning=tuning, tuning_file=tuning_file, rig=rig, rig_file=rig_file, record=record
+    )

@@ -388,9 +388,13 @@ class Verification:
         if self.montecarlo is not None:
             return self.montecarlo.to_dict()
         k, n, frac, lo, hi = self.pass_fraction
-        return {"ci95": [json_float(lo), json_float(hi)], "count": n,
-                "interval": "Clopper-Pearson", "pass_fraction": json_float(frac),
-                "passed": k}  # fmt: skip
+        return {
+            "ci95": [json_float(lo), json_float(hi)],
+            "count": n,
+            "interval": "Clopper-Pearson",
+            "pass_fraction": json_float(frac),
+            "passed": k,
+        }
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict, JSON-ready (``json.dumps(..., sort_keys=True)``)."""

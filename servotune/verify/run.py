@@ -213,8 +213,9 @@ def _evaluate(
             )
             sat = (flags[:, :, a] & FLAG_SATURATED) != 0
             values[("saturation_pct", name)] = 100.0 * sat.mean(axis=1)
-    faults = {name: ((flags[:, :, a] & FAULT_MASK) != 0).any(axis=1)
-              for a, name in enumerate(names)}  # fmt: skip
+    faults = {
+        name: ((flags[:, :, a] & FAULT_MASK) != 0).any(axis=1) for a, name in enumerate(names)
+    }
     return values, faults
 
 
@@ -295,8 +296,17 @@ def _nominal_parameters(rig: Rig) -> np.ndarray:
         p = a.plant
         (_, gain_neg), (_, coulomb_neg) = p.gains_cps_per_v, p.coulombs_v
         vmax = p.max_speed_cps(cpr) if math.isfinite(cpr) else math.inf
-        out[j] = (p.gain_cps_per_v, p.tau_s, p.offset_v, p.coulomb_v, gain_neg, coulomb_neg,
-                  vmax, p.noise_counts, p.delay_s)  # fmt: skip
+        out[j] = (
+            p.gain_cps_per_v,
+            p.tau_s,
+            p.offset_v,
+            p.coulomb_v,
+            gain_neg,
+            coulomb_neg,
+            vmax,
+            p.noise_counts,
+            p.delay_s,
+        )
     return out
 
 
@@ -305,8 +315,11 @@ def _plant_params_ok(params: np.ndarray) -> bool:
     and tau finite and > 0, offset finite, Coulomb levels finite and >= 0); rows are filled
     without building a plant, which would check them."""
     x = params[..., :P_VMAX]
-    return bool(np.isfinite(x).all() and (x[..., [P_GAIN, P_TAU, P_GAIN_NEG]] > 0.0).all()
-                and (x[..., [P_COULOMB, P_COULOMB_NEG]] >= 0.0).all())  # fmt: skip
+    return bool(
+        np.isfinite(x).all()
+        and (x[..., [P_GAIN, P_TAU, P_GAIN_NEG]] > 0.0).all()
+        and (x[..., [P_COULOMB, P_COULOMB_NEG]] >= 0.0).all()
+    )
 
 
 @dataclass(slots=True, kw_only=True)
@@ -324,15 +337,20 @@ class _ChunkPlants:
             assert self.params is not None
             nominal = tuple(a.plant for a in self.rig.axes)
             self.plant_sets = [
-                tuple(replace(p, gain_cps_per_v=x[P_GAIN], tau_s=x[P_TAU], offset_v=x[P_OFFSET],
-                              coulomb_v=x[P_COULOMB],
-                              gain_neg_cps_per_v=None if p.gain_neg_cps_per_v is None
-                              else x[P_GAIN_NEG],
-                              coulomb_neg_v=None if p.coulomb_neg_v is None
-                              else x[P_COULOMB_NEG])
-                      for p, x in zip(nominal, row, strict=True))
+                tuple(
+                    replace(
+                        p,
+                        gain_cps_per_v=x[P_GAIN],
+                        tau_s=x[P_TAU],
+                        offset_v=x[P_OFFSET],
+                        coulomb_v=x[P_COULOMB],
+                        gain_neg_cps_per_v=None if p.gain_neg_cps_per_v is None else x[P_GAIN_NEG],
+                        coulomb_neg_v=None if p.coulomb_neg_v is None else x[P_COULOMB_NEG],
+                    )
+                    for p, x in zip(nominal, row, strict=True)
+                )
                 for row in self.params.tolist()
-            ]  # fmt: skip
+            ]
         return self.plant_sets
 
     def rows(self) -> tuple[np.ndarray, np.ndarray]:
@@ -357,8 +375,9 @@ class _ChunkPlants:
                 lags = np.empty((n, n_ax), dtype=np.int64)
                 for b, ps in enumerate(sets):
                     for a, p in enumerate(ps):
-                        pf[b, a], lags[b, a] = plant_row(p, rig.period_s, rig.timer.compute_s,
-                                                         rig.counts_per_rev)  # fmt: skip
+                        pf[b, a], lags[b, a] = plant_row(
+                            p, rig.period_s, rig.timer.compute_s, rig.counts_per_rev
+                        )
             pi = np.empty((n, n_ax, 2), dtype=np.int64)
             pi[:, :, 0] = lags
             pi[:, :, 1] = [a.counter_init for a in rig.axes]
@@ -387,8 +406,10 @@ def _lean_sync_ok(shared: _Shared, sc: ScenarioSpec, pi: np.ndarray) -> bool:
 def _loop_consts(shared: _Shared) -> np.ndarray:
     """The loop's constants per axis, shape (axes, width), padded as a batch pads them."""
     rig = shared.rig
-    rows = [c.consts(counter_bits=rig.counter.bits, dac_bits=rig.dac.bits,
-                     dac_zero=rig.dac.zero_code) for c in shared.loop.controllers]  # fmt: skip
+    rows = [
+        c.consts(counter_bits=rig.counter.bits, dac_bits=rig.dac.bits, dac_zero=rig.dac.zero_code)
+        for c in shared.loop.controllers
+    ]
     out = np.zeros((len(rows), max(len(r) for r in rows)), dtype=np.int64)
     for i, r in enumerate(rows):
         out[i, : len(r)] = r
@@ -399,9 +420,13 @@ _LeanValues = tuple[dict[tuple[str, str], np.ndarray], dict[str, np.ndarray], np
 
 
 def _run_lean_sync(
-    shared: _Shared, sc: ScenarioSpec, inputs: Inputs, pf: np.ndarray, pi: np.ndarray,
+    shared: _Shared,
+    sc: ScenarioSpec,
+    inputs: Inputs,
+    pf: np.ndarray,
+    pi: np.ndarray,
     seeds: np.ndarray,
-) -> _LeanValues | None:  # fmt: skip
+) -> _LeanValues | None:
     """:func:`_evaluate`'s values and faults of a move or a hold for every plant set, from the
     lean two-axis kernel (the same bits, no traces), and per plant set its fastest motion
     (:data:`servotune.sim.lean_sync.N_FAST`). None if a plant set's move is no step response
@@ -412,20 +437,40 @@ def _run_lean_sync(
     names = rig.axis_names
     n_t = inputs.n_ticks
     if sc.kind == "lock":  # every tick counts for the saturation share; no step, no sync
-        windows = SyncWindows(counted=np.ones((n_t, 2), dtype=bool), step_from=0, target=0.0,
-                              threshold=0.0, has_step=np.zeros(2, dtype=bool), steady=(0, 0),
-                              hold_from=_hold_from(rig, sc, inputs))  # fmt: skip
+        windows = SyncWindows(
+            counted=np.ones((n_t, 2), dtype=bool),
+            step_from=0,
+            target=0.0,
+            threshold=0.0,
+            has_step=np.zeros(2, dtype=bool),
+            steady=(0, 0),
+            hold_from=_hold_from(rig, sc, inputs),
+        )
     else:
         win = _move_windows(rig, sc, inputs)
         task = inputs.mode == MODE_TASK
-        windows = SyncWindows(counted=task, step_from=win.start, target=win.target,
-                              threshold=sc.settling_band_pct / 100.0, has_step=task.any(axis=0),
-                              steady=win.steady, hold_from=n_t)  # fmt: skip
+        windows = SyncWindows(
+            counted=task,
+            step_from=win.start,
+            target=win.target,
+            threshold=sc.settling_band_pct / 100.0,
+            has_step=task.any(axis=0),
+            steady=win.steady,
+            hold_from=n_t,
+        )
     has_step = windows.has_step
-    figs, fast = run_sync_figures(pf, pi, _loop_consts(shared), seeds,
-                                  np.asarray(shared.loop.ref_source, dtype=np.int64),
-                                  _input_arrays(inputs), _converter_args(rig), windows,
-                                  float(rig.period_s), shared.threads)  # fmt: skip
+    figs, fast = run_sync_figures(
+        pf,
+        pi,
+        _loop_consts(shared),
+        seeds,
+        np.asarray(shared.loop.ref_source, dtype=np.int64),
+        _input_arrays(inputs),
+        _converter_args(rig),
+        windows,
+        float(rig.period_s),
+        shared.threads,
+    )
     col = {nm: j for j, nm in enumerate(FIGURE_NAMES)}
     if np.isnan(figs[:, has_step, col["overshoot_pct"]]).any():
         return None
@@ -450,11 +495,19 @@ def _run_lean_sync(
 
 
 def _judge(
-    sc: ScenarioSpec, names: Sequence[str], values: dict[tuple[str, str], np.ndarray],
-    faults: dict[str, np.ndarray], start: int, figures: list[tuple[str, str, str, str, float]],
-    worst: list[float], where: list[int], passed: np.ndarray, margin: np.ndarray,
-    which: np.ndarray, value: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    sc: ScenarioSpec,
+    names: Sequence[str],
+    values: dict[tuple[str, str], np.ndarray],
+    faults: dict[str, np.ndarray],
+    start: int,
+    figures: list[tuple[str, str, str, str, float]],
+    worst: list[float],
+    where: list[int],
+    passed: np.ndarray,
+    margin: np.ndarray,
+    which: np.ndarray,
+    value: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """A scenario's values and faults of a chunk against its limits: appends each limit's row
     (``figures``, the worst value, where) and returns the plant sets' updated pass flags, least
     relative margins, the limit giving each and its value."""
@@ -519,9 +572,20 @@ def _run_chunk(chunk: _Chunk, shared: _Shared) -> _ChunkResult:
                 if fast[b, 3] > 0.0:
                     speed_best = (float(fast[b, 3]), chunk.start + b, int(fast[b, 5]))
             fastest.append((*step_best, *speed_best))
-            passed, margin, which, value = _judge(sc, names, values, faults, chunk.start,
-                                                  figures, worst, where, passed, margin, which,
-                                                  value)  # fmt: skip
+            passed, margin, which, value = _judge(
+                sc,
+                names,
+                values,
+                faults,
+                chunk.start,
+                figures,
+                worst,
+                where,
+                passed,
+                margin,
+                which,
+                value,
+            )
             continue
         plant_sets = chunk_plants.plants()
         per_batch = max(1, _TRACE_BYTES // (inputs.n_ticks * len(names) * 72))
@@ -530,15 +594,26 @@ def _run_chunk(chunk: _Chunk, shared: _Shared) -> _ChunkResult:
         speed_best = (0.0, -1, -1)
         for k in range(0, n, per_batch):
             hi = min(n, k + per_batch)
-            batch = prepare_batch(shared.loop, plants=plant_sets[k:hi],
-                                  seeds=[int(x) for x in chunk.noise[k:hi]])  # fmt: skip
+            batch = prepare_batch(
+                shared.loop, plants=plant_sets[k:hi], seeds=[int(x) for x in chunk.noise[k:hi]]
+            )
             res = run_batch(batch, inputs, metrics_only=False, threads=shared.threads)
             assert res.traces is not None
             tr = res.traces
-            parts.append(_evaluate(rig, sc, inputs, {
-                "counter": tr.counter, "pos_counts": tr.pos_counts, "err_counts": tr.err_counts,
-                "flags": tr.flags, "true_pos_counts": tr.true_pos_counts,
-            }))  # fmt: skip
+            parts.append(
+                _evaluate(
+                    rig,
+                    sc,
+                    inputs,
+                    {
+                        "counter": tr.counter,
+                        "pos_counts": tr.pos_counts,
+                        "err_counts": tr.err_counts,
+                        "flags": tr.flags,
+                        "true_pos_counts": tr.true_pos_counts,
+                    },
+                )
+            )
             # the first largest motion per tick and speed in (plant set, tick, axis) order
             step = np.abs(np.diff(tr.true_pos_counts, axis=1))
             if step.size and step.max() > step_best[0]:
@@ -552,13 +627,30 @@ def _run_chunk(chunk: _Chunk, shared: _Shared) -> _ChunkResult:
         values = {key: np.concatenate([v[key] for v, _ in parts]) for key in parts[0][0]}
         faults = {nm: np.concatenate([f[nm] for _, f in parts]) for nm in parts[0][1]}
         passed, margin, which, value = _judge(
-            sc, names, values, faults, chunk.start, figures, worst, where, passed, margin, which,
+            sc,
+            names,
+            values,
+            faults,
+            chunk.start,
+            figures,
+            worst,
+            where,
+            passed,
+            margin,
+            which,
             value,
-        )  # fmt: skip
-    return _ChunkResult(figures=tuple(figures), worst=np.asarray(worst),
-                        where=np.asarray(where, dtype=np.int64), passed=passed, margin=margin,
-                        which=which, value=value, drawn=drawn,
-                        fastest=tuple(fastest))  # fmt: skip
+        )
+    return _ChunkResult(
+        figures=tuple(figures),
+        worst=np.asarray(worst),
+        where=np.asarray(where, dtype=np.int64),
+        passed=passed,
+        margin=margin,
+        which=which,
+        value=value,
+        drawn=drawn,
+        fastest=tuple(fastest),
+    )
 
 
 def _label(index: int) -> str:
@@ -579,13 +671,23 @@ def _reduce_rows(parts: Sequence[_ChunkResult]) -> list[Row]:
             for p in parts[1:]:
                 if p.worst[j] > worst:
                     worst, at = p.worst[j], int(p.where[j])
-        rows.append(Row(scenario=scenario, quantity=quantity, axis=axis, unit=unit, limit=limit,
-                        worst=float(worst), variant=_label(at)))  # fmt: skip
+        rows.append(
+            Row(
+                scenario=scenario,
+                quantity=quantity,
+                axis=axis,
+                unit=unit,
+                limit=limit,
+                worst=float(worst),
+                variant=_label(at),
+            )
+        )
     return rows
 
 
-def _reduce_fastest(rig: Rig, runs: Sequence[tuple[ScenarioSpec, Inputs]],
-                    parts: Sequence[_ChunkResult]) -> _Fastest:  # fmt: skip
+def _reduce_fastest(
+    rig: Rig, runs: Sequence[tuple[ScenarioSpec, Inputs]], parts: Sequence[_ChunkResult]
+) -> _Fastest:
     """The largest motion per tick and speed over every scenario and chunk, and where: the
     first in (scenario, plant set, tick, axis) order."""
     fastest = _Fastest()
@@ -634,10 +736,16 @@ def check_margins(
     """
     mc = spec.montecarlo
     measured = () if distribution is None else distribution.margin_plant_sets
-    cases = plant_cases(rig, gain_spread=mc.gain_spread, tau_spread=mc.tau_spread,
-                        extra_ticks=spec.margin_extra_ticks,
-                        period_error_ppm=spec.max_period_error_ppm or 0.0,
-                        samples=spec.margin_samples, seed=mc.seed, measured=measured)  # fmt: skip
+    cases = plant_cases(
+        rig,
+        gain_spread=mc.gain_spread,
+        tau_spread=mc.tau_spread,
+        extra_ticks=spec.margin_extra_ticks,
+        period_error_ppm=spec.max_period_error_ppm or 0.0,
+        samples=spec.margin_samples,
+        seed=mc.seed,
+        measured=measured,
+    )
     m = tuning_margins(tuning, rig, limits=spec.margins, cases=cases, every_loop=False)
     lim = spec.margins
     out = []
@@ -650,16 +758,28 @@ def check_margins(
             worst, broken = bad[0] if bad else (m.worst(name, kind), ())
             if bad:
                 worst, broken = min(bad, key=lambda xb: (xb[0].stable, -xb[0].max_sensitivity))
-            figures = (f"PM {worst.phase_margin_deg:.1f}°, GM {worst.gain_margin_db:.1f} dB, "
-                       f"Ms {worst.max_sensitivity:.2f}")  # fmt: skip
+            figures = (
+                f"PM {worst.phase_margin_deg:.1f}°, GM {worst.gain_margin_db:.1f} dB, "
+                f"Ms {worst.max_sensitivity:.2f}"
+            )
             if broken:
-                detail = (f"{worst.name} on plant {worst.plant}: {'; '.join(broken)} "
-                          f"({len(bad)} of {len(loops)} loop cases break a limit)")  # fmt: skip
+                detail = (
+                    f"{worst.name} on plant {worst.plant}: {'; '.join(broken)} "
+                    f"({len(bad)} of {len(loops)} loop cases break a limit)"
+                )
             else:
                 detail = f"worst {worst.name} on plant {worst.plant}: {figures}"
-            out.append(Check(name=f"margins:{name}:{kind}", passed=not broken,
-                             value=worst.max_sensitivity, limit=lim.max_sensitivity, unit="1",
-                             detail=detail, facts=worst.to_dict()))  # fmt: skip
+            out.append(
+                Check(
+                    name=f"margins:{name}:{kind}",
+                    passed=not broken,
+                    value=worst.max_sensitivity,
+                    limit=lim.max_sensitivity,
+                    unit="1",
+                    detail=detail,
+                    facts=worst.to_dict(),
+                )
+            )
     return out
 
 
@@ -761,10 +881,15 @@ def verify(
     checks: list[Check] = [overflow, check_timer(rig, spec.max_period_error_ppm)]
     if not overflow.passed:
         say("verify: constants break the overflow bound; closed-loop runs skipped")
-        return Verification(spec=spec, rig_name=rig.name, axis_names=rig.axis_names,
-                            seed=used_seed, rows=(), checks=tuple(checks),
-                            variants=_listed_variants(rig, dist, used_seed, count,
-                                                      set()))  # fmt: skip
+        return Verification(
+            spec=spec,
+            rig_name=rig.name,
+            axis_names=rig.axis_names,
+            seed=used_seed,
+            rows=(),
+            checks=tuple(checks),
+            variants=_listed_variants(rig, dist, used_seed, count, set()),
+        )
     runs = []
     for sc in spec.scenarios:
         try:
@@ -788,12 +913,21 @@ def verify(
         bounds = chunk_bounds(n_sets, chunk_size)
     noise = _seed_seqs(used_seed)[1].generate_state(n_sets, np.uint64)
     chunks = [_Chunk(start=a, stop=b, noise=noise[a:b]) for a, b in bounds]
-    shared = _Shared(rig=rig, loop=loop, runs=tuple(runs), distribution=dist, seed=used_seed,
-                     threads=ex.threads_per_task, kernel=kernel)  # fmt: skip
+    shared = _Shared(
+        rig=rig,
+        loop=loop,
+        runs=tuple(runs),
+        distribution=dist,
+        seed=used_seed,
+        threads=ex.threads_per_task,
+        kernel=kernel,
+    )
     for sc, _ in runs:
         say(f"verify: scenario {sc.name} ({sc.kind}, {sc.seconds:g} s), {n_sets:,} plant sets")
-    say(f"verify: the nominal plants and {count:,} plant sets from the {dist.name} in "
-        f"{len(chunks)} chunks on {ex.name}")  # fmt: skip
+    say(
+        f"verify: the nominal plants and {count:,} plant sets from the {dist.name} in "
+        f"{len(chunks)} chunks on {ex.name}"
+    )
 
     def done(k: int) -> None:
         say(f"verify montecarlo: {k}/{len(chunks)} chunks")
@@ -824,17 +958,31 @@ def verify(
     passed = np.concatenate([p.passed for p in parts])
     summary = None
     if count:
-        cat = {f: np.concatenate([getattr(p, f) for p in parts])[1:]
-               for f in ("margin", "which", "value")}  # fmt: skip
-        summary = summarise(distribution=dist, values=np.concatenate([p.drawn for p in parts]),
-                            passed=passed[1:], margin=cat["margin"], figures=parts[0].figures,
-                            which=cat["which"], figure_values=cat["value"])  # fmt: skip
+        cat = {
+            f: np.concatenate([getattr(p, f) for p in parts])[1:]
+            for f in ("margin", "which", "value")
+        }
+        summary = summarise(
+            distribution=dist,
+            values=np.concatenate([p.drawn for p in parts]),
+            passed=passed[1:],
+            margin=cat["margin"],
+            figures=parts[0].figures,
+            which=cat["which"],
+            figure_values=cat["value"],
+        )
     named = {int(r.variant[2:]) for r in rows if r.variant.startswith("mc")}
     named |= {int(w.label[2:]) for w in (summary.worst if summary else ())}
-    result = Verification(spec=spec, rig_name=rig.name, axis_names=rig.axis_names,
-                          seed=used_seed,
-                          variants=_listed_variants(rig, dist, used_seed, count, named),
-                          rows=tuple(rows), checks=tuple(checks),
-                          variant_passed=tuple(passed.tolist()), montecarlo=summary)  # fmt: skip
+    result = Verification(
+        spec=spec,
+        rig_name=rig.name,
+        axis_names=rig.axis_names,
+        seed=used_seed,
+        variants=_listed_variants(rig, dist, used_seed, count, named),
+        rows=tuple(rows),
+        checks=tuple(checks),
+        variant_passed=tuple(passed.tolist()),
+        montecarlo=summary,
+    )
     say(f"verify: {'PASSED' if result.passed else 'FAILED'}")
     return result

@@ -340,8 +340,10 @@ class MonteCarlo:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict."""
-        return {f.name: list(v) if isinstance(v := getattr(self, f.name), tuple) else v
-                for f in fields(self)}  # fmt: skip
+        return {
+            f.name: list(v) if isinstance(v := getattr(self, f.name), tuple) else v
+            for f in fields(self)
+        }
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -393,10 +395,12 @@ class Spec:
                     f"timer.max_period_error_ppm must be >= 0 [ppm], got {show_value(v)}"
                 )
             object.__setattr__(self, "max_period_error_ppm", v)
-        check_integer("margins.extra_ticks", self.margin_extra_ticks, "ticks", hi=10,
-                      error=SpecError)  # fmt: skip
-        check_integer("margins.samples", self.margin_samples, "plant sets", hi=10_000,
-                      error=SpecError)  # fmt: skip
+        check_integer(
+            "margins.extra_ticks", self.margin_extra_ticks, "ticks", hi=10, error=SpecError
+        )
+        check_integer(
+            "margins.samples", self.margin_samples, "plant sets", hi=10_000, error=SpecError
+        )
 
     def scenario(self, name: str) -> ScenarioSpec:
         """The scenario called ``name``."""

@@ -176,8 +176,14 @@ def spread_parameters(rig: Rig, mc: MonteCarlo, seed: int, start: int, stop: int
         out[:, j, P_NOISE] = p.noise_counts
         out[:, j, P_DELAY] = p.delay_s
         if mc.axes and axis.name not in mc.axes:
-            out[:, j, :P_VMAX] = (p.gain_cps_per_v, p.tau_s, p.offset_v, p.coulomb_v, gain_neg,
-                                  coulomb_neg)  # fmt: skip
+            out[:, j, :P_VMAX] = (
+                p.gain_cps_per_v,
+                p.tau_s,
+                p.offset_v,
+                p.coulomb_v,
+                gain_neg,
+                coulomb_neg,
+            )
             continue
         # the draw's map onto each parameter: the spec's spread, or the identified 95 %
         # interval where that is wider (the fit record of a fitted rig); element by element the
@@ -217,11 +223,15 @@ def _maps(plant: Plant, fit: Any, mc: MonteCarlo) -> tuple[Any, Any, Any, Any]:
         hi = max(hi, ci["offset_v"][1] - plant.offset_v)
     out.append(_linear(lo, hi, 0.0, s))
     if plant.coulomb_v > 0:
-        out.append(_linear(*spread_factors(plant, fit, "coulomb_v", mc.coulomb_spread), 1.0,
-                           mc.coulomb_spread))  # fmt: skip
+        out.append(
+            _linear(
+                *spread_factors(plant, fit, "coulomb_v", mc.coulomb_spread), 1.0, mc.coulomb_spread
+            )
+        )
     else:
-        out.append(_linear(1.0 - mc.coulomb_spread, 1.0 + mc.coulomb_spread, 1.0,
-                           mc.coulomb_spread))  # fmt: skip
+        out.append(
+            _linear(1.0 - mc.coulomb_spread, 1.0 + mc.coulomb_spread, 1.0, mc.coulomb_spread)
+        )
     return out[0], out[1], out[2], out[3]
 
 

@@ -21,8 +21,9 @@ PROGRESS = ("verify:", "verify montecarlo:", "compiling ", "compiled ")  # progr
 
 def _group_alive(pgid: int) -> list[str]:
     """The processes still in the process group ``pgid`` (their command lines)."""
-    out = subprocess.run(["ps", "-eo", "pgid=,pid=,args="], capture_output=True, text=True,
-                         check=True).stdout  # fmt: skip
+    out = subprocess.run(
+        ["ps", "-eo", "pgid=,pid=,args="], capture_output=True, text=True, check=True
+    ).stdout
     rows = [line.split(None, 2) for line in out.splitlines()]
     return [r[2] for r in rows if len(r) == 3 and int(r[0]) == pgid]
 
@@ -37,10 +38,27 @@ def test_a_signal_to_a_clustered_monte_carlo_is_one_line(
 ) -> None:
     w = quick_workbench(f"cluster-{word}", quick_tuning)
     record = Path(f"{w['tuning']}.verify.json")
-    cmd = [sys.executable, "-m", "servotune.cli", "verify", str(w["tuning"]),
-           "--spec", str(w["spec"]), "--montecarlo", "400000", "--workers", "2"]  # fmt: skip
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-                            cwd=w["dir"], start_new_session=True)  # fmt: skip
+    cmd = [
+        sys.executable,
+        "-m",
+        "servotune.cli",
+        "verify",
+        str(w["tuning"]),
+        "--spec",
+        str(w["spec"]),
+        "--montecarlo",
+        "400000",
+        "--workers",
+        "2",
+    ]
+    proc = subprocess.Popen(
+        cmd,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=w["dir"],
+        start_new_session=True,
+    )
     lines: list[str] = []
     try:
         assert proc.stderr is not None

@@ -201,9 +201,7 @@ def _short(text: str, n: int = 300) -> str:
     return text[:n] + ("…" if len(text) > n else "")
 
 
-@pytest.mark.parametrize(
-    "case", MANIFEST, ids=[f"{c['kind']}/{c['file']}" for c in MANIFEST]
-)  # fmt: skip
+@pytest.mark.parametrize("case", MANIFEST, ids=[f"{c['kind']}/{c['file']}" for c in MANIFEST])
 def test_corpus_file(
     case: dict[str, Any],
     tmp_path: Path,

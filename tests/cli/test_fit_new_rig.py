@@ -30,8 +30,25 @@ EXAMPLE = ROOT / "plants" / "pc-dual-servo.toml"
 def log(tmp_path_factory) -> Path:
     d = tmp_path_factory.mktemp("fitlog")
     out = d / "my.csv"
-    assert main(["simulate", str(EXAMPLE), "--scenario", "prbs", "--axis", "master",
-                 "--seconds", "8", "--seed", "1", "-o", str(out)]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                "simulate",
+                str(EXAMPLE),
+                "--scenario",
+                "prbs",
+                "--axis",
+                "master",
+                "--seconds",
+                "8",
+                "--seed",
+                "1",
+                "-o",
+                str(out),
+            ]
+        )
+        == 0
+    )
     return out
 
 
@@ -75,8 +92,16 @@ def test_verify_with_a_tuning_of_another_rig_fails_naming_both(
     tuning = tmp_path / "tuning.json"  # made for the example rig
     write_tuning(quick_tuning, tuning)
     capsys.readouterr()
-    code = main(["verify", str(tuning), "--spec", str(ROOT / "plants" / "pc-dual-servo.spec.toml"),
-                 "--rig", str(mine)])  # fmt: skip
+    code = main(
+        [
+            "verify",
+            str(tuning),
+            "--spec",
+            str(ROOT / "plants" / "pc-dual-servo.spec.toml"),
+            "--rig",
+            str(mine),
+        ]
+    )
     err = capsys.readouterr().err
     assert code == 1, err
     assert "myrig.toml" in err and "'pc-dual-servo'" in err and err.count("\n") == 1
@@ -140,10 +165,15 @@ def test_fit_o_into_an_existing_rig_drops_the_comments_it_makes_false(
     # the example rig, with a source cited beside one value and above another, and comments
     # that only name a quantity
     text = EXAMPLE.read_text()
-    text = text.replace("tau_s = 0.025\n", "# the drive's velocity loop and the load\n"
-                        "tau_s = 0.025             # from the drive's data sheet\n", 1)  # fmt: skip
-    text = text.replace("delay_s = 0.0008\n", "# measured with a scope in 2019\n"
-                        "delay_s = 0.0008\n", 1)  # fmt: skip
+    text = text.replace(
+        "tau_s = 0.025\n",
+        "# the drive's velocity loop and the load\n"
+        "tau_s = 0.025             # from the drive's data sheet\n",
+        1,
+    )
+    text = text.replace(
+        "delay_s = 0.0008\n", "# measured with a scope in 2019\ndelay_s = 0.0008\n", 1
+    )
     rig = tmp_path / "existing.toml"
     rig.write_text(text)
     before = _plant_lines(text, "master")
@@ -166,8 +196,11 @@ def test_fit_o_into_an_existing_rig_drops_the_comments_it_makes_false(
     # the comments that name a quantity survive, as does every comment outside the table
     assert after["offset_v"].endswith("# analog zero drift")
     assert "# the drive's velocity loop and the load\ntau_s = " in after_text
-    outside = [ln for ln in text.splitlines() if "#" in ln and "=" in ln
-               and ln.split("=")[0].strip() not in before]  # fmt: skip
+    outside = [
+        ln
+        for ln in text.splitlines()
+        if "#" in ln and "=" in ln and ln.split("=")[0].strip() not in before
+    ]
     assert len(outside) > 8 and all(ln in after_text.splitlines() for ln in outside)
     # the header says where the new numbers come from, and the record holds the fit figures
     header = next(ln for ln in after_text.splitlines() if ln.startswith("[axis.master.plant]"))
@@ -178,5 +211,6 @@ def test_fit_o_into_an_existing_rig_drops_the_comments_it_makes_false(
         pct = fitted["fit_pct"][quantity]
         assert getattr(record, f"{quantity}_fit_pct") == pytest.approx(pct["estimation"], 1e-6)
         cv = pct["validation"]  # None on this short log: a half could not be fitted
-        assert getattr(record, f"{quantity}_fit_cv_pct") == (None if cv is None else
-                                                              pytest.approx(cv, 1e-6))  # fmt: skip
+        assert getattr(record, f"{quantity}_fit_cv_pct") == (
+            None if cv is None else pytest.approx(cv, 1e-6)
+        )

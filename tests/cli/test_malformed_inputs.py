@@ -116,8 +116,10 @@ def _log_text(dt: float = 0.004, n: int = 300, meta: str = "", first: str = "") 
 @pytest.fixture(scope="module")
 def sim_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("log") / "log.csv"
-    assert main(["simulate", str(EXAMPLE_RIG), "--scenario", "prbs", "--seconds", "4",
-                 "-o", str(out)]) == 0  # fmt: skip
+    assert (
+        main(["simulate", str(EXAMPLE_RIG), "--scenario", "prbs", "--seconds", "4", "-o", str(out)])
+        == 0
+    )
     return out
 
 
@@ -125,8 +127,9 @@ def sim_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def test_fit_compute_s_option(
     value: str, sim_log: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    refused(capsys, ["fit", str(sim_log), "--axis", "master", "--compute-s", value],
-            "option compute_s")  # fmt: skip
+    refused(
+        capsys, ["fit", str(sim_log), "--axis", "master", "--compute-s", value], "option compute_s"
+    )
 
 
 LOG_CASES: dict[str, tuple[Callable[[], str], tuple[str, ...]]] = {
@@ -159,8 +162,13 @@ def test_fit_log(case: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
     log = tmp_path / "log.csv"
     log.write_text(make(), encoding="utf-8")
     out = tmp_path / "fitted.toml"
-    refused(capsys, ["fit", str(log), "-o", str(out), "--axis", "x"], str(log), *mentions,
-            not_written=out)  # fmt: skip
+    refused(
+        capsys,
+        ["fit", str(log), "-o", str(out), "--axis", "x"],
+        str(log),
+        *mentions,
+        not_written=out,
+    )
 
 
 def test_unknown_metadata_warns_and_bom_is_accepted(
@@ -168,8 +176,9 @@ def test_unknown_metadata_warns_and_bom_is_accepted(
 ) -> None:
     log = tmp_path / "noted.csv"
     text = sim_log.read_text(encoding="utf-8")
-    log.write_bytes(b"\xef\xbb\xbf" + ("# machine_id: m7\n# date: 2024-05-01\n# colour: blue\n"
-                                       + text).encode())  # fmt: skip
+    log.write_bytes(
+        b"\xef\xbb\xbf" + ("# machine_id: m7\n# date: 2024-05-01\n# colour: blue\n" + text).encode()
+    )
     with pytest.warns(LogMetadataWarning, match="'colour'") as rec:
         assert main(["fit", str(log), "--axis", "master"]) == 0
     assert not any("machine_id" in str(w.message) for w in rec)
@@ -182,9 +191,13 @@ def test_a_metadata_typo_is_one_warning_line_with_a_suggestion(
     on stderr naming the closest declared key; the fit still runs."""
     log = tmp_path / "typo.csv"
     log.write_text("# counter_bitz: 24\n" + sim_log.read_text())
-    run = subprocess.run([sys.executable, "-m", "servotune.cli", "fit", str(log), "--axis",
-                          "master"], capture_output=True, text=True, stdin=subprocess.DEVNULL,
-                         timeout=300)  # fmt: skip
+    run = subprocess.run(
+        [sys.executable, "-m", "servotune.cli", "fit", str(log), "--axis", "master"],
+        capture_output=True,
+        text=True,
+        stdin=subprocess.DEVNULL,
+        timeout=300,
+    )
     assert run.returncode == 0, run.stderr
     warned = [ln for ln in run.stderr.splitlines() if "warning" in ln]
     assert warned == [
@@ -210,8 +223,22 @@ def test_declared_metadata_does_not_warn(
 @pytest.fixture(scope="module")
 def excitation(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("exc") / "exc.csv"
-    assert main(["excite", "--rig", str(EXAMPLE_RIG), "--kind", "steps", "--seconds", "1",
-                 "-o", str(out)]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                "excite",
+                "--rig",
+                str(EXAMPLE_RIG),
+                "--kind",
+                "steps",
+                "--seconds",
+                "1",
+                "-o",
+                str(out),
+            ]
+        )
+        == 0
+    )
     return out
 
 
@@ -227,8 +254,14 @@ def test_simulate_input_bad_code(
     bad = tmp_path / "bad.csv"
     bad.write_text("\n".join(lines) + "\n", encoding="utf-8")
     out = tmp_path / "log.csv"
-    refused(capsys, ["simulate", str(EXAMPLE_RIG), "--input", str(bad), "-o", str(out)],
-            str(bad), f"row {head + 5}", "'master.dac_code'", not_written=out)  # fmt: skip
+    refused(
+        capsys,
+        ["simulate", str(EXAMPLE_RIG), "--input", str(bad), "-o", str(out)],
+        str(bad),
+        f"row {head + 5}",
+        "'master.dac_code'",
+        not_written=out,
+    )
 
 
 # --- resource bounds ---------------------------------------------------------------------------
@@ -236,17 +269,36 @@ def test_simulate_input_bad_code(
 
 def test_simulate_seconds_1e12(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "x.csv"
-    line = refused(capsys, ["simulate", str(EXAMPLE_RIG), "--scenario", "prbs", "--seconds",
-                            "1e12", "-o", str(out)], "simulate 1e+12 s", "ticks × 2 axes",
-                   "over the memory budget of 2 GiB", not_written=out)  # fmt: skip
+    line = refused(
+        capsys,
+        ["simulate", str(EXAMPLE_RIG), "--scenario", "prbs", "--seconds", "1e12", "-o", str(out)],
+        "simulate 1e+12 s",
+        "ticks × 2 axes",
+        "over the memory budget of 2 GiB",
+        not_written=out,
+    )
     assert "PiB" in line
 
 
 def test_excite_seconds_1e12(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "x.csv"
-    refused(capsys, ["excite", "--rig", str(EXAMPLE_RIG), "--kind", "multisine", "--seconds",
-                     "1e12", "-o", str(out)], "excitation of 1e+12 s", "memory budget",
-            not_written=out)  # fmt: skip
+    refused(
+        capsys,
+        [
+            "excite",
+            "--rig",
+            str(EXAMPLE_RIG),
+            "--kind",
+            "multisine",
+            "--seconds",
+            "1e12",
+            "-o",
+            str(out),
+        ],
+        "excitation of 1e+12 s",
+        "memory budget",
+        not_written=out,
+    )
 
 
 def test_budget_from_environment(
@@ -254,8 +306,12 @@ def test_budget_from_environment(
 ) -> None:
     monkeypatch.setenv("SERVOTUNE_MAX_MEMORY", "64K")
     out = tmp_path / "x.csv"
-    refused(capsys, ["simulate", str(EXAMPLE_RIG), "--scenario", "steps", "--seconds", "10",
-                     "-o", str(out)], "memory budget of 64 KiB", not_written=out)  # fmt: skip
+    refused(
+        capsys,
+        ["simulate", str(EXAMPLE_RIG), "--scenario", "steps", "--seconds", "10", "-o", str(out)],
+        "memory budget of 64 KiB",
+        not_written=out,
+    )
     monkeypatch.setenv("SERVOTUNE_MAX_MEMORY", "lots")
     args = ["simulate", str(EXAMPLE_RIG), "--scenario", "steps", "--seconds", "10", "-o", str(out)]
     refused(capsys, args, "SERVOTUNE_MAX_MEMORY", "'lots'", not_written=out)
@@ -337,8 +393,13 @@ def test_tuning_json(case: str, tmp_path: Path, capsys: pytest.CaptureFixture[st
     path.write_text(text, encoding="utf-8")
     out = tmp_path / "tables.json"
     # reading the tuning is the first thing export-table does
-    refused(capsys, ["export-table", str(path), "--unverified", "-o", str(out)], str(path),
-            mention, not_written=out)  # fmt: skip
+    refused(
+        capsys,
+        ["export-table", str(path), "--unverified", "-o", str(out)],
+        str(path),
+        mention,
+        not_written=out,
+    )
 
 
 # --- writing -----------------------------------------------------------------------------------
@@ -358,23 +419,31 @@ def test_unwritable_directory_names_the_target(
 
     monkeypatch.setattr(files.os, "open", no_temp_files)
     out = tmp_path / "log.csv"
-    line = refused(capsys, ["simulate", str(EXAMPLE_RIG), "--scenario", "steps", "--seconds",
-                            "1", "-o", str(out)], str(out), "Permission denied",
-                   not_written=out)  # fmt: skip
+    line = refused(
+        capsys,
+        ["simulate", str(EXAMPLE_RIG), "--scenario", "steps", "--seconds", "1", "-o", str(out)],
+        str(out),
+        "Permission denied",
+        not_written=out,
+    )
     assert ".tmp" not in line
 
 
 @pytest.mark.parametrize(
     ("args", "mentions"),
     [
-        (["simulate", str(EXAMPLE_RIG), "--seconds", "abc", "-o", "x.csv"],
-         ("servotune simulate: error:", "--seconds", "'abc'", "servotune simulate --help")),
+        (
+            ["simulate", str(EXAMPLE_RIG), "--seconds", "abc", "-o", "x.csv"],
+            ("servotune simulate: error:", "--seconds", "'abc'", "servotune simulate --help"),
+        ),
         (["verify", "tuning.json"], ("servotune verify: error:", "--spec", "verify --help")),
-        (["verify", "t.json", "--spec", "s.toml", "--montecarlo", "1e6"],
-         ("--montecarlo", "'1e6'")),
+        (
+            ["verify", "t.json", "--spec", "s.toml", "--montecarlo", "1e6"],
+            ("--montecarlo", "'1e6'"),
+        ),
         (["frobnicate"], ("servotune: error:", "'frobnicate'", "servotune --help")),
     ],
-)  # fmt: skip
+)
 def test_a_usage_error_is_one_line(
     args: list[str], mentions: tuple[str, ...], capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -418,8 +487,20 @@ def test_a_seed_outside_64_bits_is_a_usage_error(
 
 def test_the_largest_seed_runs(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "log.csv"
-    code = main(["simulate", str(EXAMPLE_RIG), "--scenario", "prbs", "--seconds", "0.1",
-                 "-o", str(out), "--seed", str(2**64 - 1)])  # fmt: skip
+    code = main(
+        [
+            "simulate",
+            str(EXAMPLE_RIG),
+            "--scenario",
+            "prbs",
+            "--seconds",
+            "0.1",
+            "-o",
+            str(out),
+            "--seed",
+            str(2**64 - 1),
+        ]
+    )
     assert code == 0 and out.stat().st_size > 0, capsys.readouterr().err
 
 
@@ -449,9 +530,24 @@ def test_a_population_over_the_memory_budget_is_refused_first(
     bad-input sweep); a generation is one batch of population × plant variants runs, so its
     memory is estimated and held to the budget before any candidate is drawn."""
     out = tmp_path / "t.json"
-    refused(capsys, ["tune", str(EXAMPLE_RIG), "-q", "--no-current", "--generations", "2",
-                     "--population", "100000000", "-o", str(out)],
-            "population of 100,000,000", "memory budget", not_written=out)  # fmt: skip
+    refused(
+        capsys,
+        [
+            "tune",
+            str(EXAMPLE_RIG),
+            "-q",
+            "--no-current",
+            "--generations",
+            "2",
+            "--population",
+            "100000000",
+            "-o",
+            str(out),
+        ],
+        "population of 100,000,000",
+        "memory budget",
+        not_written=out,
+    )
 
 
 def test_an_output_that_is_an_input_is_refused_first(
@@ -484,8 +580,22 @@ def test_messages_read_as_written(tmp_path: Path, capsys: pytest.CaptureFixture[
     """Three messages a bad-input sweep found garbled: numpy's repr of the times of a log whose
     time goes back, "starting at at line" of a cut JSON string, "excitation file file"."""
     log = tmp_path / "log.csv"
-    assert main(["simulate", str(EXAMPLE_RIG), "--scenario", "prbs", "--seconds", "0.2", "-q",
-                 "-o", str(log)]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                "simulate",
+                str(EXAMPLE_RIG),
+                "--scenario",
+                "prbs",
+                "--seconds",
+                "0.2",
+                "-q",
+                "-o",
+                str(log),
+            ]
+        )
+        == 0
+    )
     rows = log.read_text(encoding="utf-8").splitlines()
     header = next(i for i, r in enumerate(rows) if r.startswith("tick,"))
     col = rows[header].split(",").index("time_s")
@@ -516,12 +626,17 @@ CORPUS = ROOT / "tests" / "corpus" / "base"
         ["compare", str(EXAMPLE_RIG), "--spec", str(PLANTS / "pc-dual-servo.spec.toml"), "--out"],
         ["sync", str(PLANTS / "gantry.toml"), "--plot"],
         ["linkage", str(PLANTS / "linkage-6axis.toml"), "--plot"],
-        ["verify", str(CORPUS / "tuning.json"), "--spec", str(PLANTS / "pc-dual-servo.spec.toml"),
-         "--report"],
+        [
+            "verify",
+            str(CORPUS / "tuning.json"),
+            "--spec",
+            str(PLANTS / "pc-dual-servo.spec.toml"),
+            "--report",
+        ],
         ["export-table", str(CORPUS / "tuning.json"), "--unverified", "--format", "c", "-o"],
     ],
     ids=lambda v: v[0],
-)  # fmt: skip
+)
 def test_a_directory_output_that_is_a_file_is_refused_first(
     verb: list[str], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -546,9 +661,22 @@ def test_bad_inputs_leave_no_output_directory(
     out = tmp_path / "out"
     refused(capsys, ["demo", str(tmp_path / "missing.toml"), "--out", str(out)], "missing.toml")
     assert not out.exists()
-    refused(capsys, ["compare", str(EXAMPLE_RIG), "--spec", str(PLANTS / "pc-dual-servo.spec.toml"),
-                     "--out", str(out), "--pareto", "1.5,0.5", "-q"],
-            "pareto: max_sensitivity", "got 0.5")  # fmt: skip
+    refused(
+        capsys,
+        [
+            "compare",
+            str(EXAMPLE_RIG),
+            "--spec",
+            str(PLANTS / "pc-dual-servo.spec.toml"),
+            "--out",
+            str(out),
+            "--pareto",
+            "1.5,0.5",
+            "-q",
+        ],
+        "pareto: max_sensitivity",
+        "got 0.5",
+    )
     assert not out.exists()
 
 
@@ -560,13 +688,21 @@ def test_fit_into_a_file_that_is_not_a_rig_is_refused_before_the_fit(
     not_rig = tmp_path / "notes.toml"
     not_rig.write_text("x = 1\n", encoding="utf-8")
     log = str(CORPUS / "log.csv")
-    refused(capsys, ["fit", log, "--axis", "master", "-o", str(not_rig)], str(not_rig),
-            "is not a rig to write the fit into")  # fmt: skip
+    refused(
+        capsys,
+        ["fit", log, "--axis", "master", "-o", str(not_rig)],
+        str(not_rig),
+        "is not a rig to write the fit into",
+    )
     assert not_rig.read_text(encoding="utf-8") == "x = 1\n"
     rig = tmp_path / "rig.toml"
     rig.write_bytes(EXAMPLE_RIG.read_bytes())
-    refused(capsys, ["fit", log, "--axis", "nope", "-o", str(rig)], "has no axis 'nope'",
-            "master, slave")  # fmt: skip
+    refused(
+        capsys,
+        ["fit", log, "--axis", "nope", "-o", str(rig)],
+        "has no axis 'nope'",
+        "master, slave",
+    )
     assert rig.read_bytes() == EXAMPLE_RIG.read_bytes()
 
 

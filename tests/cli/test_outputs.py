@@ -56,17 +56,32 @@ def one_line(capsys: pytest.CaptureFixture[str], args: list[str], *mentions: str
     "args, output",
     [
         (["tune", str(EXAMPLE_RIG), "-o", "/proc/x.json"], "/proc/x.json"),
-        (["fit", str(BASE / "log.csv"), "--axis", "master", "-o", "/proc/x.toml"],
-         "/proc/x.toml"),
-        (["fit", str(BASE / "log.csv"), "--axis", "master", "--plot", "/proc/x.png"],
-         "/proc/x.png"),
-        (["fit", str(BASE / "log.csv"), "--axis", "master", "--fleet", "/proc/x.csv"],
-         "/proc/x.csv"),
-        (["excite", "--rig", str(EXAMPLE_RIG), "--kind", "prbs", "--seconds", "4", "-o",
-          "/proc/x.csv"], "/proc/x.csv"),
+        (["fit", str(BASE / "log.csv"), "--axis", "master", "-o", "/proc/x.toml"], "/proc/x.toml"),
+        (
+            ["fit", str(BASE / "log.csv"), "--axis", "master", "--plot", "/proc/x.png"],
+            "/proc/x.png",
+        ),
+        (
+            ["fit", str(BASE / "log.csv"), "--axis", "master", "--fleet", "/proc/x.csv"],
+            "/proc/x.csv",
+        ),
+        (
+            [
+                "excite",
+                "--rig",
+                str(EXAMPLE_RIG),
+                "--kind",
+                "prbs",
+                "--seconds",
+                "4",
+                "-o",
+                "/proc/x.csv",
+            ],
+            "/proc/x.csv",
+        ),
         (["plan", str(PLANTS / "linkage-6axis.toml"), "-o", "/proc/x.json"], "/proc/x.json"),
     ],
-)  # fmt: skip
+)
 def test_an_output_file_that_cannot_be_created_fails_first(capsys, args, output) -> None:
     line = one_line(capsys, args, output, "cannot create a file in '/proc'")
     assert line.startswith(f"servotune {args[0]}: error:")
@@ -77,13 +92,23 @@ def test_an_output_file_that_cannot_be_created_fails_first(capsys, args, output)
     [
         (["demo", str(EXAMPLE_RIG), "--out", "/proc/demo"], "/proc/demo"),  # to be made
         (["demo", str(EXAMPLE_RIG), "--out", "/proc/self"], "/proc/self"),  # there already
-        (["export-table", str(BASE / "tuning.json"), "--format", "c", "-o", "/proc/c"],
-         "/proc/c"),
+        (["export-table", str(BASE / "tuning.json"), "--format", "c", "-o", "/proc/c"], "/proc/c"),
         (["sync", str(PLANTS / "gantry.toml"), "--plot", "/proc/plots"], "/proc/plots"),
-        (["verify", str(BASE / "tuning.json"), "--spec", str(SPEC), "--rig", str(EXAMPLE_RIG),
-          "--report", "/proc/report"], "/proc/report"),
+        (
+            [
+                "verify",
+                str(BASE / "tuning.json"),
+                "--spec",
+                str(SPEC),
+                "--rig",
+                str(EXAMPLE_RIG),
+                "--report",
+                "/proc/report",
+            ],
+            "/proc/report",
+        ),
     ],
-)  # fmt: skip
+)
 def test_an_output_directory_that_cannot_be_filled_fails_first(capsys, args, directory) -> None:
     one_line(capsys, args, directory, "cannot create a file in")
 
@@ -94,8 +119,12 @@ def test_the_verification_record_beside_the_tuning_is_checked_first(tmp_path, ca
     tuning = tmp_path / "t.json"
     tuning.write_bytes((BASE / "tuning.json").read_bytes())
     (tmp_path / "t.json.verify.json").mkdir()
-    one_line(capsys, ["verify", str(tuning), "--spec", str(SPEC), "--rig", str(EXAMPLE_RIG)],
-             "t.json.verify.json", "is a directory")  # fmt: skip
+    one_line(
+        capsys,
+        ["verify", str(tuning), "--spec", str(SPEC), "--rig", str(EXAMPLE_RIG)],
+        "t.json.verify.json",
+        "is a directory",
+    )
 
 
 @pytest.mark.skipif(os.geteuid() == 0, reason="root writes into a read-only directory anyway")
@@ -141,12 +170,27 @@ def _children() -> set[int]:
 @pytest.mark.parametrize(
     "args",
     [
-        ["verify", str(BASE / "tuning.json"), "--spec", str(SPEC), "--rig", str(EXAMPLE_RIG),
-         "--montecarlo", "8"],
-        ["fit", str(BASE / "log.csv"), str(BASE / "log.csv"), "--axis", "master", "--fleet",
-         "FLEET.csv"],
+        [
+            "verify",
+            str(BASE / "tuning.json"),
+            "--spec",
+            str(SPEC),
+            "--rig",
+            str(EXAMPLE_RIG),
+            "--montecarlo",
+            "8",
+        ],
+        [
+            "fit",
+            str(BASE / "log.csv"),
+            str(BASE / "log.csv"),
+            "--axis",
+            "master",
+            "--fleet",
+            "FLEET.csv",
+        ],
     ],
-)  # fmt: skip
+)
 def test_more_workers_than_cores_is_refused_before_any_process(
     tmp_path, capsys, no_cluster, args
 ) -> None:
@@ -166,8 +210,11 @@ def test_workers_at_the_cap_pass_the_check(tmp_path, capsys, no_cluster) -> None
     check_workers(1)
     check_workers(None)
     missing = tmp_path / "missing.json"
-    line = one_line(capsys, ["verify", str(missing), "--spec", str(SPEC),
-                             "--workers", str(local_workers())], "missing.json")  # fmt: skip
+    line = one_line(
+        capsys,
+        ["verify", str(missing), "--spec", str(SPEC), "--workers", str(local_workers())],
+        "missing.json",
+    )
     assert "at most" not in line and no_cluster == []
 
 
@@ -202,8 +249,20 @@ def test_workers_count_against_the_memory_budget(tmp_path, capsys, no_cluster) -
 
     if local_workers() < 2:
         pytest.skip("one usable core: no cluster of 2 to refuse")
-    args = ["--max-memory", "300M", "verify", str(BASE / "tuning.json"), "--spec", str(SPEC),
-            "--rig", str(EXAMPLE_RIG), "--montecarlo", "8", "--workers", "2"]  # fmt: skip
+    args = [
+        "--max-memory",
+        "300M",
+        "verify",
+        str(BASE / "tuning.json"),
+        "--spec",
+        str(SPEC),
+        "--rig",
+        str(EXAMPLE_RIG),
+        "--montecarlo",
+        "8",
+        "--workers",
+        "2",
+    ]
     line = one_line(capsys, args, "cluster of 2 workers", "512 MiB")
     assert "2 × 256 MiB" in line and "300 MiB" in line
     assert no_cluster == []

@@ -41,10 +41,24 @@ def test_tune_reports_progress_before_the_heavy_imports(tmp_path: Path) -> None:
     must come before the first import of the tuner (casadi, python-control, matplotlib,
     scipy's optimisers and signal tools, ``servotune.tune``), which takes seconds.
     """
-    p = subprocess.Popen([sys.executable, "-X", "importtime", "-m", "servotune.cli", "tune",
-                          str(RIG), "-o", str(tmp_path / "t.json"), *QUICK],
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                         env=_env(tmp_path))  # fmt: skip
+    p = subprocess.Popen(
+        [
+            sys.executable,
+            "-X",
+            "importtime",
+            "-m",
+            "servotune.cli",
+            "tune",
+            str(RIG),
+            "-o",
+            str(tmp_path / "t.json"),
+            *QUICK,
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=_env(tmp_path),
+    )
     imported: list[str] = []
     try:
         while (line := p.stderr.readline()).startswith("import time:"):
@@ -59,9 +73,22 @@ def test_tune_reports_progress_before_the_heavy_imports(tmp_path: Path) -> None:
 
 
 def test_quiet_silences_progress_and_stdout_holds_only_the_json(tmp_path: Path) -> None:
-    res = subprocess.run([str(SERVOTUNE), "tune", str(RIG), "-o", str(tmp_path / "t.json"),
-                          "--json", "--quiet", *QUICK], capture_output=True, text=True,
-                         env=_env(tmp_path), timeout=300)  # fmt: skip
+    res = subprocess.run(
+        [
+            str(SERVOTUNE),
+            "tune",
+            str(RIG),
+            "-o",
+            str(tmp_path / "t.json"),
+            "--json",
+            "--quiet",
+            *QUICK,
+        ],
+        capture_output=True,
+        text=True,
+        env=_env(tmp_path),
+        timeout=300,
+    )
     assert res.returncode == 0, res.stderr
     json.loads(res.stdout)  # the summary, nothing else
     assert "generation" not in res.stderr and "loading the tuner" not in res.stderr

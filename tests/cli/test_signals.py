@@ -58,11 +58,24 @@ def test_a_signal_to_a_long_run_ends_it_cleanly(sig, code, word, tmp_path) -> No
     out = tmp_path / "tuning.json"
     env = {**os.environ, "SERVOTUNE_WORKBENCH": str(tmp_path / "wb")}
     proc = subprocess.Popen(
-        [sys.executable, "-m", "servotune.cli", "tune", str(RIG), "--generations", "5000",
-         "-o", str(out)],
-        stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        cwd=tmp_path, env=env,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "servotune.cli",
+            "tune",
+            str(RIG),
+            "--generations",
+            "5000",
+            "-o",
+            str(out),
+        ],
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=tmp_path,
+        env=env,
+    )
     try:
         # wait until the optimiser is in its generation loop: before that a cold start may be
         # compiling the kernels (minutes on a loaded 2-core machine), and LLVM holds the

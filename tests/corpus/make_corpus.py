@@ -173,8 +173,11 @@ def resub(
 def in_sync(text: str, line: str, new: str) -> str:
     """Replace the whole line ``line`` in the spec's ``[scenario.sync]`` table (other
     scenarios may have the same line)."""
-    return resub(text, r"(^\[scenario\.sync\]\n(?:[^\[].*\n|\n)*?)" + re.escape(line) + "$",
-                 lambda m: m.group(1) + new)  # fmt: skip
+    return resub(
+        text,
+        r"(^\[scenario\.sync\]\n(?:[^\[].*\n|\n)*?)" + re.escape(line) + "$",
+        lambda m: m.group(1) + new,
+    )
 
 
 _SYNC_LIMIT = "max_sync_error_counts = 1843.0"  # plants/pc-dual-servo.spec.toml, [scenario.sync]

@@ -55,9 +55,12 @@ def run_replay(exe: Path, payload: bytes, timeout: float) -> bytes:
     src_dir = exe.parent
     (src_dir / "in.bin").write_bytes(payload)
     res = subprocess.run(
-        [str(exe), "in.bin", "out.bin"], cwd=src_dir, capture_output=True, text=True,
+        [str(exe), "in.bin", "out.bin"],
+        cwd=src_dir,
+        capture_output=True,
+        text=True,
         timeout=timeout,
-    )  # fmt: skip
+    )
     assert res.returncode == 0 and "runtime error" not in res.stderr, res.stderr
     return (src_dir / "out.bin").read_bytes()
 

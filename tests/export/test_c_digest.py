@@ -515,14 +515,38 @@ def test_layout_bytes_built_by_hand() -> None:
         _p(3)  # n_axes
         + _p(divisor)
         # axis 0, PI: law, lock, kp, kit, fe_limit, hw, kdt, k1t, ke, kec, n, ref_source
-        + _p(1) + _p(*LOCK[0]) + _p(*PI_KP) + _p(*PI_KIT) + _p(FE[0]) + hw
-        + zero * 4 + _p(0) + _p(-1)
+        + _p(1)
+        + _p(*LOCK[0])
+        + _p(*PI_KP)
+        + _p(*PI_KIT)
+        + _p(FE[0])
+        + hw
+        + zero * 4
+        + _p(0)
+        + _p(-1)
         # axis 1, fuzzy-PID
-        + _p(2) + _p(*LOCK[1]) + _p(*FZ["kp"]) + _p(*FZ["ki_t"]) + _p(FE[1]) + hw
-        + _p(*FZ["kd_t"]) + _p(*FZ["k1_t"]) + _p(*FZ_KE) + _p(*FZ_KEC) + _p(1) + _p(0)
+        + _p(2)
+        + _p(*LOCK[1])
+        + _p(*FZ["kp"])
+        + _p(*FZ["ki_t"])
+        + _p(FE[1])
+        + hw
+        + _p(*FZ["kd_t"])
+        + _p(*FZ["k1_t"])
+        + _p(*FZ_KE)
+        + _p(*FZ_KEC)
+        + _p(1)
+        + _p(0)
         # axis 2, lock only
-        + _p(0) + _p(*LOCK[2]) + zero * 2 + _p(FE[2]) + hw + zero * 4 + _p(0) + _p(0)
-    )  # fmt: skip
+        + _p(0)
+        + _p(*LOCK[2])
+        + zero * 2
+        + _p(FE[2])
+        + hw
+        + zero * 4
+        + _p(0)
+        + _p(0)
+    )
     tables = [
         struct.pack("<hh", 1, f) + struct.pack("<9h", *(v for row in rows for v in row))
         for rows, f in TABLES

@@ -301,9 +301,12 @@ def _layout_data(cfg: GantryConfig, topology: str) -> dict:
         "counter_bits": rig.counter.bits,
         "dac": {"zero_code": rig.dac.zero_code, "code_max": rig.dac.code_max},
         "drives": [{"controller": c.to_dict()} for c in cfg.controllers()],
-        "sync": {"constants": cfg.sync_constants.to_dict(), "warn_counts": cfg.sync.warn_counts,
-                 "trip_counts": cfg.sync.trip_counts},
-    }  # fmt: skip
+        "sync": {
+            "constants": cfg.sync_constants.to_dict(),
+            "warn_counts": cfg.sync.warn_counts,
+            "trip_counts": cfg.sync.trip_counts,
+        },
+    }
 
 
 def _consts(cfg: GantryConfig, topology: str) -> np.ndarray:
@@ -313,14 +316,38 @@ def _consts(cfg: GantryConfig, topology: str) -> np.ndarray:
     rig = cfg.rig
     kernel = [TOPOLOGIES.index(topology), cfg.bus.latency_cycles]
     for ctl in cfg.controllers():
-        row = ctl.consts(counter_bits=rig.counter.bits, dac_bits=rig.dac.bits,
-                         dac_zero=rig.dac.zero_code)  # fmt: skip
-        kernel += [int(row[i]) for i in (C_LAW, C_LOCK_Q, C_LOCK_F, C_KP_Q, C_KP_F, C_KIT_Q,
-                                         C_KIT_F, C_FE_LIMIT, C_COUNTER_BITS, C_DAC_ZERO,
-                                         C_DAC_MAX)]  # fmt: skip
+        row = ctl.consts(
+            counter_bits=rig.counter.bits, dac_bits=rig.dac.bits, dac_zero=rig.dac.zero_code
+        )
+        kernel += [
+            int(row[i])
+            for i in (
+                C_LAW,
+                C_LOCK_Q,
+                C_LOCK_F,
+                C_KP_Q,
+                C_KP_F,
+                C_KIT_Q,
+                C_KIT_F,
+                C_FE_LIMIT,
+                C_COUNTER_BITS,
+                C_DAC_ZERO,
+                C_DAC_MAX,
+            )
+        ]
     k = cfg.sync_constants
-    kernel += [k.kp.q, k.kp.f, k.ki_t.q, k.ki_t.f, k.kd_t.q, k.kd_t.f, k.dead_zone_counts,
-               k.limit_counts, cfg.sync.warn_counts, cfg.sync.trip_counts]  # fmt: skip
+    kernel += [
+        k.kp.q,
+        k.kp.f,
+        k.ki_t.q,
+        k.ki_t.f,
+        k.kd_t.q,
+        k.kd_t.f,
+        k.dead_zone_counts,
+        k.limit_counts,
+        cfg.sync.warn_counts,
+        cfg.sync.trip_counts,
+    ]
     assert values.tolist() == kernel
     return values
 
@@ -430,17 +457,25 @@ def _short_scenario(n: int = 20_000) -> tuple[np.ndarray, np.ndarray, np.ndarray
 
 
 def _inputs(tr: GantryTrace) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    return (np.ascontiguousarray(tr.counter, dtype=np.int64),
-            np.ascontiguousarray(tr.command, dtype=np.int64),
-            np.ascontiguousarray(tr.resets, dtype=np.int64))  # fmt: skip
+    return (
+        np.ascontiguousarray(tr.counter, dtype=np.int64),
+        np.ascontiguousarray(tr.command, dtype=np.int64),
+        np.ascontiguousarray(tr.resets, dtype=np.int64),
+    )
 
 
 def _c_run(lib: ctypes.CDLL, consts: np.ndarray, tr: GantryTrace) -> np.ndarray:
     counter, command, resets = _inputs(tr)
     n = command.size
     out = np.zeros((n, N_OUT), dtype=np.int64)
-    lib.h_run(consts.ctypes.data, n, counter.ctypes.data, command.ctypes.data,
-              resets.ctypes.data, out.ctypes.data)  # fmt: skip
+    lib.h_run(
+        consts.ctypes.data,
+        n,
+        counter.ctypes.data,
+        command.ctypes.data,
+        resets.ctypes.data,
+        out.ctypes.data,
+    )
     return out
 
 
@@ -454,9 +489,21 @@ def _expected(tr: GantryTrace) -> np.ndarray:
     for k in events:
         nxt = later_resets[later_resets > k]
         tripped[k : int(nxt[0]) if nxt.size else n] = 1
-    cols = (tr.code[:, 0], tr.code[:, 1], tr.flags[:, 0], tr.flags[:, 1], tr.y[:, 0], tr.y[:, 1],
-            tr.ref[:, 0], tr.ref[:, 1], tr.sync_op, tr.sync_input, tr.sync_comp, tr.sync_level,
-            tripped)  # fmt: skip
+    cols = (
+        tr.code[:, 0],
+        tr.code[:, 1],
+        tr.flags[:, 0],
+        tr.flags[:, 1],
+        tr.y[:, 0],
+        tr.y[:, 1],
+        tr.ref[:, 0],
+        tr.ref[:, 1],
+        tr.sync_op,
+        tr.sync_input,
+        tr.sync_comp,
+        tr.sync_level,
+        tripped,
+    )
     return np.stack([np.asarray(c, dtype=np.int64) for c in cols], axis=1)
 
 
@@ -465,8 +512,9 @@ def _assert_same(c_out: np.ndarray, py: np.ndarray, run: str) -> None:
     diff = c_out != py
     if diff.any():
         k = int(np.flatnonzero(diff.any(axis=1))[0])
-        bad = [f"{OUT_FIELDS[j]}: C {c_out[k, j]}, Python {py[k, j]}"
-               for j in np.flatnonzero(diff[k])]  # fmt: skip
+        bad = [
+            f"{OUT_FIELDS[j]}: C {c_out[k, j]}, Python {py[k, j]}" for j in np.flatnonzero(diff[k])
+        ]
         pytest.fail(f"{run}: C differs from the kernel first at cycle {k}: {'; '.join(bad)}")
 
 

@@ -70,8 +70,9 @@ def exported(tmp_path_factory):
     d = tmp_path_factory.mktemp("gantry_c")
     tuning = tune_gantry(ROOT / "plants" / "gantry.toml")
     write_gantry_tuning(tuning, d / "g.json")
-    result, _, _ = verify_gantry_files(d / "g.json", ROOT / "plants" / "gantry.spec.toml",
-                                       montecarlo=4)  # fmt: skip
+    result, _, _ = verify_gantry_files(
+        d / "g.json", ROOT / "plants" / "gantry.spec.toml", montecarlo=4
+    )
     assert result.passed, result.failures
     v = load_gantry_for_export(d / "g.json")
     write_gantry_c(gantry_document(v.tuning, v.config.rig, record=v.record), d)
@@ -80,8 +81,18 @@ def exported(tmp_path_factory):
 
 
 def _build(d: Path, name: str) -> ctypes.CDLL:
-    cc(d, *STRICT, "-O2", "-shared", "-fPIC", "harness.c", "servotune_rt.c", "servotune_gantry.c",
-       "-o", name)  # fmt: skip
+    cc(
+        d,
+        *STRICT,
+        "-O2",
+        "-shared",
+        "-fPIC",
+        "harness.c",
+        "servotune_rt.c",
+        "servotune_gantry.c",
+        "-o",
+        name,
+    )
     return ctypes.CDLL(str(d / name))
 
 
@@ -122,19 +133,36 @@ def test_the_exported_header_replays_the_simulation_bit_for_bit(exported) -> Non
     ptr = ctypes.c_void_p
     reset = resets.astype(np.int32)
     lib.h_replay.argtypes = [ctypes.c_int64] + [ptr] * 7
-    lib.h_replay(n, counter.ctypes.data, cmd.ctypes.data, reset.ctypes.data, code.ctypes.data,
-                 flags.ctypes.data, comp.ctypes.data, level.ctypes.data)  # fmt: skip
-    for name, c_val, py_val in (("code", code, tr.code), ("flags", flags, tr.flags),
-                                ("sync_comp", comp, tr.sync_comp),
-                                ("sync_level", level, tr.sync_level)):  # fmt: skip
+    lib.h_replay(
+        n,
+        counter.ctypes.data,
+        cmd.ctypes.data,
+        reset.ctypes.data,
+        code.ctypes.data,
+        flags.ctypes.data,
+        comp.ctypes.data,
+        level.ctypes.data,
+    )
+    for name, c_val, py_val in (
+        ("code", code, tr.code),
+        ("flags", flags, tr.flags),
+        ("sync_comp", comp, tr.sync_comp),
+        ("sync_level", level, tr.sync_level),
+    ):
         bad = np.flatnonzero(np.any((c_val != py_val).reshape(n, -1), axis=1))
         assert bad.size == 0, f"{name} differs first at cycle {bad[0]}"
 
 
 def test_a_constant_edited_in_the_header_fails_the_digest(exported, tmp_path: Path) -> None:
     d, _ = exported
-    for name in ("harness.c", "servotune_rt.c", "servotune_rt.h", "servotune_gantry.c",
-                 "servotune_gantry.h", GANTRY_HEADER_NAME):  # fmt: skip
+    for name in (
+        "harness.c",
+        "servotune_rt.c",
+        "servotune_rt.h",
+        "servotune_gantry.c",
+        "servotune_gantry.h",
+        GANTRY_HEADER_NAME,
+    ):
         shutil.copy(d / name, tmp_path / name)
     header = tmp_path / GANTRY_HEADER_NAME
     text = header.read_text()

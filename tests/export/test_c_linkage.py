@@ -352,8 +352,11 @@ def _expected_flags(ev: np.ndarray) -> np.ndarray:
     """The flags servotune_link.h defines, from the simulation's log (ticks and blocks)."""
     kind, before, after, count, late = ev[:, 0], ev[:, 2], ev[:, 3], ev[:, 4], ev[:, 5]
     tick = np.where(count == 1, UNDERRUN, 0) | np.where(before < LOW, LOW_FLAG, 0)
-    block = (np.where(count > 0, OVERRUN, 0) | np.where(late > 0, LATE, 0)
-             | np.where(after > HIGH, HIGH_FLAG, 0))  # fmt: skip
+    block = (
+        np.where(count > 0, OVERRUN, 0)
+        | np.where(late > 0, LATE, 0)
+        | np.where(after > HIGH, HIGH_FLAG, 0)
+    )
     return np.where(kind == TICK, tick, np.where(kind == BLOCK, block, 0))
 
 
@@ -461,8 +464,17 @@ def _ops(lib: ctypes.CDLL, k: list[int], ops: list[tuple[int, int, list[int]]]) 
     for i, (_, _, c) in enumerate(ops):
         cmd[i, : len(c)] = c
     out = np.zeros((len(ops), 8), dtype=np.int64)
-    assert lib.h_ops(kk.ctypes.data, len(ops), op.ctypes.data, a.ctypes.data, cmd.ctypes.data,
-                     out.ctypes.data) == 0  # fmt: skip
+    assert (
+        lib.h_ops(
+            kk.ctypes.data,
+            len(ops),
+            op.ctypes.data,
+            a.ctypes.data,
+            cmd.ctypes.data,
+            out.ctypes.data,
+        )
+        == 0
+    )
     return out
 
 
@@ -470,23 +482,27 @@ def test_queue_edges_by_hand(lib: ctypes.CDLL) -> None:
     """Each rule of servotune_link.h on a 2-axis queue of depth 4, blocks of 2, watermarks
     2 and 3; the expected values follow the header's rules, worked out here by hand."""
     push, tick, sync = 0, 1, 2
-    out = _ops(lib, [2, 4, 2, 2, 3], [
-        (push, 0, [10, 20, 11, 21]),   # indices 0, 1: level 2
-        (push, 0, [99, 99, 99, 99]),   # the same block again: stale, ignored
-        (tick, 0, []),                 # executes 0: (10, 20)
-        (push, 2, [14, 24, 15, 25]),   # block 2 (indices 4, 5) before block 1: queued
-        (push, 1, [12, 22, 13, 23]),   # block 1 (2, 3) now older than the newest: stale
-        (tick, 0, []),                 # executes 1: (11, 21)
-        (tick, 0, []),                 # index 2 missing: under-run, holds (11, 21)
-        (push, -1, []),                # a negative block index: refused (STL_BAD)
-        (sync, 5, []),                 # behind (next 3 < 5): 4 discarded, next = 5, wait 0
-        (tick, 0, []),                 # executes 5: (15, 25); level 1 before: < 2, LOW
-        (sync, 4, []),                 # ahead (next 6 >= 4): wait 2 ticks
-        (sync, -3, []),                # a negative tick: ignored, -1
-        (push, 3, [16, 26, 17, 27]),   # indices 6, 7 queued
-        (push, 4, [18, 28, 19, 29]),   # 8, 9: level 4 > 3: HIGH
-        (push, 5, [30, 40, 31, 41]),   # full: lost (overrun), level stays 4 > 3: HIGH
-    ])  # fmt: skip
+    out = _ops(
+        lib,
+        [2, 4, 2, 2, 3],
+        [
+            (push, 0, [10, 20, 11, 21]),  # indices 0, 1: level 2
+            (push, 0, [99, 99, 99, 99]),  # the same block again: stale, ignored
+            (tick, 0, []),  # executes 0: (10, 20)
+            (push, 2, [14, 24, 15, 25]),  # block 2 (indices 4, 5) before block 1: queued
+            (push, 1, [12, 22, 13, 23]),  # block 1 (2, 3) now older than the newest: stale
+            (tick, 0, []),  # executes 1: (11, 21)
+            (tick, 0, []),  # index 2 missing: under-run, holds (11, 21)
+            (push, -1, []),  # a negative block index: refused (STL_BAD)
+            (sync, 5, []),  # behind (next 3 < 5): 4 discarded, next = 5, wait 0
+            (tick, 0, []),  # executes 5: (15, 25); level 1 before: < 2, LOW
+            (sync, 4, []),  # ahead (next 6 >= 4): wait 2 ticks
+            (sync, -3, []),  # a negative tick: ignored, -1
+            (push, 3, [16, 26, 17, 27]),  # indices 6, 7 queued
+            (push, 4, [18, 28, 19, 29]),  # 8, 9: level 4 > 3: HIGH
+            (push, 5, [30, 40, 31, 41]),  # full: lost (overrun), level stays 4 > 3: HIGH
+        ],
+    )
     level, nxt, result, stale = out[:, 0], out[:, 1], out[:, 2], out[:, 7]
     assert level.tolist() == [2, 2, 1, 3, 3, 2, 2, 2, 1, 0, 0, 0, 2, 4, 4]
     assert nxt.tolist() == [0, 0, 1, 1, 1, 2, 3, 3, 5, 6, 6, 6, 6, 6, 6]
@@ -526,41 +542,96 @@ def test_exported_header_compiles_and_holds_the_plan(tmp_path: Path) -> None:
     assert [p.name for p in written] == [LINK_HEADER_NAME, *LINK_RUNTIME_FILES, *RUNTIME_FILES]
     header = linkage_c_header(plan, None, unverified=True)
     assert (tmp_path / LINK_HEADER_NAME).read_text() == header
-    want: list[int] = [plan.n_axes, len(plan.cpus), plan.bus.block_size, plan.bus.prefill_blocks,
-                       plan.frame_bytes, plan.bits_per_block, plan.resync_ticks, 0]  # fmt: skip
-    macros = ["STL_N_AXES", "STL_N_CPUS", "STL_BLOCK_SIZE", "STL_PREFILL_BLOCKS",
-              "STL_FRAME_BYTES", "STL_BITS_PER_BLOCK", "STL_RESYNC_TICKS",
-              "STL_PLAN_VERIFIED"]  # fmt: skip
+    want: list[int] = [
+        plan.n_axes,
+        len(plan.cpus),
+        plan.bus.block_size,
+        plan.bus.prefill_blocks,
+        plan.frame_bytes,
+        plan.bits_per_block,
+        plan.resync_ticks,
+        0,
+    ]
+    macros = [
+        "STL_N_AXES",
+        "STL_N_CPUS",
+        "STL_BLOCK_SIZE",
+        "STL_PREFILL_BLOCKS",
+        "STL_FRAME_BYTES",
+        "STL_BITS_PER_BLOCK",
+        "STL_RESYNC_TICKS",
+        "STL_PLAN_VERIFIED",
+    ]
     lines = []
     for s, c in enumerate(plan.cpus):
         up = f"STL_CPU_{c.name.upper()}"
         lines.append(f"static const stl_consts_t cpu{s} = {up}_CONSTS_INIT;")
         lines.append(f"static const int cols{s}[] = {up}_COLUMNS;")
-        macros += [f"cpu{s}.n_axes", f"cpu{s}.depth", f"cpu{s}.block_size",
-                   f"cpu{s}.low_watermark", f"cpu{s}.high_watermark",
-                   f"stl_check_consts(&cpu{s})"]  # fmt: skip
-        want += [len(c.axes), c.queue_depth, plan.bus.block_size, c.low_watermark,
-                 c.high_watermark, 0]  # fmt: skip
+        macros += [
+            f"cpu{s}.n_axes",
+            f"cpu{s}.depth",
+            f"cpu{s}.block_size",
+            f"cpu{s}.low_watermark",
+            f"cpu{s}.high_watermark",
+            f"stl_check_consts(&cpu{s})",
+        ]
+        want += [
+            len(c.axes),
+            c.queue_depth,
+            plan.bus.block_size,
+            c.low_watermark,
+            c.high_watermark,
+            0,
+        ]
         macros += [f"cols{s}[{j}]" for j in range(len(c.axes))]
         want += [plan.axis_names.index(a) for a in c.axes]
     for name, ctl in zip(plan.axis_names, plan.controllers, strict=True):
         up = f"STL_AXIS_{name.upper()}"
         d = ctl.to_dict()
-        macros += [f"{up}_KP_Q", f"{up}_KP_F", f"{up}_KIT_Q", f"{up}_KIT_F", f"{up}_LOCK_Q",
-                   f"{up}_LOCK_F", f"{up}_FE_LIMIT", f"{up}_CPU"]  # fmt: skip
-        want += [d["task"]["kp"]["q"], d["task"]["kp"]["f"], d["task"]["ki_t"]["q"],
-                 d["task"]["ki_t"]["f"], d["lock_gain"]["q"], d["lock_gain"]["f"],
-                 d["following_error_limit_counts"],
-                 [c.name for c in plan.cpus].index(plan.cpu_of(name).name)]  # fmt: skip
-    harness = "\n".join([
-        '#include "servotune_link_plan.h"', *lines,
-        "long long h_value(int i)", "{",
-        "    const long long v[] = {" + ", ".join(f"(long long)({m})" for m in macros) + "};",
-        "    return v[i];", "}", "",
-    ])  # fmt: skip
+        macros += [
+            f"{up}_KP_Q",
+            f"{up}_KP_F",
+            f"{up}_KIT_Q",
+            f"{up}_KIT_F",
+            f"{up}_LOCK_Q",
+            f"{up}_LOCK_F",
+            f"{up}_FE_LIMIT",
+            f"{up}_CPU",
+        ]
+        want += [
+            d["task"]["kp"]["q"],
+            d["task"]["kp"]["f"],
+            d["task"]["ki_t"]["q"],
+            d["task"]["ki_t"]["f"],
+            d["lock_gain"]["q"],
+            d["lock_gain"]["f"],
+            d["following_error_limit_counts"],
+            [c.name for c in plan.cpus].index(plan.cpu_of(name).name),
+        ]
+    harness = "\n".join(
+        [
+            '#include "servotune_link_plan.h"',
+            *lines,
+            "long long h_value(int i)",
+            "{",
+            "    const long long v[] = {" + ", ".join(f"(long long)({m})" for m in macros) + "};",
+            "    return v[i];",
+            "}",
+            "",
+        ]
+    )
     (tmp_path / "plan_harness.c").write_text(harness)
-    cc(tmp_path, *STRICT, "-O2", "-shared", "-fPIC", "plan_harness.c", "servotune_link.c",
-       "-o", "libplan.so")  # fmt: skip
+    cc(
+        tmp_path,
+        *STRICT,
+        "-O2",
+        "-shared",
+        "-fPIC",
+        "plan_harness.c",
+        "servotune_link.c",
+        "-o",
+        "libplan.so",
+    )
     lib = ctypes.CDLL(str(tmp_path / "libplan.so"))
     lib.h_value.restype = ctypes.c_longlong
     lib.h_value.argtypes = [ctypes.c_int]

@@ -480,8 +480,18 @@ def test_golden_gantry_replay_c_law_gives_the_simulated_compensation(lib, gantry
     ran, tripped_in_law, at_limit = [], 0, 0
     for variant, cfg in _gantry_variants(config):
         k = cfg.sync_constants
-        head = [k.kp.q, k.kp.f, k.ki_t.q, k.ki_t.f, k.kd_t.q, k.kd_t.f, k.dead_zone_counts,
-                k.limit_counts, cfg.sync.warn_counts, cfg.sync.trip_counts]  # fmt: skip
+        head = [
+            k.kp.q,
+            k.kp.f,
+            k.ki_t.q,
+            k.ki_t.f,
+            k.kd_t.q,
+            k.kd_t.f,
+            k.dead_zone_counts,
+            k.limit_counts,
+            cfg.sync.warn_counts,
+            cfg.sync.trip_counts,
+        ]
         assert lib.h_check(np.array(head, dtype=np.int64).ctypes.data) == 0
         for topology in mod.TOPOLOGIES:
             for case in mod.CASES:

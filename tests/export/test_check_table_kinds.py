@@ -36,8 +36,9 @@ def _gantry() -> str:
 
 
 def _linkage() -> str:
-    return linkage_plan_json(plan_linkage(ROOT / "plants" / "linkage-6axis.toml"), None,
-                             unverified=True)  # fmt: skip
+    return linkage_plan_json(
+        plan_linkage(ROOT / "plants" / "linkage-6axis.toml"), None, unverified=True
+    )
 
 
 KINDS: dict[str, tuple[str, Callable[..., str]]] = {
@@ -99,8 +100,13 @@ def test_an_unknown_schema_is_one_line_naming_the_known_ones(exports, tmp_path, 
     assert main(["check-table", str(path)]) == 3
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "'servotune.linkage-export/9'" in err
-    for known in ("servotune.tables/2", "servotune.gantry-tables/1", "servotune.linkage-export/1",
-                  "HAL file", "HAL component"):  # fmt: skip
+    for known in (
+        "servotune.tables/2",
+        "servotune.gantry-tables/1",
+        "servotune.linkage-export/1",
+        "HAL file",
+        "HAL component",
+    ):
         assert known in err, err
 
 

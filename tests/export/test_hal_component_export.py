@@ -30,8 +30,10 @@ def verified(quick_workbench, default_tuning) -> dict[str, Path]:
 
 def test_the_component_carries_the_verified_tables_digest(verified, capsys) -> None:
     out = verified["dir"] / "servotune.comp"
-    assert main(["export-table", str(verified["tuning"]), "--format", "linuxcnc-comp",
-                 "-o", str(out)]) == 0  # fmt: skip
+    assert (
+        main(["export-table", str(verified["tuning"]), "--format", "linuxcnc-comp", "-o", str(out)])
+        == 0
+    )
     comp = out.read_text()
     capsys.readouterr()
     assert main(["export-table", str(verified["tuning"])]) == 0
@@ -58,15 +60,20 @@ def test_an_unverified_tuning_is_refused_unless_asked(verified, quick_tuning, ca
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 1 and len(err) == 1 and "refused" in err[0], err
     assert not out.exists()
-    assert main(["export-table", str(poor), "--format", "linuxcnc-comp", "--unverified",
-                 "-o", str(out)]) == 0  # fmt: skip
+    assert (
+        main(
+            ["export-table", str(poor), "--format", "linuxcnc-comp", "--unverified", "-o", str(out)]
+        )
+        == 0
+    )
     assert " * verified: NO -- exported unverified" in out.read_text()
 
 
 @pytest.mark.parametrize("name", ["Servotune", "9axis", "a-b", "x" * 42, ""])
 def test_a_name_that_is_not_a_hal_name_is_one_line(verified, name, capsys) -> None:
-    code = main(["export-table", str(verified["tuning"]), "--format", "linuxcnc-comp",
-                 "--name", name])  # fmt: skip
+    code = main(
+        ["export-table", str(verified["tuning"]), "--format", "linuxcnc-comp", "--name", name]
+    )
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 3 and len(err) == 1 and "not a HAL component name" in err[0], err
 
@@ -85,9 +92,13 @@ def test_the_plant_component_holds_the_simulators_row_exactly() -> None:
     rig = load_rig(EXAMPLE_RIG_PATH)
     ax = rig.axes[1]
     src = plant_component(
-        ax.plant, rig.period_s, rig.timer.compute_s, name="p", counter_init=ax.counter_init,
+        ax.plant,
+        rig.period_s,
+        rig.timer.compute_s,
+        name="p",
+        counter_init=ax.counter_init,
         counts_per_rev=rig.counts_per_rev,
-    )  # fmt: skip
+    )
     row, lag = plant_row(ax.plant, rig.period_s, rig.timer.compute_s, rig.counts_per_rev)
     body = src[src.index("st_row[ST_NROW] = {") :].split("}", 1)[0]
     literals = [x.strip() for x in body.split("{", 1)[1].split(",") if x.strip()]

@@ -406,8 +406,13 @@ def test_every_edited_field_is_refused(tuning: Tuning, tmp_path) -> None:
         (2 * a["task"]["n"] + 1) ** 2 * 4 for a in base["data"]["axes"] if a["law"] == "fuzzy_pid"
     )
     assert entries > 0 and len(leaves) > entries + 20  # every table entry is among the leaves
-    named = {("verified",), ("data", "period_s"), ("data", "dac", "range_v", 0),
-             ("data", "rig_name"), ("provenance", "tool_version")}  # fmt: skip
+    named = {
+        ("verified",),
+        ("data", "period_s"),
+        ("data", "dac", "range_v", 0),
+        ("data", "rig_name"),
+        ("provenance", "tool_version"),
+    }
     assert named <= set(leaves)
     for path in leaves:
         doc = copy.deepcopy(base)

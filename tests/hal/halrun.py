@@ -22,6 +22,7 @@ import os
 import pwd
 import shutil
 import subprocess
+import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -73,8 +74,10 @@ def _ensure_user() -> None:
     except KeyError:
         subprocess.run(
             ["useradd", "--system", "--no-create-home", "--shell", "/bin/sh", HAL_USER],
-            check=True, capture_output=True, text=True,
-        )  # fmt: skip
+            check=True,
+            capture_output=True,
+            text=True,
+        )
 
 
 def _as_user(argv: list[str], workdir: Path) -> list[str]:
@@ -107,23 +110,34 @@ def run_as_hal_user(
 ) -> subprocess.CompletedProcess:
     """Run ``argv`` in ``workdir`` as the HAL user; the caller judges the result.
 
-    On a timeout every ``rtapi_app`` is killed before the session: ``rtapi_app`` (setuid root,
-    started by ``halrun``) holds the session's output pipes, and a session that hung would
-    otherwise keep them open, so that reading them after the kill waited forever.
+    Its output goes to temporary files, not pipes, and the run ends when ``argv`` exits:
+    ``rtapi_app`` (setuid root, started by ``halrun``) inherits the session's output, and one
+    that outlives its session (seen under load: ``halrun`` done, ``rtapi_app`` still running)
+    would otherwise hold the pipes open, so that reading them waited until the timeout. What
+    it leaves running is ended by the next :func:`_clean`. On a timeout every ``rtapi_app`` is
+    killed before the session.
     """
     share(workdir)
-    proc = subprocess.Popen(_as_user(argv, workdir), cwd=workdir, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True,
-                            stdin=subprocess.DEVNULL)  # fmt: skip
-    try:
-        out, err = proc.communicate(timeout=timeout)
-    except subprocess.TimeoutExpired:
-        if os.geteuid() == 0:
-            subprocess.run(["pkill", "-KILL", "-x", "rtapi_app"], check=False)
-        proc.kill()
-        proc.communicate()
-        raise
-    return subprocess.CompletedProcess(proc.args, proc.returncode, out, err)
+    with tempfile.TemporaryFile("w+") as out, tempfile.TemporaryFile("w+") as err:
+        proc = subprocess.Popen(
+            _as_user(argv, workdir),
+            cwd=workdir,
+            stdout=out,
+            stderr=err,
+            text=True,
+            stdin=subprocess.DEVNULL,
+        )
+        try:
+            proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            if os.geteuid() == 0:
+                subprocess.run(["pkill", "-KILL", "-x", "rtapi_app"], check=False)
+            proc.kill()
+            proc.wait()
+            raise
+        out.seek(0)
+        err.seek(0)
+        return subprocess.CompletedProcess(proc.args, proc.returncode, out.read(), err.read())
 
 
 @contextlib.contextmanager

@@ -82,31 +82,40 @@ def session_script(rig: Rig, ctl: str, plants: tuple[str, str], stream: str) -> 
     mods = (*plants, ctl)
     plants = tuple(p.replace("_", "-") for p in plants)  # HAL names: _ becomes -
     ctl = ctl.replace("_", "-")
-    return "\n".join([
-        f"loadrt threads name1=servo period1={THREAD_PERIOD_NS}",
-        *(f"loadrt {m}" for m in mods),
-        f"loadrt streamer depth={N_TICKS + 16} cfg=ssss",
-        f"loadrt sampler depth={N_TICKS + 16} cfg={'s' * len(COLUMNS)}",
-        "addf streamer.0 servo",
-        f"addf {plants[0]} servo",
-        f"addf {plants[1]} servo",
-        f"addf {ctl} servo",
-        "addf sampler.0 servo",
-        f"net ref streamer.0.pin.0 {ctl}.command",
-        f"net mode0 streamer.0.pin.1 {ctl}.mode-0",
-        f"net mode1 streamer.0.pin.2 {ctl}.mode-1",
-        f"net uadd0 streamer.0.pin.3 {ctl}.u-add-0",
-        f"net cnt0 {plants[0]}.counts {ctl}.counts-0",
-        f"net cnt1 {plants[1]}.counts {ctl}.counts-1",
-        f"net volts0 {ctl}.volts-0 {plants[0]}.volts",
-        f"net volts1 {ctl}.volts-1 {plants[1]}.volts",
-        *(f"net {nets[c]} sampler.0.pin.{i}" if c in nets
-          else f"net cap{i} {ctl}.{c} sampler.0.pin.{i}" for i, c in enumerate(COLUMNS)),
-        f"loadusr -w halstreamer {stream}",
-        "start",
-        f"loadusr -w halsampler -n {N_TICKS}",
-        "stop",
-    ]) + "\n"  # fmt: skip
+    return (
+        "\n".join(
+            [
+                f"loadrt threads name1=servo period1={THREAD_PERIOD_NS}",
+                *(f"loadrt {m}" for m in mods),
+                f"loadrt streamer depth={N_TICKS + 16} cfg=ssss",
+                f"loadrt sampler depth={N_TICKS + 16} cfg={'s' * len(COLUMNS)}",
+                "addf streamer.0 servo",
+                f"addf {plants[0]} servo",
+                f"addf {plants[1]} servo",
+                f"addf {ctl} servo",
+                "addf sampler.0 servo",
+                f"net ref streamer.0.pin.0 {ctl}.command",
+                f"net mode0 streamer.0.pin.1 {ctl}.mode-0",
+                f"net mode1 streamer.0.pin.2 {ctl}.mode-1",
+                f"net uadd0 streamer.0.pin.3 {ctl}.u-add-0",
+                f"net cnt0 {plants[0]}.counts {ctl}.counts-0",
+                f"net cnt1 {plants[1]}.counts {ctl}.counts-1",
+                f"net volts0 {ctl}.volts-0 {plants[0]}.volts",
+                f"net volts1 {ctl}.volts-1 {plants[1]}.volts",
+                *(
+                    f"net {nets[c]} sampler.0.pin.{i}"
+                    if c in nets
+                    else f"net cap{i} {ctl}.{c} sampler.0.pin.{i}"
+                    for i, c in enumerate(COLUMNS)
+                ),
+                f"loadusr -w halstreamer {stream}",
+                "start",
+                f"loadusr -w halsampler -n {N_TICKS}",
+                "stop",
+            ]
+        )
+        + "\n"
+    )
 
 
 @pytest.fixture(scope="module")
@@ -123,9 +132,13 @@ def hal_run(quick_tuning: Tuning, tmp_path_factory) -> tuple[Rig, Tuning, Trace,
     (work / f"{ctl}.comp").write_text(component_source(tuning, rig=rig, unverified=True, name=ctl))
     for name, ax in zip(names, rig.axes, strict=True):
         src = plant_component(
-            ax.plant, rig.period_s, rig.timer.compute_s, name=name,
-            counter_init=ax.counter_init, counts_per_rev=rig.counts_per_rev,
-        )  # fmt: skip
+            ax.plant,
+            rig.period_s,
+            rig.timer.compute_s,
+            name=name,
+            counter_init=ax.counter_init,
+            counts_per_rev=rig.counts_per_rev,
+        )
         (work / f"{name}.comp").write_text(src)
     sos = [halcompile(work / f"{n}.comp") for n in (ctl, *names)]
     stream = np.column_stack([inputs.ref_counts[:, 0], inputs.mode, inputs.dac_add_codes[:, 0]])
@@ -178,10 +191,21 @@ def test_fit_on_the_halsampler_capture_recovers_the_plant(hal_run, capsys) -> No
     rig, _, _, _, work = hal_run
     truth = rig.axes[0].plant
     capture = work / "capture.txt"
-    code = main([
-        "fit", str(capture), "--rig", str(EXAMPLE_RIG_PATH), "--axis", "master",
-        "--map", "counts=0,code=2,exc=6", "--period-s", repr(rig.period_s), "--json",
-    ])  # fmt: skip
+    code = main(
+        [
+            "fit",
+            str(capture),
+            "--rig",
+            str(EXAMPLE_RIG_PATH),
+            "--axis",
+            "master",
+            "--map",
+            "counts=0,code=2,exc=6",
+            "--period-s",
+            repr(rig.period_s),
+            "--json",
+        ]
+    )
     out = capsys.readouterr()
     assert code == 0, out.err
     fit = json.loads(out.out)

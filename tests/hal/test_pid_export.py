@@ -67,8 +67,9 @@ def expected_pins(tuning: st.Tuning, rig: st.Rig, s: float, o: float) -> dict[st
     gain = Fraction(rig.axis(tuning.axis_names[i]).plant.gain_cps_per_v)
     pins = dict.fromkeys(PIN_ORDER, Fraction(0))
     # FF1: a speed of v unit/s is v·s counts/s, which the drive runs at v·s/gain V
-    pins.update(Pgain=pgain, Igain=igain, maxoutput=full, maxerrorI=full / igain,
-                FF1=s_ * o_ / gain)  # fmt: skip
+    pins.update(
+        Pgain=pgain, Igain=igain, maxoutput=full, maxerrorI=full / igain, FF1=s_ * o_ / gain
+    )
     return pins
 
 
@@ -95,8 +96,9 @@ def test_conversion_round_trips_to_the_tuning_constants(tuning, rig):
     for s, o in ((2000.0, 1.0), (2457.6, 0.1), (0.5, 7.0)):
         p = pid_parameters(tuning, rig, position_scale=s, output_scale=o)
         np.testing.assert_allclose(p.Pgain / (lsb * o * s), pi.kp.value, rtol=4e-16)
-        np.testing.assert_allclose(p.Igain * tuning.period_s / (lsb * o * s), pi.ki_t.value,
-                                   rtol=4e-16)  # fmt: skip
+        np.testing.assert_allclose(
+            p.Igain * tuning.period_s / (lsb * o * s), pi.ki_t.value, rtol=4e-16
+        )
         np.testing.assert_allclose(p.Igain * p.maxerrorI, p.maxoutput, rtol=4e-16)
     # a power of two in a scale is exact: twice the counts per unit, twice the gains
     p1 = pid_parameters(tuning, rig, position_scale=1000.0)
@@ -131,8 +133,7 @@ def test_bad_pid_names(tuning, rig, name):
 
 
 def test_pid_name_sets_the_instance(tuning, rig):
-    text = pid_hal_text(tuning, rig=rig, unverified=True, position_scale=2000.0,
-                        pid_name="pid.0")  # fmt: skip
+    text = pid_hal_text(tuning, rig=rig, unverified=True, position_scale=2000.0, pid_name="pid.0")
     setp = [ln for ln in text.splitlines() if not ln.startswith("#")]
     pgain = pid_parameters(tuning, rig, position_scale=2000.0).Pgain
     assert setp[0] == f"setp pid.0.Pgain {pgain!r}"
@@ -160,8 +161,9 @@ def test_verification_gate(tuning, rig):
         pid_hal_text(tuning, verification={"passed": False}, **kw)
     ok = pid_hal_text(tuning, verification={"passed": True}, **kw)
     assert "# verified: yes" in ok
-    assert "# verified: NO: exported with --unverified" in pid_hal_text(tuning, unverified=True,
-                                                                          **kw)  # fmt: skip
+    assert "# verified: NO: exported with --unverified" in pid_hal_text(
+        tuning, unverified=True, **kw
+    )
 
 
 def test_same_input_same_bytes_and_provenance(tuning, rig):
@@ -187,8 +189,15 @@ def test_same_input_same_bytes_and_provenance(tuning, rig):
 def test_cli_writes_the_file_to_stdout(tuning, rig, tmp_path, capsys):
     path = tmp_path / "t.json"
     write_tuning(tuning, path)
-    argv = ["export-table", str(path), "--format", "linuxcnc-hal", "--position-scale", "2000",
-            "--unverified"]  # fmt: skip
+    argv = [
+        "export-table",
+        str(path),
+        "--format",
+        "linuxcnc-hal",
+        "--position-scale",
+        "2000",
+        "--unverified",
+    ]
     assert main(argv) == 0
     out = capsys.readouterr().out
     assert out == pid_hal_text(tuning, rig=rig, unverified=True, position_scale=2000.0)
@@ -202,9 +211,13 @@ def test_cli_writes_the_file_to_stdout(tuning, rig, tmp_path, capsys):
     # --pid names the instance, --no-feedforward exports exactly the verified law (FF1 0)
     assert main([*argv, "--pid", "pid.y", "--no-feedforward"]) == 0
     assert capsys.readouterr().out == pid_hal_text(
-        tuning, rig=rig, unverified=True, position_scale=2000.0, pid_name="pid.y",
+        tuning,
+        rig=rig,
+        unverified=True,
+        position_scale=2000.0,
+        pid_name="pid.y",
         velocity_feedforward=False,
-    )  # fmt: skip
+    )
     assert "setp pid.x.FF1 0.0\n" not in out  # the default has velocity feedforward
 
 
@@ -214,11 +227,13 @@ def test_cli_writes_the_file_to_stdout(tuning, rig, tmp_path, capsys):
         (["--unverified"], "--format linuxcnc-hal needs --position-scale"),
         (["--position-scale", "0", "--unverified"], "position_scale must be a number > 0"),
         (["--position-scale", "nan", "--unverified"], "position_scale must be a number > 0"),
-        (["--position-scale", "2000", "--output-scale", "-1", "--unverified"],
-         "output_scale must be a number > 0"),
+        (
+            ["--position-scale", "2000", "--output-scale", "-1", "--unverified"],
+            "output_scale must be a number > 0",
+        ),
         (["--position-scale", "2000"], "verif"),  # no record: refused without --unverified
     ],
-)  # fmt: skip
+)
 def test_cli_errors_are_one_line(tuning, tmp_path, capsys, argv, message):
     path = tmp_path / "t.json"
     write_tuning(tuning, path)
@@ -230,15 +245,24 @@ def test_cli_errors_are_one_line(tuning, tmp_path, capsys, argv, message):
 
 
 @pytest.mark.parametrize(
-    "schema, kind", [("servotune.gantry-tuning/1", "gantry tuning"),
-                     ("servotune.linkage-plan/1", "linkage plan")],
-)  # fmt: skip
+    "schema, kind",
+    [("servotune.gantry-tuning/1", "gantry tuning"), ("servotune.linkage-plan/1", "linkage plan")],
+)
 def test_cli_refuses_a_gantry_or_linkage(tmp_path, capsys, schema, kind):
     # the CLI tells the architecture by the schema before reading the rest
     path = tmp_path / "doc.json"
     path.write_text(json.dumps({"schema": schema}))
-    code = main(["export-table", str(path), "--format", "linuxcnc-hal", "--position-scale",
-                 "2000", "--unverified"])  # fmt: skip
+    code = main(
+        [
+            "export-table",
+            str(path),
+            "--format",
+            "linuxcnc-hal",
+            "--position-scale",
+            "2000",
+            "--unverified",
+        ]
+    )
     cap = capsys.readouterr()
     assert code == 3 and cap.out == ""
     assert cap.err.count("\n") == 1 and f"is a {kind}" in cap.err
@@ -250,8 +274,9 @@ def test_cli_refuses_a_gantry_or_linkage(tmp_path, capsys, schema, kind):
 def test_pid_step_branches():
     # expected values worked out from pid.c's calc_pid, with its period in seconds
     t = 100_000_000 * 0.000000001  # periodfp of a 100 ms thread
-    p = PidParameters(Pgain=2.0, Igain=10.0, deadband=0.5, maxoutput=3.0,
-                      error_previous_target=False)  # fmt: skip
+    p = PidParameters(
+        Pgain=2.0, Igain=10.0, deadband=0.5, maxoutput=3.0, error_previous_target=False
+    )
     out, err, s = pid_step(p, PidState(), 1.0, 0.0, 100_000_000)  # e = 1 − 0.5 deadband
     assert (err, s.error_i) == (1.0, 0.5 * t) and out == 2.0 * 0.5 + 10.0 * (0.5 * t)
     i1 = s.error_i
@@ -304,13 +329,25 @@ def test_float_pid_without_feedforward_runs_the_verified_law(tuning, rig):
     n = 2500
     ref = np.round(_trapezoid(n, 60_000.0, 30_000.0, 150_000.0, rig.period_s, 100)).astype(np.int64)
     z = np.zeros((n, 1), dtype=np.int64)
-    inputs = Inputs(ref_counts=ref[:, None], mode=z + MODE_TASK, reset=z.astype(bool),
-                    dac_add_codes=z, load_v=np.zeros((n, 1)))  # fmt: skip
+    inputs = Inputs(
+        ref_counts=ref[:, None],
+        mode=z + MODE_TASK,
+        reset=z.astype(bool),
+        dac_add_codes=z,
+        load_v=np.zeros((n, 1)),
+    )
     trace = simulate(Loop(rig=one, controllers=(tuning.controllers[0],)), inputs)
     params = pid_parameters(tuning, rig, position_scale=1.0, velocity_feedforward=False)
-    res = simulate_pid_loop(params, plant, rig.period_s, ref.astype(float), position_scale=1.0,
-                            compute_s=rig.timer.compute_s, counts_per_rev=rig.counts_per_rev,
-                            dac=rig.dac)  # fmt: skip
+    res = simulate_pid_loop(
+        params,
+        plant,
+        rig.period_s,
+        ref.astype(float),
+        position_scale=1.0,
+        compute_s=rig.timer.compute_s,
+        counts_per_rev=rig.counts_per_rev,
+        dac=rig.dac,
+    )
     codes = code_from_volts(res.volts, rig.dac.bits, rig.dac.range_v)
     assert np.all((codes > 0) & (codes < rig.dac.code_max))  # never on a rail
     assert np.max(np.abs(trace.err_counts[:, 0])) > 100  # a real move, not a hold
@@ -352,8 +389,13 @@ def test_hal_file_loads_and_reads_back_exactly(tuning, rig, tmp_path):
             f"net q{i} rb{i}.out => sampler.0.pin.{i}",
             f"addf rb{i} servo",
         ]
-    script += ["addf sampler.0 servo", "getp pid.x.error-previous-target", "start",
-               "loadusr -w halsampler -n 1", "stop"]  # fmt: skip
+    script += [
+        "addf sampler.0 servo",
+        "getp pid.x.error-previous-target",
+        "start",
+        "loadusr -w halsampler -n 1",
+        "stop",
+    ]
     share(tmp_path)
     res = run_hal("\n".join(script) + "\n", tmp_path)
     rows = [ln.split() for ln in res.stdout.splitlines()]
@@ -451,9 +493,16 @@ def test_stock_pid_in_hal_matches_the_float_simulation(tuning, rig, tmp_path):
     # (the streamer runs dry only after the window: `stop` comes a few periods after the last
     # sample; the command column below shows each tick got its own reference value)
     params = pid_parameters(tuning, rig, position_scale=s, output_scale=o)
-    sim = simulate_pid_loop(params, master.plant, rig.period_s, cmd, position_scale=s,
-                            output_scale=o, compute_s=rig.timer.compute_s,
-                            period_ns=period_ns)  # fmt: skip
+    sim = simulate_pid_loop(
+        params,
+        master.plant,
+        rig.period_s,
+        cmd,
+        position_scale=s,
+        output_scale=o,
+        compute_s=rig.timer.compute_s,
+        period_ns=period_ns,
+    )
     assert np.max(np.abs(sim.output)) == params.maxoutput  # the limit was reached
     assert abs(sim.counts[-1]) <= 2 and np.max(sim.counts) > 39_000  # out and back
     hal_counts = np.array([int(r[1]) for r in samples])
@@ -461,10 +510,15 @@ def test_stock_pid_in_hal_matches_the_float_simulation(tuning, rig, tmp_path):
     assert [r[0] for r in samples] == [f"{x:.6f}" for x in cmd]
     worst = {}
     for col, (name, values) in enumerate(
-        [("position_counts", sim.position_counts), ("feedback_units", sim.feedback_units),
-         ("error_units", sim.error_units), ("output", sim.output), ("volts", sim.volts)],
+        [
+            ("position_counts", sim.position_counts),
+            ("feedback_units", sim.feedback_units),
+            ("error_units", sim.error_units),
+            ("output", sim.output),
+            ("volts", sim.volts),
+        ],
         start=2,
-    ):  # fmt: skip
+    ):
         want = [f"{x * _SCALED:.6f}" for x in values.tolist()]
         got = [r[col] for r in samples]
         worst[name] = float(

@@ -107,8 +107,9 @@ def excitation_codes(exp: Experiment, rng: np.random.Generator) -> np.ndarray:
     bits = np.where(rng.random(n_bits) < 0.5, -1.0, 1.0)
     levels = np.array([1.0, 0.4, 0.7, 0.25])
     scale = levels[(np.arange(n_bits) // 31) % levels.size]
-    codes = np.floor(np.repeat(bits * scale, exp.exc_hold_ticks)[: exp.n_ticks]
-                     * exp.exc_amplitude_codes + 0.5)  # fmt: skip
+    codes = np.floor(
+        np.repeat(bits * scale, exp.exc_hold_ticks)[: exp.n_ticks] * exp.exc_amplitude_codes + 0.5
+    )
     return codes.astype(np.int64)
 
 
@@ -127,8 +128,9 @@ def reference_counts(exp: Experiment) -> np.ndarray:
 
 
 @numba.njit(cache=False)
-def _accel(v: float, w: float, gp: float, gn: float, cp: float, cn: float, tau: float,
-           s: float) -> float:  # fmt: skip
+def _accel(
+    v: float, w: float, gp: float, gn: float, cp: float, cn: float, tau: float, s: float
+) -> float:
     """dv/dt for direction ``s`` (+1/−1) [counts/s²]."""
     if s > 0.0:
         return (gp * (w - cp) - v) / tau
@@ -136,8 +138,18 @@ def _accel(v: float, w: float, gp: float, gn: float, cp: float, cn: float, tau: 
 
 
 @numba.njit(cache=False)
-def _rk4(p: float, v: float, w: float, h: float, gp: float, gn: float, cp: float, cn: float,
-         tau: float, s: float) -> tuple[float, float]:  # fmt: skip
+def _rk4(
+    p: float,
+    v: float,
+    w: float,
+    h: float,
+    gp: float,
+    gn: float,
+    cp: float,
+    cn: float,
+    tau: float,
+    s: float,
+) -> tuple[float, float]:
     k1v = _accel(v, w, gp, gn, cp, cn, tau, s)
     k1p = v
     k2v = _accel(v + 0.5 * h * k1v, w, gp, gn, cp, cn, tau, s)
@@ -146,13 +158,25 @@ def _rk4(p: float, v: float, w: float, h: float, gp: float, gn: float, cp: float
     k3p = v + 0.5 * h * k2v
     k4v = _accel(v + h * k3v, w, gp, gn, cp, cn, tau, s)
     k4p = v + h * k3v
-    return (p + h / 6.0 * (k1p + 2 * k2p + 2 * k3p + k4p),
-            v + h / 6.0 * (k1v + 2 * k2v + 2 * k3v + k4v))  # fmt: skip
+    return (
+        p + h / 6.0 * (k1p + 2 * k2p + 2 * k3p + k4p),
+        v + h / 6.0 * (k1v + 2 * k2v + 2 * k3v + k4v),
+    )
 
 
 @numba.njit(cache=False)
-def _segment(p: float, v: float, w: float, length: float, gp: float, gn: float, cp: float,
-             cn: float, tau: float, nsub: int) -> tuple[float, float]:  # fmt: skip
+def _segment(
+    p: float,
+    v: float,
+    w: float,
+    length: float,
+    gp: float,
+    gn: float,
+    cp: float,
+    cn: float,
+    tau: float,
+    nsub: int,
+) -> tuple[float, float]:
     """Integrate over ``length`` seconds of constant net input ``w`` (stick/slip handled)."""
     h = length / nsub
     for _ in range(nsub):
@@ -187,11 +211,34 @@ def _segment(p: float, v: float, w: float, length: float, gp: float, gn: float, 
 
 
 @numba.njit(cache=False)
-def _run(n: int, period: float, m: int, lam: float, gp: float, gn: float, cp: float,
-         cn: float, tau: float, offset: float, noise_sd: float, noise: np.ndarray,
-         load: np.ndarray, ref: np.ndarray, exc: np.ndarray, kp_q: int, kp_f: int, kit_q: int,
-         kit_f: int, lsb: float, zero: int, cmax: int, nsub: int,
-         codes: np.ndarray, pos: np.ndarray, true_p: np.ndarray) -> None:  # fmt: skip
+def _run(
+    n: int,
+    period: float,
+    m: int,
+    lam: float,
+    gp: float,
+    gn: float,
+    cp: float,
+    cn: float,
+    tau: float,
+    offset: float,
+    noise_sd: float,
+    noise: np.ndarray,
+    load: np.ndarray,
+    ref: np.ndarray,
+    exc: np.ndarray,
+    kp_q: int,
+    kp_f: int,
+    kit_q: int,
+    kit_f: int,
+    lsb: float,
+    zero: int,
+    cmax: int,
+    nsub: int,
+    codes: np.ndarray,
+    pos: np.ndarray,
+    true_p: np.ndarray,
+) -> None:
     p = 0.0
     v = 0.0
     integ = 0
@@ -215,8 +262,7 @@ def _run(n: int, period: float, m: int, lam: float, gp: float, gn: float, cp: fl
         u_old = (codes[j_old] - zero) * lsb if j_old >= 0 else 0.0
         if lam > 0.0:
             p, v = _segment(p, v, u_old + offset + load[k], lam, gp, gn, cp, cn, tau, nsub)
-        p, v = _segment(p, v, u_new + offset + load[k], period - lam, gp, gn, cp, cn, tau,
-                        nsub)  # fmt: skip
+        p, v = _segment(p, v, u_new + offset + load[k], period - lam, gp, gn, cp, cn, tau, nsub)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -242,14 +288,21 @@ class ClosedLoopLog:
 
     def write(self, path: Path, *, axis: str = "x", with_exc: bool = True) -> Path:
         """Write the log as ``servotune simulate`` does (counter and codes, task mode)."""
-        cols = {f"{axis}.dac_code": self.dac_code, f"{axis}.counter": self.counter,
-                f"{axis}.ref_counts": self.ref_counts,
-                f"{axis}.mode": np.ones(self.dac_code.size, dtype=np.int8)}  # fmt: skip
+        cols = {
+            f"{axis}.dac_code": self.dac_code,
+            f"{axis}.counter": self.counter,
+            f"{axis}.ref_counts": self.ref_counts,
+            f"{axis}.mode": np.ones(self.dac_code.size, dtype=np.int8),
+        }
         if with_exc:
             cols[f"{axis}.exc_code"] = self.exc_code
-        meta = {"period_s": repr(self.period_s), "counter_bits": COUNTER_BITS,
-                "dac_bits": DAC_BITS, "dac_range_v": "-10,10",
-                "compute_s": repr(self.compute_s)}  # fmt: skip
+        meta = {
+            "period_s": repr(self.period_s),
+            "counter_bits": COUNTER_BITS,
+            "dac_bits": DAC_BITS,
+            "dac_range_v": "-10,10",
+            "compute_s": repr(self.compute_s),
+        }
         write_log(path, period_s=self.period_s, columns=cols, metadata=meta)
         return path
 
@@ -281,11 +334,44 @@ def simulate_closed_loop(
     true_p = np.empty(n)
     gn = plant.gain_neg_cps_per_v if plant.gain_neg_cps_per_v is not None else plant.gain_cps_per_v
     cn = plant.coulomb_neg_v if plant.coulomb_neg_v is not None else plant.coulomb_v
-    _run(n, exp.period_s, m, lam, plant.gain_cps_per_v, gn, plant.coulomb_v, cn, plant.tau_s,
-         plant.offset_v, plant.noise_counts, noise, load, ref, exc, consts.kp.q, consts.kp.f,
-         consts.ki_t.q, consts.ki_t.f, lsb, 2 ** (DAC_BITS - 1), 2**DAC_BITS - 1, SUBSTEPS,
-         codes, pos, true_p)  # fmt: skip
+    _run(
+        n,
+        exp.period_s,
+        m,
+        lam,
+        plant.gain_cps_per_v,
+        gn,
+        plant.coulomb_v,
+        cn,
+        plant.tau_s,
+        plant.offset_v,
+        plant.noise_counts,
+        noise,
+        load,
+        ref,
+        exc,
+        consts.kp.q,
+        consts.kp.f,
+        consts.ki_t.q,
+        consts.ki_t.f,
+        lsb,
+        2 ** (DAC_BITS - 1),
+        2**DAC_BITS - 1,
+        SUBSTEPS,
+        codes,
+        pos,
+        true_p,
+    )
     counter = (exp.counter_init + pos) % (1 << COUNTER_BITS)
-    return ClosedLoopLog(dac_code=codes, counter=counter, pos_counts=pos, ref_counts=ref,
-                         exc_code=exc, load_v=load, true_pos_counts=true_p,
-                         period_s=exp.period_s, compute_s=exp.compute_s, plant=plant)  # fmt: skip
+    return ClosedLoopLog(
+        dac_code=codes,
+        counter=counter,
+        pos_counts=pos,
+        ref_counts=ref,
+        exc_code=exc,
+        load_v=load,
+        true_pos_counts=true_p,
+        period_s=exp.period_s,
+        compute_s=exp.compute_s,
+        plant=plant,
+    )

@@ -40,11 +40,15 @@ SLOW_SEED, SLOW_LOGS = 2024, 250
 
 def _fit(log: ClosedLoopLog, **options: Any) -> FitResult:
     n = log.dac_code.size
-    kw: dict[str, Any] = {"exc_v": log.exc_code * LSB_V, "ref_counts": log.ref_counts,
-                          "mode": np.full(n, MODE_TASK, dtype=np.int8)}  # fmt: skip
+    kw: dict[str, Any] = {
+        "exc_v": log.exc_code * LSB_V,
+        "ref_counts": log.ref_counts,
+        "mode": np.full(n, MODE_TASK, dtype=np.int8),
+    }
     kw.update(options)
-    return fit_arrays(log.cmd_v, log.pos_counts, period_s=log.period_s, compute_s=log.compute_s,
-                      **kw)  # fmt: skip
+    return fit_arrays(
+        log.cmd_v, log.pos_counts, period_s=log.period_s, compute_s=log.compute_s, **kw
+    )
 
 
 def _study(seed: int, n_logs: int, oe_logs: int) -> dict[str, np.ndarray]:
@@ -57,8 +61,12 @@ def _study(seed: int, n_logs: int, oe_logs: int) -> dict[str, np.ndarray]:
             log = simulate_closed_loop(PLANT, EXPERIMENT, seed=seed, index=i)
             fits = [("", _fit(log))]
             if i < oe_logs:  # least squares with the true structure: its bias is not a structure's
-                fits.append(("oe_", _fit(log, method="oe", structure="delay,offset,coulomb",
-                                         friction="sym")))  # fmt: skip
+                fits.append(
+                    (
+                        "oe_",
+                        _fit(log, method="oe", structure="delay,offset,coulomb", friction="sym"),
+                    )
+                )
             for prefix, r in fits:
                 for name, key in (("gain", "gain_cps_per_v"), ("tau", "tau_s")):
                     truth = getattr(PLANT, key)
@@ -81,9 +89,15 @@ def test_the_simulator_integrates_the_continuous_model() -> None:
     # the command arrives): after the lag (compute_s + delay_s) the speed rises as
     # K·w·(1 − exp(−t/τ)), w = u − coulomb·sign(u), so p(t) = K·w·(t − τ·(1 − exp(−t/τ)))
     plant = dataclasses.replace(PLANT, noise_counts=0.0, offset_v=0.0)  # at rest until the lag
-    exp = dataclasses.replace(EXPERIMENT, n_ticks=200, pi=PIGains(kp=0.0, ki=0.0),
-                              exc_amplitude_codes=300, exc_hold_ticks=1000,
-                              ref_amplitude_counts=0, load_std_v=0.0)  # fmt: skip
+    exp = dataclasses.replace(
+        EXPERIMENT,
+        n_ticks=200,
+        pi=PIGains(kp=0.0, ki=0.0),
+        exc_amplitude_codes=300,
+        exc_hold_ticks=1000,
+        ref_amplitude_counts=0,
+        load_std_v=0.0,
+    )
     log = simulate_closed_loop(plant, exp, seed=1, index=0)
     assert np.ptp(log.dac_code) == 0  # one level held throughout
     u = (log.dac_code[0] - 2048) * LSB_V
@@ -147,14 +161,24 @@ def _clean_log(**plant_changes: Any) -> ClosedLoopLog:
 def test_a_reversed_encoder_is_refused_and_can_be_inverted() -> None:
     log = simulate_closed_loop(PLANT, EXPERIMENT, seed=FAST_SEED, index=0)
     n = log.dac_code.size
-    opts = {"exc_v": log.exc_code * LSB_V, "ref_counts": -log.ref_counts,
-            "mode": np.full(n, MODE_TASK, dtype=np.int8)}  # fmt: skip
+    opts = {
+        "exc_v": log.exc_code * LSB_V,
+        "ref_counts": -log.ref_counts,
+        "mode": np.full(n, MODE_TASK, dtype=np.int8),
+    }
     with pytest.raises(IdentificationError, match="reversed") as info:
-        fit_arrays(log.cmd_v, -log.pos_counts, period_s=log.period_s, compute_s=log.compute_s,
-                   **opts)  # fmt: skip
+        fit_arrays(
+            log.cmd_v, -log.pos_counts, period_s=log.period_s, compute_s=log.compute_s, **opts
+        )
     assert "--invert-encoder" in str(info.value)
-    r = fit_arrays(log.cmd_v, -log.pos_counts, period_s=log.period_s, compute_s=log.compute_s,
-                   invert_encoder=True, **opts)  # fmt: skip
+    r = fit_arrays(
+        log.cmd_v,
+        -log.pos_counts,
+        period_s=log.period_s,
+        compute_s=log.compute_s,
+        invert_encoder=True,
+        **opts,
+    )
     assert r.inverted_encoder
     assert r.params["gain_cps_per_v"] == pytest.approx(PLANT.gain_cps_per_v, rel=0.02)
 
@@ -174,9 +198,12 @@ def test_without_an_external_signal_least_squares_with_a_warning() -> None:
     n = log.dac_code.size
     with pytest.warns(ClosedLoopBiasWarning, match="no external signal"):
         r = fit_arrays(
-            log.cmd_v, log.pos_counts, period_s=log.period_s, compute_s=log.compute_s,
+            log.cmd_v,
+            log.pos_counts,
+            period_s=log.period_s,
+            compute_s=log.compute_s,
             mode=np.full(n, MODE_LOCK, dtype=np.int8),
-        )  # fmt: skip
+        )
     assert r.method == "oe" and "no external signal" in r.method_reason
     # asked for iv without instruments: an error, not a silent fallback
     with pytest.raises(IdentificationError, match="method iv needs instruments"):
@@ -184,9 +211,15 @@ def test_without_an_external_signal_least_squares_with_a_warning() -> None:
     # a log open loop throughout needs none: least squares is consistent there, no warning
     with warnings.catch_warnings():
         warnings.simplefilter("error", ClosedLoopBiasWarning)
-        r = fit_arrays(log.cmd_v, log.pos_counts, period_s=log.period_s,
-                       compute_s=log.compute_s, mode=np.full(n, MODE_OPEN, dtype=np.int8),
-                       structure="delay,offset,coulomb", friction="sym")  # fmt: skip
+        r = fit_arrays(
+            log.cmd_v,
+            log.pos_counts,
+            period_s=log.period_s,
+            compute_s=log.compute_s,
+            mode=np.full(n, MODE_OPEN, dtype=np.int8),
+            structure="delay,offset,coulomb",
+            friction="sym",
+        )
     assert r.method == "oe" and "open-loop" in r.method_reason
 
 
@@ -197,9 +230,14 @@ def test_a_weak_excitation_falls_back_with_the_reason() -> None:
     weak = np.where(np.arange(n) == n // 2, 1, 0) * LSB_V  # one code once: explains nothing
     with pytest.warns(ClosedLoopBiasWarning, match="explain only"):
         r = fit_arrays(
-            log.cmd_v, log.pos_counts, period_s=log.period_s, compute_s=log.compute_s,
-            exc_v=weak, structure="delay", friction="sym",
-        )  # fmt: skip
+            log.cmd_v,
+            log.pos_counts,
+            period_s=log.period_s,
+            compute_s=log.compute_s,
+            exc_v=weak,
+            structure="delay",
+            friction="sym",
+        )
     assert r.method == "oe"
 
 
@@ -226,8 +264,16 @@ def test_results_name_every_parameter_with_interval_and_unit() -> None:
     assert d["method"] == "iv" and "moving-block bootstrap" in d["interval_method"]
     for p in r.structure:
         entry = d["parameters"][p]
-        assert entry["unit"] == {"gain_cps_per_v": "counts/s/V", "tau_s": "s", "delay_s": "s",
-                                 "offset_v": "V", "coulomb_v": "V"}[p]  # fmt: skip
+        assert (
+            entry["unit"]
+            == {
+                "gain_cps_per_v": "counts/s/V",
+                "tau_s": "s",
+                "delay_s": "s",
+                "offset_v": "V",
+                "coulomb_v": "V",
+            }[p]
+        )
         lo, hi = entry["ci95"]
         assert lo <= entry["value"] <= hi and entry["std"] > 0
     text = r.summary()
@@ -242,8 +288,12 @@ def test_results_name_every_parameter_with_interval_and_unit() -> None:
 @pytest.mark.filterwarnings("ignore::servotune.identify.InadequateModelWarning")
 def test_asymmetric_friction_is_chosen_and_recovered_per_direction() -> None:
     # no offset in the structure: then the two Coulomb levels are identifiable while moving
-    asym = dict(gain_neg_cps_per_v=0.85 * PLANT.gain_cps_per_v, coulomb_v=0.05,
-                coulomb_neg_v=0.08, offset_v=0.0)  # fmt: skip
+    asym = dict(
+        gain_neg_cps_per_v=0.85 * PLANT.gain_cps_per_v,
+        coulomb_v=0.05,
+        coulomb_neg_v=0.08,
+        offset_v=0.0,
+    )
     r = _fit(_clean_log(**asym), structure="delay,coulomb")
     assert r.friction == "asym", r.friction_selection
     fs = r.friction_selection

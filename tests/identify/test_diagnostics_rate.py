@@ -51,19 +51,25 @@ LSB_V = 20.0 / 4096
 
 def _fit(log: ClosedLoopLog, **options: Any) -> FitResult:
     n = log.dac_code.size
-    kw: dict[str, Any] = {"exc_v": log.exc_code * LSB_V, "ref_counts": log.ref_counts,
-                          "mode": np.full(n, MODE_TASK, dtype=np.int8)}  # fmt: skip
+    kw: dict[str, Any] = {
+        "exc_v": log.exc_code * LSB_V,
+        "ref_counts": log.ref_counts,
+        "mode": np.full(n, MODE_TASK, dtype=np.int8),
+    }
     kw.update(options)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the verdict is read from the result
-        return fit_arrays(log.cmd_v, log.pos_counts, period_s=log.period_s,
-                          compute_s=log.compute_s, **kw)  # fmt: skip
+        return fit_arrays(
+            log.cmd_v, log.pos_counts, period_s=log.period_s, compute_s=log.compute_s, **kw
+        )
 
 
-def _flagged(plant: TruePlant, exp: Experiment, seed: int, n_logs: int,
-             **options: Any) -> list[FitResult]:  # fmt: skip
-    fits = [_fit(simulate_closed_loop(plant, exp, seed=seed, index=i), **options)
-            for i in range(n_logs)]  # fmt: skip
+def _flagged(
+    plant: TruePlant, exp: Experiment, seed: int, n_logs: int, **options: Any
+) -> list[FitResult]:
+    fits = [
+        _fit(simulate_closed_loop(plant, exp, seed=seed, index=i), **options) for i in range(n_logs)
+    ]
     return [r for r in fits if not r.adequate]
 
 

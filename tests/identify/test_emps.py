@@ -256,9 +256,19 @@ def test_the_independent_simulation_matches_the_closed_form_step() -> None:
     p, v, exact = 0.0, 0.0, []
     for u in cmd[:-1]:
         p1, v = advance(
-            p, v, u + plant.offset_v, period, a, b, plant.gain_cps_per_v, plant.tau_s,
-            plant.coulomb_v, math.inf, plant.gain_neg_cps_per_v, plant.coulomb_neg_v,
-        )  # fmt: skip
+            p,
+            v,
+            u + plant.offset_v,
+            period,
+            a,
+            b,
+            plant.gain_cps_per_v,
+            plant.tau_s,
+            plant.coulomb_v,
+            math.inf,
+            plant.gain_neg_cps_per_v,
+            plant.coulomb_neg_v,
+        )
         exact.append((p1 - p) / period)
         p = p1
     exact = np.array(exact)
@@ -386,8 +396,15 @@ def _write_mat(path: Path, n: int = 50, **changes: object) -> Path:
     dq = np.zeros(n)
     dq[2:] = (qm[2:] - qm[:-2]) / (2 * period)
     kp, kv = 160.18, 243.45
-    data = {"t": np.arange(n) * period, "qm": qm, "qg": qg, "vir": kv * (kp * (qg - qm) - dq),
-            "kp": kp, "kv": kv, "gtau": 35.15}  # fmt: skip
+    data = {
+        "t": np.arange(n) * period,
+        "qm": qm,
+        "qg": qg,
+        "vir": kv * (kp * (qg - qm) - dq),
+        "kp": kp,
+        "kv": kv,
+        "gtau": 35.15,
+    }
     data.update(changes)
     scipy.io.savemat(path, {k: v for k, v in data.items() if v is not None})
     return path
@@ -416,9 +433,19 @@ def test_a_small_file_reads_in_the_stated_units(tmp_path: Path) -> None:
         ({"gtau": 0.0}, "gtau_n_per_v must be a number > 0"),
         ({"qg": np.full(50, np.nan)}, "'qg' is not finite at sample 0"),
     ],
-    ids=["missing", "empty", "header-only", "truncated", "no-qm", "text-qm", "short-vir",
-         "time-gap", "gtau-zero", "nan-qg"],
-)  # fmt: skip
+    ids=[
+        "missing",
+        "empty",
+        "header-only",
+        "truncated",
+        "no-qm",
+        "text-qm",
+        "short-vir",
+        "time-gap",
+        "gtau-zero",
+        "nan-qg",
+    ],
+)
 def test_a_bad_file_is_one_error_naming_it(tmp_path: Path, content: object, message: str) -> None:
     path = tmp_path / "bad.mat"
     if isinstance(content, bytes):
@@ -445,8 +472,14 @@ def test_physical_units_map_to_the_axis_model() -> None:
     assert_allclose(plant.tau_s, 95.1089 / 203.5034, rtol=1e-12)
     assert_allclose(plant.coulomb_v, 20.3935 / 35.15, rtol=1e-12)
     assert_allclose(plant.offset_v, 3.1648 / 35.15, rtol=1e-12)
-    asym = EmpsPhysics(mass_kg=90.0, viscous_n_s_per_m=200.0, coulomb_n=20.0, offset_n=-4.0,
-                       viscous_neg_n_s_per_m=250.0, coulomb_neg_n=25.0)  # fmt: skip
+    asym = EmpsPhysics(
+        mass_kg=90.0,
+        viscous_n_s_per_m=200.0,
+        coulomb_n=20.0,
+        offset_n=-4.0,
+        viscous_neg_n_s_per_m=250.0,
+        coulomb_neg_n=25.0,
+    )
     p = asym.to_plant(40.0)
     assert_allclose(p.gains_cps_per_v, (40 / 200 / 5e-8, 40 / 250 / 5e-8), rtol=1e-12)
     assert_allclose(p.coulombs_v, (0.5, 0.625), rtol=1e-12)

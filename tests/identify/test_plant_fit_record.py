@@ -45,8 +45,15 @@ def test_the_record_is_written_beside_the_plant_and_reads_back(tmp_path: Path) -
     assert rec.ci95["coulomb_v"] == (0.0, 0.004)
     data = tomllib.loads(out.read_text())
     table = data["axis"]["master"]["plant"]["fit"]
-    assert set(table) == {"method", "structure", "friction", "adequate", "reason", "interval",
-                          "ci95"}  # fmt: skip
+    assert set(table) == {
+        "method",
+        "structure",
+        "friction",
+        "adequate",
+        "reason",
+        "interval",
+        "ci95",
+    }
     # the slave, not fitted, has no record; the rest of the file is the template's
     assert st.load_rig(out).axis("slave").plant_fit is None
     assert st.load_rig(EXAMPLE_RIG).axis("master").plant_fit is None
@@ -56,9 +63,12 @@ def test_a_refit_replaces_the_record_and_a_plain_write_removes_it(tmp_path: Path
     out = tmp_path / "fitted.toml"
     write_plant(out, "master", FITTED, fit=RECORD)
     again = PlantFit(
-        method="oe", structure=("gain_cps_per_v", "tau_s"), friction="sym", adequate=True,
+        method="oe",
+        structure=("gain_cps_per_v", "tau_s"),
+        friction="sym",
+        adequate=True,
         ci95={"gain_cps_per_v": (1.0, 2.0), "tau_s": (0.1, 0.2)},
-    )  # fmt: skip
+    )
     write_plant(out, "master", FITTED, fit=again)
     assert st.load_rig(out).axis("master").plant_fit == again
     assert out.read_text().count("[axis.master.plant.fit]") == 1
@@ -109,7 +119,12 @@ def test_unknown_keys_in_the_record_get_a_did_you_mean(tmp_path: Path) -> None:
 
 def test_record_validation_in_python() -> None:
     with pytest.raises(ValueError, match=r"ci95.tau_s must be \[low, high\]"):
-        PlantFit(method="iv", structure=("gain_cps_per_v", "tau_s"), friction="sym",
-                 adequate=True, ci95={"tau_s": (0.3, 0.2)})  # fmt: skip
+        PlantFit(
+            method="iv",
+            structure=("gain_cps_per_v", "tau_s"),
+            friction="sym",
+            adequate=True,
+            ci95={"tau_s": (0.3, 0.2)},
+        )
     with pytest.raises(ValueError, match="structure must be a list of plant parameters"):
         PlantFit(method="iv", structure=("gain", "tau_s"), friction="sym", adequate=True)

@@ -111,9 +111,21 @@ def test_over_the_budget_is_refused_before_reading(tmp_path, capsys) -> None:
     assert "reading HAL capture" in msg and "2 MiB" in msg and "4 fields" in msg, msg
     rows = float(msg.split("about ")[2].split(" rows")[0].replace(",", ""))
     assert 40_000 <= rows <= 48_000  # at or above the 40,000 rows (the first ones are shorter)
-    rc = main(["--max-memory", "2M", "fit", str(path), "--map",
-               "cmd=pid.0.output,pos=encoder.0.position", "--hal-columns", ",".join(COLUMNS),
-               "--sample-number", "--period-s", "0.001"])  # fmt: skip
+    rc = main(
+        [
+            "--max-memory",
+            "2M",
+            "fit",
+            str(path),
+            "--map",
+            "cmd=pid.0.output,pos=encoder.0.position",
+            "--hal-columns",
+            ",".join(COLUMNS),
+            "--sample-number",
+            "--period-s",
+            "0.001",
+        ]
+    )
     err_lines = capsys.readouterr().err.strip().splitlines()
     assert rc == 3 and len(err_lines) == 1 and "memory budget" in err_lines[0], err_lines
 
@@ -149,13 +161,16 @@ def test_ten_million_lines_within_the_memory_budget(tmp_path) -> None:
         "print(cap.n_samples, int(cap.lines[-1]), cap.values[-1].tolist(), s,\n"
         "      resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024)\n"
     )
-    out = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True,
-                         text=True, check=True).stdout.split(maxsplit=2)  # fmt: skip
+    out = subprocess.run(
+        [sys.executable, "-c", code, str(path)], capture_output=True, text=True, check=True
+    ).stdout.split(maxsplit=2)
     n, last_line = int(out[0]), int(out[1])
     values, seconds, peak = out[2].rsplit(maxsplit=2)
     assert n == 10_000_000 and last_line == 10_000_000
     assert values == str(np.loadtxt(block.splitlines()[-1:], ndmin=2)[0].tolist())
     estimate = 10_000_000 * 3 * (8 * 3 + 8) + 8 * log_header.TEXT_CHUNK_BYTES
     assert int(peak) < estimate < 2 * 1024**3, (peak, estimate)
-    print(f"10,000,000 lines ({path.stat().st_size / 1e6:.0f} MB): {float(seconds):.1f} s, "
-          f"peak resident {int(peak) / 2**20:.0f} MiB")  # fmt: skip
+    print(
+        f"10,000,000 lines ({path.stat().st_size / 1e6:.0f} MB): {float(seconds):.1f} s, "
+        f"peak resident {int(peak) / 2**20:.0f} MiB"
+    )

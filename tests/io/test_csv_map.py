@@ -85,8 +85,7 @@ def drive() -> dict[str, np.ndarray]:
         new_v = DAC_RANGE_V[0] + codes[k] * LSB_V
         t0 = k * PERIOD_S
         for a, b, u in ((t0, t0 + COMPUTE_S, held_v), (t0 + COMPUTE_S, t0 + PERIOD_S, new_v)):
-            sol = solve_ivp(rhs, (a, b), state, method="DOP853", rtol=1e-10, atol=1e-9,
-                            args=(u,))  # fmt: skip
+            sol = solve_ivp(rhs, (a, b), state, method="DOP853", rtol=1e-10, atol=1e-9, args=(u,))
             state = sol.y[:, -1]
         held_v = new_v
     assert np.max(counts) > 2**RIG.counter.bits + 1000  # past the 24-bit register's top
@@ -108,8 +107,10 @@ def write_foreign(
     lines = [f"# {k}: {v}" for k, v in (meta or {}).items()]
     lines.append(",".join(FOREIGN))
     for k in range(N_TICKS if n is None else n):
-        lines.append(f"{d['t'][k]:.9f},{d['volts'][k]:.9g},{float(d['counts'][k]):.1f},"
-                     f"{float(d['ref'][k]):.1f},{d['exc_volts'][k]:.9g}")  # fmt: skip
+        lines.append(
+            f"{d['t'][k]:.9f},{d['volts'][k]:.9g},{float(d['counts'][k]):.1f},"
+            f"{float(d['ref'][k]):.1f},{d['exc_volts'][k]:.9g}"
+        )
     path.write_text("\n".join(lines) + "\n")
     return path
 
@@ -119,8 +120,10 @@ def write_standard(path: Path, d: dict[str, np.ndarray], n: int, meta: dict[str,
     lines = [f"# {k}: {v}" for k, v in meta.items()]
     lines.append("time_s,cmd_v,pos_counts,ref_counts,exc_code")
     for k in range(n):
-        lines.append(f"{d['t'][k]:.9f},{d['volts'][k]:.9g},{float(d['counts'][k]):.1f},"
-                     f"{float(d['ref'][k]):.1f},{d['exc_code'][k]}")  # fmt: skip
+        lines.append(
+            f"{d['t'][k]:.9f},{d['volts'][k]:.9g},{float(d['counts'][k]):.1f},"
+            f"{float(d['ref'][k]):.1f},{d['exc_code'][k]}"
+        )
     path.write_text("\n".join(lines) + "\n")
     return path
 
@@ -161,8 +164,12 @@ def test_mapped_csv_is_the_log_the_log_reader_makes(
     drive: dict[str, np.ndarray], tmp_path: Path
 ) -> None:
     n = 600
-    meta = {"dac_bits": "12", "dac_range_v": "-10,10", "compute_s": f"{COMPUTE_S}",
-            "machine_id": "lathe-3"}  # fmt: skip
+    meta = {
+        "dac_bits": "12",
+        "dac_range_v": "-10,10",
+        "compute_s": f"{COMPUTE_S}",
+        "machine_id": "lathe-3",
+    }
     standard = read_log(write_standard(tmp_path / "std.csv", drive, n, meta))
     foreign = write_foreign(tmp_path / "own.csv", drive, n, meta)
     mapped = read_hal_log(foreign, hal_settings(MAP))
@@ -180,16 +187,16 @@ def test_mapped_csv_is_the_log_the_log_reader_makes(
     mm = tmp_path / "mm.csv"
     mm.write_text(
         "time_s,drive_volts,encoder_mm\n"
-        + "".join(f"{drive['t'][k]:.9f},{drive['volts'][k]:.9g},{drive['counts'][k] / 2000:.6f}\n"
-                  for k in range(n))
-    )  # fmt: skip
+        + "".join(
+            f"{drive['t'][k]:.9f},{drive['volts'][k]:.9g},{drive['counts'][k] / 2000:.6f}\n"
+            for k in range(n)
+        )
+    )
     by_mm = read_hal_log(mm, hal_settings("cmd=drive_volts,pos=encoder_mm", position_scale=2000))
     assert_array_equal(by_mm.axis().pos_counts, drive["counts"][:n])
     assert by_mm.period_s == standard.period_s  # the time_s column, not mapped: the time base
     # a command logged in other units than volts: the output scale, as for a pid's output
-    by_mv = read_hal_log(
-        foreign, hal_settings(MAP.replace("exc=exc_volts,", ""), output_scale=0.5)
-    )  # fmt: skip
+    by_mv = read_hal_log(foreign, hal_settings(MAP.replace("exc=exc_volts,", ""), output_scale=0.5))
     assert_allclose(by_mv.axis().cmd_v, 2 * a.cmd_v, rtol=1e-15)
 
 
@@ -198,8 +205,9 @@ def test_period_from_metadata_option_or_rig(
 ) -> None:
     n = 300
     bare = tmp_path / "bare.csv"  # no time column
-    bare.write_text("u,y\n" + "".join(f"{drive['volts'][k]:.6f},{drive['counts'][k]}\n"
-                                      for k in range(n)))  # fmt: skip
+    bare.write_text(
+        "u,y\n" + "".join(f"{drive['volts'][k]:.6f},{drive['counts'][k]}\n" for k in range(n))
+    )
     line = one_error_line(capsys, ["fit", str(bare), "--map", "cmd=u,counts=y"])
     assert "no time column and no period" in line and "time=COLUMN" in line
     assert "--period-s" in line and str(bare) in line
@@ -211,8 +219,19 @@ def test_period_from_metadata_option_or_rig(
     # the rig's period, as for a log, when nothing else gives one
     with warnings.catch_warnings():  # 300 rows: the fit's verdict on them is not the point here
         warnings.simplefilter("ignore")
-        code = main(["fit", str(bare), "--map", "cmd=u,counts=y", "--rig", str(EXAMPLE_RIG),
-                     "--json", "--method", "oe"])  # fmt: skip
+        code = main(
+            [
+                "fit",
+                str(bare),
+                "--map",
+                "cmd=u,counts=y",
+                "--rig",
+                str(EXAMPLE_RIG),
+                "--json",
+                "--method",
+                "oe",
+            ]
+        )
     out = capsys.readouterr()
     assert code == 0, out.err
     assert json.loads(out.out)["period_s"] == pytest.approx(PERIOD_S, rel=1e-12)
@@ -225,8 +244,9 @@ def test_period_from_metadata_option_or_rig(
 
 
 def test_whole_numbers_in_counts_columns_are_read_as_integers(tmp_path: Path) -> None:
-    rows = [f"{k},{0.004 * k:.3f},{0.1 * (k % 3):.1f},{k * 2}.0,{k}.000000000{k % 2}"
-            for k in range(5)]  # fmt: skip
+    rows = [
+        f"{k},{0.004 * k:.3f},{0.1 * (k % 3):.1f},{k * 2}.0,{k}.000000000{k % 2}" for k in range(5)
+    ]
     path = tmp_path / "log.csv"
     path.write_text("tick,time_s,cmd_v,pos_counts,ref_counts\n" + "\n".join(rows) + "\n")
     ax = read_log(path).axis()
@@ -295,11 +315,13 @@ def test_options_and_keys_for_the_other_kind_of_file(
     assert "counter_bits" in line and "unwrapped" in line
     # a halsampler capture stays one: numbers separated by spaces
     sampler = tmp_path / "capture.txt"
-    sampler.write_text("".join(f"{drive['volts'][k]:f} {drive['counts'][k]} \n"
-                               for k in range(200)))  # fmt: skip
+    sampler.write_text(
+        "".join(f"{drive['volts'][k]:f} {drive['counts'][k]} \n" for k in range(200))
+    )
     assert capture_format(sampler) == "halsampler"
-    line = one_error_line(capsys, ["fit", str(sampler), "--map", "cmd=0,counts=1,time=2",
-                                   "--period-s", "0.004"])  # fmt: skip
+    line = one_error_line(
+        capsys, ["fit", str(sampler), "--map", "cmd=0,counts=1,time=2", "--period-s", "0.004"]
+    )
     assert "map time names a CSV log's time column; a halsampler capture has none" in line
     scope = tmp_path / "scope.log"
     scope.write_text("# Sampling period is 4000000 ns\na;b\n1.0;2.0\n")
@@ -326,7 +348,9 @@ def test_a_fleet_of_own_csv_logs_keeps_their_machine_ids(
     assert code == 0, capsys.readouterr().err
     rows = read_fleet_table(table)
     assert [(r.machine_id, r.date, r.axis) for r in rows] == [
-        ("lathe-3", "2025-03-01", "x"), ("lathe-4", "2025-03-01", "x")]  # fmt: skip
+        ("lathe-3", "2025-03-01", "x"),
+        ("lathe-4", "2025-03-01", "x"),
+    ]
     for r in rows:
         assert r.params["gain_cps_per_v"] == pytest.approx(K_CPS_PER_V, rel=0.02)
         assert r.params["tau_s"] == pytest.approx(TAU_S, rel=0.02)

@@ -80,8 +80,7 @@ def motor() -> dict[str, np.ndarray]:
         def rhs(_t: float, s: np.ndarray, u: float = u) -> list[float]:
             return [(GAIN_CPS_PER_V * u - s[0]) / TAU_S, s[0]]
 
-        sol = solve_ivp(rhs, (t[0], t[-1]), state, t_eval=t, method="DOP853",
-                        rtol=1e-10, atol=1e-9)  # fmt: skip
+        sol = solve_ivp(rhs, (t[0], t[-1]), state, t_eval=t, method="DOP853", rtol=1e-10, atol=1e-9)
         p[a:b] = sol.y[1, :-1]
         state = sol.y[:, -1]
     counts = np.floor(p + rng.normal(0.0, 0.3, n)).astype(np.int64)
@@ -215,9 +214,13 @@ def test_real_halsampler_capture_reads_as_the_components_compute(
     assert_array_equal(ax.cmd_v, u)
     assert np.max(np.abs(ax.pos_counts - expect * 2000)) <= 0.5 + 1e-3
     # the same command as a D/A code: the D/A model gives the same volts
-    code = HalSettings(mapping={"code": "conv-float-s32.0.out", "pos": 1},
-                       columns=tuple(REAL_COLUMNS), sample_number=True, period_s=0.001,
-                       position_scale=2000.0)  # fmt: skip
+    code = HalSettings(
+        mapping={"code": "conv-float-s32.0.out", "pos": 1},
+        columns=tuple(REAL_COLUMNS),
+        sample_number=True,
+        period_s=0.001,
+        position_scale=2000.0,
+    )
     log2 = read_hal_log(real_capture, code, dac_bits=16, dac_range_v=REAL_DAC_RANGE_V)
     assert_array_equal(log2.axis().cmd_v, u)
     assert_array_equal(log2.axis().dac_code, cap.values[:, 2].astype(np.int64))
@@ -234,10 +237,23 @@ def test_real_capture_fits_the_hal_motor(
     # without a negative delay takes it mostly as a shorter tau (here 1.4 % short, about
     # T / (2 tau) = 1 %). Gain within 1 %, tau within 3 %.
     with pytest.warns(InadequateModelWarning):  # that lead is dynamics the model lacks
-        d = fitted(capsys, [str(real_capture), "--map", "cmd=scale.0.out,pos=scale.2.out",
-                            "--hal-columns", ",".join(REAL_COLUMNS), "--sample-number",
-                            "--period-s", "0.001", "--position-scale", "2000",
-                            "--output-scale", "2"])  # fmt: skip
+        d = fitted(
+            capsys,
+            [
+                str(real_capture),
+                "--map",
+                "cmd=scale.0.out,pos=scale.2.out",
+                "--hal-columns",
+                ",".join(REAL_COLUMNS),
+                "--sample-number",
+                "--period-s",
+                "0.001",
+                "--position-scale",
+                "2000",
+                "--output-scale",
+                "2",
+            ],
+        )
     assert d["params"]["gain_cps_per_v"] == pytest.approx(3000.0, rel=0.01)
     assert d["params"]["tau_s"] == pytest.approx(REAL_TAU_S, rel=0.03)
 
@@ -276,12 +292,19 @@ def test_real_overrun_is_seen_by_the_overruns_pin(tmp_path: Path) -> None:
     assert np.all(step[lost] > 10 * 2 * math.pi * 0.001)
     assert np.all(np.delete(step, lost) < 0.0063)
     # mapped as overruns, the loss is refused, naming the lines around it
-    s = HalSettings(mapping={"cmd": 0, "pos": 1, "overruns": "sampler.0.overruns"},
-                    columns=tuple(columns), sample_number=True, period_s=0.001,
-                    position_scale=1.0)  # fmt: skip
-    with pytest.raises(LogFormatError, match=rf"lost samples: column 2 \(sampler.0.overruns\)"
-                       rf".* goes from 0 \(line {k + 1}\) to {int(cap.values[k + 1, 2])} "
-                       rf"\(line {k + 2}\)"):  # fmt: skip
+    s = HalSettings(
+        mapping={"cmd": 0, "pos": 1, "overruns": "sampler.0.overruns"},
+        columns=tuple(columns),
+        sample_number=True,
+        period_s=0.001,
+        position_scale=1.0,
+    )
+    with pytest.raises(
+        LogFormatError,
+        match=rf"lost samples: column 2 \(sampler.0.overruns\)"
+        rf".* goes from 0 \(line {k + 1}\) to {int(cap.values[k + 1, 2])} "
+        rf"\(line {k + 2}\)",
+    ):
         read_hal_log(path, s)
 
 
@@ -297,11 +320,23 @@ def test_halsampler_capture_fits_within_2_pct(
     path = tmp_path / "capture.txt"
     path.write_text(halsampler_text([cmd, pos, ref], tag=True))
     assert path.read_text().startswith("0 ") and path.read_text().split("\n")[0].endswith(" ")
-    d = fitted(capsys, [str(path), "--map", "cmd=pid.0.output,pos=encoder.0.position",
-                        "--hal-columns", "pid.0.output,encoder.0.position,pid.0.command",
-                        "--sample-number", "--period-s", "0.004",
-                        "--position-scale", str(POSITION_SCALE),
-                        "--output-scale", str(OUTPUT_SCALE)])  # fmt: skip
+    d = fitted(
+        capsys,
+        [
+            str(path),
+            "--map",
+            "cmd=pid.0.output,pos=encoder.0.position",
+            "--hal-columns",
+            "pid.0.output,encoder.0.position,pid.0.command",
+            "--sample-number",
+            "--period-s",
+            "0.004",
+            "--position-scale",
+            str(POSITION_SCALE),
+            "--output-scale",
+            str(OUTPUT_SCALE),
+        ],
+    )
     err_gain = d["params"]["gain_cps_per_v"] / GAIN_CPS_PER_V - 1
     err_tau = d["params"]["tau_s"] / TAU_S - 1
     with capsys.disabled():  # shown with pytest -s
@@ -327,8 +362,10 @@ def test_halsampler_with_excitation_uses_iv_and_writes_a_rig(
         '[hal.map]\ncmd = "sum2.0.out"\nexc = "siggen.0.sine"\npos = "encoder.0.position"\n'
     )
     rig = tmp_path / "lathe.toml"
-    assert main(["fit", str(path), "--map", str(toml), "--axis", "master", "--json",
-                 "-o", str(rig)]) == 0  # fmt: skip
+    assert (
+        main(["fit", str(path), "--map", str(toml), "--axis", "master", "--json", "-o", str(rig)])
+        == 0
+    )
     cap = capsys.readouterr()
     d = json.loads(cap.out)
     assert d["method"] == "iv" and "exc_code" in d["instruments"]["signals"]
@@ -351,8 +388,14 @@ def test_halscope_capture_fits_within_2_pct(
     cap = read_halscope(path)
     assert cap.period_s == pytest.approx(PERIOD_S, abs=1e-15) and cap.names == tuple(names)
     assert cap.lines[0] == 5  # after the period, names, position and scale lines
-    args = [str(path), "--map", f"code={names[0]},counts=encoder.0.counts", "--dac-bits", "16",
-            "--dac-range-v=-10,10"]  # fmt: skip
+    args = [
+        str(path),
+        "--map",
+        f"code={names[0]},counts=encoder.0.counts",
+        "--dac-bits",
+        "16",
+        "--dac-range-v=-10,10",
+    ]
     d = fitted(capsys, args)
     err_gain = d["params"]["gain_cps_per_v"] / GAIN_CPS_PER_V - 1
     err_tau = d["params"]["tau_s"] / TAU_S - 1
@@ -377,9 +420,12 @@ def test_reader_details(tmp_path: Path) -> None:
     # states when none is given (20 V / 2**16 per code)
     three = tmp_path / "three.txt"
     three.write_text("0.000000 0.250000 5 \n0.500000 0.500000 6 \n1.000000 -0.750000 8 \n")
-    s = HalSettings(mapping={"cmd": "pid.0.output", "exc": "siggen.0.out", "counts": 2},
-                    columns=("pid.0.output", "siggen.0.out", "encoder.0.counts"),
-                    period_s=0.001, output_scale=0.5)  # fmt: skip
+    s = HalSettings(
+        mapping={"cmd": "pid.0.output", "exc": "siggen.0.out", "counts": 2},
+        columns=("pid.0.output", "siggen.0.out", "encoder.0.counts"),
+        period_s=0.001,
+        output_scale=0.5,
+    )
     log = read_hal_log(three, s)
     assert_allclose(log.axis().cmd_v, [0.0, 1.0, 2.0])
     lsb = 20 / 2**16
@@ -387,8 +433,9 @@ def test_reader_details(tmp_path: Path) -> None:
     s = HalSettings(mapping={"cmd": 0, "ref": 1, "counts": 2}, period_s=0.001, position_scale=4.0)
     assert read_hal_log(three, s).axis().ref_counts.tolist() == [1, 2, -3]
     # a position printed with 6 decimals in metres at 1e7 counts/m: coarser than a count
-    s = HalSettings(mapping={"cmd": 0, "pos": 1}, sample_number=True, period_s=0.001,
-                    position_scale=1e7)  # fmt: skip
+    s = HalSettings(
+        mapping={"cmd": 0, "pos": 1}, sample_number=True, period_s=0.001, position_scale=1e7
+    )
     with pytest.warns(HalPrecisionWarning, match="coarser than the encoder"):
         read_hal_log(path, s)
     # halscope 2.9 (the one installed here: `strings /usr/bin/halscope`) writes no
@@ -461,8 +508,9 @@ _OK = _opts()
 def _scope(period_ns: int = 4_000_000, rows: int = N_OK) -> str:
     k = np.arange(rows)
     u = np.where((k // 30) % 2 == 0, 1.0, -1.0)
-    return halscope_text(period_ns, ["pid.0.output", "encoder.0.counts"],
-                         [u, np.cumsum(u * 40).astype(np.int64)])  # fmt: skip
+    return halscope_text(
+        period_ns, ["pid.0.output", "encoder.0.counts"], [u, np.cumsum(u * 40).astype(np.int64)]
+    )
 
 
 def _cases() -> dict[str, tuple[str, list[str], list[str]]]:
@@ -471,76 +519,159 @@ def _cases() -> dict[str, tuple[str, list[str], list[str]]]:
     good = "\n".join(rows) + "\n"
     scope = ["--map", "cmd=pid.0.output,counts=encoder.0.counts"]
     return {
-        "unknown mapping key": (good, _opts(map="cmdd=pid.0.output,pos=encoder.0.position"),
-                                ["unknown mapping key", "cmdd", "did you mean 'cmd'"]),
-        "pin typo": (good, _opts(map="cmd=pid.0.output,pos=encoder.0.positon"),
-                     ["'encoder.0.positon' is not in the capture's columns", "pid.0.output",
-                      "did you mean 'encoder.0.position'"]),
-        "pin without columns": (good, _opts(hal_columns=None),
-                                ["does not name its columns", "--hal-columns"]),
-        "column out of range": (good, _opts(map="cmd=0,pos=7", hal_columns=None),
-                                ["column 7 is out of range", "0..1"]),
+        "unknown mapping key": (
+            good,
+            _opts(map="cmdd=pid.0.output,pos=encoder.0.position"),
+            ["unknown mapping key", "cmdd", "did you mean 'cmd'"],
+        ),
+        "pin typo": (
+            good,
+            _opts(map="cmd=pid.0.output,pos=encoder.0.positon"),
+            [
+                "'encoder.0.positon' is not in the capture's columns",
+                "pid.0.output",
+                "did you mean 'encoder.0.position'",
+            ],
+        ),
+        "pin without columns": (
+            good,
+            _opts(hal_columns=None),
+            ["does not name its columns", "--hal-columns"],
+        ),
+        "column out of range": (
+            good,
+            _opts(map="cmd=0,pos=7", hal_columns=None),
+            ["column 7 is out of range", "0..1"],
+        ),
         "ragged row": (_with(rows, 9, "9 1.000000 "), _opts(), ["line 10 has 2 fields"]),
-        "non-numeric field": (_with(rows, 11, "11 1.000000 abc "), _opts(),
-                              ["line 12", "'abc' is not a number"]),
-        "not finite": (_with(rows, 12, "12 nan 0.1 "), _opts(),
-                       ["line 13", "column 0 (pid.0.output)", "not finite"]),
-        "missing period": (good, _opts(period_s=None), ["does not record its sample period",
-                                                        "--period-s"]),
-        "period disagrees with halscope": (_scope(), [*scope, "--period-s", "0.001"],
-                                           ["--period-s 0.001", "0.004", "disagrees",
-                                            "halscope header"]),
-        "negative scale": (good, _opts(position_scale="-2000"),
-                           ["position_scale must be a number > 0", "-2000"]),
+        "non-numeric field": (
+            _with(rows, 11, "11 1.000000 abc "),
+            _opts(),
+            ["line 12", "'abc' is not a number"],
+        ),
+        "not finite": (
+            _with(rows, 12, "12 nan 0.1 "),
+            _opts(),
+            ["line 13", "column 0 (pid.0.output)", "not finite"],
+        ),
+        "missing period": (
+            good,
+            _opts(period_s=None),
+            ["does not record its sample period", "--period-s"],
+        ),
+        "period disagrees with halscope": (
+            _scope(),
+            [*scope, "--period-s", "0.001"],
+            ["--period-s 0.001", "0.004", "disagrees", "halscope header"],
+        ),
+        "negative scale": (
+            good,
+            _opts(position_scale="-2000"),
+            ["position_scale must be a number > 0", "-2000"],
+        ),
         "zero scale": (good, _opts(output_scale="0"), ["output_scale must be a number > 0"]),
         "non-finite scale": (good, _opts(position_scale="nan"), ["position_scale", "nan"]),
         "empty capture": ("", _opts(), ["empty"]),
         "blank capture": ("\n\n", _opts(), ["empty"]),
-        "too few samples": ("\n".join(rows[:50]) + "\n", _opts(),
-                            ["has 50 samples", "at least 100"]),
-        "duplicate targets": (good, _opts(map="cmd=pid.0.output,pos=encoder.0.position,"
-                                          "ref=pid.0.output"),
-                              ["cmd and ref both read", "pid.0.output"]),
-        "duplicate by name and number": (good, _opts(map=f"{_MAP},ref=0"),
-                                         ["cmd and ref both read column 0 (pid.0.output)"]),
-        "lost samples": ("\n".join([*rows[:40], *rows[43:]]) + "\n", _opts(),
-                         ["lost samples", "from 39 (line 40) to 43 (line 41)", "3 samples"]),
-        "sample numbers without -t": (good, _opts(sample_number=None),
-                                      ["line 1 has 3 fields", "give --sample-number"]),
-        "code without D/A": (good, _opts(map="code=0,pos=1", hal_columns=None),
-                             ["code", "--dac-bits"]),
-        "code not whole": (good, [*_opts(map="code=1,counts=0", hal_columns=None),
-                                  "--dac-bits", "12", "--dac-range-v=-10,10"],
-                           ["line 1, column 1", "whole numbers"]),
-        "code outside the D/A": (good, [*_opts(map="code=0,pos=1", hal_columns=None),
-                                        "--dac-bits", "12", "--dac-range-v=-10,10"],
-                                 ["line 31, column 0: code -1 is outside the 12-bit D/A range"]),
-        "no position scale": (good, _opts(position_scale=None),
-                              ["map pos", "position-scale"]),
-        "neither cmd nor code": (good, _opts(map="pos=encoder.0.position"),
-                                 ["exactly one of cmd or code", "neither"]),
-        "both pos and counts": (good, _opts(map=f"{_MAP},counts=0"),
-                                ["exactly one of pos or counts", "both"]),
+        "too few samples": (
+            "\n".join(rows[:50]) + "\n",
+            _opts(),
+            ["has 50 samples", "at least 100"],
+        ),
+        "duplicate targets": (
+            good,
+            _opts(map="cmd=pid.0.output,pos=encoder.0.position,ref=pid.0.output"),
+            ["cmd and ref both read", "pid.0.output"],
+        ),
+        "duplicate by name and number": (
+            good,
+            _opts(map=f"{_MAP},ref=0"),
+            ["cmd and ref both read column 0 (pid.0.output)"],
+        ),
+        "lost samples": (
+            "\n".join([*rows[:40], *rows[43:]]) + "\n",
+            _opts(),
+            ["lost samples", "from 39 (line 40) to 43 (line 41)", "3 samples"],
+        ),
+        "sample numbers without -t": (
+            good,
+            _opts(sample_number=None),
+            ["line 1 has 3 fields", "give --sample-number"],
+        ),
+        "code without D/A": (
+            good,
+            _opts(map="code=0,pos=1", hal_columns=None),
+            ["code", "--dac-bits"],
+        ),
+        "code not whole": (
+            good,
+            [
+                *_opts(map="code=1,counts=0", hal_columns=None),
+                "--dac-bits",
+                "12",
+                "--dac-range-v=-10,10",
+            ],
+            ["line 1, column 1", "whole numbers"],
+        ),
+        "code outside the D/A": (
+            good,
+            [
+                *_opts(map="code=0,pos=1", hal_columns=None),
+                "--dac-bits",
+                "12",
+                "--dac-range-v=-10,10",
+            ],
+            ["line 31, column 0: code -1 is outside the 12-bit D/A range"],
+        ),
+        "no position scale": (good, _opts(position_scale=None), ["map pos", "position-scale"]),
+        "neither cmd nor code": (
+            good,
+            _opts(map="pos=encoder.0.position"),
+            ["exactly one of cmd or code", "neither"],
+        ),
+        "both pos and counts": (
+            good,
+            _opts(map=f"{_MAP},counts=0"),
+            ["exactly one of pos or counts", "both"],
+        ),
         "bad inline map": (good, _opts(map="cmd"), ["--map takes KEY=PIN"]),
-        "halscope as halsampler": (_scope(), [*scope, "--hal-format", "halsampler",
-                                              "--period-s", "0.004"],
-                                   ["line 1 is a comment", "--hal-format halscope"]),
-        "halscope with columns": (_scope(), [*scope, "--hal-columns", _COLS],
-                                  ["halscope", "--hal-columns"]),
-        "halscope bad period line": ("# Sampling period is x ns\n" + _scope().split("\n", 1)[1],
-                                     [*scope, "--hal-format", "halscope"],
-                                     ["line 1", "Sampling period is N ns"]),
-        "halscope ragged row": (_scope().replace("\n-1.00000000000000;", "\n", 1), scope,
-                                ["line", "has 1 field"]),
+        "halscope as halsampler": (
+            _scope(),
+            [*scope, "--hal-format", "halsampler", "--period-s", "0.004"],
+            ["line 1 is a comment", "--hal-format halscope"],
+        ),
+        "halscope with columns": (
+            _scope(),
+            [*scope, "--hal-columns", _COLS],
+            ["halscope", "--hal-columns"],
+        ),
+        "halscope bad period line": (
+            "# Sampling period is x ns\n" + _scope().split("\n", 1)[1],
+            [*scope, "--hal-format", "halscope"],
+            ["line 1", "Sampling period is N ns"],
+        ),
+        "halscope ragged row": (
+            _scope().replace("\n-1.00000000000000;", "\n", 1),
+            scope,
+            ["line", "has 1 field"],
+        ),
         "counter bits": (good, [*_opts(), "--counter-bits", "24"], ["counter_bits"]),
-        "halsampler overrun line": (_with(rows, 40, "overrun\n" + rows[40]), _opts(),
-                                    ["lost samples: line 41 is halsampler's 'overrun' mark"]),
-        "overruns column": (_with_overruns(rows, 100),
-                            _opts(map=f"{_MAP},overruns=sampler.0.overruns",
-                                  hal_columns=f"{_COLS},sampler.0.overruns"),
-                            ["lost samples: column 2 (sampler.0.overruns)",
-                             "from 0 (line 100) to 7 (line 101): 7 samples lost"]),
-    }  # fmt: skip
+        "halsampler overrun line": (
+            _with(rows, 40, "overrun\n" + rows[40]),
+            _opts(),
+            ["lost samples: line 41 is halsampler's 'overrun' mark"],
+        ),
+        "overruns column": (
+            _with_overruns(rows, 100),
+            _opts(
+                map=f"{_MAP},overruns=sampler.0.overruns", hal_columns=f"{_COLS},sampler.0.overruns"
+            ),
+            [
+                "lost samples: column 2 (sampler.0.overruns)",
+                "from 0 (line 100) to 7 (line 101): 7 samples lost",
+            ],
+        ),
+    }
 
 
 @pytest.mark.parametrize("case", list(_cases()))

@@ -222,8 +222,12 @@ def small_disk(tmp_path) -> Iterator[Path]:
         pytest.skip("mounting a tmpfs needs root (the injected ENOSPC tests cover the rest)")
     d = tmp_path / f"disk-{uuid.uuid4().hex[:6]}"
     d.mkdir()
-    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=256k", "tmpfs", str(d)],
-                       capture_output=True, text=True, check=False)  # fmt: skip
+    r = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", "size=256k", "tmpfs", str(d)],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
     if r.returncode != 0:
         pytest.skip(f"cannot mount a tmpfs here: {r.stderr.strip()}")
     try:

@@ -29,9 +29,16 @@ def _round_shift(x: int, f: int) -> int:
 
 
 def _model(
-    kp_q: int, kp_f: int, kit_q: int, kit_f: int, integ: int, e: int, u_add: int, zero: int,
+    kp_q: int,
+    kp_f: int,
+    kit_q: int,
+    kit_f: int,
+    integ: int,
+    e: int,
+    u_add: int,
+    zero: int,
     code_max: int,
-) -> tuple[tuple[int, int], bool]:  # fmt: skip
+) -> tuple[tuple[int, int], bool]:
     """``pi_step``'s ``(u_q, I)``, and whether its plain-add path applies."""
     ec = max(-int(E_MAX), min(int(E_MAX), e))
     p = _sat(kp_q * ec * 2 ** (F_U - kp_f))

@@ -22,8 +22,16 @@ T = 0.001
 
 def _run(g: SyncGains, errors: list[int]) -> tuple[list[int], list[int]]:
     c = g.quantize(T)
-    args = (c.kp.q, c.kp.f, c.ki_t.q, c.ki_t.f, c.kd_t.q, c.kd_t.f, c.dead_zone_counts,
-            c.limit_counts)  # fmt: skip
+    args = (
+        c.kp.q,
+        c.kp.f,
+        c.ki_t.q,
+        c.ki_t.f,
+        c.kd_t.q,
+        c.kd_t.f,
+        c.dead_zone_counts,
+        c.limit_counts,
+    )
     integ, e_prev = sync_enter(c.kp.q, c.kp.f, c.dead_zone_counts, c.limit_counts, errors[0])
     comps, integs = [0], [integ]
     for e in errors[1:]:
@@ -73,7 +81,13 @@ def test_pd_reacts_to_the_error_change_and_dead_zone_mutes_noise() -> None:
 
 def test_monitor_levels() -> None:
     assert [sync_monitor(e, 10, 20) for e in (0, 9, -10, 19, -20, 500)] == [
-        SYNC_OK, SYNC_OK, SYNC_WARN, SYNC_WARN, SYNC_TRIP, SYNC_TRIP]  # fmt: skip
+        SYNC_OK,
+        SYNC_OK,
+        SYNC_WARN,
+        SYNC_WARN,
+        SYNC_TRIP,
+        SYNC_TRIP,
+    ]
     assert sync_monitor(10**9, 0, 0) == SYNC_OK  # both thresholds off
 
 

@@ -58,10 +58,20 @@ window.addEventListener("load", function () {
 
 
 def _chromium(tmp: Path, url: str, *args: str) -> subprocess.CompletedProcess[str]:
-    cmd = [BROWSER, "--headless", "--disable-gpu", "--no-sandbox",
-           f"--window-size={WIDTH},{HEIGHT}", "--enable-logging=stderr", "--v=0",
-           "--no-first-run", f"--user-data-dir={tmp / 'profile'}",
-           "--virtual-time-budget=10000", *args, url]  # fmt: skip
+    cmd = [
+        BROWSER,
+        "--headless",
+        "--disable-gpu",
+        "--no-sandbox",
+        f"--window-size={WIDTH},{HEIGHT}",
+        "--enable-logging=stderr",
+        "--v=0",
+        "--no-first-run",
+        f"--user-data-dir={tmp / 'profile'}",
+        "--virtual-time-budget=10000",
+        *args,
+        url,
+    ]
     return subprocess.run(cmd, capture_output=True, text=True, timeout=120, check=False)
 
 
@@ -91,8 +101,7 @@ def probed(report_build: ReportBuild, tmp_path_factory: pytest.TempPathFactory) 
 
 
 def test_the_page_loads_without_console_messages_or_errors(probed: dict) -> None:
-    console = [ln for ln in probed["stderr"].splitlines()
-               if ":CONSOLE" in ln or "Uncaught" in ln]  # fmt: skip
+    console = [ln for ln in probed["stderr"].splitlines() if ":CONSOLE" in ln or "Uncaught" in ln]
     assert not console, console  # the page has no script: any message is a fault
     assert probed["probe"]["errors"] == []
 
@@ -113,7 +122,7 @@ def test_readable_at_1280_px_without_horizontal_scrolling(probed: dict) -> None:
 
 def test_every_figure_is_embedded_decoded_and_drawn_at_its_size(
     probed: dict, report_build: ReportBuild
-) -> None:  # fmt: skip
+) -> None:
     images = probed["probe"]["images"]
     page = report_build.path.read_text(encoding="utf-8")
     assert len(images) == page.count("<img ") > 10

@@ -62,13 +62,17 @@ def test_held_out_figures_get_their_own_verdict() -> None:
     assert "held out: worst max sync error: PID + feedforward is lowest" in said
     # a share of passing plant sets: higher is better
     assert "held out: plant sets keeping every limit: PID + feedforward is highest" in said
-    assert ("The composite law does not win on the held-out scenarios' worst max sync error: "
-            "1250 counts against PID + feedforward's 1200 counts") in said  # fmt: skip
+    assert (
+        "The composite law does not win on the held-out scenarios' worst max sync error: "
+        "1250 counts against PID + feedforward's 1200 counts"
+    ) in said
     swapped = {k: dict(v) for k, v in HELD_OUT.items()}
     swapped["composite"]["heldout_max_sync_counts"] = 1100.0
     turned = figure4_statement(swapped)
-    assert ("The composite law wins on the held-out scenarios' worst max sync error: 1100 "
-            "counts against PID + feedforward's 1200 counts") in turned  # fmt: skip
+    assert (
+        "The composite law wins on the held-out scenarios' worst max sync error: 1100 "
+        "counts against PID + feedforward's 1200 counts"
+    ) in turned
 
 
 def test_a_lead_inside_the_spread_over_seeds_is_not_a_clear_win() -> None:

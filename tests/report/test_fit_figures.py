@@ -30,8 +30,15 @@ def _rig_with_record(path: Path, **figures: float) -> Path:
     """A copy of the example rig (same plants) with a fit record on the master."""
     plant = st.load_rig(EXAMPLE_RIG).axis("master").plant
     ci = {"gain_cps_per_v": (0.99 * plant.gain_cps_per_v, 1.01 * plant.gain_cps_per_v)}
-    fit = PlantFit(method="iv", structure=("gain_cps_per_v", "tau_s"), friction="sym",
-                   adequate=True, interval="stand-in", ci95=ci, **figures)  # fmt: skip
+    fit = PlantFit(
+        method="iv",
+        structure=("gain_cps_per_v", "tau_s"),
+        friction="sym",
+        adequate=True,
+        interval="stand-in",
+        ci95=ci,
+        **figures,
+    )
     write_plant(path, "master", plant, template=EXAMPLE_RIG, fit=fit)
     return path
 
@@ -56,9 +63,13 @@ def _report(rig: Path, out: Path) -> str:
 def test_the_verify_report_shows_the_fit_figures_the_rig_records(
     tmp_path: Path, velocity: float, velocity_cv: float, position: float, position_cv: float
 ) -> None:
-    rig = _rig_with_record(tmp_path / "rig.toml", velocity_fit_pct=velocity,
-                           velocity_fit_cv_pct=velocity_cv, position_fit_pct=position,
-                           position_fit_cv_pct=position_cv)  # fmt: skip
+    rig = _rig_with_record(
+        tmp_path / "rig.toml",
+        velocity_fit_pct=velocity,
+        velocity_fit_cv_pct=velocity_cv,
+        position_fit_pct=position,
+        position_fit_cv_pct=position_cv,
+    )
     table = tomllib.loads(rig.read_text())["axis"]["master"]["plant"]["fit"]
     assert (table["velocity_fit_pct"], table["position_fit_cv_pct"]) == (velocity, position_cv)
     note = _note(_report(rig, tmp_path / "rep"), "master")

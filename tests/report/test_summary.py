@@ -22,24 +22,62 @@ from servotune.verify.spec import load_spec
 @pytest.fixture(scope="module")
 def passed() -> Verification:
     rows = (
-        Row(scenario="sync", quantity="max_sync_error_counts", axis="slave", unit="counts",
-            limit=1843.0, worst=954.8, variant="mc12"),
-        Row(scenario="sync", quantity="overshoot_pct", axis="master", unit="%", limit=8.0,
-            worst=7.6, variant="nominal"),
-        Row(scenario="sync", quantity="fault_runs", axis="slave", unit="runs", limit=0.0,
-            worst=0.0, variant="nominal"),
-    )  # fmt: skip
-    checks = (Check(name="margins:slave:task", passed=True, value=1.5, limit=2.0, unit="1",
-                    detail="worst slave task cell E=-4 EC=-6: Ms 1.50"),)  # fmt: skip
-    return Verification(spec=load_spec(EXAMPLE_SPEC), rig_name="pc-dual-servo",
-                        axis_names=("master", "slave"), seed=0, variants=(), rows=rows,
-                        checks=checks, variant_passed=(True,) * 9 + (False,))  # fmt: skip
+        Row(
+            scenario="sync",
+            quantity="max_sync_error_counts",
+            axis="slave",
+            unit="counts",
+            limit=1843.0,
+            worst=954.8,
+            variant="mc12",
+        ),
+        Row(
+            scenario="sync",
+            quantity="overshoot_pct",
+            axis="master",
+            unit="%",
+            limit=8.0,
+            worst=7.6,
+            variant="nominal",
+        ),
+        Row(
+            scenario="sync",
+            quantity="fault_runs",
+            axis="slave",
+            unit="runs",
+            limit=0.0,
+            worst=0.0,
+            variant="nominal",
+        ),
+    )
+    checks = (
+        Check(
+            name="margins:slave:task",
+            passed=True,
+            value=1.5,
+            limit=2.0,
+            unit="1",
+            detail="worst slave task cell E=-4 EC=-6: Ms 1.50",
+        ),
+    )
+    return Verification(
+        spec=load_spec(EXAMPLE_SPEC),
+        rig_name="pc-dual-servo",
+        axis_names=("master", "slave"),
+        seed=0,
+        variants=(),
+        rows=rows,
+        checks=checks,
+        variant_passed=(True,) * 9 + (False,),
+    )
 
 
 def _swap(v: Verification, **row_changes: float) -> Verification:
     """The same verification with the slave's sync-error row changed."""
-    rows = tuple(dataclasses.replace(r, **row_changes) if r.quantity == "max_sync_error_counts"
-                 else r for r in v.rows)  # fmt: skip
+    rows = tuple(
+        dataclasses.replace(r, **row_changes) if r.quantity == "max_sync_error_counts" else r
+        for r in v.rows
+    )
     return dataclasses.replace(v, rows=rows)
 
 
@@ -63,15 +101,25 @@ def test_a_pass_says_export_and_names_the_tightest_limit(passed: Verification) -
     ("k", "n", "text"),
     [
         # the 100,000-plant-set verification of the example spec (2026-11-26): 3 failures
-        (99_996, 99_999, "99996 of 99999 plant variants keep every limit (99.997 %; 95 % "
-                         "interval 99.99–99.999 %"),
-        (99_999, 99_999, "99999 of 99999 plant variants keep every limit (100.0 %; 95 % "
-                         "interval 99.996–100.0 %"),
-        (1, 99_999, "1 of 99999 plant variants keep every limit (0.001 %; 95 % interval "
-                    "0.00003–0.01 %"),
+        (
+            99_996,
+            99_999,
+            "99996 of 99999 plant variants keep every limit (99.997 %; 95 % "
+            "interval 99.99–99.999 %",
+        ),
+        (
+            99_999,
+            99_999,
+            "99999 of 99999 plant variants keep every limit (100.0 %; 95 % interval 99.996–100.0 %",
+        ),
+        (
+            1,
+            99_999,
+            "1 of 99999 plant variants keep every limit (0.001 %; 95 % interval 0.00003–0.01 %",
+        ),
         (63, 64, "63 of 64 plant variants keep every limit (98.4 %; 95 % interval 91.6–99.96 %"),
     ],
-)  # fmt: skip
+)
 def test_a_share_below_one_never_reads_100_percent(k: int, n: int, text: str) -> None:
     """The sentence's shares: one decimal, more where one would print a share strictly between
     0 and 1 as 0.0 or 100.0 ("99996 of 99999 … (100.0 %)" was printed). Intervals from scipy's
@@ -86,8 +134,7 @@ def test_a_share_below_one_never_reads_100_percent(k: int, n: int, text: str) ->
 
 def test_swapping_the_verdict_swaps_the_sentence(passed: Verification) -> None:
     failed = _swap(passed, worst=2100.0)
-    s = summarise(failed, tuning_path="tuning.json", rig_path="rig.toml",
-                  spec_path="my.spec.toml")  # fmt: skip
+    s = summarise(failed, tuning_path="tuning.json", rig_path="rig.toml", spec_path="my.spec.toml")
     assert s.verdict == "FAILED" and s.failed == 1
     # the failure that weighs most, with its numbers, and the knob that moves it
     assert s.next_step.startswith(
@@ -147,14 +194,20 @@ def test_the_margin_comment_follows_the_numbers() -> None:
         return [SimpleNamespace(phase_margin_deg=pm, cell=(i - 1, 0)) for i, pm in enumerate(pms)]
 
     # a slave at 25° beside a master at 50°
-    low = margin_comment({"master": 50.0, "slave": 25.0}, {"slave": cells([22.0, 25.0, 61.0])},
-                         min_phase_margin_deg=45.0)  # fmt: skip
+    low = margin_comment(
+        {"master": 50.0, "slave": 25.0},
+        {"slave": cells([22.0, 25.0, 61.0])},
+        min_phase_margin_deg=45.0,
+    )
     assert "master 50°, slave 25°" in low and "centre cell" in low
     assert "lower than the master's" in low
     assert "from 22° (cell E=-1 EC=+0) to 61° (E=+1 EC=+0)" in low
     assert "2 of its cells are below the 45° limit" in low
-    high = margin_comment({"master": 55.0, "slave": 75.0}, {"slave": cells([65.0, 75.0, 90.0])},
-                          min_phase_margin_deg=45.0)  # fmt: skip
+    high = margin_comment(
+        {"master": 55.0, "slave": 75.0},
+        {"slave": cells([65.0, 75.0, 90.0])},
+        min_phase_margin_deg=45.0,
+    )
     assert "higher than the master's" in high and "Every cell keeps the 45° limit" in high
     assert margin_comment({"master": 55.0}, {}, min_phase_margin_deg=45.0) == ""
 
@@ -170,21 +223,30 @@ def test_the_page_leads_with_the_summary_and_embeds_everything(report_build: Rep
     k, n = v.pass_fraction[:2]
     assert f"Monte Carlo: {k} of {n} plant variants keep every limit" in page
     # the numbers a user came for, with units
-    for text in ("95 % interval", "Fit (MATLAB compare", "99.0 % on the whole log",
-                 "Kp [codes/count]", "PM [deg]", "Ms [1]",
-                 "Winner on the tuning objective: composite (fuzzy-PID + feedforward)",
-                 "The composite law wins on the objective",
-                 "ITAE (the tuning objective) [counts·s²]", "sync error master − slave (black)",
-                 "Phase margins in the table above", "queue level [setpoints]",
-                 "Over the plant set"):  # fmt: skip
+    for text in (
+        "95 % interval",
+        "Fit (MATLAB compare",
+        "99.0 % on the whole log",
+        "Kp [codes/count]",
+        "PM [deg]",
+        "Ms [1]",
+        "Winner on the tuning objective: composite (fuzzy-PID + feedforward)",
+        "The composite law wins on the objective",
+        "ITAE (the tuning objective) [counts·s²]",
+        "sync error master − slave (black)",
+        "Phase margins in the table above",
+        "queue level [setpoints]",
+        "Over the plant set",
+    ):
         assert text in page, text
     # one self-contained file: every image a data URI, nothing fetched
     srcs = re.findall(r'<img [^>]*src="([^"]*)"', page)
     assert srcs and all(s.startswith("data:image/png;base64,") for s in srcs)
     assert not re.search(r'(src|href)="(?!data:|#)', page)
     # the numbers as data: the JSON block holds the summary the page shows
-    block = re.search(r'<script type="application/json" id="servotune-data">(.*?)</script>',
-                      page, re.S)  # fmt: skip
+    block = re.search(
+        r'<script type="application/json" id="servotune-data">(.*?)</script>', page, re.S
+    )
     assert block is not None
     data = json.loads(block.group(1))
     assert data["summary"]["verdict"] == verdict and data["summary"]["total"] == (

@@ -49,9 +49,14 @@ def spec():
 
 def _shared(tuning, rig, spec, scenarios=("sync", "track")) -> vrun._Shared:
     runs = tuple((spec.scenario(s), vrun._inputs(rig, spec.scenario(s))) for s in scenarios)
-    return vrun._Shared(rig=rig, loop=tuning.loop(rig), runs=runs,
-                        distribution=SpecSpread(rig=rig, montecarlo=spec.montecarlo),
-                        seed=spec.montecarlo.seed, threads=1)  # fmt: skip
+    return vrun._Shared(
+        rig=rig,
+        loop=tuning.loop(rig),
+        runs=runs,
+        distribution=SpecSpread(rig=rig, montecarlo=spec.montecarlo),
+        seed=spec.montecarlo.seed,
+        threads=1,
+    )
 
 
 def _chunk(seed: int, n_draws: int) -> vrun._Chunk:
@@ -63,15 +68,24 @@ def _chunk(seed: int, n_draws: int) -> vrun._Chunk:
 def _traced(shared, sc, inputs, chunk_plants, chunk):
     """The traced path of :func:`servotune.verify.run._run_chunk`: values, faults and the
     traces' true position and speed."""
-    batch = prepare_batch(shared.loop, plants=chunk_plants.plants(),
-                          seeds=[int(x) for x in chunk.noise])  # fmt: skip
+    batch = prepare_batch(
+        shared.loop, plants=chunk_plants.plants(), seeds=[int(x) for x in chunk.noise]
+    )
     res = run_batch(batch, inputs, metrics_only=False, threads=1)
     tr = res.traces
     assert tr is not None
-    values, faults = vrun._evaluate(shared.rig, sc, inputs, {
-        "counter": tr.counter, "pos_counts": tr.pos_counts, "err_counts": tr.err_counts,
-        "flags": tr.flags, "true_pos_counts": tr.true_pos_counts,
-    })  # fmt: skip
+    values, faults = vrun._evaluate(
+        shared.rig,
+        sc,
+        inputs,
+        {
+            "counter": tr.counter,
+            "pos_counts": tr.pos_counts,
+            "err_counts": tr.err_counts,
+            "flags": tr.flags,
+            "true_pos_counts": tr.true_pos_counts,
+        },
+    )
     return values, faults, tr.true_pos_counts, tr.speed_cps
 
 
@@ -96,10 +110,15 @@ def _noisy_only(rig, noisy: str):
     if noisy == "both":
         return rig
     keep = {"master": {"master"}, "slave": {"slave"}, "none": set()}[noisy]
-    return dataclasses.replace(rig, axes=tuple(
-        a if a.name in keep else dataclasses.replace(a, plant=dataclasses.replace(
-            a.plant, noise_counts=0.0)) for a in rig.axes
-    ))  # fmt: skip
+    return dataclasses.replace(
+        rig,
+        axes=tuple(
+            a
+            if a.name in keep
+            else dataclasses.replace(a, plant=dataclasses.replace(a.plant, noise_counts=0.0))
+            for a in rig.axes
+        ),
+    )
 
 
 CASES = [(sc, t, "both") for sc in ("sync", "track", "lock") for t in TUNINGS] + [
@@ -223,8 +242,9 @@ def test_pairwise_sum_is_numpys(kind) -> None:
 # --- fill_plant_rows -------------------------------------------------------------------------
 
 
-def _reference_row(plant: Plant, period_s: float, compute_s: float,
-                   counts_per_rev: float) -> tuple[list[float], int]:  # fmt: skip
+def _reference_row(
+    plant: Plant, period_s: float, compute_s: float, counts_per_rev: float
+) -> tuple[list[float], int]:
     """A plant row in plain python, from the definitions in ``servotune/plant.py``:
 
     - ``lag_split``'s docstring: ``lag = m·T + λ``, ``0 <= λ < T``, ``m = floor(lag/T + 1e-12)``,
@@ -260,10 +280,29 @@ def _reference_row(plant: Plant, period_s: float, compute_s: float,
     g1_p, g1_v = gain * (lam - b1), gain * (1.0 - a1)
     gn_p, gn_v = gain * (period_s - lam - b2), gain * (1.0 - a2)
     linear = plant.coulomb_v == 0.0 and coulomb_neg == 0.0 and gain_neg == gain
-    row = [gain, tau, plant.offset_v, plant.coulomb_v, vmax, plant.noise_counts,
-           a1, b1, a2, b2, lam, period_s - lam,
-           b_t, a_t, g1_p + b2 * g1_v, a2 * g1_v, gn_p, gn_v, 1.0 if linear else 0.0,
-           gain_neg, coulomb_neg]  # fmt: skip
+    row = [
+        gain,
+        tau,
+        plant.offset_v,
+        plant.coulomb_v,
+        vmax,
+        plant.noise_counts,
+        a1,
+        b1,
+        a2,
+        b2,
+        lam,
+        period_s - lam,
+        b_t,
+        a_t,
+        g1_p + b2 * g1_v,
+        a2 * g1_v,
+        gn_p,
+        gn_v,
+        1.0 if linear else 0.0,
+        gain_neg,
+        coulomb_neg,
+    ]
     assert len(row) == NROW
     return row, m
 
@@ -288,8 +327,9 @@ def _random_plant(rng: np.random.Generator, period_s: float, compute_s: float) -
         noise_counts=float(rng.uniform(0.0, 2.0)),
         gain_neg_cps_per_v=float(10.0 ** rng.uniform(1.0, 6.0)) if asym else None,
         coulomb_neg_v=(float(rng.uniform(0.0, 0.5)) if rng.random() < 0.7 else None)
-        if asym else None,
-    )  # fmt: skip
+        if asym
+        else None,
+    )
 
 
 def test_fill_plant_rows_equals_reference() -> None:
@@ -308,8 +348,17 @@ def test_fill_plant_rows_equals_reference() -> None:
             params = np.empty((len(plants), NPARAM))
             for i, p in enumerate(plants):
                 row, _ = want[i]
-                params[i] = (p.gain_cps_per_v, p.tau_s, p.offset_v, p.coulomb_v, row[19],
-                             row[20], row[4], p.noise_counts, p.delay_s)  # fmt: skip
+                params[i] = (
+                    p.gain_cps_per_v,
+                    p.tau_s,
+                    p.offset_v,
+                    p.coulomb_v,
+                    row[19],
+                    row[20],
+                    row[4],
+                    p.noise_counts,
+                    p.delay_s,
+                )
             rows = np.empty((len(plants), NROW))
             lags = np.empty(len(plants), dtype=np.int64)
             fill_plant_rows(params, period_s, compute_s, rows, lags)
@@ -326,11 +375,13 @@ def test_fill_plant_rows_equals_reference() -> None:
 def _huge_gain(rig, axis: str):
     """The rig with ``axis``'s drive gain at 1.7e308 counts/s/V and no speed limit: a valid
     plant whose speed overflows to inf at full D/A (positions go NaN)."""
-    plant = dataclasses.replace(rig.axis(axis).plant, gain_cps_per_v=1.7e308, max_speed_rpm=None,
-                                gain_neg_cps_per_v=None)  # fmt: skip
-    return dataclasses.replace(rig, axes=tuple(
-        dataclasses.replace(a, plant=plant) if a.name == axis else a for a in rig.axes
-    ))  # fmt: skip
+    plant = dataclasses.replace(
+        rig.axis(axis).plant, gain_cps_per_v=1.7e308, max_speed_rpm=None, gain_neg_cps_per_v=None
+    )
+    return dataclasses.replace(
+        rig,
+        axes=tuple(dataclasses.replace(a, plant=plant) if a.name == axis else a for a in rig.axes),
+    )
 
 
 @pytest.mark.filterwarnings("ignore:overflow encountered:RuntimeWarning")
@@ -344,15 +395,19 @@ def _huge_gain(rig, axis: str):
         (0.2, "gain_cps_per_v must be a finite number"),
     ],
 )
-def test_refused_like_traced(quick_tuning, rig, spec, monkeypatch, axis, gain_spread,
-                             message) -> None:  # fmt: skip
+def test_refused_like_traced(
+    quick_tuning, rig, spec, monkeypatch, axis, gain_spread, message
+) -> None:
     """The lean path raises the traced path's ValueError: it runs the kernel, sees a response
     ``step_info`` refuses and falls back to the traced path; a parameter row no Plant accepts
     is refused before any run."""
     bad_rig = _huge_gain(rig, axis)
     mc = dataclasses.replace(spec.montecarlo, count=2, gain_spread=gain_spread)
-    small = dataclasses.replace(spec, montecarlo=mc, scenarios=tuple(
-        s for s in spec.scenarios if s.kind in ("sync", "track")))  # fmt: skip
+    small = dataclasses.replace(
+        spec,
+        montecarlo=mc,
+        scenarios=tuple(s for s in spec.scenarios if s.kind in ("sync", "track")),
+    )
     lean_results = []
     real = vrun._run_lean_sync
     monkeypatch.setattr(
@@ -377,8 +432,9 @@ def test_hold_not_finite_is_left_to_the_traced_path(quick_tuning, rig, spec, axi
     path casts its ``floor`` to int64 as numpy casts it (no error, a RuntimeWarning); the lean
     kernel does not imitate that cast, it declines (None) and
     :func:`~servotune.verify.run._run_chunk` runs the traced path."""
-    spec = dataclasses.replace(spec, montecarlo=dataclasses.replace(spec.montecarlo,
-                                                                   gain_spread=0.0))  # fmt: skip
+    spec = dataclasses.replace(
+        spec, montecarlo=dataclasses.replace(spec.montecarlo, gain_spread=0.0)
+    )
     shared = _shared(quick_tuning, _huge_gain(rig, axis), spec, ("lock",))
     chunk = _chunk(shared.seed, 2)
     sc, inputs = shared.runs[0]
@@ -399,7 +455,7 @@ def test_hold_not_finite_is_left_to_the_traced_path(quick_tuning, rig, spec, axi
 
 
 @numba.njit
-def _exact_stream(seed, n, out):  # fmt: skip
+def _exact_stream(seed, n, out):
     """The stream's draws one after the other, as the general kernel makes them (the state a
     uint64 throughout: from Python it would come back as an int and lose its type)."""
     state = seed

@@ -122,9 +122,25 @@ def test_pareto_front_trades_tracking_for_robustness(rig: st.Rig, spec) -> None:
 
 def test_cli_compare_writes_figure4_and_the_sweep(tmp_path, capsys, monkeypatch) -> None:
     out = tmp_path / "cmp"
-    args = ["compare", str(RIG), "--spec", str(SPEC), "--out", str(out), "--seeds", "1",
-            "--generations", "1", "--population", "5", "--heldout-count", "2",
-            "--pareto", "2", "--json"]  # fmt: skip
+    args = [
+        "compare",
+        str(RIG),
+        "--spec",
+        str(SPEC),
+        "--out",
+        str(out),
+        "--seeds",
+        "1",
+        "--generations",
+        "1",
+        "--population",
+        "5",
+        "--heldout-count",
+        "2",
+        "--pareto",
+        "2",
+        "--json",
+    ]
     # the three files as a whole (docs/formats.md#outputs): the disk full at the last of them
     # leaves an earlier output as it was, the two figures not half replaced
     out.mkdir()
@@ -158,8 +174,9 @@ def test_cli_compare_writes_figure4_and_the_sweep(tmp_path, capsys, monkeypatch)
 
 
 def test_cli_compare_bad_sweep_is_one_line(tmp_path, capsys) -> None:
-    rc = main(["compare", str(RIG), "--spec", str(SPEC), "--out", str(tmp_path),
-               "--pareto", "1.5,x"])  # fmt: skip
+    rc = main(
+        ["compare", str(RIG), "--spec", str(SPEC), "--out", str(tmp_path), "--pareto", "1.5,x"]
+    )
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 3 and len(err) == 1 and "--pareto takes numbers" in err[0]
     assert not (tmp_path / "figure4.json").exists()

@@ -126,8 +126,20 @@ def test_an_impossible_spec_is_refused_with_the_binding_limit(tmp_path, monkeypa
     monkeypatch.setenv("SERVOTUNE_WORKBENCH", str(tmp_path / "wb"))
     out = tmp_path / "t.json"
     spec = _spec_with(tmp_path, min_phase_margin_deg=85.0)
-    rc = main(["tune", str(RIG), "-o", str(out), "--spec", str(spec), "--generations", "1",
-               "--population", "5"])  # fmt: skip
+    rc = main(
+        [
+            "tune",
+            str(RIG),
+            "-o",
+            str(out),
+            "--spec",
+            str(spec),
+            "--generations",
+            "1",
+            "--population",
+            "5",
+        ]
+    )
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 1 and "Traceback" not in "\n".join(err)
     # PM 85° is reachable only with gains so low that a variant trips its following-error
@@ -138,15 +150,19 @@ def test_an_impossible_spec_is_refused_with_the_binding_limit(tmp_path, monkeypa
 
 
 def test_tune_spec_follows_the_verification_spec(tmp_path) -> None:
-    spec = load_spec(_spec_with(tmp_path, min_phase_margin_deg=52.0, max_sensitivity=1.7,
-                                   extra_ticks=2))  # fmt: skip
+    spec = load_spec(
+        _spec_with(tmp_path, min_phase_margin_deg=52.0, max_sensitivity=1.7, extra_ticks=2)
+    )
     ts = tune_spec_from(spec, generations=3)
     assert (ts.min_phase_margin_deg, ts.max_sensitivity, ts.extra_ticks) == (52.0, 1.7, 2)
     assert ts.gain_spread == spec.montecarlo.gain_spread == 0.2  # the example spec's values
     assert ts.period_error_ppm == spec.max_period_error_ppm == 100.0
     run = spec.scenario("sync")  # tuned on; the others (track, lock, heldout) stay held out
     assert (ts.seconds, ts.speed_fraction, ts.load_step_v) == (
-        run.seconds, run.speed_fraction, run.load_step_v)  # fmt: skip
+        run.seconds,
+        run.speed_fraction,
+        run.load_step_v,
+    )
     assert ts.generations == 3
     assert tune_spec_from(spec, max_sensitivity=1.9).max_sensitivity == 1.9  # overrides win
     assert tune_spec_from().min_phase_margin_deg == DEFAULT_LIMITS.min_phase_margin_deg
@@ -167,8 +183,10 @@ def test_tune_flags_win_over_the_spec(tmp_path, monkeypatch) -> None:
 
     monkeypatch.setattr("servotune.tune.workflow.tune_rig", capture)
     spec = _spec_with(tmp_path, min_phase_margin_deg=52.0, max_sensitivity=1.7)
-    assert main(["tune", str(RIG), "--no-current", "--spec", str(spec), "--pm", "60",
-                 "--gm", "7"]) == 1  # fmt: skip
+    assert (
+        main(["tune", str(RIG), "--no-current", "--spec", str(spec), "--pm", "60", "--gm", "7"])
+        == 1
+    )
     ts = seen["spec"]
     assert (ts.min_phase_margin_deg, ts.min_gain_margin_db, ts.max_sensitivity) == (60, 7, 1.7)
     assert main(["tune", str(RIG), "--no-current", "--ms", "1.5"]) == 1
@@ -190,8 +208,9 @@ def test_tune_never_writes_a_tuning_that_breaks_its_margins(tmp_path, monkeypatc
     # by python-control over the plant set, pass) or refuses with exit 1, writing nothing
     monkeypatch.setenv("SERVOTUNE_WORKBENCH", str(tmp_path / "wb"))
     out = tmp_path / "t.json"
-    rc = main(["tune", str(RIG), "-o", str(out), "--generations", "1", "--population", "6",
-               "--json"])  # fmt: skip
+    rc = main(
+        ["tune", str(RIG), "-o", str(out), "--generations", "1", "--population", "6", "--json"]
+    )
     cap = capsys.readouterr()
     if rc == 1:
         assert not out.exists()
@@ -210,14 +229,23 @@ def test_tune_never_writes_a_tuning_that_breaks_its_margins(tmp_path, monkeypatc
 
 
 def test_the_tune_summary_prints_what_was_measured() -> None:
-    worst = {"max_sync_counts": 1234.4, "rms_sync_counts": 456.0, "saturation_pct": 0.5,
-             "overshoot_pct": 12.0, "fault": 0.0}  # fmt: skip
+    worst = {
+        "max_sync_counts": 1234.4,
+        "rms_sync_counts": 456.0,
+        "saturation_pct": 0.5,
+        "overshoot_pct": 12.0,
+        "fault": 0.0,
+    }
     summary = {
         "axes": {},
         "run": {"speed_fraction": 0.5, "load_step_v": -0.3},
-        "slave": {"objective": 99.0, "worst": worst, "binding": ["min_phase_margin_deg"],
-                  "at_bounds": []},
-    }  # fmt: skip
+        "slave": {
+            "objective": 99.0,
+            "worst": worst,
+            "binding": ["min_phase_margin_deg"],
+            "at_bounds": [],
+        },
+    }
     text = format_tuning_summary(summary)
     assert "sync error max 1234 counts, RMS 456 counts" in text
     assert "no fault" in text and "sits on: min_phase_margin_deg" in text

@@ -61,8 +61,7 @@ def test_cli_tune_bad_input_one_line(tmp_path, capsys) -> None:
 
 
 def test_impossible_tuning_spec_is_refused(tmp_path) -> None:
-    spec = SlaveTuneSpec(generations=1, population=6, max_overshoot_pct=0.0,
-                         max_saturation_pct=0.0)  # fmt: skip
+    spec = SlaveTuneSpec(generations=1, population=6, max_overshoot_pct=0.0, max_saturation_pct=0.0)
     with pytest.raises(st.SpecError, match="no slave tuning met the constraints"):
         tune_rig(RIG, spec=spec)
 

@@ -41,12 +41,17 @@ def _tuning(rig: st.Rig, slave_scale: float = 1.0, master_kp_scale: float = 1.0)
     tabs = rule_tables("default")
     kd0 = 0.05 * g_s.kp * rig.period_s  # Kd/T = 5 % of Kp at the base
     slave = FuzzyPIDGains(
-        kp0=g_s.kp * slave_scale, ki0=g_s.ki * slave_scale, kd0=kd0 * slave_scale,
-        k10=0.0, ke=0.01, kec=0.2, n=6,
+        kp0=g_s.kp * slave_scale,
+        ki0=g_s.ki * slave_scale,
+        kd0=kd0 * slave_scale,
+        k10=0.0,
+        ke=0.01,
+        kec=0.2,
+        n=6,
         dkp=0.6 * g_s.kp * slave_scale * tabs["kp"],
         dki=0.5 * g_s.ki * slave_scale * tabs["ki"],
         dkd=0.8 * kd0 * slave_scale * tabs["kd"],
-    )  # fmt: skip
+    )
     master = PIGains(kp=g_m.kp * master_kp_scale, ki=g_m.ki)
     loop = Loop.from_rig(rig, [master, slave])
     sha = hashlib.sha256(RIG.read_bytes()).hexdigest()
@@ -117,16 +122,25 @@ def test_margins_agree_with_an_independent_python_control_loop(case, rig) -> Non
     m = case["margins"]
     checks = []
     master_task = axes["master"]["task"]
-    checks.append((next(m.select("master", "task")), rig.axis("master").plant,
-                   (_value(master_task["kp"]), _value(master_task["ki_t"]), 0.0)))  # fmt: skip
-    checks.append((next(m.select("slave", "lock")), rig.axis("slave").plant,
-                   (_value(axes["slave"]["lock_gain"]), 0.0, 0.0)))  # fmt: skip
+    checks.append(
+        (
+            next(m.select("master", "task")),
+            rig.axis("master").plant,
+            (_value(master_task["kp"]), _value(master_task["ki_t"]), 0.0),
+        )
+    )
+    checks.append(
+        (
+            next(m.select("slave", "lock")),
+            rig.axis("slave").plant,
+            (_value(axes["slave"]["lock_gain"]), 0.0, 0.0),
+        )
+    )
     worst = m.worst("slave", "task")
     picks = {worst.cell, (0, 0), (6, 6), (-6, 3)}
     for x in m.select("slave", "task"):
         if x.cell in picks:
-            checks.append((x, rig.axis("slave").plant,
-                           _cell_gains(axes["slave"]["task"], *x.cell)))  # fmt: skip
+            checks.append((x, rig.axis("slave").plant, _cell_gains(axes["slave"]["task"], *x.cell)))
     assert len(checks) == 2 + len(picks)
     for got, plant, gains in checks:
         want = _oracle(plant, rig, *gains)
@@ -148,8 +162,9 @@ def test_plant_response_is_python_controls_own_route(rig) -> None:
     from servotune.plant import discretize
     from servotune.verify.margins import _grid, plant_cases, plant_response
 
-    cases = plant_cases(rig, gain_spread=0.2, tau_spread=0.3, extra_ticks=1,
-                        period_error_ppm=100, samples=8)  # fmt: skip
+    cases = plant_cases(
+        rig, gain_spread=0.2, tau_spread=0.3, extra_ticks=1, period_error_ppm=100, samples=8
+    )
     exact = importlib.util.find_spec("slycot") is None
     n = 0
     for c in cases:
@@ -193,10 +208,16 @@ def test_limits_decide_the_verdict(case) -> None:
     lo_ms = max(x.max_sensitivity for x in m.loops)
     lo_pm = min(x.phase_margin_deg for x in m.loops)
     lo_gm = min(x.gain_margin_db for x in m.loops)
-    loose = MarginLimits(min_phase_margin_deg=lo_pm - 0.1, min_gain_margin_db=lo_gm - 0.1,
-                         max_sensitivity=lo_ms + 0.01)  # fmt: skip
-    tight = MarginLimits(min_phase_margin_deg=lo_pm - 0.1, min_gain_margin_db=lo_gm - 0.1,
-                         max_sensitivity=lo_ms - 0.01)  # fmt: skip
+    loose = MarginLimits(
+        min_phase_margin_deg=lo_pm - 0.1,
+        min_gain_margin_db=lo_gm - 0.1,
+        max_sensitivity=lo_ms + 0.01,
+    )
+    tight = MarginLimits(
+        min_phase_margin_deg=lo_pm - 0.1,
+        min_gain_margin_db=lo_gm - 0.1,
+        max_sensitivity=lo_ms - 0.01,
+    )
     assert tuning_margins(case["tuning"], st.load_rig(RIG), limits=loose).passed
     t = tuning_margins(case["tuning"], st.load_rig(RIG), limits=tight)
     failing = {(x.name, x.plant) for x, _ in t.failures()}
@@ -221,8 +242,21 @@ def test_cli_json_and_a_passing_verdict(case, capsys) -> None:
     ms = max(x.max_sensitivity for x in m.loops) + 0.1
     pm = min(x.phase_margin_deg for x in m.loops) - 1
     gm = min(x.gain_margin_db for x in m.loops) - 1
-    rc = main(["margins", str(case["path"]), "--rig", str(RIG), "--json",
-               "--ms", str(ms), "--pm", str(pm), "--gm", str(gm)])  # fmt: skip
+    rc = main(
+        [
+            "margins",
+            str(case["path"]),
+            "--rig",
+            str(RIG),
+            "--json",
+            "--ms",
+            str(ms),
+            "--pm",
+            str(pm),
+            "--gm",
+            str(gm),
+        ]
+    )
     doc = json.loads(capsys.readouterr().out)
     assert rc == 0 and doc["passed"] is True and doc["failures"] == []
     assert len(doc["loops"]) == 172 and doc["worst"]["slave"] == m.worst("slave").name

@@ -281,9 +281,13 @@ def test_the_text_says_which_parameters_set_failures_apart() -> None:
 
     def text(passed: np.ndarray) -> str:
         table = sensitivity_table(names, values, passed, margin)
-        summary = st.verify.MonteCarloSummary(count=passed.size, passed=int(passed.sum()),
-                                              ci95=(0.0, 1.0), distribution="spec spread",
-                                              sensitivity=table)  # fmt: skip
+        summary = st.verify.MonteCarloSummary(
+            count=passed.size,
+            passed=int(passed.sum()),
+            ci95=(0.0, 1.0),
+            distribution="spec spread",
+            sensitivity=table,
+        )
         return format_montecarlo(summary)
 
     k = int((~passed).sum())

@@ -61,8 +61,11 @@ def _err_line(capsys) -> str:
 def test_the_tuning_records_its_rig_and_verify_finds_it(bench, tmp_path, capsys) -> None:
     data = json.loads(bench["good"].read_text())
     assert data["schema"] == "servotune.tuning/2"
-    assert data["rig"] == {"name": "pc-dual-servo", "path": bench["rig"].as_posix(),
-                           "sha256": _sha(bench["rig"])}  # fmt: skip
+    assert data["rig"] == {
+        "name": "pc-dual-servo",
+        "path": bench["rig"].as_posix(),
+        "sha256": _sha(bench["rig"]),
+    }
     t = _copy(bench["good"], tmp_path / "t.json")
     # no --rig: the recorded path is used (not plants/pc-dual-servo.toml of the working dir)
     assert main(["verify", str(t), "--spec", str(bench["spec"])]) == 0
@@ -203,7 +206,8 @@ def test_verify_also_records_the_current_tuning_when_it_is_the_same_bytes(
     assert main(["verify", str(tuning), "--spec", str(bench["spec"])]) == 0
     assert (tmp_path / "tuning.json.verify.json").is_file()
     assert (tmp_path / "wb" / "tuning.json.verify.json").read_bytes() == (
-        tmp_path / "tuning.json.verify.json").read_bytes()  # fmt: skip
+        tmp_path / "tuning.json.verify.json"
+    ).read_bytes()
     out = tmp_path / "fuzzy.json"
     assert main(["export-table", "-o", str(out)]) == 0 and out.is_file()
     # a current tuning of other bytes gets no record of this one

@@ -104,13 +104,21 @@ class GantryBus:
     compute_s: float = 0.0001
 
     def __post_init__(self) -> None:
-        check_number("cycle_s", self.cycle_s, "s", lo=MIN_CYCLE_S, hi=MAX_CYCLE_S,
-                     error=ConfigError)  # fmt: skip
+        check_number(
+            "cycle_s", self.cycle_s, "s", lo=MIN_CYCLE_S, hi=MAX_CYCLE_S, error=ConfigError
+        )
         check_number("jitter_s", self.jitter_s, "s", hi=0.01 * self.cycle_s, error=ConfigError)
-        check_integer("latency_cycles", self.latency_cycles, "cycles", lo=1,
-                      hi=MAX_LATENCY_CYCLES, error=ConfigError)  # fmt: skip
-        check_number("compute_s", self.compute_s, "s", hi=self.cycle_s, hi_strict=True,
-                     error=ConfigError)  # fmt: skip
+        check_integer(
+            "latency_cycles",
+            self.latency_cycles,
+            "cycles",
+            lo=1,
+            hi=MAX_LATENCY_CYCLES,
+            error=ConfigError,
+        )
+        check_number(
+            "compute_s", self.compute_s, "s", hi=self.cycle_s, hi_strict=True, error=ConfigError
+        )
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -129,10 +137,20 @@ class Beam:
     damping_v_s_per_count: float = 0.0
 
     def __post_init__(self) -> None:
-        check_number("stiffness_v_per_count", self.stiffness_v_per_count, "V/count", hi=MAX_BEAM,
-                     error=ConfigError)  # fmt: skip
-        check_number("damping_v_s_per_count", self.damping_v_s_per_count, "V·s/count",
-                     hi=MAX_BEAM, error=ConfigError)  # fmt: skip
+        check_number(
+            "stiffness_v_per_count",
+            self.stiffness_v_per_count,
+            "V/count",
+            hi=MAX_BEAM,
+            error=ConfigError,
+        )
+        check_number(
+            "damping_v_s_per_count",
+            self.damping_v_s_per_count,
+            "V·s/count",
+            hi=MAX_BEAM,
+            error=ConfigError,
+        )
 
     @property
     def coupled(self) -> bool:
@@ -180,10 +198,16 @@ class GantryAxis:
         for name in ("gain_spread", "tau_spread"):
             if getattr(self, name) is not None:
                 check_number(name, getattr(self, name), "1", hi=0.9, error=ConfigError)
-        check_integer("following_error_limit_counts", self.following_error_limit_counts,
-                      "counts", hi=MAX_COUNTS, error=ConfigError)  # fmt: skip
-        check_integer("counter_init", self.counter_init, "register value", hi=2**32 - 1,
-                      error=ConfigError)  # fmt: skip
+        check_integer(
+            "following_error_limit_counts",
+            self.following_error_limit_counts,
+            "counts",
+            hi=MAX_COUNTS,
+            error=ConfigError,
+        )
+        check_integer(
+            "counter_init", self.counter_init, "register value", hi=2**32 - 1, error=ConfigError
+        )
 
     @property
     def gains(self) -> PIGains:
@@ -239,30 +263,49 @@ class SyncSettings:
                 check_number(name, getattr(self, name), unit, hi=MAX_GAIN, error=ConfigError)
         for name in ("dead_zone_counts", "warn_counts", "trip_counts"):
             check_integer(name, getattr(self, name), "counts", hi=MAX_COUNTS, error=ConfigError)
-        check_integer("limit_counts", self.limit_counts, "counts", lo=1, hi=MAX_COUNTS,
-                      error=ConfigError)  # fmt: skip
+        check_integer(
+            "limit_counts", self.limit_counts, "counts", lo=1, hi=MAX_COUNTS, error=ConfigError
+        )
         if self.warn_counts and self.trip_counts and self.warn_counts >= self.trip_counts:
             raise ConfigError(
                 f"warn_counts must be < trip_counts [counts], got {self.warn_counts} >= "
                 f"{self.trip_counts}"
             )
-        check_number("phase_margin_deg", self.phase_margin_deg, "deg", strict=True, hi=90.0,
-                     hi_strict=True, error=ConfigError)  # fmt: skip
-        check_number("gain_margin_db", self.gain_margin_db, "dB", strict=True, hi=60.0,
-                     error=ConfigError)  # fmt: skip
-        check_number("max_sensitivity", self.max_sensitivity, "-", lo=1.0, strict=True, hi=10.0,
-                     error=ConfigError)  # fmt: skip
+        check_number(
+            "phase_margin_deg",
+            self.phase_margin_deg,
+            "deg",
+            strict=True,
+            hi=90.0,
+            hi_strict=True,
+            error=ConfigError,
+        )
+        check_number(
+            "gain_margin_db", self.gain_margin_db, "dB", strict=True, hi=60.0, error=ConfigError
+        )
+        check_number(
+            "max_sensitivity",
+            self.max_sensitivity,
+            "-",
+            lo=1.0,
+            strict=True,
+            hi=10.0,
+            error=ConfigError,
+        )
 
     @property
     def gains(self) -> SyncGains:
         """The compensator's gains (after :func:`resolve_gains`)."""
         if self.kp is None or (self.law == "pi" and self.ki is None):
             raise ValueError("sync gains are not resolved; call resolve_gains(config)")
-        return SyncGains(law=self.law, kp=self.kp,
-                         ki=self.ki or 0.0 if self.law == "pi" else 0.0,
-                         kd=self.kd or 0.0 if self.law == "pd" else 0.0,
-                         dead_zone_counts=self.dead_zone_counts,
-                         limit_counts=self.limit_counts)  # fmt: skip
+        return SyncGains(
+            law=self.law,
+            kp=self.kp,
+            ki=self.ki or 0.0 if self.law == "pi" else 0.0,
+            kd=self.kd or 0.0 if self.law == "pd" else 0.0,
+            dead_zone_counts=self.dead_zone_counts,
+            limit_counts=self.limit_counts,
+        )
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -330,14 +373,32 @@ class GantryMove:
     start_s: float = 0.05
 
     def __post_init__(self) -> None:
-        check_integer("distance_counts", self.distance_counts, "counts", lo=-MAX_COUNTS,
-                      hi=MAX_COUNTS, error=ConfigError)  # fmt: skip
+        check_integer(
+            "distance_counts",
+            self.distance_counts,
+            "counts",
+            lo=-MAX_COUNTS,
+            hi=MAX_COUNTS,
+            error=ConfigError,
+        )
         if self.distance_counts == 0:
             raise ConfigError("distance_counts must not be 0 [counts]: the study needs a move")
-        check_number("speed_cps", self.speed_cps, "counts/s", strict=True, hi=MAX_SPEED_CPS,
-                     error=ConfigError)  # fmt: skip
-        check_number("accel_cps2", self.accel_cps2, "counts/s²", strict=True,
-                     hi=MAX_ACCEL_CPS2, error=ConfigError)  # fmt: skip
+        check_number(
+            "speed_cps",
+            self.speed_cps,
+            "counts/s",
+            strict=True,
+            hi=MAX_SPEED_CPS,
+            error=ConfigError,
+        )
+        check_number(
+            "accel_cps2",
+            self.accel_cps2,
+            "counts/s²",
+            strict=True,
+            hi=MAX_ACCEL_CPS2,
+            error=ConfigError,
+        )
         check_number("start_s", self.start_s, "s", hi=MAX_SECONDS, error=ConfigError)
 
 
@@ -440,12 +501,16 @@ class GantryConfig:
         """The two drives' runtime controllers: a tuning's (``controller``), else PI at the
         bus cycle quantised from the gains (lock gain :data:`DRIVE_LOCK_GAIN`)."""
         return tuple(
-            ax.controller if ax.controller is not None else
-            AxisController.from_gains(lock_gain_codes_per_count=DRIVE_LOCK_GAIN,
-                                      task_gains=ax.gains, period_s=self.bus.cycle_s,
-                                      following_error_limit_counts=ax.following_error_limit_counts)
+            ax.controller
+            if ax.controller is not None
+            else AxisController.from_gains(
+                lock_gain_codes_per_count=DRIVE_LOCK_GAIN,
+                task_gains=ax.gains,
+                period_s=self.bus.cycle_s,
+                following_error_limit_counts=ax.following_error_limit_counts,
+            )
             for ax in (self.master, self.slave)
-        )  # type: ignore[return-value]  # fmt: skip
+        )  # type: ignore[return-value]
 
 
 def gantry_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".") -> GantryConfig:
@@ -456,8 +521,14 @@ def gantry_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".") -> Gan
     ConfigError
         Naming the first invalid table or field, its value and unit.
     """
-    check_keys(data, "", (), ("gantry", "bus", "beam", "axis", "sync", "move", "load", "margins"),
-               error=ConfigError, noun="table")  # fmt: skip
+    check_keys(
+        data,
+        "",
+        (),
+        ("gantry", "bus", "beam", "axis", "sync", "move", "load", "margins"),
+        error=ConfigError,
+        noun="table",
+    )
 
     def table(key: str, required: bool = False) -> Mapping[str, Any]:
         return check_table(data, key, error=ConfigError, required=required)
@@ -485,21 +556,36 @@ def gantry_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".") -> Gan
         at = dict(at)
         if not isinstance(at.get("plant"), Mapping):
             raise ConfigError(f"missing table [axis.{name}.plant]")
-        plant = plant_from_table(at.pop("plant"), f"axis.{name}.plant", rig.dac.range_v,
-                                 error=ConfigError)  # fmt: skip
-        drives[name] = build_section(GantryAxis, at, f"axis.{name}", ConfigError, plant=plant,
-                                     controller=None)  # fmt: skip
+        plant = plant_from_table(
+            at.pop("plant"), f"axis.{name}.plant", rig.dac.range_v, error=ConfigError
+        )
+        drives[name] = build_section(
+            GantryAxis, at, f"axis.{name}", ConfigError, plant=plant, controller=None
+        )
     extra = sorted(set(axes_t) - {"master", "slave"})
     if extra:
         raise ConfigError(f"unknown axis [axis.{extra[0]}] (a gantry has master and slave)")
     parts = {
         k: build_section(cls, table(k), k, ConfigError)
-        for k, cls in (("bus", GantryBus), ("beam", Beam), ("move", GantryMove),
-                       ("load", GantryLoad), ("margins", GantryMargins))
-    }  # fmt: skip
+        for k, cls in (
+            ("bus", GantryBus),
+            ("beam", Beam),
+            ("move", GantryMove),
+            ("load", GantryLoad),
+            ("margins", GantryMargins),
+        )
+    }
     parts["sync"] = build_section(SyncSettings, table("sync"), "sync", ConfigError, constants=None)
-    return build_section(GantryConfig, meta, "gantry", ConfigError, rig=rig,
-                         master=drives["master"], slave=drives["slave"], **parts)  # fmt: skip
+    return build_section(
+        GantryConfig,
+        meta,
+        "gantry",
+        ConfigError,
+        rig=rig,
+        master=drives["master"],
+        slave=drives["slave"],
+        **parts,
+    )
 
 
 def _case_config(cfg: GantryConfig, case: str) -> tuple[GantryConfig, np.ndarray]:

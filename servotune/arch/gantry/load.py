@@ -35,7 +35,8 @@ def load_gantry(
     p = Path(path)
     if raw is None:
         raw = read_bytes(p, ConfigError, "gantry config")
-    cfg = parse_toml_as(raw, str(p), ConfigError, "gantry config",
-                        lambda d: gantry_from_dict(d, base_dir=p.parent))  # fmt: skip
+    cfg = parse_toml_as(
+        raw, str(p), ConfigError, "gantry config", lambda d: gantry_from_dict(d, base_dir=p.parent)
+    )
     cfg = replace(cfg, name=cfg.name if cfg.name != "gantry" else p.stem.removesuffix(".sync"))
     return resolve_gains(cfg) if resolve else cfg

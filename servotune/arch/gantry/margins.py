@@ -90,9 +90,13 @@ def gantry_cases(cfg: GantryConfig) -> tuple[GantryCase, ...]:
     if max(mg, mt, sg_, st_) > 0:
         for sg in (-1, 1):
             for st in (-1, 1):
-                sets.append((f"gain{'-+'[sg > 0]},tau{'-+'[st > 0]}",
-                             _scaled(cfg.master.plant, 1.0 + sg * mg, 1.0 + st * mt),
-                             _scaled(cfg.slave.plant, 1.0 + sg * sg_, 1.0 + st * st_)))  # fmt: skip
+                sets.append(
+                    (
+                        f"gain{'-+'[sg > 0]},tau{'-+'[st > 0]}",
+                        _scaled(cfg.master.plant, 1.0 + sg * mg, 1.0 + st * mt),
+                        _scaled(cfg.slave.plant, 1.0 + sg * sg_, 1.0 + st * st_),
+                    )
+                )
     lates = [0] + ([m.extra_cycles] if m.extra_cycles > 0 else [])
     return tuple(
         GantryCase(label=label + (f"+{x}cycle" if x else ""), master=pm, slave=ps, extra_cycles=x)
@@ -119,16 +123,28 @@ def gantry_margins(
     out = []
     for case in gantry_cases(cfg):
         late = case.extra_cycles * dt
-        for name, ax, plant in (("master", cfg.master, case.master),
-                                ("slave", cfg.slave, case.slave)):  # fmt: skip
+        for name, ax, plant in (
+            ("master", cfg.master, case.master),
+            ("slave", cfg.slave, case.slave),
+        ):
             if name not in loops:
                 continue
             g = GainSet(ax.gains.kp, ax.gains.ki * dt)
-            model = loop_model(plant, g, period_s=dt, lag_s=cfg.bus.compute_s + plant.delay_s
-                               + late, lsb_volts=lsb)  # fmt: skip
+            model = loop_model(
+                plant, g, period_s=dt, lag_s=cfg.bus.compute_s + plant.delay_s + late, lsb_volts=lsb
+            )
             figures = loop_margins(model, _grid(plant, dt))
-            out.append(LoopMargins(axis=name, loop="drive", cell=None, plant=case.label,
-                                   gains=g, period_s=dt, **figures))  # fmt: skip
+            out.append(
+                LoopMargins(
+                    axis=name,
+                    loop="drive",
+                    cell=None,
+                    plant=case.label,
+                    gains=g,
+                    period_s=dt,
+                    **figures,
+                )
+            )
         if "sync" in loops and cfg.topology in SYNC_TOPOLOGIES:
             # the sync loop: the slave's closed drive loop behind the bus latency, plus the
             # extra cycles
@@ -138,8 +154,17 @@ def gantry_margins(
             g = GainSet(s.kp, s.ki * dt, s.kd / dt)
             loop = sync_loop_models(c).loop
             figures = loop_margins(loop, _grid(case.slave, dt))
-            out.append(LoopMargins(axis="sync", loop="sync", cell=None, plant=case.label,
-                                   gains=g, period_s=dt, **figures))  # fmt: skip
+            out.append(
+                LoopMargins(
+                    axis="sync",
+                    loop="sync",
+                    cell=None,
+                    plant=case.label,
+                    gains=g,
+                    period_s=dt,
+                    **figures,
+                )
+            )
     return tuple(out)
 
 

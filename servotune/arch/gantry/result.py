@@ -149,9 +149,12 @@ class GantryVariant:
         return f"mc{self.index}"
 
     def to_dict(self) -> dict[str, Any]:
-        return {"label": self.label, "factors": dict(self.factors),
-                "max_sync_error_counts": json_float(self.max_sync_error_counts),
-                "tripped": self.tripped}  # fmt: skip
+        return {
+            "label": self.label,
+            "factors": dict(self.factors),
+            "max_sync_error_counts": json_float(self.max_sync_error_counts),
+            "tripped": self.tripped,
+        }
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -187,9 +190,15 @@ class GantryMonteCarlo:
 
     def to_dict(self) -> dict[str, Any]:
         k, n, frac, lo, hi = self.pass_fraction
-        return {"seed": self.seed, "count": n, "passed": k, "fraction": frac,
-                "interval95": [lo, hi], "worst": self.worst.to_dict(),
-                "tripped": [v.to_dict() for v in self.variants if v.tripped]}  # fmt: skip
+        return {
+            "seed": self.seed,
+            "count": n,
+            "passed": k,
+            "fraction": frac,
+            "interval95": [lo, hi],
+            "worst": self.worst.to_dict(),
+            "tripped": [v.to_dict() for v in self.variants if v.tripped],
+        }
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -256,27 +265,32 @@ class SyncComparison:
         """Plain JSON-able dict (``schema`` ``servotune.sync/2``: ``/1`` and the margins)."""
         c = self.config
         lim = c.margins
-        return json_safe({
-            "schema": "servotune.sync/2",
-            "margins": {
-                "limits": lim.limits.to_dict() | {"extra_cycles": lim.extra_cycles,
-                                                  "gain_spread": lim.gain_spread,
-                                                  "tau_spread": lim.tau_spread},
-                "worst": {k: m.to_dict() for k, m in self.worst_margins().items()},
-            },
-            "name": c.name,
-            "topology": c.topology,
-            "cycle_s": c.bus.cycle_s,
-            "latency_cycles": c.bus.latency_cycles,
-            "stop_bound_cycles": c.stop_bound_cycles,
-            "drives": {"master": c.master.gains.to_dict(), "slave": c.slave.gains.to_dict()},
-            "sync": c.sync.gains.to_dict() | {"warn_counts": c.sync.warn_counts,
-                                              "trip_counts": c.sync.trip_counts},
-            "sync_constants": c.sync_constants.to_dict(),
-            "results": [r.to_dict() for r in self.rows],
-            "montecarlo": None if self.montecarlo is None else self.montecarlo.to_dict(),
-            "predicted_load": {} if self.predicted is None else self.predicted.to_dict(),
-            "passed": self.passed,
-            "failed": list(self.failed),
-            "version": __version__,
-        })  # fmt: skip
+        return json_safe(
+            {
+                "schema": "servotune.sync/2",
+                "margins": {
+                    "limits": lim.limits.to_dict()
+                    | {
+                        "extra_cycles": lim.extra_cycles,
+                        "gain_spread": lim.gain_spread,
+                        "tau_spread": lim.tau_spread,
+                    },
+                    "worst": {k: m.to_dict() for k, m in self.worst_margins().items()},
+                },
+                "name": c.name,
+                "topology": c.topology,
+                "cycle_s": c.bus.cycle_s,
+                "latency_cycles": c.bus.latency_cycles,
+                "stop_bound_cycles": c.stop_bound_cycles,
+                "drives": {"master": c.master.gains.to_dict(), "slave": c.slave.gains.to_dict()},
+                "sync": c.sync.gains.to_dict()
+                | {"warn_counts": c.sync.warn_counts, "trip_counts": c.sync.trip_counts},
+                "sync_constants": c.sync_constants.to_dict(),
+                "results": [r.to_dict() for r in self.rows],
+                "montecarlo": None if self.montecarlo is None else self.montecarlo.to_dict(),
+                "predicted_load": {} if self.predicted is None else self.predicted.to_dict(),
+                "passed": self.passed,
+                "failed": list(self.failed),
+                "version": __version__,
+            }
+        )

@@ -101,8 +101,14 @@ def move_profile(move: GantryMove, cycle_s: float, n_cycles: int) -> np.ndarray:
     """The CNC's command per cycle [counts]: a trapezoidal (or triangular) move of
     ``distance_counts`` starting at the cycle nearest ``start_s``, then held
     (:func:`~servotune.scenarios.trapezoid_ref`)."""
-    return trapezoid_ref(n_cycles, cycle_s, move.distance_counts, move.speed_cps,
-                         move.accel_cps2, start_tick=round(move.start_s / cycle_s))  # fmt: skip
+    return trapezoid_ref(
+        n_cycles,
+        cycle_s,
+        move.distance_counts,
+        move.speed_cps,
+        move.accel_cps2,
+        start_tick=round(move.start_s / cycle_s),
+    )
 
 
 def _substeps(cfg: GantryConfig, plants: tuple[Plant, Plant]) -> int:
@@ -113,8 +119,11 @@ def _substeps(cfg: GantryConfig, plants: tuple[Plant, Plant]) -> int:
     rate = 0.0
     for p in plants:
         g_t = max(p.gains_cps_per_v) / p.tau_s  # the faster direction's
-        rate = max(rate, math.sqrt(2 * g_t * cfg.beam.stiffness_v_per_count),
-                   2 * g_t * cfg.beam.damping_v_s_per_count)  # fmt: skip
+        rate = max(
+            rate,
+            math.sqrt(2 * g_t * cfg.beam.stiffness_v_per_count),
+            2 * g_t * cfg.beam.damping_v_s_per_count,
+        )
     return int(min(_MAX_SUBSTEPS, max(1, math.ceil(rate * cfg.bus.cycle_s / 0.05))))
 
 
@@ -142,19 +151,62 @@ def _scratch(ring_n: int) -> tuple[np.ndarray, ...]:
     """The kernel's working arrays, zeroed: the drives' law states, their tick-slot rings
     (``ring_n`` slots), positions and speeds, the held inputs of a coupled cycle, the cycles
     each drive stops at (-1: running)."""
-    return (np.zeros((2, N_STATE), dtype=np.int64), np.zeros((2, ring_n)), np.zeros(2),
-            np.zeros(2), np.zeros(2), np.zeros(2), np.full(2, -1, dtype=np.int64))  # fmt: skip
+    return (
+        np.zeros((2, N_STATE), dtype=np.int64),
+        np.zeros((2, ring_n)),
+        np.zeros(2),
+        np.zeros(2),
+        np.zeros(2),
+        np.zeros(2),
+        np.full(2, -1, dtype=np.int64),
+    )
 
 
 # The working arrays come from :func:`_scratch`: nothing is allocated inside the kernel.
 @jit
 def _gantry_kernel(
-    topo, lat, cmd, load, jit_s, resets, seed, consts, counter_init, bits, dac_lo, lsb,
-    rows, lag_m, coupled, hs, new, seg_a, seg_b, k_beam, c_beam,
-    sc, warn, trip,
-    code, y_out, raw_out, ref_out, flags_out, pos_out, op_out, in_out, comp_out, level_out,
-    st, ring, pos, spd, w_old, w_new, stop_k,
-):  # fmt: skip
+    topo,
+    lat,
+    cmd,
+    load,
+    jit_s,
+    resets,
+    seed,
+    consts,
+    counter_init,
+    bits,
+    dac_lo,
+    lsb,
+    rows,
+    lag_m,
+    coupled,
+    hs,
+    new,
+    seg_a,
+    seg_b,
+    k_beam,
+    c_beam,
+    sc,
+    warn,
+    trip,
+    code,
+    y_out,
+    raw_out,
+    ref_out,
+    flags_out,
+    pos_out,
+    op_out,
+    in_out,
+    comp_out,
+    level_out,
+    st,
+    ring,
+    pos,
+    spd,
+    w_old,
+    w_new,
+    stop_k,
+):
     """One gantry run (:func:`run_gantry`): fills the per-cycle outputs ``code`` …
     ``level_out`` and returns the cycle the monitor first tripped (-1 if it did not).
 
@@ -195,8 +247,9 @@ def _gantry_kernel(
             rng, nz = draw_noise(rng, rows[a, R_NOISE])
             pos_out[k, a] = pos[a]
             p_s = pos[a] + spd[a] * jit_s[k, a]
-            raw_out[k, a], y_out[k, a] = read_axis(st, consts, a, p_s, 0.0, nz, counter_init[a],
-                                                   mask, True, nbytes, 0.0, rs)  # fmt: skip
+            raw_out[k, a], y_out[k, a] = read_axis(
+                st, consts, a, p_s, 0.0, nz, counter_init[a], mask, True, nbytes, 0.0, rs
+            )
         # the sync error as the slave / the CNC sees it: measured, latency cycles old
         comp = np.int64(0)
         if k >= lat:
@@ -217,9 +270,18 @@ def _gantry_kernel(
                     enter = False
                 else:
                     comp, integ, e_prev = sync_step(
-                        sc[0], sc[1], sc[2], sc[3], sc[4], sc[5], sc[6], sc[7], integ, e_prev,
+                        sc[0],
+                        sc[1],
+                        sc[2],
+                        sc[3],
+                        sc[4],
+                        sc[5],
+                        sc[6],
+                        sc[7],
+                        integ,
+                        e_prev,
                         e_seen,
-                    )  # fmt: skip
+                    )
                     op_out[k] = OP_STEP
                 comp_out[k] = comp
         for a in range(2):
@@ -243,8 +305,9 @@ def _gantry_kernel(
             r = r_m if a == 0 else r_s
             # a drive the monitor stops in this very cycle keeps its fault: the reset is refused
             stopped = stop_k[a] >= 0 and k >= stop_k[a]
-            c, fl, _, volts = write_axis(st, consts, a, r, MODE_TASK, rs and not stopped, 0,
-                                         dac_lo, lsb)  # fmt: skip
+            c, fl, _, volts = write_axis(
+                st, consts, a, r, MODE_TASK, rs and not stopped, 0, dac_lo, lsb
+            )
             code[k, a] = c
             flags_out[k, a] = fl
             hold(ring[a], slot, volts)
@@ -253,8 +316,9 @@ def _gantry_kernel(
         if not coupled:
             for a in range(2):
                 w_off = rows[a, R_OFFSET] + load[k, a]
-                pos[a], spd[a] = advance_axis(pos[a], spd[a], ring[a], slot, lag_m[a], k, w_off,
-                                              rows[a])  # fmt: skip
+                pos[a], spd[a] = advance_axis(
+                    pos[a], spd[a], ring[a], slot, lag_m[a], k, w_off, rows[a]
+                )
         else:
             for a in range(2):
                 v_old, v_new = held(ring[a], slot, lag_m[a], k)
@@ -267,10 +331,19 @@ def _gantry_kernel(
                     w = w_new[a] if new[i, a] else w_old[a]
                     w += -f_beam if a == 0 else f_beam
                     pos[a], spd[a] = advance(
-                        pos[a], spd[a], w, hs[i], seg_a[i, a], seg_b[i, a], rows[a, R_GAIN],
-                        rows[a, R_TAU], rows[a, R_COULOMB], rows[a, R_VMAX], rows[a, R_GAIN_NEG],
+                        pos[a],
+                        spd[a],
+                        w,
+                        hs[i],
+                        seg_a[i, a],
+                        seg_b[i, a],
+                        rows[a, R_GAIN],
+                        rows[a, R_TAU],
+                        rows[a, R_COULOMB],
+                        rows[a, R_VMAX],
+                        rows[a, R_GAIN_NEG],
                         rows[a, R_COULOMB_NEG],
-                    )  # fmt: skip
+                    )
     return first_trip
 
 
@@ -300,8 +373,11 @@ def simulate_gantry(
     GantryTrace
     """
     n = cfg.n_cycles
-    check_memory(n * _TRACE_BYTES_PER_CYCLE, f"a gantry run of {cfg.seconds:g} s",
-                 f"{n:,} cycles × {_TRACE_BYTES_PER_CYCLE} bytes")  # fmt: skip
+    check_memory(
+        n * _TRACE_BYTES_PER_CYCLE,
+        f"a gantry run of {cfg.seconds:g} s",
+        f"{n:,} cycles × {_TRACE_BYTES_PER_CYCLE} bytes",
+    )
     cfg, load = _case_config(cfg, case)
     cmd = move_profile(cfg.move, cfg.bus.cycle_s, n)
     return run_gantry(cfg, cmd, load, topology=topology, seed=seed, case=case)
@@ -348,8 +424,9 @@ def run_gantry(
     n = cmd.shape[0]
     load = np.ascontiguousarray(load, dtype=np.float64)
     if cmd.ndim != 1 or n < 1 or load.shape != (n, 2):
-        raise ValueError(f"command must have shape (n,) and load (n, 2), got {cmd.shape} and "
-                         f"{load.shape}")  # fmt: skip
+        raise ValueError(
+            f"command must have shape (n,) and load (n, 2), got {cmd.shape} and {load.shape}"
+        )
     rs = np.zeros(n, dtype=np.int8) if resets is None else np.asarray(resets, dtype=np.int8)
     if rs.shape != (n,):
         raise ValueError(f"resets must have shape ({n},), got {rs.shape}")
@@ -364,13 +441,29 @@ def run_gantry(
         jit_s = np.random.default_rng(seed).uniform(-1.0, 1.0, (n, 2)) * cfg.bus.jitter_s
     else:
         jit_s = np.zeros((n, 2))
-    consts = np.stack([c.consts(counter_bits=rig.counter.bits, dac_bits=rig.dac.bits,
-                                dac_zero=rig.dac.zero_code)
-                       for c in cfg.controllers()])  # fmt: skip
+    consts = np.stack(
+        [
+            c.consts(
+                counter_bits=rig.counter.bits, dac_bits=rig.dac.bits, dac_zero=rig.dac.zero_code
+            )
+            for c in cfg.controllers()
+        ]
+    )
     hs, new, seg_a, seg_b = _segments(cfg, plants, rows)
     sc_q = cfg.sync_constants
-    sc = np.array([sc_q.kp.q, sc_q.kp.f, sc_q.ki_t.q, sc_q.ki_t.f, sc_q.kd_t.q, sc_q.kd_t.f,
-                   sc_q.dead_zone_counts, sc_q.limit_counts], dtype=np.int64)  # fmt: skip
+    sc = np.array(
+        [
+            sc_q.kp.q,
+            sc_q.kp.f,
+            sc_q.ki_t.q,
+            sc_q.ki_t.f,
+            sc_q.kd_t.q,
+            sc_q.kd_t.f,
+            sc_q.dead_zone_counts,
+            sc_q.limit_counts,
+        ],
+        dtype=np.int64,
+    )
     i2 = lambda: np.zeros((n, 2), dtype=np.int64)  # noqa: E731
     i1 = lambda: np.zeros(n, dtype=np.int64)  # noqa: E731
     code, y, raw, ref, flags = i2(), i2(), i2(), i2(), i2()
@@ -378,18 +471,63 @@ def run_gantry(
     op, e_in, comp, level = i1(), i1(), i1(), i1()
     init = np.array([cfg.master.counter_init, cfg.slave.counter_init], dtype=np.int64)
     trip_k = call_compiled(
-        _gantry_kernel, TOPOLOGIES.index(topology), cfg.bus.latency_cycles, cmd, load, jit_s,
-        rs, np.uint64(seed), consts, init, rig.counter.bits, rig.dac.range_v[0], rig.dac.lsb_v,
-        rows, lag_m, cfg.beam.coupled, hs, new, seg_a, seg_b,
-        cfg.beam.stiffness_v_per_count, cfg.beam.damping_v_s_per_count, sc,
-        cfg.sync.warn_counts, cfg.sync.trip_counts,
-        code, y, raw, ref, flags, pos, op, e_in, comp, level, *_scratch(int(lag_m.max()) + 2),
-    )  # fmt: skip
-    return GantryTrace(topology=topology, case=case, cycle_s=cfg.bus.cycle_s, command=cmd,
-                       ref=ref, y=y, counter=raw, position=pos, code=code, flags=flags,
-                       sync_error=y[:, 0] - y[:, 1], sync_op=op, sync_input=e_in,
-                       sync_comp=comp, sync_level=level, resets=rs.astype(bool),
-                       trip_cycle=int(trip_k), stop_bound_cycles=cfg.stop_bound_cycles)  # fmt: skip
+        _gantry_kernel,
+        TOPOLOGIES.index(topology),
+        cfg.bus.latency_cycles,
+        cmd,
+        load,
+        jit_s,
+        rs,
+        np.uint64(seed),
+        consts,
+        init,
+        rig.counter.bits,
+        rig.dac.range_v[0],
+        rig.dac.lsb_v,
+        rows,
+        lag_m,
+        cfg.beam.coupled,
+        hs,
+        new,
+        seg_a,
+        seg_b,
+        cfg.beam.stiffness_v_per_count,
+        cfg.beam.damping_v_s_per_count,
+        sc,
+        cfg.sync.warn_counts,
+        cfg.sync.trip_counts,
+        code,
+        y,
+        raw,
+        ref,
+        flags,
+        pos,
+        op,
+        e_in,
+        comp,
+        level,
+        *_scratch(int(lag_m.max()) + 2),
+    )
+    return GantryTrace(
+        topology=topology,
+        case=case,
+        cycle_s=cfg.bus.cycle_s,
+        command=cmd,
+        ref=ref,
+        y=y,
+        counter=raw,
+        position=pos,
+        code=code,
+        flags=flags,
+        sync_error=y[:, 0] - y[:, 1],
+        sync_op=op,
+        sync_input=e_in,
+        sync_comp=comp,
+        sync_level=level,
+        resets=rs.astype(bool),
+        trip_cycle=int(trip_k),
+        stop_bound_cycles=cfg.stop_bound_cycles,
+    )
 
 
 _MC_MAX = 1_000_000  # plant pairs of a Monte-Carlo run
@@ -424,8 +562,10 @@ def compare_topologies(cfg: GantryConfig, *, seed: int = 0, montecarlo: int = 0)
             m = tr.metrics()
             rows.append(m)
             if topo == cfg.topology and m.tripped:
-                failed.append(f"sync trip in the {case} case at {m.trip_time_s:.3f} s "
-                              f"(|sync error| >= {cfg.sync.trip_counts} counts)")  # fmt: skip
+                failed.append(
+                    f"sync trip in the {case} case at {m.trip_time_s:.3f} s "
+                    f"(|sync error| >= {cfg.sync.trip_counts} counts)"
+                )
     predicted = predicted_load_reduction(cfg) if not cfg.beam.coupled else None
     margins = gantry_margins(cfg)
     failed += margin_failures(margins, cfg.margins.limits)
@@ -434,10 +574,18 @@ def compare_topologies(cfg: GantryConfig, *, seed: int = 0, montecarlo: int = 0)
         k, n, *_ = mc.pass_fraction
         w = mc.worst
         drawn = ", ".join(f"{key.replace('_', ' ')} x{v:.3f}" for key, v in w.factors.items())
-        failed.append(f"Monte Carlo: {n - k} of {n} plant pairs trip (first by size: {w.label}: "
-                      f"{drawn})")  # fmt: skip
-    return SyncComparison(config=cfg, rows=tuple(rows), traces=tuple(traces), predicted=predicted,
-                          failed=tuple(failed), margins=margins, montecarlo=mc)  # fmt: skip
+        failed.append(
+            f"Monte Carlo: {n - k} of {n} plant pairs trip (first by size: {w.label}: {drawn})"
+        )
+    return SyncComparison(
+        config=cfg,
+        rows=tuple(rows),
+        traces=tuple(traces),
+        predicted=predicted,
+        failed=tuple(failed),
+        margins=margins,
+        montecarlo=mc,
+    )
 
 
 def gantry_montecarlo(
@@ -463,8 +611,10 @@ def gantry_montecarlo(
         If ``count`` is not in 1..1,000,000 (a ``ValueError``).
     """
     if not isinstance(count, int) or not 1 <= count <= _MC_MAX:
-        raise ConfigError(f"the Monte-Carlo count must be an integer in 1..{_MC_MAX:,} [plant "
-                          f"pairs], got {count!r}")  # fmt: skip
+        raise ConfigError(
+            f"the Monte-Carlo count must be an integer in 1..{_MC_MAX:,} [plant "
+            f"pairs], got {count!r}"
+        )
     check_seed(seed)
     say = progress or (lambda _msg: None)
     m = cfg.margins
@@ -474,9 +624,12 @@ def gantry_montecarlo(
     factors = 1.0 + draws * spreads
     chunks = [(a, factors[a:b]) for a, b in chunk_bounds(count, chunk_size)]
     ex = InProcessExecutor() if executor is None else executor
-    parts = ex.map(_montecarlo_chunk, chunks, shared=(cfg, seed),
-                   done=lambda k: say(f"sync: Monte Carlo {min(count, k * chunk_size)}/{count} "
-                                      f"({ex.name})"))  # fmt: skip
+    parts = ex.map(
+        _montecarlo_chunk,
+        chunks,
+        shared=(cfg, seed),
+        done=lambda k: say(f"sync: Monte Carlo {min(count, k * chunk_size)}/{count} ({ex.name})"),
+    )
     return GantryMonteCarlo(seed=seed, variants=tuple(v for part in parts for v in part))
 
 
@@ -503,7 +656,17 @@ def _montecarlo_chunk(
             r = simulate_gantry(c, case=case, seed=seed + 1 + i).metrics()
             worst = max(worst, r.max_sync_error_counts)
             tripped |= r.tripped
-        out.append(GantryVariant(index=i, factors={
-            "master_gain": float(fmg), "master_tau": float(fmt), "slave_gain": float(fsg),
-            "slave_tau": float(fst)}, max_sync_error_counts=worst, tripped=tripped))  # fmt: skip
+        out.append(
+            GantryVariant(
+                index=i,
+                factors={
+                    "master_gain": float(fmg),
+                    "master_tau": float(fmt),
+                    "slave_gain": float(fsg),
+                    "slave_tau": float(fst),
+                },
+                max_sync_error_counts=worst,
+                tripped=tripped,
+            )
+        )
     return out

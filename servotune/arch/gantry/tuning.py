@@ -154,14 +154,17 @@ class GantryTuning:
                 f"schema must be {GANTRY_TUNING_SCHEMA!r}, got {show_value(d.get('schema'))}"
             )
         try:
-            check_keys(d, "", ("bus", "drives", "gantry", "rig", "schema", "sync", "topology"),
-                       ("design", "provenance"))  # fmt: skip
+            check_keys(
+                d,
+                "",
+                ("bus", "drives", "gantry", "rig", "schema", "sync", "topology"),
+                ("design", "provenance"),
+            )
             bus = check_keys(d["bus"], "bus", ("cycle_s", "latency_cycles"))
             gantry = check_keys(d["gantry"], "gantry", ("name", "path", "sha256"))
             rig = check_keys(d["rig"], "rig", ("name", "sha256"))
             drives = check_keys(d["drives"], "drives", DRIVES)
-            sync = check_keys(d["sync"], "sync", ("constants", "law", "trip_counts",
-                                                  "warn_counts"))  # fmt: skip
+            sync = check_keys(d["sync"], "sync", ("constants", "law", "trip_counts", "warn_counts"))
             ctl = {}
             for name in DRIVES:
                 try:
@@ -172,30 +175,37 @@ class GantryTuning:
                     raise ValueError(f"drives.{name}.law must be 'pi' (a drive's position loop)")
             law, sc = sync["law"], _sync_constants(sync["constants"])
             if law not in SYNC_LAWS:
-                raise ValueError(f"sync.law must be one of {', '.join(SYNC_LAWS)}, got "
-                                 f"{show_value(law)}")  # fmt: skip
+                raise ValueError(
+                    f"sync.law must be one of {', '.join(SYNC_LAWS)}, got {show_value(law)}"
+                )
             if law == "pi" and sc.kd_t.q != 0:
                 raise ValueError("sync.constants.kd_t must be 0 for a PI compensator")
             if law == "pd" and sc.ki_t.q != 0:
                 raise ValueError("sync.constants.ki_t must be 0 for a PD compensator")
             warn, trip = _count(sync, "warn_counts"), _count(sync, "trip_counts")
             if warn and trip and warn >= trip:
-                raise ValueError(f"sync.warn_counts must be < sync.trip_counts, got {warn} >= "
-                                 f"{trip}")  # fmt: skip
+                raise ValueError(
+                    f"sync.warn_counts must be < sync.trip_counts, got {warn} >= {trip}"
+                )
             cycle, lat = bus["cycle_s"], bus["latency_cycles"]
             if type(cycle) is not float or not 1e-6 <= cycle <= 0.01:
-                raise ValueError(f"bus.cycle_s must be a number in 1e-6..0.01 [s], got "
-                                 f"{show_value(cycle)}")  # fmt: skip
+                raise ValueError(
+                    f"bus.cycle_s must be a number in 1e-6..0.01 [s], got {show_value(cycle)}"
+                )
             if type(lat) is not int or not 0 <= lat <= 1000:
-                raise ValueError(f"bus.latency_cycles must be an integer in 0..1000, got "
-                                 f"{show_value(lat)}")  # fmt: skip
+                raise ValueError(
+                    f"bus.latency_cycles must be an integer in 0..1000, got {show_value(lat)}"
+                )
             if d["topology"] not in TOPOLOGIES:
-                raise ValueError(f"topology must be one of {', '.join(TOPOLOGIES)}, got "
-                                 f"{show_value(d['topology'])}")  # fmt: skip
+                raise ValueError(
+                    f"topology must be one of {', '.join(TOPOLOGIES)}, got "
+                    f"{show_value(d['topology'])}"
+                )
             for where, sha in (("gantry.sha256", gantry["sha256"]), ("rig.sha256", rig["sha256"])):
                 if not isinstance(sha, str) or not _SHA256.fullmatch(sha):
-                    raise ValueError(f"{where} must be 64 lower-case hex digits, got "
-                                     f"{show_value(sha)}")  # fmt: skip
+                    raise ValueError(
+                        f"{where} must be 64 lower-case hex digits, got {show_value(sha)}"
+                    )
             for key in ("design", "provenance"):
                 if not isinstance(d.get(key, {}), dict):
                     raise ValueError(f"{key} must be an object")
@@ -223,27 +233,30 @@ class GantryTuning:
 
 def _text(v: object, where: str, max_len: int = _MAX_NAME) -> str:
     if not isinstance(v, str) or not 0 < len(v) <= max_len:
-        raise ValueError(f"{where} must be a string of 1 to {max_len} characters, got "
-                         f"{show_value(v)}")  # fmt: skip
+        raise ValueError(
+            f"{where} must be a string of 1 to {max_len} characters, got {show_value(v)}"
+        )
     return v
 
 
 def _count(d: Mapping[str, Any], key: str) -> int:
     v = d[key]
     if type(v) is not int or not 0 <= v <= 2**31 - 1:
-        raise ValueError(f"sync.{key} must be an integer in 0..2147483647 [counts], got "
-                         f"{show_value(v)}")  # fmt: skip
+        raise ValueError(
+            f"sync.{key} must be an integer in 0..2147483647 [counts], got {show_value(v)}"
+        )
     return v
 
 
 def _sync_constants(d: Any) -> SyncConstants:
-    d = check_keys(d, "sync.constants", ("dead_zone_counts", "kd_t", "ki_t", "kp",
-                                         "limit_counts"))  # fmt: skip
+    d = check_keys(d, "sync.constants", ("dead_zone_counts", "kd_t", "ki_t", "kp", "limit_counts"))
     for key, lo in (("dead_zone_counts", 0), ("limit_counts", 1)):
         v = d[key]
         if type(v) is not int or not lo <= v <= 2**31 - 1:
-            raise ValueError(f"sync.constants.{key} must be an integer in {lo}..2147483647 "
-                             f"[counts], got {show_value(v)}")  # fmt: skip
+            raise ValueError(
+                f"sync.constants.{key} must be an integer in {lo}..2147483647 "
+                f"[counts], got {show_value(v)}"
+            )
     try:
         return SyncConstants.from_dict(d)
     except ValueError as exc:
@@ -291,25 +304,40 @@ def apply_tuning(cfg: GantryConfig, tuning: GantryTuning) -> GantryConfig:
         The tuning's topology or bus cycle is not the config's.
     """
     if tuning.topology != cfg.topology:
-        raise TuningError(f"the tuning is for the {tuning.topology} topology, the gantry "
-                          f"{cfg.name!r} deploys {cfg.topology}")  # fmt: skip
+        raise TuningError(
+            f"the tuning is for the {tuning.topology} topology, the gantry "
+            f"{cfg.name!r} deploys {cfg.topology}"
+        )
     dt = cfg.bus.cycle_s
     if not math.isclose(tuning.cycle_s, dt, rel_tol=1e-12):
-        raise TuningError(f"the tuning is for a bus cycle of {tuning.cycle_s!r} s, the gantry "
-                          f"{cfg.name!r} runs at {dt!r} s")  # fmt: skip
+        raise TuningError(
+            f"the tuning is for a bus cycle of {tuning.cycle_s!r} s, the gantry "
+            f"{cfg.name!r} runs at {dt!r} s"
+        )
     drives = {}
     for name, ctl in zip(DRIVES, tuning.drives, strict=True):
         task = ctl.task
         fe = ctl.following_error_limit_counts
-        drives[name] = replace(getattr(cfg, name), controller=ctl, kp=task.kp.value,
-                               ki=task.ki_t.value / dt,
-                               following_error_limit_counts=fe)  # fmt: skip
+        drives[name] = replace(
+            getattr(cfg, name),
+            controller=ctl,
+            kp=task.kp.value,
+            ki=task.ki_t.value / dt,
+            following_error_limit_counts=fe,
+        )
     k = tuning.sync
-    sync = replace(cfg.sync, law=tuning.sync_law, constants=k, kp=k.kp.value,
-                   ki=k.ki_t.value / dt if tuning.sync_law == "pi" else None,
-                   kd=k.kd_t.value * dt if tuning.sync_law == "pd" else None,
-                   dead_zone_counts=k.dead_zone_counts, limit_counts=k.limit_counts,
-                   warn_counts=tuning.warn_counts, trip_counts=tuning.trip_counts)  # fmt: skip
+    sync = replace(
+        cfg.sync,
+        law=tuning.sync_law,
+        constants=k,
+        kp=k.kp.value,
+        ki=k.ki_t.value / dt if tuning.sync_law == "pi" else None,
+        kd=k.kd_t.value * dt if tuning.sync_law == "pd" else None,
+        dead_zone_counts=k.dead_zone_counts,
+        limit_counts=k.limit_counts,
+        warn_counts=tuning.warn_counts,
+        trip_counts=tuning.trip_counts,
+    )
     return replace(cfg, sync=sync, **drives)
 
 
@@ -339,12 +367,22 @@ def tune_gantry(path: str | Path, *, raw: bytes | None = None) -> GantryTuning:
     c_m, c_s = cfg.controllers()
     s = cfg.sync
     tuning = GantryTuning(
-        gantry_name=cfg.name, gantry_path=Path(path).as_posix(), gantry_sha256=bytes_sha256(raw),
-        rig_name=cfg.rig.name, rig_sha256=rig_sha, topology=cfg.topology,
-        cycle_s=float(cfg.bus.cycle_s), latency_cycles=cfg.bus.latency_cycles, master=c_m,
-        slave=c_s, sync_law=s.law, sync=cfg.sync_constants, warn_counts=s.warn_counts,
-        trip_counts=s.trip_counts, provenance={"tool": "servotune", "tool_version": __version__},
-    )  # fmt: skip
+        gantry_name=cfg.name,
+        gantry_path=Path(path).as_posix(),
+        gantry_sha256=bytes_sha256(raw),
+        rig_name=cfg.rig.name,
+        rig_sha256=rig_sha,
+        topology=cfg.topology,
+        cycle_s=float(cfg.bus.cycle_s),
+        latency_cycles=cfg.bus.latency_cycles,
+        master=c_m,
+        slave=c_s,
+        sync_law=s.law,
+        sync=cfg.sync_constants,
+        warn_counts=s.warn_counts,
+        trip_counts=s.trip_counts,
+        provenance={"tool": "servotune", "tool_version": __version__},
+    )
     return replace(tuning, design=_design(apply_tuning(cfg, tuning), cfg))
 
 
@@ -366,9 +404,11 @@ def _design(run: GantryConfig, designed: GantryConfig) -> dict[str, Any]:
     cases = {}
     for case in ("load", "mismatch"):
         r = simulate_gantry(run, case=case).metrics()
-        cases[case] = {"max_sync_error_counts": r.max_sync_error_counts,
-                       "rms_sync_error_counts": r.rms_sync_error_counts,
-                       "tripped": r.tripped}  # fmt: skip
+        cases[case] = {
+            "max_sync_error_counts": r.max_sync_error_counts,
+            "rms_sync_error_counts": r.rms_sync_error_counts,
+            "tripped": r.tripped,
+        }
     d = designed
     return {
         "cases": cases,

@@ -87,8 +87,7 @@ class SpecBus:
 
     def __post_init__(self) -> None:
         if self.latency_cycles is not None:
-            check_integer("latency_cycles", self.latency_cycles, "cycles", hi=1000,
-                          error=SpecError)  # fmt: skip
+            check_integer("latency_cycles", self.latency_cycles, "cycles", hi=1000, error=SpecError)
         if self.jitter_s is not None:
             check_number("jitter_s", self.jitter_s, "s", hi=0.01, error=SpecError)
 
@@ -105,8 +104,9 @@ class SyncLimits:
 
     def __post_init__(self) -> None:
         for name in ("max_sync_error_counts", "max_rms_sync_error_counts", "max_skew_counts"):
-            check_number(name, getattr(self, name), "counts", strict=True, hi=2**31,
-                         error=SpecError)  # fmt: skip
+            check_number(
+                name, getattr(self, name), "counts", strict=True, hi=2**31, error=SpecError
+            )
         check_number("fault_volts", self.fault_volts, "V", lo=-1000.0, hi=1000.0, error=SpecError)
         if self.fault_volts == 0:
             raise SpecError("fault_volts must not be 0 [V]: the fault case needs a load")
@@ -148,11 +148,14 @@ def gantry_spec_from_bytes(raw: bytes, src: str | Path) -> GantrySpec:
 
 
 def _gantry_spec_from_dict(data: Mapping[str, Any]) -> GantrySpec:
-    check_keys(data, "", ("sync",), ("bus", "margins", "montecarlo"), error=SpecError,
-               noun="table")  # fmt: skip
+    check_keys(data, "", ("sync",), ("bus", "margins", "montecarlo"), error=SpecError, noun="table")
     parts = {}
-    for key, cls in (("bus", SpecBus), ("sync", SyncLimits), ("margins", GantryMargins),
-                     ("montecarlo", MonteCarloSpec)):  # fmt: skip
+    for key, cls in (
+        ("bus", SpecBus),
+        ("sync", SyncLimits),
+        ("margins", GantryMargins),
+        ("montecarlo", MonteCarloSpec),
+    ):
         t = data.get(key, {})
         if not isinstance(t, dict):
             raise SpecError(f"[{key}] must be a table")
@@ -184,9 +187,16 @@ class GantryCheck:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict."""
-        return {"check": self.check, "detail": self.detail, "kind": self.kind,
-                "limit": json_float(self.limit), "passed": self.passed, "subject": self.subject,
-                "unit": self.unit, "value": json_float(self.value)}  # fmt: skip
+        return {
+            "check": self.check,
+            "detail": self.detail,
+            "kind": self.kind,
+            "limit": json_float(self.limit),
+            "passed": self.passed,
+            "subject": self.subject,
+            "unit": self.unit,
+            "value": json_float(self.value),
+        }
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -233,35 +243,63 @@ def _fault_rows(run: GantryConfig, spec: GantrySpec, seed: int) -> list[GantryCh
     lim = spec.sync
     trip = run.sync.trip_counts
     rows = [
-        GantryCheck(check="trip threshold", subject="set", value=float(trip), limit=1.0,
-                    unit="counts", kind=">=", detail="0 means the monitor never trips"),
-        GantryCheck(check="trip threshold", subject="below the skew limit", value=float(trip),
-                    limit=lim.max_skew_counts, unit="counts"),
-    ]  # fmt: skip
+        GantryCheck(
+            check="trip threshold",
+            subject="set",
+            value=float(trip),
+            limit=1.0,
+            unit="counts",
+            kind=">=",
+            detail="0 means the monitor never trips",
+        ),
+        GantryCheck(
+            check="trip threshold",
+            subject="below the skew limit",
+            value=float(trip),
+            limit=lim.max_skew_counts,
+            unit="counts",
+        ),
+    ]
     n = run.n_cycles
     load = np.zeros((n, 2))
     load[min(n, round(lim.fault_time_s / run.bus.cycle_s)) :, 1] = lim.fault_volts
-    tr = run_gantry(run, move_profile(run.move, run.bus.cycle_s, n), load, seed=seed,
-                    case="fault")  # fmt: skip
+    tr = run_gantry(run, move_profile(run.move, run.bus.cycle_s, n), load, seed=seed, case="fault")
     k = tr.trip_cycle
     stop = k + run.stop_bound_cycles
     if k < 0 or stop >= n:
-        rows.append(GantryCheck(check="fault case", subject="monitor trips", value=0.0,
-                                limit=1.0, unit="trips", kind=">=",
-                                detail=f"{lim.fault_volts:g} V on the slave's side at "
-                                       f"{lim.fault_time_s:g} s"))  # fmt: skip
+        rows.append(
+            GantryCheck(
+                check="fault case",
+                subject="monitor trips",
+                value=0.0,
+                limit=1.0,
+                unit="trips",
+                kind=">=",
+                detail=f"{lim.fault_volts:g} V on the slave's side at {lim.fault_time_s:g} s",
+            )
+        )
         return rows
     latched = np.flatnonzero(np.all(tr.flags[k:] & FLAG_SYNC_TRIP, axis=1))
     stopped = float(latched[0]) if latched.size else float("inf")
     skew = float(abs(tr.position[stop, 0] - tr.position[stop, 1]))
     rows += [
-        GantryCheck(check="fault case", subject="both drives stopped", value=stopped,
-                    limit=float(run.stop_bound_cycles), unit="cycles after the trip",
-                    detail=f"tripped at {k * run.bus.cycle_s:.4f} s"),
-        GantryCheck(check="fault case", subject="skew when stopped", value=skew,
-                    limit=lim.max_skew_counts, unit="counts",
-                    detail="true position difference at the stop bound"),
-    ]  # fmt: skip
+        GantryCheck(
+            check="fault case",
+            subject="both drives stopped",
+            value=stopped,
+            limit=float(run.stop_bound_cycles),
+            unit="cycles after the trip",
+            detail=f"tripped at {k * run.bus.cycle_s:.4f} s",
+        ),
+        GantryCheck(
+            check="fault case",
+            subject="skew when stopped",
+            value=skew,
+            limit=lim.max_skew_counts,
+            unit="counts",
+            detail="true position difference at the stop bound",
+        ),
+    ]
     return rows
 
 
@@ -298,34 +336,55 @@ def verify_gantry(
     # the runtime aligns the master's feedback with its own position by a constant delay line
     # (the tuning's latency): a bus of another latency is another machine
     rows: list[GantryCheck] = [
-        GantryCheck(check="bus latency", subject="the bus's = the runtime's delay line",
-                    value=float(run.bus.latency_cycles), limit=float(tuning.latency_cycles),
-                    unit="cycles", kind="==",
-                    detail="tune the gantry for this bus" if run.bus.latency_cycles
-                    != tuning.latency_cycles else ""),
-    ]  # fmt: skip
+        GantryCheck(
+            check="bus latency",
+            subject="the bus's = the runtime's delay line",
+            value=float(run.bus.latency_cycles),
+            limit=float(tuning.latency_cycles),
+            unit="cycles",
+            kind="==",
+            detail="tune the gantry for this bus"
+            if run.bus.latency_cycles != tuning.latency_cycles
+            else "",
+        ),
+    ]
     failures: list[str] = []
     say("verify gantry: sync error in each case")
     warm_up(("gantry",), progress=progress)  # a cold cache compiles here, saying so (once)
     for case in CASES:
         m = simulate_gantry(run, case=case, seed=seed).metrics()
         rows += [
-            GantryCheck(check="sync error", subject=f"{case} case, largest",
-                        value=m.max_sync_error_counts, limit=lim.max_sync_error_counts,
-                        unit="counts"),
-            GantryCheck(check="sync error", subject=f"{case} case, RMS",
-                        value=m.rms_sync_error_counts, limit=lim.max_rms_sync_error_counts,
-                        unit="counts"),
-            GantryCheck(check="sync error", subject=f"{case} case, trips",
-                        value=float(m.tripped), limit=0.0, unit="trips",
-                        detail="" if not m.tripped else f"at {m.trip_time_s:.4f} s"),
-        ]  # fmt: skip
+            GantryCheck(
+                check="sync error",
+                subject=f"{case} case, largest",
+                value=m.max_sync_error_counts,
+                limit=lim.max_sync_error_counts,
+                unit="counts",
+            ),
+            GantryCheck(
+                check="sync error",
+                subject=f"{case} case, RMS",
+                value=m.rms_sync_error_counts,
+                limit=lim.max_rms_sync_error_counts,
+                unit="counts",
+            ),
+            GantryCheck(
+                check="sync error",
+                subject=f"{case} case, trips",
+                value=float(m.tripped),
+                limit=0.0,
+                unit="trips",
+                detail="" if not m.tripped else f"at {m.trip_time_s:.4f} s",
+            ),
+        ]
     say("verify gantry: trip thresholds and the fault case")
     rows += _fault_rows(run, spec, seed)
     for r in rows:
         if not r.passed:
-            failures.append(f"{r.check}: {r.subject} {r.value:g} {r.unit} (limit {r.kind} "
-                            f"{r.limit:g}){'; ' + r.detail if r.detail else ''}")  # fmt: skip
+            failures.append(
+                f"{r.check}: {r.subject} {r.value:g} {r.unit} (limit {r.kind} "
+                f"{r.limit:g}){'; ' + r.detail if r.detail else ''}"
+            )
     say("verify gantry: margins of every loop over the plant set")
     margins = gantry_margins(run)
     limits = run.margins.limits
@@ -337,37 +396,65 @@ def verify_gantry(
         g = min(ms, key=lambda m: (m.stable, m.gain_margin_db))
         s = max(ms, key=lambda m: (not m.stable, m.max_sensitivity))
         rows += [
-            GantryCheck(check="margins", subject=f"{name}, phase margin",
-                        value=w.phase_margin_deg if w.stable else -np.inf,
-                        limit=limits.min_phase_margin_deg, unit="deg", kind=">=",
-                        detail=f"plant {w.plant}"),
-            GantryCheck(check="margins", subject=f"{name}, gain margin",
-                        value=g.gain_margin_db if g.stable else -np.inf,
-                        limit=limits.min_gain_margin_db, unit="dB", kind=">=",
-                        detail=f"plant {g.plant}"),
-            GantryCheck(check="margins", subject=f"{name}, Ms",
-                        value=s.max_sensitivity if s.stable else np.inf,
-                        limit=limits.max_sensitivity, unit="-", detail=f"plant {s.plant}"),
-        ]  # fmt: skip
+            GantryCheck(
+                check="margins",
+                subject=f"{name}, phase margin",
+                value=w.phase_margin_deg if w.stable else -np.inf,
+                limit=limits.min_phase_margin_deg,
+                unit="deg",
+                kind=">=",
+                detail=f"plant {w.plant}",
+            ),
+            GantryCheck(
+                check="margins",
+                subject=f"{name}, gain margin",
+                value=g.gain_margin_db if g.stable else -np.inf,
+                limit=limits.min_gain_margin_db,
+                unit="dB",
+                kind=">=",
+                detail=f"plant {g.plant}",
+            ),
+            GantryCheck(
+                check="margins",
+                subject=f"{name}, Ms",
+                value=s.max_sensitivity if s.stable else np.inf,
+                limit=limits.max_sensitivity,
+                unit="-",
+                detail=f"plant {s.plant}",
+            ),
+        ]
     failures += margin_failures(margins, limits)
     mc = None
     if spec.montecarlo.count:
         say(f"verify gantry: Monte Carlo over {spec.montecarlo.count} plant pairs")
-        mc = gantry_montecarlo(run, spec.montecarlo.count, seed=seed, progress=progress,
-                               executor=executor)  # fmt: skip
+        mc = gantry_montecarlo(
+            run, spec.montecarlo.count, seed=seed, progress=progress, executor=executor
+        )
         k, n, _, lo, hi = mc.pass_fraction
-        rows.append(GantryCheck(check="Monte Carlo", subject="plant pairs that trip",
-                                value=float(n - k), limit=0.0, unit="pairs",
-                                detail=f"pass {k}/{n}, 95 % interval {show_share(lo)}–"
-                                       f"{show_share(hi)} %"))  # fmt: skip
+        rows.append(
+            GantryCheck(
+                check="Monte Carlo",
+                subject="plant pairs that trip",
+                value=float(n - k),
+                limit=0.0,
+                unit="pairs",
+                detail=f"pass {k}/{n}, 95 % interval {show_share(lo)}–{show_share(hi)} %",
+            )
+        )
         if not mc.passed:
             w = mc.worst
             drawn = ", ".join(f"{key.replace('_', ' ')} x{v:.3f}" for key, v in w.factors.items())
-            failures.append(f"Monte Carlo: {n - k} of {n} plant pairs trip (first by size: "
-                            f"{drawn})")  # fmt: skip
-    return GantryVerification(gantry=cfg.name, latency_cycles=run.bus.latency_cycles,
-                              seed=seed, rows=tuple(rows), failures=tuple(failures),
-                              montecarlo=mc)  # fmt: skip
+            failures.append(
+                f"Monte Carlo: {n - k} of {n} plant pairs trip (first by size: {drawn})"
+            )
+    return GantryVerification(
+        gantry=cfg.name,
+        latency_cycles=run.bus.latency_cycles,
+        seed=seed,
+        rows=tuple(rows),
+        failures=tuple(failures),
+        montecarlo=mc,
+    )
 
 
 @dataclass(frozen=True, slots=True)
@@ -390,15 +477,22 @@ def _tuning_and_gantry(
     tuning_file = SourceFile.read(tuning_path, TuningError, "tuning file")
     tuning = read_gantry_tuning_bytes(tuning_file.raw, tuning_file.path)
     candidates = rec.candidate_paths(tuning.gantry_path, tuning_path, tuning.gantry_name)
-    gantry_file = rec.matching_file(tuning.gantry_sha256, gantry_path, candidates, kind="gantry",
-                                    name=tuning.gantry_name, recorded=tuning.gantry_path,
-                                    error=ConfigError, flag="--config",
-                                    recorded_at=rec.recorded_paths(tuning.gantry_path,
-                                                                   tuning_path))  # fmt: skip
+    gantry_file = rec.matching_file(
+        tuning.gantry_sha256,
+        gantry_path,
+        candidates,
+        kind="gantry",
+        name=tuning.gantry_name,
+        recorded=tuning.gantry_path,
+        error=ConfigError,
+        flag="--config",
+        recorded_at=rec.recorded_paths(tuning.gantry_path, tuning_path),
+    )
     # the config's gains are not designed again: the tuning holds every one
     cfg = load_gantry(gantry_file.path, raw=gantry_file.raw, resolve=False)
-    rig_file = SourceFile.read(gantry_rig_path(gantry_file.raw, gantry_file.path), ConfigError,
-                               "rig file")  # fmt: skip
+    rig_file = SourceFile.read(
+        gantry_rig_path(gantry_file.raw, gantry_file.path), ConfigError, "rig file"
+    )
     if rig_file.sha256 != tuning.rig_sha256:
         raise TrustError(
             f"the rig file {rig_file.path} (sha256 {rig_file.sha256[:12]}…) of gantry "
@@ -441,16 +535,30 @@ def verify_gantry_files(
         spec = replace(spec, montecarlo=replace(spec.montecarlo, count=count))
     where = {"scheduler": options.get("scheduler"), "workers": options.get("workers")}
     with open_executor(spec.montecarlo.count, min_items=MC_CLUSTER_MIN_PAIRS, **where) as ex:
-        result = verify_gantry(cfg, tuning, spec, seed=options.get("seed"),
-                               progress=options.get("progress"), executor=ex)  # fmt: skip
-    summary = {"checks": len(result.rows), "checks_failed": sum(not r.passed for r in result.rows),
-               "failures": list(result.failures)}  # fmt: skip
-    record = rec.trust_record(GANTRY_RECORD_SCHEMA, passed=result.passed, seed=result.seed,
-                              summary=summary, result={"verification": result.to_dict()},
-                              files={"gantry": gantry_file, "rig": rig_file, "spec": spec_file,
-                                     "tuning": tuning_file})  # fmt: skip
-    return rec.recorded_verification(result, record, tuning_path, tuning_file.sha256,
-                                     write=options.get("write", True))  # fmt: skip
+        result = verify_gantry(
+            cfg,
+            tuning,
+            spec,
+            seed=options.get("seed"),
+            progress=options.get("progress"),
+            executor=ex,
+        )
+    summary = {
+        "checks": len(result.rows),
+        "checks_failed": sum(not r.passed for r in result.rows),
+        "failures": list(result.failures),
+    }
+    record = rec.trust_record(
+        GANTRY_RECORD_SCHEMA,
+        passed=result.passed,
+        seed=result.seed,
+        summary=summary,
+        result={"verification": result.to_dict()},
+        files={"gantry": gantry_file, "rig": rig_file, "spec": spec_file, "tuning": tuning_file},
+    )
+    return rec.recorded_verification(
+        result, record, tuning_path, tuning_file.sha256, write=options.get("write", True)
+    )
 
 
 def load_gantry_for_export(
@@ -478,5 +586,6 @@ def load_gantry_for_export(
         rec.check_record(record, tuning=tuning_file, rig=rig_file, spec=spec, gantry=gantry_file)
     elif spec_path is not None:
         raise TrustError("--spec checks a verification record; --unverified exports without one")
-    return GantryVerified(tuning=tuning, tuning_file=tuning_file, config=cfg,
-                          gantry_file=gantry_file, record=record)  # fmt: skip
+    return GantryVerified(
+        tuning=tuning, tuning_file=tuning_file, config=cfg, gantry_file=gantry_file, record=record
+    )

@@ -66,18 +66,21 @@ class Bus:
 
     def __post_init__(self) -> None:
         check_number("baud", self.baud, "bits/s", strict=True, hi=1e9, error=ConfigError)
-        check_integer("block_size", self.block_size, "setpoints", lo=1, hi=10_000,
-                      error=ConfigError)  # fmt: skip
-        check_integer("bytes_per_setpoint", self.bytes_per_setpoint, "bytes", lo=1, hi=64,
-                      error=ConfigError)  # fmt: skip
-        check_integer("frame_overhead_bytes", self.frame_overhead_bytes, "bytes", hi=65_536,
-                      error=ConfigError)  # fmt: skip
+        check_integer(
+            "block_size", self.block_size, "setpoints", lo=1, hi=10_000, error=ConfigError
+        )
+        check_integer(
+            "bytes_per_setpoint", self.bytes_per_setpoint, "bytes", lo=1, hi=64, error=ConfigError
+        )
+        check_integer(
+            "frame_overhead_bytes", self.frame_overhead_bytes, "bytes", hi=65_536, error=ConfigError
+        )
         check_integer("bits_per_byte", self.bits_per_byte, "bits", lo=8, hi=16, error=ConfigError)
         # <= 1: a frame cannot outlast its period
-        check_number("max_utilisation", self.max_utilisation, "-", strict=True, hi=1.0,
-                     error=ConfigError)  # fmt: skip
-        check_integer("prefill_blocks", self.prefill_blocks, "blocks", hi=10_000,
-                      error=ConfigError)  # fmt: skip
+        check_number(
+            "max_utilisation", self.max_utilisation, "-", strict=True, hi=1.0, error=ConfigError
+        )
+        check_integer("prefill_blocks", self.prefill_blocks, "blocks", hi=10_000, error=ConfigError)
 
     def frame_bytes(self, n_axes: int) -> int:
         """Bytes of one block frame for ``n_axes`` axes [bytes]."""
@@ -102,8 +105,9 @@ class Clock:
     resync_interval_s: float = 0.0
 
     def __post_init__(self) -> None:
-        check_number("resync_interval_s", self.resync_interval_s, "s", hi=MAX_SECONDS,
-                     error=ConfigError)  # fmt: skip
+        check_number(
+            "resync_interval_s", self.resync_interval_s, "s", hi=MAX_SECONDS, error=ConfigError
+        )
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -141,7 +145,14 @@ class SlaveCpu:
             )
         if len(set(self.axes)) != len(self.axes):
             raise ConfigError(f"axes must not repeat an axis, got {show_value(list(self.axes))}")
-        check_integer("queue_depth", self.queue_depth, "setpoints", lo=1, hi=1_000_000,
-                      error=ConfigError)  # fmt: skip
-        check_number("clock_ppm", self.clock_ppm, "ppm", lo=-MAX_CLOCK_PPM, hi=MAX_CLOCK_PPM,
-                     error=ConfigError)  # fmt: skip
+        check_integer(
+            "queue_depth", self.queue_depth, "setpoints", lo=1, hi=1_000_000, error=ConfigError
+        )
+        check_number(
+            "clock_ppm",
+            self.clock_ppm,
+            "ppm",
+            lo=-MAX_CLOCK_PPM,
+            hi=MAX_CLOCK_PPM,
+            error=ConfigError,
+        )

@@ -176,10 +176,17 @@ def check_linkage(
     u = f.utilisation
     bits = bus.bits_per_byte
     if u <= bus.max_utilisation:
-        checks.append(Check(name="bus", passed=True, detail=(
-            f"a block frame ({f.frame_bytes} bytes) takes {f.frame_s * 1e3:.2f} ms of the "
-            f"{f.broadcast_period_s * 1e3:.2f} ms broadcast period (utilisation "
-            f"{u * 100:.1f} % <= {bus.max_utilisation * 100:.0f} %)")))  # fmt: skip
+        checks.append(
+            Check(
+                name="bus",
+                passed=True,
+                detail=(
+                    f"a block frame ({f.frame_bytes} bytes) takes {f.frame_s * 1e3:.2f} ms of the "
+                    f"{f.broadcast_period_s * 1e3:.2f} ms broadcast period (utilisation "
+                    f"{u * 100:.1f} % <= {bus.max_utilisation * 100:.0f} %)"
+                ),
+            )
+        )
     else:
         m = bus.max_utilisation
         baud_min = f.frame_bytes * bits / (m * f.broadcast_period_s)
@@ -189,46 +196,86 @@ def check_linkage(
         if room > 0:
             b_min = math.ceil(bus.frame_overhead_bytes * bits / bus.baud / room)
             hint += f" or block_size to >= {b_min}"
-        checks.append(Check(name="bus", passed=False, detail=(
-            f"bus overload: a block frame ({f.frame_bytes} bytes × {bits} bits at "
-            f"{bus.baud:g} baud) takes {f.frame_s * 1e3:.2f} ms but the broadcast period is "
-            f"{f.broadcast_period_s * 1e3:.2f} ms (utilisation {u * 100:.0f} % > "
-            f"{m * 100:.0f} %) — {hint}")))  # fmt: skip
+        checks.append(
+            Check(
+                name="bus",
+                passed=False,
+                detail=(
+                    f"bus overload: a block frame ({f.frame_bytes} bytes × {bits} bits at "
+                    f"{bus.baud:g} baud) takes {f.frame_s * 1e3:.2f} ms but the broadcast period "
+                    f"is "
+                    f"{f.broadcast_period_s * 1e3:.2f} ms (utilisation {u * 100:.0f} % > "
+                    f"{m * 100:.0f} %) — {hint}"
+                ),
+            )
+        )
     p_blocks, p_min = bus.prefill_blocks, math.floor(f.frame_s / f.broadcast_period_s) + 1
     early = f.lead_s > 0
-    checks.append(Check(name="prefill", passed=early, detail=(
-        f"each block arrives {f.lead_s * 1e3:.2f} ms before its first command is "
-        f"needed (prefill {p_blocks} blocks; worst queue level before a pop "
-        f"{f.nominal_min_level} setpoints)" if early else
-        f"prefill too short: the first block broadcast during motion arrives "
-        f"{f.frame_s * 1e3:.2f} ms after the start but its first command is needed at "
-        f"{p_blocks * f.broadcast_period_s * 1e3:.2f} ms (prefill {p_blocks} blocks of "
-        f"{bus.block_size}) — raise prefill_blocks to >= {p_min}")))  # fmt: skip
+    checks.append(
+        Check(
+            name="prefill",
+            passed=early,
+            detail=(
+                f"each block arrives {f.lead_s * 1e3:.2f} ms before its first command is "
+                f"needed (prefill {p_blocks} blocks; worst queue level before a pop "
+                f"{f.nominal_min_level} setpoints)"
+                if early
+                else f"prefill too short: the first block broadcast during motion arrives "
+                f"{f.frame_s * 1e3:.2f} ms after the start but its first command is needed at "
+                f"{p_blocks * f.broadcast_period_s * 1e3:.2f} ms (prefill {p_blocks} blocks of "
+                f"{bus.block_size}) — raise prefill_blocks to >= {p_min}"
+            ),
+        )
+    )
     need = f.required_queue_depth
     for c in config.cpus:
         deep = c.queue_depth >= need
-        checks.append(Check(name=f"queue:{c.name}", passed=deep, detail=(
-            f"cpu {c.name}: queue_depth {c.queue_depth} >= the prefill plus one block "
-            f"({need} setpoints per axis)" if deep else
-            f"queue too short on cpu {c.name}: queue_depth {c.queue_depth} setpoints per "
-            f"axis, but the prefill ({p_blocks} blocks × {bus.block_size}) plus the block "
-            f"in flight need {need} — raise queue_depth to >= {need} or lower "
-            f"prefill_blocks / block_size")))  # fmt: skip
+        checks.append(
+            Check(
+                name=f"queue:{c.name}",
+                passed=deep,
+                detail=(
+                    f"cpu {c.name}: queue_depth {c.queue_depth} >= the prefill plus one block "
+                    f"({need} setpoints per axis)"
+                    if deep
+                    else f"queue too short on cpu {c.name}: queue_depth {c.queue_depth} setpoints "
+                    f"per "
+                    f"axis, but the prefill ({p_blocks} blocks × {bus.block_size}) plus the block "
+                    f"in flight need {need} — raise queue_depth to >= {need} or lower "
+                    f"prefill_blocks / block_size"
+                ),
+            )
+        )
     speed = np.abs(np.diff(ip.positions, axis=0)) / period
     for i, a in enumerate(config.axes):
         limit, what = _speed_limits(config, a)
         k = int(np.argmax(speed[:, i])) if speed.shape[0] else 0
         top = float(speed[k, i]) if speed.shape[0] else 0.0
         if top <= limit:
-            checks.append(Check(name=f"speed:{a.name}", passed=True, detail=(
-                f"axis {a.name}: the path's top speed {top:,.0f} counts/s is within "
-                f"{what}: {limit:,.0f} counts/s")))  # fmt: skip
+            checks.append(
+                Check(
+                    name=f"speed:{a.name}",
+                    passed=True,
+                    detail=(
+                        f"axis {a.name}: the path's top speed {top:,.0f} counts/s is within "
+                        f"{what}: {limit:,.0f} counts/s"
+                    ),
+                )
+            )
         else:
             mv = int(ip.move_of_tick[k + 1])
-            checks.append(Check(name=f"speed:{a.name}", passed=False, detail=(
-                f"axis {a.name}: the path commands {top:,.0f} counts/s (move {mv}, "
-                f"t = {(k + 1) * period:.3f} s) but {what} is {limit:,.0f} counts/s — lower "
-                f"the feed of move {mv} or max_feed_cps")))  # fmt: skip
+            checks.append(
+                Check(
+                    name=f"speed:{a.name}",
+                    passed=False,
+                    detail=(
+                        f"axis {a.name}: the path commands {top:,.0f} counts/s (move {mv}, "
+                        f"t = {(k + 1) * period:.3f} s) but {what} is {limit:,.0f} counts/s — "
+                        f"lower "
+                        f"the feed of move {mv} or max_feed_cps"
+                    ),
+                )
+            )
     return tuple(checks)
 
 
@@ -273,12 +320,22 @@ def recommended_resync_interval_s(config: LinkageConfig) -> float:
     eps = max(abs(c.clock_ppm) for c in config.cpus) * 1e-6
     if eps == 0.0:
         return 0.0
-    slack = min((c.queue_depth - (bus.prefill_blocks + 1) * bus.block_size + 1) * period
-                + f.frame_s for c in config.cpus)  # fmt: skip
+    slack = min(
+        (c.queue_depth - (bus.prefill_blocks + 1) * bus.block_size + 1) * period + f.frame_s
+        for c in config.cpus
+    )
     if f.lead_s <= 0.0 or slack <= 0.0:
         failed = tuple(c for c in check_linkage(config) if not c.passed)
-        raise LinkageCheckError(failed or (Check(name="prefill", passed=False, detail=(
-            "no resync interval works: the queue has no margin for drift")),))  # fmt: skip
+        raise LinkageCheckError(
+            failed
+            or (
+                Check(
+                    name="prefill",
+                    passed=False,
+                    detail=("no resync interval works: the queue has no margin for drift"),
+                ),
+            )
+        )
     budget = 0.5 * min(period, f.lead_s, slack)
     ticks = max(1, math.floor(budget / eps / period + 1e-9))
     return ticks * period

@@ -87,12 +87,22 @@ class LinkageAxis:
         if self.kp is not None:
             check_number("kp", self.kp, "codes/count", hi=MAX_GAIN, error=ConfigError)
             check_number("ki", self.ki, "codes/(count·s)", hi=MAX_GAIN, error=ConfigError)
-        check_number("lock_gain_codes_per_count", self.lock_gain_codes_per_count, "codes/count",
-                     strict=True, hi=MAX_LOCK_GAIN, error=ConfigError)  # fmt: skip
-        check_integer("following_error_limit_counts", self.following_error_limit_counts,
-                      "counts", hi=2**31 - 1, error=ConfigError)  # fmt: skip
-        check_integer("counter_init", self.counter_init, "counts", hi=2**32 - 1,
-                      error=ConfigError)  # fmt: skip
+        check_number(
+            "lock_gain_codes_per_count",
+            self.lock_gain_codes_per_count,
+            "codes/count",
+            strict=True,
+            hi=MAX_LOCK_GAIN,
+            error=ConfigError,
+        )
+        check_integer(
+            "following_error_limit_counts",
+            self.following_error_limit_counts,
+            "counts",
+            hi=2**31 - 1,
+            error=ConfigError,
+        )
+        check_integer("counter_init", self.counter_init, "counts", hi=2**32 - 1, error=ConfigError)
 
     @property
     def gains(self) -> PIGains | None:
@@ -147,8 +157,9 @@ class Move:
         if self.kind not in ("line", "arc", "dwell"):
             raise ConfigError(f"kind must be 'line', 'arc' or 'dwell', got {show_value(self.kind)}")
         if self.kind == "dwell":
-            check_number("dwell_s", self.dwell_s, "s", strict=True, hi=MAX_SECONDS,
-                         error=ConfigError)  # fmt: skip
+            check_number(
+                "dwell_s", self.dwell_s, "s", strict=True, hi=MAX_SECONDS, error=ConfigError
+            )
             for k in ("feed_cps", "plane", "centre", "angle_deg"):
                 if getattr(self, k) is not None:
                     raise ConfigError(f"{k} is not for a dwell; a dwell takes kind, dwell_s")
@@ -157,8 +168,9 @@ class Move:
             return
         if self.dwell_s is not None:
             raise ConfigError(f"dwell_s is for dwells only, got it on a {self.kind}")
-        check_number("feed_cps", self.feed_cps, "counts/s", strict=True, hi=MAX_SPEED_CPS,
-                     error=ConfigError)  # fmt: skip
+        check_number(
+            "feed_cps", self.feed_cps, "counts/s", strict=True, hi=MAX_SPEED_CPS, error=ConfigError
+        )
         if not isinstance(self.to, Mapping):
             raise ConfigError(
                 f"to must be a table of axis = position [counts], got {show_value(self.to)}"
@@ -202,8 +214,9 @@ class Move:
                 "and not neither"
             )
         if self.angle_deg is not None:
-            check_number("angle_deg", self.angle_deg, "deg", strict=True, hi=3600.0,
-                         error=ConfigError)  # fmt: skip
+            check_number(
+                "angle_deg", self.angle_deg, "deg", strict=True, hi=3600.0, error=ConfigError
+            )
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -227,10 +240,22 @@ class Toolpath:
     moves: tuple[Move, ...]
 
     def __post_init__(self) -> None:
-        check_number("max_feed_cps", self.max_feed_cps, "counts/s", strict=True,
-                     hi=MAX_SPEED_CPS, error=ConfigError)  # fmt: skip
-        check_number("max_accel_cps2", self.max_accel_cps2, "counts/s²", strict=True,
-                     hi=MAX_ACCEL_CPS2, error=ConfigError)  # fmt: skip
+        check_number(
+            "max_feed_cps",
+            self.max_feed_cps,
+            "counts/s",
+            strict=True,
+            hi=MAX_SPEED_CPS,
+            error=ConfigError,
+        )
+        check_number(
+            "max_accel_cps2",
+            self.max_accel_cps2,
+            "counts/s²",
+            strict=True,
+            hi=MAX_ACCEL_CPS2,
+            error=ConfigError,
+        )
         if not self.moves:
             raise ConfigError("move: the path needs at least one [[path.move]]")
 
@@ -528,5 +553,6 @@ def load_linkage(path: str | Path) -> LinkageConfig:
     """
     p = Path(path)
     raw = read_bytes(p, ConfigError, "linkage config")
-    return parse_toml_as(raw, str(p), ConfigError, "linkage config",
-                         lambda d: linkage_from_dict(d, p.parent, p.stem))  # fmt: skip
+    return parse_toml_as(
+        raw, str(p), ConfigError, "linkage config", lambda d: linkage_from_dict(d, p.parent, p.stem)
+    )

@@ -81,7 +81,7 @@ def _pointer(typingctx, address, dtype):
 
 
 @jit(inline="always")
-def _unmanaged(arr):  # fmt: skip
+def _unmanaged(arr):
     """``arr``'s memory (C-contiguous) as an array without a memory info: its rows and slices
     are not reference-counted. Only for an array that outlives every use of the result (an
     argument of the calling function: its caller holds it)."""
@@ -91,13 +91,13 @@ def _unmanaged(arr):  # fmt: skip
 
 
 @jit(inline="always")
-def _tick_time(anchor_s, ticks, period, eps):  # fmt: skip
+def _tick_time(anchor_s, ticks, period, eps):
     """Master time [s] of a CPU's tick ``ticks`` after its sync anchor: ``T/(1 + ε)`` apart."""
     return anchor_s + ticks * period / (1.0 + eps)
 
 
 @jit(inline="always")
-def _measure(p, v, ring, slot, c_last, m, h, w_off, row):  # fmt: skip
+def _measure(p, v, ring, slot, c_last, m, h, w_off, row):
     """An axis's position ``h`` [s] after its CPU's tick ``c_last`` (in ``slot`` of its ring),
     from its state there.
 
@@ -112,7 +112,7 @@ def _measure(p, v, ring, slot, c_last, m, h, w_off, row):  # fmt: skip
 
 
 @jit(inline="always")
-def _log(ev, n_ev, s, kind, arg, before, after, count, late, nxt):  # fmt: skip
+def _log(ev, n_ev, s, kind, arg, before, after, count, late, nxt):
     """Append one event to CPU ``s``'s log (``_E_*`` columns) if it has room; count it anyway."""
     i = n_ev[s]
     if i < ev.shape[1]:
@@ -128,10 +128,36 @@ def _log(ev, n_ev, s, kind, arg, before, after, count, late, nxt):  # fmt: skip
 
 @jit
 def _kernel(
-    n_ticks, period, cmd, ax_cpu, rows, ints, consts, seed, cpu_eps, cpu_depth,
-    block, prefill, frame_s, resync_ticks, bits, latched, skew, dac_lo, lsb,
-    actual, q_time, q_level, q_index, cpu_stats, ax_stats, tr_i, tr_f, ev, n_ev,
-):  # fmt: skip
+    n_ticks,
+    period,
+    cmd,
+    ax_cpu,
+    rows,
+    ints,
+    consts,
+    seed,
+    cpu_eps,
+    cpu_depth,
+    block,
+    prefill,
+    frame_s,
+    resync_ticks,
+    bits,
+    latched,
+    skew,
+    dac_lo,
+    lsb,
+    actual,
+    q_time,
+    q_level,
+    q_index,
+    cpu_stats,
+    ax_stats,
+    tr_i,
+    tr_f,
+    ev,
+    n_ev,
+):
     """Run the linkage for ``n_ticks`` master ticks (arguments: :func:`run_linkage`'s plumbing).
 
     ``rows[a]`` is axis ``a``'s plant row for its CPU's nominal tick ``period / (1 + ε)``,
@@ -150,18 +176,74 @@ def _kernel(
         width = max(width, ints[a, _I_RING])
     hist = np.zeros((n_ax, width))
     _events(
-        n_ticks, period, cmd, ax_cpu, rows, ints, consts, seed, cpu_eps, cpu_depth,
-        block, prefill, frame_s, resync_ticks, bits, latched, skew, dac_lo, lsb,
-        actual, q_time, q_level, q_index, cpu_stats, ax_stats, tr_i, tr_f, ev, n_ev, st, hist,
-    )  # fmt: skip
+        n_ticks,
+        period,
+        cmd,
+        ax_cpu,
+        rows,
+        ints,
+        consts,
+        seed,
+        cpu_eps,
+        cpu_depth,
+        block,
+        prefill,
+        frame_s,
+        resync_ticks,
+        bits,
+        latched,
+        skew,
+        dac_lo,
+        lsb,
+        actual,
+        q_time,
+        q_level,
+        q_index,
+        cpu_stats,
+        ax_stats,
+        tr_i,
+        tr_f,
+        ev,
+        n_ev,
+        st,
+        hist,
+    )
 
 
 @jit
 def _events(
-    n_ticks, period, cmd, ax_cpu, rows, ints, consts, seed, cpu_eps, cpu_depth,
-    block, prefill, frame_s, resync_ticks, bits, latched, skew, dac_lo, lsb,
-    actual, q_time, q_level, q_index, cpu_stats, ax_stats, tr_i, tr_f, ev, n_ev, st, hist,
-):  # fmt: skip
+    n_ticks,
+    period,
+    cmd,
+    ax_cpu,
+    rows,
+    ints,
+    consts,
+    seed,
+    cpu_eps,
+    cpu_depth,
+    block,
+    prefill,
+    frame_s,
+    resync_ticks,
+    bits,
+    latched,
+    skew,
+    dac_lo,
+    lsb,
+    actual,
+    q_time,
+    q_level,
+    q_index,
+    cpu_stats,
+    ax_stats,
+    tr_i,
+    tr_f,
+    ev,
+    n_ev,
+    st,
+    hist,
+):
     """:func:`_kernel`'s event loop, given the zeroed axis states ``st`` and rings ``hist``.
 
     The arrays the axis tick is passed (law states and constants, plant rows, rings) are used
@@ -306,20 +388,35 @@ def _events(
                 # the interval a sync made (the same held writes, switching at λ)
                 if c > 0:
                     if regular:
-                        pos[a], spd[a] = advance_axis(pos[a], spd[a], ring, prev, m, c - 1,
-                                                      w_off, row)  # fmt: skip
+                        pos[a], spd[a] = advance_axis(
+                            pos[a], spd[a], ring, prev, m, c - 1, w_off, row
+                        )
                     else:
                         v_old, v_new = held(ring, prev, m, c - 1)
-                        pos[a], spd[a] = advance_span(pos[a], spd[a], v_old + w_off,
-                                                      v_new + w_off, row[R_H1], h, row)  # fmt: skip
+                        pos[a], spd[a] = advance_span(
+                            pos[a], spd[a], v_old + w_off, v_new + w_off, row[R_H1], h, row
+                        )
                 # 1-2. sample and read
-                _raw, y = read_axis(st, consts, a, pos[a], spd[a], nz[a], ints[a, _I_INIT], mask,
-                                    latched, nbytes, skew, False)  # fmt: skip
+                _raw, y = read_axis(
+                    st,
+                    consts,
+                    a,
+                    pos[a],
+                    spd[a],
+                    nz[a],
+                    ints[a, _I_INIT],
+                    mask,
+                    latched,
+                    nbytes,
+                    skew,
+                    False,
+                )
                 # 3-4. the law on the popped command (the previous one on an underrun), D/A, hold
                 ref = cmd[j, a] if ok else last_ref[a]
                 last_ref[a] = ref
-                code, flags, _e, volts = write_axis(st, consts, a, ref, MODE_TASK, False, 0,
-                                                    dac_lo, lsb)  # fmt: skip
+                code, flags, _e, volts = write_axis(
+                    st, consts, a, ref, MODE_TASK, False, 0, dac_lo, lsb
+                )
                 hold(ring, now, volts)
                 slot[a] = now
                 if flags & FLAG_SATURATED:
@@ -345,9 +442,17 @@ def _events(
                     actual[k_next, a] = pos[a]
                     continue
                 row = rows[a]
-                actual[k_next, a] = _measure(pos[a], spd[a], hist[a, : ints[a, _I_RING]],
-                                             slot[a], c_last, ints[a, _I_LAG], t - t_last[s],
-                                             row[R_OFFSET], row)  # fmt: skip
+                actual[k_next, a] = _measure(
+                    pos[a],
+                    spd[a],
+                    hist[a, : ints[a, _I_RING]],
+                    slot[a],
+                    c_last,
+                    ints[a, _I_LAG],
+                    t - t_last[s],
+                    row[R_OFFSET],
+                    row,
+                )
             k_next += 1
         else:  # block nb_next has arrived
             i0 = nb_next * block

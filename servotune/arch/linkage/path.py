@@ -272,9 +272,17 @@ def interpolate(config: LinkageConfig) -> Interpolation:
             seg[:, j] = cy + r * np.sin(th)
             c0, c1 = math.ceil(t_a / period - 1e-9), math.floor((t_a + t_c) / period + 1e-9)
             cruise = (tick + c0, tick + c1) if c1 > c0 else (tick, tick + n)
-            arcs.append(ArcGeometry(move=m, plane=plane, centre=(cx, cy), radius_counts=r,
-                                    start_rad=th0, sweep_rad=sign * sweep,
-                                    cruise_ticks=cruise))  # fmt: skip
+            arcs.append(
+                ArcGeometry(
+                    move=m,
+                    plane=plane,
+                    centre=(cx, cy),
+                    radius_counts=r,
+                    start_rad=th0,
+                    sweep_rad=sign * sweep,
+                    cruise_ticks=cruise,
+                )
+            )
         seg[-1] = end
         rows.append(seg)
         move_of.append(np.full(n, m, dtype=np.int64))
@@ -300,7 +308,7 @@ def interpolate(config: LinkageConfig) -> Interpolation:
 
 
 @jit
-def _contour(path, actual, move_of_tick, move_axes):  # fmt: skip
+def _contour(path, actual, move_of_tick, move_axes):
     """Distance from each actual point to the programmed polyline, near the current tick."""
     n, n_ax = actual.shape
     n_p = path.shape[0]

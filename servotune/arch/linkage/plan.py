@@ -178,9 +178,16 @@ def plan_linkage(config_path: str | Path) -> LinkagePlan:
                 f"({drift:.2f} ticks at {c.clock_ppm:+g} ppm, {sync}) — raise queue_depth to "
                 f">= {high} or resync more often"
             )
-        cpus.append(PlanCpu(name=c.name, axes=c.axes, clock_ppm=float(c.clock_ppm),
-                            queue_depth=c.queue_depth, low_watermark=low,
-                            high_watermark=high))  # fmt: skip
+        cpus.append(
+            PlanCpu(
+                name=c.name,
+                axes=c.axes,
+                clock_ppm=float(c.clock_ppm),
+                queue_depth=c.queue_depth,
+                low_watermark=low,
+                high_watermark=high,
+            )
+        )
     gains = axis_gains(config)
     ctl = axis_controllers(config, gains)
     f = bus_figures(config)
@@ -200,19 +207,29 @@ def plan_linkage(config_path: str | Path) -> LinkagePlan:
     }
     try:
         return LinkagePlan(
-            config_name=config.name, config_path=Path(config_file.path).as_posix(),
-            config_sha256=config_file.sha256, rig_name=config.rig.name,
-            rig_path=Path(rig_file.path).as_posix(), rig_sha256=rig_file.sha256,
+            config_name=config.name,
+            config_path=Path(config_file.path).as_posix(),
+            config_sha256=config_file.sha256,
+            rig_name=config.rig.name,
+            rig_path=Path(rig_file.path).as_posix(),
+            rig_sha256=rig_file.sha256,
             period_s=float(period),
-            path=PlanPath(max_feed_cps=float(config.path.max_feed_cps),
-                          max_accel_cps2=float(config.path.max_accel_cps2), ticks=ip.n_ticks,
-                          command_min_counts=int(ip.commands.min()),
-                          command_max_counts=int(ip.commands.max())),
-            bus=bus, resync_ticks=resync_ticks, drift_window_ticks=window, cpus=tuple(cpus),
+            path=PlanPath(
+                max_feed_cps=float(config.path.max_feed_cps),
+                max_accel_cps2=float(config.path.max_accel_cps2),
+                ticks=ip.n_ticks,
+                command_min_counts=int(ip.commands.min()),
+                command_max_counts=int(ip.commands.max()),
+            ),
+            bus=bus,
+            resync_ticks=resync_ticks,
+            drift_window_ticks=window,
+            cpus=tuple(cpus),
             axis_names=config.axis_names,
-            controllers=tuple(ctl[a] for a in config.axis_names), design=design,
+            controllers=tuple(ctl[a] for a in config.axis_names),
+            design=design,
             provenance={"tool": "servotune", "tool_version": __version__},
-        )  # fmt: skip
+        )
     except ConfigError as exc:
         raise ConfigError(f"{where}: cannot plan: {exc}") from None
 
@@ -230,12 +247,10 @@ def _plan_matches(plan: LinkagePlan, config: LinkageConfig, ip: Interpolation) -
         ("interpolation.max_feed_cps", plan.path.max_feed_cps, config.path.max_feed_cps),
         ("interpolation.max_accel_cps2", plan.path.max_accel_cps2, config.path.max_accel_cps2),
         ("interpolation.ticks", plan.path.ticks, ip.n_ticks),
-        ("interpolation.command_min_counts", plan.path.command_min_counts,
-         int(ip.commands.min())),
-        ("interpolation.command_max_counts", plan.path.command_max_counts,
-         int(ip.commands.max())),
+        ("interpolation.command_min_counts", plan.path.command_min_counts, int(ip.commands.min())),
+        ("interpolation.command_max_counts", plan.path.command_max_counts, int(ip.commands.max())),
         ("cpus", [c.name for c in plan.cpus], [c.name for c in config.cpus]),
-    ]  # fmt: skip
+    ]
     for i, (pc, cc) in enumerate(zip(plan.cpus, config.cpus, strict=False)):
         pairs.append((f"cpus[{i}].axes", list(pc.axes), list(cc.axes)))
         pairs.append((f"cpus[{i}].clock_ppm", pc.clock_ppm, cc.clock_ppm))
@@ -269,8 +284,9 @@ def plan_config(
         SlaveCpu(name=c.name, axes=c.axes, queue_depth=c.queue_depth, clock_ppm=float(p))
         for c, p in zip(plan.cpus, ppm, strict=True)
     )
-    return replace(config, bus=plan.bus, cpus=cpus,
-                   clock=Clock(resync_interval_s=plan.resync_interval_s))  # fmt: skip
+    return replace(
+        config, bus=plan.bus, cpus=cpus, clock=Clock(resync_interval_s=plan.resync_interval_s)
+    )
 
 
 def run_plan(
@@ -293,5 +309,11 @@ def run_plan(
         As :func:`plan_config` and :func:`~servotune.arch.linkage.run_linkage`.
     """
     cfg = plan_config(plan, config, clock_ppm=clock_ppm)
-    return run_linkage(cfg, seconds=seconds, seed=seed, trace=trace,
-                       controllers=plan.controller_map, resync_ticks=plan.resync_ticks)  # fmt: skip
+    return run_linkage(
+        cfg,
+        seconds=seconds,
+        seed=seed,
+        trace=trace,
+        controllers=plan.controller_map,
+        resync_ticks=plan.resync_ticks,
+    )

@@ -143,14 +143,33 @@ class PlanCpu:
         ):
             got = list(self.axes) if isinstance(self.axes, tuple) else self.axes
             raise ConfigError(f"axes must name 2 to 4 different axes, got {show_value(got)}")
-        check_number("clock_ppm", self.clock_ppm, "ppm", lo=-MAX_CLOCK_PPM, hi=MAX_CLOCK_PPM,
-                     error=ConfigError)  # fmt: skip
-        check_integer("queue_depth", self.queue_depth, "setpoints", lo=1, hi=1_000_000,
-                      error=ConfigError)  # fmt: skip
-        check_integer("low_watermark", self.low_watermark, "setpoints", lo=1,
-                      hi=self.queue_depth, error=ConfigError)  # fmt: skip
-        check_integer("high_watermark", self.high_watermark, "setpoints",
-                      lo=self.low_watermark, hi=self.queue_depth, error=ConfigError)  # fmt: skip
+        check_number(
+            "clock_ppm",
+            self.clock_ppm,
+            "ppm",
+            lo=-MAX_CLOCK_PPM,
+            hi=MAX_CLOCK_PPM,
+            error=ConfigError,
+        )
+        check_integer(
+            "queue_depth", self.queue_depth, "setpoints", lo=1, hi=1_000_000, error=ConfigError
+        )
+        check_integer(
+            "low_watermark",
+            self.low_watermark,
+            "setpoints",
+            lo=1,
+            hi=self.queue_depth,
+            error=ConfigError,
+        )
+        check_integer(
+            "high_watermark",
+            self.high_watermark,
+            "setpoints",
+            lo=self.low_watermark,
+            hi=self.queue_depth,
+            error=ConfigError,
+        )
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -176,15 +195,34 @@ class PlanPath:
     command_max_counts: int
 
     def __post_init__(self) -> None:
-        check_number("max_feed_cps", self.max_feed_cps, "counts/s", strict=True, hi=1e9,
-                     error=ConfigError)  # fmt: skip
-        check_number("max_accel_cps2", self.max_accel_cps2, "counts/s²", strict=True, hi=1e12,
-                     error=ConfigError)  # fmt: skip
+        check_number(
+            "max_feed_cps", self.max_feed_cps, "counts/s", strict=True, hi=1e9, error=ConfigError
+        )
+        check_number(
+            "max_accel_cps2",
+            self.max_accel_cps2,
+            "counts/s²",
+            strict=True,
+            hi=1e12,
+            error=ConfigError,
+        )
         check_integer("ticks", self.ticks, "ticks", lo=1, hi=2**40, error=ConfigError)
-        check_integer("command_min_counts", self.command_min_counts, "counts", lo=-(2**62),
-                      hi=2**62, error=ConfigError)  # fmt: skip
-        check_integer("command_max_counts", self.command_max_counts, "counts",
-                      lo=self.command_min_counts, hi=2**62, error=ConfigError)  # fmt: skip
+        check_integer(
+            "command_min_counts",
+            self.command_min_counts,
+            "counts",
+            lo=-(2**62),
+            hi=2**62,
+            error=ConfigError,
+        )
+        check_integer(
+            "command_max_counts",
+            self.command_max_counts,
+            "counts",
+            lo=self.command_min_counts,
+            hi=2**62,
+            error=ConfigError,
+        )
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -238,10 +276,17 @@ class LinkagePlan:
     def __post_init__(self) -> None:
         check_number("period_s", self.period_s, "s", lo=1e-6, hi=1.0, error=ConfigError)
         hi = math.floor(MAX_SECONDS / self.period_s)
-        check_integer("clock.resync_interval_ticks", self.resync_ticks, "ticks", hi=hi,
-                      error=ConfigError)  # fmt: skip
-        check_integer("clock.drift_window_ticks", self.drift_window_ticks, "ticks", lo=1,
-                      hi=2**40, error=ConfigError)  # fmt: skip
+        check_integer(
+            "clock.resync_interval_ticks", self.resync_ticks, "ticks", hi=hi, error=ConfigError
+        )
+        check_integer(
+            "clock.drift_window_ticks",
+            self.drift_window_ticks,
+            "ticks",
+            lo=1,
+            hi=2**40,
+            error=ConfigError,
+        )
         if self.resync_ticks and self.drift_window_ticks != self.resync_ticks:
             raise ConfigError(
                 f"clock.drift_window_ticks must be the resync interval "
@@ -431,22 +476,38 @@ class LinkagePlan:
             raise ConfigError("a linkage plan must hold a JSON object")
         if d.get("schema") != PLAN_SCHEMA:
             raise ConfigError(f"schema must be {PLAN_SCHEMA!r}, got {show_value(d.get('schema'))}")
-        top = ("axes", "bus", "clock", "config", "cpus", "interpolation", "period_s", "rig",
-               "schema")  # fmt: skip
+        top = (
+            "axes",
+            "bus",
+            "clock",
+            "config",
+            "cpus",
+            "interpolation",
+            "period_s",
+            "rig",
+            "schema",
+        )
         check_keys(d, "", top, ("design", "provenance"), error=ConfigError)
         src = {}
         for key in ("config", "rig"):
             t = check_keys(d[key], key, ("name", "path", "sha256"), error=ConfigError)
-            src[key] = (_text(t["name"], f"{key}.name"),
-                        _text(t["path"], f"{key}.path", _MAX_PATH, empty=True),
-                        _sha(t["sha256"], f"{key}.sha256"))  # fmt: skip
+            src[key] = (
+                _text(t["name"], f"{key}.name"),
+                _text(t["path"], f"{key}.path", _MAX_PATH, empty=True),
+                _sha(t["sha256"], f"{key}.sha256"),
+            )
         bus_d = check_keys(d["bus"], "bus", _BUS_KEYS + _BUS_DERIVED, error=ConfigError)
         bus = _build(Bus, {k: bus_d[k] for k in _BUS_KEYS}, "bus")
-        path_d = check_keys(d["interpolation"], "interpolation",
-                            (*_PATH_KEYS, "duration_s"), error=ConfigError)  # fmt: skip
+        path_d = check_keys(
+            d["interpolation"], "interpolation", (*_PATH_KEYS, "duration_s"), error=ConfigError
+        )
         path = _build(PlanPath, {k: path_d[k] for k in _PATH_KEYS}, "interpolation")
-        clock_keys = ("drift_window_ticks", "max_drift_ticks", "resync_interval_s",
-                      "resync_interval_ticks")  # fmt: skip
+        clock_keys = (
+            "drift_window_ticks",
+            "max_drift_ticks",
+            "resync_interval_s",
+            "resync_interval_ticks",
+        )
         clock = check_keys(d["clock"], "clock", clock_keys, error=ConfigError)
         cpus_l = d["cpus"]
         if not isinstance(cpus_l, list) or not 1 <= len(cpus_l) <= 64:
@@ -475,14 +536,23 @@ class LinkagePlan:
             if not isinstance(d.get(key, {}), dict):
                 raise ConfigError(f"{key} must be an object")
         plan = cls(
-            config_name=src["config"][0], config_path=src["config"][1],
-            config_sha256=src["config"][2], rig_name=src["rig"][0], rig_path=src["rig"][1],
-            rig_sha256=src["rig"][2], period_s=period, path=path, bus=bus,
+            config_name=src["config"][0],
+            config_path=src["config"][1],
+            config_sha256=src["config"][2],
+            rig_name=src["rig"][0],
+            rig_path=src["rig"][1],
+            rig_sha256=src["rig"][2],
+            period_s=period,
+            path=path,
+            bus=bus,
             resync_ticks=clock["resync_interval_ticks"],
-            drift_window_ticks=clock["drift_window_ticks"], cpus=tuple(cpus),
-            axis_names=tuple(names), controllers=tuple(ctls), design=d.get("design", {}),
+            drift_window_ticks=clock["drift_window_ticks"],
+            cpus=tuple(cpus),
+            axis_names=tuple(names),
+            controllers=tuple(ctls),
+            design=d.get("design", {}),
             provenance=d.get("provenance", {}),
-        )  # fmt: skip
+        )
         for i, (n, c) in enumerate(zip(names, cpu_names, strict=True)):
             if plan.cpu_of(n).name != c:
                 raise ConfigError(
@@ -494,8 +564,10 @@ class LinkagePlan:
             ("clock.resync_interval_s", clock["resync_interval_s"], plan.resync_interval_s),
             ("clock.max_drift_ticks", clock["max_drift_ticks"], plan.max_drift_ticks),
         ]
-        derived += [(f"cpus[{i}].drift_ticks", got, plan.drift_ticks(c))
-                    for i, (c, got) in enumerate(zip(cpus, cpu_drift, strict=True))]  # fmt: skip
+        derived += [
+            (f"cpus[{i}].drift_ticks", got, plan.drift_ticks(c))
+            for i, (c, got) in enumerate(zip(cpus, cpu_drift, strict=True))
+        ]
         for where, got, want in derived:
             same = type(got) is int if isinstance(want, int) else is_number(got)
             if not same or got != want:

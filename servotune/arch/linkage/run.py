@@ -139,8 +139,13 @@ def axis_gains(
         if g is not None:
             out[a.name] = AxisGains(gains=g, tuned=False)
             continue
-        r = tune_pi(a.plant, period_s=config.period_s, compute_s=config.rig.timer.compute_s,
-                    lsb_v=config.rig.dac.lsb_v, **TUNE_TARGETS)  # fmt: skip
+        r = tune_pi(
+            a.plant,
+            period_s=config.period_s,
+            compute_s=config.rig.timer.compute_s,
+            lsb_v=config.rig.dac.lsb_v,
+            **TUNE_TARGETS,
+        )
         out[a.name] = AxisGains(gains=r.gains, tuned=True)
     return out
 
@@ -276,8 +281,11 @@ def run_linkage(
         seconds = ip.duration_s + config.settle_s
     check_number("seconds", seconds, "s", strict=True, hi=1e6, error=ConfigError)
     seed = check_seed(seed, error=ConfigError)
-    per_tick = (config.n_axes * (_TICK_BYTES_PER_AXIS + (_TRACE_BYTES_PER_AXIS if trace else 0))
-                + len(config.cpus) * (3 + (_NE if trace else 0)) * 8 + _TICK_BYTES)  # fmt: skip
+    per_tick = (
+        config.n_axes * (_TICK_BYTES_PER_AXIS + (_TRACE_BYTES_PER_AXIS if trace else 0))
+        + len(config.cpus) * (3 + (_NE if trace else 0)) * 8
+        + _TICK_BYTES
+    )
     ticks_f = seconds / period
     check_memory(
         ticks_f * per_tick,
@@ -342,13 +350,37 @@ def run_linkage(
     ev = np.zeros((n_cpu, n_ev, _NE), dtype=np.int64)
     ev_count = np.zeros(n_cpu, dtype=np.int64)
     call_compiled(
-        _kernel, n_ticks, period, cmd, ax_cpu, plant_rows, ints, consts, np.uint64(seed), eps,
+        _kernel,
+        n_ticks,
+        period,
+        cmd,
+        ax_cpu,
+        plant_rows,
+        ints,
+        consts,
+        np.uint64(seed),
+        eps,
         np.array([c.queue_depth for c in config.cpus], dtype=np.int64),
-        bus.block_size, bus.prefill_blocks, figs.frame_s, resync_ticks, rig.counter.bits,
-        bool(rig.counter.latched), float(rig.counter.read_skew_s), float(rig.dac.range_v[0]),
-        rig.dac.lsb_v, actual, q_time, q_level, q_index, cpu_stats, ax_stats, tr_i, tr_f, ev,
+        bus.block_size,
+        bus.prefill_blocks,
+        figs.frame_s,
+        resync_ticks,
+        rig.counter.bits,
+        bool(rig.counter.latched),
+        float(rig.counter.read_skew_s),
+        float(rig.dac.range_v[0]),
+        rig.dac.lsb_v,
+        actual,
+        q_time,
+        q_level,
+        q_index,
+        cpu_stats,
+        ax_stats,
+        tr_i,
+        tr_f,
+        ev,
         ev_count,
-    )  # fmt: skip
+    )
     if trace and np.any(ev_count > n_ev):  # sized above for every event: a bug if not
         raise RuntimeError(f"linkage event log overflow: {ev_count.tolist()} > {n_ev}")
 
@@ -356,30 +388,42 @@ def run_linkage(
     cpus = []
     for s, c in enumerate(config.cpus):
         n = min(int(cpu_stats[s, _S_TICKS]), n_rec)
-        cpus.append(CpuResult(
-            name=c.name, axes=c.axes, clock_ppm=float(c.clock_ppm), queue_depth=c.queue_depth,
-            tick_time_s=q_time[s, :n].copy(), queue_level=q_level[s, :n].copy(),
-            tick_index=q_index[s, :n].copy(),
-            underruns=int(cpu_stats[s, _S_UNDER]),
-            first_underrun_s=_optional_time(cpu_stats[s, _S_T_UNDER]),
-            overruns=int(cpu_stats[s, _S_OVER]),
-            first_overrun_s=_optional_time(cpu_stats[s, _S_T_OVER]),
-            min_level=int(cpu_stats[s, _S_MIN]) if n else 0,
-            max_level=int(cpu_stats[s, _S_MAX]),
-            skipped=int(cpu_stats[s, _S_SKIP]), resyncs=int(cpu_stats[s, _S_RESYNC]),
-            events=ev[s, : ev_count[s]].copy() if trace else None,
-        ))  # fmt: skip
+        cpus.append(
+            CpuResult(
+                name=c.name,
+                axes=c.axes,
+                clock_ppm=float(c.clock_ppm),
+                queue_depth=c.queue_depth,
+                tick_time_s=q_time[s, :n].copy(),
+                queue_level=q_level[s, :n].copy(),
+                tick_index=q_index[s, :n].copy(),
+                underruns=int(cpu_stats[s, _S_UNDER]),
+                first_underrun_s=_optional_time(cpu_stats[s, _S_T_UNDER]),
+                overruns=int(cpu_stats[s, _S_OVER]),
+                first_overrun_s=_optional_time(cpu_stats[s, _S_T_OVER]),
+                min_level=int(cpu_stats[s, _S_MIN]) if n else 0,
+                max_level=int(cpu_stats[s, _S_MAX]),
+                skipped=int(cpu_stats[s, _S_SKIP]),
+                resyncs=int(cpu_stats[s, _S_RESYNC]),
+                events=ev[s, : ev_count[s]].copy() if trace else None,
+            )
+        )
     traces = None
     if trace:
         traces = []
         for i, a in enumerate(config.axes):
             n = cpus[ax_cpu[i]].tick_time_s.size
-            traces.append(AxisTrace(
-                name=a.name, cpu=cpus[ax_cpu[i]].name, ref_counts=tr_i[_T_REF, :n, i].copy(),
-                code=tr_i[_T_CODE, :n, i].copy(), pos_counts=tr_i[_T_Y, :n, i].copy(),
-                true_pos_counts=tr_f[_T_POS, :n, i].copy(),
-                speed_cps=tr_f[_T_SPD, :n, i].copy(),
-            ))  # fmt: skip
+            traces.append(
+                AxisTrace(
+                    name=a.name,
+                    cpu=cpus[ax_cpu[i]].name,
+                    ref_counts=tr_i[_T_REF, :n, i].copy(),
+                    code=tr_i[_T_CODE, :n, i].copy(),
+                    pos_counts=tr_i[_T_Y, :n, i].copy(),
+                    true_pos_counts=tr_f[_T_POS, :n, i].copy(),
+                    speed_cps=tr_f[_T_SPD, :n, i].copy(),
+                )
+            )
     # per axis
     command = cmd[:n_ticks]
     err = command - actual
@@ -392,13 +436,20 @@ def run_linkage(
         elif flags & FLAG_COUNTER_FAULT:
             fault = "counter"
         kp, ki, tuned = shown[a.name]
-        axes.append(AxisResult(
-            name=a.name, cpu=config.cpu_of(a.name).name, kp=float(kp), ki=float(ki), tuned=tuned,
-            max_abs_err_counts=float(np.max(np.abs(err[:, i]))),
-            rms_err_counts=float(np.sqrt(np.mean(err[:, i] ** 2))),
-            saturated_ticks=int(ax_stats[i, _A_SAT]), fault=fault,
-            first_fault_s=_optional_time(ax_stats[i, _A_T_FAULT]),
-        ))  # fmt: skip
+        axes.append(
+            AxisResult(
+                name=a.name,
+                cpu=config.cpu_of(a.name).name,
+                kp=float(kp),
+                ki=float(ki),
+                tuned=tuned,
+                max_abs_err_counts=float(np.max(np.abs(err[:, i]))),
+                rms_err_counts=float(np.sqrt(np.mean(err[:, i] ** 2))),
+                saturated_ticks=int(ax_stats[i, _A_SAT]),
+                fault=fault,
+                first_fault_s=_optional_time(ax_stats[i, _A_T_FAULT]),
+            )
+        )
     # contour and circular tests
     contour = call_compiled(_contour, path_pad, actual, move_pad, ip.move_axes)
     arcs = []
@@ -414,29 +465,47 @@ def run_linkage(
         ticks = np.arange(k0, k1 + 1)
         cruise = (ticks >= g.cruise_ticks[0]) & (ticks <= g.cruise_ticks[1])
         dc = dev[cruise] if np.any(cruise) else dev
-        arcs.append(ArcResult(
-            move=g.move, plane=(config.axis_names[i], config.axis_names[j]), centre=g.centre,
-            radius_counts=g.radius_counts, angle_rad=np.arctan2(dy, dx), radial_dev_counts=dev,
-            cruise=cruise, max_dev_counts=float(dc.max()), min_dev_counts=float(dc.min()),
-            circularity_counts=float(dc.max() - dc.min()),
-            circularity_whole_counts=float(dev.max() - dev.min()),
-        ))  # fmt: skip
+        arcs.append(
+            ArcResult(
+                move=g.move,
+                plane=(config.axis_names[i], config.axis_names[j]),
+                centre=g.centre,
+                radius_counts=g.radius_counts,
+                angle_rad=np.arctan2(dy, dx),
+                radial_dev_counts=dev,
+                cruise=cruise,
+                max_dev_counts=float(dc.max()),
+                min_dev_counts=float(dc.min()),
+                circularity_counts=float(dc.max() - dc.min()),
+                circularity_whole_counts=float(dev.max() - dev.min()),
+            )
+        )
     try:
         rec: float | None = recommended_resync_interval_s(config)
     except LinkageCheckError:
         rec = None
     checks = list(pre) + _motion_checks(config, cpus, axes, err, rec, resync_s)
     return LinkageResult(
-        name=config.name, seed=int(seed), period_s=period, bus=figs,
-        resync_interval_s=resync_ticks * period, recommended_resync_interval_s=rec,
-        cpus=tuple(cpus), axes=tuple(axes), arcs=tuple(arcs),
+        name=config.name,
+        seed=int(seed),
+        period_s=period,
+        bus=figs,
+        resync_interval_s=resync_ticks * period,
+        recommended_resync_interval_s=rec,
+        cpus=tuple(cpus),
+        axes=tuple(axes),
+        arcs=tuple(arcs),
         contour_max_counts=float(contour.max()),
         contour_rms_counts=float(np.sqrt(np.mean(contour**2))),
-        checks=tuple(checks), interpolation=ip,
-        time_s=np.arange(n_ticks, dtype=np.int64) * period, command_counts=command,
-        path_counts=path_pad[:n_ticks], actual_counts=actual, contour_counts=contour,
+        checks=tuple(checks),
+        interpolation=ip,
+        time_s=np.arange(n_ticks, dtype=np.int64) * period,
+        command_counts=command,
+        path_counts=path_pad[:n_ticks],
+        actual_counts=actual,
+        contour_counts=contour,
         traces=None if traces is None else tuple(traces),
-    )  # fmt: skip
+    )
 
 
 def _motion_checks(
@@ -460,9 +529,16 @@ def _motion_checks(
         clock = f"its clock runs {c.clock_ppm:+g} ppm"
         sync = f"resync every {resync:g} s" if resync else "no resync after the start"
         if c.underruns == 0:
-            out.append(Check(name=f"underrun:{c.name}", passed=True, detail=(
-                f"cpu {c.name}: no underrun; worst queue level before a pop {c.min_level} "
-                f"setpoints")))  # fmt: skip
+            out.append(
+                Check(
+                    name=f"underrun:{c.name}",
+                    passed=True,
+                    detail=(
+                        f"cpu {c.name}: no underrun; worst queue level before a pop {c.min_level} "
+                        f"setpoints"
+                    ),
+                )
+            )
         else:
             lead = f.lead_s
             eps = c.clock_ppm * 1e-6
@@ -472,31 +548,67 @@ def _motion_checks(
                 expect = f", as expected after about lead/ε = {lead / eps:.1f} s"
             else:
                 expect = ""
-            out.append(Check(name=f"underrun:{c.name}", passed=False, detail=(
-                f"underrun on cpu {c.name}: {c.underruns} ticks found no command, the first at "
-                f"{c.first_underrun_s:.3f} s ({clock}, {sync}; a block arrives "
-                f"{lead * 1e3:.2f} ms before it is needed{expect}) — {advice}")))  # fmt: skip
+            out.append(
+                Check(
+                    name=f"underrun:{c.name}",
+                    passed=False,
+                    detail=(
+                        f"underrun on cpu {c.name}: {c.underruns} ticks found no command, "
+                        f"the first at {c.first_underrun_s:.3f} s ({clock}, {sync}; a block "
+                        f"arrives {lead * 1e3:.2f} ms before it is needed{expect}) — {advice}"
+                    ),
+                )
+            )
         fits = c.overruns == 0
-        out.append(Check(name=f"overrun:{c.name}", passed=fits, detail=(
-            f"cpu {c.name}: no overrun; highest queue level {c.max_level} of "
-            f"{c.queue_depth} setpoints" if fits else
-            f"overrun on cpu {c.name}: {c.overruns} blocks did not fit its "
-            f"{c.queue_depth}-setpoint queue, the first at {c.first_overrun_s:.3f} s "
-            f"({clock}, {sync}) — {advice}")))  # fmt: skip
+        out.append(
+            Check(
+                name=f"overrun:{c.name}",
+                passed=fits,
+                detail=(
+                    f"cpu {c.name}: no overrun; highest queue level {c.max_level} of "
+                    f"{c.queue_depth} setpoints"
+                    if fits
+                    else f"overrun on cpu {c.name}: {c.overruns} blocks did not fit its "
+                    f"{c.queue_depth}-setpoint queue, the first at {c.first_overrun_s:.3f} s "
+                    f"({clock}, {sync}) — {advice}"
+                ),
+            )
+        )
     for i, a in enumerate(axes):
         limit = config.axes[i].following_error_limit_counts
         if a.fault is None:
             lim = f" < limit {limit}" if limit else ""
-            out.append(Check(name=f"fault:{a.name}", passed=True, detail=(
-                f"axis {a.name}: no fault (largest tracking error "
-                f"{a.max_abs_err_counts:.0f} counts{lim})")))  # fmt: skip
+            out.append(
+                Check(
+                    name=f"fault:{a.name}",
+                    passed=True,
+                    detail=(
+                        f"axis {a.name}: no fault (largest tracking error "
+                        f"{a.max_abs_err_counts:.0f} counts{lim})"
+                    ),
+                )
+            )
         elif a.fault == "following_error":
-            out.append(Check(name=f"fault:{a.name}", passed=False, detail=(
-                f"following-error trip on axis {a.name} at {a.first_fault_s:.3f} s (limit "
-                f"{limit} counts; the axis went to 0 V) — lower the feed or acceleration, "
-                f"raise the gains or the limit")))  # fmt: skip
+            out.append(
+                Check(
+                    name=f"fault:{a.name}",
+                    passed=False,
+                    detail=(
+                        f"following-error trip on axis {a.name} at {a.first_fault_s:.3f} s (limit "
+                        f"{limit} counts; the axis went to 0 V) — lower the feed or acceleration, "
+                        f"raise the gains or the limit"
+                    ),
+                )
+            )
         else:
-            out.append(Check(name=f"fault:{a.name}", passed=False, detail=(
-                f"counter fault on axis {a.name} at {a.first_fault_s:.3f} s (the high-byte "
-                f"unwrap saw an impossible jump)")))  # fmt: skip
+            out.append(
+                Check(
+                    name=f"fault:{a.name}",
+                    passed=False,
+                    detail=(
+                        f"counter fault on axis {a.name} at {a.first_fault_s:.3f} s (the high-byte "
+                        f"unwrap saw an impossible jump)"
+                    ),
+                )
+            )
     return out

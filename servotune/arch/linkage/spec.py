@@ -136,15 +136,20 @@ class LinkageSpec:
 
     def __post_init__(self) -> None:
         e = SpecError
-        check_strings({"name": self.name, "description": self.description}, "spec",
-                      ("name", "description"), error=e)  # fmt: skip
+        check_strings(
+            {"name": self.name, "description": self.description},
+            "spec",
+            ("name", "description"),
+            error=e,
+        )
         if self.config is not None:
             check_strings({"config": self.config}, "spec", ("config",), error=e)
         check_seed(self.seed, "run.seed", error=e)
         if self.seconds is not None:
             check_number("run.seconds", self.seconds, "s", strict=True, hi=1e5, error=e)
-        check_number("clock.tolerance_ppm", self.clock_tolerance_ppm, "ppm", hi=MAX_CLOCK_PPM,
-                     error=e)  # fmt: skip
+        check_number(
+            "clock.tolerance_ppm", self.clock_tolerance_ppm, "ppm", hi=MAX_CLOCK_PPM, error=e
+        )
         for k, unit in _COUNT_LIMITS.items():
             if getattr(self, k) is not None:
                 check_integer(_SPEC_WHERE[k], getattr(self, k), unit, hi=2**40, error=e)
@@ -188,8 +193,9 @@ def linkage_spec_from_dict(data: Mapping[str, Any], default_name: str = "spec") 
     kwargs.setdefault("name", default_name)
     margins_t = check_table(data, "margins", error=SpecError, required=False)
     if "margins" in data:
-        check_keys(margins_t, "margins", (), [f.name for f in fields(MarginLimits)],
-                   error=SpecError)  # fmt: skip
+        check_keys(
+            margins_t, "margins", (), [f.name for f in fields(MarginLimits)], error=SpecError
+        )
         try:
             kwargs["margins"] = MarginLimits(**margins_t)
         except SpecError as exc:
@@ -205,8 +211,13 @@ def linkage_spec_from_bytes(raw: bytes, src: str | Path) -> LinkageSpec:
     SpecError
     """
     stem = Path(src).name.removesuffix(".toml").removesuffix(".spec")
-    return parse_toml_as(raw, str(src), SpecError, "linkage spec",
-                         lambda d: linkage_spec_from_dict(d, default_name=stem))  # fmt: skip
+    return parse_toml_as(
+        raw,
+        str(src),
+        SpecError,
+        "linkage spec",
+        lambda d: linkage_spec_from_dict(d, default_name=stem),
+    )
 
 
 def load_linkage_spec(path: str | Path) -> LinkageSpec:

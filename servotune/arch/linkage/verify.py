@@ -123,8 +123,9 @@ class LinkageRow:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict (integers stay integers, inf as null)."""
-        d: dict[str, Any] = {k: getattr(self, k) for k in ("bound", "case", "check", "detail",
-                                                          "passed", "unit")}  # fmt: skip
+        d: dict[str, Any] = {
+            k: getattr(self, k) for k in ("bound", "case", "check", "detail", "passed", "unit")
+        }
         for k in ("value", "limit"):
             v = getattr(self, k)
             d[k] = v if isinstance(v, int) else json_float(float(v))
@@ -205,22 +206,32 @@ def clock_cases(
                     f"clock.tolerance_ppm {tolerance_ppm:g} takes a CPU to {ppm} ppm, beyond "
                     f"±{MAX_CLOCK_PPM:g} ppm"
                 )
-            out.append((", ".join(f"{c} {v:+g} ppm" for c, v in zip(names, ppm, strict=True)),
-                        ppm))  # fmt: skip
+            out.append((", ".join(f"{c} {v:+g} ppm" for c, v in zip(names, ppm, strict=True)), ppm))
     return tuple(out)
 
 
-def _row(check: str, case: str, value: float, limit: float, unit: str, bound: str,
-         what: str) -> LinkageRow:  # fmt: skip
+def _row(
+    check: str, case: str, value: float, limit: float, unit: str, bound: str, what: str
+) -> LinkageRow:
     """A row judged by its bound; ``what`` says what the value is, for the failure line."""
     passed = {"<=": value <= limit, ">=": value >= limit, "<": value < limit}[bound]
     worse = {"<=": ">", ">=": "<", "<": ">="}[bound]
     u = "" if unit == "1" else f" {unit}"
-    detail = "" if passed else (
-        f"{check}: {what} {_num(value)}{u} {worse} limit {_num(limit)}{u} ({case})"
-    )  # fmt: skip
-    return LinkageRow(check=check, case=case, value=value, limit=limit, unit=unit, bound=bound,
-                      passed=bool(passed), detail=detail)  # fmt: skip
+    detail = (
+        ""
+        if passed
+        else (f"{check}: {what} {_num(value)}{u} {worse} limit {_num(limit)}{u} ({case})")
+    )
+    return LinkageRow(
+        check=check,
+        case=case,
+        value=value,
+        limit=limit,
+        unit=unit,
+        bound=bound,
+        passed=bool(passed),
+        detail=detail,
+    )
 
 
 def _num(v: float) -> str:
@@ -253,14 +264,50 @@ def _margin_rows(
         w = np.logspace(math.log10(lo), math.log10(nyq * (1.0 - 1e-9)), GRID_POINTS)
         m = loop_margins(loop, w)
         case = "nominal plant"
-        rows.append(_row(f"stable:{name}", case, float(m["spectral_radius"]), 1.0, "1", "<",
-                         "closed-loop pole radius"))  # fmt: skip
-        rows.append(_row(f"phase_margin:{name}", case, float(m["phase_margin_deg"]),
-                         limits.min_phase_margin_deg, "deg", ">=", "phase margin"))  # fmt: skip
-        rows.append(_row(f"gain_margin:{name}", case, float(m["gain_margin_db"]),
-                         limits.min_gain_margin_db, "dB", ">=", "gain margin"))  # fmt: skip
-        rows.append(_row(f"sensitivity:{name}", case, float(m["max_sensitivity"]),
-                         limits.max_sensitivity, "1", "<=", "peak sensitivity Ms"))  # fmt: skip
+        rows.append(
+            _row(
+                f"stable:{name}",
+                case,
+                float(m["spectral_radius"]),
+                1.0,
+                "1",
+                "<",
+                "closed-loop pole radius",
+            )
+        )
+        rows.append(
+            _row(
+                f"phase_margin:{name}",
+                case,
+                float(m["phase_margin_deg"]),
+                limits.min_phase_margin_deg,
+                "deg",
+                ">=",
+                "phase margin",
+            )
+        )
+        rows.append(
+            _row(
+                f"gain_margin:{name}",
+                case,
+                float(m["gain_margin_db"]),
+                limits.min_gain_margin_db,
+                "dB",
+                ">=",
+                "gain margin",
+            )
+        )
+        rows.append(
+            _row(
+                f"sensitivity:{name}",
+                case,
+                float(m["max_sensitivity"]),
+                limits.max_sensitivity,
+                "1",
+                "<=",
+                "peak sensitivity Ms",
+            )
+        )
     return rows
 
 
@@ -293,19 +340,37 @@ def verify_plan(plan: LinkagePlan, config: LinkageConfig, spec: LinkageSpec) -> 
     nominal = plan_config(plan, config)
     rows: list[LinkageRow] = []
     if spec.max_utilisation_pct is not None:
-        rows.append(_row("bus_utilisation", "plan", plan.utilisation * 100.0,
-                         spec.max_utilisation_pct, "%", "<=",
-                         "bus utilisation (frame time / broadcast period)"))  # fmt: skip
+        rows.append(
+            _row(
+                "bus_utilisation",
+                "plan",
+                plan.utilisation * 100.0,
+                spec.max_utilisation_pct,
+                "%",
+                "<=",
+                "bus utilisation (frame time / broadcast period)",
+            )
+        )
     if spec.margins is not None:
         rows += _margin_rows(plan, config, spec.margins)
     before = [c for c in check_linkage(nominal) if not c.passed]
     if before:  # nothing to simulate: every case would be refused before motion
         for c in before:
-            rows.append(LinkageRow(check=f"before_motion:{c.name}", case="plan", value=1,
-                                   limit=0, unit="checks", bound="<=", passed=False,
-                                   detail=f"before_motion:{c.name}: {c.detail}"))  # fmt: skip
-        return LinkageVerification(config=plan.config_name, spec=spec, cases=cases,
-                                   rows=tuple(rows))  # fmt: skip
+            rows.append(
+                LinkageRow(
+                    check=f"before_motion:{c.name}",
+                    case="plan",
+                    value=1,
+                    limit=0,
+                    unit="checks",
+                    bound="<=",
+                    passed=False,
+                    detail=f"before_motion:{c.name}: {c.detail}",
+                )
+            )
+        return LinkageVerification(
+            config=plan.config_name, spec=spec, cases=cases, rows=tuple(rows)
+        )
     results = [
         (label, run_plan(plan, config, clock_ppm=ppm, seconds=spec.seconds, seed=spec.seed))
         for label, ppm in cases
@@ -313,43 +378,109 @@ def verify_plan(plan: LinkagePlan, config: LinkageConfig, spec: LinkageSpec) -> 
     t = plan.period_s
     if spec.max_contour_error_counts is not None:
         v, case = _worst([(r.contour_max_counts, lb) for lb, r in results], high=True)
-        rows.append(_row("contour_error", case, v, spec.max_contour_error_counts, "counts",
-                         "<=", "largest distance from the programmed path"))  # fmt: skip
+        rows.append(
+            _row(
+                "contour_error",
+                case,
+                v,
+                spec.max_contour_error_counts,
+                "counts",
+                "<=",
+                "largest distance from the programmed path",
+            )
+        )
     for s, c in enumerate(plan.cpus):
         per = [(r.cpus[s], lb) for lb, r in results]
         checks = (
-            ("phase_drift", spec.max_phase_drift_ticks, "ticks", True,
-             lambda x: float(np.max(np.abs(x.tick_time_s - x.tick_index * t)) / t)
-             if x.tick_index.size else 0.0,
-             "largest |tick time − index·T| of a tick"),
-            ("underruns", spec.max_underrun_ticks, "ticks", True, lambda x: x.underruns,
-             "ticks that found no command"),
-            ("overruns", spec.max_overrun_blocks, "blocks", True, lambda x: x.overruns,
-             "blocks that did not fit the queue"),
-            ("skipped", spec.max_skipped_setpoints, "setpoints", True, lambda x: x.skipped,
-             "commands discarded at syncs"),
-            ("min_level", spec.min_level_setpoints, "setpoints", False, lambda x: x.min_level,
-             "lowest queue level before a pop"),
-        )  # fmt: skip
+            (
+                "phase_drift",
+                spec.max_phase_drift_ticks,
+                "ticks",
+                True,
+                lambda x: (
+                    float(np.max(np.abs(x.tick_time_s - x.tick_index * t)) / t)
+                    if x.tick_index.size
+                    else 0.0
+                ),
+                "largest |tick time − index·T| of a tick",
+            ),
+            (
+                "underruns",
+                spec.max_underrun_ticks,
+                "ticks",
+                True,
+                lambda x: x.underruns,
+                "ticks that found no command",
+            ),
+            (
+                "overruns",
+                spec.max_overrun_blocks,
+                "blocks",
+                True,
+                lambda x: x.overruns,
+                "blocks that did not fit the queue",
+            ),
+            (
+                "skipped",
+                spec.max_skipped_setpoints,
+                "setpoints",
+                True,
+                lambda x: x.skipped,
+                "commands discarded at syncs",
+            ),
+            (
+                "min_level",
+                spec.min_level_setpoints,
+                "setpoints",
+                False,
+                lambda x: x.min_level,
+                "lowest queue level before a pop",
+            ),
+        )
         for name, limit, unit, high, get, what in checks:
             if limit is None:
                 continue
             v, case = _worst([(get(x), lb) for x, lb in per], high=high)
-            rows.append(_row(f"{name}:{c.name}", case, v, limit, unit, "<=" if high else ">=",
-                             what))  # fmt: skip
+            rows.append(
+                _row(f"{name}:{c.name}", case, v, limit, unit, "<=" if high else ">=", what)
+            )
         nom = results[0][1].cpus[s]
-        rows.append(_row(f"low_watermark:{c.name}", results[0][0], nom.min_level,
-                         c.low_watermark, "setpoints", ">=",
-                         "lowest queue level before a pop"))  # fmt: skip
-        rows.append(_row(f"high_watermark:{c.name}", results[0][0], nom.max_level,
-                         c.high_watermark, "setpoints", "<=",
-                         "highest queue level after a block"))  # fmt: skip
+        rows.append(
+            _row(
+                f"low_watermark:{c.name}",
+                results[0][0],
+                nom.min_level,
+                c.low_watermark,
+                "setpoints",
+                ">=",
+                "lowest queue level before a pop",
+            )
+        )
+        rows.append(
+            _row(
+                f"high_watermark:{c.name}",
+                results[0][0],
+                nom.max_level,
+                c.high_watermark,
+                "setpoints",
+                "<=",
+                "highest queue level after a block",
+            )
+        )
     for i, name in enumerate(plan.axis_names):
         faulted = [lb for lb, r in results if r.axes[i].fault is not None]
         case = faulted[0] if faulted else "every case"
-        rows.append(_row(f"fault:{name}", case, len(faulted), 0, "cases", "<=",
-                         "clock cases with a fault latched (following-error trip, counter "
-                         "fault):"))  # fmt: skip
+        rows.append(
+            _row(
+                f"fault:{name}",
+                case,
+                len(faulted),
+                0,
+                "cases",
+                "<=",
+                "clock cases with a fault latched (following-error trip, counter fault):",
+            )
+        )
     return LinkageVerification(config=plan.config_name, spec=spec, cases=cases, rows=tuple(rows))
 
 
@@ -364,9 +495,17 @@ def _config_file(plan: LinkagePlan, plan_path: str | Path, given: str | Path | N
     beside = Path(plan_path).parent
     at = recorded_paths(plan.config_path, plan_path)
     candidates = list(dict.fromkeys([*at, beside / recorded.name]))
-    return matching_file(plan.config_sha256, given, candidates, kind="config",
-                         name=plan.config_name, recorded=plan.config_path, error=ConfigError,
-                         owner="plan", recorded_at=at)  # fmt: skip
+    return matching_file(
+        plan.config_sha256,
+        given,
+        candidates,
+        kind="config",
+        name=plan.config_name,
+        recorded=plan.config_path,
+        error=ConfigError,
+        owner="plan",
+        recorded_at=at,
+    )
 
 
 def verify_plan_files(
@@ -430,10 +569,14 @@ def verify_plan_files(
         "contour_max_counts": json_float(contour[0]) if contour else None,
         "failures": list(result.failures),
     }
-    record = trust_record(RECORD_SCHEMA, passed=result.passed, seed=spec.seed, summary=summary,
-                          files={"config": config_file, "plan": plan_file, "rig": rig_file,
-                                 "spec": spec_file},
-                          result={"verification": result.to_dict()})  # fmt: skip
+    record = trust_record(
+        RECORD_SCHEMA,
+        passed=result.passed,
+        seed=spec.seed,
+        summary=summary,
+        files={"config": config_file, "plan": plan_file, "rig": rig_file, "spec": spec_file},
+        result={"verification": result.to_dict()},
+    )
     return recorded_verification(result, record, plan_path, write=write)
 
 

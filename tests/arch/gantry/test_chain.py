@@ -68,9 +68,13 @@ def test_tune_verify_export_as_a_user_runs_them(work: Path, capsys, tmp_path: Pa
     raw = json.loads(tuning.read_text())
     assert doc["data"]["sync"]["constants"] == raw["sync"]["constants"]
     assert [d["controller"] for d in doc["data"]["drives"]] == [
-        raw["drives"]["master"], raw["drives"]["slave"]]  # fmt: skip
-    assert doc["provenance"]["tuning_sha256"] == __import__("hashlib").sha256(
-        tuning.read_bytes()).hexdigest()  # fmt: skip
+        raw["drives"]["master"],
+        raw["drives"]["slave"],
+    ]
+    assert (
+        doc["provenance"]["tuning_sha256"]
+        == __import__("hashlib").sha256(tuning.read_bytes()).hexdigest()
+    )
     # the C export carries the same integers into st_sync_consts_t / the drives' constants
     cdir = tmp_path / "c"
     assert main(["export-table", str(tuning), "--format", "c", "-o", str(cdir)]) == 0
@@ -109,17 +113,30 @@ def test_an_edited_export_is_refused_by_its_digest(work: Path, capsys) -> None:
     ("case", "edit", "named"),
     [
         # a compensator gain tripled by hand: the sync loop loses its margins
-        ("sync gain", lambda d: d["sync"]["constants"]["kp"].update(
-            q=d["sync"]["constants"]["kp"]["q"] * 3 // 2, f=d["sync"]["constants"]["kp"]["f"] - 1),
-         "margins: the sync loop"),
+        (
+            "sync gain",
+            lambda d: d["sync"]["constants"]["kp"].update(
+                q=d["sync"]["constants"]["kp"]["q"] * 3 // 2,
+                f=d["sync"]["constants"]["kp"]["f"] - 1,
+            ),
+            "margins: the sync loop",
+        ),
         # a trip threshold raised above the beam's skew limit (spec: 2000 counts)
-        ("trip", lambda d: d["sync"].update(trip_counts=2500),
-         "trip threshold: below the skew limit 2500 counts"),
+        (
+            "trip",
+            lambda d: d["sync"].update(trip_counts=2500),
+            "trip threshold: below the skew limit 2500 counts",
+        ),
         # a drive's integral gain ×64
-        ("drive", lambda d: d["drives"]["slave"]["task"]["ki_t"].update(
-            f=d["drives"]["slave"]["task"]["ki_t"]["f"] - 6), "margins: the slave's drive loop"),
+        (
+            "drive",
+            lambda d: d["drives"]["slave"]["task"]["ki_t"].update(
+                f=d["drives"]["slave"]["task"]["ki_t"]["f"] - 6
+            ),
+            "margins: the slave's drive loop",
+        ),
     ],
-)  # fmt: skip
+)
 def test_a_tuning_edited_by_hand_fails_verify(work, capsys, case, edit, named) -> None:
     tuning = _copy(work, f"edited-{case.replace(' ', '-')}.json", edit)
     capsys.readouterr()
@@ -170,8 +187,19 @@ def test_a_changed_gantry_or_tuning_is_refused(work: Path, capsys) -> None:
 def test_single_rig_options_are_refused_for_a_gantry(work: Path, capsys) -> None:
     assert main(["tune", str(work / "gantry.toml"), "--generations", "3"]) == 3
     assert "--generations tunes a single rig" in capsys.readouterr().err
-    assert main(["verify", str(work / "g.json"), "--spec", str(work / "gantry.spec.toml"),
-                 "--rig", str(work / "pc-dual-servo.toml")]) == 3  # fmt: skip
+    assert (
+        main(
+            [
+                "verify",
+                str(work / "g.json"),
+                "--spec",
+                str(work / "gantry.spec.toml"),
+                "--rig",
+                str(work / "pc-dual-servo.toml"),
+            ]
+        )
+        == 3
+    )
     assert "--rig is for a single rig's tuning" in capsys.readouterr().err
 
 
@@ -194,8 +222,17 @@ def test_verify_takes_the_margins_of_the_integers_that_run(work: Path, capsys) -
 
     tuning = _copy(work, "quarter.json", quarter)
     capsys.readouterr()
-    assert main(["verify", str(tuning), "--spec", str(work / "gantry.spec.toml"),
-                 "--montecarlo", "0", "--json"]) in (0, 1)  # fmt: skip
+    assert main(
+        [
+            "verify",
+            str(tuning),
+            "--spec",
+            str(work / "gantry.spec.toml"),
+            "--montecarlo",
+            "0",
+            "--json",
+        ]
+    ) in (0, 1)
     record = json.loads(capsys.readouterr().out)
     rows = {r["subject"]: r for r in record["verification"]["rows"]}
     row = rows["the slave's drive loop, phase margin"]
@@ -206,9 +243,13 @@ def test_verify_takes_the_margins_of_the_integers_that_run(work: Path, capsys) -
     corner = row["detail"].removeprefix("plant ")
     assert corner == "gain+,tau++1cycle"
     plant = cfg.slave.plant
-    plant = type(plant)(**{**{f: getattr(plant, f) for f in plant.__dataclass_fields__},
-                           "gain_cps_per_v": plant.gain_cps_per_v * 1.2,
-                           "tau_s": plant.tau_s * 1.3})  # fmt: skip
+    plant = type(plant)(
+        **{
+            **{f: getattr(plant, f) for f in plant.__dataclass_fields__},
+            "gain_cps_per_v": plant.gain_cps_per_v * 1.2,
+            "tau_s": plant.tau_s * 1.3,
+        }
+    )
     lag = cfg.bus.compute_s + plant.delay_s + cfg.bus.cycle_s
     pm = _pm_independent(plant, kp, ki_t, cfg.bus.cycle_s, lag, cfg.rig.dac.lsb_v)
     assert math.isclose(row["value"], pm, abs_tol=0.5), (row["value"], pm)

@@ -73,11 +73,18 @@ def _engine_rig(cfg: GantryConfig, sides: tuple) -> Rig:
     """
     timer = Timer(period_s=cfg.bus.cycle_s, clock_hz=1e6, compute_s=cfg.bus.compute_s)
     axes = tuple(
-        Axis(name=name, role=name, plant=side.plant, lock_gain_codes_per_count=0.4,
-             following_error_limit_counts=side.following_error_limit_counts,
-             counter_init=side.counter_init, counter_channel=i, dac_channel=i)
+        Axis(
+            name=name,
+            role=name,
+            plant=side.plant,
+            lock_gain_codes_per_count=0.4,
+            following_error_limit_counts=side.following_error_limit_counts,
+            counter_init=side.counter_init,
+            counter_channel=i,
+            dac_channel=i,
+        )
         for i, (name, side) in enumerate(zip(("master", "slave"), sides, strict=True))
-    )  # fmt: skip
+    )
     rig = dataclasses.replace(
         cfg.rig,
         timer=timer,
@@ -106,11 +113,17 @@ def _engine_run(cfg: GantryConfig, case: str):
     base = Loop.from_rig(rig, [PIGains(kp=s.kp, ki=s.ki) for s in sides])
     loop = Loop(rig=rig, controllers=base.controllers, ref_source=(-1, -1))  # both external
     mv = cfg.move
-    cmd = trapezoid_ref(n, dt, mv.distance_counts, mv.speed_cps, mv.accel_cps2,
-                        start_tick=round(mv.start_s / dt))  # fmt: skip
+    cmd = trapezoid_ref(
+        n, dt, mv.distance_counts, mv.speed_cps, mv.accel_cps2, start_tick=round(mv.start_s / dt)
+    )
     z = np.zeros((n, 2), dtype=np.int64)
-    inputs = Inputs(ref_counts=np.column_stack([cmd, cmd]), mode=z + MODE_TASK,
-                    reset=z.astype(bool), dac_add_codes=z, load_v=load)  # fmt: skip
+    inputs = Inputs(
+        ref_counts=np.column_stack([cmd, cmd]),
+        mode=z + MODE_TASK,
+        reset=z.astype(bool),
+        dac_add_codes=z,
+        load_v=load,
+    )
     return simulate(loop, inputs, seed=SEED), cmd
 
 

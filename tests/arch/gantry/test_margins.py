@@ -40,8 +40,11 @@ def _figures(loop: control.TransferFunction, dt: float) -> dict[str, float]:
         gm, pm, _, _, _, _ = control.stability_margins(loop)
     w = np.linspace(1e-3, math.pi / dt * (1 - 1e-9), 20001)
     lw = loop(np.exp(1j * w * dt))
-    return {"pm": pm, "gm_db": 20 * math.log10(gm) if np.isfinite(gm) else math.inf,
-            "ms": float(np.max(np.abs(1 / (1 + lw))))}  # fmt: skip
+    return {
+        "pm": pm,
+        "gm_db": 20 * math.log10(gm) if np.isfinite(gm) else math.inf,
+        "ms": float(np.max(np.abs(1 / (1 + lw)))),
+    }
 
 
 def _drive_loop(cfg, ax, plant, extra_cycles: int) -> control.TransferFunction:
@@ -98,9 +101,11 @@ def test_the_example_gantry_is_robust_over_its_plant_set(cfg) -> None:
     # judged by the independent loops at every case: PM >= 45°, GM >= 6 dB, Ms <= 2
     dt = cfg.bus.cycle_s
     for case in gantry_cases(cfg):
-        for loop in (_drive_loop(cfg, cfg.master, case.master, case.extra_cycles),
-                     _drive_loop(cfg, cfg.slave, case.slave, case.extra_cycles),
-                     _sync_loop(cfg, case.slave, case.extra_cycles)):  # fmt: skip
+        for loop in (
+            _drive_loop(cfg, cfg.master, case.master, case.extra_cycles),
+            _drive_loop(cfg, cfg.slave, case.slave, case.extra_cycles),
+            _sync_loop(cfg, case.slave, case.extra_cycles),
+        ):
             f = _figures(loop, dt)
             assert f["pm"] >= 45.0 - 0.5 and f["gm_db"] >= 6.0 and f["ms"] <= 2.0 * 1.01, case
 
@@ -142,8 +147,11 @@ def test_one_cycle_more_latency_than_verified_fails_naming_the_loop(cfg, tmp_pat
 def test_margins_table_is_read_and_checked(tmp_path) -> None:
     text = _anywhere(GANTRY.read_text())
     path = tmp_path / "g.toml"
-    path.write_text(text.replace("extra_cycles = 1", "extra_cycles = 0").replace(
-        "gain_spread = 0.2", "gain_spread = 0.1"))  # fmt: skip
+    path.write_text(
+        text.replace("extra_cycles = 1", "extra_cycles = 0").replace(
+            "gain_spread = 0.2", "gain_spread = 0.1"
+        )
+    )
     c = load_gantry(path, resolve=False)
     assert (c.margins.extra_cycles, c.margins.gain_spread, c.margins.tau_spread) == (0, 0.1, 0.3)
     assert len(gantry_cases(c)) == 5  # nothing late
@@ -158,8 +166,9 @@ def test_margins_table_is_read_and_checked(tmp_path) -> None:
 def test_to_dict_carries_the_worst_loops(cfg) -> None:
     from servotune.arch.gantry.result import SyncComparison
 
-    cmp = SyncComparison(config=cfg, rows=(), traces=(), predicted=None, failed=(),
-                         margins=gantry_margins(cfg))  # fmt: skip
+    cmp = SyncComparison(
+        config=cfg, rows=(), traces=(), predicted=None, failed=(), margins=gantry_margins(cfg)
+    )
     d = cmp.to_dict()
     assert d["schema"] == "servotune.sync/2"
     assert set(d["margins"]["worst"]) == {"master", "slave", "sync"}

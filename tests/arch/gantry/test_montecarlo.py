@@ -62,9 +62,14 @@ def test_a_tripping_pair_fails_the_check_and_trips_on_its_own(cfg) -> None:
     plants = {}
     for name in ("master", "slave"):
         p = getattr(tight, name).plant
-        plants[name] = dataclasses.replace(getattr(tight, name), plant=dataclasses.replace(
-            p, gain_cps_per_v=p.gain_cps_per_v * f[f"{name}_gain"],
-            tau_s=p.tau_s * f[f"{name}_tau"]))  # fmt: skip
+        plants[name] = dataclasses.replace(
+            getattr(tight, name),
+            plant=dataclasses.replace(
+                p,
+                gain_cps_per_v=p.gain_cps_per_v * f[f"{name}_gain"],
+                tau_s=p.tau_s * f[f"{name}_tau"],
+            ),
+        )
     pair = dataclasses.replace(tight, **plants)
     assert any(simulate_gantry(pair, case=c, seed=1 + w.index).metrics().tripped for c in CASES)
     doc = cmp.to_dict()["montecarlo"]
@@ -96,8 +101,9 @@ def _number(text: str) -> float:
 
 def _readme_sync_command() -> list[str]:
     """The README's ``servotune sync … --montecarlo N`` reference line, as arguments."""
-    m = re.search(r"^servotune (sync plants/gantry\.toml --montecarlo \d+)\s", README.read_text(),
-                  re.M)  # fmt: skip
+    m = re.search(
+        r"^servotune (sync plants/gantry\.toml --montecarlo \d+)\s", README.read_text(), re.M
+    )
     assert m is not None, "the README has no `servotune sync plants/gantry.toml --montecarlo N`"
     return m.group(1).split()
 
@@ -113,9 +119,12 @@ def test_the_readme_montecarlo_size_passes_as_the_readme_says(capsys) -> None:
     out = capsys.readouterr().out
     assert f"Monte Carlo: {n} of {n} plant pairs never trip" in out
     # the README's statement of that run: its count and its largest sync error
-    said = re.search(r"On the example, ([\d,]+) pairs of ([\d,]+) pass \(95 % interval "
-                     r"([\d.]+)–100 %\); the largest sync error of\s+any pair is ([\d,]+) "
-                     r"counts against the ([\d,]+)-count trip", README.read_text())  # fmt: skip
+    said = re.search(
+        r"On the example, ([\d,]+) pairs of ([\d,]+) pass \(95 % interval "
+        r"([\d.]+)–100 %\); the largest sync error of\s+any pair is ([\d,]+) "
+        r"counts against the ([\d,]+)-count trip",
+        README.read_text(),
+    )
     assert said is not None
     k, total, lo, largest, trip = (_number(g) for g in said.groups())
     assert k == total == n
@@ -127,11 +136,14 @@ def test_the_readme_montecarlo_size_passes_as_the_readme_says(capsys) -> None:
 def test_the_readme_account_of_a_thousand_pairs(cfg) -> None:
     """At 1,000 pairs the README says which pair trips, by how much and where in the set."""
     text = " ".join(README.read_text().split())
-    said = re.search(r"At ([\d,]+) pairs one pair trips \(([\d,]+) of ([\d,]+) pass, 95 % "
-                     r"interval ([\d.]+)–([\d.]+) %; `mc(\d+)`, ([\d,]+) counts\), near the "
-                     r"set's corner where the strong, fast master \(gain ([+−\d]+) %, tau "
-                     r"([+−\d]+) %\) meets the weakest, slowest slave \(gain ([+−\d]+) %, "
-                     r"tau ([+−\d]+) %\)", text)  # fmt: skip
+    said = re.search(
+        r"At ([\d,]+) pairs one pair trips \(([\d,]+) of ([\d,]+) pass, 95 % "
+        r"interval ([\d.]+)–([\d.]+) %; `mc(\d+)`, ([\d,]+) counts\), near the "
+        r"set's corner where the strong, fast master \(gain ([+−\d]+) %, tau "
+        r"([+−\d]+) %\) meets the weakest, slowest slave \(gain ([+−\d]+) %, "
+        r"tau ([+−\d]+) %\)",
+        text,
+    )
     assert said is not None
     n, k, n2, lo, hi, index, largest, mg, mt, sg, st = (_number(g) for g in said.groups())
     mc = gantry_montecarlo(cfg, int(n), seed=0)
@@ -142,6 +154,10 @@ def test_the_readme_account_of_a_thousand_pairs(cfg) -> None:
     assert [v.index for v in tripped] == [index] and mc.worst.label == f"mc{index:.0f}"
     assert round(mc.worst.max_sync_error_counts) == largest
     f = mc.worst.factors
-    for key, pct in (("master_gain", mg), ("master_tau", mt), ("slave_gain", sg),
-                     ("slave_tau", st)):  # fmt: skip
+    for key, pct in (
+        ("master_gain", mg),
+        ("master_tau", mt),
+        ("slave_gain", sg),
+        ("slave_tau", st),
+    ):
         assert round(100 * (f[key] - 1)) == pct, key

@@ -77,8 +77,9 @@ def test_a_plan_edited_by_hand_fails_verify_and_is_not_exported(work: Path, caps
 def test_the_verbs_refuse_what_does_not_apply(work: Path, capsys) -> None:
     assert main(["tune", str(work / "linkage-6axis.toml")]) == 3
     assert "is a linkage config: plan it with `servotune plan" in capsys.readouterr().err
-    assert main(["verify", str(work / "plan.json"), "--spec", _spec(work), "--montecarlo",
-                 "5"]) == 3  # fmt: skip
+    assert (
+        main(["verify", str(work / "plan.json"), "--spec", _spec(work), "--montecarlo", "5"]) == 3
+    )
     assert "--montecarlo is for a single rig's tuning" in capsys.readouterr().err
     assert main(["plan", str(work / "pc-dual-servo.toml")]) == 3
     err = capsys.readouterr().err
@@ -112,8 +113,19 @@ def test_an_edited_recorded_config_is_refused_a_gone_one_found_and_named(
     assert "verify again, or give the verified file with --config" in err
     assert not out.exists()
     # the verified bytes given with --config: accepted
-    assert main(["export-table", str(plan), "--config", str(tmp_path / "linkage-6axis.toml"),
-                 "-o", str(out)]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                "export-table",
+                str(plan),
+                "--config",
+                str(tmp_path / "linkage-6axis.toml"),
+                "-o",
+                str(out),
+            ]
+        )
+        == 0
+    )
     out.unlink()
     # the recorded config gone: the copy beside the plan is used, and named
     config.unlink()

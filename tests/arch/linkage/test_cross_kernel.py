@@ -75,8 +75,14 @@ def _one_cpu(
             mv["to"] = {k: v for k, v in mv["to"].items() if k in AXES}
         moves.append(mv)
     d["path"]["move"] = moves * repeats
-    d["cpu"] = [{"name": "s1", "clock_ppm": clock_ppm, "axes": list(AXES),
-                 "queue_depth": (prefill_blocks + 1) * d["bus"]["block_size"] + 5}]  # fmt: skip
+    d["cpu"] = [
+        {
+            "name": "s1",
+            "clock_ppm": clock_ppm,
+            "axes": list(AXES),
+            "queue_depth": (prefill_blocks + 1) * d["bus"]["block_size"] + 5,
+        }
+    ]
     d["bus"]["prefill_blocks"] = prefill_blocks
     d["clock"] = {"resync_interval_s": 0.0}
     d["axis"]["x"]["counter_init"] = (1 << 24) - 20_000
@@ -98,14 +104,26 @@ def _engine(cfg: LinkageConfig, tick_s: float, n_ticks: int) -> tuple[Trace, np.
         clock_hz = float(np.nextafter(clock_hz, np.inf if 1000 / clock_hz > tick_s else 0.0))
     timer = Timer(period_s=tick_s, clock_hz=clock_hz, compute_s=cfg.rig.timer.compute_s)
     axes = tuple(
-        Axis(name=a.name, role="master" if i == 0 else "slave", plant=a.plant,
-             lock_gain_codes_per_count=a.lock_gain_codes_per_count,
-             following_error_limit_counts=a.following_error_limit_counts,
-             counter_init=a.counter_init, counter_channel=i, dac_channel=i)
+        Axis(
+            name=a.name,
+            role="master" if i == 0 else "slave",
+            plant=a.plant,
+            lock_gain_codes_per_count=a.lock_gain_codes_per_count,
+            following_error_limit_counts=a.following_error_limit_counts,
+            counter_init=a.counter_init,
+            counter_channel=i,
+            dac_channel=i,
+        )
         for i, a in enumerate(cfg.axes)
-    )  # fmt: skip
-    rig = Rig(name="one-slave-cpu", timer=timer, counter=cfg.rig.counter, dac=cfg.rig.dac,
-              encoder=cfg.rig.encoder, axes=axes)  # fmt: skip
+    )
+    rig = Rig(
+        name="one-slave-cpu",
+        timer=timer,
+        counter=cfg.rig.counter,
+        dac=cfg.rig.dac,
+        encoder=cfg.rig.encoder,
+        axes=axes,
+    )
     assert rig.period_s == tick_s
     assert rig.counts_per_rev == cfg.rig.counts_per_rev
     controllers = tuple(
@@ -121,8 +139,13 @@ def _engine(cfg: LinkageConfig, tick_s: float, n_ticks: int) -> tuple[Trace, np.
     commands = interpolate(cfg).commands
     ref = commands[np.minimum(np.arange(n_ticks), commands.shape[0] - 1)]
     z = np.zeros((n_ticks, len(axes)), dtype=np.int64)
-    inputs = Inputs(ref_counts=ref, mode=z + MODE_TASK, reset=z.astype(bool), dac_add_codes=z,
-                    load_v=np.zeros(z.shape))  # fmt: skip
+    inputs = Inputs(
+        ref_counts=ref,
+        mode=z + MODE_TASK,
+        reset=z.astype(bool),
+        dac_add_codes=z,
+        load_v=np.zeros(z.shape),
+    )
     return simulate(loop, inputs, seed=SEED), ref
 
 
@@ -203,8 +226,18 @@ def test_drifting_cpu_ticks_are_the_engines_at_its_own_period() -> None:
             for w, span in ((volts[i], min(h, lam)), (volts[i + 1], h - lam)):
                 if span > 0.0:
                     c_a, c_b = step_coefficients(span, pl.tau_s)
-                    p, v = advance(p, v, w + pl.offset_v, span, c_a, c_b, pl.gain_cps_per_v,
-                                   pl.tau_s, pl.coulomb_v, pl.max_speed_cps(cpr))  # fmt: skip
+                    p, v = advance(
+                        p,
+                        v,
+                        w + pl.offset_v,
+                        span,
+                        c_a,
+                        c_b,
+                        pl.gain_cps_per_v,
+                        pl.tau_s,
+                        pl.coulomb_v,
+                        pl.max_speed_cps(cpr),
+                    )
             want[k] = p
         assert np.array_equal(res.actual_counts[:, col], want), a.name  # the same float ops
     assert not np.array_equal(res.actual_counts, engine.true_pos_counts[ticks])  # between ticks
@@ -250,8 +283,18 @@ def test_a_tick_moved_by_a_sync_moves_the_motor_over_the_actual_interval() -> No
             for w, span in ((volts[c - 1], min(h, lam)), (volts[c], h - lam)):
                 if span > 0.0:
                     c_a, c_b = step_coefficients(span, pl.tau_s)
-                    p, v = advance(p, v, w + pl.offset_v, span, c_a, c_b, pl.gain_cps_per_v,
-                                   pl.tau_s, pl.coulomb_v, pl.max_speed_cps(cpr))  # fmt: skip
+                    p, v = advance(
+                        p,
+                        v,
+                        w + pl.offset_v,
+                        span,
+                        c_a,
+                        c_b,
+                        pl.gain_cps_per_v,
+                        pl.tau_s,
+                        pl.coulomb_v,
+                        pl.max_speed_cps(cpr),
+                    )
             assert (p, v) == (tr.true_pos_counts[c], tr.speed_cps[c]), (a.name, c)
         moved += int(np.count_nonzero(synced))
         # the syncs moved the ticks: the fast CPU's interval grew, the slow one's shrank

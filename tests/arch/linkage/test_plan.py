@@ -105,8 +105,19 @@ def test_plan_is_deterministic_and_round_trips(plan: LinkagePlan, tmp_path: Path
     assert back == plan and plan_to_string(back) == text
     d = json.loads(text)
     assert d["schema"] == PLAN_SCHEMA == "servotune.linkage-plan/1"
-    assert sorted(d) == ["axes", "bus", "clock", "config", "cpus", "design", "interpolation",
-                         "period_s", "provenance", "rig", "schema"]  # fmt: skip
+    assert sorted(d) == [
+        "axes",
+        "bus",
+        "clock",
+        "config",
+        "cpus",
+        "design",
+        "interpolation",
+        "period_s",
+        "provenance",
+        "rig",
+        "schema",
+    ]
     assert text.endswith("}\n") and '  "axes": [' in text  # two-space indent, sorted keys
     assert d["config"]["sha256"] == bytes_sha256(EXAMPLE.read_bytes())
     assert d["rig"]["sha256"] == bytes_sha256(RIG.read_bytes())
@@ -166,26 +177,40 @@ def test_watermarks_and_drift_by_hand(plan: LinkagePlan) -> None:
         (lambda d: d.update(extra=1), r"unknown key extra"),
         (lambda d: d.update(schema="servotune.linkage-plan/0"), r"schema must be"),
         (lambda d: d["bus"].pop("block_size"), r"missing key bus\.block_size"),
-        (lambda d: d["cpus"][0].update(queue_depth=20.0),
-         r"cpus\[0\]\.queue_depth must be an integer in 1\.\.1000000 \[setpoints\], got 20\.0"),
-        (lambda d: d["bus"].update(utilisation=0.2),
-         r"bus\.utilisation is 0\.2 but the plan's own fields give 0\.277"),
+        (
+            lambda d: d["cpus"][0].update(queue_depth=20.0),
+            r"cpus\[0\]\.queue_depth must be an integer in 1\.\.1000000 \[setpoints\], got 20\.0",
+        ),
+        (
+            lambda d: d["bus"].update(utilisation=0.2),
+            r"bus\.utilisation is 0\.2 but the plan's own fields give 0\.277",
+        ),
         (lambda d: d["cpus"][1].update(drift_ticks=0.1), r"cpus\[1\]\.drift_ticks is 0\.1"),
-        (lambda d: d["cpus"][1].update(low_watermark=0),
-         r"cpus\[1\]\.low_watermark must be an integer in 1\.\.20"),
-        (lambda d: d["cpus"][0].update(queue_depth=12),
-         r"cpus\[0\]\.high_watermark must be an integer in 9\.\.12 \[setpoints\], got 14"),
-        (lambda d: d["clock"].update(resync_interval_ticks=6250.0),
-         r"clock\.resync_interval_ticks must be an integer"),
-        (lambda d: d["axes"][2]["controller"]["task"]["kp"].update(q=1.5),
-         r"axes\[2\]\.controller: q and f must be integers"),
+        (
+            lambda d: d["cpus"][1].update(low_watermark=0),
+            r"cpus\[1\]\.low_watermark must be an integer in 1\.\.20",
+        ),
+        (
+            lambda d: d["cpus"][0].update(queue_depth=12),
+            r"cpus\[0\]\.high_watermark must be an integer in 9\.\.12 \[setpoints\], got 14",
+        ),
+        (
+            lambda d: d["clock"].update(resync_interval_ticks=6250.0),
+            r"clock\.resync_interval_ticks must be an integer",
+        ),
+        (
+            lambda d: d["axes"][2]["controller"]["task"]["kp"].update(q=1.5),
+            r"axes\[2\]\.controller: q and f must be integers",
+        ),
         (lambda d: d["axes"][0].update(cpu="s2"), r"axes\[0\]\.cpu is 's2' but axis 'x' is on"),
-        (lambda d: d["cpus"][1].update(axes=["y", "b", "x"]),
-         r"axis 'x' is on two CPUs: 's1' and 's2'"),
+        (
+            lambda d: d["cpus"][1].update(axes=["y", "b", "x"]),
+            r"axis 'x' is on two CPUs: 's1' and 's2'",
+        ),
         (lambda d: d["config"].update(sha256="XYZ"), r"config\.sha256 must be 64 lower-case hex"),
         (lambda d: d.update(period_s=2), r"period_s must be a number \[s\], got 2"),
     ],
-)  # fmt: skip
+)
 def test_strict_reader_names_the_field(plan: LinkagePlan, edit: Any, message: str) -> None:
     d = copy.deepcopy(plan.to_dict())
     edit(d)
@@ -206,8 +231,9 @@ def test_plan_refuses_what_cannot_run(tmp_path: Path) -> None:
     bad = _config_copy(tmp_path, "clock_ppm = 80.0", "clock_ppm = 3000.0")
     bad.write_text(bad.read_text().replace("resync_interval_s = 12.5", "resync_interval_s = 0"))
     why = r"drift \(22\.5\d ticks at \+3000 ppm, no resync in 7507 ticks\)"
-    with pytest.raises(ConfigError, match=r"cpu s1: the prefill leaves no margin for its clock "
-                       + why):  # fmt: skip
+    with pytest.raises(
+        ConfigError, match=r"cpu s1: the prefill leaves no margin for its clock " + why
+    ):
         plan_linkage(bad)
     with pytest.raises(ConfigError, match=r"cannot read linkage config"):
         plan_linkage(tmp_path / "missing.toml")
@@ -229,15 +255,20 @@ def test_run_plan_runs_the_plans_integers(plan: LinkagePlan) -> None:
     np.testing.assert_array_equal(a.actual_counts, b.actual_counts)
     x = plan.controllers[0]
     kp = dataclasses.replace(x.task.kp, q=x.task.kp.q // 2)  # half the gain of x
-    halved = dataclasses.replace(plan, controllers=(
-        dataclasses.replace(x, task=dataclasses.replace(x.task, kp=kp)), *plan.controllers[1:]
-    ))  # fmt: skip
+    halved = dataclasses.replace(
+        plan,
+        controllers=(
+            dataclasses.replace(x, task=dataclasses.replace(x.task, kp=kp)),
+            *plan.controllers[1:],
+        ),
+    )
     c = run_plan(halved, config, seconds=3.0, seed=2)
     assert c.axes[0].kp == pytest.approx(0.3617 / 2, rel=1e-6)
     assert not np.array_equal(c.actual_counts[:, 0], a.actual_counts[:, 0])
     np.testing.assert_array_equal(c.actual_counts[:, 1], a.actual_counts[:, 1])  # y: its own CPU
-    resync = run_plan(dataclasses.replace(plan, resync_ticks=500, drift_window_ticks=500),
-                      config, seconds=3.0)  # fmt: skip
+    resync = run_plan(
+        dataclasses.replace(plan, resync_ticks=500, drift_window_ticks=500), config, seconds=3.0
+    )
     assert resync.resync_interval_s == 1.0 and [c.resyncs for c in resync.cpus] == [2, 2]
 
 
@@ -255,9 +286,18 @@ def test_plan_verify_export_as_a_user_runs_it(verified: Path, tmp_path: Path) ->
     assert record["files"]["spec"]["sha256"] == bytes_sha256(SPEC.read_bytes())
     assert record["sha256"] == document_sha256(record) and record_path.is_file()
     checks = {r["check"]: r for r in record["verification"]["rows"]}
-    for name in ("contour_error", "bus_utilisation", "phase_drift:s1", "underruns:s2",
-                 "overruns:s1", "min_level:s2", "low_watermark:s1", "fault:c",
-                 "phase_margin:x", "sensitivity:b"):  # fmt: skip
+    for name in (
+        "contour_error",
+        "bus_utilisation",
+        "phase_drift:s1",
+        "underruns:s2",
+        "overruns:s1",
+        "min_level:s2",
+        "low_watermark:s1",
+        "fault:c",
+        "phase_margin:x",
+        "sensitivity:b",
+    ):
         assert checks[name]["passed"], name
     assert len(record["verification"]["cases"]) == 5  # nominal and the four ±20 ppm corners
     # the export takes the verified plan, and says so
@@ -293,8 +333,10 @@ def test_export_refuses_an_unverified_or_mismatched_plan(verified: Path, tmp_pat
     with pytest.raises(TrustError, match=r"the spec differs from the verified one"):
         load_plan_for_export(verified, other)
     # the plan edited after verification (a byte that still parses: the trailing newline)
-    shutil.copy(verified.with_name(verified.name + ".verify.json"),
-                fresh.with_name(fresh.name + ".verify.json"))  # fmt: skip
+    shutil.copy(
+        verified.with_name(verified.name + ".verify.json"),
+        fresh.with_name(fresh.name + ".verify.json"),
+    )
     fresh.write_text(fresh.read_text() + "\n")
     with pytest.raises(TrustError, match=r"the plan differs from the verified one"):
         load_plan_for_export(fresh)
@@ -302,8 +344,9 @@ def test_export_refuses_an_unverified_or_mismatched_plan(verified: Path, tmp_pat
 
 def test_hand_edited_plan_fails_verify_naming_the_check(verified: Path, tmp_path: Path) -> None:
     # x's Kp × 4 (f 32 → 30): the loop's phase margin drops below 45°
-    path = _edited_plan(tmp_path, verified, lambda d: d["axes"][0]["controller"]["task"][
-        "kp"].update(f=30))  # fmt: skip
+    path = _edited_plan(
+        tmp_path, verified, lambda d: d["axes"][0]["controller"]["task"]["kp"].update(f=30)
+    )
     v, record, _ = verify_plan_files(path, SPEC)
     assert not v.passed and record["passed"] is False
     assert v.row("phase_margin:x").passed is False and v.row("phase_margin:x").value < 45.0
@@ -331,8 +374,11 @@ def test_hand_edited_plan_fails_verify_naming_the_check(verified: Path, tmp_path
         d["clock"]["max_drift_ticks"] = d["cpus"][1]["drift_ticks"]  # now s2's
 
     path = _edited_plan(tmp_path, verified, slower_s1)
-    with pytest.raises(ConfigError, match=r"the plan's cpus\[0\]\.clock_ppm is 10\.0 but its "
-                       r"config has 80\.0: the plan was edited"):  # fmt: skip
+    with pytest.raises(
+        ConfigError,
+        match=r"the plan's cpus\[0\]\.clock_ppm is 10\.0 but its "
+        r"config has 80\.0: the plan was edited",
+    ):
         verify_plan_files(path, SPEC, write=False)
 
 
@@ -396,8 +442,9 @@ def test_spec_statements_decide_the_verdict(verified: Path, tmp_path: Path) -> N
     assert 1400 < contour.value < 2000
     tight = _verify(verified, tmp_path, contour=1000.0)
     assert [r.check for r in tight.rows if not r.passed] == ["contour_error"]
-    assert tight.failures[0].startswith("contour_error: largest distance from the programmed "
-                                        "path 1")  # fmt: skip
+    assert tight.failures[0].startswith(
+        "contour_error: largest distance from the programmed path 1"
+    )
     # 27.8 % of the line (test_bit_budget_by_hand): a 30 % limit holds, 25 % does not
     assert _verify(verified, tmp_path, util=30.0).passed
     assert not _verify(verified, tmp_path, util=25.0).row("bus_utilisation").passed
@@ -415,19 +462,25 @@ def test_spec_statements_decide_the_verdict(verified: Path, tmp_path: Path) -> N
 @pytest.mark.parametrize(
     ("text", "message"),
     [
-        ("[queue]\nmax_underruns = 0\n",
-         r"unknown key queue\.max_underruns .*did you mean 'max_underrun_ticks'"),
-        ("[queue]\nmax_underrun_ticks = 0.0\n",
-         r"queue\.max_underrun_ticks must be an integer in 0\.\.1099511627776 \[ticks\]"),
-        ("[contour]\nmax_contour_error_counts = -1\n",
-         r"contour\.max_contour_error_counts must be a number in \[0, 1e\+12\] \[counts\]"),
+        (
+            "[queue]\nmax_underruns = 0\n",
+            r"unknown key queue\.max_underruns .*did you mean 'max_underrun_ticks'",
+        ),
+        (
+            "[queue]\nmax_underrun_ticks = 0.0\n",
+            r"queue\.max_underrun_ticks must be an integer in 0\.\.1099511627776 \[ticks\]",
+        ),
+        (
+            "[contour]\nmax_contour_error_counts = -1\n",
+            r"contour\.max_contour_error_counts must be a number in \[0, 1e\+12\] \[counts\]",
+        ),
         ("[bus]\nmax_utilisation_pct = 120\n", r"bus\.max_utilisation_pct must be a number in"),
         ("[clock]\ntolerance_ppm = 20\n", r"the spec sets no limit"),
         ("[margins]\nmax_sensitivity = 0.5\n", r"margins\.max_sensitivity must be"),
         ("[run]\nseed = -1\n[queue]\nmax_overrun_blocks = 0\n", r"run\.seed must be an integer"),
         ("[queue\n", r"is not valid TOML"),
     ],
-)  # fmt: skip
+)
 def test_spec_reader_names_the_field(tmp_path: Path, text: str, message: str) -> None:
     with pytest.raises(SpecError, match=message) as exc:
         load_linkage_spec(_spec(tmp_path, text))
@@ -438,16 +491,23 @@ def test_example_spec_reads(tmp_path: Path) -> None:
     spec = load_linkage_spec(SPEC)
     assert spec.name == "linkage-6axis" and spec.config == "linkage-6axis"
     assert spec.limits == {
-        "max_phase_drift_ticks": 0.75, "max_utilisation_pct": 50.0,
-        "max_contour_error_counts": 2000.0, "max_underrun_ticks": 0, "max_overrun_blocks": 0,
-        "min_level_setpoints": 5, "max_skipped_setpoints": 0,
-    }  # fmt: skip
+        "max_phase_drift_ticks": 0.75,
+        "max_utilisation_pct": 50.0,
+        "max_contour_error_counts": 2000.0,
+        "max_underrun_ticks": 0,
+        "max_overrun_blocks": 0,
+        "min_level_setpoints": 5,
+        "max_skipped_setpoints": 0,
+    }
     assert spec.clock_tolerance_ppm == 20.0 and spec.margins is not None
     assert math.isclose(spec.margins.max_sensitivity, 2.0)
 
 
 def test_spec_of_another_config_is_refused(verified: Path, tmp_path: Path) -> None:
     spec = _spec(tmp_path, '[spec]\nconfig = "gantry"\n[queue]\nmax_underrun_ticks = 0\n')
-    with pytest.raises(SpecError, match=r"the spec is for config 'gantry', the plan for "
-                       r"'linkage-6axis'"):  # fmt: skip
+    with pytest.raises(
+        SpecError,
+        match=r"the spec is for config 'gantry', the plan for "
+        r"'linkage-6axis'",
+    ):
         verify_plan_files(verified, spec, write=False)
