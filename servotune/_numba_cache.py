@@ -13,10 +13,10 @@ own decoration call and restores it (the environment is never touched): other pa
 functions, decorated before or after, keep numba's defaults. The one exception the public API
 leaves open is a function decorated by another thread during those microseconds.
 
-Two more services for a visible first run (:mod:`servotune.warmup`): :func:`cached_overloads`
+Two more services for a visible first run (:mod:`servotune.kernels`): :func:`cached_overloads`
 reads a function's cache index without compiling anything, and numba's ``numba:compile`` event
 (sent when numba really compiles, not when it loads from the cache) is passed on to
-:func:`servotune.warmup.compile_started` and :func:`~servotune.warmup.compile_ended`.
+:func:`servotune.kernels.compile_started` and :func:`~servotune.kernels.compile_ended`.
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ from __future__ import annotations
 import hashlib
 import os
 import shutil
+import sys
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -35,7 +36,6 @@ import numba
 import numba.core.errors
 import numba.core.event
 
-from servotune import warmup
 from servotune.errors import CompileError
 
 __all__ = [
@@ -200,14 +200,20 @@ def cached_overloads(kernel: Any) -> int | None:
 
 
 class _CompileEvents(numba.core.event.Listener):
-    """numba's ``numba:compile`` event, passed on to :mod:`servotune.warmup` (which reports
-    it only where the caller asked, :func:`servotune.warmup.compile_notices`)."""
+    """numba's ``numba:compile`` event, passed on to :mod:`servotune.kernels` (which reports
+    it only where the caller asked, :func:`servotune.kernels.compile_notices`) when that
+    module is loaded: not imported from here (it sits beside this one and reads this one's
+    cache), and where it is not loaded no notices block can be open."""
 
     def on_start(self, event: numba.core.event.Event) -> None:
-        warmup.compile_started(event.data["dispatcher"])
+        kernels = sys.modules.get("servotune.kernels")
+        if kernels is not None:
+            kernels.compile_started(event.data["dispatcher"])
 
     def on_end(self, event: numba.core.event.Event) -> None:
-        warmup.compile_ended(event.data["dispatcher"])
+        kernels = sys.modules.get("servotune.kernels")
+        if kernels is not None:
+            kernels.compile_ended(event.data["dispatcher"])
 
 
 numba.core.event.register("numba:compile", _CompileEvents())

@@ -19,7 +19,7 @@ PACKAGE = ROOT / "servotune"
 
 LAYERS: tuple[tuple[str, ...], ...] = (
     ("_version", "errors", "progress"),
-    ("validate", "budget", "digest", "fixed", "_control", "_numba_cache", "executor"),
+    ("validate", "budget", "digest", "fixed", "_control", "_numba_cache", "kernels", "executor"),
     ("hw", "io"),
     ("plant", "laws", "fuzzy"),
     ("rig_model", "rig", "logs", "tuning", "metrics", "scenarios", "excite"),

@@ -66,13 +66,13 @@ def test_python_control_takes_the_stand_in_when_unguarded(monkeypatch) -> None:
 
 def _results(rig, tuning) -> dict[str, str]:
     """Every servotune result that goes through python-control, as text holding every bit."""
+    from servotune.analysis.margins import tuning_margins
     from servotune.arch.gantry.design import predicted_load_reduction
     from servotune.arch.gantry.load import load_gantry
     from servotune.plant import discretize_lti
     from servotune.report.loops import loop_response
     from servotune.tune.pi import tune_pi
     from servotune.tune.sync import resolve_gains
-    from servotune.verify.margins import tuning_margins
 
     out = {"margins": json.dumps(tuning_margins(tuning, rig).to_dict(), sort_keys=True)}
     w = np.geomspace(0.5, 700.0, 50)

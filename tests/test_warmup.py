@@ -1,4 +1,4 @@
-"""A cold start is a visible step (servotune/warmup.py): numba compiling the kernels is said on
+"""A cold start is a visible step (servotune/kernels.py): numba compiling the kernels is said on
 stderr before it starts and while it lasts, ``servotune warmup`` compiles them ahead, and a warm
 cache says nothing.
 
@@ -23,7 +23,8 @@ from types import SimpleNamespace
 import numba
 import pytest
 
-from servotune import _numba_cache, warmup
+from servotune import _numba_cache
+from servotune import kernels as warmup
 from servotune.progress import StderrProgress
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -58,7 +58,7 @@ def _run(argv: list[str | Path], **kw: object) -> subprocess.CompletedProcess[st
 
 
 def _compiling(stderr: str) -> list[str]:
-    """The lines that say kernels are being compiled (servotune.warmup's messages)."""
+    """The lines that say kernels are being compiled (servotune.kernels's messages)."""
     return [ln for ln in stderr.splitlines() if ln.startswith("compiling ")]
 
 

@@ -30,7 +30,7 @@ from servotune.cli.output import _SIGNALLED, _SINK, _on_sigterm, _outcome, _prog
 from servotune.cli.parser import _EXAMPLES as _EXAMPLES  # re-exported: tests/cli
 from servotune.cli.parser import _parser
 from servotune.errors import ServotuneError
-from servotune.warmup import compile_notices
+from servotune.kernels import compile_notices
 
 __all__ = ["main"]
 

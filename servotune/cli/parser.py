@@ -18,8 +18,8 @@ from servotune.cli.studies import _cmd_compare, _cmd_demo, _cmd_linkage, _cmd_sy
 from servotune.cli.tables import _cmd_check_table, _cmd_export_table
 from servotune.cli.warmup import _cmd_warmup
 from servotune.executor import local_workers
+from servotune.kernels import GROUPS
 from servotune.validate import SEED_MAX, check_seed
-from servotune.warmup import GROUPS
 
 
 def _executor_options(group: Any, what: str, from_size: str) -> None:
@@ -64,7 +64,7 @@ def _seed(text: str) -> int:
 
 def _group(text: str) -> str:
     """A kernel group's name (``servotune warmup GROUP``; argparse's type: a usage error if
-    not one of :data:`servotune.warmup.GROUPS`)."""
+    not one of :data:`servotune.kernels.GROUPS`)."""
     names = [g.name for g in GROUPS]
     if text not in names:
         raise argparse.ArgumentTypeError(

@@ -2,7 +2,7 @@
 step the other verbs take before the work that needs their kernels.
 
 A cold cache (a fresh install, edited sources) is compiled in that step, with its lines on
-stderr (:func:`servotune.warmup.warm_up`); a warm one costs a look at numba's index files and
+stderr (:func:`servotune.kernels.warm_up`); a warm one costs a look at numba's index files and
 prints nothing.
 """
 
@@ -16,13 +16,13 @@ from servotune.cli.output import EXIT_OK, _print_product, _progress
 
 def _compile_kernels(*groups: str) -> None:
     """Compile the kernel groups a verb is about to use if the cache lacks them, saying so."""
-    from servotune.warmup import warm_up
+    from servotune.kernels import warm_up
 
     warm_up(groups, progress=_progress)
 
 
 def _cmd_warmup(args: argparse.Namespace) -> int:
-    from servotune.warmup import GROUPS, warm_up
+    from servotune.kernels import GROUPS, warm_up
 
     result = warm_up(args.groups or None, progress=_progress)
     names = result.compiled + result.cached

@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from servotune._version import __version__
+from servotune.analysis.margins import DEFAULT_LIMITS, tuning_margins
 from servotune.io.files import atomic_write_text
 from servotune.plot import (
     plot_comparison,
@@ -57,7 +58,6 @@ from servotune.report.summary import summarise
 from servotune.rig import load_rig
 from servotune.tune.workflow import tuning_summary
 from servotune.tuning import read_tuning
-from servotune.verify.margins import DEFAULT_LIMITS, tuning_margins
 
 __all__ = ["EMBEDDED_FIGURES", "loop_response", "write_report"]
 

@@ -11,6 +11,7 @@ import control
 import numpy as np
 
 from servotune._control import scipy_paths
+from servotune.analysis.margins import MarginLimits, Margins
 from servotune.laws.axis import MODE_TASK
 from servotune.laws.fuzzy_pid import FuzzyPIDConstants
 from servotune.plant import discretize
@@ -22,7 +23,6 @@ from servotune.scenarios import _sync_move_for, build_scenario, step_inputs, syn
 from servotune.sim.engine import simulate
 from servotune.tuning import Tuning
 from servotune.validate import show_number
-from servotune.verify.margins import MarginLimits, Margins
 
 __all__ = ["loop_response"]
 

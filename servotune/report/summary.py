@@ -4,7 +4,7 @@ Every sentence here is derived from the numbers it is given (a verification, the
 none is fixed text. :func:`summarise` reads a :class:`~servotune.verify.result.Verification`
 into a :class:`ReportSummary`; :func:`next_step` turns the verdict (or the failure that weighs
 most) into one or two sentences naming the command or the knob; :func:`margin_comment` says why
-the master's and the slave's phase margins differ (:mod:`servotune.verify.margins`: the slave
+the master's and the slave's phase margins differ (:mod:`servotune.analysis.margins`: the slave
 runs one loop per query-table cell).
 """
 

@@ -14,12 +14,12 @@ from servotune.validate import show_number, show_value
 from servotune.verify.montecarlo import BEYOND_CHANCE
 
 if TYPE_CHECKING:
+    from servotune.analysis.margins import LoopMargins, Margins
     from servotune.arch.gantry.result import SyncComparison
     from servotune.arch.gantry.tuning import GantryTuning
     from servotune.arch.gantry.verify import GantryVerification
     from servotune.arch.linkage import LinkagePlan, LinkageVerification
     from servotune.arch.linkage.result import LinkageResult
-    from servotune.verify.margins import LoopMargins, Margins
     from servotune.verify.result import MonteCarloSummary, Verification
 
 __all__ = [

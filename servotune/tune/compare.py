@@ -3,7 +3,7 @@
 :func:`compare_structures`: conventional PID, PID + the feedforward differential, and the
 composite fuzzy-PID + feedforward are each tuned by the same optimiser
 (:func:`~servotune.tune.slave.tune_slave`) with the same budget, search bounds, objective and
-robustness limits (every loop over the plant set, :mod:`servotune.verify.margins`), once per
+robustness limits (every loop over the plant set, :mod:`servotune.analysis.margins`), once per
 seed. Each result is then measured
 
 - on the tuning run (the nominal rig: max and RMS sync error, the start transient's rise and

@@ -1,13 +1,13 @@
 """Gains that keep their margins over the plant set: the master's PI and each axis's lock gain.
 
-What is not known about a loop (:func:`servotune.verify.margins.plant_cases`: the corners of
+What is not known about a loop (:func:`servotune.analysis.plant_cases.plant_cases`: the corners of
 the identified intervals and of the spreads, each one tick late, at the period ± the timer's
 error) is where the margin limits must hold, not only the nominal plant. The two fixed-gain
 loops are designed for it here; the slave's scheduled law keeps the same limits as constraints
 of its own tuner (:mod:`servotune.tune.slave`).
 
 Designs aim a little inside the limits (:data:`DESIGN_TOLERANCE`) so that the verdict,
-python-control on the quantised constants (:func:`~servotune.verify.margins.tuning_margins`),
+python-control on the quantised constants (:func:`~servotune.analysis.margins.tuning_margins`),
 is not decided by a rounding.
 """
 
@@ -19,17 +19,11 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from servotune.analysis.margins import MarginLimits, controller_basis, grid_margins, unwrapped_phase
+from servotune.analysis.plant_cases import PlantCase, plant_response
 from servotune.errors import InfeasibleError
 from servotune.rig import Rig
 from servotune.tune.pi import PITuning, tune_pi
-from servotune.verify.margins import (
-    MarginLimits,
-    PlantCase,
-    controller_basis,
-    grid_margins,
-    plant_response,
-    unwrapped_phase,
-)
 
 __all__ = [
     "DESIGN_TOLERANCE",
@@ -64,7 +58,7 @@ class MarginScreen:
 
     The plant responses of the cases are computed once (python-control); each call multiplies
     them with the controllers' responses and finds every crossing on the grid
-    (:func:`~servotune.verify.margins.grid_margins`).
+    (:func:`~servotune.analysis.margins.grid_margins`).
 
     Parameters
     ----------

@@ -16,8 +16,8 @@ zero, the slave ahead of the master, as a share of its largest lag) at most
 cell's frozen gains) over the variants, each also with one extra tick of latency:
 phase margin, gain margin and peak sensitivity within ``min_phase_margin_deg``,
 ``min_gain_margin_db``, ``max_sensitivity`` (screened on a frequency grid,
-:func:`servotune.verify.margins.grid_margins`; the tuning's verdict is python-control's, see
-:func:`servotune.verify.margins.tuning_margins`). A candidate that breaks a constraint ranks
+:func:`servotune.analysis.margins.grid_margins`; the tuning's verdict is python-control's, see
+:func:`servotune.analysis.margins.tuning_margins`). A candidate that breaks a constraint ranks
 behind every one that keeps them, by how much it breaks them.
 
 Three structures share the optimiser and its budget (the paper's Figure 4 comparison):
@@ -38,6 +38,8 @@ import numpy as np
 from scipy.optimize import differential_evolution
 from scipy.stats import qmc
 
+from servotune.analysis.margins import DEFAULT_LIMITS, MarginLimits
+from servotune.analysis.plant_cases import PlantCase, plant_cases
 from servotune.budget import check_memory, format_count
 from servotune.errors import SpecError
 from servotune.io.files import json_float
@@ -50,7 +52,6 @@ from servotune.scenarios import Scenario, _sync_move_for
 from servotune.sim.engine import Loop, prepare_batch, run_batch
 from servotune.tune.robust import MarginScreen, design_limits
 from servotune.validate import check_integer, check_number
-from servotune.verify.margins import DEFAULT_LIMITS, MarginLimits, PlantCase, plant_cases
 
 __all__ = [
     "STRUCTURES",
@@ -101,7 +102,7 @@ class SlaveTuneSpec:
     min_phase_margin_deg, min_gain_margin_db, max_sensitivity : float
         Robustness limits of every loop (every cell of the slave's law, the master's PI, the
         lock loops) over the plant set [deg], [dB], [1] (defaults:
-        :data:`servotune.verify.margins.DEFAULT_LIMITS`).
+        :data:`servotune.analysis.margins.DEFAULT_LIMITS`).
     extra_ticks : int
         Latency the loops must also take [ticks], 0..10.
     period_error_ppm : float
@@ -145,9 +146,10 @@ class SlaveTuneSpec:
     def plant_cases(
         self, rig: Rig, *, seed: int = 0, sampled: bool = False
     ) -> tuple[PlantCase, ...]:
-        """The plant set the margin limits hold over (:func:`~servotune.verify.margins.plant_cases`
-        of these spreads, latency and timer error; with ``sampled``, also ``margin_samples``
-        plant sets drawn inside it from ``seed``)."""
+        """The plant set the margin limits hold over
+        (:func:`~servotune.analysis.plant_cases.plant_cases` of these spreads, latency and timer
+        error; with ``sampled``, also ``margin_samples`` plant sets drawn inside it from
+        ``seed``)."""
         return plant_cases(
             rig,
             gain_spread=self.gain_spread,
@@ -160,7 +162,7 @@ class SlaveTuneSpec:
 
     @property
     def limits(self) -> MarginLimits:
-        """The robustness limits as a :class:`~servotune.verify.margins.MarginLimits`."""
+        """The robustness limits as a :class:`~servotune.analysis.margins.MarginLimits`."""
         return MarginLimits.of(self)
 
     def to_dict(self) -> dict[str, Any]:
@@ -374,7 +376,7 @@ def _gains_from(
 
 def _screen(rig: Rig, slave: int, spec: SlaveTuneSpec) -> MarginScreen:
     """The margin screen over the plant set verification judges robustness on
-    (:func:`~servotune.verify.margins.plant_cases`), its late cases only: one tick more delay
+    (:func:`~servotune.analysis.plant_cases.plant_cases`), its late cases only: one tick more delay
     lowers the phase at every frequency, so a loop that keeps its margins late keeps them on
     time (verification checks both)."""
     cases = spec.plant_cases(rig)

@@ -20,6 +20,7 @@ import numpy as np
 
 from servotune import fuzzy
 from servotune._version import __version__
+from servotune.analysis.margins import tuning_margins
 from servotune.errors import InfeasibleError, SpecError
 from servotune.laws.fuzzy_pid import FuzzyPIDConstants
 from servotune.rig import Rig, load_rig
@@ -32,7 +33,6 @@ from servotune.tune.slave import (
 )
 from servotune.tuning import Tuning, file_sha256
 from servotune.validate import check_seed
-from servotune.verify.margins import tuning_margins
 
 __all__ = [
     "rule_tables",
@@ -62,7 +62,7 @@ class _RobustStart:
 
 def _robust_start(rig: Rig, spec: SlaveTuneSpec) -> _RobustStart:
     """Lock gains and PI designs that keep ``spec``'s margin limits over the plant set
-    (:func:`~servotune.verify.margins.plant_cases` of the spec's spreads, latency and timer
+    (:func:`~servotune.analysis.plant_cases.plant_cases` of the spec's spreads, latency and timer
     error).
 
     Raises
@@ -103,7 +103,7 @@ def tune_rig(
     (:mod:`servotune.tune.robust`); the slave's law is tuned with the margins of every cell as
     constraints (:func:`~servotune.tune.slave.tune_slave`). The result is then judged as
     verification judges it: python-control on the quantised constants over the plant set
-    (:func:`~servotune.verify.margins.tuning_margins`); its figures go into ``design``.
+    (:func:`~servotune.analysis.margins.tuning_margins`); its figures go into ``design``.
 
     Parameters
     ----------

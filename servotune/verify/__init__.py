@@ -4,8 +4,7 @@ table :mod:`.result`, the Monte-Carlo distribution and summary :mod:`.montecarlo
 trust chain from the verified bytes to the export (:mod:`.record`). The pass/fail table for the
 terminal is :func:`servotune.report.text.format_table`."""
 
-from servotune.verify.checks import check_overflow, check_speed, check_timer, max_safe_gain_q
-from servotune.verify.margins import (
+from servotune.analysis.margins import (
     DEFAULT_LIMITS,
     GainSet,
     LoopMargins,
@@ -13,6 +12,7 @@ from servotune.verify.margins import (
     Margins,
     tuning_margins,
 )
+from servotune.verify.checks import check_overflow, check_speed, check_timer, max_safe_gain_q
 from servotune.verify.montecarlo import PlantDistribution, SpecSpread
 from servotune.verify.record import (
     RECORD_SCHEMA,

@@ -70,7 +70,7 @@ class PlantDistribution(Protocol):
         bound already).
     margin_plant_sets : tuple of (str, tuple of Plant)
         Labelled plant sets (one plant per rig axis) on which the loop margins are judged too,
-        beside the spec's corners (:func:`servotune.verify.margins.plant_cases`): e.g. every
+        beside the spec's corners (:func:`servotune.analysis.plant_cases.plant_cases`): e.g. every
         measured machine of a fleet. Empty for the spec's spread (its corners are the cases).
     """
 

@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any, Generic, NamedTuple, TypedDict, TypeVar, Unpack
 
 from servotune._version import __version__
+from servotune.analysis.margins import DEFAULT_LIMITS, MarginLimits, Margins, tuning_margins
 from servotune.digest import DIGEST_FIELD, bytes_sha256, document_sha256
 from servotune.errors import RigError, SpecError, TrustError, TuningError
 from servotune.executor import open_executor
@@ -42,7 +43,6 @@ from servotune.io.files import (
 )
 from servotune.rig import EXAMPLE_RIG_PATH, Rig, rig_from_dict
 from servotune.tuning import Tuning, current_tuning_path, file_sha256, read_tuning_bytes
-from servotune.verify.margins import DEFAULT_LIMITS, MarginLimits, Margins, tuning_margins
 from servotune.verify.montecarlo import PlantDistribution
 from servotune.verify.result import Verification
 from servotune.verify.run import verify

@@ -21,8 +21,11 @@ from typing import Literal
 
 import numpy as np
 
+from servotune.analysis.margins import tuning_margins
+from servotune.analysis.plant_cases import plant_cases
 from servotune.errors import SpecError
 from servotune.executor import Executor, InProcessExecutor, chunk_bounds, guided_chunk_bounds
+from servotune.kernels import warm_up
 from servotune.laws.axis import FAULT_MASK, FLAG_SATURATED, MODE_TASK
 from servotune.metrics import step_info
 from servotune.plant import (
@@ -59,12 +62,10 @@ from servotune.verify.checks import (
     check_speed,
     check_timer,
 )
-from servotune.verify.margins import plant_cases, tuning_margins
 from servotune.verify.montecarlo import PlantDistribution, SpecSpread, summarise
 from servotune.verify.result import Check, Row, Verification
 from servotune.verify.spec import LIMITS, ScenarioSpec, Spec
 from servotune.verify.variants import Variant, _seed_seqs
-from servotune.warmup import warm_up
 
 __all__ = [
     "LISTED_VARIANTS",
@@ -724,7 +725,7 @@ def check_margins(
 ) -> list[Check]:
     """One check per axis and loop kind (``margins:<axis>:<lock|task>``): every loop of that
     kind (every query-table cell of a scheduled law) keeps the spec's margin limits on the
-    nominal plants and over the plant set (:func:`~servotune.verify.margins.plant_cases`: the
+    nominal plants and over the plant set (:func:`~servotune.analysis.plant_cases.plant_cases`: the
     corners of the identified intervals and of the spec's Monte-Carlo gain and tau spreads,
     and the Monte-Carlo ``distribution``'s own plant sets (a fleet's machines), each also
     ``margins.extra_ticks`` ticks late, at the period ± the timer's error limit; and

@@ -23,7 +23,7 @@ Every key is optional unless marked; unknown keys are errors; every limit is an 
     coulomb_spread = 0.5          # coulomb_v × U(1 − s, 1 + s) [1]
     axes = ["master", "slave"]    # axes whose plants vary; default every axis
 
-    [margins]                     # every loop the runtime can run (verify.margins); defaults:
+    [margins]                     # every loop the runtime can run (analysis.margins); defaults:
     min_phase_margin_deg = 45.0   # [deg]
     min_gain_margin_db = 6.0      # [dB]
     max_sensitivity = 2.0         # peak sensitivity Ms [1] (Åström & Hägglund: 1.2–2.0)
@@ -71,6 +71,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
+from servotune.analysis.margins import DEFAULT_LIMITS, MarginLimits
 from servotune.errors import SpecError
 from servotune.io.files import parse_toml, read_bytes
 from servotune.validate import (
@@ -81,7 +82,6 @@ from servotune.validate import (
     check_table,
     show_value,
 )
-from servotune.verify.margins import DEFAULT_LIMITS, MarginLimits
 
 __all__ = [
     "KINDS",

@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from servotune.analysis.plant_cases import spread_factors
 from servotune.errors import SpecError
 from servotune.plant import (
     NPARAM,
@@ -26,7 +27,6 @@ from servotune.plant import (
 )
 from servotune.rig import Rig
 from servotune.validate import show_value
-from servotune.verify.margins import spread_factors
 from servotune.verify.spec import MonteCarlo
 
 __all__ = [

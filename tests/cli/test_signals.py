@@ -46,7 +46,7 @@ def test_a_signal_during_the_atomic_write_leaves_no_file(
     rc = main(["simulate", str(RIG), "--scenario", "prbs", "--seconds", "1", "-o", str(out)])
     assert rc == code
     err = capsys.readouterr().err.strip().splitlines()
-    # a cold kernel cache first says it compiles (progress, servotune/warmup.py): not the end
+    # a cold kernel cache first says it compiles (progress, servotune/kernels.py): not the end
     assert [x for x in err if not x.startswith("compiling ")] == [f"servotune simulate: {word}"]
     assert _files(tmp_path) == set()
 

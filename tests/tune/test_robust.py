@@ -1,7 +1,7 @@
 """Robust designs: the lock gains and PIs keep the margin limits over the
 plant set; the tuner refuses what it cannot make robust; its screen agrees with python-control.
 
-The verdicts here are python-control's (:func:`servotune.verify.margins.loop_margins` on loops
+The verdicts here are python-control's (:func:`servotune.analysis.margins.loop_margins` on loops
 built from the designed gains), never the screen the designs were made with.
 """
 
@@ -16,20 +16,20 @@ import numpy as np
 import pytest
 
 import servotune as st
-from servotune.cli import main
-from servotune.errors import InfeasibleError, SpecError
-from servotune.report.text import format_tuning_summary
-from servotune.tune.robust import MarginScreen, design_limits, robust_lock_gain, robust_pi
-from servotune.tune.slave import tune_spec_from
-from servotune.verify.margins import (
+from servotune.analysis.margins import (
     DEFAULT_LIMITS,
     GainSet,
     MarginLimits,
     _grid,
     loop_margins,
     loop_model,
-    plant_cases,
 )
+from servotune.analysis.plant_cases import plant_cases
+from servotune.cli import main
+from servotune.errors import InfeasibleError, SpecError
+from servotune.report.text import format_tuning_summary
+from servotune.tune.robust import MarginScreen, design_limits, robust_lock_gain, robust_pi
+from servotune.tune.slave import tune_spec_from
 from servotune.verify.spec import load_spec
 
 RIG = Path(__file__).resolve().parents[2] / "plants" / "pc-dual-servo.toml"

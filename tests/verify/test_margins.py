@@ -21,6 +21,7 @@ import numpy as np
 import pytest
 
 import servotune as st
+from servotune.analysis.margins import MarginLimits, tuning_margins
 from servotune.cli import main
 from servotune.laws.fuzzy_pid import FuzzyPIDGains
 from servotune.laws.pi import PIGains
@@ -28,7 +29,6 @@ from servotune.pipeline import default_pi_gains
 from servotune.sim.engine import Loop
 from servotune.tune.workflow import rule_tables
 from servotune.tuning import Tuning, write_tuning
-from servotune.verify.margins import MarginLimits, tuning_margins
 
 ROOT = Path(__file__).resolve().parents[2]
 RIG = ROOT / "plants" / "pc-dual-servo.toml"
@@ -159,8 +159,9 @@ def test_plant_response_is_python_controls_own_route(rig) -> None:
     ``tb04ad`` (then the two agree to rounding)."""
     import importlib.util
 
+    from servotune.analysis.margins import _grid
+    from servotune.analysis.plant_cases import plant_cases, plant_response
     from servotune.plant import discretize
-    from servotune.verify.margins import _grid, plant_cases, plant_response
 
     cases = plant_cases(
         rig, gain_spread=0.2, tau_spread=0.3, extra_ticks=1, period_error_ppm=100, samples=8

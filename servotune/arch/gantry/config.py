@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from servotune.analysis.margins import MarginLimits
 from servotune.arch.bounds import MAX_ACCEL_CPS2, MAX_GAIN, MAX_SECONDS, MAX_SPEED_CPS
 from servotune.errors import ConfigError, RigError, SpecError
 from servotune.laws.axis import AxisController
@@ -22,7 +23,6 @@ from servotune.laws.sync import SYNC_LAWS, SyncConstants, SyncGains
 from servotune.plant import Plant
 from servotune.rig import Rig, build_section, load_rig, plant_from_table
 from servotune.validate import check_integer, check_keys, check_number, check_table, show_value
-from servotune.verify.margins import MarginLimits
 
 __all__ = [
     "CASES",
@@ -346,7 +346,7 @@ class GantryMargins:
 
     @property
     def limits(self) -> MarginLimits:
-        """The three limits as a :class:`~servotune.verify.margins.MarginLimits`."""
+        """The three limits as a :class:`~servotune.analysis.margins.MarginLimits`."""
         try:
             return MarginLimits.of(self)
         except SpecError as exc:

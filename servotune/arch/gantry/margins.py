@@ -8,7 +8,7 @@ of :func:`gantry_cases`: the nominal drives and the corners of gain ± ``gain_sp
 ``tau_spread`` of both drives (the sync loop sees only the slave's), each also with
 ``extra_cycles`` more latency (a bus cycle late: the bus jitter, at most a cycle, is inside
 it). Gain, phase and delay margin, Ms, Mt and bandwidth by python-control
-(:func:`servotune.verify.margins.loop_margins`).
+(:func:`servotune.analysis.margins.loop_margins`).
 """
 
 from __future__ import annotations
@@ -16,10 +16,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
-from servotune.arch.gantry.config import GantryAxis, GantryConfig, GantryMargins
-from servotune.arch.gantry.design import sync_loop_models
-from servotune.plant import Plant
-from servotune.verify.margins import (
+from servotune.analysis.margins import (
     GainSet,
     LoopMargins,
     MarginLimits,
@@ -27,6 +24,9 @@ from servotune.verify.margins import (
     loop_margins,
     loop_model,
 )
+from servotune.arch.gantry.config import GantryAxis, GantryConfig, GantryMargins
+from servotune.arch.gantry.design import sync_loop_models
+from servotune.plant import Plant
 
 __all__ = [
     "LOOP_NAMES",

@@ -8,11 +8,11 @@ from typing import Any
 import numpy as np
 
 from servotune._version import __version__
+from servotune.analysis.margins import LoopMargins
 from servotune.arch.gantry.config import GantryConfig
 from servotune.arch.gantry.design import LoadPrediction
 from servotune.io.files import json_float, json_safe
 from servotune.laws.sync import SYNC_WARN
-from servotune.verify.margins import LoopMargins
 from servotune.verify.result import clopper_pearson
 
 __all__ = [

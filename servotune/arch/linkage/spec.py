@@ -25,7 +25,7 @@ Linkage spec (TOML; every key optional unless marked, at least one limit)::
     max_skipped_setpoints = 0      # commands discarded at syncs (a CPU a whole tick behind)
     [contour]
     max_contour_error_counts = 2000.0   # distance from the programmed path [counts]
-    [margins]                      # each axis's PI loop (servotune.verify.margins)
+    [margins]                      # each axis's PI loop (servotune.analysis.margins)
     min_phase_margin_deg = 45.0
     min_gain_margin_db = 6.0
     max_sensitivity = 2.0
@@ -38,6 +38,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
+from servotune.analysis.margins import MarginLimits
 from servotune.arch.linkage.bus import MAX_CLOCK_PPM
 from servotune.errors import SpecError
 from servotune.io.files import parse_toml_as
@@ -49,7 +50,6 @@ from servotune.validate import (
     check_strings,
     check_table,
 )
-from servotune.verify.margins import MarginLimits
 from servotune.verify.record import SourceFile
 
 __all__ = [

@@ -39,6 +39,14 @@ from typing import Any
 
 import numpy as np
 
+from servotune.analysis.margins import (
+    GRID_DECADES_BELOW,
+    GRID_POINTS,
+    GainSet,
+    MarginLimits,
+    loop_margins,
+    loop_model,
+)
 from servotune.arch.linkage.bus import MAX_CLOCK_PPM
 from servotune.arch.linkage.checks import check_linkage
 from servotune.arch.linkage.config import LinkageConfig
@@ -52,15 +60,8 @@ from servotune.arch.linkage.plan import (
 from servotune.arch.linkage.spec import LinkageSpec, linkage_spec_from_bytes
 from servotune.errors import ConfigError, SpecError, TrustError, TuningError
 from servotune.io.files import json_float
+from servotune.kernels import warm_up
 from servotune.laws.pi import PIConstants
-from servotune.verify.margins import (
-    GRID_DECADES_BELOW,
-    GRID_POINTS,
-    GainSet,
-    MarginLimits,
-    loop_margins,
-    loop_model,
-)
 from servotune.verify.record import (
     RecordedVerification,
     SourceFile,
@@ -72,7 +73,6 @@ from servotune.verify.record import (
     recorded_verification,
     trust_record,
 )
-from servotune.warmup import warm_up
 
 __all__ = [
     "RECORD_SCHEMA",
@@ -523,7 +523,7 @@ def verify_plan_files(
     rig are the ones the plan was made from, verifies (:func:`verify_plan`), builds the record
     and (``write``) writes it next to the plan (``<plan>.verify.json``). ``progress`` gets the
     lines of the linkage kernels' compiling, if the cache lacks them
-    (:func:`servotune.warmup.warm_up`).
+    (:func:`servotune.kernels.warm_up`).
 
     Returns
     -------

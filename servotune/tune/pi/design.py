@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from servotune._control import scipy_paths
+from servotune.analysis.margins import unwrapped_phase
 from servotune.errors import InfeasibleError, SpecError
 from servotune.hw import dac as hw_dac
 from servotune.plant import Plant, lag_split
@@ -32,7 +33,6 @@ from servotune.tune.pi.grid import (
 )
 from servotune.tune.pi.nlp import _Nlp
 from servotune.tune.pi.spec import _MAX_BUILDS, _PEAK_STENCIL, _REFINE_ROUNDS, PITuning, _check_spec
-from servotune.verify.margins import unwrapped_phase
 
 if TYPE_CHECKING:  # python-control is imported where used (slow to import)
     import control

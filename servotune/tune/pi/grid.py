@@ -9,9 +9,9 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
+from servotune.analysis.margins import controller_basis, grid_margins
 from servotune.plant import Plant, discretize, discretize_lti
 from servotune.tune.pi.spec import _TOL_GM_DB, _TOL_MS_REL, _TOL_PM_DEG, _TOL_WC_REL, _Spec
-from servotune.verify.margins import controller_basis, grid_margins
 
 if TYPE_CHECKING:  # python-control is imported where used (slow to import)
     import control
@@ -173,7 +173,7 @@ def _spectral_radius(ctx: _Ctx, kp: np.ndarray, ki: np.ndarray) -> np.ndarray:
 
 def _grid_margins(ctx: _Ctx, kp: np.ndarray, ki: np.ndarray) -> dict[str, np.ndarray]:
     """Grid estimates for a batch of (kp, ki): worst PM [rad], worst GM [ln], Ms, top crossover
-    (:func:`servotune.verify.margins.grid_margins` of the PI loops on the plant)."""
+    (:func:`servotune.analysis.margins.grid_margins` of the PI loops on the plant)."""
     gains = np.stack([kp, ki * ctx.period_s, np.zeros_like(kp)], axis=1)
     basis = controller_basis(ctx.w, ctx.period_s)
     m = grid_margins(ctx.w, gains, basis, ctx.g[None, :], ctx.ph[None, :])

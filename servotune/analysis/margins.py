@@ -45,6 +45,7 @@ import numpy as np
 
 from servotune._control import scipy_paths
 from servotune._numba_cache import jit
+from servotune.analysis.plant_cases import PlantCase, plant_response
 from servotune.errors import SpecError
 from servotune.laws.fuzzy_pid import FuzzyPIDConstants
 from servotune.laws.pi import PIConstants
@@ -63,7 +64,6 @@ __all__ = [
     "LoopMargins",
     "MarginLimits",
     "Margins",
-    "PlantCase",
     "controller_basis",
     "controller_response",
     "controller_tf",
@@ -71,9 +71,6 @@ __all__ = [
     "grid_margins",
     "loop_margins",
     "loop_model",
-    "plant_cases",
-    "plant_response",
-    "spread_factors",
     "tuning_margins",
     "unwrapped_phase",
 ]
@@ -555,157 +552,6 @@ def gain_sets(
                 g = GainSet(float(kp[i, j]), float(ki[i, j]), float(kd[i, j]))
                 out.append(("task", (i - n, j - n), g))
     return out
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class PlantCase:
-    """One plant set the loops are taken on.
-
-    Attributes
-    ----------
-    label : str
-        ``"nominal"``, ``"gain+20%,tau-30%"``, with ``"+1tick"`` (one tick more latency) and
-        ``"@+100ppm"`` (the timer's period error) where they apply.
-    plants : tuple of Plant
-        One per rig axis.
-    extra_lag_s : float
-        Latency added to every axis's loop [s].
-    period_s : float
-        Tick period [s].
-    """
-
-    label: str
-    plants: tuple[Plant, ...]
-    extra_lag_s: float = 0.0
-    period_s: float
-
-
-def spread_factors(plant: Plant, fit: Any, key: str, spread: float) -> tuple[float, float]:
-    """Low and high factor on ``key``: the wider of the identification's 95 % interval (the
-    axis's plant fit record, where the rig has one) and ``± spread``.
-
-    >>> spread_factors(Plant(gain_cps_per_v=100.0, tau_s=0.02), None, "tau_s", 0.3)
-    (0.7, 1.3)
-    """
-    v = float(getattr(plant, key))
-    lo, hi = 1.0 - spread, 1.0 + spread
-    ci = getattr(fit, "ci95", {}) if fit is not None else {}
-    if key in ci and v > 0:
-        lo, hi = min(lo, ci[key][0] / v), max(hi, ci[key][1] / v)
-    return max(lo, 1e-3), hi
-
-
-def plant_cases(
-    rig: Rig,
-    *,
-    measured: Sequence[tuple[str, tuple[Plant, ...]]] = (),
-    gain_spread: float = 0.0,
-    tau_spread: float = 0.0,
-    extra_ticks: int = 1,
-    period_error_ppm: float = 0.0,
-    samples: int = 0,
-    seed: int = 0,
-) -> tuple[PlantCase, ...]:
-    """The plant set robustness is judged over: what is not known about the loop.
-
-    Every axis's gain and time constant at the corners of the wider of its identified 95 %
-    interval (``[axis.<name>.plant.fit]``) and ``± spread``; each corner and the nominal plants
-    as they are and with ``extra_ticks`` ticks more latency; each at the nominal period and at
-    ``± period_error_ppm``. Then ``samples`` plant sets drawn inside that box (every axis's
-    gain and tau, the latency in [0, ``extra_ticks``] ticks and the period error, uniformly and
-    independently; labelled ``sample<i>``): a loop's margins need not be worst at a corner.
-    ``measured`` plant sets (e.g. a fleet's machines) are cases as the corners are (each
-    also late and at the period's ends). Friction, offset and noise do not enter a linear
-    loop's margins.
-
-    Parameters
-    ----------
-    rig : Rig
-    gain_spread, tau_spread : float
-        Relative spreads [1] (e.g. a spec's Monte-Carlo spreads).
-    extra_ticks : int
-        Extra latency [ticks] (0: none).
-    period_error_ppm : float
-        Timer period error [ppm] (0: the nominal period only).
-    samples : int
-        Plant sets drawn inside the box (0: corners only).
-    seed : int
-        Seeds the draw: the same arguments give the same cases.
-    measured : sequence of (str, tuple of Plant)
-        Labelled plant sets (one plant per rig axis) judged beside the corners.
-
-    Returns
-    -------
-    tuple of PlantCase
-        The nominal case first.
-    """
-    corners: list[tuple[str, tuple[Plant, ...]]] = [("nominal", tuple(a.plant for a in rig.axes))]
-    if gain_spread > 0 or tau_spread > 0 or any(a.plant_fit is not None for a in rig.axes):
-        for sg in (-1, 1):
-            for st_ in (-1, 1):
-                plants = []
-                for a in rig.axes:
-                    g = spread_factors(a.plant, a.plant_fit, "gain_cps_per_v", gain_spread)
-                    tt = spread_factors(a.plant, a.plant_fit, "tau_s", tau_spread)
-                    fg, ft = g[sg > 0], tt[st_ > 0]
-                    changes: dict[str, Any] = {
-                        "gain_cps_per_v": a.plant.gain_cps_per_v * fg,
-                        "tau_s": a.plant.tau_s * ft,
-                    }
-                    if a.plant.gain_neg_cps_per_v is not None:
-                        changes["gain_neg_cps_per_v"] = a.plant.gain_neg_cps_per_v * fg
-                    plants.append(replace(a.plant, **changes))
-                label = f"gain{'-+'[sg > 0]},tau{'-+'[st_ > 0]}"
-                corners.append((label, tuple(plants)))
-    corners += [(label, tuple(plants)) for label, plants in measured]
-    lags = [(0.0, "")] + (
-        [(extra_ticks * rig.period_s, f"+{extra_ticks}tick")] if extra_ticks > 0 else []
-    )
-    periods = [(rig.period_s, "")]
-    if period_error_ppm > 0:
-        for s in (-1, 1):
-            periods.append(
-                (rig.period_s * (1 + s * period_error_ppm * 1e-6), f"@{s * period_error_ppm:+g}ppm")
-            )
-    cases = [
-        PlantCase(
-            label=(label + lt + pt) if (lt or pt) else label,
-            plants=plants,
-            extra_lag_s=lag,
-            period_s=per,
-        )
-        for label, plants in corners
-        for lag, lt in lags
-        for per, pt in periods
-    ]
-    rng = np.random.default_rng([seed, 0x6D617267])  # a stream of its own ("marg")
-    for i in range(samples):
-        plants = []
-        for a in rig.axes:
-            g = rng.uniform(*spread_factors(a.plant, a.plant_fit, "gain_cps_per_v", gain_spread))
-            tt = rng.uniform(*spread_factors(a.plant, a.plant_fit, "tau_s", tau_spread))
-            changes = {"gain_cps_per_v": a.plant.gain_cps_per_v * g, "tau_s": a.plant.tau_s * tt}
-            if a.plant.gain_neg_cps_per_v is not None:
-                changes["gain_neg_cps_per_v"] = a.plant.gain_neg_cps_per_v * g
-            plants.append(replace(a.plant, **changes))
-        lag = rng.uniform(0.0, extra_ticks * rig.period_s)
-        per = rig.period_s * (1.0 + rng.uniform(-1.0, 1.0) * period_error_ppm * 1e-6)
-        cases.append(
-            PlantCase(label=f"sample{i}", plants=tuple(plants), extra_lag_s=lag, period_s=per)
-        )
-    return tuple(cases)
-
-
-def plant_response(plant: Plant, rig: Rig, case: PlantCase, w: np.ndarray) -> np.ndarray:
-    """``lsb·P(e^{jωT})`` of one axis's plant in a case, by python-control, on ``w``: a transfer
-    function (the whole grid at once), its coefficients by ``scipy.signal.ss2tf`` (the path
-    ``control.ss2tf`` takes without slycot: the same bits, in about a quarter of the time)."""
-    import control
-    from scipy.signal import ss2tf
-
-    d = discretize(plant, case.period_s, rig.timer.compute_s + plant.delay_s + case.extra_lag_s)
-    num, den = ss2tf(d.A, d.B, d.C * rig.dac.lsb_v, d.D * rig.dac.lsb_v)
-    return control.frequency_response(control.tf(num[0], den, d.dt), w).complex.ravel()
 
 
 def controller_response(gains: np.ndarray, w: np.ndarray, period_s: float) -> np.ndarray:
