@@ -20,15 +20,15 @@ PACKAGE = ROOT / "servotune"
 LAYERS: tuple[tuple[str, ...], ...] = (
     ("_version", "errors", "progress"),
     ("validate", "budget", "digest", "fixed", "_control", "_numba_cache", "kernels", "executor"),
-    ("hw", "io"),
+    ("hw", "io", "examples"),
     ("plant", "laws", "fuzzy"),
-    ("rig_model", "rig", "logs", "tuning", "metrics", "scenarios", "excite"),
-    ("sim",),
+    ("rig_model", "rig", "logs", "metrics", "scenarios", "excite"),
+    ("sim", "tuning"),
     ("analysis",),
     ("identify", "tune"),
     ("verify",),
     ("arch", "export", "fleet"),
-    ("report", "plot", "pipeline", "testing", "examples"),
+    ("report", "plot", "pipeline", "testing"),
     ("warmup", "cli", "__init__"),
 )
 """The layers, lowest first: a module may import from its own layer and those below it

@@ -69,10 +69,10 @@ def _results(rig, tuning) -> dict[str, str]:
     from servotune.analysis.margins import tuning_margins
     from servotune.arch.gantry.design import predicted_load_reduction
     from servotune.arch.gantry.load import load_gantry
+    from servotune.arch.gantry.synthesis import resolve_gains
     from servotune.plant import discretize_lti
     from servotune.report.loops import loop_response
     from servotune.tune.pi import tune_pi
-    from servotune.tune.sync import resolve_gains
 
     out = {"margins": json.dumps(tuning_margins(tuning, rig).to_dict(), sort_keys=True)}
     w = np.geomspace(0.5, 700.0, 50)

@@ -316,7 +316,9 @@ def test_report_page(small_fleet: FleetResult, tmp_path: Path) -> None:
 
     page = write_fleet_report(small_fleet, tmp_path / "fleet.html").read_text()
     assert "data:image/png;base64," in page and "m005" in page and "Failed logs" in page
-    fig = small_fleet.plot()
+    from servotune.plot import plot_fleet
+
+    fig = plot_fleet(small_fleet)
     try:  # every panel's axes labelled with a unit, as every figure of the reports
         assert len(fig.axes) == len(small_fleet.summary.spreads) == 5
         assert not axis_unit_problems(fig)

@@ -22,13 +22,13 @@ from servotune.arch.gantry import (
     sync_loop_models,
 )
 from servotune.arch.gantry.load import load_gantry
+from servotune.arch.gantry.synthesis import resolve_gains, tune_sync
 from servotune.cli import main
 from servotune.errors import ConfigError, SpecError
 from servotune.hw import dac as hw_dac
 from servotune.laws.axis import FLAG_SYNC_TRIP
 from servotune.report.text import format_comparison
 from servotune.tune.pi import tune_pi
-from servotune.tune.sync import resolve_gains, tune_sync
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "plants" / "gantry.toml"
@@ -404,12 +404,13 @@ def test_resolve_keeps_given_gains(gantry) -> None:
 
 
 def test_the_gantry_package_and_its_tuning_import_in_either_order() -> None:
-    # tune.sync imports the gantry's config and models; arch.gantry.load imports tune.sync:
+    # arch.gantry.synthesis imports the gantry's config and models; arch.gantry.load imports it:
     # no cycle, whichever a fresh interpreter imports first
     import subprocess
     import sys
 
-    for first in ("servotune.tune.sync", "servotune.arch.gantry.load", "servotune.arch.gantry"):
-        code = f"import {first}; import servotune.tune.sync, servotune.arch.gantry.load"
+    names = ("servotune.arch.gantry.synthesis", "servotune.arch.gantry.load")
+    for first in (*names, "servotune.arch.gantry"):
+        code = f"import {first}; import servotune.arch.gantry.synthesis, servotune.arch.gantry.load"
         res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
         assert res.returncode == 0, (first, res.stderr[-500:])

@@ -13,7 +13,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from servotune._version import __version__
 from servotune.executor import Executor, InProcessExecutor
@@ -25,9 +25,6 @@ from servotune.io.fleet_table import (
     table_format,
     write_fleet_records,
 )
-
-if TYPE_CHECKING:
-    import matplotlib.figure
 
 __all__ = [
     "FLEET_CLUSTER_MIN_LOGS",
@@ -84,12 +81,6 @@ class FleetResult:
     def table_bytes(self, fmt: str) -> bytes:
         """The fleet table as the bytes of a ``"parquet"`` or ``"csv"`` file."""
         return fleet_table_bytes(self.records(), fmt)
-
-    def plot(self) -> matplotlib.figure.Figure:
-        """Histograms of every parameter over the fleet (:func:`servotune.plot.plot_fleet`)."""
-        from servotune.plot import plot_fleet  # matplotlib only when a figure is drawn
-
-        return plot_fleet(self)
 
 
 def fit_fleet(

@@ -596,7 +596,7 @@ def _variants(cfg: GantryConfig):
 
     The PD compensator keeps the PI design's ``kp`` and adds ``kd``; ``resolve_gains`` then has
     nothing left to tune (a PD design of its own, ``kp=None``, takes about ten seconds)."""
-    from servotune.tune.sync import resolve_gains
+    from servotune.arch.gantry.synthesis import resolve_gains
 
     for topo in TOPOLOGIES:
         yield topo, cfg, topo

@@ -14,15 +14,15 @@ Submodules, each importing only those above it:
 - :mod:`~servotune.arch.gantry.design`: the linear sync-loop models
   (:func:`sync_loop_models` → :class:`SyncLoopModels`, :func:`predicted_load_reduction` →
   :class:`LoadPrediction`); the tuning of the drives and of the compensator is in
-  :mod:`servotune.tune.sync` (``tune_sync``, ``resolve_gains``);
+  :mod:`servotune.arch.gantry.synthesis` (``tune_sync``, ``resolve_gains``);
 - :mod:`~servotune.arch.gantry.result`: the result (:class:`GantryTrace` and its
   :class:`GantryMetrics`, :class:`SyncComparison`; its text table is
   :func:`servotune.report.text.format_comparison`);
 - :mod:`~servotune.arch.gantry.run`: the CNC's move (:func:`move_profile`), the numba kernel
   of one run (:func:`simulate_gantry`) and the comparison (:func:`compare_topologies`);
 - :mod:`~servotune.arch.gantry.load`: the config reader that resolves the gains a file leaves
-  out (``load_gantry``; not imported by the package, as it imports :mod:`servotune.tune.sync`,
-  which imports this package).
+  out (``load_gantry``; not imported by the package, as it imports
+  :mod:`servotune.arch.gantry.synthesis`, which imports this package).
 
 This package re-exports the public names of all of them but ``load``.
 

@@ -2,7 +2,7 @@
 
 :func:`sync_loop_models` (drive closed loops, compensator, latency, sensitivity) and
 :func:`predicted_load_reduction` (what the loop gains predict for the ``load`` case). The
-tuning of the drives and of the compensator is in :mod:`servotune.tune.sync`.
+tuning of the drives and of the compensator is in :mod:`servotune.arch.gantry.synthesis`.
 """
 
 from __future__ import annotations
@@ -25,8 +25,10 @@ from servotune.plant import discretize
 __all__ = [
     "LoadPrediction",
     "SyncLoopModels",
+    "compensator_tf",
     "predicted_load_reduction",
     "sync_loop_models",
+    "sync_open_loop",
 ]
 
 
@@ -94,7 +96,7 @@ def _pi_tf(kp: float, ki_t: float, dt: float) -> control.TransferFunction:
     return control.tf([kp + ki_t, -kp], [1.0, -1.0], dt)
 
 
-def _compensator_tf(g: SyncGains, dt: float) -> control.TransferFunction:
+def compensator_tf(g: SyncGains, dt: float) -> control.TransferFunction:
     """The sync law as a discrete transfer function: the runtime PI, or ``Kp + Kd/T·(1 − z⁻¹)``."""
     if g.law == "pi":
         return _pi_tf(g.kp, g.ki * dt, dt)
@@ -102,7 +104,7 @@ def _compensator_tf(g: SyncGains, dt: float) -> control.TransferFunction:
 
 
 @scipy_paths
-def _sync_open_loop(
+def sync_open_loop(
     comp: control.TransferFunction, t_slave: control.StateSpace, cfg: GantryConfig
 ) -> control.StateSpace:
     """``C(z)·z^-L·T_s(z)``: the compensator, the bus latency, the slave's closed drive loop."""
@@ -133,8 +135,8 @@ def sync_loop_models(cfg: GantryConfig) -> SyncLoopModels:
         p_d = control.ss(discretize(ax.plant, dt, 0.0))
         one = control.ss(control.tf([1.0], [1.0], dt))
         out[f"load_{key}"] = p_d * control.feedback(one, c * lsb * p_u)
-    comp = _compensator_tf(cfg.sync.gains, dt)
-    loop = _sync_open_loop(comp, out["t_slave"], cfg)
+    comp = compensator_tf(cfg.sync.gains, dt)
+    loop = sync_open_loop(comp, out["t_slave"], cfg)
     sensitivity = control.feedback(control.ss(control.tf([1.0], [1.0], dt)), loop)
     return SyncLoopModels(compensator=comp, loop=loop, sensitivity=sensitivity, **out)
 

@@ -6,9 +6,9 @@ from dataclasses import replace
 from pathlib import Path
 
 from servotune.arch.gantry.config import GantryConfig, gantry_from_dict
+from servotune.arch.gantry.synthesis import resolve_gains
 from servotune.errors import ConfigError
 from servotune.io.files import parse_toml_as, read_bytes
-from servotune.tune.sync import resolve_gains
 
 __all__ = ["load_gantry"]
 

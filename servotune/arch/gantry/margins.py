@@ -74,8 +74,8 @@ def _scaled(p: Plant, fg: float, ft: float) -> Plant:
 
 def worst_corner(axis: GantryAxis, m: GantryMargins) -> Plant:
     """The corner a PI on an integrating plant has least margin at: gain and tau both high,
-    by the drive's spreads (the robust designs of :mod:`servotune.tune.sync` aim there; every
-    corner is checked)."""
+    by the drive's spreads (the robust designs of :mod:`servotune.arch.gantry.synthesis` aim
+    there; every corner is checked)."""
     gs, ts = m.spreads(axis)
     return _scaled(axis.plant, 1.0 + gs, 1.0 + ts)
 
@@ -109,7 +109,8 @@ def gantry_margins(
     cfg: GantryConfig, loops: Sequence[str] = ("master", "slave", "sync")
 ) -> tuple[LoopMargins, ...]:
     """Every loop of the gantry (of ``loops``) on every case of :func:`gantry_cases`
-    (the gains of those loops must be resolved: :func:`servotune.tune.sync.resolve_gains`).
+    (the gains of those loops must be resolved:
+    :func:`servotune.arch.gantry.synthesis.resolve_gains`).
 
     Returns
     -------

@@ -343,8 +343,9 @@ def apply_tuning(cfg: GantryConfig, tuning: GantryTuning) -> GantryConfig:
 
 def tune_gantry(path: str | Path, *, raw: bytes | None = None) -> GantryTuning:
     """What ``servotune tune GANTRY.toml`` computes: the gains the config leaves out
-    (:func:`~servotune.tune.sync.resolve_gains`: each drive's PI, then the compensator, each
-    robust over the config's ``[margins]`` plant set), quantised as the runtime runs them.
+    (:func:`~servotune.arch.gantry.synthesis.resolve_gains`: each drive's PI, then the
+    compensator, each robust over the config's ``[margins]`` plant set), quantised as the
+    runtime runs them.
 
     The design record holds the float gains, the worst margins of each loop over the plant set
     and the sync error of each case on the nominal drives.

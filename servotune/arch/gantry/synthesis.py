@@ -18,7 +18,7 @@ import numpy as np
 
 from servotune._control import scipy_paths
 from servotune.arch.gantry.config import GantryConfig, SyncSettings
-from servotune.arch.gantry.design import _compensator_tf, _sync_open_loop, sync_loop_models
+from servotune.arch.gantry.design import compensator_tf, sync_loop_models, sync_open_loop
 from servotune.arch.gantry.margins import gantry_margins, worst_corner
 from servotune.errors import SpecError
 from servotune.laws.sync import SyncGains
@@ -59,7 +59,7 @@ def tune_sync(cfg: GantryConfig) -> SyncSettings:
 
     def meets(kp: float) -> bool:
         g = SyncGains(law="pd", kp=kp, kd=kd, limit_counts=s.limit_counts)
-        loop = _sync_open_loop(_compensator_tf(g, dt), t_s, cfg)
+        loop = sync_open_loop(compensator_tf(g, dt), t_s, cfg)
         cl = control.feedback(loop, 1)
         if np.any(np.abs(cl.poles()) >= 1.0):
             return False
