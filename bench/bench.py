@@ -41,6 +41,7 @@ import numpy as np
 import servotune
 from servotune.arch.gantry import simulate_gantry
 from servotune.arch.gantry.load import load_gantry
+from servotune.arch.gantry.synthesis import resolve_gains
 from servotune.arch.linkage import load_linkage, run_linkage
 from servotune.export import write_c
 from servotune.export.c import runtime_source
@@ -969,7 +970,7 @@ def bench_arch(opts: Options) -> list[Figure]:
         ``linkage_ns_per_tick`` (the 6-axis example, per master tick, every axis).
     """
     runs = opts.sizes.engine_runs
-    gantry = load_gantry(ROOT / "plants" / "gantry.toml")
+    gantry = resolve_gains(load_gantry(ROOT / "plants" / "gantry.toml"))
     gantry = dataclasses.replace(gantry, seconds=2.0 if opts.quick else 20.0)
     simulate_gantry(gantry, seed=0)  # compile or cache load
     times, trace = timed_runs(lambda: simulate_gantry(gantry, seed=0), runs)

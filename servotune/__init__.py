@@ -12,6 +12,7 @@ from servotune._version import __version__
 if TYPE_CHECKING:  # what type checkers and IDEs see; at run time the names load on first use
     from servotune.arch.gantry import GantryConfig, compare_topologies, simulate_gantry
     from servotune.arch.gantry.load import load_gantry
+    from servotune.arch.gantry.synthesis import resolve_gains
     from servotune.arch.linkage import (
         LinkageCheckError,
         LinkageConfig,
@@ -64,6 +65,7 @@ _LAZY: dict[str, str] = {
     "GantryConfig": "servotune.arch.gantry",
     "compare_topologies": "servotune.arch.gantry",
     "load_gantry": "servotune.arch.gantry.load",
+    "resolve_gains": "servotune.arch.gantry.synthesis",
     "simulate_gantry": "servotune.arch.gantry",
     "LinkageCheckError": "servotune.arch.linkage",
     "LinkageConfig": "servotune.arch.linkage",
@@ -204,6 +206,7 @@ __all__ = [
     "read_log",
     "read_tuning",
     "recommended_resync_interval_s",
+    "resolve_gains",
     "run_batch",
     "run_linkage",
     "simulate",

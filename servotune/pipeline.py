@@ -20,6 +20,7 @@ import numpy as np
 from servotune._version import __version__
 from servotune.arch.gantry import CASES, compare_topologies
 from servotune.arch.gantry.load import load_gantry
+from servotune.arch.gantry.synthesis import resolve_gains
 from servotune.arch.linkage import load_linkage, run_linkage
 from servotune.export import write_c, write_tables
 from servotune.identify import fit_log, simulate_fit, validation_split
@@ -185,7 +186,7 @@ def run_architectures(plants_dir: str | Path, out_dir: str | Path, *, seed: int 
     summary: dict[str, Any] = {}
     gantry_path = plants / "gantry.toml"
     if gantry_path.is_file():
-        cmp = compare_topologies(load_gantry(gantry_path), seed=seed)
+        cmp = compare_topologies(resolve_gains(load_gantry(gantry_path)), seed=seed)
         doc = cmp.to_dict()
         atomic_write_text(out / "sync.json", json.dumps(doc, indent=2, sort_keys=True) + "\n")
         for case in CASES:

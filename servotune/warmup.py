@@ -118,7 +118,7 @@ def run_gantry() -> None:
     from servotune.arch.gantry import simulate_gantry
     from servotune.arch.gantry.load import load_gantry
 
-    cfg = load_gantry(_example("gantry.toml"), resolve=False)
+    cfg = load_gantry(_example("gantry.toml"))
     # gains given rather than designed (a design takes seconds): the kernel is the same
     cfg = replace(
         cfg,

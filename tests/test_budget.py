@@ -142,7 +142,7 @@ def test_gantry_and_linkage_runs() -> None:
     from servotune.arch.linkage import load_linkage, run_linkage
 
     plants = EXAMPLE_RIG.parent
-    cfg = load_gantry(plants / "gantry.toml", resolve=False)
+    cfg = load_gantry(plants / "gantry.toml")
     set_memory_budget(1024**2)
     with pytest.raises(BudgetError, match="comparing the gantry topologies over 2 s"):
         compare_topologies(cfg)

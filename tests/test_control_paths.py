@@ -81,7 +81,7 @@ def _results(rig, tuning) -> dict[str, str]:
     out["discretize_lti"] = repr([d.A.tolist(), d.B.tolist(), d.C.tolist(), d.D.tolist()])
     r = tune_pi(control.tf([1.0], [1.0, 3.0, 3.0, 1.0]), period_s=0.001, phase_margin_deg=60)
     out["tune_pi"] = repr((r.kp, r.ki))
-    cfg = resolve_gains(load_gantry(ROOT / "plants" / "gantry.toml", resolve=False))
+    cfg = resolve_gains(load_gantry(ROOT / "plants" / "gantry.toml"))
     out["gantry_gains"] = repr(cfg)
     out["gantry_prediction"] = repr(predicted_load_reduction(cfg))
     return out

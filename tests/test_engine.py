@@ -221,6 +221,7 @@ def test_a_seed_outside_64_bits_is_refused_at_every_entry(rig: st.Rig, tmp_path)
     from servotune.arch.gantry import compare_topologies
     from servotune.arch.gantry.load import load_gantry
     from servotune.arch.gantry.run import gantry_montecarlo
+    from servotune.arch.gantry.synthesis import resolve_gains
     from servotune.pipeline import run_demo
     from servotune.tune.workflow import tune_rig
     from servotune.tuning import read_tuning
@@ -230,7 +231,7 @@ def test_a_seed_outside_64_bits_is_refused_at_every_entry(rig: st.Rig, tmp_path)
     inputs = st.Inputs.hold(50, 2)
     want = st.simulate(loop, inputs, seed=3).counter.tobytes()
     assert st.simulate(loop, inputs, seed=np.uint64(3)).counter.tobytes() == want
-    gantry = load_gantry(ROOT / "plants" / "gantry.toml")
+    gantry = resolve_gains(load_gantry(ROOT / "plants" / "gantry.toml"))
     tuning = read_tuning(ROOT / "tests" / "corpus" / "base" / "tuning.json")
     spec = load_spec(ROOT / "plants" / "pc-dual-servo.spec.toml")
     entries = [

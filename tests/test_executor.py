@@ -249,8 +249,9 @@ def test_gantry_montecarlo_on_the_cluster_is_the_in_process_one(client) -> None:
     of 5 on the 2 workers give the in-process result, pair by pair."""
     from servotune.arch.gantry.load import load_gantry
     from servotune.arch.gantry.run import gantry_montecarlo
+    from servotune.arch.gantry.synthesis import resolve_gains
 
-    cfg = load_gantry(ROOT / "plants" / "gantry.toml")
+    cfg = resolve_gains(load_gantry(ROOT / "plants" / "gantry.toml"))
     ref = gantry_montecarlo(cfg, 8, seed=5)
     assert len({v.max_sync_error_counts for v in ref.variants}) == 8  # 8 different pairs
     for chunk_size in (3, 5):

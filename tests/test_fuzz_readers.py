@@ -126,7 +126,7 @@ def reader(kind: str) -> Callable[[Path], Any]:
     if kind == "gantry":
         from servotune.arch.gantry.load import load_gantry
 
-        return lambda p: load_gantry(p, resolve=False)
+        return lambda p: load_gantry(p)
     if kind == "gantry+resolve":
         from servotune.arch.gantry.load import load_gantry
 

@@ -36,7 +36,7 @@ CONFIG = ROOT / "plants" / "gantry.toml"
 
 @pytest.fixture(scope="module")
 def gantry():
-    return load_gantry(CONFIG)
+    return resolve_gains(load_gantry(CONFIG))
 
 
 @pytest.fixture(scope="module")
@@ -370,7 +370,7 @@ def test_bad_config_is_one_clear_error(tmp_path, old, new, msg) -> None:
     text = CONFIG.read_text()
     assert old in text
     with pytest.raises(ConfigError, match=msg):
-        load_gantry(_write(tmp_path, text.replace(old, new)), resolve=False)
+        load_gantry(_write(tmp_path, text.replace(old, new)))
 
 
 def test_cli_sync_json_plots_and_exit_codes(gantry, tmp_path, capsys) -> None:

@@ -51,7 +51,7 @@ def _tune_gantry(args: argparse.Namespace, current: Path | None) -> int:
             f"{flag} tunes a single rig; a gantry's targets are in its config "
             f"({args.rig}: [sync], [margins])"
         )
-    load_gantry(args.rig, resolve=False)  # bad input is one line, before any progress
+    load_gantry(args.rig)  # bad input is one line, before any progress
     _progress(f"tune gantry {args.rig}: each drive's PI, then the sync compensator")
     _compile_kernels("margins", "gantry")
     tuning = tune_gantry(args.rig)

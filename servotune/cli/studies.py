@@ -105,10 +105,13 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 def _cmd_sync(args: argparse.Namespace) -> int:
     from servotune.arch.gantry import compare_topologies
     from servotune.arch.gantry.load import load_gantry
+    from servotune.arch.gantry.synthesis import resolve_gains
     from servotune.report.text import format_comparison
 
     _check_dirs(args.plot)
-    cfg = load_gantry(args.config)  # a bad config is one line, before the gantry's compiling
+    cfg = resolve_gains(
+        load_gantry(args.config)
+    )  # a bad config is one line, before the gantry's compiling
     _compile_kernels("gantry")
     cmp = compare_topologies(cfg, seed=args.seed, montecarlo=args.montecarlo)
     _print_product(args.json, cmp.to_dict, lambda: format_comparison(cmp))

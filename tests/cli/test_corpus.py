@@ -108,7 +108,7 @@ def read_with_reader(kind: str, path: Path) -> None:
     elif kind == "gantry":
         from servotune.arch.gantry.load import load_gantry
 
-        load_gantry(path, resolve=False)
+        load_gantry(path)
     elif kind == "linkage":
         from servotune.arch.linkage import load_linkage
 

@@ -287,8 +287,9 @@ def lib(src: Path) -> ctypes.CDLL:
 @pytest.fixture(scope="module")
 def gantry() -> GantryConfig:
     from servotune.arch.gantry.load import load_gantry
+    from servotune.arch.gantry.synthesis import resolve_gains
 
-    return load_gantry(ROOT / "plants" / "gantry.toml")
+    return resolve_gains(load_gantry(ROOT / "plants" / "gantry.toml"))
 
 
 def _layout_data(cfg: GantryConfig, topology: str) -> dict:

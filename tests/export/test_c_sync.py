@@ -459,8 +459,9 @@ def test_sync_trip_latches_like_any_fault(lib: ctypes.CDLL) -> None:
 def gantry():
     import servotune.arch.gantry as mod
     from servotune.arch.gantry.load import load_gantry
+    from servotune.arch.gantry.synthesis import resolve_gains
 
-    return mod, load_gantry(ROOT / "plants" / "gantry.toml")
+    return mod, resolve_gains(load_gantry(ROOT / "plants" / "gantry.toml"))
 
 
 def _gantry_variants(config):

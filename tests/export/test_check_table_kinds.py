@@ -31,7 +31,7 @@ ROOT = Path(__file__).resolve().parents[2]
 def _gantry() -> str:
     path = ROOT / "plants" / "gantry.toml"
     return gantry_tables_to_string(
-        gantry_document(tune_gantry(path), load_gantry(path, resolve=False).rig, unverified=True)
+        gantry_document(tune_gantry(path), load_gantry(path).rig, unverified=True)
     )
 
 

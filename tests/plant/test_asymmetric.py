@@ -40,6 +40,7 @@ from scipy.integrate import solve_ivp
 import servotune as st
 from servotune.arch.gantry import GantryAxis, GantryConfig, GantryTrace, simulate_gantry
 from servotune.arch.gantry.load import load_gantry
+from servotune.arch.gantry.synthesis import resolve_gains
 from servotune.arch.linkage import run_linkage
 from servotune.laws.axis import MODE_LOCK, MODE_OPEN, MODE_TASK
 from servotune.plant import (
@@ -449,7 +450,7 @@ def test_gantry_with_asymmetric_drives_is_the_engines_bit_for_bit(
 
 
 def test_coupled_gantry_runs_the_asymmetric_model() -> None:
-    g = load_gantry(ROOT / "plants" / "gantry.toml")
+    g = resolve_gains(load_gantry(ROOT / "plants" / "gantry.toml"))
     g = dataclasses.replace(
         g,
         seconds=1.0,

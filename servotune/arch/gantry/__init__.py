@@ -20,11 +20,12 @@ Submodules, each importing only those above it:
   :func:`servotune.report.text.format_comparison`);
 - :mod:`~servotune.arch.gantry.run`: the CNC's move (:func:`move_profile`), the numba kernel
   of one run (:func:`simulate_gantry`) and the comparison (:func:`compare_topologies`);
-- :mod:`~servotune.arch.gantry.load`: the config reader that resolves the gains a file leaves
-  out (``load_gantry``; not imported by the package, as it imports
-  :mod:`servotune.arch.gantry.synthesis`, which imports this package).
+- :mod:`~servotune.arch.gantry.load`: the config reader (``load_gantry``: it only loads; the
+  gains a file leaves out are resolved by the caller, ``resolve_gains(load_gantry(path))``);
+- :mod:`~servotune.arch.gantry.synthesis`: the tuners (``tune_sync``, ``resolve_gains``).
 
-This package re-exports the public names of all of them but ``load``.
+This package re-exports the public names of all of them but ``load`` and ``synthesis`` (which
+import it).
 
 Topologies (``TOPOLOGIES``):
 

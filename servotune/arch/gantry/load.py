@@ -1,4 +1,6 @@
-"""Reading a gantry config and resolving the gains it leaves out (:func:`load_gantry`)."""
+"""Reading a gantry config (:func:`load_gantry`). Gains the file leaves out stay unset: the
+caller resolves them (:func:`servotune.arch.gantry.synthesis.resolve_gains`), a loader only
+loads."""
 
 from __future__ import annotations
 
@@ -6,23 +8,18 @@ from dataclasses import replace
 from pathlib import Path
 
 from servotune.arch.gantry.config import GantryConfig, gantry_from_dict
-from servotune.arch.gantry.synthesis import resolve_gains
 from servotune.errors import ConfigError
 from servotune.io.files import parse_toml_as, read_bytes
 
 __all__ = ["load_gantry"]
 
 
-def load_gantry(
-    path: str | Path, *, resolve: bool = True, raw: bytes | None = None
-) -> GantryConfig:
+def load_gantry(path: str | Path, *, raw: bytes | None = None) -> GantryConfig:
     """Read a gantry config (TOML, e.g. ``plants/gantry.toml``).
 
     Parameters
     ----------
     path : str or Path
-    resolve : bool
-        Tune the gains the file leaves out (:func:`resolve_gains`).
     raw : bytes, optional
         The file's bytes as the caller already read them (and hashed them): parsed instead of
         reading ``path`` again (which still names the file and anchors its rig path).
@@ -39,4 +36,4 @@ def load_gantry(
         raw, str(p), ConfigError, "gantry config", lambda d: gantry_from_dict(d, base_dir=p.parent)
     )
     cfg = replace(cfg, name=cfg.name if cfg.name != "gantry" else p.stem.removesuffix(".sync"))
-    return resolve_gains(cfg) if resolve else cfg
+    return cfg

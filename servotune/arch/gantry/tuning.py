@@ -32,6 +32,7 @@ from servotune.arch.gantry.config import TOPOLOGIES, GantryConfig
 from servotune.arch.gantry.load import load_gantry
 from servotune.arch.gantry.margins import gantry_margins
 from servotune.arch.gantry.run import simulate_gantry
+from servotune.arch.gantry.synthesis import resolve_gains
 from servotune.digest import bytes_sha256
 from servotune.errors import ConfigError, TuningError
 from servotune.io.files import (
@@ -363,7 +364,7 @@ def tune_gantry(path: str | Path, *, raw: bytes | None = None) -> GantryTuning:
         The config (or its rig) cannot be read or is invalid.
     """
     raw = read_bytes(path, ConfigError, "gantry config") if raw is None else raw
-    cfg = load_gantry(path, raw=raw)
+    cfg = resolve_gains(load_gantry(path, raw=raw))
     rig_sha = bytes_sha256(read_bytes(gantry_rig_path(raw, path), ConfigError, "rig file"))
     c_m, c_s = cfg.controllers()
     s = cfg.sync

@@ -489,7 +489,7 @@ def _tuning_and_gantry(
         recorded_at=rec.recorded_paths(tuning.gantry_path, tuning_path),
     )
     # the config's gains are not designed again: the tuning holds every one
-    cfg = load_gantry(gantry_file.path, raw=gantry_file.raw, resolve=False)
+    cfg = load_gantry(gantry_file.path, raw=gantry_file.raw)
     rig_file = SourceFile.read(
         gantry_rig_path(gantry_file.raw, gantry_file.path), ConfigError, "rig file"
     )

@@ -21,6 +21,7 @@ import pytest
 
 from servotune.arch.gantry import Beam, GantryConfig, simulate_gantry
 from servotune.arch.gantry.load import load_gantry
+from servotune.arch.gantry.synthesis import resolve_gains
 from servotune.laws.axis import MODE_TASK
 from servotune.laws.pi import PIGains
 from servotune.rig import Axis, Rig, Timer
@@ -44,7 +45,7 @@ def expressible() -> GantryConfig:
     = 1.5 cycles: a whole cycle of lag in the tick-slot ring) and no encoder noise (no draw
     for it: the stream is the master's alone, in the ``mismatch`` case).
     """
-    g = load_gantry(CONFIG)
+    g = resolve_gains(load_gantry(CONFIG))
     bits = g.rig.counter.bits
     master = dataclasses.replace(g.master, counter_init=(1 << bits) - 40_000)
     slave = dataclasses.replace(

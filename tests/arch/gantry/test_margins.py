@@ -22,6 +22,7 @@ import pytest
 
 from servotune.arch.gantry.load import load_gantry
 from servotune.arch.gantry.margins import gantry_cases, gantry_margins
+from servotune.arch.gantry.synthesis import resolve_gains
 from servotune.cli import main
 from servotune.errors import ConfigError
 
@@ -31,7 +32,7 @@ GANTRY = ROOT / "plants" / "gantry.toml"
 
 @pytest.fixture(scope="module")
 def cfg():
-    return load_gantry(GANTRY)
+    return resolve_gains(load_gantry(GANTRY))
 
 
 def _figures(loop: control.TransferFunction, dt: float) -> dict[str, float]:
@@ -152,15 +153,15 @@ def test_margins_table_is_read_and_checked(tmp_path) -> None:
             "gain_spread = 0.2", "gain_spread = 0.1"
         )
     )
-    c = load_gantry(path, resolve=False)
+    c = load_gantry(path)
     assert (c.margins.extra_cycles, c.margins.gain_spread, c.margins.tau_spread) == (0, 0.1, 0.3)
     assert len(gantry_cases(c)) == 5  # nothing late
     path.write_text(text.replace("max_sensitivity = 2.0", "max_sensitivity = 0.5"))
     with pytest.raises(ConfigError, match="max_sensitivity"):
-        load_gantry(path, resolve=False)
+        load_gantry(path)
     path.write_text(text.replace("extra_cycles = 1", "extra_cycle = 1"))
     with pytest.raises(ConfigError, match="extra_cycle"):
-        load_gantry(path, resolve=False)
+        load_gantry(path)
 
 
 def test_to_dict_carries_the_worst_loops(cfg) -> None:
@@ -183,11 +184,11 @@ def test_each_drive_may_have_its_own_spread(tmp_path) -> None:
     )
     path = tmp_path / "g.toml"
     path.write_text(text)
-    c = load_gantry(path, resolve=False)
+    c = load_gantry(path)
     cases = gantry_cases(c)
     m0, s0 = c.master.plant.gain_cps_per_v, c.slave.plant.gain_cps_per_v
     assert sorted({x.master.gain_cps_per_v / m0 for x in cases}) == pytest.approx([0.8, 1, 1.2])
     assert sorted({x.slave.gain_cps_per_v / s0 for x in cases}) == pytest.approx([0.6, 1, 1.4])
     path.write_text(text.replace("gain_spread = 0.4", "gain_spread = 1.5"))
     with pytest.raises(ConfigError, match="gain_spread"):
-        load_gantry(path, resolve=False)
+        load_gantry(path)

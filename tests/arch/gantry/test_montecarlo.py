@@ -13,6 +13,7 @@ from scipy.stats import binomtest
 
 from servotune.arch.gantry import CASES, compare_topologies, gantry_montecarlo, simulate_gantry
 from servotune.arch.gantry.load import load_gantry
+from servotune.arch.gantry.synthesis import resolve_gains
 from servotune.cli import _EXAMPLES, main
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -21,7 +22,7 @@ GANTRY = ROOT / "plants" / "gantry.toml"
 
 @pytest.fixture(scope="module")
 def cfg():
-    return load_gantry(GANTRY)
+    return resolve_gains(load_gantry(GANTRY))
 
 
 def _tight(cfg):
@@ -130,7 +131,7 @@ def test_the_readme_montecarlo_size_passes_as_the_readme_says(capsys) -> None:
     assert k == total == n
     assert f"95 % interval {lo:.1f}–100.0 %" in out
     assert f"largest sync error {largest:.0f} counts" in out
-    assert trip == load_gantry(GANTRY).sync.trip_counts
+    assert trip == resolve_gains(load_gantry(GANTRY)).sync.trip_counts
 
 
 def test_the_readme_account_of_a_thousand_pairs(cfg) -> None:
