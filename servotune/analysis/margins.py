@@ -37,7 +37,7 @@ alone guarantees GM ≥ 6 dB and PM ≥ 29°.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field, fields, replace
 from typing import TYPE_CHECKING, Any
 
@@ -61,6 +61,7 @@ if TYPE_CHECKING:  # python-control is imported where used (slow to import)
 __all__ = [
     "DEFAULT_LIMITS",
     "GainSet",
+    "LoopFigures",
     "LoopMargins",
     "MarginLimits",
     "Margins",
@@ -122,19 +123,19 @@ class MarginLimits:
 
     def broken(self, m: LoopMargins) -> tuple[str, ...]:
         """The limits ``m`` breaks, each as a phrase (empty: it meets them all)."""
-        return self.broken_figures({f.name: getattr(m, f.name) for f in fields(m)})
+        return self.broken_figures(m)
 
-    def broken_figures(self, figures: Mapping[str, Any]) -> tuple[str, ...]:
-        """:meth:`broken` for the figures of :func:`loop_margins` (a dict)."""
-        if not figures["stable"]:
-            return (f"unstable (closed-loop pole radius {figures['spectral_radius']:.4f})",)
+    def broken_figures(self, figures: LoopFigures | LoopMargins) -> tuple[str, ...]:
+        """:meth:`broken` for the figures of :func:`loop_margins`."""
+        if not figures.stable:
+            return (f"unstable (closed-loop pole radius {figures.spectral_radius:.4f})",)
         out = []
-        if figures["phase_margin_deg"] < self.min_phase_margin_deg:
-            out.append(f"PM {figures['phase_margin_deg']:.1f}° < {self.min_phase_margin_deg:g}°")
-        if figures["gain_margin_db"] < self.min_gain_margin_db:
-            out.append(f"GM {figures['gain_margin_db']:.1f} dB < {self.min_gain_margin_db:g} dB")
-        if figures["max_sensitivity"] > self.max_sensitivity:
-            out.append(f"Ms {figures['max_sensitivity']:.2f} > {self.max_sensitivity:g}")
+        if figures.phase_margin_deg < self.min_phase_margin_deg:
+            out.append(f"PM {figures.phase_margin_deg:.1f}° < {self.min_phase_margin_deg:g}°")
+        if figures.gain_margin_db < self.min_gain_margin_db:
+            out.append(f"GM {figures.gain_margin_db:.1f} dB < {self.min_gain_margin_db:g} dB")
+        if figures.max_sensitivity > self.max_sensitivity:
+            out.append(f"Ms {figures.max_sensitivity:.2f} > {self.max_sensitivity:g}")
         return tuple(out)
 
     def to_dict(self) -> dict[str, float]:
@@ -318,8 +319,48 @@ def _grid(plant: Plant, period_s: float) -> np.ndarray:
     return np.logspace(math.log10(lo), math.log10(top), GRID_POINTS)
 
 
+@dataclass(frozen=True, slots=True, kw_only=True)
+class LoopFigures:
+    """What :func:`loop_margins` measures on one discrete loop (the fields of
+    :class:`LoopMargins` but where the loop sits).
+
+    Attributes
+    ----------
+    stable : bool
+        All closed-loop poles inside the unit circle.
+    spectral_radius : float
+        Largest closed-loop pole magnitude [1].
+    gain_margin_db, phase_margin_deg : float
+        [dB], [deg]; inf where the loop has no phase (gain) crossover.
+    delay_margin_s : float
+        Extra loop delay the loop tolerates [s].
+    crossover_rad_s, phase_crossover_rad_s : float
+        Gain and phase crossover [rad/s] (NaN where none).
+    max_sensitivity, max_complementary_sensitivity : float
+        Ms and Mt [1].
+    bandwidth_rad_s : float
+        Closed-loop −3 dB bandwidth [rad/s] (NaN where ``|T|`` stays above −3 dB).
+    """
+
+    stable: bool
+    spectral_radius: float
+    gain_margin_db: float
+    phase_margin_deg: float
+    delay_margin_s: float
+    crossover_rad_s: float
+    phase_crossover_rad_s: float
+    max_sensitivity: float
+    max_complementary_sensitivity: float
+    bandwidth_rad_s: float
+
+    def as_fields(self) -> dict[str, float | bool]:
+        """The figures by name, to build a :class:`LoopMargins` from
+        (``LoopMargins(axis=…, **figures.as_fields())``)."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
 @scipy_paths
-def loop_margins(loop: control.StateSpace, w: np.ndarray) -> dict[str, float | bool]:
+def loop_margins(loop: control.StateSpace, w: np.ndarray) -> LoopFigures:
     """Margins, peaks, bandwidth and stability of a discrete loop, by python-control.
 
     Parameters
@@ -331,11 +372,7 @@ def loop_margins(loop: control.StateSpace, w: np.ndarray) -> dict[str, float | b
 
     Returns
     -------
-    dict
-        ``stable``, ``spectral_radius``, ``gain_margin_db`` (inf without a phase crossover),
-        ``phase_margin_deg`` (inf without a gain crossover), ``delay_margin_s``,
-        ``crossover_rad_s``, ``phase_crossover_rad_s`` (NaN where there is none),
-        ``max_sensitivity``, ``max_complementary_sensitivity``, ``bandwidth_rad_s``.
+    LoopFigures
     """
     import control
 
@@ -366,18 +403,18 @@ def loop_margins(loop: control.StateSpace, w: np.ndarray) -> dict[str, float | b
     below = np.nonzero(np.abs(t) < 1.0 / math.sqrt(2.0))[0]
     bw = float(w[below[0]]) if below.size else math.nan
     rho = float(np.max(np.abs(control.feedback(loop, 1).poles())))
-    return {
-        "stable": rho < 1.0,
-        "spectral_radius": rho,
-        "gain_margin_db": gm_db,
-        "phase_margin_deg": pm,
-        "delay_margin_s": dm,
-        "crossover_rad_s": wc,
-        "phase_crossover_rad_s": wpc,
-        "max_sensitivity": float(np.max(np.abs(s))),
-        "max_complementary_sensitivity": float(np.max(np.abs(t))),
-        "bandwidth_rad_s": bw,
-    }
+    return LoopFigures(
+        stable=rho < 1.0,
+        spectral_radius=rho,
+        gain_margin_db=gm_db,
+        phase_margin_deg=pm,
+        delay_margin_s=dm,
+        crossover_rad_s=wc,
+        phase_crossover_rad_s=wpc,
+        max_sensitivity=float(np.max(np.abs(s))),
+        max_complementary_sensitivity=float(np.max(np.abs(t))),
+        bandwidth_rad_s=bw,
+    )
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -580,7 +617,7 @@ def _margins_of(
         plant=case.label,
         gains=g,
         period_s=case.period_s,
-        **figures,
+        **figures.as_fields(),
     )  # type: ignore[arg-type]
 
 

@@ -19,6 +19,7 @@ import servotune as st
 from servotune.analysis.margins import (
     DEFAULT_LIMITS,
     GainSet,
+    LoopFigures,
     MarginLimits,
     _grid,
     loop_margins,
@@ -41,7 +42,7 @@ def cases(rig: st.Rig):
     return plant_cases(rig, gain_spread=0.2, tau_spread=0.3, extra_ticks=1)
 
 
-def _verdict(rig, case, axis: int, g: GainSet) -> dict:
+def _verdict(rig, case, axis: int, g: GainSet) -> LoopFigures:
     plant = case.plants[axis]
     lag = rig.timer.compute_s + plant.delay_s + case.extra_lag_s
     model = loop_model(plant, g, period_s=case.period_s, lag_s=lag, lsb_volts=rig.dac.lsb_v)
@@ -82,18 +83,18 @@ def test_robust_pi_keeps_the_limits_on_every_case(rig, cases) -> None:
     g = GainSet(design.gains.kp, design.gains.ki * rig.period_s)
     for case in cases:
         m = _verdict(rig, case, 0, g)
-        assert m["stable"] and not DEFAULT_LIMITS.broken_figures(m), (case.label, m)
+        assert m.stable and not DEFAULT_LIMITS.broken_figures(m), (case.label, m)
     # and it is not needlessly timid: some case sits at the phase-margin limit
-    pms = [_verdict(rig, c, 0, g)["phase_margin_deg"] for c in cases]
+    pms = [_verdict(rig, c, 0, g).phase_margin_deg for c in cases]
     assert min(pms) == pytest.approx(45.5, abs=0.5)  # the design aims 0.5° inside
 
 
 def test_robust_lock_gain_lowers_the_seed_gain_only_as_needed(rig, cases) -> None:
     k = robust_lock_gain(rig, "slave", cases, DEFAULT_LIMITS)
     assert k < 0.4  # the seed's Kp = 0.4 breaks PM >= 45° at +20 % gain one tick late
-    worst_pm = min(_verdict(rig, c, 1, GainSet(k))["phase_margin_deg"] for c in cases)
+    worst_pm = min(_verdict(rig, c, 1, GainSet(k)).phase_margin_deg for c in cases)
     assert worst_pm >= 45.0
-    seed_pm = min(_verdict(rig, c, 1, GainSet(0.4))["phase_margin_deg"] for c in cases)
+    seed_pm = min(_verdict(rig, c, 1, GainSet(0.4)).phase_margin_deg for c in cases)
     assert seed_pm < 45.0  # the claim above, by python-control
     loose = MarginLimits(min_phase_margin_deg=30.0)
     assert robust_lock_gain(rig, "slave", cases, loose) == 0.4  # kept where it is robust
@@ -104,8 +105,8 @@ def test_the_screen_agrees_with_python_control(rig, cases) -> None:
     rows = np.array([[0.2, 0.002, 0.0], [0.5, 0.01, 0.3], [1.0, 0.004, 1.0], [0.3, 0.0, 0.0]])
     pm, _, ms = screen(rows)
     for i, r in enumerate(rows):
-        ms_pc = max(_verdict(rig, c, 1, GainSet(*r))["max_sensitivity"] for c in cases)
-        pm_pc = min(_verdict(rig, c, 1, GainSet(*r))["phase_margin_deg"] for c in cases)
+        ms_pc = max(_verdict(rig, c, 1, GainSet(*r)).max_sensitivity for c in cases)
+        pm_pc = min(_verdict(rig, c, 1, GainSet(*r)).phase_margin_deg for c in cases)
         assert ms[i] == pytest.approx(ms_pc, rel=0.02), r
         assert pm[i] == pytest.approx(pm_pc, abs=0.5), r
 

@@ -143,7 +143,7 @@ def gantry_margins(
                     plant=case.label,
                     gains=g,
                     period_s=dt,
-                    **figures,
+                    **figures.as_fields(),
                 )
             )
         if "sync" in loops and cfg.topology in SYNC_TOPOLOGIES:
@@ -163,7 +163,7 @@ def gantry_margins(
                     plant=case.label,
                     gains=g,
                     period_s=dt,
-                    **figures,
+                    **figures.as_fields(),
                 )
             )
     return tuple(out)

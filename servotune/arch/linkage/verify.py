@@ -268,7 +268,7 @@ def _margin_rows(
             _row(
                 f"stable:{name}",
                 case,
-                float(m["spectral_radius"]),
+                float(m.spectral_radius),
                 1.0,
                 "1",
                 "<",
@@ -279,7 +279,7 @@ def _margin_rows(
             _row(
                 f"phase_margin:{name}",
                 case,
-                float(m["phase_margin_deg"]),
+                float(m.phase_margin_deg),
                 limits.min_phase_margin_deg,
                 "deg",
                 ">=",
@@ -290,7 +290,7 @@ def _margin_rows(
             _row(
                 f"gain_margin:{name}",
                 case,
-                float(m["gain_margin_db"]),
+                float(m.gain_margin_db),
                 limits.min_gain_margin_db,
                 "dB",
                 ">=",
@@ -301,7 +301,7 @@ def _margin_rows(
             _row(
                 f"sensitivity:{name}",
                 case,
-                float(m["max_sensitivity"]),
+                float(m.max_sensitivity),
                 limits.max_sensitivity,
                 "1",
                 "<=",
