@@ -26,7 +26,7 @@ from collections.abc import Callable, Sequence
 from contextlib import nullcontext
 
 from servotune.budget import set_memory_budget
-from servotune.cli.output import _SIGNALLED, _SINK, _on_sigterm, _outcome, _progress, _Terminated
+from servotune.cli.output import SIGNALLED, SINK, Terminated, on_sigterm, outcome, progress_line
 from servotune.cli.parser import _EXAMPLES as _EXAMPLES  # re-exported: tests/cli
 from servotune.cli.parser import _parser
 from servotune.errors import ServotuneError
@@ -40,8 +40,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = _parser()
     args = parser.parse_args(argv)
     func: Callable[[argparse.Namespace], int] = args.func
-    previous = signal.signal(signal.SIGTERM, _on_sigterm)
-    _SIGNALLED.clear()
+    previous = signal.signal(signal.SIGTERM, on_sigterm)
+    SIGNALLED.clear()
     format_warning = warnings.formatwarning
 
     def one_line(message: Warning | str, *_: object, **__: object) -> str:
@@ -59,23 +59,23 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.quiet or sys.stderr.isatty():  # tqdm only where it draws bars (--help stays lean)
             from servotune.progress import StderrProgress
 
-            _SINK.append(StderrProgress(quiet=args.quiet))
+            SINK.append(StderrProgress(quiet=args.quiet))
         # the verbs' warm-up steps say when kernels compile; on a terminal, so does any other
         # compiling (a small kernel, a specialisation no step covers). Not in a log or a pipe:
         # there a failed run's stderr stays its one error line, whatever the cache holds
-        with compile_notices(_progress) if sys.stderr.isatty() else nullcontext():
+        with compile_notices(progress_line) if sys.stderr.isatty() else nullcontext():
             return func(args)
-    except (ServotuneError, OSError, KeyboardInterrupt, _Terminated) as exc:
+    except (ServotuneError, OSError, KeyboardInterrupt, Terminated) as exc:
         if args.debug:
             raise
-        message, code = _outcome(exc)
+        message, code = outcome(exc)
         print(f"servotune {args.verb}: {message}", file=sys.stderr)
         return code
     finally:
         signal.signal(signal.SIGTERM, previous)
         warnings.formatwarning = format_warning
         set_memory_budget(None)
-        while _SINK:
-            close = getattr(_SINK.pop(), "close", None)
+        while SINK:
+            close = getattr(SINK.pop(), "close", None)
             if close is not None:
                 close()

@@ -12,13 +12,13 @@ from servotune.cli.output import (
     EXIT_FAILED,
     EXIT_OK,
     EXIT_USAGE,
-    _check_dirs,
-    _check_outputs,
-    _deliver,
-    _print_product,
-    _progress,
-    _summary,
-    _workbench_dir,
+    check_dirs,
+    check_outputs,
+    deliver_product,
+    print_product,
+    print_summary,
+    progress_line,
+    workbench_dir,
 )
 from servotune.cli.warmup import _compile_kernels
 from servotune.errors import ServotuneError
@@ -52,11 +52,11 @@ def _tune_gantry(args: argparse.Namespace, current: Path | None) -> int:
             f"({args.rig}: [sync], [margins])"
         )
     load_gantry(args.rig)  # bad input is one line, before any progress
-    _progress(f"tune gantry {args.rig}: each drive's PI, then the sync compensator")
+    progress_line(f"tune gantry {args.rig}: each drive's PI, then the sync compensator")
     _compile_kernels("margins", "gantry")
     tuning = tune_gantry(args.rig)
-    _summary(args.json, tuning.design, lambda: format_gantry_tuning(tuning))
-    _deliver(
+    print_summary(args.json, tuning.design, lambda: format_gantry_tuning(tuning))
+    deliver_product(
         args.output,
         lambda p: write_gantry_tuning(tuning, p),
         lambda: gantry_tuning_to_string(tuning),
@@ -70,10 +70,10 @@ def _cmd_tune(args: argparse.Namespace) -> int:
     from servotune.arch.kind import config_kind
     from servotune.tuning import current_tuning_path
 
-    _check_outputs(args.output, inputs=(args.rig, args.spec))
+    check_outputs(args.output, inputs=(args.rig, args.spec))
     current = None if args.no_current else current_tuning_path()
     if current is not None:
-        _workbench_dir(current.parent)
+        workbench_dir(current.parent)
     if args.json and (not args.output or args.output == "-"):
         raise ServotuneError("--json prints the summary on stdout: give -o FILE for the tuning")
     kind = config_kind(args.rig)
@@ -101,7 +101,7 @@ def _cmd_tune(args: argparse.Namespace) -> int:
         from servotune.verify.spec import load_spec
 
         spec = tune_spec_from(load_spec(args.spec), rig=rig, **budget, **given)
-    _progress(f"tune {args.rig}: loading the tuner")  # before the imports: they take a second
+    progress_line(f"tune {args.rig}: loading the tuner")  # before the imports: they take a second
     _compile_kernels("simulation", "margins")
     from servotune.report.text import format_tuning_summary
     from servotune.tune.slave import tune_spec_from
@@ -111,11 +111,11 @@ def _cmd_tune(args: argparse.Namespace) -> int:
     if spec is None:
         spec = tune_spec_from(None, rig=rig, **budget, **given)
     tuning = tune_rig(
-        args.rig, seed=args.seed, spec=spec, rule_base=args.rule_base, progress=_progress
+        args.rig, seed=args.seed, spec=spec, rule_base=args.rule_base, progress=progress_line
     )
     summary = tuning_summary(tuning)
-    _summary(args.json, summary, lambda: format_tuning_summary(summary))
-    _deliver(
+    print_summary(args.json, summary, lambda: format_tuning_summary(summary))
+    deliver_product(
         args.output,
         lambda p: write_tuning(tuning, p),
         lambda: tuning_to_string(tuning),
@@ -143,11 +143,11 @@ def _verify_linkage(args: argparse.Namespace) -> int:
                 f"{flag} is for a single rig's tuning; {args.tuning} is a "
                 "linkage plan (its spec sets the run)"
             )
-    _progress(f"verify linkage plan {args.tuning}: every clock case of {args.spec}")
+    progress_line(f"verify linkage plan {args.tuning}: every clock case of {args.spec}")
     result, record, path = verify_plan_files(
-        args.tuning, args.spec, config_path=args.config, progress=_progress
+        args.tuning, args.spec, config_path=args.config, progress=progress_line
     )
-    _summary(args.json, record, lambda: format_linkage_verification(result))
+    print_summary(args.json, record, lambda: format_linkage_verification(result))
     print(f"wrote the verification record to {path}", file=sys.stderr)
     return EXIT_OK if result.passed else EXIT_FAILED
 
@@ -173,11 +173,11 @@ def _verify_gantry(args: argparse.Namespace) -> int:
         args.config,
         seed=args.seed,
         montecarlo=args.montecarlo,
-        progress=_progress,
+        progress=progress_line,
         scheduler=args.scheduler,
         workers=args.workers,
     )
-    _summary(args.json, record, lambda: format_gantry_verification(result))
+    print_summary(args.json, record, lambda: format_gantry_verification(result))
     print(f"wrote the verification record to {path}", file=sys.stderr)
     return EXIT_OK if result.passed else EXIT_FAILED
 
@@ -187,7 +187,7 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     from servotune.arch.linkage import plan_linkage, plan_to_string, write_plan
     from servotune.report.text import format_linkage_plan
 
-    _check_outputs(args.output, inputs=(args.config,))
+    check_outputs(args.output, inputs=(args.config,))
     if args.json and (not args.output or args.output == "-"):
         raise ServotuneError("--json prints the plan's design on stdout: give -o FILE")
     kind = config_kind(args.config)
@@ -197,10 +197,12 @@ def _cmd_plan(args: argparse.Namespace) -> int:
             f"tables): `servotune plan` plans a multi-CPU linkage; tune a "
             f"{kind} with `servotune tune`"
         )
-    _progress(f"plan linkage {args.config}: the bus budget, the queues, the clock sync, the gains")
+    progress_line(
+        f"plan linkage {args.config}: the bus budget, the queues, the clock sync, the gains"
+    )
     plan = plan_linkage(args.config)
-    _summary(args.json, plan.design, lambda: format_linkage_plan(plan))
-    _deliver(
+    print_summary(args.json, plan.design, lambda: format_linkage_plan(plan))
+    deliver_product(
         args.output, lambda p: write_plan(plan, p), lambda: plan_to_string(plan), "the linkage plan"
     )
     return EXIT_OK
@@ -218,7 +220,7 @@ def _cmd_verify(args: argparse.Namespace) -> int:
         )
         return EXIT_USAGE
     kind = document_kind(args.tuning)
-    _check_outputs(str(record_path(args.tuning)))  # the record, written beside the tuning
+    check_outputs(str(record_path(args.tuning)))  # the record, written beside the tuning
     if kind == "gantry":
         return _verify_gantry(args)
     if kind == "linkage":
@@ -227,7 +229,7 @@ def _cmd_verify(args: argparse.Namespace) -> int:
         raise ServotuneError(
             f"--config is for a gantry tuning or a linkage plan; {args.tuning} is a rig's tuning"
         )
-    _check_dirs(args.report)  # before the run: a report directory that cannot be made fails first
+    check_dirs(args.report)  # before the run: a report directory that cannot be made fails first
     dist = None
     if args.plants_from is not None:
         from servotune.fleet import fleet_spread
@@ -239,12 +241,12 @@ def _cmd_verify(args: argparse.Namespace) -> int:
         args.rig,
         seed=args.seed,
         montecarlo=args.montecarlo,
-        progress=_progress,
+        progress=progress_line,
         scheduler=args.scheduler,
         workers=args.workers,
         distribution=dist,
     )
-    _summary(args.json, record, lambda: format_table(result))
+    print_summary(args.json, record, lambda: format_table(result))
     print(f"wrote the verification record to {path}", file=sys.stderr)
     if args.report:
         from servotune.report import write_report
@@ -272,5 +274,5 @@ def _cmd_margins(args: argparse.Namespace) -> int:
         min_phase_margin_deg=args.pm, min_gain_margin_db=args.gm, max_sensitivity=args.ms
     )
     m = margins_files(args.tuning, args.rig, limits=limits)
-    _print_product(args.json, m.to_dict, lambda: format_margins(m))
+    print_product(args.json, m.to_dict, lambda: format_margins(m))
     return EXIT_OK if m.passed else EXIT_FAILED

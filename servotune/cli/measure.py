@@ -13,9 +13,9 @@ from servotune._version import __version__
 from servotune.cli.output import (
     EXIT_OK,
     EXIT_USAGE,
-    _check_outputs,
-    _progress,
-    _summary,
+    check_outputs,
+    print_summary,
+    progress_line,
 )
 from servotune.cli.warmup import _compile_kernels
 from servotune.errors import ServotuneError
@@ -71,7 +71,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     from servotune.rig import load_rig
     from servotune.scenarios import Scenario, build_scenario
 
-    _check_outputs(args.output, inputs=(args.rig, args.input))
+    check_outputs(args.output, inputs=(args.rig, args.input))
     rig = load_rig(args.rig)
     if (args.scenario is None) == (args.input is None):
         raise ServotuneError("give exactly one of --scenario NAME or --input EXCITATION.csv")
@@ -140,7 +140,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     from servotune.rig import load_rig, write_plant
     from servotune.tuning import file_sha256
 
-    _check_outputs(args.output, args.plot, inputs=(args.log,))
+    check_outputs(args.output, args.plot, inputs=(args.log,))
     if args.output and Path(args.output).exists():  # the rig the fit goes into: read first
         _rig_to_extend(args.output, args.axis)
     rig = load_rig(args.rig) if args.rig else None
@@ -170,7 +170,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         need_axis_name=bool(args.output),
         strict=args.strict,
         hal=hal,
-        progress=_progress,
+        progress=progress_line,
     )
     print(f"axis {axis or '(unprefixed)'}: " + result.summary(), file=sys.stderr)
     if args.plot:
@@ -257,7 +257,7 @@ def _cmd_fit_fleet(args: argparse.Namespace) -> int:
     from servotune.rig import load_rig
 
     table_format(args.fleet)  # a wrong suffix fails before any work
-    _check_outputs(args.fleet, args.fleet_report, inputs=(*args.log, args.baseline, args.rig))
+    check_outputs(args.fleet, args.fleet_report, inputs=(*args.log, args.baseline, args.rig))
     baseline = read_fleet_table(args.baseline) if args.baseline else ()
     hal = hal_settings(
         args.map,
@@ -290,7 +290,7 @@ def _cmd_fit_fleet(args: argparse.Namespace) -> int:
         min_items=FLEET_CLUSTER_MIN_LOGS,
     ) as ex:
         result = fit_fleet(
-            args.log, options=options, executor=ex, baseline=baseline, progress=_progress
+            args.log, options=options, executor=ex, baseline=baseline, progress=progress_line
         )
     s = result.summary
     if s.n_failed == s.n_rows:  # no log fitted: exit 3 and no table (README, "A fleet of machines")
@@ -299,7 +299,7 @@ def _cmd_fit_fleet(args: argparse.Namespace) -> int:
             f"none of the {s.n_logs} logs fitted, no table written; first error: {first}"
         )
     write_fleet_table(result, args.fleet)
-    _summary(args.json, result.to_dict(), s.text)
+    print_summary(args.json, result.to_dict(), s.text)
     if s.n_failed:
         failed = len({f for f, _, _ in s.failures})
         print(
@@ -327,7 +327,7 @@ def _cmd_excite(args: argparse.Namespace) -> int:
     from servotune.excite import design_excitation, write_excitation
     from servotune.rig import load_rig
 
-    _check_outputs(args.output, inputs=(args.rig,))
+    check_outputs(args.output, inputs=(args.rig,))
     rig = load_rig(args.rig)
     axis = args.axis or next(a.name for a in rig.axes if a.role == "master")
     exc = design_excitation(

@@ -1,8 +1,8 @@
 """What every verb shares: exit codes, signals, progress, error lines and the product.
 
-stdout carries only the product (:func:`_print_product`, :func:`_deliver`); progress,
-summaries and diagnostics go to stderr. :func:`_check_outputs`, :func:`_check_dirs` and
-:func:`_workbench_dir` check where outputs go before any work, so a run that cannot write fails
+stdout carries only the product (:func:`print_product`, :func:`deliver_product`); progress,
+summaries and diagnostics go to stderr. :func:`check_outputs`, :func:`check_dirs` and
+:func:`workbench_dir` check where outputs go before any work, so a run that cannot write fails
 first.
 """
 
@@ -23,30 +23,30 @@ EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_BAD_INPUT = 0, 1, 2, 3
 EXIT_INTERRUPTED, EXIT_TERMINATED = 128 + signal.SIGINT, 128 + signal.SIGTERM
 
 
-class _Terminated(BaseException):
+class Terminated(BaseException):
     """Raised in the main thread by the SIGTERM handler, so cleanup (``finally``) runs."""
 
 
-_SIGNALLED: list[int] = []  # the signal that asked this run to end, once one has
+SIGNALLED: list[int] = []  # the signal that asked this run to end, once one has
 
 
-def _on_sigterm(signum: int, frame: object) -> None:
-    _SIGNALLED.append(signum)
-    raise _Terminated
+def on_sigterm(signum: int, frame: object) -> None:
+    SIGNALLED.append(signum)
+    raise Terminated
 
 
-_SINK: list[Callable[[str], None]] = []  # this run's progress sink (main sets it)
+SINK: list[Callable[[str], None]] = []  # this run's progress sink (main sets it)
 
 
-def _progress(message: str) -> None:
+def progress_line(message: str) -> None:
     """Progress on stderr (:class:`servotune.progress.StderrProgress`: bars on a terminal, lines
     elsewhere, nothing with ``--quiet``); long runs report often, so this is also where a run
     whose SIGTERM exception was swallowed (raised inside a destructor or a C callback, where
     Python ignores exceptions) ends after all."""
-    if _SIGNALLED:
-        raise _Terminated
-    if _SINK:
-        _SINK[-1](message)
+    if SIGNALLED:
+        raise Terminated
+    if SINK:
+        SINK[-1](message)
     else:
         print(message, file=sys.stderr)
 
@@ -54,11 +54,11 @@ def _progress(message: str) -> None:
 _MAX_MESSAGE = 600  # characters of an error line
 
 
-def _outcome(exc: BaseException) -> tuple[str, int]:
+def outcome(exc: BaseException) -> tuple[str, int]:
     """The one line (after ``servotune VERB:``) and the exit code for a run that raised."""
     if isinstance(exc, KeyboardInterrupt):
         return "interrupted", EXIT_INTERRUPTED
-    if isinstance(exc, _Terminated):
+    if isinstance(exc, Terminated):
         return "terminated", EXIT_TERMINATED
     if isinstance(exc, TrustError):
         return f"refused: {_line(exc)}", EXIT_FAILED
@@ -76,7 +76,7 @@ def _line(exc: object) -> str:
     return text if len(text) <= _MAX_MESSAGE else text[: _MAX_MESSAGE - 1] + "…"
 
 
-def _print_product(as_json: bool, doc: Callable[[], object], text: Callable[[], str]) -> None:
+def print_product(as_json: bool, doc: Callable[[], object], text: Callable[[], str]) -> None:
     """The product on stdout: ``doc()`` as indented, key-sorted JSON, or else ``text()``."""
     if as_json:
         print(json.dumps(doc(), indent=2, sort_keys=True))
@@ -84,7 +84,7 @@ def _print_product(as_json: bool, doc: Callable[[], object], text: Callable[[], 
         print(text())
 
 
-def _summary(as_json: bool, doc: object, text: Callable[[], str]) -> None:
+def print_summary(as_json: bool, doc: object, text: Callable[[], str]) -> None:
     """A verb's summary (docs/decisions.md#10-output-streams): with ``--json`` ``doc`` as JSON on
     stdout, else ``text()`` on stderr."""
     if as_json:
@@ -93,7 +93,7 @@ def _summary(as_json: bool, doc: object, text: Callable[[], str]) -> None:
         print(text(), file=sys.stderr)
 
 
-def _deliver(
+def deliver_product(
     output: str | None,
     write: Callable[[str | Path], None],
     text: Callable[[], str],
@@ -112,7 +112,7 @@ def _deliver(
         print(f"recorded it as the current tuning ({current})", file=sys.stderr)
 
 
-def _check_outputs(*paths: str | None, inputs: Sequence[str | Path | None] = ()) -> None:
+def check_outputs(*paths: str | None, inputs: Sequence[str | Path | None] = ()) -> None:
     """Fail before any work when an output file's directory is missing, the output names a
     directory, or it is one of the command's ``inputs`` (writing it would replace what was
     read): nothing gets written."""
@@ -155,7 +155,7 @@ def _probe(directory: Path, what: str) -> None:
         os.unlink(name)
 
 
-def _check_dirs(*dirs: str | None) -> None:
+def check_dirs(*dirs: str | None) -> None:
     """Fail before any work when an output directory (``--out``, ``--report``, ``--plot``, the C
     export's ``-o``) names an existing file, or cannot be created under its nearest existing
     parent (a file in the way, or no file can be created there: :func:`_probe`, in the
@@ -181,7 +181,7 @@ def _check_dirs(*dirs: str | None) -> None:
         _probe(parent, f"cannot create the directory {d!r}")
 
 
-def _workbench_dir(d: Path) -> None:
+def workbench_dir(d: Path) -> None:
     """Create the workbench directory and check it is writable, before any work or output."""
     try:
         d.mkdir(parents=True, exist_ok=True)

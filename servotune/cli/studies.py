@@ -7,7 +7,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from servotune.cli.output import EXIT_FAILED, EXIT_OK, _check_dirs, _print_product, _progress
+from servotune.cli.output import EXIT_FAILED, EXIT_OK, check_dirs, print_product, progress_line
 from servotune.cli.warmup import _compile_kernels
 from servotune.errors import ServotuneError
 
@@ -30,7 +30,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
         ) from None
     if args.seeds < 1:
         raise ServotuneError(f"--seeds must be >= 1, got {args.seeds}")
-    _check_dirs(args.out)
+    check_dirs(args.out)
     rig, spec = load_rig(args.rig), load_spec(args.spec)
     _compile_kernels("simulation", "margins", "verification")
     preset = DemoPreset(
@@ -40,7 +40,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
         heldout_count=args.heldout_count,
         pareto_ms=ms,
     )
-    cmp = run_comparison(rig, spec, args.out, preset=preset, seed=args.seed, progress=_progress)
+    cmp = run_comparison(rig, spec, args.out, preset=preset, seed=args.seed, progress=progress_line)
     print("\n".join(comparison_statement(cmp)), file=sys.stderr)
     if args.json:
         sys.stdout.write((Path(args.out) / "figure4.json").read_text())
@@ -55,7 +55,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     from servotune.pipeline import comparison_table_text, run_demo
     from servotune.rig import load_rig
 
-    _check_dirs(args.out)
+    check_dirs(args.out)
     load_rig(args.rig)  # a bad rig fails before the output directory is made
     Path(args.out).mkdir(parents=True, exist_ok=True)
     _compile_kernels("simulation", "margins", "verification", "identification", "gantry", "linkage")
@@ -64,7 +64,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         args.out,
         seed=args.seed,
         preset="full" if args.full else "quick",
-        progress=_progress,
+        progress=progress_line,
     )
     for name, h in summary["lock_hold"].items():
         print(
@@ -108,13 +108,13 @@ def _cmd_sync(args: argparse.Namespace) -> int:
     from servotune.arch.gantry.synthesis import resolve_gains
     from servotune.report.text import format_comparison
 
-    _check_dirs(args.plot)
+    check_dirs(args.plot)
     cfg = resolve_gains(
         load_gantry(args.config)
     )  # a bad config is one line, before the gantry's compiling
     _compile_kernels("gantry")
     cmp = compare_topologies(cfg, seed=args.seed, montecarlo=args.montecarlo)
-    _print_product(args.json, cmp.to_dict, lambda: format_comparison(cmp))
+    print_product(args.json, cmp.to_dict, lambda: format_comparison(cmp))
     if args.plot:
         from servotune.arch.gantry import CASES
         from servotune.io.files import staged_directory
@@ -133,7 +133,7 @@ def _cmd_linkage(args: argparse.Namespace) -> int:
     from servotune.arch.linkage import LinkageCheckError, load_linkage, run_linkage
     from servotune.report.text import format_linkage_summary
 
-    _check_dirs(args.plot)
+    check_dirs(args.plot)
     config = load_linkage(args.config)
     _compile_kernels("linkage")
     try:
@@ -142,7 +142,7 @@ def _cmd_linkage(args: argparse.Namespace) -> int:
         for check in exc.checks:
             print(f"servotune linkage: check failed: {check.detail}", file=sys.stderr)
         return EXIT_FAILED
-    _print_product(args.json, result.to_dict, lambda: format_linkage_summary(result))
+    print_product(args.json, result.to_dict, lambda: format_linkage_summary(result))
     if args.plot:
         from servotune.io.files import staged_directory
         from servotune.plot import plot_queue_levels, plot_radial_deviation, save_figure

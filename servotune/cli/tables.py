@@ -9,7 +9,7 @@ import json
 import sys
 from pathlib import Path
 
-from servotune.cli.output import EXIT_OK, _check_dirs, _check_outputs, _deliver, _progress
+from servotune.cli.output import EXIT_OK, check_dirs, check_outputs, deliver_product, progress_line
 from servotune.errors import ServotuneError
 
 # The library is imported inside each handler, not here, so that ``servotune --help`` (and any
@@ -35,7 +35,7 @@ def _export_gantry(args: argparse.Namespace, path: Path) -> int:
         )
     v = load_gantry_for_export(path, args.config, args.spec, unverified=args.unverified)
     if (note := fallback_notice(v.gantry_file, "gantry")) is not None:
-        _progress(note)
+        progress_line(note)
     doc = gantry_document(v.tuning, v.config.rig, record=v.record, unverified=args.unverified)
     if args.format == "c":
         written = write_gantry_c(doc, args.output)
@@ -59,7 +59,7 @@ def _export_linkage(args: argparse.Namespace, path: Path) -> int:
             "--config)"
         )
     plan, record = load_plan_for_export(
-        path, args.spec, unverified=args.unverified, config_path=args.config, progress=_progress
+        path, args.spec, unverified=args.unverified, config_path=args.config, progress=progress_line
     )
     if args.format == "c":
         written = write_linkage_c(plan, args.output, record=record, unverified=args.unverified)
@@ -86,8 +86,8 @@ def _cmd_export_table(args: argparse.Namespace) -> int:
     path = Path(args.tuning) if args.tuning else current_tuning_path()
     if args.format == "c" and not args.output:
         raise ServotuneError("--format c needs -o DIR (the directory to write the C files into)")
-    _check_outputs(args.output if args.format != "c" else None, inputs=(path, args.rig, args.spec))
-    _check_dirs(args.output if args.format == "c" else None)
+    check_outputs(args.output if args.format != "c" else None, inputs=(path, args.rig, args.spec))
+    check_dirs(args.output if args.format == "c" else None)
     kind = document_kind(path)
     if args.format.startswith("linuxcnc-") and kind in ("gantry", "linkage"):
         raise ServotuneError(
@@ -103,12 +103,14 @@ def _cmd_export_table(args: argparse.Namespace) -> int:
         raise ServotuneError(f"--config is for a gantry tuning; {path} is a rig's tuning")
     v = load_for_export(path, args.rig, args.spec, unverified=args.unverified)
     if (note := fallback_notice(v.rig_file)) is not None:
-        _progress(note)
+        progress_line(note)
     kw = {"rig": v.rig, "verification": v.record, "unverified": v.record is None}
     if args.format.startswith("linuxcnc-"):
         text = _linuxcnc_text(args, v.tuning, kw)
         what = "HAL file" if args.format == "linuxcnc-hal" else "HAL component"
-        _deliver(args.output, lambda p: atomic_write_text(p, text), lambda: text, f"the {what}")
+        deliver_product(
+            args.output, lambda p: atomic_write_text(p, text), lambda: text, f"the {what}"
+        )
     elif args.format == "c":
         written = write_c(v.tuning, args.output, **kw)
         print(f"wrote {', '.join(p.name for p in written)} to {args.output}", file=sys.stderr)

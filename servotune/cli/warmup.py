@@ -11,20 +11,20 @@ from __future__ import annotations
 import argparse
 import sys
 
-from servotune.cli.output import EXIT_OK, _print_product, _progress
+from servotune.cli.output import EXIT_OK, print_product, progress_line
 
 
 def _compile_kernels(*groups: str) -> None:
     """Compile the kernel groups a verb is about to use if the cache lacks them, saying so."""
     from servotune.kernels import warm_up
 
-    warm_up(groups, progress=_progress)
+    warm_up(groups, progress=progress_line)
 
 
 def _cmd_warmup(args: argparse.Namespace) -> int:
     from servotune.kernels import GROUPS, warm_up
 
-    result = warm_up(args.groups or None, progress=_progress)
+    result = warm_up(args.groups or None, progress=progress_line)
     names = result.compiled + result.cached
     asked = "every kernel group" if len(names) == len(GROUPS) else ", ".join(names)
     where = f" in {result.cache_dir}" if result.cache_dir is not None else ""
@@ -43,5 +43,5 @@ def _cmd_warmup(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
     if args.json:
-        _print_product(True, result.to_dict, str)
+        print_product(True, result.to_dict, str)
     return EXIT_OK

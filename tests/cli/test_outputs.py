@@ -20,7 +20,7 @@ from conftest import EXAMPLE_RIG, ROOT
 
 from servotune import executor
 from servotune.cli import main
-from servotune.cli.output import _check_dirs, _check_outputs
+from servotune.cli.output import check_dirs, check_outputs
 from servotune.errors import SchedulerError, ServotuneError
 from servotune.executor import SCHEDULER_ENV, check_workers, local_workers
 
@@ -140,11 +140,11 @@ def test_a_read_only_directory_fails_first(tmp_path, capsys) -> None:
 
 def test_the_probe_leaves_nothing_behind(tmp_path) -> None:
     before = set(os.listdir(tmp_path))
-    _check_outputs(str(tmp_path / "out.json"))
-    _check_dirs(str(tmp_path), str(tmp_path / "new" / "dir"))
+    check_outputs(str(tmp_path / "out.json"))
+    check_dirs(str(tmp_path), str(tmp_path / "new" / "dir"))
     assert set(os.listdir(tmp_path)) == before and not (tmp_path / "new").exists()
     with pytest.raises(ServotuneError, match="cannot create a file"):
-        _check_outputs("/proc/out.json")
+        check_outputs("/proc/out.json")
 
 
 # --- worker processes ------------------------------------------------------------------------
