@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 
@@ -24,10 +24,29 @@ from servotune.logs import Table, format_log, read_table
 from servotune.rig import Rig
 from servotune.validate import show_value
 
-if TYPE_CHECKING:  # servotune.excite (the design) imports this module; only the type is used
-    from servotune.excite import Excitation
+__all__ = ["MIN_TICKS", "ExcitationLike", "read_excitation", "write_excitation"]
 
-__all__ = ["MIN_TICKS", "read_excitation", "write_excitation"]
+
+class ExcitationLike(Protocol):
+    """What :func:`write_excitation` reads of an excitation
+    (:class:`servotune.excite.Excitation` is one; named here by its shape, so that this
+    file format does not import the module that designs excitations, which imports it)."""
+
+    axis: str
+    kind: str
+    seed: int
+    zero_code: int
+    period_s: float
+    amplitude_codes: int
+    limited_by: str
+    predicted_max_speed_rpm: float
+    predicted_travel_counts: tuple[float, float]
+
+    @property
+    def absolute_codes(self) -> np.ndarray: ...
+
+    def to_columns(self) -> dict[str, np.ndarray]: ...
+
 
 MIN_TICKS = 10
 """Shortest excitation [ticks]."""
@@ -44,7 +63,7 @@ def _check_period(period_s: float, rig: Rig, where: str, error: type[Exception])
         )
 
 
-def write_excitation(path: str | Path, excitation: Excitation, rig: Rig) -> None:
+def write_excitation(path: str | Path, excitation: ExcitationLike, rig: Rig) -> None:
     """Write an excitation as a log-format CSV (atomic; same inputs give the same bytes).
 
     Metadata lines ``rig``, ``period_s`` (repr of the achieved period), ``axis``, ``kind``,
@@ -56,6 +75,7 @@ def write_excitation(path: str | Path, excitation: Excitation, rig: Rig) -> None
     path : str or Path
         File to write.
     excitation : Excitation
+        Any :class:`ExcitationLike`.
     rig : Rig
         The rig it was designed for.
 
