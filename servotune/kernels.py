@@ -161,7 +161,7 @@ GROUPS: tuple[KernelGroup, ...] = (
         "batch",
         "the lean one-axis batch kernel: run_batch of one-axis candidates, metrics only",
         20,
-        ("servotune.sim.lean:_kernel_lean", *_PLANT),
+        ("servotune.sim.lean:kernel_lean", *_PLANT),
         ("servotune.sim.lean",),
         "servotune.warmup:run_batch",
     ),

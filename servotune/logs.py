@@ -43,39 +43,39 @@ from servotune.hw import counter as hw_counter
 from servotune.hw import dac as hw_dac
 from servotune.io.files import atomic_write_text
 from servotune.io.log_header import (
-    _COLUMNS_HELP,
+    COLUMNS_HELP,
     MAX_METADATA_CHARS,
     MAX_NAME_CHARS,
     PERIOD_RANGE_S,
-    _classify_columns,
     _decode,
-    _meta_pair,
-    _meta_setting,
     _option,
-    _parse_compute,
-    _parse_counter_bits,
-    _parse_dac_bits,
-    _parse_header,
-    _parse_period,
-    _parse_range,
-    _read_bytes,
-    _read_errors,
-    _read_text,
-    _split_ascii_head,
-    _split_text,
+    classify_columns,
+    meta_pair,
+    meta_setting,
     naming,
+    parse_compute,
+    parse_counter_bits,
+    parse_dac_bits,
+    parse_header,
+    parse_period,
+    parse_range,
+    read_bytes,
+    read_errors,
+    read_text,
+    split_ascii_head,
+    split_text,
 )
 from servotune.io.log_rows import (
-    _KIND,
+    KIND,
+    RowLines,
     _base,
-    _check_range,
-    _data_rows,
-    _fast_columns,
     _kinds,
     _modes,
-    _RowLines,
-    _timebase,
-    _whole_counts,
+    check_range,
+    data_rows,
+    fast_columns,
+    timebase,
+    whole_counts,
 )
 from servotune.laws.axis import MODE_NAMES
 
@@ -443,48 +443,48 @@ def _read_log(
     compute_s: float | None,
     strict: bool = False,
 ) -> Log:
-    data = _read_bytes(Path(path), src)
-    head = _split_ascii_head(data, src)
+    data = read_bytes(Path(path), src)
+    head = split_ascii_head(data, src)
     if head is None:
         text = _decode(data, src)
         del data
-        meta, meta_line, header_line, header_text, body = _split_text(text, src)
+        meta, meta_line, header_line, header_text, body = split_text(text, src)
         del text
     else:  # plain ASCII: the body stays bytes (data[body_start:]) unless the slow path needs it
         meta, meta_line, header_line, header_text, body_start = head
-    header = _parse_header(header_text, header_line)
-    axes_cols = _classify_columns(header, header_line)
+    header = parse_header(header_text, header_line)
+    axes_cols = classify_columns(header, header_line)
 
     def setting(key: str, option: Any, parse: Callable[[str], Any], default: Any) -> Any:
-        meta_value = _meta_setting(key, meta, meta_line, parse)  # checked even if overridden
+        meta_value = meta_setting(key, meta, meta_line, parse)  # checked even if overridden
         if option is not None:
             return _option(key, option, parse)
         return default if meta_value is None else meta_value
 
-    bits = setting("counter_bits", counter_bits, _parse_counter_bits, _DEFAULT_COUNTER_BITS)
-    d_bits = setting("dac_bits", dac_bits, _parse_dac_bits, _DEFAULT_DAC_BITS)
-    d_range = setting("dac_range_v", dac_range_v, _parse_range, _DEFAULT_DAC_RANGE_V)
-    meta_period = _meta_setting("period_s", meta, meta_line, _parse_period)
-    meta_compute = _meta_setting("compute_s", meta, meta_line, _parse_compute)
+    bits = setting("counter_bits", counter_bits, parse_counter_bits, _DEFAULT_COUNTER_BITS)
+    d_bits = setting("dac_bits", dac_bits, parse_dac_bits, _DEFAULT_DAC_BITS)
+    d_range = setting("dac_range_v", dac_range_v, parse_range, _DEFAULT_DAC_RANGE_V)
+    meta_period = meta_setting("period_s", meta, meta_line, parse_period)
+    meta_compute = meta_setting("compute_s", meta, meta_line, parse_compute)
     if period_s is not None:
-        period_s = _option("period_s", period_s, _parse_period)
+        period_s = _option("period_s", period_s, parse_period)
     if compute_s is not None:
-        compute_s = _option("compute_s", compute_s, _parse_compute)
+        compute_s = _option("compute_s", compute_s, parse_compute)
     else:
         compute_s = meta_compute
-    _warn_unknown_metadata(meta, meta_line, src, strict)
+    warn_unknown_metadata(meta, meta_line, src, strict)
 
     col = None
     if head is not None:
-        col = _fast_columns(data, body_start, header)
+        col = fast_columns(data, body_start, header)
         if col is None:
             body = data[body_start:].decode("ascii")
         del data
     if col is not None:
-        rows = _RowLines(None, header_line + 1)  # plain rows: one per line, no blank lines
+        rows = RowLines(None, header_line + 1)  # plain rows: one per line, no blank lines
     else:
         empty = f"log {src!r} has a header (line {header_line}) but no data rows"
-        table, rows = _data_rows(body, header_line, header, empty)
+        table, rows = data_rows(body, header_line, header, empty)
         del body
         col = {h: np.ascontiguousarray(table[f"c{j}"]) for j, h in enumerate(header)}
         del table
@@ -499,9 +499,9 @@ def _read_log(
             if bad.any():
                 k = int(np.argmax(bad))
                 raise LogFormatError(f"row {rows(k)}, column {h!r}: {a[k]} is not finite")
-    _whole_counts(col, header, _kinds(header), rows)  # pos_counts, ref_counts written as 12.0
+    whole_counts(col, header, _kinds(header), rows)  # pos_counts, ref_counts written as 12.0
 
-    period = _timebase(
+    period = timebase(
         col.get("tick"),
         col.get("time_s"),
         rows,
@@ -622,20 +622,20 @@ def read_table(
     """
     src = str(path)
     try:
-        text = _read_text(Path(path), src, what)
-        meta, meta_line, header_line, header_text, body = _split_text(text, src, what)
+        text = read_text(Path(path), src, what)
+        meta, meta_line, header_line, header_text, body = split_text(text, src, what)
         del text
-        header = _parse_header(header_text, header_line)
+        header = parse_header(header_text, header_line)
         if kinds is None:
             for h in header:
-                if _base(h) not in _KIND:
+                if _base(h) not in KIND:
                     raise LogFormatError(
-                        f"line {header_line}: unknown column {h!r}; {_COLUMNS_HELP}"
+                        f"line {header_line}: unknown column {h!r}; {COLUMNS_HELP}"
                     )
         if check_header is not None:
             check_header(header, header_line)
         kind = _kinds(header) if kinds is None else list(kinds(header, header_line))
-        table, rows = _data_rows(
+        table, rows = data_rows(
             body,
             header_line,
             header,
@@ -655,7 +655,7 @@ def read_table(
                 if bad.any():
                     k = int(np.argmax(bad))
                     raise LogFormatError(f"row {rows(k)}, column {h!r}: {a[k]} is not finite")
-        _whole_counts(
+        whole_counts(
             cols,
             [h for h, k in zip(header, kind, strict=True) if k != "skip"],
             [k for k in kind if k != "skip"],
@@ -696,7 +696,7 @@ def read_metadata(path: str | Path) -> dict[str, str]:
     """
     src = str(path)
     meta: dict[str, str] = {}
-    with _read_errors(src):
+    with read_errors(src):
         try:
             with open(path, encoding="utf-8-sig", newline=None) as fh:
                 limit = MAX_METADATA_CHARS + MAX_NAME_CHARS + 16
@@ -706,7 +706,7 @@ def read_metadata(path: str | Path) -> dict[str, str]:
                     line = raw.strip()
                     if line and not line.startswith("#"):
                         break
-                    kv = _meta_pair(line)
+                    kv = meta_pair(line)
                     if kv is not None:
                         meta.setdefault(*kv)
         except UnicodeDecodeError:
@@ -714,7 +714,7 @@ def read_metadata(path: str | Path) -> dict[str, str]:
     return meta
 
 
-def _warn_unknown_metadata(
+def warn_unknown_metadata(
     meta: Mapping[str, str], meta_line: Mapping[str, int], src: str, strict: bool = False
 ) -> None:
     """Warn (``strict``: refuse, :class:`LogFormatError`) naming each unknown metadata key
@@ -742,7 +742,7 @@ def _axis_log(
     ax: str,
     names: Mapping[str, str],
     col: Mapping[str, np.ndarray],
-    rows: _RowLines,
+    rows: RowLines,
     *,
     counter_bits: int,
     dac_bits: int,
@@ -753,7 +753,7 @@ def _axis_log(
     if "dac_code" in names:
         name = names["dac_code"]
         dac_code = col[name]
-        _check_range(
+        check_range(
             dac_code, dac_bits, rows, name, "code {v} is outside the {bits}-bit D/A range 0..{top}"
         )
         cmd_v = hw_dac.volts_from_code(dac_code, dac_bits, dac_range_v)
@@ -762,7 +762,7 @@ def _axis_log(
     if "counter" in names:
         name = names["counter"]
         counter = col[name]
-        _check_range(
+        check_range(
             counter,
             counter_bits,
             rows,

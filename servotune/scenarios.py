@@ -413,7 +413,7 @@ def sync_move(
 _SYNC_MOVE_FIELDS = ("seconds", "speed_fraction", "accel_s", "load_step_v")
 
 
-def _sync_move_for(rig: Rig, run: Any) -> Scenario:
+def sync_move_for(rig: Rig, run: Any) -> Scenario:
     """:func:`sync_move` with the run ``run`` describes: its ``seconds``, ``speed_fraction``,
     ``accel_s`` and ``load_step_v`` (a slave tuning's ``SlaveTuneSpec``, a verification spec's
     sync ``ScenarioSpec``)."""

@@ -433,7 +433,7 @@ def test_a_kernel_that_cannot_compile_is_an_error_with_its_cause(
         calls.append(1)
         raise numba.core.errors.TypingError("no such internal")
 
-    monkeypatch.setattr(engine, "_kernel_lean", refused)
+    monkeypatch.setattr(engine, "kernel_lean", refused)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         with pytest.raises(CompileError, match=r"kernel refused .*numba .*no such internal"):

@@ -67,7 +67,7 @@ def test_servotune_functions_cache_under_the_digest_and_others_are_untouched() -
     user_dir = os.environ.get("NUMBA_CACHE_DIR")
     expected = Path(user_dir) if user_dir else _numba_cache.cache_dir()
     assert expected is not None
-    for fn in (lean._kernel_lean, kernel._kernel, pi.pi_step, fixed.sat_add):
+    for fn in (lean.kernel_lean, kernel._kernel, pi.pi_step, fixed.sat_add):
         assert Path(fn._cache._cache_path).is_relative_to(expected), fn
     # the setting is restored after servotune's imports: other packages keep numba's default
     assert numba.config.CACHE_DIR == os.environ.get("NUMBA_CACHE_DIR", "")
@@ -75,9 +75,7 @@ def test_servotune_functions_cache_under_the_digest_and_others_are_untouched() -
 
 
 def test_numba_cache_dir_set_by_the_user_rules(tmp_path: Path) -> None:
-    code = (
-        "import servotune.sim.lean as e, sys; sys.stdout.write(e._kernel_lean._cache._cache_path)"
-    )
+    code = "import servotune.sim.lean as e, sys; sys.stdout.write(e.kernel_lean._cache._cache_path)"
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "mine")}
     out = subprocess.run(
         [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True

@@ -229,3 +229,15 @@ def test_a_repeated_step_redraws_the_bar_so_its_clock_runs() -> None:
     assert "0/1 [00:01<" in out.getvalue()
     bar("compiling simulation kernels: 1/1 groups done, in 1 s")
     assert "1/1 [00:01<" in out.getvalue()
+
+
+def test_every_group_names_functions_that_exist() -> None:
+    """The groups name their kernels and workloads as ``"module:attribute"`` strings (imported
+    when needed): a renamed kernel must be renamed there too, or warm_up would fail at a user's
+    first run."""
+    from importlib import import_module
+
+    for g in warmup.GROUPS:
+        for ref in (*g.kernels, g.workload):
+            module, _, attr = ref.partition(":")
+            assert hasattr(import_module(module), attr.removesuffix("()")), (g.name, ref)

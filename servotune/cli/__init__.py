@@ -27,8 +27,7 @@ from contextlib import nullcontext
 
 from servotune.budget import set_memory_budget
 from servotune.cli.output import SIGNALLED, SINK, Terminated, on_sigterm, outcome, progress_line
-from servotune.cli.parser import _EXAMPLES as _EXAMPLES  # re-exported: tests/cli
-from servotune.cli.parser import _parser
+from servotune.cli.parser import build_parser
 from servotune.errors import ServotuneError
 from servotune.kernels import compile_notices
 
@@ -37,7 +36,7 @@ __all__ = ["main"]
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit code (module docstring)."""
-    parser = _parser()
+    parser = build_parser()
     args = parser.parse_args(argv)
     func: Callable[[argparse.Namespace], int] = args.func
     previous = signal.signal(signal.SIGTERM, on_sigterm)

@@ -20,7 +20,7 @@ from servotune.cli.output import (
     progress_line,
     workbench_dir,
 )
-from servotune.cli.warmup import _compile_kernels
+from servotune.cli.warmup import compile_kernels
 from servotune.errors import ServotuneError
 
 # The library is imported inside each handler, not here, so that ``servotune --help`` (and any
@@ -53,7 +53,7 @@ def _tune_gantry(args: argparse.Namespace, current: Path | None) -> int:
         )
     load_gantry(args.rig)  # bad input is one line, before any progress
     progress_line(f"tune gantry {args.rig}: each drive's PI, then the sync compensator")
-    _compile_kernels("margins", "gantry")
+    compile_kernels("margins", "gantry")
     tuning = tune_gantry(args.rig)
     print_summary(args.json, tuning.design, lambda: format_gantry_tuning(tuning))
     deliver_product(
@@ -66,7 +66,7 @@ def _tune_gantry(args: argparse.Namespace, current: Path | None) -> int:
     return EXIT_OK
 
 
-def _cmd_tune(args: argparse.Namespace) -> int:
+def cmd_tune(args: argparse.Namespace) -> int:
     from servotune.arch.kind import config_kind
     from servotune.tuning import current_tuning_path
 
@@ -102,7 +102,7 @@ def _cmd_tune(args: argparse.Namespace) -> int:
 
         spec = tune_spec_from(load_spec(args.spec), rig=rig, **budget, **given)
     progress_line(f"tune {args.rig}: loading the tuner")  # before the imports: they take a second
-    _compile_kernels("simulation", "margins")
+    compile_kernels("simulation", "margins")
     from servotune.report.text import format_tuning_summary
     from servotune.tune.slave import tune_spec_from
     from servotune.tune.workflow import tune_rig, tuning_summary
@@ -182,7 +182,7 @@ def _verify_gantry(args: argparse.Namespace) -> int:
     return EXIT_OK if result.passed else EXIT_FAILED
 
 
-def _cmd_plan(args: argparse.Namespace) -> int:
+def cmd_plan(args: argparse.Namespace) -> int:
     from servotune.arch.kind import config_kind
     from servotune.arch.linkage import plan_linkage, plan_to_string, write_plan
     from servotune.report.text import format_linkage_plan
@@ -208,7 +208,7 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def _cmd_verify(args: argparse.Namespace) -> int:
+def cmd_verify(args: argparse.Namespace) -> int:
     from servotune.arch.kind import document_kind
     from servotune.report.text import format_table
     from servotune.verify import record_path, verify_files
@@ -266,7 +266,7 @@ def _cmd_verify(args: argparse.Namespace) -> int:
     return EXIT_OK if result.passed else EXIT_FAILED
 
 
-def _cmd_margins(args: argparse.Namespace) -> int:
+def cmd_margins(args: argparse.Namespace) -> int:
     from servotune.report.text import format_margins
     from servotune.verify import MarginLimits, margins_files
 

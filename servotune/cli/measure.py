@@ -17,7 +17,7 @@ from servotune.cli.output import (
     print_summary,
     progress_line,
 )
-from servotune.cli.warmup import _compile_kernels
+from servotune.cli.warmup import compile_kernels
 from servotune.errors import ServotuneError
 
 # The library is imported inside each handler, not here, so that ``servotune --help`` (and any
@@ -26,7 +26,7 @@ from servotune.errors import ServotuneError
 # import inside a function in this module; none of them works around an import cycle.
 
 
-def _cmd_init(args: argparse.Namespace) -> int:
+def cmd_init(args: argparse.Namespace) -> int:
     import shlex
 
     from servotune.examples import ExamplesDifferError, write_examples
@@ -53,7 +53,7 @@ def _cmd_init(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def _cmd_rig(args: argparse.Namespace) -> int:
+def cmd_rig(args: argparse.Namespace) -> int:
     from servotune.report.text import format_rig_facts
     from servotune.rig import describe_rig, load_rig
 
@@ -67,7 +67,7 @@ def _cmd_rig(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def _cmd_simulate(args: argparse.Namespace) -> int:
+def cmd_simulate(args: argparse.Namespace) -> int:
     from servotune.rig import load_rig
     from servotune.scenarios import Scenario, build_scenario
 
@@ -86,7 +86,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         scen = build_scenario(
             rig, args.scenario, axis=axis, seconds=args.seconds, closed_loop=args.closed_loop
         )
-    _compile_kernels("simulation")  # inputs checked; before the slow imports, so it says so early
+    compile_kernels("simulation")  # inputs checked; before the slow imports, so it says so early
     from servotune.logs import format_log, write_log
     from servotune.pipeline import log_metadata, run_scenario, trace_log_columns
 
@@ -127,7 +127,7 @@ def _rig_to_extend(path: str, axis: str | None) -> None:
         )
 
 
-def _cmd_fit(args: argparse.Namespace) -> int:
+def cmd_fit(args: argparse.Namespace) -> int:
     if (problem := _fleet_usage(args)) is not None:
         print(f"servotune fit: error: {problem}", file=sys.stderr)
         return EXIT_USAGE
@@ -282,7 +282,7 @@ def _cmd_fit_fleet(args: argparse.Namespace) -> int:
         strict=args.strict,
         hal=hal,
     )
-    _compile_kernels("identification")  # here, not in each worker of a cluster
+    compile_kernels("identification")  # here, not in each worker of a cluster
     with open_executor(
         len(args.log),
         scheduler=args.scheduler,
@@ -323,7 +323,7 @@ def _range(text: str) -> tuple[float, float]:
     return lo, hi
 
 
-def _cmd_excite(args: argparse.Namespace) -> int:
+def cmd_excite(args: argparse.Namespace) -> int:
     from servotune.excite import design_excitation, write_excitation
     from servotune.rig import load_rig
 

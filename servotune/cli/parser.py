@@ -1,4 +1,4 @@
-"""The verbs, their options, help texts and examples: :func:`_parser` builds the argparse
+"""The verbs, their options, help texts and examples: :func:`build_parser` builds the argparse
 parser, each verb pointing at its handler (``func``).
 
 It imports only the handlers' modules, which import the library inside each handler: building
@@ -12,11 +12,11 @@ from collections.abc import Callable
 from typing import Any, NoReturn
 
 from servotune._version import __version__
-from servotune.cli.design import _cmd_margins, _cmd_plan, _cmd_tune, _cmd_verify
-from servotune.cli.measure import _cmd_excite, _cmd_fit, _cmd_init, _cmd_rig, _cmd_simulate
-from servotune.cli.studies import _cmd_compare, _cmd_demo, _cmd_linkage, _cmd_sync
-from servotune.cli.tables import _cmd_check_table, _cmd_export_table
-from servotune.cli.warmup import _cmd_warmup
+from servotune.cli.design import cmd_margins, cmd_plan, cmd_tune, cmd_verify
+from servotune.cli.measure import cmd_excite, cmd_fit, cmd_init, cmd_rig, cmd_simulate
+from servotune.cli.studies import cmd_compare, cmd_demo, cmd_linkage, cmd_sync
+from servotune.cli.tables import cmd_check_table, cmd_export_table
+from servotune.cli.warmup import cmd_warmup
 from servotune.executor import local_workers
 from servotune.kernels import GROUPS
 from servotune.validate import SEED_MAX, check_seed
@@ -80,30 +80,11 @@ def _verb(sub: Any, func: Callable[..., int], name: str, **options: Any) -> Any:
     return s
 
 
-def _parser() -> argparse.ArgumentParser:
-    p = _Parser(
-        prog="servotune",
-        description="Control design and tuning workbench for synchronised position servos.",
-    )
-    p.add_argument("--version", action="version", version=f"servotune {__version__}")
-    p.add_argument("--debug", action="store_true", help="show tracebacks on errors")
-    p.add_argument(
-        "-q",
-        "--quiet",
-        action="store_true",
-        help="no progress on stderr (errors, warnings and summaries still go there)",
-    )
-    p.add_argument(
-        "--max-memory",
-        metavar="SIZE",
-        help="memory budget a run may plan to allocate, e.g. 512M, 8G (default 2G, or "
-        "$SERVOTUNE_MAX_MEMORY); a larger run is refused before it starts (exit 3)",
-    )
-    sub = p.add_subparsers(dest="verb", required=True, metavar="VERB")
-
+def _add_init(sub: Any) -> None:
+    """The ``init`` verb and its options."""
     s = _verb(
         sub,
-        _cmd_init,
+        cmd_init,
         "init",
         help="write the example rig, gantry and linkage configs, their specs and a LinuxCNC "
         "capture map into DIR/plants/ (where the README's commands look for them)",
@@ -122,12 +103,18 @@ def _parser() -> argparse.ArgumentParser:
         "writing nothing)",
     )
 
-    s = _verb(sub, _cmd_rig, "rig", help="print the derived facts of a rig file")
+
+def _add_rig(sub: Any) -> None:
+    """The ``rig`` verb and its options."""
+    s = _verb(sub, cmd_rig, "rig", help="print the derived facts of a rig file")
     s.add_argument("rig", help="rig file (TOML), e.g. plants/pc-dual-servo.toml")
     s.add_argument("--json", action="store_true", help="JSON on stdout")
 
+
+def _add_simulate(sub: Any) -> None:
+    """The ``simulate`` verb and its options."""
     s = _verb(
-        sub, _cmd_simulate, "simulate", help="run a scenario on the virtual rig and write a log"
+        sub, cmd_simulate, "simulate", help="run a scenario on the virtual rig and write a log"
     )
     s.add_argument("rig", help="rig file (TOML)")
     s.add_argument("--scenario", help="prbs, steps, chirp or track")
@@ -143,7 +130,10 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--no-noise", action="store_true", help="switch the encoder noise off")
     s.add_argument("-o", "--output", required=True, help="log file to write ('-' for stdout)")
 
-    s = _verb(sub, _cmd_fit, "fit", help="identify an axis's motor + drive model from a logged run")
+
+def _add_fit(sub: Any) -> None:
+    """The ``fit`` verb and its options."""
+    s = _verb(sub, cmd_fit, "fit", help="identify an axis's motor + drive model from a logged run")
     s.add_argument(
         "log",
         nargs="+",
@@ -207,6 +197,12 @@ def _parser() -> argparse.ArgumentParser:
         action="store_true",
         help="negate the position first (an encoder counting against the D/A's direction)",
     )
+    _fit_hal_options(s)
+    _fit_fleet_options(s)
+
+
+def _fit_hal_options(s: Any) -> None:
+    """``fit``'s options for LinuxCNC HAL captures and mapped CSV logs."""
     hal = s.add_argument_group(
         "LinuxCNC HAL captures and CSV logs with their own column names",
         "halsampler output, halscope's saved data or your logger's CSV, read with --map",
@@ -257,6 +253,10 @@ def _parser() -> argparse.ArgumentParser:
         help="halsampler: written with -t (first field the sample number; a gap, lost "
         "samples, is an error)",
     )
+
+
+def _fit_fleet_options(s: Any) -> None:
+    """``fit``'s options for a fleet of logs."""
     fleet = s.add_argument_group(
         "fleet", "fit many machines' logs at once: a table, the fleet's spread, outliers, drift"
     )
@@ -279,7 +279,10 @@ def _parser() -> argparse.ArgumentParser:
     )
     _executor_options(fleet, "fit", "200 logs")
 
-    s = _verb(sub, _cmd_excite, "excite", help="design an identification excitation (D/A codes)")
+
+def _add_excite(sub: Any) -> None:
+    """The ``excite`` verb and its options."""
+    s = _verb(sub, cmd_excite, "excite", help="design an identification excitation (D/A codes)")
     s.add_argument("--rig", required=True, help="rig file (TOML)")
     s.add_argument("--axis", help="axis (default: the master)")
     s.add_argument("--kind", required=True, choices=["prbs", "multisine", "steps"])
@@ -288,9 +291,12 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--amplitude-codes", type=int, help="requested amplitude [D/A codes]")
     s.add_argument("-o", "--output", required=True, help="excitation CSV to write")
 
+
+def _add_tune(sub: Any) -> None:
+    """The ``tune`` verb and its options."""
     s = _verb(
         sub,
-        _cmd_tune,
+        cmd_tune,
         "tune",
         help="tune the master's PI and the slave's fuzzy-PID tables (a rig), or both drives' PI "
         "and the sync compensator (a gantry config)",
@@ -348,9 +354,12 @@ def _parser() -> argparse.ArgumentParser:
         help="do not record the result as the workbench's current tuning",
     )
 
+
+def _add_plan(sub: Any) -> None:
+    """The ``plan`` verb and its options."""
     s = _verb(
         sub,
-        _cmd_plan,
+        cmd_plan,
         "plan",
         help="plan a multi-CPU linkage: bus block budget, queue depths and watermarks, clock "
         "sync, the axes' gains as the CPUs run them",
@@ -359,9 +368,12 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--json", action="store_true", help="the plan's design as JSON on stdout")
     s.add_argument("-o", "--output", help="plan file to write (default: stdout)")
 
+
+def _add_verify(sub: Any) -> None:
+    """The ``verify`` verb and its options."""
     s = _verb(
         sub,
-        _cmd_verify,
+        cmd_verify,
         "verify",
         help="verify a tuning (rig or gantry) or a linkage plan against a spec in the bit-true "
         "loop",
@@ -413,9 +425,12 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--json", action="store_true", help="the verification record as JSON on stdout")
     s.add_argument("--report", help="also write the HTML report into this directory")
 
+
+def _add_margins(sub: Any) -> None:
+    """The ``margins`` verb and its options."""
     s = _verb(
         sub,
-        _cmd_margins,
+        cmd_margins,
         "margins",
         help="gain, phase and delay margins, Ms and Mt of every loop a tuning can run "
         "(exit 1 if one breaks a limit)",
@@ -431,8 +446,11 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--ms", type=float, default=2.0, help="largest peak sensitivity (default 2.0)")
     s.add_argument("--json", action="store_true", help="every loop's figures as JSON on stdout")
 
+
+def _add_export_table(sub: Any) -> None:
+    """The ``export-table`` verb and its options."""
     s = _verb(
-        sub, _cmd_export_table, "export-table", help="export a verified tuning's tables (JSON or C)"
+        sub, cmd_export_table, "export-table", help="export a verified tuning's tables (JSON or C)"
     )
     s.add_argument(
         "tuning",
@@ -494,9 +512,12 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--spec", help="also require that the verification used this spec file")
     s.add_argument("--unverified", action="store_true", help="export without a passed verify")
 
+
+def _add_check_table(sub: Any) -> None:
+    """The ``check-table`` verb and its options."""
     s = _verb(
         sub,
-        _cmd_check_table,
+        cmd_check_table,
         "check-table",
         help="check an export: every CRC and digest (any edit is refused)",
     )
@@ -507,7 +528,10 @@ def _parser() -> argparse.ArgumentParser:
     )
     s.add_argument("--json", action="store_true", help="the check's summary as JSON on stdout")
 
-    s = _verb(sub, _cmd_demo, "demo", help="run the whole job on a rig and write into a directory")
+
+def _add_demo(sub: Any) -> None:
+    """The ``demo`` verb and its options."""
+    s = _verb(sub, cmd_demo, "demo", help="run the whole job on a rig and write into a directory")
     s.add_argument("rig", help="rig file (TOML)")
     s.add_argument("--out", default="reports", help="output directory (default reports)")
     s.add_argument("--seed", type=_seed, default=0)
@@ -518,9 +542,12 @@ def _parser() -> argparse.ArgumentParser:
         "tracking/robustness sweep (several minutes; default: the quick preset)",
     )
 
+
+def _add_compare(sub: Any) -> None:
+    """The ``compare`` verb and its options."""
     s = _verb(
         sub,
-        _cmd_compare,
+        cmd_compare,
         "compare",
         help="Figure 4: PID, PID + feedforward and composite tuned alike, compared on held-out "
         "scenarios",
@@ -550,7 +577,10 @@ def _parser() -> argparse.ArgumentParser:
     )
     s.add_argument("--json", action="store_true", help="figure4.json on stdout as well")
 
-    s = _verb(sub, _cmd_sync, "sync", help="compare gantry topologies on a gantry config")
+
+def _add_sync(sub: Any) -> None:
+    """The ``sync`` verb and its options."""
+    s = _verb(sub, cmd_sync, "sync", help="compare gantry topologies on a gantry config")
     s.add_argument("config", help="gantry config (TOML), e.g. plants/gantry.toml")
     s.add_argument("--seed", type=_seed, default=0, help="noise and jitter seed (default 0)")
     s.add_argument(
@@ -564,16 +594,22 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--json", action="store_true", help="JSON on stdout")
     s.add_argument("--plot", metavar="DIR", help="write sync-error plots (PNG) into DIR")
 
-    s = _verb(sub, _cmd_linkage, "linkage", help="simulate a multi-CPU linkage and check it")
+
+def _add_linkage(sub: Any) -> None:
+    """The ``linkage`` verb and its options."""
+    s = _verb(sub, cmd_linkage, "linkage", help="simulate a multi-CPU linkage and check it")
     s.add_argument("config", help="linkage config (TOML), e.g. plants/linkage-6axis.toml")
     s.add_argument("--seconds", type=float, help="simulated time [s] (default: path + settle)")
     s.add_argument("--seed", type=_seed, default=0, help="encoder-noise seed (default 0)")
     s.add_argument("--json", action="store_true", help="the result as JSON on stdout")
     s.add_argument("--plot", metavar="DIR", help="write queue and circular-test PNGs into DIR")
 
+
+def _add_warmup(sub: Any) -> None:
+    """The ``warmup`` verb and its options."""
     s = _verb(
         sub,
-        _cmd_warmup,
+        cmd_warmup,
         "warmup",
         help="compile every kernel the commands use now (numba, cached on disk): after an "
         "install or an update, so no later command stops to compile; a second run finds them "
@@ -588,6 +624,45 @@ def _parser() -> argparse.ArgumentParser:
         + "; ".join(f"{g.name} ({g.what})" for g in GROUPS),
     )
     s.add_argument("--json", action="store_true", help="what was compiled, as JSON on stdout")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``servotune`` command line: the global options and every verb's."""
+    p = _Parser(
+        prog="servotune",
+        description="Control design and tuning workbench for synchronised position servos.",
+    )
+    p.add_argument("--version", action="version", version=f"servotune {__version__}")
+    p.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    p.add_argument(
+        "-q",
+        "--quiet",
+        action="store_true",
+        help="no progress on stderr (errors, warnings and summaries still go there)",
+    )
+    p.add_argument(
+        "--max-memory",
+        metavar="SIZE",
+        help="memory budget a run may plan to allocate, e.g. 512M, 8G (default 2G, or "
+        "$SERVOTUNE_MAX_MEMORY); a larger run is refused before it starts (exit 3)",
+    )
+    sub = p.add_subparsers(dest="verb", required=True, metavar="VERB")
+    _add_init(sub)
+    _add_rig(sub)
+    _add_simulate(sub)
+    _add_fit(sub)
+    _add_excite(sub)
+    _add_tune(sub)
+    _add_plan(sub)
+    _add_verify(sub)
+    _add_margins(sub)
+    _add_export_table(sub)
+    _add_check_table(sub)
+    _add_demo(sub)
+    _add_compare(sub)
+    _add_sync(sub)
+    _add_linkage(sub)
+    _add_warmup(sub)
     for name, verb in sub.choices.items():  # --quiet also after the verb (where users type it)
         verb.add_argument(
             "-q",
@@ -597,11 +672,11 @@ def _parser() -> argparse.ArgumentParser:
             help="no progress on stderr",
         )
         verb.formatter_class = argparse.RawDescriptionHelpFormatter
-        verb.epilog = "examples:\n" + "\n".join(f"  {x}" for x in _EXAMPLES[name])
+        verb.epilog = "examples:\n" + "\n".join(f"  {x}" for x in EXAMPLES[name])
     return p
 
 
-_EXAMPLES = {
+EXAMPLES = {
     "init": [
         "servotune init                  # plants/: the example rig, configs, specs, HAL map",
         "servotune init my-lab --force   # into my-lab/plants/, replacing edited copies",

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from servotune.cli.output import EXIT_FAILED, EXIT_OK, check_dirs, print_product, progress_line
-from servotune.cli.warmup import _compile_kernels
+from servotune.cli.warmup import compile_kernels
 from servotune.errors import ServotuneError
 
 # The library is imported inside each handler, not here, so that ``servotune --help`` (and any
@@ -17,7 +17,7 @@ from servotune.errors import ServotuneError
 # import inside a function in this module; none of them works around an import cycle.
 
 
-def _cmd_compare(args: argparse.Namespace) -> int:
+def cmd_compare(args: argparse.Namespace) -> int:
     from servotune.pipeline import DemoPreset, comparison_statement, run_comparison
     from servotune.rig import load_rig
     from servotune.verify.spec import load_spec
@@ -32,7 +32,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
         raise ServotuneError(f"--seeds must be >= 1, got {args.seeds}")
     check_dirs(args.out)
     rig, spec = load_rig(args.rig), load_spec(args.spec)
-    _compile_kernels("simulation", "margins", "verification")
+    compile_kernels("simulation", "margins", "verification")
     preset = DemoPreset(
         generations=args.generations,
         population=args.population,
@@ -51,14 +51,14 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def _cmd_demo(args: argparse.Namespace) -> int:
+def cmd_demo(args: argparse.Namespace) -> int:
     from servotune.pipeline import comparison_table_text, run_demo
     from servotune.rig import load_rig
 
     check_dirs(args.out)
     load_rig(args.rig)  # a bad rig fails before the output directory is made
     Path(args.out).mkdir(parents=True, exist_ok=True)
-    _compile_kernels("simulation", "margins", "verification", "identification", "gantry", "linkage")
+    compile_kernels("simulation", "margins", "verification", "identification", "gantry", "linkage")
     summary = run_demo(
         args.rig,
         args.out,
@@ -102,7 +102,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def _cmd_sync(args: argparse.Namespace) -> int:
+def cmd_sync(args: argparse.Namespace) -> int:
     from servotune.arch.gantry import compare_topologies
     from servotune.arch.gantry.load import load_gantry
     from servotune.arch.gantry.synthesis import resolve_gains
@@ -112,7 +112,7 @@ def _cmd_sync(args: argparse.Namespace) -> int:
     cfg = resolve_gains(
         load_gantry(args.config)
     )  # a bad config is one line, before the gantry's compiling
-    _compile_kernels("gantry")
+    compile_kernels("gantry")
     cmp = compare_topologies(cfg, seed=args.seed, montecarlo=args.montecarlo)
     print_product(args.json, cmp.to_dict, lambda: format_comparison(cmp))
     if args.plot:
@@ -129,13 +129,13 @@ def _cmd_sync(args: argparse.Namespace) -> int:
     return EXIT_OK if cmp.passed else EXIT_FAILED
 
 
-def _cmd_linkage(args: argparse.Namespace) -> int:
+def cmd_linkage(args: argparse.Namespace) -> int:
     from servotune.arch.linkage import LinkageCheckError, load_linkage, run_linkage
     from servotune.report.text import format_linkage_summary
 
     check_dirs(args.plot)
     config = load_linkage(args.config)
-    _compile_kernels("linkage")
+    compile_kernels("linkage")
     try:
         result = run_linkage(config, seconds=args.seconds, seed=args.seed)
     except LinkageCheckError as exc:

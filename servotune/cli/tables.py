@@ -76,7 +76,7 @@ def _export_linkage(args: argparse.Namespace, path: Path) -> int:
     return EXIT_OK
 
 
-def _cmd_export_table(args: argparse.Namespace) -> int:
+def cmd_export_table(args: argparse.Namespace) -> int:
     from servotune.arch.kind import document_kind
     from servotune.export import tables_to_string, write_c, write_tables
     from servotune.io.files import atomic_write_text
@@ -240,7 +240,7 @@ def _check_linkage_export(args: argparse.Namespace, text: str) -> int:
     return EXIT_OK
 
 
-def _cmd_check_table(args: argparse.Namespace) -> int:
+def cmd_check_table(args: argparse.Namespace) -> int:
     from servotune.errors import ExportError
     from servotune.export.json import load_tables
     from servotune.io.files import read_bytes

@@ -1,4 +1,4 @@
-"""The compiled kernels: ``warmup`` (compile every kernel now), and :func:`_compile_kernels`, the
+"""The compiled kernels: ``warmup`` (compile every kernel now), and :func:`compile_kernels`, the
 step the other verbs take before the work that needs their kernels.
 
 A cold cache (a fresh install, edited sources) is compiled in that step, with its lines on
@@ -14,14 +14,14 @@ import sys
 from servotune.cli.output import EXIT_OK, print_product, progress_line
 
 
-def _compile_kernels(*groups: str) -> None:
+def compile_kernels(*groups: str) -> None:
     """Compile the kernel groups a verb is about to use if the cache lacks them, saying so."""
     from servotune.kernels import warm_up
 
     warm_up(groups, progress=progress_line)
 
 
-def _cmd_warmup(args: argparse.Namespace) -> int:
+def cmd_warmup(args: argparse.Namespace) -> int:
     from servotune.kernels import GROUPS, warm_up
 
     result = warm_up(args.groups or None, progress=progress_line)

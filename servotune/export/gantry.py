@@ -46,14 +46,14 @@ from servotune.errors import DigestError, ExportError
 from servotune.export.c import (
     GANTRY_RUNTIME_FILES,
     RUNTIME_FILES,
-    _axis_lines,
-    _comment_text,
-    _digest_bytes_lines,
     _q,
+    axis_lines,
+    comment_text,
+    digest_bytes_lines,
     write_c_files,
 )
 from servotune.export.gantry_layout import gantry_layout_sha256
-from servotune.export.json import _dumps, _write_export
+from servotune.export.json import _dumps, write_export
 from servotune.io.files import json_safe, parse_json
 from servotune.rig import Rig
 
@@ -165,7 +165,7 @@ def gantry_tables_to_string(doc: Mapping[str, Any]) -> str:
 
 def write_gantry_tables(doc: Mapping[str, Any], path: str | Path) -> None:
     """Write the JSON export atomically."""
-    _write_export(path, gantry_tables_to_string(doc))
+    write_export(path, gantry_tables_to_string(doc))
 
 
 def check_gantry_tables(text: str, src: str = "<text>") -> dict[str, Any]:
@@ -231,9 +231,9 @@ def gantry_c_header(doc: Mapping[str, Any]) -> str:
         f"({GANTRY_TABLES_SCHEMA}).",
         " * Do not edit: export the tuning again. The runtime is servotune_gantry.c/.h on",
         " * servotune_rt.c/.h.",
-        f" * gantry: {_comment_text(data['gantry_name'])} (config sha256 "
+        f" * gantry: {comment_text(data['gantry_name'])} (config sha256 "
         f"{prov['gantry']['sha256']})",
-        f" * rig: {_comment_text(prov['rig']['name'])} (sha256 {prov['rig']['sha256']})",
+        f" * rig: {comment_text(prov['rig']['name'])} (sha256 {prov['rig']['sha256']})",
         f" * tuning sha256: {prov['tuning_sha256']}",
         f" * verified: {verified}",
         " * At start-up:",
@@ -259,12 +259,12 @@ def gantry_c_header(doc: Mapping[str, Any]) -> str:
         "",
         "/* SHA-256 of the constants in the C layout; st_gantry_check_digest recomputes it. */",
         f'#define ST_GANTRY_SHA256 "{data["c_layout_sha256"]}"',
-        *_digest_bytes_lines("st_gantry_consts_sha256", data["c_layout_sha256"]),
+        *digest_bytes_lines("st_gantry_consts_sha256", data["c_layout_sha256"]),
     ]
     inits = []
     for i, d in enumerate(data["drives"]):
         ax = {**d["controller"], "index": i, "name": d["name"], "role": d["name"], "ref_source": -1}
-        lines, init = _axis_lines(ax, d["name"])
+        lines, init = axis_lines(ax, d["name"])
         out.extend(lines)
         inits.append(init)
     lines, sync_init = _sync_lines(data["sync"])

@@ -85,8 +85,8 @@ from servotune._version import __version__
 from servotune.digest import DIGEST_FIELD, document_sha256
 from servotune.errors import DigestError, ExportError
 from servotune.export.layout import (
-    _INT16,
-    _INT32,
+    INT16,
+    INT32,
     c_layout_sha256,
     constants_bytes,
     constants_pairs,
@@ -221,7 +221,7 @@ def _plain(x: Any, where: str) -> Any:
 
 def _axis_doc(i: int, name: str, role: str, ctl: AxisController, src: int) -> dict[str, Any]:
     fe = ctl.following_error_limit_counts
-    if fe > _INT32[1]:
+    if fe > INT32[1]:
         raise ExportError(
             f"axis {name!r}: following_error_limit_counts {fe} does not fit int32 [counts]"
         )
@@ -245,7 +245,7 @@ def _axis_doc(i: int, name: str, role: str, ctl: AxisController, src: int) -> di
     }
 
 
-def _recorded_sha(record: Mapping[str, Any], kind: str) -> str | None:
+def recorded_sha(record: Mapping[str, Any], kind: str) -> str | None:
     """A verification record's SHA-256 of one of its files (``files.<kind>.sha256``), or None."""
     entry = record.get("files", {}).get(kind) if isinstance(record.get("files"), dict) else None
     return entry.get("sha256") if isinstance(entry, dict) else None
@@ -325,11 +325,11 @@ def tables_document(
     summary = None if verification is None else _plain(verification, "verification")
     spec_sha = tuning_sha = None
     if summary is not None:
-        spec_sha = summary.get("spec_sha256") or _recorded_sha(summary, "spec")
+        spec_sha = summary.get("spec_sha256") or recorded_sha(summary, "spec")
         if spec_sha is None and summary.get("spec") is not None:
             canon = json.dumps(summary["spec"], sort_keys=True, separators=(",", ":"))
             spec_sha = hashlib.sha256(canon.encode()).hexdigest()
-        tuning_sha = _recorded_sha(summary, "tuning")
+        tuning_sha = recorded_sha(summary, "tuning")
     if tuning_sha is None:
         tuning_sha = hashlib.sha256(tuning_to_string(tuning).encode()).hexdigest()
     doc: dict[str, Any] = {
@@ -393,10 +393,10 @@ def to_file(tuning: Tuning, path: str | Path, **options: Unpack[TablesOptions]) 
     ExportError
         As :func:`tables_document`, or if the file cannot be written (nothing is written then).
     """
-    _write_export(path, to_string(tuning, **options))
+    write_export(path, to_string(tuning, **options))
 
 
-def _write_export(path: str | Path, text: str) -> None:
+def write_export(path: str | Path, text: str) -> None:
     """Write one export file atomically; failing, an :class:`ExportError` naming the file."""
     try:
         atomic_write_text(path, text)
@@ -437,7 +437,7 @@ def _check_table(tab: Any, name: str, n: int, where: str) -> None:
         rows = int_rows(tab["q"], 2 * n + 1, f"{w}: q")
     except ValueError as exc:
         raise ExportError(str(exc)) from None
-    if not _INT16[0] <= f <= _INT16[1]:
+    if not INT16[0] <= f <= INT16[1]:
         raise ExportError(f"{w}: f = {f} is outside int16")
     computed = table_crc32(rows, f)
     if computed != stored:

@@ -93,8 +93,8 @@ __all__ = [
     "table_bytes",
 ]
 
-_INT16 = (-(2**15), 2**15 - 1)
-_INT32 = (-(2**31 - 1), 2**31 - 1)
+INT16 = (-(2**15), 2**15 - 1)
+INT32 = (-(2**31 - 1), 2**31 - 1)
 
 # (q index, f index) in the constants vector; f index None: an integer, the pair (value, 0)
 _CONST_PAIRS: tuple[tuple[int, int | None], ...] = (
@@ -174,7 +174,7 @@ def pairs_bytes(pairs: Sequence[tuple[int, int]]) -> bytes:
     """
     out = bytearray()
     for q, f in pairs:
-        if not (_INT32[0] <= q <= _INT32[1]) or not (_INT16[0] <= f <= _INT16[1]):
+        if not (INT32[0] <= q <= INT32[1]) or not (INT16[0] <= f <= INT16[1]):
             raise ExportError(f"constant ({q}, {f}) does not fit the (int32 q, int16 f) pair")
         out += struct.pack("<ih", q, f)
     return bytes(out)
@@ -209,9 +209,9 @@ def table_bytes(q: np.ndarray | Sequence[Sequence[int]], f: int) -> bytes:
     size = a.shape[0] if a.ndim == 2 else -1
     if a.ndim != 2 or a.shape[1] != size or size % 2 != 1:
         raise ValueError(f"a table must be square with an odd side (2n+1), got shape {a.shape}")
-    if a.size and (a.min() < _INT16[0] or a.max() > _INT16[1]):
+    if a.size and (a.min() < INT16[0] or a.max() > INT16[1]):
         raise ValueError("table entries must fit int16")
-    if not _INT16[0] <= int(f) <= _INT16[1]:
+    if not INT16[0] <= int(f) <= INT16[1]:
         raise ValueError(f"table fraction bits must fit int16, got {f}")
     return struct.pack("<hh", (size - 1) // 2, int(f)) + a.astype("<i2").tobytes()
 

@@ -83,7 +83,7 @@ from typing import Any
 from servotune._version import __version__
 from servotune.digest import text_digest_problem, with_digest_line
 from servotune.errors import DigestError, ExportError
-from servotune.export.json import Summary, _write_export, tables_document
+from servotune.export.json import Summary, tables_document, write_export
 from servotune.laws.linuxcnc_pid import PidParameters, thread_period_ns
 from servotune.laws.pi import PIConstants
 from servotune.rig import Rig
@@ -406,4 +406,4 @@ def to_file(tuning: Tuning, path: str | Path, **kwargs: Any) -> None:
     ExportError
         As :func:`pid_hal_text`, or if the file cannot be written (nothing is written then).
     """
-    _write_export(path, pid_hal_text(tuning, **kwargs))
+    write_export(path, pid_hal_text(tuning, **kwargs))

@@ -248,7 +248,7 @@ class FleetRow:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict for JSON (every field; intervals as lists, non-finite floats as None)."""
-        return _plain({f.name: getattr(self, f.name) for f in fields(self)})
+        return plain({f.name: getattr(self, f.name) for f in fields(self)})
 
 
 def _split(text: str) -> tuple[str, ...]:
@@ -455,12 +455,12 @@ def read_fleet_table(path: str | Path) -> tuple[FleetRow, ...]:
     return tuple(FleetRow.from_record(rec) for rec in read_fleet_records(path))
 
 
-def _plain(x: Any) -> Any:
+def plain(x: Any) -> Any:
     """JSON-safe: tuples as lists, non-finite floats as None."""
     if isinstance(x, float):
         return x if math.isfinite(x) else None
     if isinstance(x, Mapping):
-        return {str(k): _plain(v) for k, v in x.items()}
+        return {str(k): plain(v) for k, v in x.items()}
     if isinstance(x, list | tuple):
-        return [_plain(v) for v in x]
+        return [plain(v) for v in x]
     return x

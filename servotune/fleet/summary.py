@@ -56,7 +56,7 @@ from typing import Any
 
 import numpy as np
 
-from servotune.fleet.rows import FleetRow, _dated, _plain, latest_fits
+from servotune.fleet.rows import FleetRow, _dated, latest_fits, plain
 from servotune.identify.model import ALL_PARAMS, UNITS
 
 __all__ = [
@@ -193,7 +193,7 @@ class ParameterSpread:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict for JSON."""
-        return _plain({f.name: getattr(self, f.name) for f in fields(self)})
+        return plain({f.name: getattr(self, f.name) for f in fields(self)})
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -232,7 +232,7 @@ class Outlier:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict for JSON."""
-        return _plain({f.name: getattr(self, f.name) for f in fields(self)})
+        return plain({f.name: getattr(self, f.name) for f in fields(self)})
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -296,7 +296,7 @@ class Drift:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict for JSON."""
-        return _plain({f.name: getattr(self, f.name) for f in fields(self)})
+        return plain({f.name: getattr(self, f.name) for f in fields(self)})
 
 
 def _who(machine: str, axis: str) -> str:
@@ -442,7 +442,7 @@ class FleetSummary:
             d[f.name] = v
         d["drifted"] = self.drifted
         d["outlying"] = self.outlying
-        return _plain(d)
+        return plain(d)
 
 
 def summarise_fleet(

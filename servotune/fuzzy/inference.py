@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from servotune.errors import SpecError
-from servotune.fuzzy.rules import _N_SETS, RuleBase, RuleTable, _indices, _rule_table
+from servotune.fuzzy.rules import N_SETS, RuleBase, RuleTable, _indices, rule_table
 from servotune.laws.fuzzy_pid import TABLE_NAMES
 
 __all__ = [
@@ -54,7 +54,7 @@ _CHUNK = 256  # points per vectorised block (bounds memory: 256 × 7 × 801 floa
 
 def _output_samples() -> np.ndarray:
     # t_k(j) = max(0, 1 − |j − (k − 3)M| / M): |·| an exact integer, one correctly rounded division
-    peaks = (np.arange(_N_SETS, dtype=np.int64) - 3) * GRID_STEPS
+    peaks = (np.arange(N_SETS, dtype=np.int64) - 3) * GRID_STEPS
     dist = np.abs(_J[None, :] - peaks[:, None])
     t = np.maximum(0.0, 1.0 - dist / GRID_STEPS)
     t.setflags(write=False)
@@ -116,17 +116,17 @@ def input_peaks(n: int = 6) -> np.ndarray:
     array([-6., -4., -2.,  0.,  2.,  4.,  6.])
     """
     n = _check_n(n)
-    return np.array([(k - 3) * n / 3 for k in range(_N_SETS)])
+    return np.array([(k - 3) * n / 3 for k in range(N_SETS)])
 
 
 def output_peaks() -> np.ndarray:
     """Peaks of the output sets NB…PB: ``(k − 3)/3`` (−1, −2/3, …, 1) [normalised]."""
-    return np.array([(k - 3) / 3 for k in range(_N_SETS)])
+    return np.array([(k - 3) / 3 for k in range(N_SETS)])
 
 
 def _input_mu(x: np.ndarray, n: int, shape: str) -> np.ndarray:
     # signed distance to each peak in set spacings; (k − 3)·n is exact, negation symmetric
-    offsets = (np.arange(_N_SETS, dtype=np.int64) - 3) * n
+    offsets = (np.arange(N_SETS, dtype=np.int64) - 3) * n
     s = (3.0 * x[..., None] - offsets) / n
     d = np.abs(s)
     d[..., 0] = np.maximum(s[..., 0], 0.0)  # NB shoulder: 1 at and below −n
@@ -196,7 +196,7 @@ def output_membership(y: ArrayLike) -> np.ndarray:
     ndarray, shape ``y.shape + (7,)``
     """
     y = _finite_array("y", y, "normalised")
-    return np.maximum(0.0, 1.0 - np.abs(3.0 * y[..., None] - (np.arange(_N_SETS) - 3)))
+    return np.maximum(0.0, 1.0 - np.abs(3.0 * y[..., None] - (np.arange(N_SETS) - 3)))
 
 
 # --- inference --------------------------------------------------------------------------------
@@ -216,7 +216,7 @@ def _ratio(num: np.ndarray, den: np.ndarray, scale: int) -> np.ndarray:
 def _infer(idx: np.ndarray, mu_e: np.ndarray, mu_ec: np.ndarray, defuzz: str) -> np.ndarray:
     """Mamdani min–max inference for one rule table at P points (memberships (P, 7))."""
     out = np.empty(mu_e.shape[0])
-    onehot = idx[None, :, :] == np.arange(_N_SETS)[:, None, None]  # (7 sets, 7, 7)
+    onehot = idx[None, :, :] == np.arange(N_SETS)[:, None, None]  # (7 sets, 7, 7)
     for start in range(0, mu_e.shape[0], _CHUNK):
         sl = slice(start, start + _CHUNK)
         w = np.minimum(mu_e[sl, :, None], mu_ec[sl, None, :])  # rule firing, (P, 7 e, 7 ec)
@@ -290,7 +290,7 @@ def evaluate(
 
     if isinstance(rules, RuleBase):
         return {t: one(rules.indices(t)) for t in TABLE_NAMES}
-    return one(_indices(_rule_table(rules, "rules")))
+    return one(_indices(rule_table(rules, "rules")))
 
 
 def query_table(

@@ -13,7 +13,7 @@ from numpy.typing import ArrayLike
 
 from servotune.errors import SpecError
 from servotune.fuzzy.inference import QueryTables
-from servotune.fuzzy.rules import _INDEX, SETS, RuleBase
+from servotune.fuzzy.rules import INDEX, SETS, RuleBase
 from servotune.laws.fuzzy_pid import TABLE_NAMES
 
 __all__ = [
@@ -28,7 +28,7 @@ def _square_odd(table: ArrayLike, name: str = "table") -> np.ndarray:
     a = np.asarray(table)
     if a.dtype.kind in "UO":  # a rule table: set names → −3…3
         try:
-            a = np.vectorize(lambda c: _INDEX[c] - 3, otypes=[np.int64])(a)
+            a = np.vectorize(lambda c: INDEX[c] - 3, otypes=[np.int64])(a)
         except KeyError as exc:
             raise SpecError(f"{name} holds a name not in {' '.join(SETS)}: {exc}") from exc
     if a.ndim != 2 or a.shape[0] != a.shape[1] or a.shape[0] % 2 == 0:

@@ -33,11 +33,11 @@ SETS = ("NB", "NM", "NS", "ZO", "PS", "PM", "PB")
 RuleTable = tuple[tuple[str, ...], ...]
 """A 7×7 rule table: rows ``e`` NB…PB, columns ``ec`` NB…PB, entries set names."""
 
-_N_SETS = len(SETS)
-_INDEX = {name: k for k, name in enumerate(SETS)}
+N_SETS = len(SETS)
+INDEX = {name: k for k, name in enumerate(SETS)}
 
 
-def _rule_table(x: Any, name: str) -> RuleTable:
+def rule_table(x: Any, name: str) -> RuleTable:
     """Normalise a rule table (compact text or 7×7 names) to a tuple of tuples, validated."""
     if isinstance(x, str):
         rows: list[Any] = [r for r in x.replace("\n", "|").split("|") if r.strip()]
@@ -48,19 +48,19 @@ def _rule_table(x: Any, name: str) -> RuleTable:
             f"{name} must be a 7×7 rule table (text 'PB PB … | …' or rows of set names), "
             f"got {type(x).__name__}"
         )
-    if len(rows) != _N_SETS:
+    if len(rows) != N_SETS:
         raise SpecError(f"{name} must have 7 rows (e NB…PB), got {len(rows)}")
     out = []
     for i, row in enumerate(rows):
         if not isinstance(row, str | Sequence | np.ndarray):
             raise SpecError(f"{name} row {i} (e = {SETS[i]}) must be set names, got {row!r}")
         cells = row.split() if isinstance(row, str) else list(row)
-        if len(cells) != _N_SETS:
+        if len(cells) != N_SETS:
             raise SpecError(
                 f"{name} row {i} (e = {SETS[i]}) must have 7 entries (ec NB…PB), got {len(cells)}"
             )
         for j, cell in enumerate(cells):
-            if not isinstance(cell, str) or cell not in _INDEX:
+            if not isinstance(cell, str) or cell not in INDEX:
                 raise SpecError(
                     f"{name}[{i}][{j}] (e = {SETS[i]}, ec = {SETS[j]}) must be one of "
                     f"{' '.join(SETS)}, got {cell!r}"
@@ -101,7 +101,7 @@ def parse_rules(text: str, *, name: str = "rules") -> RuleTable:
     """
     if not isinstance(text, str):
         raise SpecError(f"{name} must be a text rule table, got {type(text).__name__}")
-    return _rule_table(text, name)
+    return rule_table(text, name)
 
 
 def format_rules(table: RuleTable | str) -> str:
@@ -117,14 +117,14 @@ def format_rules(table: RuleTable | str) -> str:
     str
         ``"r0c0 r0c1 … | r1c0 …"``; :func:`parse_rules` reads it back.
     """
-    return " | ".join(" ".join(row) for row in _rule_table(table, "table"))
+    return " | ".join(" ".join(row) for row in rule_table(table, "table"))
 
 
 def _indices(table: RuleTable) -> np.ndarray:
-    return np.array([[_INDEX[c] for c in row] for row in table], dtype=np.int64)
+    return np.array([[INDEX[c] for c in row] for row in table], dtype=np.int64)
 
 
-_ALL_ZO = tuple(("ZO",) * _N_SETS for _ in range(_N_SETS))
+_ALL_ZO = tuple(("ZO",) * N_SETS for _ in range(N_SETS))
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -162,7 +162,7 @@ class RuleBase:
 
     def __post_init__(self) -> None:
         for t in TABLE_NAMES:
-            object.__setattr__(self, t, _rule_table(getattr(self, t), t))
+            object.__setattr__(self, t, rule_table(getattr(self, t), t))
         if not isinstance(self.name, str) or not self.name:
             raise SpecError(f"name must be a non-empty string, got {self.name!r}")
 
@@ -170,7 +170,7 @@ class RuleBase:
         """The rule table ``which`` (one of :data:`TABLE_NAMES`)."""
         if which not in TABLE_NAMES:
             raise SpecError(f"table must be one of {', '.join(TABLE_NAMES)}, got {which!r}")
-        return _rule_table(getattr(self, which), which)
+        return rule_table(getattr(self, which), which)
 
     def indices(self, which: str) -> np.ndarray:
         """Rule table ``which`` as set indices 0 (NB) … 6 (PB), int array of shape (7, 7)."""

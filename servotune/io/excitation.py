@@ -19,7 +19,7 @@ import numpy as np
 from servotune._version import __version__
 from servotune.errors import LogFormatError, SpecError
 from servotune.io.files import MAX_NUMBER_CHARS, atomic_write_text
-from servotune.io.log_rows import _INT_RE, _to_float
+from servotune.io.log_rows import INT_RE, to_float
 from servotune.logs import Table, format_log, read_table
 from servotune.rig import Rig
 from servotune.validate import show_value
@@ -252,7 +252,7 @@ def _excitation_codes(table: Table, rig: Rig) -> tuple[str, np.ndarray]:
 def _meta_number(meta: dict[str, str], key: str) -> float:
     """A finite number from metadata (at most 64 characters), else a LogFormatError."""
     text = meta[key]
-    v = _to_float(text)  # a log field's number rule: at most 64 characters, no digit separators
+    v = to_float(text)  # a log field's number rule: at most 64 characters, no digit separators
     if v is None or not math.isfinite(v):
         raise LogFormatError(f"metadata {key} must be a finite number, got {show_value(text)}")
     return v
@@ -261,7 +261,7 @@ def _meta_number(meta: dict[str, str], key: str) -> float:
 def _check_dac_meta(meta: dict[str, str], rig: Rig) -> None:
     if "dac_bits" in meta:
         text = meta["dac_bits"]
-        if len(text) > MAX_NUMBER_CHARS or not _INT_RE.fullmatch(text):
+        if len(text) > MAX_NUMBER_CHARS or not INT_RE.fullmatch(text):
             raise LogFormatError(
                 f"metadata dac_bits must be an integer [bits], got {show_value(text)}"
             )

@@ -103,29 +103,29 @@ from servotune.io.hal_map import (
     HAL_FORMATS,
     MAP_KEYS,
     HalSettings,
-    _check_own_columns,
-    _show_target,
+    check_own_columns,
     hal_settings,
     parse_hal_map,
     read_hal_map,
+    show_target,
 )
 from servotune.io.log_header import (
     PERIOD_RANGE_S,
     TEXT_CHUNK_BYTES,
-    _meta_setting,
     _option,
-    _parse_compute,
-    _parse_counter_bits,
-    _parse_dac_bits,
-    _parse_period,
-    _parse_range,
-    _read_text,
     file_size,
+    meta_setting,
     naming,
+    parse_compute,
+    parse_counter_bits,
+    parse_dac_bits,
+    parse_period,
+    parse_range,
+    read_text,
     read_text_chunks,
 )
-from servotune.io.log_rows import _REL_TOL, _not_whole, _RowLines, _timebase, _whole_problem
-from servotune.logs import MIN_ROWS, AxisLog, Log, _warn_unknown_metadata, read_table
+from servotune.io.log_rows import REL_TOL, RowLines, not_whole, timebase, whole_problem
+from servotune.logs import MIN_ROWS, AxisLog, Log, read_table, warn_unknown_metadata
 from servotune.validate import show_value
 
 __all__ = [
@@ -343,7 +343,7 @@ class HalCapture:
         if compute_s is None:
             compute_s = self.log_settings.get("compute_s")  # a CSV's '# compute_s:' line
         else:
-            compute_s = _option("compute_s", compute_s, _parse_compute)
+            compute_s = _option("compute_s", compute_s, parse_compute)
         if compute_s is not None:
             if compute_s >= period:
                 raise LogFormatError(
@@ -351,21 +351,21 @@ class HalCapture:
                     f"got {compute_s!r}"
                 )
         cols = {key: self.column_index(target, key) for key, target in m.items()}
-        _check_own_columns(cols, self._label)
+        check_own_columns(cols, self._label)
         if "overruns" in m:
             self._check_overruns(cols["overruns"])
         if dac_bits is not None:
-            dac_bits = _option("dac_bits", dac_bits, _parse_dac_bits)
+            dac_bits = _option("dac_bits", dac_bits, parse_dac_bits)
         else:
             dac_bits = self.log_settings.get("dac_bits")  # a CSV's '# dac_bits:' line
         if dac_range_v is not None:
-            dac_range_v = _option("dac_range_v", dac_range_v, _parse_range)
+            dac_range_v = _option("dac_range_v", dac_range_v, parse_range)
         else:
             dac_range_v = self.log_settings.get("dac_range_v")
         if "code" in m:
             if dac_bits is None or dac_range_v is None:
                 raise LogFormatError(
-                    f"map code ({_show_target(m['code'])}) is a D/A code: give the D/A's "
+                    f"map code ({show_target(m['code'])}) is a D/A code: give the D/A's "
                     "resolution and range (--dac-bits 16 --dac-range-v=-10,10, or --rig)"
                 )
         else:
@@ -378,7 +378,7 @@ class HalCapture:
         for key in ("pos", "ref"):
             if key in m and scale is None and self.format != "csv":  # a CSV's: counts
                 raise LogFormatError(
-                    f"map {key} ({_show_target(m[key])}) is in machine units: give the "
+                    f"map {key} ({show_target(m[key])}) is in machine units: give the "
                     "encoder's position-scale [counts per machine unit] (--position-scale, or "
                     "position_scale under [hal])"
                 )
@@ -455,10 +455,10 @@ class HalCapture:
     def _period(self, settings: HalSettings, period_s: float | None) -> float:
         given, source = settings.period_s, "the map's period_s"
         if period_s is not None:
-            given, source = _option("period_s", period_s, _parse_period), "--period-s"
+            given, source = _option("period_s", period_s, parse_period), "--period-s"
         if self.format == "csv" and self.period_s is not None:
             # chosen when the CSV was read (read_mapped_csv), from this same period if given
-            if given is not None and abs(given - self.period_s) > _REL_TOL * self.period_s:
+            if given is not None and abs(given - self.period_s) > REL_TOL * self.period_s:
                 raise LogFormatError(
                     f"{source} {given:.9g} s disagrees with the period the log was read with, "
                     f"{self.period_s:.9g} s (its time column or '# period_s:' line)"
@@ -502,9 +502,9 @@ class HalCapture:
                 "ref": " (in counts; in machine units give --position-scale)",
             }
             self._refuse_first(
-                _not_whole(a),
+                not_whole(a),
                 j,
-                lambda k: f"map {key}{units.get(key, '')}: {_whole_problem(float(a[k]))}",
+                lambda k: f"map {key}{units.get(key, '')}: {whole_problem(float(a[k]))}",
             )
             return np.rint(a).astype(np.int64)
         self._refuse_first(
@@ -705,7 +705,7 @@ def read_halscope(path: str | Path) -> HalCapture:
     """
     src = str(path)
     with naming(src, "HAL capture"):
-        text = _read_text(Path(path), src, "HAL capture")
+        text = read_text(Path(path), src, "HAL capture")
         lines = text.split("\n")
         if not text.strip():
             raise LogFormatError("the file is empty (no samples)")
@@ -767,7 +767,7 @@ def read_mapped_csv(
     header, rows, every check and message of a log) with the mapped columns as numbers (a
     mapped ``tick`` as whole numbers) and the others read but not kept: a column the mapping
     does not name may hold anything. The time base is checked as a log's
-    (:func:`servotune.io.log_rows._timebase`): the column mapped as ``time`` [s] (else one
+    (:func:`servotune.io.log_rows.timebase`): the column mapped as ``time`` [s] (else one
     named ``time_s``) and the one mapped as ``tick`` (else one named ``tick``); the period is
     ``period_s`` if given (checked against the time column within 0.1 %), else the
     ``# period_s:`` line, else the time column's. The ``# dac_bits:``, ``# dac_range_v:`` and
@@ -823,7 +823,7 @@ def read_mapped_csv(
     table = read_table(path, what="log", kinds=kinds)
     with naming(src):
         header, cols = table.header, table.columns
-        rows = _RowLines(None, table.header_line + 1, table.row_lines)
+        rows = RowLines(None, table.header_line + 1, table.row_lines)
         meta, meta_line = table.metadata, table.metadata_lines
         if table.n_rows < MIN_ROWS:
             raise LogFormatError(
@@ -832,19 +832,19 @@ def read_mapped_csv(
             )
         settings: dict[str, Any] = {}
         parsers = {
-            "counter_bits": _parse_counter_bits,
-            "dac_bits": _parse_dac_bits,
-            "dac_range_v": _parse_range,
-            "compute_s": _parse_compute,
+            "counter_bits": parse_counter_bits,
+            "dac_bits": parse_dac_bits,
+            "dac_range_v": parse_range,
+            "compute_s": parse_compute,
         }
         for key, parse in parsers.items():
-            value = _meta_setting(key, meta, meta_line, parse)  # checked even if not used
+            value = meta_setting(key, meta, meta_line, parse)  # checked even if not used
             if value is not None and key != "counter_bits":
                 settings[key] = value
-        meta_period = _meta_setting("period_s", meta, meta_line, _parse_period)
+        meta_period = meta_setting("period_s", meta, meta_line, parse_period)
         if period_s is not None:
-            period_s = _option("period_s", period_s, _parse_period)
-        _warn_unknown_metadata(meta, meta_line, src, strict)
+            period_s = _option("period_s", period_s, parse_period)
+        warn_unknown_metadata(meta, meta_line, src, strict)
         tick = cols[header[times["tick"]]] if "tick" in times else None
         time_s = cols[header[times["time"]]] if "time" in times else None
         if tick is None and time_s is None and period_s is None and meta_period is None:
@@ -852,7 +852,7 @@ def read_mapped_csv(
                 "no time column and no period: map the time column (time=COLUMN, in seconds, "
                 "or tick=COLUMN), add a '# period_s: <seconds>' line or give --period-s"
             )
-        period = _timebase(
+        period = timebase(
             tick,
             time_s,
             rows,

@@ -31,7 +31,7 @@ from typing import Any, TypeVar
 
 from servotune.errors import LogFormatError
 from servotune.io.files import read_toml
-from servotune.io.log_header import _option, _parse_period
+from servotune.io.log_header import _option, parse_period
 from servotune.validate import check_keys, check_number, is_number, show_value
 
 __all__ = [
@@ -124,14 +124,14 @@ class HalSettings:
                     f"map needs exactly one of {pair[0]} or {pair[1]}, got {what} (e.g. "
                     f"{'cmd=pid.0.output' if pair[0] == 'cmd' else 'pos=encoder.0.position'})"
                 )
-        _check_own_columns(m, _show_target)
+        check_own_columns(m, show_target)
         object.__setattr__(self, "mapping", m)
         if self.format is not None and self.format not in HAL_FORMATS:
             raise LogFormatError(
                 f"format must be one of {', '.join(HAL_FORMATS)}, got {show_value(self.format)}"
             )
         if self.period_s is not None:
-            object.__setattr__(self, "period_s", _option("period_s", self.period_s, _parse_period))
+            object.__setattr__(self, "period_s", _option("period_s", self.period_s, parse_period))
         if self.position_scale is not None:
             check_number(
                 "position_scale",
@@ -177,11 +177,11 @@ class HalSettings:
         return dataclasses.replace(self, **given) if given else self
 
 
-def _show_target(target: str | int) -> str:
+def show_target(target: str | int) -> str:
     return f"column {target}" if isinstance(target, int) else f"pin {target!r}"
 
 
-def _check_own_columns(columns: Mapping[str, _C], show: Callable[[_C], str]) -> None:
+def check_own_columns(columns: Mapping[str, _C], show: Callable[[_C], str]) -> None:
     """Raise naming the first two mapping keys that read the same column.
 
     ``columns`` maps each key to its column, as the settings name it (a pin or a number) or as

@@ -23,7 +23,7 @@ from typing import Any
 from servotune.budget import check_memory, format_bytes
 from servotune.errors import LogFormatError
 from servotune.io.files import MAX_NUMBER_CHARS
-from servotune.io.log_rows import _INT_RE, _to_float
+from servotune.io.log_rows import INT_RE, to_float
 
 __all__ = [
     "MAX_METADATA_CHARS",
@@ -47,13 +47,13 @@ MAX_NAME_CHARS = 64
 
 _DAC_RANGE_LIMIT_V = 1000.0  # |low|, |high| of a D/A range [V]
 
-_COLUMNS_HELP = (
+COLUMNS_HELP = (
     "expected tick and/or time_s, and per axis [axis.]dac_code or cmd_v, counter or pos_counts, "
     "optionally ref_counts, exc_code and mode"
 )
 
 
-def _meta_pair(line: str) -> tuple[str, str] | None:
+def meta_pair(line: str) -> tuple[str, str] | None:
     """``(key, value)`` of a stripped ``# key: value`` line, None for any other comment."""
     if ":" not in line:
         return None
@@ -62,7 +62,7 @@ def _meta_pair(line: str) -> tuple[str, str] | None:
 
 
 @contextlib.contextmanager
-def _read_errors(src: str, what: str = "log") -> Iterator[None]:
+def read_errors(src: str, what: str = "log") -> Iterator[None]:
     """Turn the OS errors of opening a log into one-line LogFormatErrors."""
     try:
         yield
@@ -90,13 +90,13 @@ def naming(src: str, what: str = "log") -> Iterator[None]:
 _READ_BYTES_PER_BYTE = 4  # the bytes, the text, the row lines, the arrays: about 4x the file
 
 
-def _read_text(p: Path, src: str, what: str = "log") -> str:
-    return _decode(_read_bytes(p, src, what), src, what)
+def read_text(p: Path, src: str, what: str = "log") -> str:
+    return _decode(read_bytes(p, src, what), src, what)
 
 
-def _read_bytes(p: Path, src: str, what: str = "log") -> bytes:
+def read_bytes(p: Path, src: str, what: str = "log") -> bytes:
     """The file's bytes (the memory budget checked first)."""
-    with _read_errors(src, what):
+    with read_errors(src, what):
         with open(p, "rb") as fh:
             size = os.fstat(fh.fileno()).st_size
             check_memory(
@@ -126,7 +126,7 @@ def _decode(data: bytes, src: str, what: str = "log", line0: int = 0) -> str:
     return text
 
 
-def _split_text(
+def split_text(
     text: str, src: str, what: str = "log"
 ) -> tuple[dict[str, str], dict[str, int], int, str, str]:
     """Metadata, their line numbers, the header's line number and text, and the body text."""
@@ -142,7 +142,7 @@ def _split_text(
         line_no += 1
         if line and not line.startswith("#"):
             return meta, meta_line, line_no, text[pos:end], text[end + 1 :]
-        kv = _meta_pair(line)
+        kv = meta_pair(line)
         if kv is not None:
             key, value = kv
             if len(key) > MAX_NAME_CHARS or len(value) > MAX_METADATA_CHARS:
@@ -169,30 +169,30 @@ def _split_text(
 _HEAD_BYTES = 1 << 16  # where the plain-ASCII shortcut looks for the header row
 
 
-def _split_ascii_head(
+def split_ascii_head(
     data: bytes, src: str, what: str = "log"
 ) -> tuple[dict[str, str], dict[str, int], int, str, int] | None:
-    """:func:`_split_text` of a plain file from its head alone, the body as a byte offset.
+    """:func:`split_text` of a plain file from its head alone, the body as a byte offset.
 
     For a file of ASCII bytes without NUL or carriage return, decoding changes nothing, so the
     metadata and header lines found in the whole lines of the first :data:`_HEAD_BYTES` bytes
     are those of the whole text, and the body starts at the byte after the header's line end:
     the body need not be decoded or copied. None when that does not apply or the head does not
     settle it (no header row there, a problem in its lines): then :func:`_decode` and
-    :func:`_split_text` of the whole file decide, with their messages.
+    :func:`split_text` of the whole file decide, with their messages.
     """
     if not data.isascii() or b"\0" in data or b"\r" in data:
         return None
     cut = len(data) if len(data) <= _HEAD_BYTES else data.rfind(b"\n", 0, _HEAD_BYTES) + 1
     head = data[:cut].decode("ascii")
     try:
-        meta, meta_line, header_line, header_text, body = _split_text(head, src, what)
+        meta, meta_line, header_line, header_text, body = split_text(head, src, what)
     except LogFormatError:
         return None
     return meta, meta_line, header_line, header_text, cut - len(body)
 
 
-def _parse_header(header_text: str, line: int) -> list[str]:
+def parse_header(header_text: str, line: int) -> list[str]:
     names = [h.strip().strip('"').strip() for h in header_text.split(",")]
     for sep, what in ((";", "semicolons"), ("\t", "tabs")):
         if len(names) == 1 and header_text.count(sep) >= 2:
@@ -207,7 +207,7 @@ def _parse_header(header_text: str, line: int) -> list[str]:
                 f"line {line}: header column {j + 1} has a name of {len(h)} characters (at most "
                 f"{MAX_NAME_CHARS} are accepted)"
             )
-    if all(_to_float(h) is not None for h in names):
+    if all(to_float(h) is not None for h in names):
         raise LogFormatError(
             f"line {line} looks like data, not a header; the first row after the metadata must "
             f"name the columns (e.g. tick,time_s,dac_code,counter)"
@@ -225,7 +225,7 @@ def _parse_header(header_text: str, line: int) -> list[str]:
     return names
 
 
-def _classify_columns(header: list[str], line: int) -> dict[str, dict[str, str]]:
+def classify_columns(header: list[str], line: int) -> dict[str, dict[str, str]]:
     """Per axis (header order), its column kinds mapped to header names; checks the set."""
     prefixes = [h.rpartition(".")[0] for h in header if h.rpartition(".")[0]]
     axes: dict[str, dict[str, str]] = {}
@@ -237,7 +237,7 @@ def _classify_columns(header: list[str], line: int) -> dict[str, dict[str, str]]
             candidates = [*_TIME_COLUMNS, *_AXIS_COLUMNS]
             candidates += [f"{a}.{c}" for a in dict.fromkeys(prefixes) for c in _AXIS_COLUMNS]
             close = difflib.get_close_matches(h, candidates, n=1, cutoff=0.6)
-            hint = f"; did you mean {close[0]!r}?" if close else f"; {_COLUMNS_HELP}"
+            hint = f"; did you mean {close[0]!r}?" if close else f"; {COLUMNS_HELP}"
             if not close:  # a logger's own names, most likely
                 hint += " (or keep your own names and map them: servotune fit --map)"
             raise LogFormatError(f"line {line}: unknown column {h!r}{hint}")
@@ -245,7 +245,7 @@ def _classify_columns(header: list[str], line: int) -> dict[str, dict[str, str]]
     if not any(h in _TIME_COLUMNS for h in header):
         raise LogFormatError(f"line {line}: no time column; expected 'time_s' and/or 'tick'")
     if not axes:
-        raise LogFormatError(f"line {line}: no axis columns; {_COLUMNS_HELP}")
+        raise LogFormatError(f"line {line}: no axis columns; {COLUMNS_HELP}")
     if "" in axes and len(axes) > 1:
         bare = ", ".join(repr(c) for c in axes[""])
         named = ", ".join(repr(a) for a in axes if a)
@@ -277,7 +277,7 @@ def _classify_columns(header: list[str], line: int) -> dict[str, dict[str, str]]
     return axes
 
 
-def _meta_setting(
+def meta_setting(
     key: str, meta: Mapping[str, str], meta_line: Mapping[str, int], parse: Callable[[str], Any]
 ) -> Any:
     if key not in meta:
@@ -311,12 +311,12 @@ def _option(key: str, value: Any, parse: Callable[[str], Any]) -> Any:
 
 def _parse_int(s: str) -> int:
     t = s.strip()
-    if not _INT_RE.fullmatch(t):
+    if not INT_RE.fullmatch(t):
         raise ValueError
     return int(t)
 
 
-def _parse_counter_bits(s: str) -> int:
+def parse_counter_bits(s: str) -> int:
     try:
         v = _parse_int(s)
     except ValueError:
@@ -326,7 +326,7 @@ def _parse_counter_bits(s: str) -> int:
     return v
 
 
-def _parse_dac_bits(s: str) -> int:
+def parse_dac_bits(s: str) -> int:
     try:
         v = _parse_int(s)
     except ValueError:
@@ -336,8 +336,8 @@ def _parse_dac_bits(s: str) -> int:
     return v
 
 
-def _parse_range(s: str) -> tuple[float, float]:
-    parts = [_to_float(x) for x in s.strip().strip("[]()").split(",")]
+def parse_range(s: str) -> tuple[float, float]:
+    parts = [to_float(x) for x in s.strip().strip("[]()").split(",")]
     if len(parts) != 2 or None in parts:
         raise ValueError("'low,high' in volts (e.g. -10,10)")
     lo, hi = parts
@@ -348,16 +348,16 @@ def _parse_range(s: str) -> tuple[float, float]:
     return (lo, hi)
 
 
-def _parse_period(s: str) -> float:
-    v = _to_float(s.strip())
+def parse_period(s: str) -> float:
+    v = to_float(s.strip())
     lo, hi = PERIOD_RANGE_S
     if v is None or not (math.isfinite(v) and lo <= v <= hi):
         raise ValueError(f"a number of seconds > 0, within {lo:g} … {hi:g}")
     return v
 
 
-def _parse_compute(s: str) -> float:
-    v = _to_float(s.strip())
+def parse_compute(s: str) -> float:
+    v = to_float(s.strip())
     if v is None or not (math.isfinite(v) and v >= 0):
         raise ValueError("a finite number of seconds >= 0")
     return v
@@ -369,7 +369,7 @@ TEXT_CHUNK_BYTES = 8 * 1024**2
 
 def file_size(p: Path, src: str, what: str = "log") -> int:
     """The size of the file [bytes] (one line naming it when it cannot be read)."""
-    with _read_errors(src, what):
+    with read_errors(src, what):
         with open(p, "rb") as fh:
             return os.fstat(fh.fileno()).st_size
 
@@ -388,13 +388,13 @@ def read_text_chunks(
     the file. ``chunk_bytes`` None: :data:`TEXT_CHUNK_BYTES`. ``progress`` gets a line at each
     tenth of the file read, for files over ``4 * chunk_bytes``."""
     chunk_bytes = TEXT_CHUNK_BYTES if chunk_bytes is None else chunk_bytes
-    with _read_errors(src, what):
+    with read_errors(src, what):
         fh = open(p, "rb")  # closed below, after the last chunk
     with fh:
         size = os.fstat(fh.fileno()).st_size
         line0, rest, done, told = 0, b"", 0, 0
         while True:
-            with _read_errors(src, what):
+            with read_errors(src, what):
                 block = fh.read(chunk_bytes)
             done += len(block)
             data = rest + block

@@ -3,13 +3,13 @@ explained.
 
 A log whose rows are all in the plain form servotune writes (ASCII, no blank lines, no spaces,
 integers, decimal numbers, mode names) is parsed straight from the file's bytes by one compiled
-pass (:func:`_fast_columns`, about 0.05 s per million rows); any other body, and every body
+pass (:func:`fast_columns`, about 0.05 s per million rows); any other body, and every body
 of :func:`servotune.logs.read_table`, is parsed with ``numpy.loadtxt`` (one typed field per
 column, about 0.7 s per million rows), and only when that fails are the rows scanned to find the
 first bad row, which is then explained field by field with its 1-based file line and column.
 Both give the same values (integers exact, numbers correctly rounded). The counts columns
 (``pos_counts``, ``ref_counts``) may also be written as numbers (``0.0``) if every value is
-whole within :data:`WHOLE_TOL` (:func:`_whole_counts`). Also here: the time base (``tick`` and
+whole within :data:`WHOLE_TOL` (:func:`whole_counts`). Also here: the time base (``tick`` and
 ``time_s`` checked, the period chosen), counter and D/A range checks and the ``mode`` column.
 The internals of :func:`servotune.logs.read_log` and :func:`servotune.logs.read_table`; every
 error is a one-line :class:`LogFormatError`.
@@ -32,8 +32,8 @@ from servotune.io.files import MAX_NUMBER_CHARS
 from servotune.laws.axis import MODE_NAMES
 
 # docs/formats.md#sampling: intervals within 0.1 % of the median; tick·period ≈ time_s
-_REL_TOL = 1e-3
-_KIND = {
+REL_TOL = 1e-3
+KIND = {
     "tick": "int",
     "time_s": "float",
     "dac_code": "int",
@@ -47,7 +47,7 @@ _KIND = {
 _MODE_WIDTH = 16  # mode fields are read as U16; a value that fills it may be truncated: invalid
 _DTYPES: dict[str, Any] = {
     "int": np.int64,
-    "counts": np.int64,  # integers; numbers too when every one is whole (:func:`_whole_counts`)
+    "counts": np.int64,  # integers; numbers too when every one is whole (:func:`whole_counts`)
     "float": np.float64,
     "text": f"U{_MODE_WIDTH}",
     "skip": "U1",  # a column read but not used (a mapped CSV's unmapped columns): any text
@@ -56,11 +56,11 @@ WHOLE_TOL = 1e-9
 """How far from an integer a number in a counts column may be (``12.0000000001`` is 12)."""
 MAX_WHOLE = 2.0**53
 """Beyond this a number no longer holds every whole count exactly."""
-_INT_RE = re.compile(r"[+-]?[0-9]+")
+INT_RE = re.compile(r"[+-]?[0-9]+")
 _LONG_FIELD_RE = re.compile(rf"[^,\n]{{{MAX_NUMBER_CHARS + 1}}}")
 
 
-def _to_float(s: str) -> float | None:
+def to_float(s: str) -> float | None:
     """``float(s)``, or None if ``s`` is not a number (digit separators are not numbers)."""
     if "_" in s or len(s) > MAX_NUMBER_CHARS:
         return None
@@ -73,7 +73,7 @@ def _to_float(s: str) -> float | None:
 # --- data rows ---------------------------------------------------------------------------------
 
 
-class _RowLines:
+class RowLines:
     """The 1-based file line of each data row, worked out only when an error names one.
 
     With neither ``body`` nor ``lines``, the rows are consecutive lines from ``first`` on (a
@@ -273,18 +273,18 @@ def _plain_kernel() -> Any:
     return jit(_scan_plain)
 
 
-def _fast_columns(data: bytes, start: int, header: list[str]) -> dict[str, np.ndarray] | None:
+def fast_columns(data: bytes, start: int, header: list[str]) -> dict[str, np.ndarray] | None:
     """The columns of a plain body (``data[start:]``, :func:`_scan_plain`), or None.
 
     Integer columns are int64, number columns float64, and a ``mode`` column comes as its
     ``MODE_*`` codes (int8), as :func:`_modes` makes them. None when the body is not all plain
-    rows (or has none): :func:`_data_rows` then parses and judges it.
+    rows (or has none): :func:`data_rows` then parses and judges it.
     """
     if start >= len(data):
         return None
     from servotune._numba_cache import call_compiled
 
-    kinds = np.array([_FAST_KIND[_KIND[_base(h)]] for h in header], dtype=np.int64)
+    kinds = np.array([_FAST_KIND[KIND[_base(h)]] for h in header], dtype=np.int64)
     slots = np.zeros(kinds.size, dtype=np.int64)
     counts = [0, 0, 0]
     for j, k in enumerate(kinds.tolist()):
@@ -315,13 +315,13 @@ def _fast_columns(data: bytes, start: int, header: list[str]) -> dict[str, np.nd
     }
 
 
-def _data_rows(
+def data_rows(
     body: str,
     header_line: int,
     header: list[str],
     empty: str,
     kinds: Sequence[str] | None = None,
-) -> tuple[np.ndarray, _RowLines]:
+) -> tuple[np.ndarray, RowLines]:
     """The data rows under the header, parsed (``empty``: the message when there are none).
 
     ``kinds``: each column's kind (a key of :data:`_DTYPES`); default the log's, by name."""
@@ -332,13 +332,13 @@ def _data_rows(
 
 
 def _kinds(header: list[str]) -> list[str]:
-    """Each log column's kind (:data:`_KIND`), by its name."""
-    return [_KIND[_base(h)] for h in header]
+    """Each log column's kind (:data:`KIND`), by its name."""
+    return [KIND[_base(h)] for h in header]
 
 
 def _parse_body(
     body: str, header_line: int, header: list[str], kinds: Sequence[str] | None = None
-) -> tuple[np.ndarray, _RowLines]:
+) -> tuple[np.ndarray, RowLines]:
     """All data rows as a structured array (field ``c<j>`` per column) and their line numbers.
 
     The fast path parses the whole body with ``numpy.loadtxt`` (one typed field per column),
@@ -348,7 +348,7 @@ def _parse_body(
 
     A ``counts`` column is read as integers; if any of its fields is written as a number
     (``0.0``) the body is read again with those columns as numbers, which
-    :func:`_whole_counts` then turns into integers if every value is whole.
+    :func:`whole_counts` then turns into integers if every value is whole.
     """
     kinds = _kinds(header) if kinds is None else list(kinds)
     dtype = np.dtype([(f"c{j}", _DTYPES[k]) for j, k in enumerate(kinds)])
@@ -380,14 +380,14 @@ def _parse_body(
         return re.sub(r" at row \d+.*$", "", text)  # loadtxt's row counts from 0 and blocks
 
     try:
-        return load(body), _RowLines(body, first)
+        return load(body), RowLines(body, first)
     except (ValueError, OverflowError, DeprecationWarning):
         pass
     lines = body.split("\n")
     keep = [k for k, s in enumerate(lines) if s.strip()]
     kept = [lines[k] for k in keep]
     del lines
-    rows = _RowLines(None, first, np.asarray(keep, dtype=np.int64) + first)
+    rows = RowLines(None, first, np.asarray(keep, dtype=np.int64) + first)
     try:
         return load(kept), rows
     except (ValueError, OverflowError, DeprecationWarning) as exc:
@@ -406,15 +406,15 @@ def _parse_body(
     )
 
 
-def _not_whole(a: np.ndarray) -> np.ndarray:
+def not_whole(a: np.ndarray) -> np.ndarray:
     """Where the numbers ``a`` are not whole counts: more than :data:`WHOLE_TOL` from an
     integer, not finite, or beyond :data:`MAX_WHOLE`."""
     with np.errstate(invalid="ignore"):
         return ~(np.abs(a - np.rint(a)) <= WHOLE_TOL) | ~(np.abs(a) < MAX_WHOLE)
 
 
-def _whole_problem(x: float) -> str:
-    """Why the number ``x`` (:func:`_not_whole`) is not a whole count."""
+def whole_problem(x: float) -> str:
+    """Why the number ``x`` (:func:`not_whole`) is not a whole count."""
     if not math.isfinite(x):
         return f"{x!r} is not finite"
     if abs(x) >= MAX_WHOLE:
@@ -422,8 +422,8 @@ def _whole_problem(x: float) -> str:
     return f"{x!r} is not an integer (a count written as a number must be whole, within 1e-9)"
 
 
-def _whole_counts(
-    col: dict[str, np.ndarray], header: list[str], kinds: Sequence[str], rows: _RowLines
+def whole_counts(
+    col: dict[str, np.ndarray], header: list[str], kinds: Sequence[str], rows: RowLines
 ) -> None:
     """Turn each ``counts`` column read as numbers (``0.0``) into int64 in place, refusing the
     first value that is not whole (within :data:`WHOLE_TOL`) with its row and column."""
@@ -431,14 +431,14 @@ def _whole_counts(
         a = col[h]
         if kind != "counts" or a.dtype.kind != "f":
             continue
-        bad = _not_whole(a)
+        bad = not_whole(a)
         if bad.any():
             k = int(np.argmax(bad))
-            raise LogFormatError(f"row {rows(k)}, column {h!r}: {_whole_problem(float(a[k]))}")
+            raise LogFormatError(f"row {rows(k)}, column {h!r}: {whole_problem(float(a[k]))}")
         col[h] = np.rint(a).astype(np.int64)
 
 
-def _check_range(
+def check_range(
     values: np.ndarray, bits: int, rows: Callable[[int], int], name: str, what: str
 ) -> None:
     """Raise naming the first row whose value is outside 0 .. 2**bits − 1."""
@@ -473,7 +473,7 @@ def _row_problem(
 
 def _field_problem(s: str, kind: str) -> str | None:
     """What is wrong with one field of a column of ``kind`` (int, counts, float, text, skip), or
-    None. A ``counts`` field may be any number here (:func:`_whole_counts` judges it)."""
+    None. A ``counts`` field may be any number here (:func:`whole_counts` judges it)."""
     if kind in ("text", "skip"):
         return None
     t = s.strip()
@@ -482,15 +482,15 @@ def _field_problem(s: str, kind: str) -> str | None:
     if len(t) > MAX_NUMBER_CHARS:
         return f"a field of {len(t)} characters (a number has at most {MAX_NUMBER_CHARS})"
     if kind == "int":
-        if _INT_RE.fullmatch(t):
+        if INT_RE.fullmatch(t):
             return None if -(2**63) <= int(t) < 2**63 else f"{t!r} is too large for int64"
-        x = _to_float(t)
+        x = to_float(t)
         if x is None:
             return f"{t!r} is not a number (an integer is expected)"
         if not math.isfinite(x):
             return f"{t!r} is not finite (an integer is expected)"
         return f"{t!r} is not an integer"
-    x = _to_float(t)
+    x = to_float(t)
     if x is None:
         return f"{t!r} is not a number"
     if not math.isfinite(x):
@@ -498,10 +498,10 @@ def _field_problem(s: str, kind: str) -> str | None:
     return None
 
 
-def _timebase(
+def timebase(
     tick: np.ndarray | None,
     time_s: np.ndarray | None,
-    rows: _RowLines,
+    rows: RowLines,
     *,
     meta_period: float | None,
     meta_source: str,
@@ -535,7 +535,7 @@ def _timebase(
                 f"{what} (it must increase)"
             )
         med = float(np.median(dt))
-        off = np.abs(dt - med) > _REL_TOL * med
+        off = np.abs(dt - med) > REL_TOL * med
         if off.any():
             k = int(np.argmax(off)) + 1
             raise LogFormatError(
@@ -544,7 +544,7 @@ def _timebase(
                 f"sample is not interpolated)"
             )
         for value, source in ((meta_period, meta_source), (opt_period, "option period_s")):
-            if value is not None and abs(value - med) > _REL_TOL * med:
+            if value is not None and abs(value - med) > REL_TOL * med:
                 raise LogFormatError(
                     f"{source} = {value!r} s disagrees with the {time_name} column (median "
                     f"interval {med:.9g} s) by more than 0.1 %"
@@ -553,7 +553,7 @@ def _timebase(
         estimate = float(time_s[-1] - time_s[0]) / (time_s.shape[0] - 1)
         if tick is not None:
             p = estimate if meta_period is None else meta_period
-            bad = np.abs(tick * p - time_s) > _REL_TOL * p
+            bad = np.abs(tick * p - time_s) > REL_TOL * p
             if bad.any():
                 k = int(np.argmax(bad))
                 src = f"from {time_name}" if meta_period is None else meta_source
@@ -571,9 +571,9 @@ def _timebase(
     )
 
 
-def _modes(text: np.ndarray, name: str, rows: _RowLines) -> np.ndarray:
+def _modes(text: np.ndarray, name: str, rows: RowLines) -> np.ndarray:
     """The ``MODE_*`` code (int8) of each row's mode name; codes already (int8) pass."""
-    if text.dtype == np.int8:  # :func:`_fast_columns` read the names as codes
+    if text.dtype == np.int8:  # :func:`fast_columns` read the names as codes
         return text
     codes = np.full(text.shape, -1, dtype=np.int8)
     for m, mode_name in enumerate(MODE_NAMES):

@@ -10,9 +10,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from servotune.report.page import _esc, _figure, _file_uri, _fmt, _p, _table
+from servotune.report.page import (
+    escape_html,
+    figure_html,
+    file_uri,
+    fmt_value,
+    paragraph_html,
+    table_html,
+)
 
-__all__: list[str] = []  # the sections are write_report's
+__all__ = ["DEMO_SECTIONS", "demo_section"]
 
 
 _FIGURE4_COLUMNS = (
@@ -53,10 +60,13 @@ def _figure4_text(data: Mapping[str, Any]) -> str:
             top = min(objective.values())
             best = [_STRUCTURES.get(s, s) for s, v in objective.items() if v == top]
             head = (
-                f"<strong>Winner on the tuning objective: {_esc(' and '.join(best))}</strong> "
+                "<strong>Winner on the tuning objective: "
+                f"{escape_html(' and '.join(best))}</strong> "
                 f"(ITAE of the sync error {top:.4g} counts·s²). "
             )
-        parts.append(f'<div class="winner">{head}' + " ".join(_esc(s) for s in verdicts) + "</div>")
+        parts.append(
+            f'<div class="winner">{head}' + " ".join(escape_html(s) for s in verdicts) + "</div>"
+        )
     if table:
         known = {k for k, *_ in _FIGURE4_COLUMNS}
         cols = [c for c in _FIGURE4_COLUMNS if any(k == c[0] for r in table.values() for k in r)]
@@ -71,7 +81,7 @@ def _figure4_text(data: Mapping[str, Any]) -> str:
                 best[key] = {s for s, v in vals.items() if v == top}
         rows = []
         for s, row in table.items():
-            cells = [f"<th>{_esc(_STRUCTURES.get(s, s))}</th>"]
+            cells = [f"<th>{escape_html(_STRUCTURES.get(s, s))}</th>"]
             for key, _label, scale, fmt in cols:
                 v, r = row.get(key), spread.get(s, {}).get(key)
                 text = "n/a" if not _finite(v) else fmt.format(v * scale)
@@ -82,12 +92,12 @@ def _figure4_text(data: Mapping[str, Any]) -> str:
                 cells.append(f"<td>{text}</td>")
             active = data.get("active_constraints", {}).get(s, {})
             sits = ", ".join(active.get("binding", []) + active.get("at_bounds", [])) or "none"
-            cells.append(f"<td>{_esc(sits)}</td>")
+            cells.append(f"<td>{escape_html(sits)}</td>")
             rows.append("<tr>" + "".join(cells) + "</tr>")
-        head = "".join(f"<th>{_esc(label)}</th>" for _k, label, *_ in cols)
+        head = "".join(f"<th>{escape_html(label)}</th>" for _k, label, *_ in cols)
         seeds = ", ".join(str(x) for x in data.get("seeds", []))
         parts.append(
-            _p(
+            paragraph_html(
                 f"Seeds {seeds}; held-out scenarios: "
                 f"{', '.join(data.get('heldout_scenarios', []))}. Best of each column "
                 "in bold; with several seeds the values are means, ranges in brackets."
@@ -95,7 +105,7 @@ def _figure4_text(data: Mapping[str, Any]) -> str:
             + f"<table><tr><th>structure</th>{head}<th>active constraints</th></tr>"
             f"{''.join(rows)}</table>"
         )
-    parts += [_p(s) for s in statement]
+    parts += [paragraph_html(s) for s in statement]
     return "".join(parts)
 
 
@@ -122,23 +132,23 @@ def _gantry_text(doc: Mapping[str, Any]) -> str:
             [
                 r.get("topology"),
                 r.get("case"),
-                _fmt(r.get("max_sync_error_counts")),
-                _fmt(r.get("rms_sync_error_counts")),
+                fmt_value(r.get("max_sync_error_counts")),
+                fmt_value(r.get("rms_sync_error_counts")),
                 r.get("warning_cycles"),
-                "no" if trip is None else f"at {_fmt(trip)} s",
+                "no" if trip is None else f"at {fmt_value(trip)} s",
             ]
         )
         bad.append(trip is not None)
-    return _p(
+    return paragraph_html(
         f"Gantry {doc.get('name', '')!r}: deployed topology "
-        f"{doc.get('topology', '')}, bus cycle {_fmt(doc.get('cycle_s'), 's')}, "
+        f"{doc.get('topology', '')}, bus cycle {fmt_value(doc.get('cycle_s'), 's')}, "
         f"latency {doc.get('latency_cycles')} cycle(s); "
         + (
             "PASSED."
             if doc.get("passed")
             else "FAILED: " + "; ".join(map(str, doc.get("failed", [])))
         )
-    ) + _table(
+    ) + table_html(
         [
             "topology",
             "case",
@@ -162,12 +172,12 @@ def _gantry_caption(f: Path) -> str:
 def _linkage_text(doc: Mapping[str, Any]) -> str:
     bus = doc.get("bus", {})
     parts = [
-        _p(
+        paragraph_html(
             f"Linkage {doc.get('name', '')!r}: bus frame {bus.get('frame_bytes')} bytes every "
-            f"{_fmt(1e3 * bus.get('broadcast_period_s', math.nan), 'ms')} (utilisation "
-            f"{_fmt(100 * bus.get('utilisation', math.nan), '%')}); contour error max "
-            f"{_fmt(doc.get('contour_max_counts'), 'counts')}, RMS "
-            f"{_fmt(doc.get('contour_rms_counts'), 'counts')}; "
+            f"{fmt_value(1e3 * bus.get('broadcast_period_s', math.nan), 'ms')} (utilisation "
+            f"{fmt_value(100 * bus.get('utilisation', math.nan), '%')}); contour error max "
+            f"{fmt_value(doc.get('contour_max_counts'), 'counts')}, RMS "
+            f"{fmt_value(doc.get('contour_rms_counts'), 'counts')}; "
             + ("PASSED." if doc.get("passed") else "FAILED.")
         )
     ]
@@ -185,7 +195,7 @@ def _linkage_text(doc: Mapping[str, Any]) -> str:
         )
         bad.append(bool(c.get("underruns") or c.get("overruns")))
     parts.append(
-        _table(
+        table_html(
             [
                 "cpu",
                 "clock error",
@@ -203,14 +213,14 @@ def _linkage_text(doc: Mapping[str, Any]) -> str:
             a.get("move"),
             "/".join(a.get("plane", [])),
             f"{a.get('radius_counts', math.nan):g}",
-            _fmt(a.get("circularity_counts")),
-            _fmt(a.get("circularity_whole_counts")),
+            fmt_value(a.get("circularity_counts")),
+            fmt_value(a.get("circularity_whole_counts")),
         ]
         for a in doc.get("arcs", [])
     ]
     if arcs:
         parts.append(
-            _table(
+            table_html(
                 [
                     "move",
                     "plane",
@@ -246,7 +256,7 @@ class _DemoSection:
     caption: Callable[[Path], str]  # a figure's caption
 
 
-_DEMO_SECTIONS = {
+DEMO_SECTIONS = {
     "figure4": _DemoSection(
         title="Figure 4: PID, PID + feedforward and the composite law",
         figures=_figure4_figures,
@@ -271,14 +281,14 @@ _DEMO_SECTIONS = {
 }
 
 
-def _demo_section(out: Path, sid: str) -> str:
-    sec = _DEMO_SECTIONS[sid]
+def demo_section(out: Path, sid: str) -> str:
+    sec = DEMO_SECTIONS[sid]
     figures = sec.figures(out)
     if not figures:
         return ""
     parts = [f'<section id="{sid}"><h2>{sec.title}</h2>']
     if (out / sec.data).is_file():
         parts.append(sec.text(json.loads((out / sec.data).read_text(encoding="utf-8"))))
-    parts += [_figure(_file_uri(f), f.name, _esc(sec.caption(f))) for f in figures]
+    parts += [figure_html(file_uri(f), f.name, escape_html(sec.caption(f))) for f in figures]
     parts.append("</section>")
     return "".join(parts)

@@ -15,7 +15,16 @@ from servotune._version import __version__
 from servotune.fleet import FLEET_SCHEMA, FleetResult
 from servotune.io.files import atomic_write_text
 from servotune.plot import plot_fleet
-from servotune.report.html import _STYLE, _data_block, _esc, _figure, _fmt, _p, _png, _table
+from servotune.report.page import (
+    PAGE_STYLE,
+    data_block,
+    escape_html,
+    figure_html,
+    fmt_value,
+    paragraph_html,
+    png_uri,
+    table_html,
+)
 
 __all__ = ["fleet_report_html", "write_fleet_report"]
 
@@ -23,13 +32,15 @@ __all__ = ["fleet_report_html", "write_fleet_report"]
 def fleet_report_html(result: FleetResult, *, title: str = "fleet") -> str:
     """The report page's HTML (same result → same text, apart from matplotlib's PNG bytes)."""
     s = result.summary
-    summary = '<section id="summary"><h2>Summary</h2><pre>' + _esc(s.text()) + "</pre></section>"
-    intro = _p(f"Tool {__version__}; {s.n_logs} logs, {s.n_machines} machines.")
-    parts = [f"<h1>servotune fleet report: {_esc(title)}</h1>", intro, summary]
-    uri = _png(plot_fleet(result))
+    summary = (
+        '<section id="summary"><h2>Summary</h2><pre>' + escape_html(s.text()) + "</pre></section>"
+    )
+    intro = paragraph_html(f"Tool {__version__}; {s.n_logs} logs, {s.n_machines} machines.")
+    parts = [f"<h1>servotune fleet report: {escape_html(title)}</h1>", intro, summary]
+    uri = png_uri(plot_fleet(result))
     parts.append(
         '<section id="distributions"><h2>Distributions</h2>'
-        + _figure(
+        + figure_html(
             uri,
             "histograms of the fleet's parameters",
             "Latest fit of each machine. Blue band: no outlier (|robust z| within the "
@@ -46,14 +57,14 @@ def fleet_report_html(result: FleetResult, *, title: str = "fleet") -> str:
             sp.parameter,
             sp.unit,
             sp.n_machines,
-            _fmt(sp.median),
-            _fmt(sp.spread),
-            _fmt(sp.q05),
-            _fmt(sp.q95),
+            fmt_value(sp.median),
+            fmt_value(sp.spread),
+            fmt_value(sp.q05),
+            fmt_value(sp.q95),
         ]
         for sp in s.spreads
     ]
-    parts.append('<section id="spread"><h2>Spread</h2>' + _table(head, rows) + "</section>")
+    parts.append('<section id="spread"><h2>Spread</h2>' + table_html(head, rows) + "</section>")
     flagged = [r for r in result.rows if r.outliers or r.drift]
     head = ["machine", "date", "file", "axis", "outlier in", "drifted in"]
     rows = [
@@ -62,22 +73,23 @@ def fleet_report_html(result: FleetResult, *, title: str = "fleet") -> str:
     ]
     parts.append(
         '<section id="flagged"><h2>Flagged machines</h2>'
-        + (_table(head, rows, [True] * len(rows)) if rows else _p("None."))
+        + (table_html(head, rows, [True] * len(rows)) if rows else paragraph_html("None."))
         + "</section>"
     )
     if s.failures:
         rows = [list(f) for f in s.failures]
         parts.append(
             '<section id="failed"><h2>Failed logs</h2>'
-            + _table(["file", "axis", "error"], rows, [True] * len(rows))
+            + table_html(["file", "axis", "error"], rows, [True] * len(rows))
             + "</section>"
         )
     data = {"schema": FLEET_SCHEMA, "version": __version__, "summary": s.to_dict()}
     return (
         '<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
         '<meta name="viewport" content="width=device-width, initial-scale=1">'
-        f"<title>servotune fleet report: {_esc(title)}</title><style>{_STYLE}</style></head>"
-        "<body>\n" + "\n".join(parts) + "\n" + _data_block(data) + "\n</body></html>\n"
+        f"<title>servotune fleet report: {escape_html(title)}</title>"
+        f"<style>{PAGE_STYLE}</style></head>"
+        "<body>\n" + "\n".join(parts) + "\n" + data_block(data) + "\n</body></html>\n"
     )
 
 

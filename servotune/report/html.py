@@ -36,23 +36,19 @@ from servotune.plot import (
     plot_radial_deviation,
     plot_sync_errors,
 )
-from servotune.report.demo_sections import _DEMO_SECTIONS, _demo_section
-from servotune.report.loops import _bode_section, _margins_section, _response_section, loop_response
-from servotune.report.page import _STYLE as _STYLE
-from servotune.report.page import _data_block as _data_block
-from servotune.report.page import _esc, _page
-from servotune.report.page import _figure as _figure
-from servotune.report.page import _fmt as _fmt
-from servotune.report.page import _p as _p
-from servotune.report.page import _png as _png
-from servotune.report.page import _table as _table
+from servotune.report.demo_sections import DEMO_SECTIONS, demo_section
+from servotune.report.loops import bode_section, loop_response, margins_section, response_section
+from servotune.report.page import (
+    escape_html,
+    page_html,
+)
 from servotune.report.sections import (
-    _gains_section,
-    _identification_section,
-    _summary_section,
-    _tables_section,
-    _verification_section,
-    _with_interval,
+    gains_section,
+    identification_section,
+    summary_section,
+    tables_section,
+    verification_section,
+    with_interval,
 )
 from servotune.report.summary import summarise
 from servotune.rig import load_rig
@@ -61,7 +57,7 @@ from servotune.tuning import read_tuning
 
 __all__ = ["EMBEDDED_FIGURES", "loop_response", "write_report"]
 
-__test__ = {"_with_interval": _with_interval}  # doctest.testmod(this module) runs its examples
+__test__ = {"with_interval": with_interval}  # doctest.testmod(this module) runs its examples
 
 EMBEDDED_FIGURES: Mapping[str, Any] = {
     "fit_*.png": plot_fit,
@@ -145,22 +141,23 @@ def write_report(
         spec_path=None if spec_path is None else str(spec_path),
     )
     sections = [
-        _summary_section(summary),
-        _verification_section(verification, summary) if verification is not None else "",
-        _identification_section(rig, out, fits),
-        _gains_section(tuning),
-        _bode_section(rig, tuning, margins, limits),
-        _margins_section(tuning, margins, limits, verification),
-        _response_section(rig, tuning, seed, verification),
-        _tables_section(tuning),
-        *(_demo_section(out, sid) for sid in _DEMO_SECTIONS),
+        summary_section(summary),
+        verification_section(verification, summary) if verification is not None else "",
+        identification_section(rig, out, fits),
+        gains_section(tuning),
+        bode_section(rig, tuning, margins, limits),
+        margins_section(tuning, margins, limits, verification),
+        response_section(rig, tuning, seed, verification),
+        tables_section(tuning),
+        *(demo_section(out, sid) for sid in DEMO_SECTIONS),
     ]
     body = "\n".join(s for s in sections if s)
     head = (
-        f"<h1>servotune report: {_esc(rig.name)}</h1>"
-        f"<p>Tool {_esc(__version__)}; tuning {_esc(Path(tuning_path).name)} (seed "
-        f"{_esc(prov.get('seed'))}, rule base {_esc(prov.get('rule_base'))}) on rig file "
-        f"{_esc(Path(rig_path).name)}; tick period {rig.period_s * 1e3:.6g} ms (divisor "
+        f"<h1>servotune report: {escape_html(rig.name)}</h1>"
+        f"<p>Tool {escape_html(__version__)}; tuning {escape_html(Path(tuning_path).name)} (seed "
+        f"{escape_html(prov.get('seed'))}, rule base {escape_html(prov.get('rule_base'))}) on rig "
+        f"file "
+        f"{escape_html(Path(rig_path).name)}; tick period {rig.period_s * 1e3:.6g} ms (divisor "
         f"{tuning.timer_divisor}).</p>"
     )
     data = {
@@ -172,7 +169,7 @@ def write_report(
         "margins": margins.to_dict(),
         "verification": None if verification is None else verification.to_dict(),
     }
-    page = _page(f"servotune report: {rig.name}", head + _nav(body) + "\n" + body, data)
+    page = page_html(f"servotune report: {rig.name}", head + _nav(body) + "\n" + body, data)
     path = out / "report.html"
     atomic_write_text(path, page)
     return path

@@ -16,15 +16,22 @@ from servotune.laws.axis import MODE_TASK
 from servotune.laws.fuzzy_pid import FuzzyPIDConstants
 from servotune.plant import discretize
 from servotune.plot import MoveEnvelope, plot_bode, plot_query_tables, plot_tracking
-from servotune.report.page import _esc, _figure, _fmt, _p, _png, _table
+from servotune.report.page import (
+    escape_html,
+    figure_html,
+    fmt_value,
+    paragraph_html,
+    png_uri,
+    table_html,
+)
 from servotune.report.summary import margin_comment
 from servotune.rig import Rig
-from servotune.scenarios import _sync_move_for, build_scenario, step_inputs, sync_move
+from servotune.scenarios import build_scenario, step_inputs, sync_move, sync_move_for
 from servotune.sim.engine import simulate
 from servotune.tuning import Tuning
 from servotune.validate import show_number
 
-__all__ = ["loop_response"]
+__all__ = ["bode_section", "loop_response", "margins_section", "response_section"]
 
 
 @scipy_paths
@@ -59,7 +66,7 @@ def loop_response(rig: Rig, tuning: Tuning, axis: str, omega_rad_s: np.ndarray) 
 
 
 @scipy_paths
-def _bode_section(rig: Rig, tuning: Tuning, margins: Margins, limits: MarginLimits) -> str:
+def bode_section(rig: Rig, tuning: Tuning, margins: Margins, limits: MarginLimits) -> str:
     w = np.logspace(-1, math.log10(math.pi / rig.period_s) - 1e-3, 600)
     responses, rows, centre = {}, [], {}
     for name, c in zip(tuning.axis_names, tuning.controllers, strict=True):
@@ -70,7 +77,16 @@ def _bode_section(rig: Rig, tuning: Tuning, margins: Margins, limits: MarginLimi
         responses[name] = (w, np.asarray(fr.complex).ravel())
         gm_db = 20 * math.log10(gm) if gm and math.isfinite(gm) else math.inf
         where = "table centre E = EC = 0" if isinstance(c.task, FuzzyPIDConstants) else "PI"
-        rows.append([name, where, _fmt(float(wgc)), _fmt(float(pm)), _fmt(gm_db), _fmt(float(wpc))])
+        rows.append(
+            [
+                name,
+                where,
+                fmt_value(float(wgc)),
+                fmt_value(float(pm)),
+                fmt_value(gm_db),
+                fmt_value(float(wpc)),
+            ]
+        )
         centre[name] = float(pm)
     cells = {
         name: [m for m in margins.select(name, "task") if m.cell is not None]
@@ -87,12 +103,12 @@ def _bode_section(rig: Rig, tuning: Tuning, margins: Margins, limits: MarginLimi
     return (
         '<section id="loops"><h2>Loops (Bode, margins by python-control; slave at the table '
         "centre)</h2>"
-        + _figure(_png(plot_bode(responses)), "Bode plots", _esc(caption))
-        + _table(
+        + figure_html(png_uri(plot_bode(responses)), "Bode plots", escape_html(caption))
+        + table_html(
             ["axis", "loop", "crossover [rad/s]", "PM [deg]", "GM [dB]", "phase crossover [rad/s]"],
             rows,
         )
-        + (f'<p class="comment">{_esc(comment)}</p>' if comment else "")
+        + (f'<p class="comment">{escape_html(comment)}</p>' if comment else "")
         + "</section>"
     )
 
@@ -103,20 +119,20 @@ def _loop_row(m: Any, what: str, limits: MarginLimits) -> tuple[list[str], bool]
         [
             m.axis,
             what,
-            _fmt(m.phase_margin_deg),
-            _fmt(m.gain_margin_db),
-            _fmt(m.max_sensitivity),
-            _fmt(m.max_complementary_sensitivity),
-            _fmt(m.delay_margin_ticks),
-            _fmt(m.crossover_rad_s),
-            _fmt(m.bandwidth_rad_s),
+            fmt_value(m.phase_margin_deg),
+            fmt_value(m.gain_margin_db),
+            fmt_value(m.max_sensitivity),
+            fmt_value(m.max_complementary_sensitivity),
+            fmt_value(m.delay_margin_ticks),
+            fmt_value(m.crossover_rad_s),
+            fmt_value(m.bandwidth_rad_s),
             "ok" if not broken else "FAIL: " + "; ".join(broken),
         ],
         bool(broken),
     )
 
 
-def _margins_section(tuning: Tuning, m: Margins, limits: MarginLimits, verification: Any) -> str:
+def margins_section(tuning: Tuning, m: Margins, limits: MarginLimits, verification: Any) -> str:
     """The margins of each loop on the nominal plants (a table; for a scheduled axis its centre
     cell and its worst cells), over the plant set where a verification judged them, and heat
     maps of each scheduled axis's phase margin and Ms over the query table."""
@@ -158,7 +174,7 @@ def _margins_section(tuning: Tuning, m: Margins, limits: MarginLimits, verificat
     ]
     parts = [
         '<section id="margins"><h2>Margins of every loop the runtime can run (nominal plants)</h2>',
-        _p(
+        paragraph_html(
             "Each axis runs a lock loop at rest and a task loop while moving; a scheduled "
             "(fuzzy-PID) axis runs one task loop per query-table cell, its gains frozen there. "
             "The feedforward acts on the reference only: it changes no margin. Ms is the peak "
@@ -166,7 +182,7 @@ def _margins_section(tuning: Tuning, m: Margins, limits: MarginLimits, verificat
             "Ms ≤ 2 alone guarantees GM ≥ 6 dB and PM ≥ 29°), the delay margin the extra loop "
             "delay that brings the phase margin to zero."
         ),
-        _table(head, rows, bad),
+        table_html(head, rows, bad),
     ]
     if verification is not None:
         prows, pbad = [], []
@@ -179,9 +195,9 @@ def _margins_section(tuning: Tuning, m: Margins, limits: MarginLimits, verificat
                     c.name,
                     _loop_name(f),
                     str(f.get("plant", "")),
-                    _fmt(f.get("phase_margin_deg")),
-                    _fmt(f.get("gain_margin_db")),
-                    _fmt(f.get("max_sensitivity")),
+                    fmt_value(f.get("phase_margin_deg")),
+                    fmt_value(f.get("gain_margin_db")),
+                    fmt_value(f.get("max_sensitivity")),
                     "pass" if c.passed else "FAIL",
                 ]
             )
@@ -189,14 +205,14 @@ def _margins_section(tuning: Tuning, m: Margins, limits: MarginLimits, verificat
         if prows:
             parts.append("<h3>Over the plant set (the verification's margins checks)</h3>")
             parts.append(
-                _p(
+                paragraph_html(
                     "The worst loop of each kind over the identified intervals, the "
                     "spec's Monte-Carlo spreads, one tick more latency and the timer's "
                     "error (the plant case is named)."
                 )
             )
             parts.append(
-                _table(
+                table_html(
                     ["check", "worst loop", "plant case", "PM [deg]", "GM [dB]", "Ms [1]", ""],
                     prows,
                     pbad,
@@ -213,7 +229,7 @@ def _margins_section(tuning: Tuning, m: Margins, limits: MarginLimits, verificat
                 f"The {name}'s task loop at every query-table cell (row E, column EC), frozen "
                 "gains, nominal plant: its phase margin and its peak sensitivity Ms."
             )
-            parts.append(_figure(_png(fig), f"{name} margins per cell", _esc(cap)))
+            parts.append(figure_html(png_uri(fig), f"{name} margins per cell", escape_html(cap)))
     parts.append("</section>")
     return "".join(parts)
 
@@ -252,20 +268,20 @@ def _envelope(rig: Rig, sc: Any, inputs: Any, trace: Any) -> MoveEnvelope:
 def _scenario_inputs(rig: Rig, sc: Any) -> Any:
     """The inputs of a move scenario of a spec (as :mod:`servotune.verify.run` builds them)."""
     if sc.kind == "sync":
-        return _sync_move_for(rig, sc).inputs
+        return sync_move_for(rig, sc).inputs
     master = next((a.name for a in rig.axes if a.role == "master"), rig.axes[0].name)
     return build_scenario(rig, "track", axis=master, seconds=sc.seconds).inputs
 
 
-def _response_section(rig: Rig, tuning: Tuning, seed: int, verification: Any) -> str:
+def response_section(rig: Rig, tuning: Tuning, seed: int, verification: Any) -> str:
     loop = tuning.loop(rig)
     step = simulate(loop, step_inputs(rig, step_counts=rig.counts_per_rev, seconds=2.0), seed=seed)
     parts = [
         '<section id="responses"><h2>Step and tracking responses (bit-true loop)</h2>',
-        _figure(
-            _png(plot_tracking(step, "master step of one revolution, slave following")),
+        figure_html(
+            png_uri(plot_tracking(step, "master step of one revolution, slave following")),
             "step",
-            _esc(
+            escape_html(
                 f"A step of the master's reference by one revolution "
                 f"({rig.counts_per_rev:g} counts) on the nominal plants, seed "
                 f"{seed}; the spec sets no limit on a step."
@@ -280,10 +296,12 @@ def _response_section(rig: Rig, tuning: Tuning, seed: int, verification: Any) ->
     if not moves:
         track = simulate(loop, sync_move(rig).inputs, seed=seed)
         parts.append(
-            _figure(
-                _png(plot_tracking(track, "start, constant speed, load step on the slave, stop")),
+            figure_html(
+                png_uri(
+                    plot_tracking(track, "start, constant speed, load step on the slave, stop")
+                ),
                 "tracking",
-                _esc(
+                escape_html(
                     "The slave-tuning move on the nominal plants (no spec given: no limits drawn)."
                 ),
             )
@@ -317,6 +335,6 @@ def _response_section(rig: Rig, tuning: Tuning, seed: int, verification: Any) ->
             + (", ".join(drawn) if drawn else "no limit on this run")
             + f". The verification judges the worst over every plant set: {worst or 'n/a'}."
         )
-        parts.append(_figure(_png(fig), f"scenario {sc.name}", _esc(cap)))
+        parts.append(figure_html(png_uri(fig), f"scenario {sc.name}", escape_html(cap)))
     parts.append("</section>")
     return "".join(parts)

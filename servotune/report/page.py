@@ -1,7 +1,7 @@
 """The pieces every report page is built from: escaping, tables, embedded PNGs, the page itself.
 
-One self-contained page: its style sheet inline (:data:`_STYLE`), its figures embedded as PNG
-data URIs, its numbers as a JSON block (:func:`_data_block`). Used by the tuning report
+One self-contained page: its style sheet inline (:data:`PAGE_STYLE`), its figures embedded as PNG
+data URIs, its numbers as a JSON block (:func:`data_block`). Used by the tuning report
 (:mod:`servotune.report.html`) and the fleet report (:mod:`servotune.report.fleet`).
 """
 
@@ -21,59 +21,71 @@ import numpy as np
 
 from servotune.validate import show_number
 
-__all__: list[str] = []  # the pieces are the report modules' own (private) helpers
+__all__ = [
+    "PAGE_STYLE",
+    "code_html",
+    "data_block",
+    "escape_html",
+    "figure_html",
+    "file_uri",
+    "fmt_value",
+    "page_html",
+    "paragraph_html",
+    "png_uri",
+    "table_html",
+]
 
 
-def _png(fig: Any) -> str:
+def png_uri(fig: Any) -> str:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=90, metadata={"Software": None})
     plt.close(fig)
     return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
 
 
-def _file_uri(path: Path) -> str:
+def file_uri(path: Path) -> str:
     return "data:image/png;base64," + base64.b64encode(path.read_bytes()).decode("ascii")
 
 
-def _esc(x: Any) -> str:
+def escape_html(x: Any) -> str:
     return html.escape(str(x))
 
 
-def _figure(uri: str, alt: str, caption: str = "") -> str:
+def figure_html(uri: str, alt: str, caption: str = "") -> str:
     cap = f"<figcaption>{caption}</figcaption>" if caption else ""
-    return f'<figure><img alt="{_esc(alt)}" src="{uri}">{cap}</figure>'
+    return f'<figure><img alt="{escape_html(alt)}" src="{uri}">{cap}</figure>'
 
 
-def _table(head: Sequence[str], rows: Sequence[Sequence[Any]], bad: Sequence[bool] = ()) -> str:
+def table_html(head: Sequence[str], rows: Sequence[Sequence[Any]], bad: Sequence[bool] = ()) -> str:
     """A table of text cells; ``bad`` rows are highlighted."""
-    out = ["<table><tr>" + "".join(f"<th>{_esc(h)}</th>" for h in head) + "</tr>"]
+    out = ["<table><tr>" + "".join(f"<th>{escape_html(h)}</th>" for h in head) + "</tr>"]
     for i, r in enumerate(rows):
         cls = ' class="fail"' if (i < len(bad) and bad[i]) else ""
-        cells = "".join(f"<td>{_esc(c)}</td>" for c in r)
+        cells = "".join(f"<td>{escape_html(c)}</td>" for c in r)
         out.append(f"<tr{cls}>{cells}</tr>")
     return "\n".join(out) + "</table>"
 
 
-def _fmt(x: Any, unit: str = "") -> str:
+def fmt_value(x: Any, unit: str = "") -> str:
     if isinstance(x, float | int) and not isinstance(x, bool):
         text = show_number(float(x))
         return f"{text} {unit}" if unit and math.isfinite(float(x)) else text
     return "—" if x is None else str(x)
 
 
-def _p(text: str) -> str:
-    return f"<p>{_esc(text)}</p>"
+def paragraph_html(text: str) -> str:
+    return f"<p>{escape_html(text)}</p>"
 
 
-def _code(text: str) -> str:
+def code_html(text: str) -> str:
     """``text`` escaped, with its `backticked` commands set as code."""
-    parts = _esc(text).split("`")
+    parts = escape_html(text).split("`")
     return "".join(f"<code>{x}</code>" if i % 2 else x for i, x in enumerate(parts))
 
 
 # --- the page --------------------------------------------------------------------------------
 
-_STYLE = (
+PAGE_STYLE = (
     "body{font-family:sans-serif;max-width:1100px;margin:0 auto;padding:0 16px;"
     "line-height:1.4;color:#222}"
     "img{max-width:100%;height:auto;display:block}"
@@ -103,20 +115,20 @@ def _jsonable(x: Any) -> Any:
     return x
 
 
-def _data_block(data: Mapping[str, Any]) -> str:
+def data_block(data: Mapping[str, Any]) -> str:
     text = json.dumps(_jsonable(data), sort_keys=True, ensure_ascii=False, allow_nan=False)
     text = text.replace("<", "\\u003c")  # no "</script>" inside the block
     return f'<script type="application/json" id="servotune-data">{text}</script>'
 
 
-def _page(title: str, content: str, data: Mapping[str, Any]) -> str:
+def page_html(title: str, content: str, data: Mapping[str, Any]) -> str:
     """The whole page: ``title``, ``content`` (HTML) and ``data`` as its JSON block."""
     return (
         '<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
         '<meta name="viewport" content="width=device-width, initial-scale=1">'
-        f"<title>{_esc(title)}</title><style>{_STYLE}</style></head><body>\n"
+        f"<title>{escape_html(title)}</title><style>{PAGE_STYLE}</style></head><body>\n"
         + content
         + "\n"
-        + _data_block(data)
+        + data_block(data)
         + "\n</body></html>\n"
     )

@@ -14,41 +14,57 @@ import numpy as np
 from servotune.identify.model import ALL_PARAMS, UNITS
 from servotune.laws.fuzzy_pid import TABLE_NAMES, FuzzyPIDConstants
 from servotune.plot import QUERY_TABLE_LABELS, plot_query_tables
-from servotune.report.page import _code, _esc, _figure, _file_uri, _fmt, _p, _png, _table
+from servotune.report.page import (
+    code_html,
+    escape_html,
+    figure_html,
+    file_uri,
+    fmt_value,
+    paragraph_html,
+    png_uri,
+    table_html,
+)
 from servotune.report.summary import ReportSummary, search_notes
 from servotune.rig import FIT_PCT_KEYS, PlantFit, Rig
 from servotune.tune.workflow import tuning_summary
 from servotune.tuning import Tuning
 from servotune.validate import show_number
 
-__all__: list[str] = []  # the sections are write_report's
+__all__ = [
+    "gains_section",
+    "identification_section",
+    "summary_section",
+    "tables_section",
+    "verification_section",
+    "with_interval",
+]
 
 
-def _summary_section(s: ReportSummary) -> str:
+def summary_section(s: ReportSummary) -> str:
     cls = {"PASSED": "pass", "FAILED": "fail"}.get(s.verdict, "none")
     items = []
     if s.verified:
         items.append(f"{s.failed} of {s.total} limits and checks failed.")
         if s.tightest is not None:
             label = "Most broken limit" if s.tightest.relative_margin < 0 else "Tightest margin"
-            items.append(f"{label}: {_esc(s.tightest.describe())}.")
+            items.append(f"{label}: {escape_html(s.tightest.describe())}.")
         if s.montecarlo is not None:
-            items.append(_esc(s.montecarlo_text()) + ".")
+            items.append(escape_html(s.montecarlo_text()) + ".")
         for f in s.failures[:5]:
-            items.append("Failed: " + _esc(f))
+            items.append("Failed: " + escape_html(f))
         if len(s.failures) > 5:
             items.append(f"… and {len(s.failures) - 5} more (see the verification below).")
     else:
         items.append("This report was written without a verification.")
     lis = "".join(f"<li>{x}</li>" for x in items)
     return (
-        f'<section id="summary" class="summary {cls}"><h2>Summary: {_esc(s.verdict)}</h2>'
+        f'<section id="summary" class="summary {cls}"><h2>Summary: {escape_html(s.verdict)}</h2>'
         f'<ul>{lis}</ul><p class="next"><strong>What to do next:</strong> '
-        f"{_code(s.next_step)}</p></section>"
+        f"{code_html(s.next_step)}</p></section>"
     )
 
 
-def _verification_section(v: Any, s: ReportSummary) -> str:
+def verification_section(v: Any, s: ReportSummary) -> str:
     rows, bad = [], []
     for r in v.rows:
         rel = r.relative_margin
@@ -58,9 +74,9 @@ def _verification_section(v: Any, s: ReportSummary) -> str:
                 r.scenario,
                 r.axis,
                 r.quantity,
-                _fmt(r.limit, r.unit),
-                _fmt(r.worst, r.unit),
-                _fmt(r.margin, r.unit),
+                fmt_value(r.limit, r.unit),
+                fmt_value(r.worst, r.unit),
+                fmt_value(r.margin, r.unit),
                 rel_text,
                 r.variant,
                 "pass" if r.passed else "FAIL",
@@ -72,14 +88,14 @@ def _verification_section(v: Any, s: ReportSummary) -> str:
     mc = s.montecarlo_text()
     return (
         f'<section id="verification"><h2>Verification: {verdict}</h2>'
-        + _p(
+        + paragraph_html(
             f"Spec {v.spec.name!r} on rig {v.rig_name!r}, seed {v.seed}: every scenario on the "
             f"nominal plants and {v.plant_sets - 1} Monte-Carlo plant sets; a limit holds "
             "if its worst value over all of them does. Margin: limit − worst (and as % of the "
             "limit)."
         )
-        + (_p(mc + ".") if mc else "")
-        + _table(
+        + (paragraph_html(mc + ".") if mc else "")
+        + table_html(
             [
                 "scenario",
                 "axis",
@@ -95,7 +111,7 @@ def _verification_section(v: Any, s: ReportSummary) -> str:
             bad,
         )
         + "<h3>Checks</h3>"
-        + _table(["check", "", "detail"], checks, [row[1] == "FAIL" for row in checks])
+        + table_html(["check", "", "detail"], checks, [row[1] == "FAIL" for row in checks])
         + "</section>"
     )
 
@@ -113,7 +129,7 @@ _FIT_CAPTION = (
 )
 
 
-def _identification_section(rig: Rig, out: Path, fits: Mapping[str, Any] | None) -> str:
+def identification_section(rig: Rig, out: Path, fits: Mapping[str, Any] | None) -> str:
     files = sorted(out.glob("fit_*.png"))
     fitted = [a for a in rig.axes if a.plant_fit is not None]
     if not files and not fitted and not fits:
@@ -129,7 +145,7 @@ def _identification_section(rig: Rig, out: Path, fits: Mapping[str, Any] | None)
                 continue
             ci = fit.ci95.get(p) if fit is not None else None
             if ci is not None:
-                shown, interval = _with_interval(float(value), float(ci[0]), float(ci[1]))
+                shown, interval = with_interval(float(value), float(ci[0]), float(ci[1]))
                 how = "fitted"
             elif fit is not None:
                 shown, interval = show_number(float(value)), "—"
@@ -137,7 +153,7 @@ def _identification_section(rig: Rig, out: Path, fits: Mapping[str, Any] | None)
             else:
                 shown, interval, how = show_number(float(value)), "—", "as in the rig file"
             rows.append([p, shown, UNITS[p], interval, how])
-        head = f"<h3>{_esc(a.name)} ({_esc(a.role)})</h3>"
+        head = f"<h3>{escape_html(a.name)} ({escape_html(a.role)})</h3>"
         if fit is not None:
             note = (
                 f"Method {fit.method}, friction {fit.friction}; residual tests: "
@@ -172,10 +188,12 @@ def _identification_section(rig: Rig, out: Path, fits: Mapping[str, Any] | None)
         else:
             note += " Fit %: none (not fitted)."
         parts.append(
-            head + _p(note) + _table(["parameter", "value", "unit", "95 % interval", ""], rows)
+            head
+            + paragraph_html(note)
+            + table_html(["parameter", "value", "unit", "95 % interval", ""], rows)
         )
     for f in files:
-        parts.append(_figure(_file_uri(f), f.name, _esc(_FIT_CAPTION)))
+        parts.append(figure_html(file_uri(f), f.name, escape_html(_FIT_CAPTION)))
     parts.append("</section>")
     return "".join(parts)
 
@@ -193,10 +211,10 @@ def _recorded_fit_pct(fit: PlantFit) -> dict[str, dict[str, float | None]] | Non
     }
 
 
-def _with_interval(value: float, lo: float, hi: float) -> tuple[str, str]:
+def with_interval(value: float, lo: float, hi: float) -> tuple[str, str]:
     """A value and its interval with enough significant digits to tell the ends apart.
 
-    >>> _with_interval(12287.89, 12287.59, 12288.19)
+    >>> with_interval(12287.89, 12287.59, 12288.19)
     ('12287.89', '12287.59 … 12288.19')
     """
     width = abs(hi - lo)
@@ -211,13 +229,13 @@ def _pct(x: Any) -> str:
     return "n/a" if x is None else f"{float(x):.1f} %"
 
 
-def _gains_section(tuning: Tuning) -> str:
+def gains_section(tuning: Tuning) -> str:
     summary = tuning_summary(tuning)
     rows = []
     for name, ax in summary["axes"].items():
         g = ax["gains"]
         rng = ", ".join(
-            f"{label} {_fmt(g[k + '_range'][0])}–{_fmt(g[k + '_range'][1])}"
+            f"{label} {fmt_value(g[k + '_range'][0])}–{fmt_value(g[k + '_range'][1])}"
             for k, label in (("kp", "Kp"), ("ki", "Ki·T"), ("kd", "Kd/T"))
             if k + "_range" in g
         )
@@ -225,11 +243,11 @@ def _gains_section(tuning: Tuning) -> str:
             [
                 name,
                 ax["law"],
-                _fmt(ax["lock_gain"]),
-                _fmt(g.get("kp")),
-                _fmt(g.get("ki_t")),
-                _fmt(g.get("kd_t")),
-                _fmt(g.get("k1_t")),
+                fmt_value(ax["lock_gain"]),
+                fmt_value(g.get("kp")),
+                fmt_value(g.get("ki_t")),
+                fmt_value(g.get("kd_t")),
+                fmt_value(g.get("k1_t")),
                 rng or "—",
             ]
         )
@@ -243,7 +261,7 @@ def _gains_section(tuning: Tuning) -> str:
     notes += [f"{n[0].upper()}{n[1:]}." for n in search_notes(s)]
     return (
         '<section id="gains"><h2>Tuned gains (as the runtime holds them)</h2>'
-        + _table(
+        + table_html(
             [
                 "axis",
                 "law",
@@ -256,12 +274,12 @@ def _gains_section(tuning: Tuning) -> str:
             ],
             rows,
         )
-        + "".join(_p(n) for n in notes)
+        + "".join(paragraph_html(n) for n in notes)
         + "</section>"
     )
 
 
-def _tables_section(tuning: Tuning) -> str:
+def tables_section(tuning: Tuning) -> str:
     parts = []
     for name, c in zip(tuning.axis_names, tuning.controllers, strict=True):
         if isinstance(c.task, FuzzyPIDConstants):
@@ -278,7 +296,7 @@ def _tables_section(tuning: Tuning) -> str:
                     f"({', '.join(const)}): the same value in every cell, written on the "
                     "tile (the gain is not scheduled)."
                 )
-            parts.append(_figure(_png(fig), f"{name} query tables", _esc(cap)))
+            parts.append(figure_html(png_uri(fig), f"{name} query tables", escape_html(cap)))
     if not parts:
         return ""
     return (

@@ -29,8 +29,8 @@ from servotune.laws.axis import LAW_FUZZY_PID, MODE_TASK, AxisController
 from servotune.plant import NROW, Plant, plant_row
 from servotune.rig import Rig
 from servotune.scenarios import Inputs
-from servotune.sim.kernel import _G_KIT, _G_KP, _G_LOCK, _I_LAG, _NPI, LANES, _kernel
-from servotune.sim.lean import CONSTS_CAPACITY, _kernel_lean
+from servotune.sim.kernel import _G_KIT, _G_KP, _G_LOCK, _I_LAG, LANES, NPI, _kernel
+from servotune.sim.lean import CONSTS_CAPACITY, kernel_lean
 from servotune.sim.result import BatchMetrics, BatchResult, BatchTraces, Trace
 from servotune.sim.tick import METRIC_NAMES, N_METRICS
 from servotune.validate import check_seed
@@ -132,7 +132,7 @@ class Batch:
 
 def _plant_rows(rig: Rig, plants: Sequence[Plant]) -> tuple[np.ndarray, np.ndarray]:
     pf = np.zeros((len(plants), NROW))
-    pi = np.zeros((len(plants), _NPI), dtype=np.int64)
+    pi = np.zeros((len(plants), NPI), dtype=np.int64)
     for i, (axis, pl) in enumerate(zip(rig.axes, plants, strict=True)):
         pf[i], m = plant_row(pl, rig.period_s, rig.timer.compute_s, rig.counts_per_rev)
         pi[i] = (m, axis.counter_init)
@@ -198,7 +198,7 @@ def prepare_batch(
     ctl_sets = controllers if controllers is not None else [loop.controllers] * n
     n_ax = len(rig.axes)
     pf = np.zeros((n, n_ax, NROW))
-    pi = np.zeros((n, n_ax, _NPI), dtype=np.int64)
+    pi = np.zeros((n, n_ax, NPI), dtype=np.int64)
     gains = np.zeros((n, n_ax, 3))
     # identical candidates (frozen, hashable dataclasses) are discretised once
     cache_p: dict[tuple[Plant, ...], tuple[np.ndarray, np.ndarray]] = {}
@@ -257,12 +257,12 @@ def _check_inputs(loop: Loop, inputs: Inputs) -> None:
             )
 
 
-def _input_arrays(inputs: Inputs) -> tuple[np.ndarray, ...]:
+def input_arrays(inputs: Inputs) -> tuple[np.ndarray, ...]:
     """The per-tick inputs in kernel argument order: ref, mode, reset, u_add, load."""
     return (inputs.ref_counts, inputs.mode, inputs.reset, inputs.dac_add_codes, inputs.load_v)
 
 
-def _converter_args(rig: Rig) -> tuple[int, bool, float, float, float]:
+def converter_args(rig: Rig) -> tuple[int, bool, float, float, float]:
     """Counter and D/A scalars in kernel argument order: bits, latched, skew, dac_lo, lsb."""
     return (
         int(rig.counter.bits),
@@ -350,8 +350,8 @@ def run_batch(
                 batch.gains_f,
                 batch.seeds,
                 batch.ref_source,
-                *_input_arrays(inputs),
-                *_converter_args(rig),
+                *input_arrays(inputs),
+                *converter_args(rig),
                 bool(ideal),
                 int(batch.ring),
                 int(metric_from_tick),
@@ -436,13 +436,13 @@ def _run_lean_batch(
     previous = nb.set_parallel_chunksize(1)
     try:
         call_compiled(
-            _kernel_lean,
+            kernel_lean,
             batch.pf,
             batch.pi,
             batch.consts,
             batch.seeds,
-            *(np.ascontiguousarray(x[:, 0]) for x in _input_arrays(inputs)),
-            *_converter_args(rig),
+            *(np.ascontiguousarray(x[:, 0]) for x in input_arrays(inputs)),
+            *converter_args(rig),
             int(metric_from_tick),
             float(rig.period_s),
             metrics,

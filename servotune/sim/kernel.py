@@ -31,7 +31,7 @@ __all__ = ["LANES"]
 # plant rows (float64, per candidate and axis): servotune.plant.plant_row; integer parameters:
 # whole ticks of lag, counter register at start
 _I_LAG, _I_INIT = 0, 1
-_NPI = 2
+NPI = 2
 # ideal-law gains (float64): lock, kp, ki*T
 _G_LOCK, _G_KP, _G_KIT = 0, 1, 2
 

@@ -34,7 +34,7 @@ kernel (same results)."""
 # same order, so its metrics equal _run_group's bit for bit (tests/test_engine.py checks it);
 # only the plumbing differs, each choice for speed (about 2x over _run_group here):
 # - one candidate per loop, its law state and metric sums in small arrays in the function's
-#   frame (_frame_buffer viewed by numba.carray), indexed by constants, which LLVM promotes to
+#   frame (frame_buffer viewed by numba.carray), indexed by constants, which LLVM promotes to
 #   registers; _run_group's heap arrays are
 #   stored and reloaded every tick, as LLVM cannot prove they do not alias the other arrays.
 #   Interleaving two candidates per loop, as _run_group does, gained nothing here (measured):
@@ -53,7 +53,7 @@ kernel (same results)."""
 
 
 @intrinsic
-def _frame_buffer(typingctx, n, dtype):
+def frame_buffer(typingctx, n, dtype):
     """A zeroed buffer of ``n`` elements of ``dtype`` in the calling function's frame.
 
     Returns a pointer for :func:`numba.carray`, which views it as an array without a memory
@@ -108,16 +108,16 @@ def _run_lean(
     nt = ref.shape[0]
     mask = (np.int64(1) << bits) - 1
     nbytes = bits // 8
-    st = nb.carray(_frame_buffer(N_STATE, np.int64), (1, N_STATE))
-    mt = nb.carray(_frame_buffer(N_METRICS, np.float64), (1, N_METRICS))
+    st = nb.carray(frame_buffer(N_STATE, np.int64), (1, N_STATE))
+    mt = nb.carray(frame_buffer(N_METRICS, np.float64), (1, N_METRICS))
     mt[0, 4] = -1.0
     # the candidate's constants and plant row copied into the frame too: a view of the shared
     # arrays would be reference-counted on every pass into the law functions, and the threads'
     # atomic counts on the one memory info contend (measured: 2 threads no faster than 1)
-    cb = nb.carray(_frame_buffer(CONSTS_CAPACITY, np.int64), (1, CONSTS_CAPACITY))
+    cb = nb.carray(frame_buffer(CONSTS_CAPACITY, np.int64), (1, CONSTS_CAPACITY))
     for j in range(consts.shape[2]):
         cb[0, j] = consts[b, 0, j]
-    row = nb.carray(_frame_buffer(NROW, np.float64), NROW)
+    row = nb.carray(frame_buffer(NROW, np.float64), NROW)
     for j in range(NROW):
         row[j] = pf[b, 0, j]
     noise = row[R_NOISE]
@@ -161,7 +161,7 @@ def _run_lean(
 
 
 @jit(parallel=True)
-def _kernel_lean(
+def kernel_lean(
     pf,
     pi,
     consts,

@@ -34,7 +34,7 @@ from servotune._numba_cache import call_compiled, jit
 from servotune.laws.axis import FAULT_MASK, FLAG_SATURATED, MODE_TASK, N_STATE, axis_read
 from servotune.plant import NROW, R_NOISE, R_OFFSET, advance_tick_inlined
 from servotune.sim.kernel import _I_INIT, _I_LAG
-from servotune.sim.lean import CONSTS_CAPACITY, _frame_buffer
+from servotune.sim.lean import CONSTS_CAPACITY, frame_buffer
 from servotune.sim.tick import draw_noise, draw_uniforms, latch, write_axis
 
 __all__ = [
@@ -322,39 +322,39 @@ def _run_sync(
     mask = (np.int64(1) << bits) - 1
     nbytes = bits // 8
     width = consts.shape[1]
-    st = nb.carray(_frame_buffer(_ST_WORDS, np.int64), (2, N_STATE))
+    st = nb.carray(frame_buffer(_ST_WORDS, np.int64), (2, N_STATE))
     # per axis: position, speed, the last two writes, the read
-    pos = nb.carray(_frame_buffer(2, np.float64), 2)
-    spd = nb.carray(_frame_buffer(2, np.float64), 2)
-    v1 = nb.carray(_frame_buffer(2, np.float64), 2)
-    v2 = nb.carray(_frame_buffer(2, np.float64), 2)
-    y = nb.carray(_frame_buffer(2, np.int64), 2)
-    cb = nb.carray(_frame_buffer(CONSTS_CAPACITY, np.int64), (2, width))
+    pos = nb.carray(frame_buffer(2, np.float64), 2)
+    spd = nb.carray(frame_buffer(2, np.float64), 2)
+    v1 = nb.carray(frame_buffer(2, np.float64), 2)
+    v2 = nb.carray(frame_buffer(2, np.float64), 2)
+    y = nb.carray(frame_buffer(2, np.int64), 2)
+    cb = nb.carray(frame_buffer(CONSTS_CAPACITY, np.int64), (2, width))
     for a in range(2):
         for j in range(width):
             cb[a, j] = consts[a, j]
     # per axis, the figures' running values: ticks counted, the fault, a refusal of step_info
-    n_cnt = nb.carray(_frame_buffer(2, np.int64), 2)
-    fault = nb.carray(_frame_buffer(2, np.int64), 2)
-    refused = nb.carray(_frame_buffer(2, np.int64), 2)  # step_info would raise (FIGURE_NAMES)
-    rows = nb.carray(_frame_buffer(_ROW_WORDS, np.float64), (2, NROW))
+    n_cnt = nb.carray(frame_buffer(2, np.int64), 2)
+    fault = nb.carray(frame_buffer(2, np.int64), 2)
+    refused = nb.carray(frame_buffer(2, np.int64), 2)  # step_info would raise (FIGURE_NAMES)
+    rows = nb.carray(frame_buffer(_ROW_WORDS, np.float64), (2, NROW))
     for a in range(2):
         for j in range(NROW):
             rows[a, j] = pf[b, a, j]
-    last_out = nb.carray(_frame_buffer(2, np.int64), 2)
+    last_out = nb.carray(frame_buffer(2, np.int64), 2)
     for a in range(2):
         last_out[a] = -1
     # ... and the step's start, size, band, largest deviation, saturated ticks
-    y0 = nb.carray(_frame_buffer(2, np.float64), 2)
-    size = nb.carray(_frame_buffer(2, np.float64), 2)
-    band = nb.carray(_frame_buffer(2, np.float64), 2)
-    dev_max = nb.carray(_frame_buffer(2, np.float64), 2)
-    n_sat = nb.carray(_frame_buffer(2, np.int64), 2)
+    y0 = nb.carray(frame_buffer(2, np.float64), 2)
+    size = nb.carray(frame_buffer(2, np.float64), 2)
+    band = nb.carray(frame_buffer(2, np.float64), 2)
+    dev_max = nb.carray(frame_buffer(2, np.float64), 2)
+    n_sat = nb.carray(frame_buffer(2, np.int64), 2)
     # ... the first read's count (the runtime's frame), the holding window's largest
     # |target - plant count|, whether a position there was refused
-    first = nb.carray(_frame_buffer(2, np.int64), 2)
-    hold_max = nb.carray(_frame_buffer(2, np.int64), 2)
-    hold_bad = nb.carray(_frame_buffer(2, np.int64), 2)
+    first = nb.carray(frame_buffer(2, np.int64), 2)
+    hold_max = nb.carray(frame_buffer(2, np.int64), 2)
+    hold_bad = nb.carray(frame_buffer(2, np.int64), 2)
     # the squared sync errors over the follower's counted ticks, then |e| over the steady window
     buf = np.empty(nt + max(steady_hi - steady_lo, 0))
     n_sq = 0

@@ -34,18 +34,18 @@ from servotune.io.files import json_float
 from servotune.laws.axis import AxisController
 from servotune.metrics import step_info
 from servotune.rig import Rig
-from servotune.scenarios import _sync_move_for
+from servotune.scenarios import sync_move_for
 from servotune.sim.engine import Loop, Trace, simulate
 from servotune.tune.slave import (
     STRUCTURES,
     SlaveTuneSpec,
     SlaveTuning,
-    _master_slave,
+    master_slave,
     tune_slave,
     tune_spec_from,
     tuning_run,
 )
-from servotune.tune.workflow import _robust_start, rule_tables
+from servotune.tune.workflow import robust_start, rule_tables
 from servotune.tuning import Tuning
 from servotune.verify.run import verify
 from servotune.verify.spec import Spec
@@ -222,7 +222,7 @@ def _heldout_row(tuning: Tuning, rig: Rig, spec: Spec, seed: int) -> dict[str, f
 
 def _as_tuning(rig: Rig, master_gains: Any, slave: SlaveTuning) -> Tuning:
     """The structure's law as the runtime runs it (quantised, in memory)."""
-    i_m, i_s = _master_slave(rig)
+    i_m, i_s = master_slave(rig)
     gains: list[object | None] = [None] * len(rig.axes)
     gains[i_m], gains[i_s] = master_gains, slave.gains
     ctls: tuple[AxisController, ...] = Loop.from_rig(rig, gains).controllers
@@ -265,11 +265,11 @@ def compare_structures(
     """
     say = progress or (lambda _msg: None)
     tune = tune or tune_spec_from(spec)
-    _, i_s = _master_slave(rig)
-    start = _robust_start(rig, tune)
+    _, i_s = master_slave(rig)
+    start = robust_start(rig, tune)
     rig = start.rig
     tables = rule_tables(rule_base)
-    scen = _sync_move_for(rig, tune)
+    scen = sync_move_for(rig, tune)
     mode = scen.inputs.mode[:, i_s]
     t0 = int(np.argmax(mode == 1))
     load_tick = int(np.argmax(scen.inputs.load_v[:, i_s] != 0.0)) or mode.size
@@ -407,7 +407,7 @@ def pareto_front(
     """
     say = progress or (lambda _msg: None)
     specs = pareto_specs(tune, ms_limits)
-    start = _robust_start(rig, tune)
+    start = robust_start(rig, tune)
     tables = rule_tables(rule_base)
     points: list[ParetoPoint] = []
     for structure in structures:

@@ -48,7 +48,7 @@ from servotune.laws.fuzzy_pid import TABLE_NAMES, FuzzyPIDConstants, FuzzyPIDGai
 from servotune.laws.pi import PIGains
 from servotune.plant import Plant
 from servotune.rig import Rig
-from servotune.scenarios import Scenario, _sync_move_for
+from servotune.scenarios import Scenario, sync_move_for
 from servotune.sim.engine import Loop, prepare_batch, run_batch
 from servotune.tune.robust import MarginScreen, design_limits
 from servotune.validate import check_integer, check_number
@@ -288,7 +288,7 @@ class SlaveTuning:
         }
 
 
-def _master_slave(rig: Rig) -> tuple[int, int]:
+def master_slave(rig: Rig) -> tuple[int, int]:
     """Indices of the rig's master and slave axes.
 
     Raises
@@ -512,7 +512,7 @@ def tune_slave(
     spec = spec or SlaveTuneSpec()
     if structure not in STRUCTURES:
         raise SpecError(f"structure must be one of {', '.join(STRUCTURES)}, got {structure!r}")
-    i_m, i_s = _master_slave(rig)
+    i_m, i_s = master_slave(rig)
     if structure == "composite":
         if tables is None:
             raise SpecError("the composite structure needs query tables")
@@ -524,7 +524,7 @@ def tune_slave(
     else:
         n = 1
     loop = Loop.from_rig(rig, [master_gains if i == i_m else start for i in range(len(rig.axes))])
-    scenario = _sync_move_for(rig, spec)
+    scenario = sync_move_for(rig, spec)
     variants = tuple(
         tuple(v if j == i_s else rig.axes[j].plant for j in range(len(rig.axes)))
         for v in corner_plants(rig.axes[i_s].plant, spec.gain_spread, spec.tau_spread)

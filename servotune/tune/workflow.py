@@ -28,7 +28,7 @@ from servotune.sim.engine import Loop
 from servotune.tune.robust import robust_lock_gain, robust_pi
 from servotune.tune.slave import (
     SlaveTuneSpec,
-    _master_slave,
+    master_slave,
     tune_slave,
 )
 from servotune.tuning import Tuning, file_sha256
@@ -60,7 +60,7 @@ class _RobustStart:
     lock_gains: tuple[float, ...]
 
 
-def _robust_start(rig: Rig, spec: SlaveTuneSpec) -> _RobustStart:
+def robust_start(rig: Rig, spec: SlaveTuneSpec) -> _RobustStart:
     """Lock gains and PI designs that keep ``spec``'s margin limits over the plant set
     (:func:`~servotune.analysis.plant_cases.plant_cases` of the spec's spreads, latency and timer
     error).
@@ -70,7 +70,7 @@ def _robust_start(rig: Rig, spec: SlaveTuneSpec) -> _RobustStart:
     InfeasibleError
         A loop cannot keep the limits (the message names the axis and the binding limit).
     """
-    i_m, i_s = _master_slave(rig)
+    i_m, i_s = master_slave(rig)
     cases = spec.plant_cases(rig)
     locks = tuple(robust_lock_gain(rig, a.name, cases, spec.limits) for a in rig.axes)
     robust = dataclasses.replace(
@@ -132,9 +132,9 @@ def tune_rig(
     rig = load_rig(rig_path)
     spec = spec or SlaveTuneSpec()
     say = progress or (lambda _msg: None)
-    i_m, i_s = _master_slave(rig)
+    i_m, i_s = master_slave(rig)
     say(f"tune: PI for {rig.axes[i_m].name} and the start point of {rig.axes[i_s].name}")
-    start = _robust_start(rig, spec)
+    start = robust_start(rig, spec)
     rig, master_pi, slave_pi = start.rig, start.master_pi, start.slave_pi
     tables = rule_tables(rule_base)
     slave = tune_slave(

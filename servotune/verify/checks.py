@@ -25,7 +25,7 @@ __all__ = [
     "max_safe_gain_q",
 ]
 
-_FAULT_QUANTITY = "fault_runs"
+FAULT_QUANTITY = "fault_runs"
 
 
 # --- checks --------------------------------------------------------------------------------
@@ -167,7 +167,7 @@ def check_timer(rig: Rig, max_period_error_ppm: float | None = None) -> Check:
 
 
 @dataclass(slots=True)
-class _Fastest:
+class Fastest:
     """Largest motion per tick and speed seen in the runs, and where."""
 
     counts_per_tick: float = 0.0

@@ -43,11 +43,11 @@ from servotune.plant import (
     plant_row,
 )
 from servotune.rig import Rig
-from servotune.scenarios import Inputs, _sync_move_for, build_scenario
+from servotune.scenarios import Inputs, build_scenario, sync_move_for
 from servotune.sim.engine import (
     Loop,
-    _converter_args,
-    _input_arrays,
+    converter_args,
+    input_arrays,
     prepare_batch,
     run_batch,
 )
@@ -56,8 +56,8 @@ from servotune.sim.lean_sync import FIGURE_NAMES, SyncWindows, run_sync_figures
 from servotune.tuning import Tuning
 from servotune.validate import check_seed, show_value
 from servotune.verify.checks import (
-    _FAULT_QUANTITY,
-    _Fastest,
+    FAULT_QUANTITY,
+    Fastest,
     check_overflow,
     check_speed,
     check_timer,
@@ -65,7 +65,7 @@ from servotune.verify.checks import (
 from servotune.verify.montecarlo import PlantDistribution, SpecSpread, summarise
 from servotune.verify.result import Check, Row, Verification
 from servotune.verify.spec import LIMITS, ScenarioSpec, Spec
-from servotune.verify.variants import Variant, _seed_seqs
+from servotune.verify.variants import Variant, seed_seqs
 
 __all__ = [
     "LISTED_VARIANTS",
@@ -98,7 +98,7 @@ class _MoveWindows:
 def _inputs(rig: Rig, sc: ScenarioSpec) -> Inputs:
     assert sc.seconds is not None  # resolved by ScenarioSpec
     if sc.kind == "sync":
-        return _sync_move_for(rig, sc).inputs
+        return sync_move_for(rig, sc).inputs
     if sc.kind == "track":
         return build_scenario(rig, "track", axis=_master(rig)[1], seconds=sc.seconds).inputs
     n = math.floor(sc.seconds / rig.period_s + 0.5)
@@ -466,8 +466,8 @@ def _run_lean_sync(
         _loop_consts(shared),
         seeds,
         np.asarray(shared.loop.ref_source, dtype=np.int64),
-        _input_arrays(inputs),
-        _converter_args(rig),
+        input_arrays(inputs),
+        converter_args(rig),
         windows,
         float(rig.period_s),
         shared.threads,
@@ -531,7 +531,7 @@ def _judge(
             value = np.where(better, v, value)
     for name in names:
         faulted = faults[name]
-        figures.append((sc.name, _FAULT_QUANTITY, name, "runs", 0.0))
+        figures.append((sc.name, FAULT_QUANTITY, name, "runs", 0.0))
         worst.append(float(faulted.sum()))
         where.append(start + int(np.argmax(faulted)) if faulted.any() else -1)
         passed &= ~faulted
@@ -663,7 +663,7 @@ def _reduce_rows(parts: Sequence[_ChunkResult]) -> list[Row]:
     """Each limit's worst value over every chunk, in chunk order (the first worst wins)."""
     rows = []
     for j, (scenario, quantity, axis, unit, limit) in enumerate(parts[0].figures):
-        if quantity == _FAULT_QUANTITY:
+        if quantity == FAULT_QUANTITY:
             count = sum(float(p.worst[j]) for p in parts)
             firsts = [int(p.where[j]) for p in parts if p.where[j] >= 0]
             worst, at = count, (firsts[0] if firsts else 0)
@@ -688,10 +688,10 @@ def _reduce_rows(parts: Sequence[_ChunkResult]) -> list[Row]:
 
 def _reduce_fastest(
     rig: Rig, runs: Sequence[tuple[ScenarioSpec, Inputs]], parts: Sequence[_ChunkResult]
-) -> _Fastest:
+) -> Fastest:
     """The largest motion per tick and speed over every scenario and chunk, and where: the
     first in (scenario, plant set, tick, axis) order."""
-    fastest = _Fastest()
+    fastest = Fastest()
     for s, (sc, _) in enumerate(runs):
         for p in parts:
             step, b_t, a_t, speed, b_s, a_s = p.fastest[s]
@@ -912,7 +912,7 @@ def verify(
         bounds = guided_chunk_bounds(n_sets, ex.workers, smallest=smallest, largest=largest)
     else:
         bounds = chunk_bounds(n_sets, chunk_size)
-    noise = _seed_seqs(used_seed)[1].generate_state(n_sets, np.uint64)
+    noise = seed_seqs(used_seed)[1].generate_state(n_sets, np.uint64)
     chunks = [_Chunk(start=a, stop=b, noise=noise[a:b]) for a, b in bounds]
     shared = _Shared(
         rig=rig,

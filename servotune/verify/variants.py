@@ -104,7 +104,7 @@ def chunk_generator(seed: int, start: int, draws_per_item: int) -> np.random.Gen
     ``draws_per_item`` uniforms at ``[i·d, (i + 1)·d)`` of the stream (PCG64's ``advance``), so a
     chunk ``[start, stop)`` draws exactly what one pass over all items draws there, whatever
     the chunking (docs/decisions.md#11-random-numbers)."""
-    bits = np.random.PCG64(_seed_seqs(seed)[0])
+    bits = np.random.PCG64(seed_seqs(seed)[0])
     bits.advance(int(start) * int(draws_per_item))
     return np.random.Generator(bits)
 
@@ -235,6 +235,6 @@ def _maps(plant: Plant, fit: Any, mc: MonteCarlo) -> tuple[Any, Any, Any, Any]:
     return out[0], out[1], out[2], out[3]
 
 
-def _seed_seqs(seed: int) -> list[np.random.SeedSequence]:
+def seed_seqs(seed: int) -> list[np.random.SeedSequence]:
     """Independent seed sequences: [0] the variants, [1] the noise streams."""
     return np.random.SeedSequence(int(seed)).spawn(2)

@@ -55,6 +55,7 @@ def test_import_cli_and_help_import_no_heavy_module() -> None:
     got = _run(
         """
         import servotune.cli
+        import servotune.cli.parser
         after_import = heavy()
         code, text = help_of(["--help"])
         print(json.dumps({"after_import": after_import, "after_help": heavy(), "code": code,
@@ -72,7 +73,8 @@ def test_every_verbs_help_exits_0_without_numba() -> None:
         """
         import argparse
         import servotune.cli
-        (sub,) = (a for a in servotune.cli._parser()._actions
+        import servotune.cli.parser
+        (sub,) = (a for a in servotune.cli.parser.build_parser()._actions
                   if isinstance(a, argparse._SubParsersAction))
         verbs = {}
         for verb in sub.choices:

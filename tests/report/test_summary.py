@@ -13,7 +13,7 @@ from types import SimpleNamespace
 import pytest
 
 from report.conftest import EXAMPLE_SPEC, ReportBuild
-from servotune.report.html import _summary_section
+from servotune.report.html import summary_section
 from servotune.report.summary import margin_comment, next_step, pass_fraction_text, summarise
 from servotune.verify.result import Check, Row, Verification
 from servotune.verify.spec import load_spec
@@ -149,8 +149,8 @@ def test_swapping_the_verdict_swaps_the_sentence(passed: Verification) -> None:
     good = summarise(passed, tuning_path="tuning.json").next_step
     assert good != s.next_step and "export-table" not in s.next_step
     # the page's summary box turns with it
-    page_pass = _summary_section(summarise(passed))
-    page_fail = _summary_section(s)
+    page_pass = summary_section(summarise(passed))
+    page_fail = summary_section(s)
     assert "Summary: PASSED" in page_pass and 'class="summary pass"' in page_pass
     assert "Summary: FAILED" in page_fail and 'class="summary fail"' in page_fail
     assert "<code>servotune tune rig.toml --spec my.spec.toml" in page_fail

@@ -31,7 +31,7 @@ from servotune.sim.tick import normal
 from servotune.verify import load_spec, verify
 from servotune.verify import run as vrun
 from servotune.verify.montecarlo import SpecSpread
-from servotune.verify.variants import _seed_seqs
+from servotune.verify.variants import seed_seqs
 
 SPEC_PATH = EXAMPLE_RIG_PATH.with_name("pc-dual-servo.spec.toml")
 N_DRAWS = 64
@@ -61,7 +61,7 @@ def _shared(tuning, rig, spec, scenarios=("sync", "track")) -> vrun._Shared:
 
 def _chunk(seed: int, n_draws: int) -> vrun._Chunk:
     """The nominal plants and draws mc1 … mc<n_draws>, with verify's noise seeds."""
-    noise = _seed_seqs(seed)[1].generate_state(n_draws + 1, np.uint64)
+    noise = seed_seqs(seed)[1].generate_state(n_draws + 1, np.uint64)
     return vrun._Chunk(start=0, stop=n_draws + 1, noise=noise)
 
 

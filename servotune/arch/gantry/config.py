@@ -588,7 +588,7 @@ def gantry_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".") -> Gan
     )
 
 
-def _case_config(cfg: GantryConfig, case: str) -> tuple[GantryConfig, np.ndarray]:
+def case_config(cfg: GantryConfig, case: str) -> tuple[GantryConfig, np.ndarray]:
     """The config a case runs (``load``: the slave side a copy of the master's drive and
     plant) and the load per cycle and axis [V]."""
     n = cfg.n_cycles

@@ -17,7 +17,7 @@ import numpy as np
 from servotune._control import scipy_paths
 from servotune.arch.gantry.config import (
     GantryConfig,
-    _case_config,
+    case_config,
 )
 from servotune.laws.sync import SyncGains
 from servotune.plant import discretize
@@ -151,7 +151,7 @@ def predicted_load_reduction(cfg: GantryConfig) -> LoadPrediction:
     -------
     LoadPrediction
     """
-    cfg, load = _case_config(cfg, "load")
+    cfg, load = case_config(cfg, "load")
     models = sync_loop_models(cfg)
     n = cfg.n_cycles
     side = 0 if cfg.load.axis == "master" else 1

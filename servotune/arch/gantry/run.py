@@ -45,7 +45,7 @@ from servotune.arch.gantry.config import (
     TOPOLOGIES,
     GantryConfig,
     GantryMove,
-    _case_config,
+    case_config,
 )
 from servotune.arch.gantry.design import predicted_load_reduction
 from servotune.arch.gantry.margins import gantry_margins, margin_failures
@@ -378,7 +378,7 @@ def simulate_gantry(
         f"a gantry run of {cfg.seconds:g} s",
         f"{n:,} cycles × {_TRACE_BYTES_PER_CYCLE} bytes",
     )
-    cfg, load = _case_config(cfg, case)
+    cfg, load = case_config(cfg, case)
     cmd = move_profile(cfg.move, cfg.bus.cycle_s, n)
     return run_gantry(cfg, cmd, load, topology=topology, seed=seed, case=case)
 

@@ -41,19 +41,19 @@ __all__: list[str] = []  # private: the names run.py needs are imported by name
 
 # per-CPU statistics
 _S_UNDER, _S_T_UNDER, _S_OVER, _S_T_OVER, _S_SKIP, _S_MIN, _S_MAX, _S_TICKS, _S_RESYNC = range(9)
-_NS = 9
+NS = 9
 # per-axis statistics
 _A_FLAGS, _A_T_FAULT, _A_SAT = 0, 1, 2
-_NA = 3
+NA = 3
 # per-axis integer parameters: whole CPU ticks of lag, ring length (lag + 2), counter at start
 _I_LAG, _I_RING, _I_INIT = 0, 1, 2
-_NI = 3
+NI = 3
 # per-tick trace rows: integer (reference, D/A code, unwrapped position) and float (plant
 # position and speed at the tick)
 _T_REF, _T_CODE, _T_Y = 0, 1, 2
-_NT = 3
+NT = 3
 _T_POS, _T_SPD = 0, 1
-_NTF = 2
+NTF = 2
 # per-CPU queue event log (run_linkage(trace=True); result.EVENT_COLUMNS names the columns):
 # the kind, its argument (sync: the master's tick index; tick: the command index executed;
 # block: the block index), the queue level before and after, a count (sync: commands discarded;
@@ -61,7 +61,7 @@ _NTF = 2
 # came too late (sync: the CPU's next index before the sync) and the CPU's next index after
 _EV_SYNC, _EV_TICK, _EV_BLOCK = 0, 1, 2
 _E_KIND, _E_ARG, _E_BEFORE, _E_AFTER, _E_COUNT, _E_LATE, _E_NEXT = range(7)
-_NE = 7
+NE = 7
 
 
 @intrinsic

@@ -21,9 +21,9 @@ __all__ = [
 _CONTOUR_WINDOW = 4000  # largest number of ticks searched either side of the current one
 # bytes per master tick and axis: interpolated positions and commands, padded path and
 # commands, actual, error (48), with a margin
-_TICK_BYTES_PER_AXIS = 64
-_TRACE_BYTES_PER_AXIS = 40  # run_linkage(trace=True): reference, code, positions, speed
-_TICK_BYTES = 64  # queue traces, move index per tick (and CPU)
+TICK_BYTES_PER_AXIS = 64
+TRACE_BYTES_PER_AXIS = 40  # run_linkage(trace=True): reference, code, positions, speed
+TICK_BYTES = 64  # queue traces, move index per tick (and CPU)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -137,7 +137,7 @@ def _trapezoid(
 def _check_ticks(config: LinkageConfig, ticks: float, where: str) -> None:
     """Refuse a path whose interpolation up to ``where`` (``ticks`` long) exceeds the budget."""
     n_ax = config.n_axes
-    per_tick = n_ax * _TICK_BYTES_PER_AXIS + _TICK_BYTES
+    per_tick = n_ax * TICK_BYTES_PER_AXIS + TICK_BYTES
     check_memory(
         ticks * per_tick,
         f"linkage {config.name!r}: interpolating the path up to {where}",

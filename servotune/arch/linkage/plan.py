@@ -85,7 +85,7 @@ def watermarks(bus: Bus, period_s: float, n_axes: int, drift: float) -> tuple[in
     return p * b - math.floor(ratio + drift), (p + 1) * b - 1 - math.floor(ratio - drift)
 
 
-def _read_config(config_file: SourceFile) -> tuple[LinkageConfig, SourceFile, dict[str, Any]]:
+def read_config(config_file: SourceFile) -> tuple[LinkageConfig, SourceFile, dict[str, Any]]:
     """The config parsed from the bytes read, its rig read once, and the parsed TOML."""
     p = Path(config_file.path)
     data = parse_toml(config_file.raw, config_file.path, ConfigError, "linkage config")
@@ -143,7 +143,7 @@ def plan_linkage(config_path: str | Path) -> LinkagePlan:
     (1280, 6250, [9, 9])
     """
     config_file = SourceFile.read(config_path, ConfigError, "linkage config")
-    config, rig_file, data = _read_config(config_file)
+    config, rig_file, data = read_config(config_file)
     where = f"linkage config {config_file.path!r}"
     period, bus = config.period_s, config.bus
     ip = interpolate(config)

@@ -368,5 +368,5 @@ class LinkageResult:
         }
 
 
-def _optional_time(x: float) -> float | None:
+def optional_time(x: float) -> float | None:
     return None if x < 0.0 else float(x)

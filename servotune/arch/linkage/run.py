@@ -25,12 +25,6 @@ from servotune.arch.linkage.kernel import (
     _I_INIT,
     _I_LAG,
     _I_RING,
-    _NA,
-    _NE,
-    _NI,
-    _NS,
-    _NT,
-    _NTF,
     _S_MAX,
     _S_MIN,
     _S_OVER,
@@ -45,12 +39,18 @@ from servotune.arch.linkage.kernel import (
     _T_REF,
     _T_SPD,
     _T_Y,
+    NA,
+    NE,
+    NI,
+    NS,
+    NT,
+    NTF,
     _kernel,
 )
 from servotune.arch.linkage.path import (
-    _TICK_BYTES,
-    _TICK_BYTES_PER_AXIS,
-    _TRACE_BYTES_PER_AXIS,
+    TICK_BYTES,
+    TICK_BYTES_PER_AXIS,
+    TRACE_BYTES_PER_AXIS,
     _contour,
     interpolate,
 )
@@ -60,7 +60,7 @@ from servotune.arch.linkage.result import (
     AxisTrace,
     CpuResult,
     LinkageResult,
-    _optional_time,
+    optional_time,
 )
 from servotune.budget import check_memory, format_count
 from servotune.errors import ConfigError
@@ -282,9 +282,9 @@ def run_linkage(
     check_number("seconds", seconds, "s", strict=True, hi=1e6, error=ConfigError)
     seed = check_seed(seed, error=ConfigError)
     per_tick = (
-        config.n_axes * (_TICK_BYTES_PER_AXIS + (_TRACE_BYTES_PER_AXIS if trace else 0))
-        + len(config.cpus) * (3 + (_NE if trace else 0)) * 8
-        + _TICK_BYTES
+        config.n_axes * (TICK_BYTES_PER_AXIS + (TRACE_BYTES_PER_AXIS if trace else 0))
+        + len(config.cpus) * (3 + (NE if trace else 0)) * 8
+        + TICK_BYTES
     )
     ticks_f = seconds / period
     check_memory(
@@ -320,7 +320,7 @@ def run_linkage(
     ax_cpu = np.array([cpu_index[config.cpu_of(a.name).name] for a in config.axes])
     # each axis's plant row for its CPU's nominal tick T/(1 + ε) (its tick in master time)
     plant_rows = np.zeros((n_ax, NROW))
-    ints = np.zeros((n_ax, _NI), dtype=np.int64)
+    ints = np.zeros((n_ax, NI), dtype=np.int64)
     for i, a in enumerate(config.axes):
         tick_s = period / (1.0 + eps[ax_cpu[i]])
         plant_rows[i], m = plant_row(a.plant, tick_s, rig.timer.compute_s, rig.counts_per_rev)
@@ -343,11 +343,11 @@ def run_linkage(
     q_time = np.zeros((n_cpu, n_rec))
     q_level = np.zeros((n_cpu, n_rec), dtype=np.int64)
     q_index = np.zeros((n_cpu, n_rec), dtype=np.int64)
-    cpu_stats = np.zeros((n_cpu, _NS))
-    ax_stats = np.zeros((n_ax, _NA))
-    tr_i = np.zeros((_NT, n_tr, n_ax), dtype=np.int64)
-    tr_f = np.zeros((_NTF, n_tr, n_ax))
-    ev = np.zeros((n_cpu, n_ev, _NE), dtype=np.int64)
+    cpu_stats = np.zeros((n_cpu, NS))
+    ax_stats = np.zeros((n_ax, NA))
+    tr_i = np.zeros((NT, n_tr, n_ax), dtype=np.int64)
+    tr_f = np.zeros((NTF, n_tr, n_ax))
+    ev = np.zeros((n_cpu, n_ev, NE), dtype=np.int64)
     ev_count = np.zeros(n_cpu, dtype=np.int64)
     call_compiled(
         _kernel,
@@ -398,9 +398,9 @@ def run_linkage(
                 queue_level=q_level[s, :n].copy(),
                 tick_index=q_index[s, :n].copy(),
                 underruns=int(cpu_stats[s, _S_UNDER]),
-                first_underrun_s=_optional_time(cpu_stats[s, _S_T_UNDER]),
+                first_underrun_s=optional_time(cpu_stats[s, _S_T_UNDER]),
                 overruns=int(cpu_stats[s, _S_OVER]),
-                first_overrun_s=_optional_time(cpu_stats[s, _S_T_OVER]),
+                first_overrun_s=optional_time(cpu_stats[s, _S_T_OVER]),
                 min_level=int(cpu_stats[s, _S_MIN]) if n else 0,
                 max_level=int(cpu_stats[s, _S_MAX]),
                 skipped=int(cpu_stats[s, _S_SKIP]),
@@ -447,7 +447,7 @@ def run_linkage(
                 rms_err_counts=float(np.sqrt(np.mean(err[:, i] ** 2))),
                 saturated_ticks=int(ax_stats[i, _A_SAT]),
                 fault=fault,
-                first_fault_s=_optional_time(ax_stats[i, _A_T_FAULT]),
+                first_fault_s=optional_time(ax_stats[i, _A_T_FAULT]),
             )
         )
     # contour and circular tests

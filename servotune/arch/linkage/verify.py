@@ -52,8 +52,8 @@ from servotune.arch.linkage.checks import check_linkage
 from servotune.arch.linkage.config import LinkageConfig
 from servotune.arch.linkage.plan import (
     LinkagePlan,
-    _read_config,
     plan_config,
+    read_config,
     read_plan_bytes,
     run_plan,
 )
@@ -547,7 +547,7 @@ def verify_plan_files(
     note = fallback_notice(config_file, "config", "plan")
     if note is not None and progress is not None:
         progress(note)
-    config, rig_file, _ = _read_config(config_file)
+    config, rig_file, _ = read_config(config_file)
     if rig_file.sha256 != plan.rig_sha256:
         raise TrustError(
             f"rig file {rig_file.path} (sha256 {rig_file.sha256[:12]}…) is not the rig the "

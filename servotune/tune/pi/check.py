@@ -10,9 +10,9 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 from scipy.optimize import brentq, minimize_scalar
 
-from servotune.tune.pi.grid import _Ctx, _q_im, _spectral_radius, _ss_response
-from servotune.tune.pi.nlp import _Nlp, _NlpResult
-from servotune.tune.pi.spec import _TOL_GM_DB, _TOL_MS_REL, _TOL_PM_DEG, _TOL_WC_REL, _Spec
+from servotune.tune.pi.grid import Ctx, _q_im, spectral_radius, ss_response
+from servotune.tune.pi.nlp import Nlp, NlpResult
+from servotune.tune.pi.spec import _TOL_GM_DB, _TOL_MS_REL, _TOL_PM_DEG, _TOL_WC_REL, Spec
 
 if TYPE_CHECKING:  # python-control is imported where used (slow to import)
     import control
@@ -107,7 +107,7 @@ def _sensitivity_peak(
     return float(best_ms), float(best_w), np.asarray(found)
 
 
-def _new_peaks(nlp: _Nlp, res: _NlpResult, chk: _Check) -> np.ndarray:
+def new_peaks(nlp: Nlp, res: NlpResult, chk: _Check) -> np.ndarray:
     """Where ``|L|`` peaks above 1 above the NLP's top modelled gain crossover, for a solution
     that has more gain crossovers than the NLP models (empty if none)."""
     n_pm = nlp.structure[0]
@@ -117,14 +117,14 @@ def _new_peaks(nlp: _Nlp, res: _NlpResult, chk: _Check) -> np.ndarray:
     return chk.l_peaks[chk.l_peaks > top]
 
 
-def _sens(ctx: _Ctx, kp: float, ki: float, w: np.ndarray) -> np.ndarray:
+def sens(ctx: Ctx, kp: float, ki: float, w: np.ndarray) -> np.ndarray:
     """``1/(1 + L)`` at ``w``."""
     t = ctx.period_s
     gw = ctx.resp(w)
     return 1.0 / (1.0 + (kp + ki * (0.5 * t + 1j * _q_im(w, t))) * gw)
 
 
-def _fast_check(ctx: _Ctx, kp: float, ki: float, w: np.ndarray) -> _Check:
+def fast_check(ctx: Ctx, kp: float, ki: float, w: np.ndarray) -> _Check:
     """The re-check's numbers computed directly (used between the refinement rounds).
 
     Crossings are bracketed on ``w`` and solved on the exact loop with brentq, as
@@ -155,11 +155,11 @@ def _fast_check(ctx: _Ctx, kp: float, ki: float, w: np.ndarray) -> _Check:
         gms = 1.0 / np.abs(loop_at(wpcs)) if i.size else wpcs
     pm, wgc, wc_top, gm_db, wpc = _select(pms, wgcs, gms, wpcs)
     ms, w_ms, found = _sensitivity_peak(loop_at, w, lw)
-    rho = float(_spectral_radius(ctx, np.array([kp]), np.array([ki]))[0])
+    rho = float(spectral_radius(ctx, np.array([kp]), np.array([ki]))[0])
     return _Check(pm, wgc, wc_top, float(gm_db), wpc, ms, w_ms, found, rho, wgcs, l_peaks, w)
 
 
-def _python_control_check(
+def python_control_check(
     p_scaled: control.StateSpace, kp: float, ki: float, w: np.ndarray
 ) -> _Check:
     """Margins, peak sensitivity and closed-loop poles of the discrete loop, by python-control.
@@ -190,14 +190,14 @@ def _python_control_check(
     c_l, d_l = np.asarray(loop.C, dtype=float), float(np.asarray(loop.D)[0, 0])
 
     def loop_at(om: np.ndarray) -> np.ndarray:
-        return _ss_response(a_l, b_l, c_l, d_l, np.exp(1j * om * t))
+        return ss_response(a_l, b_l, c_l, d_l, np.exp(1j * om * t))
 
     ms, w_ms, found = _sensitivity_peak(loop_at, w, lw)
     rho = float(np.max(np.abs(control.feedback(loop, 1).poles())))
     return _Check(pm, wgc, wc_top, float(gm_db), wpc, ms, w_ms, found, rho)
 
 
-def _violations(chk: _Check, spec: _Spec) -> dict[str, float]:
+def _violations(chk: _Check, spec: Spec) -> dict[str, float]:
     """How far each target is missed, in its unit (deg, dB, relative, relative); > 0: missed."""
     out = {}
     if not chk.rho < 1.0:

@@ -15,24 +15,24 @@ from servotune.hw import dac as hw_dac
 from servotune.plant import Plant, lag_split
 from servotune.tune.pi.check import (
     _acceptable,
-    _fast_check,
-    _new_peaks,
-    _python_control_check,
-    _sens,
     _violations,
+    fast_check,
+    new_peaks,
+    python_control_check,
+    sens,
 )
 from servotune.tune.pi.grid import (
     DECADES_BELOW,
-    _check_grid,
-    _Ctx,
+    Ctx,
     _grid,
-    _plant_model,
     _q_im,
-    _ss_response,
-    _start_point,
+    check_grid,
+    plant_model,
+    ss_response,
+    start_point,
 )
-from servotune.tune.pi.nlp import _Nlp
-from servotune.tune.pi.spec import _MAX_BUILDS, _PEAK_STENCIL, _REFINE_ROUNDS, PITuning, _check_spec
+from servotune.tune.pi.nlp import Nlp
+from servotune.tune.pi.spec import MAX_BUILDS, PEAK_STENCIL, REFINE_ROUNDS, PITuning, check_spec
 
 if TYPE_CHECKING:  # python-control is imported where used (slow to import)
     import control
@@ -154,7 +154,7 @@ def tune_pi(
     """
     if lsb_v is None:
         lsb_v = hw_dac.lsb_v() if isinstance(plant, Plant) else 1.0
-    spec = _check_spec(
+    spec = check_spec(
         period_s,
         compute_s,
         lsb_v,
@@ -163,7 +163,7 @@ def tune_pi(
         max_sensitivity,
         crossover_rad_s,
     )
-    discretiser, lag, feature = _plant_model(plant, period_s, compute_s)
+    discretiser, lag, feature = plant_model(plant, period_s, compute_s)
     p_scaled = lsb_v * discretiser(lag)
     a = np.asarray(p_scaled.A, dtype=float)
     b = np.asarray(p_scaled.B, dtype=float)
@@ -177,7 +177,7 @@ def tune_pi(
 
     def resp(om: np.ndarray) -> np.ndarray:
         z = np.exp(1j * np.asarray(om, dtype=float) * period_s)
-        return _ss_response(*mats, d_frac, z) * z ** (-m_ticks)
+        return ss_response(*mats, d_frac, z) * z ** (-m_ticks)
 
     nyq = math.pi / period_s
     w_lo = min(feature, nyq, spec.wc_max or math.inf) * 10.0**-DECADES_BELOW
@@ -185,11 +185,11 @@ def tune_pi(
     g = resp(w)
     if not np.all(np.isfinite(g)):
         raise SpecError("the discrete plant has a pole on the unit circle away from z = 1")
-    ctx = _Ctx(period_s, a, b, c, d, resp, w, g, unwrapped_phase(g), _q_im(w, period_s))
-    w_check = _check_grid(w)
+    ctx = Ctx(period_s, a, b, c, d, resp, w, g, unwrapped_phase(g), _q_im(w, period_s))
+    w_check = check_grid(w)
     where = f"on this plant at period_s={period_s:g} s, compute_s={compute_s:g} s"
 
-    start = _start_point(ctx, spec)
+    start = start_point(ctx, spec)
     if start is None:
         raise InfeasibleError(
             f"no stabilising PI with kp >= 0, ki > 0 meets {spec.describe()} {where}"
@@ -202,54 +202,54 @@ def tune_pi(
     wc_w = np.array([spec.wc_max * (1 - 1e-7)]) if spec.wc_max is not None else np.empty(0)
     iterations, builds = 0, 0
     designs: list[tuple[float, float, str, bool]] = []  # acceptable: kp, ki, status, strictly
-    nlp = _Nlp(ctx, spec, start)
+    nlp = Nlp(ctx, spec, start)
     x0: np.ndarray | None = None
-    for _ in range(_REFINE_ROUNDS):
+    for _ in range(REFINE_ROUNDS):
         res = nlp.solve(x0, pm_deg=pm_t, gm_db=gm_t, ms=ms_t, ms_w=ms_w, wc_w=wc_w, guard_w=guard_w)
         iterations += res.iterations
         if not (res.success and res.ki > 0):
             break
-        chk = _fast_check(ctx, res.kp, res.ki, w_check)
+        chk = fast_check(ctx, res.kp, res.ki, w_check)
         viol = _violations(chk, spec)
         strict = _acceptable(viol, strict=True)
         if _acceptable(viol):
             designs.append((res.kp, res.ki, res.status, strict))
-        guards = np.empty(0) if strict else _new_peaks(nlp, res, chk)
+        guards = np.empty(0) if strict else new_peaks(nlp, res, chk)
         if guards.size:
             # the NLP went to a loop with new crossovers above the ones it models, and that
             # loop misses a target: keep |L| <= 1 there, and solve again as before
-            guard_w = np.append(guard_w, np.outer(guards, _PEAK_STENCIL))
+            guard_w = np.append(guard_w, np.outer(guards, PEAK_STENCIL))
             continue
-        structure = _Nlp.structure_of(ctx, spec, res.kp, res.ki)
+        structure = Nlp.structure_of(ctx, spec, res.kp, res.ki)
         if res.on_bracket or structure != nlp.structure:
-            if builds >= _MAX_BUILDS:
+            if builds >= MAX_BUILDS:
                 break
-            nlp, x0, builds = _Nlp(ctx, spec, (res.kp, res.ki)), None, builds + 1
+            nlp, x0, builds = Nlp(ctx, spec, (res.kp, res.ki)), None, builds + 1
             continue  # a crossing appeared, vanished or left its bracket: model it again
         if strict:
             break
         # exchange: add the frequencies where a target was missed between grid points
         x0 = res.x
         if viol.get("max_sensitivity", 0.0) > 0:
-            hot = chk.ms_peaks[np.abs(_sens(ctx, res.kp, res.ki, chk.ms_peaks)) > ms_t]
+            hot = chk.ms_peaks[np.abs(sens(ctx, res.kp, res.ki, chk.ms_peaks)) > ms_t]
             if ms_w.size:  # peaks were added already, yet the peak moved: tighten as well
                 ms_t /= 1.0 + viol["max_sensitivity"] + 1e-7
-            ms_w = np.append(ms_w, np.outer(hot, _PEAK_STENCIL))
+            ms_w = np.append(ms_w, np.outer(hot, PEAK_STENCIL))
         if viol.get("crossover_rad_s", 0.0) > 0:
             wc_w = np.append(wc_w, chk.wc_top)
         if viol.get("phase_margin_deg", 0.0) > 0:
             pm_t = min(89.99, pm_t + viol["phase_margin_deg"] + 1e-6)
         if viol.get("gain_margin_db", 0.0) > 0:
             gm_t += viol["gain_margin_db"] + 1e-6
-    viol = _violations(_fast_check(ctx, *start, w_check), spec)
+    viol = _violations(fast_check(ctx, *start, w_check), spec)
     designs.append((*start, "start point", _acceptable(viol, strict=True)))
     # the re-check by python-control decides: designs that meet the targets, the largest Ki
     # first, then those within the tolerances, the last refined first
     tried = sorted((d for d in designs if d[3]), key=lambda d: -d[1])
     tried += [d for d in designs[::-1] if not d[3]]
     for design in tried:
-        w_design = _fast_check(ctx, design[0], design[1], w_check).w
-        chk = _python_control_check(p_scaled, design[0], design[1], w_design)
+        w_design = fast_check(ctx, design[0], design[1], w_check).w
+        chk = python_control_check(p_scaled, design[0], design[1], w_design)
         viol = _violations(chk, spec)
         if _acceptable(viol):
             break

@@ -11,7 +11,7 @@ import numpy as np
 
 from servotune.analysis.margins import controller_basis, grid_margins
 from servotune.plant import Plant, discretize, discretize_lti
-from servotune.tune.pi.spec import _TOL_GM_DB, _TOL_MS_REL, _TOL_PM_DEG, _TOL_WC_REL, _Spec
+from servotune.tune.pi.spec import _TOL_GM_DB, _TOL_MS_REL, _TOL_PM_DEG, _TOL_WC_REL, Spec
 
 if TYPE_CHECKING:  # python-control is imported where used (slow to import)
     import control
@@ -26,7 +26,7 @@ _MAX_STABILITY_CHECKS = 64  # start-point candidates that pass the grid checks, 
 _MAX_LAG_PHASE_STEP = 0.2  # [rad]: grid step times the lag (the delay's phase per step)
 
 
-class _Ctx(NamedTuple):
+class Ctx(NamedTuple):
     """The discrete plant (``lsb_v`` included): its state-space matrices (with the held past
     inputs, for the closed-loop poles), its response at any frequency and on the design grid."""
 
@@ -42,7 +42,7 @@ class _Ctx(NamedTuple):
     q_im: np.ndarray  # Im of T·z/(z−1) on the grid; Re is T/2
 
 
-def _plant_model(
+def plant_model(
     plant: Plant | control.TransferFunction, period_s: float, compute_s: float
 ) -> tuple[Callable[[float], control.StateSpace], float, float]:
     """The exact ZOH discretiser of the plant (a function of the lag), the total lag [s] and
@@ -75,7 +75,7 @@ def _plant_model(
 def _discrete_plant_model(
     plant: control.TransferFunction | control.StateSpace, period_s: float, compute_s: float
 ) -> tuple[Callable[[float], control.StateSpace], float, float]:
-    """:func:`_plant_model` for a plant already discrete at ``period_s`` (e.g. a closed inner
+    """:func:`plant_model` for a plant already discrete at ``period_s`` (e.g. a closed inner
     loop): the lag must be whole periods and acts as ``z^-m``."""
     import control
 
@@ -124,16 +124,14 @@ def _grid(w_lo: float, nyq: float, lag_s: float, poles: np.ndarray) -> np.ndarra
     return np.append(w, nyq)
 
 
-def _check_grid(w: np.ndarray) -> np.ndarray:
+def check_grid(w: np.ndarray) -> np.ndarray:
     """Verification grid: the design grid's geometric midpoints, a decade of log grid below
     it, and the Nyquist frequency."""
     below = np.geomspace(w[0] / 10.0, w[0], POINTS_PER_DECADE + 1)[:-1]
     return np.concatenate([below, np.sqrt(w[:-1] * w[1:]), w[-1:]])
 
 
-def _ss_response(
-    a: np.ndarray, b: np.ndarray, c: np.ndarray, d: float, z: np.ndarray
-) -> np.ndarray:
+def ss_response(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: float, z: np.ndarray) -> np.ndarray:
     """``C (zI − A)⁻¹ B + D`` at each ``z``, batched (in chunks, to bound the memory)."""
     n = a.shape[0]
     if n == 0:
@@ -154,7 +152,7 @@ def _q_im(w: np.ndarray, period_s: float) -> np.ndarray:
     return -0.5 * period_s / np.tan(0.5 * w * period_s)
 
 
-def _spectral_radius(ctx: _Ctx, kp: np.ndarray, ki: np.ndarray) -> np.ndarray:
+def spectral_radius(ctx: Ctx, kp: np.ndarray, ki: np.ndarray) -> np.ndarray:
     """Largest closed-loop pole magnitude for each (kp, ki), batched."""
     t = ctx.period_s
     a, b, c, d = ctx.a, ctx.b[:, 0], ctx.c[0], ctx.d
@@ -171,7 +169,7 @@ def _spectral_radius(ctx: _Ctx, kp: np.ndarray, ki: np.ndarray) -> np.ndarray:
     return np.max(np.abs(np.linalg.eigvals(m)), axis=1)
 
 
-def _grid_margins(ctx: _Ctx, kp: np.ndarray, ki: np.ndarray) -> dict[str, np.ndarray]:
+def _grid_margins(ctx: Ctx, kp: np.ndarray, ki: np.ndarray) -> dict[str, np.ndarray]:
     """Grid estimates for a batch of (kp, ki): worst PM [rad], worst GM [ln], Ms, top crossover
     (:func:`servotune.analysis.margins.grid_margins` of the PI loops on the plant)."""
     gains = np.stack([kp, ki * ctx.period_s, np.zeros_like(kp)], axis=1)
@@ -180,7 +178,7 @@ def _grid_margins(ctx: _Ctx, kp: np.ndarray, ki: np.ndarray) -> dict[str, np.nda
     return {k: v[:, 0] for k, v in m.items()}
 
 
-def _feasible(m: dict[str, np.ndarray], spec: _Spec, slack: float) -> np.ndarray:
+def _feasible(m: dict[str, np.ndarray], spec: Spec, slack: float) -> np.ndarray:
     ok = np.ones(m["ms"].shape, dtype=bool)
     if spec.pm_deg is not None:
         ok &= m["pm"] >= math.radians(spec.pm_deg) - slack * math.radians(_TOL_PM_DEG)
@@ -193,7 +191,7 @@ def _feasible(m: dict[str, np.ndarray], spec: _Spec, slack: float) -> np.ndarray
     return ok
 
 
-def _start_point(ctx: _Ctx, spec: _Spec) -> tuple[float, float] | None:
+def start_point(ctx: Ctx, spec: Spec) -> tuple[float, float] | None:
     """Best grid design: points of the phase-margin loci with the largest Ki that pass.
 
     On the locus of level φ every (kp, ki) puts ``L = −exp(jφ)`` at one grid frequency (on
@@ -239,7 +237,7 @@ def _start_point(ctx: _Ctx, spec: _Spec) -> tuple[float, float] | None:
         for j in range(0, min(idx.size, budget), 16):
             batch = idx[j : min(j + 16, budget)]
             budget -= batch.size
-            stable = batch[_spectral_radius(ctx, kpc[batch], kic[batch]) < 1.0]
+            stable = batch[spectral_radius(ctx, kpc[batch], kic[batch]) < 1.0]
             if stable.size:
                 return float(kpc[stable[0]]), float(kic[stable[0]])
         start += size

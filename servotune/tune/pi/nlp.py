@@ -1,5 +1,5 @@
 """The casadi/ipopt NLP of :func:`~servotune.tune.pi.design.tune_pi` for one crossing structure
-of the loop: the crossings it models (``_crossings``, ``_modelled``) and the NLP (``_Nlp``)."""
+of the loop: the crossings it models (``_crossings``, ``_modelled``) and the NLP (``Nlp``)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from servotune.tune.pi.grid import _Ctx, _q_im
-from servotune.tune.pi.spec import _GUARD_GAIN, _Spec
+from servotune.tune.pi.grid import Ctx, _q_im
+from servotune.tune.pi.spec import GUARD_GAIN, Spec
 
 __all__: list[str] = []
 
@@ -26,7 +26,7 @@ class _Crossing(NamedTuple):
 _MAX_CROSSINGS = 6
 
 
-def _crossings(ctx: _Ctx, kp: float, ki: float) -> tuple[list[_Crossing], list[_Crossing]]:
+def _crossings(ctx: Ctx, kp: float, ki: float) -> tuple[list[_Crossing], list[_Crossing]]:
     """Gain crossovers and phase crossings (odd multiples of π) of the loop on the grid.
 
     Each is located by linear interpolation in ln ω and bracketed by the midpoints to its
@@ -60,7 +60,7 @@ def _crossings(ctx: _Ctx, kp: float, ki: float) -> tuple[list[_Crossing], list[_
 
 
 def _modelled(
-    ctx: _Ctx, spec: _Spec, kp: float, ki: float
+    ctx: Ctx, spec: Spec, kp: float, ki: float
 ) -> tuple[list[_Crossing], list[_Crossing]]:
     """The crossings the NLP models: every gain crossover if a phase margin is asked; the
     phase crossings if a gain margin is asked, except those with a margin 20 dB beyond the
@@ -83,7 +83,7 @@ def _modelled(
     return xcs, keep
 
 
-class _NlpResult(NamedTuple):
+class NlpResult(NamedTuple):
     kp: float
     ki: float
     x: np.ndarray  # the solution vector (scaled gains, crossing frequencies)
@@ -96,7 +96,7 @@ class _NlpResult(NamedTuple):
 _N_EXTRA_MS, _N_EXTRA_WC = 24, 16  # parameter slots for frequencies added by the refinement
 
 
-class _Nlp:
+class Nlp:
     """The NLP for the crossing structure of one loop (built again when that changes).
 
     Variables: ``kp/kp0``, ``ki/ki0`` (scaled by the gains it is built from) and the ln ω of
@@ -105,7 +105,7 @@ class _Nlp:
     the frequencies added by the refinement are parameters, so one build serves every round.
     """
 
-    def __init__(self, ctx: _Ctx, spec: _Spec, gains: tuple[float, float]) -> None:
+    def __init__(self, ctx: Ctx, spec: Spec, gains: tuple[float, float]) -> None:
         import casadi as ca
 
         t = ctx.period_s
@@ -157,7 +157,7 @@ class _Nlp:
         lr, li = loop(p_wc[0, :].T, p_wc[1, :].T, p_wc[2, :].T)
         add(1 - (lr**2 + li**2), 0.0, math.inf)
         lr, li = loop(p_gd[0, :].T, p_gd[1, :].T, p_gd[2, :].T)
-        add(_GUARD_GAIN**2 - (lr**2 + li**2), 0.0, math.inf)
+        add(GUARD_GAIN**2 - (lr**2 + li**2), 0.0, math.inf)
         if xcs or x180s:
             f_ln = ca.interpolant("ln_g", "bspline", [lw], np.log(np.abs(ctx.g) + 1e-300))
             f_ph = ca.interpolant("ph_g", "bspline", [lw], ctx.ph)
@@ -197,7 +197,7 @@ class _Nlp:
         self.solver = ca.nlpsol("tune_pi", "ipopt", nlp, opts)
 
     @staticmethod
-    def structure_of(ctx: _Ctx, spec: _Spec, kp: float, ki: float) -> tuple[int, tuple]:
+    def structure_of(ctx: Ctx, spec: Spec, kp: float, ki: float) -> tuple[int, tuple]:
         """What the NLP models of a loop: the number of gain crossovers, the phase levels."""
         xcs, x180s = _modelled(ctx, spec, kp, ki)
         return len(xcs), tuple(c.level for c in x180s)
@@ -231,7 +231,7 @@ class _Nlp:
         ms_w: np.ndarray,
         wc_w: np.ndarray,
         guard_w: np.ndarray,
-    ) -> _NlpResult:
+    ) -> NlpResult:
         """Solve from ``x0`` (a previous solution; None: the build point)."""
         p = np.concatenate(
             [
@@ -250,7 +250,7 @@ class _Nlp:
         on_bracket = any(
             abs(xs[k] - lo) < 1e-6 or abs(xs[k] - hi) < 1e-6 for k, lo, hi in self.inner
         )
-        return _NlpResult(
+        return NlpResult(
             kp=max(0.0, float(xs[0] * self.kp0)),
             ki=max(0.0, float(xs[1] * self.ki0)),
             x=xs,

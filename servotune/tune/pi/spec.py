@@ -2,7 +2,7 @@
 
 :data:`DEFAULT_TARGETS` are the default robustness targets, :class:`PITuning` is a design from
 :func:`~servotune.tune.pi.design.tune_pi` with its margins; the private part holds the checked
-targets (``_Spec``) and the tolerances and limits of the synthesis.
+targets (``Spec``) and the tolerances and limits of the synthesis.
 """
 
 from __future__ import annotations
@@ -29,10 +29,10 @@ DEFAULT_TARGETS: Mapping[str, float] = {
 point, the gantry drives, the linkage axes)."""
 
 _TOL_PM_DEG, _TOL_GM_DB, _TOL_MS_REL, _TOL_WC_REL = 0.5, 0.1, 0.01, 0.01
-_REFINE_ROUNDS = 8  # NLP solves at most
-_MAX_BUILDS = 3  # NLP rebuilds for a changed crossing structure at most
-_GUARD_GAIN = 0.95  # |L| at a guard against a new gain crossover, at most
-_PEAK_STENCIL = np.array([0.995, 0.998, 1.0, 1.002, 1.005])  # added around a missed Ms peak
+REFINE_ROUNDS = 8  # NLP solves at most
+MAX_BUILDS = 3  # NLP rebuilds for a changed crossing structure at most
+GUARD_GAIN = 0.95  # |L| at a guard against a new gain crossover, at most
+PEAK_STENCIL = np.array([0.995, 0.998, 1.0, 1.002, 1.005])  # added around a missed Ms peak
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -148,7 +148,7 @@ def _is_real(v: object) -> bool:
     return isinstance(v, int | float) and not isinstance(v, bool)
 
 
-class _Spec(NamedTuple):
+class Spec(NamedTuple):
     pm_deg: float | None
     gm_db: float | None
     ms: float | None
@@ -167,7 +167,7 @@ class _Spec(NamedTuple):
         return ", ".join(parts)
 
 
-def _check_spec(
+def check_spec(
     period_s: float,
     compute_s: float,
     lsb_v: float,
@@ -175,7 +175,7 @@ def _check_spec(
     gm: float | None,
     ms: float | None,
     wc: float | None,
-) -> _Spec:
+) -> Spec:
     def real(name: str, v: object, unit: str) -> float:
         if not _is_real(v) or not math.isfinite(v):  # type: ignore[arg-type]
             raise ValueError(f"{name} must be a finite number [{unit}], got {v!r}")
@@ -204,7 +204,7 @@ def _check_spec(
             raise SpecError(
                 f"crossover_rad_s must be in (0, π/period_s = {nyq:.6g}) [rad/s], got {wc!r}"
             )
-    return _Spec(
+    return Spec(
         None if pm is None else float(pm),
         None if gm is None else float(gm),
         None if ms is None else float(ms),

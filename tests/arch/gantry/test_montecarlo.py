@@ -14,7 +14,8 @@ from scipy.stats import binomtest
 from servotune.arch.gantry import CASES, compare_topologies, gantry_montecarlo, simulate_gantry
 from servotune.arch.gantry.load import load_gantry
 from servotune.arch.gantry.synthesis import resolve_gains
-from servotune.cli import _EXAMPLES, main
+from servotune.cli import main
+from servotune.cli.parser import EXAMPLES
 
 ROOT = Path(__file__).resolve().parents[3]
 GANTRY = ROOT / "plants" / "gantry.toml"
@@ -113,7 +114,7 @@ def test_the_readme_montecarlo_size_passes_as_the_readme_says(capsys) -> None:
     # the command as the README and `sync --help` write it, run on the example gantry
     words = _readme_sync_command()
     n = int(words[-1])
-    help_line = next(e for e in _EXAMPLES["sync"] if "--montecarlo" in e)
+    help_line = next(e for e in EXAMPLES["sync"] if "--montecarlo" in e)
     assert f"--montecarlo {n} " in help_line + " "  # the help's example: the same size
     args = [str(GANTRY) if w == "plants/gantry.toml" else w for w in words]
     assert main(args) == 0
