@@ -56,7 +56,6 @@ __all__ = [
     "local_cluster",
     "local_workers",
     "open_executor",
-    "quiet_cluster",
 ]
 
 T = TypeVar("T")
@@ -170,6 +169,21 @@ class DaskExecutor(Executor):
         self.retries = int(retries)
         self.name = name or f"dask {client.scheduler.address}"
         self.embedded = embedded  # a cluster of this run's own (:func:`local_cluster`)
+        self.quieted = False  # :meth:`quiet` has run
+
+    def quiet(self) -> None:
+        """Silence Dask's loggers in this process (an embedded cluster's scheduler and nannies
+        run here) and in the cluster's worker processes, once, before a run stopped by a signal
+        closes the cluster: tasks cancelled mid-run, connections closed under a task,
+        coroutines never awaited are what a shutdown is, not news (dozens of lines of them
+        otherwise, ahead of the run's one line). :func:`local_cluster` turns this process's
+        logging back on once the cluster is closed; the worker processes end with it."""
+        if self.quieted:
+            return
+        self.quieted = True
+        logging.disable(logging.CRITICAL)
+        with suppress(Exception):
+            self.client.run(logging.disable, logging.CRITICAL, on_error="ignore")
 
     @property
     def workers(self) -> int:
@@ -217,7 +231,7 @@ class DaskExecutor(Executor):
             return results
         except BaseException as exc:
             if self.embedded and not isinstance(exc, Exception):  # Ctrl-C, SIGTERM, an exit
-                quiet_cluster(self.client)  # before the cancel below makes the workers talk
+                self.quiet()  # before the cancel below makes the workers talk
             raise
         finally:
             self.client.cancel(futures)
@@ -396,20 +410,18 @@ def local_cluster(workers: int) -> Iterator[DaskExecutor]:
         cluster = LocalCluster(
             n_workers=workers, processes=True, threads_per_worker=1, dashboard_address=":0"
         )
-    quiet = False
+    ex: DaskExecutor | None = None
     try:
         with cluster, Client(cluster) as client:
+            ex = DaskExecutor(client, name=f"dask LocalCluster ({workers} workers)", embedded=True)
             try:
-                yield DaskExecutor(
-                    client, name=f"dask LocalCluster ({workers} workers)", embedded=True
-                )
+                yield ex
             except BaseException as exc:
-                quiet = not isinstance(exc, Exception)  # a signal or an exit ends the run
-                if quiet:
-                    quiet_cluster(client)
+                if not isinstance(exc, Exception):  # a signal or an exit ends the run
+                    ex.quiet()
                 raise
     finally:
-        if quiet:
+        if ex is not None and ex.quieted:
             logging.disable(logging.NOTSET)  # the cluster is closed: this process logs again
 
 
@@ -430,18 +442,6 @@ def _without_ctrl_c() -> Iterator[None]:
         yield
     finally:
         signal.signal(signal.SIGINT, before)
-
-
-def quiet_cluster(client: Any) -> None:
-    """Silence Dask's loggers in this process (the embedded cluster's scheduler and nannies
-    run here) and in the cluster's worker processes, before a run stopped by a signal closes
-    it: tasks cancelled mid-run, connections closed under a task, coroutines never awaited
-    are what a shutdown is, not news (dozens of lines of them otherwise, ahead of the run's
-    one line). :func:`local_cluster` turns this process's logging back on once the cluster
-    is closed; the worker processes end with it."""
-    logging.disable(logging.CRITICAL)
-    with suppress(Exception):
-        client.run(logging.disable, logging.CRITICAL, on_error="ignore")
 
 
 def _connect(address: str) -> Any:

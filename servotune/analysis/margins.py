@@ -125,7 +125,7 @@ class MarginLimits:
         """The limits ``m`` breaks, each as a phrase (empty: it meets them all)."""
         return self.broken_figures(m)
 
-    def broken_figures(self, figures: LoopFigures | LoopMargins) -> tuple[str, ...]:
+    def broken_figures(self, figures: LoopFigures) -> tuple[str, ...]:
         """:meth:`broken` for the figures of :func:`loop_margins`."""
         if not figures.stable:
             return (f"unstable (closed-loop pole radius {figures.spectral_radius:.4f})",)
@@ -321,8 +321,8 @@ def _grid(plant: Plant, period_s: float) -> np.ndarray:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class LoopFigures:
-    """What :func:`loop_margins` measures on one discrete loop (the fields of
-    :class:`LoopMargins` but where the loop sits).
+    """What :func:`loop_margins` measures on one discrete loop (a :class:`LoopMargins` adds
+    where the loop sits).
 
     Attributes
     ----------
@@ -418,8 +418,9 @@ def loop_margins(loop: control.StateSpace, w: np.ndarray) -> LoopFigures:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
-class LoopMargins:
-    """The margins of one loop the runtime can run, on one plant.
+class LoopMargins(LoopFigures):
+    """The margins of one loop the runtime can run, on one plant: what :func:`loop_margins`
+    measured (the :class:`LoopFigures`) and where the loop sits.
 
     Attributes
     ----------
@@ -432,20 +433,6 @@ class LoopMargins:
         ``"nominal"`` or the plant variant's label.
     gains : GainSet
         The frozen gains [codes/count].
-    stable : bool
-        All closed-loop poles inside the unit circle.
-    spectral_radius : float
-        Largest closed-loop pole magnitude [1].
-    gain_margin_db, phase_margin_deg : float
-        [dB], [deg]; inf where the loop has no phase (gain) crossover.
-    delay_margin_s : float
-        Extra loop delay the loop tolerates [s].
-    crossover_rad_s, phase_crossover_rad_s : float
-        Gain and phase crossover [rad/s] (NaN where none).
-    max_sensitivity, max_complementary_sensitivity : float
-        Ms and Mt [1].
-    bandwidth_rad_s : float
-        Closed-loop −3 dB bandwidth [rad/s].
     period_s : float
         The tick period of the loop [s].
     """
@@ -455,16 +442,6 @@ class LoopMargins:
     cell: tuple[int, int] | None
     plant: str
     gains: GainSet
-    stable: bool
-    spectral_radius: float
-    gain_margin_db: float
-    phase_margin_deg: float
-    delay_margin_s: float
-    crossover_rad_s: float
-    phase_crossover_rad_s: float
-    max_sensitivity: float
-    max_complementary_sensitivity: float
-    bandwidth_rad_s: float
     period_s: float
 
     @property

@@ -27,6 +27,16 @@ from servotune.executor import SCHEDULER_ENV, check_workers, local_workers
 PLANTS = ROOT / "plants"
 BASE = ROOT / "tests" / "corpus" / "base"
 SPEC = PLANTS / "pc-dual-servo.spec.toml"
+VERIFY_8 = [
+    "verify",
+    str(BASE / "tuning.json"),
+    "--spec",
+    str(SPEC),
+    "--rig",
+    str(EXAMPLE_RIG),
+    "--montecarlo",
+    "8",
+]
 
 
 @pytest.fixture(autouse=True)
@@ -170,16 +180,7 @@ def _children() -> set[int]:
 @pytest.mark.parametrize(
     "args",
     [
-        [
-            "verify",
-            str(BASE / "tuning.json"),
-            "--spec",
-            str(SPEC),
-            "--rig",
-            str(EXAMPLE_RIG),
-            "--montecarlo",
-            "8",
-        ],
+        VERIFY_8,
         [
             "fit",
             str(BASE / "log.csv"),
@@ -252,14 +253,7 @@ def test_workers_count_against_the_memory_budget(tmp_path, capsys, no_cluster) -
     args = [
         "--max-memory",
         "300M",
-        "verify",
-        str(BASE / "tuning.json"),
-        "--spec",
-        str(SPEC),
-        "--rig",
-        str(EXAMPLE_RIG),
-        "--montecarlo",
-        "8",
+        *VERIFY_8,
         "--workers",
         "2",
     ]

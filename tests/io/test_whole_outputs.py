@@ -8,7 +8,6 @@ tmpfs filled so that the export runs out of space part way (docs/formats.md "Out
 
 from __future__ import annotations
 
-import contextlib
 import errno
 import os
 import signal
@@ -18,6 +17,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from full_disk import no_space_at
 
 import servotune.io.files as files
 from servotune.arch.gantry.tuning import tune_gantry, write_gantry_tuning
@@ -65,23 +65,6 @@ def _count_files(sources, kind: str, tmp_path: Path) -> int:
     return len(_tree(d))
 
 
-@contextlib.contextmanager
-def _no_space_at(monkeypatch, n: int) -> Iterator[list[int]]:
-    """``os.write`` fails with ENOSPC from its ``n``-th call on (as a disk that fills up)."""
-    calls = [0]
-    real = os.write
-
-    def write(fd: int, data) -> int:
-        calls[0] += 1
-        if calls[0] >= n:
-            raise OSError(errno.ENOSPC, "No space left on device")
-        return real(fd, data)
-
-    with monkeypatch.context() as m:
-        m.setattr(files.os, "write", write)
-        yield calls
-
-
 @pytest.mark.parametrize("kind", ["rig", "gantry", "linkage"])
 def test_a_c_export_on_a_full_disk_leaves_nothing_new(
     kind, sources, tmp_path, monkeypatch, capsys
@@ -96,7 +79,7 @@ def test_a_c_export_on_a_full_disk_leaves_nothing_new(
     for n in range(1, n_files + 1):  # the disk fills at the first, second, ... file
         new = tmp_path / f"new-{n}"
         capsys.readouterr()
-        with _no_space_at(monkeypatch, n) as calls:
+        with no_space_at(monkeypatch, n) as calls:
             rc_new = _export(sources[kind], new)
             rc_old = _export(sources[kind], existing)
         assert calls[0] >= n  # the failing write was reached
@@ -202,7 +185,7 @@ def test_plots_on_a_full_disk_leave_nothing_new(
     if verb == "linkage":
         args += ["--seconds", "2"]
     out = tmp_path / "plots"
-    with _no_space_at(monkeypatch, 2):
+    with no_space_at(monkeypatch, 2):
         rc = main([*args, "--plot", str(out)])
     assert rc != 0
     assert "No space left on device" in capsys.readouterr().err

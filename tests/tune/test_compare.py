@@ -9,17 +9,15 @@ python-control's. The statement's words are derived from the numbers
 
 from __future__ import annotations
 
-import errno
 import json
 import math
-import os
 from pathlib import Path
 
 import numpy as np
 import pytest
+from full_disk import no_space_at
 
 import servotune as st
-import servotune.io.files as files
 from servotune.cli import main
 from servotune.report.text import figure4_statement
 from servotune.tune.compare import METRICS, compare_structures, pareto_front, pareto_mask
@@ -145,17 +143,7 @@ def test_cli_compare_writes_figure4_and_the_sweep(tmp_path, capsys, monkeypatch)
     # leaves an earlier output as it was, the two figures not half replaced
     out.mkdir()
     (out / "figure4.json").write_text("{}\n")
-    calls = [0]
-    real_write = os.write
-
-    def write(fd: int, data) -> int:
-        calls[0] += 1
-        if calls[0] == 3:  # figure4.png, pareto.png, then figure4.json
-            raise OSError(errno.ENOSPC, "No space left on device")
-        return real_write(fd, data)
-
-    with monkeypatch.context() as m:
-        m.setattr(files.os, "write", write)
+    with no_space_at(monkeypatch, 3):  # figure4.png, pareto.png, then figure4.json
         assert main(args) == 3
     assert "No space left on device" in capsys.readouterr().err
     assert sorted(p.name for p in out.iterdir()) == ["figure4.json"]
