@@ -1207,34 +1207,73 @@ def bench_fit(opts: Options) -> list[Figure]:
 
 @register("capture")
 def bench_capture(opts: Options) -> list[Figure]:
-    """Reading a long halsampler capture (:func:`servotune.io.hal.read_halsampler`, a chunk of
-    lines at a time): 10,000,000 lines of three pins (about 180 MB; the quick preset 1,000,000),
-    written here as halsampler prints them, then read once, warm.
+    """Reading long captures and logs, one of each kind the tool reads: a halsampler capture
+    (three pins), a halscope file (three channels), a servotune log (``tick,dac_code,counter``)
+    and a CSV mapped by ``--map`` (four columns, one not mapped): 10,000,000 lines each (the
+    quick preset 1,000,000), written here, then read once, warm.
 
     Returns
     -------
     list of Figure
-        ``capture_read_s`` (the read) and ``capture_read_mb_per_s``.
+        Per kind, ``capture_<kind>_read_s`` (the read) and ``capture_<kind>_mb_per_s``.
     """
-    from servotune.io.hal import read_halsampler
+    from servotune.io.hal import read_halsampler, read_halscope, read_mapped_csv
+    from servotune.logs import read_log
 
     lines = 1_000_000 if opts.quick else 10_000_000
-    block = "".join(f"{np.sin(i / 7):f} {i % 13 - 6} {i // 5} \n" for i in range(100_000))
-    with tempfile.TemporaryDirectory() as d:
-        path = Path(d) / "capture.txt"
-        with open(path, "w") as f:
-            for _ in range(lines // 100_000):
-                f.write(block)
-        size = path.stat().st_size
-        read_halsampler(path, columns=["cmd", "pos", "ref"])  # the page cache warm
-        times, cap = timed_runs(lambda: read_halsampler(path, columns=["cmd", "pos", "ref"]), 1)
-    if cap.n_samples != lines:
-        raise RuntimeError(f"read {cap.n_samples} samples of {lines}")
-    progress(f"capture: {lines:,} lines, {size / 1e6:.0f} MB in {times[0]:.1f} s")
-    return [
-        Figure("capture_read_s", times[0], "s", f"{lines:,} lines, {size / 1e6:.0f} MB"),
-        Figure("capture_read_mb_per_s", size / 1e6 / times[0], "MB/s", None),
-    ]
+    i = np.arange(100_000)
+    sine = [f"{x:f}" for x in np.sin(i / 7)]
+    kinds: dict[str, tuple[str, str, Callable[[Path], Any]]] = {
+        "halsampler": (
+            "",
+            "".join(f"{s} {k % 13 - 6} {k // 5} \n" for s, k in zip(sine, i.tolist(), strict=True)),
+            lambda p: read_halsampler(p, columns=["cmd", "pos", "ref"]).n_samples,
+        ),
+        "halscope": (
+            "# Sampling period is 1000000 ns\ncmd;pos;ref\n",
+            "".join(f"{s};{k % 13 - 6};{k // 5}\n" for s, k in zip(sine, i.tolist(), strict=True)),
+            lambda p: read_halscope(p).n_samples,
+        ),
+        "log": (
+            "# period_s: 0.004\ntick,dac_code,counter\n",
+            None,  # the tick runs on: written below
+            lambda p: read_log(p).axis().pos_counts.size,
+        ),
+        "mapped_csv": (
+            "# period_s: 0.001\nu,y,r,note\n",
+            "".join(
+                f"{s},{k // 5},{k % 13},{k % 3}\n" for s, k in zip(sine, i.tolist(), strict=True)
+            ),
+            lambda p: read_mapped_csv(p, {"cmd": "u", "pos": "y", "ref": "r"}).n_samples,
+        ),
+    }
+    figures: list[Figure] = []
+    for kind, (head, block, read) in kinds.items():
+        with tempfile.TemporaryDirectory() as d:
+            path = Path(d) / "capture.txt"
+            with open(path, "w") as f:
+                f.write(head)
+                for b in range(lines // 100_000):
+                    if block is None:
+                        k = i + b * 100_000
+                        f.write(
+                            "".join(f"{t},{2048 + t % 400},{t * 3 % 2**24}\n" for t in k.tolist())
+                        )
+                    else:
+                        f.write(block)
+            size = path.stat().st_size
+            read(path)  # the page cache and the compiled parser warm
+            times, n = timed_runs(lambda: read(path), 1)  # noqa: B023 (called here)
+        if n != lines:
+            raise RuntimeError(f"{kind}: read {n} samples of {lines}")
+        progress(f"capture {kind}: {lines:,} lines, {size / 1e6:.0f} MB in {times[0]:.1f} s")
+        figures += [
+            Figure(
+                f"capture_{kind}_read_s", times[0], "s", f"{lines:,} lines, {size / 1e6:.0f} MB"
+            ),
+            Figure(f"capture_{kind}_mb_per_s", size / 1e6 / times[0], "MB/s", None),
+        ]
+    return figures
 
 
 @register("tune")

@@ -61,7 +61,6 @@ from servotune.io.log_header import (
     parse_range,
     read_bytes,
     read_errors,
-    read_text,
     split_ascii_head,
     split_text,
 )
@@ -443,64 +442,54 @@ def _read_log(
     compute_s: float | None,
     strict: bool = False,
 ) -> Log:
-    data = read_bytes(Path(path), src)
-    head = split_ascii_head(data, src)
-    if head is None:
-        text = _decode(data, src)
-        del data
-        meta, meta_line, header_line, header_text, body = split_text(text, src)
-        del text
-    else:  # plain ASCII: the body stays bytes (data[body_start:]) unless the slow path needs it
-        meta, meta_line, header_line, header_text, body_start = head
-    header = parse_header(header_text, header_line)
-    axes_cols = classify_columns(header, header_line)
+    settings: dict[str, Any] = {}
 
-    def setting(key: str, option: Any, parse: Callable[[str], Any], default: Any) -> Any:
-        meta_value = meta_setting(key, meta, meta_line, parse)  # checked even if overridden
-        if option is not None:
-            return _option(key, option, parse)
-        return default if meta_value is None else meta_value
+    def prepare(
+        meta: dict[str, str], meta_line: dict[str, int], header: list[str], header_line: int
+    ) -> None:
+        settings["axes"] = classify_columns(header, header_line)
 
-    bits = setting("counter_bits", counter_bits, parse_counter_bits, _DEFAULT_COUNTER_BITS)
-    d_bits = setting("dac_bits", dac_bits, parse_dac_bits, _DEFAULT_DAC_BITS)
-    d_range = setting("dac_range_v", dac_range_v, parse_range, _DEFAULT_DAC_RANGE_V)
-    meta_period = meta_setting("period_s", meta, meta_line, parse_period)
-    meta_compute = meta_setting("compute_s", meta, meta_line, parse_compute)
-    if period_s is not None:
-        period_s = _option("period_s", period_s, parse_period)
-    if compute_s is not None:
-        compute_s = _option("compute_s", compute_s, parse_compute)
-    else:
-        compute_s = meta_compute
-    warn_unknown_metadata(meta, meta_line, src, strict)
+        def setting(key: str, option: Any, parse: Callable[[str], Any], default: Any) -> Any:
+            meta_value = meta_setting(key, meta, meta_line, parse)  # checked even if overridden
+            if option is not None:
+                return _option(key, option, parse)
+            return default if meta_value is None else meta_value
 
-    col = None
-    if head is not None:
-        col = fast_columns(data, body_start, header)
-        if col is None:
-            body = data[body_start:].decode("ascii")
-        del data
-    if col is not None:
-        rows = RowLines(None, header_line + 1)  # plain rows: one per line, no blank lines
-    else:
-        empty = f"log {src!r} has a header (line {header_line}) but no data rows"
-        table, rows = data_rows(body, header_line, header, empty)
-        del body
-        col = {h: np.ascontiguousarray(table[f"c{j}"]) for j, h in enumerate(header)}
-        del table
-    n = len(next(iter(col.values())))
+        settings["bits"] = setting(
+            "counter_bits", counter_bits, parse_counter_bits, _DEFAULT_COUNTER_BITS
+        )
+        settings["d_bits"] = setting("dac_bits", dac_bits, parse_dac_bits, _DEFAULT_DAC_BITS)
+        settings["d_range"] = setting("dac_range_v", dac_range_v, parse_range, _DEFAULT_DAC_RANGE_V)
+        settings["period"] = meta_setting("period_s", meta, meta_line, parse_period)
+        settings["compute"] = meta_setting("compute_s", meta, meta_line, parse_compute)
+        if period_s is not None:
+            settings["opt_period"] = _option("period_s", period_s, parse_period)
+        if compute_s is not None:
+            settings["opt_compute"] = _option("compute_s", compute_s, parse_compute)
+        warn_unknown_metadata(meta, meta_line, src, strict)
+
+    read = _read_columns(
+        path,
+        src,
+        "log",
+        prepare,
+        lambda line: f"log {src!r} has a header (line {line}) but no data rows",
+    )
+    meta, meta_line, col, rows, n = (
+        read.metadata,
+        read.metadata_lines,
+        read.columns,
+        read.rows,
+        read.n_rows,
+    )
+    axes_cols, bits, d_bits, d_range = (settings[k] for k in ("axes", "bits", "d_bits", "d_range"))
+    meta_period, meta_compute = settings["period"], settings["compute"]
+    period_s = settings.get("opt_period")
+    compute_s = settings.get("opt_compute", meta_compute)
     if n < MIN_ROWS:
         raise LogFormatError(
             f"log {src!r} has {n} data row{'' if n == 1 else 's'}; at least {MIN_ROWS} are needed"
         )
-    for h, a in col.items():
-        if a.dtype.kind == "f":
-            bad = ~np.isfinite(a)
-            if bad.any():
-                k = int(np.argmax(bad))
-                raise LogFormatError(f"row {rows(k)}, column {h!r}: {a[k]} is not finite")
-    whole_counts(col, header, _kinds(header), rows)  # pos_counts, ref_counts written as 12.0
-
     period = timebase(
         col.get("tick"),
         col.get("time_s"),
@@ -621,63 +610,119 @@ def read_table(
         One line naming the file and the first problem.
     """
     src = str(path)
+    kinds_used: list[str] = []
     try:
-        text = read_text(Path(path), src, what)
-        meta, meta_line, header_line, header_text, body = split_text(text, src, what)
-        del text
-        header = parse_header(header_text, header_line)
-        if kinds is None:
-            for h in header:
-                if _base(h) not in KIND:
-                    raise LogFormatError(
-                        f"line {header_line}: unknown column {h!r}; {COLUMNS_HELP}"
-                    )
-        if check_header is not None:
-            check_header(header, header_line)
-        kind = _kinds(header) if kinds is None else list(kinds(header, header_line))
-        table, rows = data_rows(
-            body,
-            header_line,
-            header,
-            f"the header (line {header_line}) is followed by no data rows",
-            kind,
+
+        def prepare(
+            meta: dict[str, str], meta_line: dict[str, int], header: list[str], header_line: int
+        ) -> list[str]:
+            if kinds is None:
+                for h in header:
+                    if _base(h) not in KIND:
+                        raise LogFormatError(
+                            f"line {header_line}: unknown column {h!r}; {COLUMNS_HELP}"
+                        )
+            if check_header is not None:
+                check_header(header, header_line)
+            kinds_used[:] = _kinds(header) if kinds is None else list(kinds(header, header_line))
+            return kinds_used
+
+        read = _read_columns(
+            path,
+            src,
+            what,
+            prepare,
+            lambda line: f"the header (line {line}) is followed by no data rows",
         )
-        del body
-        n = len(table)
-        cols = {
-            h: np.ascontiguousarray(table[f"c{j}"])
-            for j, (h, k) in enumerate(zip(header, kind, strict=True))
-            if k != "skip"
-        }
-        for h, a in cols.items():
-            if a.dtype.kind == "f":
-                bad = ~np.isfinite(a)
-                if bad.any():
-                    k = int(np.argmax(bad))
-                    raise LogFormatError(f"row {rows(k)}, column {h!r}: {a[k]} is not finite")
-        whole_counts(
-            cols,
-            [h for h, k in zip(header, kind, strict=True) if k != "skip"],
-            [k for k in kind if k != "skip"],
-            rows,
-        )
-        lines = np.zeros(0, dtype=np.int64)
-        if n:
-            rows(0)  # works the line numbers out once
-            lines = np.asarray(rows._lines, dtype=np.int64)[:n]
+        cols = read.columns
+        for h, k in zip(read.header, kinds_used, strict=True):
+            if k == "text" and cols[h].dtype.kind == "i":  # the fast pass's codes: their names
+                cols[h] = np.asarray(MODE_NAMES)[cols[h]]
     except LogFormatError as exc:
         if src in str(exc):
             raise
         raise LogFormatError(f"{what} {src!r}: {exc}") from None
     return Table(
         path=src,
-        metadata=meta,
-        metadata_lines=meta_line,
-        header=header,
-        header_line=header_line,
+        metadata=read.metadata,
+        metadata_lines=read.metadata_lines,
+        header=read.header,
+        header_line=read.header_line,
         columns=cols,
-        row_lines=lines,
+        row_lines=read.rows.array(read.n_rows),
     )
+
+
+@dataclass(frozen=True, slots=True)
+class _Columns:
+    """What :func:`_read_columns` read: the file's head, its kept columns, where its rows are."""
+
+    metadata: dict[str, str]
+    metadata_lines: dict[str, int]
+    header_line: int
+    header: list[str]
+    columns: dict[str, np.ndarray]
+    rows: RowLines
+    n_rows: int
+
+
+def _read_columns(
+    path: str | Path,
+    src: str,
+    what: str,
+    prepare: Callable[[dict[str, str], dict[str, int], list[str], int], Sequence[str] | None],
+    empty: Callable[[int], str],
+) -> _Columns:
+    """A log-format file's metadata, header line, header, typed columns and row lines.
+
+    ``prepare(metadata, metadata_lines, header, header_line)`` checks the head before any data
+    row is parsed and returns each column's kind (None: the log's, by name; ``"skip"`` columns
+    are parsed and left out). A plain ASCII file's rows are parsed from its bytes by one
+    compiled pass (:func:`~servotune.io.log_rows.fast_columns`), without decoding or copying
+    the body; anything else by :func:`~servotune.io.log_rows.data_rows`, which names the first
+    bad row. Numbers must be finite and counts whole, the first offender named.
+    ``empty(header_line)``: the message for a header without rows.
+    """
+    data = read_bytes(Path(path), src, what)
+    head = split_ascii_head(data, src, what)
+    if head is None:
+        text = _decode(data, src, what)
+        del data
+        meta, meta_line, header_line, header_text, body = split_text(text, src, what)
+        del text
+    else:  # plain ASCII: the body stays bytes (data[body_start:]) unless the slow path needs it
+        meta, meta_line, header_line, header_text, body_start = head
+    header = parse_header(header_text, header_line)
+    given = prepare(meta, meta_line, header, header_line)
+    kind = _kinds(header) if given is None else list(given)
+    col = None
+    if head is not None and any(k != "skip" for k in kind):
+        col = fast_columns(data, body_start, header, kind)
+        if col is None:
+            body = data[body_start:].decode("ascii")
+        del data
+    if col is not None:
+        rows = RowLines(None, header_line + 1)  # plain rows: one per line, no blank lines
+        n = len(next(iter(col.values())))
+    else:
+        table, rows = data_rows(body, header_line, header, empty(header_line), kind)
+        del body
+        n = len(table)
+        col = {
+            h: np.ascontiguousarray(table[f"c{j}"])
+            for j, (h, k) in enumerate(zip(header, kind, strict=True))
+            if k != "skip"
+        }
+        del table
+    for h, a in col.items():
+        if a.dtype.kind == "f":
+            bad = ~np.isfinite(a)
+            if bad.any():
+                k = int(np.argmax(bad))
+                raise LogFormatError(f"row {rows(k)}, column {h!r}: {a[k]} is not finite")
+    kept = [(h, k) for h, k in zip(header, kind, strict=True) if k != "skip"]
+    whole_counts(col, [h for h, _ in kept], [k for _, k in kept], rows)  # counts written as 12.0
+    return _Columns(meta, meta_line, header_line, header, col, rows, n)
 
 
 # --- file, metadata and header ---------------------------------------------------------------

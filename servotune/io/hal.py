@@ -96,9 +96,9 @@ from typing import Any, TypedDict, Unpack
 
 import numpy as np
 
-from servotune.budget import check_memory, format_bytes, format_count
 from servotune.errors import LogFormatError
 from servotune.hw import dac as hw_dac
+from servotune.io.capture_rows import NUMBER_RE, check_rows, stream_rows
 from servotune.io.hal_map import (
     HAL_FORMATS,
     MAP_KEYS,
@@ -111,9 +111,7 @@ from servotune.io.hal_map import (
 )
 from servotune.io.log_header import (
     PERIOD_RANGE_S,
-    TEXT_CHUNK_BYTES,
     _option,
-    file_size,
     meta_setting,
     naming,
     parse_compute,
@@ -121,8 +119,6 @@ from servotune.io.log_header import (
     parse_dac_bits,
     parse_period,
     parse_range,
-    read_text,
-    read_text_chunks,
 )
 from servotune.io.log_rows import REL_TOL, RowLines, not_whole, timebase, whole_problem
 from servotune.logs import MIN_ROWS, AxisLog, Log, read_table, warn_unknown_metadata
@@ -540,8 +536,8 @@ def read_halsampler(
     progress: Callable[[str], None] | None = None,
 ) -> HalCapture:
     """Read ``halsampler`` output (module docstring), a chunk of lines at a time: memory is
-    the capture's array and a chunk, not the text (:func:`_check_capture_memory` checks the
-    estimate against the memory budget before reading).
+    the capture's array and a chunk, not the text (the estimate is checked against the memory
+    budget before reading: :func:`~servotune.io.capture_rows.check_capture_memory`).
 
     Parameters
     ----------
@@ -583,12 +579,8 @@ def read_halsampler(
             known = names is not None and c < len(names)
             return f"column {c} ({names[c]})" if known else f"column {c}"  # type: ignore[index]
 
-        _check_capture_memory(Path(path), src)
-        parts: list[np.ndarray] = []
-        row_parts: list[np.ndarray] = []
-        chunks = read_text_chunks(Path(path), src, "HAL capture", progress=progress)
-        for line0, lines in chunks:
-            if not parts:
+        def each(line0: int, lines: list[str]) -> int:
+            if line0 == 0:
                 _no_comment(lines, line0)
             if any(ln.strip() == "overrun" for ln in lines):  # halsampler's mark of a gap
                 k = next(i for i, ln in enumerate(lines) if ln.strip() == "overrun")
@@ -596,21 +588,9 @@ def read_halsampler(
                     f"lost samples: line {line0 + k + 1} is halsampler's 'overrun' mark (the "
                     f"sampler's FIFO was full; {_MORE_DEPTH})"
                 )
-            if not any(ln.strip() for ln in lines):
-                continue
-            values, rows = _numbers(lines, 0, None, "halsampler", label, line0=line0, min_rows=0)
-            if parts and values.shape[1] != parts[0].shape[1]:
-                raise LogFormatError(
-                    f"line {rows[0]} has {values.shape[1]} fields, the rows before it "
-                    f"{parts[0].shape[1]} (line {row_parts[0][0]})"
-                )
-            parts.append(values)
-            row_parts.append(rows)
-        if not parts:
-            raise LogFormatError("the halsampler capture is empty (no samples)")
-        values = parts[0] if len(parts) == 1 else np.concatenate(parts)
-        rows = row_parts[0] if len(row_parts) == 1 else np.concatenate(row_parts)
-        del parts, row_parts
+            return 0
+
+        values, rows = stream_rows(Path(path), src, None, "halsampler", label, each, progress)
         if values.shape[0] < MIN_ROWS:
             n = values.shape[0]
             raise LogFormatError(
@@ -635,7 +615,7 @@ def read_halsampler(
         if sample_number:
             numbers = _sample_numbers(values[:, 0], rows)
             values = values[:, 1:]
-        _check_rows(values, rows, names)
+        check_rows(values, rows, names)
         return HalCapture(
             format="halsampler",
             values=np.ascontiguousarray(values),
@@ -644,6 +624,39 @@ def read_halsampler(
             sample_numbers=numbers,
             path=src,
         )
+
+
+def _halscope_head(lines: list[str]) -> tuple[float, tuple[str, ...], int]:
+    """The sampling period [s], the channels' names and the index of the first data line, from
+    the first lines of a halscope file."""
+    if not any(ln.strip() for ln in lines):
+        raise LogFormatError("the file is empty (no samples)")
+    head = _HALSCOPE_PERIOD_RE.fullmatch(lines[0])
+    if head is None:
+        raise LogFormatError(
+            f"line 1 is {show_value(lines[0])}, not halscope's '{HALSCOPE_PERIOD_LINE} N ns'"
+        )
+    ns = int(head.group(1))
+    period_s = ns / 1e9
+    lo, hi = PERIOD_RANGE_S
+    if not lo <= period_s <= hi:
+        raise LogFormatError(f"line 1: the sampling period {ns} ns is outside {lo:g} … {hi:g} s")
+    if len(lines) < 2 or not lines[1].strip():
+        raise LogFormatError("line 2 should name the channels (pins separated by ';')")
+    if lines[1].lstrip().startswith("#"):
+        raise LogFormatError(
+            f"line 2 is a comment, not the channels' names: {show_value(lines[1])}"
+        )
+    names = tuple(n.strip() for n in lines[1].split(";"))
+    if any(not n or len(n.split()) != 1 for n in names):
+        raise LogFormatError(
+            f"line 2: channel names separated by ';' must be non-empty pin names, got "
+            f"{show_value(lines[1], 80)}"
+        )
+    start = 2
+    while start < len(lines) and lines[start].lstrip().startswith("#"):
+        start += 1  # '# Position: …', '# Scale: …' (display settings)
+    return period_s, names, start
 
 
 def _no_comment(lines: list[str], line0: int) -> None:
@@ -661,34 +674,9 @@ def _no_comment(lines: list[str], line0: int) -> None:
         )
 
 
-_SAMPLE_BYTES = 64 * 1024  # the head of a capture its rows are estimated from
-
-
-def _check_capture_memory(path: Path, src: str) -> None:
-    """Refuse, before reading, a capture whose arrays would not fit in the memory budget:
-    rows estimated from the file's size and the bytes per row of its first 64 KiB; per row,
-    its fields as float64 and its line number, three times (the chunks, the whole array, the
-    sample-number checks and the pins' contiguous copy), and the chunk being parsed (its
-    text, lines and numbers: about 8 times its bytes)."""
-    size = file_size(path, src, "HAL capture")
-    with open(path, "rb") as fh:
-        head = fh.read(_SAMPLE_BYTES)
-    end = head.rfind(b"\n") + 1
-    sample = head[:end] if end else head
-    first = next((ln for ln in sample.split(b"\n") if ln.strip()), b"")
-    fields = max(1, len(first.split()))
-    rows = size * max(1, sample.count(b"\n")) / max(1, len(sample))
-    per_row = 3 * (8 * fields + 8)
-    check_memory(
-        rows * per_row + 8 * TEXT_CHUNK_BYTES,
-        f"reading HAL capture {src!r}",
-        f"{format_bytes(size)}: about {format_count(rows)} rows × {fields} fields × "
-        f"{per_row // 3} bytes, three times",
-    )
-
-
-def read_halscope(path: str | Path) -> HalCapture:
-    """Read halscope's saved data (module docstring; LinuxCNC ``scope_files.c``).
+def read_halscope(path: str | Path, *, progress: Callable[[str], None] | None = None) -> HalCapture:
+    """Read halscope's saved data (module docstring; LinuxCNC ``scope_files.c``), a chunk of
+    lines at a time as :func:`read_halsampler` reads (``progress`` likewise).
 
     Returns
     -------
@@ -705,50 +693,33 @@ def read_halscope(path: str | Path) -> HalCapture:
     """
     src = str(path)
     with naming(src, "HAL capture"):
-        text = read_text(Path(path), src, "HAL capture")
-        lines = text.split("\n")
-        if not text.strip():
-            raise LogFormatError("the file is empty (no samples)")
-        head = _HALSCOPE_PERIOD_RE.fullmatch(lines[0])
-        if head is None:
-            raise LogFormatError(
-                f"line 1 is {show_value(lines[0])}, not halscope's '{HALSCOPE_PERIOD_LINE} N ns'"
-            )
-        ns = int(head.group(1))
-        period_s = ns / 1e9
-        lo, hi = PERIOD_RANGE_S
-        if not lo <= period_s <= hi:
-            raise LogFormatError(
-                f"line 1: the sampling period {ns} ns is outside {lo:g} … {hi:g} s"
-            )
-        if len(lines) < 2 or not lines[1].strip():
-            raise LogFormatError("line 2 should name the channels (pins separated by ';')")
-        if lines[1].lstrip().startswith("#"):
-            raise LogFormatError(
-                f"line 2 is a comment, not the channels' names: {show_value(lines[1])}"
-            )
-        names = tuple(n.strip() for n in lines[1].split(";"))
-        if any(not n or len(n.split()) != 1 for n in names):
-            raise LogFormatError(
-                f"line 2: channel names separated by ';' must be non-empty pin names, got "
-                f"{show_value(lines[1], 80)}"
-            )
-        start = 2
-        while start < len(lines) and lines[start].lstrip().startswith("#"):
-            start += 1  # '# Position: …', '# Scale: …' (display settings)
-        values, rows = _numbers(
-            lines,
-            start,
-            ";",
-            "halscope",
-            lambda j: f"column {j} ({names[j]})" if j < len(names) else f"field {j + 1}",
+        head: dict[str, Any] = {}
+
+        def each(line0: int, lines: list[str]) -> int:
+            if line0 == 0:
+                head["period_s"], head["names"], start = _halscope_head(lines)
+                return start
+            return 0
+
+        def label(j: int) -> str:
+            names = head["names"]
+            return f"column {j} ({names[j]})" if j < len(names) else f"field {j + 1}"
+
+        values, rows = stream_rows(
+            Path(path), src, ";", "halscope", label, each, progress, empty="the file is empty"
         )
+        names, period_s = head["names"], head["period_s"]
+        if values.shape[0] < MIN_ROWS:
+            n = values.shape[0]
+            raise LogFormatError(
+                f"{n} sample{'s' if n != 1 else ''}; at least {MIN_ROWS} are needed"
+            )
         if values.shape[1] != len(names):
             raise LogFormatError(
                 f"line {rows[0]} has {values.shape[1]} fields; line 2 names {len(names)} "
                 f"channels ({', '.join(names[:_SHOW_NAMES])})"
             )
-        _check_rows(values, rows, names)
+        check_rows(values, rows, names)
         return HalCapture(
             format="halscope", values=values, names=names, lines=rows, period_s=period_s, path=src
         )
@@ -957,8 +928,7 @@ def capture_format(path: str | Path) -> str:
         if line == "overrun":  # halsampler's mark of lost samples: its reader names it
             return "halsampler"
         numbers = all(
-            _NUMBER_RE.fullmatch(t) or t.lower().lstrip("+-") in ("nan", "inf")
-            for t in line.split()
+            NUMBER_RE.fullmatch(t) or t.lower().lstrip("+-") in ("nan", "inf") for t in line.split()
         )
         return "halsampler" if numbers else "csv"
     return "halsampler"
@@ -981,7 +951,7 @@ def read_hal_capture(
     ``mapping``, ``period_s`` and ``strict`` are for a CSV (:func:`read_mapped_csv`): the
     mapping says which columns to read, the period (if given) is checked against its time
     column, ``strict`` refuses unknown metadata keys. ``progress``: lines while a large
-    halsampler capture is read (:func:`read_halsampler`)."""
+    halsampler or halscope capture is read (:func:`read_halsampler`)."""
     if format is None:
         format = capture_format(path)
     if format == "csv":
@@ -1003,7 +973,7 @@ def read_hal_capture(
                 f"HAL capture {str(path)!r} is halscope's saved data, which names its channels "
                 f"(line 2) and has no sample numbers: {what} is for halsampler captures"
             )
-        return read_halscope(path)
+        return read_halscope(path, progress=progress)
     if format != "halsampler":
         raise LogFormatError(f"format must be one of {', '.join(HAL_FORMATS)}, got {format!r}")
     return read_halsampler(path, columns=columns, sample_number=sample_number, progress=progress)
@@ -1063,71 +1033,6 @@ def read_hal_log(
 
 
 # --- parsing helpers -------------------------------------------------------------------------
-
-_NUMBER_RE = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
-
-
-def _numbers(
-    lines: list[str],
-    start: int,
-    delimiter: str | None,
-    what: str,
-    label: Callable[[int], str],
-    *,
-    line0: int = 0,
-    min_rows: int = MIN_ROWS,
-) -> tuple[np.ndarray, np.ndarray]:
-    """The non-blank lines from ``start`` as an (n, m) float array, and their 1-based line
-    numbers (``line0``: lines of the file before ``lines``, a chunk of it). Bulk-parsed by
-    ``numpy.loadtxt``; on failure the lines are scanned one by one to name the first bad one
-    (``label(j)`` names field ``j``). Fewer than ``min_rows`` rows are refused."""
-    idx = [i for i in range(start, len(lines)) if lines[i].strip()]
-    if not idx:
-        raise LogFormatError(f"the {what} capture is empty (no samples)")
-    rows = np.asarray(idx, dtype=np.int64) + (1 + line0)
-    body = [lines[i] for i in idx]
-    try:
-        values = np.loadtxt(body, dtype=float, delimiter=delimiter, comments=None, ndmin=2)
-    except ValueError:
-        _first_bad(body, rows, delimiter, label)
-        raise  # pragma: no cover  (_first_bad raises: loadtxt refused something it finds)
-    if values.shape[0] < min_rows:
-        raise LogFormatError(
-            f"{values.shape[0]} sample{'s' if values.shape[0] != 1 else ''}; at least "
-            f"{min_rows} are needed"
-        )
-    return values, rows
-
-
-def _split(line: str, delimiter: str | None) -> list[str]:
-    return line.split() if delimiter is None else [t.strip() for t in line.split(delimiter)]
-
-
-def _first_bad(
-    body: list[str], rows: np.ndarray, delimiter: str | None, label: Callable[[int], str]
-) -> None:
-    width = len(_split(body[0], delimiter))
-    for k, line in enumerate(body):
-        fields = _split(line, delimiter)
-        if len(fields) != width:
-            raise LogFormatError(
-                f"line {rows[k]} has {len(fields)} field{'s' if len(fields) != 1 else ''}, "
-                f"the rows before it {width} (line {rows[0]})"
-            )
-        for j, tok in enumerate(fields):
-            if not _NUMBER_RE.fullmatch(tok) and tok.lower().lstrip("+-") not in ("nan", "inf"):
-                raise LogFormatError(
-                    f"line {rows[k]}, {label(j)}: {show_value(tok)} is not a number"
-                )
-    raise LogFormatError(f"line {rows[0]}: the rows are not numbers numpy can read")
-
-
-def _check_rows(values: np.ndarray, rows: np.ndarray, names: Sequence[str] | None) -> None:
-    bad = ~np.isfinite(values)
-    if bad.any():
-        k, j = (int(x) for x in np.argwhere(bad)[0])
-        label = f"column {j}" if names is None else f"column {j} ({names[j]})"
-        raise LogFormatError(f"line {rows[k]}, {label}: {values[k, j]} is not finite")
 
 
 def _sample_numbers(tags: np.ndarray, rows: np.ndarray) -> np.ndarray:

@@ -95,6 +95,15 @@ class RowLines:
             self._body = None
         return int(self._lines[i])
 
+    def array(self, n: int) -> np.ndarray:
+        """The lines of the first ``n`` rows, as int64."""
+        if n == 0:
+            return np.zeros(0, dtype=np.int64)
+        self(0)  # works the line numbers out once
+        if self._lines is None:
+            return np.arange(self._first, self._first + n, dtype=np.int64)
+        return np.asarray(self._lines, dtype=np.int64)[:n]
+
 
 def _check_field_lengths(body: str, header_line: int, header: list[str]) -> None:
     """Refuse a data field longer than :data:`MAX_NUMBER_CHARS` before parsing.
@@ -139,7 +148,7 @@ def _check_field_lengths(body: str, header_line: int, header: list[str]) -> None
 
 # --- the plain form, parsed from the bytes ------------------------------------------------------
 
-_FAST_KIND = {"int": 0, "counts": 0, "float": 1, "text": 2}
+_FAST_KIND = {"int": 0, "counts": 0, "float": 1, "text": 2, "skip": 1}
 _FAST_DIGITS = 18  # most digits of a number the fast pass reads (no int64 overflow)
 _POW10 = np.array([float(10**k) for k in range(23)])  # 1e0 … 1e22, each exact in a double
 _MODE_BYTES = np.array([list(m.encode("ascii")) for m in MODE_NAMES], dtype=np.uint8)
@@ -273,18 +282,23 @@ def _plain_kernel() -> Any:
     return jit(_scan_plain)
 
 
-def fast_columns(data: bytes, start: int, header: list[str]) -> dict[str, np.ndarray] | None:
+def fast_columns(
+    data: bytes, start: int, header: list[str], kinds: Sequence[str] | None = None
+) -> dict[str, np.ndarray] | None:
     """The columns of a plain body (``data[start:]``, :func:`_scan_plain`), or None.
 
     Integer columns are int64, number columns float64, and a ``mode`` column comes as its
-    ``MODE_*`` codes (int8), as :func:`_modes` makes them. None when the body is not all plain
-    rows (or has none): :func:`data_rows` then parses and judges it.
+    ``MODE_*`` codes (int8), as :func:`_modes` makes them. ``kinds``: each column's kind
+    (default the log's, by name); a ``"skip"`` column must be plain numbers too and is left
+    out. None when the body is not all plain rows (or has none): :func:`data_rows` then
+    parses and judges it.
     """
     if start >= len(data):
         return None
     from servotune._numba_cache import call_compiled
 
-    kinds = np.array([_FAST_KIND[KIND[_base(h)]] for h in header], dtype=np.int64)
+    named = _kinds(header) if kinds is None else list(kinds)
+    kinds = np.array([_FAST_KIND[k] for k in named], dtype=np.int64)
     slots = np.zeros(kinds.size, dtype=np.int64)
     counts = [0, 0, 0]
     for j, k in enumerate(kinds.tolist()):
@@ -311,7 +325,9 @@ def fast_columns(data: bytes, start: int, header: list[str]) -> dict[str, np.nda
         return None
     out = (ints, floats, modes)
     return {
-        h: out[k][s, :n] for h, k, s in zip(header, kinds.tolist(), slots.tolist(), strict=True)
+        h: out[k][s, :n]
+        for h, k, s, kind in zip(header, kinds.tolist(), slots.tolist(), named, strict=True)
+        if kind != "skip"
     }
 
 
