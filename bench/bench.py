@@ -1276,6 +1276,33 @@ def bench_capture(opts: Options) -> list[Figure]:
     return figures
 
 
+@register("frf")
+def bench_frf(opts: Options) -> list[Figure]:
+    """The frequency response of a 1,000,000-sample closed-loop log
+    (:func:`servotune.analysis.frf.estimate_frf`, the period found from the excitation): a
+    Schroeder multisine of 2,500-tick periods through a first-order lag with noise, generated
+    here (the quick preset 100,000 samples).
+
+    Returns
+    -------
+    list of Figure
+        ``frf_1m_s`` (the estimate, warm).
+    """
+    from scipy import signal as sp_signal
+
+    from servotune.analysis.frf import estimate_frf
+    from servotune.excite import periodic_multisine
+
+    n = 100_000 if opts.quick else 1_000_000
+    m = periodic_multisine(2500, n // 2500, 0.004, 800, band_hz=(0.5, 100))
+    u = m.codes * (20.0 / 4096)
+    y = sp_signal.lfilter([0.0, 50.0], [1.0, -0.9], u)
+    y = np.rint(y + np.random.default_rng(0).normal(0.0, 0.5, n)).astype(np.int64)
+    times, f = timed_runs(lambda: estimate_frf(u, y, m.codes, period_s=0.004), 3)
+    progress(f"frf: {n:,} samples, {f.freq_hz.size} lines in {min(times):.3f} s")
+    return [Figure("frf_1m_s", min(times), "s", f"{n:,} samples, {f.freq_hz.size} lines")]
+
+
 @register("tune")
 def bench_tune(opts: Options) -> list[Figure]:
     """``servotune tune`` end to end on the example rig (default budget, fresh process).

@@ -3,7 +3,8 @@
 An *excitation* is a sequence of D/A code offsets (what is added to the 0 V code, one per tick)
 for one axis, designed for identification: ``prbs`` (a maximum-length binary sequence held about
 one time constant per bit), ``multisine`` (a Schroeder-phased sum of sines on a log-spaced grid
-from about 0.2 Hz to 0.4 · Nyquist) or ``steps`` (+A, −A/2, +A/2, −A, ... with reversals).
+from about 0.2 Hz to 0.4 · Nyquist; with ``periods``, :func:`periodic_multisine`'s whole periods
+for a frequency response) or ``steps`` (+A, −A/2, +A/2, −A, ... with reversals).
 
 :func:`design_excitation` scales the amplitude down until the sequence fits the D/A range and
 the motion the rig's nominal plant predicts for it stays within 90 % of the axis speed limit and
@@ -20,7 +21,7 @@ engine inputs, open loop or with the lock module active.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
@@ -39,11 +40,14 @@ __all__ = [
     "KINDS",
     "MARGIN",
     "MIN_TICKS",
+    "PHASES",
     "Excitation",
+    "PeriodicMultisine",
     "design_excitation",
     "excitation_inputs",
     "multisine_bins",
     "multisine_codes",
+    "periodic_multisine",
     "read_excitation",
     "write_excitation",
 ]
@@ -59,6 +63,7 @@ _MULTISINE_F_HI_NYQ = 0.4
 _STEP_LEVEL_S = 0.25  # step level duration, as the ``steps`` scenario
 _STEP_LEVEL_TAUS = 8.0  # ... but at least this many time constants, to settle
 _DESIGN_BYTES_PER_TICK = 512  # patterns, predictions, candidate codes and the file's text
+_PERIODIC_F_LO_HZ = 0.5  # a periodic multisine's default band starts here (or 2 lines up)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -89,6 +94,10 @@ class Excitation:
     predicted_travel_counts : tuple of float
         (min, max) position the nominal plant predicts, relative to the start, including the
         coast-down after the last tick [counts].
+    periods, period_ticks, band_hz, phases, crest_factor, excited_lines, detection_lines
+        A periodic multisine's, else ``None``: periods, ticks a period, band (F1, F2) [Hz],
+        phases, peak over RMS of ``codes`` [-], how many lines carry the signal and how many are
+        left out to detect distortion (:class:`PeriodicMultisine`).
     """
 
     codes: np.ndarray
@@ -101,6 +110,13 @@ class Excitation:
     limited_by: str
     predicted_max_speed_rpm: float
     predicted_travel_counts: tuple[float, float]
+    periods: int | None = None
+    period_ticks: int | None = None
+    band_hz: tuple[float, float] | None = None
+    phases: str | None = None
+    crest_factor: float | None = None
+    excited_lines: int | None = None
+    detection_lines: int | None = None
 
     def __post_init__(self) -> None:
         codes = np.asarray(self.codes)
@@ -134,6 +150,8 @@ class Excitation:
                 f"{show_value(self.predicted_travel_counts)}"
             )
         object.__setattr__(self, "predicted_travel_counts", (float(lo), float(hi)))
+        if self.periods is not None and self.periods * (self.period_ticks or 0) != codes.size:
+            raise SpecError(f"periods × period_ticks must be the {codes.size} ticks of codes")
 
     @property
     def n_ticks(self) -> int:
@@ -162,7 +180,11 @@ class Excitation:
             "predicted_max_speed_rpm": self.predicted_max_speed_rpm,
             "predicted_travel_counts": list(self.predicted_travel_counts),
             "seed": self.seed,
-        }
+        } | (self.periodic_fields() if self.periods is not None else {})
+
+    def periodic_fields(self) -> dict[str, Any]:
+        """The periodic multisine's fields (those defaulting to ``None``), by name."""
+        return {f.name: getattr(self, f.name) for f in fields(self) if f.default is None}
 
 
 # --- signals -------------------------------------------------------------------------------
@@ -255,6 +277,155 @@ def multisine_bins(
     return np.unique(grid)
 
 
+@dataclass(frozen=True, slots=True, kw_only=True)
+class PeriodicMultisine:
+    """A periodic multisine for frequency-response measurement (:func:`periodic_multisine`).
+
+    Attributes
+    ----------
+    codes : ndarray of int64
+        ``periods`` whole periods of ``period_ticks`` ticks [D/A codes, relative to the 0 V
+        code], rounded half away from zero; exactly periodic.
+    period_ticks : int
+        Ticks per period; line ``b`` is at ``b / (period_ticks · period_s)`` Hz.
+    periods : int
+        Periods in ``codes``.
+    period_s : float
+        Tick period [s].
+    excited_bins : ndarray of int64
+        The DFT bins (of one period) that carry the signal, ascending.
+    detection_bins : ndarray of int64
+        Odd bins in the band left unexcited to detect odd nonlinear distortion (empty for a
+        multisine on every line).
+    crest_factor : float
+        Peak over RMS of the rounded codes [-].
+    phases : str
+        ``"schroeder"`` or ``"random"``.
+    """
+
+    codes: np.ndarray
+    period_ticks: int
+    periods: int
+    period_s: float
+    excited_bins: np.ndarray
+    detection_bins: np.ndarray
+    crest_factor: float
+    phases: str
+
+    @property
+    def freq_hz(self) -> np.ndarray:
+        """Frequencies of the excited lines [Hz]."""
+        return self.excited_bins / (self.period_ticks * self.period_s)
+
+
+PHASES = ("schroeder", "random")
+"""Phase choices of :func:`periodic_multisine`."""
+
+_CREST_ITERATIONS = 100  # clipping passes that lower a Schroeder start's crest factor
+_CLIP = (0.6, 0.95)  # the passes clip the peaks to this fraction of the peak, rising pass by pass
+
+
+def periodic_multisine(
+    period_ticks: int,
+    periods: int,
+    period_s: float,
+    amplitude_codes: float,
+    *,
+    band_hz: tuple[float, float],
+    phases: str = "schroeder",
+    odd: bool = True,
+    detection_every: int = 3,
+    seed: int = 0,
+) -> PeriodicMultisine:
+    """A periodic multisine [D/A codes] for measuring a frequency response.
+
+    One period has ``period_ticks`` ticks; its lines are the DFT bins ``b`` whose frequency
+    ``b / (period_ticks · period_s)`` lies in ``band_hz`` (at most 0.9 · Nyquist), equal
+    amplitudes. ``odd``: only odd bins, and of every ``detection_every`` consecutive odd bins
+    one drawn at random (from ``seed``) is left out as a *detection line*: an odd nonlinearity
+    shows there, an even one on the even bins (J. Schoukens, R. Pintelon, Y. Rolain, "Mastering
+    System Identification in 100 Exercises", Wiley 2012, §2.7: the random odd multisine).
+    ``detection_every`` 0 leaves no line out.
+
+    ``phases``: ``"random"`` (uniform, from ``seed``: the random-phase multisine, crest factor
+    about 3) or ``"schroeder"`` (M. R. Schroeder, IEEE Trans. Inf. Theory 16, 1970:
+    ``φ_m = −π m (m − 1) / M``) refined by clipping the peaks and restoring the amplitudes
+    (E. Van der Ouderaa, J. Schoukens, J. Renneboog, "Peak factor minimization using a
+    time-frequency domain swapping algorithm", IEEE Trans. Instrum. Meas. 37, 1988): crest
+    factor about 1.6 on such line sets. The signal is scaled so its peak is
+    ``amplitude_codes``, rounded half away from zero, and repeated ``periods`` times.
+
+    Raises
+    ------
+    SpecError
+        Fewer than 2 periods or 16 ticks a period, a band outside 0 < F1 < F2 <= 0.9 · Nyquist,
+        no line in the band, an unknown phase choice, an amplitude below 1 code.
+    """
+    if not isinstance(period_ticks, int | np.integer) or period_ticks < 16:
+        raise SpecError(f"a period needs at least 16 ticks, got {show_value(period_ticks)}")
+    if not isinstance(periods, int | np.integer) or periods < 2:
+        raise SpecError(
+            f"a frequency response needs at least 2 periods (the first is discarded as "
+            f"transient), got {show_value(periods)}"
+        )
+    if not period_s > 0:
+        raise SpecError(f"period_s must be > 0 [s], got {show_value(period_s)}")
+    if phases not in PHASES:
+        raise SpecError(f"phases must be one of {', '.join(PHASES)}, got {show_value(phases)}")
+    if not amplitude_codes >= 1:
+        raise SpecError(f"amplitude_codes must be >= 1, got {show_value(amplitude_codes)}")
+    f1, f2 = (float(f) for f in band_hz)
+    top = 0.9 * 0.5 / period_s
+    if not 0 < f1 < f2 <= top * (1 + 1e-12):
+        raise SpecError(
+            f"the band {f1:g}:{f2:g} Hz must satisfy 0 < F1 < F2 <= 0.9 · Nyquist = {top:g} Hz "
+            f"(period {period_s * 1e3:g} ms)"
+        )
+    f0 = 1.0 / (period_ticks * period_s)
+    bins = np.arange(max(1, math.ceil(f1 / f0 - 1e-9)), math.floor(f2 / f0 + 1e-9) + 1)
+    bins = bins[bins < period_ticks / 2]
+    detection = np.zeros(0, dtype=np.int64)
+    rng = np.random.default_rng(np.random.SeedSequence(seed))
+    if odd:
+        bins = bins[bins % 2 == 1]
+        if detection_every > 0 and bins.size >= detection_every:
+            drop = np.zeros(bins.size, dtype=bool)
+            for g in range(0, bins.size - detection_every + 1, detection_every):
+                drop[g + int(rng.integers(detection_every))] = True
+            detection, bins = bins[drop], bins[~drop]
+    if bins.size < 1:
+        raise SpecError(
+            f"no {'odd ' if odd else ''}line of a {period_ticks}-tick period "
+            f"({f0:.4g} Hz apart) lies in {f1:g}:{f2:g} Hz; lengthen the period or widen the band"
+        )
+    m = np.arange(1, bins.size + 1)
+    if phases == "random":
+        phi = rng.uniform(0.0, 2.0 * math.pi, bins.size)
+    else:
+        phi = -math.pi * m * (m - 1) / bins.size
+    spec = np.zeros(period_ticks // 2 + 1, dtype=complex)
+    spec[bins] = np.exp(1j * phi)
+    x = np.fft.irfft(spec, period_ticks)
+    if phases == "schroeder":
+        for clip in np.linspace(*_CLIP, _CREST_ITERATIONS).tolist():
+            c = clip * float(np.max(np.abs(x)))
+            back = np.fft.rfft(np.clip(x, -c, c))
+            spec[bins] = np.exp(1j * np.angle(back[bins]))
+            x = np.fft.irfft(spec, period_ticks)
+    codes = round_half_away(x * (amplitude_codes / np.max(np.abs(x)))).astype(np.int64)
+    crest = float(np.max(np.abs(codes)) / np.sqrt(np.mean(codes.astype(float) ** 2)))
+    return PeriodicMultisine(
+        codes=np.tile(codes, int(periods)),
+        period_ticks=int(period_ticks),
+        periods=int(periods),
+        period_s=float(period_s),
+        excited_bins=bins.astype(np.int64),
+        detection_bins=detection.astype(np.int64),
+        crest_factor=crest,
+        phases=phases,
+    )
+
+
 _PRBS_CANDIDATES = 8  # seeded window starts tried; the best balanced one is used
 
 
@@ -298,6 +469,43 @@ def _unit_pattern(kind: str, n: int, rig: Rig, ax: Axis, seed: int) -> tuple[Any
     pos = np.concatenate(([0.0], np.cumsum(x)[:-1]))  # position at each tick start, periodic
     shift = int(np.argmin(np.abs(pos - 0.5 * (pos.max() + pos.min()))))
     return (lambda a: np.roll(multisine_codes(n, period, a), -shift)), np.roll(x, -shift)
+
+
+def _periodic_pattern(
+    rig: Rig, seconds: float, periods: Any, band_hz: Any, phases: str, seed: int
+) -> tuple[Any, np.ndarray, Any]:
+    """As :func:`_unit_pattern`, for a :func:`periodic_multisine` of ``round(seconds / periods
+    / period_s)`` ticks a period (every period rotated alike), and ``amplitude -> its
+    Excitation fields`` (:meth:`Excitation.periodic_fields`)."""
+    if not isinstance(periods, int | np.integer) or isinstance(periods, bool) or periods < 2:
+        raise SpecError(f"a frequency response needs periods >= 2, got {show_value(periods)}")
+    period = rig.period_s
+    ticks = math.floor(seconds / periods / period + 0.5)
+    if band_hz is None:
+        f_lo = max(2.0 / (max(ticks, 1) * period), _PERIODIC_F_LO_HZ)
+        band_hz = (f_lo, _MULTISINE_F_HI_NYQ * 0.5 / period)
+    band = (float(band_hz[0]), float(band_hz[1]))
+
+    def design(a: float) -> PeriodicMultisine:
+        return periodic_multisine(ticks, periods, period, a, band_hz=band, phases=phases, seed=seed)
+
+    x = design(1_000_000).codes / 1_000_000.0
+    pos = np.concatenate(([0.0], np.cumsum(x[:ticks])[:-1]))  # over one period, at tick starts
+    shift = int(np.argmin(np.abs(pos - 0.5 * (pos.max() + pos.min()))))
+
+    def periodic(a: int) -> dict[str, Any]:
+        ms = design(a)
+        return {
+            "periods": ms.periods,
+            "period_ticks": ms.period_ticks,
+            "band_hz": band,
+            "phases": ms.phases,
+            "crest_factor": ms.crest_factor,
+            "excited_lines": int(ms.excited_bins.size),
+            "detection_lines": int(ms.detection_bins.size),
+        }
+
+    return (lambda a: np.roll(design(a).codes, -shift)), np.roll(x, -shift), periodic
 
 
 # --- prediction ----------------------------------------------------------------------------
@@ -361,6 +569,9 @@ def design_excitation(
     kind: str,
     seconds: float,
     *,
+    periods: int | None = None,
+    band_hz: tuple[float, float] | None = None,
+    phases: str = "schroeder",
     seed: int = 0,
     amplitude_codes: int | None = None,
 ) -> Excitation:
@@ -383,11 +594,16 @@ def design_excitation(
         about ``tau_s / period_s`` ticks; of 8 windows of the m-sequence drawn from ``seed``, the
         one whose running sum strays least from zero;
         ``"multisine"``: :func:`multisine_codes` from 0.2 Hz to 0.4 · Nyquist, rotated to
-        start where its (periodic) position is mid-range;
+        start where its (periodic) position is mid-range; with ``periods``, the
+        :func:`periodic_multisine` for a frequency response (docs/frf.md), rotated alike;
         ``"steps"``: :func:`servotune.scenarios.step_codes`, levels of
         max(0.25 s, 8 · tau_s), starting half-way through the first level.
     seconds : float
         Duration [s]; rounded to whole ticks of the achieved period, at least 10 ticks.
+    periods, band_hz, phases : int, (float, float), str, optional
+        A multisine only: ``periods`` (>= 2) whole periods of ``round(seconds / periods)``,
+        band (default max(2 lines, 0.5 Hz) … 0.4 · Nyquist) and phases of the random odd
+        multisine (:func:`periodic_multisine`).
     seed : int
         Design seed (>= 0); same inputs and seed give the same codes.
     amplitude_codes : int, optional
@@ -402,7 +618,8 @@ def design_excitation(
     SpecError
         Unknown kind, fewer than 10 ticks, a bad amplitude or seed, a D/A without both
         polarities, drift alone leaving 90 % of the travel, or no amplitude of at least one code
-        (and enough to overcome drift and friction both ways) fits the limits.
+        (and enough to overcome drift and friction both ways) fits the limits; ``periods`` for
+        another kind, ``band_hz`` without them, what :func:`periodic_multisine` refuses.
     RigError
         If the rig has no such axis.
     """
@@ -411,6 +628,10 @@ def design_excitation(
             f"unknown excitation kind {show_value(kind)}; choose one of {', '.join(KINDS)}"
         )
     ax = rig.axis(axis)
+    if (periods is not None or band_hz is not None) and kind != "multisine":
+        raise SpecError(f"periods and band_hz are for a multisine, not for {show_value(kind)}")
+    if band_hz is not None and periods is None:
+        raise SpecError("band_hz is for a periodic multisine: give periods too")
     if not isinstance(seed, int | np.integer) or isinstance(seed, bool) or seed < 0:
         raise SpecError(f"seed must be an integer >= 0, got {show_value(seed)}")
     if not (isinstance(seconds, int | float) and math.isfinite(seconds) and seconds > 0):
@@ -457,7 +678,12 @@ def design_excitation(
     if travel is not None:
         p_lo, p_hi = (1.0 - MARGIN) * travel[0], (1.0 - MARGIN) * travel[1]
     offset = ax.plant.offset_v
-    make, unit = _unit_pattern(kind, n, rig, ax, seed)
+    periodic = None
+    if periods is None:
+        make, unit = _unit_pattern(kind, n, rig, ax, seed)
+    else:
+        make, unit, periodic = _periodic_pattern(rig, seconds, periods, band_hz, phases, seed)
+        n = unit.size
     drift = _predict(rig, ax, np.zeros(n, dtype=np.int64), offset)
     p_drift = drift.pos_counts
     if travel is not None and (p_drift.min() < p_lo or p_drift.max() > p_hi):
@@ -519,6 +745,7 @@ def design_excitation(
         limited_by=limited_by,
         predicted_max_speed_rpm=float(np.max(np.abs(m.speed_cps))) / rig.counts_per_rev * 60.0,
         predicted_travel_counts=(float(m.pos_counts.min()), float(m.pos_counts.max())),
+        **({} if periodic is None else periodic(amp)),
     )
 
 

@@ -28,6 +28,7 @@ __all__ = [
     "plot_comparison",
     "plot_fit",
     "plot_fleet",
+    "plot_frf",
     "plot_lock_hold",
     "plot_pareto",
     "plot_query_tables",
@@ -434,6 +435,40 @@ def plot_bode(responses: dict[str, tuple[np.ndarray, np.ndarray]], title: str = 
     axs[0].set_title(title or "open loop L = C · LSB · P (discrete, as the engine runs it)")
     fig.tight_layout()
     return fig
+
+
+def plot_frf(frf: Any, title: str = "", model: Any = None) -> plt.Figure:
+    """A measured frequency response (:class:`servotune.analysis.frf.Frf`): magnitude with its
+    95 % bounds, phase with its bounds, and the coherence with the excitation; the lines flagged
+    as possibly aliased marked. ``model``: a complex response at the same lines, drawn beside
+    it (a fitted model)."""
+    fig, axs = plt.subplots(3, 1, figsize=(8, 8), sharex=True, height_ratios=(3, 2, 1))
+    f = frf.freq_hz
+    lo_db, hi_db = frf.magnitude_bounds_db()
+    lo_ph, hi_ph = frf.phase_bounds_deg()
+    axs[0].semilogx(f, frf.magnitude_db, ".-", ms=3, lw=0.8, label="measured")
+    floor = np.maximum(lo_db, frf.magnitude_db - 40)
+    axs[0].fill_between(f, floor, hi_db, alpha=0.25, label="95 % bounds")
+    axs[1].semilogx(f, frf.phase_deg, ".-", ms=3, lw=0.8, label="measured")
+    axs[1].fill_between(f, lo_ph, hi_ph, alpha=0.25, label="95 % bounds")
+    if model is not None:
+        m = np.asarray(model)
+        axs[0].semilogx(f, 20 * np.log10(np.abs(m)), lw=1.2, label="model")
+        ph = np.degrees(np.unwrap(np.angle(m)))
+        ph += 360.0 * np.round((frf.phase_deg[0] - ph[0]) / 360.0)
+        axs[1].semilogx(f, ph, lw=1.2, label="model")
+    if np.any(frf.aliased):
+        for a in axs[:2]:
+            start = float(f[frf.aliased][0])
+            a.axvspan(start, float(f[-1]), color="0.85", alpha=0.5, label="possibly aliased")
+    axs[2].semilogx(f, frf.coherence, ".", ms=3, label="coherence")
+    axs[2].set_ylim(0, 1.05)
+    unit = "counts/s per V" if frf.output == "velocity" else "counts per V"
+    axs[0].set_ylabel(f"|G| [dB re 1 {unit}]")
+    axs[1].set_ylabel("phase [deg]")
+    axs[2].set_ylabel("coherence")
+    axs[2].set_xlabel("frequency [Hz]")
+    return _finish(fig, axs, title)
 
 
 def _queue_markers(ax: plt.Axes, result: LinkageResult, only: int | None = None) -> None:

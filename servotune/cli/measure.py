@@ -315,6 +315,47 @@ def _cmd_fit_fleet(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def cmd_frf(args: argparse.Namespace) -> int:
+    from servotune.analysis.frf import frf
+    from servotune.io.files import atomic_write_text
+    from servotune.logs import read_log
+
+    check_outputs(args.output, args.plot, inputs=(args.log,))
+    band = None if args.band is None else _band(args.band)
+    log = read_log(args.log)
+    result = frf(
+        log,
+        args.axis,
+        output=args.response,
+        period_ticks=args.period_ticks,
+        skip=args.skip,
+        band_hz=band,
+    )
+    doc = result.to_dict()
+    if args.output and args.output != "-":
+        is_csv = args.output.lower().endswith(".csv")
+        text = result.to_csv() if is_csv else json.dumps(doc, indent=2, sort_keys=True) + "\n"
+        atomic_write_text(args.output, text)
+        print(f"wrote the frequency response to {args.output}", file=sys.stderr)
+    elif not args.json:
+        sys.stdout.write(json.dumps(doc, indent=2, sort_keys=True) + "\n")
+    if args.plot:
+        from servotune.plot import plot_frf, save_figure
+
+        save_figure(plot_frf(result, f"{Path(args.log).name}: {args.response}"), args.plot)
+        print(f"wrote the plot to {args.plot}", file=sys.stderr)
+    print_summary(args.json, doc, result.summary)
+    return EXIT_OK
+
+
+def _band(text: str) -> tuple[float, float]:
+    try:
+        lo, hi = (float(x) for x in text.split(":"))
+    except ValueError:
+        raise ServotuneError(f"--band must be F1:F2 in Hz, got {text!r}") from None
+    return lo, hi
+
+
 def _range(text: str) -> tuple[float, float]:
     try:
         lo, hi = (float(x) for x in text.split(","))
@@ -328,17 +369,38 @@ def cmd_excite(args: argparse.Namespace) -> int:
     from servotune.rig import load_rig
 
     check_outputs(args.output, inputs=(args.rig,))
+    if args.periods is None and (args.band is not None or args.phases is not None):
+        raise ServotuneError("--band and --phases are for a periodic multisine: give --periods")
+    if args.periods is not None and args.kind != "multisine":
+        raise ServotuneError(f"--periods is for --kind multisine, not --kind {args.kind}")
+    band = None if args.band is None else _band(args.band)
     rig = load_rig(args.rig)
     axis = args.axis or next(a.name for a in rig.axes if a.role == "master")
     exc = design_excitation(
-        rig, axis, args.kind, args.seconds, seed=args.seed, amplitude_codes=args.amplitude_codes
+        rig,
+        axis,
+        args.kind,
+        args.seconds,
+        periods=args.periods,
+        band_hz=band,
+        phases=args.phases or "schroeder",
+        seed=args.seed,
+        amplitude_codes=args.amplitude_codes,
     )
     write_excitation(args.output, exc, rig)
     lo, hi = exc.predicted_travel_counts
+    periodic = ""
+    if exc.periods is not None and exc.band_hz is not None:
+        f1, f2 = exc.band_hz
+        periodic = (
+            f"; {exc.periods} periods × {exc.period_ticks} ticks, band {f1:.4g} … {f2:.4g} Hz, "
+            f"{exc.excited_lines} excited and {exc.detection_lines} detection lines, "
+            f"{exc.phases} crest factor {exc.crest_factor:.2f}"
+        )
     print(
         f"wrote {exc.n_ticks} ticks of {args.kind} on {axis} to {args.output}: amplitude "
         f"{exc.amplitude_codes} codes (limited by {exc.limited_by}), predicted max speed "
-        f"{exc.predicted_max_speed_rpm:.0f} r/min, travel {lo:.0f} … {hi:.0f} counts",
+        f"{exc.predicted_max_speed_rpm:.0f} r/min, travel {lo:.0f} … {hi:.0f} counts{periodic}",
         file=sys.stderr,
     )
     return EXIT_OK

@@ -13,7 +13,14 @@ from typing import Any, NoReturn
 
 from servotune._version import __version__
 from servotune.cli.design import cmd_margins, cmd_plan, cmd_tune, cmd_verify
-from servotune.cli.measure import cmd_excite, cmd_fit, cmd_init, cmd_rig, cmd_simulate
+from servotune.cli.measure import (
+    cmd_excite,
+    cmd_fit,
+    cmd_frf,
+    cmd_init,
+    cmd_rig,
+    cmd_simulate,
+)
 from servotune.cli.studies import cmd_compare, cmd_demo, cmd_linkage, cmd_sync
 from servotune.cli.tables import cmd_check_table, cmd_export_table
 from servotune.cli.warmup import cmd_warmup
@@ -280,6 +287,33 @@ def _fit_fleet_options(s: Any) -> None:
     _executor_options(fleet, "fit", "200 logs")
 
 
+def _add_frf(sub: Any) -> None:
+    """The ``frf`` verb and its options."""
+    s = _verb(
+        sub,
+        cmd_frf,
+        "frf",
+        help="measure an axis's frequency response from a closed-loop log with a periodic "
+        "excitation",
+    )
+    s.add_argument("log", help="log CSV with an exc_code column (servotune simulate --input)")
+    s.add_argument("--axis", help="axis (needed for multi-axis logs)")
+    s.add_argument(
+        "--response",
+        choices=["velocity", "position"],
+        default="velocity",
+        help="command [V] to velocity [counts/s] (default) or to position [counts]",
+    )
+    s.add_argument("--period-ticks", type=int, help="ticks per excitation period (default: found)")
+    s.add_argument("--skip", type=int, default=1, help="periods discarded as transient (default 1)")
+    s.add_argument("--band", help="only lines within F1:F2 [Hz]")
+    s.add_argument(
+        "-o", "--output", help="FRF file to write: .json (default) or .csv (default: stdout)"
+    )
+    s.add_argument("--plot", help="Bode plot with bounds and coherence (PNG)")
+    s.add_argument("--json", action="store_true", help="the summary as JSON on stdout")
+
+
 def _add_excite(sub: Any) -> None:
     """The ``excite`` verb and its options."""
     s = _verb(sub, cmd_excite, "excite", help="design an identification excitation (D/A codes)")
@@ -289,6 +323,10 @@ def _add_excite(sub: Any) -> None:
     s.add_argument("--seconds", type=float, required=True, help="duration [s]")
     s.add_argument("--seed", type=_seed, default=0)
     s.add_argument("--amplitude-codes", type=int, help="requested amplitude [D/A codes]")
+    s.add_argument("--periods", type=int, help="multisine: whole periods (>= 2), for frf")
+    s.add_argument("--band", metavar="F1:F2", help="with --periods: band [Hz] (<= 0.9 × Nyquist)")
+    phases = ["schroeder", "random"]  # crest factor about 1.6 and 3
+    s.add_argument("--phases", choices=phases, help="with --periods (default schroeder)")
     s.add_argument("-o", "--output", required=True, help="excitation CSV to write")
 
 
@@ -651,6 +689,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_rig(sub)
     _add_simulate(sub)
     _add_fit(sub)
+    _add_frf(sub)
     _add_excite(sub)
     _add_tune(sub)
     _add_plan(sub)
@@ -698,8 +737,15 @@ EXAMPLES = {
         "servotune fit own.csv --axis x --map cmd=drive_volts,pos=encoder,ref=setpoint,"
         "exc=exc_volts,time=t   # your logger's CSV: volts, counts, time [s]",
     ],
+    "frf": [
+        "servotune frf ms-log.csv --axis master -o frf.json --plot frf.png   # a log of "
+        "excite --kind multisine --periods 8, played with the loop closed",
+        "servotune frf ms-log.csv --axis master --response position --band 1:60 -o frf.csv",
+    ],
     "excite": [
         "servotune excite --rig my-rig.toml --axis master --kind prbs --seconds 40 -o exc.csv",
+        "servotune excite --rig my-rig.toml --kind multisine --periods 8 --seconds 80 "
+        "--band 0.5:50 -o ms.csv   # periodic, for servotune frf",
     ],
     "tune": [
         "servotune tune my-rig.toml -o tuning.json",

@@ -41,6 +41,13 @@ class ExcitationLike(Protocol):
     limited_by: str
     predicted_max_speed_rpm: float
     predicted_travel_counts: tuple[float, float]
+    periods: int | None  # the rest: a periodic multisine's (None for any other excitation)
+    period_ticks: int | None
+    band_hz: tuple[float, float] | None
+    phases: str | None
+    crest_factor: float | None
+    excited_lines: int | None
+    detection_lines: int | None
 
     @property
     def absolute_codes(self) -> np.ndarray: ...
@@ -68,7 +75,9 @@ def write_excitation(path: str | Path, excitation: ExcitationLike, rig: Rig) -> 
 
     Metadata lines ``rig``, ``period_s`` (repr of the achieved period), ``axis``, ``kind``,
     ``seed``, ``amplitude_codes``, ``dac_bits``, ``dac_range_v``, the predictions and the
-    servotune version; columns ``tick,time_s,<axis>.dac_code`` with absolute D/A codes.
+    servotune version; a periodic multisine's also ``periods``, ``period_ticks``, ``band_hz``,
+    ``phases``, ``crest_factor``, ``excited_lines`` and ``detection_lines``. Columns
+    ``tick,time_s,<axis>.dac_code`` with absolute D/A codes.
 
     Parameters
     ----------
@@ -108,6 +117,7 @@ def write_excitation(path: str | Path, excitation: ExcitationLike, rig: Rig) -> 
         "seed": excitation.seed,
         "amplitude_codes": excitation.amplitude_codes,
         "limited_by": excitation.limited_by,
+        **_periodic_meta(excitation),
         "dac_bits": rig.dac.bits,
         "dac_range_v": f"{lo:g},{hi:g}",
         "predicted_max_speed_rpm": f"{excitation.predicted_max_speed_rpm:.6g}",
@@ -117,6 +127,22 @@ def write_excitation(path: str | Path, excitation: ExcitationLike, rig: Rig) -> 
     atomic_write_text(
         path, format_log(period_s=rig.period_s, columns=excitation.to_columns(), metadata=meta)
     )
+
+
+def _periodic_meta(excitation: ExcitationLike) -> dict[str, str]:
+    """A periodic multisine's metadata (docs/formats.md#excitation-file); none for another."""
+    if excitation.periods is None or excitation.band_hz is None:
+        return {}
+    f1, f2 = excitation.band_hz
+    return {
+        "periods": f"{excitation.periods}",
+        "period_ticks": f"{excitation.period_ticks}",
+        "band_hz": f"{f1:.6g},{f2:.6g}",
+        "phases": f"{excitation.phases}",
+        "crest_factor": f"{excitation.crest_factor:.6g}",
+        "excited_lines": f"{excitation.excited_lines}",
+        "detection_lines": f"{excitation.detection_lines}",
+    }
 
 
 def read_excitation(path: str | Path, rig: Rig) -> tuple[str, np.ndarray]:

@@ -1,0 +1,154 @@
+"""The frequency-response estimator (servotune.analysis.frf) and ``servotune frf`` on plants
+whose response is known in closed form: a pure integrator (position = running sum of the
+input, so the velocity response is the constant gain / period at every line) and a first-order
+lag through an exactly known difference equation. The closed-loop accuracy against an
+independent simulation is tests/analysis/test_frf_truth.py's."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from scipy import signal
+
+from servotune.analysis.frf import estimate_frf, find_period, frf
+from servotune.cli import main
+from servotune.errors import LogFormatError, SpecError
+from servotune.excite import periodic_multisine
+from servotune.logs import write_log
+
+T = 0.004  # the example rig's tick [s]
+
+
+def _ms(period_ticks: int = 500, periods: int = 5, **kw) -> object:
+    kw.setdefault("band_hz", (1.0, 100.0))
+    return periodic_multisine(period_ticks, periods, T, 200, **kw)
+
+
+def _lag_log(tmp_path, noise: float = 0.0, seed: int = 0, exc: np.ndarray | None = None):
+    """A log of a first-order lag y[k+1] = a y[k] + b u[k] (position [counts], u [V]) with the
+    multisine as u plus noise, and its excitation."""
+    m = _ms()
+    r = m.codes if exc is None else exc
+    u = r * (20.0 / 4095)
+    a, b = 0.9, 50.0
+    y = signal.lfilter([0.0, b], [1.0, -a], u)
+    y = y + np.random.default_rng(seed).normal(0.0, noise, y.size)
+    path = tmp_path / "lag.csv"
+    cols = {"cmd_v": u, "pos_counts": np.rint(y * 1000).astype(np.int64), "exc_code": r}
+    write_log(path, period_s=T, columns=cols, metadata={"counter_bits": 24})
+    return path, m, (a, b)
+
+
+def test_an_integrator_s_response_is_its_gain_at_every_line() -> None:
+    m = _ms()
+    y = np.cumsum(m.codes * 0.5)  # 0.5 counts per tick per unit of u
+    f = estimate_frf(m.codes.astype(float), y, m.codes, period_s=T)
+    np.testing.assert_allclose(f.response, 0.5 / T, rtol=1e-9)  # velocity: gain / period
+    np.testing.assert_allclose(f.freq_hz, m.freq_hz, rtol=1e-12)  # the excited lines only
+    assert f.periods == 4 and f.skipped == 1 and f.period_ticks == 500
+    p = estimate_frf(m.codes.astype(float), y, m.codes, period_s=T, output="position")
+    z = np.exp(1j * 2 * np.pi * m.freq_hz * T)
+    np.testing.assert_allclose(p.response, 0.5 / (1 - 1 / z), rtol=1e-9)  # Σ: 1/(1 − z⁻¹)
+
+
+def test_a_lag_read_from_a_log_is_its_transfer_function(tmp_path) -> None:
+    path, _, (a, b) = _lag_log(tmp_path)
+    f = frf(path, output="position")
+    z = np.exp(1j * 2 * np.pi * f.freq_hz * T)
+    want = 1000 * b / (z - a)  # the difference equation's response, counts per V
+    np.testing.assert_allclose(f.response, want, rtol=2e-3)  # the counts are rounded
+    frd = f.to_frd()
+    np.testing.assert_allclose(frd.eval(2 * np.pi * f.freq_hz[3]), f.response[3], rtol=1e-12)
+
+
+def test_noise_widens_the_bounds_and_they_hold_the_truth(tmp_path) -> None:
+    path, _, (a, b) = _lag_log(tmp_path, noise=0.05, seed=3)
+    f = frf(path, output="position")
+    z = np.exp(1j * 2 * np.pi * f.freq_hz * T)
+    want = 1000 * b / (z - a)
+    inside = float(np.mean(f.contains(want)))
+    assert 0.85 <= inside <= 1.0, inside  # 95 % circles over ~60 lines: binomial spread
+    (tmp_path / "quiet").mkdir()
+    quiet = frf(_lag_log(tmp_path / "quiet", noise=0.0)[0], output="position")
+    assert np.median(f.std) > 10 * np.median(quiet.std)
+
+
+def test_the_period_is_found_even_as_a_divisor() -> None:
+    rng = np.random.default_rng(1)
+    one = rng.integers(-50, 50, 40)
+    assert find_period(np.tile(one, 6)) == 40
+    assert find_period(np.tile(np.tile(one, 2), 3)) == 40  # 80 also repeats; 40 is the period
+
+
+@pytest.mark.parametrize(
+    ("exc", "message"),
+    [
+        (np.zeros(2000, dtype=np.int64), "constant"),
+        (np.random.default_rng(0).integers(-9, 9, 2000), "not periodic"),
+        (np.tile(np.arange(-300, 300), 2)[:1000], "not periodic"),
+    ],
+)
+def test_no_usable_excitation_is_named(exc, message) -> None:
+    with pytest.raises(SpecError, match=message):
+        find_period(exc)
+
+
+def test_two_periods_after_the_transient_are_needed() -> None:
+    m = periodic_multisine(500, 2, T, 100, band_hz=(1, 100))
+    with pytest.raises(SpecError, match=r"2 whole periods of 500 ticks; after discarding 1"):
+        estimate_frf(m.codes * 1.0, np.cumsum(m.codes), m.codes, period_s=T)
+
+
+def test_cli_writes_json_csv_and_plot_that_agree(tmp_path, capsys) -> None:
+    path, m, _ = _lag_log(tmp_path, noise=0.02)
+    out_json, out_csv, png = tmp_path / "f.json", tmp_path / "f.csv", tmp_path / "f.png"
+    assert main(["frf", str(path), "-o", str(out_json), "--plot", str(png)]) == 0
+    assert main(["frf", str(path), "-o", str(out_csv)]) == 0
+    err = capsys.readouterr().err
+    assert "frequency response (velocity)" in err and "coherence" in err
+    doc = json.loads(out_json.read_text())
+    assert doc["schema"] == "servotune.frf/1" and doc["output"] == "velocity"
+    assert [ln["freq_hz"] for ln in doc["lines"]] == pytest.approx(m.freq_hz.tolist())
+    table = np.loadtxt(out_csv, delimiter=",", skiprows=3)
+    np.testing.assert_allclose(table[:, 0], m.freq_hz, rtol=1e-8)
+    np.testing.assert_allclose(table[:, 3], [ln["re"] for ln in doc["lines"]], rtol=1e-8)
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.mark.parametrize(
+    ("edit", "args", "message"),
+    [
+        ("no_exc", [], "no exc_code column"),
+        ("random", [], "not periodic"),
+        ("none", ["--band", "200:300"], "no excited line in 200:300 Hz"),
+        ("none", ["--skip", "4"], "after discarding 4"),
+        ("none", ["--band", "oops"], "--band must be F1:F2"),
+    ],
+)
+def test_cli_bad_input_is_one_line_exit_3_nothing_written(
+    tmp_path, capsys, edit, args, message
+) -> None:
+    exc = None
+    if edit == "random":
+        exc = np.random.default_rng(0).integers(-100, 100, 2500)
+    path, _, _ = _lag_log(tmp_path, exc=exc)
+    if edit == "no_exc":
+        text = path.read_text().splitlines()
+        head = text[1].split(",")
+        j = head.index("exc_code")
+        path.write_text("\n".join([text[0]] + [",".join(r.split(",")[:j]) for r in text[1:]]))
+    out = tmp_path / "f.json"
+    rc = main(["frf", str(path), "-o", str(out), *args])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 3 and len(err) == 1 and message in err[0], err
+    assert not out.exists()
+
+
+def test_log_without_exc_code_raises_log_format_error(tmp_path) -> None:
+    path = tmp_path / "plain.csv"
+    cols = {"cmd_v": np.zeros(50), "pos_counts": np.arange(50)}
+    write_log(path, period_s=T, columns=cols, metadata={})
+    with pytest.raises(LogFormatError, match="exc_code"):
+        frf(path)
