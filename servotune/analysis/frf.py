@@ -16,8 +16,9 @@ ed., Wiley 2012, §2.5 and §7.2):
     G(k) = Ȳ(k) / Ū(k),   Ȳ(k) = (1/P) Σ_p Y_p(k),   Ū(k) = (1/P) Σ_p U_p(k),
 
 ``Y_p(k)``, ``U_p(k)`` the DFT of period ``p`` at line ``k``, over the ``P`` periods left after
-the first ``skip`` (the transient). The spread from period to period gives the noise variances
-``σ²_Y``, ``σ²_U`` and covariance ``σ²_YU``, and so the variance of G to first order:
+the first ``skip`` (the transient). The spread from period to period (each period's deviation
+from the mean period with its own straight line removed: :func:`_deviations`) gives the noise
+variances ``σ²_Y``, ``σ²_U`` and covariance ``σ²_YU``, and so the variance of G to first order:
 
     var G = |G|² / P · (σ²_Y / |Ȳ|² + σ²_U / |Ū|² − 2 Re(σ²_YU / (Ȳ Ū*))).
 
@@ -317,6 +318,20 @@ def find_period(exc: np.ndarray, *, what: str = "the excitation (exc_code)") -> 
     return found
 
 
+def _deviations(x: np.ndarray) -> np.ndarray:
+    """The spectra of each period's deviation from the mean period (rows: periods), each
+    deviation with its own straight line removed first: a slow disturbance that does not
+    repeat (a drifting load) leaks into every line of a period's DFT through its ramp across
+    the period, and those ramps largely cancel in the average over periods, so counting them in
+    the spread would overstate the noise of the averaged spectrum."""
+    dev = x - x.mean(axis=0)
+    n = x.shape[1]
+    t = np.arange(n, dtype=float) - (n - 1) / 2.0
+    slope = dev @ t / float(t @ t)
+    dev -= dev.mean(axis=1, keepdims=True) + slope[:, None] * t
+    return np.fft.rfft(dev, axis=1)
+
+
 def estimate_frf(
     u: np.ndarray,
     y: np.ndarray,
@@ -414,7 +429,8 @@ def estimate_frf(
         where = "" if band_hz is None else f" in {band_hz[0]:g}:{band_hz[1]:g} Hz"
         raise SpecError(f"no excited line{where}: the excitation carries no line there")
     Um, Ym = U.mean(axis=0), Y.mean(axis=0)
-    dU, dY = U - Um, Y - Ym
+    dU = _deviations(u[start:stop].astype(float).reshape(periods, n_per))
+    dY = _deviations(out.reshape(periods, n_per))
     var_u = np.sum(np.abs(dU) ** 2, axis=0) / (periods - 1)
     var_y = np.sum(np.abs(dY) ** 2, axis=0) / (periods - 1)
     cov_yu = np.sum(dY * np.conj(dU), axis=0) / (periods - 1)

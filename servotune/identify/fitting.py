@@ -15,7 +15,9 @@
    :data:`SELECTION_SAMPLES` samples with the chosen method (least squares gives the start)
    and scored by BIC (``m·ln σ² + k·ln m``) on that method's residual: for ``iv`` whitened by
    one noise model (the largest candidate's), so that a coloured disturbance does not make
-   every extra term look worth its price; for ``oe`` as it is. The smallest wins. With
+   every extra term look worth its price; for ``oe`` as it is. The smallest wins, unless the
+   largest structure predicts held-out samples clearly better
+   (:func:`~servotune.identify.heldout.held_out_check`). With
    ``friction="auto"`` the winner is refitted with the asymmetric form (its own gain, and
    Coulomb level where identifiable, for the negative direction) and the form with the smaller
    BIC is kept; both scores are reported. Where the refined IV finds no solution on the
@@ -43,6 +45,15 @@ import numpy as np
 from servotune.budget import check_memory
 from servotune.errors import IdentificationError
 from servotune.identify import iv, model, noise, oe, quality
+from servotune.identify.heldout import (
+    cross_validate,
+    estimate,
+    fit_pcts,
+    held_out_check,
+    simulate_dy,
+    skip_samples,
+    validation_split,
+)
 from servotune.identify.model import ALL_PARAMS, I_COULOMB, I_GAIN, PARAMS
 from servotune.identify.noise import NoiseModel
 from servotune.identify.result import (
@@ -76,11 +87,6 @@ FRICTION_FORMS = ("auto", "sym", "asym")
 _BYTES_PER_SAMPLE = 700  # the estimators' arrays: about 90 doubles per sample at the peak
 
 
-def validation_split(n_samples: int) -> int:
-    """First sample of the second half of a log of ``n_samples`` (split-half validation)."""
-    return n_samples // 2
-
-
 def _params(x: np.ndarray, free: np.ndarray) -> dict[str, float]:
     """Every axis-model parameter (0 when left out), and the negative direction's when estimated."""
     out = {}
@@ -91,75 +97,6 @@ def _params(x: np.ndarray, free: np.ndarray) -> dict[str, float]:
         elif free[i]:
             out[p] = max(float(x[i]), 0.0)
     return out
-
-
-def _skip(x: np.ndarray, period_s: float, n: int) -> int:
-    """Start samples left out (at most a tenth of the log).
-
-    The model's initial transient (five time constants, at least 50 samples), and twice the
-    projection's FIR length: before the FIR has seen the excitation's past, the projected
-    command (and so the instruments) is wrong, and those samples weigh heavily.
-    """
-    start = max(50, math.ceil(5.0 * x[1] / period_s), 2 * iv.projection_lags(period_s))
-    return int(min(start, max(1, n // 10)))
-
-
-def _estimate(
-    method: str,
-    u1: np.ndarray,
-    dy: np.ndarray,
-    sigs: list[np.ndarray],
-    x0: np.ndarray,
-    free: np.ndarray,
-    *,
-    period_s: float,
-    compute_s: float,
-    skip: int,
-    projection: iv.Projection | None = None,
-    noise0: NoiseModel | None = None,
-    max_nfev: int = 60,
-    max_outer: int = 4,
-    refit_noise: bool = True,
-) -> tuple[model.Estimate, dict[str, Any]]:
-    if method.startswith("iv"):  # iv: refined, else basic; iv-refined, iv-basic: only that
-        kw = {
-            "period_s": period_s,
-            "compute_s": compute_s,
-            "skip": skip,
-            "projection": projection,
-            "noise0": noise0,
-            "max_outer": max_outer,
-            "refit_noise": refit_noise,
-        }
-        try:
-            if method == "iv-basic":
-                raise iv.NotConverged("basic IV asked for")
-            r = iv.estimate_iv(u1, dy, sigs, x0, free, **kw)
-        except iv.NotConverged:  # refined IV did not settle: basic IV (raises if it neither)
-            if method == "iv-refined":
-                raise
-            r = iv.estimate_iv(u1, dy, sigs, x0, free, prefilter=False, **kw)
-        info = {
-            "converged": r.converged,
-            "iterations": r.iterations,
-            "lags": r.projection.lags,
-            "r2": r.projection.r2,
-            "prefilter": r.prefilter,
-        }
-        return r, info
-    f = oe.estimate_oe(
-        u1,
-        dy,
-        x0,
-        free,
-        period_s=period_s,
-        compute_s=compute_s,
-        skip=skip,
-        max_nfev=max_nfev,
-        noise0=noise0,
-        refit_noise=refit_noise,
-    )
-    return f, {"nfev": f.nfev}
 
 
 def _choose_method(
@@ -250,7 +187,7 @@ def _select(
     )
     largest = model.free_mask(terms if terms is not None else model.OPTIONAL_PARAMS, form)
     x_ls = model.ls_start(u[: n_s + 1], y[: n_s + 1], period_s, compute_s, largest)
-    skip_s = _skip(x_ls, period_s, n_s)
+    skip_s = skip_samples(x_ls, period_s, n_s)
     x_oe = oe.oe_parameters(
         u[:n_s],
         dy[:n_s],
@@ -270,7 +207,7 @@ def _select(
 
     def score(free: np.ndarray, x0: np.ndarray) -> tuple[float, float, np.ndarray, NoiseModel]:
         try:
-            est, _ = _estimate(
+            est, _ = estimate(
                 variant,
                 u[:n_s],
                 dy[:n_s],
@@ -336,6 +273,27 @@ def _select(
         )
     else:
         reason = "structure given by the user"
+    if terms is None:
+        best, reason = held_out_check(
+            best,
+            scored,
+            reason,
+            variant,
+            u,
+            dy,
+            sigs,
+            n_s,
+            noise,
+            x_oe,
+            period_s=period_s,
+            compute_s=compute_s,
+        )
+        ordered = sorted(scored, key=lambda e: e["bic"])
+        selection = [{k: v for k, v in e.items() if not k.startswith("_")} for e in ordered]
+        if not math.isfinite(best["bic"]):  # refined IV has no solution for it: basic IV
+            variant = "iv-basic" if variant == "iv-refined" else variant
+            bic_b, var_b, x_b, _ = score(best["_free"], best["_x"])
+            best = {**best, "bic": bic_b, "variance": var_b, "_x": x_b}
     free, x = best["_free"], best["_x"]
     friction_selection: dict[str, Any] = {}
     if friction == "auto":
@@ -359,78 +317,6 @@ def _select(
             free, x = free_a, xa
     noise = noise or NoiseModel.identity()
     return free, x, selection, reason, friction_selection, noise, variant
-
-
-def _simulate(
-    u: np.ndarray,
-    dy: np.ndarray,
-    x: np.ndarray,
-    free: np.ndarray,
-    period_s: float,
-    compute_s: float,
-) -> np.ndarray:
-    v0 = float(np.mean(dy[: max(1, min(5, dy.size))]) / period_s)
-    return model.simulate_increments(
-        np.asarray(u, dtype=float)[None, :],
-        [x],
-        free,
-        [0],
-        period_s=period_s,
-        compute_s=compute_s,
-        v0=v0,
-    )[0]
-
-
-def _fit_pcts(
-    y: np.ndarray, dy: np.ndarray, dp: np.ndarray, period_s: float
-) -> tuple[float, float]:
-    pos = y[0] + np.concatenate([[0.0], np.cumsum(dp)])
-    return (quality.fit_pct(dy / period_s, dp / period_s), quality.fit_pct(y.astype(float), pos))
-
-
-def _cross_validate(
-    est: model.Estimate,
-    u: np.ndarray,
-    y: np.ndarray,
-    free: np.ndarray,
-    *,
-    period_s: float,
-    compute_s: float,
-) -> tuple[list[np.ndarray], list[tuple[float, float]] | None]:
-    """Split-half: each half's estimate, and its fit % (velocity, position) on the other half.
-
-    Each half's estimate is the one-step estimate from the whole log's: one Gauss–Newton step
-    of that half's own estimating equations (the terms ``est`` holds per sample, summed over
-    that half only), ``θ_h = θ̂ + A_h⁻¹ Σ_{k∈h} s_k``. To first order it is the estimate the
-    half alone gives — the other half enters only at second order, through the start — and it
-    costs no simulation. The fit % is then the simulation of each half by the other half's
-    model, from that half's own first position and speed.
-    """
-    n = y.size
-    h = validation_split(n)
-    first = (n - 1) - est.scores.shape[0]  # the increment index of the equations' first term
-    split = min(max(h - first, 1), est.scores.shape[0] - 1)
-    lo, hi = model.lower_bounds()[free], model.upper_bounds(period_s)[free]
-    xs: list[np.ndarray] = []
-    for sel in (slice(0, split), slice(split, None)):
-        a_h = est.instruments[:, sel] @ est.sensitivities[:, sel].T
-        try:
-            step = np.linalg.solve(a_h, est.scores[sel].sum(axis=0))
-        except np.linalg.LinAlgError:
-            return [], None
-        xh = est.x.copy()
-        xh[free] = np.clip(est.x[free] + step, lo, hi)
-        xs.append(xh)
-    folds = []
-    for i, (a, b) in enumerate(((0, h), (h, n))):
-        ua, ya = u[a:b], y[a:b]
-        dya = np.diff(ya).astype(float)
-        try:
-            dp = _simulate(ua[:-1], dya, xs[1 - i], free, period_s, compute_s)
-        except ValueError:  # a one-step estimate outside what a plant can be
-            return [], None
-        folds.append(_fit_pcts(ya, dya, dp, period_s))
-    return xs, folds
 
 
 def _diagnostics(
@@ -568,9 +454,9 @@ def fit_arrays(
         free, x0, selection, reason, friction_selection, noise0, variant = _select(
             chosen, u, y, dy, sigs, terms, friction, period_s=period_s, compute_s=compute_s
         )
-        skip = _skip(x0, period_s, n)
+        skip = skip_samples(x0, period_s, n)
         final = "iv" if variant == "iv-refined" else variant  # refined may still fall back
-        est, info = _estimate(
+        est, info = estimate(
             final,
             u1,
             dy,
@@ -596,8 +482,8 @@ def fit_arrays(
         free, x0, selection, reason, friction_selection, noise0, variant = _select(
             chosen, u, y, dy, sigs, terms, friction, period_s=period_s, compute_s=compute_s
         )
-        skip = _skip(x0, period_s, n)
-        est, info = _estimate(
+        skip = skip_samples(x0, period_s, n)
+        est, info = estimate(
             chosen,
             u1,
             dy,
@@ -623,13 +509,13 @@ def fit_arrays(
             "--invert-encoder), or the command does not reach the drive"
         )
     # validation: split-half cross-validation, and the whole-log model on the whole log
-    xs, folds = _cross_validate(est, u, y, free, period_s=period_s, compute_s=compute_s)
+    xs, folds = cross_validate(est, u, y, free, period_s=period_s, compute_s=compute_s)
     sim = (
         est.simulated
         if est.simulated is not None
-        else _simulate(u1, dy, x, free, period_s, compute_s)
+        else simulate_dy(u1, dy, x, free, period_s, compute_s)
     )
-    vel_est, pos_est = _fit_pcts(y, dy, sim, period_s)
+    vel_est, pos_est = fit_pcts(y, dy, sim, period_s)
     del sim
     white, cross, reasons = _diagnostics(est, chosen, u1, sigs, labels, skip)
     # the intervals last: by then the estimate's per-sample arrays other than the equations'
@@ -753,7 +639,7 @@ def simulate_fit(result: FitResult, cmd_v: np.ndarray, pos_counts: np.ndarray) -
     out = np.empty(n)
     for i, (a, b) in enumerate(((0, h), (h, n))):
         dya = np.diff(y[a:b]).astype(float)
-        dp = _simulate(u[a : b - 1], dya, models[1 - i], free, result.period_s, result.compute_s)
+        dp = simulate_dy(u[a : b - 1], dya, models[1 - i], free, result.period_s, result.compute_s)
         out[a:b] = y[a] + np.concatenate([[0.0], np.cumsum(dp)])
     return out
 

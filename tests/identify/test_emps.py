@@ -384,6 +384,55 @@ def test_estimates_are_near_the_benchmarks_own(
     assert_allclose(got.offset_v, ref.offset_v, atol=REFERENCE_OFFSET_ATOL_V)
 
 
+@pytest.fixture(scope="module")
+def default_fits(emps: dict[str, EmpsLog]) -> dict[tuple[str, str], FitResult]:
+    """Each log fitted as ``servotune fit`` fits it with no option (structure, friction and
+    method chosen by the tool), and with ``--method oe`` alone."""
+    out = {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for name in FILES:
+            out[name, "default"] = st.fit(emps[name].to_log())
+            out[name, "oe"] = st.fit(emps[name].to_log(), method="oe")
+    return out
+
+
+DEFAULT_VS_OE_PCT = 0.5
+"""How far the default's velocity fit on the other log may lie below ``--method oe``'s
+[percentage points]. Measured (2026-11-29): fitted on EMPS, 93.57 % (iv, its structure chosen
+by held-out prediction) against oe's 93.92 %; fitted on PULSES, where refined and basic IV find
+no solution for the structure that predicts best, the default falls back to oe (94.03 %). The
+default keeps the consistent IV where it settles: on the synthetic closed-loop logs of
+tests/identify/test_closed_loop_iv.py least squares predicts held-out samples as well or better
+(0–3 points) while its gain is 7–14 % low, so the better prediction is no reason to prefer it."""
+
+
+@pytest.mark.parametrize("fitted_on", ["EMPS", "PULSES"])
+def test_the_default_fit_predicts_the_other_log_as_the_alternatives_do(
+    emps: dict[str, EmpsLog], default_fits: dict[tuple[str, str], FitResult], fitted_on: str
+) -> None:
+    """The default (no option) on the real drive: fitted on one log, simulated by solve_ivp on
+    the other's command. Before the held-out check of the structure, BIC kept gain, tau and
+    delay (refined IV had no solution with friction) and the default reached 71.7 % (EMPS →
+    PULSES) and 80.0 % (PULSES → EMPS). The benchmark's IDIM-LS model is compared where it is
+    not in its own estimation data (it was estimated on DATA_EMPS: 92.63 % on PULSES; on EMPS
+    itself it reaches 95.01 %, which no model fitted on PULSES here does: oe 94.03 %)."""
+    other = emps[OTHER[fitted_on]]
+    measured = np.diff(other.pos_counts) / other.period_s
+
+    def pct(plant: Plant) -> float:
+        return fit_pct(measured, _speed_by_solve_ivp(plant, other))
+
+    got = pct(default_fits[fitted_on, "default"].plant)
+    oe_pct = pct(default_fits[fitted_on, "oe"].plant)
+    assert got >= MIN_CROSS_FIT_PCT, got
+    assert got >= oe_pct - DEFAULT_VS_OE_PCT, (got, oe_pct)
+    if fitted_on == "PULSES":
+        return
+    ref = pct(REFERENCE_MODEL.to_plant(emps[fitted_on].gtau_n_per_v))
+    assert got >= ref, (got, ref)
+
+
 # --- the reader without the real data -----------------------------------------------------------
 
 
