@@ -47,6 +47,11 @@ format: $(STAMP)
 	$(BIN)/ruff format servotune tests bench
 	$(BIN)/ruff check --fix servotune tests bench
 
+# One BLAS thread per process while testing: two pytest workers already use both cores, and
+# OpenBLAS's own threads, left spinning after scipy's expm, starved the numpy work after it
+# (tests/identify/test_modes.py 46–138 s threaded against 12–17 s on one thread).
+test test-slow test-wheel: export OPENBLAS_NUM_THREADS = 1
+
 # both cores (pytest-xdist); a file's tests stay on one worker, so module fixtures run once.
 # The kernels are compiled first, once, if an edit of servotune's sources made them stale
 # (otherwise the first tests would each compile what they use). PYTEST_ARGS adds options

@@ -332,6 +332,13 @@ def cmd_frf(args: argparse.Namespace) -> int:
         band_hz=band,
     )
     doc = result.to_dict()
+    fitted = None
+    if args.modes is not None:
+        from servotune.identify.modes import fit_modes
+
+        compute_s = log.compute_s or 0.0
+        fitted = fit_modes(result, n_modes=_modes_arg(args.modes), compute_s=compute_s)
+        doc["model"] = fitted.to_dict()
     if args.output and args.output != "-":
         is_csv = args.output.lower().endswith(".csv")
         text = result.to_csv() if is_csv else json.dumps(doc, indent=2, sort_keys=True) + "\n"
@@ -342,10 +349,25 @@ def cmd_frf(args: argparse.Namespace) -> int:
     if args.plot:
         from servotune.plot import plot_frf, save_figure
 
-        save_figure(plot_frf(result, f"{Path(args.log).name}: {args.response}"), args.plot)
+        model = None if fitted is None else fitted.response(result.freq_hz)
+        title = f"{Path(args.log).name}: {args.response}"
+        save_figure(plot_frf(result, title, model), args.plot)
         print(f"wrote the plot to {args.plot}", file=sys.stderr)
-    print_summary(args.json, doc, result.summary)
+
+    def text() -> str:
+        return result.summary() + ("" if fitted is None else "\n" + fitted.summary())
+
+    print_summary(args.json, doc, text)
     return EXIT_OK
+
+
+def _modes_arg(text: str) -> int | str:
+    if text == "auto":
+        return text
+    try:
+        return int(text)
+    except ValueError:
+        raise ServotuneError(f"--modes must be auto or a number of modes, got {text!r}") from None
 
 
 def _band(text: str) -> tuple[float, float]:

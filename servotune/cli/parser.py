@@ -310,6 +310,11 @@ def _add_frf(sub: Any) -> None:
     s.add_argument(
         "-o", "--output", help="FRF file to write: .json (default) or .csv (default: stdout)"
     )
+    s.add_argument(
+        "--modes",
+        help="also fit the rigid plant and its lightly damped modes to the response: auto "
+        "(chosen by held-out error) or a number",
+    )
     s.add_argument("--plot", help="Bode plot with bounds and coherence (PNG)")
     s.add_argument("--json", action="store_true", help="the summary as JSON on stdout")
 
@@ -741,6 +746,7 @@ EXAMPLES = {
         "servotune frf ms-log.csv --axis master -o frf.json --plot frf.png   # a log of "
         "excite --kind multisine --periods 8, played with the loop closed",
         "servotune frf ms-log.csv --axis master --response position --band 1:60 -o frf.csv",
+        "servotune frf ms-log.csv --axis master --modes auto   # and the modes fitted to it",
     ],
     "excite": [
         "servotune excite --rig my-rig.toml --axis master --kind prbs --seconds 40 -o exc.csv",
