@@ -53,7 +53,6 @@ __all__ = [
     "estimate_frf",
     "find_period",
     "frf",
-    "frf_from_log",
 ]
 
 FRF_SCHEMA = "servotune.frf/1"
@@ -477,7 +476,7 @@ def estimate_frf(
     )
 
 
-def frf_from_log(
+def frf(
     log: Any,
     axis: str | None = None,
     *,
@@ -486,16 +485,33 @@ def frf_from_log(
     skip: int = 1,
     band_hz: tuple[float, float] | None = None,
 ) -> Frf:
-    """:func:`estimate_frf` of one axis of a log (:class:`servotune.logs.Log`): ``cmd_v`` in,
-    ``pos_counts`` out, the ``exc_code`` column as the excitation.
+    """The measured frequency response of one axis of a closed-loop log (what ``servotune frf``
+    runs): ``log`` a path (read by :func:`servotune.logs.read_log`) or a
+    :class:`~servotune.logs.Log`; ``cmd_v`` in, ``pos_counts`` out, its ``exc_code`` column the
+    excitation; the rest as :func:`estimate_frf`.
+    :meth:`Frf.to_frd` gives python-control's ``FrequencyResponseData``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from servotune.excite import periodic_multisine
+    >>> m = periodic_multisine(64, 4, 0.004, 100, band_hz=(5, 100), phases="schroeder")
+    >>> y = np.cumsum(m.codes * 0.5)  # an integrator: 0.5 counts per tick per V
+    >>> f = estimate_frf(m.codes / 1.0, y, m.codes, period_s=0.004)
+    >>> bool(np.allclose(f.response, 0.5 / 0.004))  # velocity: 125 counts/s per V
+    True
 
     Raises
     ------
     LogFormatError
-        The log has no ``exc_code`` column for the axis.
+        The log cannot be read, or has no ``exc_code`` column for the axis.
     SpecError
         As :func:`estimate_frf`.
     """
+    if not hasattr(log, "axis"):
+        from servotune.logs import read_log
+
+        log = read_log(log)
     ax = log.axis(axis)
     if ax.exc_code is None:
         raise LogFormatError(
@@ -512,37 +528,4 @@ def frf_from_log(
         period_ticks=period_ticks,
         skip=skip,
         band_hz=band_hz,
-    )
-
-
-def frf(
-    log: Any,
-    axis: str | None = None,
-    *,
-    output: str = "velocity",
-    period_ticks: int | None = None,
-    skip: int = 1,
-    band_hz: tuple[float, float] | None = None,
-) -> Frf:
-    """The measured frequency response of one axis of a closed-loop log (what ``servotune frf``
-    runs): ``log`` a path (read by :func:`servotune.logs.read_log`) or a
-    :class:`~servotune.logs.Log`; the rest as :func:`estimate_frf`.
-    :meth:`Frf.to_frd` gives python-control's ``FrequencyResponseData``.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from servotune.excite import periodic_multisine
-    >>> m = periodic_multisine(64, 4, 0.004, 100, band_hz=(5, 100), phases="schroeder")
-    >>> y = np.cumsum(m.codes * 0.5)  # an integrator: 0.5 counts per tick per V
-    >>> f = estimate_frf(m.codes / 1.0, y, m.codes, period_s=0.004)
-    >>> bool(np.allclose(f.response, 0.5 / 0.004))  # velocity: 125 counts/s per V
-    True
-    """
-    if not hasattr(log, "axis"):
-        from servotune.logs import read_log
-
-        log = read_log(log)
-    return frf_from_log(
-        log, axis, output=output, period_ticks=period_ticks, skip=skip, band_hz=band_hz
     )

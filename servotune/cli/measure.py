@@ -136,7 +136,6 @@ def cmd_fit(args: argparse.Namespace) -> int:
     args.log = args.log[0]  # one log (the positional takes several for --fleet)
     from servotune.identify import fit_log
     from servotune.identify.result import FIT_SCHEMA
-    from servotune.io.hal import hal_settings
     from servotune.rig import load_rig, write_plant
     from servotune.tuning import file_sha256
 
@@ -145,15 +144,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
         _rig_to_extend(args.output, args.axis)
     rig = load_rig(args.rig) if args.rig else None
     dac_range = _range(args.dac_range_v) if args.dac_range_v else None
-    hal = hal_settings(
-        args.map,
-        format=args.hal_format,
-        columns=args.hal_columns,
-        position_scale=args.position_scale,
-        output_scale=args.output_scale,
-        sample_number=args.sample_number,
-        capture=args.log,
-    )
+    hal = _hal(args, args.log)
     result, log, axis = fit_log(
         args.log,
         axis=args.axis,
@@ -253,20 +244,12 @@ def _cmd_fit_fleet(args: argparse.Namespace) -> int:
         write_fleet_table,
     )
     from servotune.io.fleet_table import table_format
-    from servotune.io.hal import hal_settings
     from servotune.rig import load_rig
 
     table_format(args.fleet)  # a wrong suffix fails before any work
     check_outputs(args.fleet, args.fleet_report, inputs=(*args.log, args.baseline, args.rig))
     baseline = read_fleet_table(args.baseline) if args.baseline else ()
-    hal = hal_settings(
-        args.map,
-        format=args.hal_format,
-        columns=args.hal_columns,
-        position_scale=args.position_scale,
-        output_scale=args.output_scale,
-        sample_number=args.sample_number,
-    )
+    hal = _hal(args, None)
     options = FleetFitOptions(
         axis=args.axis,
         rig=load_rig(args.rig) if args.rig else None,
@@ -317,12 +300,24 @@ def _cmd_fit_fleet(args: argparse.Namespace) -> int:
 
 def cmd_frf(args: argparse.Namespace) -> int:
     from servotune.analysis.frf import frf
+    from servotune.identify.logfit import read_fit_log
     from servotune.io.files import atomic_write_text
-    from servotune.logs import read_log
+    from servotune.rig import load_rig
 
     check_outputs(args.output, args.plot, inputs=(args.log,))
     band = None if args.band is None else _band(args.band)
-    log = read_log(args.log)
+    log, compute_s = read_fit_log(
+        args.log,
+        hal=_hal(args, args.log),
+        rig=load_rig(args.rig) if args.rig else None,
+        counter_bits=args.counter_bits,
+        dac_bits=args.dac_bits,
+        dac_range_v=_range(args.dac_range_v) if args.dac_range_v else None,
+        period_s=args.period_s,
+        compute_s=args.compute_s,
+        strict=args.strict,
+        progress=progress_line,
+    )
     result = frf(
         log,
         args.axis,
@@ -336,8 +331,7 @@ def cmd_frf(args: argparse.Namespace) -> int:
     if args.modes is not None:
         from servotune.identify.modes import fit_modes
 
-        compute_s = log.compute_s or 0.0
-        fitted = fit_modes(result, n_modes=_modes_arg(args.modes), compute_s=compute_s)
+        fitted = fit_modes(result, n_modes=_modes_arg(args.modes), compute_s=compute_s or 0.0)
         doc["model"] = fitted.to_dict()
     if args.output and args.output != "-":
         is_csv = args.output.lower().endswith(".csv")
@@ -361,6 +355,22 @@ def cmd_frf(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _hal(args: argparse.Namespace, capture: str | None) -> object:
+    """The HAL settings of ``--map`` and its options for ``capture`` (None: a servotune
+    log)."""
+    from servotune.io.hal import hal_settings
+
+    return hal_settings(
+        args.map,
+        format=args.hal_format,
+        columns=args.hal_columns,
+        position_scale=args.position_scale,
+        output_scale=args.output_scale,
+        sample_number=args.sample_number,
+        capture=capture,
+    )
+
+
 def _modes_arg(text: str) -> int | str:
     if text == "auto":
         return text
@@ -371,18 +381,19 @@ def _modes_arg(text: str) -> int | str:
 
 
 def _band(text: str) -> tuple[float, float]:
-    try:
-        lo, hi = (float(x) for x in text.split(":"))
-    except ValueError:
-        raise ServotuneError(f"--band must be F1:F2 in Hz, got {text!r}") from None
-    return lo, hi
+    return _pair(text, ":", "--band must be F1:F2 in Hz")
 
 
 def _range(text: str) -> tuple[float, float]:
+    return _pair(text, ",", "--dac-range-v must be LOW,HIGH in volts")
+
+
+def _pair(text: str, sep: str, usage: str) -> tuple[float, float]:
+    """Two numbers written ``A<sep>B``; else one line: ``usage``, and what was given."""
     try:
-        lo, hi = (float(x) for x in text.split(","))
+        lo, hi = (float(x) for x in text.split(sep))
     except ValueError:
-        raise ServotuneError(f"--dac-range-v must be LOW,HIGH in volts, got {text!r}") from None
+        raise ServotuneError(f"{usage}, got {text!r}") from None
     return lo, hi
 
 

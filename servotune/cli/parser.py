@@ -13,6 +13,7 @@ from typing import Any, NoReturn
 
 from servotune._version import __version__
 from servotune.cli.design import cmd_margins, cmd_plan, cmd_tune, cmd_verify
+from servotune.cli.help_examples import EXAMPLES
 from servotune.cli.measure import (
     cmd_excite,
     cmd_fit,
@@ -149,7 +150,6 @@ def _add_fit(sub: Any) -> None:
         "names, read with --map; several only with --fleet",
     )
     s.add_argument("--axis", help="axis to fit (needed for multi-axis logs)")
-    s.add_argument("--rig", help="rig file: D/A, counter, period and compute time fallbacks")
     s.add_argument(
         "--structure", default=None, help="auto (default: BIC) or a list from delay,offset,coulomb"
     )
@@ -157,15 +157,41 @@ def _add_fit(sub: Any) -> None:
     s.add_argument("-o", "--output", help="write the axis's plant section into this rig file")
     s.add_argument("--plot", help="PNG: measured vs simulated position, velocity, residuals")
     s.add_argument(
+        "--name",
+        help="name of the rig -o creates (default: the file's name without .toml); an "
+        "existing rig file keeps its name",
+    )
+    s.add_argument(
+        "--method",
+        choices=["auto", "iv", "oe"],
+        default="auto",
+        help="iv: instrumental variables, consistent in closed loop (needs exc_code or a moving "
+        "reference); oe: least squares; auto (default): iv when the log allows it",
+    )
+    s.add_argument(
+        "--friction",
+        choices=["auto", "sym", "asym"],
+        default="auto",
+        help="friction form: sym, asym (gain and Coulomb level per direction), auto (default: BIC)",
+    )
+    s.add_argument(
+        "--invert-encoder",
+        action="store_true",
+        help="negate the position first (an encoder counting against the D/A's direction)",
+    )
+    _log_options(s)
+    _hal_options(s)
+    _fit_fleet_options(s)
+
+
+def _log_options(s: Any) -> None:
+    """How a log is read (``fit`` and ``frf``): the rig and the settings it falls back on."""
+    s.add_argument("--rig", help="rig file: D/A, counter, period and compute time fallbacks")
+    s.add_argument(
         "--strict",
         action="store_true",
         help="an unknown metadata key in the log (# key: value, e.g. a typo) is an error, "
         "not a warning",
-    )
-    s.add_argument(
-        "--name",
-        help="name of the rig -o creates (default: the file's name without .toml); an "
-        "existing rig file keeps its name",
     )
     s.add_argument("--counter-bits", type=int, help="counter width for raw counter columns")
     s.add_argument(
@@ -186,30 +212,10 @@ def _add_fit(sub: Any) -> None:
         "log's `# compute_s:` line, else the rig's; the fit then estimates only the rest of "
         "the delay)",
     )
-    s.add_argument(
-        "--method",
-        choices=["auto", "iv", "oe"],
-        default="auto",
-        help="iv: instrumental variables, consistent in closed loop (needs exc_code or a moving "
-        "reference); oe: least squares; auto (default): iv when the log allows it",
-    )
-    s.add_argument(
-        "--friction",
-        choices=["auto", "sym", "asym"],
-        default="auto",
-        help="friction form: sym, asym (gain and Coulomb level per direction), auto (default: BIC)",
-    )
-    s.add_argument(
-        "--invert-encoder",
-        action="store_true",
-        help="negate the position first (an encoder counting against the D/A's direction)",
-    )
-    _fit_hal_options(s)
-    _fit_fleet_options(s)
 
 
-def _fit_hal_options(s: Any) -> None:
-    """``fit``'s options for LinuxCNC HAL captures and mapped CSV logs."""
+def _hal_options(s: Any) -> None:
+    """Options for LinuxCNC HAL captures and mapped CSV logs (``fit`` and ``frf``)."""
     hal = s.add_argument_group(
         "LinuxCNC HAL captures and CSV logs with their own column names",
         "halsampler output, halscope's saved data or your logger's CSV, read with --map",
@@ -296,7 +302,11 @@ def _add_frf(sub: Any) -> None:
         help="measure an axis's frequency response from a closed-loop log with a periodic "
         "excitation",
     )
-    s.add_argument("log", help="log CSV with an exc_code column (servotune simulate --input)")
+    s.add_argument(
+        "log",
+        help="log CSV with an exc_code column (servotune simulate --input), or a HAL capture or "
+        "CSV with other column names read with --map (exc=PIN: the excitation)",
+    )
     s.add_argument("--axis", help="axis (needed for multi-axis logs)")
     s.add_argument(
         "--response",
@@ -317,6 +327,8 @@ def _add_frf(sub: Any) -> None:
     )
     s.add_argument("--plot", help="Bode plot with bounds and coherence (PNG)")
     s.add_argument("--json", action="store_true", help="the summary as JSON on stdout")
+    _log_options(s)
+    _hal_options(s)
 
 
 def _add_excite(sub: Any) -> None:
@@ -718,78 +730,3 @@ def build_parser() -> argparse.ArgumentParser:
         verb.formatter_class = argparse.RawDescriptionHelpFormatter
         verb.epilog = "examples:\n" + "\n".join(f"  {x}" for x in EXAMPLES[name])
     return p
-
-
-EXAMPLES = {
-    "init": [
-        "servotune init                  # plants/: the example rig, configs, specs, HAL map",
-        "servotune init my-lab --force   # into my-lab/plants/, replacing edited copies",
-    ],
-    "rig": ["servotune rig plants/pc-dual-servo.toml", "servotune rig my-rig.toml --json"],
-    "simulate": [
-        "servotune simulate plants/pc-dual-servo.toml --scenario prbs --axis master "
-        "--seconds 20 -o log.csv",
-        "servotune simulate plants/pc-dual-servo.toml --input exc.csv --closed-loop -o my.csv",
-    ],
-    "fit": [
-        "servotune fit my.csv --axis master                  # summary on stderr",
-        "servotune fit my.csv --axis master -o my-rig.toml   # a new rig named my-rig",
-        "servotune fit my.csv --axis master --json --plot fit.png",
-        "servotune fit logs/*.csv --axis master --fleet fleet.parquet --fleet-report fleet.html",
-        "servotune fit capture.txt --axis x --map cmd=pid.0.output,pos=encoder.0.position "
-        "--hal-columns pid.0.output,encoder.0.position --period-s 0.001 "
-        "--position-scale 2000   # LinuxCNC halsampler",
-        "servotune fit own.csv --axis x --map cmd=drive_volts,pos=encoder,ref=setpoint,"
-        "exc=exc_volts,time=t   # your logger's CSV: volts, counts, time [s]",
-    ],
-    "frf": [
-        "servotune frf ms-log.csv --axis master -o frf.json --plot frf.png   # a log of "
-        "excite --kind multisine --periods 8, played with the loop closed",
-        "servotune frf ms-log.csv --axis master --response position --band 1:60 -o frf.csv",
-        "servotune frf ms-log.csv --axis master --modes auto   # and the modes fitted to it",
-    ],
-    "excite": [
-        "servotune excite --rig my-rig.toml --axis master --kind prbs --seconds 40 -o exc.csv",
-        "servotune excite --rig my-rig.toml --kind multisine --periods 8 --seconds 80 "
-        "--band 0.5:50 -o ms.csv   # periodic, for servotune frf",
-    ],
-    "tune": [
-        "servotune tune my-rig.toml -o tuning.json",
-        "servotune tune my-rig.toml -o tuning.json --spec plants/pc-dual-servo.spec.toml",
-        "servotune tune plants/gantry.toml -o gantry.tuning.json   # a gantry config",
-    ],
-    "plan": ["servotune plan plants/linkage-6axis.toml -o linkage.plan.json"],
-    "verify": [
-        "servotune verify tuning.json --spec plants/pc-dual-servo.spec.toml --report reports",
-        "servotune verify gantry.tuning.json --spec plants/gantry.spec.toml",
-        "servotune verify linkage.plan.json --spec plants/linkage-6axis.spec.toml",
-    ],
-    "margins": ["servotune margins tuning.json --pm 50 --gm 6 --ms 1.8"],
-    "export-table": [
-        "servotune export-table tuning.json -o fuzzy.json",
-        "servotune export-table tuning.json --format c -o runtime/",
-        "servotune export-table -o fuzzy.json   # the workbench's current tuning",
-        "servotune export-table tuning.json --format linuxcnc-hal --position-scale 2000 "
-        "-o pid-x.hal",
-        "servotune export-table tuning.json --format linuxcnc-comp -o servotune.comp",
-    ],
-    "check-table": ["servotune check-table fuzzy.json"],
-    "demo": [
-        "servotune demo plants/pc-dual-servo.toml --out reports",
-        "servotune demo plants/pc-dual-servo.toml --out reports --full",
-    ],
-    "compare": [
-        "servotune compare plants/pc-dual-servo.toml --spec plants/pc-dual-servo.spec.toml "
-        "--seeds 3 --json > figure4.json",
-    ],
-    "sync": [
-        "servotune sync plants/gantry.toml",
-        "servotune sync plants/gantry.toml --montecarlo 200 --plot reports/",
-    ],
-    "linkage": ["servotune linkage plants/linkage-6axis.toml --json --plot reports/"],
-    "warmup": [
-        "servotune warmup                          # every kernel, once after an install",
-        "servotune warmup simulation               # only what simulate needs",
-    ],
-}
-"""One or more command lines per verb, shown under its ``--help``."""

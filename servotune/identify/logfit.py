@@ -18,7 +18,7 @@ from servotune.io.hal import HalSettings, capture_format, read_hal_log
 from servotune.logs import Log, read_log, read_metadata
 from servotune.rig import Rig
 
-__all__ = ["fit_log"]
+__all__ = ["fit_log", "read_fit_log"]
 
 
 def fit_log(
@@ -98,23 +98,14 @@ def fit_log(
                 "invert_encoder": invert_encoder,
             },
         )
-    if rig is not None:
-        counter_bits, dac_bits, dac_range_v, period_s, compute_s = _from_rig(
-            rig,
-            read_metadata(log_path),
-            counter_bits=counter_bits,
-            dac_bits=dac_bits,
-            dac_range_v=dac_range_v,
-            period_s=period_s,
-            compute_s=compute_s,
-        ).values()
-    log = read_log(
+    log, compute_s = read_fit_log(
         log_path,
+        rig=rig,
         counter_bits=counter_bits,
         dac_bits=dac_bits,
         dac_range_v=dac_range_v,
         period_s=period_s,
-        compute_s=compute_s,  # validated with the other options (finite, >= 0, < period)
+        compute_s=compute_s,
         strict=strict,
     )
     log_axis = None if list(log.axes) == [""] else axis
@@ -137,6 +128,110 @@ def fit_log(
         raise IdentificationError(f"log {str(log_path)!r}: {exc}") from None
     name = axis if axis is not None else (log_axis or next(iter(log.axes)))
     return result, log, name
+
+
+def read_fit_log(
+    log_path: str | Path,
+    *,
+    hal: HalSettings | None = None,
+    rig: Rig | None = None,
+    counter_bits: int | None = None,
+    dac_bits: int | None = None,
+    dac_range_v: tuple[float, float] | None = None,
+    period_s: float | None = None,
+    compute_s: float | None = None,
+    strict: bool = False,
+    progress: Callable[[str], None] | None = None,
+) -> tuple[Log, float | None]:
+    """A log file read as ``servotune fit`` reads it, and the compute time that applies.
+
+    A servotune log (:func:`servotune.logs.read_log`), or with ``hal`` a LinuxCNC HAL capture
+    or a CSV log with its own column names (:func:`servotune.io.hal.read_hal_log`). Each setting
+    comes from the keyword options, then the log's metadata, then the rig (a capture has no
+    metadata, and its period is LinuxCNC's servo thread's, not the rig's) — as
+    :func:`fit_log` describes.
+
+    Raises
+    ------
+    LogFormatError
+        The log cannot be read, or ``counter_bits`` is given for a mapped file.
+    """
+    if hal is not None:
+        return _read_hal(
+            log_path,
+            hal,
+            rig=rig,
+            counter_bits=counter_bits,
+            dac_bits=dac_bits,
+            dac_range_v=dac_range_v,
+            period_s=period_s,
+            compute_s=compute_s,
+            strict=strict,
+            progress=progress,
+        )
+    if rig is not None:
+        counter_bits, dac_bits, dac_range_v, period_s, compute_s = _from_rig(
+            rig,
+            read_metadata(log_path),
+            counter_bits=counter_bits,
+            dac_bits=dac_bits,
+            dac_range_v=dac_range_v,
+            period_s=period_s,
+            compute_s=compute_s,
+        ).values()
+    log = read_log(
+        log_path,
+        counter_bits=counter_bits,
+        dac_bits=dac_bits,
+        dac_range_v=dac_range_v,
+        period_s=period_s,
+        compute_s=compute_s,  # validated with the other options (finite, >= 0, < period)
+        strict=strict,
+    )
+    return log, compute_s
+
+
+def _read_hal(
+    log_path: str | Path,
+    hal: HalSettings,
+    *,
+    rig: Rig | None,
+    counter_bits: int | None,
+    dac_bits: int | None,
+    dac_range_v: tuple[float, float] | None,
+    period_s: float | None,
+    compute_s: float | None,
+    strict: bool,
+    progress: Callable[[str], None] | None,
+) -> tuple[Log, float | None]:
+    """:func:`read_fit_log` of a HAL capture or a mapped CSV log."""
+    src = str(log_path)
+    csv = hal.format is None and capture_format(log_path) == "csv"
+    noun = "log" if csv else "HAL capture"
+    if counter_bits is not None:
+        raise LogFormatError(
+            f"{noun} {src!r}: counter_bits (--counter-bits) is for a log's raw counter "
+            f"column; a mapped position is pos ({'counts, or ' if csv else ''}machine units) "
+            "or counts, taken as they are (unwrapped)"
+        )
+    if rig is not None:
+        meta = read_metadata(log_path) if csv else {}  # a CSV's own lines come first
+        dac_bits, dac_range_v, compute_s = _from_rig(
+            rig, meta, dac_bits=dac_bits, dac_range_v=dac_range_v, compute_s=compute_s
+        ).values()
+        if csv and hal.period_s is None:  # as for a log: checked against its time column
+            (period_s,) = _from_rig(rig, meta, period_s=period_s).values()
+    log = read_hal_log(
+        log_path,
+        hal,
+        period_s=period_s,
+        dac_bits=dac_bits,
+        dac_range_v=dac_range_v,
+        compute_s=compute_s,
+        strict=strict,
+        progress=progress,
+    )
+    return log, compute_s
 
 
 def _from_rig(rig: Rig, meta: dict[str, Any], **given: Any) -> dict[str, Any]:
@@ -172,25 +267,14 @@ def _fit_hal_log(
     src = str(log_path)
     csv = hal.format is None and capture_format(log_path) == "csv"
     noun = "log" if csv else "HAL capture"
-    if counter_bits is not None:
-        raise LogFormatError(
-            f"{noun} {src!r}: counter_bits (--counter-bits) is for a log's raw counter "
-            f"column; a mapped position is pos ({'counts, or ' if csv else ''}machine units) "
-            "or counts, taken as they are (unwrapped)"
-        )
-    if rig is not None:
-        meta = read_metadata(log_path) if csv else {}  # a CSV's own lines come first
-        dac_bits, dac_range_v, compute_s = _from_rig(
-            rig, meta, dac_bits=dac_bits, dac_range_v=dac_range_v, compute_s=compute_s
-        ).values()
-        if csv and hal.period_s is None:  # as for a log: checked against its time column
-            (period_s,) = _from_rig(rig, meta, period_s=period_s).values()
-    log = read_hal_log(
+    log, compute_s = read_fit_log(
         log_path,
-        hal,
-        period_s=period_s,
+        hal=hal,
+        rig=rig,
+        counter_bits=counter_bits,
         dac_bits=dac_bits,
         dac_range_v=dac_range_v,
+        period_s=period_s,
         compute_s=compute_s,
         strict=strict,
         progress=progress,

@@ -210,3 +210,22 @@ def test_no_spurious_mode_on_the_rigid_example_rig() -> None:
 def test_no_spurious_mode_on_the_rigid_example_rig_in_95_of_100_seeds() -> None:
     found = [_example_rig_modes(seed) for seed in range(100)]
     assert sum(n == 0 for n in found) >= 95, found
+
+
+def test_a_mapped_csv_gives_the_response_of_the_same_log(tmp_path, capsys) -> None:
+    """``frf --map`` reads a logger's own CSV (columns named in its words, the excitation as
+    ``exc``) as ``fit --map`` does; the response equals that of the servotune log holding the
+    same numbers."""
+    path, _, _ = _lag_log(tmp_path, noise=0.02)
+    own = tmp_path / "own.csv"
+    rows = np.loadtxt(path, delimiter=",", skiprows=2)  # tick,time_s,cmd_v,pos_counts,exc_code
+    lsb = 20.0 / 4096
+    body = "\n".join(f"{t:.9f},{u:.17g},{int(p)},{e * lsb:.17g}" for _, t, u, p, e in rows)
+    own.write_text("t,volts,enc,excitation\n" + body + "\n")
+    a, b = tmp_path / "a.json", tmp_path / "b.json"
+    assert main(["frf", str(path), "-o", str(a)]) == 0
+    args = ["frf", str(own), "--map", "cmd=volts,pos=enc,exc=excitation,time=t", "-o", str(b)]
+    assert main(args) == 0, capsys.readouterr().err
+    la, lb = (json.loads(x.read_text())["lines"] for x in (a, b))
+    assert [x["freq_hz"] for x in la] == pytest.approx([x["freq_hz"] for x in lb], rel=1e-6)
+    np.testing.assert_allclose([x["re"] for x in lb], [x["re"] for x in la], rtol=1e-6)

@@ -15,7 +15,7 @@ from servotune.arch.gantry import CASES, compare_topologies, gantry_montecarlo, 
 from servotune.arch.gantry.load import load_gantry
 from servotune.arch.gantry.synthesis import resolve_gains
 from servotune.cli import main
-from servotune.cli.parser import EXAMPLES
+from servotune.cli.help_examples import EXAMPLES
 
 ROOT = Path(__file__).resolve().parents[3]
 GANTRY = ROOT / "plants" / "gantry.toml"
