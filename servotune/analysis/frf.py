@@ -107,6 +107,8 @@ class Frf:
         Periods averaged (after ``skipped``).
     skipped : int
         Periods discarded at the start (the transient).
+    start_tick : int
+        The tick the excitation starts at (0, or after a lead-in without it).
     """
 
     freq_hz: np.ndarray
@@ -128,6 +130,7 @@ class Frf:
     period_ticks: int
     periods: int
     skipped: int
+    start_tick: int = 0
 
     @property
     def magnitude_db(self) -> np.ndarray:
@@ -173,7 +176,8 @@ class Frf:
         lines = [
             f"frequency response ({self.output}): {f.size} lines, {f[0]:.4g} … {f[-1]:.4g} Hz, "
             f"{self.periods} periods of {self.period_ticks} ticks averaged ({self.skipped} "
-            "skipped as transient)",
+            "skipped as transient"
+            + (f"; the excitation starts at tick {self.start_tick})" if self.start_tick else ")"),
             f"coherence: median {float(np.median(self.coherence)):.3f}, lowest "
             f"{float(np.min(self.coherence)):.3f} (at {float(f[np.argmin(self.coherence)]):.4g} "
             "Hz)",
@@ -228,6 +232,7 @@ class Frf:
             "period_ticks": self.period_ticks,
             "periods": self.periods,
             "skipped": self.skipped,
+            "start_tick": self.start_tick,
             "lines": lines,
             "nonlinear_db": None if nl is None else nl,
             "odd_lines": _levels(self.odd_hz, self.odd_level, self.odd_noise),
@@ -317,6 +322,22 @@ def find_period(exc: np.ndarray, *, what: str = "the excitation (exc_code)") -> 
     return found
 
 
+def _period(r: np.ndarray, period_ticks: int | None) -> int:
+    """The excitation's period [ticks]: found (:func:`find_period`), or the one given, checked."""
+    if period_ticks is None:
+        return find_period(r)
+    n_per = int(period_ticks)
+    if n_per < MIN_PERIOD_TICKS or n_per > r.size:
+        raise SpecError(
+            f"period_ticks must be {MIN_PERIOD_TICKS} … {r.size} (the log's length), "
+            f"got {period_ticks!r}"
+        )
+    whole = (r.size // n_per) * n_per
+    if not np.array_equal(r[n_per:whole], r[: whole - n_per]):
+        raise SpecError(f"the excitation does not repeat every {n_per} ticks")
+    return n_per
+
+
 def _deviations(x: np.ndarray) -> np.ndarray:
     """The spectra of each period's deviation from the mean period (rows: periods), each
     deviation with its own straight line removed first: a slow disturbance that does not
@@ -387,26 +408,23 @@ def estimate_frf(
         raise SpecError(f"skip must be a whole number of periods >= 0, got {skip!r}")
     if not (np.all(np.isfinite(u)) and np.all(np.isfinite(y))):
         raise SpecError("u and y must be finite")
-    if period_ticks is None:
-        n_per = find_period(r)
-    else:
-        n_per = int(period_ticks)
-        if n_per < MIN_PERIOD_TICKS or n_per > r.size:
-            raise SpecError(
-                f"period_ticks must be {MIN_PERIOD_TICKS} … {r.size} (the log's length), "
-                f"got {period_ticks!r}"
-            )
-        whole = (r.size // n_per) * n_per
-        if not np.array_equal(r[n_per:whole], r[: whole - n_per]):
-            raise SpecError(f"the excitation does not repeat every {n_per} ticks")
-    total = r.size // n_per
+    a, b = 0, r.size
+    try:
+        n_per = _period(r, period_ticks)
+    except SpecError:  # the log may hold a lead-in and a tail without the excitation
+        nz = np.flatnonzero(r)
+        if nz.size == 0 or (nz[0] == 0 and nz[-1] == r.size - 1):
+            raise
+        a, b = int(nz[0]), int(nz[-1]) + 1
+        n_per = _period(r[a:b], period_ticks)
+    total = (b - a) // n_per
     periods = total - skip
     if periods < 2:
         raise SpecError(
             f"the log holds {total} whole period{'s' if total != 1 else ''} of {n_per} ticks; "
             f"after discarding {skip} as transient at least 2 are needed"
         )
-    start = skip * n_per
+    start = a + skip * n_per
     stop = start + periods * n_per
     yf = y.astype(float)
     if output == "velocity":  # backward difference; the first sample has the one before it
@@ -417,7 +435,7 @@ def estimate_frf(
         out = yf[start:stop]
     U = np.fft.rfft(u[start:stop].astype(float).reshape(periods, n_per), axis=1)
     Y = np.fft.rfft(out.reshape(periods, n_per), axis=1)
-    R = np.abs(np.fft.rfft(r[:n_per].astype(float)))
+    R = np.abs(np.fft.rfft(r[a : a + n_per].astype(float)))
     R[0] = 0.0
     bins = np.flatnonzero(R > _EXCITED * R.max())
     f0 = 1.0 / (n_per * period_s)
@@ -473,6 +491,7 @@ def estimate_frf(
         period_ticks=n_per,
         periods=periods,
         skipped=skip,
+        start_tick=a,
     )
 
 

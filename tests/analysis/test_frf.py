@@ -229,3 +229,19 @@ def test_a_mapped_csv_gives_the_response_of_the_same_log(tmp_path, capsys) -> No
     la, lb = (json.loads(x.read_text())["lines"] for x in (a, b))
     assert [x["freq_hz"] for x in la] == pytest.approx([x["freq_hz"] for x in lb], rel=1e-6)
     np.testing.assert_allclose([x["re"] for x in lb], [x["re"] for x in la], rtol=1e-6)
+
+
+def test_a_lead_in_and_a_tail_without_the_excitation_are_left_out() -> None:
+    """A capture that starts before the excitation and ends after it (as a recording on the
+    machine does): the periods are found in the excited span, and the response of a noiseless
+    lag is the same as without the lead-in and tail."""
+    m = _ms()
+    a, b = 0.9, 50.0
+    r = np.concatenate([np.zeros(300, dtype=np.int64), m.codes, np.zeros(200, dtype=np.int64)])
+    u = r * (20.0 / 4095)
+    y = signal.lfilter([0.0, b], [1.0, -a], u)
+    f = estimate_frf(u, y, r, period_s=T, output="position")
+    assert f.start_tick == 300 and f.periods == 4 and f.period_ticks == 500
+    z = np.exp(1j * 2 * np.pi * f.freq_hz * T)
+    np.testing.assert_allclose(f.response, b / (z - a), rtol=1e-9)
+    assert "the excitation starts at tick 300" in f.summary()
