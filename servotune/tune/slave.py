@@ -31,7 +31,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 import numpy as np
@@ -403,7 +403,25 @@ class _Problem:
     screen: MarginScreen
 
 
-def _evaluate(prob: _Problem, gains: Sequence[FuzzyPIDGains]) -> tuple[np.ndarray, np.ndarray]:
+@dataclass(frozen=True, slots=True)
+class _Worst:
+    """Each candidate's worst case over the plant variants (arrays, one entry per candidate)."""
+
+    saturation_pct: np.ndarray
+    overshoot_pct: np.ndarray
+    fault: np.ndarray  # 1.0 where a variant tripped
+    phase_margin_deg: np.ndarray
+    gain_margin_db: np.ndarray
+    max_sensitivity: np.ndarray
+    max_sync_counts: np.ndarray
+    rms_sync_counts: np.ndarray
+
+    def row(self, i: int) -> dict[str, float]:
+        """Candidate ``i``'s figures, by name."""
+        return {f.name: float(getattr(self, f.name)[i]) for f in fields(self)}
+
+
+def _evaluate(prob: _Problem, gains: Sequence[FuzzyPIDGains]) -> tuple[np.ndarray, _Worst]:
     """Objective and worst-case quantities (saturation %, overshoot, fault, PM [deg], GM [dB],
     Ms, max and RMS |sync error| [counts]) per candidate."""
     rig = prob.loop.rig
@@ -432,30 +450,32 @@ def _evaluate(prob: _Problem, gains: Sequence[FuzzyPIDGains]) -> tuple[np.ndarra
     over = 100.0 * lead / np.maximum(res.metric("max_err_counts")[:, s], 1.0)
     fault = (res.metric("first_fault_tick") >= 0).any(axis=1)
     per_variant = (len(gains), n_v)
-    worst = np.stack(
-        [
-            100.0 * sat.reshape(per_variant).max(axis=1),
-            over.reshape(per_variant).max(axis=1),
-            fault.reshape(per_variant).any(axis=1).astype(float),
-            *np.array(robust).T,
-            res.metric("max_abs_err_counts")[:, s].reshape(per_variant).max(axis=1),
-            res.metric("rms_err_counts")[:, s].reshape(per_variant).max(axis=1),
-        ],
-        axis=1,
+    pm, gm, ms = np.array(robust).T
+    worst = _Worst(
+        saturation_pct=100.0 * sat.reshape(per_variant).max(axis=1),
+        overshoot_pct=over.reshape(per_variant).max(axis=1),
+        fault=fault.reshape(per_variant).any(axis=1).astype(float),
+        phase_margin_deg=pm,
+        gain_margin_db=gm,
+        max_sensitivity=ms,
+        max_sync_counts=res.metric("max_abs_err_counts")[:, s].reshape(per_variant).max(axis=1),
+        rms_sync_counts=res.metric("rms_err_counts")[:, s].reshape(per_variant).max(axis=1),
     )
     return itae.mean(axis=1), worst
 
 
-def _penalised(prob: _Problem, itae: np.ndarray, worst: np.ndarray) -> np.ndarray:
+def _penalised(prob: _Problem, itae: np.ndarray, worst: _Worst) -> np.ndarray:
     spec = prob.spec
     aim = design_limits(spec.limits)
     viol = (
-        np.maximum(worst[:, 0] - spec.max_saturation_pct, 0.0) / max(spec.max_saturation_pct, 1.0)
-        + np.maximum(worst[:, 1] - spec.max_overshoot_pct, 0.0) / max(spec.max_overshoot_pct, 1.0)
-        + worst[:, 2] * 10.0
-        + np.maximum(aim.min_phase_margin_deg - worst[:, 3], 0.0) / 10.0
-        + np.maximum(aim.min_gain_margin_db - worst[:, 4], 0.0) / 2.0
-        + np.maximum(worst[:, 5] - aim.max_sensitivity, 0.0) / 0.2
+        np.maximum(worst.saturation_pct - spec.max_saturation_pct, 0.0)
+        / max(spec.max_saturation_pct, 1.0)
+        + np.maximum(worst.overshoot_pct - spec.max_overshoot_pct, 0.0)
+        / max(spec.max_overshoot_pct, 1.0)
+        + worst.fault * 10.0
+        + np.maximum(aim.min_phase_margin_deg - worst.phase_margin_deg, 0.0) / 10.0
+        + np.maximum(aim.min_gain_margin_db - worst.gain_margin_db, 0.0) / 2.0
+        + np.maximum(worst.max_sensitivity - aim.max_sensitivity, 0.0) / 0.2
     )
     return np.where(viol > 0, _BIG * (1.0 + viol), itae)
 
@@ -608,15 +628,15 @@ def tune_slave(
         for name, x, lo, hi, e in zip(space.names, x_best, space.lo, space.hi, edge, strict=True)
         if x <= lo + e or x >= hi - e
     )
-    w0 = worst[0]
+    w0 = worst.row(0)
     binding = tuple(
         name
         for name, near in (
-            ("max_saturation_pct", w0[0] >= 0.98 * spec.max_saturation_pct > 0),
-            ("max_overshoot_pct", w0[1] >= 0.98 * spec.max_overshoot_pct),
-            ("min_phase_margin_deg", w0[3] <= spec.min_phase_margin_deg + 1.0),
-            ("min_gain_margin_db", w0[4] <= spec.min_gain_margin_db + 0.3),
-            ("max_sensitivity", w0[5] >= 0.98 * spec.max_sensitivity),
+            ("max_saturation_pct", w0["saturation_pct"] >= 0.98 * spec.max_saturation_pct > 0),
+            ("max_overshoot_pct", w0["overshoot_pct"] >= 0.98 * spec.max_overshoot_pct),
+            ("min_phase_margin_deg", w0["phase_margin_deg"] <= spec.min_phase_margin_deg + 1.0),
+            ("min_gain_margin_db", w0["gain_margin_db"] <= spec.min_gain_margin_db + 0.3),
+            ("max_sensitivity", w0["max_sensitivity"] >= 0.98 * spec.max_sensitivity),
         )
         if near
     )
@@ -631,14 +651,5 @@ def tune_slave(
         history=tuple(history),
         at_bounds=at_bounds,
         binding=binding,
-        worst={
-            "saturation_pct": float(worst[0, 0]),
-            "overshoot_pct": float(worst[0, 1]),
-            "fault": float(worst[0, 2]),
-            "phase_margin_deg": float(worst[0, 3]),
-            "gain_margin_db": float(worst[0, 4]),
-            "max_sensitivity": float(worst[0, 5]),
-            "max_sync_counts": float(worst[0, 6]),
-            "rms_sync_counts": float(worst[0, 7]),
-        },
+        worst=w0,
     )
