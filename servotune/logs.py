@@ -47,12 +47,12 @@ from servotune.io.log_header import (
     MAX_METADATA_CHARS,
     MAX_NAME_CHARS,
     PERIOD_RANGE_S,
-    _decode,
-    _option,
     classify_columns,
+    decode_text,
     meta_pair,
     meta_setting,
     naming,
+    option_value,
     parse_compute,
     parse_counter_bits,
     parse_dac_bits,
@@ -67,12 +67,12 @@ from servotune.io.log_header import (
 from servotune.io.log_rows import (
     KIND,
     RowLines,
-    _base,
-    _kinds,
-    _modes,
+    base_name,
     check_range,
+    column_kinds,
     data_rows,
     fast_columns,
+    mode_codes,
     timebase,
     whole_counts,
 )
@@ -452,7 +452,7 @@ def _read_log(
         def setting(key: str, option: Any, parse: Callable[[str], Any], default: Any) -> Any:
             meta_value = meta_setting(key, meta, meta_line, parse)  # checked even if overridden
             if option is not None:
-                return _option(key, option, parse)
+                return option_value(key, option, parse)
             return default if meta_value is None else meta_value
 
         settings["bits"] = setting(
@@ -463,9 +463,9 @@ def _read_log(
         settings["period"] = meta_setting("period_s", meta, meta_line, parse_period)
         settings["compute"] = meta_setting("compute_s", meta, meta_line, parse_compute)
         if period_s is not None:
-            settings["opt_period"] = _option("period_s", period_s, parse_period)
+            settings["opt_period"] = option_value("period_s", period_s, parse_period)
         if compute_s is not None:
-            settings["opt_compute"] = _option("compute_s", compute_s, parse_compute)
+            settings["opt_compute"] = option_value("compute_s", compute_s, parse_compute)
         warn_unknown_metadata(meta, meta_line, src, strict)
 
     read = _read_columns(
@@ -618,13 +618,15 @@ def read_table(
         ) -> list[str]:
             if kinds is None:
                 for h in header:
-                    if _base(h) not in KIND:
+                    if base_name(h) not in KIND:
                         raise LogFormatError(
                             f"line {header_line}: unknown column {h!r}; {COLUMNS_HELP}"
                         )
             if check_header is not None:
                 check_header(header, header_line)
-            kinds_used[:] = _kinds(header) if kinds is None else list(kinds(header, header_line))
+            kinds_used[:] = (
+                column_kinds(header) if kinds is None else list(kinds(header, header_line))
+            )
             return kinds_used
 
         read = _read_columns(
@@ -686,7 +688,7 @@ def _read_columns(
     data = read_bytes(Path(path), src, what)
     head = split_ascii_head(data, src, what)
     if head is None:
-        text = _decode(data, src, what)
+        text = decode_text(data, src, what)
         del data
         meta, meta_line, header_line, header_text, body = split_text(text, src, what)
         del text
@@ -694,7 +696,7 @@ def _read_columns(
         meta, meta_line, header_line, header_text, body_start = head
     header = parse_header(header_text, header_line)
     given = prepare(meta, meta_line, header, header_line)
-    kind = _kinds(header) if given is None else list(given)
+    kind = column_kinds(header) if given is None else list(given)
     col = None
     if head is not None and any(k != "skip" for k in kind):
         col = fast_columns(data, body_start, header, kind)
@@ -834,7 +836,7 @@ def _axis_log(
                 f"{dac_bits}-bit D/A span (at most ±{top})"
             )
     if "mode" in names:
-        mode = _modes(col[names["mode"]], names["mode"], rows)
+        mode = mode_codes(col[names["mode"]], names["mode"], rows)
     return AxisLog(
         cmd_v=cmd_v,
         pos_counts=pos,

@@ -111,9 +111,9 @@ from servotune.io.hal_map import (
 )
 from servotune.io.log_header import (
     PERIOD_RANGE_S,
-    _option,
     meta_setting,
     naming,
+    option_value,
     parse_compute,
     parse_counter_bits,
     parse_dac_bits,
@@ -339,7 +339,7 @@ class HalCapture:
         if compute_s is None:
             compute_s = self.log_settings.get("compute_s")  # a CSV's '# compute_s:' line
         else:
-            compute_s = _option("compute_s", compute_s, parse_compute)
+            compute_s = option_value("compute_s", compute_s, parse_compute)
         if compute_s is not None:
             if compute_s >= period:
                 raise LogFormatError(
@@ -351,11 +351,11 @@ class HalCapture:
         if "overruns" in m:
             self._check_overruns(cols["overruns"])
         if dac_bits is not None:
-            dac_bits = _option("dac_bits", dac_bits, parse_dac_bits)
+            dac_bits = option_value("dac_bits", dac_bits, parse_dac_bits)
         else:
             dac_bits = self.log_settings.get("dac_bits")  # a CSV's '# dac_bits:' line
         if dac_range_v is not None:
-            dac_range_v = _option("dac_range_v", dac_range_v, parse_range)
+            dac_range_v = option_value("dac_range_v", dac_range_v, parse_range)
         else:
             dac_range_v = self.log_settings.get("dac_range_v")
         if "code" in m:
@@ -451,7 +451,7 @@ class HalCapture:
     def _period(self, settings: HalSettings, period_s: float | None) -> float:
         given, source = settings.period_s, "the map's period_s"
         if period_s is not None:
-            given, source = _option("period_s", period_s, parse_period), "--period-s"
+            given, source = option_value("period_s", period_s, parse_period), "--period-s"
         if self.format == "csv" and self.period_s is not None:
             # chosen when the CSV was read (read_mapped_csv), from this same period if given
             if given is not None and abs(given - self.period_s) > REL_TOL * self.period_s:
@@ -814,7 +814,7 @@ def read_mapped_csv(
                 settings[key] = value
         meta_period = meta_setting("period_s", meta, meta_line, parse_period)
         if period_s is not None:
-            period_s = _option("period_s", period_s, parse_period)
+            period_s = option_value("period_s", period_s, parse_period)
         warn_unknown_metadata(meta, meta_line, src, strict)
         tick = cols[header[times["tick"]]] if "tick" in times else None
         time_s = cols[header[times["time"]]] if "time" in times else None

@@ -31,7 +31,7 @@ from typing import Any, TypeVar
 
 from servotune.errors import LogFormatError
 from servotune.io.files import read_toml
-from servotune.io.log_header import _option, parse_period
+from servotune.io.log_header import option_value, parse_period
 from servotune.validate import check_keys, check_number, is_number, show_value
 
 __all__ = [
@@ -131,7 +131,9 @@ class HalSettings:
                 f"format must be one of {', '.join(HAL_FORMATS)}, got {show_value(self.format)}"
             )
         if self.period_s is not None:
-            object.__setattr__(self, "period_s", _option("period_s", self.period_s, parse_period))
+            object.__setattr__(
+                self, "period_s", option_value("period_s", self.period_s, parse_period)
+            )
         if self.position_scale is not None:
             check_number(
                 "position_scale",

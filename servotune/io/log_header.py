@@ -91,7 +91,7 @@ _READ_BYTES_PER_BYTE = 4  # the bytes, the text, the row lines, the arrays: abou
 
 
 def read_text(p: Path, src: str, what: str = "log") -> str:
-    return _decode(read_bytes(p, src, what), src, what)
+    return decode_text(read_bytes(p, src, what), src, what)
 
 
 def read_bytes(p: Path, src: str, what: str = "log") -> bytes:
@@ -107,7 +107,7 @@ def read_bytes(p: Path, src: str, what: str = "log") -> bytes:
             return fh.read()
 
 
-def _decode(data: bytes, src: str, what: str = "log", line0: int = 0) -> str:
+def decode_text(data: bytes, src: str, what: str = "log", line0: int = 0) -> str:
     """The file's text: UTF-8 (a byte-order mark dropped), no NUL, line ends normalised.
     ``line0``: lines of the file before ``data`` (a chunk of it), for the line named."""
     try:
@@ -178,7 +178,7 @@ def split_ascii_head(
     metadata and header lines found in the whole lines of the first :data:`_HEAD_BYTES` bytes
     are those of the whole text, and the body starts at the byte after the header's line end:
     the body need not be decoded or copied. None when that does not apply or the head does not
-    settle it (no header row there, a problem in its lines): then :func:`_decode` and
+    settle it (no header row there, a problem in its lines): then :func:`decode_text` and
     :func:`split_text` of the whole file decide, with their messages.
     """
     if not data.isascii() or b"\0" in data or b"\r" in data:
@@ -295,7 +295,7 @@ def meta_setting(
         ) from None
 
 
-def _option(key: str, value: Any, parse: Callable[[str], Any]) -> Any:
+def option_value(key: str, value: Any, parse: Callable[[str], Any]) -> Any:
     text = ",".join(str(v) for v in value) if isinstance(value, tuple | list) else str(value)
     if isinstance(value, bool):
         text = "not a bool"
@@ -408,7 +408,7 @@ def read_text_chunks(
                 return
             else:
                 rest = b""
-            lines = _decode(data, src, what, line0).split("\n")
+            lines = decode_text(data, src, what, line0).split("\n")
             if lines[-1] == "":
                 lines.pop()  # the text after the chunk's last newline: the next chunk's
             yield line0, lines

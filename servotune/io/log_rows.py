@@ -288,7 +288,7 @@ def fast_columns(
     """The columns of a plain body (``data[start:]``, :func:`_scan_plain`), or None.
 
     Integer columns are int64, number columns float64, and a ``mode`` column comes as its
-    ``MODE_*`` codes (int8), as :func:`_modes` makes them. ``kinds``: each column's kind
+    ``MODE_*`` codes (int8), as :func:`mode_codes` makes them. ``kinds``: each column's kind
     (default the log's, by name); a ``"skip"`` column must be plain numbers too and is left
     out. None when the body is not all plain rows (or has none): :func:`data_rows` then
     parses and judges it.
@@ -297,7 +297,7 @@ def fast_columns(
         return None
     from servotune._numba_cache import call_compiled
 
-    named = _kinds(header) if kinds is None else list(kinds)
+    named = column_kinds(header) if kinds is None else list(kinds)
     kinds = np.array([_FAST_KIND[k] for k in named], dtype=np.int64)
     slots = np.zeros(kinds.size, dtype=np.int64)
     counts = [0, 0, 0]
@@ -347,9 +347,9 @@ def data_rows(
     return _parse_body(body, header_line, header, kinds)
 
 
-def _kinds(header: list[str]) -> list[str]:
+def column_kinds(header: list[str]) -> list[str]:
     """Each log column's kind (:data:`KIND`), by its name."""
-    return [KIND[_base(h)] for h in header]
+    return [KIND[base_name(h)] for h in header]
 
 
 def _parse_body(
@@ -366,7 +366,7 @@ def _parse_body(
     (``0.0``) the body is read again with those columns as numbers, which
     :func:`whole_counts` then turns into integers if every value is whole.
     """
-    kinds = _kinds(header) if kinds is None else list(kinds)
+    kinds = column_kinds(header) if kinds is None else list(kinds)
     dtype = np.dtype([(f"c{j}", _DTYPES[k]) for j, k in enumerate(kinds)])
     loose = dtype
     if "counts" in kinds:
@@ -466,7 +466,7 @@ def check_range(
         raise LogFormatError(f"row {rows(k)}, column {name!r}: {msg}")
 
 
-def _base(h: str) -> str:
+def base_name(h: str) -> str:
     return h.rpartition(".")[2]
 
 
@@ -587,7 +587,7 @@ def timebase(
     )
 
 
-def _modes(text: np.ndarray, name: str, rows: RowLines) -> np.ndarray:
+def mode_codes(text: np.ndarray, name: str, rows: RowLines) -> np.ndarray:
     """The ``MODE_*`` code (int8) of each row's mode name; codes already (int8) pass."""
     if text.dtype == np.int8:  # :func:`fast_columns` read the names as codes
         return text
