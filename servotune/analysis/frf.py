@@ -201,29 +201,51 @@ class Frf:
             self.response, 2.0 * np.pi * self.freq_hz, smooth=False
         )
 
-    def to_dict(self) -> dict[str, Any]:
-        """Plain data for the FRF file (docs/frf.md#file)."""
+    def columns(self) -> dict[str, np.ndarray]:
+        """Per excited line, every figure of the FRF file by name (docs/frf.md#file), in the
+        CSV's column order."""
         lo_db, hi_db = self.magnitude_bounds_db()
         lo_ph, hi_ph = self.phase_bounds_deg()
-        lines = []
-        for i in range(self.freq_hz.size):
-            lines.append(
-                {
-                    "freq_hz": float(self.freq_hz[i]),
-                    "re": float(self.response[i].real),
-                    "im": float(self.response[i].imag),
-                    "magnitude_db": float(self.magnitude_db[i]),
-                    "phase_deg": float(self.phase_deg[i]),
-                    "std": float(self.std[i]),
-                    "radius95": float(self.radius95[i]),
-                    "magnitude_db_95": [_finite(lo_db[i]), float(hi_db[i])],
-                    "phase_deg_95": [float(lo_ph[i]), float(hi_ph[i])],
-                    "coherence": float(self.coherence[i]),
-                    "noise": float(self.noise[i]),
-                    "aliased": bool(self.aliased[i]),
-                }
-            )
-        nl = self.nonlinear_db()
+        return {
+            "freq_hz": self.freq_hz,
+            "magnitude_db": self.magnitude_db,
+            "phase_deg": self.phase_deg,
+            "re": self.response.real,
+            "im": self.response.imag,
+            "std": self.std,
+            "radius95": self.radius95,
+            "magnitude_db_lo": lo_db,
+            "magnitude_db_hi": hi_db,
+            "phase_deg_lo": lo_ph,
+            "phase_deg_hi": hi_ph,
+            "coherence": self.coherence,
+            "noise": self.noise,
+            "aliased": self.aliased,
+        }
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain data for the FRF file (docs/frf.md#file)."""
+        c = self.columns()
+        lines = [
+            {
+                "freq_hz": float(c["freq_hz"][i]),
+                "re": float(c["re"][i]),
+                "im": float(c["im"][i]),
+                "magnitude_db": float(c["magnitude_db"][i]),
+                "phase_deg": float(c["phase_deg"][i]),
+                "std": float(c["std"][i]),
+                "radius95": float(c["radius95"][i]),
+                "magnitude_db_95": [
+                    _finite(c["magnitude_db_lo"][i]),
+                    float(c["magnitude_db_hi"][i]),
+                ],
+                "phase_deg_95": [float(c["phase_deg_lo"][i]), float(c["phase_deg_hi"][i])],
+                "coherence": float(c["coherence"][i]),
+                "noise": float(c["noise"][i]),
+                "aliased": bool(c["aliased"][i]),
+            }
+            for i in range(self.freq_hz.size)
+        ]
         return {
             "schema": FRF_SCHEMA,
             "output": self.output,
@@ -234,38 +256,19 @@ class Frf:
             "skipped": self.skipped,
             "start_tick": self.start_tick,
             "lines": lines,
-            "nonlinear_db": None if nl is None else nl,
+            "nonlinear_db": self.nonlinear_db(),
             "odd_lines": _levels(self.odd_hz, self.odd_level, self.odd_noise),
             "even_lines": _levels(self.even_hz, self.even_level, self.even_noise),
         }
 
     def to_csv(self) -> str:
         """One row per excited line (docs/frf.md#file)."""
-        lo_db, hi_db = self.magnitude_bounds_db()
-        lo_ph, hi_ph = self.phase_bounds_deg()
-        head = (
-            "freq_hz,magnitude_db,phase_deg,re,im,std,radius95,magnitude_db_lo,magnitude_db_hi,"
-            "phase_deg_lo,phase_deg_hi,coherence,noise,aliased"
-        )
-        rows = [f"# schema: {FRF_SCHEMA}", f"# output: {self.output}", head]
-        mag, ph = self.magnitude_db, self.phase_deg
+        c = self.columns()
+        aliased = c.pop("aliased")
+        rows = [f"# schema: {FRF_SCHEMA}", f"# output: {self.output}", ",".join([*c, "aliased"])]
         for i in range(self.freq_hz.size):
-            vals = (
-                self.freq_hz[i],
-                mag[i],
-                ph[i],
-                self.response[i].real,
-                self.response[i].imag,
-                self.std[i],
-                self.radius95[i],
-                lo_db[i],
-                hi_db[i],
-                lo_ph[i],
-                hi_ph[i],
-                self.coherence[i],
-                self.noise[i],
-            )
-            rows.append(",".join(f"{float(v):.9g}" for v in vals) + f",{int(self.aliased[i])}")
+            vals = ",".join(f"{float(col[i]):.9g}" for col in c.values())
+            rows.append(f"{vals},{int(aliased[i])}")
         return "\n".join(rows) + "\n"
 
 
@@ -433,8 +436,10 @@ def estimate_frf(
         out = (yf[start:stop] - yf[start - 1 : stop - 1]) / period_s
     else:
         out = yf[start:stop]
-    U = np.fft.rfft(u[start:stop].astype(float).reshape(periods, n_per), axis=1)
-    Y = np.fft.rfft(out.reshape(periods, n_per), axis=1)
+    u_p = u[start:stop].astype(float).reshape(periods, n_per)
+    y_p = out.reshape(periods, n_per)
+    U = np.fft.rfft(u_p, axis=1)
+    Y = np.fft.rfft(y_p, axis=1)
     R = np.abs(np.fft.rfft(r[a : a + n_per].astype(float)))
     R[0] = 0.0
     bins = np.flatnonzero(R > _EXCITED * R.max())
@@ -446,8 +451,7 @@ def estimate_frf(
         where = "" if band_hz is None else f" in {band_hz[0]:g}:{band_hz[1]:g} Hz"
         raise SpecError(f"no excited line{where}: the excitation carries no line there")
     Um, Ym = U.mean(axis=0), Y.mean(axis=0)
-    dU = _deviations(u[start:stop].astype(float).reshape(periods, n_per))
-    dY = _deviations(out.reshape(periods, n_per))
+    dU, dY = _deviations(u_p), _deviations(y_p)
     var_u = np.sum(np.abs(dU) ** 2, axis=0) / (periods - 1)
     var_y = np.sum(np.abs(dY) ** 2, axis=0) / (periods - 1)
     cov_yu = np.sum(dY * np.conj(dU), axis=0) / (periods - 1)

@@ -306,6 +306,7 @@ def cmd_frf(args: argparse.Namespace) -> int:
 
     check_outputs(args.output, args.plot, inputs=(args.log,))
     band = None if args.band is None else _band(args.band)
+    n_modes = None if args.modes is None else _modes_arg(args.modes)
     log, compute_s = read_fit_log(
         args.log,
         hal=_hal(args, args.log),
@@ -328,18 +329,18 @@ def cmd_frf(args: argparse.Namespace) -> int:
     )
     doc = result.to_dict()
     fitted = None
-    if args.modes is not None:
+    if n_modes is not None:
         from servotune.identify.modes import fit_modes
 
-        fitted = fit_modes(result, n_modes=_modes_arg(args.modes), compute_s=compute_s or 0.0)
+        fitted = fit_modes(result, n_modes=n_modes, compute_s=compute_s or 0.0)
         doc["model"] = fitted.to_dict()
+    as_json = json.dumps(doc, indent=2, sort_keys=True) + "\n"
     if args.output and args.output != "-":
         is_csv = args.output.lower().endswith(".csv")
-        text = result.to_csv() if is_csv else json.dumps(doc, indent=2, sort_keys=True) + "\n"
-        atomic_write_text(args.output, text)
+        atomic_write_text(args.output, result.to_csv() if is_csv else as_json)
         print(f"wrote the frequency response to {args.output}", file=sys.stderr)
     elif not args.json:
-        sys.stdout.write(json.dumps(doc, indent=2, sort_keys=True) + "\n")
+        sys.stdout.write(as_json)
     if args.plot:
         from servotune.plot import plot_frf, save_figure
 

@@ -264,16 +264,12 @@ def _select(
     selection: list[dict[str, Any]] = []
     if terms is None:
         ordered = sorted(scored, key=lambda e: e["bic"])
-        selection = [{k: v for k, v in e.items() if not k.startswith("_")} for e in ordered]
         runner = ordered[1]
         reason = (
             f"smallest BIC ({ordered[0]['bic']:.1f}, {method} fits) of {len(scored)} "
             f"structures on {n_s - skip_s} samples; next: {'+'.join(runner['params'])} "
             f"at {runner['bic']:.1f}"
         )
-    else:
-        reason = "structure given by the user"
-    if terms is None:
         best, reason = held_out_check(
             best,
             scored,
@@ -288,12 +284,13 @@ def _select(
             period_s=period_s,
             compute_s=compute_s,
         )
-        ordered = sorted(scored, key=lambda e: e["bic"])
         selection = [{k: v for k, v in e.items() if not k.startswith("_")} for e in ordered]
         if not math.isfinite(best["bic"]):  # refined IV has no solution for it: basic IV
             variant = "iv-basic" if variant == "iv-refined" else variant
             bic_b, var_b, x_b, _ = score(best["_free"], best["_x"])
             best = {**best, "bic": bic_b, "variance": var_b, "_x": x_b}
+    else:
+        reason = "structure given by the user"
     free, x = best["_free"], best["_x"]
     friction_selection: dict[str, Any] = {}
     if friction == "auto":

@@ -135,8 +135,8 @@ def held_out_check(
     if full is best:
         return best, reason
     variant = "iv" if variant.startswith("iv") else variant  # refined, else basic, for both
-    pct = {
-        id(e): held_out_pct(
+    for e in (best, full):
+        e["held_out_velocity_fit_pct"] = held_out_pct(
             variant,
             u,
             dy,
@@ -148,16 +148,12 @@ def held_out_check(
             period_s=period_s,
             compute_s=compute_s,
         )
-        for e in (best, full)
-    }
-    best["held_out_velocity_fit_pct"] = pct[id(best)]
-    full["held_out_velocity_fit_pct"] = pct[id(full)]
-    if not pct[id(full)] > pct[id(best)] + HELD_OUT_MARGIN_PCT:
+    got, kept = full["held_out_velocity_fit_pct"], best["held_out_velocity_fit_pct"]
+    if not got > kept + HELD_OUT_MARGIN_PCT:
         return best, reason
     return full, (
-        f"{'+'.join(full['params'])}: it predicts held-out samples at "
-        f"{pct[id(full)]:.1f} % velocity fit against {pct[id(best)]:.1f} % for "
-        f"{'+'.join(best['params'])}, BIC's choice ({reason})"
+        f"{'+'.join(full['params'])}: it predicts held-out samples at {got:.1f} % velocity fit "
+        f"against {kept:.1f} % for {'+'.join(best['params'])}, BIC's choice ({reason})"
     )
 
 
