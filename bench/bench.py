@@ -804,6 +804,31 @@ def bench_batched(opts: Options) -> list[Figure]:
         spread += f" to {n_c * n_t / min(times):.3g} ticks/s"
         figures.append(Figure(name, rate, "ticks/s", spread))
     check_batch_metrics(metrics[2], metrics[1])
+    # the same candidates, each with a belt's 35 Hz mode (docs/frf.md): the resonant plant's
+    # cost per tick beside the rigid one's (goal: at most 1.5x)
+    from servotune.resonance import Mode
+
+    belt = (Mode(freq_hz=35.0, damping=0.03, gain=0.5),)
+    resonant = [(dataclasses.replace(p, modes=belt),) for (p,) in plants]
+    res_batch = servotune.prepare_batch(loop, plants=resonant, seeds=1)
+    servotune.run_batch(res_batch, inputs, metrics_only=True, threads=1)  # warm-up
+    progress(f"batched: {n_c} one-mode candidates x {n_t} ticks, 1 thread")
+    times, _ = timed_runs(
+        lambda: servotune.run_batch(res_batch, inputs, metrics_only=True, threads=1),
+        sz.batch_runs,
+    )
+    rate_m = n_c * n_t / statistics.median(times)
+    rigid = next(f.value for f in figures if f.name == f"{rate_name}_1thread")
+    ratio = rigid / rate_m
+    progress(f"batched: one mode {rate_m:.4g} ticks/s, {ratio:.2f}x the rigid time per tick")
+    figures.append(
+        Figure(
+            f"{rate_name}_one_mode_1thread",
+            rate_m,
+            "ticks/s",
+            f"{ratio:.2f}x the rigid plant's time per tick",
+        )
+    )
     return figures
 
 

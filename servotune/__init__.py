@@ -43,7 +43,8 @@ if TYPE_CHECKING:  # what type checkers and IDEs see; at run time the names load
     from servotune.laws.fuzzy_pid import FuzzyPIDGains
     from servotune.logs import Log, read_log, write_log
     from servotune.metrics import StepInfo, TrackingMetrics, step_info, tracking_metrics
-    from servotune.plant import Plant, discretize, discretize_lti
+    from servotune.modal import discretize, discretize_lti
+    from servotune.plant import Plant
     from servotune.rig import Rig, load_rig, write_plant
     from servotune.scenarios import Inputs, build_scenario, sync_move
     from servotune.sim.engine import (
@@ -118,8 +119,8 @@ _LAZY: dict[str, str] = {
     "step_info": "servotune.metrics",
     "tracking_metrics": "servotune.metrics",
     "Plant": "servotune.plant",
-    "discretize": "servotune.plant",
-    "discretize_lti": "servotune.plant",
+    "discretize": "servotune.modal",
+    "discretize_lti": "servotune.modal",
     "Rig": "servotune.rig",
     "load_rig": "servotune.rig",
     "write_plant": "servotune.rig",

@@ -39,19 +39,26 @@ from __future__ import annotations
 import functools
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.linalg import expm
 
+from servotune._control import scipy_paths
 from servotune.errors import SpecError
-from servotune.plant import lag_split
+from servotune.plant import Plant, lag_split, tick_coefficients
+from servotune.resonance import Mode, with_intervals
+from servotune.validate import show_value
+
+if TYPE_CHECKING:  # python-control is imported where it is used (it is slow to import)
+    import control
 
 __all__ = [
     "OUTPUTS",
     "Mode",
     "check_number",
+    "discretize",
+    "discretize_lti",
     "modal_response",
     "modal_state_space",
     "mode_rows",
@@ -61,60 +68,6 @@ __all__ = [
 
 OUTPUTS = ("velocity", "position")
 """What a response is of: the velocity [counts/s per V] or the position [counts per V]."""
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class Mode:
-    """A lightly damped mode: ``g s² / (s² + 2 ζ ω s + ω²)``, ``ω = 2π f`` (module docstring).
-
-    Attributes
-    ----------
-    freq_hz : float
-        Resonance frequency ``f`` [Hz], > 0.
-    damping : float
-        Damping ratio ``ζ`` [-], 0 < ζ < 1.
-    gain : float
-        Modal gain ``g`` [-], > −1 (a two-mass system's load-to-motor inertia ratio).
-    freq_hz_95, damping_95, gain_95 : (float, float) or None
-        95 % intervals (a fit's), or None.
-    """
-
-    freq_hz: float
-    damping: float
-    gain: float
-    freq_hz_95: tuple[float, float] | None = None
-    damping_95: tuple[float, float] | None = None
-    gain_95: tuple[float, float] | None = None
-
-    def __post_init__(self) -> None:
-        checks = (
-            ("freq_hz", self.freq_hz, lambda x: x > 0, "> 0 [Hz]"),
-            ("damping", self.damping, lambda x: 0 < x < 1, "in (0, 1)"),
-            ("gain", self.gain, lambda x: x > -1, "> -1"),
-        )
-        for name, value, ok, want in checks:
-            if not (isinstance(value, int | float) and math.isfinite(value) and ok(value)):
-                raise SpecError(f"Mode {name} must be {want}, got {value!r}")
-
-    @property
-    def antiresonance_hz(self) -> float:
-        """The anti-resonance of the mode alone, ``f / √(1 + g)`` [Hz]."""
-        return self.freq_hz / math.sqrt(1.0 + self.gain)
-
-    def to_dict(self) -> dict[str, Any]:
-        """Plain data, units in the keys."""
-        out = with_intervals(self, ("freq_hz", "damping", "gain"))
-        return out | {"antiresonance_hz": self.antiresonance_hz}
-
-
-def with_intervals(obj: object, names: Sequence[str]) -> dict[str, Any]:
-    """``{name: value, name_95: [lo, hi] or None}`` for each name."""
-    out: dict[str, Any] = {}
-    for name in names:
-        pair = getattr(obj, f"{name}_95")
-        out[name] = float(getattr(obj, name))
-        out[f"{name}_95"] = None if pair is None else [float(pair[0]), float(pair[1])]
-    return out
 
 
 def modal_state_space(
@@ -294,3 +247,165 @@ def check_number(name: str, v: object, lo: float, *, strict: bool = False) -> No
 
 
 # --- the fit ------------------------------------------------------------------------------
+
+
+def discretize(plant: Plant, period_s: float, lag_s: float = 0.0) -> control.StateSpace:
+    """Exact ZOH discretisation of the linear part, with a total input lag.
+
+    The input (volts) is written every ``period_s`` and reaches the motor ``lag_s`` later
+    (compute time + ``delay_s``); with ``lag_s = m·T + λ`` the input changes inside each tick at
+    ``λ`` (modified z-transform). Offset, friction and speed limit are left out; an asymmetric
+    plant enters with the mean of its two directions' gains (:attr:`Plant.mean_gain_cps_per_v`),
+    a symmetric one with ``gain_cps_per_v`` exactly. A resonant plant (with ``modes``) is its
+    transfer function (:meth:`Plant.to_tf`, modes included) sampled by :func:`discretize_lti`.
+
+    Parameters
+    ----------
+    plant : Plant
+    period_s : float
+        Sample period [s] (the achieved timer period).
+    lag_s : float
+        Total lag from the tick start to the motor input [s], >= 0.
+
+    Returns
+    -------
+    control.StateSpace
+        Discrete system (``dt=period_s``), input volts, output position [counts]; states are
+        position, speed and the ``m + 1`` (or ``m``, if λ = 0) held past inputs (a resonant
+        plant's: :func:`discretize_lti`'s).
+    """
+    import control
+
+    if plant.modes:  # the resonant plant: its transfer function sampled the same way
+        return discretize_lti(plant.to_tf(), period_s, lag_s)
+    if period_s <= 0:
+        raise ValueError(f"period_s must be > 0 [s], got {show_value(period_s)}")
+    if lag_s < 0:
+        raise ValueError(f"lag_s must be >= 0 [s], got {show_value(lag_s)}")
+    m, lam = lag_split(lag_s, period_s)
+    phi_b, phi_a, go_p, go_v, gn_p, gn_v = tick_coefficients(
+        period_s, lam, plant.mean_gain_cps_per_v, plant.tau_s
+    )
+    phi_t = np.array([[1.0, phi_b], [0.0, phi_a]])
+    g_old = np.array([go_p, go_v])  # input from write k-m-1, acting for λ at the tick start
+    g_new = np.array([gn_p, gn_v])  # input from write k-m, acting for T-λ
+    n_hist = m + 1 if lam > 0.0 else m  # past inputs held in the state
+    n = 2 + n_hist
+    a_mat = np.zeros((n, n))
+    b_mat = np.zeros((n, 1))
+    a_mat[:2, :2] = phi_t
+    # history states: h_1 = u(k-1), ..., h_j = u(k-j)
+    if n_hist == 0:
+        b_mat[:2, 0] = g_new
+    else:
+        if m == 0:
+            b_mat[:2, 0] = g_new
+        else:
+            a_mat[:2, 2 + m - 1] += g_new
+        if lam > 0.0:
+            a_mat[:2, 2 + m] += g_old
+        b_mat[2, 0] = 1.0
+        for j in range(1, n_hist):
+            a_mat[2 + j, 2 + j - 1] = 1.0
+    c_mat = np.zeros((1, n))
+    c_mat[0, 0] = 1.0
+    return control.ss(a_mat, b_mat, c_mat, np.zeros((1, 1)), dt=period_s)
+
+
+@scipy_paths
+def discretize_lti(
+    sys: control.TransferFunction | control.StateSpace, period_s: float, lag_s: float = 0.0
+) -> control.StateSpace:
+    """Exact ZOH discretisation of any continuous SISO system, with a total input lag.
+
+    The generic form of :func:`discretize`: the input is written every ``period_s`` and reaches
+    the system ``lag_s`` later; with ``lag_s = m·T + λ`` (:func:`lag_split`) the held input
+    changes inside each tick at ``λ`` (modified z-transform). Over one tick
+    ``x' = Φ(T)·x + Φ(T−λ)·Γ(λ)·u_old + Γ(T−λ)·u_new`` with ``Φ(h) = exp(A h)`` and
+    ``Γ(h) = ∫₀ʰ exp(A s) ds · B`` (one matrix exponential each), ``u_old`` the write of tick
+    ``k−m−1`` and ``u_new`` that of tick ``k−m``.
+
+    Parameters
+    ----------
+    sys : control.TransferFunction or control.StateSpace
+        Continuous-time (``dt=0``) SISO system [output units per input unit].
+    period_s : float
+        Sample period [s].
+    lag_s : float
+        Total lag from the sample instant to the system input [s], >= 0.
+
+    Returns
+    -------
+    control.StateSpace
+        Discrete system (``dt=period_s``); states are those of ``control.ss(sys)`` followed by
+        the ``m + 1`` (or ``m``, if λ = 0) held past inputs. A direct feedthrough ``D`` acts on
+        the input held at the sample instant (``u_old`` if λ > 0).
+
+    Raises
+    ------
+    ValueError
+        If ``sys`` is not continuous-time SISO, or ``period_s``/``lag_s`` are out of range.
+
+    Examples
+    --------
+    >>> import control
+    >>> d = discretize_lti(control.tf([1.0], [1.0, 1.0]), 0.1, 0.05)
+    >>> d.dt, d.nstates
+    (0.1, 2)
+    """
+    import control
+
+    if not isinstance(sys, control.TransferFunction | control.StateSpace):
+        raise ValueError(
+            f"sys must be a control.TransferFunction or StateSpace, got {type(sys).__name__}"
+        )
+    if not sys.isctime(strict=True):
+        raise ValueError(f"sys must be continuous-time (dt=0), got dt={show_value(sys.dt)}")
+    if sys.ninputs != 1 or sys.noutputs != 1:
+        raise ValueError(f"sys must be SISO, got {sys.noutputs} outputs x {sys.ninputs} inputs")
+    if not (isinstance(period_s, int | float) and math.isfinite(period_s) and period_s > 0):
+        raise ValueError(f"period_s must be > 0 [s], got {show_value(period_s)}")
+    if not (isinstance(lag_s, int | float) and math.isfinite(lag_s) and lag_s >= 0):
+        raise ValueError(f"lag_s must be >= 0 [s], got {show_value(lag_s)}")
+    ss = control.ss(sys)
+    a_c, b_c = np.asarray(ss.A, dtype=float), np.asarray(ss.B, dtype=float)
+    c_c, d_c = np.asarray(ss.C, dtype=float), float(np.asarray(ss.D, dtype=float)[0, 0])
+    nx = a_c.shape[0]
+    m, lam = lag_split(lag_s, period_s)
+
+    def phi_gamma(h: float) -> tuple[np.ndarray, np.ndarray]:
+        aug = np.zeros((nx + 1, nx + 1))
+        aug[:nx, :nx] = a_c * h
+        aug[:nx, nx:] = b_c * h
+        e = expm(aug)
+        return e[:nx, :nx], e[:nx, nx]
+
+    phi_t, _ = phi_gamma(period_s)
+    phi_2, g_new = phi_gamma(period_s - lam)  # u_new acts for T - λ
+    _, g_1 = phi_gamma(lam)
+    g_old = phi_2 @ g_1  # u_old acts for λ, then the state moves on for T - λ
+    n_hist = m + 1 if lam > 0.0 else m
+    n = nx + n_hist
+    a_mat = np.zeros((n, n))
+    b_mat = np.zeros((n, 1))
+    c_mat = np.zeros((1, n))
+    d_mat = np.zeros((1, 1))
+    a_mat[:nx, :nx] = phi_t
+    c_mat[0, :nx] = c_c[0]
+    # history states: h_1 = u(k-1), ..., h_j = u(k-j), at columns nx + j - 1
+    if m == 0:
+        b_mat[:nx, 0] = g_new
+    else:
+        a_mat[:nx, nx + m - 1] += g_new
+    if lam > 0.0:
+        a_mat[:nx, nx + m] += g_old
+        c_mat[0, nx + m] += d_c  # at the sample instant the old input still acts
+    elif m == 0:
+        d_mat[0, 0] = d_c
+    else:
+        c_mat[0, nx + m - 1] += d_c
+    if n_hist > 0:
+        b_mat[nx, 0] = 1.0
+        for j in range(1, n_hist):
+            a_mat[nx + j, nx + j - 1] = 1.0
+    return control.ss(a_mat, b_mat, c_mat, d_mat, dt=period_s)

@@ -23,12 +23,19 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from servotune._control import scipy_paths
 from servotune._numba_cache import jit
+from servotune.resonance import (
+    MAX_MODES,
+    MODE_WIDTH,
+    MODES_HEADER,
+    Mode,
+    modes_segment,
+    set_modes,
+)
 from servotune.validate import show_value
 
 if TYPE_CHECKING:  # python-control is imported where it is used (it is slow to import)
@@ -43,11 +50,11 @@ __all__ = [
     "advance_span",
     "advance_tick",
     "advance_tick_inlined",
-    "discretize",
-    "discretize_lti",
+    "advance_tick_modal",
     "fill_plant_rows",
     "lag_split",
     "plant_row",
+    "put_modes",
     "step_coefficients",
     "tick_coefficients",
 ]
@@ -89,6 +96,9 @@ class Plant:
     coulomb_neg_v : float or None
         Coulomb friction moving in the negative direction, and the breakaway level at rest
         downwards [V], >= 0; None: ``coulomb_v`` (symmetric).
+    modes : tuple of Mode
+        Lightly damped modes measured with the position (:mod:`servotune.resonance`), at most
+        :data:`~servotune.resonance.MAX_MODES`; empty: the rigid plant.
 
     Notes
     -----
@@ -107,8 +117,13 @@ class Plant:
     noise_counts: float = 0.0
     gain_neg_cps_per_v: float | None = None
     coulomb_neg_v: float | None = None
+    modes: tuple[Mode, ...] = ()
 
     def __post_init__(self) -> None:
+        if not isinstance(self.modes, tuple):
+            object.__setattr__(self, "modes", tuple(self.modes))
+        if len(self.modes) > MAX_MODES or not all(isinstance(m, Mode) for m in self.modes):
+            raise ValueError(f"modes must be at most {MAX_MODES} Mode records, got {self.modes!r}")
         _check_finite_ge("gain_cps_per_v", self.gain_cps_per_v, 0.0, "counts/s/V", strict=True)
         _check_finite_ge("tau_s", self.tau_s, 0.0, "s", strict=True)
         _check_finite_ge("delay_s", self.delay_s, 0.0, "s")
@@ -160,7 +175,8 @@ class Plant:
         return self.max_speed_rpm / 60.0 * counts_per_rev
 
     def to_tf(self) -> control.TransferFunction:
-        """Linear part without the delay: ``gain / (s (tau s + 1))`` [counts/V].
+        """Linear part without the delay: ``gain / (s (tau s + 1))`` [counts/V], times
+        ``1 + Σ g s² / (s² + 2 ζ ω s + ω²)`` for a resonant plant's modes.
 
         The delay ``exp(-delay_s s)`` is not rational; :func:`discretize` includes it exactly.
         Offset and friction are left out; the gain of an asymmetric plant is the mean of its
@@ -168,7 +184,14 @@ class Plant:
         """
         import control
 
-        return control.tf([self.mean_gain_cps_per_v], [self.tau_s, 1.0, 0.0])
+        rigid = control.tf([self.mean_gain_cps_per_v], [self.tau_s, 1.0, 0.0])
+        if not self.modes:
+            return rigid
+        factor = control.tf([1.0], [1.0])
+        for m in self.modes:  # 1 + Σ g s² / (s² + 2 ζ ω s + ω²) (docs/frf.md)
+            w = 2.0 * math.pi * m.freq_hz
+            factor = factor + control.tf([m.gain, 0.0, 0.0], [1.0, 2.0 * m.damping * w, w * w])
+        return rigid * factor
 
     @classmethod
     def from_tf(cls, tf: control.TransferFunction, **extra: float) -> Plant:
@@ -193,9 +216,11 @@ class Plant:
             )
         return cls(gain_cps_per_v=float(num[0] / den[1]), tau_s=float(den[0] / den[1]), **extra)
 
-    def to_dict(self) -> dict[str, float | None]:
-        """Plain dict with the axis model's parameter names (docs/formats.md#axis-model)."""
-        return {
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dict with the axis model's parameter names (docs/formats.md#axis-model); a
+        resonant plant's ``modes`` as a list of ``{freq_hz, damping, gain}``."""
+        modes = [{"freq_hz": m.freq_hz, "damping": m.damping, "gain": m.gain} for m in self.modes]
+        return ({"modes": modes} if modes else {}) | {
             "coulomb_neg_v": self.coulomb_neg_v,
             "coulomb_v": self.coulomb_v,
             "delay_s": self.delay_s,
@@ -252,6 +277,9 @@ def advance(
     vmax: float,
     gain_neg: float | None = None,
     coulomb_neg: float | None = None,
+    q: np.ndarray | None = None,
+    row: np.ndarray | None = None,
+    piece: int = -1,
 ) -> tuple[float, float]:
     """Advance position and speed exactly over ``h`` seconds of constant drive input ``w``.
 
@@ -275,6 +303,11 @@ def advance(
     gain_neg, coulomb_neg : float or None
         The negative direction's gain [counts/s/V] and Coulomb level [V]; None (default): the
         positive direction's (symmetric). A plant row carries both (:func:`plant_row`).
+    q, row, piece : optional
+        A resonant plant's modes: their state ``q`` (moved in place over every piece of
+        constant target speed, :func:`servotune.resonance.modes_segment`), the plant row that
+        holds them, and which of the row's two pieces of a tick ``h`` is (``-1``: neither, the
+        coefficients are computed for ``h``).
 
     Returns
     -------
@@ -289,6 +322,8 @@ def advance(
         return p, v
     if v == 0.0:
         if w <= coulomb and w >= -coulomb_neg:
+            if q is not None:  # at rest the whole piece: the modes ring out freely
+                modes_segment(q, row, R_MODES, piece, h, 0.0, 0.0)
             return p, 0.0
         s = 1.0 if w > 0.0 else -1.0
     else:
@@ -303,74 +338,23 @@ def advance(
             t0 = h
         p += vinf * t0 - (v - vinf) * tau * math.expm1(-t0 / tau)
         hr = h - t0
+        if q is not None:
+            modes_segment(q, row, R_MODES, -1, t0, vinf, v - vinf)
         if (w <= coulomb and w >= -coulomb_neg) or hr <= 0.0:
+            if q is not None and hr > 0.0:
+                modes_segment(q, row, R_MODES, -1, hr, 0.0, 0.0)
             return p, 0.0
         # from rest the other way, with that direction's gain and Coulomb level
         s = 1.0 if w > 0.0 else -1.0
         vinf = _target_speed(s, w, gain, coulomb, gain_neg, coulomb_neg, vmax)
         ar = math.exp(-hr / tau)
         p += vinf * hr + vinf * tau * math.expm1(-hr / tau)
+        if q is not None:
+            modes_segment(q, row, R_MODES, -1, hr, vinf, -vinf)
         return p, vinf * (1.0 - ar)
+    if q is not None:
+        modes_segment(q, row, R_MODES, piece, h, vinf, v - vinf)
     return p + vinf * h + (v - vinf) * b, vend
-
-
-def discretize(plant: Plant, period_s: float, lag_s: float = 0.0) -> control.StateSpace:
-    """Exact ZOH discretisation of the linear part, with a total input lag.
-
-    The input (volts) is written every ``period_s`` and reaches the motor ``lag_s`` later
-    (compute time + ``delay_s``); with ``lag_s = m·T + λ`` the input changes inside each tick at
-    ``λ`` (modified z-transform). Offset, friction and speed limit are left out; an asymmetric
-    plant enters with the mean of its two directions' gains (:attr:`Plant.mean_gain_cps_per_v`),
-    a symmetric one with ``gain_cps_per_v`` exactly.
-
-    Parameters
-    ----------
-    plant : Plant
-    period_s : float
-        Sample period [s] (the achieved timer period).
-    lag_s : float
-        Total lag from the tick start to the motor input [s], >= 0.
-
-    Returns
-    -------
-    control.StateSpace
-        Discrete system (``dt=period_s``), input volts, output position [counts]; states are
-        position, speed and the ``m + 1`` (or ``m``, if λ = 0) held past inputs.
-    """
-    import control
-
-    if period_s <= 0:
-        raise ValueError(f"period_s must be > 0 [s], got {show_value(period_s)}")
-    if lag_s < 0:
-        raise ValueError(f"lag_s must be >= 0 [s], got {show_value(lag_s)}")
-    m, lam = lag_split(lag_s, period_s)
-    phi_b, phi_a, go_p, go_v, gn_p, gn_v = tick_coefficients(
-        period_s, lam, plant.mean_gain_cps_per_v, plant.tau_s
-    )
-    phi_t = np.array([[1.0, phi_b], [0.0, phi_a]])
-    g_old = np.array([go_p, go_v])  # input from write k-m-1, acting for λ at the tick start
-    g_new = np.array([gn_p, gn_v])  # input from write k-m, acting for T-λ
-    n_hist = m + 1 if lam > 0.0 else m  # past inputs held in the state
-    n = 2 + n_hist
-    a_mat = np.zeros((n, n))
-    b_mat = np.zeros((n, 1))
-    a_mat[:2, :2] = phi_t
-    # history states: h_1 = u(k-1), ..., h_j = u(k-j)
-    if n_hist == 0:
-        b_mat[:2, 0] = g_new
-    else:
-        if m == 0:
-            b_mat[:2, 0] = g_new
-        else:
-            a_mat[:2, 2 + m - 1] += g_new
-        if lam > 0.0:
-            a_mat[:2, 2 + m] += g_old
-        b_mat[2, 0] = 1.0
-        for j in range(1, n_hist):
-            a_mat[2 + j, 2 + j - 1] = 1.0
-    c_mat = np.zeros((1, n))
-    c_mat[0, 0] = 1.0
-    return control.ss(a_mat, b_mat, c_mat, np.zeros((1, 1)), dt=period_s)
 
 
 @jit
@@ -414,7 +398,9 @@ R_GAIN, R_TAU, R_OFFSET, R_COULOMB, R_VMAX, R_NOISE = 0, 1, 2, 3, 4, 5
 R_A1, R_B1, R_A2, R_B2, R_H1, R_H2 = 6, 7, 8, 9, 10, 11
 R_PHI_B, R_PHI_A, R_GO_P, R_GO_V, R_GN_P, R_GN_V, R_LINEAR = 12, 13, 14, 15, 16, 17, 18
 R_GAIN_NEG, R_COULOMB_NEG = 19, 20
-NROW = 21
+R_MODES = 21
+"""Where the modes start in a row (their layout: :mod:`servotune.resonance`)."""
+NROW = R_MODES + MODES_HEADER + MAX_MODES * MODE_WIDTH
 """Length of a plant row (:func:`plant_row`)."""
 
 
@@ -460,10 +446,22 @@ def plant_row(
             ]
         ]
     )
-    rows = np.empty((1, NROW))
+    rows = np.zeros((1, NROW))
     lags = np.empty(1, dtype=np.int64)
     fill_plant_rows(params, period_s, compute_s, rows, lags)
+    if plant.modes:
+        put_modes(rows[0], plant.modes)
     return rows[0], int(lags[0])
+
+
+def put_modes(row: np.ndarray, modes: tuple[Mode, ...] | np.ndarray) -> None:
+    """Write ``modes`` (records, or rows ``freq_hz, damping, gain``) into a filled plant row,
+    their coefficients for the row's two pieces of a tick and its time constant."""
+    arr = np.array(
+        [(m.freq_hz, m.damping, m.gain) for m in modes] if isinstance(modes, tuple) else modes,
+        dtype=float,
+    ).reshape(-1, 3)
+    set_modes(row, R_MODES, arr, row[R_H1], row[R_H2], row[R_TAU])
 
 
 P_GAIN, P_TAU, P_OFFSET, P_COULOMB, P_GAIN_NEG, P_COULOMB_NEG, P_VMAX, P_NOISE, P_DELAY = range(9)
@@ -518,6 +516,10 @@ def fill_plant_rows(
         row[R_LINEAR] = 1.0 if linear else 0.0
         row[R_GAIN_NEG] = gain_neg
         row[R_COULOMB_NEG] = coulomb_neg
+        row[R_MODES] = 0.0  # no modes (:func:`put_modes` adds them)
+        row[R_MODES + 1] = 1.0 / tau
+        for j in range(R_MODES + MODES_HEADER, NROW):
+            row[j] = 0.0
         lags[i] = m
 
 
@@ -592,6 +594,68 @@ def advance_tick_inlined(
 
 
 @jit(inline="always")
+def advance_tick_modal(
+    p: float, v: float, q: np.ndarray, w_old: float, w_new: float, row: np.ndarray
+) -> tuple[float, float]:
+    """:func:`advance_tick` of a plant that may have modes: their state ``q`` (shape
+    ``2·MAX_MODES``, :mod:`servotune.resonance`) moves exactly with the rigid part over each
+    piece of the tick. Without modes it is :func:`advance_tick` (the same bits; ``q`` is not
+    touched)."""
+    if row[R_MODES] == 0.0:
+        return _advance_tick_with(advance, p, v, w_old, w_new, row)
+    vmax = row[R_VMAX]
+    gain = row[R_GAIN]
+    if row[R_LINEAR] > 0.0 and abs(w_new) * gain <= vmax and abs(w_old) * gain <= vmax:
+        v_lam = v
+        if row[R_H1] > 0.0:
+            vinf = gain * w_old
+            modes_segment(q, row, R_MODES, 0, row[R_H1], vinf, v - vinf)
+            v_lam = vinf + (v - vinf) * row[R_A1]
+        vinf = gain * w_new
+        modes_segment(q, row, R_MODES, 1, row[R_H2], vinf, v_lam - vinf)
+        p_n = p + row[R_PHI_B] * v + row[R_GO_P] * w_old + row[R_GN_P] * w_new
+        v_n = row[R_PHI_A] * v + row[R_GO_V] * w_old + row[R_GN_V] * w_new
+        return p_n, v_n
+    tau, coulomb = row[R_TAU], row[R_COULOMB]
+    gain_neg, coulomb_neg = row[R_GAIN_NEG], row[R_COULOMB_NEG]
+    if row[R_H1] > 0.0:
+        p, v = advance(
+            p,
+            v,
+            w_old,
+            row[R_H1],
+            row[R_A1],
+            row[R_B1],
+            gain,
+            tau,
+            coulomb,
+            vmax,
+            gain_neg,
+            coulomb_neg,
+            q,
+            row,
+            0,
+        )
+    return advance(
+        p,
+        v,
+        w_new,
+        row[R_H2],
+        row[R_A2],
+        row[R_B2],
+        gain,
+        tau,
+        coulomb,
+        vmax,
+        gain_neg,
+        coulomb_neg,
+        q,
+        row,
+        1,
+    )
+
+
+@jit(inline="always")
 def _advance_for(p: float, v: float, w: float, h: float, row: np.ndarray) -> tuple[float, float]:
     """:func:`advance` over ``h`` seconds, its coefficients computed for ``h``."""
     tau = row[R_TAU]
@@ -639,103 +703,3 @@ def advance_span(
     if lam > 0.0:
         p, v = _advance_for(p, v, w_old, lam, row)
     return _advance_for(p, v, w_new, h - lam, row)
-
-
-@scipy_paths
-def discretize_lti(
-    sys: control.TransferFunction | control.StateSpace, period_s: float, lag_s: float = 0.0
-) -> control.StateSpace:
-    """Exact ZOH discretisation of any continuous SISO system, with a total input lag.
-
-    The generic form of :func:`discretize`: the input is written every ``period_s`` and reaches
-    the system ``lag_s`` later; with ``lag_s = m·T + λ`` (:func:`lag_split`) the held input
-    changes inside each tick at ``λ`` (modified z-transform). Over one tick
-    ``x' = Φ(T)·x + Φ(T−λ)·Γ(λ)·u_old + Γ(T−λ)·u_new`` with ``Φ(h) = exp(A h)`` and
-    ``Γ(h) = ∫₀ʰ exp(A s) ds · B`` (one matrix exponential each), ``u_old`` the write of tick
-    ``k−m−1`` and ``u_new`` that of tick ``k−m``.
-
-    Parameters
-    ----------
-    sys : control.TransferFunction or control.StateSpace
-        Continuous-time (``dt=0``) SISO system [output units per input unit].
-    period_s : float
-        Sample period [s].
-    lag_s : float
-        Total lag from the sample instant to the system input [s], >= 0.
-
-    Returns
-    -------
-    control.StateSpace
-        Discrete system (``dt=period_s``); states are those of ``control.ss(sys)`` followed by
-        the ``m + 1`` (or ``m``, if λ = 0) held past inputs. A direct feedthrough ``D`` acts on
-        the input held at the sample instant (``u_old`` if λ > 0).
-
-    Raises
-    ------
-    ValueError
-        If ``sys`` is not continuous-time SISO, or ``period_s``/``lag_s`` are out of range.
-
-    Examples
-    --------
-    >>> import control
-    >>> d = discretize_lti(control.tf([1.0], [1.0, 1.0]), 0.1, 0.05)
-    >>> d.dt, d.nstates
-    (0.1, 2)
-    """
-    import control
-    from scipy.linalg import expm
-
-    if not isinstance(sys, control.TransferFunction | control.StateSpace):
-        raise ValueError(
-            f"sys must be a control.TransferFunction or StateSpace, got {type(sys).__name__}"
-        )
-    if not sys.isctime(strict=True):
-        raise ValueError(f"sys must be continuous-time (dt=0), got dt={show_value(sys.dt)}")
-    if sys.ninputs != 1 or sys.noutputs != 1:
-        raise ValueError(f"sys must be SISO, got {sys.noutputs} outputs x {sys.ninputs} inputs")
-    if not (isinstance(period_s, int | float) and math.isfinite(period_s) and period_s > 0):
-        raise ValueError(f"period_s must be > 0 [s], got {show_value(period_s)}")
-    if not (isinstance(lag_s, int | float) and math.isfinite(lag_s) and lag_s >= 0):
-        raise ValueError(f"lag_s must be >= 0 [s], got {show_value(lag_s)}")
-    ss = control.ss(sys)
-    a_c, b_c = np.asarray(ss.A, dtype=float), np.asarray(ss.B, dtype=float)
-    c_c, d_c = np.asarray(ss.C, dtype=float), float(np.asarray(ss.D, dtype=float)[0, 0])
-    nx = a_c.shape[0]
-    m, lam = lag_split(lag_s, period_s)
-
-    def phi_gamma(h: float) -> tuple[np.ndarray, np.ndarray]:
-        aug = np.zeros((nx + 1, nx + 1))
-        aug[:nx, :nx] = a_c * h
-        aug[:nx, nx:] = b_c * h
-        e = expm(aug)
-        return e[:nx, :nx], e[:nx, nx]
-
-    phi_t, _ = phi_gamma(period_s)
-    phi_2, g_new = phi_gamma(period_s - lam)  # u_new acts for T - λ
-    _, g_1 = phi_gamma(lam)
-    g_old = phi_2 @ g_1  # u_old acts for λ, then the state moves on for T - λ
-    n_hist = m + 1 if lam > 0.0 else m
-    n = nx + n_hist
-    a_mat = np.zeros((n, n))
-    b_mat = np.zeros((n, 1))
-    c_mat = np.zeros((1, n))
-    d_mat = np.zeros((1, 1))
-    a_mat[:nx, :nx] = phi_t
-    c_mat[0, :nx] = c_c[0]
-    # history states: h_1 = u(k-1), ..., h_j = u(k-j), at columns nx + j - 1
-    if m == 0:
-        b_mat[:nx, 0] = g_new
-    else:
-        a_mat[:nx, nx + m - 1] += g_new
-    if lam > 0.0:
-        a_mat[:nx, nx + m] += g_old
-        c_mat[0, nx + m] += d_c  # at the sample instant the old input still acts
-    elif m == 0:
-        d_mat[0, 0] = d_c
-    else:
-        c_mat[0, nx + m - 1] += d_c
-    if n_hist > 0:
-        b_mat[nx, 0] = 1.0
-        for j in range(1, n_hist):
-            a_mat[nx + j, nx + j - 1] = 1.0
-    return control.ss(a_mat, b_mat, c_mat, d_mat, dt=period_s)

@@ -26,6 +26,7 @@ from servotune.io.rig import FLOAT_SIGNIFICANT_DIGITS as FLOAT_SIGNIFICANT_DIGIT
 from servotune.io.rig import build_section, edit_plant_text
 from servotune.laws.lock import lock_holding_band
 from servotune.plant import Plant
+from servotune.resonance import MAX_MODES, Mode
 from servotune.rig_model import FIT_METHODS as FIT_METHODS
 from servotune.rig_model import FIT_PCT_KEYS as FIT_PCT_KEYS
 from servotune.rig_model import FRICTION_FORMS as FRICTION_FORMS
@@ -52,6 +53,8 @@ from servotune.validate import (
     check_keys,
     check_number,
     check_table,
+    is_finite,
+    is_number,
     name_and_description,
     show_value,
 )
@@ -62,6 +65,7 @@ __all__ = [
     "check_plant",
     "describe_rig",
     "load_rig",
+    "modes_from_array",
     "plant_from_table",
     "rig_from_dict",
     "write_plant",
@@ -84,6 +88,7 @@ def check_plant(
     dac_range_v: tuple[float, float] | None = None,
     *,
     error: type[Exception] = RigError,
+    period_s: float | None = None,
 ) -> None:
     """Bounds of a plant read from a file, beyond :class:`~servotune.plant.Plant`'s own checks.
 
@@ -93,7 +98,10 @@ def check_plant(
     counts/s/V, tau_s in 1 µs … 1000 s, delay_s up to 1 s, offset_v and coulomb_v within the
     D/A range (``dac_range_v``; ±1000 V if not given), max_speed_rpm up to 1e6 r/min,
     noise_counts up to 1e6 counts; the negative direction's gain_neg_cps_per_v and
-    coulomb_neg_v, where given, as gain_cps_per_v and coulomb_v.
+    coulomb_neg_v, where given, as gain_cps_per_v and coulomb_v. With ``period_s`` (the rig's
+    tick), every mode's frequency below the Nyquist frequency ``0.5 / period_s``: the loop
+    samples the position once a tick, so a mode at or above it is not what the loop sees
+    (it folds onto a lower frequency) and the model could not be simulated as it is sampled.
 
     Parameters
     ----------
@@ -104,6 +112,8 @@ def check_plant(
         The D/A output range [V].
     error : type of Exception
         What to raise.
+    period_s : float, optional
+        The rig's tick [s] (:attr:`Rig.period_s`, the achieved one), for the modes' bound.
 
     Raises
     ------
@@ -139,6 +149,16 @@ def check_plant(
             hi=MAX_SPEED_RPM,
             error=error,
         )
+    if period_s is not None:
+        nyquist_hz = 0.5 / period_s
+        for i, mode in enumerate(plant.modes):
+            if not mode.freq_hz < nyquist_hz:
+                raise error(
+                    f"{path}.modes[{i}].freq_hz must be below the rig's Nyquist frequency "
+                    f"0.5 / period_s = {nyquist_hz:.6g} [Hz], got {show_value(mode.freq_hz)} (the "
+                    f"loop samples every {period_s * 1e3:.6g} ms: a mode there folds onto a lower "
+                    "frequency)"
+                )
 
 
 def plant_from_table(
@@ -147,12 +167,76 @@ def plant_from_table(
     dac_range_v: tuple[float, float] | None = None,
     *,
     error: type[Exception] = RigError,
+    period_s: float | None = None,
 ) -> Plant:
     """The :class:`~servotune.plant.Plant` of a file's ``[axis.<name>.plant]`` table (``path``),
-    built and bounded (:func:`check_plant`); ``error`` names ``path.field``, value and unit."""
+    built and bounded (:func:`check_plant`, the modes below ``0.5 / period_s`` when it is
+    given); ``error`` names ``path.field``, value and unit. The table's ``modes``, an array of
+    tables (``[[axis.<name>.plant.modes]]``), are read by :func:`modes_from_array`."""
+    if "modes" in table:
+        table = dict(table)
+        table["modes"] = modes_from_array(table["modes"], f"{path}.modes", error=error)
     plant = build_section(Plant, table, path, error)
-    check_plant(plant, path, dac_range_v, error=error)
+    check_plant(plant, path, dac_range_v, error=error, period_s=period_s)
     return plant
+
+
+_MODE_KEYS = (
+    # key, unit, lower bound (excluded), upper bound (excluded) or None
+    ("freq_hz", "Hz", 0.0, None),
+    ("damping", "-", 0.0, 1.0),
+    ("gain", "-", -1.0, None),
+)
+
+
+def modes_from_array(
+    value: object, path: str, *, error: type[Exception] = RigError
+) -> tuple[Mode, ...]:
+    """The :class:`~servotune.resonance.Mode` records of a plant table's ``modes`` (``path``):
+    an array of tables, each ``freq_hz`` [Hz] > 0, ``damping`` [-] in (0, 1), ``gain`` [-]
+    > −1 and optionally their 95 % intervals ``freq_hz_95``, ``damping_95``, ``gain_95``
+    (``[low, high]``, low <= high), at most :data:`~servotune.resonance.MAX_MODES` of them
+    (docs/formats.md#modes).
+
+    Raises
+    ------
+    error
+        Naming the mode and the key: ``"axis.master.plant.modes[0].damping must be a number
+        in (0, 1) [-], got -0.1"``.
+    """
+    if not isinstance(value, list | tuple):
+        raise error(
+            f"{path} must be an array of tables ([[{path}]] with freq_hz, damping and gain), "
+            f"got {type(value).__name__}"
+        )
+    if len(value) > MAX_MODES:
+        raise error(f"{path} has {len(value)} modes; a plant carries at most {MAX_MODES}")
+    modes = []
+    for i, table in enumerate(value):
+        where = f"{path}[{i}]"
+        if not isinstance(table, Mapping):
+            raise error(
+                f"{where} must be a table (freq_hz, damping, gain), got {type(table).__name__}"
+            )
+        names = [k for k, *_ in _MODE_KEYS]
+        kwargs = check_keys(table, where, names, [f"{k}_95" for k in names], error=error)
+        for key, unit, lo, hi in _MODE_KEYS:
+            bounds = {"lo": lo, "strict": True, "hi": hi, "hi_strict": True}
+            check_number(f"{where}.{key}", kwargs[key], unit, **bounds, error=error)
+            kwargs[key] = float(kwargs[key])
+            pair = kwargs.get(f"{key}_95")
+            if pair is None:
+                continue
+            ok = isinstance(pair, list | tuple) and len(pair) == 2
+            ok = ok and all(is_number(x) and is_finite(x) for x in pair) and pair[0] <= pair[1]
+            if not ok:
+                raise error(
+                    f"{where}.{key}_95 must be [low, high], two numbers with low <= high "
+                    f"[{unit}], got {show_value(pair)}"
+                )
+            kwargs[f"{key}_95"] = (float(pair[0]), float(pair[1]))
+        modes.append(Mode(**kwargs))
+    return tuple(modes)
 
 
 def _table(
@@ -183,6 +267,7 @@ def rig_from_dict(data: Mapping[str, Any], default_name: str = "rig") -> Rig:
     ctr = build_section(Counter, _table(data, "counter", "counter"), "counter")
     dac = build_section(Dac, _table(data, "dac", "dac"), "dac")
     enc = build_section(Encoder, _table(data, "encoder", "encoder"), "encoder")
+    timer_period_s = timer.achieved_period_s  # what Rig.period_s is: the modes' Nyquist bound
     axes_t = _table(data, "axis", "axis")
     axes = []
     for name, at in axes_t.items():
@@ -196,7 +281,7 @@ def rig_from_dict(data: Mapping[str, Any], default_name: str = "rig") -> Rig:
             raise RigError(f"[axis.{name}.plant] must be a table")
         pt = dict(pt)
         fit_t = pt.pop("fit", None)  # the fit record (servotune fit -o), not a plant field
-        plant = plant_from_table(pt, f"axis.{name}.plant", dac.range_v)
+        plant = plant_from_table(pt, f"axis.{name}.plant", dac.range_v, period_s=timer_period_s)
         plant_fit = None
         if fit_t is not None:
             if not isinstance(fit_t, Mapping):
@@ -321,6 +406,11 @@ def write_plant(
     - ``gain_neg_cps_per_v`` [counts/s/V] and ``coulomb_neg_v`` [V], the negative direction's
       (asymmetric model), are written when ``plant`` sets them and removed when it leaves them
       None (a symmetric plant), so the table records which structure was fitted.
+    - The plant's lightly damped ``modes`` (docs/formats.md#modes) are written as an array of
+      tables ``[[axis.<axis>.plant.modes]]``: ``freq_hz`` [Hz], ``damping`` [-], ``gain`` [-]
+      and, where the mode has them, their 95 % intervals (``freq_hz_95 = [low, high]`` …),
+      replacing the file's. A plant without modes removes the file's (they described another
+      fit); a file without modes then stays byte for byte as it was.
     - ``max_speed_rpm`` [r/min] and ``noise_counts`` [counts] describe the drive and the encoder
       rather than the fit: the file's values stay unless ``plant`` sets them (differs from the
       :class:`~servotune.plant.Plant` default, ``None`` and ``0.0``); then they are replaced.
@@ -415,7 +505,11 @@ def write_plant(
             f"{str(target)!r} would not load after writing [axis.{axis}.plant] ({exc}); "
             f"nothing written"
         ) from None
-    wrong = sorted(k for k, v in written.items() if k != "fit" and getattr(loaded, k) != v)
+    wrong = sorted(
+        k for k, v in written.items() if k not in ("fit", "modes") and getattr(loaded, k) != v
+    )
+    if _mode_entries(loaded.modes) != written.get("modes", []):
+        wrong.append("modes")
     if (loaded_axis.plant_fit.to_dict() if loaded_axis.plant_fit else None) != written.get("fit"):
         wrong.append("fit")
     if wrong:
@@ -424,3 +518,10 @@ def write_plant(
             f"{', '.join(wrong)} (duplicate or dotted keys?); nothing written"
         )
     atomic_write_bytes(target, new_text.encode("utf-8"))
+
+
+def _mode_entries(modes: tuple[Mode, ...]) -> list[dict[str, Any]]:
+    """The modes as :func:`servotune.io.rig.edit_plant_text` reports them written: per mode
+    its values and the intervals it has."""
+    keys = ("freq_hz", "damping", "gain", "freq_hz_95", "damping_95", "gain_95")
+    return [{k: getattr(m, k) for k in keys if getattr(m, k) is not None} for m in modes]

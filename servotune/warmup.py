@@ -38,7 +38,7 @@ def run_margins() -> None:
     import numpy as np
 
     from servotune.analysis.margins import controller_basis, grid_margins, unwrapped_phase
-    from servotune.plant import discretize
+    from servotune.modal import discretize
     from servotune.rig import load_rig
 
     rig = load_rig(_example())

@@ -21,7 +21,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("_version", "errors", "progress"),
     ("validate", "budget", "digest", "fixed", "_control", "_numba_cache", "kernels", "executor"),
     ("hw", "io", "examples"),
-    ("plant", "modal", "laws", "fuzzy"),
+    ("plant", "modal", "resonance", "laws", "fuzzy"),
     ("rig_model", "rig", "logs", "metrics", "scenarios", "excite"),
     ("sim", "tuning"),
     ("analysis",),

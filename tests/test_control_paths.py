@@ -70,7 +70,7 @@ def _results(rig, tuning) -> dict[str, str]:
     from servotune.arch.gantry.design import predicted_load_reduction
     from servotune.arch.gantry.load import load_gantry
     from servotune.arch.gantry.synthesis import resolve_gains
-    from servotune.plant import discretize_lti
+    from servotune.modal import discretize_lti
     from servotune.report.loops import loop_response
     from servotune.tune.pi import tune_pi
 

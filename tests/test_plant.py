@@ -10,7 +10,8 @@ import pytest
 from scipy.integrate import solve_ivp
 from scipy.signal import cont2discrete
 
-from servotune.plant import Plant, advance, discretize, step_coefficients
+from servotune.modal import discretize
+from servotune.plant import Plant, advance, step_coefficients
 
 
 def _ode(gain: float, tau: float, w: float, coulomb: float, vmax: float):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -10,6 +11,7 @@ from conftest import EXAMPLE_RIG
 
 import servotune as st
 from servotune.cli import main
+from servotune.resonance import Mode
 from servotune.rig import describe_rig
 
 
@@ -29,6 +31,10 @@ def test_example_rig_facts(rig: st.Rig) -> None:
     assert rig.axis("master").plant.gain_cps_per_v == 12288
     assert all(a.plant.tau_s <= 0.030 for a in rig.axes)
     assert rig.axis("master").plant != rig.axis("slave").plant
+
+
+MODE_TABLE = "\n[[axis.master.plant.modes]]\nfreq_hz = 35.0\ndamping = 0.04\ngain = 0.5\n"
+"""One mode of the master's plant (the belt-driven example's, plants/belt-axis.toml)."""
 
 
 def _write(tmp_path: Path, text: str) -> Path:
@@ -194,6 +200,66 @@ def _write(tmp_path: Path, text: str) -> Path:
             "coulomb_v = 0.002\ncoulomb_negative_v = 0.003",
             r"unknown key axis.master.plant.coulomb_negative_v.*did you mean 'coulomb_neg_v'\?",
         ),
+        # the modes (docs/formats.md#modes): each key named with the mode's index
+        (
+            "noise_counts = 0.3",
+            f"noise_counts = 0.3\n{MODE_TABLE.replace('0.04', '-0.1')}",
+            r"axis.master.plant.modes\[0\].damping must be a number in \(0, 1\) \[-\], got -0.1",
+        ),
+        (
+            "noise_counts = 0.3",
+            f"noise_counts = 0.3\n{MODE_TABLE}{MODE_TABLE.replace('35.0', '0.0')}",
+            r"axis.master.plant.modes\[1\].freq_hz must be a number > 0 \[Hz\], got 0.0",
+        ),
+        (
+            "noise_counts = 0.3",
+            "noise_counts = 0.3\nmodes = [{freq_hz = 35.0, damping = 0.04, gain = -1.0}]",
+            r"axis.master.plant.modes\[0\].gain must be a number > -1 \[-\], got -1.0",
+        ),
+        # at or above the rig's Nyquist frequency, 0.5 / 4.000235 ms = 124.9927 Hz
+        (
+            "noise_counts = 0.3",
+            f"noise_counts = 0.3\n{MODE_TABLE.replace('35.0', '125.0')}",
+            r"axis.master.plant.modes\[0\].freq_hz must be below the rig's Nyquist frequency "
+            r"0.5 / period_s = 124.993 \[Hz\], got 125.0",
+        ),
+        (
+            "noise_counts = 0.3",
+            f"noise_counts = 0.3\n{MODE_TABLE.replace('35.0', '124.9927')}",
+            r"axis.master.plant.modes\[0\].freq_hz must be below the rig's Nyquist frequency",
+        ),
+        (
+            "noise_counts = 0.3",
+            f"noise_counts = 0.3\n{MODE_TABLE}ratio = 0.5\n",
+            r"unknown key axis.master.plant.modes\[0\].ratio \(allowed: damping, damping_95, "
+            r"freq_hz, freq_hz_95, gain, gain_95\)",
+        ),
+        (
+            "noise_counts = 0.3",
+            f"noise_counts = 0.3\n{MODE_TABLE}freq_hz_95 = [36.0, 34.0]\n",
+            r"axis.master.plant.modes\[0\].freq_hz_95 must be \[low, high\], two numbers with "
+            r"low <= high \[Hz\], got \[36.0, 34.0\]",
+        ),
+        (
+            "noise_counts = 0.3",
+            "noise_counts = 0.3\nmodes = [35.0]",
+            r"axis.master.plant.modes\[0\] must be a table \(freq_hz, damping, gain\), got float",
+        ),
+        (
+            "noise_counts = 0.3",
+            "noise_counts = 0.3\nmodes = {freq_hz = 35.0, damping = 0.04, gain = 0.5}",
+            r"axis.master.plant.modes must be an array of tables \(\[\[axis.master.plant.modes\]\]",
+        ),
+        (
+            "noise_counts = 0.3",
+            "noise_counts = 0.3\n" + MODE_TABLE * 5,
+            r"axis.master.plant.modes has 5 modes; a plant carries at most 4",
+        ),
+        (
+            "noise_counts = 0.3",
+            f"noise_counts = 0.3\n{MODE_TABLE.replace('damping', 'dampng')}",
+            r"unknown key axis.master.plant.modes\[0\].dampng .*did you mean 'damping'\?",
+        ),
     ],
 )
 def test_rig_errors_name_field_value_unit(tmp_path: Path, old: str, new: str, message: str) -> None:
@@ -263,3 +329,62 @@ def test_cli_rig_bad_file_is_one_line_exit_3(
     assert main(["rig", str(p)]) == 3
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "axis.master.plant.tau_s" in err and "Traceback" not in err
+
+
+def test_modes_are_read_as_tables_or_inline_with_their_intervals(tmp_path: Path) -> None:
+    text = EXAMPLE_RIG.read_text()
+    tables = text.replace(
+        "noise_counts = 0.3",
+        f"noise_counts = 0.3\n{MODE_TABLE}damping_95 = [0.03, 0.05]\n"
+        "\n[[axis.master.plant.modes]]\nfreq_hz = 80\ndamping = 0.1\ngain = -0.2\n",
+        1,
+    )
+    inline = text.replace(
+        "noise_counts = 0.3",
+        "noise_counts = 0.3\nmodes = [{freq_hz = 35.0, damping = 0.04, gain = 0.5, damping_95 = "
+        "[0.03, 0.05]}, {freq_hz = 80, damping = 0.1, gain = -0.2}]",
+        1,
+    )
+    want = (
+        Mode(freq_hz=35.0, damping=0.04, gain=0.5, damping_95=(0.03, 0.05)),
+        Mode(freq_hz=80.0, damping=0.1, gain=-0.2),
+    )
+    for variant in (tables, inline):
+        rig = st.load_rig(_write(tmp_path, variant))
+        modes = rig.axis("master").plant.modes
+        assert modes == want
+        assert all(isinstance(x, float) for m in modes for x in (m.freq_hz, m.damping, m.gain))
+        assert rig.axis("slave").plant.modes == ()
+    # to_dict lists them only when there are some (the example rig's plants: none)
+    assert st.load_rig(EXAMPLE_RIG).axis("master").plant.to_dict().get("modes") is None
+
+
+def test_the_belt_driven_example_is_the_example_rig_with_one_mode() -> None:
+    belt = st.load_rig(EXAMPLE_RIG.with_name("belt-axis.toml"))
+    base = st.load_rig(EXAMPLE_RIG)
+    assert belt.name == "belt-axis"
+    # the same hardware and axes; the master's plant differs by its mode only
+    for part in ("timer", "counter", "dac", "encoder"):
+        assert getattr(belt, part) == getattr(base, part)
+    assert belt.axis("slave") == base.axis("slave")
+    master = belt.axis("master")
+    assert master.plant.modes == (Mode(freq_hz=35.0, damping=0.04, gain=0.5),)
+    assert dataclasses.replace(master.plant, modes=()) == base.axis("master").plant
+    assert dataclasses.replace(master, plant=base.axis("master").plant) == base.axis("master")
+    assert master.plant.modes[0].antiresonance_hz == pytest.approx(28.58, abs=0.01)
+
+
+@pytest.mark.parametrize("verb", [["rig"], ["simulate", "--scenario", "steps", "-o", "x.csv"]])
+def test_cli_bad_mode_is_one_line_exit_3(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], verb: list[str]
+) -> None:
+    text = EXAMPLE_RIG.read_text()
+    p = _write(tmp_path, text.replace("noise_counts = 0.3", "noise_counts = 0.3\nmodes = [1]", 1))
+    argv = [verb[0], str(p), *verb[1:]]
+    if verb[0] == "simulate":
+        argv[-1] = str(tmp_path / "x.csv")
+    assert main(argv) == 3
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert "axis.master.plant.modes[0] must be a table" in err
+    assert not (tmp_path / "x.csv").exists()

@@ -13,7 +13,8 @@ from conftest import EXAMPLE_RIG
 
 import servotune as st
 from servotune.plant import Plant
-from servotune.rig import EXAMPLE_RIG_PATH, write_plant
+from servotune.resonance import Mode
+from servotune.rig import EXAMPLE_RIG_PATH, PlantFit, write_plant
 
 # Awkward numbers, as a fit produces them (not the example rig's values).
 FITTED = Plant(
@@ -283,3 +284,127 @@ def test_inline_plant_table(tmp_path: Path) -> None:
     write_plant(p, "slave", FITTED, provenance=PROVENANCE)
     assert st.load_rig(p).axis("slave").plant.gain_cps_per_v == 12288.05
     assert p.read_text().startswith(head[: head.index("[axis.slave]")])
+
+
+# --- modes (docs/formats.md#modes) ----------------------------------------------------------
+
+BELT = Mode(
+    freq_hz=35.0123456789,
+    damping=0.0412345678,
+    gain=0.5123456789,
+    freq_hz_95=(34.91234567, 35.11234567),
+    damping_95=(0.0351234567, 0.0481234567),
+    gain_95=(0.4812345678, 0.5412345678),
+)
+"""A fitted mode, awkward numbers with their 95 % intervals."""
+HIGH = Mode(freq_hz=80.0, damping=0.1, gain=-0.2)  # no intervals (a hand-written mode)
+
+
+def _rounded(m: Mode) -> Mode:
+    """``m`` as written: every number to 7 significant digits."""
+
+    def r(x: float) -> float:
+        return float(f"{x:.7g}")
+
+    pairs = {
+        k: None if getattr(m, k) is None else (r(getattr(m, k)[0]), r(getattr(m, k)[1]))
+        for k in ("freq_hz_95", "damping_95", "gain_95")
+    }
+    return Mode(freq_hz=r(m.freq_hz), damping=r(m.damping), gain=r(m.gain), **pairs)
+
+
+def test_modes_round_trip_through_load_rig(tmp_path: Path) -> None:
+    p = _copy_example(tmp_path)
+    write_plant(p, "master", dataclasses.replace(FITTED, modes=(BELT, HIGH)), provenance=PROVENANCE)
+    got = st.load_rig(p).axis("master").plant
+    assert got.modes == (_rounded(BELT), HIGH)
+    assert got.modes[0].freq_hz_95 == (34.91235, 35.11235)
+    assert st.load_rig(p).axis("slave").plant.modes == ()
+    # an array of tables after the plant's entries, intervals only where the mode has them
+    modes = p.read_text().split("[axis.master.plant]", 1)[1].split("[axis.slave]")[0]
+    assert modes.count("[[axis.master.plant.modes]]\n") == 2
+    first = modes.split("[[axis.master.plant.modes]]\n")[1]
+    assert first == (
+        "freq_hz = 35.01235\ndamping = 0.04123457\ngain = 0.5123457\n"
+        "freq_hz_95 = [34.91235, 35.11235]\ndamping_95 = [0.03512346, 0.04812346]\n"
+        "gain_95 = [0.4812346, 0.5412346]\n\n"
+    )
+    second = modes.split("[[axis.master.plant.modes]]\n")[2]
+    assert second == "freq_hz = 80.0\ndamping = 0.1\ngain = -0.2\n\n"
+    # every line outside the master's plant and its modes is the example's
+    head_old, _, tail_old = _split_at_table(EXAMPLE_RIG.read_text(), "[axis.master.plant]")
+    assert p.read_text().startswith(head_old)
+    assert p.read_text().endswith(tail_old)
+
+
+def test_a_plant_without_modes_removes_the_file_s(tmp_path: Path) -> None:
+    p = _copy_example(tmp_path)
+    write_plant(p, "master", dataclasses.replace(FITTED, modes=(BELT,)), provenance=PROVENANCE)
+    assert "modes" in p.read_text()
+    write_plant(p, "master", FITTED, provenance=PROVENANCE)
+    assert "modes" not in p.read_text()
+    assert st.load_rig(p).axis("master").plant.modes == ()
+    # the same bytes as the symmetric, mode-free write into the untouched example
+    fresh = _copy_example(tmp_path, "fresh.toml")
+    write_plant(fresh, "master", FITTED, provenance=PROVENANCE)
+    assert p.read_bytes() == fresh.read_bytes()
+    # an inline array of modes goes the same way
+    q = tmp_path / "inline.toml"
+    one = "noise_counts = 0.3\nmodes = [{freq_hz = 35, damping = 0.04, gain = 0.5}]"
+    q.write_text(EXAMPLE_RIG.read_text().replace("noise_counts = 0.3", one, 1))
+    write_plant(q, "master", FITTED, provenance=PROVENANCE)
+    assert q.read_bytes() == fresh.read_bytes()
+
+
+def test_modes_replace_the_file_s_and_sit_before_the_fit_record(tmp_path: Path) -> None:
+    p = tmp_path / "belt.toml"
+    p.write_bytes(EXAMPLE_RIG.with_name("belt-axis.toml").read_bytes())
+    fit = PlantFit(
+        method="iv",
+        structure=("gain_cps_per_v", "tau_s"),
+        friction="sym",
+        adequate=True,
+        reason="",
+        interval="test",
+        ci95={"gain_cps_per_v": (12000.0, 12500.0), "tau_s": (0.024, 0.026)},
+    )
+    write_plant(p, "master", dataclasses.replace(FITTED, modes=(HIGH, BELT)), fit=fit)
+    got = st.load_rig(p).axis("master")
+    assert got.plant.modes == (HIGH, _rounded(BELT))
+    assert got.plant_fit == fit
+    text = p.read_text()
+    assert text.count("[[axis.master.plant.modes]]") == 2
+    assert text.index("[[axis.master.plant.modes]]") < text.index("[axis.master.plant.fit]")
+    assert "# J_load / J_motor" not in text  # the replaced mode's comments went with it
+    assert "# The belt." in text  # the lines about the belt, above the modes, stay
+    # again with the same plant: the same bytes; with none: no modes, the record stays
+    once = p.read_bytes()
+    write_plant(p, "master", dataclasses.replace(FITTED, modes=(HIGH, BELT)), fit=fit)
+    assert p.read_bytes() == once
+    write_plant(p, "master", FITTED, fit=fit)
+    assert st.load_rig(p).axis("master").plant.modes == ()
+    assert st.load_rig(p).axis("master").plant_fit == fit
+
+
+def test_modes_in_an_inline_plant_table(tmp_path: Path) -> None:
+    text = EXAMPLE_RIG.read_text()
+    head, _, tail = _split_at_table(text, "[axis.slave.plant]")
+    p = tmp_path / "rig.toml"
+    inline = "dac_channel = 1\nplant = { tau_s = 0.03, gain_cps_per_v = 11700.0 }\n"
+    p.write_text(head.replace("dac_channel = 1\n", inline) + tail)
+    write_plant(p, "slave", dataclasses.replace(FITTED, modes=(BELT,)))
+    assert st.load_rig(p).axis("slave").plant.modes == (_rounded(BELT),)
+    write_plant(p, "slave", FITTED)
+    assert st.load_rig(p).axis("slave").plant.modes == ()
+    assert "modes" not in p.read_text()
+
+
+def test_a_mode_at_or_above_the_rig_s_nyquist_is_not_written(tmp_path: Path) -> None:
+    p = _copy_example(tmp_path)
+    before = p.read_bytes()
+    high = Mode(freq_hz=130.0, damping=0.05, gain=0.3)  # the rig's Nyquist: 124.99 Hz
+    with pytest.raises(
+        st.RigError, match=r"would not load .*modes\[0\]\.freq_hz must be below .*nothing written"
+    ):
+        write_plant(p, "master", dataclasses.replace(FITTED, modes=(high,)))
+    assert p.read_bytes() == before

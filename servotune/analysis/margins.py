@@ -14,7 +14,7 @@ composite law, by the fuzzy levels of the error and its change:
 
 The gains are the quantised constants of the tuning (``q·2⁻ᶠ``), i.e. what runs. The plant is
 the axis model discretised exactly with a zero-order hold at the achieved period, with the
-compute time and the drive's delay as an input lag (:func:`servotune.plant.discretize`; an
+compute time and the drive's delay as an input lag (:func:`servotune.modal.discretize`; an
 asymmetric plant enters with the mean of its two directions' gains), behind the D/A's gain
 (one code is ``lsb_v`` volts). Friction, offset, the speed limit and the quantisation are left
 out: the margins are those of the linear loop between them. Loop ``L(z) = C(z)·lsb·P(z)``
@@ -49,7 +49,8 @@ from servotune.analysis.plant_cases import PlantCase, plant_response
 from servotune.errors import SpecError
 from servotune.laws.fuzzy_pid import FuzzyPIDConstants
 from servotune.laws.pi import PIConstants
-from servotune.plant import Plant, discretize
+from servotune.modal import discretize
+from servotune.plant import Plant
 from servotune.validate import check_number
 
 if TYPE_CHECKING:  # python-control is imported where used (slow to import)

@@ -12,7 +12,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from servotune.plant import Plant, discretize
+from servotune.modal import discretize
+from servotune.plant import Plant
 
 if TYPE_CHECKING:
     from servotune.rig import Rig

@@ -140,6 +140,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
     from servotune.tuning import file_sha256
 
     check_outputs(args.output, args.plot, inputs=(args.log,))
+    n_modes = None if args.modes is None else _modes_arg(args.modes)
     if args.output and Path(args.output).exists():  # the rig the fit goes into: read first
         _rig_to_extend(args.output, args.axis)
     rig = load_rig(args.rig) if args.rig else None
@@ -162,6 +163,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
         strict=args.strict,
         hal=hal,
         progress=progress_line,
+        modes=n_modes,
     )
     print(f"axis {axis or '(unprefixed)'}: " + result.summary(), file=sys.stderr)
     if args.plot:
@@ -225,7 +227,12 @@ def _fleet_usage(args: argparse.Namespace) -> str | None:
             if v is not None:
                 return f"{flag} needs --fleet TABLE.parquet|.csv"
         return None
-    for flag, v in (("-o", args.output), ("--plot", args.plot), ("--name", args.name)):
+    for flag, v in (
+        ("-o", args.output),
+        ("--plot", args.plot),
+        ("--name", args.name),
+        ("--modes", args.modes),
+    ):
         if v is not None:
             return (
                 f"{flag} is for one log, not with --fleet (the fleet's outputs are --fleet "

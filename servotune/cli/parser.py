@@ -179,6 +179,12 @@ def _add_fit(sub: Any) -> None:
         action="store_true",
         help="negate the position first (an encoder counting against the D/A's direction)",
     )
+    s.add_argument(
+        "--modes",
+        help="also fit the plant's lightly damped modes to the log's frequency response (it "
+        "needs a periodic excitation, as frf does): auto (chosen by held-out error) or a "
+        "number; -o writes them into the rig file",
+    )
     _log_options(s)
     _hal_options(s)
     _fit_fleet_options(s)

@@ -14,9 +14,10 @@ checks the constants' ranges: a component whose tables were edited, or mixed wit
 tuning's digest, refuses to load with the reason in HAL's log.
 
 :func:`plant_component` writes a component moving one axis's plant model exactly as the
-simulator does (``servotune_plant.h``, a C mirror of :mod:`servotune.plant`; noiseless): for
-testing the loop in real HAL before a machine runs it, and for LinuxCNC users who want
-servotune's model of their drive in a simulated configuration.
+simulator does (``servotune_plant.h``, a C mirror of :mod:`servotune.plant` and of a resonant
+plant's modes, :mod:`servotune.resonance`; noiseless): for testing the loop in real HAL
+before a machine runs it, and for LinuxCNC users who want servotune's model of their drive in a
+simulated configuration.
 
 Units: counts, D/A codes, volts. The component is one instance (``option singleton``); several
 runtimes in one HAL session need several names (``name``).
@@ -146,6 +147,17 @@ def check_component_source(text: str, src: str = "<text>") -> None:
         raise error(f"{src}: {problem}")
 
 
+def _modes_text(plant: Plant) -> str:
+    """The modes for the component's description line: empty for a rigid plant."""
+    if not plant.modes:
+        return ""
+    each = "; ".join(
+        f"{m.freq_hz!r} Hz, damping {m.damping!r}, gain {m.gain!r}" for m in plant.modes
+    )
+    n = len(plant.modes)
+    return f", {n} mode{'s' if n > 1 else ''} ({each})"
+
+
 def plant_component(
     plant: Plant,
     period_s: float,
@@ -160,10 +172,15 @@ def plant_component(
     Each period its function (add it to the thread *before* the controller): from the second
     period on, records the D/A output the controller wrote last period (``volts``, float in
     [V]) and moves the plant over one tick of ``period_s`` with the simulator's lag and model
-    (:func:`servotune.plant.advance_tick`, row of :func:`~servotune.plant.plant_row`, the
-    ``load`` pin [V] of that period added); then latches ``counts`` = ``counter_init +
+    (:func:`servotune.plant.advance_tick_modal`, row of :func:`~servotune.plant.plant_row`,
+    the ``load`` pin [V] of that period added); then latches ``counts`` = ``counter_init +
     floor(position)`` (s32 out) and gives ``position`` [counts] and ``speed`` [counts/s]. The
     HAL thread's own period does not enter: the model's tick is ``period_s``.
+
+    A plant with ``modes`` (docs/frf.md) carries their state too: ``position`` and ``speed``
+    are then the measured ones, the motor's plus its modes'
+    (:func:`servotune.resonance.modes_output`, :func:`~servotune.resonance.modes_speed`);
+    without modes the motor's, as before.
 
     Raises
     ------
@@ -179,6 +196,7 @@ def plant_component(
         gain=repr(plant.gain_cps_per_v),
         tau=repr(plant.tau_s),
         lag=lag,
+        modes=_modes_text(plant),
         ring=lag + 2,
         last_slot=lag + 1,
         counter_init=int(counter_init),

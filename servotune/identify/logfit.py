@@ -7,18 +7,29 @@ the log reader only (the pipeline imports every subsystem: seconds of a one-verb
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from servotune.errors import IdentificationError, LogFormatError
+from servotune.errors import IdentificationError, LogFormatError, SpecError
 from servotune.identify.fitting import MIN_SAMPLES, fit
 from servotune.identify.result import FitResult
 from servotune.io.hal import HalSettings, capture_format, read_hal_log
 from servotune.logs import Log, read_log, read_metadata
+from servotune.resonance import MAX_MODES
 from servotune.rig import Rig
 
-__all__ = ["fit_log", "read_fit_log"]
+if TYPE_CHECKING:
+    from servotune.analysis.frf import Frf
+
+__all__ = [
+    "check_modes_request",
+    "fit_log",
+    "fit_log_modes",
+    "measure_for_modes",
+    "read_fit_log",
+]
 
 
 def fit_log(
@@ -39,6 +50,7 @@ def fit_log(
     strict: bool = False,
     hal: HalSettings | None = None,
     progress: Callable[[str], None] | None = None,
+    modes: int | str | None = None,
 ) -> tuple[FitResult, Log, str]:
     """Read a log and identify one axis (what ``servotune fit`` runs).
 
@@ -60,6 +72,10 @@ def fit_log(
     Its one axis is unnamed (``axis`` names it). ``progress`` gets lines while a large
     capture is read.
 
+    ``modes`` (``"auto"`` or a number; ``fit --modes``): the plant's lightly damped modes too,
+    fitted to the log's frequency response (:func:`fit_log_modes`); None or 0: the rigid
+    model alone, as without it.
+
     Returns
     -------
     result : FitResult
@@ -76,9 +92,12 @@ def fit_log(
         (it has no counter register column), or ``need_axis_name`` and nothing names its axis.
     IdentificationError
         If the data do not identify the model; the message names the log.
+    SpecError
+        With ``modes``: as :func:`fit_log_modes`.
     """
+    check_modes_request(modes)
     if hal is not None:
-        return _fit_hal_log(
+        result, log, name = _fit_hal_log(
             log_path,
             hal,
             axis=axis,
@@ -97,7 +116,9 @@ def fit_log(
                 "friction": friction,
                 "invert_encoder": invert_encoder,
             },
+            modes=modes,
         )
+        return result, log, name
     log, compute_s = read_fit_log(
         log_path,
         rig=rig,
@@ -114,6 +135,7 @@ def fit_log(
             f"log {str(log_path)!r} has no axis prefix in its column names: give the axis's "
             "name (--axis NAME), under which its model is written"
         )
+    measured = measure_for_modes(log, log_axis, modes)  # before the fit: a bad log fails early
     try:
         result = fit(
             log,
@@ -127,7 +149,94 @@ def fit_log(
     except IdentificationError as exc:  # the data do not allow it: name the log
         raise IdentificationError(f"log {str(log_path)!r}: {exc}") from None
     name = axis if axis is not None else (log_axis or next(iter(log.axes)))
-    return result, log, name
+    return fit_log_modes(result, log, log_axis, modes, measured=measured), log, name
+
+
+def check_modes_request(modes: object) -> None:
+    """Refuse a ``modes`` request other than None, ``"auto"`` or a whole number in
+    0 … :data:`~servotune.resonance.MAX_MODES` (a plant carries at most that many).
+
+    Raises
+    ------
+    SpecError
+        ``"modes must be auto or a number of modes in 0..4, got 7"``.
+    """
+    if modes is None or modes == "auto":
+        return
+    if not (type(modes) is int and 0 <= modes <= MAX_MODES):
+        raise SpecError(
+            f"modes must be auto or a number of modes in 0..{MAX_MODES} (a plant carries at "
+            f"most {MAX_MODES}), got {modes!r}"
+        )
+
+
+def measure_for_modes(log: Log, axis: str | None, modes: int | str | None) -> Frf | None:
+    """The frequency response :func:`fit_log_modes` fits the modes to: the velocity response
+    of ``log``'s ``axis`` (:func:`servotune.analysis.frf.frf`, the first excitation period
+    skipped as the loop's transient); None when ``modes`` asks for none.
+
+    Raises
+    ------
+    LogFormatError, SpecError
+        As :func:`fit_log_modes`.
+    """
+    check_modes_request(modes)
+    if modes is None or modes == 0:
+        return None
+    from servotune.analysis.frf import frf  # here: only --modes needs the frequency domain
+
+    return frf(log, axis)
+
+
+def fit_log_modes(
+    result: FitResult,
+    log: Log,
+    axis: str | None,
+    modes: int | str | None,
+    *,
+    measured: Frf | None = None,
+) -> FitResult:
+    """``result`` (the time-domain fit of ``log``'s ``axis``) with the plant's lightly damped
+    modes (``servotune fit --modes``; docs/frf.md#modes).
+
+    The log must carry a periodic excitation (its ``exc_code``, as ``servotune frf`` needs):
+    its velocity response is measured (:func:`measure_for_modes`; ``measured``: already
+    measured so) and the rigid plant and ``modes`` modes are fitted to it
+    (:func:`servotune.identify.modes.fit_modes`; ``"auto"``: 0 … 3 chosen by the held-out
+    error), started from ``result``'s rigid plant, with ``result``'s compute time. The modes,
+    with their 95 % intervals, become :attr:`FitResult.mode_fit`, so :attr:`FitResult.plant`
+    carries them (``fit -o`` writes them into the rig file). The plant's other parameters stay
+    the time-domain fit's. An encoder fitted inverted (``--invert-encoder``) is inverted here
+    too.
+
+    Parameters
+    ----------
+    result : FitResult
+    log : Log
+    axis : str or None
+        The axis of ``log`` (None: its one unnamed axis).
+    modes : "auto", int or None
+        How many modes; None or 0: ``result`` as it is (no frequency response is needed).
+
+    Raises
+    ------
+    LogFormatError
+        The log has no ``exc_code`` column for the axis (the messages of ``servotune frf``).
+    SpecError
+        A bad ``modes``; the excitation is constant or not periodic, fewer than two periods
+        after the first; too few lines for the modes asked for.
+    """
+    check_modes_request(modes)
+    if modes is None or modes == 0:
+        return result
+    if measured is None:
+        measured = measure_for_modes(log, axis, modes)
+    from servotune.identify.modes import fit_modes  # here: only --modes needs it
+
+    if result.inverted_encoder:  # the position the time-domain fit saw: the negated one
+        measured = dataclasses.replace(measured, response=-measured.response)
+    fitted = fit_modes(measured, n_modes=modes, rigid=result.plant, compute_s=result.compute_s)
+    return dataclasses.replace(result, mode_fit=fitted)
 
 
 def read_fit_log(
@@ -262,6 +371,7 @@ def _fit_hal_log(
     strict: bool,
     fit_options: dict,
     progress: Callable[[str], None] | None = None,
+    modes: int | str | None = None,
 ) -> tuple[FitResult, Log, str]:
     """:func:`fit_log` of a HAL capture or a mapped CSV log."""
     src = str(log_path)
@@ -291,8 +401,9 @@ def _fit_hal_log(
             f"{noun} {src!r} does not name its axis: give the axis's name (--axis NAME), "
             "under which its model is written"
         )
+    measured = measure_for_modes(log, None, modes)
     try:
         result = fit(log, axis=None, compute_s=compute_s, **fit_options)
     except IdentificationError as exc:  # the data do not allow it: name the capture
         raise IdentificationError(f"{noun} {src!r}: {exc}") from None
-    return result, log, axis or ""
+    return fit_log_modes(result, log, None, modes, measured=measured), log, axis or ""

@@ -8,11 +8,14 @@ from typing import TYPE_CHECKING, Any
 
 from servotune._version import __version__
 from servotune.identify.model import ALL_PARAMS, PARAMS, UNITS
-from servotune.plant import Plant, discretize
+from servotune.modal import discretize
+from servotune.plant import Plant
 from servotune.rig import PlantFit
 
 if TYPE_CHECKING:
     import control
+
+    from servotune.identify.modes import ModeFit
 
 __all__ = ["ClosedLoopBiasWarning", "FitResult", "InadequateModelWarning", "PoorFitWarning"]
 
@@ -88,6 +91,10 @@ class FitResult:
         Parameters fitted on the first and on the second half (empty without CV).
     inverted_encoder : bool
         The position was negated before fitting (``--invert-encoder``).
+    mode_fit : ModeFit or None
+        The lightly damped modes fitted to the log's frequency response (``fit --modes``,
+        :func:`servotune.identify.logfit.fit_log_modes`), with the rigid part that frequency-domain
+        fit found beside them; None: not asked for (the rigid model alone).
     """
 
     structure: tuple[str, ...]
@@ -113,6 +120,7 @@ class FitResult:
     n_samples: int = 0
     cv_params: tuple[dict[str, float], ...] = ()
     inverted_encoder: bool = False
+    mode_fit: ModeFit | None = None
 
     @property
     def units(self) -> dict[str, str]:
@@ -121,11 +129,14 @@ class FitResult:
 
     @property
     def plant(self) -> Plant:
-        """The fitted axis model as a :class:`~servotune.plant.Plant`."""
+        """The fitted axis model as a :class:`~servotune.plant.Plant`: the parameters fitted
+        to the log, and the modes of :attr:`mode_fit` (with their 95 % intervals) if any."""
         kw: dict[str, Any] = {k: float(self.params[k]) for k in PARAMS}
         for k in ALL_PARAMS[len(PARAMS) :]:
             if k in self.params:
                 kw[k] = float(self.params[k])
+        if self.mode_fit is not None:
+            kw["modes"] = self.mode_fit.modes
         return Plant(**kw)
 
     @property
@@ -166,6 +177,7 @@ class FitResult:
             f"{when}): {self.method}, {'+'.join(self.structure)}, cross-validated velocity fit "
             + ("n/a" if vel is None else f"{vel:.1f} %")
             + f", adequate: {'yes' if self.adequate else 'no (' + self.reason + ')'}"
+            + ("" if self.mode_fit is None else f"; {_modes_said(self.mode_fit)}")
         )
 
     def summary(self) -> str:
@@ -207,6 +219,12 @@ class FitResult:
             f"delay counted beyond compute_s = {self.compute_s * 1e3:g} ms"
             + (", encoder inverted" if self.inverted_encoder else "")
         )
+        if self.mode_fit is not None:
+            lines.append(
+                f"modes, fitted to the log's frequency response ({self.mode_fit.lines} lines); "
+                "its rigid part beside the time-domain one above:"
+            )
+            lines += ["  " + line for line in self.mode_fit.summary().splitlines()]
         return "\n".join(lines)
 
     def to_dict(self) -> dict[str, Any]:
@@ -214,6 +232,10 @@ class FitResult:
         d: dict[str, Any] = {}
         for f in fields(self):
             v = getattr(self, f.name)
+            if f.name == "mode_fit":  # only when asked for (fit --modes): the same JSON without
+                if v is not None:
+                    d[f.name] = v.to_dict()
+                continue
             if f.name == "ci95":
                 v = {k: [float(a), float(b)] for k, (a, b) in v.items()}
             elif isinstance(v, tuple):
@@ -231,6 +253,11 @@ class FitResult:
             for p in self.params
         }
         return _finite(d)
+
+
+def _modes_said(mode_fit: ModeFit) -> str:
+    n = len(mode_fit.modes)
+    return f"{n} mode{'' if n == 1 else 's'} ({mode_fit.order_rule}) from its frequency response"
 
 
 def _pct(v: float | None) -> str:

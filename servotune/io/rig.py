@@ -193,6 +193,43 @@ def _fit_table(fit: Mapping[str, Any]) -> tuple[Any, dict[str, Any]]:
     return table, back
 
 
+_MODE_KEYS = ("freq_hz", "damping", "gain")
+# A mode's entries in the order written; each value's 95 % interval, where the mode has one,
+# follows as ``<key>_95 = [low, high]``.
+
+
+def _modes_item(modes: Any, inline: bool) -> tuple[Any, list[dict[str, Any]]]:
+    """The ``modes`` of a plant table: an array of tables (``[[axis.<name>.plant.modes]]``, or an
+    array of inline tables in an inline plant table), each value rounded like the plant's
+    (:func:`_toml_float`); and the modes as they read back (a dict per mode: the values and the
+    intervals written, an interval as a ``(low, high)`` tuple)."""
+    back: list[dict[str, Any]] = []
+    tables = []
+    for mode in modes:
+        table = tomlkit.inline_table() if inline else tomlkit.table()
+        entry: dict[str, Any] = {}
+        for key in _MODE_KEYS:
+            table[key] = tomlkit.value(_toml_float(getattr(mode, key)))
+            entry[key] = float(table[key])
+        for key in _MODE_KEYS:
+            pair = getattr(mode, f"{key}_95", None)
+            if pair is not None:
+                lo, hi = (_toml_float(x) for x in pair)
+                table[f"{key}_95"] = tomlkit.array(f"[{lo}, {hi}]")
+                entry[f"{key}_95"] = (float(lo), float(hi))
+        tables.append(table)
+        back.append(entry)
+    if inline:
+        array = tomlkit.array()
+        array.extend(tables)
+        return array, back
+    aot = tomlkit.aot()
+    for table in tables:
+        aot.append(table)
+    tables[-1].add(tomlkit.nl())  # a blank line before whatever table follows, as the file had
+    return aot, back
+
+
 def _plant_section(
     text: str,
     source: Path,
@@ -244,9 +281,18 @@ def _plant_section(
                     _blank(comment)
 
     # the fit record (docs/decisions.md#6-the-fit-record) describes these values: written with them,
-    # or removed (a record left from an earlier fit would describe other numbers)
+    # or removed (a record left from an earlier fit would describe other numbers); so do the
+    # modes (docs/formats.md#modes): the plant's, or none
     if "fit" in table:
         del table["fit"]
+    old_modes = table.get("modes")
+    if old_modes is not None:
+        del table["modes"]
+    if plant.modes:
+        inline = isinstance(table, tomlkit.items.InlineTable)
+        table["modes"], written["modes"] = _modes_item(plant.modes, inline)
+    elif isinstance(old_modes, tomlkit.items.AoT) and not table.as_string().endswith("\n\n"):
+        table.add(tomlkit.nl())  # the blank line before the next table, which the modes held
     if fit is not None:
         table["fit"], written["fit"] = _fit_table(fit)
     if provenance is not None:
@@ -373,7 +419,9 @@ def edit_plant_text(
         The new text of the file.
     written : dict of str to float
         Each entry written, as the number it reads back as; ``"fit"``: the fit record as it
-        reads back (:meth:`servotune.rig.PlantFit.to_dict`), when one was written.
+        reads back (:meth:`servotune.rig.PlantFit.to_dict`), when one was written; ``"modes"``:
+        the modes as they read back (per mode a dict of its values and the intervals it has),
+        when the plant has modes.
 
     Raises
     ------

@@ -14,7 +14,7 @@ from servotune._control import scipy_paths
 from servotune.analysis.margins import MarginLimits, Margins
 from servotune.laws.axis import MODE_TASK
 from servotune.laws.fuzzy_pid import FuzzyPIDConstants
-from servotune.plant import discretize
+from servotune.modal import discretize
 from servotune.plot import MoveEnvelope, plot_bode, plot_query_tables, plot_tracking
 from servotune.report.page import (
     escape_html,
@@ -40,7 +40,7 @@ def loop_response(rig: Rig, tuning: Tuning, axis: str, omega_rad_s: np.ndarray) 
 
     ``L(z) = C(z) · lsb_v · P(z)``, ``C(z) = Kp + Ki·T·z/(z−1) (+ Kd/T·(1 − z⁻¹))`` from the
     tuning's quantised constants, ``P`` the axis model discretised with ZOH and the lag
-    ``compute_s + delay_s`` (:func:`servotune.plant.discretize`).
+    ``compute_s + delay_s`` (:func:`servotune.modal.discretize`).
 
     Returns
     -------

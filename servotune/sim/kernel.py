@@ -16,6 +16,7 @@ from servotune._numba_cache import jit
 from servotune.laws.axis import MODE_LOCK, MODE_TASK, N_STATE, S_MODE
 from servotune.laws.pi import pi_ideal_step
 from servotune.plant import R_NOISE, R_OFFSET
+from servotune.resonance import MAX_MODES
 from servotune.sim.tick import (
     accumulate,
     advance_axis,
@@ -23,6 +24,7 @@ from servotune.sim.tick import (
     finish,
     hold,
     read_axis,
+    sensed,
     write_axis,
 )
 
@@ -79,6 +81,7 @@ def _run_group(
     hist = np.zeros((n_l, ring))
     pos = np.zeros(n_l)
     spd = np.zeros(n_l)
+    qs = np.zeros((n_l, 2 * MAX_MODES))  # the modes' states (a rigid plant: unused)
     y = np.zeros(n_l, dtype=np.int64)
     yf = np.zeros(n_l)
     integ_f = np.zeros(n_l)
@@ -106,15 +109,16 @@ def _run_group(
             a = lane_ax[ln]
             g_l = lane_g[ln]
             rng[g_l], nz = draw_noise(rng[g_l], pfb[ln, R_NOISE])
+            p_s, v_s = sensed(pos[ln], spd[ln], qs[ln], pfb[ln])
             if ideal:
-                yf[ln] = pos[ln] + nz
+                yf[ln] = p_s + nz
                 continue
             raw, y[ln] = read_axis(
                 st,
                 cb,
                 ln,
-                pos[ln],
-                spd[ln],
+                p_s,
+                v_s,
                 nz,
                 pib[ln, _I_INIT],
                 mask,
@@ -165,15 +169,14 @@ def _run_group(
                 out_i[4, b, k, a] = cur_mode
                 out_i[5, b, k, a] = flags
                 out_f[0, b, k, a] = volts
-                out_f[1, b, k, a] = pos[ln]
-                out_f[2, b, k, a] = spd[ln]
+                out_f[1, b, k, a], out_f[2, b, k, a] = sensed(pos[ln], spd[ln], qs[ln], pfb[ln])
             accumulate(mt, ln, k, e, flags, cur_mode, m_from, period)
         # 5-6. hold the writes and move the plants to the next tick
         for ln in range(n_l):
             a = lane_ax[ln]
             w_off = pfb[ln, R_OFFSET] + load[k, a]
             pos[ln], spd[ln] = advance_axis(
-                pos[ln], spd[ln], hist[ln], slot, pib[ln, _I_LAG], k, w_off, pfb[ln]
+                pos[ln], spd[ln], qs[ln], hist[ln], slot, pib[ln, _I_LAG], k, w_off, pfb[ln]
             )
     for ln in range(n_l):
         finish(mt, ln, metrics, b0 + lane_g[ln], lane_ax[ln])

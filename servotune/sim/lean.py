@@ -15,11 +15,14 @@ from numba.extending import intrinsic
 
 from servotune._numba_cache import jit
 from servotune.laws.axis import MODE_TASK, N_STATE, S_MODE, axis_control, axis_read
-from servotune.plant import NROW, R_NOISE, R_OFFSET, advance_tick
+from servotune.plant import NROW, R_NOISE, R_OFFSET, advance_tick_modal
+from servotune.resonance import MAX_MODES
 from servotune.sim.kernel import _I_INIT, _I_LAG
-from servotune.sim.tick import N_METRICS, accumulate, draw_noise, finish, latch
+from servotune.sim.tick import N_METRICS, accumulate, draw_noise, finish, latch, sensed
 
 __all__ = ["CONSTS_CAPACITY"]
+
+_NQ = 2 * MAX_MODES  # a plant's modes' state (servotune.resonance)
 
 CONSTS_CAPACITY = 4096
 """Largest constants vector (int64 words: the law's constants and its tables) the lean kernel
@@ -127,12 +130,14 @@ def _run_lean(
     rng = seeds[b]
     pos = 0.0
     spd = 0.0
+    q = nb.carray(frame_buffer(_NQ, np.float64), _NQ)  # a resonant plant's modes
     v1 = 0.0  # volts written one tick ago
     v2 = 0.0  # and two ticks ago
     for k in range(nt):
         i = np.uint64(k)  # an unsigned index: no negative-index wraparound code per access
         rng, nz = draw_noise(rng, noise)
-        raw = latch(pos, spd, nz, init, mask, latched, nbytes, skew)
+        p_s, v_s = sensed(pos, spd, q, row)
+        raw = latch(p_s, v_s, nz, init, mask, latched, nbytes, skew)
         rs = reset[i]
         md = mode[i]
         ua = u_add[i]
@@ -156,7 +161,7 @@ def _run_lean(
         v2 = v1
         v1 = volts
         w_off = offset + load[i]
-        pos, spd = advance_tick(pos, spd, v_old + w_off, v_new + w_off, row)
+        pos, spd = advance_tick_modal(pos, spd, q, v_old + w_off, v_new + w_off, row)
     finish(mt, 0, metrics, b, 0)
 
 

@@ -31,8 +31,9 @@ from numba.core import types
 from numba.extending import intrinsic
 
 from servotune._numba_cache import call_compiled, jit
+from servotune.errors import SimulationError
 from servotune.laws.axis import FAULT_MASK, FLAG_SATURATED, MODE_TASK, N_STATE, axis_read
-from servotune.plant import NROW, R_NOISE, R_OFFSET, advance_tick_inlined
+from servotune.plant import NROW, R_MODES, R_NOISE, R_OFFSET, advance_tick_inlined
 from servotune.sim.kernel import _I_INIT, _I_LAG
 from servotune.sim.lean import CONSTS_CAPACITY, frame_buffer
 from servotune.sim.tick import draw_noise, draw_uniforms, latch, write_axis
@@ -653,6 +654,8 @@ def run_sync_figures(
     fast : ndarray, shape (n, N_FAST)
         :data:`N_FAST`.
     """
+    if pf.size and np.any(pf[..., R_MODES] != 0.0):
+        raise SimulationError("the lean two-axis kernel runs rigid plants; these have modes")
     n = pf.shape[0]
     master = int(np.flatnonzero(ref_source < 0)[0])
     follower = 1 - master

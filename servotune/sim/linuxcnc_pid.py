@@ -32,7 +32,8 @@ import numpy as np
 from servotune.errors import SimulationError
 from servotune.hw.dac import code_from_volts
 from servotune.laws.linuxcnc_pid import PidParameters, PidState, pid_step, thread_period_ns
-from servotune.plant import R_OFFSET, Plant, advance_tick, plant_row
+from servotune.plant import R_MODES, R_OFFSET, Plant, advance_tick_modal, plant_row
+from servotune.resonance import MAX_MODES, modes_output
 from servotune.rig import Dac
 from servotune.validate import check_number
 
@@ -174,18 +175,20 @@ def simulate_pid_loop(
     y_out = np.zeros(n)
     v_out = np.zeros(n)
     pos = spd = 0.0
+    q = np.zeros(2 * MAX_MODES)  # a resonant plant's modes (docs/frf.md)
     state = PidState()
     slot = ring - 1
     commands = cmd.tolist()
     for k in range(n):
-        c = _s32(counter_init + math.floor(pos + 0.0))  # 1. the encoder latches
+        y_pos = modes_output(pos, q, row, R_MODES)
+        c = _s32(counter_init + math.floor(y_pos + 0.0))  # 1. the encoder latches
         fb = float(c) * fb_gain + 0.0  # 2. conv_s32_float, scale (in * gain + offset)
         out, err, state = pid_step(params, state, commands[k], fb, period_ns)  # 3. pid
         volts = out * out_gain + 0.0  # 4. scale to the D/A
         if dac is not None:
             code = int(code_from_volts(volts, dac.bits, dac.range_v))
             volts = dac.range_v[0] + code * dac.lsb_v
-        counts[k], pos_out[k], fb_out[k] = c, pos, fb
+        counts[k], pos_out[k], fb_out[k] = c, y_pos, fb
         err_out[k], y_out[k], v_out[k] = err, out, volts
         slot = 0 if slot + 1 == ring else slot + 1  # 5. hold the write, move to the next tick
         hist[slot] = volts
@@ -193,7 +196,7 @@ def simulate_pid_loop(
         v_new = hist[j_new] if k >= lag else 0.0
         j_old = j_new - 1 if j_new >= 1 else ring - 1
         v_old = hist[j_old] if k >= lag + 1 else 0.0
-        pos, spd = advance_tick(pos, spd, v_old + w_off, v_new + w_off, row)
+        pos, spd = advance_tick_modal(pos, spd, q, v_old + w_off, v_new + w_off, row)
     return PidLoopResult(
         period_s=float(period_s),
         period_ns=int(period_ns),

@@ -11,8 +11,9 @@ One tick of one axis (docs/runtime.md#one-tick) is
 4. **hold**: the write is kept in a tick-slot ring and reaches the motor ``m·T + λ`` later
    (:func:`hold`, :func:`held`);
 5. **advance**: the motor moves exactly over the tick, the older write for ``λ``, the newer
-   after (:func:`advance_axis`, which calls :func:`servotune.plant.advance_tick` on the plant's
-   row, :func:`servotune.plant.plant_row`).
+   after (:func:`advance_axis`, which calls :func:`servotune.plant.advance_tick_modal` on the
+   plant's row, :func:`servotune.plant.plant_row`), a resonant plant's modes with it; the
+   counter sees the measured position (:func:`sensed`: the rigid position plus the modes').
 
 The single-rig engine (:mod:`servotune.sim.engine`), the gantry (:mod:`servotune.arch.gantry`) and
 the linkage (:mod:`servotune.arch.linkage`) call these in this order; each adds only its own
@@ -34,7 +35,8 @@ import numpy as np
 
 from servotune._numba_cache import jit
 from servotune.laws.axis import FLAG_SATURATED, MODE_TASK, axis_control, axis_read
-from servotune.plant import advance_tick
+from servotune.plant import R_MODES, advance_tick_modal
+from servotune.resonance import modes_output, modes_speed
 
 __all__ = [
     "METRIC_NAMES",
@@ -50,6 +52,7 @@ __all__ = [
     "mix64",
     "normal",
     "read_axis",
+    "sensed",
     "splitmix",
     "write_axis",
 ]
@@ -188,11 +191,19 @@ def held(ring: np.ndarray, slot: int, m: int, k: int) -> tuple[float, float]:
 
 
 @jit(inline="always")
-def advance_axis(p, v, ring, slot, m, k, w_off, row):
+def advance_axis(p, v, q, ring, slot, m, k, w_off, row):
     """Step 5: move the motor over tick ``k`` through the held writes plus ``w_off`` [V]
-    (offset and load), exactly (:func:`servotune.plant.advance_tick`)."""
+    (offset and load), exactly, and its modes' state ``q`` with it
+    (:func:`servotune.plant.advance_tick_modal`)."""
     v_old, v_new = held(ring, slot, m, k)
-    return advance_tick(p, v, v_old + w_off, v_new + w_off, row)
+    return advance_tick_modal(p, v, q, v_old + w_off, v_new + w_off, row)
+
+
+@jit(inline="always")
+def sensed(p, v, q, row):
+    """The position [counts] and speed [counts/s] the encoder sees: the rigid ``p``, ``v`` plus
+    the modes' (:func:`servotune.resonance.modes_output`); ``p``, ``v`` of a rigid plant."""
+    return modes_output(p, q, row, R_MODES), modes_speed(v, q, row, R_MODES)
 
 
 # --- metrics ----------------------------------------------------------------------------------

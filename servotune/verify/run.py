@@ -41,6 +41,7 @@ from servotune.plant import (
     Plant,
     fill_plant_rows,
     plant_row,
+    put_modes,
 )
 from servotune.rig import Rig
 from servotune.scenarios import Inputs, build_scenario, sync_move_for
@@ -369,6 +370,10 @@ class _ChunkPlants:
                 fill_plant_rows(flat, float(rig.period_s), float(rig.timer.compute_s), pf, lags)
                 pf = pf.reshape(n, n_ax, NROW)
                 lags = lags.reshape(n, n_ax)
+                for a, axis in enumerate(rig.axes):  # the modes are the nominal plant's
+                    if axis.plant.modes:
+                        for b in range(n):
+                            put_modes(pf[b, a], axis.plant.modes)
             else:
                 sets = self.plants()
                 n, n_ax = len(sets), len(rig.axes)
@@ -399,6 +404,8 @@ def _lean_sync_ok(shared: _Shared, sc: ScenarioSpec, pi: np.ndarray) -> bool:
     i_m = roles.index("master")
     src = tuple(loop.ref_source)
     if src[i_m] != -1 or src[1 - i_m] != i_m:
+        return False
+    if any(a.plant.modes for a in rig.axes):  # the lean two-axis kernel runs rigid plants
         return False
     consts = _loop_consts(shared)
     return 2 * consts.shape[1] <= CONSTS_CAPACITY and bool((pi[:, :, 0] <= 1).all())

@@ -17,6 +17,13 @@ initialises ``st_consts_t`` from ``SERVOTUNE_TABLES_INIT`` and drives ``st_tick`
   (``axis_read``/``axis_control``) and the C runtime.
 - The golden run and the replays once more under ``-fsanitize=undefined
   -fno-sanitize-recover``: any undefined behaviour aborts the harness.
+- The plant's C mirror (``servotune_plant.h``, the HAL plant component's) against the
+  simulator's compiled plant step (:func:`servotune.plant.advance_tick_modal`) for 120,000
+  ticks from the same inputs: a linear plant with two modes (docs/frf.md) and a fractional
+  delay, the same with Coulomb friction, asymmetric gain and a speed limit under an input that
+  reverses often (speed zero crossings inside a piece, sticking), and that plant without modes
+  (also through ``st_plant_advance_tick``); position, speed, every mode state and the measured
+  position and speed equal as float64 bits every tick.
 """
 
 from __future__ import annotations
@@ -30,7 +37,9 @@ import numpy as np
 import pytest
 from c_build import STRICT, cc, export_harness, needs_cc, run_replay, shared_harness, ubsan_harness
 
+from servotune._numba_cache import jit
 from servotune.export import constants_crc32, tables_document
+from servotune.export.c import PLANT_RUNTIME_FILES, runtime_source
 from servotune.fixed import Fixed, align, clamp_e, sat_add, shift_round
 from servotune.hw.counter import unwrap_step
 from servotune.laws.axis import (
@@ -48,7 +57,19 @@ from servotune.laws.axis import (
 )
 from servotune.laws.fuzzy_pid import FuzzyPIDConstants
 from servotune.laws.pi import PIConstants
-from servotune.plant import R_OFFSET, Plant, advance_tick, plant_row
+from servotune.plant import (
+    R_GAIN,
+    R_H1,
+    R_LINEAR,
+    R_MODES,
+    R_OFFSET,
+    R_VMAX,
+    Plant,
+    advance_tick,
+    advance_tick_modal,
+    plant_row,
+)
+from servotune.resonance import MAX_MODES, Mode, modes_output, modes_speed
 from servotune.rig import (
     EXAMPLE_RIG_PATH,
     Axis,
@@ -706,3 +727,170 @@ def test_golden_run_under_the_undefined_behaviour_sanitizer(
     assert np.array_equal(out[:, :, 0], trace.code)
     assert np.array_equal(out[:, :, 1], trace.flags)
     assert np.array_equal(out[:, :, 3], trace.pos_counts)
+
+
+# --- the plant's C mirror (servotune_plant.h) against the simulator's plant step ---------------
+
+PLANT_HARNESS = r"""
+/* n ticks of one plant from rest: tick k moves it with w_old = w[2k], w_new = w[2k + 1];
+ * out[12k ...] = p, v, q[0..7], the measured position and speed at the tick's end */
+#include <stdint.h>
+
+#include "servotune_plant.h"
+
+void h_plant_run(int64_t n, const double *row, const double *w, double *out)
+{
+    double p = 0.0;
+    double v = 0.0;
+    double q[2 * ST_MAX_MODES] = {0.0};
+    int64_t k;
+    int j;
+    for (k = 0; k < n; k++) {
+        double *o = out + 12 * k;
+        st_plant_advance_tick_modal(&p, &v, q, w[2 * k], w[2 * k + 1], row);
+        o[0] = p;
+        o[1] = v;
+        for (j = 0; j < 2 * ST_MAX_MODES; j++) {
+            o[2 + j] = q[j];
+        }
+        o[10] = st_modes_output(p, q, row, ST_R_MODES);
+        o[11] = st_modes_speed(v, q, row, ST_R_MODES);
+    }
+}
+
+/* the same ticks through st_plant_advance_tick (no mode state): out[2k ...] = p, v */
+void h_plant_run_rigid(int64_t n, const double *row, const double *w, double *out)
+{
+    double p = 0.0;
+    double v = 0.0;
+    int64_t k;
+    for (k = 0; k < n; k++) {
+        st_plant_advance_tick(&p, &v, w[2 * k], w[2 * k + 1], row);
+        out[2 * k] = p;
+        out[2 * k + 1] = v;
+    }
+}
+"""
+
+
+@jit
+def _plant_run_reference(row: np.ndarray, w: np.ndarray, out: np.ndarray) -> None:
+    """:func:`servotune.plant.advance_tick_modal` over the ticks of ``h_plant_run`` (the same
+    outputs), compiled as the simulator compiles it."""
+    p = 0.0
+    v = 0.0
+    q = np.zeros(2 * MAX_MODES)
+    for k in range(w.shape[0]):
+        p, v = advance_tick_modal(p, v, q, w[k, 0], w[k, 1], row)
+        out[k, 0] = p
+        out[k, 1] = v
+        for j in range(2 * MAX_MODES):
+            out[k, 2 + j] = q[j]
+        out[k, 10] = modes_output(p, q, row, R_MODES)
+        out[k, 11] = modes_speed(v, q, row, R_MODES)
+
+
+@pytest.fixture(scope="module")
+def plant_lib(tmp_path_factory) -> ctypes.CDLL:
+    """The plant header and its harness, built strictly at -O2 without FMA contraction."""
+    d = tmp_path_factory.mktemp("c_plant")
+    header = PLANT_RUNTIME_FILES[0]
+    (d / header).write_text(runtime_source(header))
+    (d / "plant_harness.c").write_text(PLANT_HARNESS)
+    flags = (*STRICT, "-O2", "-ffp-contract=off", "-shared", "-fPIC")
+    cc(d, *flags, "plant_harness.c", "-o", "libplant.so", "-lm")
+    lib = ctypes.CDLL(str(d / "libplant.so"))
+    for name in ("h_plant_run", "h_plant_run_rigid"):
+        fn = getattr(lib, name)
+        fn.restype = None
+        fn.argtypes = [ctypes.c_int64] + [ctypes.c_void_p] * 3
+    return lib
+
+
+# a belt-driven axis's two modes: tests/plant/test_resonant_engine.py's MODES (a 35 Hz mode,
+# a lighter 80 Hz one with its anti-resonance below it), the first one's gain raised to 0.6
+PLANT_MODES = (
+    Mode(freq_hz=35.0, damping=0.03, gain=0.6),
+    Mode(freq_hz=80.0, damping=0.05, gain=-0.3),
+)
+PLANT_PERIOD_S = 0.004
+PLANT_COUNTS_PER_REV = 4000.0
+LINEAR_PLANT = Plant(gain_cps_per_v=12288.0, tau_s=0.025, delay_s=0.0015, modes=PLANT_MODES)
+FRICTION_PLANT = dataclasses.replace(
+    LINEAR_PLANT,
+    coulomb_v=0.3,
+    coulomb_neg_v=0.5,
+    gain_neg_cps_per_v=0.8 * 12288.0,
+    max_speed_rpm=1500.0,  # 100,000 counts/s: reached from 8.1 V up (10.2 V down)
+)
+
+
+def _plant_inputs(n: int, seed: int) -> np.ndarray:
+    """The net inputs of ``n`` ticks, (n, 2) = w_old, w_new: levels held 1–12 ticks, a third of
+    them inside or near the Coulomb band (the motor sticks or creeps), the rest up to ±14 V
+    (past the speed limit), reversing often; w_old is the previous tick's w_new (lag 0 + λ)."""
+    rng = np.random.default_rng(seed)
+    levels, k = [], 0
+    while k < n:
+        hold = int(rng.integers(1, 13))
+        big = rng.random() < 0.67
+        level = rng.uniform(-14.0, 14.0) if big else rng.uniform(-0.8, 0.8)
+        levels.append(np.full(hold, level))
+        k += hold
+    w_new = np.concatenate(levels)[:n]
+    w_old = np.concatenate([[0.0], w_new[:-1]])
+    return np.ascontiguousarray(np.stack([w_old, w_new], axis=1))
+
+
+def _c_plant_run(lib: ctypes.CDLL, row: np.ndarray, w: np.ndarray) -> np.ndarray:
+    out = np.zeros((w.shape[0], 12))
+    lib.h_plant_run(w.shape[0], row.ctypes.data, w.ctypes.data, out.ctypes.data)
+    return out
+
+
+@pytest.mark.parametrize(
+    ("plant", "what"),
+    [
+        pytest.param(LINEAR_PLANT, "linear", id="linear-two-modes"),
+        pytest.param(FRICTION_PLANT, "friction", id="friction-asymmetric-limited-two-modes"),
+        pytest.param(
+            dataclasses.replace(FRICTION_PLANT, modes=()), "friction", id="friction-rigid"
+        ),
+    ],
+)
+def test_the_c_plant_moves_modes_bit_for_bit_with_the_simulators_step(
+    plant_lib: ctypes.CDLL, plant: Plant, what: str
+) -> None:
+    n = 120_000
+    row, lag = plant_row(plant, PLANT_PERIOD_S, 0.0, PLANT_COUNTS_PER_REV)
+    row = np.ascontiguousarray(row)
+    assert lag == 0 and 0.0 < row[R_H1] < PLANT_PERIOD_S  # the delay is a fraction of a tick
+    w = _plant_inputs(n, seed=5)
+    ref = np.zeros((n, 12))
+    _plant_run_reference(row, w, ref)
+    got = _c_plant_run(plant_lib, row, w)
+    # every number of every tick, as float64 bits
+    names = ("p", "v", *(f"q[{j}]" for j in range(2 * MAX_MODES)), "position", "speed")
+    for j, name in enumerate(names):
+        bad = np.flatnonzero(got[:, j].view(np.int64) != ref[:, j].view(np.int64))
+        assert bad.size == 0, f"{name} differs first at tick {bad[0]}"
+    if not plant.modes:  # the rigid step is today's st_plant_advance_tick, bit for bit
+        rigid = np.zeros((n, 2))
+        plant_lib.h_plant_run_rigid(n, row.ctypes.data, w.ctypes.data, rigid.ctypes.data)
+        assert np.array_equal(rigid.view(np.int64), got[:, :2].view(np.int64))
+        assert np.array_equal(got[:, 10].view(np.int64), got[:, 0].view(np.int64))
+        assert not np.any(got[:, 2:10])
+    # what the inputs exercised (counted on the reference): the modes rang, the speed reversed
+    # (zero crossings inside a piece: the coefficients computed on the fly), stuck, and met the
+    # speed limit; the linear plant stayed in its one-tick map
+    v = ref[:, 1]
+    reversals = int(np.sum(np.sign(v[1:]) * np.sign(v[:-1]) < 0))
+    vmax = row[R_VMAX]
+    if plant.modes:
+        assert np.abs(ref[:, 10] - ref[:, 0]).max() > 1.0
+    if what == "linear":  # no speed limit: the linear plant's one-tick map every tick
+        assert row[R_LINEAR] == 1.0 and vmax == math.inf and reversals >= 1000
+    else:
+        assert reversals >= 1000 and int(np.sum(v == 0.0)) >= 1000
+        assert np.abs(v).max() > 0.99 * vmax
+        assert np.any(np.abs(w[:, 1]) * row[R_GAIN] > vmax)

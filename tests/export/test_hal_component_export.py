@@ -1,23 +1,34 @@
 """`servotune export-table --format linuxcnc-comp`: the HAL component of a verified tuning.
 
-What real HAL does with the component is in tests/hal/test_component.py; here: the export's
-gate (verified tunings only, the rig's copy), its provenance, its bytes, and its errors.
+What real HAL does with the runtime component is in tests/hal/test_component.py; here: the
+export's gate (verified tunings only, the rig's copy), its provenance, its bytes, and its
+errors; and the plant component (:func:`servotune.export.hal_component.plant_component`) of a
+resonant plant (docs/frf.md): its row, and a real-HAL run (``halrun``, skipped where LinuxCNC
+is not installed, failed under CI: tests/hal/halrun.py) of three plant components fed from
+``halstreamer`` against the simulator's plant step, every tick bit for bit.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import re
+import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from servotune.cli import main
 from servotune.export.hal_component import component_source, plant_component
-from servotune.plant import plant_row
+from servotune.plant import R_MODES, R_OFFSET, Plant, advance_tick_modal, plant_row
+from servotune.resonance import MAX_MODES, Mode, modes_output, modes_speed
 from servotune.rig import EXAMPLE_RIG_PATH, load_rig
 from servotune.tuning import write_tuning
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "hal"))  # the shared HAL harness
+import halrun
 
 
 @pytest.fixture(scope="module")
@@ -116,12 +127,184 @@ def test_component_source_without_a_rig_uses_the_default_dac(quick_tuning) -> No
 
 
 def test_the_c_plant_row_layout_is_the_simulators() -> None:
-    # servotune_plant.h indexes the row with ST_R_*: each must be plant.R_* (and ST_NROW NROW)
+    # servotune_plant.h indexes the row with ST_R_*: each must be plant.R_* (and ST_NROW NROW),
+    # and a mode's block with ST_MODE_*: each must be resonance's layout (module docstring)
     import servotune.plant as plant
+    import servotune.resonance as resonance
     from servotune.export.c import runtime_source
     from servotune.export.hal_component import PLANT_HEADER
 
-    defines = dict(re.findall(r"#define ST_(R_\w+|NROW) (\d+)", runtime_source(PLANT_HEADER)))
+    header = runtime_source(PLANT_HEADER)
+    defines = dict(re.findall(r"#define ST_(R_\w+|NROW) (\d+)", header))
     expected = {n: getattr(plant, n) for n in dir(plant) if n.startswith("R_")}
     expected["NROW"] = plant.NROW
     assert {k: int(v) for k, v in defines.items()} == expected
+    assert expected["NROW"] == 107
+    modes = dict(re.findall(r"#define ST_(MODES?_\w+|MAX_MODES) (\d+)", header))
+    offsets = ("OMEGA2", "TWO_SIGMA", "GAIN", "SIGMA", "OMEGA_D", "PIECES")
+    want = {f"MODE_{n}": getattr(resonance, f"_{n}") for n in offsets}
+    want |= {n: getattr(resonance, n) for n in ("MAX_MODES", "MODES_HEADER", "MODE_WIDTH")}
+    assert {k: int(v) for k, v in modes.items()} == want
+
+
+# --- the plant component of a resonant plant --------------------------------------------------
+
+# a belt-driven axis's two modes: tests/plant/test_resonant_engine.py's MODES (a 35 Hz mode,
+# a lighter 80 Hz one with its anti-resonance below it), the first one's gain raised to 0.6
+MODES = (Mode(freq_hz=35.0, damping=0.03, gain=0.6), Mode(freq_hz=80.0, damping=0.05, gain=-0.3))
+PERIOD_S = 0.004  # the model's tick (the HAL thread runs faster: THREAD_PERIOD_NS)
+COUNTS_PER_REV = 4000.0
+LINEAR = Plant(gain_cps_per_v=12288.0, tau_s=0.025, delay_s=0.0015, modes=MODES)
+FRICTION = dataclasses.replace(
+    LINEAR,
+    offset_v=0.05,
+    coulomb_v=0.3,
+    coulomb_neg_v=0.5,
+    gain_neg_cps_per_v=0.8 * 12288.0,
+    max_speed_rpm=1500.0,  # 100,000 counts/s: reached from 8.1 V up (10.2 V down)
+)
+# HAL name suffix: plant, compute time [s] (the lag: 0 + λ, and 1 tick + λ), counter_init
+# (the friction plant's s32 count wraps)
+HAL_PLANTS = (
+    ("lin", LINEAR, 0.0, 0),
+    ("fri", FRICTION, 0.003, 2**31 - 3_000),
+    ("rig", dataclasses.replace(FRICTION, modes=()), 0.003, 2**31 - 3_000),
+)
+N_HAL = 12_000
+THREAD_PERIOD_NS = 250_000
+"""As tests/hal/test_component.py: the components ignore HAL's period, the FIFOs hold the run."""
+
+
+def test_the_plant_component_of_a_resonant_plant_holds_its_modes() -> None:
+    src = plant_component(LINEAR, PERIOD_S, name="p", counts_per_rev=COUNTS_PER_REV)
+    row, _ = plant_row(LINEAR, PERIOD_S, 0.0, COUNTS_PER_REV)
+    body = src[src.index("st_row[ST_NROW] = {") :].split("}", 1)[0]
+    literals = [x.strip() for x in body.split("{", 1)[1].split(",") if x.strip()]
+    assert len(literals) == 107 and row[R_MODES] == 2.0
+    assert [float.fromhex(x) if x != "INFINITY" else math.inf for x in literals] == row.tolist()
+    assert "2 modes (35.0 Hz, damping 0.03, gain 0.6; 80.0 Hz, damping 0.05, gain -0.3)" in src
+    assert "variable double st_q[8];" in src and "st_plant_advance_tick_modal(" in src
+    # a rigid plant's description line is as before: no modes named
+    rigid = plant_component(dataclasses.replace(LINEAR, modes=()), PERIOD_S, name="p")
+    line = next(ln for ln in rigid.splitlines() if ln.startswith("component p "))
+    assert line.endswith('tau 0.025 s, lag 0 ticks";'), line
+
+
+def _hal_inputs(n: int, seed: int) -> np.ndarray:
+    """(n, 3): volts of the linear plant, volts and load [V] of the friction plants. Levels
+    held 1–12 periods, reversing often; a third of the friction plants' inside or near the
+    Coulomb band (the motor sticks), the rest up to ±14 V (past the speed limit)."""
+    rng = np.random.default_rng(seed)
+    cols = []
+    for small in (0.0, 0.34):
+        levels, k = [], 0
+        while k < n:
+            hold = int(rng.integers(1, 13))
+            x = rng.uniform(-0.8, 0.8) if rng.random() < small else rng.uniform(-14.0, 14.0)
+            levels.append(np.full(hold, x))
+            k += hold
+        cols.append(np.concatenate(levels)[:n])
+    load = np.where(rng.random(n) < 0.05, rng.uniform(-2.0, 2.0, n), 0.0)
+    return np.stack([cols[0] * 0.5, cols[1], load], axis=1)
+
+
+def _reference(plant: Plant, compute_s: float, init: int, volts, load) -> list[list[str]]:
+    """What the component gives each period, as halsampler prints it (``%ld``, ``%f``): its
+    C mirrored in Python around the simulator's plant step
+    (:func:`servotune.plant.advance_tick_modal`), the HAL pins read each period in order."""
+    row, lag = plant_row(plant, PERIOD_S, compute_s, COUNTS_PER_REV)
+    ring = lag + 2
+    hist, slot = [0.0] * ring, lag + 1
+    p = v = load_prev = 0.0
+    q = np.zeros(2 * MAX_MODES)
+    out = []
+    for c in range(volts.size):
+        if c > 0:  # period c - 1's write is in (the streamer's row c): move one tick
+            t = c - 1
+            slot = 0 if slot + 1 == ring else slot + 1
+            hist[slot] = float(volts[c])
+            w_off = float(row[R_OFFSET]) + load_prev
+            j_new = slot - lag if slot >= lag else slot - lag + ring
+            v_new = hist[j_new] if t >= lag else 0.0
+            j_old = j_new - 1 if j_new >= 1 else ring - 1
+            v_old = hist[j_old] if t >= lag + 1 else 0.0
+            p, v = advance_tick_modal(p, v, q, v_old + w_off, v_new + w_off, row)
+        y = modes_output(p, q, row, R_MODES)
+        counts = (init + math.floor(y + 0.0) + 2**31) % 2**32 - 2**31  # s32
+        out.append([str(counts), f"{y:f}", f"{modes_speed(v, q, row, R_MODES):f}"])
+        load_prev = float(load[c])
+    return out
+
+
+def _hal_script(names: list[str]) -> str:
+    """The streamer (volts of each plant, the friction plants' load), the plants, the sampler
+    (counts, position, speed of each), in that order on one thread."""
+    hal = [n.replace("_", "-") for n in names]
+    lines = [
+        f"loadrt threads name1=servo period1={THREAD_PERIOD_NS}",
+        *(f"loadrt {n}" for n in names),
+        f"loadrt streamer depth={N_HAL + 16} cfg=fff",
+        f"loadrt sampler depth={N_HAL + 16} cfg={'sff' * len(names)}",
+        "addf streamer.0 servo",
+        *(f"addf {h} servo" for h in hal),
+        "addf sampler.0 servo",
+        f"net vlin streamer.0.pin.0 {hal[0]}.volts",
+        f"net vfri streamer.0.pin.1 {hal[1]}.volts {hal[2]}.volts",
+        f"net lfri streamer.0.pin.2 {hal[1]}.load {hal[2]}.load",
+    ]
+    for i, h in enumerate(hal):
+        for j, pin in enumerate(("counts", "position", "speed")):
+            lines.append(f"net c{i}{pin} {h}.{pin} sampler.0.pin.{3 * i + j}")
+    lines += [
+        "loadusr -w halstreamer stream.txt",  # the whole input is in before start
+        "start",
+        f"loadusr -w halsampler -n {N_HAL}",
+        "stop",
+        "getp sampler.0.overruns",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def test_hal_moves_resonant_plant_components_bit_for_bit_with_the_simulator(tmp_path) -> None:
+    halrun.hal_available()
+    names = [f"st_test_modal_{suffix}" for suffix, *_ in HAL_PLANTS]
+    sos = []
+    for name, (_, plant, compute_s, init) in zip(names, HAL_PLANTS, strict=True):
+        src = plant_component(
+            plant,
+            PERIOD_S,
+            compute_s,
+            name=name,
+            counter_init=init,
+            counts_per_rev=COUNTS_PER_REV,
+        )
+        (tmp_path / f"{name}.comp").write_text(src)
+        sos.append(halrun.halcompile(tmp_path / f"{name}.comp"))
+    ins = _hal_inputs(N_HAL, seed=8)
+    (tmp_path / "stream.txt").write_text(
+        "".join(" ".join(repr(float(x)) for x in r) + "\n" for r in ins.tolist())
+    )
+    with (
+        halrun.installed_component(sos[0]),
+        halrun.installed_component(sos[1]),
+        halrun.installed_component(sos[2]),
+    ):
+        res = halrun.run_hal(_hal_script(names), tmp_path, timeout=300.0)
+    rows = [ln.split() for ln in res.stdout.splitlines() if ln.strip()]
+    samples = [r for r in rows if len(r) == 9]
+    assert len(samples) == N_HAL, res.stdout[-400:]
+    assert [r for r in rows if len(r) == 1][-1] == ["0"], res.stdout[-400:]  # no overrun
+    got = np.array(samples)
+    for i, (suffix, plant, compute_s, init) in enumerate(HAL_PLANTS):
+        volts, load = (ins[:, 0], np.zeros(N_HAL)) if i == 0 else (ins[:, 1], ins[:, 2])
+        ref = np.array(_reference(plant, compute_s, init, volts, load))
+        # the count every period, and position and speed as halsampler prints them (%f)
+        for j, pin in enumerate(("counts", "position", "speed")):
+            bad = np.flatnonzero(got[:, 3 * i + j] != ref[:, j])
+            assert bad.size == 0, f"{suffix} {pin} differs first at period {bad[0]}"
+    # what the run exercised: the modes moved the count (the rigid twin's differs), the s32
+    # count wrapped, the friction plants stuck (the rigid twin's speed is the motor's: 0)
+    counts = got[:, [0, 3, 6]].astype(np.int64)
+    assert np.sum(counts[:, 1] != counts[:, 2]) > N_HAL // 2
+    assert np.any(np.abs(np.diff(counts[:, 1])) > 2**31)
+    assert np.sum(got[:, 8].astype(float) == 0.0) >= 100

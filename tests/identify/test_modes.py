@@ -24,8 +24,8 @@ from servotune.analysis.frf import Frf
 from servotune.errors import SpecError
 from servotune.excite import periodic_multisine
 from servotune.identify.modes import ModeFit, fit_modes
-from servotune.modal import Mode, modal_response
-from servotune.plant import Plant, discretize_lti
+from servotune.modal import Mode, discretize_lti, modal_response
+from servotune.plant import Plant
 
 K, TAU = 12288.0, 0.025  # the example rig's master: counts/s per V, s
 DELAY, COMPUTE = 0.0008, 0.0005  # s

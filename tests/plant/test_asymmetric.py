@@ -43,6 +43,7 @@ from servotune.arch.gantry.load import load_gantry
 from servotune.arch.gantry.synthesis import resolve_gains
 from servotune.arch.linkage import run_linkage
 from servotune.laws.axis import MODE_LOCK, MODE_OPEN, MODE_TASK
+from servotune.modal import discretize
 from servotune.plant import (
     R_COULOMB,
     R_COULOMB_NEG,
@@ -53,7 +54,6 @@ from servotune.plant import (
     advance,
     advance_span,
     advance_tick,
-    discretize,
     plant_row,
     step_coefficients,
 )

@@ -302,8 +302,10 @@ def _reference_row(
         1.0 if linear else 0.0,
         gain_neg,
         coulomb_neg,
+        0.0,  # no modes (servotune.resonance's layout: the count, 1/τ, then the modes)
+        1.0 / tau,
     ]
-    assert len(row) == NROW
+    row += [0.0] * (NROW - len(row))
     return row, m
 
 

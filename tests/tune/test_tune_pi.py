@@ -13,7 +13,8 @@ import servotune as st
 from servotune.errors import RigError, SpecError
 from servotune.laws.axis import FLAG_COUNTER_FAULT, FLAG_FOLLOWING_ERROR, MODE_TASK
 from servotune.laws.pi import PIGains
-from servotune.plant import Plant, discretize, discretize_lti
+from servotune.modal import discretize, discretize_lti
+from servotune.plant import Plant
 from servotune.tune.pi import PITuning, tune_pi, tune_pi_axis
 
 # MATLAB pidtune documentation example ("Design PI controller for a plant"): plant 1/(s+1)^3,

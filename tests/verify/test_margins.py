@@ -161,7 +161,7 @@ def test_plant_response_is_python_controls_own_route(rig) -> None:
 
     from servotune.analysis.margins import _grid
     from servotune.analysis.plant_cases import plant_cases, plant_response
-    from servotune.plant import discretize
+    from servotune.modal import discretize
 
     cases = plant_cases(
         rig, gain_spread=0.2, tau_spread=0.3, extra_ticks=1, period_error_ppm=100, samples=8

@@ -20,7 +20,7 @@ from servotune.arch.gantry.config import (
     case_config,
 )
 from servotune.laws.sync import SyncGains
-from servotune.plant import discretize
+from servotune.modal import discretize
 
 __all__ = [
     "LoadPrediction",

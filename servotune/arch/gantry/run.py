@@ -77,8 +77,17 @@ from servotune.plant import (
     plant_row,
     step_coefficients,
 )
+from servotune.resonance import MAX_MODES
 from servotune.scenarios import trapezoid_ref
-from servotune.sim.tick import advance_axis, draw_noise, held, hold, read_axis, write_axis
+from servotune.sim.tick import (
+    advance_axis,
+    draw_noise,
+    held,
+    hold,
+    read_axis,
+    sensed,
+    write_axis,
+)
 from servotune.validate import check_seed, show_value
 
 __all__ = [
@@ -149,13 +158,14 @@ def _segments(
 
 def _scratch(ring_n: int) -> tuple[np.ndarray, ...]:
     """The kernel's working arrays, zeroed: the drives' law states, their tick-slot rings
-    (``ring_n`` slots), positions and speeds, the held inputs of a coupled cycle, the cycles
-    each drive stops at (-1: running)."""
+    (``ring_n`` slots), positions and speeds, their modes' states, the held inputs of a
+    coupled cycle, the cycles each drive stops at (-1: running)."""
     return (
         np.zeros((2, N_STATE), dtype=np.int64),
         np.zeros((2, ring_n)),
         np.zeros(2),
         np.zeros(2),
+        np.zeros((2, 2 * MAX_MODES)),
         np.zeros(2),
         np.zeros(2),
         np.full(2, -1, dtype=np.int64),
@@ -203,6 +213,7 @@ def _gantry_kernel(
     ring,
     pos,
     spd,
+    q,
     w_old,
     w_new,
     stop_k,
@@ -245,8 +256,9 @@ def _gantry_kernel(
         # latched whole, and unwrap, both drives
         for a in range(2):
             rng, nz = draw_noise(rng, rows[a, R_NOISE])
-            pos_out[k, a] = pos[a]
-            p_s = pos[a] + spd[a] * jit_s[k, a]
+            p_m, v_m = sensed(pos[a], spd[a], q[a], rows[a])
+            pos_out[k, a] = p_m
+            p_s = p_m + v_m * jit_s[k, a]
             raw_out[k, a], y_out[k, a] = read_axis(
                 st, consts, a, p_s, 0.0, nz, counter_init[a], mask, True, nbytes, 0.0, rs
             )
@@ -317,7 +329,7 @@ def _gantry_kernel(
             for a in range(2):
                 w_off = rows[a, R_OFFSET] + load[k, a]
                 pos[a], spd[a] = advance_axis(
-                    pos[a], spd[a], ring[a], slot, lag_m[a], k, w_off, rows[a]
+                    pos[a], spd[a], q[a], ring[a], slot, lag_m[a], k, w_off, rows[a]
                 )
         else:
             for a in range(2):
@@ -343,6 +355,9 @@ def _gantry_kernel(
                         rows[a, R_VMAX],
                         rows[a, R_GAIN_NEG],
                         rows[a, R_COULOMB_NEG],
+                        q[a],
+                        rows[a],
+                        -1,
                     )
     return first_trip
 

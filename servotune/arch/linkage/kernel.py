@@ -264,6 +264,7 @@ def _events(
     consts = _unmanaged(consts)
     pos = np.zeros(n_ax)
     spd = np.zeros(n_ax)
+    qs = np.zeros((n_ax, 2))  # modes' states: the linkage runs rigid plants (run_linkage)
     nz = np.zeros(n_ax)  # encoder noise of the reads of a CPU tick
     # each ring's slot of its CPU's last tick (k mod ring length, kept without a division)
     slot = np.zeros(n_ax, dtype=np.int64)
@@ -389,7 +390,7 @@ def _events(
                 if c > 0:
                     if regular:
                         pos[a], spd[a] = advance_axis(
-                            pos[a], spd[a], ring, prev, m, c - 1, w_off, row
+                            pos[a], spd[a], qs[a], ring, prev, m, c - 1, w_off, row
                         )
                     else:
                         v_old, v_new = held(ring, prev, m, c - 1)

@@ -322,6 +322,11 @@ def run_linkage(
     plant_rows = np.zeros((n_ax, NROW))
     ints = np.zeros((n_ax, NI), dtype=np.int64)
     for i, a in enumerate(config.axes):
+        if a.plant.modes:
+            raise ConfigError(
+                f"axis {a.name!r}: the linkage simulates rigid plants; its plant has "
+                f"{len(a.plant.modes)} mode(s) (docs/frf.md): run it in the single-rig engine"
+            )
         tick_s = period / (1.0 + eps[ax_cpu[i]])
         plant_rows[i], m = plant_row(a.plant, tick_s, rig.timer.compute_s, rig.counts_per_rev)
         ints[i, _I_LAG], ints[i, _I_RING], ints[i, _I_INIT] = m, m + 2, a.counter_init

@@ -59,7 +59,7 @@ def tune_pi(
     The controller is the runtime's (:mod:`servotune.laws.pi`), ``C(z) = Kp + Ki·T·z/(z−1)``,
     and the loop ``L(z) = C(z) · lsb_v · P(z)`` is exact in discrete time: ``P`` is the plant
     discretised with a zero-order hold at ``period_s`` and its input lagged by ``compute_s``
-    (plus ``delay_s`` for a :class:`~servotune.plant.Plant`): :func:`~servotune.plant.discretize`
+    (plus ``delay_s`` for a :class:`~servotune.plant.Plant`): :func:`~servotune.modal.discretize`
     or :func:`~servotune.plant.discretize_lti`.
 
     Formulation (a constrained NLP solved by casadi/ipopt): maximise Ki over ``Kp >= 0``,

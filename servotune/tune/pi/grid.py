@@ -10,7 +10,8 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 
 from servotune.analysis.margins import controller_basis, grid_margins
-from servotune.plant import Plant, discretize, discretize_lti
+from servotune.modal import discretize, discretize_lti
+from servotune.plant import Plant
 from servotune.tune.pi.spec import _TOL_GM_DB, _TOL_MS_REL, _TOL_PM_DEG, _TOL_WC_REL, Spec
 
 if TYPE_CHECKING:  # python-control is imported where used (slow to import)
