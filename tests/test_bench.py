@@ -52,6 +52,7 @@ def test_quick_bench_prints_figures_and_writes_the_report(tmp_path: Path) -> Non
         "batch_setup_s": "s",
         "batched_candidate_ticks_per_s": "ticks/s",
         "batched_candidate_ticks_per_s_1thread": "ticks/s",
+        "batched_candidate_ticks_per_s_one_mode_1thread": "ticks/s",
         "c_runtime_one_axis_ns_per_tick": "ns/tick",
         "engine_one_axis_ns_per_tick": "ns/tick",
         "engine_vs_c_runtime": "x",
