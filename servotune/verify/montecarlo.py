@@ -263,6 +263,12 @@ def least(x: np.ndarray, k: int) -> np.ndarray:
     return cand[np.argsort(x[cand], kind="stable")][:k]
 
 
+def worst_draws(margin: np.ndarray, n_worst: int = N_WORST) -> np.ndarray:
+    """The draws (0-based; plant set ``mc<i + 1>``) with the least margin, least first: the
+    ones :func:`summarise` lists (NaN counts as ``-inf``)."""
+    return least(np.where(np.isnan(margin), -np.inf, margin), int(n_worst))
+
+
 def summarise(
     *,
     distribution: PlantDistribution,
@@ -299,7 +305,7 @@ def summarise(
     ci = clopper_pearson(k, n) if n else (0.0, 1.0)
     worst: list[WorstVariant] = []
     if n:
-        for i in least(np.where(np.isnan(margin), -np.inf, margin), int(n_worst)):
+        for i in worst_draws(margin, n_worst):
             scenario, quantity, axis, unit, limit = figures[int(which[i])]
             worst.append(
                 WorstVariant(

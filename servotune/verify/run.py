@@ -13,10 +13,9 @@ The spec file is described in :mod:`servotune.verify.spec`.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
@@ -26,25 +25,9 @@ from servotune.analysis.plant_cases import plant_cases
 from servotune.errors import SpecError
 from servotune.executor import Executor, InProcessExecutor, chunk_bounds, guided_chunk_bounds
 from servotune.kernels import warm_up
-from servotune.laws.axis import FAULT_MASK, FLAG_SATURATED, MODE_TASK
-from servotune.metrics import step_info
-from servotune.plant import (
-    NPARAM,
-    NROW,
-    P_COULOMB,
-    P_COULOMB_NEG,
-    P_GAIN,
-    P_GAIN_NEG,
-    P_OFFSET,
-    P_TAU,
-    P_VMAX,
-    Plant,
-    fill_plant_rows,
-    plant_row,
-    put_modes,
-)
+from servotune.laws.axis import MODE_TASK
 from servotune.rig import Rig
-from servotune.scenarios import Inputs, build_scenario, sync_move_for
+from servotune.scenarios import Inputs
 from servotune.sim.engine import (
     Loop,
     converter_args,
@@ -63,8 +46,10 @@ from servotune.verify.checks import (
     check_speed,
     check_timer,
 )
-from servotune.verify.montecarlo import PlantDistribution, SpecSpread, summarise
+from servotune.verify.montecarlo import PlantDistribution, SpecSpread, summarise, worst_draws
+from servotune.verify.plant_sets import ChunkPlants, nominal_parameters
 from servotune.verify.result import Check, Row, Verification
+from servotune.verify.scenario_values import evaluate, hold_from, move_windows, scenario_inputs
 from servotune.verify.spec import LIMITS, ScenarioSpec, Spec
 from servotune.verify.variants import Variant, seed_seqs
 
@@ -87,138 +72,6 @@ _CHUNK_WORK = 16384 * 1200  # plant·ticks a task holds at most (the example rig
 
 
 # --- running the scenarios -----------------------------------------------------------------
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class _MoveWindows:
-    start: int  # last tick before the master's reference moves
-    target: float  # the reference's final value [counts]
-    steady: tuple[int, int]  # [lo, hi) ticks of the steady-lag window
-
-
-def _inputs(rig: Rig, sc: ScenarioSpec) -> Inputs:
-    assert sc.seconds is not None  # resolved by ScenarioSpec
-    if sc.kind == "sync":
-        return sync_move_for(rig, sc).inputs
-    if sc.kind == "track":
-        return build_scenario(rig, "track", axis=_master(rig)[1], seconds=sc.seconds).inputs
-    n = math.floor(sc.seconds / rig.period_s + 0.5)
-    if n < 3:
-        raise SpecError(f"scenario.{sc.name}.seconds gives only {n} ticks")
-    return Inputs.hold(n, len(rig.axes))
-
-
-def _master(rig: Rig) -> tuple[int, str]:
-    for i, a in enumerate(rig.axes):
-        if a.role == "master":
-            return i, a.name
-    raise SpecError(f"rig {show_value(rig.name)} has no master axis")
-
-
-def _move_windows(rig: Rig, sc: ScenarioSpec, inputs: Inputs) -> _MoveWindows:
-    i_m, _ = _master(rig)
-    ref = inputs.ref_counts[:, i_m]
-    moving = np.flatnonzero(ref != ref[0])
-    if moving.size == 0:
-        raise SpecError(f"scenario {show_value(sc.name)}: the master's reference does not move")
-    start = max(int(moving[0]) - 1, 0)
-    direction = 1 if ref[-1] >= ref[0] else -1
-    dr = direction * np.diff(ref)
-    cruise = np.flatnonzero(dr >= dr.max() - 2)  # within 2 counts/tick of the top speed
-    c0, c1 = int(cruise[0]) + 1, int(cruise[-1]) + 1
-    hi = c1
-    for j, a in enumerate(rig.axes):
-        if a.role == "slave":
-            changed = np.flatnonzero(inputs.load_v[:, j] != inputs.load_v[0, j])
-            if changed.size:
-                hi = min(hi, int(changed[0]))
-    lo = (c0 + hi) // 2
-    if hi - lo < 3:
-        raise SpecError(
-            f"scenario {show_value(sc.name)} has no constant-speed part before the load step "
-            f"to measure "
-            "the steady lag; lengthen seconds or shorten accel_s"
-        )
-    return _MoveWindows(start=start, target=float(ref[-1]), steady=(lo, hi))
-
-
-def _hold_from(rig: Rig, sc: ScenarioSpec, inputs: Inputs) -> int:
-    """First tick of a hold's holding window (``settle_s`` in); SpecError if none is left."""
-    k0 = math.ceil(sc.settle_s / rig.period_s)
-    if k0 >= inputs.n_ticks:
-        raise SpecError(
-            f"scenario {show_value(sc.name)}: settle_s ({sc.settle_s:g} s) leaves no tick of "
-            f"its {inputs.n_ticks} to measure the holding band; shorten settle_s"
-        )
-    return k0
-
-
-def _step_values(
-    t: np.ndarray, y: np.ndarray, y_init: float, target: float, band_pct: float
-) -> tuple[float, float]:
-    info = step_info(t, y, y_init=y_init, y_final=target, settling_threshold=band_pct / 100.0)
-    settle = info.settling_time_s
-    return info.overshoot_pct, (math.inf if math.isnan(settle) else settle)
-
-
-def _evaluate(
-    rig: Rig, sc: ScenarioSpec, inputs: Inputs, tr: dict[str, np.ndarray]
-) -> tuple[dict[tuple[str, str], np.ndarray], dict[str, np.ndarray]]:
-    """Every limited quantity per variant of a chunk (``(quantity, axis)`` → values), and per
-    axis whether each variant latched a fault."""
-    names = rig.axis_names
-    n_v, n_t = tr["flags"].shape[:2]
-    values: dict[tuple[str, str], np.ndarray] = {}
-    pos = tr["true_pos_counts"]
-    flags = tr["flags"]
-    if sc.kind in ("sync", "track"):
-        win = _move_windows(rig, sc, inputs)
-        i_m, _ = _master(rig)
-        t = (np.arange(n_t - win.start, dtype=np.int64)) * rig.period_s
-        for a, name in enumerate(names):
-            task = inputs.mode[:, a] == MODE_TASK
-            if not task.any():
-                continue
-            over = np.empty(n_v)
-            settle = np.empty(n_v)
-            for b in range(n_v):
-                y = pos[b, win.start :, a]
-                over[b], settle[b] = _step_values(
-                    t, y, float(y[0]), win.target, sc.settling_band_pct
-                )
-            values[("overshoot_pct", name)] = over
-            values[("settling_time_s", name)] = settle
-            sat = (flags[:, :, a] & FLAG_SATURATED) != 0
-            values[("saturation_pct", name)] = 100.0 * sat[:, task].mean(axis=1)
-            if rig.axes[a].role == "slave":
-                # sums over C-ordered rows: numpy then adds each plant set's row alone (pairwise),
-                # the same bits however many plant sets the batch holds (a column-ordered
-                # array is summed across the rows, and the order depends on their number)
-                e = pos[:, :, i_m] - pos[:, :, a]
-                et = np.ascontiguousarray(e[:, task])
-                values[("max_sync_error_counts", name)] = np.abs(et).max(axis=1)
-                values[("rms_sync_error_counts", name)] = np.sqrt(np.mean(et * et, axis=1))
-                lo, hi = win.steady
-                steady = np.ascontiguousarray(np.abs(e[:, lo:hi]))
-                values[("steady_lag_counts", name)] = steady.mean(axis=1)
-    else:
-        k0 = _hold_from(rig, sc, inputs)
-        bits = rig.counter.bits
-        for a, name in enumerate(names):
-            # the plant's whole count in the runtime's frame (relative to its first read)
-            first = (tr["counter"][:, 0, a] - rig.axes[a].counter_init) % (1 << bits)
-            first = np.where(first >= 1 << (bits - 1), first - (1 << bits), first)
-            y = np.floor(pos[:, :, a]).astype(np.int64) - first[:, None]
-            target = tr["pos_counts"][:, :, a] + tr["err_counts"][:, :, a]
-            values[("holding_band_counts", name)] = (
-                np.abs(target[:, k0:] - y[:, k0:]).max(axis=1).astype(float)
-            )
-            sat = (flags[:, :, a] & FLAG_SATURATED) != 0
-            values[("saturation_pct", name)] = 100.0 * sat.mean(axis=1)
-    faults = {
-        name: ((flags[:, :, a] & FAULT_MASK) != 0).any(axis=1) for a, name in enumerate(names)
-    }
-    return values, faults
 
 
 # --- a chunk of plant sets through every scenario (one task of the executor) -----------------
@@ -273,7 +126,7 @@ def _relative(v: np.ndarray, limit: float) -> np.ndarray:
     return np.where(np.isnan(r), -np.inf, r)
 
 
-def _chunk_plants(chunk: _Chunk, shared: _Shared) -> tuple[_ChunkPlants, np.ndarray]:
+def _chunk_plants(chunk: _Chunk, shared: _Shared) -> tuple[ChunkPlants, np.ndarray]:
     """The chunk's plant sets and drawn values: parameter rows where the distribution offers
     them (``draw_parameters``: no :class:`Plant` built per plant set), else the plants."""
     rig = shared.rig
@@ -283,112 +136,11 @@ def _chunk_plants(chunk: _Chunk, shared: _Shared) -> tuple[_ChunkPlants, np.ndar
         plant_sets, drawn = shared.distribution.draw(shared.seed, first_draw, chunk.stop - 1)
         if chunk.start == 0:
             plant_sets = [tuple(a.plant for a in rig.axes), *plant_sets]
-        return _ChunkPlants(rig=rig, plant_sets=plant_sets), drawn
+        return ChunkPlants(rig=rig, plant_sets=plant_sets), drawn
     params, drawn = draw_parameters(shared.seed, first_draw, chunk.stop - 1)
     if chunk.start == 0:
-        params = np.concatenate([_nominal_parameters(rig)[None], params])
-    return _ChunkPlants(rig=rig, params=params), drawn
-
-
-def _nominal_parameters(rig: Rig) -> np.ndarray:
-    """The rig's plants as parameter rows (``servotune.plant.P_*``), shape (axes, NPARAM)."""
-    out = np.empty((len(rig.axes), NPARAM))
-    cpr = rig.counts_per_rev
-    for j, a in enumerate(rig.axes):
-        p = a.plant
-        (_, gain_neg), (_, coulomb_neg) = p.gains_cps_per_v, p.coulombs_v
-        vmax = p.max_speed_cps(cpr) if math.isfinite(cpr) else math.inf
-        out[j] = (
-            p.gain_cps_per_v,
-            p.tau_s,
-            p.offset_v,
-            p.coulomb_v,
-            gain_neg,
-            coulomb_neg,
-            vmax,
-            p.noise_counts,
-            p.delay_s,
-        )
-    return out
-
-
-def _plant_params_ok(params: np.ndarray) -> bool:
-    """Whether every parameter row's drawn columns are values a :class:`Plant` accepts (gains
-    and tau finite and > 0, offset finite, Coulomb levels finite and >= 0); rows are filled
-    without building a plant, which would check them."""
-    x = params[..., :P_VMAX]
-    return bool(
-        np.isfinite(x).all()
-        and (x[..., [P_GAIN, P_TAU, P_GAIN_NEG]] > 0.0).all()
-        and (x[..., [P_COULOMB, P_COULOMB_NEG]] >= 0.0).all()
-    )
-
-
-@dataclass(slots=True, kw_only=True)
-class _ChunkPlants:
-    """A chunk's plant sets: as parameter rows or as plants; each form built when asked."""
-
-    rig: Rig
-    params: np.ndarray | None = None
-    plant_sets: list[tuple[Plant, ...]] | None = None
-    _rows: tuple[np.ndarray, np.ndarray] | None = None
-
-    def plants(self) -> list[tuple[Plant, ...]]:
-        """One plant per axis per plant set."""
-        if self.plant_sets is None:
-            assert self.params is not None
-            nominal = tuple(a.plant for a in self.rig.axes)
-            self.plant_sets = [
-                tuple(
-                    replace(
-                        p,
-                        gain_cps_per_v=x[P_GAIN],
-                        tau_s=x[P_TAU],
-                        offset_v=x[P_OFFSET],
-                        coulomb_v=x[P_COULOMB],
-                        gain_neg_cps_per_v=None if p.gain_neg_cps_per_v is None else x[P_GAIN_NEG],
-                        coulomb_neg_v=None if p.coulomb_neg_v is None else x[P_COULOMB_NEG],
-                    )
-                    for p, x in zip(nominal, row, strict=True)
-                )
-                for row in self.params.tolist()
-            ]
-        return self.plant_sets
-
-    def rows(self) -> tuple[np.ndarray, np.ndarray]:
-        """Plant rows ``(n, axes, NROW)`` and integer rows ``(n, axes, 2)`` (lag, counter
-        start), as :func:`~servotune.sim.engine.prepare_batch` builds them."""
-        if self._rows is None:
-            rig = self.rig
-            if self.params is not None:
-                if not _plant_params_ok(self.params):
-                    self.plants()  # raises the Plant's ValueError, as the traced path does
-                n, n_ax = self.params.shape[:2]
-                pf = np.empty((n * n_ax, NROW))
-                lags = np.empty(n * n_ax, dtype=np.int64)
-                flat = np.ascontiguousarray(self.params.reshape(n * n_ax, NPARAM))
-                fill_plant_rows(flat, float(rig.period_s), float(rig.timer.compute_s), pf, lags)
-                pf = pf.reshape(n, n_ax, NROW)
-                lags = lags.reshape(n, n_ax)
-                for a, axis in enumerate(rig.axes):  # the modes are the nominal plant's
-                    if axis.plant.modes:
-                        for b in range(n):
-                            put_modes(pf[b, a], axis.plant.modes)
-            else:
-                sets = self.plants()
-                n, n_ax = len(sets), len(rig.axes)
-                pf = np.empty((n, n_ax, NROW))
-                lags = np.empty((n, n_ax), dtype=np.int64)
-                for b, ps in enumerate(sets):
-                    for a, p in enumerate(ps):
-                        pf[b, a], lags[b, a] = plant_row(
-                            p, rig.period_s, rig.timer.compute_s, rig.counts_per_rev
-                        )
-            pi = np.empty((n, n_ax, 2), dtype=np.int64)
-            pi[:, :, 0] = lags
-            pi[:, :, 1] = [a.counter_init for a in rig.axes]
-            self._rows = (pf, pi)
-        return self._rows
+        params = np.concatenate([nominal_parameters(rig)[None], params])
+    return ChunkPlants(rig=rig, params=params), drawn
 
 
 def _lean_sync_ok(shared: _Shared, sc: ScenarioSpec, pi: np.ndarray) -> bool:
@@ -452,10 +204,10 @@ def _run_lean_sync(
             threshold=0.0,
             has_step=np.zeros(2, dtype=bool),
             steady=(0, 0),
-            hold_from=_hold_from(rig, sc, inputs),
+            hold_from=hold_from(rig, sc, inputs),
         )
     else:
-        win = _move_windows(rig, sc, inputs)
+        win = move_windows(rig, sc, inputs)
         task = inputs.mode == MODE_TASK
         windows = SyncWindows(
             counted=task,
@@ -549,9 +301,68 @@ def _judge(
     return passed, margin, which, value
 
 
+_Fastest = tuple[float, int, int, float, int, int]
+"""A scenario's fastest motion in a chunk: the largest step per tick [counts], its plant set
+and axis, the largest speed [counts/s], its plant set and axis (plant set -1: none)."""
+
+
+def _lean_fastest(fast: np.ndarray, start: int) -> _Fastest:
+    """The fastest motion from the lean kernel's per-plant-set figures (``N_FAST`` columns)."""
+    step_best = (0.0, -1, -1)
+    speed_best = (0.0, -1, -1)
+    if fast.shape[0]:
+        b = int(np.argmax(fast[:, 0]))
+        if fast[b, 0] > 0.0:
+            step_best = (float(fast[b, 0]), start + b, int(fast[b, 2]))
+        b = int(np.argmax(fast[:, 3]))
+        if fast[b, 3] > 0.0:
+            speed_best = (float(fast[b, 3]), start + b, int(fast[b, 5]))
+    return (*step_best, *speed_best)
+
+
+def _run_traced(
+    chunk: _Chunk, shared: _Shared, sc: ScenarioSpec, inputs: Inputs, plant_sets: list
+) -> tuple[dict[tuple[str, str], np.ndarray], dict[str, np.ndarray], _Fastest]:
+    """A scenario for the chunk's plant sets in the general kernel, traced (batches bounded by
+    ``_TRACE_BYTES``): the figures, the faults and the fastest motion."""
+    rig, n = shared.rig, chunk.stop - chunk.start
+    per_batch = max(1, _TRACE_BYTES // (inputs.n_ticks * len(rig.axes) * 72))
+    parts = []
+    step_best = (0.0, -1, -1)
+    speed_best = (0.0, -1, -1)
+    for k in range(0, n, per_batch):
+        hi = min(n, k + per_batch)
+        batch = prepare_batch(
+            shared.loop, plants=plant_sets[k:hi], seeds=[int(x) for x in chunk.noise[k:hi]]
+        )
+        res = run_batch(batch, inputs, metrics_only=False, threads=shared.threads)
+        assert res.traces is not None
+        tr = res.traces
+        traces = {
+            "counter": tr.counter,
+            "pos_counts": tr.pos_counts,
+            "err_counts": tr.err_counts,
+            "flags": tr.flags,
+            "true_pos_counts": tr.true_pos_counts,
+        }
+        parts.append(evaluate(rig, sc, inputs, traces))
+        # the first largest motion per tick and speed in (plant set, tick, axis) order
+        step = np.abs(np.diff(tr.true_pos_counts, axis=1))
+        if step.size and step.max() > step_best[0]:
+            b, _, a = np.unravel_index(int(np.argmax(step)), step.shape)
+            step_best = (float(step.max()), chunk.start + k + int(b), int(a))
+        spd = np.abs(tr.speed_cps)
+        if spd.max() > speed_best[0]:
+            b, _, a = np.unravel_index(int(np.argmax(spd)), spd.shape)
+            speed_best = (float(spd.max()), chunk.start + k + int(b), int(a))
+    values = {key: np.concatenate([v[key] for v, _ in parts]) for key in parts[0][0]}
+    faults = {nm: np.concatenate([f[nm] for _, f in parts]) for nm in parts[0][1]}
+    return values, faults, (*step_best, *speed_best)
+
+
 def _run_chunk(chunk: _Chunk, shared: _Shared) -> _ChunkResult:
     """Every scenario for the plant sets of ``chunk`` (the executor's task)."""
-    rig, names = shared.rig, shared.rig.axis_names
+    names = shared.rig.axis_names
     chunk_plants, drawn = _chunk_plants(chunk, shared)
     n = chunk.stop - chunk.start
     figures: list[tuple[str, str, str, str, float]] = []
@@ -570,70 +381,10 @@ def _run_chunk(chunk: _Chunk, shared: _Shared) -> _ChunkResult:
             lean = _run_lean_sync(shared, sc, inputs, pf, pi, seeds)
         if lean is not None:
             values, faults, fast = lean
-            step_best = (0.0, -1, -1)
-            speed_best = (0.0, -1, -1)
-            if n:
-                b = int(np.argmax(fast[:, 0]))
-                if fast[b, 0] > 0.0:
-                    step_best = (float(fast[b, 0]), chunk.start + b, int(fast[b, 2]))
-                b = int(np.argmax(fast[:, 3]))
-                if fast[b, 3] > 0.0:
-                    speed_best = (float(fast[b, 3]), chunk.start + b, int(fast[b, 5]))
-            fastest.append((*step_best, *speed_best))
-            passed, margin, which, value = _judge(
-                sc,
-                names,
-                values,
-                faults,
-                chunk.start,
-                figures,
-                worst,
-                where,
-                passed,
-                margin,
-                which,
-                value,
-            )
-            continue
-        plant_sets = chunk_plants.plants()
-        per_batch = max(1, _TRACE_BYTES // (inputs.n_ticks * len(names) * 72))
-        parts = []
-        step_best = (0.0, -1, -1)
-        speed_best = (0.0, -1, -1)
-        for k in range(0, n, per_batch):
-            hi = min(n, k + per_batch)
-            batch = prepare_batch(
-                shared.loop, plants=plant_sets[k:hi], seeds=[int(x) for x in chunk.noise[k:hi]]
-            )
-            res = run_batch(batch, inputs, metrics_only=False, threads=shared.threads)
-            assert res.traces is not None
-            tr = res.traces
-            parts.append(
-                _evaluate(
-                    rig,
-                    sc,
-                    inputs,
-                    {
-                        "counter": tr.counter,
-                        "pos_counts": tr.pos_counts,
-                        "err_counts": tr.err_counts,
-                        "flags": tr.flags,
-                        "true_pos_counts": tr.true_pos_counts,
-                    },
-                )
-            )
-            # the first largest motion per tick and speed in (plant set, tick, axis) order
-            step = np.abs(np.diff(tr.true_pos_counts, axis=1))
-            if step.size and step.max() > step_best[0]:
-                b, _, a = np.unravel_index(int(np.argmax(step)), step.shape)
-                step_best = (float(step.max()), chunk.start + k + int(b), int(a))
-            spd = np.abs(tr.speed_cps)
-            if spd.max() > speed_best[0]:
-                b, _, a = np.unravel_index(int(np.argmax(spd)), spd.shape)
-                speed_best = (float(spd.max()), chunk.start + k + int(b), int(a))
-        fastest.append((*step_best, *speed_best))
-        values = {key: np.concatenate([v[key] for v, _ in parts]) for key in parts[0][0]}
-        faults = {nm: np.concatenate([f[nm] for _, f in parts]) for nm in parts[0][1]}
+            fastest.append(_lean_fastest(fast, chunk.start))
+        else:
+            values, faults, fast_t = _run_traced(chunk, shared, sc, inputs, chunk_plants.plants())
+            fastest.append(fast_t)
         passed, margin, which, value = _judge(
             sc,
             names,
@@ -666,9 +417,11 @@ def _label(index: int) -> str:
     return "nominal" if index == 0 else f"mc{index}"
 
 
-def _reduce_rows(parts: Sequence[_ChunkResult]) -> list[Row]:
-    """Each limit's worst value over every chunk, in chunk order (the first worst wins)."""
+def _reduce_rows(parts: Sequence[_ChunkResult]) -> tuple[list[Row], set[int]]:
+    """Each limit's worst value over every chunk, in chunk order (the first worst wins), and
+    the Monte-Carlo plant sets (1-based draw index) the rows name."""
     rows = []
+    named = set()
     for j, (scenario, quantity, axis, unit, limit) in enumerate(parts[0].figures):
         if quantity == FAULT_QUANTITY:
             count = sum(float(p.worst[j]) for p in parts)
@@ -690,7 +443,9 @@ def _reduce_rows(parts: Sequence[_ChunkResult]) -> list[Row]:
                 variant=_label(at),
             )
         )
-    return rows
+        if at > 0:
+            named.add(at)
+    return rows, named
 
 
 def _reduce_fastest(
@@ -791,6 +546,57 @@ def check_margins(
     return out
 
 
+def _check_sync_limits(rig: Rig, spec: Spec) -> None:
+    """A spec's sync limits need a slave axis: SpecError naming the first if the rig has none."""
+    sync_limits = ("max_sync_error_counts", "max_rms_sync_error_counts", "max_steady_lag_counts")
+    if not any(a.role == "slave" for a in rig.axes):
+        for sc in spec.scenarios:
+            for k in sc.limits:
+                if k in sync_limits:
+                    raise SpecError(
+                        f"scenario.{sc.name}.{k} needs a slave axis; rig "
+                        f"{show_value(rig.name)} has none"
+                    )
+
+
+def _scenario_runs(rig: Rig, spec: Spec) -> list[tuple[ScenarioSpec, Inputs]]:
+    """Each scenario with its inputs; a scenario that cannot be built or measured fails here,
+    before any run."""
+    runs = []
+    for sc in spec.scenarios:
+        try:
+            inputs = scenario_inputs(rig, sc)
+        except SpecError as exc:
+            raise SpecError(f"scenario.{sc.name}: {exc}") from None
+        if sc.kind == "lock":
+            hold_from(rig, sc, inputs)
+        else:
+            move_windows(rig, sc, inputs)
+        runs.append((sc, inputs))
+    return runs
+
+
+def _chunks(
+    rig: Rig,
+    runs: Sequence[tuple[ScenarioSpec, Inputs]],
+    n_sets: int,
+    ex: Executor,
+    chunk_size: int | None,
+    seed: int,
+) -> list[_Chunk]:
+    """The executor's tasks: ``n_sets`` plant sets in chunks (guided by the work per plant set
+    unless ``chunk_size`` is given), each with its plant sets' noise seeds."""
+    if chunk_size is None:
+        smallest, largest = _CHUNK_RANGE
+        per_set = len(rig.axes) * sum(inputs.n_ticks for _, inputs in runs)  # plant·ticks
+        largest = max(smallest, min(largest, _CHUNK_WORK // max(per_set, 1)))
+        bounds = guided_chunk_bounds(n_sets, ex.workers, smallest=smallest, largest=largest)
+    else:
+        bounds = chunk_bounds(n_sets, chunk_size)
+    noise = seed_seqs(seed)[1].generate_state(n_sets, np.uint64)
+    return [_Chunk(start=a, stop=b, noise=noise[a:b]) for a, b in bounds]
+
+
 def verify(
     tuning: Tuning,
     rig: Rig,
@@ -872,15 +678,7 @@ def verify(
             f"{show_value(rig.name)}"
         )
     loop = tuning.loop(rig)
-    sync_limits = ("max_sync_error_counts", "max_rms_sync_error_counts", "max_steady_lag_counts")
-    if not any(a.role == "slave" for a in rig.axes):
-        for sc in spec.scenarios:
-            for k in sc.limits:
-                if k in sync_limits:
-                    raise SpecError(
-                        f"scenario.{sc.name}.{k} needs a slave axis; rig "
-                        f"{show_value(rig.name)} has none"
-                    )
+    _check_sync_limits(rig, spec)
     used_seed = spec.montecarlo.seed if seed is None else check_seed(seed)
     dist = SpecSpread(rig=rig, montecarlo=spec.montecarlo) if distribution is None else distribution
     dist.draw(used_seed, 0, 0)  # a distribution that cannot draw for this rig fails first
@@ -898,29 +696,10 @@ def verify(
             checks=tuple(checks),
             variants=_listed_variants(rig, dist, used_seed, count, set()),
         )
-    runs = []
-    for sc in spec.scenarios:
-        try:
-            inputs = _inputs(rig, sc)
-        except SpecError as exc:
-            raise SpecError(f"scenario.{sc.name}: {exc}") from None
-        # a bad scenario fails before the runs
-        if sc.kind == "lock":
-            _hold_from(rig, sc, inputs)
-        else:
-            _move_windows(rig, sc, inputs)
-        runs.append((sc, inputs))
+    runs = _scenario_runs(rig, spec)
     ex = InProcessExecutor() if executor is None else executor
     n_sets = count + 1
-    if chunk_size is None:
-        smallest, largest = _CHUNK_RANGE
-        per_set = len(rig.axes) * sum(inputs.n_ticks for _, inputs in runs)  # plant·ticks
-        largest = max(smallest, min(largest, _CHUNK_WORK // max(per_set, 1)))
-        bounds = guided_chunk_bounds(n_sets, ex.workers, smallest=smallest, largest=largest)
-    else:
-        bounds = chunk_bounds(n_sets, chunk_size)
-    noise = seed_seqs(used_seed)[1].generate_state(n_sets, np.uint64)
-    chunks = [_Chunk(start=a, stop=b, noise=noise[a:b]) for a, b in bounds]
+    chunks = _chunks(rig, runs, n_sets, ex, chunk_size, used_seed)
     shared = _Shared(
         rig=rig,
         loop=loop,
@@ -952,7 +731,7 @@ def verify(
     with ThreadPoolExecutor(max_workers=1) as pool:
         margins = pool.submit(check_margins, tuning, rig, spec, dist)
         parts = ex.map(_run_chunk, chunks, shared=shared, done=done)
-        rows = _reduce_rows(parts)
+        rows, named = _reduce_rows(parts)
         fastest = _reduce_fastest(rig, runs, parts)
         checks[:0] = check_speed(
             rig,
@@ -979,8 +758,7 @@ def verify(
             which=cat["which"],
             figure_values=cat["value"],
         )
-    named = {int(r.variant[2:]) for r in rows if r.variant.startswith("mc")}
-    named |= {int(w.label[2:]) for w in (summary.worst if summary else ())}
+        named |= {int(i) + 1 for i in worst_draws(cat["margin"])}
     result = Verification(
         spec=spec,
         rig_name=rig.name,

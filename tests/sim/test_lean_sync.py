@@ -1,7 +1,7 @@
 """servotune.sim.lean_sync: the lean two-axis kernel against the traced path, bit for bit.
 
 - every figure of :func:`servotune.verify.run._run_lean_sync` (the lean kernel) equals the traced
-  path's (:func:`servotune.verify.run._evaluate` on the general kernel's traces) for the
+  path's (:func:`servotune.verify.scenario_values.evaluate` on the general kernel's traces) for the
   nominal plants and 64 noisy plant sets of the example spec's spread, ``sync``, ``track`` and
   ``lock`` (the holding band); and ``verify`` gives the same JSON with ``kernel="auto"`` (the
   lean kernel) and ``kernel="general"``;
@@ -31,6 +31,7 @@ from servotune.sim.tick import normal
 from servotune.verify import load_spec, verify
 from servotune.verify import run as vrun
 from servotune.verify.montecarlo import SpecSpread
+from servotune.verify.scenario_values import evaluate, scenario_inputs
 from servotune.verify.variants import seed_seqs
 
 SPEC_PATH = EXAMPLE_RIG_PATH.with_name("pc-dual-servo.spec.toml")
@@ -48,7 +49,7 @@ def spec():
 
 
 def _shared(tuning, rig, spec, scenarios=("sync", "track")) -> vrun._Shared:
-    runs = tuple((spec.scenario(s), vrun._inputs(rig, spec.scenario(s))) for s in scenarios)
+    runs = tuple((spec.scenario(s), scenario_inputs(rig, spec.scenario(s))) for s in scenarios)
     return vrun._Shared(
         rig=rig,
         loop=tuning.loop(rig),
@@ -74,7 +75,7 @@ def _traced(shared, sc, inputs, chunk_plants, chunk):
     res = run_batch(batch, inputs, metrics_only=False, threads=1)
     tr = res.traces
     assert tr is not None
-    values, faults = vrun._evaluate(
+    values, faults = evaluate(
         shared.rig,
         sc,
         inputs,

@@ -7,6 +7,7 @@ resolves the gains, :func:`~servotune.arch.gantry.load.load_gantry`, is in ``loa
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -125,18 +126,73 @@ class GantryBus:
 class Beam:
     """Mechanical coupling of the two sides through the beam, as motor-input volts.
 
+    The coupling is the beam's **racking mode**: with both sides' drive model
+    ``τ v̇ + v = K (u ∓ f)``, ``f = k e + c ė`` on the sync error ``e = p_master − p_slave``,
+    the error obeys ``τ ë + (1 + 2 K c) ė + 2 K k e = 0``: a mode at
+    ``ω = √(2 K k / τ)`` with damping ``ζ = (1 + 2 K c) / (2 ω τ)`` (the drives' own viscous
+    term gives it at least ``1 / (2 ω τ)``). :meth:`racking` gives it for a plant;
+    ``racking_hz``/``racking_damping`` set the beam from it instead of ``k``, ``c``
+    (a :class:`GantryConfig` resolves them with its master's plant).
+
     Parameters
     ----------
     stiffness_v_per_count : float
         Spring: the force of a sync error, on both motors with opposite signs [V/count].
     damping_v_s_per_count : float
         Damper on the speed difference [V/(count/s)].
+    racking_hz, racking_damping : float or None
+        The racking mode's frequency [Hz] and damping ratio [-], instead of the two above
+        (both or neither; the stiffness and damping then left 0 in the file).
     """
 
     stiffness_v_per_count: float = 0.0
     damping_v_s_per_count: float = 0.0
+    racking_hz: float | None = None
+    racking_damping: float | None = None
+
+    def racking(self, plant: Plant) -> tuple[float, float]:
+        """The racking mode's frequency [Hz] and damping ratio of this beam between two sides
+        with ``plant``'s drive (its mean gain and time constant); ``(0, inf)`` uncoupled."""
+        k_g, tau = plant.mean_gain_cps_per_v, plant.tau_s
+        w2 = 2.0 * k_g * self.stiffness_v_per_count / tau
+        if w2 <= 0.0:
+            return 0.0, math.inf
+        w = math.sqrt(w2)
+        return w / (2.0 * math.pi), (1.0 + 2.0 * k_g * self.damping_v_s_per_count) / (2 * w * tau)
+
+    def resolved(self, plant: Plant) -> Beam:
+        """This beam with ``racking_hz``/``racking_damping`` turned into stiffness and damping
+        for two sides with ``plant``'s drive (itself when they are not set)."""
+        if self.racking_hz is None:
+            return self
+        k_g, tau = plant.mean_gain_cps_per_v, plant.tau_s
+        w = 2.0 * math.pi * self.racking_hz
+        zeta = self.racking_damping
+        assert zeta is not None  # checked with racking_hz
+        if 2.0 * zeta * w * tau < 1.0:
+            raise ConfigError(
+                f"beam.racking_damping {zeta:g} is below the drives' own damping of a "
+                f"{self.racking_hz:g} Hz racking mode, 1 / (2 ω τ) = {1 / (2 * w * tau):.3g} "
+                f"(τ = {tau:g} s): raise it or the frequency"
+            )
+        return Beam(
+            stiffness_v_per_count=w * w * tau / (2.0 * k_g),
+            damping_v_s_per_count=(2.0 * zeta * w * tau - 1.0) / (2.0 * k_g),
+        )
 
     def __post_init__(self) -> None:
+        if (self.racking_hz is None) != (self.racking_damping is None):
+            raise ConfigError("beam.racking_hz and beam.racking_damping go together")
+        if self.racking_hz is not None:
+            check_number("racking_hz", self.racking_hz, "Hz", strict=True, error=ConfigError)
+            check_number(
+                "racking_damping", self.racking_damping, "-", strict=True, error=ConfigError
+            )
+            if self.stiffness_v_per_count or self.damping_v_s_per_count:
+                raise ConfigError(
+                    "beam: give racking_hz/racking_damping or stiffness_v_per_count/"
+                    "damping_v_s_per_count, not both"
+                )
         check_number(
             "stiffness_v_per_count",
             self.stiffness_v_per_count,
@@ -466,6 +522,7 @@ class GantryConfig:
             raise ConfigError(
                 f"topology must be one of {', '.join(TOPOLOGIES)}, got {show_value(self.topology)}"
             )
+        object.__setattr__(self, "beam", self.beam.resolved(self.master.plant))
         cyc = self.bus.cycle_s
         check_number("seconds", self.seconds, "s", strict=True, hi=MAX_SECONDS, error=ConfigError)
         if not _MIN_CYCLES <= self.seconds / cyc <= 5e6:
