@@ -437,11 +437,13 @@ def plot_bode(responses: dict[str, tuple[np.ndarray, np.ndarray]], title: str = 
     return fig
 
 
-def plot_frf(frf: Any, title: str = "", model: Any = None) -> plt.Figure:
+def plot_frf(
+    frf: Any, title: str = "", model: Any = None, model_label: str = "model"
+) -> plt.Figure:
     """A measured frequency response (:class:`servotune.analysis.frf.Frf`): magnitude with its
     95 % bounds, phase with its bounds, and the coherence with the excitation; the lines flagged
     as possibly aliased marked. ``model``: a complex response at the same lines, drawn beside
-    it (a fitted model)."""
+    it (a fitted model), labelled ``model_label``."""
     fig, axs = plt.subplots(3, 1, figsize=(8, 8), sharex=True, height_ratios=(3, 2, 1))
     f = frf.freq_hz
     lo_db, hi_db = frf.magnitude_bounds_db()
@@ -453,10 +455,10 @@ def plot_frf(frf: Any, title: str = "", model: Any = None) -> plt.Figure:
     axs[1].fill_between(f, lo_ph, hi_ph, alpha=0.25, label="95 % bounds")
     if model is not None:
         m = np.asarray(model)
-        axs[0].semilogx(f, 20 * np.log10(np.abs(m)), lw=1.2, label="model")
+        axs[0].semilogx(f, 20 * np.log10(np.abs(m)), lw=1.2, label=model_label)
         ph = np.degrees(np.unwrap(np.angle(m)))
         ph += 360.0 * np.round((frf.phase_deg[0] - ph[0]) / 360.0)
-        axs[1].semilogx(f, ph, lw=1.2, label="model")
+        axs[1].semilogx(f, ph, lw=1.2, label=model_label)
     if np.any(frf.aliased):
         for a in axs[:2]:
             start = float(f[frf.aliased][0])
@@ -466,7 +468,7 @@ def plot_frf(frf: Any, title: str = "", model: Any = None) -> plt.Figure:
     unit = "counts/s per V" if frf.output == "velocity" else "counts per V"
     axs[0].set_ylabel(f"|G| [dB re 1 {unit}]")
     axs[1].set_ylabel("phase [deg]")
-    axs[2].set_ylabel("coherence")
+    axs[2].set_ylabel("coherence [-]")
     axs[2].set_xlabel("frequency [Hz]")
     return _finish(fig, axs, title)
 

@@ -4,19 +4,21 @@ JSON block), readable at 1280 px.
 Sections, each with its numbers and units: a summary (verdict, failed checks, the tightest
 margin, the Monte-Carlo pass fraction and what to do next, :mod:`.summary`); the verification
 table and checks; the identification (fitted parameters with their 95 % intervals and fit %,
-the fit plots with the validation split marked); the tuned gains; Bode plots of each task loop
-with its margins (python-control, the discrete loop as the engine runs it) and why the axes'
-phase margins differ; the margins of every loop the runtime can run (a table and heat maps
-over the query-table cells); the responses in the bit-true loop against the spec's envelope;
-the query-table heat maps; and — when the output directory holds them (``make demo`` writes
-them first) — Figure 4 with its table and stated winner, the gantry and the linkage.
+the fit plots with the validation split marked); the resonance (the rig's modes and a measured
+frequency response against the rig's model, when there are either); the tuned gains; Bode plots
+of each task loop with its margins (python-control, the discrete loop as the engine runs it)
+and why the axes' phase margins differ; the margins of every loop the runtime can run (a table
+and heat maps over the query-table cells); the responses in the bit-true loop against the
+spec's envelope; the query-table heat maps; and — when the output directory holds them
+(``make demo`` writes them first) — Figure 4 with its table and stated winner, the gantry and
+the linkage.
 
 The page is put together here (:func:`write_report`) from :mod:`.page` (escaping, tables,
 embedded PNGs, the style sheet and the data block), :mod:`.sections` (summary, verification,
-identification, gains, query tables), :mod:`.loops` (Bode, margins, responses) and
-:mod:`.demo_sections` (Figure 4, gantry, linkage); the names other modules import from here
-are re-exported. Outside this package the only module that imports matplotlib is
-:mod:`servotune.plot` (here, :mod:`.page` saves the figures as PNG).
+identification, gains, query tables), :mod:`.resonance` (modes, FRF), :mod:`.loops` (Bode,
+margins, responses) and :mod:`.demo_sections` (Figure 4, gantry, linkage); the names other
+modules import from here are re-exported. Outside this package the only module that imports
+matplotlib is :mod:`servotune.plot` (here, :mod:`.page` saves the figures as PNG).
 """
 
 from __future__ import annotations
@@ -42,6 +44,7 @@ from servotune.report.page import (
     escape_html,
     page_html,
 )
+from servotune.report.resonance import FrfSource, resonance_section
 from servotune.report.sections import (
     gains_section,
     identification_section,
@@ -77,6 +80,7 @@ def _nav(body: str) -> str:
         ("summary", "Summary"),
         ("verification", "Verification"),
         ("identification", "Identification"),
+        ("resonance", "Resonance"),
         ("gains", "Gains"),
         ("loops", "Loops"),
         ("margins", "Margins"),
@@ -100,6 +104,7 @@ def write_report(
     seed: int = 0,
     fits: Mapping[str, Any] | None = None,
     spec_path: str | Path | None = None,
+    frf: Mapping[str, FrfSource] | None = None,
 ) -> Path:
     """Write ``report.html`` into ``out_dir`` (atomically) and return its path.
 
@@ -121,6 +126,11 @@ def write_report(
         when that records the fit % (``servotune fit -o`` does).
     spec_path : str or Path, optional
         The spec file verified against (named in the next step's commands).
+    frf : mapping, optional
+        Per axis, its measured frequency response: the path of a ``servotune frf`` JSON file
+        or an :class:`~servotune.analysis.frf.Frf`, drawn against the rig's model in the
+        resonance section (:mod:`.resonance`; shown when some axis has modes or an FRF is
+        given, docs/frf.md#in-the-report).
 
     Returns
     -------
@@ -140,10 +150,12 @@ def write_report(
         rig_path=str(rig_path),
         spec_path=None if spec_path is None else str(spec_path),
     )
+    resonance, resonance_data = resonance_section(rig, frf)
     sections = [
         summary_section(summary),
         verification_section(verification, summary) if verification is not None else "",
         identification_section(rig, out, fits),
+        resonance,
         gains_section(tuning),
         bode_section(rig, tuning, margins, limits),
         margins_section(tuning, margins, limits, verification),
@@ -169,6 +181,8 @@ def write_report(
         "margins": margins.to_dict(),
         "verification": None if verification is None else verification.to_dict(),
     }
+    if resonance_data is not None:  # without modes and FRFs the page keeps its bytes
+        data["resonance"] = resonance_data
     page = page_html(f"servotune report: {rig.name}", head + _nav(body) + "\n" + body, data)
     path = out / "report.html"
     atomic_write_text(path, page)
