@@ -135,7 +135,7 @@ GROUPS: tuple[KernelGroup, ...] = (
         "simulation",
         "the single-rig engine: simulate, tune, compare, demo",
         25,
-        ("servotune.sim.kernel:_kernel", "servotune.laws.lock:_lock_codes", *_PLANT),
+        ("servotune.sim.kernel:batch_kernel", "servotune.laws.lock:_lock_codes", *_PLANT),
         (
             "servotune.sim.kernel",
             "servotune.sim.tick",
@@ -200,7 +200,11 @@ GROUPS: tuple[KernelGroup, ...] = (
         "linkage",
         "the multi-CPU linkage's kernels: linkage, verify of a plan, demo",
         25,
-        ("servotune.arch.linkage.kernel:_kernel", "servotune.arch.linkage.path:_contour", *_PLANT),
+        (
+            "servotune.arch.linkage.kernel:linkage_kernel",
+            "servotune.arch.linkage.path:contour_distances",
+            *_PLANT,
+        ),
         ("servotune.arch.linkage",),
         "servotune.warmup:run_linkage",
     ),

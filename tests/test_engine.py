@@ -402,7 +402,7 @@ def test_one_axis_metrics_only_equal_traced_run(
     def no_general_kernel(*args: object) -> None:
         raise AssertionError("a one-axis metrics-only batch must run in the lean kernel")
 
-    monkeypatch.setattr(engine, "_kernel", no_general_kernel)
+    monkeypatch.setattr(engine, "batch_kernel", no_general_kernel)
     for threads in (1, 2):
         lean = st.run_batch(batch, inputs, metrics_only=True, metric_from_tick=150, threads=threads)
         np.testing.assert_array_equal(lean.metrics.array, traced.metrics.array)

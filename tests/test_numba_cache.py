@@ -67,7 +67,7 @@ def test_servotune_functions_cache_under_the_digest_and_others_are_untouched() -
     user_dir = os.environ.get("NUMBA_CACHE_DIR")
     expected = Path(user_dir) if user_dir else _numba_cache.cache_dir()
     assert expected is not None
-    for fn in (lean.kernel_lean, kernel._kernel, pi.pi_step, fixed.sat_add):
+    for fn in (lean.kernel_lean, kernel.batch_kernel, pi.pi_step, fixed.sat_add):
         assert Path(fn._cache._cache_path).is_relative_to(expected), fn
     # the setting is restored after servotune's imports: other packages keep numba's default
     assert numba.config.CACHE_DIR == os.environ.get("NUMBA_CACHE_DIR", "")

@@ -183,7 +183,7 @@ def test_a_long_compilation_beats_and_a_group_is_said_once() -> None:
     def dispatcher(module: str, name: str) -> SimpleNamespace:
         return SimpleNamespace(py_func=SimpleNamespace(__module__=module, __qualname__=name))
 
-    kernel = dispatcher("servotune.sim.kernel", "_kernel")
+    kernel = dispatcher("servotune.sim.kernel", "batch_kernel")
     callee = dispatcher("servotune.plant", "advance")
     lines: list[str] = []
     with warmup.compile_notices(lines.append, heartbeat_s=0.05):

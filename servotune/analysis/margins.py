@@ -73,6 +73,7 @@ __all__ = [
     "grid_margins",
     "loop_margins",
     "loop_model",
+    "margin_grid",
     "tuning_margins",
     "unwrapped_phase",
 ]
@@ -313,7 +314,9 @@ def grid_margins(
     return {"pm": out[..., 0], "gm": out[..., 1], "ms": out[..., 2], "wc_top": out[..., 3]}
 
 
-def _grid(plant: Plant, period_s: float) -> np.ndarray:
+def margin_grid(plant: Plant, period_s: float) -> np.ndarray:
+    """The frequency grid a loop's margins are measured on: :data:`GRID_POINTS` log-spaced,
+    from :data:`GRID_DECADES_BELOW` decades below the plant's corner (or Nyquist) to Nyquist."""
     nyq = math.pi / period_s
     top = nyq * (1.0 - 1e-9)  # below Nyquist however it is rounded: python-control takes it
     lo = min(1.0 / plant.tau_s, nyq) * 10.0**-GRID_DECADES_BELOW
@@ -587,7 +590,7 @@ def _margins_of(
 ) -> LoopMargins:
     lag = rig.timer.compute_s + plant.delay_s + case.extra_lag_s
     model = loop_model(plant, g, period_s=case.period_s, lag_s=lag, lsb_volts=rig.dac.lsb_v)
-    figures = loop_margins(model, _grid(plant, case.period_s))
+    figures = loop_margins(model, margin_grid(plant, case.period_s))
     return LoopMargins(
         axis=axis,
         loop=loop,
@@ -664,7 +667,7 @@ def tuning_margins(
             scores = []
             for ci, case in enumerate(others):
                 plant = case.plants[a]
-                w = _grid(plant, case.period_s)
+                w = margin_grid(plant, case.period_s)
                 gr = plant_response(plant, rig, case, w)[None, :]
                 m = grid_margins(
                     w, gains, controller_basis(w, case.period_s), gr, unwrapped_phase(gr)

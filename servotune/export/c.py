@@ -54,6 +54,8 @@ __all__ = [
     "LINK_RUNTIME_FILES",
     "PLANT_RUNTIME_FILES",
     "RUNTIME_FILES",
+    "c_identifiers",
+    "int32_literal",
     "runtime_source",
     "to_string",
     "write_c",
@@ -90,7 +92,7 @@ def runtime_source(name: str) -> str:
     return resources.files("servotune.export").joinpath("runtime", name).read_text(encoding="utf-8")
 
 
-def _identifiers(
+def c_identifiers(
     names: tuple[str, ...], what: str = "axis", prefix: str = "axis_", upper: bool = False
 ) -> list[str]:
     """C identifiers of ``names`` (non-alphanumerics as ``_``, lower or upper case, ``prefix``
@@ -114,7 +116,8 @@ def comment_text(s: str) -> str:
     return s.replace("*/", "*\\/").replace("\n", " ")
 
 
-def _q(v: int) -> str:
+def int32_literal(v: int) -> str:
+    """A quantised gain as a C ``int32_t`` constant: ``INT32_C(v)``."""
     return f"INT32_C({v})"
 
 
@@ -147,7 +150,7 @@ def axis_lines(ax: Mapping[str, Any], ident: str) -> tuple[list[str], list[str]]
         f"/* axis {ax['index']}: {comment_text(ax['name'])} (role {ax['role']}, law {law}, "
         f"{src}) */",
         f"#define ST_AXIS_{ident.upper()} {ax['index']}",
-        f"#define {up}_LOCK_Q {_q(ax['lock_gain']['q'])} /* lock gain [LSB/count] */",
+        f"#define {up}_LOCK_Q {int32_literal(ax['lock_gain']['q'])} /* lock gain [LSB/count] */",
         f"#define {up}_LOCK_F {ax['lock_gain']['f']}",
         f"#define {up}_FE_LIMIT {ax['following_error_limit_counts']} /* [counts], 0 = off */",
     ]
@@ -175,7 +178,7 @@ def axis_lines(ax: Mapping[str, Any], ident: str) -> tuple[list[str], list[str]]
             ("kec", "KEC", "Kec [levels per count/tick]"),
         ]
     for key, mac, title in consts:
-        lines.append(f"#define {up}_{mac}_Q {_q(task[key]['q'])} /* {title} */")
+        lines.append(f"#define {up}_{mac}_Q {int32_literal(task[key]['q'])} /* {title} */")
         lines.append(f"#define {up}_{mac}_F {task[key]['f']}")
         init.append(f".{mac.lower()}_q = {up}_{mac}_Q")
         init.append(f".{mac.lower()}_f = {up}_{mac}_F")
@@ -221,7 +224,7 @@ def _header(doc: Mapping[str, Any]) -> str:
     data, prov = doc["data"], doc["provenance"]
     axes = data["axes"]
     digest = data["c_layout_sha256"]  # tables_document computed it (layout.c_layout_sha256)
-    idents = _identifiers(tuple(a["name"] for a in axes))
+    idents = c_identifiers(tuple(a["name"] for a in axes))
     verification = prov["verification"]
     if verification is None:
         summary = "none"

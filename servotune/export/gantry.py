@@ -46,14 +46,14 @@ from servotune.errors import DigestError, ExportError
 from servotune.export.c import (
     GANTRY_RUNTIME_FILES,
     RUNTIME_FILES,
-    _q,
     axis_lines,
     comment_text,
     digest_bytes_lines,
+    int32_literal,
     write_c_files,
 )
 from servotune.export.gantry_layout import gantry_layout_sha256
-from servotune.export.json import _dumps, write_export
+from servotune.export.json import document_text, write_export
 from servotune.io.files import json_safe, parse_json
 from servotune.rig import Rig
 
@@ -160,7 +160,7 @@ def gantry_document(
 
 def gantry_tables_to_string(doc: Mapping[str, Any]) -> str:
     """The JSON text of a document (deterministic bytes)."""
-    return _dumps(doc)
+    return document_text(doc)
 
 
 def write_gantry_tables(doc: Mapping[str, Any], path: str | Path) -> None:
@@ -195,11 +195,11 @@ def _sync_lines(sync: Mapping[str, Any]) -> tuple[list[str], list[str]]:
         "",
         f"/* sync compensator: law {sync['law']}; gains in counts of compensation per count of",
         " * sync error, value q * 2^-f */",
-        f"#define ST_GANTRY_SYNC_KP_Q {_q(k['kp']['q'])} /* Kp [-] */",
+        f"#define ST_GANTRY_SYNC_KP_Q {int32_literal(k['kp']['q'])} /* Kp [-] */",
         f"#define ST_GANTRY_SYNC_KP_F {k['kp']['f']}",
-        f"#define ST_GANTRY_SYNC_KIT_Q {_q(k['ki_t']['q'])} /* Ki*T [-/cycle] */",
+        f"#define ST_GANTRY_SYNC_KIT_Q {int32_literal(k['ki_t']['q'])} /* Ki*T [-/cycle] */",
         f"#define ST_GANTRY_SYNC_KIT_F {k['ki_t']['f']}",
-        f"#define ST_GANTRY_SYNC_KDT_Q {_q(k['kd_t']['q'])} /* Kd/T [-*cycle] */",
+        f"#define ST_GANTRY_SYNC_KDT_Q {int32_literal(k['kd_t']['q'])} /* Kd/T [-*cycle] */",
         f"#define ST_GANTRY_SYNC_KDT_F {k['kd_t']['f']}",
         f"#define ST_GANTRY_SYNC_DEAD_ZONE {k['dead_zone_counts']} /* [counts] */",
         f"#define ST_GANTRY_SYNC_LIMIT {k['limit_counts']} /* largest compensation [counts] */",

@@ -112,6 +112,7 @@ __all__ = [
     "check_tables",
     "constants_crc32",
     "controllers_from_tables",
+    "document_text",
     "load_tables",
     "table_crc32",
     "tables_document",
@@ -365,7 +366,9 @@ _NUM = r"-?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?"
 _NUM_LIST = re.compile(r"\[\n\s*(" + _NUM + r"(?:,\n\s*" + _NUM + r")*)\n\s*\]")
 
 
-def _dumps(doc: Mapping[str, Any]) -> str:
+def document_text(doc: Mapping[str, Any]) -> str:
+    """An export document as JSON text: sorted keys, indented, lists of numbers on one line,
+    a final newline (deterministic bytes)."""
     text = json.dumps(doc, sort_keys=True, indent=2, allow_nan=False, ensure_ascii=False)
     text = _NUM_LIST.sub(lambda m: "[" + re.sub(r",\n\s*", ", ", m.group(1)) + "]", text)
     return text + "\n"
@@ -381,7 +384,7 @@ def to_string(tuning: Tuning, **options: Unpack[TablesOptions]) -> str:
     >>> load_tables(text)["schema"]  # doctest: +SKIP
     'servotune.tables/2'
     """
-    return _dumps(tables_document(tuning, **options))
+    return document_text(tables_document(tuning, **options))
 
 
 def to_file(tuning: Tuning, path: str | Path, **options: Unpack[TablesOptions]) -> None:

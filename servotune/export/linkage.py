@@ -41,11 +41,11 @@ from servotune.errors import DigestError, ExportError
 from servotune.export.c import (
     LINK_RUNTIME_FILES,
     RUNTIME_FILES,
-    _identifiers,
+    c_identifiers,
     comment_text,
     write_c_files,
 )
-from servotune.export.json import _dumps, recorded_sha
+from servotune.export.json import document_text, recorded_sha
 from servotune.io.files import json_safe, parse_json
 from servotune.laws.pi import PIConstants
 
@@ -142,7 +142,7 @@ def linkage_plan_json(
 ) -> str:
     """The JSON export's text: sorted keys, two-space indent, trailing newline
     (:func:`linkage_plan_document`)."""
-    return _dumps(linkage_plan_document(plan, record, unverified=unverified))
+    return document_text(linkage_plan_document(plan, record, unverified=unverified))
 
 
 def check_linkage_export(text: str, src: str = "<text>") -> dict[str, Any]:
@@ -192,8 +192,8 @@ def linkage_c_header(
     _check_record(record, unverified)
     _check_fits(plan)
     verified = record is not None and record.get("passed") is True and not unverified
-    cpu_ids = _identifiers(tuple(c.name for c in plan.cpus), "cpu", "N_", upper=True)
-    axis_ids = _identifiers(plan.axis_names, "axis", "N_", upper=True)
+    cpu_ids = c_identifiers(tuple(c.name for c in plan.cpus), "cpu", "N_", upper=True)
+    axis_ids = c_identifiers(plan.axis_names, "axis", "N_", upper=True)
     bus = plan.bus
     spec_sha = _file_sha(record, "spec")
     out = [

@@ -43,6 +43,7 @@ from servotune.rig import Rig
 __all__ = [
     "FleetFitOptions",
     "FleetRow",
+    "dated",
     "fit_fleet_log",
     "latest_fits",
     "machine_and_date",
@@ -406,7 +407,7 @@ def _error(exc: BaseException, name: str, src: str) -> str:
     return _one_line(text or type(exc).__name__, name, src)
 
 
-def _dated(row: FleetRow) -> bool:
+def dated(row: FleetRow) -> bool:
     """The row has an ISO 8601 date (``2025-03-01``…), so it is compared for drift."""
     return bool(_ISO_DATE.match(row.date))
 
@@ -439,7 +440,7 @@ def latest_fits(
     """
     fitted = [r for r in rows if r.ok and (r.adequate is True or not adequate_only)]
     latest: dict[tuple[str, str], FleetRow] = {}
-    for r in sorted(fitted, key=lambda r: (r.date if _dated(r) else "", r.file)):
+    for r in sorted(fitted, key=lambda r: (r.date if dated(r) else "", r.file)):
         latest[(r.axis, r.machine_id)] = r
     return dict(sorted(latest.items()))
 

@@ -56,7 +56,7 @@ from typing import Any
 
 import numpy as np
 
-from servotune.fleet.rows import FleetRow, _dated, latest_fits, plain
+from servotune.fleet.rows import FleetRow, dated, latest_fits, plain
 from servotune.identify.model import ALL_PARAMS, UNITS
 
 __all__ = [
@@ -526,12 +526,12 @@ def summarise_fleet(
         (r, "baseline") for r in baseline if r.ok and r.sha256 not in in_run
     ]
     for (axis, machine), now in sorted(latest.items()):
-        if axis in small or not _dated(now):
+        if axis in small or not dated(now):
             continue
         before_all = [
             (r, src)
             for r, src in earlier
-            if r.axis == axis and r.machine_id == machine and _dated(r) and r.date < now.date
+            if r.axis == axis and r.machine_id == machine and dated(r) and r.date < now.date
         ]
         if not before_all:
             continue
@@ -572,7 +572,7 @@ def summarise_fleet(
         n_failed=len(rows) - len(fitted),
         n_machines=len({r.machine_id for r in fitted}),
         n_inadequate=sum(1 for r in fitted if r.adequate is False),
-        n_undated=sum(1 for r in fitted if not _dated(r)),
+        n_undated=sum(1 for r in fitted if not dated(r)),
         n_baseline=len(baseline),
         spreads=tuple(spreads),
         outliers=tuple(outliers),

@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from servotune.errors import SpecError
-from servotune.fuzzy.rules import N_SETS, RuleBase, RuleTable, _indices, rule_table
+from servotune.fuzzy.rules import N_SETS, RuleBase, RuleTable, rule_table, table_indices
 from servotune.laws.fuzzy_pid import TABLE_NAMES
 
 __all__ = [
@@ -290,7 +290,7 @@ def evaluate(
 
     if isinstance(rules, RuleBase):
         return {t: one(rules.indices(t)) for t in TABLE_NAMES}
-    return one(_indices(rule_table(rules, "rules")))
+    return one(table_indices(rule_table(rules, "rules")))
 
 
 def query_table(

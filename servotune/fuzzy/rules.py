@@ -25,6 +25,7 @@ __all__ = [
     "RuleTable",
     "format_rules",
     "parse_rules",
+    "table_indices",
 ]
 
 SETS = ("NB", "NM", "NS", "ZO", "PS", "PM", "PB")
@@ -120,7 +121,8 @@ def format_rules(table: RuleTable | str) -> str:
     return " | ".join(" ".join(row) for row in rule_table(table, "table"))
 
 
-def _indices(table: RuleTable) -> np.ndarray:
+def table_indices(table: RuleTable) -> np.ndarray:
+    """A rule table as set indices 0 (NB) … 6 (PB), an int64 array of shape (7, 7)."""
     return np.array([[INDEX[c] for c in row] for row in table], dtype=np.int64)
 
 
@@ -174,7 +176,7 @@ class RuleBase:
 
     def indices(self, which: str) -> np.ndarray:
         """Rule table ``which`` as set indices 0 (NB) … 6 (PB), int array of shape (7, 7)."""
-        return _indices(self.table(which))
+        return table_indices(self.table(which))
 
     def to_dict(self) -> dict[str, str]:
         """Plain dict: the name and each table in compact text form (``RuleBase(**d)`` reads it)."""

@@ -29,7 +29,7 @@ from servotune.laws.axis import LAW_FUZZY_PID, MODE_TASK, AxisController
 from servotune.plant import NROW, Plant, plant_row
 from servotune.rig import Rig
 from servotune.scenarios import Inputs
-from servotune.sim.kernel import _G_KIT, _G_KP, _G_LOCK, _I_LAG, LANES, NPI, _kernel
+from servotune.sim.kernel import G_KIT, G_KP, G_LOCK, I_LAG, LANES, NPI, batch_kernel
 from servotune.sim.lean import CONSTS_CAPACITY, kernel_lean
 from servotune.sim.result import BatchMetrics, BatchResult, BatchTraces, Trace
 from servotune.sim.tick import METRIC_NAMES, N_METRICS
@@ -148,10 +148,10 @@ def _consts_rows(
     ]
     gains = np.zeros((len(controllers), 3))
     for i, c in enumerate(controllers):
-        gains[i, _G_LOCK] = c.lock_gain.value
+        gains[i, G_LOCK] = c.lock_gain.value
         if c.task is not None:
-            gains[i, _G_KP] = c.task.kp.value
-            gains[i, _G_KIT] = c.task.ki_t.value
+            gains[i, G_KP] = c.task.kp.value
+            gains[i, G_KIT] = c.task.ki_t.value
     return rows, gains
 
 
@@ -233,7 +233,7 @@ def prepare_batch(
         seed_arr = np.asarray(checked, dtype=np.uint64)
         if seed_arr.shape != (n,):
             raise SimulationError(f"need {n} seeds, got {seed_arr.size}")
-    ring = int(pi[:, :, _I_LAG].max()) + 2
+    ring = int(pi[:, :, I_LAG].max()) + 2
     return Batch(
         loop=loop,
         pf=pf,
@@ -343,7 +343,7 @@ def run_batch(
             _run_lean_batch(batch, inputs, metric_from_tick, metrics)
         else:
             call_compiled(
-                _kernel,
+                batch_kernel,
                 batch.pf,
                 batch.pi,
                 batch.consts,

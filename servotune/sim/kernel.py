@@ -2,7 +2,7 @@
 
 Each tick composes :mod:`servotune.sim.tick` (sample, read, law, D/A, hold, advance) for every
 axis; candidates are interleaved ``LANES`` per thread and run in parallel (numba ``prange``).
-Layouts of the per-candidate integer and gain rows are the ``_I_*`` and ``_G_*`` indices.
+Layouts of the per-candidate integer and gain rows are the ``I_*`` and ``G_*`` indices.
 """
 
 from __future__ import annotations
@@ -28,14 +28,16 @@ from servotune.sim.tick import (
     write_axis,
 )
 
-__all__ = ["LANES"]
+__all__ = ["G_KIT", "G_KP", "G_LOCK", "I_INIT", "I_LAG", "LANES", "NPI", "batch_kernel"]
 
+# The layouts of the per-candidate rows, shared with the engine and the lean kernels, which
+# pack and read them: plain module-level ints, which numba compiles in as constants.
 # plant rows (float64, per candidate and axis): servotune.plant.plant_row; integer parameters:
 # whole ticks of lag, counter register at start
-_I_LAG, _I_INIT = 0, 1
+I_LAG, I_INIT = 0, 1
 NPI = 2
 # ideal-law gains (float64): lock, kp, ki*T
-_G_LOCK, _G_KP, _G_KIT = 0, 1, 2
+G_LOCK, G_KP, G_KIT = 0, 1, 2
 
 LANES = 2
 """Candidates interleaved per thread: independent lanes let the CPU overlap their tick chains."""
@@ -120,7 +122,7 @@ def _run_group(
                 p_s,
                 v_s,
                 nz,
-                pib[ln, _I_INIT],
+                pib[ln, I_INIT],
                 mask,
                 latched,
                 nbytes,
@@ -141,10 +143,10 @@ def _run_group(
                     if mode_f[ln] != MODE_LOCK or k == 0:
                         target_f[ln] = yf[ln]
                     e_f = target_f[ln] - yf[ln]
-                    u = gb[ln, _G_LOCK] * e_f
+                    u = gb[ln, G_LOCK] * e_f
                 elif md == MODE_TASK:
                     e_f = r - yf[ln]
-                    u, integ_f[ln] = pi_ideal_step(gb[ln, _G_KP], gb[ln, _G_KIT], integ_f[ln], e_f)
+                    u, integ_f[ln] = pi_ideal_step(gb[ln, G_KP], gb[ln, G_KIT], integ_f[ln], e_f)
                 else:
                     e_f = 0.0
                     u = float(u_add[k, a])
@@ -176,14 +178,14 @@ def _run_group(
             a = lane_ax[ln]
             w_off = pfb[ln, R_OFFSET] + load[k, a]
             pos[ln], spd[ln] = advance_axis(
-                pos[ln], spd[ln], qs[ln], hist[ln], slot, pib[ln, _I_LAG], k, w_off, pfb[ln]
+                pos[ln], spd[ln], qs[ln], hist[ln], slot, pib[ln, I_LAG], k, w_off, pfb[ln]
             )
     for ln in range(n_l):
         finish(mt, ln, metrics, b0 + lane_g[ln], lane_ax[ln])
 
 
 @jit(parallel=True)
-def _kernel(
+def batch_kernel(
     pf,
     pi,
     consts,
@@ -209,6 +211,8 @@ def _kernel(
     metrics,
     lanes,
 ):
+    """Run every candidate of a batch (arguments: :mod:`servotune.sim.engine`'s plumbing),
+    ``lanes`` candidates interleaved per thread, the groups in parallel."""
     n = pf.shape[0]
     n_groups = (n + lanes - 1) // lanes
     for gi in nb.prange(n_groups):

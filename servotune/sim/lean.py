@@ -17,7 +17,7 @@ from servotune._numba_cache import jit
 from servotune.laws.axis import MODE_TASK, N_STATE, S_MODE, axis_control, axis_read
 from servotune.plant import NROW, R_NOISE, R_OFFSET, advance_tick_modal
 from servotune.resonance import MAX_MODES
-from servotune.sim.kernel import _I_INIT, _I_LAG
+from servotune.sim.kernel import I_INIT, I_LAG
 from servotune.sim.tick import N_METRICS, accumulate, draw_noise, finish, latch, sensed
 
 __all__ = ["CONSTS_CAPACITY"]
@@ -103,7 +103,7 @@ def _run_lean(
     period,
     metrics,
 ):
-    """Run candidate ``b`` of a one-axis batch and write its metrics (arguments as _kernel).
+    """Run candidate ``b`` of a one-axis batch and write its metrics (as in :func:`kernel_lean`).
 
     Needs whole ticks of lag 0 or 1 (``Batch.ring <= 3``); integer runtime, no traces. The
     per-tick inputs ``ref`` … ``load`` are the axis's 1-D columns (contiguous: plain indexing).
@@ -125,8 +125,8 @@ def _run_lean(
         row[j] = pf[b, 0, j]
     noise = row[R_NOISE]
     offset = row[R_OFFSET]
-    init = pi[b, 0, _I_INIT]
-    lag = pi[b, 0, _I_LAG]
+    init = pi[b, 0, I_INIT]
+    lag = pi[b, 0, I_LAG]
     rng = seeds[b]
     pos = 0.0
     spd = 0.0

@@ -34,7 +34,7 @@ from servotune._numba_cache import call_compiled, jit
 from servotune.errors import SimulationError
 from servotune.laws.axis import FAULT_MASK, FLAG_SATURATED, MODE_TASK, N_STATE, axis_read
 from servotune.plant import NROW, R_MODES, R_NOISE, R_OFFSET, advance_tick_inlined
-from servotune.sim.kernel import _I_INIT, _I_LAG
+from servotune.sim.kernel import I_INIT, I_LAG
 from servotune.sim.lean import CONSTS_CAPACITY, frame_buffer
 from servotune.sim.tick import draw_noise, draw_uniforms, latch, write_axis
 
@@ -386,7 +386,7 @@ def _run_sync(
                     nzb[d] * sigma,
                     pos[a],
                     spd[a],
-                    pi[b, a, _I_INIT],
+                    pi[b, a, I_INIT],
                     mask,
                     latched,
                     nbytes,
@@ -394,9 +394,9 @@ def _run_sync(
                 )
                 rng += _TWO_GOLDEN  # the two splitmix64 steps of the draw
             else:
-                raw = latch(pos[a], spd[a], 0.0, pi[b, a, _I_INIT], mask, latched, nbytes, skew)
+                raw = latch(pos[a], spd[a], 0.0, pi[b, a, I_INIT], mask, latched, nbytes, skew)
             if k == 0:  # the runtime's frame: its first read is count 0
-                first[a] = (raw - pi[b, a, _I_INIT]) & mask
+                first[a] = (raw - pi[b, a, I_INIT]) & mask
                 if first[a] >= np.int64(1) << (bits - 1):
                     first[a] -= np.int64(1) << bits
             if reset[i, a]:
@@ -462,7 +462,7 @@ def _run_sync(
                 if flags & FLAG_SATURATED:
                     n_sat[a] += 1
             # the writes of ticks k - lag and k - lag - 1 acting in this tick; 0 V before tick 0
-            if pi[b, a, _I_LAG] == 0:
+            if pi[b, a, I_LAG] == 0:
                 v_new = volts
                 v_old = v1[a]
             else:

@@ -388,7 +388,7 @@ def test_engine_paths_agree_bit_for_bit_on_an_asymmetric_plant(
     def no_general_kernel(*args: object) -> None:
         raise AssertionError("a one-axis metrics-only batch must run in the lean kernel")
 
-    monkeypatch.setattr(engine, "_kernel", no_general_kernel)
+    monkeypatch.setattr(engine, "batch_kernel", no_general_kernel)
     lean = st.run_batch(batch, inputs, metrics_only=True, threads=2)
     np.testing.assert_array_equal(lean.metrics.array, traced.metrics.array)
     # the run crosses zero speed both ways, and the asymmetry changes it

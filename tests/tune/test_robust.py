@@ -21,9 +21,9 @@ from servotune.analysis.margins import (
     GainSet,
     LoopFigures,
     MarginLimits,
-    _grid,
     loop_margins,
     loop_model,
+    margin_grid,
 )
 from servotune.analysis.plant_cases import plant_cases
 from servotune.cli import main
@@ -46,7 +46,7 @@ def _verdict(rig, case, axis: int, g: GainSet) -> LoopFigures:
     plant = case.plants[axis]
     lag = rig.timer.compute_s + plant.delay_s + case.extra_lag_s
     model = loop_model(plant, g, period_s=case.period_s, lag_s=lag, lsb_volts=rig.dac.lsb_v)
-    return loop_margins(model, _grid(plant, case.period_s))
+    return loop_margins(model, margin_grid(plant, case.period_s))
 
 
 def test_plant_cases_cover_corners_and_latency(rig, cases) -> None:

@@ -159,7 +159,7 @@ def test_plant_response_is_python_controls_own_route(rig) -> None:
     ``tb04ad`` (then the two agree to rounding)."""
     import importlib.util
 
-    from servotune.analysis.margins import _grid
+    from servotune.analysis.margins import margin_grid
     from servotune.analysis.plant_cases import plant_cases, plant_response
     from servotune.modal import discretize
 
@@ -170,7 +170,7 @@ def test_plant_response_is_python_controls_own_route(rig) -> None:
     n = 0
     for c in cases:
         for plant in c.plants:
-            w = _grid(plant, c.period_s)
+            w = margin_grid(plant, c.period_s)
             lag = rig.timer.compute_s + plant.delay_s + c.extra_lag_s
             tf = control.ss2tf(discretize(plant, c.period_s, lag) * rig.dac.lsb_v)
             want = control.frequency_response(tf, w).complex.ravel()

@@ -20,9 +20,9 @@ from servotune.analysis.margins import (
     GainSet,
     LoopMargins,
     MarginLimits,
-    _grid,
     loop_margins,
     loop_model,
+    margin_grid,
 )
 from servotune.arch.gantry.config import GantryAxis, GantryConfig, GantryMargins
 from servotune.arch.gantry.design import sync_loop_models
@@ -134,7 +134,7 @@ def gantry_margins(
             model = loop_model(
                 plant, g, period_s=dt, lag_s=cfg.bus.compute_s + plant.delay_s + late, lsb_volts=lsb
             )
-            figures = loop_margins(model, _grid(plant, dt))
+            figures = loop_margins(model, margin_grid(plant, dt))
             out.append(
                 LoopMargins(
                     axis=name,
@@ -154,7 +154,7 @@ def gantry_margins(
             s = cfg.sync.gains
             g = GainSet(s.kp, s.ki * dt, s.kd / dt)
             loop = sync_loop_models(c).loop
-            figures = loop_margins(loop, _grid(case.slave, dt))
+            figures = loop_margins(loop, margin_grid(case.slave, dt))
             out.append(
                 LoopMargins(
                     axis="sync",

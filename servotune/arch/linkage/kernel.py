@@ -37,22 +37,53 @@ from servotune.laws.axis import (
 from servotune.plant import R_H1, R_NOISE, R_OFFSET, advance_span
 from servotune.sim.tick import advance_axis, draw_noise, held, hold, read_axis, write_axis
 
-__all__: list[str] = []  # private: the names run.py needs are imported by name
+__all__ = [
+    "A_FLAGS",
+    "A_SAT",
+    "A_T_FAULT",
+    "I_INIT",
+    "I_LAG",
+    "I_RING",
+    "NA",
+    "NE",
+    "NI",
+    "NS",
+    "NT",
+    "NTF",
+    "S_MAX",
+    "S_MIN",
+    "S_OVER",
+    "S_RESYNC",
+    "S_SKIP",
+    "S_TICKS",
+    "S_T_OVER",
+    "S_T_UNDER",
+    "S_UNDER",
+    "T_CODE",
+    "T_POS",
+    "T_REF",
+    "T_SPD",
+    "T_Y",
+    "linkage_kernel",
+]
 
+# The layouts of the kernel's arrays, shared with run.py (which packs the integer parameters
+# and reads the statistics and traces by them): row and column indices and their counts, plain
+# module-level ints, which numba compiles in as constants.
 # per-CPU statistics
-_S_UNDER, _S_T_UNDER, _S_OVER, _S_T_OVER, _S_SKIP, _S_MIN, _S_MAX, _S_TICKS, _S_RESYNC = range(9)
+S_UNDER, S_T_UNDER, S_OVER, S_T_OVER, S_SKIP, S_MIN, S_MAX, S_TICKS, S_RESYNC = range(9)
 NS = 9
 # per-axis statistics
-_A_FLAGS, _A_T_FAULT, _A_SAT = 0, 1, 2
+A_FLAGS, A_T_FAULT, A_SAT = 0, 1, 2
 NA = 3
 # per-axis integer parameters: whole CPU ticks of lag, ring length (lag + 2), counter at start
-_I_LAG, _I_RING, _I_INIT = 0, 1, 2
+I_LAG, I_RING, I_INIT = 0, 1, 2
 NI = 3
 # per-tick trace rows: integer (reference, D/A code, unwrapped position) and float (plant
 # position and speed at the tick)
-_T_REF, _T_CODE, _T_Y = 0, 1, 2
+T_REF, T_CODE, T_Y = 0, 1, 2
 NT = 3
-_T_POS, _T_SPD = 0, 1
+T_POS, T_SPD = 0, 1
 NTF = 2
 # per-CPU queue event log (run_linkage(trace=True); result.EVENT_COLUMNS names the columns):
 # the kind, its argument (sync: the master's tick index; tick: the command index executed;
@@ -127,7 +158,7 @@ def _log(ev, n_ev, s, kind, arg, before, after, count, late, nxt):
 
 
 @jit
-def _kernel(
+def linkage_kernel(
     n_ticks,
     period,
     cmd,
@@ -161,9 +192,9 @@ def _kernel(
     """Run the linkage for ``n_ticks`` master ticks (arguments: :func:`run_linkage`'s plumbing).
 
     ``rows[a]`` is axis ``a``'s plant row for its CPU's nominal tick ``period / (1 + ε)``,
-    ``ints[a]`` its ``_I_*`` integers. Outputs: ``actual`` (positions at the master ticks),
+    ``ints[a]`` its ``I_*`` integers. Outputs: ``actual`` (positions at the master ticks),
     the per-CPU queue records ``q_*``, the statistics, and, if ``tr_i``/``tr_f`` have rows,
-    the per-axis trace of each CPU tick (``_T_*`` rows); if ``ev`` has rows, each CPU's queue
+    the per-axis trace of each CPU tick (``T_*`` rows); if ``ev`` has rows, each CPU's queue
     events in order (``_E_*`` columns; ``n_ev[s]``: how many there were, logged or not).
     """
     # the axis states at their CPU's last tick and the tick-slot rings of their writes,
@@ -173,7 +204,7 @@ def _kernel(
     st = np.zeros((n_ax, N_STATE), dtype=np.int64)
     width = 2
     for a in range(n_ax):
-        width = max(width, ints[a, _I_RING])
+        width = max(width, ints[a, I_RING])
     hist = np.zeros((n_ax, width))
     _events(
         n_ticks,
@@ -244,7 +275,7 @@ def _events(
     st,
     hist,
 ):
-    """:func:`_kernel`'s event loop, given the zeroed axis states ``st`` and rings ``hist``.
+    """:func:`linkage_kernel`'s event loop, given the zeroed axis states ``st`` and rings ``hist``.
 
     The arrays the axis tick is passed (law states and constants, plant rows, rings) are used
     through :func:`_unmanaged` views: the caller keeps them alive.
@@ -270,9 +301,9 @@ def _events(
     slot = np.zeros(n_ax, dtype=np.int64)
     last_ref = np.zeros(n_ax, dtype=np.int64)
     for a in range(n_ax):
-        slot[a] = ints[a, _I_RING] - 1
+        slot[a] = ints[a, I_RING] - 1
         last_ref[a] = cmd[0, a]
-        ax_stats[a, _A_T_FAULT] = -1.0
+        ax_stats[a, A_T_FAULT] = -1.0
     # queues
     present = np.zeros((n_cpu, n_cmd), dtype=np.bool_)
     level = np.zeros(n_cpu, dtype=np.int64)
@@ -282,10 +313,10 @@ def _events(
         for i in range(n_pre):
             present[s, i] = True
         level[s] = n_pre
-        cpu_stats[s, _S_T_UNDER] = -1.0
-        cpu_stats[s, _S_T_OVER] = -1.0
-        cpu_stats[s, _S_MIN] = 1e18
-        cpu_stats[s, _S_MAX] = n_pre
+        cpu_stats[s, S_T_UNDER] = -1.0
+        cpu_stats[s, S_T_OVER] = -1.0
+        cpu_stats[s, S_MIN] = 1e18
+        cpu_stats[s, S_MAX] = n_pre
         # the log: the prefill blocks, then the sync at motion start (master tick 0)
         for b in range(prefill):
             lo, hi = min(b * block, n_pre), min((b + 1) * block, n_pre)
@@ -337,7 +368,7 @@ def _events(
                         if present[s, i]:
                             present[s, i] = False
                             level[s] -= 1
-                            cpu_stats[s, _S_SKIP] += 1.0
+                            cpu_stats[s, S_SKIP] += 1.0
                     head[s] = max(head[s], k_r)
                     next_j[s] = k_r
                 _log(ev, n_ev, s, _EV_SYNC, k_r, lvl, level[s], lvl - level[s], j, next_j[s])
@@ -345,14 +376,14 @@ def _events(
                 anc_t[s] = t
                 t_next[s] = _tick_time(anc_t[s], next_j[s] - anc_k[s], period, cpu_eps[s])
                 stretched[s] = True
-                cpu_stats[s, _S_RESYNC] += 1.0
+                cpu_stats[s, S_RESYNC] += 1.0
             r_next += 1
         elif kind == 1:  # a slave tick: pop the command, then every axis of the CPU ticks
             s = which
             j = next_j[s]
             lvl = level[s]
-            if lvl < cpu_stats[s, _S_MIN]:
-                cpu_stats[s, _S_MIN] = lvl
+            if lvl < cpu_stats[s, S_MIN]:
+                cpu_stats[s, S_MIN] = lvl
             c = n_tick[s]
             if c < n_rec:
                 q_time[s, c] = t
@@ -363,9 +394,9 @@ def _events(
                 present[s, j] = False
                 level[s] -= 1
             else:
-                cpu_stats[s, _S_UNDER] += 1.0
-                if cpu_stats[s, _S_T_UNDER] < 0.0:
-                    cpu_stats[s, _S_T_UNDER] = t
+                cpu_stats[s, S_UNDER] += 1.0
+                if cpu_stats[s, S_T_UNDER] < 0.0:
+                    cpu_stats[s, S_T_UNDER] = t
             head[s] = j + 1
             next_j[s] = j + 1
             _log(ev, n_ev, s, _EV_TICK, j, lvl, level[s], 0 if ok else 1, 0, j + 1)
@@ -380,8 +411,8 @@ def _events(
                 if ax_cpu[a] != s:
                     continue
                 row = rows[a]
-                m = ints[a, _I_LAG]
-                ring = hist[a, : ints[a, _I_RING]]
+                m = ints[a, I_LAG]
+                ring = hist[a, : ints[a, I_RING]]
                 w_off = row[R_OFFSET]
                 prev = slot[a]
                 now = prev + 1 if prev + 1 < ring.shape[0] else 0
@@ -405,7 +436,7 @@ def _events(
                     pos[a],
                     spd[a],
                     nz[a],
-                    ints[a, _I_INIT],
+                    ints[a, I_INIT],
                     mask,
                     latched,
                     nbytes,
@@ -421,17 +452,17 @@ def _events(
                 hold(ring, now, volts)
                 slot[a] = now
                 if flags & FLAG_SATURATED:
-                    ax_stats[a, _A_SAT] += 1.0
+                    ax_stats[a, A_SAT] += 1.0
                 fault = flags & (FLAG_COUNTER_FAULT | FLAG_FOLLOWING_ERROR)
-                if fault and ax_stats[a, _A_T_FAULT] < 0.0:
-                    ax_stats[a, _A_T_FAULT] = t
-                ax_stats[a, _A_FLAGS] = float(int(ax_stats[a, _A_FLAGS]) | fault)
+                if fault and ax_stats[a, A_T_FAULT] < 0.0:
+                    ax_stats[a, A_T_FAULT] = t
+                ax_stats[a, A_FLAGS] = float(int(ax_stats[a, A_FLAGS]) | fault)
                 if c < n_tr:
-                    tr_i[_T_REF, c, a] = ref
-                    tr_i[_T_CODE, c, a] = code
-                    tr_i[_T_Y, c, a] = y
-                    tr_f[_T_POS, c, a] = pos[a]
-                    tr_f[_T_SPD, c, a] = spd[a]
+                    tr_i[T_REF, c, a] = ref
+                    tr_i[T_CODE, c, a] = code
+                    tr_i[T_Y, c, a] = y
+                    tr_f[T_POS, c, a] = pos[a]
+                    tr_f[T_SPD, c, a] = spd[a]
             n_tick[s] = c + 1
             t_last[s] = t
             stretched[s] = False
@@ -446,10 +477,10 @@ def _events(
                 actual[k_next, a] = _measure(
                     pos[a],
                     spd[a],
-                    hist[a, : ints[a, _I_RING]],
+                    hist[a, : ints[a, I_RING]],
                     slot[a],
                     c_last,
-                    ints[a, _I_LAG],
+                    ints[a, I_LAG],
                     t - t_last[s],
                     row[R_OFFSET],
                     row,
@@ -475,11 +506,11 @@ def _events(
                         n_lost += 1
                 _log(ev, n_ev, s, _EV_BLOCK, nb_next, lvl, level[s], n_lost, n_late, next_j[s])
                 if dropped:
-                    cpu_stats[s, _S_OVER] += 1.0
-                    if cpu_stats[s, _S_T_OVER] < 0.0:
-                        cpu_stats[s, _S_T_OVER] = t
-                if level[s] > cpu_stats[s, _S_MAX]:
-                    cpu_stats[s, _S_MAX] = level[s]
+                    cpu_stats[s, S_OVER] += 1.0
+                    if cpu_stats[s, S_T_OVER] < 0.0:
+                        cpu_stats[s, S_T_OVER] = t
+                if level[s] > cpu_stats[s, S_MAX]:
+                    cpu_stats[s, S_MAX] = level[s]
             nb_next += 1
     for s in range(n_cpu):
-        cpu_stats[s, _S_TICKS] = n_tick[s]
+        cpu_stats[s, S_TICKS] = n_tick[s]

@@ -15,6 +15,7 @@ from servotune.errors import ConfigError
 __all__ = [
     "ArcGeometry",
     "Interpolation",
+    "contour_distances",
     "interpolate",
 ]
 
@@ -308,7 +309,7 @@ def interpolate(config: LinkageConfig) -> Interpolation:
 
 
 @jit
-def _contour(path, actual, move_of_tick, move_axes):
+def contour_distances(path, actual, move_of_tick, move_axes):
     """Distance from each actual point to the programmed polyline, near the current tick."""
     n, n_ax = actual.shape
     n_p = path.shape[0]

@@ -19,39 +19,39 @@ from servotune.arch.linkage.checks import (
 )
 from servotune.arch.linkage.config import LinkageConfig
 from servotune.arch.linkage.kernel import (
-    _A_FLAGS,
-    _A_SAT,
-    _A_T_FAULT,
-    _I_INIT,
-    _I_LAG,
-    _I_RING,
-    _S_MAX,
-    _S_MIN,
-    _S_OVER,
-    _S_RESYNC,
-    _S_SKIP,
-    _S_T_OVER,
-    _S_T_UNDER,
-    _S_TICKS,
-    _S_UNDER,
-    _T_CODE,
-    _T_POS,
-    _T_REF,
-    _T_SPD,
-    _T_Y,
+    A_FLAGS,
+    A_SAT,
+    A_T_FAULT,
+    I_INIT,
+    I_LAG,
+    I_RING,
     NA,
     NE,
     NI,
     NS,
     NT,
     NTF,
-    _kernel,
+    S_MAX,
+    S_MIN,
+    S_OVER,
+    S_RESYNC,
+    S_SKIP,
+    S_T_OVER,
+    S_T_UNDER,
+    S_TICKS,
+    S_UNDER,
+    T_CODE,
+    T_POS,
+    T_REF,
+    T_SPD,
+    T_Y,
+    linkage_kernel,
 )
 from servotune.arch.linkage.path import (
     TICK_BYTES,
     TICK_BYTES_PER_AXIS,
     TRACE_BYTES_PER_AXIS,
-    _contour,
+    contour_distances,
     interpolate,
 )
 from servotune.arch.linkage.result import (
@@ -329,7 +329,7 @@ def run_linkage(
             )
         tick_s = period / (1.0 + eps[ax_cpu[i]])
         plant_rows[i], m = plant_row(a.plant, tick_s, rig.timer.compute_s, rig.counts_per_rev)
-        ints[i, _I_LAG], ints[i, _I_RING], ints[i, _I_INIT] = m, m + 2, a.counter_init
+        ints[i, I_LAG], ints[i, I_RING], ints[i, I_INIT] = m, m + 2, a.counter_init
     consts = np.stack(
         [
             controllers[a.name].consts(
@@ -355,7 +355,7 @@ def run_linkage(
     ev = np.zeros((n_cpu, n_ev, NE), dtype=np.int64)
     ev_count = np.zeros(n_cpu, dtype=np.int64)
     call_compiled(
-        _kernel,
+        linkage_kernel,
         n_ticks,
         period,
         cmd,
@@ -392,7 +392,7 @@ def run_linkage(
     # per CPU
     cpus = []
     for s, c in enumerate(config.cpus):
-        n = min(int(cpu_stats[s, _S_TICKS]), n_rec)
+        n = min(int(cpu_stats[s, S_TICKS]), n_rec)
         cpus.append(
             CpuResult(
                 name=c.name,
@@ -402,14 +402,14 @@ def run_linkage(
                 tick_time_s=q_time[s, :n].copy(),
                 queue_level=q_level[s, :n].copy(),
                 tick_index=q_index[s, :n].copy(),
-                underruns=int(cpu_stats[s, _S_UNDER]),
-                first_underrun_s=optional_time(cpu_stats[s, _S_T_UNDER]),
-                overruns=int(cpu_stats[s, _S_OVER]),
-                first_overrun_s=optional_time(cpu_stats[s, _S_T_OVER]),
-                min_level=int(cpu_stats[s, _S_MIN]) if n else 0,
-                max_level=int(cpu_stats[s, _S_MAX]),
-                skipped=int(cpu_stats[s, _S_SKIP]),
-                resyncs=int(cpu_stats[s, _S_RESYNC]),
+                underruns=int(cpu_stats[s, S_UNDER]),
+                first_underrun_s=optional_time(cpu_stats[s, S_T_UNDER]),
+                overruns=int(cpu_stats[s, S_OVER]),
+                first_overrun_s=optional_time(cpu_stats[s, S_T_OVER]),
+                min_level=int(cpu_stats[s, S_MIN]) if n else 0,
+                max_level=int(cpu_stats[s, S_MAX]),
+                skipped=int(cpu_stats[s, S_SKIP]),
+                resyncs=int(cpu_stats[s, S_RESYNC]),
                 events=ev[s, : ev_count[s]].copy() if trace else None,
             )
         )
@@ -422,11 +422,11 @@ def run_linkage(
                 AxisTrace(
                     name=a.name,
                     cpu=cpus[ax_cpu[i]].name,
-                    ref_counts=tr_i[_T_REF, :n, i].copy(),
-                    code=tr_i[_T_CODE, :n, i].copy(),
-                    pos_counts=tr_i[_T_Y, :n, i].copy(),
-                    true_pos_counts=tr_f[_T_POS, :n, i].copy(),
-                    speed_cps=tr_f[_T_SPD, :n, i].copy(),
+                    ref_counts=tr_i[T_REF, :n, i].copy(),
+                    code=tr_i[T_CODE, :n, i].copy(),
+                    pos_counts=tr_i[T_Y, :n, i].copy(),
+                    true_pos_counts=tr_f[T_POS, :n, i].copy(),
+                    speed_cps=tr_f[T_SPD, :n, i].copy(),
                 )
             )
     # per axis
@@ -434,7 +434,7 @@ def run_linkage(
     err = command - actual
     axes = []
     for i, a in enumerate(config.axes):
-        flags = int(ax_stats[i, _A_FLAGS])
+        flags = int(ax_stats[i, A_FLAGS])
         fault = None
         if flags & FLAG_FOLLOWING_ERROR:
             fault = "following_error"
@@ -450,13 +450,13 @@ def run_linkage(
                 tuned=tuned,
                 max_abs_err_counts=float(np.max(np.abs(err[:, i]))),
                 rms_err_counts=float(np.sqrt(np.mean(err[:, i] ** 2))),
-                saturated_ticks=int(ax_stats[i, _A_SAT]),
+                saturated_ticks=int(ax_stats[i, A_SAT]),
                 fault=fault,
-                first_fault_s=optional_time(ax_stats[i, _A_T_FAULT]),
+                first_fault_s=optional_time(ax_stats[i, A_T_FAULT]),
             )
         )
     # contour and circular tests
-    contour = call_compiled(_contour, path_pad, actual, move_pad, ip.move_axes)
+    contour = call_compiled(contour_distances, path_pad, actual, move_pad, ip.move_axes)
     arcs = []
     for g in ip.arcs:
         k0 = ip.move_start_tick(g.move)

@@ -10,14 +10,14 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 from scipy.optimize import brentq, minimize_scalar
 
-from servotune.tune.pi.grid import Ctx, _q_im, spectral_radius, ss_response
+from servotune.tune.pi.grid import Ctx, q_im, spectral_radius, ss_response
 from servotune.tune.pi.nlp import Nlp, NlpResult
-from servotune.tune.pi.spec import _TOL_GM_DB, _TOL_MS_REL, _TOL_PM_DEG, _TOL_WC_REL, Spec
+from servotune.tune.pi.spec import TOL_GM_DB, TOL_MS_REL, TOL_PM_DEG, TOL_WC_REL, Spec
 
 if TYPE_CHECKING:  # python-control is imported where used (slow to import)
     import control
 
-__all__: list[str] = []
+__all__ = ["acceptable", "violations"]
 
 
 class _Check(NamedTuple):
@@ -121,7 +121,7 @@ def sens(ctx: Ctx, kp: float, ki: float, w: np.ndarray) -> np.ndarray:
     """``1/(1 + L)`` at ``w``."""
     t = ctx.period_s
     gw = ctx.resp(w)
-    return 1.0 / (1.0 + (kp + ki * (0.5 * t + 1j * _q_im(w, t))) * gw)
+    return 1.0 / (1.0 + (kp + ki * (0.5 * t + 1j * q_im(w, t))) * gw)
 
 
 def fast_check(ctx: Ctx, kp: float, ki: float, w: np.ndarray) -> _Check:
@@ -135,7 +135,7 @@ def fast_check(ctx: Ctx, kp: float, ki: float, w: np.ndarray) -> _Check:
 
     def loop_at(om: np.ndarray) -> np.ndarray:
         gw = ctx.resp(om)
-        return (kp + ki * (0.5 * t + 1j * _q_im(om, t))) * gw
+        return (kp + ki * (0.5 * t + 1j * q_im(om, t))) * gw
 
     w, l_peaks = _refine_grid(loop_at, w)
     lw = loop_at(w)
@@ -197,7 +197,7 @@ def python_control_check(
     return _Check(pm, wgc, wc_top, float(gm_db), wpc, ms, w_ms, found, rho)
 
 
-def _violations(chk: _Check, spec: Spec) -> dict[str, float]:
+def violations(chk: _Check, spec: Spec) -> dict[str, float]:
     """How far each target is missed, in its unit (deg, dB, relative, relative); > 0: missed."""
     out = {}
     if not chk.rho < 1.0:
@@ -215,14 +215,14 @@ def _violations(chk: _Check, spec: Spec) -> dict[str, float]:
     return out
 
 
-def _acceptable(viol: dict[str, float], strict: bool = False) -> bool:
+def acceptable(viol: dict[str, float], strict: bool = False) -> bool:
     """Targets met within the reporting tolerances, or (``strict``) the refinement's."""
     if "stability" in viol:
         return False
     tol = {
-        "phase_margin_deg": 0.0 if strict else _TOL_PM_DEG,
-        "gain_margin_db": 0.0 if strict else _TOL_GM_DB,
-        "max_sensitivity": 0.0 if strict else _TOL_MS_REL,
-        "crossover_rad_s": 0.0 if strict else _TOL_WC_REL,
+        "phase_margin_deg": 0.0 if strict else TOL_PM_DEG,
+        "gain_margin_db": 0.0 if strict else TOL_GM_DB,
+        "max_sensitivity": 0.0 if strict else TOL_MS_REL,
+        "crossover_rad_s": 0.0 if strict else TOL_WC_REL,
     }
     return all(viol[k] <= tol[k] for k in viol)

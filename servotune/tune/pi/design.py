@@ -14,20 +14,20 @@ from servotune.errors import InfeasibleError, SpecError
 from servotune.hw import dac as hw_dac
 from servotune.plant import Plant, lag_split
 from servotune.tune.pi.check import (
-    _acceptable,
-    _violations,
+    acceptable,
     fast_check,
     new_peaks,
     python_control_check,
     sens,
+    violations,
 )
 from servotune.tune.pi.grid import (
     DECADES_BELOW,
     Ctx,
-    _grid,
-    _q_im,
     check_grid,
+    design_grid,
     plant_model,
+    q_im,
     ss_response,
     start_point,
 )
@@ -181,11 +181,11 @@ def tune_pi(
 
     nyq = math.pi / period_s
     w_lo = min(feature, nyq, spec.wc_max or math.inf) * 10.0**-DECADES_BELOW
-    w = _grid(w_lo, nyq, lag + period_s, np.linalg.eigvals(mats[0]))
+    w = design_grid(w_lo, nyq, lag + period_s, np.linalg.eigvals(mats[0]))
     g = resp(w)
     if not np.all(np.isfinite(g)):
         raise SpecError("the discrete plant has a pole on the unit circle away from z = 1")
-    ctx = Ctx(period_s, a, b, c, d, resp, w, g, unwrapped_phase(g), _q_im(w, period_s))
+    ctx = Ctx(period_s, a, b, c, d, resp, w, g, unwrapped_phase(g), q_im(w, period_s))
     w_check = check_grid(w)
     where = f"on this plant at period_s={period_s:g} s, compute_s={compute_s:g} s"
 
@@ -210,9 +210,9 @@ def tune_pi(
         if not (res.success and res.ki > 0):
             break
         chk = fast_check(ctx, res.kp, res.ki, w_check)
-        viol = _violations(chk, spec)
-        strict = _acceptable(viol, strict=True)
-        if _acceptable(viol):
+        viol = violations(chk, spec)
+        strict = acceptable(viol, strict=True)
+        if acceptable(viol):
             designs.append((res.kp, res.ki, res.status, strict))
         guards = np.empty(0) if strict else new_peaks(nlp, res, chk)
         if guards.size:
@@ -241,8 +241,8 @@ def tune_pi(
             pm_t = min(89.99, pm_t + viol["phase_margin_deg"] + 1e-6)
         if viol.get("gain_margin_db", 0.0) > 0:
             gm_t += viol["gain_margin_db"] + 1e-6
-    viol = _violations(fast_check(ctx, *start, w_check), spec)
-    designs.append((*start, "start point", _acceptable(viol, strict=True)))
+    viol = violations(fast_check(ctx, *start, w_check), spec)
+    designs.append((*start, "start point", acceptable(viol, strict=True)))
     # the re-check by python-control decides: designs that meet the targets, the largest Ki
     # first, then those within the tolerances, the last refined first
     tried = sorted((d for d in designs if d[3]), key=lambda d: -d[1])
@@ -250,8 +250,8 @@ def tune_pi(
     for design in tried:
         w_design = fast_check(ctx, design[0], design[1], w_check).w
         chk = python_control_check(p_scaled, design[0], design[1], w_design)
-        viol = _violations(chk, spec)
-        if _acceptable(viol):
+        viol = violations(chk, spec)
+        if acceptable(viol):
             break
     else:
         worst = max(viol, key=lambda k: viol[k])
@@ -260,7 +260,7 @@ def tune_pi(
             f"the best design found misses {worst}"
         )
     kp, ki, status, _ = design
-    viol = _violations(chk, spec)
+    viol = violations(chk, spec)
     binding_tol = {
         "phase_margin_deg": -0.05,
         "gain_margin_db": -0.05,

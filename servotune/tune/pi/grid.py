@@ -12,12 +12,12 @@ import numpy as np
 from servotune.analysis.margins import controller_basis, grid_margins
 from servotune.modal import discretize, discretize_lti
 from servotune.plant import Plant
-from servotune.tune.pi.spec import _TOL_GM_DB, _TOL_MS_REL, _TOL_PM_DEG, _TOL_WC_REL, Spec
+from servotune.tune.pi.spec import TOL_GM_DB, TOL_MS_REL, TOL_PM_DEG, TOL_WC_REL, Spec
 
 if TYPE_CHECKING:  # python-control is imported where used (slow to import)
     import control
 
-__all__ = ["DECADES_BELOW", "POINTS_PER_DECADE"]
+__all__ = ["DECADES_BELOW", "POINTS_PER_DECADE", "design_grid", "q_im"]
 
 POINTS_PER_DECADE = 150
 """Design grid density: log-spaced frequencies per decade (see :func:`tune_pi`)."""
@@ -105,7 +105,7 @@ def _discrete_plant_model(
     return delayed, compute_s, feature
 
 
-def _grid(w_lo: float, nyq: float, lag_s: float, poles: np.ndarray) -> np.ndarray:
+def design_grid(w_lo: float, nyq: float, lag_s: float, poles: np.ndarray) -> np.ndarray:
     """Design grid: log-spaced, refined by a linear grid where a lag turns the phase fast
     (steps of at most 0.2 rad of lag phase) and around lightly damped plant poles."""
     n = max(50, math.ceil(math.log10(nyq / w_lo) * POINTS_PER_DECADE) + 1)
@@ -148,7 +148,7 @@ def ss_response(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: float, z: np.nda
     return out
 
 
-def _q_im(w: np.ndarray, period_s: float) -> np.ndarray:
+def q_im(w: np.ndarray, period_s: float) -> np.ndarray:
     """Im of ``T·z/(z−1)`` at ``z = exp(jωT)``: ``−(T/2)·cot(ωT/2)`` (its real part is T/2)."""
     return -0.5 * period_s / np.tan(0.5 * w * period_s)
 
@@ -182,13 +182,13 @@ def _grid_margins(ctx: Ctx, kp: np.ndarray, ki: np.ndarray) -> dict[str, np.ndar
 def _feasible(m: dict[str, np.ndarray], spec: Spec, slack: float) -> np.ndarray:
     ok = np.ones(m["ms"].shape, dtype=bool)
     if spec.pm_deg is not None:
-        ok &= m["pm"] >= math.radians(spec.pm_deg) - slack * math.radians(_TOL_PM_DEG)
+        ok &= m["pm"] >= math.radians(spec.pm_deg) - slack * math.radians(TOL_PM_DEG)
     if spec.gm_db is not None:
-        ok &= m["gm"] >= spec.gm_db / 20 * math.log(10) - slack * _TOL_GM_DB / 20 * math.log(10)
+        ok &= m["gm"] >= spec.gm_db / 20 * math.log(10) - slack * TOL_GM_DB / 20 * math.log(10)
     if spec.ms is not None:
-        ok &= m["ms"] <= spec.ms * (1 + slack * _TOL_MS_REL)
+        ok &= m["ms"] <= spec.ms * (1 + slack * TOL_MS_REL)
     if spec.wc_max is not None:
-        ok &= m["wc_top"] <= spec.wc_max * (1 + slack * _TOL_WC_REL)
+        ok &= m["wc_top"] <= spec.wc_max * (1 + slack * TOL_WC_REL)
     return ok
 
 

@@ -8,7 +8,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from servotune.tune.pi.grid import Ctx, _q_im
+from servotune.tune.pi.grid import Ctx, q_im
 from servotune.tune.pi.spec import GUARD_GAIN, Spec
 
 __all__: list[str] = []
@@ -76,7 +76,7 @@ def _modelled(
     keep = []
     for c in x180s:
         om = np.array([math.exp(c.x)])
-        loop = (kp + ki * (0.5 * t + 1j * _q_im(om, t)[0])) * ctx.resp(om)[0]
+        loop = (kp + ki * (0.5 * t + 1j * q_im(om, t)[0])) * ctx.resp(om)[0]
         gm_db = -20 * math.log10(abs(loop))
         if c.x < x_last and gm_db < spec.gm_db + 20.0:
             keep.append(c)
@@ -218,7 +218,7 @@ class Nlp:
         if w.size:
             ctx = self.ctx
             gw = ctx.resp(w)
-            out[:, : w.size] = [gw.real, gw.imag, _q_im(w, ctx.period_s)]
+            out[:, : w.size] = [gw.real, gw.imag, q_im(w, ctx.period_s)]
         return out
 
     def solve(

@@ -18,7 +18,14 @@ from servotune.errors import SpecError
 from servotune.io.files import json_float
 from servotune.laws.pi import PIGains
 
-__all__ = ["DEFAULT_TARGETS", "PITuning"]
+__all__ = [
+    "DEFAULT_TARGETS",
+    "TOL_GM_DB",
+    "TOL_MS_REL",
+    "TOL_PM_DEG",
+    "TOL_WC_REL",
+    "PITuning",
+]
 
 DEFAULT_TARGETS: Mapping[str, float] = {
     "phase_margin_deg": 50.0,
@@ -28,7 +35,9 @@ DEFAULT_TARGETS: Mapping[str, float] = {
 """Default robustness targets of a position-loop PI design (the master, the slave's start
 point, the gantry drives, the linkage axes)."""
 
-_TOL_PM_DEG, _TOL_GM_DB, _TOL_MS_REL, _TOL_WC_REL = 0.5, 0.1, 0.01, 0.01
+# how far a reported design may miss each target (deg, dB, relative, relative): the check's
+# tolerances (check.acceptable) and the grid screen's slack (grid.start_point)
+TOL_PM_DEG, TOL_GM_DB, TOL_MS_REL, TOL_WC_REL = 0.5, 0.1, 0.01, 0.01
 REFINE_ROUNDS = 8  # NLP solves at most
 MAX_BUILDS = 3  # NLP rebuilds for a changed crossing structure at most
 GUARD_GAIN = 0.95  # |L| at a guard against a new gain crossover, at most
