@@ -332,7 +332,9 @@ def describe_rig(rig: Rig) -> dict[str, Any]:
         counter's speed limits (high-byte unwrap and input frequency) against each axis's speed
         limit, the time to wrap the counter at that speed, and the lock module's predicted
         holding band (docs/runtime.md#position-lock-and-its-holding-band) for each axis's drift and
-        friction.
+        friction; an axis whose plant has modes (docs/formats.md#modes) also lists them
+        (``modes``: each one's frequency, damping, gain, their 95 % intervals where the rig file
+        has them, and the anti-resonance); an axis without has no such key.
     """
     t, c = rig.timer, rig.counter
     unwrap_rpm = hw_counter.unwrap_speed_limit_rpm(c.bits, rig.counts_per_rev, rig.period_s)
@@ -360,6 +362,8 @@ def describe_rig(rig: Rig) -> dict[str, Any]:
             # a subnormal speed limit underflows to 0 counts/s: it never wraps (inf; JSON null)
             "time_to_wrap_at_speed_limit_s": (1 << c.bits) / v_cps if v_cps > 0 else math.inf,
         }
+        if a.plant.modes:
+            axes[a.name]["modes"] = [m.to_dict() for m in a.plant.modes]
     return {
         "achieved_period_s": rig.period_s,
         "axes": axes,

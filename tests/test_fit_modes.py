@@ -107,6 +107,15 @@ def test_auto_writes_the_belt_mode_into_the_rig_file(
     assert [m["freq_hz"] for m in fit["modes"]] == [pytest.approx(mode.freq_hz, rel=1e-6)]
     assert fit["order_rule"] == "auto" and {h["modes"] for h in fit["held_out"]} >= {0, 1}
     assert fit["modes"][0]["freq_hz_95"] == [pytest.approx(x, rel=1e-6) for x in (lo, hi)]
+    # the written plant's linear part is the frequency-domain fit's, the sampled plant's within
+    # 5 % (the time-domain rigid fit, which has no mode, is not: docs/frf.md#modes)
+    plant, truth = rig.axis("master").plant, st.load_rig(EXAMPLE_RIG).axis("master").plant
+    assert plant.mean_gain_cps_per_v == pytest.approx(fit["rigid"]["gain_cps_per_v"], rel=1e-6)
+    assert plant.mean_gain_cps_per_v == pytest.approx(truth.gain_cps_per_v, rel=0.05)
+    assert plant.tau_s == pytest.approx(truth.tau_s, rel=0.05)
+    written = json.loads(cap.out)["written_plant"]
+    assert written["source"]["tau_s"] == "frequency-domain fit (with the modes)"
+    assert written["fit_pct"]["velocity"] > 95.0
 
 
 @RIGID_FIT_OF_A_MODE

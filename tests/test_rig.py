@@ -322,6 +322,29 @@ def test_cli_rig_text_and_json(capsys: pytest.CaptureFixture[str]) -> None:
     assert "lock holding band" in out
 
 
+def test_cli_rig_lists_the_modes_and_only_when_there_are_any(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["rig", str(EXAMPLE_RIG)]) == 0
+    rigid = capsys.readouterr().out
+    assert "mode" not in rigid  # a rigid rig: the facts as before
+    assert main(["rig", str(EXAMPLE_RIG), "--json"]) == 0
+    assert all("modes" not in a for a in json.loads(capsys.readouterr().out)["axes"].values())
+    belt = _write(tmp_path, EXAMPLE_RIG.read_text() + MODE_TABLE)  # plants/belt-axis.toml's mode
+    assert main(["rig", str(belt)]) == 0
+    text = capsys.readouterr().out
+    assert text.startswith(rigid.rstrip("\n"))  # the facts as before, then the mode
+    assert text.rstrip("\n").splitlines()[-1] == (
+        "  axis master mode         35 Hz, damping 0.04, gain 0.5 (anti-resonance 28.58 Hz)"
+    )
+    assert main(["rig", str(belt), "--json"]) == 0
+    axes = json.loads(capsys.readouterr().out)["axes"]
+    (mode,) = axes["master"]["modes"]
+    assert (mode["freq_hz"], mode["damping"], mode["gain"]) == (35.0, 0.04, 0.5)
+    assert mode["antiresonance_hz"] == pytest.approx(35.0 / 1.5**0.5)  # f / sqrt(1 + g)
+    assert "modes" not in axes["slave"]
+
+
 def test_cli_rig_bad_file_is_one_line_exit_3(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -63,8 +63,22 @@ def cmd_rig(args: argparse.Namespace) -> int:
 
         print(json.dumps(json_safe(facts), indent=2, sort_keys=True, allow_nan=False))
     else:
-        print(format_rig_facts(facts))
+        print(format_rig_facts(facts) + _modes_text(facts))
     return EXIT_OK
+
+
+def _modes_text(facts: dict) -> str:
+    """Lines listing each axis's modes (:func:`servotune.rig.describe_rig`), after the facts;
+    empty for a rig without modes."""
+    lines = []
+    for name, a in facts["axes"].items():
+        for m in a.get("modes", ()):
+            lines.append(
+                f"  {'axis ' + name + ' mode':<25}{m['freq_hz']:.4g} Hz, damping "
+                f"{m['damping']:.3g}, gain {m['gain']:.3g} (anti-resonance "
+                f"{m['antiresonance_hz']:.4g} Hz)"
+            )
+    return "".join("\n" + line for line in lines)
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
@@ -337,8 +351,10 @@ def cmd_frf(args: argparse.Namespace) -> int:
     doc = result.to_dict()
     fitted = None
     if n_modes is not None:
+        from servotune.identify.logfit import check_lines_for_modes
         from servotune.identify.modes import fit_modes
 
+        check_lines_for_modes(result, n_modes)
         fitted = fit_modes(result, n_modes=n_modes, compute_s=compute_s or 0.0)
         doc["model"] = fitted.to_dict()
     as_json = json.dumps(doc, indent=2, sort_keys=True) + "\n"

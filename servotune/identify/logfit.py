@@ -12,6 +12,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 from servotune.errors import IdentificationError, LogFormatError, SpecError
 from servotune.identify.fitting import MIN_SAMPLES, fit
 from servotune.identify.result import FitResult
@@ -24,6 +26,7 @@ if TYPE_CHECKING:
     from servotune.analysis.frf import Frf
 
 __all__ = [
+    "check_lines_for_modes",
     "check_modes_request",
     "fit_log",
     "fit_log_modes",
@@ -185,7 +188,35 @@ def measure_for_modes(log: Log, axis: str | None, modes: int | str | None) -> Fr
         return None
     from servotune.analysis.frf import frf  # here: only --modes needs the frequency domain
 
-    return frf(log, axis)
+    measured = frf(log, axis)
+    check_lines_for_modes(measured, modes)
+    return measured
+
+
+def check_lines_for_modes(measured: Frf, modes: int | str) -> None:
+    """Refuse a measured response with too few lines for ``modes``
+    (:func:`servotune.identify.modes.lines_needed`), saying what the excitation gave.
+
+    Raises
+    ------
+    SpecError
+        ``"the log's excitation cannot measure modes: its response has 5 lines (1 … 9 Hz,
+        median coherence 0.012), 6 needed …"``.
+    """
+    from servotune.identify.modes import lines_needed  # here: only --modes needs it
+
+    lines = measured.freq_hz[~np.asarray(measured.aliased, dtype=bool)]
+    need = lines_needed(modes)
+    if lines.size >= need:
+        return
+    span = f"{lines.min():.3g} … {lines.max():.3g} Hz, " if lines.size else ""
+    raise SpecError(
+        f"the log's excitation cannot measure modes: its response has {lines.size} lines not "
+        f"flagged aliased ({span}median coherence {float(np.median(measured.coherence)):.2g}), "
+        f"{need} needed for {'choosing the order' if modes == 'auto' else f'{modes} modes'}; "
+        "log a periodic multisine over the band the modes may lie in (servotune excite --kind "
+        "multisine --periods P --band F1:F2)"
+    )
 
 
 def fit_log_modes(
@@ -205,9 +236,11 @@ def fit_log_modes(
     (:func:`servotune.identify.modes.fit_modes`; ``"auto"``: 0 … 3 chosen by the held-out
     error), started from ``result``'s rigid plant, with ``result``'s compute time. The modes,
     with their 95 % intervals, become :attr:`FitResult.mode_fit`, so :attr:`FitResult.plant`
-    carries them (``fit -o`` writes them into the rig file). The plant's other parameters stay
-    the time-domain fit's. An encoder fitted inverted (``--invert-encoder``) is inverted here
-    too.
+    carries them (``fit -o`` writes them into the rig file). When at least one mode is found,
+    the plant written is :attr:`FitResult.written`: gain, tau and delay from the
+    frequency-domain fit, offset and friction re-estimated with them and the modes fixed
+    (:func:`servotune.identify.resonant.written_plant`); with none, the time-domain fit's, as
+    without ``modes``. An encoder fitted inverted (``--invert-encoder``) is inverted here too.
 
     Parameters
     ----------
@@ -236,7 +269,15 @@ def fit_log_modes(
     if result.inverted_encoder:  # the position the time-domain fit saw: the negated one
         measured = dataclasses.replace(measured, response=-measured.response)
     fitted = fit_modes(measured, n_modes=modes, rigid=result.plant, compute_s=result.compute_s)
-    return dataclasses.replace(result, mode_fit=fitted)
+    if not fitted.modes:
+        return dataclasses.replace(result, mode_fit=fitted)
+    from servotune.identify.resonant import written_plant
+
+    ax = log.axis(axis)
+    pos = -ax.pos_counts.astype(np.int64) if result.inverted_encoder else ax.pos_counts
+    exc = [] if ax.exc_code is None else [("exc_code", ax.exc_code * log.dac_lsb_v)]
+    written = written_plant(result, fitted, ax.cmd_v, pos, signals=exc)
+    return dataclasses.replace(result, mode_fit=fitted, written=written)
 
 
 def read_fit_log(

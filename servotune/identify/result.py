@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, Any
 
 from servotune._version import __version__
 from servotune.identify.model import ALL_PARAMS, PARAMS, UNITS
+from servotune.identify.quality import BOOTSTRAP_REPLICATES
 from servotune.modal import discretize
 from servotune.plant import Plant
 from servotune.rig import PlantFit
@@ -16,6 +17,7 @@ if TYPE_CHECKING:
     import control
 
     from servotune.identify.modes import ModeFit
+    from servotune.identify.resonant import WrittenPlant
 
 __all__ = ["ClosedLoopBiasWarning", "FitResult", "InadequateModelWarning", "PoorFitWarning"]
 
@@ -95,6 +97,11 @@ class FitResult:
         The lightly damped modes fitted to the log's frequency response (``fit --modes``,
         :func:`servotune.identify.logfit.fit_log_modes`), with the rigid part that frequency-domain
         fit found beside them; None: not asked for (the rigid model alone).
+    written : WrittenPlant or None
+        When :attr:`mode_fit` has modes: the plant ``fit -o`` writes, its gain, tau and delay
+        from the frequency-domain fit and its offset and friction re-estimated with them and
+        the modes fixed (:mod:`servotune.identify.resonant`); None: the time-domain fit's
+        parameters are written.
     """
 
     structure: tuple[str, ...]
@@ -121,6 +128,7 @@ class FitResult:
     cv_params: tuple[dict[str, float], ...] = ()
     inverted_encoder: bool = False
     mode_fit: ModeFit | None = None
+    written: WrittenPlant | None = None
 
     @property
     def units(self) -> dict[str, str]:
@@ -130,18 +138,37 @@ class FitResult:
     @property
     def plant(self) -> Plant:
         """The fitted axis model as a :class:`~servotune.plant.Plant`: the parameters fitted
-        to the log, and the modes of :attr:`mode_fit` (with their 95 % intervals) if any."""
-        kw: dict[str, Any] = {k: float(self.params[k]) for k in PARAMS}
+        to the log (:attr:`written`'s when there is one), and the modes of :attr:`mode_fit`
+        (with their 95 % intervals) if any."""
+        params = self.params if self.written is None else self.written.params
+        kw: dict[str, Any] = {k: float(params[k]) for k in PARAMS}
         for k in ALL_PARAMS[len(PARAMS) :]:
-            if k in self.params:
-                kw[k] = float(self.params[k])
+            if k in params:
+                kw[k] = float(params[k])
         if self.mode_fit is not None:
             kw["modes"] = self.mode_fit.modes
         return Plant(**kw)
 
     @property
     def plant_fit(self) -> PlantFit:
-        """What ``fit -o`` records beside the plant (:class:`servotune.rig.PlantFit`)."""
+        """What ``fit -o`` records beside the plant (:class:`servotune.rig.PlantFit`): with
+        :attr:`written`, its estimated parameters, intervals, residual tests and whole-log
+        fit % (no split-half figures: the linear part is the whole log's frequency response's)."""
+        w = self.written
+        if w is not None:
+            return PlantFit(
+                method=self.method,
+                structure=w.structure,
+                friction=self.friction,
+                adequate=w.adequate,
+                reason="; ".join(w.inadequacy),
+                interval=f"gain, tau, delay: {self.mode_fit_interval}; offset and friction: "
+                f"moving-block bootstrap of the output-error equations with the linear part and "
+                f"the modes fixed ({BOOTSTRAP_REPLICATES} replicates), basic 95 % interval",
+                velocity_fit_pct=_finite(w.fit_pct["velocity"]),
+                position_fit_pct=_finite(w.fit_pct["position"]),
+                ci95={k: (float(lo), float(hi)) for k, (lo, hi) in w.ci95.items()},
+            )
         return PlantFit(
             method=self.method,
             structure=self.structure,
@@ -154,6 +181,16 @@ class FitResult:
             position_fit_pct=_finite(self.fit_pct["position"]["estimation"]),
             position_fit_cv_pct=_finite(self.fit_pct["position"]["validation"]),
             ci95={k: (float(lo), float(hi)) for k, (lo, hi) in self.ci95.items()},
+        )
+
+    @property
+    def mode_fit_interval(self) -> str:
+        """How the frequency-domain fit's intervals are made (:mod:`servotune.identify.modes`)."""
+        return (
+            "the frequency-domain fit's Jacobian, widened by its reduced chi-square "
+            f"({self.mode_fit.reduced_chi_square:.3g})"
+            if self.mode_fit is not None
+            else ""
         )
 
     @property
@@ -178,6 +215,7 @@ class FitResult:
             + ("n/a" if vel is None else f"{vel:.1f} %")
             + f", adequate: {'yes' if self.adequate else 'no (' + self.reason + ')'}"
             + ("" if self.mode_fit is None else f"; {_modes_said(self.mode_fit)}")
+            + ("" if self.written is None else f"; {_written_said(self.written)}")
         )
 
     def summary(self) -> str:
@@ -225,6 +263,8 @@ class FitResult:
                 "its rigid part beside the time-domain one above:"
             )
             lines += ["  " + line for line in self.mode_fit.summary().splitlines()]
+        if self.written is not None:
+            lines += self.written.summary(self.fit_pct["velocity"]["estimation"])
         return "\n".join(lines)
 
     def to_dict(self) -> dict[str, Any]:
@@ -232,9 +272,9 @@ class FitResult:
         d: dict[str, Any] = {}
         for f in fields(self):
             v = getattr(self, f.name)
-            if f.name == "mode_fit":  # only when asked for (fit --modes): the same JSON without
-                if v is not None:
-                    d[f.name] = v.to_dict()
+            if f.name in ("mode_fit", "written"):  # only with fit --modes (and modes found for
+                if v is not None:  # the written plant): the same JSON without
+                    d["written_plant" if f.name == "written" else f.name] = v.to_dict()
                 continue
             if f.name == "ci95":
                 v = {k: [float(a), float(b)] for k, (a, b) in v.items()}
@@ -258,6 +298,16 @@ class FitResult:
 def _modes_said(mode_fit: ModeFit) -> str:
     n = len(mode_fit.modes)
     return f"{n} mode{'' if n == 1 else 's'} ({mode_fit.order_rule}) from its frequency response"
+
+
+def _written_said(written: WrittenPlant) -> str:
+    refined = [p for p in written.structure if p in ("offset_v", "coulomb_v", "coulomb_neg_v")]
+    return (
+        "written: gain, tau, delay from the frequency-domain fit"
+        + (f", {', '.join(refined)} re-estimated with the modes" if refined else "")
+        + f", velocity fit {written.fit_pct['velocity']:.1f} % on the whole log, adequate: "
+        + ("yes" if written.adequate else "no")
+    )
 
 
 def _pct(v: float | None) -> str:

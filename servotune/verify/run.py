@@ -725,6 +725,7 @@ def verify(
     # and slave runs in the lean two-axis kernel (unless kernel="general"), anything else in
     # the general one
     two_axis = kernel == "auto" and sorted(a.role for a in rig.axes) == ["master", "slave"]
+    two_axis = two_axis and not any(a.plant.modes for a in rig.axes)  # lean two-axis: rigid
     warm_up(("margins", "verification" if two_axis else "simulation"), progress=progress)
     # the loop margins depend on neither the runs nor their plant sets: a thread computes them
     # while the chunks run (the caller only waits on the executor then)
