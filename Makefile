@@ -71,7 +71,7 @@ test-wheel: $(STAMP)
 test-slow: $(STAMP)
 	$(BIN)/python -m pytest -m slow
 
-# Fuzz the file readers (tests/test_fuzz_readers.py) with the hypothesis profile "fuzz": rounds
+# Fuzz the file readers (tests/io/test_fuzz_readers.py) with the hypothesis profile "fuzz": rounds
 # of FUZZ_EXAMPLES random inputs per test (36 tests; 2000 examples: a round of about 5 minutes
 # on 2 cores) until FUZZ_MINUTES have passed, so 15 to 20 minutes by default; stops at the first
 # failing round. Not part of `make test` (which runs the same tests with the short deterministic
@@ -83,7 +83,7 @@ fuzz: $(STAMP)
 	while [ $$(date +%s) -lt $$end ]; do \
 		round=$$((round + 1)); echo "make fuzz: round $$round"; \
 		HYPOTHESIS_PROFILE=fuzz FUZZ_EXAMPLES=$(FUZZ_EXAMPLES) $(BIN)/python -m pytest -q \
-			-m fuzz tests/test_fuzz_readers.py --hypothesis-show-statistics || exit 1; \
+			-m fuzz tests/io/test_fuzz_readers.py --hypothesis-show-statistics || exit 1; \
 	done; echo "make fuzz: $$round rounds, no failure"
 
 bench: $(STAMP)

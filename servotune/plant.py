@@ -530,12 +530,20 @@ bits), faster in a kernel where it is the hot path (the lean Monte-Carlo kernel,
 
 
 @jit(inline="always")
-def _advance_tick_with(step, p, v, w_old, w_new, row):
+def _advance_tick_with(step, p, v, w_old, w_new, row, q=None):
     """:func:`advance_tick`'s body, with ``step`` (:func:`advance` or :data:`advance_inlined`)
-    for the sub-intervals."""
+    for the sub-intervals, and a resonant plant's modes' state ``q`` (None: rigid)."""
     vmax = row[R_VMAX]
     gain = row[R_GAIN]
     if row[R_LINEAR] > 0.0 and abs(w_new) * gain <= vmax and abs(w_old) * gain <= vmax:
+        if q is not None:  # the modes over the tick's two pieces of constant target speed
+            v_lam = v
+            if row[R_H1] > 0.0:
+                vinf = gain * w_old
+                modes_segment(q, row, R_MODES, 0, row[R_H1], vinf, v - vinf)
+                v_lam = vinf + (v - vinf) * row[R_A1]
+            vinf = gain * w_new
+            modes_segment(q, row, R_MODES, 1, row[R_H2], vinf, v_lam - vinf)
         p_n = p + row[R_PHI_B] * v + row[R_GO_P] * w_old + row[R_GN_P] * w_new
         v_n = row[R_PHI_A] * v + row[R_GO_V] * w_old + row[R_GN_V] * w_new
         return p_n, v_n
@@ -553,6 +561,9 @@ def _advance_tick_with(step, p, v, w_old, w_new, row):
             vmax,
             row[R_GAIN_NEG],
             row[R_COULOMB_NEG],
+            q,
+            row,
+            0,
         )
     return step(
         p,
@@ -567,6 +578,9 @@ def _advance_tick_with(step, p, v, w_old, w_new, row):
         vmax,
         row[R_GAIN_NEG],
         row[R_COULOMB_NEG],
+        q,
+        row,
+        1,
     )
 
 
@@ -603,56 +617,7 @@ def advance_tick_modal(
     touched)."""
     if row[R_MODES] == 0.0:
         return _advance_tick_with(advance, p, v, w_old, w_new, row)
-    vmax = row[R_VMAX]
-    gain = row[R_GAIN]
-    if row[R_LINEAR] > 0.0 and abs(w_new) * gain <= vmax and abs(w_old) * gain <= vmax:
-        v_lam = v
-        if row[R_H1] > 0.0:
-            vinf = gain * w_old
-            modes_segment(q, row, R_MODES, 0, row[R_H1], vinf, v - vinf)
-            v_lam = vinf + (v - vinf) * row[R_A1]
-        vinf = gain * w_new
-        modes_segment(q, row, R_MODES, 1, row[R_H2], vinf, v_lam - vinf)
-        p_n = p + row[R_PHI_B] * v + row[R_GO_P] * w_old + row[R_GN_P] * w_new
-        v_n = row[R_PHI_A] * v + row[R_GO_V] * w_old + row[R_GN_V] * w_new
-        return p_n, v_n
-    tau, coulomb = row[R_TAU], row[R_COULOMB]
-    gain_neg, coulomb_neg = row[R_GAIN_NEG], row[R_COULOMB_NEG]
-    if row[R_H1] > 0.0:
-        p, v = advance(
-            p,
-            v,
-            w_old,
-            row[R_H1],
-            row[R_A1],
-            row[R_B1],
-            gain,
-            tau,
-            coulomb,
-            vmax,
-            gain_neg,
-            coulomb_neg,
-            q,
-            row,
-            0,
-        )
-    return advance(
-        p,
-        v,
-        w_new,
-        row[R_H2],
-        row[R_A2],
-        row[R_B2],
-        gain,
-        tau,
-        coulomb,
-        vmax,
-        gain_neg,
-        coulomb_neg,
-        q,
-        row,
-        1,
-    )
+    return _advance_tick_with(advance, p, v, w_old, w_new, row, q)
 
 
 @jit(inline="always")

@@ -31,7 +31,16 @@ import numpy as np
 from servotune._numba_cache import call_compiled, jit
 from servotune.errors import IdentificationError
 from servotune.identify.noise import NoiseModel
-from servotune.plant import NROW, R_OFFSET, Plant, advance_tick, plant_row
+from servotune.plant import (
+    NROW,
+    R_MODES,
+    R_OFFSET,
+    Plant,
+    advance_tick,
+    advance_tick_modal,
+    plant_row,
+)
+from servotune.resonance import MAX_MODES, modes_output
 
 __all__ = [
     "ALL_PARAMS",
@@ -48,6 +57,7 @@ __all__ = [
     "names",
     "plant_from",
     "simulate_increments",
+    "simulate_plant",
     "upper_bounds",
 ]
 
@@ -218,19 +228,45 @@ def plant_from(x: np.ndarray, free: np.ndarray) -> Plant:
 
 @jit(nogil=True)
 def _increments(u: np.ndarray, row: np.ndarray, m: int, v0: float, out: np.ndarray) -> None:
-    """Position increment over each tick [counts] of one plant row driven by the command ``u``.
+    """Position increment over each tick [counts] of one plant row driven by the command ``u``;
+    of a resonant row (:mod:`servotune.resonance`), the measured position's, its modes at rest
+    at the start (moving steadily at ``v0``: ``q̇ = 0``, so ``w = −v0``).
 
     Compiled without the GIL: the rows of :func:`simulate_increments` run in threads.
     """
     v = v0
     off = row[R_OFFSET]
+    n_modes = int(row[R_MODES])
+    q = np.zeros(2 * MAX_MODES)
+    for i in range(n_modes):
+        q[2 * i + 1] = -v0
+    y_modes = 0.0
     for k in range(out.shape[0]):
         j_new = k - m
         j_old = j_new - 1
         w_new = (u[j_new] if j_new >= 0 else u[0]) + off
         w_old = (u[j_old] if j_old >= 0 else u[0]) + off
-        dp, v = advance_tick(0.0, v, w_old, w_new, row)
-        out[k] = dp
+        if n_modes == 0:
+            dp, v = advance_tick(0.0, v, w_old, w_new, row)
+            out[k] = dp
+        else:
+            dp, v = advance_tick_modal(0.0, v, q, w_old, w_new, row)
+            y_new = modes_output(0.0, q, row, R_MODES)
+            out[k] = dp + (y_new - y_modes)
+            y_modes = y_new
+
+
+def simulate_plant(
+    plant: Plant, cmd_v: np.ndarray, *, period_s: float, compute_s: float, v0: float
+) -> np.ndarray:
+    """The measured position's increment over each tick [counts] of ``plant`` (its modes
+    included) driven by ``cmd_v`` [V] (row k written at ``t_k + compute_s``), from the speed
+    ``v0`` [counts/s] with its modes at rest."""
+    row, lag = plant_row(plant, period_s, compute_s)
+    u = np.ascontiguousarray(cmd_v, dtype=float)
+    out = np.empty(u.size)
+    call_compiled(_increments, u, row, int(lag), float(v0), out)
+    return out
 
 
 PARALLEL_STEPS = 4_000_000

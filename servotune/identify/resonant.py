@@ -37,17 +37,21 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from scipy import optimize
 
-from servotune._numba_cache import call_compiled, jit
 from servotune.identify import noise, quality
 from servotune.identify.heldout import fit_pcts, skip_samples
-from servotune.identify.model import ALL_PARAMS, PARAMS, lower_bounds, upper_bounds
-from servotune.plant import R_MODES, R_OFFSET, Plant, advance_tick_modal, plant_row
-from servotune.resonance import MAX_MODES, modes_output
+from servotune.identify.model import (
+    ALL_PARAMS,
+    PARAMS,
+    lower_bounds,
+    simulate_plant,
+    upper_bounds,
+)
+from servotune.plant import Plant
 
 if TYPE_CHECKING:
     from servotune.identify.modes import ModeFit
 
-__all__ = ["FRICTION_TERMS", "LINEAR_TERMS", "WrittenPlant", "simulate_modal", "written_plant"]
+__all__ = ["FRICTION_TERMS", "LINEAR_TERMS", "WrittenPlant", "written_plant"]
 
 LINEAR_TERMS = ("gain_cps_per_v", "tau_s", "delay_s", "gain_neg_cps_per_v")
 """The parameters the frequency-domain fit gives the written plant."""
@@ -142,41 +146,6 @@ class WrittenPlant:
         }
 
 
-@jit(nogil=True)
-def _modal_increments(u: np.ndarray, row: np.ndarray, m: int, v0: float, out: np.ndarray) -> None:
-    """Increment over each tick of the measured position (the modes' part included) of one
-    plant row driven by the command ``u`` (as the identifier's own kernel, with modes)."""
-    q = np.zeros(2 * MAX_MODES)
-    for i in range(int(row[R_MODES])):
-        q[2 * i + 1] = -v0  # moving steadily at v0: the modes at rest (q̇ = 0, w = q̇ − v)
-    v = v0
-    p = 0.0
-    y = modes_output(p, q, row, R_MODES)
-    off = row[R_OFFSET]
-    for k in range(out.shape[0]):
-        j_new = k - m
-        j_old = j_new - 1
-        w_new = (u[j_new] if j_new >= 0 else u[0]) + off
-        w_old = (u[j_old] if j_old >= 0 else u[0]) + off
-        p, v = advance_tick_modal(p, v, q, w_old, w_new, row)
-        y_new = modes_output(p, q, row, R_MODES)
-        out[k] = y_new - y
-        y = y_new
-
-
-def simulate_modal(
-    plant: Plant, cmd_v: np.ndarray, *, period_s: float, compute_s: float, v0: float
-) -> np.ndarray:
-    """The measured position's increment over each tick [counts] of ``plant`` (its modes
-    included) driven by ``cmd_v`` [V] (row k written at ``t_k + compute_s``), from the speed
-    ``v0`` [counts/s] with its modes at rest."""
-    row, lag = plant_row(plant, period_s, compute_s)
-    u = np.ascontiguousarray(cmd_v, dtype=float)
-    out = np.empty(u.size)
-    call_compiled(_modal_increments, u, row, int(lag), float(v0), out)
-    return out
-
-
 def _scaled_gains(result_params: dict[str, float], mode_fit: ModeFit) -> dict[str, float]:
     """Gain(s), tau and delay from the frequency-domain fit (module docstring)."""
     out = {"tau_s": mode_fit.tau_s, "delay_s": mode_fit.delay_s}
@@ -227,7 +196,7 @@ def written_plant(
 
     def sim(trial: dict[str, float]) -> np.ndarray:
         plant = _plant(dict(params, **trial), mode_fit.modes)
-        return simulate_modal(plant, u1, period_s=period_s, compute_s=compute_s, v0=v0)
+        return simulate_plant(plant, u1, period_s=period_s, compute_s=compute_s, v0=v0)
 
     fits = sorted(
         (_refine(terms, params, sim, dy, skip, period_s) for terms in _candidates(result)),

@@ -2,7 +2,7 @@
 
 It composes the same tick steps as :mod:`servotune.sim.kernel` (:mod:`servotune.sim.tick`),
 with the same float operations in the same order, so its metrics equal the general kernel's bit
-for bit (``tests/test_engine.py``); only the plumbing differs, for speed.
+for bit (``tests/sim/test_engine.py``); only the plumbing differs, for speed.
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ kernel (same results)."""
 # Sweeps of many candidates of a one-axis loop for metrics only run here rather than in
 # _run_group. It calls the same law and plant functions (axis_read, axis_control,
 # advance_tick) and the same counter and metric helpers, with the same float operations in the
-# same order, so its metrics equal _run_group's bit for bit (tests/test_engine.py checks it);
+# same order, so its metrics equal _run_group's bit for bit (tests/sim/test_engine.py checks it);
 # only the plumbing differs, each choice for speed (about 2x over _run_group here):
 # - one candidate per loop, its law state and metric sums in small arrays in the function's
 #   frame (frame_buffer viewed by numba.carray), indexed by constants, which LLVM promotes to

@@ -25,7 +25,31 @@ from servotune.plant import (
 )
 from servotune.rig import Rig
 
-__all__ = ["ChunkPlants", "nominal_parameters", "plant_params_ok"]
+__all__ = ["ChunkPlants", "nominal_parameters", "plant_params_ok", "plants_from_parameters"]
+
+
+def plants_from_parameters(
+    nominal: tuple[Plant, ...], params: np.ndarray
+) -> list[tuple[Plant, ...]]:
+    """The plant sets of parameter rows (shape (sets, axes, NPARAM), ``servotune.plant.P_*``):
+    each axis's nominal plant with the drawn gain, time constant, offset and Coulomb levels (the
+    negative direction's only where the nominal plant has its own); the rest, modes included,
+    the nominal's."""
+    return [
+        tuple(
+            replace(
+                p,
+                gain_cps_per_v=x[P_GAIN],
+                tau_s=x[P_TAU],
+                offset_v=x[P_OFFSET],
+                coulomb_v=x[P_COULOMB],
+                gain_neg_cps_per_v=None if p.gain_neg_cps_per_v is None else x[P_GAIN_NEG],
+                coulomb_neg_v=None if p.coulomb_neg_v is None else x[P_COULOMB_NEG],
+            )
+            for p, x in zip(nominal, row, strict=True)
+        )
+        for row in params.tolist()
+    ]
 
 
 def nominal_parameters(rig: Rig) -> np.ndarray:
@@ -76,21 +100,7 @@ class ChunkPlants:
         if self.plant_sets is None:
             assert self.params is not None
             nominal = tuple(a.plant for a in self.rig.axes)
-            self.plant_sets = [
-                tuple(
-                    replace(
-                        p,
-                        gain_cps_per_v=x[P_GAIN],
-                        tau_s=x[P_TAU],
-                        offset_v=x[P_OFFSET],
-                        coulomb_v=x[P_COULOMB],
-                        gain_neg_cps_per_v=None if p.gain_neg_cps_per_v is None else x[P_GAIN_NEG],
-                        coulomb_neg_v=None if p.coulomb_neg_v is None else x[P_COULOMB_NEG],
-                    )
-                    for p, x in zip(nominal, row, strict=True)
-                )
-                for row in self.params.tolist()
-            ]
+            self.plant_sets = plants_from_parameters(nominal, self.params)
         return self.plant_sets
 
     def rows(self) -> tuple[np.ndarray, np.ndarray]:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -27,6 +27,7 @@ from servotune.plant import (
 )
 from servotune.rig import Rig
 from servotune.validate import show_value
+from servotune.verify.plant_sets import plants_from_parameters
 from servotune.verify.spec import MonteCarlo
 
 __all__ = [
@@ -123,24 +124,7 @@ def spread_plants(
         If ``mc.axes`` names an axis the rig does not have.
     """
     params = spread_parameters(rig, mc, seed, start, stop)
-    nominal = tuple(a.plant for a in rig.axes)
-    out = []
-    for row in params.tolist():
-        plants = []
-        for p, x in zip(nominal, row, strict=True):
-            plants.append(
-                replace(
-                    p,
-                    gain_cps_per_v=x[P_GAIN],
-                    tau_s=x[P_TAU],
-                    offset_v=x[P_OFFSET],
-                    coulomb_v=x[P_COULOMB],
-                    gain_neg_cps_per_v=None if p.gain_neg_cps_per_v is None else x[P_GAIN_NEG],
-                    coulomb_neg_v=None if p.coulomb_neg_v is None else x[P_COULOMB_NEG],
-                )
-            )
-        out.append(tuple(plants))
-    return out
+    return plants_from_parameters(tuple(a.plant for a in rig.axes), params)
 
 
 def spread_parameters(rig: Rig, mc: MonteCarlo, seed: int, start: int, stop: int) -> np.ndarray:

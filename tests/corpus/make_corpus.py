@@ -13,7 +13,7 @@ Run from the repository root::
 
 The bases: plants/*.toml as they are; ``base/log.csv`` (``servotune simulate`` prbs, 1 s),
 ``base/excitation.csv`` (``servotune excite`` prbs, 1 s), ``base/tuning.json`` (a 2-generation
-tune, as tests/test_verify_cli.py's quick tuning) and ``base/tables.json`` (its unverified
+tune, as tests/cli/test_verify_cli.py's quick tuning) and ``base/tables.json`` (its unverified
 tables export). Remake them when a file format changes, then the corpus.
 """
 

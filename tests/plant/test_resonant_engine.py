@@ -154,7 +154,7 @@ def test_coulomb_friction_and_a_mode_agree_with_solve_ivp() -> None:
 
 
 def test_the_lean_kernel_gives_the_general_kernels_metrics_on_a_resonant_plant() -> None:
-    # one-axis metrics-only batches run in the lean kernel (tests/test_engine.py checks that
+    # one-axis metrics-only batches run in the lean kernel (tests/sim/test_engine.py checks that
     # routing); its metrics must equal the traced general kernel's bit for bit with modes too
     ax = dataclasses.replace(RIG.axes[0], role="master")
     rig1 = dataclasses.replace(RIG, axes=(ax,))

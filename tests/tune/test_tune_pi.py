@@ -281,7 +281,7 @@ def test_invalid_arguments_name_the_field(
 
 
 def test_invalid_plants_and_axis_arguments(rig: st.Rig) -> None:
-    # a discrete plant is taken only at its own sample period (tests/test_sync.py uses one)
+    # a discrete plant is taken only at its own sample period (tests/laws/test_sync.py uses one)
     with pytest.raises(ValueError, match="dt = period_s"):
         tune_pi(control.tf([1.0], [1.0, -0.5], dt=0.1), period_s=0.2, phase_margin_deg=45.0)
     with pytest.raises(ValueError, match="plant"):

@@ -30,7 +30,7 @@ from servotune.fleet import (
 )
 from servotune.rig import Rig, load_rig
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 RIG = ROOT / "plants" / "pc-dual-servo.toml"
 
 

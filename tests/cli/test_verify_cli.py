@@ -10,7 +10,7 @@ import pytest
 from servotune.cli import main
 from servotune.tuning import write_tuning
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 RIG = ROOT / "plants" / "pc-dual-servo.toml"
 SPEC = ROOT / "plants" / "pc-dual-servo.spec.toml"
 

@@ -30,7 +30,7 @@ from servotune.laws.axis import FLAG_SYNC_TRIP
 from servotune.report.text import format_comparison
 from servotune.tune.pi import tune_pi
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 CONFIG = ROOT / "plants" / "gantry.toml"
 
 

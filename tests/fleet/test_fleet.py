@@ -51,7 +51,7 @@ from servotune.plant import Plant
 from servotune.rig import Rig, load_rig
 from servotune.scenarios import Scenario
 
-RIG = Path(__file__).resolve().parents[1] / "plants" / "pc-dual-servo.toml"
+RIG = Path(__file__).resolve().parents[2] / "plants" / "pc-dual-servo.toml"
 DATES = ("2024-03-01", "2025-03-01")  # commissioning, now
 SECONDS = 8.0  # 2,000 ticks: every fit adequate, about 0.1 s each (6 s logs fail residual tests)
 SPREAD_REL = {"gain_cps_per_v": 0.03, "tau_s": 0.06, "delay_s": 0.10, "coulomb_v": 0.12}

@@ -50,7 +50,7 @@ pytestmark = [
     pytest.mark.filterwarnings("ignore:.*unknown metadata:UserWarning"),
 ]
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PLANTS = ROOT / "plants"
 BASE = ROOT / "tests" / "corpus" / "base"
 

@@ -7,7 +7,7 @@ settle, and the log had none left after them. Now such a log is refused with an
 :class:`~servotune.errors.IdentificationError` naming it and saying why (CLI: one line, exit 3),
 and the fits that are given keep their 95 % intervals honest: for every fit that passes its own
 diagnostics the truth lies within 4 interval half-widths / 1.96 (|z| < 4) of the estimate.
-The logs and their true plants come from the fleet generator of ``tests/test_fleet.py`` (15
+The logs and their true plants come from the fleet generator of ``tests/fleet/test_fleet.py`` (15
 machines of the example rig's master with drawn gain, tau, delay, offset and friction).
 """
 
