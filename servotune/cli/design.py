@@ -7,6 +7,7 @@ import argparse
 import sys
 from functools import partial
 from pathlib import Path
+from typing import Any
 
 from servotune.cli.output import (
     EXIT_FAILED,
@@ -230,6 +231,7 @@ def cmd_verify(args: argparse.Namespace) -> int:
             f"--config is for a gantry tuning or a linkage plan; {args.tuning} is a rig's tuning"
         )
     check_dirs(args.report)  # before the run: a report directory that cannot be made fails first
+    frf = _frf_args(args.frf, args.report)  # and so does an FRF file that cannot be read
     dist = None
     if args.plants_from is not None:
         from servotune.fleet import fleet_spread
@@ -261,9 +263,27 @@ def cmd_verify(args: argparse.Namespace) -> int:
             rig_path=rig_path,
             verification=result,
             spec_path=args.spec,
+            frf=frf,
         )
         print(f"wrote the report to {out}", file=sys.stderr)
     return EXIT_OK if result.passed else EXIT_FAILED
+
+
+def _frf_args(pairs: list[str] | None, report: str | None) -> dict[str, Any] | None:
+    """``--frf AXIS=FILE`` options read into ``{axis: Frf}`` (None if none given)."""
+    if not pairs:
+        return None
+    if not report:
+        raise ServotuneError("--frf draws into the report: give --report DIR too")
+    from servotune.report.resonance import read_frf
+
+    out: dict[str, Any] = {}
+    for pair in pairs:
+        axis, sep, file = pair.partition("=")
+        if not sep or not axis or not file:
+            raise ServotuneError(f"--frf needs AXIS=FILE (e.g. master=frf.json), got {pair!r}")
+        out[axis] = read_frf(file)
+    return out
 
 
 def cmd_margins(args: argparse.Namespace) -> int:

@@ -485,6 +485,14 @@ def _add_verify(sub: Any) -> None:
     )
     s.add_argument("--json", action="store_true", help="the verification record as JSON on stdout")
     s.add_argument("--report", help="also write the HTML report into this directory")
+    s.add_argument(
+        "--frf",
+        action="append",
+        metavar="AXIS=FILE",
+        help="with --report: an axis's measured frequency response (servotune frf -o "
+        "FILE.json), drawn in the report's Resonance section beside the rig's model "
+        "(repeat for more axes)",
+    )
 
 
 def _add_margins(sub: Any) -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from servotune.cli import main
@@ -161,3 +162,43 @@ def test_export_c_compiles(tunings, tmp_path) -> None:
         cwd=tmp_path,
         check=True,
     )
+
+
+def _frf_file(path: Path) -> Path:
+    """A ``servotune frf`` JSON file of the example rig's period: a Schroeder multisine through
+    a first-order lag (scipy ``lfilter``), the estimate of servotune.analysis.frf."""
+    from scipy import signal
+
+    from servotune.analysis.frf import estimate_frf
+    from servotune.excite import periodic_multisine
+    from servotune.rig import load_rig
+
+    period = load_rig(RIG).period_s
+    ms = periodic_multisine(500, 6, period, 800, band_hz=(1.0, 50.0))
+    u = ms.codes * (20.0 / 4096)
+    y = np.rint(signal.lfilter([0.0, 50.0], [1.0, -0.9], u))
+    frf = estimate_frf(u, y, ms.codes, period_s=period)
+    path.write_text(json.dumps(frf.to_dict()))
+    return path
+
+
+def test_frf_options_draw_the_resonance_section(tunings, tmp_path, capsys) -> None:
+    f = _frf_file(tmp_path / "frf.json")
+    base = ["verify", str(tunings["good"]), "--spec", str(SPEC), "--rig", str(RIG)]
+    bad = [
+        ["--frf", f"master={f}"],  # no --report
+        ["--report", str(tmp_path / "r0"), "--frf", "master"],  # not AXIS=FILE
+        ["--report", str(tmp_path / "r0"), "--frf", f"master={tmp_path / 'absent.json'}"],
+        ["--report", str(tmp_path / "r0"), "--frf", f"master={RIG}"],  # not an FRF file
+    ]
+    record = Path(str(tunings["good"]) + ".verify.json")
+    record.unlink(missing_ok=True)
+    for extra in bad:
+        capsys.readouterr()
+        assert main([*base, *extra]) == 3, extra
+        err = capsys.readouterr().err.strip().splitlines()
+        assert (len(err) == 1 and "--frf" in err[0]) or "frf" in err[0].lower(), err
+        assert not record.exists()  # refused before the run
+    assert main([*base, "--report", str(tmp_path / "rep"), "--frf", f"master={f}"]) == 0
+    page = (tmp_path / "rep" / "report.html").read_text()
+    assert "Resonance" in page and "within the measured 95 % bounds" in page
