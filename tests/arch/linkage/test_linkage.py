@@ -519,3 +519,19 @@ def test_cli_plot_writes_pngs(tmp_path: Path, capsys: pytest.CaptureFixture[str]
     assert "PASSED" in cap.out and "circularity" in cap.out
     for name in ("linkage_queues.png", "linkage_circle.png"):
         assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_a_plant_with_modes_is_refused_by_the_linkage(config: LinkageConfig) -> None:
+    # the linkage's stretched ticks run rigid plants only (docs/frf.md): a resonant axis is
+    # refused by name rather than simulated without its mode
+    import dataclasses
+
+    from servotune.resonance import Mode
+
+    ax = config.axes[2]
+    resonant = dataclasses.replace(
+        ax, plant=dataclasses.replace(ax.plant, modes=(Mode(freq_hz=20.0, damping=0.05, gain=0.3),))
+    )
+    axes = tuple(resonant if a is ax else a for a in config.axes)
+    with pytest.raises(ConfigError, match=rf"axis '{ax.name}': the linkage simulates rigid plants"):
+        run_linkage(dataclasses.replace(config, axes=axes), seconds=0.1)
