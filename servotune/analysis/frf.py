@@ -49,6 +49,7 @@ __all__ = [
     "ALIAS_FRACTION",
     "FRF_SCHEMA",
     "OUTPUTS",
+    "POOR_COHERENCE",
     "Frf",
     "estimate_frf",
     "find_period",
@@ -60,6 +61,10 @@ FRF_SCHEMA = "servotune.frf/1"
 
 OUTPUTS = ("velocity", "position")
 """What the response is of: the velocity [counts/s per V] or the position [counts per V]."""
+
+POOR_COHERENCE = 0.5
+"""Median coherence below which :meth:`Frf.summary` says the response is mostly noise (the
+excitation explains less of the output's variation than the noise does)."""
 
 ALIAS_FRACTION = 0.8
 """Lines above this fraction of the Nyquist frequency are flagged as possibly aliased."""
@@ -182,6 +187,12 @@ class Frf:
             f"{float(np.min(self.coherence)):.3f} (at {float(f[np.argmin(self.coherence)]):.4g} "
             "Hz)",
         ]
+        med = float(np.median(self.coherence))
+        if med < POOR_COHERENCE:
+            lines.append(
+                f"the response is mostly noise (median coherence {med:.3f} < {POOR_COHERENCE:g}): "
+                "raise the excitation's amplitude or its number of periods"
+            )
         nl = self.nonlinear_db()
         if nl is not None:
             lines.append(f"odd nonlinear distortion: {-nl:.1f} dB below the response's level")

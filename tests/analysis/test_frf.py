@@ -245,3 +245,22 @@ def test_a_lead_in_and_a_tail_without_the_excitation_are_left_out() -> None:
     z = np.exp(1j * 2 * np.pi * f.freq_hz * T)
     np.testing.assert_allclose(f.response, b / (z - a), rtol=1e-9)
     assert "the excitation starts at tick 300" in f.summary()
+
+
+def test_the_summary_says_when_the_response_is_mostly_noise() -> None:
+    # the same multisine through a first-order lag (scipy lfilter), with encoder-like noise of
+    # 0.5 counts (coherence near 1) and of 2000 counts (the excitation drowned: coherence < 0.5)
+    from scipy import signal
+
+    from servotune.analysis.frf import POOR_COHERENCE, estimate_frf
+    from servotune.excite import periodic_multisine
+
+    ms = periodic_multisine(500, 6, 0.004, 800, band_hz=(1.0, 50.0))
+    u = ms.codes * (20.0 / 4096)
+    y = signal.lfilter([0.0, 50.0], [1.0, -0.9], u)
+    rng = np.random.default_rng(4)
+    clean = estimate_frf(u, np.rint(y + rng.normal(0, 0.5, y.size)), ms.codes, period_s=0.004)
+    noisy = estimate_frf(u, np.rint(y + rng.normal(0, 2000, y.size)), ms.codes, period_s=0.004)
+    assert np.median(clean.coherence) > 0.9 and np.median(noisy.coherence) < POOR_COHERENCE
+    assert "mostly noise" not in clean.summary()
+    assert "mostly noise" in noisy.summary()
