@@ -47,7 +47,7 @@ from scipy.linalg import expm
 from servotune._control import scipy_paths
 from servotune.errors import SpecError
 from servotune.plant import Plant, lag_split, tick_coefficients
-from servotune.resonance import Mode, with_intervals
+from servotune.resonance import Mode, mode_rows, with_intervals
 from servotune.validate import show_value
 
 if TYPE_CHECKING:  # python-control is imported where it is used (it is slow to import)
@@ -105,12 +105,6 @@ def modal_state_space(
         b[j + 1] = gain_cps_per_v / tau_s
         c[j] = g
     return a, b, c
-
-
-def mode_rows(modes: Sequence[Mode] | np.ndarray) -> np.ndarray:
-    if isinstance(modes, np.ndarray):
-        return modes.reshape(-1, 3)
-    return np.array([(m.freq_hz, m.damping, m.gain) for m in modes], dtype=float).reshape(-1, 3)
 
 
 def _phi_gamma(

@@ -33,6 +33,7 @@ from servotune.resonance import (
     MODE_WIDTH,
     MODES_HEADER,
     Mode,
+    mode_rows,
     modes_segment,
     set_modes,
 )
@@ -53,6 +54,7 @@ __all__ = [
     "advance_tick_modal",
     "fill_plant_rows",
     "lag_split",
+    "parameter_row",
     "plant_row",
     "put_modes",
     "step_coefficients",
@@ -429,23 +431,7 @@ def plant_row(
     lag_ticks : int
         ``m`` in ``lag = m·T + λ``: the write of tick ``k − m`` acts from ``λ`` into tick ``k``.
     """
-    vmax = plant.max_speed_cps(counts_per_rev) if math.isfinite(counts_per_rev) else math.inf
-    (_, gain_neg), (_, coulomb_neg) = plant.gains_cps_per_v, plant.coulombs_v
-    params = np.array(
-        [
-            [
-                plant.gain_cps_per_v,
-                plant.tau_s,
-                plant.offset_v,
-                plant.coulomb_v,
-                gain_neg,
-                coulomb_neg,
-                vmax,
-                plant.noise_counts,
-                plant.delay_s,
-            ]
-        ]
-    )
+    params = parameter_row(plant, counts_per_rev)[None]
     rows = np.zeros((1, NROW))
     lags = np.empty(1, dtype=np.int64)
     fill_plant_rows(params, period_s, compute_s, rows, lags)
@@ -457,11 +443,7 @@ def plant_row(
 def put_modes(row: np.ndarray, modes: tuple[Mode, ...] | np.ndarray) -> None:
     """Write ``modes`` (records, or rows ``freq_hz, damping, gain``) into a filled plant row,
     their coefficients for the row's two pieces of a tick and its time constant."""
-    arr = np.array(
-        [(m.freq_hz, m.damping, m.gain) for m in modes] if isinstance(modes, tuple) else modes,
-        dtype=float,
-    ).reshape(-1, 3)
-    set_modes(row, R_MODES, arr, row[R_H1], row[R_H2], row[R_TAU])
+    set_modes(row, R_MODES, mode_rows(modes), row[R_H1], row[R_H2], row[R_TAU])
 
 
 P_GAIN, P_TAU, P_OFFSET, P_COULOMB, P_GAIN_NEG, P_COULOMB_NEG, P_VMAX, P_NOISE, P_DELAY = range(9)
@@ -471,6 +453,27 @@ NPARAM = 9
 negative direction's gain and Coulomb level (resolved: equal to the positive ones for a
 symmetric plant), the speed limit [counts/s] (``inf``: none), ``noise_counts`` [counts],
 ``delay_s`` [s]."""
+
+
+def parameter_row(plant: Plant, counts_per_rev: float = math.inf) -> np.ndarray:
+    """A plant's parameter row (columns ``P_*``, :data:`NPARAM`) for :func:`fill_plant_rows`:
+    the directions' values resolved, the speed limit in counts/s (``inf``: none, or no
+    ``counts_per_rev``)."""
+    vmax = plant.max_speed_cps(counts_per_rev) if math.isfinite(counts_per_rev) else math.inf
+    (_, gain_neg), (_, coulomb_neg) = plant.gains_cps_per_v, plant.coulombs_v
+    return np.array(
+        [
+            plant.gain_cps_per_v,
+            plant.tau_s,
+            plant.offset_v,
+            plant.coulomb_v,
+            gain_neg,
+            coulomb_neg,
+            vmax,
+            plant.noise_counts,
+            plant.delay_s,
+        ]
+    )
 
 
 @jit

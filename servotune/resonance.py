@@ -49,6 +49,7 @@ __all__ = [
     "MODE_WIDTH",
     "Mode",
     "mode_coefficients",
+    "mode_rows",
     "modes_output",
     "modes_segment",
     "modes_speed",
@@ -118,6 +119,13 @@ def with_intervals(obj: object, names: tuple[str, ...] | list[str]) -> dict[str,
         out[name] = float(getattr(obj, name))
         out[f"{name}_95"] = None if pair is None else [float(pair[0]), float(pair[1])]
     return out
+
+
+def mode_rows(modes: tuple[Mode, ...] | list[Mode] | np.ndarray) -> np.ndarray:
+    """The modes as rows ``freq_hz, damping, gain``, shape (n, 3) (an array: itself, reshaped)."""
+    if isinstance(modes, np.ndarray):
+        return modes.reshape(-1, 3)
+    return np.array([(m.freq_hz, m.damping, m.gain) for m in modes], dtype=float).reshape(-1, 3)
 
 
 @jit

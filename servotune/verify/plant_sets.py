@@ -3,7 +3,6 @@ of them (docs/formats.md#spec-file)."""
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -20,9 +19,11 @@ from servotune.plant import (
     P_VMAX,
     Plant,
     fill_plant_rows,
+    parameter_row,
     plant_row,
     put_modes,
 )
+from servotune.resonance import mode_rows
 from servotune.rig import Rig
 
 __all__ = ["ChunkPlants", "nominal_parameters", "plant_params_ok", "plants_from_parameters"]
@@ -54,24 +55,9 @@ def plants_from_parameters(
 
 def nominal_parameters(rig: Rig) -> np.ndarray:
     """The rig's plants as parameter rows (``servotune.plant.P_*``), shape (axes, NPARAM)."""
-    out = np.empty((len(rig.axes), NPARAM))
-    cpr = rig.counts_per_rev
-    for j, a in enumerate(rig.axes):
-        p = a.plant
-        (_, gain_neg), (_, coulomb_neg) = p.gains_cps_per_v, p.coulombs_v
-        vmax = p.max_speed_cps(cpr) if math.isfinite(cpr) else math.inf
-        out[j] = (
-            p.gain_cps_per_v,
-            p.tau_s,
-            p.offset_v,
-            p.coulomb_v,
-            gain_neg,
-            coulomb_neg,
-            vmax,
-            p.noise_counts,
-            p.delay_s,
-        )
-    return out
+    return np.array([parameter_row(a.plant, rig.counts_per_rev) for a in rig.axes]).reshape(
+        len(rig.axes), NPARAM
+    )
 
 
 def plant_params_ok(params: np.ndarray) -> bool:
@@ -120,8 +106,9 @@ class ChunkPlants:
                 lags = lags.reshape(n, n_ax)
                 for a, axis in enumerate(rig.axes):  # the modes are the nominal plant's
                     if axis.plant.modes:
+                        modes = mode_rows(axis.plant.modes)
                         for b in range(n):
-                            put_modes(pf[b, a], axis.plant.modes)
+                            put_modes(pf[b, a], modes)
             else:
                 sets = self.plants()
                 n, n_ax = len(sets), len(rig.axes)

@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -16,14 +15,12 @@ from servotune.plant import (
     NPARAM,
     P_COULOMB,
     P_COULOMB_NEG,
-    P_DELAY,
     P_GAIN,
     P_GAIN_NEG,
-    P_NOISE,
     P_OFFSET,
     P_TAU,
-    P_VMAX,
     Plant,
+    parameter_row,
 )
 from servotune.rig import Rig
 from servotune.validate import show_value
@@ -154,21 +151,11 @@ def spread_parameters(rig: Rig, mc: MonteCarlo, seed: int, start: int, stop: int
     out = np.empty((n, len(names), NPARAM))
     for j, axis in enumerate(rig.axes):
         p = axis.plant
-        (_, gain_neg), (_, coulomb_neg) = p.gains_cps_per_v, p.coulombs_v
-        cpr = rig.counts_per_rev
-        out[:, j, P_VMAX] = p.max_speed_cps(cpr) if math.isfinite(cpr) else math.inf
-        out[:, j, P_NOISE] = p.noise_counts
-        out[:, j, P_DELAY] = p.delay_s
+        nominal = parameter_row(p, rig.counts_per_rev)
+        out[:, j] = nominal  # an axis the spec does not spread keeps them all
         if mc.axes and axis.name not in mc.axes:
-            out[:, j, :P_VMAX] = (
-                p.gain_cps_per_v,
-                p.tau_s,
-                p.offset_v,
-                p.coulomb_v,
-                gain_neg,
-                coulomb_neg,
-            )
             continue
+        gain_neg, coulomb_neg = nominal[P_GAIN_NEG], nominal[P_COULOMB_NEG]
         # the draw's map onto each parameter: the spec's spread, or the identified 95 %
         # interval where that is wider (the fit record of a fitted rig); element by element the
         # same IEEE operations as on one draw's floats
