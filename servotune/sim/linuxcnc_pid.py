@@ -180,7 +180,7 @@ def simulate_pid_loop(
     slot = ring - 1
     commands = cmd.tolist()
     for k in range(n):
-        y_pos = modes_output(pos, q, row, R_MODES)
+        y_pos = modes_output(pos, q, row, R_MODES) if plant.modes else pos
         c = _s32(counter_init + math.floor(y_pos + 0.0))  # 1. the encoder latches
         fb = float(c) * fb_gain + 0.0  # 2. conv_s32_float, scale (in * gain + offset)
         out, err, state = pid_step(params, state, commands[k], fb, period_ns)  # 3. pid
