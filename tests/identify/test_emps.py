@@ -41,6 +41,7 @@ from scipy.integrate import solve_ivp
 import servotune as st
 from servotune.errors import IdentificationError, LogFormatError
 from servotune.identify import FitResult, fit_arrays
+from servotune.identify.fitting import AGREEMENT_PARAMS
 from servotune.identify.quality import fit_pct
 from servotune.io.emps import (
     ENCODER_QUANTUM_M,
@@ -397,16 +398,6 @@ def default_fits(emps: dict[str, EmpsLog]) -> dict[tuple[str, str], FitResult]:
     return out
 
 
-DEFAULT_VS_OE_PCT = 0.5
-"""How far the default's velocity fit on the other log may lie below ``--method oe``'s
-[percentage points]. Measured (2026-11-29): fitted on EMPS, 93.57 % (iv, its structure chosen
-by held-out prediction) against oe's 93.92 %; fitted on PULSES, where refined and basic IV find
-no solution for the structure that predicts best, the default falls back to oe (94.03 %). The
-default keeps the consistent IV where it settles: on the synthetic closed-loop logs of
-tests/identify/test_closed_loop_iv.py least squares predicts held-out samples as well or better
-(0–3 points) while its gain is 7–14 % low, so the better prediction is no reason to prefer it."""
-
-
 @pytest.mark.parametrize("fitted_on", ["EMPS", "PULSES"])
 def test_the_default_fit_predicts_the_other_log_as_the_alternatives_do(
     emps: dict[str, EmpsLog], default_fits: dict[tuple[str, str], FitResult], fitted_on: str
@@ -416,7 +407,11 @@ def test_the_default_fit_predicts_the_other_log_as_the_alternatives_do(
     delay (refined IV had no solution with friction) and the default reached 71.7 % (EMPS →
     PULSES) and 80.0 % (PULSES → EMPS). The benchmark's IDIM-LS model is compared where it is
     not in its own estimation data (it was estimated on DATA_EMPS: 92.63 % on PULSES; on EMPS
-    itself it reaches 95.01 %, which no model fitted on PULSES here does: oe 94.03 %)."""
+    itself it reaches 95.01 %, which no model fitted on PULSES here does: oe 94.03 %).
+    Measured (2026-11-29): fitted on EMPS, iv with its structure chosen by held-out prediction
+    reached 93.57 % against oe's 93.92 %; the default now keeps least squares there, because it
+    agrees with iv within iv's intervals (next test), so the two are equal; fitted on PULSES,
+    iv has no solution and the default is least squares."""
     other = emps[OTHER[fitted_on]]
     measured = np.diff(other.pos_counts) / other.period_s
 
@@ -426,11 +421,31 @@ def test_the_default_fit_predicts_the_other_log_as_the_alternatives_do(
     got = pct(default_fits[fitted_on, "default"].plant)
     oe_pct = pct(default_fits[fitted_on, "oe"].plant)
     assert got >= MIN_CROSS_FIT_PCT, got
-    assert got >= oe_pct - DEFAULT_VS_OE_PCT, (got, oe_pct)
+    assert got >= oe_pct, (got, oe_pct)
     if fitted_on == "PULSES":
         return
     ref = pct(REFERENCE_MODEL.to_plant(emps[fitted_on].gtau_n_per_v))
     assert got >= ref, (got, ref)
+
+
+def test_the_default_keeps_least_squares_only_where_it_agrees_with_iv(
+    emps: dict[str, EmpsLog], default_fits: dict[tuple[str, str], FitResult]
+) -> None:
+    """On DATA_EMPS (a stiff position loop, little disturbance) least squares places gain and
+    tau inside the consistent iv estimate's own 95 % intervals and predicts held-out samples
+    better, so the default takes it and says so. The other side of the rule, a closed-loop log
+    whose disturbance biases least squares by about -10 %, keeps iv:
+    tests/identify/test_closed_loop_iv.py (50 logs, every one iv)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ivr = st.fit(emps["EMPS"].to_log(), method="iv")
+    got = default_fits["EMPS", "default"]
+    assert got.method == "oe", got.method_reason
+    assert "agrees with instrumental variables" in got.method_reason
+    for p in AGREEMENT_PARAMS:
+        lo, hi = ivr.ci95[p]
+        assert lo <= got.params[p] <= hi, (p, got.params[p], ivr.ci95[p])
+    assert got.fit_pct["velocity"]["validation"] > ivr.fit_pct["velocity"]["validation"]
 
 
 # --- the reader without the real data -----------------------------------------------------------
