@@ -14,6 +14,12 @@ EXAMPLES = {
         "servotune simulate plants/pc-dual-servo.toml --scenario prbs --axis master "
         "--seconds 20 -o log.csv",
         "servotune simulate plants/pc-dual-servo.toml --input exc.csv --closed-loop -o my.csv",
+        "servotune simulate plants/belt-axis.toml --scenario track --shaper zvd -o shaped.csv",
+    ],
+    "shaper": [
+        "servotune shaper plants/belt-axis.toml                 # auto: the shortest that holds",
+        "servotune shaper plants/belt-axis.toml --kind ei --json",
+        "servotune shaper plants/belt-axis.toml --hal-output shaper.comp   # halcompile it",
     ],
     "fit": [
         "servotune fit my.csv --axis master                  # summary on stderr",

@@ -14,6 +14,7 @@ from servotune.cli.output import (
     EXIT_OK,
     EXIT_USAGE,
     check_outputs,
+    print_product,
     print_summary,
     progress_line,
 )
@@ -81,6 +82,42 @@ def _modes_text(facts: dict) -> str:
     return "".join("\n" + line for line in lines)
 
 
+def cmd_shaper(args: argparse.Namespace) -> int:
+    from servotune.analysis.shaping import axis_shaper
+    from servotune.pipeline import default_pi_gains
+    from servotune.rig import load_rig
+
+    check_outputs(args.hal_output, inputs=(args.rig,))
+    rig = load_rig(args.rig)
+    axis = args.axis or next(a.name for a in rig.axes if a.role == "master")
+    gains = default_pi_gains(rig)[rig.axis_names.index(axis)]
+    shaper, _, why = axis_shaper(rig, axis, gains, args.kind)
+    doc = {"axis": axis, **shaper.to_dict(), "why": why}
+
+    def text() -> str:
+        lines = [
+            f"{axis}: {shaper.kind} shaper, {shaper.n_taps} taps on the {rig.period_s:g} s "
+            f"tick, moves {1000 * shaper.added_time_s:.1f} ms longer",
+            *(f"  {w}" for w in why),
+            "  Q15 amplitudes: " + " ".join(str(a) for a in shaper.amplitudes_q),
+        ]
+        for r in doc["residual"]:
+            lines.append(
+                f"  residual vibration at {r['freq_hz']:.4g} Hz: {100 * r['at_mode']:.2f} %; "
+                f"worst within ±15 %: {100 * r['worst_within_15_percent']:.2f} %"
+            )
+        return "\n".join(lines)
+
+    print_product(args.json, lambda: doc, text)
+    if args.hal_output:
+        from servotune.export.hal_component import shaper_component
+        from servotune.io.files import atomic_write_text
+
+        atomic_write_text(args.hal_output, shaper_component(shaper, name=args.hal_name))
+        print(f"wrote the HAL component {args.hal_name} to {args.hal_output}", file=sys.stderr)
+    return EXIT_OK
+
+
 def cmd_simulate(args: argparse.Namespace) -> int:
     from servotune.rig import load_rig
     from servotune.scenarios import Scenario, build_scenario
@@ -104,6 +141,13 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from servotune.logs import format_log, write_log
     from servotune.pipeline import log_metadata, run_scenario, trace_log_columns
 
+    if args.shaper:
+        from servotune.analysis.shaping import shape_scenario
+        from servotune.pipeline import default_pi_gains
+
+        gains = default_pi_gains(rig)[rig.axis_names.index(scen.axis)]
+        scen, why = shape_scenario(rig, scen, gains, args.shaper)
+        progress_line(f"simulate: the {scen.axis} axis's reference shaped: " + "; ".join(why))
     trace = run_scenario(rig, scen, seed=args.seed, noise=not args.no_noise)
     meta = log_metadata(
         rig,

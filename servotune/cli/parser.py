@@ -20,6 +20,7 @@ from servotune.cli.measure import (
     cmd_frf,
     cmd_init,
     cmd_rig,
+    cmd_shaper,
     cmd_simulate,
 )
 from servotune.cli.studies import cmd_compare, cmd_demo, cmd_linkage, cmd_sync
@@ -28,6 +29,10 @@ from servotune.cli.warmup import cmd_warmup
 from servotune.executor import local_workers
 from servotune.kernels import GROUPS
 from servotune.validate import SEED_MAX, check_seed
+
+SHAPER_KINDS = ("zv", "zvd", "ei")
+"""servotune.laws.shaping.KINDS, named here so that ``--help`` loads neither numba nor scipy
+(tests/cli/test_shaper_cli.py checks they agree)."""
 
 
 def _executor_options(group: Any, what: str, from_size: str) -> None:
@@ -119,6 +124,35 @@ def _add_rig(sub: Any) -> None:
     s.add_argument("--json", action="store_true", help="JSON on stdout")
 
 
+def _add_shaper(sub: Any) -> None:
+    """The ``shaper`` verb and its options."""
+    s = _verb(
+        sub,
+        cmd_shaper,
+        "shaper",
+        help="design an input shaper for an axis's modes (its taps, added move time, residual "
+        "vibration) and optionally its HAL component",
+    )
+    s.add_argument("rig", help="rig file (TOML) whose axis has [[axis.X.plant.modes]]")
+    s.add_argument("--axis", help="the axis (default: the master)")
+    s.add_argument(
+        "--kind",
+        default="auto",
+        choices=("auto", *SHAPER_KINDS),
+        help="zv, zvd, ei, or auto (default): per mode the shortest that keeps the residual "
+        "vibration at or below 5 %% over the mode's 95 %% interval (at least ±5 %%)",
+    )
+    s.add_argument("--json", action="store_true", help="JSON on stdout")
+    s.add_argument(
+        "--hal-output", metavar="FILE", help="also write the shaper's HAL component (.comp)"
+    )
+    s.add_argument(
+        "--hal-name",
+        default="servotune_shaper",
+        help="the HAL component's name (default servotune_shaper)",
+    )
+
+
 def _add_simulate(sub: Any) -> None:
     """The ``simulate`` verb and its options."""
     s = _verb(
@@ -136,6 +170,11 @@ def _add_simulate(sub: Any) -> None:
         help="excite with the lock module active (identification in closed loop)",
     )
     s.add_argument("--no-noise", action="store_true", help="switch the encoder noise off")
+    s.add_argument(
+        "--shaper",
+        choices=("auto", *SHAPER_KINDS),
+        help="shape the moved axis's task reference for its modes (see servotune shaper)",
+    )
     s.add_argument("-o", "--output", required=True, help="log file to write ('-' for stdout)")
 
 
@@ -719,6 +758,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_init(sub)
     _add_rig(sub)
     _add_simulate(sub)
+    _add_shaper(sub)
     _add_fit(sub)
     _add_frf(sub)
     _add_excite(sub)

@@ -54,6 +54,7 @@ __all__ = [
     "LINK_RUNTIME_FILES",
     "PLANT_RUNTIME_FILES",
     "RUNTIME_FILES",
+    "SHAPER_RUNTIME_FILES",
     "c_identifiers",
     "int32_literal",
     "runtime_source",
@@ -72,6 +73,8 @@ PLANT_RUNTIME_FILES = ("servotune_plant.h",)
 """The simulator's plant model in C (header only; :mod:`servotune.export.hal_component`)."""
 LINK_RUNTIME_FILES = ("servotune_link.c", "servotune_link.h")
 """A linkage slave CPU's receive queue and clock sync (:mod:`servotune.export.linkage`)."""
+SHAPER_RUNTIME_FILES = ("servotune_shaper.h",)
+"""The input shaper's integer step (header only; :mod:`servotune.laws.shaping`)."""
 
 _MAX_AXES = 4  # ST_MAX_AXES default of servotune_rt.h
 _LAW_MACROS = {"none": "ST_LAW_NONE", "pi": "ST_LAW_PI", "fuzzy_pid": "ST_LAW_FUZZY_PID"}
@@ -86,7 +89,13 @@ _TABLE_TITLES = {
 def runtime_source(name: str) -> str:
     """Text of one reference-runtime file (of :data:`RUNTIME_FILES`,
     :data:`GANTRY_RUNTIME_FILES`, :data:`LINK_RUNTIME_FILES`)."""
-    known = RUNTIME_FILES + GANTRY_RUNTIME_FILES + LINK_RUNTIME_FILES + PLANT_RUNTIME_FILES
+    known = (
+        RUNTIME_FILES
+        + GANTRY_RUNTIME_FILES
+        + LINK_RUNTIME_FILES
+        + PLANT_RUNTIME_FILES
+        + SHAPER_RUNTIME_FILES
+    )
     if name not in known:
         raise ExportError(f"no runtime file {name!r}; files: {', '.join(known)}")
     return resources.files("servotune.export").joinpath("runtime", name).read_text(encoding="utf-8")

@@ -34,12 +34,25 @@ from typing import Any
 from servotune._version import __version__
 from servotune.digest import text_digest_problem, with_digest_line
 from servotune.errors import DigestError, ExportError
-from servotune.export.c import PLANT_RUNTIME_FILES, RUNTIME_FILES, runtime_source, to_string
+from servotune.export.c import (
+    PLANT_RUNTIME_FILES,
+    RUNTIME_FILES,
+    SHAPER_RUNTIME_FILES,
+    runtime_source,
+    to_string,
+)
+from servotune.laws.shaping import Shaper
 from servotune.plant import NROW, Plant, plant_row
 from servotune.rig import Dac, Rig
 from servotune.tuning import Tuning
 
-__all__ = ["PLANT_HEADER", "check_component_source", "component_source", "plant_component"]
+__all__ = [
+    "PLANT_HEADER",
+    "check_component_source",
+    "component_source",
+    "plant_component",
+    "shaper_component",
+]
 
 PLANT_HEADER = PLANT_RUNTIME_FILES[0]
 _NAME = re.compile(r"[a-z][a-z0-9_]{0,40}")
@@ -202,4 +215,30 @@ def plant_component(
         counter_init=int(counter_init),
         plant_h=_inline(runtime_source(PLANT_HEADER)),
         row=",\n    ".join(_c_double(float(x)) for x in row),
+    )
+
+
+def shaper_component(shaper: Shaper, *, name: str) -> str:
+    """The ``.comp`` source of an input shaper (docs/runtime.md#input-shaping): each period its
+    function (add it to the thread *before* the runtime component) takes ``command`` (s32, the
+    reference [counts]) and gives ``shaped`` (s32), the integer step of
+    :func:`servotune.laws.shaping.shaper_step` (``servotune_shaper.h``) with the shaper's Q15
+    amplitudes compiled in; at load it checks that they sum to 2^15.
+
+    Raises
+    ------
+    ExportError
+        If the name is not a HAL name.
+    """
+    _check_name(name)
+    modes = "; ".join(f"{f!r} Hz, damping {z!r}" for f, z in shaper.modes)
+    return _template(
+        "hal_shaper.comp.in",
+        name=name,
+        kind=shaper.kind,
+        modes=modes,
+        taps=shaper.n_taps,
+        added_ticks=shaper.n_taps - 1,
+        shaper_h=_inline(runtime_source(SHAPER_RUNTIME_FILES[0])),
+        amplitudes=", ".join(str(a) for a in shaper.amplitudes_q),
     )
