@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import dataclasses
+import signal
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -86,3 +88,25 @@ def quick_workbench(tmp_path_factory):
         return {"dir": d, "rig": rig, "tuning": path, "spec": spec}
 
     return make
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Ctrl-C handled as in a foreground run: a shell that starts a command in the background
+    (``make test &``, a job without job control) starts it with SIGINT ignored, which every
+    process it starts inherits, so the signal tests (Ctrl-C ends a run with exit 130) would
+    test the shell's choice instead of servotune's handling."""
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+@pytest.fixture(autouse=True)
+def _sigint_left_as_found() -> Iterator[None]:
+    """Every test leaves the process's Ctrl-C handling as it found it: a test (or the code it
+    runs) that leaves SIGINT ignored makes every later signal test of its worker fail, far
+    from the cause; this names the test instead."""
+    before = signal.getsignal(signal.SIGINT)
+    yield
+    after = signal.getsignal(signal.SIGINT)
+    if after is not before:
+        signal.signal(signal.SIGINT, before)
+        pytest.fail(f"the test left SIGINT's handler {after!r} (it was {before!r})")

@@ -28,7 +28,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("identify", "tune"),
     ("verify",),
     ("arch", "export", "fleet"),
-    ("report", "plot", "pipeline", "testing"),
+    ("report", "plot", "pipeline", "testing", "autotune"),
     ("warmup", "cli", "__init__"),
 )
 """The layers, lowest first: a module may import from its own layer and those below it

@@ -1,7 +1,8 @@
 """The example files shipped inside the package (``servotune.examples``) and ``servotune init``.
 
 - ``plants/`` and the package's copies cannot drift: every file of ``plants/`` is in the
-  package, byte for byte, and the package holds nothing else but the LinuxCNC map;
+  package, byte for byte, and the package holds nothing else but the LinuxCNC map and the
+  autotune config;
 - the library's example rig (the template of ``fit -o NEW.toml``, the trust chain's last
   fallback) is the package's copy, not a checkout's;
 - ``write_examples`` / ``servotune init``: every file written, identical files left alone, a
@@ -38,13 +39,14 @@ from servotune.rig import EXAMPLE_RIG_PATH, load_rig
 
 ROOT = Path(__file__).resolve().parents[1]
 PLANTS = ROOT / "plants"
-MAP = "linuxcnc-map.toml"  # the one example that is not in plants/
+MAP = "linuxcnc-map.toml"
+NOT_IN_PLANTS = (MAP, "linuxcnc-autotune.toml")  # the LinuxCNC files: not rigs or specs
 
 
 def test_plants_and_the_package_copies_are_the_same_bytes() -> None:
     in_plants = sorted(p.name for p in PLANTS.iterdir() if p.is_file())
     assert len(in_plants) >= 6
-    assert sorted(example_names()) == sorted([*in_plants, MAP])
+    assert sorted(example_names()) == sorted([*in_plants, *NOT_IN_PLANTS])
     for name in in_plants:
         assert example_path(name).read_bytes() == (PLANTS / name).read_bytes(), (
             f"plants/{name} and servotune/examples/{name} differ: copy the edited one over"

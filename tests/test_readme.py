@@ -18,7 +18,8 @@ How README.md's fenced blocks are treated (the marks are visible in the README's
   :func:`test_every_block_is_run_or_marked` fails on an unmarked one.
 
 Blocks run in document order in one workspace: a temporary directory holding a copy of
-``plants/``. ``SERVOTUNE_WORKBENCH`` is removed from the environment, so the current tuning goes
+``plants/`` and the two LinuxCNC example files ``servotune init`` adds to it.
+``SERVOTUNE_WORKBENCH`` is removed from the environment, so the current tuning goes
 where a user's goes by default, the working directory's ``.servotune/`` (and the messages name
 it as the README shows). Pointing it at the workspace itself would make the current tuning and
 ``-o tuning.json`` one file and hide a workflow that once broke (``export-table`` of the
@@ -45,6 +46,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
+
+from servotune.examples import EXAMPLES_DIR
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
@@ -254,6 +257,8 @@ def test_readme_runs_as_written(tmp_path: Path, monkeypatch: pytest.MonkeyPatch)
     workspace = tmp_path / "workspace"
     workspace.mkdir()
     shutil.copytree(ROOT / "plants", workspace / "plants")
+    for name in ("linuxcnc-map.toml", "linuxcnc-autotune.toml"):  # what servotune init adds
+        shutil.copy(EXAMPLES_DIR / name, workspace / "plants" / name)
     env = _env()
     monkeypatch.chdir(workspace)  # the doctests read and write where the commands did
     monkeypatch.delenv("SERVOTUNE_WORKBENCH", raising=False)

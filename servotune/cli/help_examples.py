@@ -16,6 +16,10 @@ EXAMPLES = {
         "servotune simulate plants/pc-dual-servo.toml --input exc.csv --closed-loop -o my.csv",
         "servotune simulate plants/belt-axis.toml --scenario track --shaper zvd -o shaped.csv",
     ],
+    "autotune": [
+        "servotune autotune plants/linuxcnc-autotune.toml --dry-run   # the plan; touches nothing",
+        "servotune autotune plants/linuxcnc-autotune.toml --dry-run --guard-output guard.comp",
+    ],
     "shaper": [
         "servotune shaper plants/belt-axis.toml                 # auto: the shortest that holds",
         "servotune shaper plants/belt-axis.toml --kind ei --json",

@@ -505,3 +505,39 @@ def cmd_excite(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     return EXIT_OK
+
+
+def cmd_autotune(args: argparse.Namespace) -> int:
+    from servotune.autotune import format_plan, load_autotune_config, plan_autotune
+
+    check_outputs(args.guard_output, inputs=(args.config,))
+    cfg = load_autotune_config(args.config)
+    if not args.dry_run:
+        print(
+            "servotune autotune: error: the live run (in a HAL session) is not in this version: "
+            "--dry-run prints its plan, --guard-output writes the envelope's real-time "
+            "component",
+            file=sys.stderr,
+        )
+        return EXIT_USAGE
+    compile_kernels("simulation")
+    plan = plan_autotune(cfg)
+    print_product(args.json, plan.to_dict, lambda: format_plan(cfg, plan))
+    if args.guard_output:
+        from servotune.export.hal_component import guard_component
+        from servotune.io.files import atomic_write_text
+
+        env = cfg.envelope
+        atomic_write_text(
+            args.guard_output,
+            guard_component(
+                name=args.guard_name,
+                travel_counts=env.travel_counts,
+                speed_cps=env.speed_cps,
+                following_error_counts=env.following_error_counts,
+                max_volts=env.max_volts,
+                position_scale=cfg.hal.position_scale,
+            ),
+        )
+        print(f"wrote the guard {args.guard_name} to {args.guard_output}", file=sys.stderr)
+    return EXIT_OK

@@ -14,13 +14,13 @@ from typing import Any, NoReturn
 from servotune._version import __version__
 from servotune.cli.design import cmd_margins, cmd_plan, cmd_tune, cmd_verify
 from servotune.cli.help_examples import EXAMPLES
+from servotune.cli.machine_parsers import SHAPER_KINDS, add_autotune, add_shaper
 from servotune.cli.measure import (
     cmd_excite,
     cmd_fit,
     cmd_frf,
     cmd_init,
     cmd_rig,
-    cmd_shaper,
     cmd_simulate,
 )
 from servotune.cli.studies import cmd_compare, cmd_demo, cmd_linkage, cmd_sync
@@ -29,10 +29,6 @@ from servotune.cli.warmup import cmd_warmup
 from servotune.executor import local_workers
 from servotune.kernels import GROUPS
 from servotune.validate import SEED_MAX, check_seed
-
-SHAPER_KINDS = ("zv", "zvd", "ei")
-"""servotune.laws.shaping.KINDS, named here so that ``--help`` loads neither numba nor scipy
-(tests/cli/test_shaper_cli.py checks they agree)."""
 
 
 def _executor_options(group: Any, what: str, from_size: str) -> None:
@@ -122,35 +118,6 @@ def _add_rig(sub: Any) -> None:
     s = _verb(sub, cmd_rig, "rig", help="print the derived facts of a rig file")
     s.add_argument("rig", help="rig file (TOML), e.g. plants/pc-dual-servo.toml")
     s.add_argument("--json", action="store_true", help="JSON on stdout")
-
-
-def _add_shaper(sub: Any) -> None:
-    """The ``shaper`` verb and its options."""
-    s = _verb(
-        sub,
-        cmd_shaper,
-        "shaper",
-        help="design an input shaper for an axis's modes (its taps, added move time, residual "
-        "vibration) and optionally its HAL component",
-    )
-    s.add_argument("rig", help="rig file (TOML) whose axis has [[axis.X.plant.modes]]")
-    s.add_argument("--axis", help="the axis (default: the master)")
-    s.add_argument(
-        "--kind",
-        default="auto",
-        choices=("auto", *SHAPER_KINDS),
-        help="zv, zvd, ei, or auto (default): per mode the shortest that keeps the residual "
-        "vibration at or below 5 %% over the mode's 95 %% interval (at least ±5 %%)",
-    )
-    s.add_argument("--json", action="store_true", help="JSON on stdout")
-    s.add_argument(
-        "--hal-output", metavar="FILE", help="also write the shaper's HAL component (.comp)"
-    )
-    s.add_argument(
-        "--hal-name",
-        default="servotune_shaper",
-        help="the HAL component's name (default servotune_shaper)",
-    )
 
 
 def _add_simulate(sub: Any) -> None:
@@ -758,7 +725,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_init(sub)
     _add_rig(sub)
     _add_simulate(sub)
-    _add_shaper(sub)
+    add_shaper(sub, _verb)
+    add_autotune(sub, _verb)
     _add_fit(sub)
     _add_frf(sub)
     _add_excite(sub)

@@ -2,9 +2,10 @@
 
 The example rig (``pc-dual-servo.toml``) and its belt-driven variant (``belt-axis.toml``: the
 master's plant with a 35 Hz mode), the gantry and the six-axis linkage configs, a spec for each,
-and a LinuxCNC capture's map (``linuxcnc-map.toml``, read by ``servotune fit --map``).
-The repository's ``plants/`` holds the same files, byte for byte, all but the map
-(``tests/test_examples.py``); the library reads only these copies, so an installed wheel works
+a LinuxCNC capture's map (``linuxcnc-map.toml``, read by ``servotune fit --map``) and an
+autotune config (``linuxcnc-autotune.toml``, read by ``servotune autotune``).
+The repository's ``plants/`` holds the same files, byte for byte, all but the two LinuxCNC
+files (``tests/test_examples.py``); the library reads only these copies, so an installed wheel works
 without a checkout. :func:`write_examples` writes them into a directory: ``servotune init DIR``
 puts them into ``DIR/plants/``, where the README's and ``--help``'s commands look for them.
 

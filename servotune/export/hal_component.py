@@ -50,6 +50,7 @@ __all__ = [
     "PLANT_HEADER",
     "check_component_source",
     "component_source",
+    "guard_component",
     "plant_component",
     "shaper_component",
 ]
@@ -241,4 +242,60 @@ def shaper_component(shaper: Shaper, *, name: str) -> str:
         added_ticks=shaper.n_taps - 1,
         shaper_h=_inline(runtime_source(SHAPER_RUNTIME_FILES[0])),
         amplitudes=", ".join(str(a) for a in shaper.amplitudes_q),
+    )
+
+
+def guard_component(
+    *,
+    name: str,
+    travel_counts: tuple[float, float],
+    speed_cps: float,
+    following_error_counts: float,
+    max_volts: float,
+    position_scale: float = 1.0,
+) -> str:
+    """The ``.comp`` source of an experiment's safety envelope (docs/autotune.md): each period
+    its function (add it after the controller, before the D/A driver) checks the feedback
+    ``position`` (times ``position_scale``: counts) against the travel window (relative to the
+    position at the first period after load or reset), its speed (the change per period of
+    the thread), the following error ``command − position`` and ``|volts_in|``; at the first
+    breach it sets ``fault``, names the limit (``reason`` 1 travel, 2 speed, 3 following error,
+    4 output) with the breaching ``value`` and ``trip_period``, and gives ``volts_out = 0`` from
+    that same period until ``reset``; otherwise ``volts_out = volts_in``. The limits are
+    compiled in: a ``setp`` cannot widen them.
+
+    Raises
+    ------
+    ExportError
+        A name that is not a HAL name, or a limit that is not a finite positive number (the
+        travel window: low < 0 < high).
+    """
+    _check_name(name)
+    lo, hi = travel_counts
+    values = {
+        "speed_cps": speed_cps,
+        "following_error_counts": following_error_counts,
+        "max_volts": max_volts,
+        "position_scale": position_scale,
+    }
+    bad = [k for k, v in values.items() if not (math.isfinite(v) and v > 0)]
+    if bad or not (math.isfinite(lo) and math.isfinite(hi) and lo < 0 < hi):
+        raise ExportError(
+            f"guard: every limit must be a finite number > 0 and the travel window low < 0 < "
+            f"high, got {', '.join(bad) or f'travel {lo!r}..{hi!r}'}"
+        )
+    return _template(
+        "hal_guard.comp.in",
+        name=name,
+        limits=(
+            f"travel {lo:g}..{hi:g} counts, speed {speed_cps:g} counts/s, following error "
+            f"{following_error_counts:g} counts, output {max_volts:g} V, {position_scale:g} "
+            "counts per feedback unit"
+        ),
+        scale=_c_double(float(position_scale)),
+        travel_lo=_c_double(float(lo)),
+        travel_hi=_c_double(float(hi)),
+        speed=_c_double(float(speed_cps)),
+        following=_c_double(float(following_error_counts)),
+        max_volts=_c_double(float(max_volts)),
     )

@@ -9,7 +9,7 @@ import numpy as np
 
 from servotune.analysis.shaping import axis_shaper
 from servotune.cli import main
-from servotune.cli.parser import SHAPER_KINDS
+from servotune.cli.machine_parsers import SHAPER_KINDS
 from servotune.laws.shaping import KINDS, shape_reference
 from servotune.logs import read_log
 from servotune.pipeline import default_pi_gains

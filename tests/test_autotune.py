@@ -1,0 +1,153 @@
+"""The autotune config and its dry-run plan (servotune.autotune, docs/autotune.md).
+
+The plan's predicted motion is checked against an independent simulation: the axis model
+integrated by scipy ``solve_ivp`` under the planned excitation with the lock module's P law
+closed around it (no friction or offset: the test's own loop), not the engine.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from servotune.autotune import load_autotune_config, plan_autotune
+from servotune.cli import main
+from servotune.errors import ConfigError
+from servotune.examples import EXAMPLES_DIR
+from servotune.fixed import quantize
+
+CONFIG = EXAMPLES_DIR / "linuxcnc-autotune.toml"
+
+
+def _edit(tmp_path: Path, old: str, new: str) -> Path:
+    text = CONFIG.read_text()
+    assert old in text, old
+    for name in ("pc-dual-servo.toml", "pc-dual-servo.spec.toml"):
+        (tmp_path / name).write_bytes((EXAMPLES_DIR / name).read_bytes())
+    p = tmp_path / "at.toml"
+    p.write_text(text.replace(old, new))
+    return p
+
+
+def test_the_example_config_loads() -> None:
+    cfg = load_autotune_config(CONFIG)
+    assert cfg.axis == "master" and cfg.hal.position_scale == 2000.0
+    assert cfg.envelope.travel_counts == (-40000.0, 40000.0)
+    assert cfg.rig.name == "pc-dual-servo" and cfg.spec_path.name == "pc-dual-servo.spec.toml"
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "words"),
+    [
+        ("period_s = 0.004  ", "period_s = 0.008  ", "slower than the rig's period"),
+        ("period_s = 0.004  ", "period_s = 0.001  ", "faster than the rig's period"),
+        ("speed_cps = 40000.0", "speed_cps = 2e5", "speed_cps 200000 > the axis's limit"),
+        ("max_volts = 4.0", "max_volts = 12.0", "max_volts 12 > the D/A's ±10 V"),
+        ("travel_counts = [-40000, 40000]", "travel_counts = [-3e6, 3e6]", "travel"),
+        ("travel_counts = [-40000, 40000]", "travel_counts = [10, 40000]", "low < 0 < high"),
+        ('output_pin = "pid.0.output"', 'output_pin = "pid 0"', "hal.output_pin"),
+        ('enable_pin = "pid.0.enable"\n', "", "missing"),
+        ('axis = "master"', 'axis = "z"', "autotune.axis must be one of"),
+        ('target = "pid"', 'target = "drive"', "autotune.target"),
+        ('rig = "pc-dual-servo.toml"', 'rig = "nope.toml"', "autotune.rig"),
+    ],
+)
+def test_a_bad_config_is_one_line_exit_3(tmp_path: Path, capsys, old, new, words) -> None:
+    p = _edit(tmp_path, old, new)
+    with pytest.raises(ConfigError, match=None) as e:
+        load_autotune_config(p)
+    assert words in str(e.value) and str(p) in str(e.value), str(e.value)
+    assert main(["autotune", str(p), "--dry-run"]) == 3
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and words in err[0], err
+
+
+def test_the_dry_run_prints_the_plan_and_writes_nothing(tmp_path: Path, capsys) -> None:
+    p = _edit(tmp_path, "seconds = 40.0", "seconds = 8.0")
+    before = sorted(x.name for x in tmp_path.iterdir())
+    assert main(["autotune", str(p), "--dry-run", "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert sorted(x.name for x in tmp_path.iterdir()) == before
+    assert doc["excitation"]["kind"] == "multisine" and doc["excitation"]["seconds"] > 7.9
+    assert doc["excitation"]["amplitude_volts"] <= 4.0
+    for key in ("travel_counts", "speed_cps", "following_error_counts"):
+        assert doc["predicted"][key]["share"] <= 1.0, key
+    assert doc["starting_loop"]["phase_margin_deg"] > 30
+    assert len(doc["steps"]) == 5 and "wiring check" in doc["steps"][1]
+    assert main(["autotune", str(p), "--dry-run"]) == 0
+    out = capsys.readouterr().out
+    assert "dry run: nothing in HAL is touched" in out and "predicted speed" in out
+
+
+def _independent_run(cfg, codes: np.ndarray) -> np.ndarray:
+    """Positions [counts] at each tick start: the axis model integrated by solve_ivp, the D/A
+    code written ``compute_s`` after the tick start and acting ``delay_s`` later, the lock
+    module's P law (its quantised gain, rounded half away from zero) on the latched
+    floor(position), the excitation's codes added."""
+    from scipy.integrate import solve_ivp
+
+    rig = cfg.rig
+    ax = rig.axis(cfg.axis)
+    pl = ax.plant
+    t_s, lag = rig.period_s, rig.timer.compute_s + pl.delay_s
+    zero = 1 << (rig.dac.bits - 1)
+    kp = float(quantize(ax.lock_gain_codes_per_count).value)
+
+    def rhs(_t, x, volts):  # x = position, speed
+        return [x[1], (pl.gain_cps_per_v * (volts + pl.offset_v) - x[1]) / pl.tau_s]
+
+    x = np.zeros(2)
+    pos = np.empty(codes.size)
+    prev = 0.0
+    for k in range(codes.size):
+        pos[k] = x[0]
+        e = -np.floor(x[0])
+        u = kp * e
+        code = int(np.clip(zero + np.sign(u) * np.floor(abs(u) + 0.5) + codes[k], 0, 2 * zero - 1))
+        volts = (code - zero) * rig.dac.lsb_v
+        x = solve_ivp(rhs, (0, lag), x, args=(prev,), rtol=1e-10, atol=1e-9).y[:, -1]
+        x = solve_ivp(rhs, (lag, t_s), x, args=(volts,), rtol=1e-10, atol=1e-9).y[:, -1]
+        prev = volts
+    return pos
+
+
+def test_the_predicted_motion_agrees_with_an_independent_simulation(tmp_path: Path) -> None:
+    """The plan's largest travel and speed (the engine) against the same experiment run by
+    :func:`_independent_run` on the frictionless axis: within 5 % (both quantise the counter
+    and the D/A; their rounding of the P law may differ by a code now and then)."""
+    p = _edit(tmp_path, "seconds = 40.0", "seconds = 4.0")
+    cfg = load_autotune_config(p)
+    ax = cfg.rig.axis(cfg.axis)
+    frictionless = dataclasses.replace(ax, plant=dataclasses.replace(ax.plant, coulomb_v=0.0))
+    cfg = dataclasses.replace(
+        cfg,
+        rig=dataclasses.replace(
+            cfg.rig, axes=tuple(frictionless if a.name == cfg.axis else a for a in cfg.rig.axes)
+        ),
+    )
+    plan = plan_autotune(cfg)
+    pos = _independent_run(cfg, plan.excitation_codes - (1 << (cfg.rig.dac.bits - 1)))
+    travel = float(np.abs(pos - pos[0]).max())
+    speed = float(np.abs(np.diff(pos)).max() / cfg.rig.period_s)
+    assert plan.predicted["travel_counts"]["value"] == pytest.approx(travel, rel=0.05)
+    assert plan.predicted["speed_cps"]["value"] == pytest.approx(speed, rel=0.05)
+
+
+def test_without_dry_run_it_says_the_live_run_is_not_here(capsys) -> None:
+    assert main(["autotune", str(CONFIG)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "not in this version" in err[0] and "--dry-run" in err[0]
+
+
+def test_the_guard_written_is_the_configs_envelope(tmp_path: Path, capsys) -> None:
+    out = tmp_path / "guard.comp"
+    p = _edit(tmp_path, "seconds = 40.0", "seconds = 2.0")
+    assert main(["autotune", str(p), "--dry-run", "--guard-output", str(out)]) == 0
+    text = out.read_text()
+    assert "travel -40000..40000 counts, speed 40000 counts/s, following error 6000" in text
+    assert "output 4 V, 2000 counts per feedback unit" in text
+    assert "wrote the guard servotune_guard" in capsys.readouterr().err
