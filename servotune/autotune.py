@@ -34,6 +34,7 @@ import numpy as np
 
 from servotune.errors import ConfigError
 from servotune.io.files import read_toml
+from servotune.io.halcmd import HalSession
 from servotune.rig import Rig, load_rig
 from servotune.validate import check_keys, check_number, show_value
 
@@ -44,6 +45,7 @@ __all__ = [
     "AutotunePlan",
     "Envelope",
     "HalSide",
+    "check_session",
     "format_plan",
     "load_autotune_config",
     "plan_autotune",
@@ -272,6 +274,52 @@ def _config(p: Path, doc: dict[str, Any]) -> AutotuneConfig:
         hal=hal,
         envelope=_envelope(doc["envelope"], rig, axis),
     )
+
+
+PIN_ROLES = (
+    ("command_pin", "float", None, "the loop's position command"),
+    ("feedback_pin", "float", None, "the feedback position"),
+    ("output_pin", "float", "OUT", "the controller's output"),
+    ("enable_pin", "bit", None, "the controller's enable"),
+)
+"""Each configured pin: its key, the type and (if it matters) direction it must have, what it
+is."""
+
+
+def check_session(cfg: AutotuneConfig, session: HalSession) -> None:
+    """Check the config's HAL side against a running session (:func:`read_session`): each pin
+    there with its type and direction, the thread there at the config's period.
+
+    Raises
+    ------
+    ConfigError
+        One line naming the key and what the session has instead.
+    """
+    h = cfg.hal
+    for key, typ, direction, what in PIN_ROLES:
+        name = getattr(h, key)
+        pin = session.pins.get(name)
+        if pin is None:
+            raise ConfigError(
+                f"{cfg.path}: hal.{key} {name!r} ({what}) is not a pin of the session"
+            )
+        if pin.type != typ or (direction is not None and pin.dir != direction):
+            want = f"a {typ} {direction} pin" if direction else f"a {typ} pin"
+            raise ConfigError(
+                f"{cfg.path}: hal.{key} {name!r} ({what}) is a {pin.type} {pin.dir} pin; "
+                f"it must be {want}"
+            )
+    period_ns = session.threads.get(h.thread)
+    if period_ns is None:
+        have = ", ".join(sorted(session.threads)) or "none"
+        raise ConfigError(
+            f"{cfg.path}: hal.thread {h.thread!r} is not a thread of the session ({have})"
+        )
+    if abs(period_ns * 1e-9 - h.period_s) > PERIOD_TOLERANCE * h.period_s:
+        raise ConfigError(
+            f"{cfg.path}: hal.thread {h.thread!r} runs every {period_ns * 1e-6:g} ms, not "
+            f"hal.period_s = {h.period_s * 1e3:g} ms"
+        )
 
 
 @dataclass(frozen=True, slots=True)

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import sys
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +23,16 @@ from servotune.examples import EXAMPLES_DIR
 from servotune.fixed import quantize
 
 CONFIG = EXAMPLES_DIR / "linuxcnc-autotune.toml"
+sys.path.insert(0, str(Path(__file__).resolve().parent / "hal"))  # the shared HAL harness
+import halrun  # noqa: E402
+
+
+@pytest.fixture(autouse=True)
+def _no_hal_session() -> Iterator[None]:
+    """No HAL session runs during these tests (the real-HAL tests of another worker wait):
+    the dry run reads a running session and would check this config against theirs."""
+    with halrun.hal_lock():
+        yield
 
 
 def _edit(tmp_path: Path, old: str, new: str) -> Path:
@@ -78,9 +90,11 @@ def test_the_dry_run_prints_the_plan_and_writes_nothing(tmp_path: Path, capsys) 
         assert doc["predicted"][key]["share"] <= 1.0, key
     assert doc["starting_loop"]["phase_margin_deg"] > 30
     assert len(doc["steps"]) == 5 and "wiring check" in doc["steps"][1]
+    assert doc["session_checked"] is False
     assert main(["autotune", str(p), "--dry-run"]) == 0
     out = capsys.readouterr().out
     assert "dry run: nothing in HAL is touched" in out and "predicted speed" in out
+    assert "no HAL session runs here (or no halcmd): the pins were not checked" in out
 
 
 def _independent_run(cfg, codes: np.ndarray) -> np.ndarray:

@@ -508,7 +508,13 @@ def cmd_excite(args: argparse.Namespace) -> int:
 
 
 def cmd_autotune(args: argparse.Namespace) -> int:
-    from servotune.autotune import format_plan, load_autotune_config, plan_autotune
+    from servotune.autotune import (
+        check_session,
+        format_plan,
+        load_autotune_config,
+        plan_autotune,
+    )
+    from servotune.io.halcmd import read_session
 
     check_outputs(args.guard_output, inputs=(args.config,))
     cfg = load_autotune_config(args.config)
@@ -520,9 +526,18 @@ def cmd_autotune(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return EXIT_USAGE
+    session = read_session()
+    if session is not None:
+        check_session(cfg, session)
     compile_kernels("simulation")
     plan = plan_autotune(cfg)
-    print_product(args.json, plan.to_dict, lambda: format_plan(cfg, plan))
+    doc = {**plan.to_dict(), "session_checked": session is not None}
+    text = format_plan(cfg, plan) + (
+        "\n  the HAL session's pins and thread: as the config says"
+        if session is not None
+        else "\n  no HAL session runs here (or no halcmd): the pins were not checked"
+    )
+    print_product(args.json, lambda: doc, lambda: text)
     if args.guard_output:
         from servotune.export.hal_component import guard_component
         from servotune.io.files import atomic_write_text
