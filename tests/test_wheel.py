@@ -212,6 +212,14 @@ def test_the_wheel_runs_the_readme_chain_without_a_checkout(
     check = servotune("check-table", "fuzzy.json")
     assert "rig myrig" in check.stdout + check.stderr
 
+    # the resonance and LinuxCNC verbs on the examples init wrote
+    shaper = json.loads(servotune("shaper", "plants/belt-axis.toml", "--json").stdout)
+    assert shaper["kind"] in ("zv", "zvd", "ei") and shaper["axis"] == "master"
+    plan = servotune(
+        "autotune", "plants/linuxcnc-autotune.toml", "--dry-run", "--guard-output", "guard.comp"
+    )
+    assert "dry run: nothing in HAL is touched" in plan.stdout
+    assert "servotune safety envelope" in (work / "guard.comp").read_text()
     for proc in ran[2:]:  # after the warmup, no command of the chain compiled a kernel
         assert not _compiling(proc.stderr), (proc.args, _compiling(proc.stderr))
     for name in (
