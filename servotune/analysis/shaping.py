@@ -26,8 +26,9 @@ from servotune.plant import Plant
 from servotune.resonance import Mode
 from servotune.rig import Rig
 from servotune.scenarios import Scenario
+from servotune.tuning import Tuning
 
-__all__ = ["axis_shaper", "closed_loop_modes", "shape_scenario"]
+__all__ = ["axis_shaper", "closed_loop_modes", "shape_scenario", "task_gains"]
 
 
 def closed_loop_modes(
@@ -52,6 +53,11 @@ def closed_loop_modes(
         lsb_volts=lsb_volts,
     )
     z = np.asarray(control.feedback(loop, 1).poles(), dtype=complex)
+    if np.any(np.abs(z) >= 1.0):
+        raise SpecError(
+            f"the closed loop with Kp {gains.kp:g}, Ki {gains.ki:g} is unstable (a pole at "
+            f"|z| = {np.abs(z).max():.4g}): no shaper helps; tune the loop first"
+        )
     s = np.log(z[np.abs(z) > 0]) / period_s
     s = s[s.imag > 0]
     out = []
@@ -132,3 +138,24 @@ def shape_scenario(
         needs_task_law=scenario.needs_task_law,
     )
     return shaped, why
+
+
+def task_gains(tuning: Tuning, rig: Rig, axis: str) -> PIGains:
+    """The PI gains ``axis`` runs in task mode under ``tuning`` [codes/count, codes/(count·s)]:
+    the PI's constants as quantised, or a fuzzy-PID's base gains (the centre of its tables).
+
+    Raises
+    ------
+    SpecError
+        A tuning of another rig, an axis it does not have, or one without a task law.
+    """
+    if tuning.rig_name != rig.name:
+        raise SpecError(
+            f"the tuning is for rig {tuning.rig_name!r}, not {rig.name!r}: shape with its own rig"
+        )
+    if axis not in tuning.axis_names:
+        raise SpecError(f"the tuning has no axis {axis!r} ({', '.join(tuning.axis_names)})")
+    task = tuning.controllers[tuning.axis_names.index(axis)].task
+    if task is None:
+        raise SpecError(f"axis {axis!r} has no task law in the tuning: it only locks")
+    return PIGains(kp=task.kp.value, ki=task.ki_t.value / tuning.period_s)

@@ -59,6 +59,12 @@ def add_shaper(sub: Any, verb: Callable[..., Any]) -> None:
         help="zv, zvd, ei, or auto (default): per mode the shortest that keeps the residual "
         "vibration at or below 5 %% over the mode's 95 %% interval (at least ±5 %%)",
     )
+    s.add_argument(
+        "--tuning",
+        metavar="FILE",
+        help="design for the loop this tuning runs (its task PI; a fuzzy-PID's base gains); "
+        "default: the loop-shaping PI simulate uses",
+    )
     s.add_argument("--json", action="store_true", help="JSON on stdout")
     s.add_argument(
         "--hal-output", metavar="FILE", help="also write the shaper's HAL component (.comp)"

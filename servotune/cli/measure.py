@@ -90,7 +90,13 @@ def cmd_shaper(args: argparse.Namespace) -> int:
     check_outputs(args.hal_output, inputs=(args.rig,))
     rig = load_rig(args.rig)
     axis = args.axis or next(a.name for a in rig.axes if a.role == "master")
-    gains = default_pi_gains(rig)[rig.axis_names.index(axis)]
+    if args.tuning:
+        from servotune.analysis.shaping import task_gains
+        from servotune.tuning import read_tuning
+
+        gains = task_gains(read_tuning(args.tuning), rig, axis)
+    else:
+        gains = default_pi_gains(rig)[rig.axis_names.index(axis)]
     shaper, _, why = axis_shaper(rig, axis, gains, args.kind)
     doc = {"axis": axis, **shaper.to_dict(), "why": why}
 
