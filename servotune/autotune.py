@@ -26,7 +26,8 @@ the output in the period of a breach.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+import re
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -61,7 +62,7 @@ PULSE_TRAVEL_SHARE = 0.01
 """The wiring check's pulse moves the axis by this share of the travel window (model)."""
 PULSE_S = 0.1
 """Length of each wiring-check pulse [s]."""
-_HAL_NAME = r"[A-Za-z0-9_.\-]+"
+_HAL_NAME = re.compile(r"[A-Za-z0-9_.\-]+")
 
 
 @dataclass(frozen=True, slots=True)
@@ -123,10 +124,8 @@ def _path(base: Path, v: object, key: str) -> Path:
 
 
 def _pin(d: dict[str, Any], key: str) -> str:
-    import re
-
     v = d[key]
-    if not isinstance(v, str) or not re.fullmatch(_HAL_NAME, v):
+    if not isinstance(v, str) or not _HAL_NAME.fullmatch(v):
         raise ConfigError(f"hal.{key} must be a HAL pin or thread name, got {show_value(v)}")
     return v
 
@@ -376,8 +375,6 @@ class AutotunePlan:
 
 def plan_autotune(cfg: AutotuneConfig) -> AutotunePlan:
     """The plan of an autotune run (module docstring): nothing is touched."""
-    import dataclasses
-
     from servotune.analysis.margins import GainSet, loop_margins, loop_model, margin_grid
     from servotune.excite import design_excitation, excitation_inputs
     from servotune.sim.engine import Loop, simulate
@@ -388,14 +385,12 @@ def plan_autotune(cfg: AutotuneConfig) -> AutotunePlan:
     # the experiment's rig: the axis's limits narrowed to the envelope (design_excitation keeps
     # the predicted motion within 90 % of them)
     lo, hi = env.travel_counts
-    narrowed = dataclasses.replace(
+    narrowed = replace(
         ax,
         speed_limit_rpm=env.speed_cps * 60.0 / rig.counts_per_rev,
         travel_counts=(math.floor(lo), math.ceil(hi)),
     )
-    exp_rig = dataclasses.replace(
-        rig, axes=tuple(narrowed if a.name == cfg.axis else a for a in rig.axes)
-    )
+    exp_rig = replace(rig, axes=tuple(narrowed if a.name == cfg.axis else a for a in rig.axes))
     amp_codes = max(1, math.floor(env.max_volts / rig.dac.lsb_v))
     exc = design_excitation(
         exp_rig, cfg.axis, cfg.excitation, cfg.seconds, amplitude_codes=amp_codes
@@ -405,11 +400,14 @@ def plan_autotune(cfg: AutotuneConfig) -> AutotunePlan:
     figures = loop_margins(
         loop_model(plant, g, period_s=rig.period_s, lag_s=lag, lsb_volts=rig.dac.lsb_v),
         margin_grid(plant, rig.period_s),
-    ).as_fields()
-    margins = {k: float(figures[k]) for k in ("phase_margin_deg", "gain_margin_db") if k in figures}
+    )
+    margins = {
+        "phase_margin_deg": float(figures.phase_margin_deg),
+        "gain_margin_db": float(figures.gain_margin_db),
+    }
     codes = exc.zero_code + exc.codes  # absolute D/A codes
     inputs = excitation_inputs(exp_rig, cfg.axis, codes, closed_loop=True)
-    noiseless = [dataclasses.replace(a.plant, noise_counts=0.0) for a in rig.axes]
+    noiseless = [replace(a.plant, noise_counts=0.0) for a in rig.axes]
     tr = simulate(Loop.from_rig(rig), inputs, seed=0, plants=noiseless)
     i = rig.axis_names.index(cfg.axis)
     pos = np.asarray(tr.true_pos_counts)[:, i]
@@ -459,12 +457,12 @@ def _share(value: float, limit: float) -> dict[str, float]:
     return {"value": value, "limit": float(limit), "share": value / limit}
 
 
-def format_plan(cfg: AutotuneConfig, plan: AutotunePlan) -> str:
-    """The plan as ``--dry-run`` prints it."""
+def format_plan(cfg: AutotuneConfig, plan: AutotunePlan, session_checked: bool) -> str:
+    """The plan as ``--dry-run`` prints it; ``session_checked``: whether a running HAL session
+    was checked (:func:`check_session`)."""
     lines = [f"autotune {cfg.path} (dry run: nothing in HAL is touched)"]
     lines += [f"  {k + 1}. {s}" for k, s in enumerate(plan.steps)]
-    pm = plan.margins.get("phase_margin_deg", math.nan)
-    gm = plan.margins.get("gain_margin_db", math.nan)
+    pm, gm = plan.margins["phase_margin_deg"], plan.margins["gain_margin_db"]
     lines.append(f"  starting loop: phase margin {pm:.1f}°, gain margin {gm:.1f} dB")
     for key, unit in (
         ("travel_counts", "counts"),
@@ -476,4 +474,9 @@ def format_plan(cfg: AutotuneConfig, plan: AutotunePlan) -> str:
             f"  predicted {key.rsplit('_', 1)[0].replace('_', ' ')}: {p['value']:.0f} {unit} "
             f"({100 * p['share']:.0f} % of the envelope's {p['limit']:.0f})"
         )
+    lines.append(
+        "  the HAL session's pins and thread: as the config says"
+        if session_checked
+        else "  no HAL session runs here (or no halcmd): the pins were not checked"
+    )
     return "\n".join(lines)

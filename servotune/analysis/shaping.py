@@ -14,7 +14,6 @@ the shaper for them.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 
 import numpy as np
 
@@ -28,7 +27,7 @@ from servotune.rig import Rig
 from servotune.scenarios import Scenario
 from servotune.tuning import Tuning
 
-__all__ = ["axis_shaper", "closed_loop_modes", "shape_scenario", "task_gains"]
+__all__ = ["axis_shaper", "closed_loop_modes", "format_shaper", "shape_scenario", "task_gains"]
 
 
 def closed_loop_modes(
@@ -112,11 +111,10 @@ def axis_shaper(
     else:
         sh = shaper_for_modes(kind, [(m.freq_hz, m.damping) for m in modes], rig.period_s)
         why = [f"{m.freq_hz:.4g} Hz: {kind}, as asked" for m in modes]
-    plant_modes: Sequence[Mode] = ax.plant.modes
     why = [
         f"plant mode {pm.freq_hz:.4g} Hz (damping {pm.damping:.3g}) is {m.freq_hz:.4g} Hz "
         f"(damping {m.damping:.3g}) in the closed loop; {w}"
-        for pm, m, w in zip(plant_modes, modes, why, strict=True)
+        for pm, m, w in zip(ax.plant.modes, modes, why, strict=True)
     ]
     return sh, modes, why
 
@@ -159,3 +157,20 @@ def task_gains(tuning: Tuning, rig: Rig, axis: str) -> PIGains:
     if task is None:
         raise SpecError(f"axis {axis!r} has no task law in the tuning: it only locks")
     return PIGains(kp=task.kp.value, ki=task.ki_t.value / tuning.period_s)
+
+
+def format_shaper(axis: str, shaper: Shaper, why: list[str]) -> str:
+    """A shaper as ``servotune shaper`` prints it: length and added time, why each mode got
+    its kind, the Q15 amplitudes, the residual vibration at each mode and within ±15 % of it."""
+    lines = [
+        f"{axis}: {shaper.kind} shaper, {shaper.n_taps} taps on the {shaper.period_s:g} s "
+        f"tick, moves {1000 * shaper.added_time_s:.1f} ms longer",
+        *(f"  {w}" for w in why),
+        "  Q15 amplitudes: " + " ".join(str(a) for a in shaper.amplitudes_q),
+    ]
+    for f, z in shaper.modes:
+        lines.append(
+            f"  residual vibration at {f:.4g} Hz: {100 * shaper.residual(f, z):.2f} %; "
+            f"worst within ±15 %: {100 * shaper.worst_residual(f, z, 0.15):.2f} %"
+        )
+    return "\n".join(lines)

@@ -83,7 +83,7 @@ def _modes_text(facts: dict) -> str:
 
 
 def cmd_shaper(args: argparse.Namespace) -> int:
-    from servotune.analysis.shaping import axis_shaper
+    from servotune.analysis.shaping import axis_shaper, format_shaper
     from servotune.pipeline import default_pi_gains
     from servotune.rig import load_rig
 
@@ -98,23 +98,11 @@ def cmd_shaper(args: argparse.Namespace) -> int:
     else:
         gains = default_pi_gains(rig)[rig.axis_names.index(axis)]
     shaper, _, why = axis_shaper(rig, axis, gains, args.kind)
-    doc = {"axis": axis, **shaper.to_dict(), "why": why}
-
-    def text() -> str:
-        lines = [
-            f"{axis}: {shaper.kind} shaper, {shaper.n_taps} taps on the {rig.period_s:g} s "
-            f"tick, moves {1000 * shaper.added_time_s:.1f} ms longer",
-            *(f"  {w}" for w in why),
-            "  Q15 amplitudes: " + " ".join(str(a) for a in shaper.amplitudes_q),
-        ]
-        for r in doc["residual"]:
-            lines.append(
-                f"  residual vibration at {r['freq_hz']:.4g} Hz: {100 * r['at_mode']:.2f} %; "
-                f"worst within ±15 %: {100 * r['worst_within_15_percent']:.2f} %"
-            )
-        return "\n".join(lines)
-
-    print_product(args.json, lambda: doc, text)
+    print_product(
+        args.json,
+        lambda: {"axis": axis, **shaper.to_dict(), "why": why},
+        lambda: format_shaper(axis, shaper, why),
+    )
     if args.hal_output:
         from servotune.export.hal_component import shaper_component
         from servotune.io.files import atomic_write_text
@@ -537,13 +525,9 @@ def cmd_autotune(args: argparse.Namespace) -> int:
         check_session(cfg, session)
     compile_kernels("simulation")
     plan = plan_autotune(cfg)
-    doc = {**plan.to_dict(), "session_checked": session is not None}
-    text = format_plan(cfg, plan) + (
-        "\n  the HAL session's pins and thread: as the config says"
-        if session is not None
-        else "\n  no HAL session runs here (or no halcmd): the pins were not checked"
-    )
-    print_product(args.json, lambda: doc, lambda: text)
+    checked = session is not None
+    doc = {**plan.to_dict(), "session_checked": checked}
+    print_product(args.json, lambda: doc, lambda: format_plan(cfg, plan, checked))
     if args.guard_output:
         from servotune.export.hal_component import guard_component
         from servotune.io.files import atomic_write_text
