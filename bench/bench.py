@@ -43,8 +43,8 @@ from servotune.arch.gantry import simulate_gantry
 from servotune.arch.gantry.load import load_gantry
 from servotune.arch.gantry.synthesis import resolve_gains
 from servotune.arch.linkage import load_linkage, run_linkage
-from servotune.export import write_c
 from servotune.export.c import runtime_source
+from servotune.export.c import to_file as write_c
 from servotune.export.hal_component import PLANT_HEADER
 from servotune.fixed import F_U
 from servotune.hw.counter import unwrap_step

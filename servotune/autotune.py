@@ -428,7 +428,8 @@ def plan_autotune(cfg: AutotuneConfig) -> AutotunePlan:
         "the D/A driver, in thread " + h.thread,
         f"wiring check: {pulse_volts:.3g} V for {PULSE_S:g} s each way, open loop; the "
         f"feedback {h.feedback_pin} × {h.position_scale:g} must move with the output, about "
-        f"{pulse_travel:.0f} counts each way (a reversed sign or a scale off by 2× stops here)",
+        f"{pulse_travel:.0f} counts each way (a reversed sign, or a scale off by more than "
+        "20×, stops here)",
         f"experiment: {cfg.excitation} of ±{exc.amplitude_codes * rig.dac.lsb_v:.3g} V added "
         f"to the loop's output for {exc.codes.size * rig.period_s:.1f} s, the loop closed at "
         f"Kp {ax.lock_gain_codes_per_count:g} codes/count, captured with halsampler",

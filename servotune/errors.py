@@ -7,12 +7,14 @@ built-in exception it resembles, so callers may catch either.
 from __future__ import annotations
 
 __all__ = [
+    "AutotuneStopped",
     "CompileError",
     "ConfigError",
     "CounterFaultWarning",
     "DigestError",
     "ExportError",
     "FleetTableError",
+    "HalError",
     "IdentificationError",
     "InfeasibleError",
     "LogFormatError",
@@ -77,6 +79,16 @@ class FleetTableError(ServotuneError, ValueError):
 
 class ConfigError(ServotuneError, ValueError):
     """An architecture configuration (``servotune sync`` / ``linkage``) is invalid."""
+
+
+class HalError(ServotuneError, RuntimeError):
+    """A running HAL session refused a command, or none runs (``servotune autotune``)."""
+
+
+class AutotuneStopped(ServotuneError, RuntimeError):
+    """A live autotune run stopped before it loaded verified gains (the wiring check, the
+    safety envelope's trip, a failed verification or validation move, a signal); the axis
+    is left with its previous parameters."""
 
 
 class TrustError(ServotuneError):

@@ -13,7 +13,7 @@ response of the linear axis model (docs/formats.md#axis-model) to the held codes
 drift ``offset_v`` acting from the start and Coulomb friction left out (it only slows the axis).
 
 Files (:func:`write_excitation`, :func:`read_excitation`, both in
-:mod:`servotune.io.excitation`) are log-format CSV (docs/formats.md#excitation-file) with the
+:mod:`servotune.excitation_file`) are log-format CSV (docs/formats.md#excitation-file) with the
 columns ``tick,time_s,<axis>.dac_code`` (absolute codes); :func:`excitation_inputs` turns codes into
 engine inputs, open loop or with the lock module active.
 """
@@ -29,8 +29,8 @@ from scipy import signal
 
 from servotune.budget import check_memory, format_count
 from servotune.errors import SpecError
+from servotune.excitation_file import MIN_TICKS, read_excitation, write_excitation
 from servotune.fixed import round_half_away
-from servotune.io.excitation import MIN_TICKS, read_excitation, write_excitation
 from servotune.laws.axis import MODE_LOCK, MODE_OPEN
 from servotune.rig import Axis, Rig
 from servotune.scenarios import Inputs, prbs_codes, step_codes

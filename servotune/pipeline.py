@@ -22,11 +22,13 @@ from servotune.arch.gantry import CASES, compare_topologies
 from servotune.arch.gantry.load import load_gantry
 from servotune.arch.gantry.synthesis import resolve_gains
 from servotune.arch.linkage import load_linkage, run_linkage
-from servotune.export import write_c, write_tables
+from servotune.compare import compare_structures, pareto_front, pareto_specs
+from servotune.export import c as c_export
+from servotune.export import json as json_export
 from servotune.identify import fit_log, simulate_fit, validation_split
 from servotune.io.files import atomic_write_text, staged_directory
+from servotune.io.log import write_log
 from servotune.laws.lock import lock_holding_band
-from servotune.logs import write_log
 from servotune.metrics import tracking_metrics
 from servotune.plot import (
     plot_comparison,
@@ -44,7 +46,6 @@ from servotune.report.text import figure4_statement
 from servotune.rig import Rig, describe_rig, load_rig, write_plant
 from servotune.scenarios import Inputs, Scenario, build_scenario, check_run_memory
 from servotune.sim.engine import Loop, Trace, simulate
-from servotune.tune.compare import compare_structures, pareto_front, pareto_specs
 from servotune.tune.pi import pi_loop_shaping
 from servotune.tune.slave import tune_spec_from
 from servotune.tune.workflow import tune_rig
@@ -345,8 +346,8 @@ def run_demo(
     exported = []
     if verification.passed:
         v = load_for_export(tuning_path, spec_path=spec_path)
-        write_tables(v.tuning, out / "fuzzy.json", rig=v.rig, verification=v.record)
-        write_c(v.tuning, out / "c", rig=v.rig, verification=v.record)
+        json_export.to_file(v.tuning, out / "fuzzy.json", rig=v.rig, verification=v.record)
+        c_export.to_file(v.tuning, out / "c", rig=v.rig, verification=v.record)
         exported = ["fuzzy.json", "c/"]
     write_report(
         out,
@@ -465,9 +466,9 @@ def run_comparison(
     seed: int = 0,
     progress: Any = None,
 ) -> Any:
-    """Figure 4 on ``rig`` (:func:`servotune.tune.compare.compare_structures`, the preset's
+    """Figure 4 on ``rig`` (:func:`servotune.compare.compare_structures`, the preset's
     seeds offset by ``seed``) and, if the preset sweeps, the trade-off
-    (:func:`~servotune.tune.compare.pareto_front`): writes ``figure4.png``, ``figure4.json``
+    (:func:`~servotune.compare.pareto_front`): writes ``figure4.png``, ``figure4.json``
     (the comparison, the statement, the Pareto points) and ``pareto.png``.
 
     Returns

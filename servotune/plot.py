@@ -316,7 +316,7 @@ def plot_comparison(traces: dict[str, Trace], slave: int, title: str = "") -> pl
 
 def plot_pareto(points: Sequence[Any], title: str = "") -> plt.Figure:
     """The tracking/robustness trade-off: ITAE and max sync error against the worst Ms, one
-    colour per structure, its front joined (:func:`servotune.tune.compare.pareto_front`)."""
+    colour per structure, its front joined (:func:`servotune.compare.pareto_front`)."""
     fig, axs = plt.subplots(1, 2, figsize=(10, 4.2))
     labels = {"pid": "PID", "pid_ff": "PID + feedforward", "composite": "fuzzy-PID + feedforward"}
     for structure in dict.fromkeys(p.structure for p in points):

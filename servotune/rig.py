@@ -5,8 +5,8 @@ A rig file (docs/formats.md#rig-file) describes the hardware around the loop and
 validated on load; an error names the field, the value and the unit. Unknown keys are errors (a
 misspelt key would otherwise be silently ignored). The model itself (:class:`Rig`, its sections and
 their bounds) is :mod:`servotune.rig_model`, re-exported here: ``servotune.rig`` is where the rig is
-imported from. The TOML machinery (tables built into dataclasses, a plant table edited in place) is
-:mod:`servotune.io.rig`; this module checks files against the model.
+imported from. The TOML tables are built into dataclasses by :mod:`servotune.io.rig`, a plant
+table is edited in place by :mod:`servotune.rig_edit`; this module checks files against the model.
 """
 
 from __future__ import annotations
@@ -22,11 +22,12 @@ from servotune.errors import RigError
 from servotune.examples import EXAMPLES_DIR
 from servotune.hw import counter as hw_counter
 from servotune.io.files import atomic_write_bytes, parse_toml_as, read_bytes
-from servotune.io.rig import FLOAT_SIGNIFICANT_DIGITS as FLOAT_SIGNIFICANT_DIGITS
-from servotune.io.rig import build_section, edit_plant_text
+from servotune.io.rig import build_section
 from servotune.laws.lock import lock_holding_band
 from servotune.plant import Plant
 from servotune.resonance import MAX_MODES, Mode
+from servotune.rig_edit import FLOAT_SIGNIFICANT_DIGITS as FLOAT_SIGNIFICANT_DIGITS
+from servotune.rig_edit import edit_plant_text
 from servotune.rig_model import FIT_METHODS as FIT_METHODS
 from servotune.rig_model import FIT_PCT_KEYS as FIT_PCT_KEYS
 from servotune.rig_model import FRICTION_FORMS as FRICTION_FORMS
@@ -450,7 +451,7 @@ def write_plant(
         For a ``path`` that does not exist yet: make it a rig of its own named ``new_name``,
         with ``new_header`` (lines) as its leading comment, a description naming the template,
         and every other axis's plant marked as the template's, not fitted
-        (:func:`servotune.io.rig.new_rig_text`). Without ``new_name`` the template is copied
+        (:func:`servotune.rig_edit.new_rig_text`). Without ``new_name`` the template is copied
         as it is.
 
     Raises
@@ -525,7 +526,7 @@ def write_plant(
 
 
 def _mode_entries(modes: tuple[Mode, ...]) -> list[dict[str, Any]]:
-    """The modes as :func:`servotune.io.rig.edit_plant_text` reports them written: per mode
+    """The modes as :func:`servotune.rig_edit.edit_plant_text` reports them written: per mode
     its values and the intervals it has."""
     keys = ("freq_hz", "damping", "gain", "freq_hz_95", "damping_95", "gain_95")
     return [{k: getattr(m, k) for k in keys if getattr(m, k) is not None} for m in modes]

@@ -92,7 +92,7 @@ def run_identification() -> None:
     import tempfile
 
     from servotune.identify import fit_log
-    from servotune.logs import write_log
+    from servotune.io.log import write_log
     from servotune.pipeline import log_metadata, run_scenario, trace_log_columns
     from servotune.rig import load_rig
     from servotune.scenarios import build_scenario

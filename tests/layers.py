@@ -22,13 +22,13 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("validate", "budget", "digest", "fixed", "_control", "_numba_cache", "kernels", "executor"),
     ("hw", "io", "examples"),
     ("plant", "modal", "resonance", "laws", "fuzzy"),
-    ("rig_model", "rig", "logs", "metrics", "scenarios", "excite"),
+    ("rig_model", "rig", "rig_edit", "logs", "metrics", "scenarios", "excite", "excitation_file"),
     ("sim", "tuning"),
     ("analysis",),
     ("identify", "tune"),
     ("verify",),
-    ("arch", "export", "fleet"),
-    ("report", "plot", "pipeline", "testing", "autotune"),
+    ("arch", "export", "fleet", "compare"),
+    ("report", "plot", "pipeline", "testing", "autotune", "autotune_live"),
     ("warmup", "cli", "__init__"),
 )
 """The layers, lowest first: a module may import from its own layer and those below it

@@ -151,10 +151,18 @@ def test_the_predicted_motion_agrees_with_an_independent_simulation(tmp_path: Pa
     assert plan.predicted["speed_cps"]["value"] == pytest.approx(speed, rel=0.05)
 
 
-def test_without_dry_run_it_says_the_live_run_is_not_here(capsys) -> None:
-    assert main(["autotune", str(CONFIG)]) == 2
+def test_a_live_run_without_its_session_is_one_line(tmp_path: Path, capsys) -> None:
+    """No HAL session with the config's pins and a guard here (tests/hal/test_autotune_live.py
+    runs it in one; the module's fixture holds the HAL lock): one line, exit 3, nothing
+    written."""
+    rc = main(["autotune", str(CONFIG), "-o", str(tmp_path / "o")])
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "not in this version" in err[0] and "--dry-run" in err[0]
+    assert rc == 3
+    last = err[-1]
+    assert last.startswith("servotune autotune: error: ") and (
+        "no HAL session runs here" in last or "halcmd is not installed" in last
+    ), err
+    assert not (tmp_path / "o").exists()
 
 
 def test_the_guard_written_is_the_configs_envelope(tmp_path: Path, capsys) -> None:

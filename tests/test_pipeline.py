@@ -15,6 +15,7 @@ from products import DIGESTS, FLOATS, PEAKS, Rule, column_differences, differenc
 import servotune as st
 import servotune.export
 from servotune._version import __version__
+from servotune.export.json import load_tables
 from servotune.pipeline import run_demo
 
 
@@ -46,7 +47,7 @@ def test_demo_writes_its_products(tmp_path: Path) -> None:
         assert (tmp_path / name).stat().st_size > 0, name
     # the whole chain: tuned on the fitted rig, verified on the example rig, exported
     assert summary["verification"]["passed"], summary["verification"]["failures"]
-    assert st.export.load_tables(tmp_path / "fuzzy.json")["verified"] is True
+    assert load_tables(tmp_path / "fuzzy.json")["verified"] is True
     page = (tmp_path / "report.html").read_text()
     for section in (
         "Verification: PASSED",

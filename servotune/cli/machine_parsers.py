@@ -21,7 +21,7 @@ def add_autotune(sub: Any, verb: Callable[..., Any]) -> None:
         sub,
         cmd_autotune,
         "autotune",
-        help="auto-tune a LinuxCNC axis from a config (this version: the plan, --dry-run)",
+        help="auto-tune a LinuxCNC axis in its running HAL session (--dry-run: the plan only)",
     )
     s.add_argument("config", help="autotune config (TOML), e.g. plants/linuxcnc-autotune.toml")
     s.add_argument(
@@ -30,7 +30,14 @@ def add_autotune(sub: Any, verb: Callable[..., Any]) -> None:
         help="print the plan (signals, amplitudes, durations, predicted travel and speed) and "
         "touch nothing",
     )
-    s.add_argument("--json", action="store_true", help="the plan as JSON on stdout")
+    s.add_argument("--json", action="store_true", help="the plan (or the run's record) as JSON")
+    s.add_argument(
+        "-o",
+        "--output-dir",
+        default="autotune",
+        help="the live run's files: capture, fitted rig, tuning, pid file, record (default "
+        "./autotune)",
+    )
     s.add_argument(
         "--guard-output",
         metavar="FILE",
@@ -38,6 +45,11 @@ def add_autotune(sub: Any, verb: Callable[..., Any]) -> None:
     )
     s.add_argument(
         "--guard-name", default="servotune_guard", help="its name (default servotune_guard)"
+    )
+    s.add_argument(
+        "--hal-user",
+        metavar="USER",
+        help="run HAL's programs as USER, the session's owner (when servotune runs as root)",
     )
 
 

@@ -132,7 +132,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
             rig, args.scenario, axis=axis, seconds=args.seconds, closed_loop=args.closed_loop
         )
     compile_kernels("simulation")  # inputs checked; before the slow imports, so it says so early
-    from servotune.logs import format_log, write_log
+    from servotune.io.log import format_log, write_log
     from servotune.pipeline import log_metadata, run_scenario, trace_log_columns
 
     if args.shaper:
@@ -302,7 +302,7 @@ def _cmd_fit_fleet(args: argparse.Namespace) -> int:
         read_fleet_table,
         write_fleet_table,
     )
-    from servotune.io.fleet_table import table_format
+    from servotune.fleet.table import table_format
     from servotune.rig import load_rig
 
     table_format(args.fleet)  # a wrong suffix fails before any work
@@ -513,13 +513,18 @@ def cmd_autotune(args: argparse.Namespace) -> int:
     check_outputs(args.guard_output, inputs=(args.config,))
     cfg = load_autotune_config(args.config)
     if not args.dry_run:
-        print(
-            "servotune autotune: error: the live run (in a HAL session) is not in this version: "
-            "--dry-run prints its plan, --guard-output writes the envelope's real-time "
-            "component",
-            file=sys.stderr,
+        from servotune.autotune_live import format_result, run_autotune
+
+        compile_kernels("simulation")
+        res = run_autotune(
+            cfg,
+            args.output_dir,
+            guard=args.guard_name.replace("_", "-"),
+            hal_user=args.hal_user,
+            say=progress_line,
         )
-        return EXIT_USAGE
+        print_product(args.json, res.to_dict, lambda: format_result(res))
+        return EXIT_OK
     session = read_session()
     if session is not None:
         check_session(cfg, session)

@@ -17,7 +17,7 @@ import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from servotune.errors import InfeasibleError, ServotuneError, TrustError
+from servotune.errors import AutotuneStopped, InfeasibleError, ServotuneError, TrustError
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_BAD_INPUT = 0, 1, 2, 3
 EXIT_INTERRUPTED, EXIT_TERMINATED = 128 + signal.SIGINT, 128 + signal.SIGTERM
@@ -62,6 +62,8 @@ def outcome(exc: BaseException) -> tuple[str, int]:
         return "terminated", EXIT_TERMINATED
     if isinstance(exc, TrustError):
         return f"refused: {_line(exc)}", EXIT_FAILED
+    if isinstance(exc, AutotuneStopped):
+        return f"stopped: {_line(exc)}", EXIT_FAILED
     if isinstance(exc, InfeasibleError):
         return f"failed: {_line(exc)}", EXIT_FAILED
     if isinstance(exc, OSError) and not isinstance(exc, ServotuneError):

@@ -27,6 +27,7 @@ from servotune.cli.studies import cmd_compare, cmd_demo, cmd_linkage, cmd_sync
 from servotune.cli.tables import cmd_check_table, cmd_export_table
 from servotune.cli.warmup import cmd_warmup
 from servotune.executor import local_workers
+from servotune.export.formats import DEFAULT_FORMAT, FORMATS
 from servotune.kernels import GROUPS
 from servotune.validate import SEED_MAX, check_seed
 
@@ -539,11 +540,12 @@ def _add_export_table(sub: Any) -> None:
     )
     s.add_argument(
         "--format",
-        choices=["json", "c", "linuxcnc-hal", "linuxcnc-comp"],
-        default="json",
-        help="json (default); c: header + runtime sources; linuxcnc-hal: a HAL file setting the "
-        "stock pid component's parameters for the master axis; linuxcnc-comp: a realtime HAL "
-        "component (build it with halcompile) running the verified runtime and its tables",
+        choices=list(FORMATS),
+        default=DEFAULT_FORMAT,
+        help="; ".join(
+            f"{f.name}{' (default)' if f.name == DEFAULT_FORMAT else ''}: {f.help}"
+            for f in FORMATS.values()
+        ),
     )
     s.add_argument(
         "--position-scale",
@@ -559,13 +561,16 @@ def _add_export_table(sub: Any) -> None:
     )
     s.add_argument(
         "--pid",
+        dest="pid_name",
+        metavar="PID",
         default="pid.x",
         help="linuxcnc-hal: the pid instance the file sets (default pid.x, as `loadrt pid "
         "names=pid.x`)",
     )
     s.add_argument(
         "--no-feedforward",
-        action="store_true",
+        dest="velocity_feedforward",
+        action="store_false",
         help="linuxcnc-hal: FF1 = 0, exactly the verified law (default: FF1 = 1/plant gain, "
         "velocity feedforward on the command only, margins unchanged)",
     )

@@ -1,4 +1,5 @@
-"""The verbs on the deliverable: ``export-table`` (JSON, C, LinuxCNC HAL or component) and
+"""The verbs on the deliverable: ``export-table`` (any format of the registry
+:data:`servotune.export.formats.FORMATS`: JSON, C, LinuxCNC HAL or component) and
 ``check-table`` (every CRC and digest of any of those exports but the C files: the tables,
 gantry and linkage JSON by their loaders, the HAL file and component by their digest line)."""
 
@@ -7,25 +8,38 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from servotune.cli.output import EXIT_OK, check_dirs, check_outputs, deliver_product, progress_line
 from servotune.errors import ServotuneError
+from servotune.export.formats import FORMATS, KINDS, formats_for
 
 # The library is imported inside each handler, not here, so that ``servotune --help`` (and any
 # verb) pays only for what it uses: numba, scipy, matplotlib and python-control stay unloaded
-# until a handler needs them (tests/cli/test_help_imports.py). That is the only reason for an
-# import inside a function in this module; none of them works around an import cycle.
+# until a handler needs them (tests/cli/test_help_imports.py); the export formats' registry is
+# the exception, as it imports a format's module only when that format renders. That is the
+# only reason for an import inside a function in this module; none of them works around an
+# import cycle.
 
 
-def _export_gantry(args: argparse.Namespace, path: Path) -> int:
+def _rig_export(args: argparse.Namespace, path: Path) -> tuple[Any, dict[str, Any]]:
+    """A rig's tuning to export (checked against its verification record, unless
+    ``--unverified``) and the keywords every format takes for it."""
+    from servotune.verify import fallback_notice, load_for_export
+
+    if args.config is not None:
+        raise ServotuneError(f"--config is for a gantry tuning; {path} is a rig's tuning")
+    v = load_for_export(path, args.rig, args.spec, unverified=args.unverified)
+    if (note := fallback_notice(v.rig_file)) is not None:
+        progress_line(note)
+    return v.tuning, {"rig": v.rig, "verification": v.record, "unverified": v.record is None}
+
+
+def _gantry_export(args: argparse.Namespace, path: Path) -> tuple[Any, dict[str, Any]]:
+    """A gantry tuning to export, as :func:`_rig_export`."""
     from servotune.arch.gantry.verify import load_gantry_for_export
-    from servotune.export.gantry import (
-        gantry_document,
-        gantry_tables_to_string,
-        write_gantry_c,
-        write_gantry_tables,
-    )
     from servotune.verify.record import fallback_notice
 
     if args.rig is not None:
@@ -36,21 +50,12 @@ def _export_gantry(args: argparse.Namespace, path: Path) -> int:
     v = load_gantry_for_export(path, args.config, args.spec, unverified=args.unverified)
     if (note := fallback_notice(v.gantry_file, "gantry")) is not None:
         progress_line(note)
-    doc = gantry_document(v.tuning, v.config.rig, record=v.record, unverified=args.unverified)
-    if args.format == "c":
-        written = write_gantry_c(doc, args.output)
-        print(f"wrote {', '.join(p.name for p in written)} to {args.output}", file=sys.stderr)
-    elif args.output and args.output != "-":
-        write_gantry_tables(doc, args.output)
-        print(f"wrote the gantry tables to {args.output}", file=sys.stderr)
-    else:
-        sys.stdout.write(gantry_tables_to_string(doc))
-    return EXIT_OK
+    return v.tuning, {"rig": v.config.rig, "verification": v.record, "unverified": args.unverified}
 
 
-def _export_linkage(args: argparse.Namespace, path: Path) -> int:
+def _linkage_export(args: argparse.Namespace, path: Path) -> tuple[Any, dict[str, Any]]:
+    """A linkage plan to export, as :func:`_rig_export`."""
     from servotune.arch.linkage import load_plan_for_export
-    from servotune.export.linkage import linkage_plan_json, write_linkage_c
 
     if args.rig is not None:
         raise ServotuneError(
@@ -61,88 +66,52 @@ def _export_linkage(args: argparse.Namespace, path: Path) -> int:
     plan, record = load_plan_for_export(
         path, args.spec, unverified=args.unverified, config_path=args.config, progress=progress_line
     )
-    if args.format == "c":
-        written = write_linkage_c(plan, args.output, record=record, unverified=args.unverified)
-        print(f"wrote {', '.join(p.name for p in written)} to {args.output}", file=sys.stderr)
-        return EXIT_OK
-    text = linkage_plan_json(plan, record, unverified=args.unverified)
-    if args.output and args.output != "-":
-        from servotune.io.files import atomic_write_text
+    return plan, {"verification": record, "unverified": args.unverified}
 
-        atomic_write_text(args.output, text)
-        print(f"wrote the linkage export to {args.output}", file=sys.stderr)
-    else:
-        sys.stdout.write(text)
-    return EXIT_OK
+
+_LOADERS: dict[str, Callable[[argparse.Namespace, Path], tuple[Any, dict[str, Any]]]] = {
+    "rig": _rig_export,
+    "gantry": _gantry_export,
+    "linkage": _linkage_export,
+}
+"""What ``export-table`` loads for each document kind (servotune.export.formats.KINDS)."""
 
 
 def cmd_export_table(args: argparse.Namespace) -> int:
+    """``export-table``: the format is the registry's (servotune.export.formats.FORMATS), the
+    document's kind read from its schema; the format's ``to_file`` writes ``-o``, else its
+    ``to_string`` goes to stdout."""
     from servotune.arch.kind import document_kind
-    from servotune.export import tables_to_string, write_c, write_tables
-    from servotune.io.files import atomic_write_text
     from servotune.tuning import current_tuning_path
-    from servotune.verify import fallback_notice, load_for_export
 
+    fmt = FORMATS[args.format]
     path = Path(args.tuning) if args.tuning else current_tuning_path()
-    if args.format == "c" and not args.output:
-        raise ServotuneError("--format c needs -o DIR (the directory to write the C files into)")
-    check_outputs(args.output if args.format != "c" else None, inputs=(path, args.rig, args.spec))
-    check_dirs(args.output if args.format == "c" else None)
     kind = document_kind(path)
-    if args.format.startswith("linuxcnc-") and kind in ("gantry", "linkage"):
+    if fmt.directory and not args.output:
+        what = fmt.kinds.get(kind, "the files")
         raise ServotuneError(
-            f"--format {args.format} exports a rig's tuning (one runtime, its master and slave "
-            f"axes); {path} is a {kind} {'plan' if kind == 'linkage' else 'tuning'}: export it "
-            "with --format json or c"
+            f"--format {fmt.name} needs -o DIR (the directory to write {what} into)"
         )
-    if kind == "gantry":
-        return _export_gantry(args, path)
-    if kind == "linkage":
-        return _export_linkage(args, path)
-    if args.config is not None:
-        raise ServotuneError(f"--config is for a gantry tuning; {path} is a rig's tuning")
-    v = load_for_export(path, args.rig, args.spec, unverified=args.unverified)
-    if (note := fallback_notice(v.rig_file)) is not None:
-        progress_line(note)
-    kw = {"rig": v.rig, "verification": v.record, "unverified": v.record is None}
-    if args.format.startswith("linuxcnc-"):
-        text = _linuxcnc_text(args, v.tuning, kw)
-        what = "HAL file" if args.format == "linuxcnc-hal" else "HAL component"
-        deliver_product(
-            args.output, lambda p: atomic_write_text(p, text), lambda: text, f"the {what}"
+    check_outputs(None if fmt.directory else args.output, inputs=(path, args.rig, args.spec))
+    check_dirs(args.output if fmt.directory else None)
+    if kind not in fmt.kinds:
+        raise ServotuneError(
+            f"--format {fmt.name} exports {' or '.join(KINDS[k] for k in fmt.kinds)}; {path} is "
+            f"{KINDS[kind]}: export it with --format {' or '.join(formats_for(kind))}"
         )
-    elif args.format == "c":
-        written = write_c(v.tuning, args.output, **kw)
+    obj, kw = _LOADERS[kind](args, path)
+    kw.update({option: getattr(args, option) for option in fmt.options})
+    if fmt.directory:
+        written = fmt.to_file(obj, args.output, **kw)
         print(f"wrote {', '.join(p.name for p in written)} to {args.output}", file=sys.stderr)
-    elif args.output and args.output != "-":
-        write_tables(v.tuning, args.output, **kw)
-        print(f"wrote the tables to {args.output}", file=sys.stderr)
     else:
-        sys.stdout.write(tables_to_string(v.tuning, **kw))
-    return EXIT_OK
-
-
-def _linuxcnc_text(args: argparse.Namespace, tuning: object, kw: dict) -> str:
-    """The text of a LinuxCNC export of ``tuning`` (``--format linuxcnc-*``)."""
-    if args.format == "linuxcnc-comp":
-        from servotune.export.hal_component import component_source
-
-        return component_source(tuning, name=args.name, **kw)
-    from servotune.export.linuxcnc import pid_hal_text
-
-    if args.position_scale is None:
-        raise ServotuneError(
-            "--format linuxcnc-hal needs --position-scale (encoder counts per machine unit, "
-            "the encoder's position-scale parameter)"
+        deliver_product(
+            args.output,
+            lambda p: fmt.to_file(obj, p, **kw),
+            lambda: fmt.to_string(obj, **kw),
+            fmt.kinds[kind],
         )
-    return pid_hal_text(
-        tuning,
-        position_scale=args.position_scale,
-        output_scale=args.output_scale,
-        pid_name=args.pid,
-        velocity_feedforward=not args.no_feedforward,
-        **kw,
-    )
+    return EXIT_OK
 
 
 def _check_gantry_table(args: argparse.Namespace) -> int:

@@ -1,38 +1,24 @@
-"""Exports of a tuning to the runtime: the tables as JSON, and C (tables header + runtime).
+"""Exports of a tuning (or a gantry tuning, or a linkage plan) to the runtime, one module per
+export format, all of one shape: ``to_string(obj, **options)`` and ``to_file(obj, path,
+**options)``, listed in :data:`~servotune.export.formats.FORMATS`, which
+``export-table --format`` reads (:mod:`servotune.export.formats`):
 
-- :mod:`servotune.export.json`: ``servotune.tables/2`` documents (``to_string``, ``to_file``,
-  ``load_tables`` which checks every CRC);
-- :mod:`servotune.export.c`: ``servotune_tables.h`` and the reference runtime
-  ``servotune_rt.c/.h`` (``write_c``).
+- ``json``, :mod:`servotune.export.json`: the ``servotune.tables/2`` document of a rig's tuning
+  (also ``load_tables``, which checks every CRC), the ``servotune.gantry-tables/1`` and
+  ``servotune.linkage-export/1`` documents (:mod:`servotune.export.gantry`,
+  :mod:`servotune.export.linkage`);
+- ``c``, :mod:`servotune.export.c`: a directory of the generated header (``servotune_tables.h``
+  and its gantry and linkage counterparts) and the reference runtime's sources;
+- ``linuxcnc-hal``, :mod:`servotune.export.linuxcnc`: a HAL file of the stock ``pid``'s
+  parameters;
+- ``linuxcnc-comp``, :mod:`servotune.export.hal_component`: a realtime HAL component running
+  the runtime.
 
-Both render the same document (:func:`~servotune.export.json.tables_document`): the constants
-exactly as the tuning file holds them, never re-quantised.
+Every export of a tuning renders the same constants exactly as the tuning file holds them,
+never re-quantised (:func:`~servotune.export.json.tables_document`). This package imports only
+the registry: a format's module is imported when it renders.
 """
 
-from servotune.export.c import RUNTIME_FILES, runtime_source, write_c
-from servotune.export.c import to_string as c_header_to_string
-from servotune.export.json import (
-    SCHEMA,
-    constants_crc32,
-    controllers_from_tables,
-    load_tables,
-    table_crc32,
-    tables_document,
-)
-from servotune.export.json import to_file as write_tables
-from servotune.export.json import to_string as tables_to_string
+from servotune.export.formats import DEFAULT_FORMAT, FORMATS, KINDS, ExportFormat, register
 
-__all__ = [
-    "RUNTIME_FILES",
-    "SCHEMA",
-    "c_header_to_string",
-    "constants_crc32",
-    "controllers_from_tables",
-    "load_tables",
-    "runtime_source",
-    "table_crc32",
-    "tables_document",
-    "tables_to_string",
-    "write_c",
-    "write_tables",
-]
+__all__ = ["DEFAULT_FORMAT", "FORMATS", "KINDS", "ExportFormat", "register"]

@@ -1,6 +1,16 @@
-"""The C export: ``servotune_tables.h`` and the reference runtime ``servotune_rt.c/.h``.
+"""The C export (``export-table --format c``): a generated header and the runtime's sources.
 
-:func:`write_c` writes three files into a directory:
+The format's two functions, as every export format's (:mod:`servotune.export.formats`):
+:func:`to_string` is the generated header's text, :func:`to_file` writes it with the runtime's
+sources into a directory. What goes in depends on what is exported:
+
+- a rig's tuning: ``servotune_tables.h`` and ``servotune_rt.c/.h`` (below);
+- a gantry tuning: ``servotune_gantry_consts.h`` (:func:`servotune.export.gantry.gantry_c_header`),
+  ``servotune_rt.c/.h`` and ``servotune_gantry.c/.h``;
+- a linkage plan: ``servotune_link_plan.h`` (:func:`servotune.export.linkage.linkage_c_header`),
+  ``servotune_link.c/.h`` and ``servotune_rt.c/.h``.
+
+A rig's tuning:
 
 - ``servotune_tables.h``: the tuning's constants as the runtime runs them (the same numbers and
   CRCs as the JSON export, :func:`servotune.export.json.tables_document`): include guard,
@@ -36,17 +46,26 @@ written atomically (temp file, then rename), so a failure leaves no half-written
 
 from __future__ import annotations
 
-import re
 from collections.abc import Mapping
 from importlib import resources
 from pathlib import Path
 from typing import Any, Unpack
 
+from servotune.arch.gantry.tuning import GantryTuning
+from servotune.arch.linkage.plan import LinkagePlan
 from servotune.errors import ExportError
-from servotune.export.json import SCHEMA, TablesOptions, tables_document
+from servotune.export.c_text import axis_lines, c_identifiers, comment_text, digest_bytes_lines
+from servotune.export.gantry import GANTRY_HEADER_NAME, gantry_c_header
+from servotune.export.json import (
+    SCHEMA,
+    Exportable,
+    TablesOptions,
+    as_record,
+    export_document,
+    tables_document,
+)
+from servotune.export.linkage import LINK_HEADER_NAME, linkage_c_header
 from servotune.io.files import write_files
-from servotune.laws.fuzzy_pid import TABLE_NAMES
-from servotune.tuning import Tuning
 
 __all__ = [
     "GANTRY_RUNTIME_FILES",
@@ -55,12 +74,9 @@ __all__ = [
     "PLANT_RUNTIME_FILES",
     "RUNTIME_FILES",
     "SHAPER_RUNTIME_FILES",
-    "c_identifiers",
-    "int32_literal",
     "runtime_source",
+    "to_file",
     "to_string",
-    "write_c",
-    "write_c_files",
 ]
 
 HEADER_NAME = "servotune_tables.h"
@@ -76,15 +92,6 @@ LINK_RUNTIME_FILES = ("servotune_link.c", "servotune_link.h")
 SHAPER_RUNTIME_FILES = ("servotune_shaper.h",)
 """The input shaper's integer step (header only; :mod:`servotune.laws.shaping`)."""
 
-_MAX_AXES = 4  # ST_MAX_AXES default of servotune_rt.h
-_LAW_MACROS = {"none": "ST_LAW_NONE", "pi": "ST_LAW_PI", "fuzzy_pid": "ST_LAW_FUZZY_PID"}
-_TABLE_TITLES = {
-    "kp": "dKp [LSB/count]",
-    "ki": "d(Ki*T) [LSB/count/tick]",
-    "kd": "d(Kd/T) [LSB per count change per tick]",
-    "k1": "d(K1/T) [LSB per count change per tick]",
-}
-
 
 def runtime_source(name: str) -> str:
     """Text of one reference-runtime file (of :data:`RUNTIME_FILES`,
@@ -99,123 +106,6 @@ def runtime_source(name: str) -> str:
     if name not in known:
         raise ExportError(f"no runtime file {name!r}; files: {', '.join(known)}")
     return resources.files("servotune.export").joinpath("runtime", name).read_text(encoding="utf-8")
-
-
-def c_identifiers(
-    names: tuple[str, ...], what: str = "axis", prefix: str = "axis_", upper: bool = False
-) -> list[str]:
-    """C identifiers of ``names`` (non-alphanumerics as ``_``, lower or upper case, ``prefix``
-    before a leading digit); two that clash are refused, naming the ``what`` names."""
-    out = []
-    for name in names:
-        ident = re.sub(r"[^0-9A-Za-z_]", "_", name)
-        ident = ident.upper() if upper else ident.lower()
-        if not ident or ident[0].isdigit():
-            ident = prefix + ident
-        out.append(ident)
-    if len(set(out)) != len(out):
-        raise ExportError(
-            f"{what} names {list(names)} give clashing C identifiers {out}; rename them"
-        )
-    return out
-
-
-def comment_text(s: str) -> str:
-    """Text safe inside a C block comment, on one line."""
-    return s.replace("*/", "*\\/").replace("\n", " ")
-
-
-def int32_literal(v: int) -> str:
-    """A quantised gain as a C ``int32_t`` constant: ``INT32_C(v)``."""
-    return f"INT32_C({v})"
-
-
-def _table_lines(ident: str, name: str, tab: Mapping[str, Any]) -> list[str]:
-    n = tab["n"]
-    up = f"ST_{ident.upper()}_TAB_{name.upper()}"
-    side = f"(2 * ST_{ident.upper()}_N + 1)"
-    lines = [
-        f"/* query table {_TABLE_TITLES[name]}: value q * 2^-f, row E = -{n}..{n}, "
-        f"column EC = -{n}..{n} */",
-        f"#define {up}_F {tab['f']}",
-        f"#define {up}_CRC32 UINT32_C(0x{tab['crc32']:08x})",
-        # sized by the axis's N: the runtime reads (2n+1)^2 entries, so an edited N changes
-        # the digest but cannot make st_check_digest (or st_tick) read past the table
-        f"static const int16_t st_{ident}_tab_{name}[{side} * {side}] = {{",
-    ]
-    for r, row in enumerate(tab["q"]):
-        lines.append(f"    /* E = {r - n:3d} */ " + ", ".join(str(v) for v in row) + ",")
-    lines.append("};")
-    return lines
-
-
-def axis_lines(ax: Mapping[str, Any], ident: str) -> tuple[list[str], list[str]]:
-    """The axis's macros and tables, and its designated initialiser lines."""
-    up = f"ST_{ident.upper()}"
-    law = ax["law"]
-    src = "external reference" if ax["ref_source"] < 0 else f"follows axis {ax['ref_source']}"
-    lines = [
-        "",
-        f"/* axis {ax['index']}: {comment_text(ax['name'])} (role {ax['role']}, law {law}, "
-        f"{src}) */",
-        f"#define ST_AXIS_{ident.upper()} {ax['index']}",
-        f"#define {up}_LOCK_Q {int32_literal(ax['lock_gain']['q'])} /* lock gain [LSB/count] */",
-        f"#define {up}_LOCK_F {ax['lock_gain']['f']}",
-        f"#define {up}_FE_LIMIT {ax['following_error_limit_counts']} /* [counts], 0 = off */",
-    ]
-    init = [
-        f".law = {_LAW_MACROS[law]}",
-        f".lock_q = {up}_LOCK_Q",
-        f".lock_f = {up}_LOCK_F",
-        f".fe_limit = {up}_FE_LIMIT",
-        ".counter_bits = ST_COUNTER_BITS",
-        ".dac_zero = ST_DAC_ZERO",
-        ".dac_max = ST_DAC_MAX",
-        f".ref_source = {ax['ref_source']}",
-    ]
-    task = ax["task"]
-    consts: list[tuple[str, str, str]] = []
-    if law == "pi":
-        consts = [("kp", "KP", "Kp [LSB/count]"), ("ki_t", "KIT", "Ki*T [LSB/count/tick]")]
-    elif law == "fuzzy_pid":
-        consts = [
-            ("kp", "KP", "Kp0 [LSB/count]"),
-            ("ki_t", "KIT", "Ki0*T [LSB/count/tick]"),
-            ("kd_t", "KDT", "Kd0/T [LSB per count change per tick]"),
-            ("k1_t", "K1T", "K10/T, feedforward [LSB per count change per tick]"),
-            ("ke", "KE", "Ke [levels/count]"),
-            ("kec", "KEC", "Kec [levels per count/tick]"),
-        ]
-    for key, mac, title in consts:
-        lines.append(f"#define {up}_{mac}_Q {int32_literal(task[key]['q'])} /* {title} */")
-        lines.append(f"#define {up}_{mac}_F {task[key]['f']}")
-        init.append(f".{mac.lower()}_q = {up}_{mac}_Q")
-        init.append(f".{mac.lower()}_f = {up}_{mac}_F")
-    if law == "fuzzy_pid":
-        lines.append(f"#define {up}_N {task['n']} /* levels -n..n */")
-        init.append(f".n = {up}_N")
-        for name in TABLE_NAMES:
-            lines.append("")
-            lines.extend(_table_lines(ident, name, task["tables"][name]))
-        tf = ", ".join(f"{up}_TAB_{t.upper()}_F" for t in TABLE_NAMES)
-        tab = ", ".join(f"st_{ident}_tab_{t}" for t in TABLE_NAMES)
-        init.append(f".tf = {{{tf}}}")
-        init.append(f".tab = {{{tab}}}")
-    return lines, init
-
-
-def digest_bytes_lines(array: str, digest: str) -> list[str]:
-    """A SHA-256 (hex) as the macro ``<ARRAY>_BYTES`` (a 32-byte initialiser) and the
-    ``static const uint8_t`` array ``array``."""
-    octets = [f"0x{digest[i : i + 2]}" for i in range(0, 64, 2)]
-    rows = [", ".join(octets[i : i + 8]) for i in range(0, 32, 8)]
-    return [
-        f"#define {array.upper()}_BYTES \\",
-        "    { \\",
-        *(f"        {row}, \\" for row in rows),
-        "    }",
-        f"static const uint8_t {array}[32] = {array.upper()}_BYTES;",
-    ]
 
 
 def _digest_lines(digest: str) -> list[str]:
@@ -316,52 +206,56 @@ def _header(doc: Mapping[str, Any]) -> str:
     return "\n".join(out)
 
 
-def to_string(tuning: Tuning, **options: Unpack[TablesOptions]) -> str:
-    """The text of ``servotune_tables.h`` (arguments as
-    :func:`servotune.export.json.tables_document`)."""
-    return _header(tables_document(tuning, **options))
+def _rendered(obj: Exportable, options: TablesOptions) -> tuple[dict[str, str], tuple[str, ...]]:
+    """The header ``obj`` gets (name → text) and the runtime sources it runs on."""
+    if isinstance(obj, GantryTuning):
+        doc = export_document(obj, **options)  # servotune.export.gantry.gantry_document
+        return {GANTRY_HEADER_NAME: gantry_c_header(doc)}, RUNTIME_FILES + GANTRY_RUNTIME_FILES
+    if isinstance(obj, LinkagePlan):
+        record = as_record(options.get("verification"))
+        header = linkage_c_header(obj, record, unverified=options.get("unverified", False))
+        return {LINK_HEADER_NAME: header}, LINK_RUNTIME_FILES + RUNTIME_FILES
+    return {HEADER_NAME: _header(tables_document(obj, **options))}, RUNTIME_FILES
 
 
-def write_c(
-    tuning: Tuning, out_dir: str | Path, **options: Unpack[TablesOptions]
+def to_string(obj: Exportable, **options: Unpack[TablesOptions]) -> str:
+    """The text of the header :func:`to_file` writes for ``obj`` (module docstring):
+    ``servotune_tables.h`` of a rig's tuning, ``servotune_gantry_consts.h`` of a gantry tuning
+    (:func:`servotune.export.gantry.gantry_c_header`), ``servotune_link_plan.h`` of a linkage
+    plan (:func:`servotune.export.linkage.linkage_c_header`). Arguments as
+    :func:`servotune.export.json.export_document`."""
+    (text,) = _rendered(obj, options)[0].values()
+    return text
+
+
+def to_file(
+    obj: Exportable, out_dir: str | Path, **options: Unpack[TablesOptions]
 ) -> tuple[Path, ...]:
-    """Write ``servotune_tables.h``, ``servotune_rt.c`` and ``servotune_rt.h`` into ``out_dir``.
+    """Write the header of ``obj`` (:func:`to_string`) and the runtime sources it runs on into
+    the directory ``out_dir``: the C export is several files, so its "file" is a directory.
 
     Parameters
     ----------
-    tuning : Tuning
+    obj : Tuning, GantryTuning or LinkagePlan
     out_dir : str or Path
-        The directory (created if missing; written as a whole, :func:`write_c_files`).
+        The directory (created if missing), written as a whole
+        (:func:`servotune.io.files.write_files`): all of the files or none.
     rig, verification, unverified
-        As :func:`servotune.export.json.tables_document`.
+        As :func:`servotune.export.json.export_document`.
 
     Returns
     -------
     tuple of Path
-        The files written: the tables header, then the runtime's two sources.
+        The files written: the header first, then the runtime's sources.
 
     Raises
     ------
     ExportError
-        As :func:`~servotune.export.json.tables_document`, or if ``out_dir`` is not a
-        directory. Nothing is written then.
+        As :func:`to_string`, ``out_dir`` is a file, or the files cannot be written (a full
+        disk, no permission): nothing new is left in ``out_dir`` then, and the files it held
+        are unchanged.
     """
-    return write_c_files(out_dir, {HEADER_NAME: to_string(tuning, **options)}, RUNTIME_FILES)
-
-
-def write_c_files(
-    out_dir: str | Path, rendered: Mapping[str, str], runtime: tuple[str, ...]
-) -> tuple[Path, ...]:
-    """Write the ``rendered`` files (name → text, rendered in memory first) and the
-    ``runtime`` sources (:func:`runtime_source`) into the directory ``out_dir`` (created if
-    missing) as a whole (:func:`servotune.io.files.write_files`): all of them or none.
-
-    Raises
-    ------
-    ExportError
-        ``out_dir`` is a file, or the files cannot be written (a full disk, no permission):
-        nothing new is left in ``out_dir`` then, and the files it held are unchanged.
-    """
+    rendered, runtime = _rendered(obj, options)
     d = Path(out_dir)
     if d.exists() and not d.is_dir():
         raise ExportError(f"{d}: not a directory")

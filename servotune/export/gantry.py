@@ -26,34 +26,26 @@ integers (nothing re-quantised)::
       "verified": true | false
     }
 
-:func:`write_gantry_c` writes ``servotune_gantry_consts.h`` (the same constants as an
-initialiser of ``st_gantry_consts_t``, ``SERVOTUNE_GANTRY_INIT``, and the C-layout digest
-``st_gantry_consts_sha256`` that ``st_gantry_check_digest`` compares with at start-up) with the
-runtime's sources (``servotune_rt.c/.h``, ``servotune_gantry.c/.h``). Every file is rendered in
-memory, then written atomically.
+The export formats render it (:mod:`servotune.export.formats`): ``json`` the document's text
+(:func:`servotune.export.json.to_string` of a :class:`~servotune.arch.gantry.tuning.
+GantryTuning`), ``c`` :func:`gantry_c_header`'s ``servotune_gantry_consts.h`` (the same
+constants as an initialiser of ``st_gantry_consts_t``, ``SERVOTUNE_GANTRY_INIT``, and the
+C-layout digest ``st_gantry_consts_sha256`` that ``st_gantry_check_digest`` compares with at
+start-up) with the runtime's sources (``servotune_rt.c/.h``, ``servotune_gantry.c/.h``:
+:func:`servotune.export.c.to_file`). Every file is rendered in memory, then written atomically.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from pathlib import Path
 from typing import Any
 
 from servotune._version import __version__
 from servotune.arch.gantry.tuning import DRIVES, GantryTuning
 from servotune.digest import DIGEST_FIELD, document_sha256
 from servotune.errors import DigestError, ExportError
-from servotune.export.c import (
-    GANTRY_RUNTIME_FILES,
-    RUNTIME_FILES,
-    axis_lines,
-    comment_text,
-    digest_bytes_lines,
-    int32_literal,
-    write_c_files,
-)
+from servotune.export.c_text import axis_lines, comment_text, digest_bytes_lines, int32_literal
 from servotune.export.gantry_layout import gantry_layout_sha256
-from servotune.export.json import document_text, write_export
 from servotune.io.files import json_safe, parse_json
 from servotune.rig import Rig
 
@@ -63,9 +55,6 @@ __all__ = [
     "check_gantry_tables",
     "gantry_c_header",
     "gantry_document",
-    "gantry_tables_to_string",
-    "write_gantry_c",
-    "write_gantry_tables",
 ]
 
 GANTRY_TABLES_SCHEMA = "servotune.gantry-tables/1"
@@ -156,16 +145,6 @@ def gantry_document(
     }
     doc[DIGEST_FIELD] = document_sha256(doc)
     return doc
-
-
-def gantry_tables_to_string(doc: Mapping[str, Any]) -> str:
-    """The JSON text of a document (deterministic bytes)."""
-    return document_text(doc)
-
-
-def write_gantry_tables(doc: Mapping[str, Any], path: str | Path) -> None:
-    """Write the JSON export atomically."""
-    write_export(path, gantry_tables_to_string(doc))
 
 
 def check_gantry_tables(text: str, src: str = "<text>") -> dict[str, Any]:
@@ -285,11 +264,3 @@ def gantry_c_header(doc: Mapping[str, Any]) -> str:
     out.extend(f"            {item}, \\" for item in sync_init)
     out += ["        } \\", "    }", "", "#endif /* SERVOTUNE_GANTRY_CONSTS_H */", ""]
     return "\n".join(out)
-
-
-def write_gantry_c(doc: Mapping[str, Any], out_dir: str | Path) -> tuple[Path, ...]:
-    """Write ``servotune_gantry_consts.h`` and the runtime's sources into ``out_dir`` as a
-    whole (:func:`~servotune.export.c.write_c_files`): all of them or none."""
-    return write_c_files(
-        out_dir, {GANTRY_HEADER_NAME: gantry_c_header(doc)}, RUNTIME_FILES + GANTRY_RUNTIME_FILES
-    )

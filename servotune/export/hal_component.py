@@ -1,8 +1,9 @@
 """LinuxCNC HAL components: the verified runtime as a realtime component, and a plant model.
 
-:func:`component_source` writes one ``.comp`` file (``halcompile --compile``/``--install``
-builds it) holding, verbatim, the same C the golden runs prove bit-exact against the simulator
-(``servotune_rt.h``, ``servotune_tables.h``, ``servotune_rt.c``: :mod:`servotune.export.c`)
+:func:`to_string` is one ``.comp`` file (the ``linuxcnc-comp`` export format; :func:`to_file`
+writes it; ``halcompile --compile``/``--install`` builds it) holding, verbatim, the same C the
+golden runs prove bit-exact against the simulator (``servotune_rt.h``, ``servotune_tables.h``,
+``servotune_rt.c``: :mod:`servotune.export.c`)
 around a thin HAL wrapper. The wrapper adds no arithmetic: each servo-thread period it takes
 each axis's encoder count (``<name>.counts-N``, s32: the low ``counter_bits`` bits are what the
 counter card latches), the master's reference (``<name>.command``, counts), the requested mode and
@@ -28,6 +29,7 @@ from __future__ import annotations
 import math
 import re
 from importlib import resources
+from pathlib import Path
 from string import Template
 from typing import Any
 
@@ -39,8 +41,9 @@ from servotune.export.c import (
     RUNTIME_FILES,
     SHAPER_RUNTIME_FILES,
     runtime_source,
-    to_string,
 )
+from servotune.export.c import to_string as tables_header
+from servotune.export.document import write_export
 from servotune.laws.shaping import Shaper
 from servotune.plant import NROW, Plant, plant_row
 from servotune.rig import Dac, Rig
@@ -49,10 +52,11 @@ from servotune.tuning import Tuning
 __all__ = [
     "PLANT_HEADER",
     "check_component_source",
-    "component_source",
     "guard_component",
     "plant_component",
     "shaper_component",
+    "to_file",
+    "to_string",
 ]
 
 PLANT_HEADER = PLANT_RUNTIME_FILES[0]
@@ -89,7 +93,7 @@ def _c_double(x: float) -> str:
     return float(x).hex()
 
 
-def component_source(
+def to_string(
     tuning: Tuning,
     *,
     rig: Rig | None = None,
@@ -118,7 +122,7 @@ def component_source(
         unverified tuning without ``unverified``, a tuning of another rig, …).
     """
     _check_name(name)
-    header = to_string(tuning, rig=rig, verification=verification, unverified=unverified)
+    header = tables_header(tuning, rig=rig, verification=verification, unverified=unverified)
     digest = re.search(r'#define ST_TABLES_SHA256 "([0-9a-f]{64})"', header)
     assert digest is not None  # the header always defines it
     dac = rig.dac if rig is not None else Dac()  # the export's default hardware
@@ -138,8 +142,20 @@ def component_source(
     return with_digest_line(text, "//", line=1)
 
 
+def to_file(tuning: Tuning, path: str | Path, **options: Any) -> None:
+    """Write the runtime component (:func:`to_string`, the same arguments) atomically; nothing
+    is written on an error.
+
+    Raises
+    ------
+    ExportError
+        As :func:`to_string`, or if the file cannot be written.
+    """
+    write_export(path, to_string(tuning, **options))
+
+
 def check_component_source(text: str, src: str = "<text>") -> None:
-    """Check a ``.comp`` :func:`component_source` wrote: its digest line (the second, a
+    """Check a ``.comp`` :func:`to_string` wrote: its digest line (the second, a
     ``//`` comment) matches the rest of the file (``servotune check-table``); any edit is
     refused. (The component also checks its compiled-in tables at load.)
 
@@ -260,9 +276,10 @@ def guard_component(
     position at the first period after load or reset), its speed (the change per period of
     the thread), the following error ``command − position`` and ``|volts_in|``; at the first
     breach it sets ``fault``, names the limit (``reason`` 1 travel, 2 speed, 3 following error,
-    4 output) with the breaching ``value`` and ``trip_period``, and gives ``volts_out = 0`` from
-    that same period until ``reset``; otherwise ``volts_out = volts_in``. The limits are
-    compiled in: a ``setp`` cannot widen them.
+    4 output, 5 the ``stop`` pin) with the breaching ``value`` and ``trip_period``, and gives
+    ``volts_out = 0`` from that same period until ``reset``; otherwise ``volts_out = volts_in +
+    excitation`` (``excitation``: the live run's signal [V]; the output limit is on the sum).
+    The limits are compiled in: a ``setp`` cannot widen them.
 
     Raises
     ------

@@ -73,7 +73,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import re
 import zlib
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -82,8 +81,12 @@ from typing import Any, Protocol, TypedDict, Unpack
 import numpy as np
 
 from servotune._version import __version__
+from servotune.arch.gantry.tuning import GantryTuning
+from servotune.arch.linkage.plan import LinkagePlan
 from servotune.digest import DIGEST_FIELD, document_sha256
 from servotune.errors import DigestError, ExportError
+from servotune.export.document import document_text, recorded_sha, write_export
+from servotune.export.gantry import gantry_document
 from servotune.export.layout import (
     INT16,
     INT32,
@@ -93,8 +96,9 @@ from servotune.export.layout import (
     pairs_bytes,
     table_bytes,
 )
+from servotune.export.linkage import linkage_plan_document
 from servotune.fixed import F_U
-from servotune.io.files import atomic_write_text, json_safe, parse_json, read_json
+from servotune.io.files import json_safe, parse_json, read_json
 from servotune.laws.axis import (
     LAW_FUZZY_PID,
     LAW_NAMES,
@@ -107,12 +111,14 @@ from servotune.validate import check_keys, show_value
 
 __all__ = [
     "SCHEMA",
+    "Exportable",
     "Summary",
     "TablesOptions",
+    "as_record",
     "check_tables",
     "constants_crc32",
     "controllers_from_tables",
-    "document_text",
+    "export_document",
     "load_tables",
     "table_crc32",
     "tables_document",
@@ -246,16 +252,11 @@ def _axis_doc(i: int, name: str, role: str, ctl: AxisController, src: int) -> di
     }
 
 
-def recorded_sha(record: Mapping[str, Any], kind: str) -> str | None:
-    """A verification record's SHA-256 of one of its files (``files.<kind>.sha256``), or None."""
-    entry = record.get("files", {}).get(kind) if isinstance(record.get("files"), dict) else None
-    return entry.get("sha256") if isinstance(entry, dict) else None
-
-
 class TablesOptions(TypedDict, total=False):
-    """The keywords of :func:`tables_document`, which every tables export passes on to it
-    (:func:`to_string`, :func:`to_file`, :func:`servotune.export.c.to_string`,
-    :func:`~servotune.export.c.write_c`): ``rig``, ``verification`` and ``unverified``."""
+    """The keywords of :func:`tables_document`, which every export passes on to the document
+    it renders (:func:`export_document`, :func:`to_string`, :func:`to_file`,
+    :func:`servotune.export.c.to_string`, :func:`servotune.export.c.to_file`, …): ``rig``,
+    ``verification`` and ``unverified``."""
 
     rig: Rig | None
     verification: Mapping[str, Any] | Summary | None
@@ -300,8 +301,7 @@ def tables_document(
         No verification (and not ``unverified``), a failed verification, a rig that does not
         match the tuning, or a constant that does not fit the runtime's types.
     """
-    if verification is not None and not isinstance(verification, Mapping):
-        verification = verification.to_dict()
+    verification = as_record(verification)
     if not unverified:
         if verification is None:
             raise ExportError(
@@ -361,22 +361,53 @@ def tables_document(
     return doc
 
 
-# rows of numbers on one line: a JSON list of numbers only (no string can hold a newline)
-_NUM = r"-?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?"
-_NUM_LIST = re.compile(r"\[\n\s*(" + _NUM + r"(?:,\n\s*" + _NUM + r")*)\n\s*\]")
+Exportable = Tuning | GantryTuning | LinkagePlan
+"""What an export format renders: a rig's tuning, a gantry tuning or a linkage plan (the
+document kinds ``rig``, ``gantry`` and ``linkage`` of :data:`servotune.export.formats.KINDS`)."""
 
 
-def document_text(doc: Mapping[str, Any]) -> str:
-    """An export document as JSON text: sorted keys, indented, lists of numbers on one line,
-    a final newline (deterministic bytes)."""
-    text = json.dumps(doc, sort_keys=True, indent=2, allow_nan=False, ensure_ascii=False)
-    text = _NUM_LIST.sub(lambda m: "[" + re.sub(r",\n\s*", ", ", m.group(1)) + "]", text)
-    return text + "\n"
+def as_record(verification: Mapping[str, Any] | Summary | None) -> Mapping[str, Any] | None:
+    """A verification as the plain mapping a document reads (a summary's ``to_dict()``)."""
+    if verification is None or isinstance(verification, Mapping):
+        return verification
+    return verification.to_dict()
 
 
-def to_string(tuning: Tuning, **options: Unpack[TablesOptions]) -> str:
-    """The tables export as JSON text (deterministic bytes; arguments as
-    :func:`tables_document`).
+def export_document(obj: Exportable, **options: Unpack[TablesOptions]) -> dict[str, Any]:
+    """The JSON document of ``obj``, by what it is.
+
+    - a :class:`~servotune.tuning.Tuning`: the tables (:func:`tables_document`, this module's
+      docstring);
+    - a :class:`~servotune.arch.gantry.tuning.GantryTuning`: the gantry tables
+      (:func:`servotune.export.gantry.gantry_document`); ``rig`` is the gantry's rig (needed);
+    - a :class:`~servotune.arch.linkage.plan.LinkagePlan`: the linkage export
+      (:func:`servotune.export.linkage.linkage_plan_document`); ``rig`` is not used (the plan
+      binds its rig by its hash).
+
+    ``verification`` is the checked verification record (or summary) and ``unverified``
+    exports without one, marked ``"verified": false``.
+
+    Raises
+    ------
+    ExportError
+        As the document's function: no verification (and not ``unverified``), a failed one, …
+    """
+    unverified = options.get("unverified", False)
+    if isinstance(obj, GantryTuning):
+        rig = options.get("rig")
+        if rig is None:
+            raise ExportError("a gantry tuning's export needs its rig (rig=, the gantry config's)")
+        record = as_record(options.get("verification"))
+        return gantry_document(obj, rig, record=record, unverified=unverified)
+    if isinstance(obj, LinkagePlan):
+        record = as_record(options.get("verification"))
+        return linkage_plan_document(obj, record, unverified=unverified)
+    return tables_document(obj, **options)
+
+
+def to_string(obj: Exportable, **options: Unpack[TablesOptions]) -> str:
+    """The JSON export of ``obj`` (:func:`export_document`) as text: sorted keys, two-space
+    indent, lists of numbers on one line, a final newline; deterministic bytes.
 
     Examples
     --------
@@ -384,27 +415,18 @@ def to_string(tuning: Tuning, **options: Unpack[TablesOptions]) -> str:
     >>> load_tables(text)["schema"]  # doctest: +SKIP
     'servotune.tables/2'
     """
-    return document_text(tables_document(tuning, **options))
+    return document_text(export_document(obj, **options))
 
 
-def to_file(tuning: Tuning, path: str | Path, **options: Unpack[TablesOptions]) -> None:
-    """Write the tables export atomically (temp file, then rename); arguments as
-    :func:`tables_document`.
+def to_file(obj: Exportable, path: str | Path, **options: Unpack[TablesOptions]) -> None:
+    """Write :func:`to_string` to ``path`` atomically (temp file, then rename).
 
     Raises
     ------
     ExportError
-        As :func:`tables_document`, or if the file cannot be written (nothing is written then).
+        As :func:`export_document`, or if the file cannot be written (nothing is written then).
     """
-    write_export(path, to_string(tuning, **options))
-
-
-def write_export(path: str | Path, text: str) -> None:
-    """Write one export file atomically; failing, an :class:`ExportError` naming the file."""
-    try:
-        atomic_write_text(path, text)
-    except OSError as exc:
-        raise ExportError(f"{path}: cannot write: {exc}") from None
+    write_export(path, to_string(obj, **options))
 
 
 # --- reading it back -------------------------------------------------------------------------

@@ -1,6 +1,6 @@
 """The linkage export: a plan's constants for the slave CPUs, as C and as JSON.
 
-:func:`write_linkage_c` writes three files into a directory:
+The ``c`` export format (:func:`servotune.export.c.to_file` of a plan) writes into a directory:
 
 - ``servotune_link_plan.h``: the plan's constants (:func:`linkage_c_header`): the bus's block
   format and bit budget, the resync interval in ticks, per slave CPU its axes (their columns
@@ -10,7 +10,8 @@
 - ``servotune_link.c`` / ``servotune_link.h``: the slave CPU's receive queue and clock-sync
   logic (C99, integer only, no I/O, no allocation), copied from the package data. It is the
   simulation's queue model line by line: the simulation's event log replayed through it gives
-  the same commands, levels and counts, bit for bit.
+  the same commands, levels and counts, bit for bit;
+- ``servotune_rt.c`` / ``servotune_rt.h``: the axis runtime the position loops run.
 
 Usage on slave CPU ``s1``::
 
@@ -18,8 +19,9 @@ Usage on slave CPU ``s1``::
     static const stl_consts_t consts = STL_CPU_S1_CONSTS_INIT;
     static stl_state_t queue;                 /* stl_init(&queue) at power-up */
 
-:func:`linkage_plan_json` is the same plan as a JSON document (``servotune.linkage-export/1``)
-with the provenance (the SHA-256 of the plan, config, rig and spec verified, the verification
+The ``json`` format (:func:`servotune.export.json.to_string` of a plan) writes the same plan as
+a JSON document (:func:`linkage_plan_document`, ``servotune.linkage-export/1``) with the
+provenance (the SHA-256 of the plan, config, rig and spec verified, the verification
 summary) and its own digest (:func:`servotune.digest.document_sha256`, field ``sha256``).
 
 An export needs a passing verification record (:func:`~servotune.arch.linkage.
@@ -31,21 +33,14 @@ from __future__ import annotations
 
 import hashlib
 from collections.abc import Mapping
-from pathlib import Path
 from typing import Any
 
 from servotune._version import __version__
 from servotune.arch.linkage.plan import PLAN_SCHEMA, LinkagePlan, plan_to_string
 from servotune.digest import DIGEST_FIELD, document_sha256
 from servotune.errors import DigestError, ExportError
-from servotune.export.c import (
-    LINK_RUNTIME_FILES,
-    RUNTIME_FILES,
-    c_identifiers,
-    comment_text,
-    write_c_files,
-)
-from servotune.export.json import document_text, recorded_sha
+from servotune.export.c_text import c_identifiers, comment_text
+from servotune.export.document import recorded_sha
 from servotune.io.files import json_safe, parse_json
 from servotune.laws.pi import PIConstants
 
@@ -55,12 +50,10 @@ __all__ = [
     "check_linkage_export",
     "linkage_c_header",
     "linkage_plan_document",
-    "linkage_plan_json",
-    "write_linkage_c",
 ]
 
 EXPORT_SCHEMA = "servotune.linkage-export/1"
-"""Version tag of :func:`linkage_plan_json`'s document."""
+"""Version tag of :func:`linkage_plan_document`'s document."""
 LINK_HEADER_NAME = "servotune_link_plan.h"
 
 _INT32_MAX = 2**31 - 1
@@ -105,7 +98,8 @@ def _check_fits(plan: LinkagePlan) -> None:
 def linkage_plan_document(
     plan: LinkagePlan, record: Mapping[str, Any] | None, *, unverified: bool = False
 ) -> dict[str, Any]:
-    """The JSON export as a plain dict (what :func:`linkage_plan_json` serialises).
+    """The JSON export as a plain dict (what :func:`servotune.export.json.to_string` of a plan
+    serialises).
 
     ``data`` is the plan exactly as its file holds it; ``provenance`` the SHA-256 of the plan
     (the record's, i.e. the bytes verified, else of the plan's own serialisation), config, rig
@@ -137,16 +131,8 @@ def linkage_plan_document(
     return doc
 
 
-def linkage_plan_json(
-    plan: LinkagePlan, record: Mapping[str, Any] | None, *, unverified: bool = False
-) -> str:
-    """The JSON export's text: sorted keys, two-space indent, trailing newline
-    (:func:`linkage_plan_document`)."""
-    return document_text(linkage_plan_document(plan, record, unverified=unverified))
-
-
 def check_linkage_export(text: str, src: str = "<text>") -> dict[str, Any]:
-    """Parse a linkage JSON export (:func:`linkage_plan_json`) and check its digest, computed
+    """Parse a linkage JSON export (:func:`linkage_plan_document`) and check its digest, computed
     as the writer does (:func:`servotune.digest.document_sha256`): any edit is refused.
 
     Returns
@@ -300,38 +286,3 @@ def linkage_c_header(
         raise ExportError(f"axis and cpu names give clashing C macros {clash}; rename them")
     out += ["", "#endif /* SERVOTUNE_LINK_PLAN_H */", ""]
     return "\n".join(out)
-
-
-def write_linkage_c(
-    plan: LinkagePlan,
-    out_dir: str | Path,
-    record: Mapping[str, Any] | None = None,
-    unverified: bool = False,
-) -> tuple[Path, ...]:
-    """Write ``servotune_link_plan.h``, the slave CPU's queue and clock sync
-    (``servotune_link.c/.h``) and the axis runtime its position loops run
-    (``servotune_rt.c/.h``) into ``out_dir``.
-
-    Parameters
-    ----------
-    plan : LinkagePlan
-    out_dir : str or Path
-        The directory (created if missing; written as a whole,
-        :func:`~servotune.export.c.write_c_files`).
-    record : mapping, optional
-        The plan's verification record (:func:`~servotune.arch.linkage.load_plan_for_export`).
-    unverified : bool
-        Export without a (passing) record; the header says so (``STL_PLAN_VERIFIED 0``).
-
-    Returns
-    -------
-    tuple of Path
-        The files written.
-
-    Raises
-    ------
-    ExportError
-        As :func:`linkage_c_header`, or ``out_dir`` is not a directory. Nothing is written then.
-    """
-    header = linkage_c_header(plan, record, unverified=unverified)
-    return write_c_files(out_dir, {LINK_HEADER_NAME: header}, LINK_RUNTIME_FILES + RUNTIME_FILES)

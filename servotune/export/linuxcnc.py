@@ -83,7 +83,8 @@ from typing import Any
 from servotune._version import __version__
 from servotune.digest import text_digest_problem, with_digest_line
 from servotune.errors import DigestError, ExportError
-from servotune.export.json import Summary, tables_document, write_export
+from servotune.export.document import write_export
+from servotune.export.json import Summary, tables_document
 from servotune.laws.linuxcnc_pid import PidParameters, thread_period_ns
 from servotune.laws.pi import PIConstants
 from servotune.rig import Rig
@@ -393,17 +394,32 @@ def check_hal_file(text: str, src: str = "<text>") -> None:
         raise error(f"{src}: {problem}")
 
 
-def to_string(tuning: Tuning, **kwargs: Any) -> str:
-    """The HAL file's text: :func:`pid_hal_text` (the exporters' common name)."""
-    return pid_hal_text(tuning, **kwargs)
-
-
-def to_file(tuning: Tuning, path: str | Path, **kwargs: Any) -> None:
-    """Write the HAL file atomically (arguments as :func:`pid_hal_text`).
+def to_string(tuning: Tuning, *, position_scale: float | None = None, **kwargs: Any) -> str:
+    """The HAL file's text (the ``linuxcnc-hal`` export format's; arguments as
+    :func:`pid_hal_text`).
 
     Raises
     ------
     ExportError
-        As :func:`pid_hal_text`, or if the file cannot be written (nothing is written then).
+        No ``position_scale`` (``--position-scale``: the file cannot be written without it), or
+        as :func:`pid_hal_text`.
     """
-    write_export(path, pid_hal_text(tuning, **kwargs))
+    if position_scale is None:
+        raise ExportError(
+            "--format linuxcnc-hal needs --position-scale (encoder counts per machine unit, "
+            "the encoder's position-scale parameter)"
+        )
+    return pid_hal_text(tuning, position_scale=position_scale, **kwargs)
+
+
+def to_file(
+    tuning: Tuning, path: str | Path, *, position_scale: float | None = None, **kwargs: Any
+) -> None:
+    """Write the HAL file (:func:`to_string`) atomically; nothing is written on an error.
+
+    Raises
+    ------
+    ExportError
+        As :func:`to_string`, or if the file cannot be written.
+    """
+    write_export(path, to_string(tuning, position_scale=position_scale, **kwargs))

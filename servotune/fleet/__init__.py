@@ -12,9 +12,12 @@ One module per concept:
 - :mod:`servotune.fleet.fit`: the whole run over an executor (:func:`fit_fleet`) and writing
   the table;
 - :mod:`servotune.fleet.spread`: the fleet's machines as the plant distribution of a
-  Monte-Carlo verification (:func:`fleet_spread`).
+  Monte-Carlo verification (:func:`fleet_spread`);
+- :mod:`servotune.fleet.table`: the fleet table's columns and its two file forms, Parquet and
+  CSV (the records as the rows and the fit read and write them).
 
-Every name is importable from ``servotune.fleet``.
+Every name of the first four is importable from ``servotune.fleet``, and the table's
+:data:`FLEET_SCHEMA`.
 """
 
 from __future__ import annotations
@@ -43,7 +46,7 @@ from servotune.fleet.summary import (
     robust_z,
     summarise_fleet,
 )
-from servotune.io.fleet_table import FLEET_SCHEMA
+from servotune.fleet.table import FLEET_SCHEMA
 
 __all__ = [
     "DRIFT_K",

@@ -19,7 +19,7 @@ from servotune._version import __version__
 from servotune.executor import Executor, InProcessExecutor
 from servotune.fleet.rows import FleetFitOptions, FleetRow, fit_fleet_log, read_fleet_table
 from servotune.fleet.summary import DRIFT_K, OUTLIER_Z, FleetSummary, summarise_fleet
-from servotune.io.fleet_table import (
+from servotune.fleet.table import (
     FLEET_SCHEMA,
     fleet_table_bytes,
     table_format,
@@ -160,7 +160,7 @@ def _flag(rows: Sequence[FleetRow], s: FleetSummary) -> list[FleetRow]:
 
 def write_fleet_table(result: FleetResult | Sequence[FleetRow], path: str | Path) -> None:
     """Write the fleet table atomically, Parquet or CSV by the file's suffix
-    (:mod:`servotune.io.fleet_table`).
+    (:mod:`servotune.fleet.table`).
 
     Raises
     ------

@@ -32,12 +32,13 @@ from typing import Any
 from servotune.budget import BudgetError
 from servotune.digest import bytes_sha256
 from servotune.errors import ServotuneError
+from servotune.fleet.table import read_fleet_records
 from servotune.identify import fit_log
 from servotune.identify.model import ALL_PARAMS
 from servotune.identify.result import FitResult
-from servotune.io.fleet_table import read_fleet_records
 from servotune.io.hal import HalSettings, capture_format
-from servotune.logs import read_log, read_metadata
+from servotune.io.log_header import read_metadata
+from servotune.logs import read_log
 from servotune.rig import Rig
 
 __all__ = [
@@ -182,7 +183,7 @@ class FleetRow:
         return None
 
     def to_record(self) -> dict[str, Any]:
-        """The row as a record of the fleet table (:data:`servotune.io.fleet_table.COLUMNS`)."""
+        """The row as a record of the fleet table (:data:`servotune.fleet.table.COLUMNS`)."""
         rec: dict[str, Any] = {
             "machine_id": self.machine_id,
             "date": self.date,

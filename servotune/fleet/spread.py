@@ -36,9 +36,9 @@ from servotune.digest import bytes_sha256
 from servotune.errors import FleetTableError, SpecError
 from servotune.fleet.rows import FleetRow, latest_fits
 from servotune.fleet.summary import MIN_MACHINES
+from servotune.fleet.table import parse_fleet_table, table_format
 from servotune.identify.model import ALL_PARAMS, ASYM_PARAMS, PARAMS
 from servotune.io.files import read_bytes
-from servotune.io.fleet_table import parse_fleet_table, table_format
 from servotune.plant import Plant
 from servotune.rig import Rig
 from servotune.validate import show_value

@@ -14,16 +14,19 @@ The package, by concept:
 - :mod:`~servotune.identify.noise` — the residual's ARMA noise model and its whitening filter;
 - :mod:`~servotune.identify.quality` — fit %, whiteness and cross-correlation tests, the
   moving-block bootstrap of the intervals;
+- :mod:`~servotune.identify.selection` — the structure and friction form chosen by BIC on the
+  first samples;
 - :mod:`~servotune.identify.fitting` — what ``servotune fit`` runs: method choice, structure and
   friction-form selection, the estimate on the whole log, split-half cross-validation,
   intervals, diagnostics;
 - :mod:`~servotune.identify.result` — :class:`FitResult` and the warnings;
-- :mod:`~servotune.identify.logfit` — a log file read and one axis fitted (``servotune fit``).
+- :mod:`~servotune.identify.logfit` — a log file read and one axis fitted (``servotune fit``);
+- :mod:`~servotune.identify.emps` — the EMPS benchmark, a real drive's logged experiments: its
+  MATLAB files read into a log, its physics in the axis model's terms (not imported here).
 """
 
 from servotune.identify.fitting import (
     MIN_SAMPLES,
-    SELECTION_SAMPLES,
     fit,
     fit_arrays,
     simulate_fit,
@@ -37,6 +40,7 @@ from servotune.identify.result import (
     InadequateModelWarning,
     PoorFitWarning,
 )
+from servotune.identify.selection import SELECTION_SAMPLES
 
 __all__ = [
     "ASYM_PARAMS",

@@ -10,17 +10,18 @@
    command's variance; otherwise ``oe`` (:mod:`servotune.identify.oe`) with a
    :class:`~servotune.identify.result.ClosedLoopBiasWarning` saying why (none for a log that is
    open loop throughout, where least squares is consistent).
-3. **Structure and friction form** — with ``structure=None`` every structure (gain and tau plus
-   any subset of delay, offset and Coulomb friction) is fitted on the first
-   :data:`SELECTION_SAMPLES` samples with the chosen method (least squares gives the start)
-   and scored by BIC (``m·ln σ² + k·ln m``) on that method's residual: for ``iv`` whitened by
-   one noise model (the largest candidate's), so that a coloured disturbance does not make
-   every extra term look worth its price; for ``oe`` as it is. The smallest wins, unless the
-   largest structure predicts held-out samples clearly better
-   (:func:`~servotune.identify.heldout.held_out_check`). With
-   ``friction="auto"`` the winner is refitted with the asymmetric form (its own gain, and
-   Coulomb level where identifiable, for the negative direction) and the form with the smaller
-   BIC is kept; both scores are reported. Where the refined IV finds no solution on the
+3. **Structure and friction form** (:func:`~servotune.identify.selection.select_structure`) —
+   with ``structure=None`` every structure (gain and tau plus any subset of delay, offset and
+   Coulomb friction) is fitted on the first
+   :data:`~servotune.identify.selection.SELECTION_SAMPLES` samples with the chosen method
+   (least squares gives the start) and scored by BIC (``m·ln σ² + k·ln m``) on that method's
+   residual: for ``iv`` whitened by one noise model (the largest candidate's), so that a
+   coloured disturbance does not make every extra term look worth its price; for ``oe`` as it
+   is. The smallest wins, unless the largest structure predicts held-out samples clearly better
+   (:func:`~servotune.identify.heldout.held_out_check`). With ``friction="auto"`` the winner
+   is refitted with the asymmetric form (its own gain, and Coulomb level where identifiable,
+   for the negative direction) and the form with the smaller BIC is kept; both scores are
+   reported. Where the refined IV finds no solution on the
    selection's samples, basic IV (:func:`~servotune.identify.iv.estimate_iv`) is used
    throughout; where neither does, least squares, with a warning. Where IV is chosen, least
    squares is fitted too and kept instead when it places gain and tau inside IV's own 95 %
@@ -40,7 +41,6 @@
 from __future__ import annotations
 
 import dataclasses
-import math
 import warnings
 from dataclasses import dataclass
 from typing import Any
@@ -49,26 +49,25 @@ import numpy as np
 
 from servotune.budget import check_memory
 from servotune.errors import IdentificationError
-from servotune.identify import iv, model, oe, quality
+from servotune.identify import iv, model, quality
 from servotune.identify.heldout import (
     cross_validate,
     estimate,
     fit_pcts,
-    held_out_check,
     simulate_dy,
     skip_samples,
     validation_split,
 )
 from servotune.identify.model import ALL_PARAMS, I_COULOMB, I_GAIN, PARAMS
-from servotune.identify.noise import NoiseModel
 from servotune.identify.result import (
     ClosedLoopBiasWarning,
     FitResult,
     InadequateModelWarning,
     PoorFitWarning,
 )
+from servotune.identify.selection import select_structure
+from servotune.io.log import AxisLog, Log
 from servotune.laws.axis import MODE_OPEN, MODE_TASK
-from servotune.logs import AxisLog, Log
 
 __all__ = [
     "AGREEMENT_PARAMS",
@@ -76,7 +75,6 @@ __all__ = [
     "METHODS",
     "MIN_ERROR_REDUCTION",
     "MIN_SAMPLES",
-    "SELECTION_SAMPLES",
     "fit",
     "fit_arrays",
     "simulate_fit",
@@ -85,8 +83,6 @@ __all__ = [
 
 MIN_SAMPLES = 100
 """Fewest samples a log needs."""
-SELECTION_SAMPLES = 20_000
-"""Samples (the first ones) the structure and friction-form selection fits on."""
 METHODS = ("auto", "iv", "oe")
 """Values of ``method`` (``servotune fit --method``)."""
 FRICTION_FORMS = ("auto", "sym", "asym")
@@ -155,172 +151,6 @@ def _choose_method(
         f"instrumental variables, instruments from {names} (they explain {share} of the command)",
         proj,
     )
-
-
-_Selection = tuple[
-    np.ndarray, np.ndarray, list[dict[str, Any]], str, dict[str, Any], NoiseModel, str
-]
-
-
-def _select(
-    method: str,
-    u: np.ndarray,
-    y: np.ndarray,
-    dy: np.ndarray,
-    sigs: list[np.ndarray],
-    terms: tuple[str, ...] | None,
-    friction: str,
-    *,
-    period_s: float,
-    compute_s: float,
-) -> _Selection:
-    """Structure and friction form by BIC on the first samples; the start of the estimate.
-
-    Every candidate is estimated with the method of the final estimate (least squares would
-    prefer the wrong structure on a closed-loop log, its residual being the disturbance it
-    mistakes for dynamics), from the least-squares fit of the largest candidate, and scored in
-    that method's own terms: for ``iv`` the variance of the residual whitened by the largest
-    candidate's noise model (the same prefilter for all), for ``oe`` the raw residual's.
-    """
-    n_s = min(dy.size, SELECTION_SAMPLES)
-    form = "sym" if friction == "auto" else friction
-    candidates = (
-        [terms]
-        if terms is not None
-        else [
-            tuple(t for t, on in zip(model.OPTIONAL_PARAMS, bits, strict=True) if on)
-            for bits in ((m & 1, m & 2, m & 4) for m in range(8))
-        ]
-    )
-    largest = model.free_mask(terms if terms is not None else model.OPTIONAL_PARAMS, form)
-    x_ls = model.ls_start(u[: n_s + 1], y[: n_s + 1], period_s, compute_s, largest)
-    skip_s = skip_samples(x_ls, period_s, n_s)
-    x_oe = oe.oe_parameters(
-        u[:n_s],
-        dy[:n_s],
-        x_ls,
-        largest,
-        period_s=period_s,
-        compute_s=compute_s,
-        skip=skip_s,
-        max_nfev=40,
-    )
-    sigs_s = [sg[:n_s] for sg in sigs]
-    proj = iv.project(u[:n_s], sigs_s, iv.projection_lags(period_s)) if method == "iv" else None
-    noise: NoiseModel | None = None
-    # refined IV for every candidate (one without a solution cannot win); basic IV for all only
-    # where no candidate has a refined solution
-    variant = "iv-refined" if method == "iv" else method
-
-    def score(free: np.ndarray, x0: np.ndarray) -> tuple[float, float, np.ndarray, NoiseModel]:
-        try:
-            est, _ = estimate(
-                variant,
-                u[:n_s],
-                dy[:n_s],
-                sigs_s,
-                x0,
-                free,
-                period_s=period_s,
-                compute_s=compute_s,
-                skip=skip_s,
-                projection=proj,
-                noise0=noise,
-                max_nfev=40,
-                max_outer=4,
-                refit_noise=noise is None,
-            )
-        except iv.NotConverged:  # this candidate has no IV solution: it cannot win
-            return math.inf, math.inf, x0, noise or NoiseModel.identity()
-        # each method's own criterion: iv solves its equations in the prefiltered domain (the
-        # prefilter the same for every candidate), least squares minimises the raw residual
-        r = est.whitened if method == "iv" else est.residual
-        m = r.size
-        var = max(float(np.mean(r * r)), 1e-300)
-        k = int(free.sum())
-        return m * math.log(var) + k * math.log(m), var, est.x, est.noise
-
-    def score_all() -> list[dict[str, Any]]:
-        nonlocal noise
-        out = []
-        for t in sorted(candidates, key=len, reverse=True):  # the largest first: its noise
-            free = model.free_mask(t, form)
-            x0 = np.where(free, x_oe, 0.0)
-            x0[5], x0[6] = (x_oe[5], x_oe[6]) if form == "asym" else (x0[I_GAIN], x0[I_COULOMB])
-            bic, var, x, nm = score(free, x0)
-            if math.isfinite(bic):
-                noise = noise or nm
-            out.append(
-                {
-                    "bic": bic,
-                    "params": list(model.names(free)),
-                    "variance": var,
-                    "_free": free,
-                    "_x": x,
-                }
-            )
-        return out
-
-    scored = score_all()
-    if variant == "iv-refined" and not any(math.isfinite(e["bic"]) for e in scored):
-        variant, noise = "iv-basic", None
-        scored = score_all()
-    best = min(scored, key=lambda e: e["bic"])
-    if not math.isfinite(best["bic"]):
-        raise iv.NotConverged(f"no candidate structure has an {method} solution")
-    selection: list[dict[str, Any]] = []
-    if terms is None:
-        ordered = sorted(scored, key=lambda e: e["bic"])
-        runner = ordered[1]
-        reason = (
-            f"smallest BIC ({ordered[0]['bic']:.1f}, {method} fits) of {len(scored)} "
-            f"structures on {n_s - skip_s} samples; next: {'+'.join(runner['params'])} "
-            f"at {runner['bic']:.1f}"
-        )
-        best, reason = held_out_check(
-            best,
-            scored,
-            reason,
-            variant,
-            u,
-            dy,
-            sigs,
-            n_s,
-            noise,
-            x_oe,
-            period_s=period_s,
-            compute_s=compute_s,
-        )
-        selection = [{k: v for k, v in e.items() if not k.startswith("_")} for e in ordered]
-        if not math.isfinite(best["bic"]):  # refined IV has no solution for it: basic IV
-            variant = "iv-basic" if variant == "iv-refined" else variant
-            bic_b, var_b, x_b, _ = score(best["_free"], best["_x"])
-            best = {**best, "bic": bic_b, "variance": var_b, "_x": x_b}
-    else:
-        reason = "structure given by the user"
-    free, x = best["_free"], best["_x"]
-    friction_selection: dict[str, Any] = {}
-    if friction == "auto":
-        free_a = model.free_mask(
-            tuple(p for p in model.OPTIONAL_PARAMS if free[PARAMS.index(p)]), "asym"
-        )
-        xa0 = x.copy()
-        xa0[5], xa0[6] = x[I_GAIN], x[I_COULOMB]
-        bic_a, _, xa, _ = score(free_a, xa0)
-        scores = {"asym": bic_a, "sym": best["bic"]}
-        chosen = "asym" if bic_a < best["bic"] else "sym"
-        other = "sym" if chosen == "asym" else "asym"
-        friction_selection = {
-            "chosen": chosen,
-            "criterion": f"BIC of {method} fits on {n_s - skip_s} samples",
-            "runner_up": other,
-            "scores": scores,
-            "reason": f"BIC {scores[chosen]:.1f}; {other} at {scores[other]:.1f}",
-        }
-        if chosen == "asym":
-            free, x = free_a, xa
-    noise = noise or NoiseModel.identity()
-    return free, x, selection, reason, friction_selection, noise, variant
 
 
 def fit_arrays(
@@ -480,13 +310,20 @@ def _estimate(
     u1 = d.u[:-1]
     opts = {"period_s": d.period_s, "compute_s": d.compute_s}
     try:
-        free, x0, selection, reason, friction_selection, noise0, variant = _select(
-            chosen, d.u, d.y, d.dy, d.sigs, d.terms, d.friction, **opts
-        )
-        skip = skip_samples(x0, d.period_s, d.u.size)
-        final = "iv" if variant == "iv-refined" else variant  # refined may still fall back
+        sel = select_structure(chosen, d.u, d.y, d.dy, d.sigs, d.terms, d.friction, **opts)
+        skip = skip_samples(sel.x, d.period_s, d.u.size)
+        final = "iv" if sel.variant == "iv-refined" else sel.variant  # refined may fall back
         est, info = estimate(
-            final, u1, d.dy, d.sigs, x0, free, skip=skip, projection=proj, noise0=noise0, **opts
+            final,
+            u1,
+            d.dy,
+            d.sigs,
+            sel.x,
+            sel.free,
+            skip=skip,
+            projection=proj,
+            noise0=sel.noise,
+            **opts,
         )
     except iv.NotConverged as exc:
         if method == "iv":
@@ -498,11 +335,11 @@ def _estimate(
             stacklevel=3,
         )
         chosen, method_reason = "oe", f"output-error least squares: {exc}"
-        free, x0, selection, reason, friction_selection, noise0, variant = _select(
-            chosen, d.u, d.y, d.dy, d.sigs, d.terms, d.friction, **opts
+        sel = select_structure(chosen, d.u, d.y, d.dy, d.sigs, d.terms, d.friction, **opts)
+        skip = skip_samples(sel.x, d.period_s, d.u.size)
+        est, info = estimate(
+            chosen, u1, d.dy, d.sigs, sel.x, sel.free, skip=skip, noise0=sel.noise, **opts
         )
-        skip = skip_samples(x0, d.period_s, d.u.size)
-        est, info = estimate(chosen, u1, d.dy, d.sigs, x0, free, skip=skip, noise0=noise0, **opts)
     if chosen == "iv":
         method_reason += (
             "; refined: prefiltered by the noise model"
@@ -518,10 +355,10 @@ def _estimate(
     return _Run(
         method=chosen,
         method_reason=method_reason,
-        free=free,
-        selection=selection,
-        reason=reason,
-        friction_selection=friction_selection,
+        free=sel.free,
+        selection=sel.selection,
+        reason=sel.reason,
+        friction_selection=sel.friction_selection,
         est=est,
         info=info,
         skip=skip,

@@ -18,7 +18,9 @@ from servotune.errors import IdentificationError, LogFormatError, SpecError
 from servotune.identify.fitting import MIN_SAMPLES, fit
 from servotune.identify.result import FitResult
 from servotune.io.hal import HalSettings, capture_format, read_hal_log
-from servotune.logs import Log, read_log, read_metadata
+from servotune.io.log import Log
+from servotune.io.log_header import read_metadata
+from servotune.logs import read_log
 from servotune.resonance import MAX_MODES
 from servotune.rig import Rig
 

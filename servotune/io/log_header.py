@@ -5,9 +5,10 @@ A log is read as one UTF-8 text (NUL bytes refused, line ends normalised, the me
 checked), split into its ``# key: value`` metadata lines, its header row and the body; the
 header's names are checked and, for a log, classified per axis; the settings the metadata may
 carry (``counter_bits``, ``dac_bits``, ``dac_range_v``, ``period_s``, ``compute_s``) are parsed
-here, from the metadata or from an option. The internals of :func:`servotune.logs.read_log`,
-:func:`servotune.logs.read_table` and :func:`servotune.logs.read_metadata`; every error is a
-one-line :class:`LogFormatError`.
+here, from the metadata or from an option. The metadata keys a log may declare are
+:data:`METADATA_KEYS` (another draws a :class:`LogMetadataWarning`), and :func:`read_metadata`
+reads a log's metadata alone. The internals of :func:`servotune.logs.read_log` and
+:func:`servotune.io.log_table.read_table`; every error is a one-line :class:`LogFormatError`.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import contextlib
 import difflib
 import math
 import os
+import warnings
 from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
@@ -28,10 +30,14 @@ from servotune.io.log_rows import INT_RE, to_float
 __all__ = [
     "MAX_METADATA_CHARS",
     "MAX_NAME_CHARS",
+    "METADATA_KEYS",
     "PERIOD_RANGE_S",
     "TEXT_CHUNK_BYTES",
+    "LogMetadataWarning",
     "file_size",
+    "read_metadata",
     "read_text_chunks",
+    "warn_unknown_metadata",
 ]
 
 _AXIS_COLUMNS = ("dac_code", "cmd_v", "counter", "pos_counts", "ref_counts", "exc_code", "mode")
@@ -59,6 +65,78 @@ def meta_pair(line: str) -> tuple[str, str] | None:
         return None
     key, value = (x.strip() for x in line[1:].split(":", 1))
     return key, value
+
+
+METADATA_KEYS = frozenset(
+    {
+        # read (settings)
+        "counter_bits", "dac_bits", "dac_range_v", "period_s", "compute_s",
+        # written by servotune (simulate, excite) and declared provenance
+        "rig", "scenario", "axis", "closed_loop", "seed", "servotune_version", "kind",
+        "amplitude_codes", "limited_by", "predicted_max_speed_rpm", "predicted_travel_counts",
+        "machine_id", "date", "description", "operator", "units",
+    }
+)  # fmt: skip
+"""Metadata keys a log may declare; others draw a :class:`LogMetadataWarning` (not an error)."""
+
+
+class LogMetadataWarning(UserWarning):
+    """A log declares a metadata key servotune does not know (a typo, or someone's note)."""
+
+
+def read_metadata(path: str | Path) -> dict[str, str]:
+    """The ``# key: value`` lines at the head of a log, without reading the rest.
+
+    Reading stops at the header row, or at a line too long to be metadata
+    (:func:`servotune.logs.read_log` refuses such a file with the line named).
+
+    Raises
+    ------
+    LogFormatError
+        If the file cannot be read as text.
+    """
+    src = str(path)
+    meta: dict[str, str] = {}
+    with read_errors(src):
+        try:
+            with open(path, encoding="utf-8-sig", newline=None) as fh:
+                limit = MAX_METADATA_CHARS + MAX_NAME_CHARS + 16
+                while raw := fh.readline(limit):
+                    if len(raw) >= limit and not raw.endswith("\n"):
+                        break  # an overlong line: read_log names it
+                    line = raw.strip()
+                    if line and not line.startswith("#"):
+                        break
+                    kv = meta_pair(line)
+                    if kv is not None:
+                        meta.setdefault(*kv)
+        except UnicodeDecodeError:
+            raise LogFormatError(f"log {src!r} is not UTF-8 text") from None
+    return meta
+
+
+def warn_unknown_metadata(
+    meta: Mapping[str, str], meta_line: Mapping[str, int], src: str, strict: bool = False
+) -> None:
+    """Warn (``strict``: refuse, :class:`LogFormatError`) naming each unknown metadata key
+    with its line and the closest known key."""
+    unknown = [k for k in meta if k not in METADATA_KEYS]
+    if unknown:
+
+        def near(k: str) -> str:
+            close = difflib.get_close_matches(k, sorted(METADATA_KEYS), n=1)
+            return f", did you mean {close[0]!r}?" if close else ""
+
+        listed = ", ".join(f"{k!r} (line {meta_line[k]}{near(k)})" for k in unknown[:5])
+        more = f" and {len(unknown) - 5} more" if len(unknown) > 5 else ""
+        if strict:
+            raise LogFormatError(f"log {src!r}: unknown metadata {listed}{more} (--strict)")
+        warnings.warn(
+            f"log {src!r}: unknown metadata {listed}{more}, kept but not used (a typo? see "
+            f"servotune.logs.METADATA_KEYS)",
+            LogMetadataWarning,
+            stacklevel=3,
+        )
 
 
 @contextlib.contextmanager

@@ -4,15 +4,15 @@ explained.
 A log whose rows are all in the plain form servotune writes (ASCII, no blank lines, no spaces,
 integers, decimal numbers, mode names) is parsed straight from the file's bytes by one compiled
 pass (:func:`fast_columns`, about 0.05 s per million rows); any other body, and every body
-of :func:`servotune.logs.read_table`, is parsed with ``numpy.loadtxt`` (one typed field per
+of :func:`servotune.io.log_table.read_table`, is parsed with ``numpy.loadtxt`` (one typed field per
 column, about 0.7 s per million rows), and only when that fails are the rows scanned to find the
 first bad row, which is then explained field by field with its 1-based file line and column.
 Both give the same values (integers exact, numbers correctly rounded). The counts columns
 (``pos_counts``, ``ref_counts``) may also be written as numbers (``0.0``) if every value is
 whole within :data:`WHOLE_TOL` (:func:`whole_counts`). Also here: the time base (``tick`` and
 ``time_s`` checked, the period chosen), counter and D/A range checks and the ``mode`` column.
-The internals of :func:`servotune.logs.read_log` and :func:`servotune.logs.read_table`; every
-error is a one-line :class:`LogFormatError`.
+The internals of :func:`servotune.logs.read_log` and :func:`servotune.io.log_table.read_table`;
+every error is a one-line :class:`LogFormatError`.
 """
 
 from __future__ import annotations
@@ -29,7 +29,10 @@ import numpy as np
 
 from servotune.errors import LogFormatError
 from servotune.io.files import MAX_NUMBER_CHARS
-from servotune.laws.axis import MODE_NAMES
+
+MODE_NAMES = ("lock", "task", "open")
+"""The ``mode`` column's values, indexed by the runtime's mode codes (``MODE_LOCK`` 0,
+``MODE_TASK`` 1, ``MODE_OPEN`` 2 of :mod:`servotune.laws.axis`)."""
 
 # docs/formats.md#sampling: intervals within 0.1 % of the median; tick·period ≈ time_s
 REL_TOL = 1e-3

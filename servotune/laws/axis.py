@@ -54,8 +54,7 @@ __all__ = [
 # modes
 MODE_LOCK = 0
 MODE_TASK = 1
-MODE_OPEN = 2
-MODE_NAMES = ("lock", "task", "open")
+MODE_OPEN = 2  # a log's mode column names them: servotune.io.log_rows.MODE_NAMES
 
 # task laws
 LAW_NONE = 0

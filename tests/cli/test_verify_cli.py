@@ -89,7 +89,7 @@ def test_bad_inputs_exit_3_one_line_nothing_written(tunings, tmp_path, capsys) -
 
 
 def test_export_table_trusts_only_a_passed_verify(tunings, tmp_path, capsys, monkeypatch) -> None:
-    from servotune.export import load_tables
+    from servotune.export.json import load_tables
 
     good = tmp_path / "good.json"
     good.write_bytes(tunings["good"].read_bytes())

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from servotune.export import write_c
+from servotune.export.c import to_file as write_c
 
 CC = shutil.which("cc")
 needs_cc = pytest.mark.skipif(

@@ -37,12 +37,9 @@ from c_build import (
 )
 
 from servotune.errors import ExportError
-from servotune.export import (
-    RUNTIME_FILES,
-    runtime_source,
-    tables_document,
-    tables_to_string,
-)
+from servotune.export.c import RUNTIME_FILES, runtime_source
+from servotune.export.json import tables_document
+from servotune.export.json import to_string as tables_to_string
 from servotune.export.layout import c_layout_bytes, c_layout_sha256, pairs_bytes, table_bytes
 from servotune.fixed import Fixed
 from servotune.laws.axis import AxisController

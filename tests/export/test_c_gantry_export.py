@@ -25,7 +25,8 @@ from test_c_gantry import PULSE_V, _moves, _seen_skew, _trip_events
 from servotune.arch.gantry.run import run_gantry
 from servotune.arch.gantry.tuning import tune_gantry, write_gantry_tuning
 from servotune.arch.gantry.verify import load_gantry_for_export, verify_gantry_files
-from servotune.export.gantry import GANTRY_HEADER_NAME, gantry_document, write_gantry_c
+from servotune.export import c as c_export
+from servotune.export.gantry import GANTRY_HEADER_NAME
 from servotune.laws.axis import FLAG_SYNC_TRIP
 
 pytestmark = needs_cc
@@ -75,7 +76,7 @@ def exported(tmp_path_factory):
     )
     assert result.passed, result.failures
     v = load_gantry_for_export(d / "g.json")
-    write_gantry_c(gantry_document(v.tuning, v.config.rig, record=v.record), d)
+    c_export.to_file(v.tuning, d, rig=v.config.rig, verification=v.record)
     (d / "harness.c").write_text(HARNESS)
     return d, v.config
 

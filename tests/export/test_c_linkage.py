@@ -40,8 +40,9 @@ from servotune.arch.linkage import (
     run_linkage,
 )
 from servotune.errors import ExportError
+from servotune.export import c as c_export
 from servotune.export.c import LINK_RUNTIME_FILES, RUNTIME_FILES, runtime_source
-from servotune.export.linkage import LINK_HEADER_NAME, linkage_c_header, write_linkage_c
+from servotune.export.linkage import LINK_HEADER_NAME, linkage_c_header
 
 pytestmark = needs_cc
 
@@ -537,8 +538,8 @@ def test_exported_header_compiles_and_holds_the_plan(tmp_path: Path) -> None:
     and every constant a slave needs is the plan's."""
     plan = plan_linkage(EXAMPLE)
     with pytest.raises(ExportError, match="no verification record"):
-        write_linkage_c(plan, tmp_path)
-    written = write_linkage_c(plan, tmp_path, unverified=True)
+        c_export.to_file(plan, tmp_path)
+    written = c_export.to_file(plan, tmp_path, unverified=True)
     assert [p.name for p in written] == [LINK_HEADER_NAME, *LINK_RUNTIME_FILES, *RUNTIME_FILES]
     header = linkage_c_header(plan, None, unverified=True)
     assert (tmp_path / LINK_HEADER_NAME).read_text() == header

@@ -38,8 +38,8 @@ import pytest
 from c_build import STRICT, cc, export_harness, needs_cc, run_replay, shared_harness, ubsan_harness
 
 from servotune._numba_cache import jit
-from servotune.export import constants_crc32, tables_document
 from servotune.export.c import PLANT_RUNTIME_FILES, runtime_source
+from servotune.export.json import constants_crc32, tables_document
 from servotune.fixed import Fixed, align, clamp_e, sat_add, shift_round
 from servotune.hw.counter import unwrap_step
 from servotune.laws.axis import (

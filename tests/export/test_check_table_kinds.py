@@ -19,10 +19,8 @@ from servotune.arch.gantry.load import load_gantry
 from servotune.arch.gantry.tuning import tune_gantry
 from servotune.arch.linkage import plan_linkage
 from servotune.cli import main
-from servotune.export import tables_to_string
-from servotune.export.gantry import gantry_document, gantry_tables_to_string
-from servotune.export.hal_component import component_source
-from servotune.export.linkage import linkage_plan_json
+from servotune.export import hal_component
+from servotune.export.json import to_string as json_text
 from servotune.export.linuxcnc import pid_hal_text
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -30,23 +28,19 @@ ROOT = Path(__file__).resolve().parents[2]
 
 def _gantry() -> str:
     path = ROOT / "plants" / "gantry.toml"
-    return gantry_tables_to_string(
-        gantry_document(tune_gantry(path), load_gantry(path).rig, unverified=True)
-    )
+    return json_text(tune_gantry(path), rig=load_gantry(path).rig, unverified=True)
 
 
 def _linkage() -> str:
-    return linkage_plan_json(
-        plan_linkage(ROOT / "plants" / "linkage-6axis.toml"), None, unverified=True
-    )
+    return json_text(plan_linkage(ROOT / "plants" / "linkage-6axis.toml"), unverified=True)
 
 
 KINDS: dict[str, tuple[str, Callable[..., str]]] = {
-    "tables": ("json", lambda t, r: tables_to_string(t, rig=r, unverified=True)),
+    "tables": ("json", lambda t, r: json_text(t, rig=r, unverified=True)),
     "gantry": ("json", lambda t, r: _gantry()),
     "linkage": ("json", lambda t, r: _linkage()),
     "hal": ("hal", lambda t, r: pid_hal_text(t, rig=r, unverified=True, position_scale=2000.0)),
-    "comp": ("comp", lambda t, r: component_source(t, rig=r, unverified=True)),
+    "comp": ("comp", lambda t, r: hal_component.to_string(t, rig=r, unverified=True)),
 }
 
 

@@ -21,7 +21,8 @@ import numpy as np
 import pytest
 
 from servotune.cli import main
-from servotune.export.hal_component import component_source, plant_component
+from servotune.export import hal_component
+from servotune.export.hal_component import plant_component
 from servotune.plant import R_MODES, R_OFFSET, Plant, advance_tick_modal, plant_row
 from servotune.resonance import MAX_MODES, Mode, modes_output, modes_speed
 from servotune.rig import EXAMPLE_RIG_PATH, load_rig
@@ -120,7 +121,7 @@ def test_the_plant_component_holds_the_simulators_row_exactly() -> None:
 
 
 def test_component_source_without_a_rig_uses_the_default_dac(quick_tuning) -> None:
-    src = component_source(quick_tuning, unverified=True, name="st")
+    src = hal_component.to_string(quick_tuning, unverified=True, name="st")
     # the example rig's D/A (12 bits over ±10 V): 20 V / 4096 codes per LSB
     assert f"#define ST_DAC_LO_V {(-10.0).hex()}" in src
     assert f"#define ST_DAC_LSB_V {(20.0 / 4096).hex()}" in src

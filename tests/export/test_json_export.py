@@ -21,19 +21,18 @@ import numpy as np
 import pytest
 
 from servotune.errors import DigestError, ExportError
-from servotune.export import (
-    RUNTIME_FILES,
+from servotune.export.c import RUNTIME_FILES, runtime_source
+from servotune.export.c import to_file as write_c
+from servotune.export.c import to_string as c_header_to_string
+from servotune.export.json import (
     SCHEMA,
-    c_header_to_string,
     constants_crc32,
     controllers_from_tables,
     load_tables,
-    runtime_source,
     table_crc32,
-    tables_to_string,
-    write_c,
-    write_tables,
 )
+from servotune.export.json import to_file as write_tables
+from servotune.export.json import to_string as tables_to_string
 from servotune.hw import timer
 from servotune.laws.axis import AxisController
 from servotune.laws.fuzzy_pid import FuzzyPIDGains

@@ -43,8 +43,8 @@ from servotune.fleet import (
     summarise_fleet,
     write_fleet_table,
 )
+from servotune.fleet.table import COLUMNS, parse_fleet_table
 from servotune.identify.model import ALL_PARAMS
-from servotune.io.fleet_table import COLUMNS, parse_fleet_table
 from servotune.logs import write_log
 from servotune.pipeline import log_metadata, run_scenario, trace_log_columns
 from servotune.plant import Plant

@@ -24,7 +24,8 @@ import pytest
 from halrun import hal_available, halcompile, installed_component, run_hal
 
 from servotune.cli import main
-from servotune.export.hal_component import component_source, plant_component
+from servotune.export import hal_component
+from servotune.export.hal_component import plant_component
 from servotune.laws.axis import MODE_LOCK, MODE_TASK
 from servotune.rig import EXAMPLE_RIG_PATH, Rig, load_rig
 from servotune.scenarios import Inputs, trapezoid_ref
@@ -129,7 +130,9 @@ def hal_run(quick_tuning: Tuning, tmp_path_factory) -> tuple[Rig, Tuning, Trace,
     trace = simulate(Loop(rig=rig, controllers=tuning.controllers), inputs)
     ctl = "st_test_rt"
     names = ("st_test_plant_m", "st_test_plant_s")
-    (work / f"{ctl}.comp").write_text(component_source(tuning, rig=rig, unverified=True, name=ctl))
+    (work / f"{ctl}.comp").write_text(
+        hal_component.to_string(tuning, rig=rig, unverified=True, name=ctl)
+    )
     for name, ax in zip(names, rig.axes, strict=True):
         src = plant_component(
             ax.plant,
@@ -172,7 +175,7 @@ def test_a_component_with_edited_tables_refuses_to_load(quick_tuning: Tuning, tm
     hal_available()
     rig = noiseless_rig()
     name = "st_test_bad"
-    src = component_source(quick_tuning, rig=rig, unverified=True, name=name)
+    src = hal_component.to_string(quick_tuning, rig=rig, unverified=True, name=name)
     # one constant changed by hand (the master's Kp), the exported digest left as it was
     marker = "#define ST_MASTER_KP_Q INT32_C("
     start = src.index(marker) + len(marker)

@@ -28,8 +28,8 @@ from halrun import hal_available, halcompile, installed_component, run_hal, shar
 import servotune as st
 from servotune.cli import main
 from servotune.errors import ExportError
-from servotune.export import tables_to_string
 from servotune.export.hal_component import plant_component
+from servotune.export.json import to_string as tables_to_string
 from servotune.export.linuxcnc import pid_hal_text, pid_parameters
 from servotune.hw.dac import code_from_volts
 from servotune.laws.axis import MODE_TASK

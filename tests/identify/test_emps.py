@@ -18,7 +18,7 @@ What is shown:
 - the estimates, in the benchmark's physical units, are near the benchmark's own (IDIM-LS).
 
 The fit uses the benchmark's model structure (gain, tau, offset, Coulomb, the same both ways:
-``servotune.io.emps.MODEL_STRUCTURE``), so both logs estimate the same parameters; each test
+``servotune.identify.emps.MODEL_STRUCTURE``), so both logs estimate the same parameters; each test
 runs for output error (``method="oe"``) and for the default method.
 """
 
@@ -41,9 +41,7 @@ from scipy.integrate import solve_ivp
 import servotune as st
 from servotune.errors import IdentificationError, LogFormatError
 from servotune.identify import FitResult, fit_arrays
-from servotune.identify.fitting import AGREEMENT_PARAMS
-from servotune.identify.quality import fit_pct
-from servotune.io.emps import (
+from servotune.identify.emps import (
     ENCODER_QUANTUM_M,
     LOG_DAC_BITS,
     LOG_DAC_RANGE_V,
@@ -55,6 +53,8 @@ from servotune.io.emps import (
     EmpsPhysics,
     read_emps,
 )
+from servotune.identify.fitting import AGREEMENT_PARAMS
+from servotune.identify.quality import fit_pct
 from servotune.plant import Plant, advance, step_coefficients
 
 REAL = Path(

@@ -17,7 +17,7 @@ import pytest
 from test_emps import FILES, _data_dir
 
 from servotune.cli import main
-from servotune.io.emps import read_emps
+from servotune.identify.emps import read_emps
 from servotune.logs import write_log
 
 WHY = {

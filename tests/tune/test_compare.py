@@ -19,8 +19,8 @@ from full_disk import no_space_at
 
 import servotune as st
 from servotune.cli import main
+from servotune.compare import METRICS, compare_structures, pareto_front, pareto_mask
 from servotune.report.text import figure4_statement
-from servotune.tune.compare import METRICS, compare_structures, pareto_front, pareto_mask
 from servotune.tune.slave import tune_spec_from
 from servotune.verify.spec import load_spec
 

@@ -40,7 +40,9 @@ from servotune.arch.linkage import (
 )
 from servotune.digest import bytes_sha256, document_sha256
 from servotune.errors import ConfigError, SpecError, TrustError
-from servotune.export.linkage import linkage_c_header, linkage_plan_json, write_linkage_c
+from servotune.export import c as c_export
+from servotune.export import json as json_export
+from servotune.export.linkage import linkage_c_header
 from servotune.fixed import quantize
 from servotune.verify.record import read_record
 
@@ -305,15 +307,16 @@ def test_plan_verify_export_as_a_user_runs_it(verified: Path, tmp_path: Path) ->
     assert rec == record
     out = tmp_path / "c"
     out.mkdir()
-    write_linkage_c(plan, out, rec)
+    c_export.to_file(plan, out, verification=rec)
     header = (out / "servotune_link_plan.h").read_text()
     assert "#define STL_PLAN_VERIFIED 1" in header and " * verified: yes" in header
     assert f'#define STL_PLAN_SHA256 "{record["files"]["plan"]["sha256"]}"' in header
-    doc = json.loads(linkage_plan_json(plan, rec))
+    doc = json.loads(json_export.to_string(plan, verification=rec))
     assert doc["schema"] == "servotune.linkage-export/1" and doc["verified"] is True
     assert doc["sha256"] == document_sha256(doc) and doc["data"] == plan.to_dict()
     assert doc["provenance"]["plan_sha256"] == bytes_sha256(plan_path.read_bytes())
-    assert linkage_plan_json(plan, rec) == linkage_plan_json(plan, rec)  # deterministic
+    text = json_export.to_string(plan, verification=rec)
+    assert text == json_export.to_string(plan, verification=rec)  # deterministic
     # an edited export no longer matches its digest
     doc["data"]["cpus"][0]["queue_depth"] = 30
     assert doc["sha256"] != document_sha256(doc)

@@ -18,6 +18,9 @@ read from those numbers by :func:`servotune.report.text.figure4_statement`.
 :func:`pareto_front`: each structure tuned under a sweep of peak-sensitivity ceilings; tracking
 (ITAE and max sync error on the tuning run) against robustness (the worst Ms over the plant set),
 and which points no other point of the same structure beats on both (:func:`pareto_mask`).
+
+A study of tunings and their verification, it sits above both :mod:`servotune.tune` and
+:mod:`servotune.verify`.
 """
 
 from __future__ import annotations

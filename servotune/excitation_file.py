@@ -4,8 +4,9 @@
 An excitation file is a log-format CSV with the columns ``tick,time_s,<axis>.dac_code``
 (absolute D/A codes) and metadata saying how it was designed. :func:`write_excitation` writes
 one with :func:`servotune.logs.format_log`; :func:`read_excitation` reads one with the log
-reader (:func:`servotune.logs.read_table`) and checks it against the rig it is to be played on.
-The excitation itself is designed in :mod:`servotune.excite`.
+reader (:func:`servotune.logs.read_table`) and checks it against the rig it is to be played on
+(which is why it sits beside the rig, above :mod:`servotune.io`). The excitation itself is
+designed in :mod:`servotune.excite`, which re-exports both.
 """
 
 from __future__ import annotations
@@ -19,8 +20,9 @@ import numpy as np
 from servotune._version import __version__
 from servotune.errors import LogFormatError, SpecError
 from servotune.io.files import MAX_NUMBER_CHARS, atomic_write_text
+from servotune.io.log import format_log
 from servotune.io.log_rows import INT_RE, to_float
-from servotune.logs import Table, format_log, read_table
+from servotune.io.log_table import Table, read_table
 from servotune.rig import Rig
 from servotune.validate import show_value
 

@@ -74,7 +74,7 @@ import scipy.io
 from servotune.errors import LogFormatError
 from servotune.hw import dac as hw_dac
 from servotune.io.files import read_bytes
-from servotune.logs import AxisLog, Log
+from servotune.io.log import AxisLog, Log
 from servotune.plant import Plant
 from servotune.validate import check_number, show_value
 

@@ -1,0 +1,141 @@
+"""The pieces of a generated C header, shared by every C export (:mod:`servotune.export.c`
+renders the rig's, gantry's and linkage's headers with them): C identifiers from names, int32
+literals, text safe in a comment, one axis's constants and query tables as macros with its
+``st_axis_consts_t`` initialiser, and a SHA-256 as a byte array.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping
+from typing import Any
+
+from servotune.errors import ExportError
+from servotune.laws.fuzzy_pid import TABLE_NAMES
+
+__all__ = ["axis_lines", "c_identifiers", "comment_text", "digest_bytes_lines", "int32_literal"]
+
+_LAW_MACROS = {"none": "ST_LAW_NONE", "pi": "ST_LAW_PI", "fuzzy_pid": "ST_LAW_FUZZY_PID"}
+_TABLE_TITLES = {
+    "kp": "dKp [LSB/count]",
+    "ki": "d(Ki*T) [LSB/count/tick]",
+    "kd": "d(Kd/T) [LSB per count change per tick]",
+    "k1": "d(K1/T) [LSB per count change per tick]",
+}
+
+
+def c_identifiers(
+    names: tuple[str, ...], what: str = "axis", prefix: str = "axis_", upper: bool = False
+) -> list[str]:
+    """C identifiers of ``names`` (non-alphanumerics as ``_``, lower or upper case, ``prefix``
+    before a leading digit); two that clash are refused, naming the ``what`` names."""
+    out = []
+    for name in names:
+        ident = re.sub(r"[^0-9A-Za-z_]", "_", name)
+        ident = ident.upper() if upper else ident.lower()
+        if not ident or ident[0].isdigit():
+            ident = prefix + ident
+        out.append(ident)
+    if len(set(out)) != len(out):
+        raise ExportError(
+            f"{what} names {list(names)} give clashing C identifiers {out}; rename them"
+        )
+    return out
+
+
+def comment_text(s: str) -> str:
+    """Text safe inside a C block comment, on one line."""
+    return s.replace("*/", "*\\/").replace("\n", " ")
+
+
+def int32_literal(v: int) -> str:
+    """A quantised gain as a C ``int32_t`` constant: ``INT32_C(v)``."""
+    return f"INT32_C({v})"
+
+
+def _table_lines(ident: str, name: str, tab: Mapping[str, Any]) -> list[str]:
+    n = tab["n"]
+    up = f"ST_{ident.upper()}_TAB_{name.upper()}"
+    side = f"(2 * ST_{ident.upper()}_N + 1)"
+    lines = [
+        f"/* query table {_TABLE_TITLES[name]}: value q * 2^-f, row E = -{n}..{n}, "
+        f"column EC = -{n}..{n} */",
+        f"#define {up}_F {tab['f']}",
+        f"#define {up}_CRC32 UINT32_C(0x{tab['crc32']:08x})",
+        # sized by the axis's N: the runtime reads (2n+1)^2 entries, so an edited N changes
+        # the digest but cannot make st_check_digest (or st_tick) read past the table
+        f"static const int16_t st_{ident}_tab_{name}[{side} * {side}] = {{",
+    ]
+    for r, row in enumerate(tab["q"]):
+        lines.append(f"    /* E = {r - n:3d} */ " + ", ".join(str(v) for v in row) + ",")
+    lines.append("};")
+    return lines
+
+
+def axis_lines(ax: Mapping[str, Any], ident: str) -> tuple[list[str], list[str]]:
+    """The axis's macros and tables, and its designated initialiser lines."""
+    up = f"ST_{ident.upper()}"
+    law = ax["law"]
+    src = "external reference" if ax["ref_source"] < 0 else f"follows axis {ax['ref_source']}"
+    lines = [
+        "",
+        f"/* axis {ax['index']}: {comment_text(ax['name'])} (role {ax['role']}, law {law}, "
+        f"{src}) */",
+        f"#define ST_AXIS_{ident.upper()} {ax['index']}",
+        f"#define {up}_LOCK_Q {int32_literal(ax['lock_gain']['q'])} /* lock gain [LSB/count] */",
+        f"#define {up}_LOCK_F {ax['lock_gain']['f']}",
+        f"#define {up}_FE_LIMIT {ax['following_error_limit_counts']} /* [counts], 0 = off */",
+    ]
+    init = [
+        f".law = {_LAW_MACROS[law]}",
+        f".lock_q = {up}_LOCK_Q",
+        f".lock_f = {up}_LOCK_F",
+        f".fe_limit = {up}_FE_LIMIT",
+        ".counter_bits = ST_COUNTER_BITS",
+        ".dac_zero = ST_DAC_ZERO",
+        ".dac_max = ST_DAC_MAX",
+        f".ref_source = {ax['ref_source']}",
+    ]
+    task = ax["task"]
+    consts: list[tuple[str, str, str]] = []
+    if law == "pi":
+        consts = [("kp", "KP", "Kp [LSB/count]"), ("ki_t", "KIT", "Ki*T [LSB/count/tick]")]
+    elif law == "fuzzy_pid":
+        consts = [
+            ("kp", "KP", "Kp0 [LSB/count]"),
+            ("ki_t", "KIT", "Ki0*T [LSB/count/tick]"),
+            ("kd_t", "KDT", "Kd0/T [LSB per count change per tick]"),
+            ("k1_t", "K1T", "K10/T, feedforward [LSB per count change per tick]"),
+            ("ke", "KE", "Ke [levels/count]"),
+            ("kec", "KEC", "Kec [levels per count/tick]"),
+        ]
+    for key, mac, title in consts:
+        lines.append(f"#define {up}_{mac}_Q {int32_literal(task[key]['q'])} /* {title} */")
+        lines.append(f"#define {up}_{mac}_F {task[key]['f']}")
+        init.append(f".{mac.lower()}_q = {up}_{mac}_Q")
+        init.append(f".{mac.lower()}_f = {up}_{mac}_F")
+    if law == "fuzzy_pid":
+        lines.append(f"#define {up}_N {task['n']} /* levels -n..n */")
+        init.append(f".n = {up}_N")
+        for name in TABLE_NAMES:
+            lines.append("")
+            lines.extend(_table_lines(ident, name, task["tables"][name]))
+        tf = ", ".join(f"{up}_TAB_{t.upper()}_F" for t in TABLE_NAMES)
+        tab = ", ".join(f"st_{ident}_tab_{t}" for t in TABLE_NAMES)
+        init.append(f".tf = {{{tf}}}")
+        init.append(f".tab = {{{tab}}}")
+    return lines, init
+
+
+def digest_bytes_lines(array: str, digest: str) -> list[str]:
+    """A SHA-256 (hex) as the macro ``<ARRAY>_BYTES`` (a 32-byte initialiser) and the
+    ``static const uint8_t`` array ``array``."""
+    octets = [f"0x{digest[i : i + 2]}" for i in range(0, 64, 2)]
+    rows = [", ".join(octets[i : i + 8]) for i in range(0, 32, 8)]
+    return [
+        f"#define {array.upper()}_BYTES \\",
+        "    { \\",
+        *(f"        {row}, \\" for row in rows),
+        "    }",
+        f"static const uint8_t {array}[32] = {array.upper()}_BYTES;",
+    ]
