@@ -49,7 +49,13 @@ from typing import Any
 import numpy as np
 
 from servotune._version import __version__
-from servotune.autotune import PULSE_S, AutotuneConfig, check_session, plan_autotune
+from servotune.autotune import (
+    PULSE_S,
+    AutotuneConfig,
+    AutotunePlan,
+    check_session,
+    plan_autotune,
+)
 from servotune.digest import bytes_sha256
 from servotune.errors import AutotuneStopped, ConfigError
 from servotune.io.files import atomic_write_bytes, atomic_write_text
@@ -86,9 +92,10 @@ excitation [V], the sampler's overruns, the guard's fault."""
 _SIG = "servotune-at-"
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(slots=True)
 class AutotuneResult:
-    """What a finished run loaded and measured (the record's content, ``autotune.json``)."""
+    """What a run loaded and measured, filled step by step (the record, ``autotune.json``);
+    ``stopped``: why it stopped (empty: it loaded and validated ``loaded``)."""
 
     out_dir: Path
     loaded: dict[str, float | bool]
@@ -98,12 +105,19 @@ class AutotuneResult:
     files: dict[str, str]
     seconds: dict[str, float] = field(default_factory=dict)
     fit: dict[str, Any] = field(default_factory=dict)
+    stopped: str = ""
+    period_s: float = 0.0
+    position_scale: float = 1.0
 
     def to_dict(self) -> dict[str, Any]:
         """The record (``autotune.json``) as a dict."""
         return {
             "schema": "servotune.autotune/1",
             "servotune": __version__,
+            "status": "stopped" if self.stopped else "loaded",
+            "period_s": self.period_s,
+            "position_scale": self.position_scale,
+            "stopped": self.stopped,
             "files_sha256": self.files,
             "previous": self.previous,
             "loaded": self.loaded,
@@ -395,6 +409,14 @@ def _validate(
     pred = _prediction(cfg, plant, params, rec[start:, 3] - t.base)
     measured = _move_metrics(meas_cmd, meas_pos)
     predicted = _move_metrics(pred.command_units * s, pred.feedback_units * s)
+    rows = np.column_stack(
+        [np.arange(meas_cmd.size) * h.period_s, meas_cmd, meas_pos, pred.feedback_units * s]
+    )
+    atomic_write_text(
+        t.out / "validation.csv",
+        "time_s,command_counts,measured_counts,predicted_counts\n"
+        + "".join(",".join(f"{v:.6f}" for v in r) + "\n" for r in rows),
+    )
     out: dict[str, Any] = {"measured": measured, "predicted": predicted, "tolerance": TOLERANCE}
     bad = [
         f"{key.replace('_', ' ')} {measured[key]:.1f} counts against {predicted[key]:.1f} "
@@ -479,7 +501,8 @@ def run_autotune(
 ) -> AutotuneResult:
     """The live run (module docstring), its files written into ``out_dir``; ``guard`` the
     guard's HAL name, ``hal_user`` the session's owner where servotune runs as root
-    (:class:`~servotune.io.halcmd.Halcmd`).
+    (:class:`~servotune.io.halcmd.Halcmd`). The record ``autotune.json`` and the report
+    ``autotune.html`` are written whether the run loads its parameters or stops.
 
     Raises
     ------
@@ -501,85 +524,106 @@ def run_autotune(
     check_session(cfg, session)
     _check_guard(cfg, session, guard)
     plan = plan_autotune(cfg)
-    n_exp = plan.excitation_codes.size
-    depth = n_exp + 4 * round(SETTLE_S / cfg.hal.period_s) + 4096
+    depth = plan.excitation_codes.size + 4 * round(SETTLE_S / cfg.hal.period_s) + 4096
     out.mkdir(parents=True, exist_ok=True)
     t = _Takeover(hal, cfg, guard, depth, out)
-    clock: dict[str, float] = {}
-    done = False
-    try:
-        t0 = time.monotonic()
-        say("autotune: take over the command and load streamer and sampler")
-        t.install()
-        hal.setp(f"{guard}.reset", True)
-        time.sleep(4 * cfg.hal.period_s)
-        hal.setp(f"{guard}.reset", False)
-        say(f"autotune: wiring check ({plan.pulse_volts:.3g} V pulses, open loop)")
-        wiring = _wiring_check(t, cfg, plan.pulse_volts)
-        rig = cfg.rig
-        lsb = rig.dac.lsb_v
-        start = PidParameters(
-            Pgain=plan.lock_gain * lsb * cfg.hal.position_scale,
-            maxoutput=cfg.envelope.max_volts,
-            error_previous_target=False,
-        )
-        exc_v = (plan.excitation_codes - rig.dac.zero_code) * lsb
-        hold = np.zeros(round(SETTLE_S / cfg.hal.period_s))
-        exc_v = np.concatenate([hold, exc_v, hold])
-        say(f"autotune: experiment ({exc_v.size * cfg.hal.period_s:.1f} s, closed loop)")
-        t.play("experiment", np.full(exc_v.size, t.base), exc_v, start)
-        capture = t.last_capture
-        clock["machine_s"] = time.monotonic() - t0
-        result, plant, params = _identify(cfg, out, capture, say)
-        say("autotune: validation move")
-        validation = _validate(t, cfg, plant, params)
-        if not validation["passed"]:
-            raise AutotuneStopped(
-                "validation move: "
-                + "; ".join(validation["problems"])
-                + "; the previous parameters are restored"
-            )
-        done = True
-    except BaseException as exc:
-        try:
-            if not isinstance(exc, AutotuneStopped):  # a signal, HAL's error: output 0 first
-                _trip(hal, guard, cfg.hal.period_s)
-        finally:
-            t.restore_pid()
-        raise
-    finally:
-        failed = t.undo()
-        if failed and done:
-            raise AutotuneStopped("could not restore the session: " + "; ".join(failed))
-    clock["total_s"] = time.monotonic() - t0
-    loaded = params.to_dict()
-    files = {
-        name: bytes_sha256((out / name).read_bytes())
-        for name in (
-            "capture.txt",
-            "capture.map.toml",
-            "fitted-rig.toml",
-            "tuning.json",
-            "tuning.json.verify.json",
-            "pid.hal",
-        )
-        if (out / name).exists()
-    }
     res = AutotuneResult(
         out_dir=out,
-        loaded=loaded,
-        previous=dict(t.previous),
-        wiring=wiring,
-        validation=validation,
-        files=files,
-        seconds=clock,
-        fit={
-            "params": {k: float(v) for k, v in result.params.items()},
-            "velocity_fit_pct": float(result.fit_pct["velocity"]["estimation"]),
-        },
+        loaded={},
+        previous={},
+        wiring={},
+        validation={},
+        files={},
+        period_s=cfg.hal.period_s,
+        position_scale=cfg.hal.position_scale,
     )
-    _write_record(res)
+    t0 = time.monotonic()
+    try:
+        try:
+            _steps(t, cfg, plan, res, say)
+        except BaseException as exc:
+            res.stopped = str(exc) or type(exc).__name__
+            try:
+                if not isinstance(exc, AutotuneStopped):  # a signal, HAL's error: output 0 first
+                    _trip(hal, guard, cfg.hal.period_s)
+            finally:
+                t.restore_pid()
+            raise
+        finally:
+            failed = t.undo()
+            res.previous.update(t.previous)
+            if failed and not res.stopped:
+                res.stopped = "could not restore the session: " + "; ".join(failed)
+                raise AutotuneStopped(res.stopped)
+    finally:
+        res.seconds["total_s"] = time.monotonic() - t0
+        _write_record(res)
     return res
+
+
+def _steps(
+    t: _Takeover,
+    cfg: AutotuneConfig,
+    plan: AutotunePlan,
+    res: AutotuneResult,
+    say: Callable[[str], None],
+) -> None:
+    """Steps 1–5 (module docstring), their numbers into ``res`` as they come."""
+    hal, guard, h, rig = t.hal, t.guard, cfg.hal, cfg.rig
+    t0 = time.monotonic()
+    say("autotune: take over the command and load streamer and sampler")
+    t.install()
+    hal.setp(f"{guard}.reset", True)
+    time.sleep(4 * h.period_s)
+    hal.setp(f"{guard}.reset", False)
+    say(f"autotune: wiring check ({plan.pulse_volts:.3g} V pulses, open loop)")
+    res.wiring.update(_wiring_check(t, cfg, plan.pulse_volts))
+    start = PidParameters(
+        Pgain=plan.lock_gain * rig.dac.lsb_v * h.position_scale,
+        maxoutput=cfg.envelope.max_volts,
+        error_previous_target=False,
+    )
+    hold = np.zeros(round(SETTLE_S / h.period_s))
+    exc_v = np.concatenate(
+        [hold, (plan.excitation_codes - rig.dac.zero_code) * rig.dac.lsb_v, hold]
+    )
+    say(f"autotune: experiment ({exc_v.size * h.period_s:.1f} s, closed loop)")
+    t.play("experiment", np.full(exc_v.size, t.base), exc_v, start)
+    res.seconds["machine_s"] = time.monotonic() - t0
+    result, plant, params = _identify(cfg, t.out, t.last_capture, say)
+    res.fit.update(
+        params={k: float(v) for k, v in result.params.items()},
+        velocity_fit_pct=float(result.fit_pct["velocity"]["estimation"]),
+    )
+    res.files.update(_digests(t.out))
+    say("autotune: validation move")
+    res.validation.update(_validate(t, cfg, plant, params))
+    if not res.validation["passed"]:
+        raise AutotuneStopped(
+            "validation move: "
+            + "; ".join(res.validation["problems"])
+            + "; the previous parameters are restored"
+        )
+    res.loaded.update(params.to_dict())
+
+
+RECORDED_FILES = (
+    "capture.txt",
+    "capture.map.toml",
+    "fitted-rig.toml",
+    "tuning.json",
+    "tuning.json.verify.json",
+    "pid.hal",
+)
+"""The files the record binds by their SHA-256."""
+
+
+def _digests(out: Path) -> dict[str, str]:
+    return {
+        name: bytes_sha256((out / name).read_bytes())
+        for name in RECORDED_FILES
+        if (out / name).exists()
+    }
 
 
 def _trip(hal: Halcmd, guard: str, period_s: float) -> None:
@@ -613,7 +657,11 @@ def _check_guard(cfg: AutotuneConfig, session: Any, guard: str) -> None:
 
 
 def _write_record(res: AutotuneResult) -> None:
+    """``autotune.json`` and its report ``autotune.html`` (:mod:`servotune.report.autotune`)."""
     import json
+
+    from servotune.report.autotune import write_autotune_report
 
     text = json.dumps(res.to_dict(), indent=2, sort_keys=True, default=float) + "\n"
     atomic_write_bytes(res.out_dir / "autotune.json", text.encode())
+    write_autotune_report(res.out_dir)

@@ -10,7 +10,8 @@ for a frequency response) or ``steps`` (+A, −A/2, +A/2, −A, ... with reversa
 the motion the rig's nominal plant predicts for it stays within 90 % of the axis speed limit and
 of its travel (10 % margin for friction, drift and model error). The prediction is the exact
 response of the linear axis model (docs/formats.md#axis-model) to the held codes, with the analog
-drift ``offset_v`` acting from the start and Coulomb friction left out (it only slows the axis).
+drift ``offset_v`` acting from the start and Coulomb friction left out (it only slows the axis):
+:mod:`servotune.excite_design`.
 
 Files (:func:`write_excitation`, :func:`read_excitation`, both in
 :mod:`servotune.excitation_file`) are log-format CSV (docs/formats.md#excitation-file) with the
@@ -25,11 +26,11 @@ from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
-from scipy import signal
 
 from servotune.budget import check_memory, format_count
 from servotune.errors import SpecError
 from servotune.excitation_file import MIN_TICKS, read_excitation, write_excitation
+from servotune.excite_design import MARGIN, fit_amplitude
 from servotune.fixed import round_half_away
 from servotune.laws.axis import MODE_LOCK, MODE_OPEN
 from servotune.rig import Axis, Rig
@@ -54,9 +55,6 @@ __all__ = [
 
 KINDS = ("multisine", "prbs", "steps")
 """Excitation kinds :func:`design_excitation` makes."""
-
-MARGIN = 0.10
-"""Fraction of the speed limit and of the travel kept free by design [-]."""
 
 _MULTISINE_F_LO_HZ = 0.2
 _MULTISINE_F_HI_NYQ = 0.4
@@ -508,59 +506,89 @@ def _periodic_pattern(
     return (lambda a: np.roll(design(a).codes, -shift)), np.roll(x, -shift), periodic
 
 
-# --- prediction ----------------------------------------------------------------------------
-
-
-@dataclass(frozen=True, slots=True)
-class _Motion:
-    speed_cps: np.ndarray  # at every input change (and the start) [counts/s]
-    pos_counts: np.ndarray  # same instants, plus the coast-down point after the end [counts]
-
-
-def _predict(rig: Rig, ax: Axis, codes: np.ndarray, offset_v: float) -> _Motion:
-    """Exact response of the linear axis model to held codes, drift from t = 0, no friction.
-
-    The code of tick ``j`` reaches the motor at ``d + j·T`` (``d = compute_s + delay_s``) and is
-    held for ``T``; before ``d`` the motor sees 0 V. On every interval the net input is constant,
-    so the speed moves monotonically: its extremes are at the input changes, where it is
-    sampled here. Position extremes between samples (where the speed crosses zero) exceed the
-    samples by well under a count per tick at these speeds.
-    """
-    pl = ax.plant
-    period, tau, gain = rig.period_s, pl.tau_s, pl.gain_cps_per_v
-    d = rig.timer.compute_s + pl.delay_s
-    # state when the first code arrives: drift alone for d seconds
-    e_d = math.expm1(-d / tau)
-    v0 = gain * offset_v * -e_d
-    p0 = gain * offset_v * (d + tau * e_d)
-    a = math.exp(-period / tau)
-    one_minus_a = -math.expm1(-period / tau)
-    w = codes.astype(float) * rig.dac.lsb_v + offset_v  # net input per interval [V]
-    b_v = gain * one_minus_a
-    zi = signal.lfiltic([b_v], [1.0, -a], y=[v0])
-    v_next, _ = signal.lfilter([b_v], [1.0, -a], w, zi=zi)
-    v = np.concatenate(([0.0, v0], v_next))  # t = 0, d, d + T, ...
-    c1 = tau * one_minus_a
-    c2 = gain * (period - tau * one_minus_a)
-    p_next = p0 + np.cumsum(c1 * v[1:-1] + c2 * w)
-    coast = p_next[-1] + tau * v[-1]  # where the axis stops if the command returns to 0 V
-    p = np.concatenate(([0.0, p0], p_next, [coast]))
-    return _Motion(speed_cps=v, pos_counts=p)
-
-
-def _limit_amplitude(
-    unit: _Motion, drift: _Motion, bound_lo: float, bound_hi: float, pos: bool
-) -> float:
-    """Largest amplitude A with bound_lo <= A·unit + drift <= bound_hi at every sample."""
-    x1 = unit.pos_counts if pos else unit.speed_cps
-    x0 = drift.pos_counts if pos else drift.speed_cps
-    with np.errstate(divide="ignore", invalid="ignore"):
-        up = np.where(x1 > 0, (bound_hi - x0) / x1, np.inf)
-        dn = np.where(x1 < 0, (bound_lo - x0) / x1, np.inf)
-    return float(min(np.min(up), np.min(dn)))
-
-
 # --- design --------------------------------------------------------------------------------
+
+
+def _check_request(
+    kind: str,
+    seconds: float,
+    periods: int | None,
+    band_hz: tuple[float, float] | None,
+    seed: int,
+) -> None:
+    """Check :func:`design_excitation`'s options: ``periods`` and ``band_hz`` only for a
+    periodic multisine, the seed, the duration.
+
+    Raises
+    ------
+    SpecError
+        One of them is not valid.
+    """
+    if (periods is not None or band_hz is not None) and kind != "multisine":
+        raise SpecError(f"periods and band_hz are for a multisine, not for {show_value(kind)}")
+    if band_hz is not None and periods is None:
+        raise SpecError("band_hz is for a periodic multisine: give periods too")
+    if not isinstance(seed, int | np.integer) or isinstance(seed, bool) or seed < 0:
+        raise SpecError(f"seed must be an integer >= 0, got {show_value(seed)}")
+    if not (isinstance(seconds, int | float) and math.isfinite(seconds) and seconds > 0):
+        raise SpecError(f"seconds must be > 0 [s], got {show_value(seconds)}")
+
+
+def _design_ticks(rig: Rig, seconds: float) -> int:
+    """``seconds`` in whole ticks of the achieved period, checked against the memory the
+    design takes.
+
+    Raises
+    ------
+    SpecError
+        Fewer than :data:`MIN_TICKS` ticks.
+    """
+    period = rig.period_s
+    check_memory(
+        seconds / period * _DESIGN_BYTES_PER_TICK,
+        f"an excitation of {seconds:g} s",
+        f"{format_count(seconds / period)} ticks × {_DESIGN_BYTES_PER_TICK} bytes",
+    )
+    n = math.floor(seconds / period + 0.5)
+    if n < MIN_TICKS:
+        raise SpecError(
+            f"seconds={show_value(seconds)} gives only {n} ticks of {period * 1e3:.6f} ms; "
+            f"an excitation needs at least {MIN_TICKS}"
+        )
+    return n
+
+
+def _start_amplitude(rig: Rig, amplitude_codes: int | None) -> tuple[int, int, str]:
+    """The 0 V code, the amplitude the design starts from (``amplitude_codes``, at most the
+    largest symmetric D/A swing, which is the default) and what set it.
+
+    Raises
+    ------
+    SpecError
+        A D/A without both polarities, or an amplitude that is not an integer >= 1.
+    """
+    zero, cmax = rig.dac.zero_code, rig.dac.code_max
+    dac_amp = min(zero, cmax - zero)
+    if dac_amp < 1:
+        raise SpecError(
+            f"the D/A range {show_value(rig.dac.range_v)} V has no room on one side of 0 V; "
+            "an excitation needs both polarities"
+        )
+    if amplitude_codes is None:
+        return zero, dac_amp, "dac"
+    if (
+        not isinstance(amplitude_codes, int | np.integer)
+        or isinstance(amplitude_codes, bool)
+        or amplitude_codes < 1
+    ):
+        raise SpecError(
+            f"amplitude_codes must be an integer >= 1 [D/A codes], got "
+            f"{show_value(amplitude_codes)}"
+        )
+    amp, limited_by = min(int(amplitude_codes), dac_amp), "requested"
+    if amplitude_codes > dac_amp:
+        limited_by = "dac"
+    return zero, amp, limited_by
 
 
 def design_excitation(
@@ -628,121 +656,25 @@ def design_excitation(
             f"unknown excitation kind {show_value(kind)}; choose one of {', '.join(KINDS)}"
         )
     ax = rig.axis(axis)
-    if (periods is not None or band_hz is not None) and kind != "multisine":
-        raise SpecError(f"periods and band_hz are for a multisine, not for {show_value(kind)}")
-    if band_hz is not None and periods is None:
-        raise SpecError("band_hz is for a periodic multisine: give periods too")
-    if not isinstance(seed, int | np.integer) or isinstance(seed, bool) or seed < 0:
-        raise SpecError(f"seed must be an integer >= 0, got {show_value(seed)}")
-    if not (isinstance(seconds, int | float) and math.isfinite(seconds) and seconds > 0):
-        raise SpecError(f"seconds must be > 0 [s], got {show_value(seconds)}")
-    period = rig.period_s
-    check_memory(
-        seconds / period * _DESIGN_BYTES_PER_TICK,
-        f"an excitation of {seconds:g} s",
-        f"{format_count(seconds / period)} ticks × {_DESIGN_BYTES_PER_TICK} bytes",
-    )
-    n = math.floor(seconds / period + 0.5)
-    if n < MIN_TICKS:
-        raise SpecError(
-            f"seconds={show_value(seconds)} gives only {n} ticks of {period * 1e3:.6f} ms; "
-            f"an excitation needs at least {MIN_TICKS}"
-        )
-    zero, cmax = rig.dac.zero_code, rig.dac.code_max
-    dac_amp = min(zero, cmax - zero)
-    if dac_amp < 1:
-        raise SpecError(
-            f"the D/A range {show_value(rig.dac.range_v)} V has no room on one side of 0 V; "
-            "an excitation needs both polarities"
-        )
-    if amplitude_codes is not None:
-        if (
-            not isinstance(amplitude_codes, int | np.integer)
-            or isinstance(amplitude_codes, bool)
-            or amplitude_codes < 1
-        ):
-            raise SpecError(
-                f"amplitude_codes must be an integer >= 1 [D/A codes], got "
-                f"{show_value(amplitude_codes)}"
-            )
-        amp, limited_by = min(int(amplitude_codes), dac_amp), "requested"
-        if amplitude_codes > dac_amp:
-            limited_by = "dac"
-    else:
-        amp, limited_by = dac_amp, "dac"
-
-    v_lim = ax.speed_limit_rpm / 60.0 * rig.counts_per_rev
-    v_ok = (1.0 - MARGIN) * v_lim
-    travel = ax.travel_counts
-    p_lo, p_hi = -math.inf, math.inf
-    if travel is not None:
-        p_lo, p_hi = (1.0 - MARGIN) * travel[0], (1.0 - MARGIN) * travel[1]
-    offset = ax.plant.offset_v
+    _check_request(kind, seconds, periods, band_hz, seed)
+    n = _design_ticks(rig, seconds)
+    zero, amp, limited_by = _start_amplitude(rig, amplitude_codes)
     periodic = None
     if periods is None:
         make, unit = _unit_pattern(kind, n, rig, ax, seed)
     else:
         make, unit, periodic = _periodic_pattern(rig, seconds, periods, band_hz, phases, seed)
-        n = unit.size
-    drift = _predict(rig, ax, np.zeros(n, dtype=np.int64), offset)
-    p_drift = drift.pos_counts
-    if travel is not None and (p_drift.min() < p_lo or p_drift.max() > p_hi):
-        raise SpecError(
-            f"axis {show_value(axis)}: the drift offset_v={show_value(offset)} V alone moves "
-            f"the axis "
-            f"{p_drift[np.argmax(np.abs(p_drift))]:.0f} counts in {show_value(seconds)} s, "
-            f"beyond 90 % of "
-            f"the travel {show_value(list(travel))} counts; shorten the excitation"
-        )
-    unit_m = _predict(rig, ax, unit, 0.0)
-    bounds = {"speed": _limit_amplitude(unit_m, drift, -v_ok, v_ok, pos=False)}
-    if travel is not None:
-        bounds["travel"] = _limit_amplitude(unit_m, drift, p_lo, p_hi, pos=True)
-    binding = min(bounds, key=bounds.__getitem__)
-    if bounds[binding] < amp:
-        amp, limited_by = math.floor(bounds[binding]), binding
-    # the linear bound ignores rounding to whole codes: check the real codes, shrink if needed
-    while True:
-        if amp < 1:
-            what = (
-                f"speed limit {show_value(ax.speed_limit_rpm)} r/min"
-                if limited_by == "speed"
-                else f"travel {list(travel) if travel else None!r} counts"
-            )
-            raise SpecError(
-                f"axis {show_value(axis)}: even 1 D/A code of {kind} for {show_value(seconds)} "
-                f"s goes beyond 90 % "
-                f"of the {what}; shorten the excitation"
-            )
-        codes = make(amp)
-        m = _predict(rig, ax, codes, offset)
-        ratios = {"speed": float(np.max(np.abs(m.speed_cps))) / v_ok}
-        if travel is not None:
-            ratios["travel"] = max(m.pos_counts.max() / p_hi, m.pos_counts.min() / p_lo)
-        worst = max(ratios, key=ratios.__getitem__)
-        if ratios[worst] <= 1.0:
-            break
-        amp, limited_by = min(amp - 1, math.floor(amp / ratios[worst])), worst
-
-    lsb, coulomb = rig.dac.lsb_v, ax.plant.coulomb_v
-    up_v, down_v = int(codes.max()) * lsb + offset, int(codes.min()) * lsb + offset
-    if not (up_v > coulomb and down_v < -coulomb and m.speed_cps.max() > 0 > m.speed_cps.min()):
-        which = "requested" if limited_by == "requested" else "largest admissible"
-        fix = "ask for a larger amplitude_codes" if limited_by == "requested" else "shorten it"
-        raise SpecError(
-            f"axis {show_value(axis)}: the {which} {kind} amplitude, {amp} codes "
-            f"({amp * lsb * 1e3:.2f} mV), cannot reverse the axis against the drift "
-            f"({offset * 1e3:g} mV) and friction ({coulomb * 1e3:g} mV); {fix}"
-        )
+    fit = fit_amplitude(rig, ax, make, unit, amp, limited_by, axis=axis, kind=kind, seconds=seconds)
+    codes, m, amp = fit.codes, fit.motion, fit.amplitude_codes
     return Excitation(
         codes=codes,
         zero_code=zero,
-        period_s=period,
+        period_s=rig.period_s,
         axis=axis,
         kind=kind,
         seed=int(seed),
         amplitude_codes=int(np.max(np.abs(codes))),
-        limited_by=limited_by,
+        limited_by=fit.limited_by,
         predicted_max_speed_rpm=float(np.max(np.abs(m.speed_cps))) / rig.counts_per_rev * 60.0,
         predicted_travel_counts=(float(m.pos_counts.min()), float(m.pos_counts.max())),
         **({} if periodic is None else periodic(amp)),

@@ -214,6 +214,103 @@ def run_architectures(plants_dir: str | Path, out_dir: str | Path, *, seed: int 
     return summary
 
 
+def _tracking_move(rig: Rig, out: Path, seed: int) -> dict[str, Any]:
+    """A PI move of the master with the slave following: writes ``track.png`` and
+    ``track_log.csv``; returns each axis's counter wraps, faults and tracking metrics."""
+    master = next(a.name for a in rig.axes if a.role == "master")
+    scen = build_scenario(rig, "track", axis=master, seconds=6.0)
+    trace = run_scenario(rig, scen, seed=seed)
+    save_figure(plot_tracking(trace, "PI move of the master, slave following"), out / "track.png")
+    write_log(
+        out / "track_log.csv",
+        period_s=rig.period_s,
+        columns=trace_log_columns(trace),
+        metadata=log_metadata(rig, scenario="track", axis=master, seed=seed),
+    )
+    task = trace.mode == 1
+    track = {}
+    for i, name in enumerate(trace.axis_names):
+        e = trace.err_counts[task[:, i], i]
+        m = tracking_metrics(e, period_s=rig.period_s) if e.size >= 3 else None
+        raw = trace.counter[:, i]
+        track[name] = {
+            "counter_wraps": int(np.sum(np.abs(np.diff(raw)) > (1 << (rig.counter.bits - 1)))),
+            "faults": int(np.any(trace.flags[:, i] & 3)),
+            "tracking": None if m is None else m.to_dict(),
+        }
+    return track
+
+
+def _identify_axes(
+    rig: Rig, rig_path: str | Path, out: Path, seed: int
+) -> tuple[dict[str, Any], dict[str, Any], Path]:
+    """Identify every axis from a simulated closed-loop log (:func:`_identify_axis`): the
+    summary of each fit, the fits, and ``fitted-rig.toml`` (the rig with the fitted plants)."""
+    identification = {}
+    fits = {}
+    fitted_rig = out / "fitted-rig.toml"
+    for name in rig.axis_names:
+        fits[name], identification[name] = _identify_axis(
+            rig, rig_path, name, out, fitted_rig, seed
+        )
+    return identification, fits, fitted_rig
+
+
+def _identify_axis(
+    rig: Rig, rig_path: str | Path, name: str, out: Path, fitted_rig: Path, seed: int
+) -> tuple[Any, dict[str, Any]]:
+    """Fit axis ``name`` from a closed-loop multi-level PRBS log: writes
+    ``ident_log_<axis>.csv``, ``fit_<axis>.png`` and the fitted plant into ``fitted_rig``;
+    returns the fit and its summary (errors against the rig's plant)."""
+    scen_id = build_scenario(rig, "prbs", axis=name, seconds=40.0, closed_loop=True)
+    id_trace = run_scenario(rig, scen_id, seed=seed)
+    log_path = out / f"ident_log_{name}.csv"
+    write_log(
+        log_path,
+        period_s=rig.period_s,
+        columns=trace_log_columns(id_trace, scen_id.inputs.dac_add_codes),
+        metadata=log_metadata(rig, scenario="prbs", axis=name, closed_loop="true", seed=seed),
+    )
+    result, log, _ = fit_log(log_path, axis=name, rig=rig)
+    ax = log.axis(name)
+    sim = simulate_fit(result, ax.cmd_v, ax.pos_counts)
+    save_figure(
+        plot_fit(ax.pos_counts, sim, log.period_s, validation_split(sim.size), f"fit of {name}"),
+        out / f"fit_{name}.png",
+    )
+    write_plant(
+        fitted_rig,
+        name,
+        result.plant,
+        template=rig_path,
+        provenance=f"fitted by servotune {__version__} from {log_path.name}",
+        fit=result.plant_fit,
+    )
+    truth = rig.axis(name).plant
+    return result, {
+        "fit_pct": result.fit_pct,
+        "params": result.params,
+        "relative_error": {
+            "gain_cps_per_v": result.params["gain_cps_per_v"] / truth.gain_cps_per_v - 1,
+            "tau_s": result.params["tau_s"] / truth.tau_s - 1,
+        },
+        "structure": list(result.structure),
+    }
+
+
+def _verify_and_export(tuning_path: Path, spec_path: Path, out: Path) -> tuple[Any, list[str]]:
+    """Verify the tuning against the spec and, if it passes, export exactly the verified bytes
+    (``fuzzy.json`` and ``c/``); returns the verification and what was exported."""
+    verification, _, _ = verify_files(tuning_path, spec_path)
+    exported = []
+    if verification.passed:
+        v = load_for_export(tuning_path, spec_path=spec_path)
+        json_export.to_file(v.tuning, out / "fuzzy.json", rig=v.rig, verification=v.record)
+        c_export.to_file(v.tuning, out / "c", rig=v.rig, verification=v.record)
+        exported = ["fuzzy.json", "c/"]
+    return verification, exported
+
+
 def run_demo(
     rig_path: str | Path,
     out_dir: str | Path,
@@ -229,7 +326,7 @@ def run_demo(
     ``progress`` receives a line per step.
 
     Writes ``demo_summary.json``, ``lock_hold.png``, ``track.png``, ``track_log.csv``; for
-    the identification step ``ident_log.csv`` (a closed-loop multi-level PRBS per axis),
+    the identification step ``ident_log_<axis>.csv`` (a closed-loop multi-level PRBS per axis),
     ``fit_<axis>.png`` and ``fitted-rig.toml`` (the rig with the fitted plants); for tuning
     ``tuning.json`` (tuned on the fitted rig) and the Figure-4 comparison ``figure4.png``,
     ``figure4.json``; the verification on the example rig against ``<rig>.spec.toml``
@@ -257,70 +354,9 @@ def run_demo(
         plot_lock_hold(hold.trace, hold.predicted, hold.settle_s, "Position lock, 60 s"),
         out / "lock_hold.png",
     )
-    master = next(a.name for a in rig.axes if a.role == "master")
-    scen = build_scenario(rig, "track", axis=master, seconds=6.0)
-    trace = run_scenario(rig, scen, seed=seed)
-    save_figure(plot_tracking(trace, "PI move of the master, slave following"), out / "track.png")
-    write_log(
-        out / "track_log.csv",
-        period_s=rig.period_s,
-        columns=trace_log_columns(trace),
-        metadata=log_metadata(rig, scenario="track", axis=master, seed=seed),
-    )
-    task = trace.mode == 1
-    track = {}
-    for i, name in enumerate(trace.axis_names):
-        e = trace.err_counts[task[:, i], i]
-        m = tracking_metrics(e, period_s=rig.period_s) if e.size >= 3 else None
-        raw = trace.counter[:, i]
-        track[name] = {
-            "counter_wraps": int(np.sum(np.abs(np.diff(raw)) > (1 << (rig.counter.bits - 1)))),
-            "faults": int(np.any(trace.flags[:, i] & 3)),
-            "tracking": None if m is None else m.to_dict(),
-        }
-    identification = {}
-    fits = {}
+    track = _tracking_move(rig, out, seed)
     say("demo: identify both axes from closed-loop logs")
-
-    fitted_rig = out / "fitted-rig.toml"
-    for name in rig.axis_names:
-        scen_id = build_scenario(rig, "prbs", axis=name, seconds=40.0, closed_loop=True)
-        id_trace = run_scenario(rig, scen_id, seed=seed)
-        log_path = out / f"ident_log_{name}.csv"
-        write_log(
-            log_path,
-            period_s=rig.period_s,
-            columns=trace_log_columns(id_trace, scen_id.inputs.dac_add_codes),
-            metadata=log_metadata(rig, scenario="prbs", axis=name, closed_loop="true", seed=seed),
-        )
-        result, log, _ = fit_log(log_path, axis=name, rig=rig)
-        fits[name] = result
-        ax = log.axis(name)
-        sim = simulate_fit(result, ax.cmd_v, ax.pos_counts)
-        save_figure(
-            plot_fit(
-                ax.pos_counts, sim, log.period_s, validation_split(sim.size), f"fit of {name}"
-            ),
-            out / f"fit_{name}.png",
-        )
-        write_plant(
-            fitted_rig,
-            name,
-            result.plant,
-            template=rig_path,
-            provenance=f"fitted by servotune {__version__} from {log_path.name}",
-            fit=result.plant_fit,
-        )
-        truth = rig.axis(name).plant
-        identification[name] = {
-            "fit_pct": result.fit_pct,
-            "params": result.params,
-            "relative_error": {
-                "gain_cps_per_v": result.params["gain_cps_per_v"] / truth.gain_cps_per_v - 1,
-                "tau_s": result.params["tau_s"] / truth.tau_s - 1,
-            },
-            "structure": list(result.structure),
-        }
+    identification, fits, fitted_rig = _identify_axes(rig, rig_path, out, seed)
     # tune from the identified models (what a user has), then Figure 4 on the example rig
 
     chosen = PRESETS[preset]
@@ -342,13 +378,7 @@ def run_demo(
     say("demo: gantry and linkage")
     architectures = run_architectures(Path(rig_path).parent, out, seed=seed)
     say("demo: verify, export, report")
-    verification, _, _ = verify_files(tuning_path, spec_path)
-    exported = []
-    if verification.passed:
-        v = load_for_export(tuning_path, spec_path=spec_path)
-        json_export.to_file(v.tuning, out / "fuzzy.json", rig=v.rig, verification=v.record)
-        c_export.to_file(v.tuning, out / "c", rig=v.rig, verification=v.record)
-        exported = ["fuzzy.json", "c/"]
+    verification, exported = _verify_and_export(tuning_path, spec_path, out)
     write_report(
         out,
         tuning_path=tuning_path,

@@ -445,34 +445,26 @@ class FleetSummary:
         return plain(d)
 
 
-def summarise_fleet(
-    rows: Sequence[FleetRow],
-    *,
-    baseline: Sequence[FleetRow] = (),
-    outlier_z: float = OUTLIER_Z,
-    drift_k: float = DRIFT_K,
-) -> FleetSummary:
-    """The fleet's spread, its outliers and its drifted machines (module docstring).
+@dataclass(frozen=True, slots=True)
+class _FleetSpread:
+    """The spread part of a summary: each parameter's spread, the outliers, the axes of too
+    few machines, the spread by (axis, parameter) (drift is judged against it), the values
+    judged and the outliers expected among them by chance."""
 
-    Parameters
-    ----------
-    rows : sequence of FleetRow
-        This run's rows.
-    baseline : sequence of FleetRow
-        An earlier fleet table's rows (:func:`read_fleet_table`): previous fits for drift only
-        (a baseline row of a file also in ``rows``, same SHA-256, is the same fit: skipped).
-    outlier_z : float
-        Modified z-score beyond which a value is an outlier [-].
-    drift_k : float
-        Fleet spreads a drift must exceed [-].
+    spreads: list[ParameterSpread]
+    outliers: list[Outlier]
+    small_axes: list[str]
+    spread_of: dict[tuple[str, str], float]
+    judged_values: int
+    chance_outliers: float
 
-    Returns
-    -------
-    FleetSummary
-    """
-    fitted = [r for r in rows if r.ok]
-    latest = latest_fits(fitted)
-    spreads, outliers, drifts, small = [], [], [], []
+
+def _fleet_spread(latest: dict[tuple[str, str], FleetRow], outlier_z: float) -> _FleetSpread:
+    """The fleet's spread of each parameter over each machine's latest fit, and the outliers
+    against it (module docstring)."""
+    spreads: list[ParameterSpread] = []
+    outliers: list[Outlier] = []
+    small: list[str] = []
     spread_of: dict[tuple[str, str], float] = {}
     judged, chance = 0, 0.0
     for axis in sorted({a for a, _ in latest}):
@@ -505,28 +497,65 @@ def summarise_fleet(
                 continue
             judged += len(have)
             chance += len(have) * chance_outlier_rate(len(have), outlier_z)
-            for (m, r), z in zip(have, (x - med) / spread, strict=True):
-                if abs(z) > outlier_z:
-                    outliers.append(
-                        Outlier(
-                            machine_id=m,
-                            axis=axis,
-                            parameter=p,
-                            unit=UNITS[p],
-                            file=r.file,
-                            date=r.date,
-                            value=r.params[p],
-                            z=float(z),
-                            median=med,
-                            spread=spread,
-                        )
-                    )
+            outliers += _outliers(axis, p, have, x, med, spread, outlier_z)
+    return _FleetSpread(
+        spreads=spreads,
+        outliers=outliers,
+        small_axes=small,
+        spread_of=spread_of,
+        judged_values=judged,
+        chance_outliers=chance,
+    )
+
+
+def _outliers(
+    axis: str,
+    p: str,
+    have: list[tuple[str, FleetRow]],
+    x: np.ndarray,
+    med: float,
+    spread: float,
+    outlier_z: float,
+) -> list[Outlier]:
+    """The machines (``have``: machine id and latest fit; ``x`` their values of ``p``) whose
+    robust z-score against the fleet's median and spread is beyond ``outlier_z``."""
+    out = []
+    for (m, r), z in zip(have, (x - med) / spread, strict=True):
+        if abs(z) > outlier_z:
+            out.append(
+                Outlier(
+                    machine_id=m,
+                    axis=axis,
+                    parameter=p,
+                    unit=UNITS[p],
+                    file=r.file,
+                    date=r.date,
+                    value=r.params[p],
+                    z=float(z),
+                    median=med,
+                    spread=spread,
+                )
+            )
+    return out
+
+
+def _drifts(
+    rows: Sequence[FleetRow],
+    fitted: list[FleetRow],
+    baseline: Sequence[FleetRow],
+    latest: dict[tuple[str, str], FleetRow],
+    fleet: _FleetSpread,
+    drift_k: float,
+) -> list[Drift]:
+    """Each machine's drift since its previous fit, in this run or the baseline (a baseline
+    row of a file also in ``rows`` is skipped), on the axes with a fleet spread."""
     in_run = {r.sha256 for r in rows if r.sha256}
     earlier = [(r, "run") for r in fitted] + [
         (r, "baseline") for r in baseline if r.ok and r.sha256 not in in_run
     ]
+    drifts = []
     for (axis, machine), now in sorted(latest.items()):
-        if axis in small or not dated(now):
+        if axis in fleet.small_axes or not dated(now):
             continue
         before_all = [
             (r, src)
@@ -537,35 +566,83 @@ def summarise_fleet(
             continue
         prev, src = max(before_all, key=lambda t: (t[0].date, t[1] == "run", t[0].file))
         for p in ALL_PARAMS:
-            spread = spread_of.get((axis, p), 0.0)
-            i0, i1 = prev.interval(p), now.interval(p)
-            if spread <= 0 or i0 is None or i1 is None:
-                continue
-            change = now.params[p] - prev.params[p]
-            apart = i0[1] < i1[0] or i1[1] < i0[0]
-            if apart and abs(change) > drift_k * spread:
-                b = prev.params[p]
-                drifts.append(
-                    Drift(
-                        machine_id=machine,
-                        axis=axis,
-                        parameter=p,
-                        unit=UNITS[p],
-                        before_file=prev.file,
-                        before_date=prev.date,
-                        before_source=src,
-                        after_file=now.file,
-                        after_date=now.date,
-                        before=b,
-                        after=now.params[p],
-                        before_ci95=i0,
-                        after_ci95=i1,
-                        change=change,
-                        change_pct=None if b == 0 else 100.0 * change / abs(b),
-                        spread=spread,
-                        k=abs(change) / spread,
-                    )
-                )
+            spread = fleet.spread_of.get((axis, p), 0.0)
+            drift = _drift(machine, axis, p, prev, src, now, spread, drift_k)
+            if drift is not None:
+                drifts.append(drift)
+    return drifts
+
+
+def _drift(
+    machine: str,
+    axis: str,
+    p: str,
+    prev: FleetRow,
+    src: str,
+    now: FleetRow,
+    spread: float,
+    drift_k: float,
+) -> Drift | None:
+    """The drift of ``p`` from ``prev`` (from ``src``: ``run`` or ``baseline``) to ``now``:
+    their 95 % intervals apart and the change beyond ``drift_k`` fleet spreads; else None."""
+    i0, i1 = prev.interval(p), now.interval(p)
+    if spread <= 0 or i0 is None or i1 is None:
+        return None
+    change = now.params[p] - prev.params[p]
+    apart = i0[1] < i1[0] or i1[1] < i0[0]
+    if not (apart and abs(change) > drift_k * spread):
+        return None
+    b = prev.params[p]
+    return Drift(
+        machine_id=machine,
+        axis=axis,
+        parameter=p,
+        unit=UNITS[p],
+        before_file=prev.file,
+        before_date=prev.date,
+        before_source=src,
+        after_file=now.file,
+        after_date=now.date,
+        before=b,
+        after=now.params[p],
+        before_ci95=i0,
+        after_ci95=i1,
+        change=change,
+        change_pct=None if b == 0 else 100.0 * change / abs(b),
+        spread=spread,
+        k=abs(change) / spread,
+    )
+
+
+def summarise_fleet(
+    rows: Sequence[FleetRow],
+    *,
+    baseline: Sequence[FleetRow] = (),
+    outlier_z: float = OUTLIER_Z,
+    drift_k: float = DRIFT_K,
+) -> FleetSummary:
+    """The fleet's spread, its outliers and its drifted machines (module docstring).
+
+    Parameters
+    ----------
+    rows : sequence of FleetRow
+        This run's rows.
+    baseline : sequence of FleetRow
+        An earlier fleet table's rows (:func:`read_fleet_table`): previous fits for drift only
+        (a baseline row of a file also in ``rows``, same SHA-256, is the same fit: skipped).
+    outlier_z : float
+        Modified z-score beyond which a value is an outlier [-].
+    drift_k : float
+        Fleet spreads a drift must exceed [-].
+
+    Returns
+    -------
+    FleetSummary
+    """
+    fitted = [r for r in rows if r.ok]
+    latest = latest_fits(fitted)
+    fleet = _fleet_spread(latest, outlier_z)
+    drifts = _drifts(rows, fitted, baseline, latest, fleet, drift_k)
     return FleetSummary(
         n_logs=len({r.file for r in rows}),
         n_rows=len(rows),
@@ -574,13 +651,13 @@ def summarise_fleet(
         n_inadequate=sum(1 for r in fitted if r.adequate is False),
         n_undated=sum(1 for r in fitted if not dated(r)),
         n_baseline=len(baseline),
-        spreads=tuple(spreads),
-        outliers=tuple(outliers),
+        spreads=tuple(fleet.spreads),
+        outliers=tuple(fleet.outliers),
         drifts=tuple(drifts),
-        small_axes=tuple(small),
+        small_axes=tuple(fleet.small_axes),
         failures=tuple((r.file, r.axis, r.error) for r in rows if not r.ok),
         outlier_z=outlier_z,
         drift_k=drift_k,
-        chance_outliers=chance,
-        judged_values=judged,
+        chance_outliers=fleet.chance_outliers,
+        judged_values=fleet.judged_values,
     )

@@ -486,6 +486,129 @@ controller, plant rows, constants and results. Measured on the example rig: a
 population of 3,000 over the 5 corner plants raised the peak by 75 kB per candidate."""
 
 
+def _table_size(structure: str, tables: Mapping[str, np.ndarray] | None) -> int:
+    """The query tables' ``n`` (tables of shape (2n+1, 2n+1)) for ``composite``, else 1.
+
+    Raises
+    ------
+    SpecError
+        ``composite`` without valid tables.
+    """
+    if structure != "composite":
+        return 1
+    if tables is None:
+        raise SpecError("the composite structure needs query tables")
+    n = (np.asarray(tables["kp"]).shape[0] - 1) // 2
+    for t in TABLE_NAMES:
+        a = np.asarray(tables[t])
+        if a.shape != (2 * n + 1, 2 * n + 1) or np.max(np.abs(a)) > 1.0 + 1e-12:
+            raise SpecError(f"query table {t} must be (2n+1, 2n+1) with values in [-1, 1]")
+    return n
+
+
+def _problem(
+    rig: Rig,
+    axes: tuple[int, int],
+    master_gains: PIGains,
+    start: PIGains,
+    spec: SlaveTuneSpec,
+    seed: int,
+) -> _Problem:
+    """The tuning run, its plant variants of the slave and their noise seeds, checked against
+    the memory one generation's batch takes (``axes``: the master's and the slave's index)."""
+    i_m, i_s = axes
+    loop = Loop.from_rig(rig, [master_gains if i == i_m else start for i in range(len(rig.axes))])
+    scenario = sync_move_for(rig, spec)
+    variants = tuple(
+        tuple(v if j == i_s else rig.axes[j].plant for j in range(len(rig.axes)))
+        for v in corner_plants(rig.axes[i_s].plant, spec.gain_spread, spec.tau_spread)
+    )
+    runs = spec.population * len(variants)  # one generation, evaluated as one batch
+    check_memory(
+        runs * _BYTES_PER_RUN,
+        f"tuning with a population of {spec.population:,}",
+        f"{format_count(runs)} runs a generation × {_BYTES_PER_RUN // 1000} kB",
+    )
+    seeds = tuple(
+        int(s) for s in np.random.SeedSequence(seed).generate_state(len(variants), np.uint64)
+    )
+    return _Problem(
+        loop=loop,
+        scenario=scenario,
+        slave=i_s,
+        variants=variants,
+        seeds=seeds,
+        master_ctl=loop.controllers[i_m],
+        spec=spec,
+        screen=_screen(rig, i_s, spec),
+    )
+
+
+def _initial_population(space: _Space, population: int, seed: int) -> np.ndarray:
+    """The first generation: a Latin hypercube over the search space from ``seed``, its first
+    member the start point."""
+    unit = (space.start - space.lo) / (space.hi - space.lo)
+    rng = np.random.default_rng(seed)
+    sampler = qmc.LatinHypercube(d=len(space.names), rng=rng)
+    init_u = sampler.random(population)
+    init_u[0] = unit  # the start is a member of the first population
+    return space.lo + init_u * (space.hi - space.lo)
+
+
+def _optimise(
+    objective: Callable[[np.ndarray], np.ndarray],
+    space: _Space,
+    init: np.ndarray,
+    spec: SlaveTuneSpec,
+    seed: int,
+    callback: Callable[[Any], None],
+) -> tuple[np.ndarray, int]:
+    """The best candidate and the evaluations it took: differential evolution from ``init``
+    for ``spec.generations`` generations (none: the best of ``init``)."""
+    if spec.generations > 0:
+        res = differential_evolution(
+            objective,
+            list(zip(space.lo, space.hi, strict=True)),
+            maxiter=spec.generations,
+            init=init,
+            rng=np.random.default_rng(seed + 1),
+            polish=False,
+            tol=0.0,
+            atol=0.0,
+            updating="deferred",
+            vectorized=True,
+            callback=callback,
+        )
+        return res.x, int(res.nfev)
+    vals = objective(init.T)
+    return init[int(np.argmin(vals))], spec.population
+
+
+def _at_bounds(space: _Space, x_best: np.ndarray) -> tuple[str, ...]:
+    """The search parameters within 0.5 % of their range of a bound, in words."""
+    edge = 0.005 * (space.hi - space.lo)
+    return tuple(
+        f"{name} at its {'lower' if x <= lo + e else 'upper'} bound"
+        for name, x, lo, hi, e in zip(space.names, x_best, space.lo, space.hi, edge, strict=True)
+        if x <= lo + e or x >= hi - e
+    )
+
+
+def _binding(spec: SlaveTuneSpec, w0: Mapping[str, float]) -> tuple[str, ...]:
+    """The constraints a candidate's worst case ``w0`` sits on (see :class:`SlaveTuning`)."""
+    return tuple(
+        name
+        for name, near in (
+            ("max_saturation_pct", w0["saturation_pct"] >= 0.98 * spec.max_saturation_pct > 0),
+            ("max_overshoot_pct", w0["overshoot_pct"] >= 0.98 * spec.max_overshoot_pct),
+            ("min_phase_margin_deg", w0["phase_margin_deg"] <= spec.min_phase_margin_deg + 1.0),
+            ("min_gain_margin_db", w0["gain_margin_db"] <= spec.min_gain_margin_db + 0.3),
+            ("max_sensitivity", w0["max_sensitivity"] >= 0.98 * spec.max_sensitivity),
+        )
+        if near
+    )
+
+
 def tune_slave(
     rig: Rig,
     master_gains: PIGains,
@@ -532,44 +655,11 @@ def tune_slave(
     spec = spec or SlaveTuneSpec()
     if structure not in STRUCTURES:
         raise SpecError(f"structure must be one of {', '.join(STRUCTURES)}, got {structure!r}")
-    i_m, i_s = master_slave(rig)
-    if structure == "composite":
-        if tables is None:
-            raise SpecError("the composite structure needs query tables")
-        n = (np.asarray(tables["kp"]).shape[0] - 1) // 2
-        for t in TABLE_NAMES:
-            a = np.asarray(tables[t])
-            if a.shape != (2 * n + 1, 2 * n + 1) or np.max(np.abs(a)) > 1.0 + 1e-12:
-                raise SpecError(f"query table {t} must be (2n+1, 2n+1) with values in [-1, 1]")
-    else:
-        n = 1
-    loop = Loop.from_rig(rig, [master_gains if i == i_m else start for i in range(len(rig.axes))])
-    scenario = sync_move_for(rig, spec)
-    variants = tuple(
-        tuple(v if j == i_s else rig.axes[j].plant for j in range(len(rig.axes)))
-        for v in corner_plants(rig.axes[i_s].plant, spec.gain_spread, spec.tau_spread)
-    )
-    runs = spec.population * len(variants)  # one generation, evaluated as one batch
-    check_memory(
-        runs * _BYTES_PER_RUN,
-        f"tuning with a population of {spec.population:,}",
-        f"{format_count(runs)} runs a generation × {_BYTES_PER_RUN // 1000} kB",
-    )
-    seeds = tuple(
-        int(s) for s in np.random.SeedSequence(seed).generate_state(len(variants), np.uint64)
-    )
-    prob = _Problem(
-        loop=loop,
-        scenario=scenario,
-        slave=i_s,
-        variants=variants,
-        seeds=seeds,
-        master_ctl=loop.controllers[i_m],
-        spec=spec,
-        screen=_screen(rig, i_s, spec),
-    )
+    axes = master_slave(rig)
+    n = _table_size(structure, tables)
+    prob = _problem(rig, axes, master_gains, start, spec, seed)
     space = _space(structure, start, n)
-    k1_ideal = ideal_feedforward(rig.axes[i_s].plant, rig.dac.lsb_v)
+    k1_ideal = ideal_feedforward(rig.axes[prob.slave].plant, rig.dac.lsb_v)
     tab = tables or {}
 
     def to_gains(x: np.ndarray) -> FuzzyPIDGains:
@@ -583,12 +673,7 @@ def tune_slave(
 
     itae0, worst0 = _evaluate(prob, [to_gains(space.start)])
     start_feasible = bool(_penalised(prob, itae0, worst0)[0] < _BIG)
-    unit = (space.start - space.lo) / (space.hi - space.lo)
-    rng = np.random.default_rng(seed)
-    sampler = qmc.LatinHypercube(d=len(space.names), rng=rng)
-    init_u = sampler.random(spec.population)
-    init_u[0] = unit  # the start is a member of the first population
-    init = space.lo + init_u * (space.hi - space.lo)
+    init = _initial_population(space, spec.population, seed)
     history: list[float] = []
 
     def callback(intermediate_result: Any) -> None:
@@ -600,46 +685,12 @@ def tune_slave(
                 f"tune {structure}: generation {len(history)}/{spec.generations}, best {shown}"
             )
 
-    if spec.generations > 0:
-        res = differential_evolution(
-            objective,
-            list(zip(space.lo, space.hi, strict=True)),
-            maxiter=spec.generations,
-            init=init,
-            rng=np.random.default_rng(seed + 1),
-            polish=False,
-            tol=0.0,
-            atol=0.0,
-            updating="deferred",
-            vectorized=True,
-            callback=callback,
-        )
-        x_best, evaluations = res.x, int(res.nfev)
-    else:
-        vals = objective(init.T)
-        x_best, evaluations = init[int(np.argmin(vals))], spec.population
+    x_best, evaluations = _optimise(objective, space, init, spec, seed, callback)
     gains = to_gains(x_best)
     itae, worst = _evaluate(prob, [gains])
     val = float(_penalised(prob, itae, worst)[0])
     feasible = val < _BIG
-    edge = 0.005 * (space.hi - space.lo)
-    at_bounds = tuple(
-        f"{name} at its {'lower' if x <= lo + e else 'upper'} bound"
-        for name, x, lo, hi, e in zip(space.names, x_best, space.lo, space.hi, edge, strict=True)
-        if x <= lo + e or x >= hi - e
-    )
     w0 = worst.row(0)
-    binding = tuple(
-        name
-        for name, near in (
-            ("max_saturation_pct", w0["saturation_pct"] >= 0.98 * spec.max_saturation_pct > 0),
-            ("max_overshoot_pct", w0["overshoot_pct"] >= 0.98 * spec.max_overshoot_pct),
-            ("min_phase_margin_deg", w0["phase_margin_deg"] <= spec.min_phase_margin_deg + 1.0),
-            ("min_gain_margin_db", w0["gain_margin_db"] <= spec.min_gain_margin_db + 0.3),
-            ("max_sensitivity", w0["max_sensitivity"] >= 0.98 * spec.max_sensitivity),
-        )
-        if near
-    )
     return SlaveTuning(
         structure=structure,
         gains=gains,
@@ -649,7 +700,7 @@ def tune_slave(
         feasible=feasible,
         evaluations=evaluations + 1,
         history=tuple(history),
-        at_bounds=at_bounds,
-        binding=binding,
+        at_bounds=_at_bounds(space, x_best),
+        binding=_binding(spec, w0),
         worst=w0,
     )

@@ -160,6 +160,8 @@ def test_end_to_end_loads_the_by_hand_gains_and_validates(built, tmp_path, capsy
         assert bytes_sha256((out / name).read_bytes()) == sha
     assert {"capture.txt", "fitted-rig.toml", "tuning.json", "pid.hal"} <= set(rec["files_sha256"])
     assert rec["seconds"]["machine_s"] < 300
+    page = (out / "autotune.html").read_text()
+    assert "servotune autotune: loaded and validated" in page and page.count("<img") == 3
     print(f"autotune end to end: wall {wall:.0f} s, machine {rec['seconds']['machine_s']:.1f} s")
 
 
@@ -171,6 +173,12 @@ def test_a_reversed_encoder_stops_at_the_wiring_check(built, tmp_path, capsys):
     line = cap.err.strip().splitlines()[-1]
     assert "wiring check" in line and "reversed" in line and "nothing ran in closed loop" in line
     assert not (tmp_path / "o" / "experiment.txt").exists()
+    rec = json.loads((tmp_path / "o" / "autotune.json").read_text())
+    assert rec["status"] == "stopped" and "reversed" in rec["stopped"] and not rec["loaded"]
+    assert (
+        "servotune autotune: stopped: wiring check"
+        in (tmp_path / "o" / "autotune.html").read_text()
+    )
     _previous_pins_back(pins, m.IDLE)
     _wiring_as_before(stdout)
 
@@ -277,7 +285,10 @@ def test_dry_run_changes_nothing_in_the_session(built, tmp_path, capsys):
         out = []
         for f in (ln.split() for ln in text.splitlines()):
             if len(f) >= 5 and f[1] in ("bit", "float", "s32", "u32"):
-                settable = f[2] in ("IN", "I/O") and len(f) == 5 and not f[4].endswith(".time")
+                # (an unlinked pid's *-deriv inputs hold what the pid computes: not settings)
+                settable = (
+                    f[2] in ("IN", "I/O") and len(f) == 5 and not f[4].endswith((".time", "-deriv"))
+                )
                 out.append((*f[1:3], f[4], *f[5:], f[3] if settable else ""))
             elif len(f) >= 3 and f[0] in ("bit", "float", "s32", "u32"):
                 out.append((f[0], *f[2:]))  # a signal: its type, name and pins, not its value

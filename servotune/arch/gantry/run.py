@@ -398,6 +398,88 @@ def simulate_gantry(
     return run_gantry(cfg, cmd, load, topology=topology, seed=seed, case=case)
 
 
+def _checked_run(
+    cfg: GantryConfig,
+    command: np.ndarray,
+    load: np.ndarray,
+    topology: str | None,
+    resets: np.ndarray | None,
+) -> tuple[str, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`run_gantry`'s topology (``cfg``'s by default), command, load and resets, checked
+    and as the kernel takes them (resets default to none).
+
+    Raises
+    ------
+    ValueError
+        An unknown topology, or arrays of inconsistent shapes.
+    """
+    topology = cfg.topology if topology is None else topology
+    if topology not in TOPOLOGIES:
+        raise ValueError(
+            f"topology must be one of {', '.join(TOPOLOGIES)}, got {show_value(topology)}"
+        )
+    cmd = np.ascontiguousarray(command, dtype=np.int64)
+    n = cmd.shape[0]
+    load = np.ascontiguousarray(load, dtype=np.float64)
+    if cmd.ndim != 1 or n < 1 or load.shape != (n, 2):
+        raise ValueError(
+            f"command must have shape (n,) and load (n, 2), got {cmd.shape} and {load.shape}"
+        )
+    rs = np.zeros(n, dtype=np.int8) if resets is None else np.asarray(resets, dtype=np.int8)
+    if rs.shape != (n,):
+        raise ValueError(f"resets must have shape ({n},), got {rs.shape}")
+    return topology, cmd, load, rs
+
+
+def _plant_rows(cfg: GantryConfig, plants: tuple[Plant, Plant]) -> tuple[np.ndarray, np.ndarray]:
+    """Each drive's plant row at the bus cycle and its whole ticks of lag."""
+    rig = cfg.rig
+    dt = cfg.bus.cycle_s
+    rows = np.zeros((2, NROW))
+    lag_m = np.zeros(2, dtype=np.int64)
+    for a, p in enumerate(plants):
+        rows[a], lag_m[a] = plant_row(p, dt, cfg.bus.compute_s, rig.counts_per_rev)
+    return rows, lag_m
+
+
+def _sync_jitter(cfg: GantryConfig, n: int, seed: int) -> np.ndarray:
+    """Each drive's sample-instant jitter per cycle [s] (drawn only when ``jitter_s > 0``)."""
+    if cfg.bus.jitter_s > 0:
+        return np.random.default_rng(seed).uniform(-1.0, 1.0, (n, 2)) * cfg.bus.jitter_s
+    return np.zeros((n, 2))
+
+
+def _drive_constants(cfg: GantryConfig) -> np.ndarray:
+    """Both drives' law constants, one row each."""
+    rig = cfg.rig
+    return np.stack(
+        [
+            c.consts(
+                counter_bits=rig.counter.bits, dac_bits=rig.dac.bits, dac_zero=rig.dac.zero_code
+            )
+            for c in cfg.controllers()
+        ]
+    )
+
+
+def _sync_constant_row(cfg: GantryConfig) -> np.ndarray:
+    """The sync compensator's quantised constants in the kernel's order."""
+    sc_q = cfg.sync_constants
+    return np.array(
+        [
+            sc_q.kp.q,
+            sc_q.kp.f,
+            sc_q.ki_t.q,
+            sc_q.ki_t.f,
+            sc_q.kd_t.q,
+            sc_q.kd_t.f,
+            sc_q.dead_zone_counts,
+            sc_q.limit_counts,
+        ],
+        dtype=np.int64,
+    )
+
+
 def run_gantry(
     cfg: GantryConfig,
     command: np.ndarray,
@@ -430,55 +512,15 @@ def run_gantry(
         The label the trace carries.
     """
     check_seed(seed)
-    topology = cfg.topology if topology is None else topology
-    if topology not in TOPOLOGIES:
-        raise ValueError(
-            f"topology must be one of {', '.join(TOPOLOGIES)}, got {show_value(topology)}"
-        )
-    cmd = np.ascontiguousarray(command, dtype=np.int64)
+    topology, cmd, load, rs = _checked_run(cfg, command, load, topology, resets)
     n = cmd.shape[0]
-    load = np.ascontiguousarray(load, dtype=np.float64)
-    if cmd.ndim != 1 or n < 1 or load.shape != (n, 2):
-        raise ValueError(
-            f"command must have shape (n,) and load (n, 2), got {cmd.shape} and {load.shape}"
-        )
-    rs = np.zeros(n, dtype=np.int8) if resets is None else np.asarray(resets, dtype=np.int8)
-    if rs.shape != (n,):
-        raise ValueError(f"resets must have shape ({n},), got {rs.shape}")
     plants = (cfg.master.plant, cfg.slave.plant)
     rig = cfg.rig
-    dt = cfg.bus.cycle_s
-    rows = np.zeros((2, NROW))
-    lag_m = np.zeros(2, dtype=np.int64)
-    for a, p in enumerate(plants):
-        rows[a], lag_m[a] = plant_row(p, dt, cfg.bus.compute_s, rig.counts_per_rev)
-    if cfg.bus.jitter_s > 0:
-        jit_s = np.random.default_rng(seed).uniform(-1.0, 1.0, (n, 2)) * cfg.bus.jitter_s
-    else:
-        jit_s = np.zeros((n, 2))
-    consts = np.stack(
-        [
-            c.consts(
-                counter_bits=rig.counter.bits, dac_bits=rig.dac.bits, dac_zero=rig.dac.zero_code
-            )
-            for c in cfg.controllers()
-        ]
-    )
+    rows, lag_m = _plant_rows(cfg, plants)
+    jit_s = _sync_jitter(cfg, n, seed)
+    consts = _drive_constants(cfg)
     hs, new, seg_a, seg_b = _segments(cfg, plants, rows)
-    sc_q = cfg.sync_constants
-    sc = np.array(
-        [
-            sc_q.kp.q,
-            sc_q.kp.f,
-            sc_q.ki_t.q,
-            sc_q.ki_t.f,
-            sc_q.kd_t.q,
-            sc_q.kd_t.f,
-            sc_q.dead_zone_counts,
-            sc_q.limit_counts,
-        ],
-        dtype=np.int64,
-    )
+    sc = _sync_constant_row(cfg)
     i2 = lambda: np.zeros((n, 2), dtype=np.int64)  # noqa: E731
     i1 = lambda: np.zeros(n, dtype=np.int64)  # noqa: E731
     code, y, raw, ref, flags = i2(), i2(), i2(), i2(), i2()

@@ -28,13 +28,14 @@ what ``export-table`` checks before exporting.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Unpack
 
 import numpy as np
 
+from servotune.analysis.margins import LoopMargins, MarginLimits
 from servotune.arch.gantry.config import CASES, GantryConfig, GantryMargins
 from servotune.arch.gantry.load import load_gantry
 from servotune.arch.gantry.margins import LOOP_NAMES, gantry_margins, margin_failures
@@ -303,54 +304,27 @@ def _fault_rows(run: GantryConfig, spec: GantrySpec, seed: int) -> list[GantryCh
     return rows
 
 
-def verify_gantry(
-    cfg: GantryConfig,
-    tuning: GantryTuning,
-    spec: GantrySpec,
-    *,
-    seed: int | None = None,
-    progress: Callable[[str], None] | None = None,
-    executor: Executor | None = None,
-) -> GantryVerification:
-    """Verify ``tuning``'s integers on the gantry ``cfg`` against ``spec`` (see the module
-    docstring).
+def _latency_row(run: GantryConfig, tuning: GantryTuning) -> GantryCheck:
+    """The bus's latency against the tuning's: the runtime aligns the master's feedback with
+    its own position by a constant delay line (the tuning's latency), so a bus of another
+    latency is another machine."""
+    return GantryCheck(
+        check="bus latency",
+        subject="the bus's = the runtime's delay line",
+        value=float(run.bus.latency_cycles),
+        limit=float(tuning.latency_cycles),
+        unit="cycles",
+        kind="==",
+        detail="tune the gantry for this bus"
+        if run.bus.latency_cycles != tuning.latency_cycles
+        else "",
+    )
 
-    Parameters
-    ----------
-    cfg : GantryConfig
-        The gantry (its gains are replaced by the tuning's).
-    tuning : GantryTuning
-    spec : GantrySpec
-    seed : int, optional
-        Noise, jitter and Monte-Carlo seed (default: the spec's).
-    progress : callable, optional
-        Called with a line per stage.
-    executor : Executor, optional
-        Runs the Monte-Carlo plant pairs (default in-process); the result does not depend on
-        it.
-    """
-    say = progress or (lambda _msg: None)
-    seed = spec.montecarlo.seed if seed is None else seed
-    run = _spec_config(apply_tuning(cfg, tuning), spec)
+
+def _sync_rows(run: GantryConfig, spec: GantrySpec, seed: int) -> list[GantryCheck]:
+    """Largest and RMS |sync error| and the trips in each case of the deployed topology."""
     lim = spec.sync
-    # the runtime aligns the master's feedback with its own position by a constant delay line
-    # (the tuning's latency): a bus of another latency is another machine
-    rows: list[GantryCheck] = [
-        GantryCheck(
-            check="bus latency",
-            subject="the bus's = the runtime's delay line",
-            value=float(run.bus.latency_cycles),
-            limit=float(tuning.latency_cycles),
-            unit="cycles",
-            kind="==",
-            detail="tune the gantry for this bus"
-            if run.bus.latency_cycles != tuning.latency_cycles
-            else "",
-        ),
-    ]
-    failures: list[str] = []
-    say("verify gantry: sync error in each case")
-    warm_up(("gantry",), progress=progress)  # a cold cache compiles here, saying so (once)
+    rows: list[GantryCheck] = []
     for case in CASES:
         m = simulate_gantry(run, case=case, seed=seed).metrics()
         rows += [
@@ -377,17 +351,21 @@ def verify_gantry(
                 detail="" if not m.tripped else f"at {m.trip_time_s:.4f} s",
             ),
         ]
-    say("verify gantry: trip thresholds and the fault case")
-    rows += _fault_rows(run, spec, seed)
-    for r in rows:
-        if not r.passed:
-            failures.append(
-                f"{r.check}: {r.subject} {r.value:g} {r.unit} (limit {r.kind} "
-                f"{r.limit:g}){'; ' + r.detail if r.detail else ''}"
-            )
-    say("verify gantry: margins of every loop over the plant set")
-    margins = gantry_margins(run)
-    limits = run.margins.limits
+    return rows
+
+
+def _failure(r: GantryCheck) -> str:
+    """A failed row in words."""
+    return (
+        f"{r.check}: {r.subject} {r.value:g} {r.unit} (limit {r.kind} "
+        f"{r.limit:g}){'; ' + r.detail if r.detail else ''}"
+    )
+
+
+def _margin_rows(margins: Sequence[LoopMargins], limits: MarginLimits) -> list[GantryCheck]:
+    """Each loop's worst phase margin, gain margin and Ms over the plant set (an unstable
+    case first)."""
+    rows: list[GantryCheck] = []
     for loop, name in LOOP_NAMES.items():
         ms = [m for m in margins if m.axis == loop]
         if not ms:
@@ -423,6 +401,70 @@ def verify_gantry(
                 detail=f"plant {s.plant}",
             ),
         ]
+    return rows
+
+
+def _montecarlo_row(mc: GantryMonteCarlo) -> GantryCheck:
+    """The plant pairs that trip, with the pass fraction's exact 95 % interval."""
+    k, n, _, lo, hi = mc.pass_fraction
+    return GantryCheck(
+        check="Monte Carlo",
+        subject="plant pairs that trip",
+        value=float(n - k),
+        limit=0.0,
+        unit="pairs",
+        detail=f"pass {k}/{n}, 95 % interval {show_share(lo)}–{show_share(hi)} %",
+    )
+
+
+def _montecarlo_failure(mc: GantryMonteCarlo) -> str:
+    """A failed Monte Carlo in words, with the first tripping pair's draws."""
+    k, n, *_ = mc.pass_fraction
+    w = mc.worst
+    drawn = ", ".join(f"{key.replace('_', ' ')} x{v:.3f}" for key, v in w.factors.items())
+    return f"Monte Carlo: {n - k} of {n} plant pairs trip (first by size: {drawn})"
+
+
+def verify_gantry(
+    cfg: GantryConfig,
+    tuning: GantryTuning,
+    spec: GantrySpec,
+    *,
+    seed: int | None = None,
+    progress: Callable[[str], None] | None = None,
+    executor: Executor | None = None,
+) -> GantryVerification:
+    """Verify ``tuning``'s integers on the gantry ``cfg`` against ``spec`` (see the module
+    docstring).
+
+    Parameters
+    ----------
+    cfg : GantryConfig
+        The gantry (its gains are replaced by the tuning's).
+    tuning : GantryTuning
+    spec : GantrySpec
+    seed : int, optional
+        Noise, jitter and Monte-Carlo seed (default: the spec's).
+    progress : callable, optional
+        Called with a line per stage.
+    executor : Executor, optional
+        Runs the Monte-Carlo plant pairs (default in-process); the result does not depend on
+        it.
+    """
+    say = progress or (lambda _msg: None)
+    seed = spec.montecarlo.seed if seed is None else seed
+    run = _spec_config(apply_tuning(cfg, tuning), spec)
+    rows: list[GantryCheck] = [_latency_row(run, tuning)]
+    say("verify gantry: sync error in each case")
+    warm_up(("gantry",), progress=progress)  # a cold cache compiles here, saying so (once)
+    rows += _sync_rows(run, spec, seed)
+    say("verify gantry: trip thresholds and the fault case")
+    rows += _fault_rows(run, spec, seed)
+    failures = [_failure(r) for r in rows if not r.passed]
+    say("verify gantry: margins of every loop over the plant set")
+    margins = gantry_margins(run)
+    limits = run.margins.limits
+    rows += _margin_rows(margins, limits)
     failures += margin_failures(margins, limits)
     mc = None
     if spec.montecarlo.count:
@@ -430,23 +472,9 @@ def verify_gantry(
         mc = gantry_montecarlo(
             run, spec.montecarlo.count, seed=seed, progress=progress, executor=executor
         )
-        k, n, _, lo, hi = mc.pass_fraction
-        rows.append(
-            GantryCheck(
-                check="Monte Carlo",
-                subject="plant pairs that trip",
-                value=float(n - k),
-                limit=0.0,
-                unit="pairs",
-                detail=f"pass {k}/{n}, 95 % interval {show_share(lo)}–{show_share(hi)} %",
-            )
-        )
+        rows.append(_montecarlo_row(mc))
         if not mc.passed:
-            w = mc.worst
-            drawn = ", ".join(f"{key.replace('_', ' ')} x{v:.3f}" for key, v in w.factors.items())
-            failures.append(
-                f"Monte Carlo: {n - k} of {n} plant pairs trip (first by size: {drawn})"
-            )
+            failures.append(_montecarlo_failure(mc))
     return GantryVerification(
         gantry=cfg.name,
         latency_cycles=run.bus.latency_cycles,

@@ -170,64 +170,79 @@ def check_linkage(
     """
     ip = interpolate(config) if interpolation is None else interpolation
     f = bus_figures(config)
+    return (
+        _bus_check(config, f),
+        _prefill_check(config, f),
+        *_queue_checks(config, f),
+        *_speed_checks(config, ip),
+    )
+
+
+def _bus_check(config: LinkageConfig, f: BusFigures) -> Check:
+    """``bus``: a block frame fits the broadcast period at ``max_utilisation`` (else the baud
+    or block size that would make it fit)."""
     bus, period = config.bus, config.period_s
-    n = config.n_axes
-    checks: list[Check] = []
     u = f.utilisation
     bits = bus.bits_per_byte
     if u <= bus.max_utilisation:
-        checks.append(
-            Check(
-                name="bus",
-                passed=True,
-                detail=(
-                    f"a block frame ({f.frame_bytes} bytes) takes {f.frame_s * 1e3:.2f} ms of the "
-                    f"{f.broadcast_period_s * 1e3:.2f} ms broadcast period (utilisation "
-                    f"{u * 100:.1f} % <= {bus.max_utilisation * 100:.0f} %)"
-                ),
-            )
-        )
-    else:
-        m = bus.max_utilisation
-        baud_min = f.frame_bytes * bits / (m * f.broadcast_period_s)
-        per_block = bus.bytes_per_setpoint * n * bits / bus.baud  # line time per setpoint row
-        room = m * period - per_block
-        hint = f"raise baud to >= {math.ceil(baud_min)}"
-        if room > 0:
-            b_min = math.ceil(bus.frame_overhead_bytes * bits / bus.baud / room)
-            hint += f" or block_size to >= {b_min}"
-        checks.append(
-            Check(
-                name="bus",
-                passed=False,
-                detail=(
-                    f"bus overload: a block frame ({f.frame_bytes} bytes × {bits} bits at "
-                    f"{bus.baud:g} baud) takes {f.frame_s * 1e3:.2f} ms but the broadcast period "
-                    f"is "
-                    f"{f.broadcast_period_s * 1e3:.2f} ms (utilisation {u * 100:.0f} % > "
-                    f"{m * 100:.0f} %) — {hint}"
-                ),
-            )
-        )
-    p_blocks, p_min = bus.prefill_blocks, math.floor(f.frame_s / f.broadcast_period_s) + 1
-    early = f.lead_s > 0
-    checks.append(
-        Check(
-            name="prefill",
-            passed=early,
+        return Check(
+            name="bus",
+            passed=True,
             detail=(
-                f"each block arrives {f.lead_s * 1e3:.2f} ms before its first command is "
-                f"needed (prefill {p_blocks} blocks; worst queue level before a pop "
-                f"{f.nominal_min_level} setpoints)"
-                if early
-                else f"prefill too short: the first block broadcast during motion arrives "
-                f"{f.frame_s * 1e3:.2f} ms after the start but its first command is needed at "
-                f"{p_blocks * f.broadcast_period_s * 1e3:.2f} ms (prefill {p_blocks} blocks of "
-                f"{bus.block_size}) — raise prefill_blocks to >= {p_min}"
+                f"a block frame ({f.frame_bytes} bytes) takes {f.frame_s * 1e3:.2f} ms of the "
+                f"{f.broadcast_period_s * 1e3:.2f} ms broadcast period (utilisation "
+                f"{u * 100:.1f} % <= {bus.max_utilisation * 100:.0f} %)"
             ),
         )
+    m = bus.max_utilisation
+    baud_min = f.frame_bytes * bits / (m * f.broadcast_period_s)
+    n = config.n_axes
+    per_block = bus.bytes_per_setpoint * n * bits / bus.baud  # line time per setpoint row
+    room = m * period - per_block
+    hint = f"raise baud to >= {math.ceil(baud_min)}"
+    if room > 0:
+        b_min = math.ceil(bus.frame_overhead_bytes * bits / bus.baud / room)
+        hint += f" or block_size to >= {b_min}"
+    return Check(
+        name="bus",
+        passed=False,
+        detail=(
+            f"bus overload: a block frame ({f.frame_bytes} bytes × {bits} bits at "
+            f"{bus.baud:g} baud) takes {f.frame_s * 1e3:.2f} ms but the broadcast period "
+            f"is "
+            f"{f.broadcast_period_s * 1e3:.2f} ms (utilisation {u * 100:.0f} % > "
+            f"{m * 100:.0f} %) — {hint}"
+        ),
     )
+
+
+def _prefill_check(config: LinkageConfig, f: BusFigures) -> Check:
+    """``prefill``: the first block broadcast during motion arrives before it is needed."""
+    bus = config.bus
+    p_blocks, p_min = bus.prefill_blocks, math.floor(f.frame_s / f.broadcast_period_s) + 1
+    early = f.lead_s > 0
+    return Check(
+        name="prefill",
+        passed=early,
+        detail=(
+            f"each block arrives {f.lead_s * 1e3:.2f} ms before its first command is "
+            f"needed (prefill {p_blocks} blocks; worst queue level before a pop "
+            f"{f.nominal_min_level} setpoints)"
+            if early
+            else f"prefill too short: the first block broadcast during motion arrives "
+            f"{f.frame_s * 1e3:.2f} ms after the start but its first command is needed at "
+            f"{p_blocks * f.broadcast_period_s * 1e3:.2f} ms (prefill {p_blocks} blocks of "
+            f"{bus.block_size}) — raise prefill_blocks to >= {p_min}"
+        ),
+    )
+
+
+def _queue_checks(config: LinkageConfig, f: BusFigures) -> list[Check]:
+    """``queue:<cpu>``: each CPU's queue holds the prefill plus the block in flight."""
+    bus = config.bus
+    p_blocks = bus.prefill_blocks
     need = f.required_queue_depth
+    checks: list[Check] = []
     for c in config.cpus:
         deep = c.queue_depth >= need
         checks.append(
@@ -246,6 +261,14 @@ def check_linkage(
                 ),
             )
         )
+    return checks
+
+
+def _speed_checks(config: LinkageConfig, ip: Interpolation) -> list[Check]:
+    """``speed:<axis>``: the path's top speed on each axis within its limit
+    (:func:`_speed_limits`); a failure names the move and time of the top speed."""
+    period = config.period_s
+    checks: list[Check] = []
     speed = np.abs(np.diff(ip.positions, axis=0)) / period
     for i, a in enumerate(config.axes):
         limit, what = _speed_limits(config, a)
@@ -276,7 +299,7 @@ def check_linkage(
                     ),
                 )
             )
-    return tuple(checks)
+    return checks
 
 
 def recommended_resync_interval_s(config: LinkageConfig) -> float:

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from servotune._numba_cache import jit
-from servotune.arch.linkage.config import LinkageConfig
+from servotune.arch.linkage.config import LinkageConfig, Move
 from servotune.budget import check_memory, format_count
 from servotune.errors import ConfigError
 
@@ -146,6 +146,98 @@ def _check_ticks(config: LinkageConfig, ticks: float, where: str) -> None:
     )
 
 
+@dataclass(frozen=True, slots=True)
+class _Circle:
+    """The circle an arc move runs on, as :func:`_arc_circle` resolves it."""
+
+    plane: tuple[int, int]  # column indices of the plane axes
+    cx: float
+    cy: float
+    r: float  # radius [counts]
+    th0: float  # start angle [rad]
+    sign: float  # 1.0: ccw, -1.0: cw
+    sweep: float  # unsigned swept angle [rad]
+
+
+def _arc_circle(
+    mv: Move, pos: np.ndarray, end: np.ndarray, col: dict[str, int], where: str
+) -> _Circle:
+    """The circle of an arc from ``pos``; sets ``end``'s plane axes where ``angle_deg`` puts
+    them (an end given by ``to`` must lie on the circle within 1 count)."""
+    assert mv.plane is not None and mv.centre is not None
+    plane = (col[mv.plane[0]], col[mv.plane[1]])
+    i, j = plane
+    cx, cy = float(mv.centre[0]), float(mv.centre[1])
+    r = math.hypot(pos[i] - cx, pos[j] - cy)
+    if r < 1.0:
+        raise ConfigError(
+            f"{where}: the arc starts at its centre ({cx:g}, {cy:g}) [counts]; the "
+            f"start must lie on the circle"
+        )
+    th0 = math.atan2(pos[j] - cy, pos[i] - cx)
+    sign = 1.0 if mv.direction == "ccw" else -1.0
+    if mv.angle_deg is not None:
+        sweep = math.radians(mv.angle_deg)
+        if math.isclose(math.remainder(mv.angle_deg, 360.0), 0.0, abs_tol=1e-9):
+            end[i], end[j] = pos[i], pos[j]  # whole turns end where they start
+        else:
+            end[i] = cx + r * math.cos(th0 + sign * sweep)
+            end[j] = cy + r * math.sin(th0 + sign * sweep)
+    else:
+        r_end = math.hypot(end[i] - cx, end[j] - cy)
+        if abs(r_end - r) > 1.0:
+            raise ConfigError(
+                f"{where}: the arc's start is {r:.1f} counts from the centre but its "
+                f"end {r_end:.1f}: not on one circle (within 1 count)"
+            )
+        th1 = math.atan2(end[j] - cy, end[i] - cx)
+        sweep = (sign * (th1 - th0)) % (2.0 * math.pi)
+        if sweep < 1e-9:
+            sweep = 2.0 * math.pi  # end = start: a full circle
+    return _Circle(plane=plane, cx=cx, cy=cy, r=r, th0=th0, sign=sign, sweep=sweep)
+
+
+def _arc_length_and_feed(
+    c: _Circle, pos: np.ndarray, end: np.ndarray, feed: float, accel: float
+) -> tuple[float, float]:
+    """An arc's path length in the space of all axes (helical) [counts] and its feed clamped
+    so that the centripetal acceleration in its plane stays within ``accel`` [counts/s]."""
+    i, j = c.plane
+    others = end - pos
+    others[[i, j]] = 0.0
+    arc_len = c.r * c.sweep
+    length = math.hypot(arc_len, float(np.sqrt(np.sum(others * others))))
+    # centripetal acceleration in the plane (speed there = feed · arc_len / length)
+    feed = min(feed, math.sqrt(accel * c.r) * length / arc_len)
+    return length, feed
+
+
+def _arc_rows(seg: np.ndarray, c: _Circle, u: np.ndarray) -> None:
+    """Put an arc's plane axes on its circle in the sampled rows ``seg`` (``u``: the fraction
+    of the path length at each row)."""
+    i, j = c.plane
+    th = c.th0 + u * c.sign * c.sweep
+    seg[:, i] = c.cx + c.r * np.cos(th)
+    seg[:, j] = c.cy + c.r * np.sin(th)
+
+
+def _arc_geometry(
+    m: int, c: _Circle, tick: int, n: int, t_a: float, t_c: float, period: float
+) -> ArcGeometry:
+    """The :class:`ArcGeometry` of move ``m``, starting at row ``tick`` and ``n`` rows long."""
+    c0, c1 = math.ceil(t_a / period - 1e-9), math.floor((t_a + t_c) / period + 1e-9)
+    cruise = (tick + c0, tick + c1) if c1 > c0 else (tick, tick + n)
+    return ArcGeometry(
+        move=m,
+        plane=c.plane,
+        centre=(c.cx, c.cy),
+        radius_counts=c.r,
+        start_rad=c.th0,
+        sweep_rad=c.sign * c.sweep,
+        cruise_ticks=cruise,
+    )
+
+
 def interpolate(config: LinkageConfig) -> Interpolation:
     """Interpolate the path, as the master does before motion.
 
@@ -213,49 +305,15 @@ def interpolate(config: LinkageConfig) -> Interpolation:
         for ax, v in mv.to.items():
             end[col[ax]] = float(v)
         feed = min(mv.feed_cps, config.path.max_feed_cps)
-        plane: tuple[int, int] | None = None
+        circle: _Circle | None = None
         if mv.kind == "line":
             delta = end - pos
             length = float(np.sqrt(np.sum(delta * delta)))
             move_axes[m] = delta != 0.0
         else:
-            assert mv.plane is not None and mv.centre is not None
-            plane = (col[mv.plane[0]], col[mv.plane[1]])
-            i, j = plane
-            cx, cy = float(mv.centre[0]), float(mv.centre[1])
-            r = math.hypot(pos[i] - cx, pos[j] - cy)
-            if r < 1.0:
-                raise ConfigError(
-                    f"{where}: the arc starts at its centre ({cx:g}, {cy:g}) [counts]; the "
-                    f"start must lie on the circle"
-                )
-            th0 = math.atan2(pos[j] - cy, pos[i] - cx)
-            sign = 1.0 if mv.direction == "ccw" else -1.0
-            if mv.angle_deg is not None:
-                sweep = math.radians(mv.angle_deg)
-                if math.isclose(math.remainder(mv.angle_deg, 360.0), 0.0, abs_tol=1e-9):
-                    end[i], end[j] = pos[i], pos[j]  # whole turns end where they start
-                else:
-                    end[i] = cx + r * math.cos(th0 + sign * sweep)
-                    end[j] = cy + r * math.sin(th0 + sign * sweep)
-            else:
-                r_end = math.hypot(end[i] - cx, end[j] - cy)
-                if abs(r_end - r) > 1.0:
-                    raise ConfigError(
-                        f"{where}: the arc's start is {r:.1f} counts from the centre but its "
-                        f"end {r_end:.1f}: not on one circle (within 1 count)"
-                    )
-                th1 = math.atan2(end[j] - cy, end[i] - cx)
-                sweep = (sign * (th1 - th0)) % (2.0 * math.pi)
-                if sweep < 1e-9:
-                    sweep = 2.0 * math.pi  # end = start: a full circle
-            others = end - pos
-            others[[i, j]] = 0.0
-            arc_len = r * sweep
-            length = math.hypot(arc_len, float(np.sqrt(np.sum(others * others))))
-            # centripetal acceleration in the plane (speed there = feed · arc_len / length)
-            feed = min(feed, math.sqrt(accel * r) * length / arc_len)
-            move_axes[m, [i, j]] = True
+            circle = _arc_circle(mv, pos, end, col, where)
+            length, feed = _arc_length_and_feed(circle, pos, end, feed, accel)
+            move_axes[m, list(circle.plane)] = True
         if length <= 0.0:
             raise ConfigError(f"{where}: the move does not move any axis (length 0 counts)")
         with np.errstate(over="ignore", invalid="ignore"):  # an absurd move: refused below
@@ -266,24 +324,9 @@ def interpolate(config: LinkageConfig) -> Interpolation:
         s, *_ = _trapezoid(length, feed, accel, t)
         u = s / length
         seg = pos[None, :] + u[:, None] * (end - pos)[None, :]
-        if plane is not None:
-            i, j = plane
-            th = th0 + u * sign * sweep
-            seg[:, i] = cx + r * np.cos(th)
-            seg[:, j] = cy + r * np.sin(th)
-            c0, c1 = math.ceil(t_a / period - 1e-9), math.floor((t_a + t_c) / period + 1e-9)
-            cruise = (tick + c0, tick + c1) if c1 > c0 else (tick, tick + n)
-            arcs.append(
-                ArcGeometry(
-                    move=m,
-                    plane=plane,
-                    centre=(cx, cy),
-                    radius_counts=r,
-                    start_rad=th0,
-                    sweep_rad=sign * sweep,
-                    cruise_ticks=cruise,
-                )
-            )
+        if circle is not None:
+            _arc_rows(seg, circle, u)
+            arcs.append(_arc_geometry(m, circle, tick, n, t_a, t_c, period))
         seg[-1] = end
         rows.append(seg)
         move_of.append(np.full(n, m, dtype=np.int64))

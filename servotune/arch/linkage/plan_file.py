@@ -488,14 +488,7 @@ class LinkagePlan:
             "schema",
         )
         check_keys(d, "", top, ("design", "provenance"), error=ConfigError)
-        src = {}
-        for key in ("config", "rig"):
-            t = check_keys(d[key], key, ("name", "path", "sha256"), error=ConfigError)
-            src[key] = (
-                _text(t["name"], f"{key}.name"),
-                _text(t["path"], f"{key}.path", _MAX_PATH, empty=True),
-                _sha(t["sha256"], f"{key}.sha256"),
-            )
+        src = {key: _read_source(d[key], key) for key in ("config", "rig")}
         bus_d = check_keys(d["bus"], "bus", _BUS_KEYS + _BUS_DERIVED, error=ConfigError)
         bus = _build(Bus, {k: bus_d[k] for k in _BUS_KEYS}, "bus")
         path_d = check_keys(
@@ -509,26 +502,8 @@ class LinkagePlan:
             "resync_interval_ticks",
         )
         clock = check_keys(d["clock"], "clock", clock_keys, error=ConfigError)
-        cpus_l = d["cpus"]
-        if not isinstance(cpus_l, list) or not 1 <= len(cpus_l) <= 64:
-            raise ConfigError("cpus must be a list of 1 to 64 CPUs")
-        cpus, cpu_drift = [], []
-        for i, c in enumerate(cpus_l):
-            c = check_keys(c, f"cpus[{i}]", (*_CPU_KEYS, "drift_ticks"), error=ConfigError)
-            cpus.append(_build(PlanCpu, {k: c[k] for k in _CPU_KEYS}, f"cpus[{i}]"))
-            cpu_drift.append(c["drift_ticks"])
-        axes_l = d["axes"]
-        if not isinstance(axes_l, list) or not 1 <= len(axes_l) <= 256:
-            raise ConfigError("axes must be a list of 1 to 256 axes")
-        names, cpu_names, ctls = [], [], []
-        for i, a in enumerate(axes_l):
-            a = check_keys(a, f"axes[{i}]", ("controller", "cpu", "name"), error=ConfigError)
-            names.append(_text(a["name"], f"axes[{i}].name"))
-            cpu_names.append(_text(a["cpu"], f"axes[{i}].cpu"))
-            try:
-                ctls.append(AxisController.from_dict(a["controller"]))
-            except ValueError as exc:
-                raise ConfigError(f"axes[{i}].controller: {exc}") from None
+        cpus, cpu_drift = _read_cpus(d["cpus"])
+        names, cpu_names, ctls = _read_axes(d["axes"])
         period = d["period_s"]
         if type(period) is not float:
             raise ConfigError(f"period_s must be a number [s], got {show_value(period)}")
@@ -568,13 +543,7 @@ class LinkagePlan:
             (f"cpus[{i}].drift_ticks", got, plan.drift_ticks(c))
             for i, (c, got) in enumerate(zip(cpus, cpu_drift, strict=True))
         ]
-        for where, got, want in derived:
-            same = type(got) is int if isinstance(want, int) else is_number(got)
-            if not same or got != want:
-                raise ConfigError(
-                    f"{where} is {show_value(got)} but the plan's own fields give "
-                    f"{want!r}: the plan was edited; plan the config again"
-                )
+        _check_derived(derived)
         return plan
 
 
@@ -593,6 +562,57 @@ def _build(cls: type, values: Mapping[str, Any], where: str) -> Any:
         return cls(**values)
     except ConfigError as exc:
         raise ConfigError(f"{where}.{exc}") from None
+
+
+def _read_source(value: object, key: str) -> tuple[str, str, str]:
+    """A plan's ``config`` or ``rig`` entry: ``(name, path, sha256)``."""
+    t = check_keys(value, key, ("name", "path", "sha256"), error=ConfigError)
+    return (
+        _text(t["name"], f"{key}.name"),
+        _text(t["path"], f"{key}.path", _MAX_PATH, empty=True),
+        _sha(t["sha256"], f"{key}.sha256"),
+    )
+
+
+def _read_cpus(cpus_l: object) -> tuple[list[PlanCpu], list[Any]]:
+    """A plan's ``cpus``: each CPU, and the ``drift_ticks`` each states (checked later against
+    what the plan gives)."""
+    if not isinstance(cpus_l, list) or not 1 <= len(cpus_l) <= 64:
+        raise ConfigError("cpus must be a list of 1 to 64 CPUs")
+    cpus, cpu_drift = [], []
+    for i, c in enumerate(cpus_l):
+        c = check_keys(c, f"cpus[{i}]", (*_CPU_KEYS, "drift_ticks"), error=ConfigError)
+        cpus.append(_build(PlanCpu, {k: c[k] for k in _CPU_KEYS}, f"cpus[{i}]"))
+        cpu_drift.append(c["drift_ticks"])
+    return cpus, cpu_drift
+
+
+def _read_axes(axes_l: object) -> tuple[list[str], list[str], list[AxisController]]:
+    """A plan's ``axes``: their names, the CPU each states and their controllers."""
+    if not isinstance(axes_l, list) or not 1 <= len(axes_l) <= 256:
+        raise ConfigError("axes must be a list of 1 to 256 axes")
+    names, cpu_names, ctls = [], [], []
+    for i, a in enumerate(axes_l):
+        a = check_keys(a, f"axes[{i}]", ("controller", "cpu", "name"), error=ConfigError)
+        names.append(_text(a["name"], f"axes[{i}].name"))
+        cpu_names.append(_text(a["cpu"], f"axes[{i}].cpu"))
+        try:
+            ctls.append(AxisController.from_dict(a["controller"]))
+        except ValueError as exc:
+            raise ConfigError(f"axes[{i}].controller: {exc}") from None
+    return names, cpu_names, ctls
+
+
+def _check_derived(derived: list[tuple[str, Any, Any]]) -> None:
+    """Each ``(where, stated, given)`` derived figure: the one stated must be the one the
+    plan's own fields give (same kind of number, same value)."""
+    for where, got, want in derived:
+        same = type(got) is int if isinstance(want, int) else is_number(got)
+        if not same or got != want:
+            raise ConfigError(
+                f"{where} is {show_value(got)} but the plan's own fields give "
+                f"{want!r}: the plan was edited; plan the config again"
+            )
 
 
 def plan_to_string(plan: LinkagePlan) -> str:

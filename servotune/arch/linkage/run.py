@@ -11,6 +11,7 @@ import numpy as np
 
 from servotune._numba_cache import call_compiled
 from servotune.arch.linkage.checks import (
+    BusFigures,
     Check,
     LinkageCheckError,
     bus_figures,
@@ -51,6 +52,7 @@ from servotune.arch.linkage.path import (
     TICK_BYTES,
     TICK_BYTES_PER_AXIS,
     TRACE_BYTES_PER_AXIS,
+    Interpolation,
     contour_distances,
     interpolate,
 )
@@ -281,18 +283,7 @@ def run_linkage(
         seconds = ip.duration_s + config.settle_s
     check_number("seconds", seconds, "s", strict=True, hi=1e6, error=ConfigError)
     seed = check_seed(seed, error=ConfigError)
-    per_tick = (
-        config.n_axes * (TICK_BYTES_PER_AXIS + (TRACE_BYTES_PER_AXIS if trace else 0))
-        + len(config.cpus) * (3 + (NE if trace else 0)) * 8
-        + TICK_BYTES
-    )
-    ticks_f = seconds / period
-    check_memory(
-        ticks_f * per_tick,
-        f"linkage {config.name!r}: simulating {seconds:g} s",
-        f"{format_count(ticks_f)} ticks × {per_tick} bytes",
-    )
-    n_ticks = max(1, round(ticks_f))
+    n_ticks = _run_ticks(config, seconds, trace)
     resync_s = config.clock.resync_interval_s
     if resync_ticks is not None:
         resync_s = resync_ticks * period
@@ -300,12 +291,140 @@ def run_linkage(
         resync_ticks = max(1, round(resync_s / period))
     else:
         resync_ticks = 0
+    controllers, shown = _run_controllers(config, gains, controllers)
+    sim = _simulate(config, ip, controllers, n_ticks, seed, resync_ticks, trace)
+    cpus = _cpu_results(config, sim, trace)
+    traces = _axis_traces(config, sim, cpus) if trace else None
+    command = sim.cmd[:n_ticks]
+    err = command - sim.actual
+    axes = _axis_results(config, sim, err, shown)
+    contour = call_compiled(contour_distances, sim.path_pad, sim.actual, sim.move_pad, ip.move_axes)
+    arcs = _arc_results(config, ip, sim.actual, n_ticks)
+    try:
+        rec: float | None = recommended_resync_interval_s(config)
+    except LinkageCheckError:
+        rec = None
+    checks = list(pre) + _motion_checks(config, cpus, axes, err, rec, resync_s)
+    return LinkageResult(
+        name=config.name,
+        seed=int(seed),
+        period_s=period,
+        bus=sim.figs,
+        resync_interval_s=resync_ticks * period,
+        recommended_resync_interval_s=rec,
+        cpus=tuple(cpus),
+        axes=tuple(axes),
+        arcs=tuple(arcs),
+        contour_max_counts=float(contour.max()),
+        contour_rms_counts=float(np.sqrt(np.mean(contour**2))),
+        checks=tuple(checks),
+        interpolation=ip,
+        time_s=np.arange(n_ticks, dtype=np.int64) * period,
+        command_counts=command,
+        path_counts=sim.path_pad[:n_ticks],
+        actual_counts=sim.actual,
+        contour_counts=contour,
+        traces=None if traces is None else tuple(traces),
+    )
+
+
+def _run_ticks(config: LinkageConfig, seconds: float, trace: bool) -> int:
+    """Master ticks of a run of ``seconds``, refused if its arrays exceed the memory budget."""
+    per_tick = (
+        config.n_axes * (TICK_BYTES_PER_AXIS + (TRACE_BYTES_PER_AXIS if trace else 0))
+        + len(config.cpus) * (3 + (NE if trace else 0)) * 8
+        + TICK_BYTES
+    )
+    ticks_f = seconds / config.period_s
+    check_memory(
+        ticks_f * per_tick,
+        f"linkage {config.name!r}: simulating {seconds:g} s",
+        f"{format_count(ticks_f)} ticks × {per_tick} bytes",
+    )
+    return max(1, round(ticks_f))
+
+
+def _run_controllers(
+    config: LinkageConfig,
+    gains: Mapping[str, PIGains] | None,
+    controllers: Mapping[str, AxisController] | None,
+) -> tuple[Mapping[str, AxisController], dict[str, tuple[float, float, bool]]]:
+    """What each axis of a run runs, and its ``(kp, ki, tuned)`` as the result shows them.
+
+    ``controllers`` (checked) run as given. Otherwise this is the one point where a run
+    resolves gains: :func:`axis_gains` (``gains``, else the file's, else tuned with
+    :func:`~servotune.tune.pi.tune_pi`), quantised by :func:`axis_controllers`.
+    """
     if controllers is None:
         gains_used = axis_gains(config, gains)
         shown = {n: (g.gains.kp, g.gains.ki, g.tuned) for n, g in gains_used.items()}
-        controllers = axis_controllers(config, gains_used)
-    else:
-        shown = {n: (*_pi_values(c, period), False) for n, c in controllers.items()}
+        return axis_controllers(config, gains_used), shown
+    period = config.period_s
+    shown = {n: (*_pi_values(c, period), False) for n, c in controllers.items()}
+    return controllers, shown
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class _Simulated:
+    """The kernel's inputs a run's results read and the arrays it filled
+    (:func:`_simulate`; the layouts are :mod:`servotune.arch.linkage.kernel`'s)."""
+
+    figs: BusFigures
+    cmd: np.ndarray  # commands broadcast, the path's end held after it (ticks, axes)
+    path_pad: np.ndarray  # programmed positions, padded the same way
+    move_pad: np.ndarray  # move of each padded row
+    ax_cpu: np.ndarray  # CPU index of each axis
+    n_rec: int  # rows of the per-CPU tick records
+    actual: np.ndarray
+    q_time: np.ndarray
+    q_level: np.ndarray
+    q_index: np.ndarray
+    cpu_stats: np.ndarray
+    ax_stats: np.ndarray
+    tr_i: np.ndarray
+    tr_f: np.ndarray
+    ev: np.ndarray
+    ev_count: np.ndarray
+
+
+def _plant_rows(
+    config: LinkageConfig, eps: np.ndarray, ax_cpu: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each axis's plant row for its CPU's nominal tick ``T/(1 + ε)`` (its tick in master
+    time) and its integer state (lag, ring size, counter's initial value).
+
+    Raises
+    ------
+    ConfigError
+        An axis's plant has flexible modes (the linkage simulates rigid plants).
+    """
+    rig = config.rig
+    plant_rows = np.zeros((config.n_axes, NROW))
+    ints = np.zeros((config.n_axes, NI), dtype=np.int64)
+    for i, a in enumerate(config.axes):
+        if a.plant.modes:
+            raise ConfigError(
+                f"axis {a.name!r}: the linkage simulates rigid plants; its plant has "
+                f"{len(a.plant.modes)} mode(s) (docs/frf.md): run it in the single-rig engine"
+            )
+        tick_s = config.period_s / (1.0 + eps[ax_cpu[i]])
+        plant_rows[i], m = plant_row(a.plant, tick_s, rig.timer.compute_s, rig.counts_per_rev)
+        ints[i, I_LAG], ints[i, I_RING], ints[i, I_INIT] = m, m + 2, a.counter_init
+    return plant_rows, ints
+
+
+def _simulate(
+    config: LinkageConfig,
+    ip: Interpolation,
+    controllers: Mapping[str, AxisController],
+    n_ticks: int,
+    seed: int,
+    resync_ticks: int,
+    trace: bool,
+) -> _Simulated:
+    """Run the linkage kernel over ``n_ticks`` master ticks: its inputs built from the config
+    and the interpolation, its records sized for every tick, block and sync of each CPU."""
+    period = config.period_s
     rig, bus = config.rig, config.bus
     n_ax, n_cpu = config.n_axes, len(config.cpus)
     eps = np.array([c.clock_ppm * 1e-6 for c in config.cpus])
@@ -318,18 +437,7 @@ def run_linkage(
     move_pad = ip.move_of_tick[rows]
     cpu_index = {c.name: i for i, c in enumerate(config.cpus)}
     ax_cpu = np.array([cpu_index[config.cpu_of(a.name).name] for a in config.axes])
-    # each axis's plant row for its CPU's nominal tick T/(1 + ε) (its tick in master time)
-    plant_rows = np.zeros((n_ax, NROW))
-    ints = np.zeros((n_ax, NI), dtype=np.int64)
-    for i, a in enumerate(config.axes):
-        if a.plant.modes:
-            raise ConfigError(
-                f"axis {a.name!r}: the linkage simulates rigid plants; its plant has "
-                f"{len(a.plant.modes)} mode(s) (docs/frf.md): run it in the single-rig engine"
-            )
-        tick_s = period / (1.0 + eps[ax_cpu[i]])
-        plant_rows[i], m = plant_row(a.plant, tick_s, rig.timer.compute_s, rig.counts_per_rev)
-        ints[i, I_LAG], ints[i, I_RING], ints[i, I_INIT] = m, m + 2, a.counter_init
+    plant_rows, ints = _plant_rows(config, eps, ax_cpu)
     consts = np.stack(
         [
             controllers[a.name].consts(
@@ -343,17 +451,24 @@ def run_linkage(
     # the event log: every tick, block arrival (prefill included) and sync of each CPU
     n_syncs = n_ticks // resync_ticks + 2 if resync_ticks else 1
     n_ev = n_rec + n_ticks // bus.block_size + bus.prefill_blocks + 2 + n_syncs if trace else 0
-    figs = bus_figures(config)
-    actual = np.zeros((n_ticks, n_ax))
-    q_time = np.zeros((n_cpu, n_rec))
-    q_level = np.zeros((n_cpu, n_rec), dtype=np.int64)
-    q_index = np.zeros((n_cpu, n_rec), dtype=np.int64)
-    cpu_stats = np.zeros((n_cpu, NS))
-    ax_stats = np.zeros((n_ax, NA))
-    tr_i = np.zeros((NT, n_tr, n_ax), dtype=np.int64)
-    tr_f = np.zeros((NTF, n_tr, n_ax))
-    ev = np.zeros((n_cpu, n_ev, NE), dtype=np.int64)
-    ev_count = np.zeros(n_cpu, dtype=np.int64)
+    sim = _Simulated(
+        figs=bus_figures(config),
+        cmd=cmd,
+        path_pad=path_pad,
+        move_pad=move_pad,
+        ax_cpu=ax_cpu,
+        n_rec=n_rec,
+        actual=np.zeros((n_ticks, n_ax)),
+        q_time=np.zeros((n_cpu, n_rec)),
+        q_level=np.zeros((n_cpu, n_rec), dtype=np.int64),
+        q_index=np.zeros((n_cpu, n_rec), dtype=np.int64),
+        cpu_stats=np.zeros((n_cpu, NS)),
+        ax_stats=np.zeros((n_ax, NA)),
+        tr_i=np.zeros((NT, n_tr, n_ax), dtype=np.int64),
+        tr_f=np.zeros((NTF, n_tr, n_ax)),
+        ev=np.zeros((n_cpu, n_ev, NE), dtype=np.int64),
+        ev_count=np.zeros(n_cpu, dtype=np.int64),
+    )
     call_compiled(
         linkage_kernel,
         n_ticks,
@@ -368,73 +483,87 @@ def run_linkage(
         np.array([c.queue_depth for c in config.cpus], dtype=np.int64),
         bus.block_size,
         bus.prefill_blocks,
-        figs.frame_s,
+        sim.figs.frame_s,
         resync_ticks,
         rig.counter.bits,
         bool(rig.counter.latched),
         float(rig.counter.read_skew_s),
         float(rig.dac.range_v[0]),
         rig.dac.lsb_v,
-        actual,
-        q_time,
-        q_level,
-        q_index,
-        cpu_stats,
-        ax_stats,
-        tr_i,
-        tr_f,
-        ev,
-        ev_count,
+        sim.actual,
+        sim.q_time,
+        sim.q_level,
+        sim.q_index,
+        sim.cpu_stats,
+        sim.ax_stats,
+        sim.tr_i,
+        sim.tr_f,
+        sim.ev,
+        sim.ev_count,
     )
-    if trace and np.any(ev_count > n_ev):  # sized above for every event: a bug if not
-        raise RuntimeError(f"linkage event log overflow: {ev_count.tolist()} > {n_ev}")
+    if trace and np.any(sim.ev_count > n_ev):  # sized above for every event: a bug if not
+        raise RuntimeError(f"linkage event log overflow: {sim.ev_count.tolist()} > {n_ev}")
+    return sim
 
-    # per CPU
+
+def _cpu_results(config: LinkageConfig, sim: _Simulated, trace: bool) -> list[CpuResult]:
+    """Each CPU's queue record and counts (its events with ``trace``)."""
     cpus = []
+    stats = sim.cpu_stats
     for s, c in enumerate(config.cpus):
-        n = min(int(cpu_stats[s, S_TICKS]), n_rec)
+        n = min(int(stats[s, S_TICKS]), sim.n_rec)
         cpus.append(
             CpuResult(
                 name=c.name,
                 axes=c.axes,
                 clock_ppm=float(c.clock_ppm),
                 queue_depth=c.queue_depth,
-                tick_time_s=q_time[s, :n].copy(),
-                queue_level=q_level[s, :n].copy(),
-                tick_index=q_index[s, :n].copy(),
-                underruns=int(cpu_stats[s, S_UNDER]),
-                first_underrun_s=optional_time(cpu_stats[s, S_T_UNDER]),
-                overruns=int(cpu_stats[s, S_OVER]),
-                first_overrun_s=optional_time(cpu_stats[s, S_T_OVER]),
-                min_level=int(cpu_stats[s, S_MIN]) if n else 0,
-                max_level=int(cpu_stats[s, S_MAX]),
-                skipped=int(cpu_stats[s, S_SKIP]),
-                resyncs=int(cpu_stats[s, S_RESYNC]),
-                events=ev[s, : ev_count[s]].copy() if trace else None,
+                tick_time_s=sim.q_time[s, :n].copy(),
+                queue_level=sim.q_level[s, :n].copy(),
+                tick_index=sim.q_index[s, :n].copy(),
+                underruns=int(stats[s, S_UNDER]),
+                first_underrun_s=optional_time(stats[s, S_T_UNDER]),
+                overruns=int(stats[s, S_OVER]),
+                first_overrun_s=optional_time(stats[s, S_T_OVER]),
+                min_level=int(stats[s, S_MIN]) if n else 0,
+                max_level=int(stats[s, S_MAX]),
+                skipped=int(stats[s, S_SKIP]),
+                resyncs=int(stats[s, S_RESYNC]),
+                events=sim.ev[s, : sim.ev_count[s]].copy() if trace else None,
             )
         )
-    traces = None
-    if trace:
-        traces = []
-        for i, a in enumerate(config.axes):
-            n = cpus[ax_cpu[i]].tick_time_s.size
-            traces.append(
-                AxisTrace(
-                    name=a.name,
-                    cpu=cpus[ax_cpu[i]].name,
-                    ref_counts=tr_i[T_REF, :n, i].copy(),
-                    code=tr_i[T_CODE, :n, i].copy(),
-                    pos_counts=tr_i[T_Y, :n, i].copy(),
-                    true_pos_counts=tr_f[T_POS, :n, i].copy(),
-                    speed_cps=tr_f[T_SPD, :n, i].copy(),
-                )
+    return cpus
+
+
+def _axis_traces(config: LinkageConfig, sim: _Simulated, cpus: list[CpuResult]) -> list[AxisTrace]:
+    """Each axis's ticks as its CPU ran them (``trace=True``)."""
+    traces = []
+    for i, a in enumerate(config.axes):
+        n = cpus[sim.ax_cpu[i]].tick_time_s.size
+        traces.append(
+            AxisTrace(
+                name=a.name,
+                cpu=cpus[sim.ax_cpu[i]].name,
+                ref_counts=sim.tr_i[T_REF, :n, i].copy(),
+                code=sim.tr_i[T_CODE, :n, i].copy(),
+                pos_counts=sim.tr_i[T_Y, :n, i].copy(),
+                true_pos_counts=sim.tr_f[T_POS, :n, i].copy(),
+                speed_cps=sim.tr_f[T_SPD, :n, i].copy(),
             )
-    # per axis
-    command = cmd[:n_ticks]
-    err = command - actual
+        )
+    return traces
+
+
+def _axis_results(
+    config: LinkageConfig,
+    sim: _Simulated,
+    err: np.ndarray,
+    shown: Mapping[str, tuple[float, float, bool]],
+) -> list[AxisResult]:
+    """Each axis's gains, tracking error (``err``: command − actual), saturation and fault."""
     axes = []
     for i, a in enumerate(config.axes):
-        flags = int(ax_stats[i, A_FLAGS])
+        flags = int(sim.ax_stats[i, A_FLAGS])
         fault = None
         if flags & FLAG_FOLLOWING_ERROR:
             fault = "following_error"
@@ -450,13 +579,19 @@ def run_linkage(
                 tuned=tuned,
                 max_abs_err_counts=float(np.max(np.abs(err[:, i]))),
                 rms_err_counts=float(np.sqrt(np.mean(err[:, i] ** 2))),
-                saturated_ticks=int(ax_stats[i, A_SAT]),
+                saturated_ticks=int(sim.ax_stats[i, A_SAT]),
                 fault=fault,
-                first_fault_s=optional_time(ax_stats[i, A_T_FAULT]),
+                first_fault_s=optional_time(sim.ax_stats[i, A_T_FAULT]),
             )
         )
-    # contour and circular tests
-    contour = call_compiled(contour_distances, path_pad, actual, move_pad, ip.move_axes)
+    return axes
+
+
+def _arc_results(
+    config: LinkageConfig, ip: Interpolation, actual: np.ndarray, n_ticks: int
+) -> list[ArcResult]:
+    """The circular test of each arc run (at least partly) within the ``n_ticks`` simulated:
+    the radial deviation of the actual points, over the cruise and over the whole arc."""
     arcs = []
     for g in ip.arcs:
         k0 = ip.move_start_tick(g.move)
@@ -485,32 +620,7 @@ def run_linkage(
                 circularity_whole_counts=float(dev.max() - dev.min()),
             )
         )
-    try:
-        rec: float | None = recommended_resync_interval_s(config)
-    except LinkageCheckError:
-        rec = None
-    checks = list(pre) + _motion_checks(config, cpus, axes, err, rec, resync_s)
-    return LinkageResult(
-        name=config.name,
-        seed=int(seed),
-        period_s=period,
-        bus=figs,
-        resync_interval_s=resync_ticks * period,
-        recommended_resync_interval_s=rec,
-        cpus=tuple(cpus),
-        axes=tuple(axes),
-        arcs=tuple(arcs),
-        contour_max_counts=float(contour.max()),
-        contour_rms_counts=float(np.sqrt(np.mean(contour**2))),
-        checks=tuple(checks),
-        interpolation=ip,
-        time_s=np.arange(n_ticks, dtype=np.int64) * period,
-        command_counts=command,
-        path_counts=path_pad[:n_ticks],
-        actual_counts=actual,
-        contour_counts=contour,
-        traces=None if traces is None else tuple(traces),
-    )
+    return arcs
 
 
 def _motion_checks(

@@ -48,15 +48,17 @@ from servotune.analysis.margins import (
     loop_model,
 )
 from servotune.arch.linkage.bus import MAX_CLOCK_PPM
-from servotune.arch.linkage.checks import check_linkage
+from servotune.arch.linkage.checks import Check, check_linkage
 from servotune.arch.linkage.config import LinkageConfig
 from servotune.arch.linkage.plan import (
     LinkagePlan,
+    PlanCpu,
     plan_config,
     read_config,
     read_plan_bytes,
     run_plan,
 )
+from servotune.arch.linkage.result import CpuResult, LinkageResult
 from servotune.arch.linkage.spec import LinkageSpec, linkage_spec_from_bytes
 from servotune.errors import ConfigError, SpecError, TrustError, TuningError
 from servotune.io.files import json_float
@@ -355,19 +357,7 @@ def verify_plan(plan: LinkagePlan, config: LinkageConfig, spec: LinkageSpec) -> 
         rows += _margin_rows(plan, config, spec.margins)
     before = [c for c in check_linkage(nominal) if not c.passed]
     if before:  # nothing to simulate: every case would be refused before motion
-        for c in before:
-            rows.append(
-                LinkageRow(
-                    check=f"before_motion:{c.name}",
-                    case="plan",
-                    value=1,
-                    limit=0,
-                    unit="checks",
-                    bound="<=",
-                    passed=False,
-                    detail=f"before_motion:{c.name}: {c.detail}",
-                )
-            )
+        rows += _before_motion_rows(before)
         return LinkageVerification(
             config=plan.config_name, spec=spec, cases=cases, rows=tuple(rows)
         )
@@ -375,7 +365,6 @@ def verify_plan(plan: LinkagePlan, config: LinkageConfig, spec: LinkageSpec) -> 
         (label, run_plan(plan, config, clock_ppm=ppm, seconds=spec.seconds, seed=spec.seed))
         for label, ppm in cases
     ]
-    t = plan.period_s
     if spec.max_contour_error_counts is not None:
         v, case = _worst([(r.contour_max_counts, lb) for lb, r in results], high=True)
         rows.append(
@@ -390,83 +379,118 @@ def verify_plan(plan: LinkagePlan, config: LinkageConfig, spec: LinkageSpec) -> 
             )
         )
     for s, c in enumerate(plan.cpus):
-        per = [(r.cpus[s], lb) for lb, r in results]
-        checks = (
-            (
-                "phase_drift",
-                spec.max_phase_drift_ticks,
-                "ticks",
-                True,
-                lambda x: (
-                    float(np.max(np.abs(x.tick_time_s - x.tick_index * t)) / t)
-                    if x.tick_index.size
-                    else 0.0
-                ),
-                "largest |tick time − index·T| of a tick",
-            ),
-            (
-                "underruns",
-                spec.max_underrun_ticks,
-                "ticks",
-                True,
-                lambda x: x.underruns,
-                "ticks that found no command",
-            ),
-            (
-                "overruns",
-                spec.max_overrun_blocks,
-                "blocks",
-                True,
-                lambda x: x.overruns,
-                "blocks that did not fit the queue",
-            ),
-            (
-                "skipped",
-                spec.max_skipped_setpoints,
-                "setpoints",
-                True,
-                lambda x: x.skipped,
-                "commands discarded at syncs",
-            ),
-            (
-                "min_level",
-                spec.min_level_setpoints,
-                "setpoints",
-                False,
-                lambda x: x.min_level,
-                "lowest queue level before a pop",
-            ),
+        rows += _queue_limit_rows(plan, spec, s, [(r.cpus[s], lb) for lb, r in results])
+        rows += _watermark_rows(c, results[0][1].cpus[s], results[0][0])
+    rows += _fault_rows(plan, results)
+    return LinkageVerification(config=plan.config_name, spec=spec, cases=cases, rows=tuple(rows))
+
+
+def _before_motion_rows(before: list[Check]) -> list[LinkageRow]:
+    """One failed row per check before motion that fails (nothing is simulated then)."""
+    return [
+        LinkageRow(
+            check=f"before_motion:{c.name}",
+            case="plan",
+            value=1,
+            limit=0,
+            unit="checks",
+            bound="<=",
+            passed=False,
+            detail=f"before_motion:{c.name}: {c.detail}",
         )
-        for name, limit, unit, high, get, what in checks:
-            if limit is None:
-                continue
-            v, case = _worst([(get(x), lb) for x, lb in per], high=high)
-            rows.append(
-                _row(f"{name}:{c.name}", case, v, limit, unit, "<=" if high else ">=", what)
-            )
-        nom = results[0][1].cpus[s]
-        rows.append(
-            _row(
-                f"low_watermark:{c.name}",
-                results[0][0],
-                nom.min_level,
-                c.low_watermark,
-                "setpoints",
-                ">=",
-                "lowest queue level before a pop",
-            )
-        )
-        rows.append(
-            _row(
-                f"high_watermark:{c.name}",
-                results[0][0],
-                nom.max_level,
-                c.high_watermark,
-                "setpoints",
-                "<=",
-                "highest queue level after a block",
-            )
-        )
+        for c in before
+    ]
+
+
+def _queue_limit_rows(
+    plan: LinkagePlan, spec: LinkageSpec, s: int, per: list[tuple[CpuResult, str]]
+) -> list[LinkageRow]:
+    """The spec's limits on CPU ``s``'s clock and queue, each at its worst over the cases
+    (``per``: the CPU's result and label of each case); a limit the spec leaves out, no row."""
+    t = plan.period_s
+    c = plan.cpus[s]
+    checks = (
+        (
+            "phase_drift",
+            spec.max_phase_drift_ticks,
+            "ticks",
+            True,
+            lambda x: (
+                float(np.max(np.abs(x.tick_time_s - x.tick_index * t)) / t)
+                if x.tick_index.size
+                else 0.0
+            ),
+            "largest |tick time − index·T| of a tick",
+        ),
+        (
+            "underruns",
+            spec.max_underrun_ticks,
+            "ticks",
+            True,
+            lambda x: x.underruns,
+            "ticks that found no command",
+        ),
+        (
+            "overruns",
+            spec.max_overrun_blocks,
+            "blocks",
+            True,
+            lambda x: x.overruns,
+            "blocks that did not fit the queue",
+        ),
+        (
+            "skipped",
+            spec.max_skipped_setpoints,
+            "setpoints",
+            True,
+            lambda x: x.skipped,
+            "commands discarded at syncs",
+        ),
+        (
+            "min_level",
+            spec.min_level_setpoints,
+            "setpoints",
+            False,
+            lambda x: x.min_level,
+            "lowest queue level before a pop",
+        ),
+    )
+    rows = []
+    for name, limit, unit, high, get, what in checks:
+        if limit is None:
+            continue
+        v, case = _worst([(get(x), lb) for x, lb in per], high=high)
+        rows.append(_row(f"{name}:{c.name}", case, v, limit, unit, "<=" if high else ">=", what))
+    return rows
+
+
+def _watermark_rows(c: PlanCpu, nom: CpuResult, case: str) -> list[LinkageRow]:
+    """CPU ``c``'s queue levels in the nominal case ``nom`` against the plan's watermarks."""
+    return [
+        _row(
+            f"low_watermark:{c.name}",
+            case,
+            nom.min_level,
+            c.low_watermark,
+            "setpoints",
+            ">=",
+            "lowest queue level before a pop",
+        ),
+        _row(
+            f"high_watermark:{c.name}",
+            case,
+            nom.max_level,
+            c.high_watermark,
+            "setpoints",
+            "<=",
+            "highest queue level after a block",
+        ),
+    ]
+
+
+def _fault_rows(plan: LinkagePlan, results: list[tuple[str, LinkageResult]]) -> list[LinkageRow]:
+    """Per axis: the clock cases with a fault latched (none allowed), the first one named."""
+    rows = []
     for i, name in enumerate(plan.axis_names):
         faulted = [lb for lb, r in results if r.axes[i].fault is not None]
         case = faulted[0] if faulted else "every case"
@@ -481,7 +505,7 @@ def verify_plan(plan: LinkagePlan, config: LinkageConfig, spec: LinkageSpec) -> 
                 "clock cases with a fault latched (following-error trip, counter fault):",
             )
         )
-    return LinkageVerification(config=plan.config_name, spec=spec, cases=cases, rows=tuple(rows))
+    return rows
 
 
 def _config_file(plan: LinkagePlan, plan_path: str | Path, given: str | Path | None) -> SourceFile:

@@ -4,7 +4,7 @@ loop) and :func:`tune_pi_axis` (the same for one axis of a rig)."""
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -32,7 +32,14 @@ from servotune.tune.pi.grid import (
     start_point,
 )
 from servotune.tune.pi.nlp import Nlp
-from servotune.tune.pi.spec import MAX_BUILDS, PEAK_STENCIL, REFINE_ROUNDS, PITuning, check_spec
+from servotune.tune.pi.spec import (
+    MAX_BUILDS,
+    PEAK_STENCIL,
+    REFINE_ROUNDS,
+    PITuning,
+    Spec,
+    check_spec,
+)
 
 if TYPE_CHECKING:  # python-control is imported where used (slow to import)
     import control
@@ -40,6 +47,153 @@ if TYPE_CHECKING:  # python-control is imported where used (slow to import)
     from servotune.rig import Rig
 
 __all__ = ["tune_pi", "tune_pi_axis"]
+
+
+_Design = tuple[float, float, str, bool]
+"""A candidate design: kp, ki, the solver's status, whether it meets the targets strictly."""
+
+_BINDING_TOL = {
+    "phase_margin_deg": -0.05,
+    "gain_margin_db": -0.05,
+    "max_sensitivity": -2e-3,
+    "crossover_rad_s": -2e-3,
+}
+"""Violation (negative: the slack) from which a target counts as binding."""
+
+
+def _loop_context(
+    plant: Plant | control.TransferFunction,
+    period_s: float,
+    compute_s: float,
+    lsb_v: float,
+    spec: Spec,
+) -> tuple[Ctx, control.StateSpace]:
+    """The plant's discrete model scaled by ``lsb_v`` and its response on the design grid
+    (:class:`~servotune.tune.pi.grid.Ctx`), and the scaled model python-control re-checks on.
+
+    Raises
+    ------
+    SpecError
+        The discrete plant has a pole on the unit circle away from z = 1.
+    """
+    discretiser, lag, feature = plant_model(plant, period_s, compute_s)
+    p_scaled = lsb_v * discretiser(lag)
+    a = np.asarray(p_scaled.A, dtype=float)
+    b = np.asarray(p_scaled.B, dtype=float)
+    c = np.asarray(p_scaled.C, dtype=float)
+    d = float(np.asarray(p_scaled.D, dtype=float)[0, 0])
+    # responses: the whole ticks of lag are a pure shift z^-m, the rest a small model
+    m_ticks, lam = lag_split(lag, period_s)
+    p_frac = lsb_v * discretiser(lam)
+    mats = [np.asarray(x, dtype=float) for x in (p_frac.A, p_frac.B, p_frac.C)]
+    d_frac = float(np.asarray(p_frac.D, dtype=float)[0, 0])
+
+    def resp(om: np.ndarray) -> np.ndarray:
+        z = np.exp(1j * np.asarray(om, dtype=float) * period_s)
+        return ss_response(*mats, d_frac, z) * z ** (-m_ticks)
+
+    nyq = math.pi / period_s
+    w_lo = min(feature, nyq, spec.wc_max or math.inf) * 10.0**-DECADES_BELOW
+    w = design_grid(w_lo, nyq, lag + period_s, np.linalg.eigvals(mats[0]))
+    g = resp(w)
+    if not np.all(np.isfinite(g)):
+        raise SpecError("the discrete plant has a pole on the unit circle away from z = 1")
+    ctx = Ctx(period_s, a, b, c, d, resp, w, g, unwrapped_phase(g), q_im(w, period_s))
+    return ctx, p_scaled
+
+
+def _refine(
+    ctx: Ctx, spec: Spec, start: tuple[float, float], w_check: np.ndarray
+) -> tuple[list[_Design], int]:
+    """The NLP's acceptable designs, solved again with the targets missed between grid points
+    refined (see :func:`tune_pi`), and the solver iterations they took."""
+    # the NLP aims a hair inside the targets, so that the re-check finds them met
+    pm_t = spec.pm_deg + 1e-6 if spec.pm_deg is not None else 0.0
+    gm_t = spec.gm_db + 1e-6 if spec.gm_db is not None else 0.0
+    ms_t = spec.ms * (1 - 1e-7) if spec.ms is not None else 2.0
+    ms_w, guard_w = np.empty(0), np.empty(0)
+    wc_w = np.array([spec.wc_max * (1 - 1e-7)]) if spec.wc_max is not None else np.empty(0)
+    iterations, builds = 0, 0
+    designs: list[_Design] = []  # acceptable: kp, ki, status, strictly
+    nlp = Nlp(ctx, spec, start)
+    x0: np.ndarray | None = None
+    for _ in range(REFINE_ROUNDS):
+        res = nlp.solve(x0, pm_deg=pm_t, gm_db=gm_t, ms=ms_t, ms_w=ms_w, wc_w=wc_w, guard_w=guard_w)
+        iterations += res.iterations
+        if not (res.success and res.ki > 0):
+            break
+        chk = fast_check(ctx, res.kp, res.ki, w_check)
+        viol = violations(chk, spec)
+        strict = acceptable(viol, strict=True)
+        if acceptable(viol):
+            designs.append((res.kp, res.ki, res.status, strict))
+        guards = np.empty(0) if strict else new_peaks(nlp, res, chk)
+        if guards.size:
+            # the NLP went to a loop with new crossovers above the ones it models, and that
+            # loop misses a target: keep |L| <= 1 there, and solve again as before
+            guard_w = np.append(guard_w, np.outer(guards, PEAK_STENCIL))
+            continue
+        structure = Nlp.structure_of(ctx, spec, res.kp, res.ki)
+        if res.on_bracket or structure != nlp.structure:
+            if builds >= MAX_BUILDS:
+                break
+            nlp, x0, builds = Nlp(ctx, spec, (res.kp, res.ki)), None, builds + 1
+            continue  # a crossing appeared, vanished or left its bracket: model it again
+        if strict:
+            break
+        # exchange: add the frequencies where a target was missed between grid points
+        x0 = res.x
+        if viol.get("max_sensitivity", 0.0) > 0:
+            hot = chk.ms_peaks[np.abs(sens(ctx, res.kp, res.ki, chk.ms_peaks)) > ms_t]
+            if ms_w.size:  # peaks were added already, yet the peak moved: tighten as well
+                ms_t /= 1.0 + viol["max_sensitivity"] + 1e-7
+            ms_w = np.append(ms_w, np.outer(hot, PEAK_STENCIL))
+        if viol.get("crossover_rad_s", 0.0) > 0:
+            wc_w = np.append(wc_w, chk.wc_top)
+        if viol.get("phase_margin_deg", 0.0) > 0:
+            pm_t = min(89.99, pm_t + viol["phase_margin_deg"] + 1e-6)
+        if viol.get("gain_margin_db", 0.0) > 0:
+            gm_t += viol["gain_margin_db"] + 1e-6
+    return designs, iterations
+
+
+def _recheck(
+    designs: list[_Design],
+    ctx: Ctx,
+    p_scaled: control.StateSpace,
+    spec: Spec,
+    w_check: np.ndarray,
+    where: str,
+) -> tuple[_Design, Any]:
+    """The design python-control finds acceptable, and its check.
+
+    Raises
+    ------
+    SpecError
+        No design is acceptable.
+    """
+    # the re-check by python-control decides: designs that meet the targets, the largest Ki
+    # first, then those within the tolerances, the last refined first
+    tried = sorted((d for d in designs if d[3]), key=lambda d: -d[1])
+    tried += [d for d in designs[::-1] if not d[3]]
+    for design in tried:
+        w_design = fast_check(ctx, design[0], design[1], w_check).w
+        chk = python_control_check(p_scaled, design[0], design[1], w_design)
+        viol = violations(chk, spec)
+        if acceptable(viol):
+            break
+    else:
+        worst = max(viol, key=lambda k: viol[k])
+        raise SpecError(
+            f"cannot meet {spec.describe()} {where} with a PI (kp >= 0, ki > 0): "
+            f"the best design found misses {worst}"
+        )
+    return design, chk
+
+
+def _binding(viol: dict[str, float]) -> tuple[str, ...]:
+    """The targets the design sits on (within :data:`_BINDING_TOL` of them)."""
+    return tuple(k for k, v in viol.items() if k in _BINDING_TOL and v >= _BINDING_TOL[k])
 
 
 @scipy_paths
@@ -163,30 +317,8 @@ def tune_pi(
         max_sensitivity,
         crossover_rad_s,
     )
-    discretiser, lag, feature = plant_model(plant, period_s, compute_s)
-    p_scaled = lsb_v * discretiser(lag)
-    a = np.asarray(p_scaled.A, dtype=float)
-    b = np.asarray(p_scaled.B, dtype=float)
-    c = np.asarray(p_scaled.C, dtype=float)
-    d = float(np.asarray(p_scaled.D, dtype=float)[0, 0])
-    # responses: the whole ticks of lag are a pure shift z^-m, the rest a small model
-    m_ticks, lam = lag_split(lag, period_s)
-    p_frac = lsb_v * discretiser(lam)
-    mats = [np.asarray(x, dtype=float) for x in (p_frac.A, p_frac.B, p_frac.C)]
-    d_frac = float(np.asarray(p_frac.D, dtype=float)[0, 0])
-
-    def resp(om: np.ndarray) -> np.ndarray:
-        z = np.exp(1j * np.asarray(om, dtype=float) * period_s)
-        return ss_response(*mats, d_frac, z) * z ** (-m_ticks)
-
-    nyq = math.pi / period_s
-    w_lo = min(feature, nyq, spec.wc_max or math.inf) * 10.0**-DECADES_BELOW
-    w = design_grid(w_lo, nyq, lag + period_s, np.linalg.eigvals(mats[0]))
-    g = resp(w)
-    if not np.all(np.isfinite(g)):
-        raise SpecError("the discrete plant has a pole on the unit circle away from z = 1")
-    ctx = Ctx(period_s, a, b, c, d, resp, w, g, unwrapped_phase(g), q_im(w, period_s))
-    w_check = check_grid(w)
+    ctx, p_scaled = _loop_context(plant, period_s, compute_s, lsb_v, spec)
+    w_check = check_grid(ctx.w)
     where = f"on this plant at period_s={period_s:g} s, compute_s={compute_s:g} s"
 
     start = start_point(ctx, spec)
@@ -194,80 +326,11 @@ def tune_pi(
         raise InfeasibleError(
             f"no stabilising PI with kp >= 0, ki > 0 meets {spec.describe()} {where}"
         )
-    # the NLP aims a hair inside the targets, so that the re-check finds them met
-    pm_t = spec.pm_deg + 1e-6 if spec.pm_deg is not None else 0.0
-    gm_t = spec.gm_db + 1e-6 if spec.gm_db is not None else 0.0
-    ms_t = spec.ms * (1 - 1e-7) if spec.ms is not None else 2.0
-    ms_w, guard_w = np.empty(0), np.empty(0)
-    wc_w = np.array([spec.wc_max * (1 - 1e-7)]) if spec.wc_max is not None else np.empty(0)
-    iterations, builds = 0, 0
-    designs: list[tuple[float, float, str, bool]] = []  # acceptable: kp, ki, status, strictly
-    nlp = Nlp(ctx, spec, start)
-    x0: np.ndarray | None = None
-    for _ in range(REFINE_ROUNDS):
-        res = nlp.solve(x0, pm_deg=pm_t, gm_db=gm_t, ms=ms_t, ms_w=ms_w, wc_w=wc_w, guard_w=guard_w)
-        iterations += res.iterations
-        if not (res.success and res.ki > 0):
-            break
-        chk = fast_check(ctx, res.kp, res.ki, w_check)
-        viol = violations(chk, spec)
-        strict = acceptable(viol, strict=True)
-        if acceptable(viol):
-            designs.append((res.kp, res.ki, res.status, strict))
-        guards = np.empty(0) if strict else new_peaks(nlp, res, chk)
-        if guards.size:
-            # the NLP went to a loop with new crossovers above the ones it models, and that
-            # loop misses a target: keep |L| <= 1 there, and solve again as before
-            guard_w = np.append(guard_w, np.outer(guards, PEAK_STENCIL))
-            continue
-        structure = Nlp.structure_of(ctx, spec, res.kp, res.ki)
-        if res.on_bracket or structure != nlp.structure:
-            if builds >= MAX_BUILDS:
-                break
-            nlp, x0, builds = Nlp(ctx, spec, (res.kp, res.ki)), None, builds + 1
-            continue  # a crossing appeared, vanished or left its bracket: model it again
-        if strict:
-            break
-        # exchange: add the frequencies where a target was missed between grid points
-        x0 = res.x
-        if viol.get("max_sensitivity", 0.0) > 0:
-            hot = chk.ms_peaks[np.abs(sens(ctx, res.kp, res.ki, chk.ms_peaks)) > ms_t]
-            if ms_w.size:  # peaks were added already, yet the peak moved: tighten as well
-                ms_t /= 1.0 + viol["max_sensitivity"] + 1e-7
-            ms_w = np.append(ms_w, np.outer(hot, PEAK_STENCIL))
-        if viol.get("crossover_rad_s", 0.0) > 0:
-            wc_w = np.append(wc_w, chk.wc_top)
-        if viol.get("phase_margin_deg", 0.0) > 0:
-            pm_t = min(89.99, pm_t + viol["phase_margin_deg"] + 1e-6)
-        if viol.get("gain_margin_db", 0.0) > 0:
-            gm_t += viol["gain_margin_db"] + 1e-6
+    designs, iterations = _refine(ctx, spec, start, w_check)
     viol = violations(fast_check(ctx, *start, w_check), spec)
     designs.append((*start, "start point", acceptable(viol, strict=True)))
-    # the re-check by python-control decides: designs that meet the targets, the largest Ki
-    # first, then those within the tolerances, the last refined first
-    tried = sorted((d for d in designs if d[3]), key=lambda d: -d[1])
-    tried += [d for d in designs[::-1] if not d[3]]
-    for design in tried:
-        w_design = fast_check(ctx, design[0], design[1], w_check).w
-        chk = python_control_check(p_scaled, design[0], design[1], w_design)
-        viol = violations(chk, spec)
-        if acceptable(viol):
-            break
-    else:
-        worst = max(viol, key=lambda k: viol[k])
-        raise SpecError(
-            f"cannot meet {spec.describe()} {where} with a PI (kp >= 0, ki > 0): "
-            f"the best design found misses {worst}"
-        )
-    kp, ki, status, _ = design
-    viol = violations(chk, spec)
-    binding_tol = {
-        "phase_margin_deg": -0.05,
-        "gain_margin_db": -0.05,
-        "max_sensitivity": -2e-3,
-        "crossover_rad_s": -2e-3,
-    }
-    binding = tuple(k for k, v in viol.items() if k in binding_tol and v >= binding_tol[k])
+    (kp, ki, status, _), chk = _recheck(designs, ctx, p_scaled, spec, w_check, where)
+    binding = _binding(violations(chk, spec))
     return PITuning(
         kp=kp,
         ki=ki,
