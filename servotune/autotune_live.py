@@ -39,6 +39,7 @@ way, with the guard tripped by its ``stop`` pin (output 0). Any stop is an
 
 from __future__ import annotations
 
+import json
 import math
 import time
 from collections.abc import Callable
@@ -86,9 +87,20 @@ the largest |following error| and the overshoot past the move's end: ``|m − p|
 abs``."""
 GUARD_REASONS = {1: "travel", 2: "speed", 3: "following error", 4: "output", 5: "stop"}
 GUARD_UNITS = {1: "counts", 2: "counts/s", 3: "counts", 4: "V", 5: ""}
-SAMPLES = "ffffsb"
-"""The sampler's channels: feedback [units], the guard's output [V], command [units],
-excitation [V], the sampler's overruns, the guard's fault."""
+CHANNELS = (
+    ("feedback", "f"),
+    ("volts", "f"),
+    ("command", "f"),
+    ("excitation", "f"),
+    ("overruns", "s"),
+    ("fault", "b"),
+)
+"""The sampler's channels in order, each with its type (``cfg`` letter): the feedback [machine
+units], the guard's output [V], the command [machine units], the excitation [V], the sampler's
+overruns, the guard's fault. A phase's rows (``halsampler -t``): the sample number, then these
+(:data:`COLUMN`); the record names them (``capture_channels``)."""
+SAMPLER_PIN = {name: f"sampler.0.pin.{k}" for k, (name, _) in enumerate(CHANNELS)}
+COLUMN = {name: k + 1 for k, (name, _) in enumerate(CHANNELS)}
 _SIG = "servotune-at-"
 
 
@@ -117,6 +129,7 @@ class AutotuneResult:
             "status": "stopped" if self.stopped else "loaded",
             "period_s": self.period_s,
             "position_scale": self.position_scale,
+            "capture_channels": [name for name, _ in CHANNELS],
             "stopped": self.stopped,
             "files_sha256": self.files,
             "previous": self.previous,
@@ -159,6 +172,7 @@ class _Takeover:
         self.loaded: list[str] = []
         self.signals: list[str] = []
         self.base = 0.0
+        self.last_capture = ""
 
     def pins(self) -> list[str]:
         return [f"{self.pid}.{n}" for n in HAL_PIN_NAMES.values()]
@@ -171,7 +185,8 @@ class _Takeover:
         for pin in (h.command_pin, f"{g}.command", f"{g}.excitation"):
             self.links[pin] = session.pins[pin].signal
         self.base = hal.get_float(h.command_pin)
-        for mod, cfg in (("streamer", "ff"), ("sampler", SAMPLES)):
+        samples = "".join(kind for _, kind in CHANNELS)
+        for mod, cfg in (("streamer", "ff"), ("sampler", samples)):
             hal("loadrt", mod, f"depth={self.depth}", f"cfg={cfg}")
             self.loaded.append(mod)
         hal.setp("sampler.0.enable", False)
@@ -180,25 +195,25 @@ class _Takeover:
         self._play_rows(np.full(4, self.base), np.zeros(4))  # the streamer holds the base
         self._wait_empty(2.0)
         taps = {
-            "feedback": (h.feedback_pin, "sampler.0.pin.0"),
-            "volts": (f"{g}.volts-out", "sampler.0.pin.1"),
-            "overruns": ("sampler.0.overruns", "sampler.0.pin.4"),
-            "fault": (f"{g}.fault", "sampler.0.pin.5"),
+            "feedback": h.feedback_pin,
+            "volts": f"{g}.volts-out",
+            "overruns": "sampler.0.overruns",
+            "fault": f"{g}.fault",
         }
-        for name, (src, dst) in taps.items():
+        for name, src in taps.items():
             sig = session.pins[src].signal if src in session.pins else None
             if sig is None:
                 sig = _SIG + name
                 hal("net", sig, src)
                 self.signals.append(sig)
-            hal("net", sig, dst)
+            hal("net", sig, SAMPLER_PIN[name])
         for pin in self.links:
             if self.links[pin] is not None:
                 hal("unlinkp", pin)
         hal("net", _SIG + "command", "streamer.0.pin.0", h.command_pin, f"{g}.command")
-        hal("net", _SIG + "command", "sampler.0.pin.2")
+        hal("net", _SIG + "command", SAMPLER_PIN["command"])
         hal("net", _SIG + "excitation", "streamer.0.pin.1", f"{g}.excitation")
-        hal("net", _SIG + "excitation", "sampler.0.pin.3")
+        hal("net", _SIG + "excitation", SAMPLER_PIN["excitation"])
         self.signals += [_SIG + "command", _SIG + "excitation"]
 
     def set_pid(self, params: PidParameters) -> None:
@@ -224,7 +239,7 @@ class _Takeover:
             except Exception as exc:  # undo the rest regardless; reported together
                 failed.append(str(exc))
 
-        for pin in (*self.links, "sampler.0.pin.0", "sampler.0.pin.1", "sampler.0.pin.4"):
+        for pin in (*self.links, *(SAMPLER_PIN[n] for n in ("feedback", "volts", "overruns"))):
             attempt("unlinkp", pin)
         for pin, sig in self.links.items():
             if sig is not None:
@@ -261,7 +276,7 @@ class _Takeover:
         params: PidParameters | None = None,
     ) -> np.ndarray:
         """Play one phase (command [units], excitation [V], one per period) and return the
-        sampler's records of it (a column per :data:`SAMPLES`, the sample number first);
+        sampler's records of it (columns :data:`COLUMN`, the sample number first);
         ``params``: loaded into the pid once the sampler records (what they do is captured)."""
         hal = self.hal
         hal.setp("sampler.0.enable", True)
@@ -292,7 +307,7 @@ class _Takeover:
             return
         reason = int(self.hal.getp(f"{self.guard}.reason"))
         value = self.hal.get_float(f"{self.guard}.value")
-        tripped = np.flatnonzero(rec[:, 6] > 0.5) if rec.size else np.array([])
+        tripped = np.flatnonzero(rec[:, COLUMN["fault"]] > 0.5) if rec.size else np.array([])
         when = (
             f"{tripped[0] * self.cfg.hal.period_s:.3f} s into the {phase}"
             if tripped.size
@@ -318,13 +333,12 @@ def _wiring_check(t: _Takeover, cfg: AutotuneConfig, volts: float) -> dict[str, 
     pulse, rest = np.full(n_pulse, volts), np.zeros(n_settle)
     exc = np.concatenate([rest, pulse, rest, -pulse, rest])
     rec = t.play("wiring check", np.full(exc.size, t.base), exc, _zero_gains())
-    pos = rec[:, 1] * h.position_scale
-    applied = rec[:, 4]
-    on = np.flatnonzero(np.abs(applied) > 0.5 * volts)
-    if on.size < 2:
+    pos = rec[:, COLUMN["feedback"]] * h.position_scale
+    applied = rec[:, COLUMN["excitation"]]
+    first = np.flatnonzero(applied > 0.5 * volts)
+    second = np.flatnonzero(applied < -0.5 * volts)
+    if not (first.size and second.size):
         raise AutotuneStopped("wiring check: the pulses did not reach the sampler")
-    split = on[np.argmax(np.diff(on))] + 1 if np.diff(on).max() > 1 else on.size // 2
-    first, second = on[on < split], on[on >= split]
     before, mid, end = pos[max(first[0] - 1, 0)], pos[second[0] - 1], pos[-1]
     expected = plant.mean_gain_cps_per_v * volts * n_pulse * h.period_s
     up, down = mid - before, end - mid
@@ -361,7 +375,7 @@ def validation_move(cfg: AutotuneConfig, scale: float = 1.0) -> np.ndarray:
     n_ramp = math.ceil(ramp / dt)
     s = 0.5 - 0.5 * np.cos(np.pi * np.arange(1, n_ramp + 1) / n_ramp)  # smooth, no jerk step
     hold = np.ones(round(SETTLE_S / dt) * 2)
-    path = np.concatenate([0 * hold[:25], s, hold, 1 - s, 0 * hold])
+    path = np.concatenate([np.zeros(25), s, hold, 1 - s, 0 * hold])
     return sign * dist * path
 
 
@@ -402,11 +416,12 @@ def _validate(
         if peak_v <= 0.7 * env.max_volts and peak_fe <= 0.7 * env.following_error_counts:
             break
     rec = t.play("validation move", t.base + rel / s, np.zeros(rel.size), params)
-    moving = np.flatnonzero(np.abs(rec[:, 3] - t.base) * s > 0.5)
+    command, feedback = rec[:, COLUMN["command"]] - t.base, rec[:, COLUMN["feedback"]] - t.base
+    moving = np.flatnonzero(np.abs(command) * s > 0.5)
     start = max(int(moving[0]) - 25, 0) if moving.size else 0
-    meas_cmd, meas_pos = (rec[start:, 3] - t.base) * s, (rec[start:, 1] - t.base) * s
+    meas_cmd, meas_pos = command[start:] * s, feedback[start:] * s
     # the model's run on the command as the pid received it, from rest at the start
-    pred = _prediction(cfg, plant, params, rec[start:, 3] - t.base)
+    pred = _prediction(cfg, plant, params, command[start:])
     measured = _move_metrics(meas_cmd, meas_pos)
     predicted = _move_metrics(pred.command_units * s, pred.feedback_units * s)
     rows = np.column_stack(
@@ -443,14 +458,20 @@ def _identify(cfg: AutotuneConfig, out: Path, capture: str, say: Callable[[str],
 
     h = cfg.hal
     atomic_write_text(out / "capture.txt", capture)
-    mapping = {"pos": 0, "cmd": 1, "ref": 2, "exc": 3, "overruns": 4}
-    columns = ("feedback", "volts", "command", "excitation", "overruns", "fault")
+    mapping = {
+        "pos": "feedback",
+        "cmd": "volts",
+        "ref": "command",
+        "exc": "excitation",
+        "overruns": "overruns",
+    }
+    columns = [name for name, _ in CHANNELS]
     map_text = (
         "# the autotune capture's columns: servotune fit capture.txt --map capture.map.toml\n"
         f'[hal]\nformat = "halsampler"\nperiod_s = {cfg.rig.period_s!r}\n'
         f"position_scale = {h.position_scale!r}\noutput_scale = 1.0\nsample_number = true\n"
-        f"columns = [{', '.join(repr(c).replace(chr(39), chr(34)) for c in columns)}]\n"
-        "[hal.map]\n" + "".join(f'{k} = "{columns[v]}"\n' for k, v in mapping.items())
+        f"columns = {json.dumps(columns)}\n"
+        "[hal.map]\n" + "".join(f'{k} = "{v}"\n' for k, v in mapping.items())
     )
     atomic_write_text(out / "capture.map.toml", map_text)
     say("autotune: fit the capture")
@@ -658,8 +679,6 @@ def _check_guard(cfg: AutotuneConfig, session: Any, guard: str) -> None:
 
 def _write_record(res: AutotuneResult) -> None:
     """``autotune.json`` and its report ``autotune.html`` (:mod:`servotune.report.autotune`)."""
-    import json
-
     from servotune.report.autotune import write_autotune_report
 
     text = json.dumps(res.to_dict(), indent=2, sort_keys=True, default=float) + "\n"

@@ -123,13 +123,16 @@ class Halcmd:
         """Run ``halcmd -s ARGS``; its standard output."""
         return self._run([self.exe, "-s", *args], f"halcmd {' '.join(args)}")
 
-    def _run(self, argv: list[str], what: str, stdin: bytes | None = None) -> str:
+    def _run(
+        self, argv: list[str], what: str, stdin: bytes | None = None, timeout: float | None = None
+    ) -> str:
+        limit = self.timeout if timeout is None else timeout
         try:
             res = subprocess.run(
-                [*self.prefix, *argv], input=stdin, capture_output=True, timeout=self.timeout
+                [*self.prefix, *argv], input=stdin, capture_output=True, timeout=limit
             )
         except subprocess.TimeoutExpired:
-            raise HalError(f"{what}: no answer in {self.timeout:g} s") from None
+            raise HalError(f"{what}: no answer in {limit:g} s") from None
         except OSError as exc:
             raise HalError(f"{what}: {exc.strerror}") from None
         if res.returncode != 0:
@@ -164,11 +167,7 @@ class Halcmd:
         exe = shutil.which("halstreamer")
         if exe is None:
             raise HalError("halstreamer is not installed (LinuxCNC's HAL)")
-        old, self.timeout = self.timeout, timeout
-        try:
-            self._run([exe, "-c", str(instance)], "halstreamer", rows.encode())
-        finally:
-            self.timeout = old
+        self._run([exe, "-c", str(instance)], "halstreamer", rows.encode(), timeout)
 
     def sample(self, n: int, *, instance: int = 0) -> str:
         """``n`` records of ``sampler.<instance>`` read with ``halsampler -t`` (the sample

@@ -1,11 +1,10 @@
 """The report of a live autotune run (docs/autotune.md#the-live-run): ``autotune.html``.
 
 One self-contained page (:mod:`.page`) from what the run wrote into its directory: the record
-``autotune.json`` (status, each step's numbers, the files' SHA-256), and the phases' captures
-(``wiring-check.txt``, ``experiment.txt``: halsampler rows, the sample number first, then
-feedback [machine units], the guard's output [V], command [machine units], excitation [V],
-overruns, fault) and ``validation.csv`` (the validation move: measured against predicted).
-A step the run did not reach is said to be missing, not drawn.
+``autotune.json`` (status, each step's numbers, the files' SHA-256, the capture's channels), and
+the phases' captures (``wiring-check.txt``, ``experiment.txt``: halsampler rows, the sample
+number first, then the channels the record names) and ``validation.csv`` (the validation move:
+measured against predicted). A step the run did not reach is said to be missing, not drawn.
 """
 
 from __future__ import annotations
@@ -29,9 +28,6 @@ from servotune.report.page import (
 
 __all__ = ["autotune_report_html", "write_autotune_report"]
 
-COLUMNS = {"feedback": 1, "volts": 2, "command": 3, "excitation": 4, "fault": 6}
-"""Column of each channel in a phase's capture (the sample number is column 0)."""
-
 
 def _capture(path: Path) -> np.ndarray | None:
     if not path.exists():
@@ -40,16 +36,19 @@ def _capture(path: Path) -> np.ndarray | None:
     return rows if rows.size else None
 
 
-def _phase_figure(rec: np.ndarray, period_s: float, scale: float, title: str) -> str:
+def _phase_figure(
+    rec: np.ndarray, col: dict[str, int], period_s: float, scale: float, title: str
+) -> str:
+    """A phase's capture drawn; ``col``: each channel's column."""
     t = np.arange(rec.shape[0]) * period_s
     fig, (a, b) = plt.subplots(2, 1, figsize=(9, 4.6), sharex=True)
-    pos = (rec[:, COLUMNS["feedback"]] - rec[0, COLUMNS["command"]]) * scale
+    pos = (rec[:, col["feedback"]] - rec[0, col["command"]]) * scale
     a.plot(t, pos, lw=1, label="position − start command [counts]")
     a.set_ylabel("counts")
     a.legend(loc="upper right", fontsize=8)
-    b.plot(t, rec[:, COLUMNS["volts"]], lw=1, label="output to the drive [V]")
-    b.plot(t, rec[:, COLUMNS["excitation"]], lw=1, label="excitation [V]")
-    trip = np.flatnonzero(rec[:, COLUMNS["fault"]] > 0.5)
+    b.plot(t, rec[:, col["volts"]], lw=1, label="output to the drive [V]")
+    b.plot(t, rec[:, col["excitation"]], lw=1, label="excitation [V]")
+    trip = np.flatnonzero(rec[:, col["fault"]] > 0.5)
     if trip.size:
         for ax in (a, b):
             ax.axvline(t[trip[0]], color="r", lw=1)
@@ -87,6 +86,7 @@ def autotune_report_html(out_dir: str | Path) -> str:
     doc = json.loads((out / "autotune.json").read_text())
     period_s = float(doc.get("period_s", 0.004))
     scale = float(doc.get("position_scale", 1.0))
+    col = {name: k + 1 for k, name in enumerate(doc["capture_channels"])}
     status = (
         "loaded and validated"
         if doc["status"] == "loaded"
@@ -118,7 +118,7 @@ def autotune_report_html(out_dir: str | Path) -> str:
             parts.append(f"<h2>{step}</h2>")
         rec = _capture(out / name)
         parts.append(
-            _phase_figure(rec, period_s, scale, title)
+            _phase_figure(rec, col, period_s, scale, title)
             if rec is not None
             else paragraph_html(f"{title}: not reached")
         )

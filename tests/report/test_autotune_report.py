@@ -20,6 +20,7 @@ def _record(out: Path, **changes) -> None:
         "stopped": "",
         "period_s": 0.004,
         "position_scale": 2000.0,
+        "capture_channels": ["feedback", "volts", "command", "excitation", "overruns", "fault"],
         "files_sha256": {"capture.txt": "ab" * 32},
         "previous": {"pid.0.Pgain": "2.5"},
         "loaded": {"Pgain": 2.17, "Igain": 7.35},
