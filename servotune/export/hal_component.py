@@ -16,7 +16,8 @@ tuning's digest, refuses to load with the reason in HAL's log.
 
 :func:`plant_component` writes a component moving one axis's plant model exactly as the
 simulator does (``servotune_plant.h``, a C mirror of :mod:`servotune.plant` and of a resonant
-plant's modes, :mod:`servotune.resonance`; noiseless): for testing the loop in real HAL
+plant's modes, :mod:`servotune.resonance`; the simulator's encoder noise where the plant has
+some): for testing the loop in real HAL
 before a machine runs it, and for LinuxCNC users who want servotune's model of their drive in a
 simulated configuration.
 
@@ -197,7 +198,7 @@ def plant_component(
     counter_init: int = 0,
     counts_per_rev: float = math.inf,
 ) -> str:
-    """The ``.comp`` source of a component moving ``plant`` as the simulator does (noiseless).
+    """The ``.comp`` source of a component moving ``plant`` as the simulator does.
 
     Each period its function (add it to the thread *before* the controller): from the second
     period on, records the D/A output the controller wrote last period (``volts``, float in
@@ -211,6 +212,13 @@ def plant_component(
     are then the measured ones, the motor's plus its modes'
     (:func:`servotune.resonance.modes_output`, :func:`~servotune.resonance.modes_speed`);
     without modes the motor's, as before.
+
+    A plant with encoder noise (``noise_counts`` > 0) latches ``floor(position + noise)``: one
+    draw per period of the simulator's stream (:func:`servotune.sim.tick.draw_noise`:
+    splitmix64, Box-Muller; ``st_noise`` of ``servotune_plant.h``) started from the ``seed``
+    parameter (0 at load; a ``setp`` of another value restarts the stream from it), so a HAL
+    machine can be run with independent noise as a logged one would be. ``position`` stays
+    noiseless.
 
     Raises
     ------
@@ -227,6 +235,7 @@ def plant_component(
         tau=repr(plant.tau_s),
         lag=lag,
         modes=_modes_text(plant),
+        noise=repr(plant.noise_counts),
         ring=lag + 2,
         last_slot=lag + 1,
         counter_init=int(counter_init),

@@ -4,7 +4,8 @@ What a HAL servo thread does each period when it runs, in this order::
 
     plant   moves the plant over one tick by the D/A output written last period (the
             simulator's lag and model: :func:`servotune.plant.advance_tick`), then latches the
-            encoder: counts = counter_init + floor(position)
+            encoder: counts = counter_init + floor(position + noise) (noise: 0, or with a
+            ``noise_seed`` the plant's encoder noise, as the HAL plant component's ``seed``)
     encoder feedback = counts · (1 / position_scale)  [machine units]  (conv_s32_float, then a
             ``scale`` of gain 1/position_scale: the product with the reciprocal, as LinuxCNC's
             ``encoder`` computes its ``position`` from ``position-scale``)
@@ -16,7 +17,7 @@ What a HAL servo thread does each period when it runs, in this order::
 :func:`simulate_pid_loop` is that loop, tick by tick, in the same float arithmetic as HAL; the
 plant is moved exactly as servotune's engine moves it (the engine's write history and lag,
 ``tests/export/test_c_runtime.py``'s ``_closed_loop``, and the plant component of
-:func:`servotune.export.hal_component.plant_component`), noiseless. It is how servotune says
+:func:`servotune.export.hal_component.plant_component`). It is how servotune says
 what the exported stock-pid loop does, and what ``tests/hal/test_pid_export.py`` compares with
 the real component in HAL.
 """
@@ -35,7 +36,8 @@ from servotune.laws.linuxcnc_pid import PidParameters, PidState, pid_step, threa
 from servotune.plant import R_MODES, R_OFFSET, Plant, advance_tick_modal, plant_row
 from servotune.resonance import MAX_MODES, modes_output
 from servotune.rig import Dac
-from servotune.validate import check_number
+from servotune.sim.tick import noise_draws
+from servotune.validate import check_number, check_seed
 
 __all__ = ["PidLoopResult", "simulate_pid_loop"]
 
@@ -113,6 +115,7 @@ def simulate_pid_loop(
     dac: Dac | None = None,
     period_ns: int | None = None,
     counter_init: int = 0,
+    noise_seed: int | None = None,
 ) -> PidLoopResult:
     """The stock pid in the loop with ``plant``, one tick per command sample (module docstring).
 
@@ -121,7 +124,7 @@ def simulate_pid_loop(
     params : PidParameters
         The pid's pins (``enable`` is on from the first tick).
     plant : Plant
-        The axis (its noise is ignored: the loop is noiseless, as the HAL plant component).
+        The axis (its encoder noise only with ``noise_seed``).
     period_s : float
         The tick the plant is discretised with [s] (the rig's achieved period).
     command_units : array_like, shape (ticks,)
@@ -142,6 +145,11 @@ def simulate_pid_loop(
         ``period_s``.
     counter_init : int
         Encoder count at position 0 [counts].
+    noise_seed : int, optional
+        None (default): noiseless. An int: the encoder latches ``floor(position + noise)``,
+        the plant's ``noise_counts`` times one normal draw per tick of the simulator's stream
+        (:func:`servotune.sim.tick.draw_noise`) started from this seed, as the HAL plant
+        component with its ``seed`` parameter set to it.
 
     Returns
     -------
@@ -179,9 +187,16 @@ def simulate_pid_loop(
     state = PidState()
     slot = ring - 1
     commands = cmd.tolist()
+    noise = (
+        [0.0] * n
+        if noise_seed is None
+        else noise_draws(
+            np.uint64(check_seed(noise_seed, error=SimulationError)), plant.noise_counts, n
+        ).tolist()
+    )
     for k in range(n):
         y_pos = modes_output(pos, q, row, R_MODES) if plant.modes else pos
-        c = _s32(counter_init + math.floor(y_pos + 0.0))  # 1. the encoder latches
+        c = _s32(counter_init + math.floor(y_pos + noise[k]))  # 1. the encoder latches
         fb = float(c) * fb_gain + 0.0  # 2. conv_s32_float, scale (in * gain + offset)
         out, err, state = pid_step(params, state, commands[k], fb, period_ns)  # 3. pid
         volts = out * out_gain + 0.0  # 4. scale to the D/A

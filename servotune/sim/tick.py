@@ -50,6 +50,7 @@ __all__ = [
     "hold",
     "latch",
     "mix64",
+    "noise_draws",
     "normal",
     "read_axis",
     "sensed",
@@ -114,6 +115,17 @@ def draw_noise(state: np.uint64, sigma: float) -> tuple[np.uint64, float]:
         state, g = normal(state)
         return state, g * sigma
     return state, 0.0
+
+
+@jit
+def noise_draws(seed: np.uint64, sigma: float, n: int) -> np.ndarray:
+    """``n`` successive :func:`draw_noise` of the stream started from ``seed`` [counts]: one
+    axis's encoder noise, tick by tick (the HAL plant component's ``seed``)."""
+    out = np.zeros(n)
+    state = seed
+    for k in range(n):
+        state, out[k] = draw_noise(state, sigma)
+    return out
 
 
 # --- 1-3. sample, read, law and D/A -----------------------------------------------------------

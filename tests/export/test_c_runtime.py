@@ -82,6 +82,7 @@ from servotune.rig import (
 )
 from servotune.scenarios import Inputs, trapezoid_ref
 from servotune.sim.engine import Loop, Trace, simulate
+from servotune.sim.tick import noise_draws
 from servotune.tuning import Tuning
 
 pytestmark = needs_cc
@@ -758,6 +759,16 @@ void h_plant_run(int64_t n, const double *row, const double *w, double *out)
     }
 }
 
+/* n encoder-noise draws of sigma from the stream seeded seed */
+void h_noise(uint64_t seed, double sigma, int64_t n, double *out)
+{
+    uint64_t state = seed;
+    int64_t k;
+    for (k = 0; k < n; k++) {
+        out[k] = st_noise(&state, sigma);
+    }
+}
+
 /* the same ticks through st_plant_advance_tick (no mode state): out[2k ...] = p, v */
 void h_plant_run_rigid(int64_t n, const double *row, const double *w, double *out)
 {
@@ -804,7 +815,25 @@ def plant_lib(tmp_path_factory) -> ctypes.CDLL:
         fn = getattr(lib, name)
         fn.restype = None
         fn.argtypes = [ctypes.c_int64] + [ctypes.c_void_p] * 3
+    lib.h_noise.restype = None
+    lib.h_noise.argtypes = [ctypes.c_uint64, ctypes.c_double, ctypes.c_int64, ctypes.c_void_p]
     return lib
+
+
+@pytest.mark.parametrize("seed", [0, 7, 2**64 - 1])
+def test_the_c_encoder_noise_is_the_simulators_stream(plant_lib: ctypes.CDLL, seed: int) -> None:
+    """``st_noise`` (the HAL plant component's encoder noise) draws what the engine's
+    :func:`~servotune.sim.tick.draw_noise` draws from the same seed
+    (:func:`~servotune.sim.tick.noise_draws`), bit for bit; sigma 0 gives zeros."""
+    n, sigma = 200_000, 0.3
+    got = np.zeros(n)
+    plant_lib.h_noise(seed, sigma, n, got.ctypes.data)
+    ref = noise_draws(np.uint64(seed), sigma, n)
+    assert np.array_equal(got.view(np.int64), ref.view(np.int64))
+    # a normal stream of standard deviation sigma (200,000 draws: the sample's within 1 %)
+    assert abs(np.std(got) / sigma - 1.0) < 0.01 and abs(np.mean(got)) < 0.01 * sigma
+    plant_lib.h_noise(seed, 0.0, 10, got.ctypes.data)
+    assert not np.any(got[:10])
 
 
 # a belt-driven axis's two modes: tests/plant/test_resonant_engine.py's MODES (a 35 Hz mode,

@@ -45,6 +45,7 @@ PIN_ORDER = ("Pgain", "Igain", "Dgain", "bias", "FF0", "FF1", "FF2", "FF3", "dea
 """The float pins the file sets, in its order (pin names of LinuxCNC 2.9's pid.c)."""
 
 PLANT_COMP = "stpidplant"  # a name no other test's component uses (installed for the session)
+NOISE_SEED = 7  # the plant component's encoder-noise stream: the same in HAL and the simulation
 
 
 def expected_pins(tuning: st.Tuning, rig: st.Rig, s: float, o: float) -> dict[str, Fraction]:
@@ -417,6 +418,7 @@ def _loop_script(n: int, period_ns: int, s: float, o: float) -> str:
     lines = [
         f"loadrt threads name1=servo period1={period_ns}",
         f"loadrt {PLANT_COMP}",
+        f"setp {PLANT_COMP}.seed {NOISE_SEED}",
         "loadrt pid names=pid.x",
         "source pid.hal",
         "loadrt conv_s32_float names=cnt2f",
@@ -463,7 +465,8 @@ def test_stock_pid_in_hal_matches_the_float_simulation(tuning, rig, tmp_path):
     coefficients as hex floats, `scale` = in·gain + offset, conv_s32_float exact), on x86-64
     SSE2 doubles without FMA contraction: HAL's float path differs from Python's by nothing
     that rounds differently. The counts are compared exactly, the float samples exactly through
-    their printed text (_SCALED).
+    their printed text (_SCALED). The plant has the example rig's encoder noise (0.3 counts),
+    drawn in HAL and in the simulation from the same seeded stream (NOISE_SEED).
     """
     hal_available()
     s, o = 2000.0, 0.1
@@ -502,7 +505,13 @@ def test_stock_pid_in_hal_matches_the_float_simulation(tuning, rig, tmp_path):
         output_scale=o,
         compute_s=rig.timer.compute_s,
         period_ns=period_ns,
+        noise_seed=NOISE_SEED,
     )
+    assert master.plant.noise_counts > 0  # the encoder noise is in, the same draws …
+    quiet = dataclasses.replace(master.plant, noise_counts=0.0)
+    kw = {"position_scale": s, "output_scale": o, "compute_s": rig.timer.compute_s}
+    noiseless = simulate_pid_loop(params, quiet, rig.period_s, cmd, **kw)
+    assert np.any(noiseless.counts != sim.counts)  # … and it moves counts
     assert np.max(np.abs(sim.output)) == params.maxoutput  # the limit was reached
     assert abs(sim.counts[-1]) <= 2 and np.max(sim.counts) > 39_000  # out and back
     hal_counts = np.array([int(r[1]) for r in samples])

@@ -20,12 +20,17 @@
  * three, and the counter latches floor(st_modes_output(...)), the measured position
  * p + sum g_i q_i, instead of floor(p). Without modes (row[ST_R_MODES] == 0) it is
  * st_plant_advance_tick and q is not touched.
+ *
+ * Encoder noise (row[ST_R_NOISE] = sigma [counts] > 0): the counter latches
+ * floor(position + st_noise(&state, sigma)), one draw per tick from a splitmix64 stream
+ * (servotune/sim/tick.py mix64, splitmix, normal, draw_noise: Box-Muller on two outputs).
  */
 #ifndef SERVOTUNE_PLANT_H
 #define SERVOTUNE_PLANT_H
 
 #include <math.h>
 #include <stddef.h>
+#include <stdint.h>
 
 /* plant row layout (servotune/plant.py R_*) */
 #define ST_R_GAIN 0
@@ -305,6 +310,38 @@ static inline void st_plant_advance_tick_modal(double *p, double *v, double *q, 
     }
     st_plant_advance(p, v, w_new, row[ST_R_H2], row[ST_R_A2], row[ST_R_B2], gain, tau, coulomb,
                      vmax, gain_neg, coulomb_neg, q, row, 1);
+}
+
+/* --- encoder noise: servotune/sim/tick.py line by line ------------------------------------ */
+
+static inline uint64_t st_mix64(uint64_t z)
+{
+    z = (z ^ (z >> 30)) * UINT64_C(0xBF58476D1CE4E5B9);
+    z = (z ^ (z >> 27)) * UINT64_C(0x94D049BB133111EB);
+    return z ^ (z >> 31);
+}
+
+/* the next 64-bit output of the stream whose state is *state (advanced) */
+static inline uint64_t st_splitmix(uint64_t *state)
+{
+    *state += UINT64_C(0x9E3779B97F4A7C15);
+    return st_mix64(*state);
+}
+
+/* a standard normal draw: Box-Muller on two outputs, u1 in (0, 1), u2 in [0, 1) */
+static inline double st_normal(uint64_t *state)
+{
+    uint64_t z1 = st_splitmix(state);
+    uint64_t z2 = st_splitmix(state);
+    double u1 = ((double)(int64_t)(z1 >> 11) + 0.5) * (1.0 / 9007199254740992.0);
+    double u2 = (double)(int64_t)(z2 >> 11) * (1.0 / 9007199254740992.0);
+    return sqrt(-2.0 * log(u1)) * cos(2.0 * 3.141592653589793 * u2);
+}
+
+/* one sample's encoder noise [counts]: sigma times a normal draw; no draw if sigma is 0 */
+static inline double st_noise(uint64_t *state, double sigma)
+{
+    return sigma > 0.0 ? st_normal(state) * sigma : 0.0;
 }
 
 #endif /* SERVOTUNE_PLANT_H */
