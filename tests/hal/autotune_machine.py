@@ -78,16 +78,19 @@ def build(
     plant: st.Plant | None = None,
     envelope=None,
     guard: str = "servotune_guard",
+    noise: bool = False,
 ) -> tuple[Path, Path]:
     """The machine's two components built in ``workdir`` (the plant: ``plant``, default the
-    rig's master; e.g. one with 10× its gain); returns the built modules. The fb ``scale``'s
-    sign (``fb_sign`` of :func:`machine`) stands in for a reversed encoder."""
+    rig's master; e.g. one with 10× its gain; noiseless unless ``noise``: then with the plant's
+    encoder noise, its stream chosen by the component's ``seed``); returns the built modules.
+    The fb ``scale``'s sign (``fb_sign`` of :func:`machine`) stands in for a reversed
+    encoder."""
     r = rig()
     p = plant if plant is not None else r.axis("master").plant
+    if not noise:
+        p = dataclasses.replace(p, noise_counts=0.0)
     (workdir / f"{plant_name}.comp").write_text(
-        plant_component(
-            dataclasses.replace(p, noise_counts=0.0), r.period_s, r.timer.compute_s, name=plant_name
-        )
+        plant_component(p, r.period_s, r.timer.compute_s, name=plant_name)
     )
     env = {**ENVELOPE, **(envelope or {})}
     (workdir / f"{guard}.comp").write_text(
