@@ -246,11 +246,13 @@ def cmd_fit(args: argparse.Namespace) -> int:
             new_name=name if new else None,
             new_header=f"Rig {name}: made by `servotune fit -o` ({prov}).\nUnits are "
             "in the key names; gains are D/A codes per count.",
+            **({"template": args.rig} if args.rig else {}),
         )
         if new:
+            source = f"{Path(args.rig).name}'s" if args.rig else "the example rig's"
             print(
                 f"wrote a new rig {name!r} with [axis.{axis}.plant] to {args.output} (its "
-                "hardware facts are the example rig's: check them)",
+                f"hardware facts are {source}: check them)",
                 file=sys.stderr,
             )
         else:

@@ -75,6 +75,27 @@ def test_fit_o_makes_a_rig_of_its_own(log: Path, tmp_path: Path, capsys) -> None
     assert rig.name == "shop-floor-3" and rig.axis("master").plant_fit is not None
 
 
+def test_fit_o_with_a_rig_starts_from_that_rig(log: Path, tmp_path: Path, capsys) -> None:
+    """``fit --rig MINE -o NEW`` takes NEW's hardware facts from MINE, not from the example rig
+    (a machine with a 16-bit D/A and its own speed limit keeps them)."""
+    text = EXAMPLE.read_text()
+    for old, new in (
+        ("bits = 12 ", "bits = 16 "),
+        ("speed_limit_rpm = 600", "speed_limit_rpm = 450"),
+    ):
+        assert old in text
+        text = text.replace(old, new)
+    mine = tmp_path / "mine.toml"
+    mine.write_text(text)
+    target = tmp_path / "new.toml"
+    argv = ["fit", str(log), "--axis", "master", "--rig", str(mine), "-o", str(target)]
+    assert main(argv) == 0
+    assert "hardware facts are mine.toml's" in capsys.readouterr().err
+    rig = load_rig(target)
+    assert rig.dac.bits == 16 and rig.axis("slave").speed_limit_rpm == 450
+    assert "from the template mine.toml" in tomllib.loads(target.read_text())["rig"]["description"]
+
+
 def test_fit_o_name_and_an_existing_rig_keeps_its_name(log: Path, tmp_path: Path) -> None:
     target = tmp_path / "r.toml"
     assert main(["fit", str(log), "--axis", "master", "-o", str(target), "--name", "cell-7"]) == 0
