@@ -40,7 +40,9 @@ from servotune.rig import Rig, load_rig
 from servotune.validate import check_keys, check_number, show_value
 
 __all__ = [
+    "DEFAULT_PERIODS",
     "EXCITATION_KINDS",
+    "OUTPUT_SHARE",
     "TARGETS",
     "AutotuneConfig",
     "AutotunePlan",
@@ -114,6 +116,9 @@ class AutotuneConfig:
     seconds: float
     hal: HalSide
     envelope: Envelope
+    modes: int | str | None = None
+    periods: int | None = None
+    band_hz: tuple[float, float] | None = None
 
 
 def _path(base: Path, v: object, key: str) -> Path:
@@ -197,7 +202,7 @@ def _config(p: Path, doc: dict[str, Any]) -> AutotuneConfig:
         doc["autotune"],
         "autotune",
         ("rig", "axis"),
-        ("spec", "target", "excitation", "seconds"),
+        ("spec", "target", "excitation", "seconds", "modes", "periods", "band_hz"),
         error=ConfigError,
     )
     rig_path = _path(p.parent, a["rig"], "autotune.rig")
@@ -224,6 +229,7 @@ def _config(p: Path, doc: dict[str, Any]) -> AutotuneConfig:
         )
     seconds = a.get("seconds", 40.0)
     check_number("autotune.seconds", seconds, "s", strict=True, hi=300.0, error=ConfigError)
+    modes, periods, band = _frequency_response(a, rig, axis, kind)
     h = check_keys(
         doc["hal"],
         "hal",
@@ -272,7 +278,57 @@ def _config(p: Path, doc: dict[str, Any]) -> AutotuneConfig:
         seconds=float(seconds),
         hal=hal,
         envelope=_envelope(doc["envelope"], rig, axis),
+        modes=modes,
+        periods=periods,
+        band_hz=band,
     )
+
+
+DEFAULT_PERIODS = 8
+"""Periods of the experiment's multisine when the run fits modes and the config gives none."""
+
+
+def _frequency_response(
+    a: dict[str, Any], rig: Rig, axis: str, kind: str
+) -> tuple[int | str | None, int | None, tuple[float, float] | None]:
+    """The config's ``modes`` (default ``"auto"`` where the rig's axis has modes, else none),
+    ``periods`` and ``band_hz``: a run that fits modes plays a periodic multisine
+    (``periods`` whole periods, default :data:`DEFAULT_PERIODS`), so the capture's frequency
+    response can be measured (docs/frf.md)."""
+    from servotune.identify.logfit import check_modes_request
+
+    modes = a.get("modes", "auto" if rig.axis(axis).plant.modes else None)
+    try:
+        check_modes_request(modes)
+    except Exception as exc:  # SpecError's one line, under this key
+        raise ConfigError(f"autotune.{exc}") from None
+    periods = a.get("periods")
+    if periods is None and modes not in (None, 0):
+        periods = DEFAULT_PERIODS
+    if periods is not None and not (type(periods) is int and 2 <= periods <= 1000):
+        raise ConfigError(
+            f"autotune.periods must be a whole number of periods in 2..1000, got "
+            f"{show_value(periods)}"
+        )
+    band = a.get("band_hz")
+    ok = band is None or (
+        isinstance(band, list)
+        and len(band) == 2
+        and all(isinstance(x, int | float) and not isinstance(x, bool) for x in band)
+        and 0 < band[0] < band[1] < math.inf
+    )
+    if not ok:
+        raise ConfigError(
+            f"autotune.band_hz must be [low, high] with 0 < low < high [Hz], got {show_value(band)}"
+        )
+    if (periods is not None or band is not None) and kind != "multisine":
+        raise ConfigError(
+            f"autotune.excitation must be multisine for a frequency response (modes, periods "
+            f"or band_hz given), got {show_value(kind)}"
+        )
+    if band is not None and periods is None:
+        raise ConfigError("autotune.band_hz needs autotune.periods (a periodic multisine)")
+    return modes, periods, None if band is None else (float(band[0]), float(band[1]))
 
 
 PIN_ROLES = (
@@ -376,25 +432,11 @@ class AutotunePlan:
 def plan_autotune(cfg: AutotuneConfig) -> AutotunePlan:
     """The plan of an autotune run (module docstring): nothing is touched."""
     from servotune.analysis.margins import GainSet, loop_margins, loop_model, margin_grid
-    from servotune.excite import design_excitation, excitation_inputs
-    from servotune.sim.engine import Loop, simulate
 
     rig, env = cfg.rig, cfg.envelope
     ax = rig.axis(cfg.axis)
     plant = ax.plant
-    # the experiment's rig: the axis's limits narrowed to the envelope (design_excitation keeps
-    # the predicted motion within 90 % of them)
-    lo, hi = env.travel_counts
-    narrowed = replace(
-        ax,
-        speed_limit_rpm=env.speed_cps * 60.0 / rig.counts_per_rev,
-        travel_counts=(math.floor(lo), math.ceil(hi)),
-    )
-    exp_rig = replace(rig, axes=tuple(narrowed if a.name == cfg.axis else a for a in rig.axes))
-    amp_codes = max(1, math.floor(env.max_volts / rig.dac.lsb_v))
-    exc = design_excitation(
-        exp_rig, cfg.axis, cfg.excitation, cfg.seconds, amplitude_codes=amp_codes
-    )
+    exc, codes, predicted = _experiment(cfg)
     lag = rig.timer.compute_s + plant.delay_s
     g = GainSet(ax.lock_gain_codes_per_count)
     figures = loop_margins(
@@ -405,20 +447,7 @@ def plan_autotune(cfg: AutotuneConfig) -> AutotunePlan:
         "phase_margin_deg": float(figures.phase_margin_deg),
         "gain_margin_db": float(figures.gain_margin_db),
     }
-    codes = exc.zero_code + exc.codes  # absolute D/A codes
-    inputs = excitation_inputs(exp_rig, cfg.axis, codes, closed_loop=True)
-    noiseless = [replace(a.plant, noise_counts=0.0) for a in rig.axes]
-    tr = simulate(Loop.from_rig(rig), inputs, seed=0, plants=noiseless)
-    i = rig.axis_names.index(cfg.axis)
-    pos = np.asarray(tr.true_pos_counts)[:, i]
-    rel = pos - pos[0]
-    speed = np.diff(pos) / rig.period_s
-    fe = np.abs(np.asarray(tr.err_counts)[:, i])
-    predicted = {
-        "travel_counts": _share(float(max(-rel.min(), rel.max())), min(-lo, hi)),
-        "speed_cps": _share(float(np.abs(speed).max()), env.speed_cps),
-        "following_error_counts": _share(float(fe.max()), env.following_error_counts),
-    }
+    lo, hi = env.travel_counts
     # the pulse: PULSE_TRAVEL_SHARE of the window in PULSE_S at the model's gain
     pulse_travel = PULSE_TRAVEL_SHARE * min(-lo, hi)
     pulse_volts = min(env.max_volts, pulse_travel / (plant.gain_cps_per_v * PULSE_S))
@@ -432,8 +461,16 @@ def plan_autotune(cfg: AutotuneConfig) -> AutotunePlan:
         "20×, stops here)",
         f"experiment: {cfg.excitation} of ±{exc.amplitude_codes * rig.dac.lsb_v:.3g} V added "
         f"to the loop's output for {exc.codes.size * rig.period_s:.1f} s, the loop closed at "
-        f"Kp {ax.lock_gain_codes_per_count:g} codes/count, captured with halsampler",
-        "fit the capture (servotune fit), tune (servotune tune), verify against "
+        f"Kp {ax.lock_gain_codes_per_count:g} codes/count, captured with halsampler"
+        + (
+            ""
+            if cfg.periods is None
+            else f" ({cfg.periods} periods of {exc.codes.size // cfg.periods} ticks: the "
+            "capture keeps these whole periods, for the frequency response)"
+        ),
+        "fit the capture (servotune fit"
+        + ("" if cfg.modes in (None, 0) else f" --modes {cfg.modes}: the rigid plant and its modes")
+        + "), tune (servotune tune), verify against "
         + (str(cfg.spec_path) if cfg.spec_path else "the rig's defaults")
         + f", export for the {cfg.target}",
         "load the new parameters; a validation move against the verified model's prediction; "
@@ -454,6 +491,64 @@ def plan_autotune(cfg: AutotuneConfig) -> AutotunePlan:
     )
 
 
+OUTPUT_SHARE = 0.9
+"""The experiment's predicted largest |output| (the loop's plus the excitation's, what the
+guard limits) stays within this share of the envelope's ``max_volts``."""
+
+
+def _experiment(cfg: AutotuneConfig) -> tuple[Any, np.ndarray, dict[str, dict[str, float]]]:
+    """The experiment's excitation, its absolute D/A codes and the motion and output the
+    engine predicts for it in the closed loop (noiseless): the excitation designed within the
+    envelope (:func:`~servotune.excite.design_excitation` on the axis's limits narrowed to it,
+    keeping the motion within 90 % of them), then its amplitude lowered until the loop's output
+    with it stays within :data:`OUTPUT_SHARE` of ``max_volts``."""
+    from servotune.excite import design_excitation, excitation_inputs
+    from servotune.sim.engine import Loop, simulate
+
+    rig, env = cfg.rig, cfg.envelope
+    ax = rig.axis(cfg.axis)
+    lo, hi = env.travel_counts
+    narrowed = replace(
+        ax,
+        speed_limit_rpm=env.speed_cps * 60.0 / rig.counts_per_rev,
+        travel_counts=(math.floor(lo), math.ceil(hi)),
+    )
+    exp_rig = replace(rig, axes=tuple(narrowed if a.name == cfg.axis else a for a in rig.axes))
+    noiseless = [replace(a.plant, noise_counts=0.0) for a in rig.axes]
+    i = rig.axis_names.index(cfg.axis)
+    amp_codes = max(1, math.floor(env.max_volts / rig.dac.lsb_v))
+    while True:
+        exc = design_excitation(
+            exp_rig,
+            cfg.axis,
+            cfg.excitation,
+            cfg.seconds,
+            amplitude_codes=amp_codes,
+            periods=cfg.periods,
+            band_hz=cfg.band_hz,
+        )
+        codes = exc.zero_code + exc.codes  # absolute D/A codes
+        inputs = excitation_inputs(exp_rig, cfg.axis, codes, closed_loop=True)
+        tr = simulate(Loop.from_rig(rig), inputs, seed=0, plants=noiseless)
+        pos = np.asarray(tr.true_pos_counts)[:, i]
+        rel = pos - pos[0]
+        volts = rig.dac.range_v[0] + np.asarray(tr.code)[:, i] * rig.dac.lsb_v
+        predicted = {
+            "travel_counts": _share(float(max(-rel.min(), rel.max())), min(-lo, hi)),
+            "speed_cps": _share(float(np.abs(np.diff(pos)).max() / rig.period_s), env.speed_cps),
+            "following_error_counts": _share(
+                float(np.abs(np.asarray(tr.err_counts)[:, i]).max()), env.following_error_counts
+            ),
+            "output_volts": _share(float(np.abs(volts).max()), env.max_volts),
+        }
+        share = predicted["output_volts"]["share"]
+        if share <= OUTPUT_SHARE or exc.amplitude_codes <= 1:
+            return exc, codes, predicted
+        amp_codes = max(
+            1, min(exc.amplitude_codes - 1, math.floor(exc.amplitude_codes * OUTPUT_SHARE / share))
+        )
+
+
 def _share(value: float, limit: float) -> dict[str, float]:
     return {"value": value, "limit": float(limit), "share": value / limit}
 
@@ -469,11 +564,13 @@ def format_plan(cfg: AutotuneConfig, plan: AutotunePlan, session_checked: bool) 
         ("travel_counts", "counts"),
         ("speed_cps", "counts/s"),
         ("following_error_counts", "counts"),
+        ("output_volts", "V"),
     ):
         p = plan.predicted[key]
+        value = f"{p['value']:.2f}" if unit == "V" else f"{p['value']:.0f}"
         lines.append(
-            f"  predicted {key.rsplit('_', 1)[0].replace('_', ' ')}: {p['value']:.0f} {unit} "
-            f"({100 * p['share']:.0f} % of the envelope's {p['limit']:.0f})"
+            f"  predicted {key.rsplit('_', 1)[0].replace('_', ' ')}: {value} {unit} "
+            f"({100 * p['share']:.0f} % of the envelope's {p['limit']:g})"
         )
     lines.append(
         "  the HAL session's pins and thread: as the config says"

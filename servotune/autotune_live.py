@@ -71,6 +71,7 @@ __all__ = [
     "format_result",
     "run_autotune",
     "validation_move",
+    "whole_periods",
 ]
 
 SCALE_FACTOR = 20.0
@@ -444,6 +445,32 @@ def _validate(
     return out
 
 
+PRINT_RESOLUTION = 1e-6
+"""halsampler prints floats with 6 decimals: a played value and its record differ by less."""
+
+
+def whole_periods(capture: str, rec: np.ndarray, excitation: np.ndarray) -> str:
+    """The rows of ``capture`` (``rec``: its numbers) that recorded ``excitation`` [V], the
+    experiment's periodic part: found in the excitation column by its values (the sampler
+    starts before the streamer's first row, by a number of periods that varies).
+
+    Raises
+    ------
+    AutotuneStopped
+        The capture does not hold the excitation as played (rows lost).
+    """
+    x = rec[:, COLUMN["excitation"]]
+    n = excitation.size
+    for k in np.flatnonzero(np.abs(x - excitation[0]) <= PRINT_RESOLUTION):
+        if k + n <= x.size and np.all(np.abs(x[k : k + n] - excitation) <= PRINT_RESOLUTION):
+            lines = capture.splitlines(keepends=True)
+            return "".join(lines[k : k + n])
+    raise AutotuneStopped(
+        "the experiment's capture does not hold the excitation as it was played (rows lost?): "
+        "no frequency response; the previous parameters are restored"
+    )
+
+
 def _identify(cfg: AutotuneConfig, out: Path, capture: str, say: Callable[[str], None]):
     """Step 4 (module docstring): the capture's files, fit, tune, verify, export."""
     from servotune.export.linuxcnc import pid_hal_text, pid_parameters
@@ -476,7 +503,9 @@ def _identify(cfg: AutotuneConfig, out: Path, capture: str, say: Callable[[str],
     atomic_write_text(out / "capture.map.toml", map_text)
     say("autotune: fit the capture")
     settings = hal_settings(str(out / "capture.map.toml"))  # as the by-hand fit reads it
-    result, _, _ = fit_log(out / "capture.txt", axis=cfg.axis, rig=cfg.rig, hal=settings)
+    result, _, _ = fit_log(
+        out / "capture.txt", axis=cfg.axis, rig=cfg.rig, hal=settings, modes=cfg.modes
+    )
     fitted = out / "fitted-rig.toml"
     write_plant(
         fitted,
@@ -609,12 +638,16 @@ def _steps(
         [hold, (plan.excitation_codes - rig.dac.zero_code) * rig.dac.lsb_v, hold]
     )
     say(f"autotune: experiment ({exc_v.size * h.period_s:.1f} s, closed loop)")
-    t.play("experiment", np.full(exc_v.size, t.base), exc_v, start)
+    rec = t.play("experiment", np.full(exc_v.size, t.base), exc_v, start)
     res.seconds["machine_s"] = time.monotonic() - t0
-    result, plant, params = _identify(cfg, t.out, t.last_capture, say)
+    capture = t.last_capture
+    if cfg.periods is not None:  # the whole periods only: a frequency response needs them
+        capture = whole_periods(capture, rec, exc_v[hold.size : exc_v.size - hold.size])
+    result, plant, params = _identify(cfg, t.out, capture, say)
     res.fit.update(
         params={k: float(v) for k, v in result.params.items()},
         velocity_fit_pct=float(result.fit_pct["velocity"]["estimation"]),
+        modes=[m.to_dict() for m in plant.modes],
     )
     res.files.update(_digests(t.out))
     say("autotune: validation move")

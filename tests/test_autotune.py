@@ -16,7 +16,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from servotune.autotune import load_autotune_config, plan_autotune
+from servotune.autotune import (
+    DEFAULT_PERIODS,
+    OUTPUT_SHARE,
+    load_autotune_config,
+    plan_autotune,
+)
 from servotune.cli import main
 from servotune.errors import ConfigError
 from servotune.examples import EXAMPLES_DIR
@@ -86,7 +91,7 @@ def test_the_dry_run_prints_the_plan_and_writes_nothing(tmp_path: Path, capsys) 
     assert sorted(x.name for x in tmp_path.iterdir()) == before
     assert doc["excitation"]["kind"] == "multisine" and doc["excitation"]["seconds"] > 7.9
     assert doc["excitation"]["amplitude_volts"] <= 4.0
-    for key in ("travel_counts", "speed_cps", "following_error_counts"):
+    for key in ("travel_counts", "speed_cps", "following_error_counts", "output_volts"):
         assert doc["predicted"][key]["share"] <= 1.0, key
     assert doc["starting_loop"]["phase_margin_deg"] > 30
     assert len(doc["steps"]) == 5 and "wiring check" in doc["steps"][1]
@@ -97,11 +102,11 @@ def test_the_dry_run_prints_the_plan_and_writes_nothing(tmp_path: Path, capsys) 
     assert "no HAL session runs here (or no halcmd): the pins were not checked" in out
 
 
-def _independent_run(cfg, codes: np.ndarray) -> np.ndarray:
-    """Positions [counts] at each tick start: the axis model integrated by solve_ivp, the D/A
-    code written ``compute_s`` after the tick start and acting ``delay_s`` later, the lock
-    module's P law (its quantised gain, rounded half away from zero) on the latched
-    floor(position), the excitation's codes added."""
+def _independent_run(cfg, codes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Positions [counts] at each tick start and the D/A's output [V] each tick: the axis
+    model integrated by solve_ivp, the D/A code written ``compute_s`` after the tick start
+    and acting ``delay_s`` later, the lock module's P law (its quantised gain, rounded half
+    away from zero) on the latched floor(position), the excitation's codes added."""
     from scipy.integrate import solve_ivp
 
     rig = cfg.rig
@@ -116,6 +121,7 @@ def _independent_run(cfg, codes: np.ndarray) -> np.ndarray:
 
     x = np.zeros(2)
     pos = np.empty(codes.size)
+    out = np.empty(codes.size)
     prev = 0.0
     for k in range(codes.size):
         pos[k] = x[0]
@@ -123,17 +129,24 @@ def _independent_run(cfg, codes: np.ndarray) -> np.ndarray:
         u = kp * e
         code = int(np.clip(zero + np.sign(u) * np.floor(abs(u) + 0.5) + codes[k], 0, 2 * zero - 1))
         volts = (code - zero) * rig.dac.lsb_v
+        out[k] = volts
         x = solve_ivp(rhs, (0, lag), x, args=(prev,), rtol=1e-10, atol=1e-9).y[:, -1]
         x = solve_ivp(rhs, (lag, t_s), x, args=(volts,), rtol=1e-10, atol=1e-9).y[:, -1]
         prev = volts
-    return pos
+    return pos, out
 
 
-def test_the_predicted_motion_agrees_with_an_independent_simulation(tmp_path: Path) -> None:
-    """The plan's largest travel and speed (the engine) against the same experiment run by
-    :func:`_independent_run` on the frictionless axis: within 5 % (both quantise the counter
-    and the D/A; their rounding of the P law may differ by a code now and then)."""
+@pytest.mark.parametrize("max_volts", [4.0, 2.0])
+def test_the_predicted_motion_agrees_with_an_independent_simulation(
+    tmp_path: Path, max_volts: float
+) -> None:
+    """The plan's largest travel, speed and output (the engine) against the same experiment
+    run by :func:`_independent_run` on the frictionless axis: within 5 % (both quantise the
+    counter and the D/A; their rounding of the P law may differ by a code now and then). The
+    output (the loop's plus the excitation's) stays within OUTPUT_SHARE of the envelope's
+    limit (on the belt rig the plan lowers the excitation for that: the next test)."""
     p = _edit(tmp_path, "seconds = 40.0", "seconds = 4.0")
+    p.write_text(p.read_text().replace("max_volts = 4.0", f"max_volts = {max_volts}"))
     cfg = load_autotune_config(p)
     ax = cfg.rig.axis(cfg.axis)
     frictionless = dataclasses.replace(ax, plant=dataclasses.replace(ax.plant, coulomb_v=0.0))
@@ -144,11 +157,57 @@ def test_the_predicted_motion_agrees_with_an_independent_simulation(tmp_path: Pa
         ),
     )
     plan = plan_autotune(cfg)
-    pos = _independent_run(cfg, plan.excitation_codes - (1 << (cfg.rig.dac.bits - 1)))
+    pos, volts = _independent_run(cfg, plan.excitation_codes - (1 << (cfg.rig.dac.bits - 1)))
     travel = float(np.abs(pos - pos[0]).max())
     speed = float(np.abs(np.diff(pos)).max() / cfg.rig.period_s)
     assert plan.predicted["travel_counts"]["value"] == pytest.approx(travel, rel=0.05)
     assert plan.predicted["speed_cps"]["value"] == pytest.approx(speed, rel=0.05)
+    output = float(np.abs(volts).max())
+    assert plan.predicted["output_volts"]["value"] == pytest.approx(output, rel=0.05)
+    assert output <= OUTPUT_SHARE * max_volts + cfg.rig.dac.lsb_v
+
+
+def test_a_resonant_rig_plays_whole_periods_within_the_output_limit(tmp_path: Path) -> None:
+    """The belt rig (a mode in its master's plant): the config's default is ``modes = "auto"``
+    with a periodic multisine of DEFAULT_PERIODS periods; the excitation's full 4 V would
+    drive the loop's output past the envelope (the guard tripped at 4.04 V in real HAL before
+    the plan looked at the output), so the plan lowers it until the predicted output is within
+    OUTPUT_SHARE of 4 V. tests/hal/test_autotune_live.py runs it in HAL, the guard measuring."""
+    for name in ("belt-axis.toml", "belt-axis.spec.toml"):
+        (tmp_path / name).write_bytes((EXAMPLES_DIR / name).read_bytes())
+    text = CONFIG.read_text().replace("pc-dual-servo", "belt-axis")
+    (tmp_path / "at.toml").write_text(text.replace("seconds = 40.0", "seconds = 12.0"))
+    cfg = load_autotune_config(tmp_path / "at.toml")
+    assert cfg.modes == "auto" and cfg.periods == DEFAULT_PERIODS
+    plan = plan_autotune(cfg)
+    n = plan.excitation_codes.size
+    assert n % DEFAULT_PERIODS == 0
+    per = n // DEFAULT_PERIODS
+    assert np.array_equal(plan.excitation_codes[per:], plan.excitation_codes[:-per])
+    assert plan.amplitude_volts < 0.9 * 4.0
+    assert plan.predicted["output_volts"]["share"] <= OUTPUT_SHARE
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "words"),
+    [
+        ("seconds = 40.0", "seconds = 40.0\nmodes = 7", "autotune.modes must be auto or a number"),
+        ("seconds = 40.0", "seconds = 40.0\nperiods = 1", "autotune.periods must be a whole"),
+        ('excitation = "multisine"', 'excitation = "prbs"\nperiods = 4', "must be multisine"),
+        ("seconds = 40.0", "seconds = 40.0\nband_hz = [5, 1]", "autotune.band_hz must be"),
+        ("seconds = 40.0", "seconds = 40.0\nband_hz = [1, 50]", "band_hz needs autotune.periods"),
+    ],
+)
+def test_a_bad_frequency_response_request_is_one_line(
+    tmp_path: Path, capsys, old: str, new: str, words: str
+) -> None:
+    p = _edit(tmp_path, old, new)
+    with pytest.raises(ConfigError) as e:
+        load_autotune_config(p)
+    assert words in str(e.value), str(e.value)
+    assert main(["autotune", str(p), "--dry-run"]) == 3
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and words in err[0], err
 
 
 def test_a_live_run_without_its_session_is_one_line(tmp_path: Path, capsys) -> None:

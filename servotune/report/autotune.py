@@ -127,6 +127,14 @@ def autotune_report_html(out_dir: str | Path) -> str:
     if fit:
         rows = [[k, fmt_value(v)] for k, v in sorted(fit["params"].items())]
         rows.append(["velocity fit", fmt_value(fit["velocity_fit_pct"], "%")])
+        for k, mode in enumerate(fit.get("modes") or [], start=1):
+            rows.append(
+                [
+                    f"mode {k}",
+                    f"{fmt_value(mode['freq_hz'], 'Hz')}, damping {fmt_value(mode['damping'])}, "
+                    f"gain {fmt_value(mode['gain'])}",
+                ]
+            )
         parts.append(table_html(["fitted", "value"], rows))
     else:
         parts.append(paragraph_html("not reached"))

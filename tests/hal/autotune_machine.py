@@ -43,14 +43,17 @@ ENVELOPE = {
 }
 
 
-def config_text(seconds: float = 8.0, envelope: dict | None = None) -> str:
+def config_text(
+    seconds: float = 8.0, envelope: dict | None = None, rig_name: str = "pc-dual-servo"
+) -> str:
+    """The run's config: the example rig ``rig_name`` (and its spec), its master axis."""
     env = {**ENVELOPE, **(envelope or {})}
     return "\n".join(
         [
             "[autotune]",
-            'rig = "pc-dual-servo.toml"',
+            f'rig = "{rig_name}.toml"',
             'axis = "master"',
-            'spec = "pc-dual-servo.spec.toml"',
+            f'spec = "{rig_name}.spec.toml"',
             f"seconds = {seconds}",
             "[hal]",
             'thread = "servo-thread"',
@@ -68,8 +71,8 @@ def config_text(seconds: float = 8.0, envelope: dict | None = None) -> str:
     )
 
 
-def rig() -> st.Rig:
-    return st.load_rig(EXAMPLES_DIR / "pc-dual-servo.toml")
+def rig(name: str = "pc-dual-servo") -> st.Rig:
+    return st.load_rig(EXAMPLES_DIR / f"{name}.toml")
 
 
 def build(
@@ -110,9 +113,10 @@ def build(
     )
 
 
-def workspace(workdir: Path, config: str) -> None:
-    """The run's files in ``workdir``: the example rig and spec, and the config ``at.toml``."""
-    for name in ("pc-dual-servo.toml", "pc-dual-servo.spec.toml"):
+def workspace(workdir: Path, config: str, rig_name: str = "pc-dual-servo") -> None:
+    """The run's files in ``workdir``: the example rig ``rig_name`` and its spec, and the
+    config ``at.toml``."""
+    for name in (f"{rig_name}.toml", f"{rig_name}.spec.toml"):
         shutil.copyfile(EXAMPLES_DIR / name, workdir / name)
     (workdir / "at.toml").write_text(config)
 

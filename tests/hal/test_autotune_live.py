@@ -5,7 +5,8 @@ machine's user.
 
 - end to end: the run loads verified gains equal to those of fit → tune → verify → export run
   by hand on its own capture, the validation move matches the prediction, the session's
-  wiring is as before, and the record's digests are the files';
+  wiring is as before, and the record's digests are the files'; on the resonant rig too, its
+  mode fitted from the capture's frequency response;
 - a reversed encoder stops at the wiring check (no closed-loop motion) with the previous pins;
 - a drive with 10× the model's gain passes the wiring check and is stopped by the guard in the
   real-time thread (the output 0 from the period of the breach, read from the capture);
@@ -36,6 +37,8 @@ from servotune.digest import bytes_sha256
 
 PLANT = "statplant"  # names no other test's components use
 PLANT10 = "statplant10"
+PLANT_BELT = "statbelt"
+BELT = "belt-axis"  # the example rig with a belt mode in its master's plant
 GUARD_FE = "servotune_guard_fe"
 FE_LIMIT = 800.0
 """A following-error limit below the experiment's (the plan predicts about 1400 counts for the
@@ -58,7 +61,15 @@ def built(tmp_path_factory) -> dict[str, Path]:
     _, guard_fe_so = m.build(
         wfe, PLANT, envelope={"following_error_counts": FE_LIMIT}, guard=GUARD_FE
     )
-    return {PLANT: plant_so, PLANT10: plant10_so, "guard": guard_so, GUARD_FE: guard_fe_so}
+    wbelt = tmp_path_factory.mktemp("autotune_build_belt")
+    belt_so, _ = m.build(wbelt, PLANT_BELT, plant=m.rig(BELT).axis("master").plant)
+    return {
+        PLANT: plant_so,
+        PLANT10: plant10_so,
+        PLANT_BELT: belt_so,
+        "guard": guard_so,
+        GUARD_FE: guard_fe_so,
+    }
 
 
 def _run(built, tmp_path, plant, argv, capsys, *, fb_sign=1.0, seconds=12.0, previous=None):
@@ -86,6 +97,41 @@ def _wiring_as_before(stdout: str) -> None:
     assert cmd and cmd[0][6] == "x-cmd"
 
 
+def _by_hand_equals_loaded(tmp_path, out, rec, capsys, rig_name="pc-dual-servo", fit_args=()):
+    """fit → tune → verify → export run by hand on the run's own capture: the HAL file's
+    setp lines are the pins the run loaded, bit for bit."""
+    hand = tmp_path / "hand"
+    hand.mkdir()
+    spec = str(tmp_path / f"{rig_name}.spec.toml")
+    fitted = hand / f"{rig_name}.toml"
+    capture = [str(out / "capture.txt"), "--map", str(out / "capture.map.toml")]
+    template = ["--rig", str(tmp_path / f"{rig_name}.toml"), "--axis", "master"]
+    pid = ["--position-scale", str(m.SCALE), "--pid", "pid.0", "-o", str(hand / "pid.hal")]
+    for argv in (
+        ["fit", *capture, *template, *fit_args, "-o", str(fitted)],
+        ["tune", str(fitted), "--spec", spec, "-o", str(hand / "t.json"), "-q"],
+        ["verify", str(hand / "t.json"), "--spec", spec],
+        ["export-table", str(hand / "t.json"), "--format", "linuxcnc-hal", *pid],
+    ):
+        assert main(argv) == 0, (argv, capsys.readouterr().err)
+    capsys.readouterr()
+    setp = [ln.split() for ln in (hand / "pid.hal").read_text().splitlines()]
+    by_hand = {f[1].split(".", 2)[2]: f[2] for f in setp if f[:1] == ["setp"]}
+    loaded = rec["loaded"]
+    assert by_hand.keys() == loaded.keys()
+    for k, v in by_hand.items():
+        assert (v == "true") is loaded[k] if v in ("true", "false") else float(v) == loaded[k], k
+
+
+def _validated(rec) -> None:
+    """The validation move matched the prediction within the stated tolerances, and moved."""
+    v = rec["validation"]
+    assert v["passed"] and v["problems"] == []
+    for key, (rel, ab) in v["tolerance"].items():
+        assert abs(v["measured"][key] - v["predicted"][key]) <= rel * abs(v["predicted"][key]) + ab
+    assert v["measured"]["following_error"] > 10  # the move moved
+
+
 def test_end_to_end_loads_the_by_hand_gains_and_validates(built, tmp_path, capsys):
     out = tmp_path / "out"
     t0 = time.monotonic()
@@ -100,61 +146,9 @@ def test_end_to_end_loads_the_by_hand_gains_and_validates(built, tmp_path, capsy
             assert float(pins[f"pid.0.{k}"]) == pytest.approx(v, rel=1e-6), k
     assert float(pins["pid.0.Pgain"]) != m.PREVIOUS["Pgain"]
     _wiring_as_before(stdout)
-    # by hand on the run's own capture: fit -> tune -> verify -> the pid's parameters
-    hand = tmp_path / "hand"
-    hand.mkdir()
-    spec = str(tmp_path / "pc-dual-servo.spec.toml")
-    for argv in (
-        [
-            "fit",
-            str(out / "capture.txt"),
-            "--map",
-            str(out / "capture.map.toml"),
-            "--rig",
-            str(tmp_path / "pc-dual-servo.toml"),
-            "--axis",
-            "master",
-            "-o",
-            str(hand / "pc-dual-servo.toml"),
-        ],
-        [
-            "tune",
-            str(hand / "pc-dual-servo.toml"),
-            "--spec",
-            spec,
-            "-o",
-            str(hand / "t.json"),
-            "-q",
-        ],
-        ["verify", str(hand / "t.json"), "--spec", spec],
-        [
-            "export-table",
-            str(hand / "t.json"),
-            "--format",
-            "linuxcnc-hal",
-            "--position-scale",
-            str(m.SCALE),
-            "--pid",
-            "pid.0",
-            "-o",
-            str(hand / "pid.hal"),
-        ],
-    ):
-        assert main(argv) == 0, (argv, capsys.readouterr().err)
-    capsys.readouterr()
-    # the by-hand HAL file's setp lines are the loaded pins, bit for bit
-    setp = [ln.split() for ln in (hand / "pid.hal").read_text().splitlines()]
-    by_hand = {f[1].split(".", 2)[2]: f[2] for f in setp if f[:1] == ["setp"]}
-    loaded = rec["loaded"]
-    assert by_hand.keys() == loaded.keys()
-    for k, v in by_hand.items():
-        assert (v == "true") is loaded[k] if v in ("true", "false") else float(v) == loaded[k], k
-    # the validation move matched the prediction within the stated tolerances
-    v = rec["validation"]
-    assert v["passed"] and v["problems"] == []
-    for key, (rel, ab) in v["tolerance"].items():
-        assert abs(v["measured"][key] - v["predicted"][key]) <= rel * abs(v["predicted"][key]) + ab
-    assert v["measured"]["following_error"] > 10  # the move moved
+    _by_hand_equals_loaded(tmp_path, out, rec, capsys)
+    _validated(rec)
+    assert rec["fit"]["modes"] == []  # a rigid rig: no modes asked for, none fitted
     # the record binds the files by their SHA-256
     for name, sha in rec["files_sha256"].items():
         assert bytes_sha256((out / name).read_bytes()) == sha
@@ -163,6 +157,39 @@ def test_end_to_end_loads_the_by_hand_gains_and_validates(built, tmp_path, capsy
     page = (out / "autotune.html").read_text()
     assert "servotune autotune: loaded and validated" in page and page.count("<img") == 3
     print(f"autotune end to end: wall {wall:.0f} s, machine {rec['seconds']['machine_s']:.1f} s")
+
+
+def test_end_to_end_on_the_resonant_rig_fits_its_mode(built, tmp_path, capsys):
+    """The belt-driven rig (examples/belt-axis.toml: a 35 Hz mode, damping 0.04, gain 0.5),
+    its plant component ringing as the engine's: the run plays a periodic multisine (the
+    rig has modes, so the config's default is ``modes = "auto"``, 8 periods), keeps the whole
+    periods of the capture, fits the rigid plant and the mode from the frequency response,
+    and loads what fit --modes auto → tune → verify → export give by hand on that capture."""
+    out = tmp_path / "out"
+    m.workspace(tmp_path, m.config_text(12.0, rig_name=BELT), rig_name=BELT)
+    halrun.share(tmp_path)
+    t0 = time.monotonic()
+    with halrun.installed_component(built[PLANT_BELT]), halrun.installed_component(built["guard"]):
+        with m.machine(tmp_path, PLANT_BELT, after=AFTER):
+            argv = ["autotune", str(tmp_path / "at.toml"), "-o", str(out), "--json"]
+            rc = main([*argv, *m.hal_user_args()])
+    wall = time.monotonic() - t0
+    cap = capsys.readouterr()
+    assert rc == 0, cap.err
+    rec = json.loads(cap.out)
+    # the capture is the 8 whole periods of 375 ticks, and its mode is the plant's
+    assert len((out / "capture.txt").read_text().splitlines()) == 8 * 375
+    (mode,) = rec["fit"]["modes"]
+    assert mode["freq_hz"] == pytest.approx(35.0, rel=0.01)
+    assert mode["damping"] == pytest.approx(0.04, rel=0.2)
+    assert rec["fit"]["params"]["gain_cps_per_v"] == pytest.approx(12288.0, rel=0.02)
+    _by_hand_equals_loaded(tmp_path, out, rec, capsys, rig_name=BELT, fit_args=("--modes", "auto"))
+    _validated(rec)
+    assert rec["seconds"]["machine_s"] < 300
+    print(
+        f"autotune on the resonant rig: mode {mode['freq_hz']:.3f} Hz, damping "
+        f"{mode['damping']:.4f}; wall {wall:.0f} s, machine {rec['seconds']['machine_s']:.1f} s"
+    )
 
 
 def test_a_reversed_encoder_stops_at_the_wiring_check(built, tmp_path, capsys):

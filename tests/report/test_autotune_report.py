@@ -79,6 +79,18 @@ def test_a_loaded_run_states_its_numbers(tmp_path: Path) -> None:
     assert page.count("<img") == 3  # wiring check, experiment, validation move
 
 
+def test_the_fitted_modes_are_stated(tmp_path: Path) -> None:
+    fit = {"params": {"gain_cps_per_v": 12279.0}, "velocity_fit_pct": 97.9}
+    _record(tmp_path, fit={**fit, "modes": []})
+    _captures(tmp_path)
+    rigid = autotune_report_html(tmp_path)
+    mode = {"freq_hz": 35.0012, "damping": 0.03999, "gain": 0.4999}
+    _record(tmp_path, fit={**fit, "modes": [mode]})
+    resonant = autotune_report_html(tmp_path)
+    assert "mode 1" not in rigid
+    assert "mode 1" in resonant and "35.0012" in resonant and "0.03999" in resonant
+
+
 def test_the_statement_follows_the_record(tmp_path: Path) -> None:
     _record(tmp_path)
     _captures(tmp_path)
