@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-slow test-wheel lint format bench clean fuzz lock
+.PHONY: demo test test-slow test-wheel test-study lint format bench clean fuzz lock
 
 # Installs the exact versions of requirements.lock (hashes checked), then servotune itself without
 # dependencies: every machine runs the same numpy, scipy, casadi, numba... (README, "Reproducible
@@ -50,7 +50,7 @@ format: $(STAMP)
 # One BLAS thread per process while testing: two pytest workers already use both cores, and
 # OpenBLAS's own threads, left spinning after scipy's expm, starved the numpy work after it
 # (tests/identify/test_modes.py 46–138 s threaded against 12–17 s on one thread).
-test test-slow test-wheel: export OPENBLAS_NUM_THREADS = 1
+test test-slow test-wheel test-study: export OPENBLAS_NUM_THREADS = 1
 
 # both cores (pytest-xdist); a file's tests stay on one worker, so module fixtures run once.
 # The kernels are compiled first, once, if an edit of servotune's sources made them stale
@@ -58,13 +58,19 @@ test test-slow test-wheel: export OPENBLAS_NUM_THREADS = 1
 # (e.g. make test PYTEST_ARGS="--durations=30").
 test: lint
 	$(BIN)/servotune warmup
-	$(BIN)/python -m pytest -m "not slow and not wheel" -n 2 --dist loadfile $(PYTEST_ARGS)
+	$(BIN)/python -m pytest -m "not slow and not wheel and not study" -n 2 --dist loadfile $(PYTEST_ARGS)
 
 # A pip user's first hour (tests/test_wheel.py): the built wheel in a fresh venv outside the
 # repository runs the README's chain from an empty directory (about 4 minutes: numba compiles
 # the installed package's kernels afresh). .ci/run runs it after make test.
 test-wheel: $(STAMP)
 	$(BIN)/python -m pytest -m wheel
+
+# Studies in real HAL that hold its one session for minutes (docs/decisions.md#8-test-time:
+# marker `study`): the live autotune repeated over five noise seeds (about 2.5 minutes).
+# .ci/run runs them after make test.
+test-study: $(STAMP)
+	$(BIN)/python -m pytest -m study
 
 # The big statistical runs (docs/decisions.md#8-test-time: marker `slow`, not part of
 # `make test`), e.g. the identifier's coverage over 250 closed-loop logs (tests/identify).

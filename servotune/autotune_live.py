@@ -644,9 +644,14 @@ def _steps(
     if cfg.periods is not None:  # the whole periods only: a frequency response needs them
         capture = whole_periods(capture, rec, exc_v[hold.size : exc_v.size - hold.size])
     result, plant, params = _identify(cfg, t.out, capture, say)
+    # the plant written (with modes: gain, tau and delay from the frequency-domain fit) and
+    # its whole-log velocity fit, as fitted-rig.toml records them
+    written_pct = result.plant_fit.velocity_fit_pct
     res.fit.update(
-        params={k: float(v) for k, v in result.params.items()},
-        velocity_fit_pct=float(result.fit_pct["velocity"]["estimation"]),
+        params={k: float(getattr(result.plant, k)) for k in result.params},
+        velocity_fit_pct=float(
+            result.fit_pct["velocity"]["estimation"] if written_pct is None else written_pct
+        ),
         modes=[m.to_dict() for m in plant.modes],
     )
     res.files.update(_digests(t.out))

@@ -26,7 +26,10 @@ import halrun
 from servotune.cli import main
 from servotune.io.halcmd import Halcmd
 
-PLANT = "statplantn"  # a name no other test's components use
+pytestmark = pytest.mark.study  # make test-study (.ci/run): it holds HAL's session 2.5 minutes
+
+PLANT = "statplantn"  # names no other test's components use
+GUARD = "servotune_guard_rep"
 SEEDS = (1, 2, 3, 4, 5)
 GAINS = ("Pgain", "Igain", "FF1")  # the parameters the run sets away from 0
 GAIN_SPREAD = 0.05
@@ -38,18 +41,19 @@ def runs(tmp_path_factory) -> list[dict]:
     """The five runs' records, each with its fitted plant's values and 95 % intervals."""
     halrun.hal_available()
     build = tmp_path_factory.mktemp("repeat_build")
-    plant_so, guard_so = m.build(build, PLANT, noise=True)
+    plant_so, guard_so = m.build(build, PLANT, noise=True, guard=GUARD)
     work = tmp_path_factory.mktemp("repeat")
     m.workspace(work, m.config_text(8.0))
     halrun.share(work)
     hal = Halcmd(user=halrun.HAL_USER if m.hal_user_args() else None)
     records = []
     with halrun.installed_component(plant_so), halrun.installed_component(guard_so):
-        with m.machine(work, PLANT):
+        with m.machine(work, PLANT, guard=GUARD):
             for seed in SEEDS:
                 hal("setp", f"{PLANT}.seed", str(seed))
                 out = work / f"run{seed}"
-                rc = main(["autotune", str(work / "at.toml"), "-o", str(out), *m.hal_user_args()])
+                argv = ["autotune", str(work / "at.toml"), "-o", str(out), "--guard-name", GUARD]
+                rc = main([*argv, *m.hal_user_args()])
                 rec = json.loads((out / "autotune.json").read_text())
                 assert rc == 0, rec["stopped"]
                 plant = tomllib.loads((out / "fitted-rig.toml").read_text())["axis"]["master"]
