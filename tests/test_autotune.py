@@ -232,3 +232,38 @@ def test_the_guard_written_is_the_configs_envelope(tmp_path: Path, capsys) -> No
     assert "travel -40000..40000 counts, speed 40000 counts/s, following error 6000" in text
     assert "output 4 V, 2000 counts per feedback unit" in text
     assert "wrote the guard servotune_guard" in capsys.readouterr().err
+
+
+def _capture(excitation: np.ndarray, lead: int, tail: int) -> tuple[str, np.ndarray]:
+    """A halsampler capture (sample number, then autotune_live.CHANNELS) whose excitation
+    column holds ``excitation`` after ``lead`` rows of 0, printed with 6 decimals."""
+    from servotune.autotune_live import CHANNELS, COLUMN
+
+    n = lead + excitation.size + tail
+    rec = np.zeros((n, len(CHANNELS) + 1))
+    rec[:, 0] = np.arange(509, 509 + n)
+    rec[lead : lead + excitation.size, COLUMN["excitation"]] = excitation
+    rec[:, COLUMN["feedback"]] = np.cumsum(rec[:, COLUMN["excitation"]]) * 1e-3
+    text = "".join(f"{int(r[0])} " + " ".join(f"{x:.6f}" for x in r[1:5]) + " 0 0 \n" for r in rec)
+    return text, np.loadtxt(text.splitlines(), ndmin=2)
+
+
+def test_whole_periods_keeps_the_rows_that_recorded_the_excitation() -> None:
+    """The sampler starts before the streamer by a number of rows that varies: the rows kept
+    are found by the excitation's printed values; a capture that lost a row is refused."""
+    from servotune.autotune_live import whole_periods
+    from servotune.errors import AutotuneStopped
+
+    period = np.round(np.sin(2 * np.pi * np.arange(50) / 50) * 2.0, 6)
+    period[0] = 0.0  # an excitation that starts at 0, as a sine does: found all the same
+    exc = np.tile(period, 4)
+    for lead in (100, 137):
+        text, rec = _capture(exc, lead, 100)
+        kept = whole_periods(text, rec, exc)
+        rows = np.loadtxt(kept.splitlines(), ndmin=2)
+        assert rows.shape[0] == exc.size and rows[0, 0] == 509 + lead
+        np.testing.assert_array_equal(rows[:, 4], exc)
+    lost = np.delete(exc, 120)
+    text, rec = _capture(lost, 100, 100)
+    with pytest.raises(AutotuneStopped, match="does not hold the excitation"):
+        whole_periods(text, rec, exc)
