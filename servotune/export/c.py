@@ -68,6 +68,7 @@ from servotune.export.linkage import LINK_HEADER_NAME, linkage_c_header
 from servotune.io.files import write_files
 
 __all__ = [
+    "FILTER_RUNTIME_FILES",
     "GANTRY_RUNTIME_FILES",
     "HEADER_NAME",
     "LINK_RUNTIME_FILES",
@@ -91,6 +92,8 @@ LINK_RUNTIME_FILES = ("servotune_link.c", "servotune_link.h")
 """A linkage slave CPU's receive queue and clock sync (:mod:`servotune.export.linkage`)."""
 SHAPER_RUNTIME_FILES = ("servotune_shaper.h",)
 """The input shaper's integer step (header only; :mod:`servotune.laws.shaping`)."""
+FILTER_RUNTIME_FILES = ("servotune_filter.h",)
+"""A filter section's integer step (header only; :mod:`servotune.laws.filters`)."""
 
 
 def runtime_source(name: str) -> str:
@@ -102,6 +105,7 @@ def runtime_source(name: str) -> str:
         + LINK_RUNTIME_FILES
         + PLANT_RUNTIME_FILES
         + SHAPER_RUNTIME_FILES
+        + FILTER_RUNTIME_FILES
     )
     if name not in known:
         raise ExportError(f"no runtime file {name!r}; files: {', '.join(known)}")
