@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Sequence
 from importlib import resources
 from pathlib import Path
 from string import Template
@@ -38,6 +39,7 @@ from servotune._version import __version__
 from servotune.digest import text_digest_problem, with_digest_line
 from servotune.errors import DigestError, ExportError
 from servotune.export.c import (
+    FILTER_RUNTIME_FILES,
     PLANT_RUNTIME_FILES,
     RUNTIME_FILES,
     SHAPER_RUNTIME_FILES,
@@ -45,14 +47,17 @@ from servotune.export.c import (
 )
 from servotune.export.c import to_string as tables_header
 from servotune.export.document import write_export
+from servotune.laws.filters import INPUT_BOUND_WIDE, SectionQ, state_bound
 from servotune.laws.shaping import Shaper
 from servotune.plant import NROW, Plant, plant_row
 from servotune.rig import Dac, Rig
 from servotune.tuning import Tuning
 
 __all__ = [
+    "MAX_FILTER_SECTIONS",
     "PLANT_HEADER",
     "check_component_source",
+    "filter_component",
     "guard_component",
     "plant_component",
     "shaper_component",
@@ -61,6 +66,8 @@ __all__ = [
 ]
 
 PLANT_HEADER = PLANT_RUNTIME_FILES[0]
+MAX_FILTER_SECTIONS = 4
+"""Most filter sections in series in one component (the runtime's law allows as many)."""
 _NAME = re.compile(r"[a-z][a-z0-9_]{0,40}")
 _LOCAL_INCLUDE = re.compile(r'^#include "servotune_[a-z]+\.h"\n', re.MULTILINE)
 
@@ -267,6 +274,54 @@ def shaper_component(shaper: Shaper, *, name: str) -> str:
         added_ticks=shaper.n_taps - 1,
         shaper_h=_inline(runtime_source(SHAPER_RUNTIME_FILES[0])),
         amplitudes=", ".join(str(a) for a in shaper.amplitudes_q),
+    )
+
+
+def filter_component(
+    sections: Sequence[SectionQ], *, name: str, input_bound: int = INPUT_BOUND_WIDE
+) -> str:
+    """The ``.comp`` source of filter sections in series (docs/runtime.md#filters): each
+    period its function takes ``in`` (s32, in the unit the sections were sized for), clamps it
+    to ``±input_bound`` (``clipped`` set when it had to), and gives ``out`` (s32), the input
+    through every section's :func:`servotune.laws.filters.biquad_step`
+    (``servotune_filter.h``); with ``enable`` false ``out`` is the input, and switching it on
+    sets each section's state by :func:`~servotune.laws.filters.bumpless_state` at the last
+    input (the output does not move at a steady input).
+
+    Raises
+    ------
+    ExportError
+        A name that is not a HAL name, no section or more than 4, or a cascade whose output or
+        accumulator could leave its integer range for inputs within ``input_bound`` (each
+        section's bound, :func:`~servotune.laws.filters.state_bound`, taken at the previous
+        one's largest output).
+    """
+    _check_name(name)
+    if not 1 <= len(sections) <= MAX_FILTER_SECTIONS:
+        raise ExportError(
+            f"a filter component holds 1 to {MAX_FILTER_SECTIONS} sections, got {len(sections)}"
+        )
+    bound = int(input_bound)
+    for k, q in enumerate(sections):
+        sb = state_bound(q, bound)
+        if sb.y_max > 2**31 - 1 or sb.acc_max >= 2**62:
+            raise ExportError(
+                f"filter section {k + 1}: inputs up to ±{bound} give outputs up to ±{sb.y_max} "
+                f"(s32 holds ±{2**31 - 1}) and partial sums up to 2^{math.log2(sb.acc_max):.1f} "
+                "(int64 keeps 2^62): lower input_bound"
+            )
+        bound = sb.y_max
+    return _template(
+        "hal_filter.comp.in",
+        name=name,
+        n=len(sections),
+        bound=int(input_bound),
+        summary=f"{len(sections)} section(s), "
+        + ", ".join(f"{q.frac_bits} fraction bits" for q in sections),
+        filter_h=_inline(runtime_source(FILTER_RUNTIME_FILES[0])),
+        sections=", ".join(
+            "{" + ", ".join(str(int(v)) for v in q.step_args()) + "}" for q in sections
+        ),
     )
 
 

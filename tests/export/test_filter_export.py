@@ -7,20 +7,27 @@ simulator's (:func:`servotune.laws.filters.filter_run`, the numba-compiled ``biq
   ``st_filter_bumpless`` / :func:`~servotune.laws.filters.bumpless_state`: every output and the
   final state equal, bit for bit;
 - built strictly (-std=c99 -Wall -Wextra -Werror -pedantic) and under UBSan (no signed
-  overflow, no bad shift) on the same run.
+  overflow, no bad shift) on the same run;
+- the HAL component (:func:`servotune.export.hal_component.filter_component`) in real HAL:
+  switched off and on again (bumpless), fed inputs beyond its bound (clamped, ``clipped``
+  set), equal to the simulator's step period by period; a cascade whose output could leave
+  s32 is refused at export.
 """
 
 from __future__ import annotations
 
 import ctypes
 import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 from c_build import STRICT, UBSAN, cc, needs_cc
 
+from servotune.errors import ExportError
 from servotune.export.c import FILTER_RUNTIME_FILES, runtime_source
+from servotune.export.hal_component import filter_component
 from servotune.laws.filters import (
     INPUT_BOUND_WIDE,
     N_FILTER_STATE,
@@ -33,6 +40,9 @@ from servotune.laws.filters import (
     quantize_section,
     state_bound,
 )
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "hal"))
+import halrun
 
 HARNESS = r"""
 #include <stdint.h>
@@ -242,3 +252,101 @@ def test_the_c_filter_has_no_undefined_behaviour(filter_dir: Path, name: str) ->
     got = np.frombuffer(res.stdout, dtype=np.int64)
     want, want_state = _reference(qs, retuned, x)
     assert np.array_equal(got[:N], want) and np.array_equal(got[N:], want_state)
+
+
+N_HAL = 5000
+THREAD_PERIOD_NS = 1_000_000
+
+
+def _hal_reference(qs: list[SectionQ], x: np.ndarray, enable: np.ndarray, bound: int):
+    """What the component gives, from filter_run: the input clamped to ±bound; passed through
+    while disabled; at each switch-in every section set by bumpless_state at the last input."""
+    v = np.clip(x, -bound, bound).astype(np.int64)
+    out = v.copy()
+    states = [np.zeros(N_FILTER_STATE, dtype=np.int64) for _ in qs]
+    k = 0
+    while k < x.size:
+        if not enable[k]:
+            k += 1
+            continue
+        k0 = k
+        while k < x.size and enable[k]:
+            k += 1
+        last = int(v[k0 - 1]) if k0 > 0 else 0
+        seg = v[k0:k]
+        for q, st in zip(qs, states, strict=True):
+            st[:] = bumpless_state(q, last, last)
+            y = np.empty_like(seg)
+            filter_run(*q.step_args(), st, seg, y)
+            seg = y
+        out[k0:k] = seg
+    return out, np.abs(x) > bound
+
+
+def test_hal_filters_bit_for_bit_with_the_simulator(tmp_path: Path) -> None:
+    halrun.hal_available()
+    period_s, sections, _ = CASCADES["4ms"]
+    qs = [_q(s, period_s) for s in sections]
+    bound = INPUT_BOUND_WIDE // 4
+    name = "st_test_filter"
+    (tmp_path / f"{name}.comp").write_text(filter_component(qs, name=name, input_bound=bound))
+    so = halrun.halcompile(tmp_path / f"{name}.comp")
+    rng = np.random.default_rng(11)
+    x = np.concatenate(
+        [
+            np.repeat(rng.integers(-bound, bound + 1, 20), 100),  # steps: the modes ring
+            rng.integers(-bound, bound + 1, 1000),
+            np.full(1000, bound // 7),  # steady while switched off and on again
+            np.repeat(rng.choice([-bound - 5000, bound + 5000, 0], 20), 50),  # beyond the bound
+        ]
+    ).astype(np.int64)
+    assert x.size == N_HAL
+    enable = np.ones(N_HAL, dtype=np.int64)
+    enable[3200:3500] = 0
+    enable[3700:3720] = 0
+    (tmp_path / "stream.txt").write_text(
+        "".join(f"{int(a)} {int(b)}\n" for a, b in zip(x, enable, strict=True))
+    )
+    hal = name.replace("_", "-")
+    script = "\n".join(
+        [
+            f"loadrt threads name1=servo period1={THREAD_PERIOD_NS}",
+            f"loadrt {name}",
+            f"loadrt streamer depth={N_HAL + 16} cfg=sb",
+            f"loadrt sampler depth={N_HAL + 16} cfg=sb",
+            "addf streamer.0 servo",
+            f"addf {hal} servo",
+            "addf sampler.0 servo",
+            f"net x streamer.0.pin.0 {hal}.in",
+            f"net on streamer.0.pin.1 {hal}.enable",
+            f"net y {hal}.out sampler.0.pin.0",
+            f"net clip {hal}.clipped sampler.0.pin.1",
+            "loadusr -w halstreamer stream.txt",
+            "start",
+            f"loadusr -w halsampler -n {N_HAL}",
+            "stop",
+            "getp sampler.0.overruns",
+        ]
+    )
+    with halrun.installed_component(so):
+        res = halrun.run_hal(script + "\n", tmp_path, timeout=300.0)
+    rows = [ln.split() for ln in res.stdout.splitlines() if ln.strip()]
+    assert rows[-1] == ["0"], res.stdout[-400:]  # no overrun
+    got = np.array([int(r[0]) for r in rows[:N_HAL]])
+    clipped = np.array([int(r[1]) for r in rows[:N_HAL]]) == 1
+    want, want_clipped = _hal_reference(qs, x, enable, bound)
+    bad = np.flatnonzero(got != want)
+    assert bad.size == 0, f"first difference at period {bad[0]}: HAL {got[bad[0]]}, {want[bad[0]]}"
+    assert np.array_equal(clipped, want_clipped) and clipped.sum() > 0
+    # the filter acted (the output is not the input where enabled), passed the input through
+    # where disabled, and switching it on again at a steady input moved the output by 0 LSB
+    assert np.any(got[:2000] != x[:2000]) and np.array_equal(got[3200:3500], x[3200:3500])
+    assert np.all(got[3500:3700] == bound // 7)
+
+
+def test_a_cascade_that_could_leave_s32_is_refused() -> None:
+    qs = [_q(lowpass2(5.0, 0.05), 0.001)]
+    with pytest.raises(ExportError, match="section 1: inputs up to"):
+        filter_component(qs, name="st_f", input_bound=2**31 - 1)
+    with pytest.raises(ExportError, match="1 to 4 sections"):
+        filter_component(qs * 5, name="st_f")
