@@ -255,7 +255,6 @@ def test_the_c_filter_has_no_undefined_behaviour(filter_dir: Path, name: str) ->
 
 
 N_HAL = 5000
-THREAD_PERIOD_NS = 1_000_000
 
 
 def _hal_reference(qs: list[SectionQ], x: np.ndarray, enable: np.ndarray, bound: int):
@@ -304,36 +303,14 @@ def test_hal_filters_bit_for_bit_with_the_simulator(tmp_path: Path) -> None:
     enable = np.ones(N_HAL, dtype=np.int64)
     enable[3200:3500] = 0
     enable[3700:3720] = 0
-    (tmp_path / "stream.txt").write_text(
-        "".join(f"{int(a)} {int(b)}\n" for a, b in zip(x, enable, strict=True))
+    rows = halrun.run_component(
+        so,
+        tmp_path,
+        {"in": ("s", x.tolist()), "enable": ("b", enable.tolist())},
+        {"out": "s", "clipped": "b"},
     )
-    hal = name.replace("_", "-")
-    script = "\n".join(
-        [
-            f"loadrt threads name1=servo period1={THREAD_PERIOD_NS}",
-            f"loadrt {name}",
-            f"loadrt streamer depth={N_HAL + 16} cfg=sb",
-            f"loadrt sampler depth={N_HAL + 16} cfg=sb",
-            "addf streamer.0 servo",
-            f"addf {hal} servo",
-            "addf sampler.0 servo",
-            f"net x streamer.0.pin.0 {hal}.in",
-            f"net on streamer.0.pin.1 {hal}.enable",
-            f"net y {hal}.out sampler.0.pin.0",
-            f"net clip {hal}.clipped sampler.0.pin.1",
-            "loadusr -w halstreamer stream.txt",
-            "start",
-            f"loadusr -w halsampler -n {N_HAL}",
-            "stop",
-            "getp sampler.0.overruns",
-        ]
-    )
-    with halrun.installed_component(so):
-        res = halrun.run_hal(script + "\n", tmp_path, timeout=300.0)
-    rows = [ln.split() for ln in res.stdout.splitlines() if ln.strip()]
-    assert rows[-1] == ["0"], res.stdout[-400:]  # no overrun
-    got = np.array([int(r[0]) for r in rows[:N_HAL]])
-    clipped = np.array([int(r[1]) for r in rows[:N_HAL]]) == 1
+    got = np.array([int(r[0]) for r in rows])
+    clipped = np.array([int(r[1]) for r in rows]) == 1
     want, want_clipped = _hal_reference(qs, x, enable, bound)
     bad = np.flatnonzero(got != want)
     assert bad.size == 0, f"first difference at period {bad[0]}: HAL {got[bad[0]]}, {want[bad[0]]}"

@@ -155,7 +155,6 @@ def test_the_component_holds_the_shapers_amplitudes() -> None:
 
 
 N_HAL = 6000
-THREAD_PERIOD_NS = 1_000_000
 
 
 def test_hal_shapes_the_reference_bit_for_bit_with_the_simulator(tmp_path: Path) -> None:
@@ -167,31 +166,8 @@ def test_hal_shapes_the_reference_bit_for_bit_with_the_simulator(tmp_path: Path)
     # s32 pins: moves within ±2^31, with steps and reversals
     ref = np.clip(np.cumsum(rng.integers(-40_000, 40_001, N_HAL)), -(2**31), 2**31 - 1)
     ref[N_HAL // 2 : N_HAL // 2 + 50] = 2**31 - 1
-    (tmp_path / "stream.txt").write_text("".join(f"{int(r)}\n" for r in ref))
-    hal = name.replace("_", "-")
-    script = "\n".join(
-        [
-            f"loadrt threads name1=servo period1={THREAD_PERIOD_NS}",
-            f"loadrt {name}",
-            f"loadrt streamer depth={N_HAL + 16} cfg=s",
-            f"loadrt sampler depth={N_HAL + 16} cfg=s",
-            "addf streamer.0 servo",
-            f"addf {hal} servo",
-            "addf sampler.0 servo",
-            f"net cmd streamer.0.pin.0 {hal}.command",
-            f"net shaped {hal}.shaped sampler.0.pin.0",
-            "loadusr -w halstreamer stream.txt",
-            "start",
-            f"loadusr -w halsampler -n {N_HAL}",
-            "stop",
-            "getp sampler.0.overruns",
-        ]
-    )
-    with halrun.installed_component(so):
-        res = halrun.run_hal(script + "\n", tmp_path, timeout=300.0)
-    rows = [ln.split() for ln in res.stdout.splitlines() if ln.strip()]
-    got = np.array([int(r[0]) for r in rows[:N_HAL]])
-    assert rows[-1] == ["0"], res.stdout[-400:]  # no overrun
+    rows = halrun.run_component(so, tmp_path, {"command": ("s", ref.tolist())}, {"shaped": "s"})
+    got = np.array([int(r[0]) for r in rows])
     want = shape_reference(ref.astype(np.int64), SHAPER)
     bad = np.flatnonzero(got != want)
     assert bad.size == 0, f"first difference at period {bad[0]}: HAL {got[bad[0]]}, {want[bad[0]]}"

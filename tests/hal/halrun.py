@@ -205,3 +205,43 @@ def installed_component(so: Path) -> Iterator[str]:
         yield so.stem
     finally:
         target.unlink(missing_ok=True)
+
+
+def run_component(
+    so: Path,
+    workdir: Path,
+    inputs: dict[str, tuple[str, list]],
+    outputs: dict[str, str],
+    period_ns: int = 1_000_000,
+) -> list[list[str]]:
+    """Run the built component ``so`` alone in a thread of ``period_ns``: a ``streamer`` feeds
+    its ``inputs`` (pin suffix → (streamer type letter, values per period)), a ``sampler``
+    records its ``outputs`` (pin suffix → sampler type letter) every period, in that order
+    after the component. Returns the sampled rows (one per period, as text fields); fails the
+    test if the sampler overran."""
+    n = len(next(iter(inputs.values()))[1])
+    name = so.stem
+    hal = name.replace("_", "-")
+    rows = zip(*(values for _, values in inputs.values()), strict=True)
+    (workdir / "stream.txt").write_text("".join(" ".join(map(str, r)) + "\n" for r in rows))
+    script = [
+        f"loadrt threads name1=servo period1={period_ns}",
+        f"loadrt {name}",
+        f"loadrt streamer depth={n + 16} cfg={''.join(t for t, _ in inputs.values())}",
+        f"loadrt sampler depth={n + 16} cfg={''.join(outputs.values())}",
+        "addf streamer.0 servo",
+        f"addf {hal} servo",
+        "addf sampler.0 servo",
+        *(f"net in{k} streamer.0.pin.{k} {hal}.{pin}" for k, pin in enumerate(inputs)),
+        *(f"net out{k} {hal}.{pin} sampler.0.pin.{k}" for k, pin in enumerate(outputs)),
+        "loadusr -w halstreamer stream.txt",
+        "start",
+        f"loadusr -w halsampler -n {n}",
+        "stop",
+        "getp sampler.0.overruns",
+    ]
+    with installed_component(so):
+        res = run_hal("\n".join(script) + "\n", workdir, timeout=300.0)
+    lines = [ln.split() for ln in res.stdout.splitlines() if ln.strip()]
+    assert lines[-1] == ["0"], res.stdout[-400:]  # no overrun
+    return lines[:n]
