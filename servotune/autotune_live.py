@@ -634,15 +634,14 @@ def _steps(
         error_previous_target=False,
     )
     hold = np.zeros(round(SETTLE_S / h.period_s))
-    exc_v = np.concatenate(
-        [hold, (plan.excitation_codes - rig.dac.zero_code) * rig.dac.lsb_v, hold]
-    )
+    excitation = (plan.excitation_codes - rig.dac.zero_code) * rig.dac.lsb_v  # [V]
+    exc_v = np.concatenate([hold, excitation, hold])
     say(f"autotune: experiment ({exc_v.size * h.period_s:.1f} s, closed loop)")
     rec = t.play("experiment", np.full(exc_v.size, t.base), exc_v, start)
     res.seconds["machine_s"] = time.monotonic() - t0
     capture = t.last_capture
     if cfg.periods is not None:  # the whole periods only: a frequency response needs them
-        capture = whole_periods(capture, rec, exc_v[hold.size : exc_v.size - hold.size])
+        capture = whole_periods(capture, rec, excitation)
     result, plant, params = _identify(cfg, t.out, capture, say)
     # the plant written (with modes: gain, tau and delay from the frequency-domain fit) and
     # its whole-log velocity fit, as fitted-rig.toml records them
