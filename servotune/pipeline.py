@@ -22,6 +22,7 @@ from servotune.arch.gantry import CASES, compare_topologies
 from servotune.arch.gantry.load import load_gantry
 from servotune.arch.gantry.synthesis import resolve_gains
 from servotune.arch.linkage import load_linkage, run_linkage
+from servotune.arch.linkage import resolve_gains as resolve_linkage_gains
 from servotune.compare import compare_structures, pareto_front, pareto_specs
 from servotune.export import c as c_export
 from servotune.export import json as json_export
@@ -199,7 +200,7 @@ def run_architectures(plants_dir: str | Path, out_dir: str | Path, *, seed: int 
         }
     linkage_path = plants / "linkage-6axis.toml"
     if linkage_path.is_file():
-        res = run_linkage(load_linkage(linkage_path), seed=seed)
+        res = run_linkage(resolve_linkage_gains(load_linkage(linkage_path)), seed=seed)
         doc = res.to_dict()
         atomic_write_text(out / "linkage.json", json.dumps(doc, indent=2, sort_keys=True) + "\n")
         save_figure(plot_queue_levels(res), out / "linkage_queues.png")

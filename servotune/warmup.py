@@ -130,6 +130,7 @@ def run_gantry() -> None:
 
 
 def run_linkage() -> None:
-    from servotune.arch.linkage import load_linkage, run_linkage
+    from servotune.arch.linkage import load_linkage, resolve_gains, run_linkage
 
-    run_linkage(load_linkage(_example("linkage-6axis.toml")), seconds=0.05)
+    # the example gives every axis's gains: resolving them tunes nothing
+    run_linkage(resolve_gains(load_linkage(_example("linkage-6axis.toml"))), seconds=0.05)

@@ -20,12 +20,10 @@ PACKAGE = ROOT / "servotune"
 LAYERS: tuple[tuple[str, ...], ...] = (
     ("_version", "errors", "progress"),
     ("validate", "budget", "digest", "fixed", "_control", "_numba_cache", "kernels", "executor"),
-    ("hw", "io", "examples"),
+    ("hw", "io", "examples", "provenance"),
     ("plant", "modal", "resonance", "laws", "fuzzy"),
     (
-        "rig_model",
         "rig",
-        "rig_edit",
         "logs",
         "metrics",
         "scenarios",

@@ -4,7 +4,7 @@ The continuous-time references below (MATLAB's examples of continuous systems, e
 analytic responses) are compared with ``step_info(..., refine=True)``, which estimates the
 continuous response between the samples. The default reading at the samples (python-control's
 and MATLAB's convention for discrete-time systems) is cross-checked against python-control in
-tests/test_step_info_discrete.py and against hand-computed sample indices here.
+tests/test_metrics_discrete.py and against hand-computed sample indices here.
 """
 
 from __future__ import annotations

@@ -130,11 +130,11 @@ def cmd_sync(args: argparse.Namespace) -> int:
 
 
 def cmd_linkage(args: argparse.Namespace) -> int:
-    from servotune.arch.linkage import LinkageCheckError, load_linkage, run_linkage
+    from servotune.arch.linkage import LinkageCheckError, load_linkage, resolve_gains, run_linkage
     from servotune.report.text import format_linkage_summary
 
     check_dirs(args.plot)
-    config = load_linkage(args.config)
+    config = resolve_gains(load_linkage(args.config))  # the gains the file leaves out, tuned
     compile_kernels("linkage")
     try:
         result = run_linkage(config, seconds=args.seconds, seed=args.seed)

@@ -11,17 +11,9 @@ from collections.abc import Mapping
 from typing import Any
 
 from servotune.errors import ExportError
-from servotune.laws.fuzzy_pid import TABLE_NAMES
+from servotune.laws.axis import TASK_LAWS
 
 __all__ = ["axis_lines", "c_identifiers", "comment_text", "digest_bytes_lines", "int32_literal"]
-
-_LAW_MACROS = {"none": "ST_LAW_NONE", "pi": "ST_LAW_PI", "fuzzy_pid": "ST_LAW_FUZZY_PID"}
-_TABLE_TITLES = {
-    "kp": "dKp [LSB/count]",
-    "ki": "d(Ki*T) [LSB/count/tick]",
-    "kd": "d(Kd/T) [LSB per count change per tick]",
-    "k1": "d(K1/T) [LSB per count change per tick]",
-}
 
 
 def c_identifiers(
@@ -53,13 +45,12 @@ def int32_literal(v: int) -> str:
     return f"INT32_C({v})"
 
 
-def _table_lines(ident: str, name: str, tab: Mapping[str, Any]) -> list[str]:
+def _table_lines(ident: str, name: str, title: str, tab: Mapping[str, Any]) -> list[str]:
     n = tab["n"]
     up = f"ST_{ident.upper()}_TAB_{name.upper()}"
     side = f"(2 * ST_{ident.upper()}_N + 1)"
     lines = [
-        f"/* query table {_TABLE_TITLES[name]}: value q * 2^-f, row E = -{n}..{n}, "
-        f"column EC = -{n}..{n} */",
+        f"/* query table {title}: value q * 2^-f, row E = -{n}..{n}, column EC = -{n}..{n} */",
         f"#define {up}_F {tab['f']}",
         f"#define {up}_CRC32 UINT32_C(0x{tab['crc32']:08x})",
         # sized by the axis's N: the runtime reads (2n+1)^2 entries, so an edited N changes
@@ -87,7 +78,7 @@ def axis_lines(ax: Mapping[str, Any], ident: str) -> tuple[list[str], list[str]]
         f"#define {up}_FE_LIMIT {ax['following_error_limit_counts']} /* [counts], 0 = off */",
     ]
     init = [
-        f".law = {_LAW_MACROS[law]}",
+        f".law = {'ST_LAW_NONE' if law == 'none' else TASK_LAWS[law].macro}",
         f".lock_q = {up}_LOCK_Q",
         f".lock_f = {up}_LOCK_F",
         f".fe_limit = {up}_FE_LIMIT",
@@ -97,31 +88,23 @@ def axis_lines(ax: Mapping[str, Any], ident: str) -> tuple[list[str], list[str]]
         f".ref_source = {ax['ref_source']}",
     ]
     task = ax["task"]
-    consts: list[tuple[str, str, str]] = []
-    if law == "pi":
-        consts = [("kp", "KP", "Kp [LSB/count]"), ("ki_t", "KIT", "Ki*T [LSB/count/tick]")]
-    elif law == "fuzzy_pid":
-        consts = [
-            ("kp", "KP", "Kp0 [LSB/count]"),
-            ("ki_t", "KIT", "Ki0*T [LSB/count/tick]"),
-            ("kd_t", "KDT", "Kd0/T [LSB per count change per tick]"),
-            ("k1_t", "K1T", "K10/T, feedforward [LSB per count change per tick]"),
-            ("ke", "KE", "Ke [levels/count]"),
-            ("kec", "KEC", "Kec [levels per count/tick]"),
-        ]
-    for key, mac, title in consts:
-        lines.append(f"#define {up}_{mac}_Q {int32_literal(task[key]['q'])} /* {title} */")
-        lines.append(f"#define {up}_{mac}_F {task[key]['f']}")
-        init.append(f".{mac.lower()}_q = {up}_{mac}_Q")
-        init.append(f".{mac.lower()}_f = {up}_{mac}_F")
-    if law == "fuzzy_pid":
+    described = TASK_LAWS.get(law)
+    for word in () if described is None else described.words:
+        mac = word.stem.upper()
+        value = task[word.key]
+        lines.append(f"#define {up}_{mac}_Q {int32_literal(value['q'])} /* {word.title} */")
+        lines.append(f"#define {up}_{mac}_F {value['f']}")
+        init.append(f".{word.stem}_q = {up}_{mac}_Q")
+        init.append(f".{word.stem}_f = {up}_{mac}_F")
+    tables = () if described is None else described.tables
+    if tables:
         lines.append(f"#define {up}_N {task['n']} /* levels -n..n */")
         init.append(f".n = {up}_N")
-        for name in TABLE_NAMES:
+        for name, title in zip(tables, described.table_titles, strict=True):  # type: ignore[union-attr]
             lines.append("")
-            lines.extend(_table_lines(ident, name, task["tables"][name]))
-        tf = ", ".join(f"{up}_TAB_{t.upper()}_F" for t in TABLE_NAMES)
-        tab = ", ".join(f"st_{ident}_tab_{t}" for t in TABLE_NAMES)
+            lines.extend(_table_lines(ident, name, title, task["tables"][name]))
+        tf = ", ".join(f"{up}_TAB_{t.upper()}_F" for t in tables)
+        tab = ", ".join(f"st_{ident}_tab_{t}" for t in tables)
         init.append(f".tf = {{{tf}}}")
         init.append(f".tab = {{{tab}}}")
     return lines, init

@@ -19,7 +19,7 @@ from typing import Any
 
 from servotune.arch.gantry.config import TOPOLOGIES
 from servotune.errors import ExportError
-from servotune.laws.axis import LAW_NAMES, LAW_PI
+from servotune.laws.axis import TASK_LAWS
 
 __all__ = [
     "DRIVE_FIELDS",
@@ -70,11 +70,11 @@ def gantry_layout_values(data: Mapping[str, Any]) -> tuple[int, ...]:
         c = _get(drive, "controller", f"data.drives[{i}]")
         task = _get(c, "task", f"data.drives[{i}].controller")
         law = _get(c, "law", f"data.drives[{i}].controller")
-        if law != LAW_NAMES[LAW_PI] or task is None:
+        if law != "pi" or task is None:
             raise ExportError(f"gantry export: the {name} drive must run a PI law, got {law!r}")
         lock, kp, kit = c["lock_gain"], task["kp"], task["ki_t"]
         out += [
-            LAW_NAMES.index(law),
+            TASK_LAWS["pi"].code,
             lock["q"],
             lock["f"],
             kp["q"],

@@ -99,12 +99,8 @@ from servotune.export.layout import (
 from servotune.export.linkage import linkage_plan_document
 from servotune.fixed import F_U
 from servotune.io.files import json_safe, parse_json, read_json
-from servotune.laws.axis import (
-    LAW_FUZZY_PID,
-    LAW_NAMES,
-    AxisController,
-)
-from servotune.laws.fuzzy_pid import TABLE_NAMES, FuzzyPIDConstants, int_rows
+from servotune.laws.axis import TASK_LAWS, AxisController, law_names, task_law
+from servotune.laws.fuzzy_pid import int_rows
 from servotune.rig import Counter, Dac, Rig
 from servotune.tuning import Tuning, tuning_to_string
 from servotune.validate import check_keys, show_value
@@ -234,11 +230,12 @@ def _axis_doc(i: int, name: str, role: str, ctl: AxisController, src: int) -> di
         )
     d = ctl.to_dict()
     task = d["task"]
-    if isinstance(ctl.task, FuzzyPIDConstants):
-        n = ctl.task.n
+    tables = () if ctl.task is None else task_law(ctl.task).tables
+    if tables:
+        n = ctl.task.n  # type: ignore[union-attr]
         task["tables"] = {
             t: {"crc32": table_crc32(q, f_t), "f": int(f_t), "n": n, "q": q.astype(int).tolist()}
-            for t, (q, f_t) in zip(TABLE_NAMES, ctl.task.tables, strict=True)
+            for t, (q, f_t) in zip(tables, ctl.task.tables, strict=True)  # type: ignore[union-attr]
         }
     return {
         "following_error_limit_counts": int(fe),
@@ -490,17 +487,18 @@ def _controller(ax: Any, where: str) -> AxisController:
     )
     task = _need(ax, "task", where)
     law = _need(ax, "law", where)
-    if law not in LAW_NAMES:
+    if law not in law_names():
         raise ExportError(
-            f"{where}.law must be one of {', '.join(LAW_NAMES)}, got {show_value(law)}"
+            f"{where}.law must be one of {', '.join(law_names())}, got {show_value(law)}"
         )
-    if law == LAW_NAMES[LAW_FUZZY_PID]:
+    tables = TASK_LAWS[law].tables if law in TASK_LAWS else ()
+    if tables:
         n = _need_int(task, "n", f"{where}.task")
         tabs = _need(task, "tables", f"{where}.task")
-        for t in TABLE_NAMES:
+        for t in tables:
             _check_table(_need(tabs, t, f"{where}.task.tables"), t, n, where)
         task = dict(task)
-        task["tables"] = {t: {"f": tabs[t]["f"], "q": tabs[t]["q"]} for t in TABLE_NAMES}
+        task["tables"] = {t: {"f": tabs[t]["f"], "q": tabs[t]["q"]} for t in tables}
     try:
         return AxisController.from_dict(
             {

@@ -59,30 +59,7 @@ from typing import Any
 import numpy as np
 
 from servotune.errors import ExportError
-from servotune.laws.axis import (
-    C_COUNTER_BITS,
-    C_DAC_MAX,
-    C_DAC_ZERO,
-    C_FE_LIMIT,
-    C_K1T_F,
-    C_K1T_Q,
-    C_KDT_F,
-    C_KDT_Q,
-    C_KE_F,
-    C_KE_Q,
-    C_KEC_F,
-    C_KEC_Q,
-    C_KIT_F,
-    C_KIT_Q,
-    C_KP_F,
-    C_KP_Q,
-    C_LAW,
-    C_LOCK_F,
-    C_LOCK_Q,
-    C_N,
-    AxisController,
-)
-from servotune.laws.fuzzy_pid import FuzzyPIDConstants
+from servotune.laws.axis import CONST_HEADER, TASK_LAWS, AxisController, task_law
 
 __all__ = [
     "c_layout_bytes",
@@ -97,20 +74,8 @@ INT16 = (-(2**15), 2**15 - 1)
 INT32 = (-(2**31 - 1), 2**31 - 1)
 
 # (q index, f index) in the constants vector; f index None: an integer, the pair (value, 0)
-_CONST_PAIRS: tuple[tuple[int, int | None], ...] = (
-    (C_LAW, None),
-    (C_LOCK_Q, C_LOCK_F),
-    (C_KP_Q, C_KP_F),
-    (C_KIT_Q, C_KIT_F),
-    (C_FE_LIMIT, None),
-    (C_COUNTER_BITS, None),
-    (C_DAC_ZERO, None),
-    (C_DAC_MAX, None),
-    (C_KDT_Q, C_KDT_F),
-    (C_K1T_Q, C_K1T_F),
-    (C_KE_Q, C_KE_F),
-    (C_KEC_Q, C_KEC_F),
-    (C_N, None),
+_CONST_PAIRS: tuple[tuple[int, int | None], ...] = tuple(
+    (slot, slot + 1 if pair else None) for _, slot, pair in CONST_HEADER
 )
 
 
@@ -233,7 +198,9 @@ def _controllers(axes: Sequence[Any]) -> list[AxisController]:
         where = f"data.axes[{i}]"
         try:
             task = ax["task"]
-            if ax["law"] == "fuzzy_pid" and isinstance(task, Mapping):
+            law = ax["law"]
+            described = TASK_LAWS.get(law) if isinstance(law, str) else None
+            if described is not None and described.tables and isinstance(task, Mapping):
                 tabs = task["tables"]
                 task = dict(task)
                 task["tables"] = {t: {"f": tabs[t]["f"], "q": tabs[t]["q"]} for t in tabs}
@@ -276,8 +243,8 @@ def c_layout_bytes(data: Mapping[str, Any]) -> bytes:
     constants, ctls = _constants_part(data)
     parts = [constants]
     for ctl in ctls:
-        if isinstance(ctl.task, FuzzyPIDConstants):
-            parts.extend(table_bytes(q, f_t) for q, f_t in ctl.task.tables)
+        if ctl.task is not None and task_law(ctl.task).tables:
+            parts.extend(table_bytes(q, f_t) for q, f_t in ctl.task.tables)  # type: ignore[union-attr]
     return b"".join(parts)
 
 

@@ -5,10 +5,11 @@ size, nesting, field length; the BOM; atomic writes). A log is the :class:`~serv
 of :mod:`servotune.io.log` (with its text, ``format_log``); the log-format CSV is read by
 :mod:`servotune.io.log_table` (a file's typed columns), :mod:`servotune.io.log_header` (text,
 metadata, header) and :mod:`servotune.io.log_rows` (data rows, time base), and a log file into a
-``Log`` by :mod:`servotune.logs`; :mod:`servotune.io.rig` builds the rig file's tables into
-dataclasses. The readers that check a file against a model above this package live beside that
-model: the excitation files in :mod:`servotune.excitation_file` (against the rig), a rig's plant
-table rewritten in :mod:`servotune.rig_edit`, the EMPS benchmark in
+``Log`` by :mod:`servotune.logs`; :mod:`servotune.io.sections` builds a configuration file's
+tables (the rig file's, the architectures') into dataclasses. The readers that check a file
+against a model above this package live beside that model: the excitation files in
+:mod:`servotune.excitation_file` (against the rig), a rig's plant table rewritten in
+:mod:`servotune.rig.edit`, the EMPS benchmark in
 :mod:`servotune.identify.emps` (its physics in the axis model's terms), the fleet table in
 :mod:`servotune.fleet.table` (the fit's parameters as columns). The file kinds and their one
 reader each:

@@ -36,6 +36,7 @@ from servotune.laws.pi import PIConstants, pi_enter, pi_step
 from servotune.validate import check_keys, show_value
 
 __all__ = [
+    "CONST_HEADER",
     "FLAG_COUNTER_FAULT",
     "FLAG_FOLLOWING_ERROR",
     "FLAG_SATURATED",
@@ -46,9 +47,14 @@ __all__ = [
     "MODE_LOCK",
     "MODE_OPEN",
     "MODE_TASK",
+    "TASK_LAWS",
     "AxisController",
+    "LawWord",
+    "TaskLaw",
     "axis_control",
     "axis_read",
+    "law_names",
+    "task_law",
 ]
 
 # modes
@@ -56,11 +62,10 @@ MODE_LOCK = 0
 MODE_TASK = 1
 MODE_OPEN = 2  # a log's mode column names them: servotune.io.log_rows.MODE_NAMES
 
-# task laws
+# task laws (their descriptions: TASK_LAWS, after the constants layout)
 LAW_NONE = 0
 LAW_PI = 1
 LAW_FUZZY_PID = 2
-LAW_NAMES = ("none", "pi", "fuzzy_pid")
 
 # flags (faults latch; SATURATED is per tick)
 FLAG_COUNTER_FAULT = 1
@@ -109,6 +114,145 @@ C_TF = 20  # 4 table fraction bits, TABLE_NAMES order
 C_TAB = 24  # 4 tables of (2n+1)^2 entries, row-major (row E, column EC), TABLE_NAMES order
 N_CONST = C_TAB
 """Length of the constants vector without tables (the fuzzy-PID law appends its tables)."""
+
+CONST_HEADER: tuple[tuple[str, int, bool], ...] = (
+    ("law", C_LAW, False),
+    ("lock", C_LOCK_Q, True),
+    ("kp", C_KP_Q, True),
+    ("kit", C_KIT_Q, True),
+    ("fe_limit", C_FE_LIMIT, False),
+    ("counter_bits", C_COUNTER_BITS, False),
+    ("dac_zero", C_DAC_ZERO, False),
+    ("dac_max", C_DAC_MAX, False),
+    ("kdt", C_KDT_Q, True),
+    ("k1t", C_K1T_Q, True),
+    ("ke", C_KE_Q, True),
+    ("kec", C_KEC_Q, True),
+    ("n", C_N, False),
+)
+"""The constants vector before the tables, as the C runtime's ``st_axis_consts_t`` holds it:
+per word its field stem, its slot and whether it is a (q, f) pair (slots ``q``, ``q + 1``; the
+fields ``<stem>_q``, ``<stem>_f``) or one integer (the field ``<stem>``). The C layout's part 1
+(:mod:`servotune.export.layout`) walks it in this order."""
+
+
+@dataclass(frozen=True, slots=True)
+class LawWord:
+    """One gain of a task law: a (q, f) pair of the constants vector.
+
+    Parameters
+    ----------
+    key : str
+        The field of the law's constants and the key in the tables document (``ki_t``).
+    slot : int
+        Its ``q`` slot (``C_*``; ``f`` is the next); a stem of :data:`CONST_HEADER`.
+    title : str
+        What it is, with its unit (the C headers' comment).
+    """
+
+    key: str
+    slot: int
+    title: str
+
+    @property
+    def stem(self) -> str:
+        """The C name stem: the fields ``.<stem>_q``/``_f`` and the macros
+        ``ST_<AXIS>_<STEM>_Q``/``_F``."""
+        return next(name for name, slot, _ in CONST_HEADER if slot == self.slot)
+
+
+@dataclass(frozen=True, slots=True)
+class TaskLaw:
+    """A task law as every consumer of the constants reads it: the one description of its name,
+    code, constants and C names (docs/contributing.md#adding-a-control-law).
+
+    Parameters
+    ----------
+    name : str
+        Its name in files (``law`` of the tables document, the tuning document).
+    code : int
+        ``c[C_LAW]`` and the C runtime's ``ST_LAW_<NAME>``.
+    constants : type
+        The dataclass of its quantised constants (``to_dict``, ``from_dict``, a
+        :class:`~servotune.fixed.Fixed` field per word).
+    words : tuple of LawWord
+        Its gains, in the order the C headers list them.
+    tables : tuple of str
+        Its query tables (``n`` levels each side, in ``C_TF``/``C_TAB``), empty if none.
+    table_titles : tuple of str
+        What each table holds, with its unit (the C headers' comment).
+    ideal : bool
+        The engine's ideal floating-point mode (design checks) runs it.
+    """
+
+    name: str
+    code: int
+    constants: type
+    words: tuple[LawWord, ...]
+    tables: tuple[str, ...] = ()
+    table_titles: tuple[str, ...] = ()
+    ideal: bool = True
+
+    @property
+    def macro(self) -> str:
+        """The C runtime's name of its code."""
+        return f"ST_LAW_{self.name.upper()}"
+
+
+TASK_LAWS: dict[str, TaskLaw] = {
+    "pi": TaskLaw(
+        name="pi",
+        code=LAW_PI,
+        constants=PIConstants,
+        words=(
+            LawWord("kp", C_KP_Q, "Kp [LSB/count]"),
+            LawWord("ki_t", C_KIT_Q, "Ki*T [LSB/count/tick]"),
+        ),
+    ),
+    "fuzzy_pid": TaskLaw(
+        name="fuzzy_pid",
+        code=LAW_FUZZY_PID,
+        constants=FuzzyPIDConstants,
+        words=(
+            LawWord("kp", C_KP_Q, "Kp0 [LSB/count]"),
+            LawWord("ki_t", C_KIT_Q, "Ki0*T [LSB/count/tick]"),
+            LawWord("kd_t", C_KDT_Q, "Kd0/T [LSB per count change per tick]"),
+            LawWord("k1_t", C_K1T_Q, "K10/T, feedforward [LSB per count change per tick]"),
+            LawWord("ke", C_KE_Q, "Ke [levels/count]"),
+            LawWord("kec", C_KEC_Q, "Kec [levels per count/tick]"),
+        ),
+        tables=TABLE_NAMES,
+        table_titles=(
+            "dKp [LSB/count]",
+            "d(Ki*T) [LSB/count/tick]",
+            "d(Kd/T) [LSB per count change per tick]",
+            "d(K1/T) [LSB per count change per tick]",
+        ),
+        ideal=False,
+    ),
+}
+"""The task laws by name. A new law adds its description here (and its step: the branch in
+:func:`axis_control` and in the C runtime's ``st_tick``); the constants vector, the tables
+document, the C headers and the C layout read it from here."""
+
+
+def law_names() -> tuple[str, ...]:
+    """Every law's name a file may give: ``none`` (lock only), then :data:`TASK_LAWS`."""
+    return ("none", *TASK_LAWS)
+
+
+def task_law(task: object) -> TaskLaw:
+    """The description of a law's constants (``AxisController.task``).
+
+    Raises
+    ------
+    TypeError
+        If ``task`` is no registered law's constants.
+    """
+    for law in TASK_LAWS.values():
+        if type(task) is law.constants:
+            return law
+    raise TypeError(f"{type(task).__name__} is no task law's constants (laws.axis.TASK_LAWS)")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -162,7 +306,7 @@ class AxisController:
         """Plain dict: the law's name and every constant as its (q, f) pair."""
         return {
             "following_error_limit_counts": self.following_error_limit_counts,
-            "law": LAW_NAMES[self.law],
+            "law": "none" if self.task is None else task_law(self.task).name,
             "lock_gain": self.lock_gain.to_dict(),
             "task": None if self.task is None else self.task.to_dict(),
         }
@@ -181,17 +325,14 @@ class AxisController:
         )
         try:
             law = d["law"]
-            if law not in LAW_NAMES:
+            if law not in law_names():
                 raise ValueError(
-                    f"law must be one of {', '.join(LAW_NAMES)}, got {show_value(law)}"
+                    f"law must be one of {', '.join(law_names())}, got {show_value(law)}"
                 )
             task_d = d["task"]
-            task: PIConstants | FuzzyPIDConstants | None = None
-            if law == "pi":
-                task = PIConstants.from_dict(task_d)
-            elif law == "fuzzy_pid":
-                task = FuzzyPIDConstants.from_dict(task_d)
-            if law == "none" and task_d is not None:
+            described = TASK_LAWS.get(law)
+            task = None if described is None else described.constants.from_dict(task_d)
+            if described is None and task_d is not None:
                 raise ValueError(f"task must be null for the law 'none', got {show_value(task_d)}")
             fe = d["following_error_limit_counts"]
             if type(fe) is not int or not 0 <= fe <= 2**31 - 1:
@@ -211,29 +352,24 @@ class AxisController:
 
     @property
     def law(self) -> int:
-        """The task law (``LAW_*``)."""
-        if self.task is None:
-            return LAW_NONE
-        return LAW_PI if isinstance(self.task, PIConstants) else LAW_FUZZY_PID
+        """The task law's code (``LAW_*``, :attr:`TaskLaw.code`)."""
+        return LAW_NONE if self.task is None else task_law(self.task).code
 
     def consts(self, *, counter_bits: int, dac_bits: int, dac_zero: int) -> np.ndarray:
         """The constants vector (``C_*`` layout, then the tables) the tick functions read."""
         t = self.task
-        n_tab = 0 if not isinstance(t, FuzzyPIDConstants) else len(TABLE_NAMES) * (2 * t.n + 1) ** 2
-        c = np.zeros(N_CONST + n_tab, dtype=np.int64)
-        c[C_LAW] = self.law
+        law = None if t is None else task_law(t)
+        tables = () if law is None else law.tables
+        size = (2 * t.n + 1) ** 2 if tables else 0  # type: ignore[union-attr]
+        c = np.zeros(N_CONST + len(tables) * size, dtype=np.int64)
+        c[C_LAW] = LAW_NONE if law is None else law.code
         c[C_LOCK_Q], c[C_LOCK_F] = self.lock_gain.q, self.lock_gain.f
-        if t is not None:
-            c[C_KP_Q], c[C_KP_F] = t.kp.q, t.kp.f
-            c[C_KIT_Q], c[C_KIT_F] = t.ki_t.q, t.ki_t.f
-        if isinstance(t, FuzzyPIDConstants):
-            c[C_KDT_Q], c[C_KDT_F] = t.kd_t.q, t.kd_t.f
-            c[C_K1T_Q], c[C_K1T_F] = t.k1_t.q, t.k1_t.f
-            c[C_KE_Q], c[C_KE_F] = t.ke.q, t.ke.f
-            c[C_KEC_Q], c[C_KEC_F] = t.kec.q, t.kec.f
-            c[C_N] = t.n
-            size = (2 * t.n + 1) ** 2
-            for i, (q, f_t) in enumerate(t.tables):
+        for word in () if law is None else law.words:
+            value = getattr(t, word.key)
+            c[word.slot], c[word.slot + 1] = value.q, value.f
+        if tables:
+            c[C_N] = t.n  # type: ignore[union-attr]
+            for i, (q, f_t) in enumerate(t.tables):  # type: ignore[union-attr]
                 c[C_TF + i] = f_t
                 c[C_TAB + i * size : C_TAB + (i + 1) * size] = q.reshape(-1)
         c[C_FE_LIMIT] = self.following_error_limit_counts

@@ -25,7 +25,7 @@ import numpy as np
 from servotune._numba_cache import call_compiled
 from servotune.budget import check_memory
 from servotune.errors import SimulationError
-from servotune.laws.axis import LAW_FUZZY_PID, MODE_TASK, AxisController
+from servotune.laws.axis import MODE_TASK, AxisController, task_law
 from servotune.plant import NROW, Plant, plant_row
 from servotune.rig import Rig
 from servotune.scenarios import Inputs
@@ -312,8 +312,11 @@ def run_batch(
     """
     loop = batch.loop
     _check_inputs(loop, inputs)
-    if ideal and any(c.law == LAW_FUZZY_PID for c in loop.controllers):
-        raise SimulationError("ideal mode runs lock and PI only, not the fuzzy-PID law")
+    for c in loop.controllers if ideal else ():
+        if c.task is not None and not task_law(c.task).ideal:
+            raise SimulationError(
+                f"ideal mode runs lock and PI only, not the {task_law(c.task).name} law"
+            )
     n, n_ax = batch.n_candidates, len(loop.rig.axes)
     nt = inputs.n_ticks
     rec = 0 if metrics_only else nt

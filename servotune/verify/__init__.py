@@ -12,11 +12,11 @@ from servotune.analysis.margins import (
     Margins,
     tuning_margins,
 )
+from servotune.provenance import SourceFile
 from servotune.verify.checks import check_overflow, check_speed, check_timer, max_safe_gain_q
 from servotune.verify.montecarlo import PlantDistribution, SpecSpread
 from servotune.verify.record import (
     RECORD_SCHEMA,
-    SourceFile,
     Verified,
     check_record,
     default_rig_path,

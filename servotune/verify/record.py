@@ -24,13 +24,13 @@ was made by another servotune version, or holds another tuning, rig or spec than
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Generic, NamedTuple, TypedDict, TypeVar, Unpack
 
 from servotune._version import __version__
 from servotune.analysis.margins import DEFAULT_LIMITS, MarginLimits, Margins, tuning_margins
-from servotune.digest import DIGEST_FIELD, bytes_sha256, document_sha256
+from servotune.digest import DIGEST_FIELD, document_sha256
 from servotune.errors import RigError, SpecError, TrustError, TuningError
 from servotune.executor import open_executor
 from servotune.io.files import (
@@ -41,6 +41,7 @@ from servotune.io.files import (
     parse_toml,
     read_bytes,
 )
+from servotune.provenance import FileDigest, SourceFile
 from servotune.rig import EXAMPLE_RIG_PATH, Rig, rig_from_dict
 from servotune.tuning import Tuning, current_tuning_path, file_sha256, read_tuning_bytes
 from servotune.verify.montecarlo import PlantDistribution
@@ -50,9 +51,7 @@ from servotune.verify.spec import spec_from_bytes
 
 __all__ = [
     "RECORD_SCHEMA",
-    "FileDigest",
     "RecordedVerification",
-    "SourceFile",
     "Verified",
     "VerifyRunOptions",
     "candidate_paths",
@@ -79,43 +78,6 @@ run of more than ``LISTED_VARIANTS`` plant sets lists only the ones it names."""
 _OLD_RECORD_SCHEMAS = ("servotune.verify/1", "servotune.verify/2")
 
 _V = TypeVar("_V")
-
-
-@dataclass(frozen=True, slots=True)
-class SourceFile:
-    """One input file as read once: its path as given, its SHA-256 and its bytes.
-
-    ``instead_of``: set when the file was found elsewhere than where its owner recorded it
-    (:func:`matching_file`): the recorded path, gone (``""``: none was recorded); None for the
-    recorded file itself or a file the user gave.
-    """
-
-    path: str
-    sha256: str
-    raw: bytes = field(repr=False, compare=False)
-    instead_of: str | None = field(default=None, compare=False)
-
-    @classmethod
-    def read(cls, path: str | Path, error: type[Exception], what: str) -> SourceFile:
-        """Read ``path``'s bytes once (a failure is one line of ``error`` naming ``what``)."""
-        raw = read_bytes(path, error, what)
-        return cls(path=str(path), sha256=bytes_sha256(raw), raw=raw)
-
-    def entry(self) -> dict[str, str]:
-        """The record's entry for this file: its name and SHA-256."""
-        return FileDigest(self.path, self.sha256).entry()
-
-
-class FileDigest(NamedTuple):
-    """A file a record binds by its path and SHA-256 alone, its bytes read elsewhere (the fleet
-    table a plant distribution was drawn from)."""
-
-    path: str
-    sha256: str
-
-    def entry(self) -> dict[str, str]:
-        """The record's entry for this file: its name and SHA-256."""
-        return {"name": Path(self.path).name, "sha256": self.sha256}
 
 
 @dataclass(frozen=True, slots=True)

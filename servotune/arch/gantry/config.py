@@ -18,11 +18,12 @@ import numpy as np
 from servotune.analysis.margins import MarginLimits
 from servotune.arch.bounds import MAX_ACCEL_CPS2, MAX_GAIN, MAX_SECONDS, MAX_SPEED_CPS
 from servotune.errors import ConfigError, RigError, SpecError
+from servotune.io.sections import build_section
 from servotune.laws.axis import AxisController
 from servotune.laws.pi import PIGains
 from servotune.laws.sync import SYNC_LAWS, SyncConstants, SyncGains
 from servotune.plant import Plant
-from servotune.rig import Rig, build_section, load_rig, plant_from_table
+from servotune.rig import Rig, load_rig, plant_from_table
 from servotune.validate import check_integer, check_keys, check_number, check_table, show_value
 
 __all__ = [

@@ -56,12 +56,13 @@ from servotune.arch.gantry.tuning import (
 from servotune.errors import ConfigError, SpecError, TrustError, TuningError
 from servotune.executor import Executor, open_executor
 from servotune.io.files import json_float, parse_toml_as
-from servotune.io.rig import build_section
+from servotune.io.sections import build_section
 from servotune.kernels import warm_up
 from servotune.laws.axis import FLAG_SYNC_TRIP
+from servotune.provenance import SourceFile
 from servotune.validate import check_integer, check_keys, check_number, show_share
 from servotune.verify import record as rec
-from servotune.verify.record import RecordedVerification, SourceFile, VerifyRunOptions
+from servotune.verify.record import RecordedVerification, VerifyRunOptions
 
 __all__ = [
     "GANTRY_RECORD_SCHEMA",

@@ -26,8 +26,11 @@ Submodules, each importing only those above it:
 - :mod:`~servotune.arch.linkage.result`: the result (:class:`LinkageResult`; its text summary
   is :func:`servotune.report.text.format_linkage_summary`);
 - :mod:`~servotune.arch.linkage.run`: the simulation of the whole system
-  (:func:`run_linkage`), the axes' gains (:func:`axis_gains`, :func:`axis_controllers`) and
-  the checks during motion;
+  (:func:`run_linkage`: it only runs, the gains the config holds), the axes' quantised
+  constants (:func:`axis_controllers`) and the checks during motion;
+- :mod:`~servotune.arch.linkage.synthesis`: the axes' PI gains (:func:`axis_gains`,
+  :class:`AxisGains`, :data:`TUNE_TARGETS`); the gains a file leaves out are resolved by the
+  caller, ``run_linkage(resolve_gains(load_linkage(path)))`` (:func:`resolve_gains`);
 - :mod:`~servotune.arch.linkage.plan`: the plan of the integers its CPUs run
   (:func:`plan_linkage`, :class:`LinkagePlan`, the plan file) and the simulation of those
   integers (:func:`run_plan`);
@@ -138,13 +141,14 @@ from servotune.arch.linkage.result import (
     CpuResult,
     LinkageResult,
 )
-from servotune.arch.linkage.run import AxisGains, axis_controllers, axis_gains, run_linkage
+from servotune.arch.linkage.run import axis_controllers, run_linkage
 from servotune.arch.linkage.spec import (
     LinkageSpec,
     linkage_spec_from_bytes,
     linkage_spec_from_dict,
     load_linkage_spec,
 )
+from servotune.arch.linkage.synthesis import TUNE_TARGETS, AxisGains, axis_gains, resolve_gains
 from servotune.arch.linkage.verify import (
     RECORD_SCHEMA,
     LinkageRow,
@@ -161,6 +165,7 @@ __all__ = [
     "PLAN_SCHEMA",
     "RECORD_SCHEMA",
     "SCHEMA",
+    "TUNE_TARGETS",
     "ArcGeometry",
     "ArcResult",
     "AxisGains",
@@ -204,6 +209,7 @@ __all__ = [
     "read_plan",
     "read_plan_bytes",
     "recommended_resync_interval_s",
+    "resolve_gains",
     "run_linkage",
     "run_plan",
     "verify_plan",

@@ -1,7 +1,8 @@
 """The linkage configuration: axes, path, the whole machine, and its TOML reader.
 
 Frozen dataclasses validated on construction; :func:`load_linkage` reads a file,
-:func:`linkage_from_dict` its parsed contents.
+:func:`linkage_from_dict` its parsed contents. They only load: the gains a file leaves out are
+resolved by the caller (:func:`servotune.arch.linkage.synthesis.resolve_gains`).
 """
 
 from __future__ import annotations
@@ -15,9 +16,10 @@ from servotune.arch.bounds import MAX_ACCEL_CPS2, MAX_GAIN, MAX_SECONDS, MAX_SPE
 from servotune.arch.linkage.bus import Bus, Clock, SlaveCpu
 from servotune.errors import ConfigError, RigError
 from servotune.io.files import parse_toml_as, read_bytes
+from servotune.io.sections import build_section
 from servotune.laws.pi import PIGains
 from servotune.plant import Plant
-from servotune.rig import MAX_LOCK_GAIN, Rig, build_section, load_rig, plant_from_table
+from servotune.rig import MAX_LOCK_GAIN, Rig, load_rig, plant_from_table
 from servotune.validate import (
     check_integer,
     check_keys,
@@ -58,9 +60,10 @@ class LinkageAxis:
     plant : Plant
         Axis model (docs/formats.md#axis-model).
     kp : float or None
-        PI proportional gain [codes/count]; None (with ``ki``): tuned.
+        PI proportional gain [codes/count]; None (with ``ki``): to be resolved by the caller
+        (:func:`~servotune.arch.linkage.synthesis.resolve_gains` tunes it).
     ki : float or None
-        PI integral gain [codes/(count·s)]; None (with ``kp``): tuned.
+        PI integral gain [codes/(count·s)]; None (with ``kp``): as ``kp``.
     lock_gain_codes_per_count : float
         Position-lock gain [codes/count] (the runtime's lock module; 0.4 on the
         example rig).
@@ -68,6 +71,10 @@ class LinkageAxis:
         Following-error trip threshold [counts]; 0 disables the trip.
     counter_init : int
         Counter register value at the start [counts].
+    gains_tuned : bool
+        True if ``kp`` and ``ki`` were tuned by
+        :func:`~servotune.arch.linkage.synthesis.resolve_gains` (the file gave none), as a run
+        shows them. Not a file key: :func:`linkage_from_dict` refuses it.
     """
 
     name: str
@@ -77,6 +84,7 @@ class LinkageAxis:
     lock_gain_codes_per_count: float = 0.4
     following_error_limit_counts: int = 0
     counter_init: int = 0
+    gains_tuned: bool = False
 
     def __post_init__(self) -> None:
         if (self.kp is None) != (self.ki is None):
@@ -103,10 +111,16 @@ class LinkageAxis:
             error=ConfigError,
         )
         check_integer("counter_init", self.counter_init, "counts", hi=2**32 - 1, error=ConfigError)
+        if not isinstance(self.gains_tuned, bool):
+            raise ConfigError(
+                f"gains_tuned must be True or False, got {show_value(self.gains_tuned)}"
+            )
+        if self.gains_tuned and self.kp is None:
+            raise ConfigError("gains_tuned marks tuned gains: it needs kp and ki")
 
     @property
     def gains(self) -> PIGains | None:
-        """The explicit PI gains, or None if they are to be tuned."""
+        """The PI gains, or None if they are still to be resolved."""
         if self.kp is None or self.ki is None:
             return None
         return PIGains(kp=float(self.kp), ki=float(self.ki))
@@ -457,8 +471,17 @@ def linkage_from_dict(
         if not isinstance(pt, Mapping):
             raise ConfigError(f"missing table [axis.{name}.plant]")
         plant = plant_from_table(pt, f"axis.{name}.plant", rig.dac.range_v, error=ConfigError)
+        # gains_tuned is fixed, so not a key of the file (an unknown key, refused)
         axes.append(
-            build_section(LinkageAxis, at, f"axis.{name}", ConfigError, name=name, plant=plant)
+            build_section(
+                LinkageAxis,
+                at,
+                f"axis.{name}",
+                ConfigError,
+                name=name,
+                plant=plant,
+                gains_tuned=False,
+            )
         )
     pt = dict(_table(data, "path"))
     moves = _sections(Move, pt.pop("move", None), "path.move")
@@ -511,8 +534,8 @@ def load_linkage(path: str | Path) -> LinkageConfig:
         axes = ["x", "z", "a"]            # 2 to 4 axes
 
         [axis.x]                          # one per axis
-        kp = 0.36                         # [codes/count]      } optional: tuned with
-        ki = 1.44                         # [codes/(count·s)]  } tune_pi if absent
+        kp = 0.36                         # [codes/count]      } optional: if absent,
+        ki = 1.44                         # [codes/(count·s)]  } resolve_gains tunes them
         following_error_limit_counts = 12288   # optional, 0 = no trip
         lock_gain_codes_per_count = 0.4   # optional
         counter_init = 0                  # optional
@@ -544,7 +567,9 @@ def load_linkage(path: str | Path) -> LinkageConfig:
     Returns
     -------
     LinkageConfig
-        The configuration, with the rig its ``rig`` path names, read and checked.
+        The configuration, with the rig its ``rig`` path names, read and checked. Gains the
+        file leaves out stay unset: the caller resolves them
+        (:func:`~servotune.arch.linkage.synthesis.resolve_gains`), a loader only loads.
 
     Raises
     ------

@@ -61,12 +61,13 @@ from servotune.arch.linkage.plan_file import read_plan as read_plan
 from servotune.arch.linkage.plan_file import read_plan_bytes as read_plan_bytes
 from servotune.arch.linkage.plan_file import write_plan as write_plan
 from servotune.arch.linkage.result import LinkageResult
-from servotune.arch.linkage.run import axis_controllers, axis_gains, run_linkage
+from servotune.arch.linkage.run import axis_controllers, run_linkage
+from servotune.arch.linkage.synthesis import axis_gains, resolve_gains
 from servotune.errors import ConfigError, RigError
 from servotune.io.files import parse_toml
+from servotune.provenance import SourceFile
 from servotune.rig import rig_from_dict
 from servotune.validate import show_value
-from servotune.verify.record import SourceFile
 
 __all__ = [
     *plan_file.__all__,  # the plan file's names, re-exported
@@ -112,8 +113,8 @@ def plan_linkage(config_path: str | Path) -> LinkagePlan:
     """Plan a linkage config: the integers its CPUs run (module docstring).
 
     The config's bytes are read once and hashed; its rig likewise. Gains the config leaves out
-    are tuned as ``servotune linkage`` does (:func:`~servotune.arch.linkage.axis_gains`) and
-    quantised at the nominal period (:func:`~servotune.arch.linkage.axis_controllers`). The
+    are tuned as ``servotune linkage`` does (:func:`~servotune.arch.linkage.resolve_gains`)
+    and quantised at the nominal period (:func:`~servotune.arch.linkage.axis_controllers`). The
     resync interval is the config's (``clock.resync_interval_s``, rounded to whole ticks), or,
     if the config has none, :func:`~servotune.arch.linkage.recommended_resync_interval_s`.
 
@@ -188,8 +189,9 @@ def plan_linkage(config_path: str | Path) -> LinkagePlan:
                 high_watermark=high,
             )
         )
-    gains = axis_gains(config)
-    ctl = axis_controllers(config, gains)
+    config = resolve_gains(config)
+    gains = axis_gains(config)  # as resolved: each marked tuned where resolve_gains tuned it
+    ctl = axis_controllers(config)
     f = bus_figures(config)
     design = {
         "axes": {n: g.to_dict() for n, g in gains.items()},

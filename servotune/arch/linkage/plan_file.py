@@ -55,8 +55,8 @@ from servotune.errors import ConfigError
 from servotune.io.files import atomic_write_text, json_safe, json_text, parse_json_as
 from servotune.laws.axis import AxisController
 from servotune.laws.pi import PIConstants
+from servotune.provenance import SourceFile
 from servotune.validate import check_integer, check_keys, check_number, is_number, show_value
-from servotune.verify.record import SourceFile
 
 __all__ = [
     "PLAN_SCHEMA",

@@ -135,7 +135,8 @@ class AxisResult:
     ki : float
         [codes/(count·s)]
     tuned : bool
-        True if the gains were tuned (not given).
+        True if the gains were tuned (not given: the caller's
+        :func:`~servotune.arch.linkage.synthesis.resolve_gains` tuned them).
     max_abs_err_counts, rms_err_counts : float
         Of ``command − actual`` over every master tick [counts].
     saturated_ticks : int

@@ -1,11 +1,15 @@
-"""Run a linkage: the axes' gains (given or tuned), the simulation, the checks during motion."""
+"""Run a linkage: the axes' quantised gains, the simulation, the checks during motion.
+
+A runner only runs: it takes the gains the config holds (or the controllers given) and tunes
+nothing; the caller resolves the gains a file leaves out first
+(:func:`servotune.arch.linkage.synthesis.resolve_gains`).
+"""
 
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
@@ -67,117 +71,47 @@ from servotune.arch.linkage.result import (
 from servotune.budget import check_memory, format_count
 from servotune.errors import ConfigError
 from servotune.laws.axis import FLAG_COUNTER_FAULT, FLAG_FOLLOWING_ERROR, AxisController
-from servotune.laws.pi import PIGains
 from servotune.plant import NROW, plant_row
-from servotune.tune.pi import DEFAULT_TARGETS, tune_pi
 from servotune.validate import check_integer, check_number, check_seed, show_value
 
-__all__ = [
-    "TUNE_TARGETS",
-    "AxisGains",
-    "axis_controllers",
-    "axis_gains",
-    "run_linkage",
-]
-
-TUNE_TARGETS = DEFAULT_TARGETS
-"""Robustness targets of :func:`~servotune.tune.pi.tune_pi` for axes without explicit gains."""
+__all__ = ["axis_controllers", "run_linkage"]
 
 
-@dataclass(frozen=True, slots=True, kw_only=True)
-class AxisGains:
-    """The PI gains one axis runs with (:func:`axis_gains`).
-
-    Attributes
-    ----------
-    gains : PIGains
-        ``kp`` [codes/count], ``ki`` [codes/(count·s)].
-    tuned : bool
-        True if tuned with :func:`~servotune.tune.pi.tune_pi` (the file gave none).
-    """
-
-    gains: PIGains
-    tuned: bool
-
-    def to_dict(self) -> dict[str, Any]:
-        """Plain dict: ``kp``, ``ki``, ``tuned``."""
-        return {"ki": float(self.gains.ki), "kp": float(self.gains.kp), "tuned": self.tuned}
-
-
-def axis_gains(
-    config: LinkageConfig, given: Mapping[str, PIGains] | None = None
-) -> dict[str, AxisGains]:
-    """PI gains of every axis: ``given``, else the file's, else tuned.
-
-    An axis without gains is tuned with :func:`~servotune.tune.pi.tune_pi` at the linkage's
-    ``period_s``, the rig's ``compute_s`` and D/A step, for :data:`TUNE_TARGETS` (phase margin
-    50°, gain margin 8 dB, max sensitivity 1.6); about a second per axis. Nothing is cached.
-
-    Parameters
-    ----------
-    config : LinkageConfig
-    given : mapping of str to PIGains, optional
-        Gains by axis name that override the file's.
-
-    Returns
-    -------
-    dict of str to AxisGains
-        By axis name, in column order.
-
-    Raises
-    ------
-    ConfigError
-        If ``given`` names an axis that does not exist.
-    """
-    given = dict(given or {})
-    bad = sorted(set(given) - set(config.axis_names))
-    if bad:
-        raise ConfigError(
-            f"gains for unknown axis {show_value(bad[0])}; axes: {list(config.axis_names)}"
-        )
-    out: dict[str, AxisGains] = {}
-    for a in config.axes:
-        g = given.get(a.name, a.gains)
-        if g is not None:
-            out[a.name] = AxisGains(gains=g, tuned=False)
-            continue
-        r = tune_pi(
-            a.plant,
-            period_s=config.period_s,
-            compute_s=config.rig.timer.compute_s,
-            lsb_v=config.rig.dac.lsb_v,
-            **TUNE_TARGETS,
-        )
-        out[a.name] = AxisGains(gains=r.gains, tuned=True)
-    return out
-
-
-def axis_controllers(
-    config: LinkageConfig, gains: Mapping[str, AxisGains]
-) -> dict[str, AxisController]:
-    """The quantised constants each axis's slave runs: its lock gain, its PI ``gains`` at the
+def axis_controllers(config: LinkageConfig) -> dict[str, AxisController]:
+    """The quantised constants each axis's slave runs: its lock gain, its PI gains at the
     linkage's nominal ``period_s`` (``Ki·T`` folded in) and its following-error limit.
 
     Parameters
     ----------
     config : LinkageConfig
-    gains : mapping of str to AxisGains
-        :func:`axis_gains` (every axis).
+        Every axis with its gains (:func:`~servotune.arch.linkage.synthesis.resolve_gains`
+        fills in those a file leaves out).
 
     Returns
     -------
     dict of str to AxisController
         By axis name, in column order.
+
+    Raises
+    ------
+    ConfigError
+        If an axis has no gains (one line naming it).
     """
-    return {
-        a.name: AxisController.from_gains(
+    out = {}
+    for a in config.axes:
+        gains = a.gains
+        if gains is None:
+            raise ConfigError(
+                f"axis {show_value(a.name)} has no PI gains: give them in the linkage file or "
+                f"resolve them first (servotune.arch.linkage.resolve_gains)"
+            )
+        out[a.name] = AxisController.from_gains(
             lock_gain_codes_per_count=a.lock_gain_codes_per_count,
-            task_gains=gains[a.name].gains,
+            task_gains=gains,
             period_s=config.period_s,
             following_error_limit_counts=a.following_error_limit_counts,
         )
-        for a in config.axes
-    }
+    return out
 
 
 def _controllers(
@@ -214,7 +148,6 @@ def run_linkage(
     *,
     seconds: float | None = None,
     seed: int = 0,
-    gains: Mapping[str, PIGains] | None = None,
     trace: bool = False,
     controllers: Mapping[str, AxisController] | None = None,
     resync_ticks: int | None = None,
@@ -232,6 +165,9 @@ def run_linkage(
     Parameters
     ----------
     config : LinkageConfig
+        Every axis with its PI gains, unless ``controllers`` are given: a runner tunes
+        nothing (:func:`~servotune.arch.linkage.synthesis.resolve_gains` fills in the gains a
+        file leaves out, and overrides them).
     seconds : float, optional
         Simulated time [s]; default the path's duration plus ``settle_s``. After the path the
         master keeps broadcasting its end point.
@@ -239,8 +175,6 @@ def run_linkage(
         Seed of the encoder noise, in 0 … 2**64 − 1: one splitmix64 stream for the run
         (:func:`~servotune.sim.tick.draw_noise`), drawn at each read of an axis with noise, in
         event order; same config and seed → same result.
-    gains : mapping of str to PIGains, optional
-        Gains overriding the file's (and tuning) per axis name.
     trace : bool
         Also record every axis's ticks (:attr:`LinkageResult.traces`: reference, D/A code,
         unwrapped and true position, speed per CPU tick; 40 more bytes per tick and axis) and
@@ -248,7 +182,7 @@ def run_linkage(
         ticks, block arrivals; 56 more bytes per tick and CPU).
     controllers : mapping of str to AxisController, optional
         The quantised constants each axis runs, by axis name (a plan's, exactly as the runtime
-        holds them: nothing is re-quantised or tuned); instead of ``gains``.
+        holds them: nothing is re-quantised); instead of the config's gains.
     resync_ticks : int, optional
         Master ticks between sync broadcasts (0: only the sync at motion start), instead of
         ``config.clock.resync_interval_s`` rounded to whole ticks (a plan's interval).
@@ -263,14 +197,12 @@ def run_linkage(
     LinkageCheckError
         If a check before motion fails (:func:`check_linkage`): nothing is simulated.
     ConfigError
-        If ``seconds`` is not a positive number, ``seed`` is not an integer in range, a gain
-        is unknown, ``controllers`` does not hold one controller per axis (or comes with
-        ``gains``), or ``resync_ticks`` is not an integer >= 0.
+        If an axis has no gains and no ``controllers`` are given (one line naming the axis
+        and :func:`~servotune.arch.linkage.synthesis.resolve_gains`), ``seconds`` is not a
+        positive number, ``seed`` is not an integer in range, ``controllers`` does not hold
+        one controller per axis, or ``resync_ticks`` is not an integer >= 0.
     """
-    if controllers is not None:
-        if gains is not None:
-            raise ConfigError("give gains or controllers, not both")
-        controllers = _controllers(config, controllers)
+    controllers, shown = _run_controllers(config, controllers)
     if resync_ticks is not None:
         check_integer("resync_ticks", resync_ticks, "ticks", hi=2**40, error=ConfigError)
     period = config.period_s
@@ -291,7 +223,6 @@ def run_linkage(
         resync_ticks = max(1, round(resync_s / period))
     else:
         resync_ticks = 0
-    controllers, shown = _run_controllers(config, gains, controllers)
     sim = _simulate(config, ip, controllers, n_ticks, seed, resync_ticks, trace)
     cpus = _cpu_results(config, sim, trace)
     traces = _axis_traces(config, sim, cpus) if trace else None
@@ -345,20 +276,21 @@ def _run_ticks(config: LinkageConfig, seconds: float, trace: bool) -> int:
 
 
 def _run_controllers(
-    config: LinkageConfig,
-    gains: Mapping[str, PIGains] | None,
-    controllers: Mapping[str, AxisController] | None,
+    config: LinkageConfig, controllers: Mapping[str, AxisController] | None
 ) -> tuple[Mapping[str, AxisController], dict[str, tuple[float, float, bool]]]:
     """What each axis of a run runs, and its ``(kp, ki, tuned)`` as the result shows them.
 
-    ``controllers`` (checked) run as given. Otherwise this is the one point where a run
-    resolves gains: :func:`axis_gains` (``gains``, else the file's, else tuned with
-    :func:`~servotune.tune.pi.tune_pi`), quantised by :func:`axis_controllers`.
+    ``controllers`` (checked) run as given. Otherwise the config's gains, quantised by
+    :func:`axis_controllers` (an axis without gains is refused: nothing is tuned here), shown
+    as tuned where :func:`~servotune.arch.linkage.synthesis.resolve_gains` tuned them.
     """
     if controllers is None:
-        gains_used = axis_gains(config, gains)
-        shown = {n: (g.gains.kp, g.gains.ki, g.tuned) for n, g in gains_used.items()}
-        return axis_controllers(config, gains_used), shown
+        controllers = axis_controllers(config)  # refuses an axis without gains
+        shown = {
+            a.name: (g.kp, g.ki, a.gains_tuned) for a in config.axes if (g := a.gains) is not None
+        }
+        return controllers, shown
+    controllers = _controllers(config, controllers)
     period = config.period_s
     shown = {n: (*_pi_values(c, period), False) for n, c in controllers.items()}
     return controllers, shown

@@ -42,6 +42,7 @@ from servotune.analysis.margins import MarginLimits
 from servotune.arch.linkage.bus import MAX_CLOCK_PPM
 from servotune.errors import SpecError
 from servotune.io.files import parse_toml_as
+from servotune.provenance import SourceFile
 from servotune.validate import (
     check_integer,
     check_keys,
@@ -50,7 +51,6 @@ from servotune.validate import (
     check_strings,
     check_table,
 )
-from servotune.verify.record import SourceFile
 
 __all__ = [
     "LinkageSpec",

@@ -64,9 +64,9 @@ from servotune.errors import ConfigError, SpecError, TrustError, TuningError
 from servotune.io.files import json_float
 from servotune.kernels import warm_up
 from servotune.laws.pi import PIConstants
+from servotune.provenance import SourceFile
 from servotune.verify.record import (
     RecordedVerification,
-    SourceFile,
     check_record,
     fallback_notice,
     matching_file,

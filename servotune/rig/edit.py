@@ -1,12 +1,13 @@
 """The rig file's plant table edited in place (docs/formats.md#rig-file): what
-:func:`servotune.rig.write_plant` writes.
+:func:`servotune.rig.file.write_plant` writes.
 
 :func:`edit_plant_text` rewrites one ``[axis.<name>.plant]`` table of a rig file's text from a
 :class:`~servotune.plant.Plant` (and its fit record and modes), every comment and the layout of
 the rest kept byte for byte (in that table, a comment that described a replaced value goes with
 it); :func:`new_rig_text` makes a new rig file's text from a template's.
-:func:`servotune.rig.write_plant` checks the result against the :class:`~servotune.rig.Rig`
-model before it writes it.
+:func:`servotune.rig.file.write_plant` checks the result against the model of
+:mod:`servotune.rig.model` before it writes it. The package :mod:`servotune.rig` re-exports
+:data:`FLOAT_SIGNIFICANT_DIGITS`.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ import tomlkit.items
 
 from servotune.errors import RigError
 from servotune.plant import Plant
-from servotune.rig_model import FIT_PCT_KEYS
+from servotune.rig.model import FIT_PCT_KEYS
 from servotune.validate import is_number, show_value
 
 __all__ = ["FLOAT_SIGNIFICANT_DIGITS", "edit_plant_text", "new_rig_text"]

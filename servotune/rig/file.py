@@ -1,12 +1,13 @@
-"""The rig: loading, validating and describing ``plants/*.toml``, and writing a plant into one.
+"""Rig files: loading, validating and describing ``plants/*.toml``, and writing a plant into one.
 
 A rig file (docs/formats.md#rig-file) describes the hardware around the loop and one
 ``[axis.<name>]`` table per axis with its plant under ``[axis.<name>.plant]``. Every field is
 validated on load; an error names the field, the value and the unit. Unknown keys are errors (a
 misspelt key would otherwise be silently ignored). The model itself (:class:`Rig`, its sections and
-their bounds) is :mod:`servotune.rig_model`, re-exported here: ``servotune.rig`` is where the rig is
-imported from. The TOML tables are built into dataclasses by :mod:`servotune.io.rig`, a plant
-table is edited in place by :mod:`servotune.rig_edit`; this module checks files against the model.
+their bounds) is :mod:`servotune.rig.model`; the TOML tables are built into its dataclasses by
+:func:`servotune.io.sections.build_section`, a plant table is edited in place by
+:mod:`servotune.rig.edit`; this module checks files against the model. :mod:`servotune.rig`
+re-exports the names of all three: it is where the rig is imported from.
 """
 
 from __future__ import annotations
@@ -17,24 +18,16 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from servotune import rig_model
 from servotune.errors import RigError
 from servotune.examples import EXAMPLES_DIR
 from servotune.hw import counter as hw_counter
 from servotune.io.files import atomic_write_bytes, parse_toml_as, read_bytes
-from servotune.io.rig import build_section
+from servotune.io.sections import build_section
 from servotune.laws.lock import lock_holding_band
 from servotune.plant import Plant
 from servotune.resonance import MAX_MODES, Mode
-from servotune.rig_edit import FLOAT_SIGNIFICANT_DIGITS as FLOAT_SIGNIFICANT_DIGITS
-from servotune.rig_edit import edit_plant_text
-from servotune.rig_model import FIT_METHODS as FIT_METHODS
-from servotune.rig_model import FIT_PCT_KEYS as FIT_PCT_KEYS
-from servotune.rig_model import FRICTION_FORMS as FRICTION_FORMS
-from servotune.rig_model import MAX_CHANNEL as MAX_CHANNEL
-from servotune.rig_model import MAX_CLOCK_HZ as MAX_CLOCK_HZ
-from servotune.rig_model import MAX_COUNTS as MAX_COUNTS
-from servotune.rig_model import (
+from servotune.rig.edit import edit_plant_text
+from servotune.rig.model import (
     MAX_DAC_RANGE_V,
     MAX_SPEED_RPM,
     Axis,
@@ -45,11 +38,6 @@ from servotune.rig_model import (
     Rig,
     Timer,
 )
-from servotune.rig_model import MAX_LOCK_GAIN as MAX_LOCK_GAIN
-from servotune.rig_model import MAX_PULSES as MAX_PULSES
-from servotune.rig_model import MAX_READ_SKEW_S as MAX_READ_SKEW_S
-from servotune.rig_model import MIN_SPEED_LIMIT_RPM as MIN_SPEED_LIMIT_RPM
-from servotune.rig_model import ROLES as ROLES
 from servotune.validate import (
     check_keys,
     check_number,
@@ -61,7 +49,6 @@ from servotune.validate import (
 )
 
 __all__ = [
-    *rig_model.__all__,  # the model's names, re-exported
     "EXAMPLE_RIG_PATH",
     "check_plant",
     "describe_rig",
@@ -419,10 +406,11 @@ def write_plant(
     - ``max_speed_rpm`` [r/min] and ``noise_counts`` [counts] describe the drive and the encoder
       rather than the fit: the file's values stay unless ``plant`` sets them (differs from the
       :class:`~servotune.plant.Plant` default, ``None`` and ``0.0``); then they are replaced.
-    - Numbers are rounded to 7 significant digits (:data:`FLOAT_SIGNIFICANT_DIGITS`, relative
-      error <= 5e-7) and written as the shortest text that reads back exactly as the rounded
-      number (``12288.049999999999`` → ``12288.05``). An entry that already holds the rounded
-      value keeps its text and its comments.
+    - Numbers are rounded to 7 significant digits
+      (:data:`~servotune.rig.edit.FLOAT_SIGNIFICANT_DIGITS`, relative error <= 5e-7) and written
+      as the shortest text that reads back exactly as the rounded number
+      (``12288.049999999999`` → ``12288.05``). An entry that already holds the rounded value
+      keeps its text and its comments.
     - A replaced (or removed) entry's comments, trailing or on the lines directly above it, stay
       when they name the quantity (``# analog zero drift``) and go when they state a number or
       cite a source (``# 600 r/min at 10 V with 12288 counts/rev``, ``# from the data sheet``):
@@ -451,7 +439,7 @@ def write_plant(
         For a ``path`` that does not exist yet: make it a rig of its own named ``new_name``,
         with ``new_header`` (lines) as its leading comment, a description naming the template,
         and every other axis's plant marked as the template's, not fitted
-        (:func:`servotune.rig_edit.new_rig_text`). Without ``new_name`` the template is copied
+        (:func:`servotune.rig.edit.new_rig_text`). Without ``new_name`` the template is copied
         as it is.
 
     Raises
@@ -526,7 +514,7 @@ def write_plant(
 
 
 def _mode_entries(modes: tuple[Mode, ...]) -> list[dict[str, Any]]:
-    """The modes as :func:`servotune.rig_edit.edit_plant_text` reports them written: per mode
+    """The modes as :func:`servotune.rig.edit.edit_plant_text` reports them written: per mode
     its values and the intervals it has."""
     keys = ("freq_hz", "damping", "gain", "freq_hz_95", "damping_95", "gain_95")
     return [{k: getattr(m, k) for k in keys if getattr(m, k) is not None} for m in modes]

@@ -1,11 +1,11 @@
-"""The TOML tables of the rig file (docs/formats.md#rig-file) and of the architecture
-configurations built into dataclasses.
+"""A configuration file's TOML tables built into validated dataclasses: the rig file's
+(docs/formats.md#rig-file) and the architecture configurations'.
 
 :func:`build_section` builds one validated dataclass from one TOML table (the rig's sections,
 and the architecture configurations' of ``servotune.arch.gantry`` and
-``servotune.arch.linkage``), errors naming ``path.field``. :func:`servotune.rig.load_rig`
-checks the result against the :class:`~servotune.rig.Rig` model; a rig file's plant table is
-rewritten by :mod:`servotune.rig_edit`; the bytes and the TOML themselves are read and written
+``servotune.arch.linkage``), errors naming ``path.field``. :func:`servotune.rig.file.load_rig`
+checks the result against the model of :mod:`servotune.rig.model`; a rig file's plant table is
+rewritten by :mod:`servotune.rig.edit`; the bytes and the TOML themselves are read and written
 through :mod:`servotune.io.files`.
 """
 

@@ -3,9 +3,10 @@ when built.
 
 Every field is validated in ``__post_init__``; an error names the field, the value and the unit.
 The bounds of the hardware's and the axes' values are the module constants (``MAX_*``; a
-plant's are :func:`servotune.rig.check_plant`'s). Reading, checking and writing rig files
-(``plants/*.toml``) is :mod:`servotune.rig`, which re-exports every name here: import the model
-from there.
+plant's are :func:`servotune.rig.file.check_plant`'s). Reading, checking and writing rig files
+(``plants/*.toml``) is :mod:`servotune.rig.file`, a plant table edited in place
+:mod:`servotune.rig.edit`; the package :mod:`servotune.rig` re-exports every name here: import the
+model from there.
 """
 
 from __future__ import annotations

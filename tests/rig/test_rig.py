@@ -411,3 +411,19 @@ def test_cli_bad_mode_is_one_line_exit_3(
     assert err.count("\n") == 1 and "Traceback" not in err
     assert "axis.master.plant.modes[0] must be a table" in err
     assert not (tmp_path / "x.csv").exists()
+
+
+def test_the_package_exports_its_modules_names() -> None:
+    """``servotune.rig`` is where the rig is imported from: the names of its model and of its
+    files, the very objects; the modules it replaced are gone (no shims)."""
+    import importlib.util
+
+    import servotune.rig
+    from servotune.rig import file, model
+
+    assert sorted(servotune.rig.__all__) == sorted([*model.__all__, *file.__all__])
+    for name in servotune.rig.__all__:
+        home = model if name in model.__all__ else file
+        assert getattr(servotune.rig, name) is getattr(home, name)
+    for gone in ("servotune.rig_model", "servotune.rig_edit", "servotune.io.rig"):
+        assert importlib.util.find_spec(gone) is None
