@@ -67,7 +67,8 @@ test-wheel: $(STAMP)
 	$(BIN)/python -m pytest -m wheel
 
 # Studies in real HAL that hold its one session for minutes (docs/decisions.md#8-test-time:
-# marker `study`): the live autotune repeated over five noise seeds (about 2.5 minutes).
+# marker `study`): the live autotune repeated over five noise seeds (about 2.5 minutes), and
+# the live autotune loading the verified runtime component, kept and rolled back (about 1.5).
 # .ci/run runs them after make test.
 test-study: $(STAMP)
 	$(BIN)/python -m pytest -m study

@@ -40,6 +40,7 @@ from servotune.rig import Rig, load_rig
 from servotune.validate import check_keys, check_number, show_value
 
 __all__ = [
+    "COMPONENT_NAME",
     "DEFAULT_PERIODS",
     "EXCITATION_KINDS",
     "OUTPUT_SHARE",
@@ -52,6 +53,7 @@ __all__ = [
     "format_plan",
     "load_autotune_config",
     "plan_autotune",
+    "with_target",
 ]
 
 TARGETS = ("pid", "component")
@@ -65,6 +67,8 @@ PULSE_TRAVEL_SHARE = 0.01
 PULSE_S = 0.1
 """Length of each wiring-check pulse [s]."""
 _HAL_NAME = re.compile(r"[A-Za-z0-9_.\-]+")
+COMPONENT_NAME = re.compile(r"[a-z][a-z0-9_]{0,40}")
+"""A component's name as halcompile takes it (HAL calls it with ``_`` as ``-``)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -100,6 +104,7 @@ class HalSide:
     output_pin: str
     enable_pin: str
     position_scale: float
+    counts_pin: str | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -119,6 +124,7 @@ class AutotuneConfig:
     modes: int | str | None = None
     periods: int | None = None
     band_hz: tuple[float, float] | None = None
+    component: str = "servotune_rt"
 
 
 def _path(base: Path, v: object, key: str) -> Path:
@@ -177,6 +183,33 @@ def _envelope(d: dict[str, Any], rig: Rig, axis: str) -> Envelope:
     )
 
 
+def _check_target(target: object, counts_pin: str | None) -> str:
+    if target not in TARGETS:
+        raise ConfigError(
+            f"autotune.target must be one of {', '.join(TARGETS)}, got {show_value(target)}"
+        )
+    if target == "component" and counts_pin is None:
+        raise ConfigError(
+            'hal.counts_pin is needed for target = "component": the raw encoder count (an s32 '
+            "pin) the runtime component reads, with feedback_pin = counts / position_scale"
+        )
+    return str(target)
+
+
+def with_target(cfg: AutotuneConfig, target: str) -> AutotuneConfig:
+    """``cfg`` with another ``target`` (``autotune --target``), checked as the file's.
+
+    Raises
+    ------
+    ConfigError
+        An unknown target, or ``component`` without ``hal.counts_pin``.
+    """
+    try:
+        return replace(cfg, target=_check_target(target, cfg.hal.counts_pin))
+    except ConfigError as exc:
+        raise ConfigError(f"{cfg.path}: {exc}") from None
+
+
 def load_autotune_config(path: str | Path) -> AutotuneConfig:
     """Read and check an autotune config (module docstring); file names in it are relative to
     its directory.
@@ -202,7 +235,7 @@ def _config(p: Path, doc: dict[str, Any]) -> AutotuneConfig:
         doc["autotune"],
         "autotune",
         ("rig", "axis"),
-        ("spec", "target", "excitation", "seconds", "modes", "periods", "band_hz"),
+        ("spec", "target", "component", "excitation", "seconds", "modes", "periods", "band_hz"),
         error=ConfigError,
     )
     rig_path = _path(p.parent, a["rig"], "autotune.rig")
@@ -217,9 +250,11 @@ def _config(p: Path, doc: dict[str, Any]) -> AutotuneConfig:
             f"got {show_value(axis)}"
         )
     target = a.get("target", "pid")
-    if target not in TARGETS:
+    component = a.get("component", "servotune_rt")
+    if not isinstance(component, str) or not COMPONENT_NAME.fullmatch(component):
         raise ConfigError(
-            f"autotune.target must be one of {', '.join(TARGETS)}, got {show_value(target)}"
+            "autotune.component must be a HAL component name (lower-case letters, digits and "
+            f"_, starting with a letter, at most 41 characters), got {show_value(component)}"
         )
     kind = a.get("excitation", "multisine")
     if kind not in EXCITATION_KINDS:
@@ -242,6 +277,7 @@ def _config(p: Path, doc: dict[str, Any]) -> AutotuneConfig:
             "enable_pin",
             "position_scale",
         ),
+        ("counts_pin",),
         error=ConfigError,
     )
     check_number("hal.period_s", h["period_s"], "s", strict=True, error=ConfigError)
@@ -266,7 +302,9 @@ def _config(p: Path, doc: dict[str, Any]) -> AutotuneConfig:
         output_pin=_pin(h, "output_pin"),
         enable_pin=_pin(h, "enable_pin"),
         position_scale=float(h["position_scale"]),
+        counts_pin=_pin(h, "counts_pin") if "counts_pin" in h else None,
     )
+    target = _check_target(target, hal.counts_pin)
     return AutotuneConfig(
         path=p,
         rig_path=rig_path,
@@ -281,6 +319,7 @@ def _config(p: Path, doc: dict[str, Any]) -> AutotuneConfig:
         modes=modes,
         periods=periods,
         band_hz=band,
+        component=component,
     )
 
 
@@ -336,6 +375,7 @@ PIN_ROLES = (
     ("feedback_pin", "float", None, "the feedback position"),
     ("output_pin", "float", "OUT", "the controller's output"),
     ("enable_pin", "bit", None, "the controller's enable"),
+    ("counts_pin", "s32", "OUT", "the raw encoder count"),
 )
 """Each configured pin: its key, the type and (if it matters) direction it must have, what it
 is."""
@@ -353,6 +393,8 @@ def check_session(cfg: AutotuneConfig, session: HalSession) -> None:
     h = cfg.hal
     for key, typ, direction, what in PIN_ROLES:
         name = getattr(h, key)
+        if name is None:  # optional: the counts for the component only
+            continue
         pin = session.pins.get(name)
         if pin is None:
             raise ConfigError(
@@ -473,7 +515,14 @@ def plan_autotune(cfg: AutotuneConfig) -> AutotunePlan:
         + "), tune (servotune tune), verify against "
         + (str(cfg.spec_path) if cfg.spec_path else "the rig's defaults")
         + f", export for the {cfg.target}",
-        "load the new parameters; a validation move against the verified model's prediction; "
+        (
+            "load the new parameters"
+            if cfg.target == "pid"
+            else f"build the verified runtime component {cfg.component} (halcompile --install), "
+            f"load it in {cfg.hal.thread} before the guard, its counts from "
+            f"{cfg.hal.counts_pin}, its output into the guard instead of the pid's"
+        )
+        + "; a validation move against the verified model's prediction; "
         "a mismatch restores the previous parameters",
     ]
     return AutotunePlan(

@@ -57,6 +57,12 @@ from servotune.autotune import (
     check_session,
     plan_autotune,
 )
+from servotune.autotune_component import (
+    ComponentSwitch,
+    Predict,
+    component_prediction,
+    install_component,
+)
 from servotune.digest import bytes_sha256
 from servotune.errors import AutotuneStopped, ConfigError
 from servotune.io.files import atomic_write_bytes, atomic_write_text
@@ -111,7 +117,7 @@ class AutotuneResult:
     ``stopped``: why it stopped (empty: it loaded and validated ``loaded``)."""
 
     out_dir: Path
-    loaded: dict[str, float | bool]
+    loaded: dict[str, Any]
     previous: dict[str, str]
     wiring: dict[str, float]
     validation: dict[str, Any]
@@ -174,6 +180,8 @@ class _Takeover:
         self.signals: list[str] = []
         self.base = 0.0
         self.last_capture = ""
+        self.component: ComponentSwitch | None = None
+        self.kept = False
 
     def pins(self) -> list[str]:
         return [f"{self.pid}.{n}" for n in HAL_PIN_NAMES.values()]
@@ -233,6 +241,8 @@ class _Takeover:
     def undo(self) -> list[str]:
         """Every change undone that can be (each step tried); the steps that failed."""
         hal, failed = self.hal, []
+        if self.component is not None and not self.kept:
+            failed += self.component.remove()
 
         def attempt(*args: str) -> None:
             try:
@@ -274,17 +284,20 @@ class _Takeover:
         phase: str,
         command: np.ndarray,
         excitation: np.ndarray,
-        params: PidParameters | None = None,
+        params: PidParameters | Callable[[], None] | None = None,
     ) -> np.ndarray:
         """Play one phase (command [units], excitation [V], one per period) and return the
         sampler's records of it (columns :data:`COLUMN`, the sample number first);
-        ``params``: loaded into the pid once the sampler records (what they do is captured)."""
+        ``params``: loaded into the pid (or, a function, called) once the sampler records
+        (what they do is captured)."""
         hal = self.hal
         hal.setp("sampler.0.enable", True)
         stale = int(hal.getp("sampler.0.curr-depth"))
         if stale:
             hal.sample(stale)  # what it held from before: not this phase's
-        if params is not None:
+        if callable(params):
+            params()
+        elif params is not None:
             self.set_pid(params)
         self._play_rows(command, excitation)
         seconds = command.size * self.cfg.hal.period_s
@@ -403,30 +416,48 @@ def _move_metrics(command_counts: np.ndarray, position_counts: np.ndarray) -> di
     return {"following_error": float(np.abs(fe).max()), "overshoot": float(max(past.max(), 0.0))}
 
 
+def _pid_prediction(cfg: AutotuneConfig, plant: Any, params: PidParameters) -> Predict:
+    s = cfg.hal.position_scale
+
+    def predict(rel_units: np.ndarray, start_counts: float) -> dict[str, np.ndarray]:
+        pred = _prediction(cfg, plant, params, rel_units)  # from rest at the start
+        return {
+            "command_counts": pred.command_units * s,
+            "feedback_counts": pred.feedback_units * s,
+            "volts": pred.volts,
+            "error_counts": pred.error_units * s,
+        }
+
+    return predict
+
+
 def _validate(
-    t: _Takeover, cfg: AutotuneConfig, plant: Any, params: PidParameters
+    t: _Takeover,
+    cfg: AutotuneConfig,
+    predict: Predict,
+    load: PidParameters | Callable[[], None],
 ) -> dict[str, Any]:
-    """Step 5's move and comparison (module docstring)."""
+    """Step 5's move and comparison (module docstring); ``load`` what ``play`` loads."""
     h, env = cfg.hal, cfg.envelope
     s = h.position_scale
     for k in range(6):  # shrink the move until the prediction stays well inside the envelope
         rel = validation_move(cfg, 0.7**k)
-        pred = _prediction(cfg, plant, params, rel / s)
-        peak_v = float(np.abs(pred.volts).max())
-        peak_fe = float(np.abs(pred.error_units).max() * s)
+        pred = predict(rel / s, 0.0)
+        peak_v = float(np.abs(pred["volts"]).max())
+        peak_fe = float(np.abs(pred["error_counts"]).max())
         if peak_v <= 0.7 * env.max_volts and peak_fe <= 0.7 * env.following_error_counts:
             break
-    rec = t.play("validation move", t.base + rel / s, np.zeros(rel.size), params)
+    rec = t.play("validation move", t.base + rel / s, np.zeros(rel.size), load)
     command, feedback = rec[:, COLUMN["command"]] - t.base, rec[:, COLUMN["feedback"]] - t.base
     moving = np.flatnonzero(np.abs(command) * s > 0.5)
     start = max(int(moving[0]) - 25, 0) if moving.size else 0
     meas_cmd, meas_pos = command[start:] * s, feedback[start:] * s
-    # the model's run on the command as the pid received it, from rest at the start
-    pred = _prediction(cfg, plant, params, command[start:])
+    # the model's run on the command as the controller received it, from the start
+    pred = predict(command[start:], float(meas_pos[0]))
     measured = _move_metrics(meas_cmd, meas_pos)
-    predicted = _move_metrics(pred.command_units * s, pred.feedback_units * s)
+    predicted = _move_metrics(pred["command_counts"], pred["feedback_counts"])
     rows = np.column_stack(
-        [np.arange(meas_cmd.size) * h.period_s, meas_cmd, meas_pos, pred.feedback_units * s]
+        [np.arange(meas_cmd.size) * h.period_s, meas_cmd, meas_pos, pred["feedback_counts"]]
     )
     atomic_write_text(
         t.out / "validation.csv",
@@ -537,8 +568,19 @@ def _identify(cfg: AutotuneConfig, out: Path, capture: str, say: Callable[[str],
         pid_name=pid_name,
     )
     atomic_write_text(out / "pid.hal", text)
+    if cfg.target == "component":
+        from servotune.export.hal_component import to_string as component_text
+
+        source = component_text(
+            v.tuning,
+            rig=v.rig,
+            verification=v.record,
+            name=cfg.component,
+            position_scale=h.position_scale,
+        )
+        atomic_write_text(out / f"{cfg.component}.comp", source)
     params = pid_parameters(v.tuning, v.rig, position_scale=h.position_scale)
-    return result, load_rig(fitted).axis(cfg.axis).plant, params
+    return result, load_rig(fitted).axis(cfg.axis).plant, params, v
 
 
 def run_autotune(
@@ -560,7 +602,7 @@ def run_autotune(
         No session, or a command it refused.
     ConfigError
         The config does not fit the session (:func:`servotune.autotune.check_session`), no
-        guard between the pid and the D/A, a target other than ``pid``.
+        guard between the pid and the D/A.
     AutotuneStopped
         The run stopped (module docstring): the previous parameters are back.
     """
@@ -642,7 +684,7 @@ def _steps(
     capture = t.last_capture
     if cfg.periods is not None:  # the whole periods only: a frequency response needs them
         capture = whole_periods(capture, rec, excitation)
-    result, plant, params = _identify(cfg, t.out, capture, say)
+    result, plant, params, verified = _identify(cfg, t.out, capture, say)
     # the plant written (with modes: gain, tau and delay from the frequency-domain fit) and
     # its whole-log velocity fit, as fitted-rig.toml records them
     written_pct = result.plant_fit.velocity_fit_pct
@@ -653,16 +695,46 @@ def _steps(
         ),
         modes=[m.to_dict() for m in plant.modes],
     )
-    res.files.update(_digests(t.out))
+    res.files.update(_digests(t.out, cfg))
+    if cfg.target == "component":
+        predict, load = _load_component(t, cfg, verified, say)
+    else:
+        predict, load = _pid_prediction(cfg, plant, params), params
     say("autotune: validation move")
-    res.validation.update(_validate(t, cfg, plant, params))
+    res.validation.update(_validate(t, cfg, predict, load))
     if not res.validation["passed"]:
         raise AutotuneStopped(
             "validation move: "
             + "; ".join(res.validation["problems"])
             + "; the previous parameters are restored"
         )
-    res.loaded.update(params.to_dict())
+    if t.component is None:
+        res.loaded.update(params.to_dict())
+    else:  # the pid drives nothing now: its parameters as they were
+        res.loaded.update(t.component.keep(t.links[h.command_pin]))
+        t.kept = True
+        t.restore_pid()
+
+
+def _load_component(
+    t: _Takeover, cfg: AutotuneConfig, verified: Any, say: Callable[[str], None]
+) -> tuple[Predict, Callable[[], None]]:
+    """The component target's step 5 before the move (:mod:`servotune.autotune_component`):
+    built, installed, loaded before the guard; its prediction and its switch-in."""
+    say(f"autotune: build and load the runtime component {cfg.component}")
+    install_component(t.out / f"{cfg.component}.comp")
+    session = t.hal.session()
+    t.component = ComponentSwitch(
+        hal=t.hal,
+        cfg=cfg,
+        guard=t.guard,
+        index=verified.tuning.axis_names.index(cfg.axis),
+        command_signal=_SIG + "command",
+        pid_signal=session.pins[cfg.hal.output_pin].signal,
+    )
+    t.component.load()
+    predict = component_prediction(cfg, verified, t.component.origin_counts, t.base)
+    return predict, t.component.switch_in
 
 
 RECORDED_FILES = (
@@ -676,10 +748,10 @@ RECORDED_FILES = (
 """The files the record binds by their SHA-256."""
 
 
-def _digests(out: Path) -> dict[str, str]:
+def _digests(out: Path, cfg: AutotuneConfig) -> dict[str, str]:
     return {
         name: bytes_sha256((out / name).read_bytes())
-        for name in RECORDED_FILES
+        for name in (*RECORDED_FILES, *([f"{cfg.component}.comp"] * (cfg.target == "component")))
         if (out / name).exists()
     }
 
@@ -692,11 +764,6 @@ def _trip(hal: Halcmd, guard: str, period_s: float) -> None:
 
 
 def _check_guard(cfg: AutotuneConfig, session: Any, guard: str) -> None:
-    if cfg.target != "pid":
-        raise ConfigError(
-            f"{cfg.path}: autotune.target {cfg.target!r}: the live run loads the stock pid's "
-            'parameters only (target = "pid") in this version'
-        )
     if not cfg.hal.output_pin.endswith(".output"):
         raise ConfigError(f"{cfg.path}: hal.output_pin must be a pid's output (pid.N.output)")
     need = ("volts-in", "volts-out", "excitation", "stop", "fault", "command", "position")

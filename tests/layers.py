@@ -36,7 +36,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("identify", "tune"),
     ("verify",),
     ("arch", "export", "fleet", "compare"),
-    ("report", "plot", "pipeline", "testing", "autotune", "autotune_live"),
+    ("report", "plot", "pipeline", "testing", "autotune", "autotune_component", "autotune_live"),
     ("warmup", "cli", "__init__"),
 )
 """The layers, lowest first: a module may import from its own layer and those below it

@@ -71,6 +71,9 @@ def test_the_example_config_loads() -> None:
         ('axis = "master"', 'axis = "z"', "autotune.axis must be one of"),
         ('target = "pid"', 'target = "drive"', "autotune.target"),
         ('rig = "pc-dual-servo.toml"', 'rig = "nope.toml"', "autotune.rig"),
+        ('target = "pid"', 'target = "component"', "hal.counts_pin is needed"),
+        ('# component = "servotune_rt"', 'component = "Rt-1"', "autotune.component must be"),
+        ('# counts_pin = "encoder.0.rawcounts"', 'counts_pin = "enc 0"', "hal.counts_pin"),
     ],
 )
 def test_a_bad_config_is_one_line_exit_3(tmp_path: Path, capsys, old, new, words) -> None:
@@ -100,6 +103,23 @@ def test_the_dry_run_prints_the_plan_and_writes_nothing(tmp_path: Path, capsys) 
     out = capsys.readouterr().out
     assert "dry run: nothing in HAL is touched" in out and "predicted speed" in out
     assert "no HAL session runs here (or no halcmd): the pins were not checked" in out
+
+
+def test_the_target_flag_overrides_the_config_and_is_checked_as_it(tmp_path: Path, capsys):
+    """``--target component`` needs ``hal.counts_pin`` as the file's target does: one line,
+    exit 3; with it the plan says it builds and places the runtime component."""
+    p = _edit(tmp_path, "seconds = 40.0", "seconds = 8.0")
+    assert main(["autotune", str(p), "--dry-run", "--target", "component"]) == 3
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "hal.counts_pin is needed" in err[0] and str(p) in err[0], err
+    text = p.read_text().replace('# counts_pin = "encoder.0.rawcounts"', 'counts_pin = "enc.raw"')
+    p.write_text(text)
+    assert main(["autotune", str(p), "--dry-run", "--json", "--target", "component"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert "build the verified runtime component servotune_rt" in doc["steps"][-1]
+    assert "its counts from enc.raw" in doc["steps"][-1]
+    assert main(["autotune", str(p), "--dry-run", "--json"]) == 0  # the file's: pid
+    assert doc["steps"][-1] != json.loads(capsys.readouterr().out)["steps"][-1]
 
 
 def _independent_run(cfg, codes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

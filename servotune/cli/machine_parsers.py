@@ -32,6 +32,12 @@ def add_autotune(sub: Any, verb: Callable[..., Any]) -> None:
     )
     s.add_argument("--json", action="store_true", help="the plan (or the run's record) as JSON")
     s.add_argument(
+        "--target",
+        choices=("pid", "component"),
+        help="what the run loads, instead of the config's autotune.target: the stock pid's "
+        "parameters, or the verified runtime component (needs hal.counts_pin)",
+    )
+    s.add_argument(
         "-o",
         "--output-dir",
         default="autotune",

@@ -509,11 +509,14 @@ def cmd_autotune(args: argparse.Namespace) -> int:
         format_plan,
         load_autotune_config,
         plan_autotune,
+        with_target,
     )
     from servotune.io.halcmd import read_session
 
     check_outputs(args.guard_output, inputs=(args.config,))
     cfg = load_autotune_config(args.config)
+    if args.target is not None:
+        cfg = with_target(cfg, args.target)
     if not args.dry_run:
         from servotune.autotune_live import format_result, run_autotune
 

@@ -551,7 +551,8 @@ def _add_export_table(sub: Any) -> None:
         "--position-scale",
         type=float,
         help="linuxcnc-hal: encoder counts per machine unit (the encoder's position-scale), "
-        "e.g. 2000",
+        "e.g. 2000; linuxcnc-comp: with it, the component's command is a float in machine "
+        "units (a LinuxCNC position command), converted to counts by it",
     )
     s.add_argument(
         "--output-scale",

@@ -180,6 +180,6 @@ register(
         "and its tables",
         module="servotune.export.hal_component",
         kinds={"rig": "the HAL component"},
-        options=("name",),
+        options=("name", "position_scale"),
     )
 )

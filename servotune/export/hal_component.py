@@ -3,16 +3,17 @@
 :func:`to_string` is one ``.comp`` file (the ``linuxcnc-comp`` export format; :func:`to_file`
 writes it; ``halcompile --compile``/``--install`` builds it) holding, verbatim, the same C the
 golden runs prove bit-exact against the simulator (``servotune_rt.h``, ``servotune_tables.h``,
-``servotune_rt.c``: :mod:`servotune.export.c`)
-around a thin HAL wrapper. The wrapper adds no arithmetic: each servo-thread period it takes
-each axis's encoder count (``<name>.counts-N``, s32: the low ``counter_bits`` bits are what the
-counter card latches), the master's reference (``<name>.command``, counts), the requested mode and
-reset, calls ``st_tick`` once and gives each axis's D/A code (``<name>.code-N``) and the voltage
-it stands for (``<name>.volts-N`` = ``dac_lo + code · lsb`` [V], for a driver that takes volts),
-the flags, the law's error and the extended position. At load (``loadrt``) it recomputes the
-SHA-256 of its compiled-in constants and tables and compares it with the exported digest, and
-checks the constants' ranges: a component whose tables were edited, or mixed with another
-tuning's digest, refuses to load with the reason in HAL's log.
+``servotune_rt.c``: :mod:`servotune.export.c`) around a thin HAL wrapper. The wrapper adds no
+arithmetic to the law: each servo-thread period it takes each axis's encoder count
+(``<name>.counts-N``, s32: the low ``counter_bits`` bits are what the counter card latches), the
+master's reference (``<name>.command``, counts; with ``position_scale``, machine units rounded
+to counts: the one operation outside the law), the requested mode and reset, calls ``st_tick``
+once and gives each axis's D/A code (``<name>.code-N``) and the voltage it stands for
+(``<name>.volts-N`` = ``dac_lo + code · lsb`` [V], for a driver that takes volts), the flags,
+the law's error and the extended position. At load (``loadrt``) it recomputes the SHA-256 of its
+compiled-in constants and tables and compares it with the exported digest, and checks the
+constants' ranges: a component whose tables were edited, or mixed with another tuning's digest,
+refuses to load with the reason in HAL's log.
 
 :func:`plant_component` writes a component moving one axis's plant model exactly as the
 simulator does (``servotune_plant.h``, a C mirror of :mod:`servotune.plant` and of a resonant
@@ -108,6 +109,7 @@ def to_string(
     verification: Any = None,
     unverified: bool = False,
     name: str = "servotune",
+    position_scale: float | None = None,
 ) -> str:
     """The ``.comp`` source of the runtime component for ``tuning`` (arguments as
     :func:`servotune.export.c.to_string`; ``name`` the component's name: HAL calls it
@@ -116,7 +118,11 @@ def to_string(
     Pins (``N`` = axis index in the tuning's order; the HAL name and ``.`` before each):
 
     - ``counts-N`` (s32 in): the encoder count; its low ``counter_bits`` bits are latched;
-    - ``command`` (s32 in): the master's reference [counts];
+    - ``command`` (s32 in): the master's reference [counts]; with ``position_scale``
+      [counts per machine unit] a float in machine units instead (a LinuxCNC position
+      command), the reference ``round(command · position_scale)`` minus the master's count
+      at the first period (the runtime's positions start from its first read, so a command
+      equal to the feedback ``counts / position_scale`` is no error);
     - ``mode-N`` (s32 in): 0 lock, 1 task, 2 open; ``reset-N`` (bit in): clear latched faults;
       ``u-add-N`` (s32 in): D/A codes added to the output (an excitation; 0 normally);
     - ``code-N`` (s32 out): the D/A code; ``volts-N`` (float out): its voltage [V];
@@ -130,6 +136,7 @@ def to_string(
         unverified tuning without ``unverified``, a tuning of another rig, …).
     """
     _check_name(name)
+    command = _command_text(tuning, position_scale)
     header = tables_header(tuning, rig=rig, verification=verification, unverified=unverified)
     digest = re.search(r'#define ST_TABLES_SHA256 "([0-9a-f]{64})"', header)
     assert digest is not None  # the header always defines it
@@ -146,8 +153,42 @@ def to_string(
         runtime=_inline(rt_h, header, rt_c),
         dac_lo=_c_double(dac.range_v[0]),
         dac_lsb=_c_double(dac.lsb_v),
+        **command,
     )
     return with_digest_line(text, "//", line=1)
+
+
+def _command_text(tuning: Tuning, position_scale: float | None) -> dict[str, str]:
+    """The runtime component's command pin and reference (:func:`to_string`)."""
+    if position_scale is None:
+        return {
+            "command_pin": 'pin in s32 command "the master\'s reference [counts]";',
+            "command_state": "",
+            "command_origin": "",
+            "command_ref": "(int64_t)command",
+        }
+    if not (isinstance(position_scale, int | float) and math.isfinite(position_scale)):
+        raise ExportError(f"position_scale must be a finite number, got {position_scale!r}")
+    if not 0 < position_scale <= 1e9:
+        raise ExportError(f"position_scale must be > 0 and at most 1e9, got {position_scale}")
+    master = next(i for i, r in enumerate(tuning.roles) if r == "master")
+    return {
+        "command_pin": 'pin in float command "the master\'s position command [machine units]";',
+        "command_state": (
+            "static int64_t st_hal_origin; /* the master's count at the first period */\n"
+            "static int st_hal_started;\n"
+        ),
+        "command_origin": (
+            "    if (!st_hal_started) {\n"
+            f"        st_hal_origin = (int64_t)counts({master});\n"
+            "        st_hal_started = 1;\n"
+            "    }\n"
+        ),
+        "command_ref": (
+            f"(int64_t)(command * {_c_double(float(position_scale))} "
+            f"+ (command < 0.0 ? -0.5 : 0.5)) - st_hal_origin"
+        ),
+    }
 
 
 def to_file(tuning: Tuning, path: str | Path, **options: Any) -> None:

@@ -23,7 +23,15 @@ from pathlib import Path
 
 from servotune.errors import HalError
 
-__all__ = ["HalPin", "HalSession", "Halcmd", "parse_pins", "parse_threads", "read_session"]
+__all__ = [
+    "HalPin",
+    "HalSession",
+    "Halcmd",
+    "parse_pins",
+    "parse_thread_functions",
+    "parse_threads",
+    "read_session",
+]
 
 PIN_TYPES = ("bit", "float", "s32", "u32", "s64", "u64", "port")
 PIN_DIRS = ("IN", "OUT", "I/O")
@@ -66,6 +74,25 @@ def parse_threads(text: str) -> dict[str, int]:
         f = line.split()
         if len(f) >= 3 and f[0].isdigit() and f[1] in ("YES", "NO"):
             threads[f[2]] = int(f[0])
+    return threads
+
+
+def parse_thread_functions(text: str) -> dict[str, list[str]]:
+    """The functions of each thread of ``halcmd show thread`` output, in the order the thread
+    runs them: name → function names. Both of its forms: ``halcmd -s`` prints a thread on one
+    line (period, FP, name, time, max time, the functions), plain ``halcmd`` the functions on
+    numbered lines below the thread's (whose times are in parentheses)."""
+    threads: dict[str, list[str]] = {}
+    current: list[str] | None = None
+    for line in text.splitlines():
+        f = line.split()
+        if len(f) >= 3 and f[0].isdigit() and f[1] in ("YES", "NO"):
+            current = threads.setdefault(f[2], [])
+            if len(f) >= 5 and f[3] != "(":  # the one-line form
+                current.extend(f[5:])
+                current = None
+        elif current is not None and len(f) == 2 and f[0].isdigit():
+            current.append(f[1])
     return threads
 
 

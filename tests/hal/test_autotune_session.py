@@ -17,7 +17,7 @@ import pytest
 from servotune.autotune import check_session, load_autotune_config
 from servotune.errors import ConfigError
 from servotune.examples import EXAMPLES_DIR
-from servotune.io.halcmd import HalSession, parse_pins, parse_threads
+from servotune.io.halcmd import HalSession, parse_pins, parse_thread_functions, parse_threads
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # the shared HAL harness
 import halrun
@@ -68,6 +68,13 @@ def test_the_example_config_fits_the_session(session: HalSession) -> None:
         ('enable_pin = "pid.0.enable"', 'enable_pin = "pid.0.output"', "is a float OUT pin; it"),
         ('output_pin = "pid.0.output"', 'output_pin = "pid.0.command"', "must be a float OUT"),
         ('thread = "servo-thread"', 'thread = "base-thread"', "hal.thread 'base-thread'"),
+        (
+            '# counts_pin = "encoder.0.rawcounts"',
+            'counts_pin = "encoder.0.position"',
+            "hal.counts_pin 'encoder.0.position' (the raw encoder count) is a float OUT pin; it "
+            "must be a s32 OUT pin",
+        ),
+        ('# counts_pin = "encoder.0.rawcounts"', 'counts_pin = "enc.9"', "not a pin of the"),
     ],
 )
 def test_a_config_that_does_not_fit_the_session_is_one_line(
@@ -83,6 +90,49 @@ def test_a_config_that_does_not_fit_the_session_is_one_line(
         check_session(load_autotune_config(p), session)
     msg = str(e.value)
     assert words in msg and "\n" not in msg, msg
+
+
+def test_the_component_target_fits_the_session_with_the_raw_count(
+    session: HalSession, tmp_path: Path
+) -> None:
+    text = CONFIG.read_text()
+    for name in ("pc-dual-servo.toml", "pc-dual-servo.spec.toml"):
+        (tmp_path / name).write_bytes((EXAMPLES_DIR / name).read_bytes())
+    p = tmp_path / "at.toml"
+    text = text.replace('target = "pid"', 'target = "component"')
+    p.write_text(
+        text.replace('# counts_pin = "encoder.0.rawcounts"', 'counts_pin = "encoder.0.rawcounts"')
+    )
+    cfg = load_autotune_config(p)
+    assert cfg.target == "component" and cfg.hal.counts_pin == "encoder.0.rawcounts"
+    check_session(cfg, session)
+
+
+def test_the_thread_functions_are_read_in_their_order(tmp_path: Path) -> None:
+    """Where the component target places the runtime (before the guard) is read from
+    ``show thread``: the functions in the order a thread runs them, positions as ``addf``
+    gives them (1 first)."""
+    halrun.hal_available()
+    script = "\n".join(
+        [
+            "loadrt threads name1=servo-thread period1=4000000 name2=slow period2=8000000",
+            "loadrt pid num_chan=2",
+            "loadrt encoder num_chan=1",
+            "addf pid.1.do-pid-calcs servo-thread",
+            "addf encoder.update-counters slow",
+            "addf pid.0.do-pid-calcs servo-thread 1",  # inserted before the first
+            "loadusr -w halcmd -s show thread",  # the form servotune's halcmd reads
+            "show thread",
+        ]
+    )
+    res = halrun.run_hal(script + "\n", tmp_path, timeout=120.0)
+    expected = {
+        "servo-thread": ["pid.0.do-pid-calcs", "pid.1.do-pid-calcs"],
+        "slow": ["encoder.update-counters"],
+    }
+    one_line, plain = res.stdout.split("Realtime Threads", 1)
+    assert parse_thread_functions(one_line) == expected, res.stdout
+    assert parse_thread_functions(plain) == expected, res.stdout
 
 
 def test_a_thread_at_another_period_is_refused(tmp_path: Path) -> None:
