@@ -25,10 +25,12 @@ guard, :func:`servotune.export.hal_component.guard_component`) already between t
    (:func:`validation_move`) whose measured following error is compared with the prediction
    of the verified model (:func:`servotune.sim.linuxcnc_pid.simulate_pid_loop` on the fitted
    plant and the recorded command): a mismatch beyond :data:`TOLERANCE` restores the
-   previous parameters;
+   previous parameters; with ``target = "component"`` the verified runtime component is built,
+   loaded before the guard and switched in instead, held to the engine's run of its law
+   (:mod:`servotune.autotune_component`), and removed on a mismatch;
 6. **record** (``autotune.json``): every file's SHA-256 (capture, map, fitted rig, tuning,
-   verification record, pid file), the pins before and after, the wiring check's and the
-   validation's numbers.
+   verification record, pid file, the component's source), the pins before and after, the
+   wiring check's and the validation's numbers.
 
 The guard checks the envelope every servo period in the real-time thread; when it trips (its
 output held at 0 from that period), the run stops, restores the previous parameters, and says
@@ -749,10 +751,11 @@ RECORDED_FILES = (
 
 
 def _digests(out: Path, cfg: AutotuneConfig) -> dict[str, str]:
+    names = list(RECORDED_FILES)
+    if cfg.target == "component":
+        names.append(f"{cfg.component}.comp")
     return {
-        name: bytes_sha256((out / name).read_bytes())
-        for name in (*RECORDED_FILES, *([f"{cfg.component}.comp"] * (cfg.target == "component")))
-        if (out / name).exists()
+        name: bytes_sha256((out / name).read_bytes()) for name in names if (out / name).exists()
     }
 
 
