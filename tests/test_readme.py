@@ -33,6 +33,7 @@ the README explains), the two ``verify`` runs and the start-up of some twenty pr
 
 from __future__ import annotations
 
+import contextlib
 import doctest
 import itertools
 import os
@@ -48,6 +49,9 @@ from pathlib import Path
 import pytest
 
 from servotune.examples import EXAMPLES_DIR
+
+sys.path.insert(0, str(Path(__file__).resolve().parent / "hal"))  # the shared HAL harness
+import halrun
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
@@ -183,16 +187,20 @@ def _env() -> dict[str, str]:
 
 
 def run_command(cmd: Command, workspace: Path, env: dict[str, str]) -> str:
-    """Run one README command as the user's shell would; fail the test unless it does as shown."""
-    res = subprocess.run(
-        ["bash", "-e", "-o", "pipefail", "-c", cmd.text],
-        cwd=workspace,
-        env=env,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-        timeout=COMMAND_TIMEOUT_S,
-    )
+    """Run one README command as the user's shell would; fail the test unless it does as shown.
+    ``autotune`` reads a running HAL session where there is one: it runs while no real-HAL
+    test of another worker holds one (their lock, tests/hal/halrun.py)."""
+    hal = halrun.hal_lock() if "servotune autotune" in cmd.text else contextlib.nullcontext()
+    with hal:
+        res = subprocess.run(
+            ["bash", "-e", "-o", "pipefail", "-c", cmd.text],
+            cwd=workspace,
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            timeout=COMMAND_TIMEOUT_S,
+        )
     assert res.returncode == 0, (
         f"README.md:{cmd.line}: `{cmd.text}` exited {res.returncode}:\n{res.stdout}"
     )
