@@ -734,6 +734,48 @@ def bench_one_axis(opts: Options) -> list[Figure]:
     ]
 
 
+FILTER_STAGES = (
+    ("notch", 35.0, 10.0, -20.0),
+    ("notch", 60.0, 12.0, -15.0),
+    ("lowpass2", 90.0, 0.6),
+    ("notch", 20.0, 4.0, -10.0),
+)
+"""Four output filter sections (docs/runtime.md#filters-in-the-law) for the filter bench."""
+
+
+@register("filters")
+def bench_filters(opts: Options) -> list[Figure]:
+    """The one-axis loop with four output filter sections against the same loop without
+    (same inputs, same engine): the per-tick cost of the filters.
+
+    Returns
+    -------
+    list of Figure
+        ``engine_4_filters_us_per_tick``, ``filters_cost_ratio`` (goal <= 1.3).
+    """
+    from servotune.laws.filters import lowpass2, notch, realize
+
+    loop, inputs = one_axis_setup(opts)
+    period = loop.rig.period_s
+    secs = tuple(
+        realize(notch(*f[1:]) if f[0] == "notch" else lowpass2(*f[1:]), period)
+        for f in FILTER_STAGES
+    )
+    filtered = dataclasses.replace(
+        loop, controllers=(dataclasses.replace(loop.controllers[0], filters=secs),)
+    )
+    n = inputs.n_ticks
+    out = {}
+    for name, lp in (("plain", loop), ("filtered", filtered)):
+        _, times, _ = time_engine(lp, inputs, opts.sizes.engine_runs)
+        out[name] = statistics.median(times) / n * 1e6
+        progress(f"filters: {name} {out[name]:.4g} us/tick")
+    return [
+        Figure("engine_4_filters_us_per_tick", out["filtered"], "us/tick"),
+        Figure("filters_cost_ratio", out["filtered"] / out["plain"], "x", "goal <= 1.3"),
+    ]
+
+
 def candidate_plants(
     nominal: servotune.Plant, n: int, seed: int = CANDIDATE_SEED
 ) -> list[tuple[servotune.Plant]]:
@@ -1348,6 +1390,26 @@ def bench_frf(opts: Options) -> list[Figure]:
     ]
 
 
+def _time_tune(rig_path: Path, runs: int, what: str) -> list[float]:
+    import subprocess
+
+    exe = str(Path(sys.executable).parent / "servotune")
+    times = []
+    with tempfile.TemporaryDirectory() as d:
+        out = Path(d) / "tuning.json"
+        cmd = [exe, "tune", str(rig_path), "-o", str(out), "--no-current"]
+        subprocess.run(cmd, check=True, capture_output=True)  # warm the numba cache
+        first = out.read_bytes()
+        for i in range(runs):
+            t0 = time.perf_counter()
+            subprocess.run(cmd, check=True, capture_output=True)
+            times.append(time.perf_counter() - t0)
+            progress(f"{what}: run {i + 1}: {times[-1]:.2f} s")
+            if out.read_bytes() != first:
+                raise RuntimeError("servotune tune gave different bytes for the same seed")
+    return times
+
+
 @register("tune")
 def bench_tune(opts: Options) -> list[Figure]:
     """``servotune tune`` end to end on the example rig (default budget, fresh process).
@@ -1360,23 +1422,24 @@ def bench_tune(opts: Options) -> list[Figure]:
     list of Figure
         ``tune_example_rig_s``; goal under 60 s.
     """
-    import subprocess
-
-    exe = str(Path(sys.executable).parent / "servotune")
-    times = []
-    with tempfile.TemporaryDirectory() as d:
-        out = Path(d) / "tuning.json"
-        cmd = [exe, "tune", str(opts.rig_path), "-o", str(out), "--no-current"]
-        subprocess.run(cmd, check=True, capture_output=True)  # warm the numba cache
-        first = out.read_bytes()
-        for i in range(opts.sizes.fit_runs):
-            t0 = time.perf_counter()
-            subprocess.run(cmd, check=True, capture_output=True)
-            times.append(time.perf_counter() - t0)
-            progress(f"tune: run {i + 1}: {times[-1]:.2f} s")
-            if out.read_bytes() != first:
-                raise RuntimeError("servotune tune gave different bytes for the same seed")
+    times = _time_tune(opts.rig_path, opts.sizes.fit_runs, "tune")
     return [Figure("tune_example_rig_s", statistics.median(times), "s", "goal < 60 s")]
+
+
+@register("tune_filters")
+def bench_tune_filters(opts: Options) -> list[Figure]:
+    """``servotune tune`` on the resonant example rig (plants/belt-scale.toml), where it also
+    chooses the master's filters (four robust PI designs) before the slave's law.
+
+    Returns
+    -------
+    list of Figure
+        ``tune_resonant_rig_s``; goal under 60 s.
+    """
+    from servotune.examples import example_path
+
+    times = _time_tune(example_path("belt-scale.toml"), opts.sizes.fit_runs, "tune_filters")
+    return [Figure("tune_resonant_rig_s", statistics.median(times), "s", "goal < 60 s")]
 
 
 @register("demo")

@@ -110,6 +110,7 @@ RUNTIME = Path(servotune.export.__file__).resolve().parent / "runtime"
 PINNED = {
     "c/servotune_rt.c": RUNTIME / "servotune_rt.c",
     "c/servotune_rt.h": RUNTIME / "servotune_rt.h",
+    "c/servotune_filter.h": RUNTIME / "servotune_filter.h",
 }
 """Machine-independent products (the runtime's C sources: text, no arithmetic): byte for byte
 the package's runtime sources, which the C export copies unchanged."""

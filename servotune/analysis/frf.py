@@ -36,8 +36,11 @@ folds onto them and cannot be told apart.
 
 from __future__ import annotations
 
+import json
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -51,9 +54,11 @@ __all__ = [
     "OUTPUTS",
     "POOR_COHERENCE",
     "Frf",
+    "FrfSource",
     "estimate_frf",
     "find_period",
     "frf",
+    "read_frf",
 ]
 
 FRF_SCHEMA = "servotune.frf/1"
@@ -562,4 +567,81 @@ def frf(
         period_ticks=period_ticks,
         skip=skip,
         band_hz=band_hz,
+    )
+
+
+FrfSource = Frf | str | Path | Mapping[str, Any]
+"""An :class:`Frf`, a ``servotune frf`` JSON file's path, or its parsed content."""
+
+
+def read_frf(source: FrfSource) -> Frf:
+    """The :class:`Frf` of ``source``: itself, or read from a ``servotune frf`` JSON file
+    (docs/frf.md#file) or its content.
+
+    The file does not keep ``|Ȳ|`` of the excited lines (:attr:`Frf.output_level`): it is NaN
+    in what is read back; every figure the report draws is in the file.
+
+    Raises
+    ------
+    SpecError
+        Not a ``servotune.frf/1`` document (a CSV FRF, another schema, a missing field).
+    """
+    if isinstance(source, Frf):
+        return source
+    if isinstance(source, Mapping):
+        doc, where = source, "the FRF"
+    else:
+        where = str(source)
+        try:
+            doc = json.loads(Path(source).read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise SpecError(f"{where}: cannot read an FRF JSON file ({exc})") from None
+    if not isinstance(doc, Mapping) or doc.get("schema") != FRF_SCHEMA:
+        got = doc.get("schema") if isinstance(doc, Mapping) else type(doc).__name__
+        raise SpecError(
+            f"{where}: not a {FRF_SCHEMA} file (servotune frf -o FILE.json), got {got!r}"
+        )
+    try:
+        return _frf_from_doc(doc)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise SpecError(f"{where}: malformed {FRF_SCHEMA} file ({exc!r})") from None
+
+
+def _frf_from_doc(doc: Mapping[str, Any]) -> Frf:
+    lines = doc["lines"]
+    if not lines:
+        raise ValueError("no lines")
+
+    def col(key: str) -> np.ndarray:
+        return np.array([float(ln[key]) for ln in lines])
+
+    def levels(key: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        rows = doc.get(key) or []
+        hz, level, noise = (
+            np.array([float(r[k]) for r in rows]) for k in ("freq_hz", "level", "noise")
+        )
+        return hz, level, noise
+
+    odd, even = levels("odd_lines"), levels("even_lines")
+    return Frf(
+        freq_hz=col("freq_hz"),
+        response=col("re") + 1j * col("im"),
+        std=col("std"),
+        radius95=col("radius95"),
+        coherence=col("coherence"),
+        noise=col("noise"),
+        output_level=np.full(len(lines), math.nan),
+        aliased=np.array([bool(ln["aliased"]) for ln in lines]),
+        odd_hz=odd[0],
+        odd_level=odd[1],
+        odd_noise=odd[2],
+        even_hz=even[0],
+        even_level=even[1],
+        even_noise=even[2],
+        output=str(doc["output"]),
+        period_s=float(doc["period_s"]),
+        period_ticks=int(doc["period_ticks"]),
+        periods=int(doc["periods"]),
+        skipped=int(doc["skipped"]),
+        start_tick=int(doc.get("start_tick", 0)),
     )

@@ -47,6 +47,7 @@ from servotune._control import scipy_paths
 from servotune._numba_cache import jit
 from servotune.analysis.plant_cases import PlantCase, plant_response
 from servotune.errors import SpecError
+from servotune.laws.filters import SectionQ, chain_response
 from servotune.laws.fuzzy_pid import FuzzyPIDConstants
 from servotune.laws.pi import PIConstants
 from servotune.modal import discretize
@@ -69,11 +70,13 @@ __all__ = [
     "controller_basis",
     "controller_response",
     "controller_tf",
+    "filters_tf",
     "gain_sets",
     "grid_margins",
     "loop_margins",
     "loop_model",
     "margin_grid",
+    "mode_points",
     "tuning_margins",
     "unwrapped_phase",
 ]
@@ -177,11 +180,30 @@ def controller_tf(g: GainSet, period_s: float) -> control.TransferFunction:
     return c
 
 
+def filters_tf(sections: Sequence[SectionQ], period_s: float) -> control.TransferFunction | None:
+    """``F(z)``: the product of the quantised sections as they run (their realised
+    coefficients, whatever the period), ``dt = period_s``; None without sections."""
+    import control
+
+    out = None
+    for sec in sections:
+        b, a = sec.ba()
+        f = control.tf(b, a, period_s)
+        out = f if out is None else out * f
+    return out
+
+
 @scipy_paths
 def loop_model(
-    plant: Plant, g: GainSet, *, period_s: float, lag_s: float, lsb_volts: float
+    plant: Plant,
+    g: GainSet,
+    *,
+    period_s: float,
+    lag_s: float,
+    lsb_volts: float,
+    filters: Sequence[SectionQ] = (),
 ) -> control.StateSpace:
-    """The loop ``L(z) = C(z)·lsb·P(z)`` [counts per count] (module docstring).
+    """The loop ``L(z) = C(z)·F(z)·lsb·P(z)`` [counts per count] (module docstring).
 
     Parameters
     ----------
@@ -191,10 +213,15 @@ def loop_model(
         Achieved tick period [s]; total lag from the tick start to the motor input [s].
     lsb_volts : float
         D/A gain [V/code].
+    filters : sequence of SectionQ
+        The axis's output filters (``AxisController.filters``), in every loop of the axis.
     """
     import control
 
     p = discretize(plant, period_s, lag_s) * lsb_volts
+    f = filters_tf(filters, period_s)
+    if f is not None:
+        p = control.series(control.ss(f), p)
     return control.ss(control.series(controller_tf(g, period_s), p))
 
 
@@ -314,13 +341,30 @@ def grid_margins(
     return {"pm": out[..., 0], "gm": out[..., 1], "ms": out[..., 2], "wc_top": out[..., 3]}
 
 
+def mode_points(plant: Plant, top: float) -> np.ndarray:
+    """Frequencies around each of the plant's modes [rad/s], below ``top``: ±8 half-power
+    bandwidths of its resonance and of its anti-resonance in steps of 1/8 of one, so that a
+    lightly damped peak or dip is not missed between the points of a log grid."""
+    parts = [np.empty(0)]
+    for m in plant.modes:
+        for f in (m.freq_hz, m.antiresonance_hz):
+            w = 2.0 * math.pi * f
+            parts.append(w * (1.0 + m.damping * np.linspace(-8.0, 8.0, 129)))
+    w = np.concatenate(parts)
+    return w[(w > 0) & (w < top)]
+
+
 def margin_grid(plant: Plant, period_s: float) -> np.ndarray:
     """The frequency grid a loop's margins are measured on: :data:`GRID_POINTS` log-spaced,
-    from :data:`GRID_DECADES_BELOW` decades below the plant's corner (or Nyquist) to Nyquist."""
+    from :data:`GRID_DECADES_BELOW` decades below the plant's corner (or Nyquist) to Nyquist,
+    and the points around the plant's modes (:func:`mode_points`)."""
     nyq = math.pi / period_s
     top = nyq * (1.0 - 1e-9)  # below Nyquist however it is rounded: python-control takes it
     lo = min(1.0 / plant.tau_s, nyq) * 10.0**-GRID_DECADES_BELOW
-    return np.logspace(math.log10(lo), math.log10(top), GRID_POINTS)
+    w = np.logspace(math.log10(lo), math.log10(top), GRID_POINTS)
+    if plant.modes:
+        w = np.unique(np.concatenate([w, mode_points(plant, top)]))
+    return w
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -492,10 +536,18 @@ class Margins:
         Rig axis order; per axis the lock loop, then the task loop (each cell, row ``E`` then
         column ``EC``); per loop every plant.
     limits : MarginLimits
+    filters : tuple of FilterEffect
+        What each filtered axis's filters do (:func:`servotune.analysis.filter_effect.
+        filter_effects`), where the caller added it (``servotune margins``).
+    measured : tuple of FrfLoop
+        The loops on measured responses (:func:`servotune.analysis.frf_margins.frf_loops`),
+        where the caller added them (``servotune margins --frf``); judged by the limits too.
     """
 
     loops: tuple[LoopMargins, ...]
     limits: MarginLimits = field(default=DEFAULT_LIMITS)
+    filters: tuple[Any, ...] = ()
+    measured: tuple[Any, ...] = ()
 
     def select(self, axis: str | None = None, loop: str | None = None) -> Iterator[LoopMargins]:
         """The loops of ``axis`` (and kind ``loop``), all if None."""
@@ -516,8 +568,10 @@ class Margins:
 
     @property
     def passed(self) -> bool:
-        """Every loop meets every limit."""
-        return not self.failures()
+        """Every loop meets every limit (the measured ones with the filters in too)."""
+        return not self.failures() and not any(
+            m.broken(self.limits) for m in self.measured if m.filtered
+        )
 
     def cell_grid(self, axis: str, attr: str, plant: str = "nominal") -> np.ndarray:
         """``attr`` of a scheduled axis's task loop on ``plant`` over the table, shape
@@ -543,7 +597,10 @@ class Margins:
                 {"loop": m.name, "plant": m.plant, "broken": list(b)} for m, b in self.failures()
             ],
             "loops": [m.to_dict() for m in self.loops],
-        }
+        } | (
+            ({"filters": [f.to_dict() for f in self.filters]} if self.filters else {})
+            | ({"measured": [m.to_dict() for m in self.measured]} if self.measured else {})
+        )
 
 
 def gain_sets(
@@ -587,9 +644,12 @@ def _margins_of(
     plant: Plant,
     rig: Rig,
     case: PlantCase,
+    filters: Sequence[SectionQ] = (),
 ) -> LoopMargins:
     lag = rig.timer.compute_s + plant.delay_s + case.extra_lag_s
-    model = loop_model(plant, g, period_s=case.period_s, lag_s=lag, lsb_volts=rig.dac.lsb_v)
+    model = loop_model(
+        plant, g, period_s=case.period_s, lag_s=lag, lsb_volts=rig.dac.lsb_v, filters=filters
+    )
     figures = loop_margins(model, margin_grid(plant, case.period_s))
     return LoopMargins(
         axis=axis,
@@ -653,7 +713,9 @@ def tuning_margins(
         memo: dict[GainSet, LoopMargins] = {}
         for loop, cell, g in sets if every_loop else ():
             if g not in memo:
-                memo[g] = _margins_of(name, loop, cell, g, nominal.plants[a], rig, nominal)
+                memo[g] = _margins_of(
+                    name, loop, cell, g, nominal.plants[a], rig, nominal, ctrl.filters
+                )
             out.append(replace(memo[g], loop=loop, cell=cell))
         if not others:
             continue
@@ -669,6 +731,7 @@ def tuning_margins(
                 plant = case.plants[a]
                 w = margin_grid(plant, case.period_s)
                 gr = plant_response(plant, rig, case, w)[None, :]
+                gr = gr * chain_response(ctrl.filters, w, case.period_s)[None, :]
                 m = grid_margins(
                     w, gains, controller_basis(w, case.period_s), gr, unwrapped_phase(gr)
                 )
@@ -679,7 +742,16 @@ def tuning_margins(
             for ci, u in found:
                 cell = next(cell for cell, g in kind_sets if g == uniq[u])
                 worst.append(
-                    _margins_of(name, kind, cell, uniq[u], others[ci].plants[a], rig, others[ci])
+                    _margins_of(
+                        name,
+                        kind,
+                        cell,
+                        uniq[u],
+                        others[ci].plants[a],
+                        rig,
+                        others[ci],
+                        ctrl.filters,
+                    )
                 )
     return Margins(loops=tuple(out + worst), limits=limits)
 

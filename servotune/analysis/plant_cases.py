@@ -14,11 +14,25 @@ import numpy as np
 
 from servotune.modal import discretize
 from servotune.plant import Plant
+from servotune.resonance import Mode
 
 if TYPE_CHECKING:
     from servotune.rig import Rig
 
-__all__ = ["PlantCase", "plant_cases", "plant_response", "spread_factors"]
+__all__ = [
+    "MODE_FREQ_SPREAD",
+    "PlantCase",
+    "damping_range",
+    "mode_factors",
+    "modes_at",
+    "plant_cases",
+    "plant_response",
+    "spread_factors",
+]
+
+MODE_FREQ_SPREAD = 0.1
+"""Each mode's frequency is judged over the wider of its 95 % interval and this relative spread
+(±10 %): a resonance moves with the load, the belt's tension and the temperature."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -59,6 +73,58 @@ def spread_factors(plant: Plant, fit: Any, key: str, spread: float) -> tuple[flo
     return max(lo, 1e-3), hi
 
 
+def mode_factors(mode: Mode, spread: float = MODE_FREQ_SPREAD) -> tuple[float, float]:
+    """Low and high factor on a mode's frequency: the wider of its 95 % interval and
+    ``± spread``.
+
+    >>> mode_factors(Mode(freq_hz=50.0, damping=0.05, gain=0.5, freq_hz_95=(44.0, 52.0)))
+    (0.88, 1.1)
+    """
+    lo, hi = 1.0 - spread, 1.0 + spread
+    if mode.freq_hz_95 is not None:
+        lo = min(lo, mode.freq_hz_95[0] / mode.freq_hz)
+        hi = max(hi, mode.freq_hz_95[1] / mode.freq_hz)
+    return max(lo, 1e-3), hi
+
+
+def modes_at(
+    plant: Plant, factors: Sequence[float], dampings: Sequence[float] | None = None
+) -> Plant:
+    """``plant`` with its mode ``i``'s frequency times ``factors[i]`` (and its damping
+    ``dampings[i]`` where given)."""
+    modes = tuple(
+        replace(
+            m,
+            freq_hz=m.freq_hz * k,
+            damping=m.damping if dampings is None else dampings[i],
+        )
+        for i, (m, k) in enumerate(zip(plant.modes, factors, strict=True))
+    )
+    return replace(plant, modes=modes)
+
+
+def damping_range(mode: Mode) -> tuple[float, float]:
+    """The mode's damping interval (its 95 % interval kept inside (0, 1)), or its value."""
+    if mode.damping_95 is None:
+        return mode.damping, mode.damping
+    lo, hi = mode.damping_95
+    return min(max(lo, 1e-4), mode.damping), max(min(hi, 0.99), mode.damping)
+
+
+def _mode_corners(rig: Rig) -> list[tuple[str, tuple[Plant, ...]]]:
+    """Every axis's modes at the low and at the high end of their frequency range
+    (:func:`mode_factors`), each at the low end of its damping interval where it has one."""
+    out = []
+    for end, label in ((0, "modes-"), (1, "modes+")):
+        plants = []
+        for a in rig.axes:
+            ks = [mode_factors(m)[end] for m in a.plant.modes]
+            zs = [damping_range(m)[0] for m in a.plant.modes]
+            plants.append(modes_at(a.plant, ks, zs))
+        out.append((label, tuple(plants)))
+    return out
+
+
 def plant_cases(
     rig: Rig,
     *,
@@ -79,8 +145,12 @@ def plant_cases(
     gain and tau, the latency in [0, ``extra_ticks``] ticks and the period error, uniformly and
     independently; labelled ``sample<i>``): a loop's margins need not be worst at a corner.
     ``measured`` plant sets (e.g. a fleet's machines) are cases as the corners are (each
-    also late and at the period's ends). Friction, offset and noise do not enter a linear
-    loop's margins.
+    also late and at the period's ends). A rig whose plants have modes adds two corners: every
+    mode at the low and at the high end of its frequency range (the wider of its 95 % interval
+    and ±:data:`MODE_FREQ_SPREAD`), each at the low end of its damping interval; its samples
+    also draw each mode's frequency (and damping, inside its interval) from a stream of their
+    own, so the draws of a rig without modes are as before. Friction, offset and noise do not
+    enter a linear loop's margins.
 
     Parameters
     ----------
@@ -121,6 +191,8 @@ def plant_cases(
                     plants.append(replace(a.plant, **changes))
                 label = f"gain{'-+'[sg > 0]},tau{'-+'[st_ > 0]}"
                 corners.append((label, tuple(plants)))
+    if any(a.plant.modes for a in rig.axes):
+        corners += _mode_corners(rig)
     corners += [(label, tuple(plants)) for label, plants in measured]
     lags = [(0.0, "")] + (
         [(extra_ticks * rig.period_s, f"+{extra_ticks}tick")] if extra_ticks > 0 else []
@@ -143,6 +215,7 @@ def plant_cases(
         for per, pt in periods
     ]
     rng = np.random.default_rng([seed, 0x6D617267])  # a stream of its own ("marg")
+    mode_rng = np.random.default_rng([seed, 0x6D6F6465])  # the modes' own ("mode")
     for i in range(samples):
         plants = []
         for a in rig.axes:
@@ -152,12 +225,22 @@ def plant_cases(
             if a.plant.gain_neg_cps_per_v is not None:
                 changes["gain_neg_cps_per_v"] = a.plant.gain_neg_cps_per_v * g
             plants.append(replace(a.plant, **changes))
+        if any(a.plant.modes for a in rig.axes):
+            plants = [_drawn_modes(p, mode_rng) for p in plants]
         lag = rng.uniform(0.0, extra_ticks * rig.period_s)
         per = rig.period_s * (1.0 + rng.uniform(-1.0, 1.0) * period_error_ppm * 1e-6)
         cases.append(
             PlantCase(label=f"sample{i}", plants=tuple(plants), extra_lag_s=lag, period_s=per)
         )
     return tuple(cases)
+
+
+def _drawn_modes(plant: Plant, rng: np.random.Generator) -> Plant:
+    """``plant`` with each mode's frequency drawn in its range (:func:`mode_factors`) and its
+    damping in its 95 % interval (kept where it has none)."""
+    ks = [rng.uniform(*mode_factors(m)) for m in plant.modes]
+    zs = [rng.uniform(*damping_range(m)) for m in plant.modes]
+    return modes_at(plant, ks, zs)
 
 
 def plant_response(plant: Plant, rig: Rig, case: PlantCase, w: np.ndarray) -> np.ndarray:

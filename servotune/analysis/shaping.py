@@ -14,11 +14,13 @@ the shaper for them.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
 from servotune.analysis.margins import GainSet, loop_model
 from servotune.errors import SpecError
+from servotune.laws.filters import SectionQ
 from servotune.laws.pi import PIGains
 from servotune.laws.shaping import Shaper, choose_shaper, shape_reference, shaper_for_modes
 from servotune.plant import Plant
@@ -27,15 +29,29 @@ from servotune.rig import Rig
 from servotune.scenarios import Scenario
 from servotune.tuning import Tuning
 
-__all__ = ["axis_shaper", "closed_loop_modes", "format_shaper", "shape_scenario", "task_gains"]
+__all__ = [
+    "axis_shaper",
+    "closed_loop_modes",
+    "format_shaper",
+    "shape_scenario",
+    "task_filters",
+    "task_gains",
+]
 
 
 def closed_loop_modes(
-    plant: Plant, gains: PIGains, *, period_s: float, lag_s: float, lsb_volts: float
+    plant: Plant,
+    gains: PIGains,
+    *,
+    period_s: float,
+    lag_s: float,
+    lsb_volts: float,
+    filters: Sequence[SectionQ] = (),
 ) -> list[Mode]:
     """The closed loop's pole pair nearest each of the plant's modes, as modes (frequency and
     damping of ``s = ln(z) / T``; the plant mode's gain and intervals, the intervals scaled by
-    the frequency's shift).
+    the frequency's shift). The loop includes the axis's output ``filters``: a notch on the mode
+    moves (and damps) the pole the reference excites.
 
     Raises
     ------
@@ -50,6 +66,7 @@ def closed_loop_modes(
         period_s=period_s,
         lag_s=lag_s,
         lsb_volts=lsb_volts,
+        filters=filters,
     )
     z = np.asarray(control.feedback(loop, 1).poles(), dtype=complex)
     if np.any(np.abs(z) >= 1.0):
@@ -77,9 +94,14 @@ def closed_loop_modes(
 
 
 def axis_shaper(
-    rig: Rig, axis: str, gains: PIGains, kind: str = "auto"
+    rig: Rig,
+    axis: str,
+    gains: PIGains,
+    kind: str = "auto",
+    filters: Sequence[SectionQ] | None = None,
 ) -> tuple[Shaper, list[Mode], list[str]]:
-    """An input shaper for ``axis`` running the PI ``gains`` (task mode), designed for its
+    """An input shaper for ``axis`` running the PI ``gains`` (task mode) behind its output
+    ``filters`` (None: the rig's, :meth:`~servotune.rig.Rig.runtime_filters`), designed for its
     closed loop's modes (:func:`closed_loop_modes`) at the rig's achieved tick:
     :func:`~servotune.laws.shaping.choose_shaper` for ``"auto"``, else ``kind`` for every mode.
 
@@ -99,12 +121,15 @@ def axis_shaper(
             f"axis {axis!r} has no modes to shape for; give its plant "
             "[[axis.X.plant.modes]] (docs/formats.md#modes) or fit them (servotune fit --modes)"
         )
+    if filters is None:
+        filters = rig.runtime_filters(rig.axis_names.index(axis))
     modes = closed_loop_modes(
         ax.plant,
         gains,
         period_s=rig.period_s,
         lag_s=rig.timer.compute_s + ax.plant.delay_s,
         lsb_volts=rig.dac.lsb_v,
+        filters=filters,
     )
     if kind == "auto":
         sh, why = choose_shaper(modes, rig.period_s)
@@ -120,12 +145,16 @@ def axis_shaper(
 
 
 def shape_scenario(
-    rig: Rig, scenario: Scenario, gains: PIGains, kind: str = "auto"
+    rig: Rig,
+    scenario: Scenario,
+    gains: PIGains,
+    kind: str = "auto",
+    filters: Sequence[SectionQ] | None = None,
 ) -> tuple[Scenario, list[str]]:
     """The scenario with its axis's task reference shaped (:func:`axis_shaper`,
     :func:`~servotune.laws.shaping.shape_reference`); the shaped move ends ``n_taps − 1``
     ticks later, within the scenario's length."""
-    sh, _, why = axis_shaper(rig, scenario.axis, gains, kind)
+    sh, _, why = axis_shaper(rig, scenario.axis, gains, kind, filters)
     i = rig.axis_names.index(scenario.axis)
     ref = shape_reference(scenario.inputs.ref_counts[:, i], sh)
     inputs = scenario.inputs.replace_axis(i, ref_counts=ref)
@@ -157,6 +186,11 @@ def task_gains(tuning: Tuning, rig: Rig, axis: str) -> PIGains:
     if task is None:
         raise SpecError(f"axis {axis!r} has no task law in the tuning: it only locks")
     return PIGains(kp=task.kp.value, ki=task.ki_t.value / tuning.period_s)
+
+
+def task_filters(tuning: Tuning, axis: str) -> tuple[SectionQ, ...]:
+    """The output filters ``axis`` runs under ``tuning`` (its controller's, quantised)."""
+    return tuning.controllers[tuning.axis_names.index(axis)].filters
 
 
 def format_shaper(axis: str, shaper: Shaper, why: list[str]) -> str:

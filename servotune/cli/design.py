@@ -83,6 +83,8 @@ def cmd_tune(args: argparse.Namespace) -> int:
             f"{args.rig} is a linkage config: plan it with `servotune plan {args.rig}`"
         )
     if kind == "gantry":
+        if args.frf:
+            raise ServotuneError("--frf is for a rig file: a gantry config's tune does not take it")
         return _tune_gantry(args, current)
     from servotune.rig import load_rig
 
@@ -96,6 +98,9 @@ def cmd_tune(args: argparse.Namespace) -> int:
     given = {k: getattr(args, k) for k in limits if getattr(args, k) is not None}
     budget = {"generations": args.generations, "population": args.population}
     rig = load_rig(args.rig)  # a bad rig is one line, before any progress
+    frf = frf_files(args.frf)
+    for axis in frf:
+        rig.axis(axis)
     spec = None
     if args.spec:  # a spec costs the verifier's imports: read and checked before progress too
         from servotune.tune.slave import tune_spec_from
@@ -112,7 +117,12 @@ def cmd_tune(args: argparse.Namespace) -> int:
     if spec is None:
         spec = tune_spec_from(None, rig=rig, **budget, **given)
     tuning = tune_rig(
-        args.rig, seed=args.seed, spec=spec, rule_base=args.rule_base, progress=progress_line
+        args.rig,
+        seed=args.seed,
+        spec=spec,
+        rule_base=args.rule_base,
+        progress=progress_line,
+        frf=frf,
     )
     summary = tuning_summary(tuning)
     print_summary(args.json, summary, lambda: format_tuning_summary(summary))
@@ -275,10 +285,15 @@ def _frf_args(pairs: list[str] | None, report: str | None) -> dict[str, Any] | N
         return None
     if not report:
         raise ServotuneError("--frf draws into the report: give --report DIR too")
-    from servotune.report.resonance import read_frf
+    return frf_files(pairs)
+
+
+def frf_files(pairs: list[str] | None) -> dict[str, Any]:
+    """``--frf AXIS=FILE`` options read into ``{axis: Frf}`` (empty if none given)."""
+    from servotune.analysis.frf import read_frf
 
     out: dict[str, Any] = {}
-    for pair in pairs:
+    for pair in pairs or ():
         axis, sep, file = pair.partition("=")
         if not sep or not axis or not file:
             raise ServotuneError(f"--frf needs AXIS=FILE (e.g. master=frf.json), got {pair!r}")
@@ -293,6 +308,6 @@ def cmd_margins(args: argparse.Namespace) -> int:
     limits = MarginLimits(
         min_phase_margin_deg=args.pm, min_gain_margin_db=args.gm, max_sensitivity=args.ms
     )
-    m = margins_files(args.tuning, args.rig, limits=limits)
+    m = margins_files(args.tuning, args.rig, limits=limits, frf=frf_files(args.frf))
     print_product(args.json, m.to_dict, lambda: format_margins(m))
     return EXIT_OK if m.passed else EXIT_FAILED

@@ -90,14 +90,16 @@ def cmd_shaper(args: argparse.Namespace) -> int:
     check_outputs(args.hal_output, inputs=(args.rig,))
     rig = load_rig(args.rig)
     axis = args.axis or next(a.name for a in rig.axes if a.role == "master")
+    filters = None  # the rig's
     if args.tuning:
-        from servotune.analysis.shaping import task_gains
+        from servotune.analysis.shaping import task_filters, task_gains
         from servotune.tuning import read_tuning
 
-        gains = task_gains(read_tuning(args.tuning), rig, axis)
+        tuning = read_tuning(args.tuning)
+        gains, filters = task_gains(tuning, rig, axis), task_filters(tuning, axis)
     else:
         gains = default_pi_gains(rig)[rig.axis_names.index(axis)]
-    shaper, _, why = axis_shaper(rig, axis, gains, args.kind)
+    shaper, _, why = axis_shaper(rig, axis, gains, args.kind, filters)
     print_product(
         args.json,
         lambda: {"axis": axis, **shaper.to_dict(), "why": why},

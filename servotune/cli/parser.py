@@ -412,6 +412,14 @@ def _add_tune(sub: Any) -> None:
         "held out); flags given here win",
     )
     s.add_argument(
+        "--frf",
+        action="append",
+        metavar="AXIS=FILE",
+        help="an axis's measured frequency response (servotune frf -o FILE.json): its filters "
+        "and every loop must also keep the margin limits on it and its 95 %% bounds (repeat "
+        "for more axes)",
+    )
+    s.add_argument(
         "--json",
         action="store_true",
         help="the summary (gains, margins) as JSON on stdout (needs -o)",
@@ -520,6 +528,14 @@ def _add_margins(sub: Any) -> None:
     s.add_argument("--pm", type=float, default=45.0, help="least phase margin [deg] (default 45)")
     s.add_argument("--gm", type=float, default=6.0, help="least gain margin [dB] (default 6)")
     s.add_argument("--ms", type=float, default=2.0, help="largest peak sensitivity (default 2.0)")
+    s.add_argument(
+        "--frf",
+        action="append",
+        metavar="AXIS=FILE",
+        help="an axis's measured frequency response (servotune frf -o FILE.json): every loop "
+        "also on it and its 95 %% bounds, with and without the axis's filters, with 0 and 1 "
+        "extra tick (repeat for more axes)",
+    )
     s.add_argument("--json", action="store_true", help="every loop's figures as JSON on stdout")
 
 

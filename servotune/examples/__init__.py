@@ -1,9 +1,11 @@
 """The example files that ship inside the package, and ``servotune init``, which copies them out.
 
-The example rig (``pc-dual-servo.toml``) and its belt-driven variant (``belt-axis.toml``: the
-master's plant with a 35 Hz mode), the gantry and the six-axis linkage configs, a spec for each,
-a LinuxCNC capture's map (``linuxcnc-map.toml``, read by ``servotune fit --map``) and an
-autotune config (``linuxcnc-autotune.toml``, read by ``servotune autotune``).
+The example rig (``pc-dual-servo.toml``), its belt-driven variant (``belt-axis.toml``: the
+master's plant with a 35 Hz mode) and that variant read by a linear scale on the carriage
+(``belt-scale.toml``: a 15 Hz mode seen non-collocated, where the tuner places a notch), the
+gantry and the six-axis linkage configs, a spec for each, a LinuxCNC capture's map
+(``linuxcnc-map.toml``, read by ``servotune fit --map``) and an autotune config
+(``linuxcnc-autotune.toml``, read by ``servotune autotune``).
 The repository's ``plants/`` holds the same files, byte for byte, all but the two LinuxCNC
 files (``tests/test_examples.py``); the library reads only these copies, so an installed wheel works
 without a checkout. :func:`write_examples` writes them into a directory: ``servotune init DIR``

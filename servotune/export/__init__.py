@@ -3,14 +3,14 @@ export format, all of one shape: ``to_string(obj, **options)`` and ``to_file(obj
 **options)``, listed in :data:`~servotune.export.formats.FORMATS`, which
 ``export-table --format`` reads (:mod:`servotune.export.formats`):
 
-- ``json``, :mod:`servotune.export.json`: the ``servotune.tables/2`` document of a rig's tuning
+- ``json``, :mod:`servotune.export.json`: the ``servotune.tables/3`` document of a rig's tuning
   (also ``load_tables``, which checks every CRC), the ``servotune.gantry-tables/1`` and
   ``servotune.linkage-export/1`` documents (:mod:`servotune.export.gantry`,
   :mod:`servotune.export.linkage`);
 - ``c``, :mod:`servotune.export.c`: a directory of the generated header (``servotune_tables.h``
   and its gantry and linkage counterparts) and the reference runtime's sources;
 - ``linuxcnc-hal``, :mod:`servotune.export.linuxcnc`: a HAL file of the stock ``pid``'s
-  parameters;
+  parameters (and the master's output filters as stock ``biquad`` instances);
 - ``linuxcnc-comp``, :mod:`servotune.export.hal_component`: a realtime HAL component running
   the runtime.
 

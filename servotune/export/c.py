@@ -16,12 +16,15 @@ A rig's tuning:
   CRCs as the JSON export, :func:`servotune.export.json.tables_document`): include guard,
   ``<stdint.h>`` types, the schema version, per axis every constant as an int32 ``q`` and its
   fraction bits ``f``, the query tables as ``static const int16_t`` arrays (row ``E``, column
-  ``EC``), the CRCs as ``uint32_t`` constants, ``SERVOTUNE_TABLES_INIT``, an initialiser
-  of the runtime's ``st_consts_t``, and the SHA-256 of those compiled-in constants in the C
-  layout (:mod:`servotune.export.layout`, the JSON's ``data.c_layout_sha256``):
+  ``EC``), the output filter sections (``ST_<AXIS>_N_FILTERS``, ``ST_<AXIS>_FILT<k>_B0`` …
+  ``_FRAC_BITS``; docs/runtime.md#filters-in-the-law), the CRCs as ``uint32_t`` constants,
+  ``SERVOTUNE_TABLES_INIT``, an initialiser of the runtime's ``st_consts_t``, and the SHA-256
+  of those compiled-in constants in the C layout (:mod:`servotune.export.layout`, the JSON's
+  ``data.c_layout_sha256``):
   ``ST_TABLES_SHA256`` (hex string), ``ST_TABLES_SHA256_BYTES`` (a 32-byte initialiser) and
   ``st_tables_sha256``, the array the runtime's ``st_check_digest`` compares with;
-- ``servotune_rt.c`` / ``servotune_rt.h``: the reference runtime (C99, integer only, no I/O),
+- ``servotune_rt.c`` / ``servotune_rt.h`` and ``servotune_filter.h`` (the filter section's
+  step, which ``servotune_rt.h`` includes): the reference runtime (C99, integer only, no I/O),
   copied from the package data. It mirrors the Python laws line by line, so it produces the
   simulator's D/A codes bit for bit.
 
@@ -81,8 +84,9 @@ __all__ = [
 ]
 
 HEADER_NAME = "servotune_tables.h"
-RUNTIME_FILES = ("servotune_rt.c", "servotune_rt.h")
-"""The reference runtime's sources (package data of ``servotune.export``)."""
+RUNTIME_FILES = ("servotune_rt.c", "servotune_rt.h", "servotune_filter.h")
+"""The reference runtime's sources (package data of ``servotune.export``); its header includes
+the filter section's (:data:`FILTER_RUNTIME_FILES`)."""
 GANTRY_RUNTIME_FILES = ("servotune_gantry.c", "servotune_gantry.h")
 """The gantry runtime's sources, on top of :data:`RUNTIME_FILES`
 (:mod:`servotune.export.gantry`)."""
@@ -151,8 +155,10 @@ def _header(doc: Mapping[str, Any]) -> str:
         " * (n_axes, 0), (timer_divisor, 0), then per axis (law, 0), (lock_q, lock_f),",
         " * (kp_q, kp_f), (kit_q, kit_f), (fe_limit, 0), (counter_bits, 0), (dac_zero, 0),",
         " * (dac_max, 0), (kdt_q, kdt_f), (k1t_q, k1t_f), (ke_q, ke_f), (kec_q, kec_f), (n, 0),",
-        " * (ref_source, 0), as little-endian int32 q, int16 f. Table CRCs (st_table_crc32):",
-        " * int16 n, int16 f, then the int16 entries row-major, little-endian.",
+        " * (ref_source, 0), (n_filters, 0), then for each of the ST_MAX_FILTERS filter slots",
+        " * (b0, frac_bits), (b1, frac_bits), (b2, frac_bits), (a1, frac_bits), (a2, frac_bits)",
+        " * (an unused slot (0, 0) x 5), as little-endian int32 q, int16 f. Table CRCs",
+        " * (st_table_crc32): int16 n, int16 f, then the int16 entries row-major, little-endian.",
         " * ST_TABLES_SHA256 is the SHA-256 of the C layout: the constants CRC's bytes, then for",
         " * each fuzzy-PID axis in order its kp, ki, kd, k1 tables' CRC bytes. At start-up:",
         " *     if (st_check_digest(&consts, st_tables_sha256) != 0) halt();",

@@ -1,13 +1,13 @@
 """The pieces of a generated C header, shared by every C export (:mod:`servotune.export.c`
 renders the rig's, gantry's and linkage's headers with them): C identifiers from names, int32
-literals, text safe in a comment, one axis's constants and query tables as macros with its
-``st_axis_consts_t`` initialiser, and a SHA-256 as a byte array.
+literals, text safe in a comment, one axis's constants, query tables and output filters as macros
+with its ``st_axis_consts_t`` initialiser, and a SHA-256 as a byte array.
 """
 
 from __future__ import annotations
 
 import re
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from servotune.errors import ExportError
@@ -107,6 +107,35 @@ def axis_lines(ax: Mapping[str, Any], ident: str) -> tuple[list[str], list[str]]
         tab = ", ".join(f"st_{ident}_tab_{t}" for t in tables)
         init.append(f".tf = {{{tf}}}")
         init.append(f".tab = {{{tab}}}")
+    if "filters" in ax:  # a tables document's axis (a gantry drive has none)
+        filter_lines, filter_init = _filter_lines(ax["filters"], up)
+        lines.extend(filter_lines)
+        init.extend(filter_init)
+    return lines, init
+
+
+_SECTION_WORDS = ("b0", "b1", "b2", "a1", "a2", "frac_bits")
+
+
+def _filter_lines(filters: Sequence[Mapping[str, int]], up: str) -> tuple[list[str], list[str]]:
+    """An axis's output filters (docs/runtime.md#filters-in-the-law): ``<UP>_N_FILTERS`` and,
+    per section ``k``, ``<UP>_FILT<k>_B0`` … ``_A2`` and ``_FRAC_BITS``; the initialiser's
+    ``.n_filters`` and ``.filter[k]`` (the slots past the last section are left zero)."""
+    lines = [f"#define {up}_N_FILTERS {len(filters)} /* output filter sections, 0 = none */"]
+    init = [f".n_filters = {up}_N_FILTERS"]
+    for k, sec in enumerate(filters):
+        mac = f"{up}_FILT{k}"
+        lines += [
+            "",
+            f"/* output filter section {k} (in series before the D/A, on the law's output in D/A",
+            " * codes with 16 fraction bits): H(z) = (b0 + b1 z^-1 + b2 z^-2) / (1 + a1 z^-1 +",
+            " * a2 z^-2), each coefficient q * 2^-frac_bits */",
+        ]
+        for word in _SECTION_WORDS[:-1]:
+            lines.append(f"#define {mac}_{word.upper()} {int32_literal(sec[word])}")
+        lines.append(f"#define {mac}_FRAC_BITS {sec['frac_bits']}")
+        words = ", ".join(f"{mac}_{w.upper()}" for w in _SECTION_WORDS)
+        init.append(f".filter[{k}] = {{{words}}}")
     return lines, init
 
 

@@ -84,7 +84,9 @@ def gantry_document(
     Raises
     ------
     ExportError
-        No record (and not ``unverified``) or a failed one.
+        No record (and not ``unverified``) or a failed one, or a drive with output filters
+        (docs/runtime.md#filters-in-the-law: the single rig's runtime runs them, the gantry's
+        layout has no place for them).
     """
     if not unverified:
         if record is None:
@@ -94,6 +96,12 @@ def gantry_document(
             )
         if record.get("passed") is not True:
             raise ExportError("the verification failed: fix the tuning and verify it again")
+    for name, drive in zip(DRIVES, tuning.drives, strict=True):
+        if drive.filters:  # not in the gantry's C layout (gantry_layout), so not exported
+            raise ExportError(
+                f"the {name} drive has output filters, which the gantry runtime does not run "
+                "(servotune_gantry.c's constants carry none)"
+            )
     files = record.get("files", {}) if record is not None else {}
     dac = rig.dac
     data: dict[str, Any] = {

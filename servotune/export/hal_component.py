@@ -2,8 +2,9 @@
 
 :func:`to_string` is one ``.comp`` file (the ``linuxcnc-comp`` export format; :func:`to_file`
 writes it; ``halcompile --compile``/``--install`` builds it) holding, verbatim, the same C the
-golden runs prove bit-exact against the simulator (``servotune_rt.h``, ``servotune_tables.h``,
-``servotune_rt.c``: :mod:`servotune.export.c`) around a thin HAL wrapper. The wrapper adds no
+golden runs prove bit-exact against the simulator (``servotune_filter.h``, ``servotune_rt.h``,
+``servotune_tables.h``, ``servotune_rt.c``: :mod:`servotune.export.c`; the law's output filters
+included, docs/runtime.md#filters-in-the-law) around a thin HAL wrapper. The wrapper adds no
 arithmetic to the law: each servo-thread period it takes each axis's encoder count
 (``<name>.counts-N``, s32: the low ``counter_bits`` bits are what the counter card latches), the
 master's reference (``<name>.command``, counts; with ``position_scale``, machine units rounded
@@ -141,7 +142,7 @@ def to_string(
     digest = re.search(r'#define ST_TABLES_SHA256 "([0-9a-f]{64})"', header)
     assert digest is not None  # the header always defines it
     dac = rig.dac if rig is not None else Dac()  # the export's default hardware
-    rt_c, rt_h = (runtime_source(f) for f in RUNTIME_FILES)
+    rt_c, rt_h, filter_h = (runtime_source(f) for f in RUNTIME_FILES)
     axes = zip(tuning.axis_names, tuning.roles, strict=True)
     text = _template(
         "hal_runtime.comp.in",
@@ -150,7 +151,7 @@ def to_string(
         digest=digest.group(1),
         axes=", ".join(f"{i} = {a} ({r})" for i, (a, r) in enumerate(axes)),
         n=len(tuning.controllers),
-        runtime=_inline(rt_h, header, rt_c),
+        runtime=_inline(filter_h, rt_h, header, rt_c),
         dac_lo=_c_double(dac.range_v[0]),
         dac_lsb=_c_double(dac.lsb_v),
         **command,

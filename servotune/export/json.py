@@ -1,6 +1,6 @@
 """The tables export (JSON): a tuning's runtime constants, with CRCs, for the target.
 
-The document (``"schema": "servotune.tables/2"``) holds exactly the constants of the tuning
+The document (``"schema": "servotune.tables/3"``) holds exactly the constants of the tuning
 file, as the runtime runs them: nothing is re-quantised (verified = exported:
 docs/runtime.md#fixed-point-constants). It is
 JSON with sorted keys, two-space indent (the rows of a table and other lists of numbers on one
@@ -18,7 +18,10 @@ There is no timestamp anywhere::
            "task": null
                  | {"kp", "ki_t"}                                    PI
                  | {"kp", "ki_t", "kd_t", "k1_t", "ke", "kec", "n",  fuzzy-PID + feedforward
-                    "tables": {"kp"|"ki"|"kd"|"k1": {"n", "f", "q": rows, "crc32"}}}}
+                    "tables": {"kp"|"ki"|"kd"|"k1": {"n", "f", "q": rows, "crc32"}}},
+           "filters": [                0 to 4 output filter sections, in series order
+             {"b0", "b1", "b2", "a1", "a2": int32, "frac_bits": 1..30}, …
+           ]}                          ([] without filters; docs/runtime.md#filters-in-the-law)
         ],
         "c_layout_sha256": str,        SHA-256 of the bytes the C runtime compiles in
                                        (servotune.export.layout; the C header carries it)
@@ -32,7 +35,7 @@ There is no timestamp anywhere::
       },
       "provenance": {"rig": {"name", "path", "sha256"}, "spec_sha256", "tool",
                      "tool_version", "tuning", "tuning_sha256", "verification"},
-      "schema": "servotune.tables/2",
+      "schema": "servotune.tables/3",
       "sha256": str,                   the document's digest (below)
       "verified": true | false
     }
@@ -41,7 +44,10 @@ Every fixed-point constant is ``{"q": int, "f": int}``, value ``q · 2**-f``: ga
 ``Ki·T``, ``Kd/T``, ``K1/T`` [LSB per count, per count per tick, per count change per tick],
 scalings ``Ke`` [levels/count] and ``Kec`` [levels per count/tick]. A table holds int16
 entries ``q`` with fraction bits ``f`` (value ``q · 2**-f``, in the units of its base gain),
-rows ``E = −n … n``, columns ``EC = −n … n``.
+rows ``E = −n … n``, columns ``EC = −n … n``. A filter section's coefficients are int32
+mantissas with its one ``frac_bits`` (value ``q · 2**-frac_bits``), ``a0 = 1``
+(:class:`servotune.laws.filters.SectionQ`); each must have a stable quantised denominator, and
+its sums must stay within ±2^62 for inputs within the D/A range (checked on export and load).
 
 Integrity (CRC-32 IEEE 802.3, as :func:`zlib.crc32`):
 
@@ -53,10 +59,13 @@ Integrity (CRC-32 IEEE 802.3, as :func:`zlib.crc32`):
       (n_axes, 0), (timer_divisor, 0), then for each axis in order:
       (law, 0), (lock_q, lock_f), (kp_q, kp_f), (kit_q, kit_f), (following_error_limit, 0),
       (counter_bits, 0), (dac_zero, 0), (dac_max, 0), (kdt_q, kdt_f), (k1t_q, k1t_f),
-      (ke_q, ke_f), (kec_q, kec_f), (n, 0), (ref_source, 0)
+      (ke_q, ke_f), (kec_q, kec_f), (n, 0), (ref_source, 0), (n_filters, 0),
+      then for each of the 4 filter section slots: (b0, frac_bits), (b1, frac_bits),
+      (b2, frac_bits), (a1, frac_bits), (a2, frac_bits)   (an unused slot: (0, 0) × 5)
 
-  that is, the runtime's constants vector (``servotune.laws.axis`` ``C_LAW`` … ``C_N``) and
-  the axis's reference source; ``law`` is 0 none, 1 PI, 2 fuzzy-PID. The C runtime computes
+  that is, the runtime's constants vector (``servotune.laws.axis`` ``C_LAW`` … ``C_N``), the
+  axis's reference source and its filters (``C_NF``, ``C_FILT``): 35 pairs per axis; ``law`` is
+  0 none, 1 PI, 2 fuzzy-PID. The C runtime computes
   the same CRCs (``st_consts_crc32``, ``st_table_crc32`` in ``servotune_rt.c``).
 
 The verification summary, hashes and tool version are provenance, kept apart from ``data`` and
@@ -64,8 +73,9 @@ outside every CRC. The document's ``sha256`` covers **everything else** (``data`
 and ``provenance``): it is the SHA-256 of the document's canonical JSON without that field
 (:mod:`servotune.digest`). :func:`load_tables` (and ``servotune check-table``) refuse a document
 whose digest, C-layout digest or any CRC does not match, so editing any field, or one table
-with its own CRC recomputed, is detected. ``/2`` added the digests; a ``/1`` file is refused
-with a request to export again. ``"verified": false`` marks an export made without a passing
+with its own CRC recomputed, is detected. ``/2`` added the digests, ``/3`` the filters (and
+their pairs in the constants CRC and the C layout); a ``/1`` or ``/2`` file is refused with a
+request to export again. ``"verified": false`` marks an export made without a passing
 verification (``unverified=True``, the CLI's ``--unverified``).
 """
 
@@ -84,7 +94,7 @@ from servotune._version import __version__
 from servotune.arch.gantry.tuning import GantryTuning
 from servotune.arch.linkage.plan import LinkagePlan
 from servotune.digest import DIGEST_FIELD, document_sha256
-from servotune.errors import DigestError, ExportError
+from servotune.errors import DigestError, ExportError, SpecError
 from servotune.export.document import document_text, recorded_sha, write_export
 from servotune.export.gantry import gantry_document
 from servotune.export.layout import (
@@ -99,7 +109,15 @@ from servotune.export.layout import (
 from servotune.export.linkage import linkage_plan_document
 from servotune.fixed import F_U
 from servotune.io.files import json_safe, parse_json, read_json
-from servotune.laws.axis import TASK_LAWS, AxisController, law_names, task_law
+from servotune.laws.axis import (
+    FILTER_F,
+    MAX_FILTERS,
+    TASK_LAWS,
+    AxisController,
+    law_names,
+    task_law,
+)
+from servotune.laws.filters import ACC_LIMIT, SectionQ, state_bound
 from servotune.laws.fuzzy_pid import int_rows
 from servotune.rig import Counter, Dac, Rig
 from servotune.tuning import Tuning, tuning_to_string
@@ -122,8 +140,8 @@ __all__ = [
     "to_string",
 ]
 
-SCHEMA = "servotune.tables/2"
-_OLD_SCHEMAS = ("servotune.tables/1",)
+SCHEMA = "servotune.tables/3"
+_OLD_SCHEMAS = ("servotune.tables/1", "servotune.tables/2")
 
 
 class Summary(Protocol):
@@ -222,12 +240,39 @@ def _plain(x: Any, where: str) -> Any:
         raise ExportError(f"{where}: {exc} in the export") from None
 
 
-def _axis_doc(i: int, name: str, role: str, ctl: AxisController, src: int) -> dict[str, Any]:
+def _filter_problem(sections: Sequence[SectionQ], zero: int, code_max: int) -> str | None:
+    """Why the runtime's sums could overflow in one of an axis's filter sections, or ``None``.
+
+    The law holds each section's input to the D/A's range (``−zero … code_max − zero`` codes,
+    ``FILTER_F`` fraction bits: docs/runtime.md#filters-in-the-law); every partial sum of its
+    accumulator must then stay within ±2^62 (:func:`servotune.laws.filters.state_bound`), the
+    bound behind the C runtime's promise of no undefined behaviour.
+    """
+    bound = max(zero, code_max - zero, 1) << FILTER_F
+    for k, sec in enumerate(sections):
+        try:
+            acc = state_bound(sec, bound).acc_max
+        except SpecError as exc:
+            return f"filters[{k}]: {exc}"
+        if acc > ACC_LIMIT:
+            return (
+                f"filters[{k}]: for inputs within the D/A range (±{bound} at 2^-{FILTER_F} "
+                f"codes) its sums could reach 2^{acc.bit_length() - 1}, beyond ±2^62"
+            )
+    return None
+
+
+def _axis_doc(
+    i: int, name: str, role: str, ctl: AxisController, src: int, dac: Mapping[str, Any]
+) -> dict[str, Any]:
     fe = ctl.following_error_limit_counts
     if fe > INT32[1]:
         raise ExportError(
             f"axis {name!r}: following_error_limit_counts {fe} does not fit int32 [counts]"
         )
+    problem = _filter_problem(ctl.filters, dac["zero_code"], dac["code_max"])
+    if problem is not None:
+        raise ExportError(f"axis {name!r}: {problem}")
     d = ctl.to_dict()
     task = d["task"]
     tables = () if ctl.task is None else task_law(ctl.task).tables
@@ -238,6 +283,7 @@ def _axis_doc(i: int, name: str, role: str, ctl: AxisController, src: int) -> di
             for t, (q, f_t) in zip(tables, ctl.task.tables, strict=True)  # type: ignore[union-attr]
         }
     return {
+        "filters": [s.to_dict() for s in ctl.filters],
         "following_error_limit_counts": int(fe),
         "index": i,
         "law": d["law"],
@@ -314,7 +360,7 @@ def tables_document(
     hw = _hardware(tuning, rig)
     refs = _ref_sources(tuning.roles)
     axes = [
-        _axis_doc(i, name, role, ctl, src)
+        _axis_doc(i, name, role, ctl, src, hw["dac"])
         for i, (name, role, ctl, src) in enumerate(
             zip(tuning.axis_names, tuning.roles, tuning.controllers, refs, strict=True)
         )
@@ -410,7 +456,7 @@ def to_string(obj: Exportable, **options: Unpack[TablesOptions]) -> str:
     --------
     >>> text = to_string(tuning, verification=summary)  # doctest: +SKIP
     >>> load_tables(text)["schema"]  # doctest: +SKIP
-    'servotune.tables/2'
+    'servotune.tables/3'
     """
     return document_text(export_document(obj, **options))
 
@@ -469,11 +515,30 @@ def _check_table(tab: Any, name: str, n: int, where: str) -> None:
         )
 
 
+def _filters(ax: Any, where: str) -> list[dict[str, int]]:
+    """An axis's ``filters``, checked: a list of at most 4 sections, each with exactly its six
+    integers in range and a stable denominator (:meth:`~servotune.laws.filters.SectionQ.
+    from_dict`)."""
+    filters = _need(ax, "filters", where)
+    if not isinstance(filters, list) or len(filters) > MAX_FILTERS:
+        raise ExportError(
+            f"{where}.filters must be a list of at most {MAX_FILTERS} sections, "
+            f"got {show_value(filters)}"
+        )
+    for k, sec in enumerate(filters):
+        try:
+            SectionQ.from_dict(sec, f"{where}.filters[{k}]")
+        except ValueError as exc:
+            raise ExportError(str(exc)) from None
+    return filters
+
+
 def _controller(ax: Any, where: str) -> AxisController:
     check_keys(
         ax,
         where,
         (
+            "filters",
             "following_error_limit_counts",
             "index",
             "law",
@@ -499,15 +564,16 @@ def _controller(ax: Any, where: str) -> AxisController:
             _check_table(_need(tabs, t, f"{where}.task.tables"), t, n, where)
         task = dict(task)
         task["tables"] = {t: {"f": tabs[t]["f"], "q": tabs[t]["q"]} for t in tables}
+    d = {
+        "following_error_limit_counts": _need(ax, "following_error_limit_counts", where),
+        "law": law,
+        "lock_gain": _need(ax, "lock_gain", where),
+        "task": task,
+    }
+    if filters := _filters(ax, where):
+        d["filters"] = filters
     try:
-        return AxisController.from_dict(
-            {
-                "following_error_limit_counts": _need(ax, "following_error_limit_counts", where),
-                "law": law,
-                "lock_gain": _need(ax, "lock_gain", where),
-                "task": task,
-            }
-        )
+        return AxisController.from_dict(d)
     except (ValueError, KeyError, TypeError) as exc:
         raise ExportError(f"{where}: {exc}") from None
 
@@ -602,6 +668,9 @@ def _check_document(doc: Any) -> tuple[AxisController, ...]:
             raise ExportError(f"{where}.ref_source must be -1 or another axis's index, got {src}")
         refs.append(src)
         ctls.append(_controller(ax, where))
+        problem = _filter_problem(ctls[-1].filters, dac["zero_code"], dac["code_max"])
+        if problem is not None:
+            raise ExportError(f"{where}.{problem}")
     computed = zlib.crc32(constants_bytes(data))  # from the fields checked above
     if computed != stored:
         raise DigestError(

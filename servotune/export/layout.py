@@ -6,7 +6,7 @@ tables into an ``st_consts_t`` (``SERVOTUNE_TABLES_INIT``). The header carries t
 those constants serialised in the *C layout* below (``ST_TABLES_SHA256``); the runtime's
 ``st_check_digest`` serialises its compiled-in ``st_consts_t`` the same way at start-up and
 compares. This module computes the same bytes from a tables document's ``data`` section
-(``servotune.tables/2``, :func:`servotune.export.json.tables_document`), so the JSON export,
+(``servotune.tables/3``, :func:`servotune.export.json.tables_document`), so the JSON export,
 the header and the runtime agree on one digest. It is an integrity check against accidental
 edits, stale files and mix-ups, not against an attacker.
 
@@ -15,16 +15,20 @@ Layout
 Little-endian two's complement, no padding, no header or length prefix; two parts, each
 exactly the byte stream one of the export's CRCs covers:
 
-1. **Constants** — ``2 + 14·n_axes`` pairs of (int32 ``q``, int16 ``f``), 6 bytes each; an
+1. **Constants** — ``2 + 35·n_axes`` pairs of (int32 ``q``, int16 ``f``), 6 bytes each; an
    integer is the pair ``(value, 0)``, a constant the axis's law does not use ``(0, 0)``::
 
        (n_axes, 0), (timer_divisor, 0), then for each axis a = 0 .. n_axes-1, in order:
        (law, 0), (lock_q, lock_f), (kp_q, kp_f), (kit_q, kit_f), (fe_limit, 0),
        (counter_bits, 0), (dac_zero, 0), (dac_max, 0), (kdt_q, kdt_f), (k1t_q, k1t_f),
-       (ke_q, ke_f), (kec_q, kec_f), (n, 0), (ref_source, 0)
+       (ke_q, ke_f), (kec_q, kec_f), (n, 0), (ref_source, 0), (n_filters, 0),
+       then for each of the 4 filter section slots k = 0 .. 3:
+       (b0, frac_bits), (b1, frac_bits), (b2, frac_bits), (a1, frac_bits), (a2, frac_bits)
 
-   ``law`` is 0 none, 1 PI, 2 fuzzy-PID; ``n`` is 0 unless fuzzy-PID. These are the bytes of
-   ``data.constants_crc32`` (``st_consts_crc32``).
+   ``law`` is 0 none, 1 PI, 2 fuzzy-PID; ``n`` is 0 unless fuzzy-PID; ``n_filters`` is the
+   number of output filter sections (0 … 4, docs/runtime.md#filters-in-the-law), and a slot
+   ``k >= n_filters`` is five ``(0, 0)``: every axis has 14 + 1 + 20 = 35 pairs. These are the
+   bytes of ``data.constants_crc32`` (``st_consts_crc32``).
 
 2. **Tables** — then, for each axis in order whose law is fuzzy-PID, for each of its tables
    in ``TABLE_NAMES`` order (``kp``, ``ki``, ``kd``, ``k1``): int16 ``n``, int16 ``f``, then the
@@ -32,14 +36,15 @@ exactly the byte stream one of the export's CRCs covers:
    table's block is the bytes of its ``crc32`` (``st_table_crc32``). Other axes contribute
    nothing.
 
-Its length is ``6·(2 + 14·n_axes) + Σ over fuzzy-PID axes of 4·(4 + 2·(2n+1)²)`` bytes. The
+Its length is ``6·(2 + 35·n_axes) + Σ over fuzzy-PID axes of 4·(4 + 2·(2n+1)²)`` bytes. The
 layout is unambiguous: part 1 has a fixed size given ``n_axes`` and gives each axis's law and
 ``n``, which fix the size of part 2.
 
 Where the numbers come from in ``data``: ``n_axes = len(axes)``, ``timer_divisor``;
 ``counter_bits``; ``dac.zero_code`` and ``dac.code_max`` (which must be ``2**dac.bits − 1``);
-per axis ``law``, ``lock_gain``, ``following_error_limit_counts``, ``ref_source`` and the
-``task`` constants (``kp``, ``ki_t``, ``kd_t``, ``k1_t``, ``ke``, ``kec``, ``n``, ``tables``).
+per axis ``law``, ``lock_gain``, ``following_error_limit_counts``, ``ref_source``, the
+``task`` constants (``kp``, ``ki_t``, ``kd_t``, ``k1_t``, ``ke``, ``kec``, ``n``, ``tables``) and
+``filters`` (each section's ``b0``, ``b1``, ``b2``, ``a1``, ``a2``, ``frac_bits``).
 Nothing else is part of it: not the axis names, roles or indices, the stored CRCs, the period
 in seconds, the rig name, the D/A voltage range, ``f_u``, the provenance or ``verified``,
 since none of them is compiled into ``st_consts_t``.
@@ -59,7 +64,16 @@ from typing import Any
 import numpy as np
 
 from servotune.errors import ExportError
-from servotune.laws.axis import CONST_HEADER, TASK_LAWS, AxisController, task_law
+from servotune.laws.axis import (
+    C_FILT,
+    C_NF,
+    CONST_HEADER,
+    FILTER_WORDS,
+    MAX_FILTERS,
+    TASK_LAWS,
+    AxisController,
+    task_law,
+)
 
 __all__ = [
     "c_layout_bytes",
@@ -105,7 +119,7 @@ def constants_pairs(
     Returns
     -------
     list of (int, int)
-        ``2 + 14 · len(controllers)`` pairs.
+        ``2 + 35 · len(controllers)`` pairs.
     """
     pairs = [(len(controllers), 0), (int(timer_divisor), 0)]
     for ctl, src in zip(controllers, ref_source, strict=True):
@@ -113,6 +127,11 @@ def constants_pairs(
         for iq, jf in _CONST_PAIRS:
             pairs.append((int(c[iq]), 0 if jf is None else int(c[jf])))
         pairs.append((int(src), 0))
+        pairs.append((int(c[C_NF]), 0))
+        for k in range(MAX_FILTERS):  # b0 b1 b2 a1 a2, each with the section's frac_bits
+            p = C_FILT + k * FILTER_WORDS
+            *coefs, frac_bits = (int(v) for v in c[p : p + FILTER_WORDS])
+            pairs.extend((q, frac_bits) for q in coefs)
     return pairs
 
 
@@ -192,7 +211,8 @@ def _int(x: Any, where: str) -> int:
 
 def _controllers(axes: Sequence[Any]) -> list[AxisController]:
     """The axes' controllers (checked by :meth:`AxisController.from_dict`); a document's
-    tables also carry ``n`` and ``crc32``, which the controller does not take."""
+    tables also carry ``n`` and ``crc32``, which the controller does not take, and every axis
+    carries ``filters`` (``[]`` without any), which an unfiltered controller's dict omits."""
     ctls = []
     for i, ax in enumerate(axes):
         where = f"data.axes[{i}]"
@@ -204,16 +224,15 @@ def _controllers(axes: Sequence[Any]) -> list[AxisController]:
                 tabs = task["tables"]
                 task = dict(task)
                 task["tables"] = {t: {"f": tabs[t]["f"], "q": tabs[t]["q"]} for t in tabs}
-            ctls.append(
-                AxisController.from_dict(
-                    {
-                        "following_error_limit_counts": ax["following_error_limit_counts"],
-                        "law": ax["law"],
-                        "lock_gain": ax["lock_gain"],
-                        "task": task,
-                    }
-                )
-            )
+            d = {
+                "following_error_limit_counts": ax["following_error_limit_counts"],
+                "law": ax["law"],
+                "lock_gain": ax["lock_gain"],
+                "task": task,
+            }
+            if ax["filters"] != []:  # always present in a tables document, [] without any
+                d["filters"] = ax["filters"]
+            ctls.append(AxisController.from_dict(d))
         except KeyError as exc:
             raise ExportError(f"{where} is missing the field {exc.args[0]!r}") from None
         except (ValueError, TypeError) as exc:

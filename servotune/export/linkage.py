@@ -173,7 +173,8 @@ def linkage_c_header(
     ------
     ExportError
         No record (and not ``unverified``), a failed one, names that give clashing C
-        identifiers, or commands that do not fit int32.
+        identifiers, commands that do not fit int32, or an axis with output filters (the
+        header has no place for them).
     """
     _check_record(record, unverified)
     _check_fits(plan)
@@ -269,6 +270,10 @@ def _axis_lines(plan: LinkagePlan, axis_ids: Sequence[str], cpu_ids: Sequence[st
         task = ctl.task
         if not isinstance(task, PIConstants):  # LinkagePlan holds PI controllers only
             raise ExportError(f"axis {name!r}: a linkage axis runs PI")
+        if ctl.filters:  # the header carries the PI and lock constants only
+            raise ExportError(
+                f"axis {name!r} has output filters, which servotune_link_plan.h does not carry"
+            )
         cpu = plan.cpu_of(name)
         up = f"STL_AXIS_{ident}"
         out += [

@@ -70,6 +70,14 @@ Why each choice:
 - **error-previous-target = false** (the component's default is true): servotune's law uses
   ``e(k) = r(k) − y(k)``, this tick's reference; true would give the loop the previous tick's
   command (the same feedback dynamics, the reference one tick late).
+
+When the master axis's law has output filters (docs/runtime.md#filters-in-the-law), the file
+goes on with them as LinuxCNC's stock ``biquad`` (one instance ``<pid_name>-filter<k>`` per
+section, in series between the pid's output and the D/A;
+:func:`servotune.export.linuxcnc_biquad.biquad_hal_text`): the quantised coefficients exactly,
+run in floating point, so LinuxCNC's output differs from the runtime's fixed point by up to
+:data:`FILTER_DIFFERENCE_CODES` D/A codes (measured in real HAL), as a comment in the file says.
+Without filters nothing follows the pid's lines.
 """
 
 from __future__ import annotations
@@ -84,7 +92,8 @@ from servotune._version import __version__
 from servotune.digest import text_digest_problem, with_digest_line
 from servotune.errors import DigestError, ExportError
 from servotune.export.document import write_export
-from servotune.export.json import Summary, tables_document
+from servotune.export.json import SCHEMA, Summary, tables_document
+from servotune.export.linuxcnc_biquad import biquad_hal_text
 from servotune.laws.linuxcnc_pid import PidParameters, thread_period_ns
 from servotune.laws.pi import PIConstants
 from servotune.rig import Rig
@@ -93,6 +102,7 @@ from servotune.validate import check_number, show_value
 
 __all__ = [
     "DEFAULT_PID_NAME",
+    "FILTER_DIFFERENCE_CODES",
     "HAL_FILE_FIRST_LINE",
     "PidParameters",
     "check_hal_file",
@@ -269,7 +279,11 @@ def pid_hal_text(
     Comments first (servotune version, rig name and SHA-256, tuning SHA-256, verified or not,
     the digest of the tables export of the same tuning, the scales, the thread period, the
     servotune constants and the conversions), then one ``setp <pid_name>.<pin> <value>`` line
-    per pin of :class:`PidParameters`, in its field order. Deterministic bytes.
+    per pin of :class:`PidParameters`, in its field order; when the master axis has output
+    filters (docs/runtime.md#filters-in-the-law), then their LinuxCNC ``biquad`` instances
+    ``<pid_name>-filter<k>`` (:mod:`servotune.export.linuxcnc_biquad`: float, the quantised
+    coefficients exactly) with a comment on how they differ from the runtime's fixed point.
+    Without filters nothing follows the pid's lines. Deterministic bytes.
 
     Parameters
     ----------
@@ -341,7 +355,7 @@ def pid_hal_text(
         f"# rig: {tuning.rig_name}, sha256 {tuning.rig_sha256}",
         f"# tuning sha256: {prov['tuning_sha256']}",
         f"# verified: {verified}",
-        "# tables export of the same tuning (servotune.tables/2):",
+        f"# tables export of the same tuning ({SCHEMA}):",
         f"#   sha256 {doc['sha256']}",
         f"#   c_layout_sha256 {doc['data']['c_layout_sha256']}",
         "#",
@@ -372,7 +386,40 @@ def pid_hal_text(
         "# .tune-mode unconnected.",
     ]
     lines += [f"setp {n}.{pin} {_value(v)}" for pin, v in params.hal_pins()]
+    lines += _filter_lines(tuning, n)
     return with_digest_line("\n".join(lines) + "\n", "#", line=2)
+
+
+FILTER_DIFFERENCE_CODES = 0.91
+"""The largest difference between LinuxCNC's float ``biquad`` and the runtime's fixed-point
+sections on D/A codes, measured in real HAL (tests/hal/test_linuxcnc_biquad.py: a notch and a
+low-pass in series, steps and a chirp within ±1500 codes)."""
+
+
+def _filter_lines(tuning: Tuning, pid_name: str) -> list[str]:
+    """The master axis's output filters as LinuxCNC ``biquad`` instances
+    ``<pid_name>-filter<k>`` (:func:`~servotune.export.linuxcnc_biquad.biquad_hal_text`, its
+    own digest line left out: the file has one), or nothing when it has none."""
+    i, _, _ = master_axis(tuning)
+    sections = tuning.controllers[i].filters
+    if not sections:
+        return []
+    names = [f"{pid_name}-filter{k}" for k in range(len(sections))]
+    text = biquad_hal_text(sections, names=names, period_s=tuning.period_s)
+    wiring = " -> ".join([f"{pid_name}.output", *(f"{m}.in/.out" for m in names), "the D/A"])
+    return [
+        "#",
+        f"# The master axis's law filters its output before the D/A ({len(sections)} "
+        "section(s), docs/runtime.md#filters-in-the-law):",
+        "# here as LinuxCNC's stock biquad, a FLOAT implementation with the runtime's quantised",
+        "# coefficients exactly. The verified runtime runs them in integer fixed point (each",
+        "# section's input held to the D/A range, whole codes out): on D/A codes the two differ",
+        f"# by at most {FILTER_DIFFERENCE_CODES} codes as measured in real HAL. A filter is "
+        "linear, so the same",
+        "# coefficients serve the pid's output in its own units. Wire them in series:",
+        f"#   {wiring}",
+        *(ln for ln in text.splitlines() if not ln.startswith("# sha256 of this file")),
+    ]
 
 
 def check_hal_file(text: str, src: str = "<text>") -> None:

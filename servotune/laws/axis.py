@@ -24,6 +24,7 @@ import numpy as np
 from servotune._numba_cache import jit
 from servotune.fixed import F_U, Fixed, align, quantize, sat_add, shift_round
 from servotune.hw.counter import unwrap_step
+from servotune.laws.filters import N_FILTER_STATE, SectionQ, biquad_step
 from servotune.laws.fuzzy_pid import (
     TABLE_NAMES,
     FuzzyPIDConstants,
@@ -37,6 +38,8 @@ from servotune.validate import check_keys, show_value
 
 __all__ = [
     "CONST_HEADER",
+    "FILTER_F",
+    "FILTER_WORDS",
     "FLAG_COUNTER_FAULT",
     "FLAG_FOLLOWING_ERROR",
     "FLAG_SATURATED",
@@ -44,6 +47,7 @@ __all__ = [
     "LAW_FUZZY_PID",
     "LAW_NONE",
     "LAW_PI",
+    "MAX_FILTERS",
     "MODE_LOCK",
     "MODE_OPEN",
     "MODE_TASK",
@@ -53,6 +57,7 @@ __all__ = [
     "TaskLaw",
     "axis_control",
     "axis_read",
+    "filter_chain",
     "law_names",
     "task_law",
 ]
@@ -87,7 +92,16 @@ S_U_LAST = 8
 S_E_PREV = 9
 S_R_PREV = 10
 S_ORIGIN = 11
-N_STATE = 12
+S_FILT = 12  # MAX_FILTERS sections of N_FILTER_STATE words (laws.filters): x1 x2 y1 y2 r1 r2
+N_STATE = 12 + 6 * 4
+
+# output filters (docs/runtime.md#filters-in-the-law)
+MAX_FILTERS = 4
+"""Filter sections per axis, in series on the law's output before the D/A."""
+FILTER_WORDS = 6
+"""Constants per section: ``b0 b1 b2 a1 a2 frac_bits`` (a ``laws.filters.SectionQ``)."""
+FILTER_F = 16
+"""Fraction bits of the filters' input and output [D/A codes]: ``u`` rounded from ``F_U``."""
 
 # constants layout (int64)
 C_LAW = 0
@@ -111,7 +125,9 @@ C_KEC_Q = 17
 C_KEC_F = 18
 C_N = 19
 C_TF = 20  # 4 table fraction bits, TABLE_NAMES order
-C_TAB = 24  # 4 tables of (2n+1)^2 entries, row-major (row E, column EC), TABLE_NAMES order
+C_NF = 24  # filter sections in use, 0 .. MAX_FILTERS
+C_FILT = 25  # MAX_FILTERS sections of FILTER_WORDS: b0 b1 b2 a1 a2 frac_bits
+C_TAB = 49  # 4 tables of (2n+1)^2 entries, row-major (row E, column EC), TABLE_NAMES order
 N_CONST = C_TAB
 """Length of the constants vector without tables (the fuzzy-PID law appends its tables)."""
 
@@ -255,6 +271,14 @@ def task_law(task: object) -> TaskLaw:
     raise TypeError(f"{type(task).__name__} is no task law's constants (laws.axis.TASK_LAWS)")
 
 
+def _sections(v: object) -> tuple[SectionQ, ...]:
+    if not isinstance(v, list) or not 1 <= len(v) <= MAX_FILTERS:
+        raise ValueError(
+            f"controller.filters must be a list of 1..{MAX_FILTERS} sections, got {show_value(v)}"
+        )
+    return tuple(SectionQ.from_dict(x, f"controller.filters[{k}]") for k, x in enumerate(v))
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class AxisController:
     """What the runtime holds for one axis, every constant quantised.
@@ -268,17 +292,28 @@ class AxisController:
         locks or runs open loop.
     following_error_limit_counts : int
         Trip threshold on |e| [counts]; 0 disables it.
+    filters : tuple of SectionQ
+        Up to :data:`MAX_FILTERS` quantised sections in series on the output before the D/A
+        (:mod:`servotune.laws.filters`), in the order they run; empty: no filter.
     """
 
     lock_gain: Fixed
     task: PIConstants | FuzzyPIDConstants | None = None
     following_error_limit_counts: int = 0
+    filters: tuple[SectionQ, ...] = ()
 
     def __post_init__(self) -> None:
         if self.following_error_limit_counts < 0:
             raise ValueError(
                 "following_error_limit_counts must be >= 0 [counts], "
                 f"got {self.following_error_limit_counts}"
+            )
+        if len(self.filters) > MAX_FILTERS or not all(
+            isinstance(s, SectionQ) for s in self.filters
+        ):
+            raise ValueError(
+                f"filters must be at most {MAX_FILTERS} quantised sections (SectionQ), "
+                f"got {show_value(self.filters)}"
             )
 
     @classmethod
@@ -289,6 +324,7 @@ class AxisController:
         task_gains: object | None = None,
         period_s: float,
         following_error_limit_counts: int = 0,
+        filters: tuple[SectionQ, ...] = (),
     ) -> AxisController:
         """Quantise design gains.
 
@@ -300,16 +336,22 @@ class AxisController:
             lock_gain=quantize(lock_gain_codes_per_count),
             task=None if task_gains is None else task_gains.quantize(period_s),  # type: ignore[attr-defined]
             following_error_limit_counts=int(following_error_limit_counts),
+            filters=tuple(filters),
         )
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain dict: the law's name and every constant as its (q, f) pair."""
-        return {
+        """Plain dict: the law's name and every constant as its (q, f) pair; ``filters`` (each
+        section's integers) only when there are any, so an unfiltered controller's document is
+        as before."""
+        d: dict[str, Any] = {
             "following_error_limit_counts": self.following_error_limit_counts,
             "law": "none" if self.task is None else task_law(self.task).name,
             "lock_gain": self.lock_gain.to_dict(),
             "task": None if self.task is None else self.task.to_dict(),
         }
+        if self.filters:
+            d["filters"] = [s.to_dict() for s in self.filters]
+        return d
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> AxisController:
@@ -321,7 +363,10 @@ class AxisController:
             If a field is missing or malformed (the message names it).
         """
         d = check_keys(
-            d, "controller", ("following_error_limit_counts", "law", "lock_gain", "task")
+            d,
+            "controller",
+            ("following_error_limit_counts", "law", "lock_gain", "task"),
+            ("filters",),
         )
         try:
             law = d["law"]
@@ -344,6 +389,7 @@ class AxisController:
                 lock_gain=Fixed.from_dict(d["lock_gain"]),
                 task=task,
                 following_error_limit_counts=fe,
+                filters=() if "filters" not in d else _sections(d["filters"]),
             )
         except KeyError as exc:
             raise ValueError(f"controller is missing the field {show_value(exc.args[0])}") from None
@@ -376,6 +422,9 @@ class AxisController:
         c[C_COUNTER_BITS] = counter_bits
         c[C_DAC_ZERO] = dac_zero
         c[C_DAC_MAX] = 2**dac_bits - 1
+        c[C_NF] = len(self.filters)
+        for k, sec in enumerate(self.filters):
+            c[C_FILT + k * FILTER_WORDS : C_FILT + (k + 1) * FILTER_WORDS] = sec.step_args()
         return c
 
 
@@ -426,6 +475,41 @@ def axis_read(st: np.ndarray, c: np.ndarray, a: int, raw: int, reset: bool) -> i
 
 
 @jit(inline="always")
+def filter_chain(
+    st: np.ndarray, c: np.ndarray, a: int, nf: int, x: int, zero: int, cmax: int
+) -> tuple[int, bool]:
+    """The output filters of axis ``a`` (``nf`` sections, in order) on ``x`` [D/A codes relative
+    to the zero, ``FILTER_F`` fraction bits]; returns whole codes relative to the zero, and
+    whether a section's input was held at a rail.
+
+    Each section's input is first held to the D/A's range (``−zero … cmax − zero`` codes), the
+    input bound its word length and accumulator were sized for
+    (:func:`~servotune.laws.filters.state_bound`); the output is rounded half away from zero to
+    whole codes. A held input is a saturation as a code on a rail is (``FLAG_SATURATED``).
+    """
+    lo = -zero * (np.int64(1) << FILTER_F)
+    hi = (cmax - zero) * (np.int64(1) << FILTER_F)
+    held = False
+    for k in range(nf):
+        if x < lo or x > hi:
+            held = True
+            x = min(max(x, lo), hi)
+        p = C_FILT + k * FILTER_WORDS
+        o = S_FILT + k * N_FILTER_STATE
+        x = biquad_step(
+            c[a, p],
+            c[a, p + 1],
+            c[a, p + 2],
+            c[a, p + 3],
+            c[a, p + 4],
+            c[a, p + 5],
+            st[a, o : o + N_FILTER_STATE],
+            x,
+        )
+    return shift_round(x, FILTER_F), held
+
+
+@jit(inline="always")
 def axis_control(
     st: np.ndarray, c: np.ndarray, a: int, ref: int, mode_cmd: int, reset: bool, u_add: int
 ) -> tuple[int, int, int]:
@@ -466,6 +550,7 @@ def axis_control(
         st[a, S_U_LAST] = 0
         st[a, S_E_PREV] = 0
         st[a, S_R_PREV] = ref
+        st[a, S_FILT : S_FILT + MAX_FILTERS * N_FILTER_STATE] = 0
     if st[a, S_FAULT] != 0:
         st[a, S_U_LAST] = 0
         return zero, st[a, S_FAULT], 0
@@ -529,8 +614,15 @@ def axis_control(
     st[a, S_U_LAST] = u
     st[a, S_E_PREV] = e
     st[a, S_R_PREV] = ref
-    code = shift_round(u, F_U) + zero  # code_from_uq, with the rail flag on the way
+    nf = c[a, C_NF]
     flags = st[a, S_FAULT]
+    if nf == 0:
+        code = shift_round(u, F_U) + zero  # code_from_uq, with the rail flag on the way
+    else:
+        v, held = filter_chain(st, c, a, nf, shift_round(u, F_U - FILTER_F), zero, cmax)
+        code = v + zero
+        if held:
+            flags |= FLAG_SATURATED
     if code > cmax:
         code = cmax
         flags |= FLAG_SATURATED

@@ -22,8 +22,11 @@ decays to at most ``‖1/A_q‖₁ · 2^−(f+1)`` LSB, which :func:`choose_frac
 
 from __future__ import annotations
 
+import functools
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy import signal
@@ -31,7 +34,7 @@ from scipy import signal
 from servotune._numba_cache import jit
 from servotune.errors import SpecError
 from servotune.fixed import quantize, shift_round
-from servotune.validate import check_number, is_finite, is_number, show_value
+from servotune.validate import check_keys, check_number, is_finite, is_number, show_value
 
 __all__ = [
     "INPUT_BOUND_CODES",
@@ -43,13 +46,16 @@ __all__ = [
     "biquad",
     "biquad_step",
     "bumpless_state",
+    "chain_response",
     "choose_frac_bits",
     "discretize",
     "filter_run",
     "lowpass2",
     "notch",
     "quantize_section",
+    "realize",
     "realized_features",
+    "section_from_dict",
     "state_bound",
 ]
 
@@ -86,6 +92,9 @@ class Section:
         natural frequency ``sqrt(d0)/(2π)`` unless given.
     warp_name : str
         The input that set ``warp_hz``, for messages (``"notch center_hz"``).
+    params : tuple of (str, value)
+        The design inputs it was made from (``center_hz``, ``width_hz``, ``depth_db`` …), in
+        the order :func:`section_from_dict` takes them back.
     """
 
     kind: str
@@ -93,6 +102,24 @@ class Section:
     den_s: tuple[float, float, float]
     warp_hz: float
     warp_name: str
+    params: tuple[tuple[str, Any], ...] = ()
+
+    def to_dict(self) -> dict[str, Any]:
+        """``{"kind": …, <design inputs>}``: what a rig file's ``[[axis.<name>.filters]]`` holds
+        (:func:`section_from_dict` reads it back)."""
+        return {"kind": self.kind} | {
+            k: list(v) if isinstance(v, tuple) else v for k, v in self.params
+        }
+
+    def describe(self) -> str:
+        """One line: the kind and its design inputs with their units."""
+        units = {"center_hz": "Hz", "width_hz": "Hz", "depth_db": "dB", "corner_hz": "Hz"}
+        parts = [
+            f"{k} {v:g}{' ' + units[k] if k in units else ''}"
+            for k, v in self.params
+            if isinstance(v, float | int)
+        ]
+        return f"{self.kind} ({', '.join(parts)})" if parts else self.kind
 
     @property
     def unity_dc(self) -> bool:
@@ -125,6 +152,11 @@ def notch(center_hz: float, width_hz: float, depth_db: float) -> Section:
         den_s=(1.0, 2.0 * zp * w0, w0 * w0),
         warp_hz=float(center_hz),
         warp_name="notch center_hz",
+        params=(
+            ("center_hz", float(center_hz)),
+            ("width_hz", float(width_hz)),
+            ("depth_db", float(depth_db)),
+        ),
     )
 
 
@@ -145,6 +177,7 @@ def lowpass2(corner_hz: float, damping: float) -> Section:
         den_s=(1.0, 2.0 * damping * w0, w0 * w0),
         warp_hz=float(corner_hz),
         warp_name="lowpass2 corner_hz",
+        params=(("corner_hz", float(corner_hz)), ("damping", float(damping))),
     )
 
 
@@ -185,8 +218,54 @@ def biquad(num_s: object, den_s: object, warp_hz: float | None = None) -> Sectio
         warp_hz = math.sqrt(d[2]) / (2.0 * math.pi)
     check_number("biquad warp_hz", warp_hz, "Hz", strict=True, error=SpecError)
     return Section(
-        kind="biquad", num_s=n, den_s=d, warp_hz=float(warp_hz), warp_name="biquad warp_hz"
+        kind="biquad",
+        num_s=n,
+        den_s=d,
+        warp_hz=float(warp_hz),
+        warp_name="biquad warp_hz",
+        params=(("num_s", n), ("den_s", d), ("warp_hz", float(warp_hz))),
     )
+
+
+_DESIGNS = {
+    "notch": (notch, ("center_hz", "width_hz", "depth_db"), ()),
+    "lowpass2": (lowpass2, ("corner_hz", "damping"), ()),
+    "biquad": (biquad, ("num_s", "den_s"), ("warp_hz",)),
+}
+
+
+def section_from_dict(d: object, where: str = "filter") -> Section:
+    """A section from its design inputs: ``{"kind": "notch", "center_hz", "width_hz",
+    "depth_db"}``, ``{"kind": "lowpass2", "corner_hz", "damping"}`` or ``{"kind": "biquad",
+    "num_s", "den_s"[, "warp_hz"]}`` (:meth:`Section.to_dict`).
+
+    Raises
+    ------
+    SpecError
+        One line naming ``where`` and the key or value.
+    """
+    kind = d.get("kind") if isinstance(d, dict) else None
+    if kind not in _DESIGNS:
+        raise SpecError(
+            f"{where}.kind must be one of {', '.join(_DESIGNS)}, got "
+            f"{show_value(kind) if isinstance(d, dict) else 'no table'}"
+        )
+    make, required, optional = _DESIGNS[kind]
+    d = check_keys(d, where, ("kind", *required), optional, error=SpecError)
+    try:
+        return make(**{k: v for k, v in d.items() if k != "kind"})
+    except SpecError as exc:
+        raise SpecError(f"{where}: {exc}") from None
+
+
+@functools.lru_cache(maxsize=256)
+def realize(section: Section, period_s: float, input_bound: int = INPUT_BOUND_WIDE) -> SectionQ:
+    """The section as the runtime runs it at ``period_s`` (the rig's achieved tick): quantised
+    with the fewest fraction bits that meet the tolerances for inputs up to ``input_bound``
+    (:func:`choose_frac_bits`; the rig's D/A range on the wide scale:
+    ``Rig.runtime_filters``)."""
+    f = choose_frac_bits(section, period_s, input_bound=input_bound)
+    return quantize_section(section, period_s, f)
 
 
 def _check_period(section: Section, period_s: float) -> None:
@@ -231,6 +310,10 @@ def discretize(section: Section, period_s: float) -> tuple[float, float, float, 
     return b0, b1, b2, a1, a2
 
 
+_INT32 = 2**31 - 1
+_Q_KEYS = ("b0", "b1", "b2", "a1", "a2", "frac_bits")
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class SectionQ:
     """A quantised section as the runtime holds it: int32 mantissas, one fraction-bit count.
@@ -258,10 +341,32 @@ class SectionQ:
 
     def to_dict(self) -> dict[str, int]:
         """Plain dict of integers."""
-        return {k: int(getattr(self, k)) for k in ("b0", "b1", "b2", "a1", "a2", "frac_bits")}
+        return {k: int(getattr(self, k)) for k in _Q_KEYS}
 
+    @classmethod
+    def from_dict(cls, d: object, where: str = "filter") -> SectionQ:
+        """Inverse of :meth:`to_dict`, checked: int32 mantissas, ``frac_bits`` in 1..30 and a
+        stable quantised denominator.
 
-_INT32 = 2**31 - 1
+        Raises
+        ------
+        ValueError
+            One line naming ``where`` and the field.
+        """
+        d = check_keys(d, where, _Q_KEYS)
+        for k in _Q_KEYS:
+            v = d[k]
+            lo, hi = (1, 30) if k == "frac_bits" else (-_INT32, _INT32)
+            if type(v) is not int or not lo <= v <= hi:
+                raise ValueError(
+                    f"{where}.{k} must be an integer in {lo}..{hi}, got {show_value(v)}"
+                )
+        one = 1 << d["frac_bits"]
+        if not (abs(d["a2"]) < one and abs(d["a1"]) < one + d["a2"]):
+            raise ValueError(
+                f"{where} is not stable (a1 = {d['a1']}, a2 = {d['a2']} · 2^-{d['frac_bits']})"
+            )
+        return cls(**d)
 
 
 def quantize_section(section: Section, period_s: float, frac_bits: int) -> SectionQ:
@@ -304,6 +409,17 @@ def quantize_section(section: Section, period_s: float, frac_bits: int) -> Secti
             f"(a1 = {q['a1']}, a2 = {q['a2']} · 2^-{frac_bits}): use more fraction bits"
         )
     return SectionQ(frac_bits=frac_bits, **q)
+
+
+def chain_response(sections: Sequence[SectionQ], w: np.ndarray, period_s: float) -> np.ndarray:
+    """``F(e^{jωT})``: the product of the quantised sections' responses on ``w`` [rad/s] (ones
+    without sections)."""
+    z1 = np.exp(-1j * np.asarray(w, dtype=float) * period_s)
+    out = np.ones(z1.shape, dtype=complex)
+    for sec in sections:
+        b, a = sec.ba()
+        out *= (b[0] + z1 * (b[1] + z1 * b[2])) / (1.0 + z1 * (a[1] + z1 * a[2]))
+    return out
 
 
 # --- response features ------------------------------------------------------------------------

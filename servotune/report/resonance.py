@@ -18,16 +18,14 @@ without an FRF keeps its bytes. Per axis:
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from servotune.analysis.frf import FRF_SCHEMA, Frf
+from servotune.analysis.frf import Frf, FrfSource, read_frf
 from servotune.errors import SpecError
 from servotune.modal import modal_response
 from servotune.plot import plot_frf
@@ -50,7 +48,6 @@ __all__ = [
     "rig_model_response",
 ]
 
-FrfSource = Frf | str | Path | Mapping[str, Any]
 """A measured frequency response: an :class:`Frf`, the path of a ``servotune frf`` JSON file, or
 that file's content as a mapping."""
 
@@ -59,79 +56,6 @@ PERIOD_RTOL = 1e-3
 compared with it."""
 
 _MODEL_LABEL = "rig's model (plant and modes, sampled)"
-
-
-def read_frf(source: FrfSource) -> Frf:
-    """The :class:`Frf` of ``source``: itself, or read from a ``servotune frf`` JSON file
-    (docs/frf.md#file) or its content.
-
-    The file does not keep ``|Ȳ|`` of the excited lines (:attr:`Frf.output_level`): it is NaN
-    in what is read back; every figure the report draws is in the file.
-
-    Raises
-    ------
-    SpecError
-        Not a ``servotune.frf/1`` document (a CSV FRF, another schema, a missing field).
-    """
-    if isinstance(source, Frf):
-        return source
-    if isinstance(source, Mapping):
-        doc, where = source, "the FRF"
-    else:
-        where = str(source)
-        try:
-            doc = json.loads(Path(source).read_text(encoding="utf-8"))
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise SpecError(f"{where}: cannot read an FRF JSON file ({exc})") from None
-    if not isinstance(doc, Mapping) or doc.get("schema") != FRF_SCHEMA:
-        got = doc.get("schema") if isinstance(doc, Mapping) else type(doc).__name__
-        raise SpecError(
-            f"{where}: not a {FRF_SCHEMA} file (servotune frf -o FILE.json), got {got!r}"
-        )
-    try:
-        return _frf_from_doc(doc)
-    except (KeyError, TypeError, ValueError) as exc:
-        raise SpecError(f"{where}: malformed {FRF_SCHEMA} file ({exc!r})") from None
-
-
-def _frf_from_doc(doc: Mapping[str, Any]) -> Frf:
-    lines = doc["lines"]
-    if not lines:
-        raise ValueError("no lines")
-
-    def col(key: str) -> np.ndarray:
-        return np.array([float(ln[key]) for ln in lines])
-
-    def levels(key: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        rows = doc.get(key) or []
-        hz, level, noise = (
-            np.array([float(r[k]) for r in rows]) for k in ("freq_hz", "level", "noise")
-        )
-        return hz, level, noise
-
-    odd, even = levels("odd_lines"), levels("even_lines")
-    return Frf(
-        freq_hz=col("freq_hz"),
-        response=col("re") + 1j * col("im"),
-        std=col("std"),
-        radius95=col("radius95"),
-        coherence=col("coherence"),
-        noise=col("noise"),
-        output_level=np.full(len(lines), math.nan),
-        aliased=np.array([bool(ln["aliased"]) for ln in lines]),
-        odd_hz=odd[0],
-        odd_level=odd[1],
-        odd_noise=odd[2],
-        even_hz=even[0],
-        even_level=even[1],
-        even_noise=even[2],
-        output=str(doc["output"]),
-        period_s=float(doc["period_s"]),
-        period_ticks=int(doc["period_ticks"]),
-        periods=int(doc["periods"]),
-        skipped=int(doc["skipped"]),
-        start_tick=int(doc.get("start_tick", 0)),
-    )
 
 
 def rig_model_response(

@@ -309,6 +309,51 @@ def _margin_row(m: LoopMargins, what: str, broken: tuple[str, ...]) -> str:
     )
 
 
+def _filter_lines(fx: Any, lim: Any) -> list[str]:
+    """A filtered axis: its sections, their response at the modes and crossovers, and the
+    nominal loops with the filters taken out."""
+    out = [f"{fx.axis} output filters ({len(fx.sections)}, in series before the D/A):"]
+    for i, s in enumerate(fx.sections):
+        out.append(
+            f"  {i + 1}: b = [{s.b0}, {s.b1}, {s.b2}], a = [{1 << s.frac_bits}, {s.a1}, {s.a2}] "
+            f"(÷ 2^{s.frac_bits})"
+        )
+    for f_hz, g_db, ph in fx.at_modes:
+        out.append(f"  at the mode {f_hz:g} Hz: {g_db:+.1f} dB, {ph:+.1f}°")
+    for loop, wc, g_db, ph in fx.at_crossover:
+        out.append(f"  at the {loop} loop's crossover {wc:.3g} rad/s: {g_db:+.2f} dB, {ph:+.1f}°")
+    for m in fx.without:
+        name = "task centre cell" if m.cell is not None else m.loop
+        out.append(_margin_row(m, f"{name}, no filter", lim.broken(m)))
+    return out
+
+
+def _measured_lines(loops: Sequence[Any], lim: Any) -> list[str]:
+    """The loops on measured responses: per axis, loop and latency the worst over the response
+    and its 95 % bounds (the nominal in brackets), with the filters and without."""
+    lo, hi = loops[0].band_hz
+    out = [
+        f"on the measured response ({lo:.3g} … {hi:.3g} Hz; worst over its 95 % bounds, on the "
+        "response itself in brackets):",
+        f"{'axis':<8} {'loop':<26} {'latency':<10} {'PM[deg]':>13} {'GM[dB]':>13} {'Ms':>11}",
+    ]
+    groups: dict[tuple[str, bool, str, int], list[Any]] = {}
+    for m in loops:
+        groups.setdefault((m.axis, not m.filtered, m.loop, m.extra_ticks), []).append(m)
+    for key in sorted(groups):
+        w = max(groups[key], key=lambda x: x.max_sensitivity)
+        broken = w.broken(lim)
+        name = w.loop + ("" if w.filtered else ", no filter")
+        out.append(
+            f"{w.axis:<8} {name:<26} {f'+{w.extra_ticks} tick':<10} "
+            f"{w.phase_margin_deg:>5.1f} ({w.nominal_phase_margin_deg:5.1f}) "
+            f"{w.gain_margin_db:>5.1f} ({w.nominal_gain_margin_db:5.1f}) "
+            f"{w.max_sensitivity:>4.2f} ({w.nominal_max_sensitivity:4.2f})  "
+            + ("ok" if not broken else "FAIL: " + "; ".join(broken))
+        )
+    return out
+
+
 def format_margins(margins: Margins) -> str:
     """What ``servotune margins`` prints: per axis and loop the worst case, the scheduled
     axes' worst and centre cells, and the verdict naming the worst loop."""
@@ -343,6 +388,10 @@ def format_margins(margins: Margins) -> str:
                 lines.append(_margin_row(centre[0], "task centre cell", lim.broken(centre[0])))
     if scheduled:
         lines.append("the feedforward (K1) acts on the reference only: it changes no margin")
+    for fx in margins.filters:
+        lines += _filter_lines(fx, lim)
+    if margins.measured:
+        lines += _measured_lines(margins.measured, lim)
     bad = margins.failures()
     if not bad:
         lines.append(f"margins: PASS ({len(margins.loops)} loops)")

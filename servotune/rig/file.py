@@ -18,11 +18,13 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from servotune.errors import RigError
+from servotune.errors import RigError, SpecError
 from servotune.examples import EXAMPLES_DIR
 from servotune.hw import counter as hw_counter
 from servotune.io.files import atomic_write_bytes, parse_toml_as, read_bytes
 from servotune.io.sections import build_section
+from servotune.laws.axis import FILTER_F, MAX_FILTERS
+from servotune.laws.filters import INPUT_BOUND_WIDE, Section, realize, section_from_dict
 from servotune.laws.lock import lock_holding_band
 from servotune.plant import Plant
 from servotune.resonance import MAX_MODES, Mode
@@ -52,6 +54,7 @@ __all__ = [
     "EXAMPLE_RIG_PATH",
     "check_plant",
     "describe_rig",
+    "filters_from_array",
     "load_rig",
     "modes_from_array",
     "plant_from_table",
@@ -227,6 +230,37 @@ def modes_from_array(
     return tuple(modes)
 
 
+def filters_from_array(
+    value: object, path: str, period_s: float, input_bound: int = INPUT_BOUND_WIDE
+) -> tuple[Section, ...]:
+    """The output filters of an axis table's ``filters`` (``path``), an array of tables
+    (``[[axis.<name>.filters]]``: docs/formats.md#filters), each realisable at the rig's
+    achieved ``period_s`` for inputs up to ``input_bound`` (the D/A's range on the filters'
+    scale; its word length chosen: :func:`servotune.laws.filters.realize`).
+
+    Raises
+    ------
+    RigError
+        Naming the filter and the key: ``"axis.master.filters[0].center_hz must be ..."``.
+    """
+    if not isinstance(value, list) or len(value) > MAX_FILTERS:
+        raise RigError(
+            f"{path} must be an array of at most {MAX_FILTERS} tables "
+            f"([[{path}]]), got {show_value(value)}"
+        )
+    out = []
+    for i, item in enumerate(value):
+        where = f"{path}[{i}]"
+        try:
+            section = section_from_dict(dict(item) if isinstance(item, Mapping) else item, where)
+            realize(section, period_s, input_bound)
+        except SpecError as exc:
+            msg = str(exc)
+            raise RigError(msg if msg.startswith(where) else f"{where}: {msg}") from None
+        out.append(section)
+    return tuple(out)
+
+
 def _table(
     data: Mapping[str, Any], key: str, path: str, required: bool = True
 ) -> Mapping[str, Any]:
@@ -270,13 +304,27 @@ def rig_from_dict(data: Mapping[str, Any], default_name: str = "rig") -> Rig:
         pt = dict(pt)
         fit_t = pt.pop("fit", None)  # the fit record (servotune fit -o), not a plant field
         plant = plant_from_table(pt, f"axis.{name}.plant", dac.range_v, period_s=timer_period_s)
+        filters = filters_from_array(
+            at.pop("filters", []),
+            f"axis.{name}.filters",
+            timer_period_s,
+            max(dac.zero_code, dac.code_max - dac.zero_code) << FILTER_F,
+        )
         plant_fit = None
         if fit_t is not None:
             if not isinstance(fit_t, Mapping):
                 raise RigError(f"[axis.{name}.plant.fit] must be a table")
             plant_fit = build_section(PlantFit, fit_t, f"axis.{name}.plant.fit")
         axes.append(
-            build_section(Axis, at, f"axis.{name}", name=name, plant=plant, plant_fit=plant_fit)
+            build_section(
+                Axis,
+                at,
+                f"axis.{name}",
+                name=name,
+                plant=plant,
+                plant_fit=plant_fit,
+                filters=filters,
+            )
         )
     return Rig(
         **name_and_description(meta, "rig", default_name, error=RigError),
@@ -322,13 +370,15 @@ def describe_rig(rig: Rig) -> dict[str, Any]:
         holding band (docs/runtime.md#position-lock-and-its-holding-band) for each axis's drift and
         friction; an axis whose plant has modes (docs/formats.md#modes) also lists them
         (``modes``: each one's frequency, damping, gain, their 95 % intervals where the rig file
-        has them, and the anti-resonance); an axis without has no such key.
+        has them, and the anti-resonance); an axis without has no such key. An axis with
+        output filters lists them (``filters``: each one's design inputs and the quantised
+        coefficients the runtime runs at the achieved period).
     """
     t, c = rig.timer, rig.counter
     unwrap_rpm = hw_counter.unwrap_speed_limit_rpm(c.bits, rig.counts_per_rev, rig.period_s)
     input_rpm = hw_counter.input_speed_limit_rpm(c.max_input_hz, rig.encoder.pulses_per_rev)
     axes = {}
-    for a in rig.axes:
+    for i, a in enumerate(rig.axes):
         v_cps = a.speed_limit_rpm / 60.0 * rig.counts_per_rev
         try:
             lo, hi = lock_holding_band(
@@ -352,6 +402,11 @@ def describe_rig(rig: Rig) -> dict[str, Any]:
         }
         if a.plant.modes:
             axes[a.name]["modes"] = [m.to_dict() for m in a.plant.modes]
+        if a.filters:
+            axes[a.name]["filters"] = [
+                f.to_dict() | q.to_dict()
+                for f, q in zip(a.filters, rig.runtime_filters(i), strict=True)
+            ]
     return {
         "achieved_period_s": rig.period_s,
         "axes": axes,

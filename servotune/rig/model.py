@@ -20,6 +20,8 @@ from servotune.errors import RigError
 from servotune.hw import counter as hw_counter
 from servotune.hw import dac as hw_dac
 from servotune.hw import timer as hw_timer
+from servotune.laws.axis import FILTER_F, MAX_FILTERS
+from servotune.laws.filters import Section, SectionQ, realize
 from servotune.plant import Plant
 from servotune.validate import check_integer, check_number, is_finite, is_number, show_value
 
@@ -384,6 +386,10 @@ class Axis:
         Card channels.
     plant_fit : PlantFit or None
         How the plant was identified (``[axis.<name>.plant.fit]``), if it was.
+    filters : tuple of Section
+        Up to four output filters of the axis's law (``[[axis.<name>.filters]]``,
+        docs/runtime.md#filters-in-the-law), in the order they run; the runtime runs them
+        quantised at the rig's achieved period (:func:`servotune.laws.filters.realize`).
     """
 
     name: str
@@ -397,9 +403,15 @@ class Axis:
     counter_channel: int = 0
     dac_channel: int = 0
     plant_fit: PlantFit | None = None
+    filters: tuple[Section, ...] = ()
 
     def __post_init__(self) -> None:
         p = f"axis.{self.name}"
+        if len(self.filters) > MAX_FILTERS or not all(isinstance(f, Section) for f in self.filters):
+            raise RigError(
+                f"{p}.filters must be at most {MAX_FILTERS} filter sections, "
+                f"got {show_value(self.filters)}"
+            )
         if self.role not in ROLES:
             raise RigError(f"{p}.role must be 'master' or 'slave', got {show_value(self.role)}")
         _positive(
@@ -520,3 +532,9 @@ class Rig:
     def axis_names(self) -> tuple[str, ...]:
         """Axis names in file order (the master first is not required)."""
         return tuple(a.name for a in self.axes)
+
+    def runtime_filters(self, index: int) -> tuple[SectionQ, ...]:
+        """Axis ``index``'s output filters as the runtime runs them: quantised at the achieved
+        period for inputs within the D/A's range (:func:`servotune.laws.filters.realize`)."""
+        bound = max(self.dac.zero_code, self.dac.code_max - self.dac.zero_code) << FILTER_F
+        return tuple(realize(f, self.period_s, bound) for f in self.axes[index].filters)

@@ -102,8 +102,9 @@ class Loop:
                 task_gains=g,
                 period_s=rig.period_s,
                 following_error_limit_counts=a.following_error_limit_counts,
+                filters=rig.runtime_filters(i),
             )
-            for a, g in zip(rig.axes, gains, strict=True)
+            for i, (a, g) in enumerate(zip(rig.axes, gains, strict=True))
         )
         return cls(rig=rig, controllers=ctl)
 

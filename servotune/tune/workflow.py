@@ -11,7 +11,7 @@ margins python-control then confirms.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -20,12 +20,15 @@ import numpy as np
 
 from servotune import fuzzy
 from servotune._version import __version__
+from servotune.analysis.frf import Frf
+from servotune.analysis.frf_margins import frf_loops
 from servotune.analysis.margins import tuning_margins
 from servotune.errors import InfeasibleError, SpecError
 from servotune.laws.fuzzy_pid import FuzzyPIDConstants
 from servotune.rig import Rig, load_rig
 from servotune.sim.engine import Loop
-from servotune.tune.robust import robust_lock_gain, robust_pi
+from servotune.tune.filters import choose_filters
+from servotune.tune.robust import modes_note, robust_lock_gain, robust_pi
 from servotune.tune.slave import (
     SlaveTuneSpec,
     master_slave,
@@ -58,21 +61,57 @@ class _RobustStart:
     master_pi: Any  # PITuning
     slave_pi: Any  # PITuning (the slave tuner's start point)
     lock_gains: tuple[float, ...]
+    filters: dict[str, Any]  # axis name → FilterChoice, for the axes whose filters were chosen
 
 
-def robust_start(rig: Rig, spec: SlaveTuneSpec) -> _RobustStart:
-    """Lock gains and PI designs that keep ``spec``'s margin limits over the plant set
-    (:func:`~servotune.analysis.plant_cases.plant_cases` of the spec's spreads, latency and timer
-    error).
+def _has_modes(rig: Rig) -> bool:
+    return any(a.plant.modes for a in rig.axes)
+
+
+def robust_start(
+    rig: Rig, spec: SlaveTuneSpec, *, seed: int = 0, frf: Mapping[str, Frf] | None = None
+) -> _RobustStart:
+    """Output filters, lock gains and PI designs that keep ``spec``'s margin limits over the
+    plant set (:func:`~servotune.analysis.plant_cases.plant_cases` of the spec's spreads,
+    latency and timer error, and each mode's frequency range).
+
+    An axis whose plant has modes and whose rig gives it no filters gets them chosen with its
+    PI (:func:`~servotune.tune.filters.choose_filters`); the returned rig carries them, so every
+    loop designed or run from it (the lock gains, the slave's tuner, the engine) has them.
 
     Raises
     ------
     InfeasibleError
-        A loop cannot keep the limits (the message names the axis and the binding limit).
+        A loop cannot keep the limits (the message names the axis and the binding limit; for an
+        axis with modes, the modes too).
     """
     i_m, i_s = master_slave(rig)
     cases = spec.plant_cases(rig)
-    locks = tuple(robust_lock_gain(rig, a.name, cases, spec.limits) for a in rig.axes)
+    # an axis with modes: its screens also take the sampled plant sets the final check takes (a
+    # mode's frequency inside its range with the gain and tau elsewhere than at a corner)
+    sampled = spec.plant_cases(rig, seed=seed, sampled=True) if _has_modes(rig) else cases
+    screen = {a.name: sampled if a.plant.modes else cases for a in rig.axes}
+    choices = {
+        a.name: choose_filters(
+            rig,
+            a.name,
+            cases,
+            spec.limits,
+            screen[a.name],
+            frf=(frf or {}).get(a.name),
+            extra_ticks=spec.extra_ticks,
+        )
+        for a in rig.axes
+        if a.plant.modes and not a.filters
+    }
+    rig = dataclasses.replace(
+        rig,
+        axes=tuple(
+            dataclasses.replace(a, filters=choices[a.name].sections) if a.name in choices else a
+            for a in rig.axes
+        ),
+    )
+    locks = tuple(robust_lock_gain(rig, a.name, screen[a.name], spec.limits) for a in rig.axes)
     robust = dataclasses.replace(
         rig,
         axes=tuple(
@@ -80,11 +119,19 @@ def robust_start(rig: Rig, spec: SlaveTuneSpec) -> _RobustStart:
             for a, k in zip(rig.axes, locks, strict=True)
         ),
     )
+
+    def pi(i: int) -> Any:
+        name = rig.axes[i].name
+        if name in choices:
+            return choices[name].pi
+        return robust_pi(robust, name, cases, spec.limits, screen[name])
+
     return _RobustStart(
         rig=robust,
-        master_pi=robust_pi(robust, rig.axes[i_m].name, cases, spec.limits),
-        slave_pi=robust_pi(robust, rig.axes[i_s].name, cases, spec.limits),
+        master_pi=pi(i_m),
+        slave_pi=pi(i_s),
         lock_gains=locks,
+        filters=choices,
     )
 
 
@@ -95,9 +142,16 @@ def tune_rig(
     spec: SlaveTuneSpec | None = None,
     rule_base: str = "default",
     progress: Callable[[str], None] | None = None,
+    frf: Mapping[str, Frf] | None = None,
 ) -> Tuning:
     """Tune a rig: lock gains, master PI, slave composite law; the result as the runtime will
     run it, every loop of it keeping ``spec``'s margin limits over the plant set.
+
+    ``frf`` maps axis names to their measured responses (``servotune frf``): an axis's filters
+    are then chosen to keep the limits on it too (:func:`~servotune.tune.filters.
+    choose_filters`), and every loop of the tuning is judged on it at the end
+    (:func:`~servotune.analysis.frf_margins.frf_loops`, with the spec's extra latency); the
+    worst loop per axis goes into ``design.frf_margins``.
 
     The lock gains (the rig's, lowered if needed) and the PIs are designed for the plant set
     (:mod:`servotune.tune.robust`); the slave's law is tuned with the margins of every cell as
@@ -134,8 +188,13 @@ def tune_rig(
     say = progress or (lambda _msg: None)
     i_m, i_s = master_slave(rig)
     say(f"tune: PI for {rig.axes[i_m].name} and the start point of {rig.axes[i_s].name}")
-    start = robust_start(rig, spec)
+    frf = dict(frf or {})
+    for name in frf:
+        rig.axis(name)  # an unknown axis is one line, before any work
+    start = robust_start(rig, spec, seed=seed, frf=frf)
     rig, master_pi, slave_pi = start.rig, start.master_pi, start.slave_pi
+    for choice in start.filters.values():
+        say(f"tune: filters for {choice.axis}: {choice.why}")
     tables = rule_tables(rule_base)
     slave = tune_slave(
         rig,
@@ -148,41 +207,7 @@ def tune_rig(
         progress=progress,
     )
     if not slave.feasible:
-        w = slave.worst
-        broken = [
-            text
-            for bad, text in (
-                (w["fault"] > 0, "a fault (following-error trip) on some variant"),
-                (
-                    w["saturation_pct"] > spec.max_saturation_pct,
-                    f"saturation {w['saturation_pct']:.1f} % > {spec.max_saturation_pct:g} %",
-                ),
-                (
-                    w["overshoot_pct"] > spec.max_overshoot_pct,
-                    f"overshoot {w['overshoot_pct']:.0f} % > {spec.max_overshoot_pct:g} %",
-                ),
-                (
-                    w["phase_margin_deg"] < spec.min_phase_margin_deg,
-                    f"PM {w['phase_margin_deg']:.1f}° < {spec.min_phase_margin_deg:g}°",
-                ),
-                (
-                    w["gain_margin_db"] < spec.min_gain_margin_db,
-                    f"GM {w['gain_margin_db']:.1f} dB < {spec.min_gain_margin_db:g} dB",
-                ),
-                (
-                    w["max_sensitivity"] > spec.max_sensitivity,
-                    f"Ms {w['max_sensitivity']:.2f} > {spec.max_sensitivity:g}",
-                ),
-            )
-            if bad
-        ]
-        raise InfeasibleError(
-            f"no slave tuning met the constraints within the budget ({spec.generations} "
-            f"generations of {spec.population}); the closest breaks: "
-            f"{'; '.join(broken) or 'a margin limit by the tolerance the design keeps'} "
-            f"(worst cell PM {w['phase_margin_deg']:.1f}°, GM {w['gain_margin_db']:.1f} dB, "
-            f"Ms {w['max_sensitivity']:.2f})"
-        )
+        raise InfeasibleError(_slave_infeasible(slave, spec))
     gains: list[object | None] = [None] * len(rig.axes)
     gains[i_m], gains[i_s] = master_pi.gains, slave.gains
     ctls = Loop.from_rig(rig, gains).controllers
@@ -206,7 +231,10 @@ def tune_rig(
             },
             "spec": spec.to_dict(),
             "lock_gains_codes_per_count": dict(zip(rig.axis_names, start.lock_gains, strict=True)),
-        },
+        }
+        | (
+            {"filters": {k: c.to_dict() for k, c in start.filters.items()}} if start.filters else {}
+        ),
         provenance={
             "rig_sha256": rig_sha256,
             "rule_base": rule_base,
@@ -226,7 +254,75 @@ def tune_rig(
             "this)"
         )
     summary = {a: margins.worst(a).to_dict() for a in rig.axis_names}
-    return dataclasses.replace(tuning, design={**tuning.design, "margins": summary})
+    design = {**tuning.design, "margins": summary}
+    if frf:
+        say("tune: margins of every loop on the measured responses (python-control)")
+        design["frf_margins"] = _frf_verdict(tuning, rig, frf, spec)
+    return dataclasses.replace(tuning, design=design)
+
+
+def _frf_verdict(
+    tuning: Tuning, rig: Rig, frf: Mapping[str, Frf], spec: SlaveTuneSpec
+) -> dict[str, Any]:
+    """The worst loop of each axis with a measured response, judged on it; a loop that breaks a
+    limit there stops the tune."""
+    out = {}
+    for a, (name, ctl) in enumerate(zip(tuning.axis_names, tuning.controllers, strict=True)):
+        if name not in frf:
+            continue
+        loops = frf_loops(
+            frf[name], ctl, lsb_v=rig.dac.lsb_v, axis=name, extra_ticks=spec.extra_ticks
+        )
+        worst = max(loops, key=lambda x: x.max_sensitivity)
+        bad = [(x, x.broken(spec.limits)) for x in loops if x.broken(spec.limits)]
+        if bad:
+            x, broken = bad[0]
+            cell = "" if x.cell is None else f" cell E={x.cell[0]} EC={x.cell[1]}"
+            raise InfeasibleError(
+                f"the tuned {name} {x.loop}{cell} (+{x.extra_ticks} tick) breaks the margin "
+                f"limits on the measured response{modes_note(rig, a)}: {'; '.join(broken)}"
+            )
+        out[name] = worst.to_dict()
+    return out
+
+
+def _slave_infeasible(slave: Any, spec: SlaveTuneSpec) -> str:
+    """The one line of a slave tuning that met no constraint set: what the closest breaks."""
+    w = slave.worst
+    broken = [
+        text
+        for bad, text in (
+            (w["fault"] > 0, "a fault (following-error trip) on some variant"),
+            (
+                w["saturation_pct"] > spec.max_saturation_pct,
+                f"saturation {w['saturation_pct']:.1f} % > {spec.max_saturation_pct:g} %",
+            ),
+            (
+                w["overshoot_pct"] > spec.max_overshoot_pct,
+                f"overshoot {w['overshoot_pct']:.0f} % > {spec.max_overshoot_pct:g} %",
+            ),
+            (
+                w["phase_margin_deg"] < spec.min_phase_margin_deg,
+                f"PM {w['phase_margin_deg']:.1f}° < {spec.min_phase_margin_deg:g}°",
+            ),
+            (
+                w["gain_margin_db"] < spec.min_gain_margin_db,
+                f"GM {w['gain_margin_db']:.1f} dB < {spec.min_gain_margin_db:g} dB",
+            ),
+            (
+                w["max_sensitivity"] > spec.max_sensitivity,
+                f"Ms {w['max_sensitivity']:.2f} > {spec.max_sensitivity:g}",
+            ),
+        )
+        if bad
+    ]
+    return (
+        f"no slave tuning met the constraints within the budget ({spec.generations} "
+        f"generations of {spec.population}); the closest breaks: "
+        f"{'; '.join(broken) or 'a margin limit by the tolerance the design keeps'} "
+        f"(worst cell PM {w['phase_margin_deg']:.1f}°, GM {w['gain_margin_db']:.1f} dB, "
+        f"Ms {w['max_sensitivity']:.2f})"
+    )
 
 
 def tuning_summary(tuning: Tuning) -> dict[str, Any]:

@@ -10,15 +10,19 @@ from typing import Any
 
 import numpy as np
 
+from servotune.analysis.plant_cases import mode_factors
 from servotune.fixed import E_MAX, F_U, INT64_MAX
 from servotune.hw import counter as hw_counter
 from servotune.laws.axis import AxisController
+from servotune.laws.filters import chain_response
 from servotune.laws.fuzzy_pid import TABLE_NAMES, FuzzyPIDConstants
 from servotune.rig import Rig
 from servotune.tuning import Tuning
 from servotune.verify.result import Check
+from servotune.verify.spec import Spec
 
 __all__ = [
+    "check_filter_attenuation",
     "check_overflow",
     "check_speed",
     "check_timer",
@@ -239,3 +243,40 @@ def check_speed(
         },
     )
     return unwrap, freq
+
+
+def check_filter_attenuation(tuning: Tuning, rig: Rig, spec: Spec) -> list[Check]:
+    """With ``[margins] min_filter_attenuation_db``: one check per axis whose plant has modes
+    (``filters:<axis>``), the filters' gain (their quantised coefficients at the achieved
+    period) at each mode's frequency, at the ends of its range and at its nominal value
+    (:func:`~servotune.analysis.plant_cases.mode_factors`: what the Monte Carlo draws), at
+    most ``−min_filter_attenuation_db``. Its value is the least attenuation [dB]."""
+    need = spec.min_filter_attenuation_db
+    if need is None:
+        return []
+    out = []
+    for a, (name, ctl) in enumerate(zip(tuning.axis_names, tuning.controllers, strict=True)):
+        modes = rig.axes[a].plant.modes
+        if not modes:
+            continue
+        least, at = math.inf, modes[0].freq_hz
+        for m in modes:
+            lo, hi = mode_factors(m)
+            f = m.freq_hz * np.array([lo, 1.0, hi])
+            gain = np.abs(chain_response(ctl.filters, 2 * math.pi * f, rig.period_s))
+            db = -20.0 * np.log10(np.maximum(gain, 1e-300))
+            if db.min() < least:
+                least, at = float(db.min()), float(f[int(np.argmin(db))])
+        what = "no output filter" if not ctl.filters else f"{len(ctl.filters)} filter section(s)"
+        out.append(
+            Check(
+                name=f"filters:{name}",
+                passed=least >= need,
+                value=least,
+                limit=need,
+                unit="dB",
+                detail=f"{what}: least attenuation {least:.1f} dB at {at:.4g} Hz over the modes' "
+                f"ranges (at least {need:g} dB required)",
+            )
+        )
+    return out

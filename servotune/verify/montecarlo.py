@@ -32,7 +32,7 @@ from servotune.plant import Plant
 from servotune.rig import Rig
 from servotune.verify.result import MonteCarloSummary, Sensitivity, WorstVariant, clopper_pearson
 from servotune.verify.spec import MonteCarlo
-from servotune.verify.variants import SPREAD_PARAMETERS, spread_parameters, spread_plants
+from servotune.verify.variants import drawn_columns, spread_parameters, spread_plants
 
 __all__ = [
     "PlantDistribution",
@@ -89,7 +89,8 @@ class PlantDistribution(Protocol):
 class SpecSpread:
     """:class:`PlantDistribution` of a spec's ``[montecarlo]`` table: each varied axis's gain,
     time constant, offset and Coulomb level drawn uniformly inside the spreads (widened to the
-    identified 95 % intervals of a fitted rig), exactly as
+    identified 95 % intervals of a fitted rig), and each of its modes' frequency and damping
+    (:func:`~servotune.verify.variants.spread_parameters`), exactly as
     :func:`~servotune.verify.variants.plant_variants` draws them.
 
     Parameters
@@ -113,8 +114,10 @@ class SpecSpread:
 
     @property
     def parameters(self) -> tuple[str, ...]:
-        """``"<axis>.<parameter>"`` per varied axis and spread parameter."""
-        return tuple(f"{a}.{k}" for a in self.axes for k in SPREAD_PARAMETERS)
+        """``"<axis>.<parameter>"`` per varied axis: each spread parameter, then each mode's
+        drawn values (``master.mode1_freq_hz``; ``master.mode1_damping`` where its damping has
+        an interval): :func:`~servotune.verify.variants.drawn_columns`."""
+        return tuple(name for name, _, _ in drawn_columns(self.rig, self.montecarlo))
 
     def draw(self, seed: int, start: int, stop: int) -> tuple[list[tuple[Plant, ...]], np.ndarray]:
         """See :meth:`PlantDistribution.draw`."""
@@ -124,11 +127,13 @@ class SpecSpread:
     def draw_parameters(self, seed: int, start: int, stop: int) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`draw` without a :class:`Plant` each: the plant sets' parameter rows
         (:func:`~servotune.verify.variants.spread_parameters`, shape ``(stop − start, rig axes,
-        NPARAM)``) and the drawn values. A distribution may offer this method: a Monte-Carlo
-        chunk then builds its plant rows from the parameters directly (much faster)."""
+        NCOLUMNS)``, :mod:`servotune.verify.plant_sets`, the modes' draws included) and the
+        drawn values. A distribution may offer this method: a Monte-Carlo chunk then builds its
+        plant rows from the parameters directly (much faster)."""
         params = spread_parameters(self.rig, self.montecarlo, seed, start, stop)
-        idx = [self.rig.axis_names.index(a) for a in self.axes]
-        values = params[:, idx, : len(SPREAD_PARAMETERS)].reshape(len(params), len(self.parameters))
+        cols = drawn_columns(self.rig, self.montecarlo)
+        axes = [j for _, j, _ in cols]
+        values = params[:, axes, [c for _, _, c in cols]].reshape(len(params), len(cols))
         return params, np.ascontiguousarray(values)
 
 

@@ -29,6 +29,9 @@ from pathlib import Path
 from typing import Any, Generic, NamedTuple, TypedDict, TypeVar, Unpack
 
 from servotune._version import __version__
+from servotune.analysis.filter_effect import filter_effects
+from servotune.analysis.frf import Frf
+from servotune.analysis.frf_margins import frf_loops
 from servotune.analysis.margins import DEFAULT_LIMITS, MarginLimits, Margins, tuning_margins
 from servotune.digest import DIGEST_FIELD, document_sha256
 from servotune.errors import RigError, SpecError, TrustError, TuningError
@@ -515,9 +518,15 @@ def margins_files(
     rig_path: str | Path | None = None,
     *,
     limits: MarginLimits | None = None,
+    frf: Mapping[str, Frf] | None = None,
+    extra_ticks: int = 1,
 ) -> Margins:
-    """What ``servotune margins TUNING [--rig RIG]`` computes: the margins of every loop of the
-    tuning on the nominal plants of the rig it was made for (:func:`rig_for_tuning`).
+    """What ``servotune margins TUNING [--rig RIG] [--frf AXIS=FILE]`` computes: the margins of
+    every loop of the tuning on the nominal plants of the rig it was made for
+    (:func:`rig_for_tuning`); for an axis with output filters, what they do and the loops
+    without them (:func:`~servotune.analysis.filter_effect.filter_effects`); for an axis with a
+    measured response, every loop on it with its filters and without, with 0 and
+    ``extra_ticks`` more ticks (:func:`~servotune.analysis.frf_margins.frf_loops`).
 
     Raises
     ------
@@ -527,7 +536,20 @@ def margins_files(
         A file is missing or malformed.
     """
     tuning, _, rig, _ = _tuning_and_rig(tuning_path, rig_path)
-    return tuning_margins(tuning, rig, limits=DEFAULT_LIMITS if limits is None else limits)
+    m = tuning_margins(tuning, rig, limits=DEFAULT_LIMITS if limits is None else limits)
+    measured = []
+    for name, response in (frf or {}).items():
+        ctl = tuning.controllers[rig.axis_names.index(rig.axis(name).name)]
+        for with_filters in (True, False) if ctl.filters else (True,):
+            measured += frf_loops(
+                response,
+                ctl,
+                lsb_v=rig.dac.lsb_v,
+                axis=name,
+                extra_ticks=extra_ticks,
+                filters=with_filters,
+            )
+    return replace(m, filters=filter_effects(tuning, rig), measured=tuple(measured))
 
 
 def read_record(tuning_path: str | Path, schema: str = RECORD_SCHEMA) -> dict[str, Any]:

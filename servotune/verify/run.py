@@ -42,6 +42,7 @@ from servotune.validate import check_seed, show_value
 from servotune.verify.checks import (
     FAULT_QUANTITY,
     Fastest,
+    check_filter_attenuation,
     check_overflow,
     check_speed,
     check_timer,
@@ -373,9 +374,11 @@ def _run_chunk(chunk: _Chunk, shared: _Shared) -> _ChunkResult:
     which = np.zeros(n, dtype=np.int64)
     value = np.full(n, np.nan)
     fastest = []
+    # the lean two-axis kernel runs rigid plants: a resonant rig's rows are not built for it
+    lean_ok = shared.kernel == "auto" and not any(a.plant.modes for a in shared.rig.axes)
     for sc, inputs in shared.runs:
         lean = None
-        if shared.kernel == "auto" and _lean_sync_ok(shared, sc, chunk_plants.rows()[1]):
+        if lean_ok and _lean_sync_ok(shared, sc, chunk_plants.rows()[1]):
             pf, pi = chunk_plants.rows()
             seeds = np.asarray(chunk.noise, dtype=np.uint64)
             lean = _run_lean_sync(shared, sc, inputs, pf, pi, seeds)
@@ -743,6 +746,7 @@ def verify(
         )
         say("verify: margins of every loop over the plant set")
         checks += margins.result()
+        checks += check_filter_attenuation(tuning, rig, spec)
     passed = np.concatenate([p.passed for p in parts])
     summary = None
     if count:

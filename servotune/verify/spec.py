@@ -29,6 +29,8 @@ Every key is optional unless marked; unknown keys are errors; every limit is an 
     max_sensitivity = 2.0         # peak sensitivity Ms [1] (Åström & Hägglund: 1.2–2.0)
     extra_ticks = 1               # latency the loops must also take [ticks] (0: none)
     samples = 32                  # plant sets drawn inside the box besides its corners
+    min_filter_attenuation_db = 10.0  # optional: each mode attenuated at least this much by its
+                                  # axis's output filters over its frequency range [dB]
 
     [scenario.<name>]             # at least one; kind defaults to the table name
     kind = "sync"                 # "sync", "track" or "lock"
@@ -54,6 +56,9 @@ step on the slave halfway through the constant speed): ``seconds`` [s] (2.4),
   constant-speed part before the load step (the first half lets the acceleration transient
   decay).
 - ``max_saturation_pct`` [%]: share of each axis's task ticks with the D/A on a rail.
+- ``max_residual_vibration_counts`` [counts]: for an axis whose plant has modes, the largest
+  band-passed position at its modes after the reference stops
+  (:func:`servotune.verify.scenario_values.residual_vibration`); an axis without modes has none.
 
 ``lock`` (every axis held by the position-lock module): ``seconds`` (10.0), ``settle_s`` [s]
 (2.0). Limits: ``max_holding_band_counts`` [counts], max |lock target − position| after
@@ -102,6 +107,7 @@ LIMITS: Mapping[str, tuple[str, str]] = {
     "max_steady_lag_counts": ("steady_lag_counts", "counts"),
     "max_saturation_pct": ("saturation_pct", "%"),
     "max_holding_band_counts": ("holding_band_counts", "counts"),
+    "max_residual_vibration_counts": ("residual_vibration_counts", "counts"),
 }
 """Spec limit key → (quantity it bounds, unit)."""
 
@@ -112,6 +118,7 @@ _MOVE_LIMITS = (
     "max_rms_sync_error_counts",
     "max_steady_lag_counts",
     "max_saturation_pct",
+    "max_residual_vibration_counts",
 )
 KINDS: Mapping[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "sync": (
@@ -174,6 +181,7 @@ class ScenarioSpec:
         lock: start transient excluded from the holding band [s], < ``seconds``.
     max_overshoot_pct, max_settling_time_s, max_sync_error_counts, max_rms_sync_error_counts,
     max_steady_lag_counts, max_saturation_pct, max_holding_band_counts : float or None
+    max_residual_vibration_counts : float or None
         Limits (units in the names; see :data:`LIMITS`); None: not checked.
 
     Raises
@@ -197,6 +205,7 @@ class ScenarioSpec:
     max_steady_lag_counts: float | None = None
     max_saturation_pct: float | None = None
     max_holding_band_counts: float | None = None
+    max_residual_vibration_counts: float | None = None
 
     def __post_init__(self) -> None:
         p = f"scenario.{self.name}"
@@ -370,6 +379,10 @@ class Spec:
     margin_samples : int
         Plant sets drawn inside the plant set's box besides its corners (seeded by the
         Monte-Carlo seed), 0..10,000.
+    min_filter_attenuation_db : float or None
+        ``[margins] min_filter_attenuation_db``: every mode of every axis must be attenuated by
+        at least this much by the axis's output filters, over the mode's frequency range
+        (:func:`servotune.verify.checks.check_filter_attenuation`) [dB], > 0; None: not judged.
     """
 
     name: str
@@ -381,6 +394,7 @@ class Spec:
     margins: MarginLimits = DEFAULT_LIMITS
     margin_extra_ticks: int = 1
     margin_samples: int = 32
+    min_filter_attenuation_db: float | None = None
 
     def __post_init__(self) -> None:
         if not self.scenarios:
@@ -401,6 +415,15 @@ class Spec:
         check_integer(
             "margins.samples", self.margin_samples, "plant sets", hi=10_000, error=SpecError
         )
+        if self.min_filter_attenuation_db is not None:
+            check_number(
+                "margins.min_filter_attenuation_db",
+                self.min_filter_attenuation_db,
+                "dB",
+                strict=True,
+                hi=200.0,
+                error=SpecError,
+            )
 
     def scenario(self, name: str) -> ScenarioSpec:
         """The scenario called ``name``."""
@@ -419,7 +442,12 @@ class Spec:
                 **self.margins.to_dict(),
                 "extra_ticks": self.margin_extra_ticks,
                 "samples": self.margin_samples,
-            },
+            }
+            | (
+                {"min_filter_attenuation_db": self.min_filter_attenuation_db}
+                if self.min_filter_attenuation_db is not None
+                else {}
+            ),
             "max_period_error_ppm": self.max_period_error_ppm,
             "montecarlo": self.montecarlo.to_dict(),
             "name": self.name,
@@ -459,7 +487,9 @@ def spec_from_dict(data: Mapping[str, Any], default_name: str = "spec") -> Spec:
     montecarlo = MonteCarlo(**mc_t)
     margins_t = dict(_table(data, "margins"))
     limit_keys = [f.name for f in fields(MarginLimits)]
-    _only(margins_t, "margins", [*limit_keys, "extra_ticks", "samples"])
+    _only(
+        margins_t, "margins", [*limit_keys, "extra_ticks", "samples", "min_filter_attenuation_db"]
+    )
     try:
         margin_limits = MarginLimits(**{k: v for k, v in margins_t.items() if k in limit_keys})
     except SpecError as exc:
@@ -495,6 +525,7 @@ def spec_from_dict(data: Mapping[str, Any], default_name: str = "spec") -> Spec:
         margins=margin_limits,
         margin_extra_ticks=margins_t.get("extra_ticks", 1),
         margin_samples=margins_t.get("samples", 32),
+        min_filter_attenuation_db=margins_t.get("min_filter_attenuation_db"),
         scenarios=tuple(scenarios),
     )
 

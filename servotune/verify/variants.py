@@ -9,10 +9,9 @@ from typing import Any
 
 import numpy as np
 
-from servotune.analysis.plant_cases import spread_factors
+from servotune.analysis.plant_cases import damping_range, mode_factors, spread_factors
 from servotune.errors import SpecError
 from servotune.plant import (
-    NPARAM,
     P_COULOMB,
     P_COULOMB_NEG,
     P_GAIN,
@@ -20,17 +19,28 @@ from servotune.plant import (
     P_OFFSET,
     P_TAU,
     Plant,
-    parameter_row,
 )
+from servotune.resonance import MAX_MODES
 from servotune.rig import Rig
 from servotune.validate import show_value
-from servotune.verify.plant_sets import plants_from_parameters
+from servotune.verify.plant_sets import (
+    M_DAMPING,
+    M_FREQ,
+    NCOLUMNS,
+    mode_column,
+    plant_columns,
+    plants_from_parameters,
+)
 from servotune.verify.spec import MonteCarlo
 
 __all__ = [
+    "MODE_STREAM",
+    "NOISE_STREAM",
     "SPREAD_PARAMETERS",
+    "VARIANT_STREAM",
     "Variant",
     "chunk_generator",
+    "drawn_columns",
     "plant_variants",
     "spread_parameters",
     "spread_plants",
@@ -57,14 +67,26 @@ class Variant:
 
     def to_dict(self, axis_names: Sequence[str]) -> dict[str, Any]:
         """Plain dict: the label and per axis the varied parameters (the negative direction's
-        gain and Coulomb level only for an asymmetric plant that sets them)."""
+        gain and Coulomb level only for an asymmetric plant that sets them; ``modes``, each
+        mode's ``freq_hz`` and ``damping``, only for a plant with modes)."""
         keys = ("gain_cps_per_v", "tau_s", "offset_v", "coulomb_v")
         neg_keys = ("gain_neg_cps_per_v", "coulomb_neg_v")
+
+        def modes(p: Plant) -> dict[str, Any]:
+            if not p.modes:
+                return {}
+            return {
+                "modes": [
+                    {"freq_hz": float(m.freq_hz), "damping": float(m.damping)} for m in p.modes
+                ]
+            }
+
         return {
             "label": self.label,
             "plants": {
                 n: {k: float(getattr(p, k)) for k in keys}
                 | {k: float(getattr(p, k)) for k in neg_keys if getattr(p, k) is not None}
+                | modes(p)
                 for n, p in zip(axis_names, self.plants, strict=True)
             },
         }
@@ -78,7 +100,9 @@ def plant_variants(rig: Rig, mc: MonteCarlo, seed: int | None = None) -> tuple[V
     plant stays asymmetric: the gain draw scales both directions' gains by the same factor,
     the Coulomb draw both directions' Coulomb levels (the ratio between the directions is the
     drive's and is kept); a direction left None stays None, so a symmetric plant stays
-    symmetric and draws exactly as before.
+    symmetric and draws exactly as before. A plant with modes also draws, from a stream of
+    its own (:func:`spread_parameters`), each mode's frequency and damping; a rigid rig draws
+    exactly as before.
 
     Raises
     ------
@@ -93,18 +117,48 @@ def plant_variants(rig: Rig, mc: MonteCarlo, seed: int | None = None) -> tuple[V
 
 
 _DRAWS_PER_AXIS = 4  # uniforms per axis and variant: gain, tau, offset, Coulomb
+_MODE_DRAWS_PER_AXIS = 2 * MAX_MODES  # uniforms per axis and variant: each mode slot's freq, ζ
+VARIANT_STREAM, NOISE_STREAM, MODE_STREAM = 0, 1, 2
+"""Indices in :func:`seed_seqs`: the plant parameters' draws, the noise streams, the modes'."""
 SPREAD_PARAMETERS = ("gain_cps_per_v", "tau_s", "offset_v", "coulomb_v")
 """The plant parameters a spec's spread varies, in draw order (units in the names)."""
 
 
-def chunk_generator(seed: int, start: int, draws_per_item: int) -> np.random.Generator:
-    """The seed's variant stream, jumped to item ``start``: item ``i`` always takes the
-    ``draws_per_item`` uniforms at ``[i·d, (i + 1)·d)`` of the stream (PCG64's ``advance``), so a
-    chunk ``[start, stop)`` draws exactly what one pass over all items draws there, whatever
-    the chunking (docs/decisions.md#11-random-numbers)."""
-    bits = np.random.PCG64(seed_seqs(seed)[0])
+def chunk_generator(
+    seed: int, start: int, draws_per_item: int, stream: int = VARIANT_STREAM
+) -> np.random.Generator:
+    """The seed's variant stream (``stream``: another of :func:`seed_seqs`), jumped to item
+    ``start``: item ``i`` always takes the ``draws_per_item`` uniforms at ``[i·d, (i + 1)·d)``
+    of the stream (PCG64's ``advance``), so a chunk ``[start, stop)`` draws exactly what one
+    pass over all items draws there, whatever the chunking
+    (docs/decisions.md#11-random-numbers)."""
+    bits = np.random.PCG64(seed_seqs(seed)[stream])
     bits.advance(int(start) * int(draws_per_item))
     return np.random.Generator(bits)
+
+
+def _spread(rig: Rig, mc: MonteCarlo) -> list[bool]:
+    """Per rig axis, whether the spread varies it (every axis if ``mc.axes`` is empty)."""
+    return [not mc.axes or a.name in mc.axes for a in rig.axes]
+
+
+def drawn_columns(rig: Rig, mc: MonteCarlo) -> tuple[tuple[str, int, int], ...]:
+    """The values the spread draws, as ``("<axis>.<parameter>", axis index, column)`` of
+    :func:`spread_parameters`' rows: per varied axis (rig order) its
+    :data:`SPREAD_PARAMETERS`, then per mode ``k`` (1-based) ``mode<k>_freq_hz`` and, where its
+    damping has an interval to draw in, ``mode<k>_damping``."""
+    out: list[tuple[str, int, int]] = []
+    for j, (axis, varied) in enumerate(zip(rig.axes, _spread(rig, mc), strict=True)):
+        if not varied:
+            continue
+        cols = (P_GAIN, P_TAU, P_OFFSET, P_COULOMB)
+        out += [(f"{axis.name}.{k}", j, c) for k, c in zip(SPREAD_PARAMETERS, cols, strict=True)]
+        for i, m in enumerate(axis.plant.modes):
+            out.append((f"{axis.name}.mode{i + 1}_freq_hz", j, mode_column(i, M_FREQ)))
+            lo, hi = damping_range(m)
+            if lo < hi:
+                out.append((f"{axis.name}.mode{i + 1}_damping", j, mode_column(i, M_DAMPING)))
+    return tuple(out)
 
 
 def spread_plants(
@@ -126,13 +180,26 @@ def spread_plants(
 
 def spread_parameters(rig: Rig, mc: MonteCarlo, seed: int, start: int, stop: int) -> np.ndarray:
     """The plant parameters of Monte-Carlo draws ``start … stop − 1`` (:func:`spread_plants`'
-    plants), as rows for :func:`servotune.plant.fill_plant_rows`, without a :class:`Plant` each.
+    plants), as verification parameter rows (:mod:`servotune.verify.plant_sets`: the columns
+    :func:`servotune.plant.fill_plant_rows` reads, then the modes'), without a :class:`Plant`
+    each: the one place a Monte-Carlo plant set is drawn.
+
+    The gain, tau, offset and Coulomb draws come from the variant stream (four uniforms per
+    axis and draw, :func:`chunk_generator`). The modes' from a stream of their own
+    (:data:`MODE_STREAM`, ``2·MAX_MODES`` uniforms in [0, 1) per axis and draw, whether the
+    axis has modes or not), so the parameter draws are the same with or without modes: each
+    mode of a varied axis takes its frequency uniformly in the wider of its 95 % interval and
+    ±10 % (:func:`~servotune.analysis.plant_cases.mode_factors`) and its damping uniformly in
+    its 95 % interval kept inside (0, 1) (:func:`~servotune.analysis.plant_cases.damping_range`;
+    the nominal damping where it has none), as the margins' samples draw them
+    (docs/frf.md#the-resonant-plant-in-the-simulation).
 
     Returns
     -------
-    ndarray, shape (stop − start, rig axes, NPARAM)
-        Columns ``servotune.plant.P_*``; an axis the spread does not vary keeps its nominal
-        plant's values. The speed limit is in counts/s of the rig's counter.
+    ndarray, shape (stop − start, rig axes, NCOLUMNS)
+        Columns ``servotune.plant.P_*``, then the mode slots' frequency and damping (NaN past
+        a plant's modes); an axis the spread does not vary keeps its nominal plant's values.
+        The speed limit is in counts/s of the rig's counter.
 
     Raises
     ------
@@ -148,12 +215,12 @@ def spread_parameters(rig: Rig, mc: MonteCarlo, seed: int, start: int, stop: int
     n = max(0, int(stop) - int(start))
     rng = chunk_generator(seed, start, len(names) * _DRAWS_PER_AXIS)
     u = rng.uniform(-1.0, 1.0, size=(n, len(names), _DRAWS_PER_AXIS))
-    out = np.empty((n, len(names), NPARAM))
-    for j, axis in enumerate(rig.axes):
+    out = np.empty((n, len(names), NCOLUMNS))
+    for j, (axis, varied) in enumerate(zip(rig.axes, _spread(rig, mc), strict=True)):
         p = axis.plant
-        nominal = parameter_row(p, rig.counts_per_rev)
+        nominal = plant_columns(p, rig.counts_per_rev)
         out[:, j] = nominal  # an axis the spec does not spread keeps them all
-        if mc.axes and axis.name not in mc.axes:
+        if not varied:
             continue
         gain_neg, coulomb_neg = nominal[P_GAIN_NEG], nominal[P_COULOMB_NEG]
         # the draw's map onto each parameter: the spec's spread, or the identified 95 %
@@ -167,7 +234,25 @@ def spread_parameters(rig: Rig, mc: MonteCarlo, seed: int, start: int, stop: int
         out[:, j, P_COULOMB] = p.coulomb_v * c_f
         out[:, j, P_GAIN_NEG] = gain_neg * g_f
         out[:, j, P_COULOMB_NEG] = coulomb_neg * c_f
+    _draw_modes(rig, mc, seed, start, out)
     return out
+
+
+def _draw_modes(rig: Rig, mc: MonteCarlo, seed: int, start: int, out: np.ndarray) -> None:
+    """Draw the modes' columns of ``out`` (draws ``start …``) for every varied axis with modes
+    (:func:`spread_parameters`); nothing is drawn for a rig without them."""
+    axes = [j for j, v in enumerate(_spread(rig, mc)) if v and rig.axes[j].plant.modes]
+    if not axes:
+        return
+    n_ax = len(rig.axes)
+    rng = chunk_generator(seed, start, n_ax * _MODE_DRAWS_PER_AXIS, MODE_STREAM)
+    u = rng.random(size=(out.shape[0], n_ax, MAX_MODES, 2))
+    for j in axes:
+        for i, m in enumerate(rig.axes[j].plant.modes):
+            lo, hi = mode_factors(m)
+            out[:, j, mode_column(i, M_FREQ)] = m.freq_hz * (lo + (hi - lo) * u[:, j, i, 0])
+            z_lo, z_hi = damping_range(m)  # (ζ, ζ) without an interval: ζ itself
+            out[:, j, mode_column(i, M_DAMPING)] = z_lo + (z_hi - z_lo) * u[:, j, i, 1]
 
 
 def _linear(lo: float, hi: float, centre: float, half: float) -> Any:
@@ -207,5 +292,8 @@ def _maps(plant: Plant, fit: Any, mc: MonteCarlo) -> tuple[Any, Any, Any, Any]:
 
 
 def seed_seqs(seed: int) -> list[np.random.SeedSequence]:
-    """Independent seed sequences: [0] the variants, [1] the noise streams."""
-    return np.random.SeedSequence(int(seed)).spawn(2)
+    """Independent seed sequences: [0] the variants' plant parameters, [1] the noise streams,
+    [2] the modes' draws (:data:`VARIANT_STREAM`, :data:`NOISE_STREAM`, :data:`MODE_STREAM`).
+    Spawned children are keyed by their index, so [0] and [1] are what they were before [2]
+    was added."""
+    return np.random.SeedSequence(int(seed)).spawn(3)

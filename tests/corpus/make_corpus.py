@@ -1040,6 +1040,30 @@ json_case(
     lambda d: d.__setitem__("verifed", True),
     hint="verifed",
 )
+json_case(
+    B,
+    "schema-2",
+    'schema "servotune.tables/2" (an export of an older servotune, before filters)',
+    lambda d: d.__setitem__("schema", "servotune.tables/2"),
+    hint="servotune.tables/2",
+)
+_UNIT_CIRCLE = {"a1": 0, "a2": 4096, "b0": 4096, "b1": 0, "b2": 0, "frac_bits": 12}
+json_case(
+    B,
+    "filter-unstable",
+    "a filter section with a2 = 1 (poles on the unit circle) added to the slave by hand",
+    lambda d: slave_tables_axis(d)["filters"].append(_UNIT_CIRCLE),
+    hint="filters",
+)
+_NOTCH = {"a1": -6695, "a2": 3544, "b0": 3835, "b1": -6694, "b2": 3804, "frac_bits": 12}
+json_case(
+    B,
+    "filter-added",
+    "a stable filter section added to the slave by hand (every CRC and digest left)",
+    lambda d: slave_tables_axis(d)["filters"].append(_NOTCH),
+    hint="crc",
+    exit=1,
+)
 
 # --- gantry ----------------------------------------------------------------------------------
 

@@ -43,6 +43,7 @@ from servotune.export.json import to_string as tables_to_string
 from servotune.export.layout import c_layout_bytes, c_layout_sha256, pairs_bytes, table_bytes
 from servotune.fixed import Fixed
 from servotune.laws.axis import AxisController
+from servotune.laws.filters import SectionQ
 from servotune.laws.fuzzy_pid import FuzzyPIDConstants
 from servotune.laws.pi import PIConstants
 from servotune.plant import Plant
@@ -250,6 +251,7 @@ def example_rt(example_build: Path) -> DigestRuntime:
 
 
 # fixed constants of the small case (d): (q, f) pairs and 3 x 3 tables (n = 1)
+SECTION_KEYS = ("b0", "b1", "b2", "a1", "a2", "frac_bits")
 LOCK = ((1717986918, 32), (3, 1), (-7, 3))
 FE = (12288, 0, 3)
 PI_KP, PI_KIT = (123456, 20), (-654321, 24)
@@ -261,6 +263,13 @@ TABLES = (  # kp, ki, kd, k1: (rows, f)
     ([[-2, -1, 0], [0, 1, 2], [3, -3, 0]], 16),
     ([[0, 0, 0], [0, 1, 0], [0, 0, -16]], 2),
 )
+# output filters (docs/runtime.md#filters-in-the-law): stable sections, integers chosen by hand;
+# one on the PI axis, two on the lock-only axis, none on the fuzzy-PID axis
+FILTERS = (
+    ((1000, 2000, 1000, -20000, 7000, 14),),
+    (),
+    ((3835, -6694, 3804, -6695, 3544, 12), (-5, 123456, 77, 0, -536870912, 30)),
+)
 
 
 def _fx(qf: tuple[int, int]) -> Fixed:
@@ -269,7 +278,8 @@ def _fx(qf: tuple[int, int]) -> Fixed:
 
 def small_case() -> tuple[Tuning, Rig]:
     """Three axes on a 16-bit counter and a 16-bit D/A: a PI master, a fuzzy-PID slave with
-    3 x 3 tables, a lock-only slave (every unused constant (0, 0))."""
+    3 x 3 tables, a lock-only slave (every unused constant (0, 0)); output filters on the first
+    and the last (:data:`FILTERS`)."""
     fuzzy = FuzzyPIDConstants(
         kp=_fx(FZ["kp"]),
         ki_t=_fx(FZ["ki_t"]),
@@ -282,8 +292,13 @@ def small_case() -> tuple[Tuning, Rig]:
     )
     tasks = (PIConstants(kp=_fx(PI_KP), ki_t=_fx(PI_KIT)), fuzzy, None)
     ctls = tuple(
-        AxisController(lock_gain=_fx(lock), task=task, following_error_limit_counts=fe)
-        for lock, task, fe in zip(LOCK, tasks, FE, strict=True)
+        AxisController(
+            lock_gain=_fx(lock),
+            task=task,
+            following_error_limit_counts=fe,
+            filters=tuple(SectionQ(**dict(zip(SECTION_KEYS, s, strict=True))) for s in filt),
+        )
+        for lock, task, fe, filt in zip(LOCK, tasks, FE, FILTERS, strict=True)
     )
     plant = Plant(gain_cps_per_v=1000.0, tau_s=0.01)
     rig = Rig(
@@ -493,6 +508,15 @@ def _p(q: int, f: int = 0) -> bytes:
     return struct.pack("<ih", q, f)
 
 
+def _filter_pairs(sections: tuple) -> bytes:
+    """(n_filters, 0), then 4 slots of (b0, f) (b1, f) (b2, f) (a1, f) (a2, f), unused (0, 0)."""
+    out = _p(len(sections))
+    for k in range(4):
+        *coefs, f = sections[k] if k < len(sections) else (0,) * 6
+        out += b"".join(_p(q, f) for q in coefs)
+    return out
+
+
 def test_layout_bytes_built_by_hand() -> None:
     tuning, rig = small_case()
     data = tables_document(tuning, rig=rig, unverified=True)["data"]
@@ -521,6 +545,7 @@ def test_layout_bytes_built_by_hand() -> None:
         + zero * 4
         + _p(0)
         + _p(-1)
+        + _filter_pairs(FILTERS[0])
         # axis 1, fuzzy-PID
         + _p(2)
         + _p(*LOCK[1])
@@ -534,6 +559,7 @@ def test_layout_bytes_built_by_hand() -> None:
         + _p(*FZ_KEC)
         + _p(1)
         + _p(0)
+        + _filter_pairs(FILTERS[1])
         # axis 2, lock only
         + _p(0)
         + _p(*LOCK[2])
@@ -543,13 +569,16 @@ def test_layout_bytes_built_by_hand() -> None:
         + zero * 4
         + _p(0)
         + _p(0)
+        + _filter_pairs(FILTERS[2])
     )
     tables = [
         struct.pack("<hh", 1, f) + struct.pack("<9h", *(v for row in rows for v in row))
         for rows, f in TABLES
     ]
     expected = constants + b"".join(tables)
-    assert len(constants) == 6 * (2 + 14 * 3) and len(expected) == 264 + 4 * (4 + 2 * 9)
+    # 35 pairs per axis: 14, then (n_filters, 0) and 4 filter slots of 5 (docs/runtime.md)
+    assert len(constants) == 6 * (2 + 35 * 3) and len(expected) == 642 + 4 * (4 + 2 * 9)
+    assert [len(ax["filters"]) for ax in data["axes"]] == [1, 0, 2]
     assert c_layout_bytes(data) == expected
     assert c_layout_sha256(data) == hashlib.sha256(expected).hexdigest()
     # each part is the byte stream of its CRC

@@ -118,6 +118,11 @@ static void load(const int64_t *h, st_gantry_consts_t *c)
             x->tab[i] = NULL;
         }
         x->ref_source = -1;
+        x->n_filters = 0; /* a gantry drive runs no output filter */
+        for (i = 0; i < ST_MAX_FILTERS; i++) {
+            x->filter[i].b0 = x->filter[i].b1 = x->filter[i].b2 = 0;
+            x->filter[i].a1 = x->filter[i].a2 = x->filter[i].frac_bits = 0;
+        }
     }
     c->sync.kp_q = h[24];
     c->sync.kp_f = h[25];

@@ -160,6 +160,7 @@ def test_a_constant_edited_in_the_header_fails_the_digest(exported, tmp_path: Pa
         "harness.c",
         "servotune_rt.c",
         "servotune_rt.h",
+        "servotune_filter.h",
         "servotune_gantry.c",
         "servotune_gantry.h",
         GANTRY_HEADER_NAME,

@@ -35,6 +35,7 @@ from servotune.export.json import to_file as write_tables
 from servotune.export.json import to_string as tables_to_string
 from servotune.hw import timer
 from servotune.laws.axis import AxisController
+from servotune.laws.filters import SectionQ
 from servotune.laws.fuzzy_pid import FuzzyPIDGains
 from servotune.laws.pi import PIGains
 from servotune.rig import EXAMPLE_RIG_PATH, load_rig
@@ -162,8 +163,20 @@ def test_table_crc_is_zlib_crc32_of_the_documented_bytes() -> None:
     assert table_crc32(q, 9) == zlib.crc32(raw)
 
 
-def test_constants_crc_follows_the_documented_order(tuning: Tuning) -> None:
+FILTER_KEYS = ("b0", "b1", "b2", "a1", "a2", "frac_bits")
+SLAVE_FILTERS = (  # two stable sections, integers chosen by hand
+    SectionQ(b0=3835, b1=-6694, b2=3804, a1=-6695, a2=3544, frac_bits=12),
+    SectionQ(b0=901, b1=1803, b2=901, a1=-1611, a2=1120, frac_bits=12),
+)
+
+
+@pytest.mark.parametrize("filtered", [False, True], ids=["unfiltered", "slave-filtered"])
+def test_constants_crc_follows_the_documented_order(tuning: Tuning, filtered: bool) -> None:
+    if filtered:
+        slave = dataclasses.replace(tuning.controllers[1], filters=SLAVE_FILTERS)
+        tuning = dataclasses.replace(tuning, controllers=(tuning.controllers[0], slave))
     doc = json.loads(tables_to_string(tuning, verification=SUMMARY))
+    assert [len(ax["filters"]) for ax in doc["data"]["axes"]] == [0, 2 if filtered else 0]
     data = doc["data"]
     pairs = [(len(data["axes"]), 0), (data["timer_divisor"], 0)]
     for ax in data["axes"]:
@@ -188,7 +201,11 @@ def test_constants_crc_follows_the_documented_order(tuning: Tuning) -> None:
             fx("kec"),
             (task.get("n", 0), 0),
             (ax["ref_source"], 0),
+            (len(ax["filters"]), 0),  # docs/runtime.md#filters-in-the-law: 4 slots of 5 pairs
         ]
+        for k in range(4):
+            sec = ax["filters"][k] if k < len(ax["filters"]) else dict.fromkeys(FILTER_KEYS, 0)
+            pairs += [(sec[w], sec["frac_bits"]) for w in ("b0", "b1", "b2", "a1", "a2")]
     raw = b"".join(struct.pack("<ih", q, f) for q, f in pairs)
     assert data["constants_crc32"] == zlib.crc32(raw) == constants_crc32(tuning)
 
@@ -238,10 +255,11 @@ def test_an_entry_outside_int16_is_rejected(tuning: Tuning) -> None:
 
 def test_wrong_schema_and_malformed_documents_are_rejected(tuning: Tuning, tmp_path) -> None:
     doc = _doc(tuning)
-    doc["schema"] = "servotune.tables/3"
-    _reject(doc, "schema must be 'servotune.tables/2'", "servotune.tables/3")
-    doc["schema"] = "servotune.tables/1"  # docs/decisions.md#17-file-versions
-    _reject(doc, "written by an older servotune", "export the tuning again")
+    doc["schema"] = "servotune.tables/4"
+    _reject(doc, "schema must be 'servotune.tables/3'", "servotune.tables/4")
+    for old in ("servotune.tables/1", "servotune.tables/2"):  # docs/decisions.md#17-file-versions
+        doc["schema"] = old
+        _reject(doc, old, "written by an older servotune", "export the tuning again")
     doc = _doc(tuning)
     del doc["data"]["axes"][1]["task"]["tables"]["k1"]
     _reject(doc, "missing the field 'k1'")
@@ -390,7 +408,7 @@ def _changed(v: object) -> object:
 
 def test_the_digest_matches_canonical_json_computed_independently(tuning: Tuning) -> None:
     doc = _doc(tuning)
-    assert doc["schema"] == "servotune.tables/2"
+    assert doc["schema"] == "servotune.tables/3"
     assert _redigest(doc)["sha256"] == doc["sha256"]
 
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from servotune.fixed import F_U, quantize, shift_round
@@ -114,3 +116,76 @@ def test_conditional_integration_at_the_rails() -> None:
     # below the rail the integrator accumulates Ki·T·e exactly (in F_U fraction bits)
     u, new = pi_step(kp.q, kp.f, kit.q, kit.f, 0, 100, 0, 2048, 4095)
     assert new == kit.q * 100 * 2 ** (F_U - kit.f)
+
+
+# --- output filters (docs/runtime.md#filters-in-the-law) ------------------------------------
+
+
+def _filtered_axis(*designs) -> tuple[np.ndarray, np.ndarray, tuple]:
+    from servotune.laws.filters import realize
+
+    secs = tuple(realize(d, 0.004) for d in designs)
+    ctl = dataclasses.replace(
+        AxisController.from_gains(lock_gain_codes_per_count=0.4, period_s=0.004), filters=secs
+    )
+    c = ctl.consts(counter_bits=24, dac_bits=12, dac_zero=2048)[None, :].copy()
+    return np.zeros((1, N_STATE), dtype=np.int64), c, secs
+
+
+def _float_chain(secs, x: np.ndarray) -> np.ndarray:
+    """The sections' realised coefficients as floats, by scipy (an independent filter)."""
+    from scipy.signal import lfilter
+
+    y = x.astype(float)
+    for s in secs:
+        b, a = s.ba()
+        y = lfilter(b, a, y)
+    return y
+
+
+def test_filters_shape_the_output_as_scipy_does() -> None:
+    """Open mode, a chirp within ±1500 codes through a notch and a low-pass: the code equals
+    scipy's float filter of the same quantised coefficients to the one final rounding."""
+    from servotune.laws.filters import lowpass2, notch
+
+    st, c, secs = _filtered_axis(notch(35.0, 10.0, -30.0), lowpass2(80.0, 0.5))
+    k = np.arange(6000)
+    x = np.round(1500 * np.sin(2 * np.pi * (2 + 100 * k / k.size) * k * 0.004)).astype(int)
+    codes = np.array([_tick(st, c, 0, mode=MODE_OPEN, u_add=int(u))[1] for u in x])
+    want = _float_chain(secs, x)
+    assert np.max(np.abs(codes - 2048 - want)) <= 0.5 + 1e-6
+    assert np.max(np.abs(want)) < 2000  # no rail touched: the comparison is linear
+
+
+def test_filters_clamp_each_section_input_to_the_dac_range_and_flag_the_rail() -> None:
+    """A low-pass with a resonant peak driven at a rail: the section's input is held to the
+    D/A's range (−2048 … 2047 codes), its output rings above it and the code is clipped."""
+    from servotune.laws.filters import lowpass2
+
+    st, c, _ = _filtered_axis(lowpass2(20.0, 0.15))
+    out = [_tick(st, c, 0, mode=MODE_OPEN, u_add=5000) for _ in range(200)]
+    codes = [o[1] for o in out]
+    assert max(codes) == 4095 and any(o[2] & FLAG_SATURATED for o in out)
+    assert codes[-1] == 4095  # settles at the clamped input (+2047), rounded up to the rail
+
+
+def test_a_reset_clears_the_filter_state() -> None:
+    from servotune.laws.filters import notch
+
+    st, c, _ = _filtered_axis(notch(35.0, 10.0, -30.0))
+    for _ in range(50):
+        _tick(st, c, 0, mode=MODE_OPEN, u_add=300)
+    _tick(st, c, 0, reset=True)
+    fresh_st, fresh_c, _ = _filtered_axis(notch(35.0, 10.0, -30.0))
+    _tick(fresh_st, fresh_c, 0)
+    a = [_tick(st, c, 0, mode=MODE_OPEN, u_add=-200)[1] for _ in range(20)]
+    b = [_tick(fresh_st, fresh_c, 0, mode=MODE_OPEN, u_add=-200)[1] for _ in range(20)]
+    assert a == b
+
+
+def test_without_filters_the_output_is_the_plain_rounding() -> None:
+    """No section: ``code = round(u · 2^-F_U) + zero`` exactly as before filters existed."""
+    st, c = _axis()
+    for u in (-7, 0, 3, 1999, -2048):
+        _, code, _, _ = _tick(st, c, 0, mode=MODE_OPEN, u_add=u)
+        assert code == min(max(u + 2048, 0), 4095)

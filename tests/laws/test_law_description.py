@@ -113,9 +113,11 @@ def test_the_toy_law_writes_its_c_macros_and_layout_pairs(toy: TaskLaw) -> None:
     pairs = constants_pairs(
         [ctl], [-1], timer_divisor=1, counter_bits=24, dac_bits=12, dac_zero=2048
     )
-    # part 1 of the C layout: (n_axes), (divisor), then the axis in CONST_HEADER order
+    # part 1 of the C layout: (n_axes), (divisor), then the axis in CONST_HEADER order, its
+    # ref_source, n_filters and 4 filter slots of 5 pairs (docs/runtime.md#filters-in-the-law)
     assert pairs[2:5] == [(3, 0), (5, 4), (7, 3)]
-    assert len(pairs) == 2 + len(CONST_HEADER) + 1
+    assert len(pairs) == 2 + len(CONST_HEADER) + 1 + 1 + 4 * 5
+    assert pairs[-21:] == [(0, 0)] * 21  # no filters
 
 
 def test_the_toy_law_goes_through_the_tables_document_and_the_c_header(

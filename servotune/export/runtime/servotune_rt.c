@@ -330,6 +330,29 @@ int64_t st_axis_read(st_axis_state_t *s, const st_axis_consts_t *c, int64_t raw,
     return y;
 }
 
+/* axis.filter_chain: the output filters of one axis (nf sections, in order) on x [D/A codes
+ * relative to the zero, ST_FILTER_F fraction bits]; returns whole codes relative to the zero
+ * and sets *held if a section's input was held at a rail. Each section's input is first held
+ * to the D/A's range (-zero .. cmax - zero codes), the bound its sums were checked for at
+ * export; the output is rounded half away from zero. */
+static int64_t filter_chain(st_axis_state_t *s, const st_axis_consts_t *c, int64_t nf,
+                            int64_t x, int64_t zero, int64_t cmax, int *held)
+{
+    const int64_t lo = -zero * ((int64_t)1 << ST_FILTER_F);
+    const int64_t hi = (cmax - zero) * ((int64_t)1 << ST_FILTER_F);
+    int64_t k;
+    *held = 0;
+    for (k = 0; k < nf; k++) {
+        if (x < lo || x > hi) {
+            *held = 1;
+            x = x < lo ? lo : x;
+            x = x > hi ? hi : x; /* min(max(x, lo), hi) */
+        }
+        x = st_biquad_step(&c->filter[k], s->filt[k], x); /* filters.biquad_step */
+    }
+    return st_shift_round(x, ST_FILTER_F);
+}
+
 /* axis.axis_control: one axis's control step after st_axis_read. Writes the D/A code and the
  * flags; returns the law's error e [counts] (0 in open mode or under a fault). */
 int64_t st_axis_control(st_axis_state_t *s, const st_axis_consts_t *c, int64_t ref,
@@ -344,9 +367,12 @@ int64_t st_axis_control(st_axis_state_t *s, const st_axis_consts_t *c, int64_t r
     int64_t e = 0;
     int64_t u;
     int64_t fe;
+    int64_t nf;
     int64_t code;
     int64_t flags;
     if (reset) {
+        int k;
+        int j;
         s->fault = 0;
         s->mode = ST_MODE_LOCK;
         s->lock_target = y;
@@ -354,6 +380,11 @@ int64_t st_axis_control(st_axis_state_t *s, const st_axis_consts_t *c, int64_t r
         s->u_last = 0;
         s->e_prev = 0;
         s->r_prev = ref;
+        for (k = 0; k < ST_MAX_FILTERS; k++) {
+            for (j = 0; j < ST_FILTER_STATE; j++) {
+                s->filt[k][j] = 0;
+            }
+        }
     }
     if (s->fault != 0) {
         s->u_last = 0;
@@ -416,8 +447,19 @@ int64_t st_axis_control(st_axis_state_t *s, const st_axis_consts_t *c, int64_t r
     s->u_last = u;
     s->e_prev = e;
     s->r_prev = ref;
-    code = st_shift_round(u, ST_F_U) + zero; /* dac.code_from_uq, with the rail flag */
+    nf = c->n_filters;
     flags = s->fault;
+    if (nf == 0) {
+        code = st_shift_round(u, ST_F_U) + zero; /* dac.code_from_uq, with the rail flag */
+    } else {
+        int held;
+        code = filter_chain(s, c, nf, st_shift_round(u, ST_F_U - ST_FILTER_F), zero, cmax,
+                            &held)
+               + zero;
+        if (held) {
+            flags |= ST_FLAG_SATURATED;
+        }
+    }
     if (code > cmax) {
         code = cmax;
         flags |= ST_FLAG_SATURATED;
@@ -434,6 +476,8 @@ int64_t st_axis_control(st_axis_state_t *s, const st_axis_consts_t *c, int64_t r
 
 void st_axis_init(st_axis_state_t *x)
 {
+    int k;
+    int j;
     x->init = 0;
     x->hi_prev = 0;
     x->wraps = 0;
@@ -446,6 +490,11 @@ void st_axis_init(st_axis_state_t *x)
     x->e_prev = 0;
     x->r_prev = 0;
     x->origin = 0;
+    for (k = 0; k < ST_MAX_FILTERS; k++) {
+        for (j = 0; j < ST_FILTER_STATE; j++) {
+            x->filt[k][j] = 0;
+        }
+    }
 }
 
 void st_init(st_state_t *s)
@@ -496,8 +545,23 @@ enum {
     CHK_TABLE = 13,
     CHK_TABLE_F = 14,
     CHK_SCHEDULED = 15,
-    CHK_REF_SOURCE = 16
+    CHK_REF_SOURCE = 16,
+    CHK_N_FILTERS = 17,
+    CHK_FILTER = 18
 };
+
+/* a filter section in use: frac_bits 1 .. 30 and a stable quantised denominator, as
+ * filters.SectionQ.from_dict checks it (|a2| < 2^f, |a1| < 2^f + a2) */
+static int section_ok(const st_section_t *q)
+{
+    int64_t one;
+    if (q->frac_bits < 1 || q->frac_bits > 30) {
+        return 0;
+    }
+    one = (int64_t)1 << q->frac_bits;
+    return (q->a2 < 0 ? -(int64_t)q->a2 : (int64_t)q->a2) < one
+           && (q->a1 < 0 ? -(int64_t)q->a1 : (int64_t)q->a1) < one + q->a2;
+}
 
 static int f_ok(int64_t f)
 {
@@ -513,6 +577,7 @@ int st_check_consts(const st_consts_t *c)
     for (a = 0; a < c->n_axes; a++) {
         const st_axis_consts_t *x = &c->axis[a];
         const int err = 1 + 100 * a;
+        int k;
         if (x->law < ST_LAW_NONE || x->law > ST_LAW_FUZZY_PID) {
             return err + CHK_LAW;
         }
@@ -549,6 +614,14 @@ int st_check_consts(const st_consts_t *c)
         if (x->ref_source != -1
             && (x->ref_source < 0 || x->ref_source >= c->n_axes || x->ref_source == a)) {
             return err + CHK_REF_SOURCE;
+        }
+        if (x->n_filters < 0 || x->n_filters > ST_MAX_FILTERS) {
+            return err + CHK_N_FILTERS;
+        }
+        for (k = 0; k < x->n_filters; k++) {
+            if (!section_ok(&x->filter[k])) {
+                return err + CHK_FILTER;
+            }
         }
         if (x->law == ST_LAW_FUZZY_PID) {
             const int32_t base_q[ST_N_TABLES] = {x->kp_q, x->kit_q, x->kdt_q, x->k1t_q};
@@ -666,6 +739,7 @@ static void put_table(st_sink_fn put, void *ctx, int n, int f, const int16_t *q)
 static void put_consts(st_sink_fn put, void *ctx, const st_consts_t *c)
 {
     int a;
+    int k;
     put_pair(put, ctx, c->n_axes, 0);
     put_pair(put, ctx, c->timer_divisor, 0);
     for (a = 0; a < c->n_axes; a++) {
@@ -684,6 +758,16 @@ static void put_consts(st_sink_fn put, void *ctx, const st_consts_t *c)
         put_pair(put, ctx, x->kec_q, x->kec_f);
         put_pair(put, ctx, x->n, 0);
         put_pair(put, ctx, x->ref_source, 0);
+        put_pair(put, ctx, x->n_filters, 0);
+        for (k = 0; k < ST_MAX_FILTERS; k++) {
+            /* every slot as compiled in: one past n_filters is zero in an exported header */
+            const st_section_t *q = &x->filter[k];
+            put_pair(put, ctx, q->b0, q->frac_bits);
+            put_pair(put, ctx, q->b1, q->frac_bits);
+            put_pair(put, ctx, q->b2, q->frac_bits);
+            put_pair(put, ctx, q->a1, q->frac_bits);
+            put_pair(put, ctx, q->a2, q->frac_bits);
+        }
     }
 }
 

@@ -9,7 +9,9 @@
  * One tick (st_tick): for every axis, assemble the latched counter bytes (low, mid, high),
  * unwrap with the high-byte rule and flag a counter fault (st_axis_read); then for every axis,
  * run the law of its mode -- position lock, PI, or fuzzy-PID + feedforward -- with bumpless
- * lock/task handover, the following-error trip and latched faults (st_axis_control). A slave's
+ * lock/task handover, the following-error trip and latched faults, then the axis's output
+ * filters (up to ST_MAX_FILTERS biquad sections in series, servotune_filter.h; docs/runtime.md
+ * #filters-in-the-law) before the D/A code (st_axis_control). A slave's
  * reference is the position of the axis it follows, read in the same tick. The firmware reads
  * the counter card, calls st_tick and writes the returned codes to the D/A itself.
  *
@@ -34,7 +36,10 @@
  *   (n_axes, 0), (timer_divisor, 0), then for each axis a = 0 .. n_axes-1:
  *   (law, 0), (lock_q, lock_f), (kp_q, kp_f), (kit_q, kit_f), (fe_limit, 0),
  *   (counter_bits, 0), (dac_zero, 0), (dac_max, 0), (kdt_q, kdt_f), (k1t_q, k1t_f),
- *   (ke_q, ke_f), (kec_q, kec_f), (n, 0), (ref_source, 0).
+ *   (ke_q, ke_f), (kec_q, kec_f), (n, 0), (ref_source, 0), (n_filters, 0), then for each of
+ *   the ST_MAX_FILTERS section slots k = 0 .. 3 (filter[k]): (b0, frac_bits), (b1, frac_bits),
+ *   (b2, frac_bits), (a1, frac_bits), (a2, frac_bits) -- a slot k >= n_filters is all zero,
+ *   five (0, 0). 35 pairs per axis.
  * Each table's CRC covers int16 n, int16 f, then its (2n+1)^2 int16 entries row-major
  * (row E = -n..n, column EC = -n..n), little-endian.
  *
@@ -49,11 +54,13 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "servotune_filter.h"
+
 #ifdef __cplusplus
 extern "C" {
 #endif
 
-#define ST_RT_VERSION 1 /* servotune.tables/2 */
+#define ST_RT_VERSION 2 /* servotune.tables/3 */
 
 #ifndef ST_MAX_AXES
 #define ST_MAX_AXES 4 /* a slave CPU drives 2 to 4 axes (multi-CPU linkage) */
@@ -62,6 +69,8 @@ extern "C" {
 #define ST_F_U 32         /* fraction bits of u_q and of the integrator (fixed.F_U) */
 #define ST_MAX_LEVELS 64  /* largest n of the query tables */
 #define ST_N_TABLES 4     /* kp, ki, kd, k1 (fuzzy_pid.TABLE_NAMES order) */
+#define ST_MAX_FILTERS 4  /* output filter sections per axis (axis.MAX_FILTERS) */
+#define ST_FILTER_F 16    /* fraction bits of the filters' signal [D/A codes] (axis.FILTER_F) */
 
 /* modes (laws/axis.py MODE_*) */
 #define ST_MODE_LOCK 0
@@ -120,6 +129,9 @@ typedef struct st_axis_consts {
                                         fuzzy-PID */
     int32_t ref_source;      /* engine Loop.ref_source[a]: -1 = external reference (master),
                                 else the index of the axis whose position is the reference */
+    int32_t n_filters;       /* C_NF: output filter sections in use, 0 .. ST_MAX_FILTERS */
+    st_section_t filter[ST_MAX_FILTERS]; /* C_FILT + 6*k: section k (b0 b1 b2 a1 a2
+                                            frac_bits), in series order; all zero when unused */
 } st_axis_consts_t;
 
 /* All axes of one runtime. */
@@ -143,6 +155,8 @@ typedef struct st_axis_state {
     int64_t e_prev;      /* S_E_PREV [counts] */
     int64_t r_prev;      /* S_R_PREV [counts] */
     int64_t origin;      /* S_ORIGIN: register value of the first read */
+    int64_t filt[ST_MAX_FILTERS][ST_FILTER_STATE]; /* S_FILT + 6*k: section k's x1 x2 y1 y2
+                                                      r1 r2 (laws/filters.py biquad_step) */
 } st_axis_state_t;
 
 typedef struct st_state {
@@ -174,7 +188,10 @@ void st_init(st_state_t *s);
 void st_axis_init(st_axis_state_t *x);
 
 /* Check constants (ranges the no-overflow bounds rely on). 0 if valid, else
- * 1 + 100 * axis + field code (see servotune_rt.c) for the first bad field. */
+ * 1 + 100 * axis + field code (see servotune_rt.c) for the first bad field. Of an output
+ * filter it checks n_filters and each section in use (frac_bits 1 .. 30, a stable quantised
+ * denominator); the bound on its sums for inputs within the D/A range is checked at export
+ * (servotune/export/json.py). */
 int st_check_consts(const st_consts_t *c);
 
 /* One tick of every axis: in[a], out[a] for a < c->n_axes. */

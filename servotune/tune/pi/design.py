@@ -4,14 +4,16 @@ loop) and :func:`tune_pi_axis` (the same for one axis of a rig)."""
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from servotune._control import scipy_paths
-from servotune.analysis.margins import unwrapped_phase
+from servotune.analysis.margins import filters_tf, unwrapped_phase
 from servotune.errors import InfeasibleError, SpecError
 from servotune.hw import dac as hw_dac
+from servotune.laws.filters import SectionQ, chain_response
 from servotune.plant import Plant, lag_split
 from servotune.tune.pi.check import (
     acceptable,
@@ -67,17 +69,24 @@ def _loop_context(
     compute_s: float,
     lsb_v: float,
     spec: Spec,
+    filters: Sequence[SectionQ] = (),
 ) -> tuple[Ctx, control.StateSpace]:
-    """The plant's discrete model scaled by ``lsb_v`` and its response on the design grid
-    (:class:`~servotune.tune.pi.grid.Ctx`), and the scaled model python-control re-checks on.
+    """The plant's discrete model scaled by ``lsb_v`` (behind the output ``filters``) and its
+    response on the design grid (:class:`~servotune.tune.pi.grid.Ctx`), and the scaled model
+    python-control re-checks on.
 
     Raises
     ------
     SpecError
         The discrete plant has a pole on the unit circle away from z = 1.
     """
+    import control
+
     discretiser, lag, feature = plant_model(plant, period_s, compute_s)
     p_scaled = lsb_v * discretiser(lag)
+    f_tf = filters_tf(filters, period_s)
+    if f_tf is not None:
+        p_scaled = control.ss(control.series(control.ss(f_tf), p_scaled))
     a = np.asarray(p_scaled.A, dtype=float)
     b = np.asarray(p_scaled.B, dtype=float)
     c = np.asarray(p_scaled.C, dtype=float)
@@ -90,11 +99,13 @@ def _loop_context(
 
     def resp(om: np.ndarray) -> np.ndarray:
         z = np.exp(1j * np.asarray(om, dtype=float) * period_s)
-        return ss_response(*mats, d_frac, z) * z ** (-m_ticks)
+        g = ss_response(*mats, d_frac, z) * z ** (-m_ticks)
+        return g * chain_response(filters, om, period_s)
 
     nyq = math.pi / period_s
     w_lo = min(feature, nyq, spec.wc_max or math.inf) * 10.0**-DECADES_BELOW
-    w = design_grid(w_lo, nyq, lag + period_s, np.linalg.eigvals(mats[0]))
+    poles = [np.linalg.eigvals(mats[0])] + [np.roots(sec.ba()[1]) for sec in filters]
+    w = design_grid(w_lo, nyq, lag + period_s, np.concatenate(poles))
     g = resp(w)
     if not np.all(np.isfinite(g)):
         raise SpecError("the discrete plant has a pole on the unit circle away from z = 1")
@@ -207,6 +218,7 @@ def tune_pi(
     crossover_rad_s: float | None = None,
     compute_s: float = 0.0,
     lsb_v: float | None = None,
+    filters: Sequence[SectionQ] = (),
 ) -> PITuning:
     """PI gains with the largest integral gain Ki that meet the robustness targets.
 
@@ -285,6 +297,9 @@ def tune_pi(
     lsb_v : float, optional
         Output units per controller unit. Default: the 12-bit ±10 V D/A step 20/4096 V for a
         :class:`~servotune.plant.Plant` (gains in D/A codes), 1.0 for a transfer function.
+    filters : sequence of SectionQ
+        Quantised output filters between the controller and the plant
+        (``AxisController.filters``): the loop is ``C(z)·F(z)·lsb_v·P(z)``.
 
     Returns
     -------
@@ -317,7 +332,7 @@ def tune_pi(
         max_sensitivity,
         crossover_rad_s,
     )
-    ctx, p_scaled = _loop_context(plant, period_s, compute_s, lsb_v, spec)
+    ctx, p_scaled = _loop_context(plant, period_s, compute_s, lsb_v, spec, filters)
     w_check = check_grid(ctx.w)
     where = f"on this plant at period_s={period_s:g} s, compute_s={compute_s:g} s"
 
