@@ -24,6 +24,7 @@ if TYPE_CHECKING:
 __all__ = [
     "QUERY_TABLE_LABELS",
     "MoveEnvelope",
+    "finish_figure",
     "plot_bode",
     "plot_comparison",
     "plot_fit",
@@ -53,7 +54,7 @@ def save_figure(fig: plt.Figure, path: str | Path) -> None:
     atomic_write_bytes(path, buf.getvalue())
 
 
-def _finish(fig: plt.Figure, axs: Sequence[plt.Axes], title: str) -> plt.Figure:
+def finish_figure(fig: plt.Figure, axs: Sequence[plt.Axes], title: str) -> plt.Figure:
     """Grid and legend on every panel, ``title`` (if any) on the first, then lay it out."""
     for a in axs:
         a.grid(True, alpha=0.3)
@@ -155,7 +156,7 @@ def plot_tracking(
     axs[1].set_ylabel("error [counts]")
     axs[2].set_ylabel("D/A output [codes]")
     axs[2].set_xlabel("time [s]")
-    return _finish(fig, axs, title)
+    return finish_figure(fig, axs, title)
 
 
 def plot_lock_hold(
@@ -309,7 +310,7 @@ def plot_comparison(traces: dict[str, Trace], slave: int, title: str = "") -> pl
     axs[0].set_ylabel("slave speed [counts/s]")
     axs[1].set_ylabel("sync error [counts]")
     axs[1].set_xlabel("time [s]")
-    return _finish(
+    return finish_figure(
         fig, axs, title or "slave tracking: PID, PID + feedforward, composite (Figure 4)"
     )
 
@@ -341,7 +342,7 @@ def plot_pareto(points: Sequence[Any], title: str = "") -> plt.Figure:
     axs[1].set_ylabel("max |sync error| [counts]")
     for ax in axs:
         ax.set_xlabel("worst peak sensitivity Ms over the plant set [1]")
-    return _finish(fig, axs, title or "tracking against robustness (each structure's front)")
+    return finish_figure(fig, axs, title or "tracking against robustness (each structure's front)")
 
 
 def plot_sync_errors(traces: Sequence[object], case: str, title: str = "") -> plt.Figure:
@@ -470,7 +471,7 @@ def plot_frf(
     axs[1].set_ylabel("phase [deg]")
     axs[2].set_ylabel("coherence [-]")
     axs[2].set_xlabel("frequency [Hz]")
-    return _finish(fig, axs, title)
+    return finish_figure(fig, axs, title)
 
 
 def _queue_markers(ax: plt.Axes, result: LinkageResult, only: int | None = None) -> None:

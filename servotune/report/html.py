@@ -15,7 +15,8 @@ the linkage.
 
 The page is put together here (:func:`write_report`) from :mod:`.page` (escaping, tables,
 embedded PNGs, the style sheet and the data block), :mod:`.sections` (summary, verification,
-identification, gains, query tables), :mod:`.resonance` (modes, FRF), :mod:`.loops` (Bode,
+identification, gains, query tables), :mod:`.resonance` (modes, FRF), :mod:`.filters` (output
+filters: margins with and without, Bode, a shaped move), :mod:`.loops` (Bode,
 margins, responses) and :mod:`.demo_sections` (Figure 4, gantry, linkage); the names other
 modules import from here are re-exported. Outside this package the only module that imports
 matplotlib is :mod:`servotune.plot` (here, :mod:`.page` saves the figures as PNG).
@@ -39,6 +40,7 @@ from servotune.plot import (
     plot_sync_errors,
 )
 from servotune.report.demo_sections import DEMO_SECTIONS, demo_section
+from servotune.report.filters import filters_section
 from servotune.report.loops import bode_section, loop_response, margins_section, response_section
 from servotune.report.page import (
     escape_html,
@@ -81,6 +83,7 @@ def _nav(body: str) -> str:
         ("verification", "Verification"),
         ("identification", "Identification"),
         ("resonance", "Resonance"),
+        ("filters", "Output filters"),
         ("gains", "Gains"),
         ("loops", "Loops"),
         ("margins", "Margins"),
@@ -151,11 +154,13 @@ def write_report(
         spec_path=None if spec_path is None else str(spec_path),
     )
     resonance, resonance_data = resonance_section(rig, frf)
+    filters, filters_data = filters_section(tuning, rig, margins.loops, frf)
     sections = [
         summary_section(summary),
         verification_section(verification, summary) if verification is not None else "",
         identification_section(rig, out, fits),
         resonance,
+        filters,
         gains_section(tuning),
         bode_section(rig, tuning, margins, limits),
         margins_section(tuning, margins, limits, verification),
@@ -183,6 +188,8 @@ def write_report(
     }
     if resonance_data is not None:  # without modes and FRFs the page keeps its bytes
         data["resonance"] = resonance_data
+    if filters_data is not None:  # without filters too
+        data["filters"] = filters_data
     page = page_html(f"servotune report: {rig.name}", head + _nav(body) + "\n" + body, data)
     path = out / "report.html"
     atomic_write_text(path, page)
