@@ -290,10 +290,12 @@ def _frf_args(pairs: list[str] | None, report: str | None) -> dict[str, Any] | N
 
 def frf_files(pairs: list[str] | None) -> dict[str, Any]:
     """``--frf AXIS=FILE`` options read into ``{axis: Frf}`` (empty if none given)."""
+    if not pairs:
+        return {}  # before the import: the reader imports scipy's statistics (a second)
     from servotune.analysis.frf import read_frf
 
     out: dict[str, Any] = {}
-    for pair in pairs or ():
+    for pair in pairs:
         axis, sep, file = pair.partition("=")
         if not sep or not axis or not file:
             raise ServotuneError(f"--frf needs AXIS=FILE (e.g. master=frf.json), got {pair!r}")
