@@ -71,14 +71,9 @@ class FrfLoop:
 
     def broken(self, limits: MarginLimits) -> tuple[str, ...]:
         """The limits it breaks, each as ``"PM 41.2° < 45°"``."""
-        out = []
-        if self.phase_margin_deg < limits.min_phase_margin_deg:
-            out.append(f"PM {self.phase_margin_deg:.1f}° < {limits.min_phase_margin_deg:g}°")
-        if self.gain_margin_db < limits.min_gain_margin_db:
-            out.append(f"GM {self.gain_margin_db:.1f} dB < {limits.min_gain_margin_db:g} dB")
-        if self.max_sensitivity > limits.max_sensitivity:
-            out.append(f"Ms {self.max_sensitivity:.2f} > {limits.max_sensitivity:g}")
-        return tuple(out)
+        return limits.broken_values(
+            self.phase_margin_deg, self.gain_margin_db, self.max_sensitivity
+        )
 
     def to_dict(self) -> dict[str, Any]:
         """Plain data."""

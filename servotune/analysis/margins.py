@@ -134,13 +134,19 @@ class MarginLimits:
         """:meth:`broken` for the figures of :func:`loop_margins`."""
         if not figures.stable:
             return (f"unstable (closed-loop pole radius {figures.spectral_radius:.4f})",)
+        return self.broken_values(
+            figures.phase_margin_deg, figures.gain_margin_db, figures.max_sensitivity
+        )
+
+    def broken_values(self, pm_deg: float, gm_db: float, ms: float) -> tuple[str, ...]:
+        """The limits a phase margin [deg], gain margin [dB] and Ms break, each as a phrase."""
         out = []
-        if figures.phase_margin_deg < self.min_phase_margin_deg:
-            out.append(f"PM {figures.phase_margin_deg:.1f}° < {self.min_phase_margin_deg:g}°")
-        if figures.gain_margin_db < self.min_gain_margin_db:
-            out.append(f"GM {figures.gain_margin_db:.1f} dB < {self.min_gain_margin_db:g} dB")
-        if figures.max_sensitivity > self.max_sensitivity:
-            out.append(f"Ms {figures.max_sensitivity:.2f} > {self.max_sensitivity:g}")
+        if pm_deg < self.min_phase_margin_deg:
+            out.append(f"PM {pm_deg:.1f}° < {self.min_phase_margin_deg:g}°")
+        if gm_db < self.min_gain_margin_db:
+            out.append(f"GM {gm_db:.1f} dB < {self.min_gain_margin_db:g} dB")
+        if ms > self.max_sensitivity:
+            out.append(f"Ms {ms:.2f} > {self.max_sensitivity:g}")
         return tuple(out)
 
     def to_dict(self) -> dict[str, float]:

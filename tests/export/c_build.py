@@ -24,6 +24,48 @@ STRICT = ("-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic")
 UBSAN = ("-O1", "-g", "-fsanitize=undefined", "-fno-sanitize-recover=all")
 _HARNESS = ("harness.c", "servotune_rt.c")
 
+TICK_C = r"""/* one tick; raw[a] is the register, handed to the runtime as its bytes, low first */
+void h_tick(const int64_t *raw, const int64_t *ref, const int64_t *mode, const int64_t *reset,
+            const int64_t *u_add, int64_t *out5)
+{
+    st_axis_in_t in[ST_MAX_AXES];
+    st_axis_out_t out[ST_MAX_AXES];
+    int a;
+    int j;
+    for (a = 0; a < consts.n_axes; a++) {
+        for (j = 0; j < 4; j++) {
+            in[a].bytes[j] = (uint8_t)(((uint64_t)raw[a] >> (8 * j)) & 0xFFu);
+        }
+        in[a].ref = ref[a];
+        in[a].mode = (int32_t)mode[a];
+        in[a].reset = reset[a] != 0;
+        in[a].u_add = u_add[a];
+    }
+    st_tick(&consts, &state, in, out);
+    for (a = 0; a < consts.n_axes; a++) {
+        out5[5 * a + 0] = out[a].code;
+        out5[5 * a + 1] = out[a].flags;
+        out5[5 * a + 2] = out[a].e;
+        out5[5 * a + 3] = out[a].y;
+        out5[5 * a + 4] = out[a].mode;
+    }
+}
+
+/* n ticks from arrays of shape (n, axes); out has shape (n, axes, 5) */
+void h_run(int64_t n, const int64_t *raw, const int64_t *ref, const int64_t *mode,
+           const int64_t *reset, const int64_t *u_add, int64_t *out)
+{
+    const int64_t m = consts.n_axes;
+    int64_t k;
+    for (k = 0; k < n; k++) {
+        h_tick(raw + k * m, ref + k * m, mode + k * m, reset + k * m, u_add + k * m,
+               out + k * m * 5);
+    }
+}
+"""
+"""The harnesses' ``h_tick`` and ``h_run`` (C, after ``consts`` and ``state``): one tick of
+``st_tick`` from int64 arrays, and ``n`` of them."""
+
 
 def run_cc(src_dir: Path, *args: str) -> subprocess.CompletedProcess:
     """Run the compiler in ``src_dir``; the caller judges the result."""

@@ -42,7 +42,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from c_build import STRICT, cc, export_harness, needs_cc, run_replay, shared_harness, ubsan_harness
+from c_build import (
+    STRICT,
+    TICK_C,
+    cc,
+    export_harness,
+    needs_cc,
+    run_replay,
+    shared_harness,
+    ubsan_harness,
+)
 
 from servotune.arch.gantry.tuning import GantryTuning
 from servotune.arch.linkage import plan_linkage
@@ -96,7 +105,8 @@ from servotune.tuning import Tuning
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "hal"))
 import halrun
 
-HARNESS = r"""
+HARNESS = (
+    r"""
 /* test harness: the exported tables and the reference runtime, driven from Python (ctypes)
  * or from a file (main, for the sanitizer runs) */
 #include <stdio.h>
@@ -159,45 +169,9 @@ void h_state(int a, int64_t *out)
     }
 }
 
-/* one tick; raw[a] is the register, handed to the runtime as its bytes, low first */
-void h_tick(const int64_t *raw, const int64_t *ref, const int64_t *mode, const int64_t *reset,
-            const int64_t *u_add, int64_t *out5)
-{
-    st_axis_in_t in[ST_MAX_AXES];
-    st_axis_out_t out[ST_MAX_AXES];
-    int a;
-    int j;
-    for (a = 0; a < consts.n_axes; a++) {
-        for (j = 0; j < 4; j++) {
-            in[a].bytes[j] = (uint8_t)(((uint64_t)raw[a] >> (8 * j)) & 0xFFu);
-        }
-        in[a].ref = ref[a];
-        in[a].mode = (int32_t)mode[a];
-        in[a].reset = reset[a] != 0;
-        in[a].u_add = u_add[a];
-    }
-    st_tick(&consts, &state, in, out);
-    for (a = 0; a < consts.n_axes; a++) {
-        out5[5 * a + 0] = out[a].code;
-        out5[5 * a + 1] = out[a].flags;
-        out5[5 * a + 2] = out[a].e;
-        out5[5 * a + 3] = out[a].y;
-        out5[5 * a + 4] = out[a].mode;
-    }
-}
-
-/* n ticks from arrays of shape (n, axes); out has shape (n, axes, 5) */
-void h_run(int64_t n, const int64_t *raw, const int64_t *ref, const int64_t *mode,
-           const int64_t *reset, const int64_t *u_add, int64_t *out)
-{
-    const int64_t m = consts.n_axes;
-    int64_t k;
-    for (k = 0; k < n; k++) {
-        h_tick(raw + k * m, ref + k * m, mode + k * m, reset + k * m, u_add + k * m,
-               out + k * m * 5);
-    }
-}
-
+"""
+    + TICK_C
+    + r"""
 #ifdef H_MAIN
 /* file replay: in = n, axes, then raw, ref, mode, reset, u_add (int64, n * axes each);
  * out = the (n, axes, 5) outputs, then every axis's final state (N_STATE words) */
@@ -244,6 +218,7 @@ int main(int argc, char **argv)
 }
 #endif
 """
+)
 
 ST_DIGEST_OK, ST_DIGEST_MISMATCH = 0, 1
 SECTION_KEYS = ("b0", "b1", "b2", "a1", "a2", "frac_bits")

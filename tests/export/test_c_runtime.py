@@ -35,7 +35,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from c_build import STRICT, cc, export_harness, needs_cc, run_replay, shared_harness, ubsan_harness
+from c_build import (
+    STRICT,
+    TICK_C,
+    cc,
+    export_harness,
+    needs_cc,
+    run_replay,
+    shared_harness,
+    ubsan_harness,
+)
 
 from servotune._numba_cache import jit
 from servotune.export.c import PLANT_RUNTIME_FILES, runtime_source
@@ -89,7 +98,8 @@ pytestmark = needs_cc
 
 INT64_MAX = 2**63 - 1
 
-HARNESS = r"""
+HARNESS = (
+    r"""
 /* test harness: the exported tables and the reference runtime, driven from Python (ctypes)
  * or from a file (main, for the sanitizer runs) */
 #include <stdio.h>
@@ -128,45 +138,9 @@ int h_check_broken(int what)
     return st_check_consts(&c);
 }
 
-/* one tick; raw[a] is the register, handed to the runtime as its bytes, low first */
-void h_tick(const int64_t *raw, const int64_t *ref, const int64_t *mode, const int64_t *reset,
-            const int64_t *u_add, int64_t *out5)
-{
-    st_axis_in_t in[ST_MAX_AXES];
-    st_axis_out_t out[ST_MAX_AXES];
-    int a;
-    int j;
-    for (a = 0; a < consts.n_axes; a++) {
-        for (j = 0; j < 4; j++) {
-            in[a].bytes[j] = (uint8_t)(((uint64_t)raw[a] >> (8 * j)) & 0xFFu);
-        }
-        in[a].ref = ref[a];
-        in[a].mode = (int32_t)mode[a];
-        in[a].reset = reset[a] != 0;
-        in[a].u_add = u_add[a];
-    }
-    st_tick(&consts, &state, in, out);
-    for (a = 0; a < consts.n_axes; a++) {
-        out5[5 * a + 0] = out[a].code;
-        out5[5 * a + 1] = out[a].flags;
-        out5[5 * a + 2] = out[a].e;
-        out5[5 * a + 3] = out[a].y;
-        out5[5 * a + 4] = out[a].mode;
-    }
-}
-
-/* n ticks from arrays of shape (n, axes); out has shape (n, axes, 5) */
-void h_run(int64_t n, const int64_t *raw, const int64_t *ref, const int64_t *mode,
-           const int64_t *reset, const int64_t *u_add, int64_t *out)
-{
-    const int64_t m = consts.n_axes;
-    int64_t k;
-    for (k = 0; k < n; k++) {
-        h_tick(raw + k * m, ref + k * m, mode + k * m, reset + k * m, u_add + k * m,
-               out + k * m * 5);
-    }
-}
-
+"""
+    + TICK_C
+    + r"""
 /* primitives, for the edge tests */
 int64_t h_shift_round(int64_t x, int f) { return st_shift_round(x, f); }
 int64_t h_sat_add(int64_t a, int64_t b) { return st_sat_add(a, b); }
@@ -222,6 +196,7 @@ int main(int argc, char **argv)
 }
 #endif
 """
+)
 
 
 # --- building ---------------------------------------------------------------------------------
