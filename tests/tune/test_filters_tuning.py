@@ -9,6 +9,10 @@ the controller and the filter, discretised here from their constants).
 scale reads ``y = p + g·q``. The D/A output ``u = lsb·code`` is written ``lag = compute_s +
 delay_s`` after the tick and held (zero-order hold); ``y`` is sampled at the tick. Nothing of
 servotune's plant model, discretisation or margins is used.
+
+A study (marker ``study``, ``make test-study``, run by ``.ci/run`` after ``make test``): its plant
+integrated tick by tick and four robust designs per filter choice take about a minute of one
+core (docs/decisions.md#8-test-time).
 """
 
 from __future__ import annotations
@@ -34,6 +38,8 @@ N_TICKS = 1000
 """Multisine period [ticks] (4 s: 0.25 Hz resolution)."""
 LINES = np.arange(1, 480)
 """Excited lines (harmonics of 0.25 Hz up to 119.75 Hz, below Nyquist)."""
+pytestmark = pytest.mark.study
+
 PM_TOL_DEG = 0.6
 """The design's targets hold to python-control's on the exact loop; measured on a response
 sampled at 0.25 Hz spacing, between the lines (the tuner's own tolerance is 0.5°)."""
