@@ -128,7 +128,11 @@ def to_string(
       ``u-add-N`` (s32 in): D/A codes added to the output (an excitation; 0 normally);
     - ``code-N`` (s32 out): the D/A code; ``volts-N`` (float out): its voltage [V];
     - ``flags-N`` (s32 out, ST_FLAG_*), ``error-N`` (s32 out, the law's error [counts]),
-      ``position-N`` (s32 out, the extended position [counts], modulo 2^32).
+      ``position-N`` (s32 out, the extended position [counts], modulo 2^32);
+    - ``filters-off-N`` (bit in, only when an axis has output filters): the axis runs without
+      them while it is true; each change switches them out or back in before the period's
+      tick, without a bump (``st_axis_switch_filters``;
+      docs/runtime.md#switching-filters-while-running).
 
     Raises
     ------
@@ -155,8 +159,36 @@ def to_string(
         dac_lo=_c_double(dac.range_v[0]),
         dac_lsb=_c_double(dac.lsb_v),
         **command,
+        **_filter_text(tuning),
     )
     return with_digest_line(text, "//", line=1)
+
+
+def _filter_text(tuning: Tuning) -> dict[str, str]:
+    """The runtime component's ``filters-off-N`` pins and their switch (:func:`to_string`):
+    only when an axis has output filters."""
+    if not any(c.filters for c in tuning.controllers):
+        return {"filter_pin": "", "filter_state": "", "filter_switch": ""}
+    n = len(tuning.controllers)
+    return {
+        "filter_pin": (
+            f'pin in bit filters-off-#[{n}] "run the axis without its output filters '
+            '(switched either way without a bump)";\n'
+        ),
+        "filter_state": "static int st_hal_filters_off[ST_MAX_AXES];\n",
+        "filter_switch": (
+            f"    for (a = 0; a < {n}; a++) {{\n"
+            "        const int off = filters_off(a) ? 1 : 0;\n"
+            "        if (off != st_hal_filters_off[a]) {\n"
+            "            const st_axis_consts_t *x = &st_hal_consts.axis[a];\n"
+            "            st_axis_state_t *s = &st_hal_state.axis[a];\n"
+            "            (void)st_axis_switch_filters(&st_hal_live.axis[a], s,\n"
+            "                                         off ? 0 : x->n_filters, x->filter);\n"
+            "            st_hal_filters_off[a] = off;\n"
+            "        }\n"
+            "    }\n"
+        ),
+    }
 
 
 def _command_text(tuning: Tuning, position_scale: float | None) -> dict[str, str]:

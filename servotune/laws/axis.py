@@ -16,6 +16,7 @@ until a reset.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -57,8 +58,10 @@ __all__ = [
     "TaskLaw",
     "axis_control",
     "axis_read",
+    "filter_block",
     "filter_chain",
     "law_names",
+    "switch_filters",
     "task_law",
 ]
 
@@ -308,13 +311,7 @@ class AxisController:
                 "following_error_limit_counts must be >= 0 [counts], "
                 f"got {self.following_error_limit_counts}"
             )
-        if len(self.filters) > MAX_FILTERS or not all(
-            isinstance(s, SectionQ) for s in self.filters
-        ):
-            raise ValueError(
-                f"filters must be at most {MAX_FILTERS} quantised sections (SectionQ), "
-                f"got {show_value(self.filters)}"
-            )
+        filter_block(self.filters)  # at most MAX_FILTERS quantised sections
 
     @classmethod
     def from_gains(
@@ -422,10 +419,31 @@ class AxisController:
         c[C_COUNTER_BITS] = counter_bits
         c[C_DAC_ZERO] = dac_zero
         c[C_DAC_MAX] = 2**dac_bits - 1
-        c[C_NF] = len(self.filters)
-        for k, sec in enumerate(self.filters):
-            c[C_FILT + k * FILTER_WORDS : C_FILT + (k + 1) * FILTER_WORDS] = sec.step_args()
+        c[C_NF:C_TAB] = filter_block(self.filters)
         return c
+
+
+def filter_block(sections: Sequence[SectionQ]) -> np.ndarray:
+    """The constants of an output filter chain as the law holds them, ``c[a, C_NF:C_TAB]``:
+    the number of sections, then :data:`MAX_FILTERS` slots of ``b0 b1 b2 a1 a2 frac_bits``
+    (unused slots zero). What :func:`switch_filters` takes.
+
+    Raises
+    ------
+    ValueError
+        If there are more than :data:`MAX_FILTERS` sections or one is not a ``SectionQ``.
+    """
+    sections = tuple(sections)
+    if len(sections) > MAX_FILTERS or not all(isinstance(s, SectionQ) for s in sections):
+        raise ValueError(
+            f"filters must be at most {MAX_FILTERS} quantised sections (SectionQ), "
+            f"got {show_value(sections)}"
+        )
+    block = np.zeros(C_TAB - C_NF, dtype=np.int64)
+    block[0] = len(sections)
+    for k, sec in enumerate(sections):
+        block[1 + k * FILTER_WORDS : 1 + (k + 1) * FILTER_WORDS] = sec.step_args()
+    return block
 
 
 @jit(inline="always")
@@ -630,3 +648,42 @@ def axis_control(
         code = 0
         flags |= FLAG_SATURATED
     return code, flags, e
+
+
+@jit
+def switch_filters(st: np.ndarray, c: np.ndarray, a: int, block: np.ndarray) -> None:
+    """Switch axis ``a``'s output filters to ``block`` (:func:`filter_block`) between two ticks,
+    while it runs: a filter switched in, re-tuned or switched out without a bump.
+
+    The constants ``c[a, C_NF:C_TAB]`` become ``block``; the new sections' state is the
+    chain's steady state at its last input and output (``laws.filters.bumpless_state``):
+    section 0 ``x1 = x2 = x``, ``y1 = y2 = y``; every later one ``x1 = x2 = y1 = y2 = y``;
+    remainders zero. ``x`` is the chain's last input (section 0's, held to the D/A range) and
+    ``y`` its last output [D/A codes, ``FILTER_F`` fraction bits]; without filters before, both
+    are the last output ``u`` rounded to ``FILTER_F`` fraction bits and held to the range. At a
+    steady input the next code is then the last one within 1 LSB (a notch or a low-pass: DC
+    gain 1). The caller passes sections realised for the axis's D/A range
+    (``Rig.runtime_filters``), as an exported tables document holds them.
+    """
+    zero = c[a, C_DAC_ZERO]
+    lo = -zero * (np.int64(1) << FILTER_F)
+    hi = (c[a, C_DAC_MAX] - zero) * (np.int64(1) << FILTER_F)
+    nf = c[a, C_NF]
+    if nf > 0:
+        x = st[a, S_FILT]
+        y = st[a, S_FILT + (nf - 1) * N_FILTER_STATE + 2]
+    else:
+        x = min(max(shift_round(st[a, S_U_LAST], F_U - FILTER_F), lo), hi)
+        y = x
+    for j in range(C_TAB - C_NF):
+        c[a, C_NF + j] = block[j]
+    for k in range(MAX_FILTERS):
+        o = S_FILT + k * N_FILTER_STATE
+        held = x if k == 0 else y
+        on = k < block[0]
+        st[a, o] = held if on else 0
+        st[a, o + 1] = held if on else 0
+        st[a, o + 2] = y if on else 0
+        st[a, o + 3] = y if on else 0
+        st[a, o + 4] = 0
+        st[a, o + 5] = 0

@@ -5,15 +5,18 @@ every export of a filtered tuning, against the Python law.
   slave with two, on the example rig's hardware, the C runtime (``st_tick``) and the Python tick
   (``axis_read``/``axis_control``, what the engine calls) driven in lock step around a plant for
   120,000 ticks: moves, D/A saturation at both rails (task and open loop), lock/task/open
-  switches, a following-error trip, a counter fault and resets. Every D/A code, flag, error,
+  switches, a following-error trip, a counter fault and resets, and the filters switched in,
+  out and re-tuned twelve times while it runs (``st_axis_switch_filters`` /
+  ``switch_filters``; the whole state equal right after each switch). Every D/A code, flag, error,
   position and mode is equal, and so is the whole state (the filters' words included) at every
   1,000th tick. Then replays of random inputs with injected counter jumps, extreme references and
   added commands on three D/A widths (the filters' clamp at both rails of each), against the
   Python tick, the strict build and the undefined-behaviour sanitizer's.
 - (b) The runtime's HAL component (``export-table --format linuxcnc-comp``) of the master axis
   (four sections, no following-error limit) in real HAL for 20,000 periods, fed counts (with a
-  counter fault), commands, modes, resets and added commands beyond both rails: its codes,
-  flags, errors and positions are the Python tick's, period by period.
+  counter fault), commands, modes, resets, added commands beyond both rails and its
+  ``filters-off-0`` pin toggled four times: its codes, flags, errors and positions are the
+  Python tick's, period by period.
 - (c) An edited filter coefficient is refused: by ``load_tables`` and ``check-table`` (one line;
   with the constants CRC left, recomputed, and every digest recomputed too), and by the C
   runtime's ``st_check_digest`` on a header whose filter constant was edited;
@@ -73,6 +76,7 @@ from servotune.export.linuxcnc import FILTER_DIFFERENCE_CODES, pid_hal_text
 from servotune.fixed import Fixed
 from servotune.hw import timer
 from servotune.laws.axis import (
+    C_NF,
     FILTER_F,
     FLAG_COUNTER_FAULT,
     FLAG_FOLLOWING_ERROR,
@@ -86,6 +90,8 @@ from servotune.laws.axis import (
     AxisController,
     axis_control,
     axis_read,
+    filter_block,
+    switch_filters,
 )
 from servotune.laws.filters import (
     SectionQ,
@@ -114,14 +120,35 @@ HARNESS = (
 
 #include "servotune_tables.h"
 
-static const st_consts_t consts = SERVOTUNE_TABLES_INIT;
+static const st_consts_t compiled = SERVOTUNE_TABLES_INIT;
+static st_consts_t consts = SERVOTUNE_TABLES_INIT; /* the ticks' copy: filters switched */
 static st_state_t state;
 
 int h_n_axes(void) { return consts.n_axes; }
 int h_check(void) { return st_check_consts(&consts); }
-int h_check_digest(void) { return st_check_digest(&consts, st_tables_sha256); }
-uint32_t h_consts_crc32(void) { return st_consts_crc32(&consts); }
-void h_reset(void) { st_init(&state); }
+int h_check_digest(void) { return st_check_digest(&compiled, st_tables_sha256); }
+uint32_t h_consts_crc32(void) { return st_consts_crc32(&compiled); }
+void h_reset(void)
+{
+    consts = compiled;
+    st_init(&state);
+}
+
+/* st_axis_switch_filters with n sections from int64 words b0 b1 b2 a1 a2 frac_bits each */
+int h_switch(int a, int n, const int64_t *w)
+{
+    st_section_t sec[ST_MAX_FILTERS + 1];
+    int k;
+    for (k = 0; k < n && k <= ST_MAX_FILTERS; k++) {
+        sec[k].b0 = (int32_t)w[6 * k];
+        sec[k].b1 = (int32_t)w[6 * k + 1];
+        sec[k].b2 = (int32_t)w[6 * k + 2];
+        sec[k].a1 = (int32_t)w[6 * k + 3];
+        sec[k].a2 = (int32_t)w[6 * k + 4];
+        sec[k].frac_bits = (int32_t)w[6 * k + 5];
+    }
+    return st_axis_switch_filters(&consts.axis[a], &state.axis[a], n, sec);
+}
 
 /* st_check_consts on a copy with one filter field of axis 0 broken */
 int h_check_broken(int what)
@@ -236,12 +263,18 @@ class Runtime:
             ("h_state", None, [ctypes.c_int, p]),
             ("h_check_broken", ctypes.c_int, [ctypes.c_int]),
             ("h_consts_crc32", ctypes.c_uint32, []),
+            ("h_switch", ctypes.c_int, [ctypes.c_int, ctypes.c_int, p]),
         ):
             fn = getattr(lib, fn_name)
             fn.restype = res
             fn.argtypes = args
         self.lib = lib
         self.n_axes = lib.h_n_axes()
+
+    def switch(self, a: int, block: np.ndarray) -> int:
+        """``st_axis_switch_filters`` of axis ``a`` to a :func:`filter_block`."""
+        words = np.ascontiguousarray(block[1:], dtype=np.int64)
+        return self.lib.h_switch(a, int(block[0]), words.ctypes.data)
 
     def state(self) -> np.ndarray:
         out = np.zeros((self.n_axes, N_STATE), dtype=np.int64)
@@ -289,9 +322,14 @@ class PythonTick:
             out.append((code, flags, e, y[a], int(self.st[a, S_MODE])))
         return out
 
-    def run(self, raw, ref, mode, reset, u_add) -> np.ndarray:
+    def switch(self, a: int, block: np.ndarray) -> None:
+        switch_filters(self.st, self.c, a, block)
+
+    def run(self, raw, ref, mode, reset, u_add, switches=None) -> np.ndarray:
         out = np.zeros((raw.shape[0], len(self.refs), 5), dtype=np.int64)
         for k in range(raw.shape[0]):
+            for a, block in (switches or {}).get(k, ()):
+                self.switch(a, block)
             out[k] = self.tick(raw[k], ref[k], mode[k], reset[k], u_add[k])
         return out
 
@@ -450,10 +488,40 @@ def loop_inputs(n: int = N_LOOP) -> dict[str, np.ndarray]:
     }
 
 
-def closed_loop(rt: Runtime, py: PythonTick, ins: dict[str, np.ndarray]) -> dict[str, object]:
+ALT_MASTER_DESIGNS = (notch(19.0, 8.0, -20.0), lowpass2(80.0, 0.5))  # a re-tuned master
+ALT_SLAVE_DESIGNS = (notch(26.0, 6.0, -25.0),)
+
+
+def loop_switches(tuning: Tuning) -> dict[int, list[tuple[int, np.ndarray]]]:
+    """Filters switched while the closed loop runs (tick → (axis, :func:`filter_block`)): in,
+    out and re-tuned, during moves, at a rail (the steps, the open loop), after a fault and
+    its reset; all after tick 20,000, where the replay without filters stops."""
+    own = [filter_block(c.filters) for c in tuning.controllers]
+    alt = [filter_block(sections(PERIOD_S, d)) for d in (ALT_MASTER_DESIGNS, ALT_SLAVE_DESIGNS)]
+    none = filter_block(())
+    return {
+        25_000: [(0, alt[0]), (1, none)],
+        32_517: [(1, own[1])],
+        40_000: [(0, none)],
+        47_003: [(0, own[0]), (1, alt[1])],
+        60_250: [(0, alt[0])],
+        75_050: [(0, own[0])],
+        76_500: [(1, own[1])],
+        88_100: [(0, alt[0]), (1, none)],
+        88_200: [(1, alt[1])],
+        95_000: [(0, own[0])],
+        102_000: [(1, none)],
+        110_000: [(1, own[1])],
+    }
+
+
+def closed_loop(
+    rt: Runtime, py: PythonTick, ins: dict[str, np.ndarray], switches=None
+) -> dict[str, object]:
     """C and Python in lock step around a first-order speed plant per axis (the example rig's
     gains and time constants; the D/A code acts one tick later). The plant moves by the C
-    runtime's codes; both read the same registers."""
+    runtime's codes; both read the same registers. ``switches`` (:func:`loop_switches`): the
+    filters switched before those ticks, in both."""
     n = ins["ref"].shape[0]
     gain, tau = (12288.0, 11700.0), (0.025, 0.030)
     init, mask = (0xFFC000, 0x000400), (1 << 24) - 1
@@ -473,6 +541,11 @@ def closed_loop(rt: Runtime, py: PythonTick, ins: dict[str, np.ndarray]) -> dict
     for k in range(n):
         for a in range(2):
             raw[a] = ((init[a] + math.floor(pos[a])) & mask) ^ int(ins["glitch"][k, a])
+        for a, block in (switches or {}).get(k, ()):
+            assert rt.switch(a, block) == 0
+            py.switch(a, block)
+            if not np.array_equal(rt.state(), py.st):  # the bumpless state, word for word
+                state_mismatch.append(-k)
         off = k * stride
         tick(p_raw, bases[0] + off, bases[1] + off, bases[2] + off, bases[3] + off, p_out + 5 * off)
         py_out[k] = py.tick(raw, ref2[k], ins["mode"][k], ins["reset"][k], ins["u_add"][k])
@@ -490,8 +563,9 @@ def closed_loop(rt: Runtime, py: PythonTick, ins: dict[str, np.ndarray]) -> dict
 def loop(runtime: Runtime, tuning: Tuning, doc: dict) -> dict[str, object]:
     data = doc["data"]
     py = PythonTick(tuning, data, [ax["ref_source"] for ax in data["axes"]])
-    res = closed_loop(runtime, py, loop_inputs())
+    res = closed_loop(runtime, py, loop_inputs(), loop_switches(tuning))
     res["final_equal"] = np.array_equal(runtime.state(), py.st)
+    res["n_filters"] = py.c[:, C_NF].tolist()
     return res
 
 
@@ -518,6 +592,30 @@ def test_runtime_and_filtered_tables_compile_cleanly_and_check(
 
 
 @needs_cc
+def test_st_axis_switch_filters_refuses_a_bad_chain_and_changes_nothing(
+    runtime: Runtime, tuning: Tuning
+) -> None:
+    """A count beyond four, a negative one, or a section that fails st_check_consts' checks (a
+    zero word length, an unstable denominator) is refused with its code; the state is
+    untouched and the runtime keeps its own filters."""
+    runtime.lib.h_reset()
+    before = runtime.state().copy()
+    own = filter_block(tuning.controllers[0].filters)
+    five = np.concatenate([own[:1] + 1, own[1:], own[1:7]])
+    assert runtime.switch(0, five) == 1
+    assert runtime.switch(0, np.concatenate([[-1], own[1:]])) == 1
+    bad_f = own.copy()
+    bad_f[1 + 6 + 5] = 0  # section 1's frac_bits
+    assert runtime.switch(0, bad_f) == 3
+    unstable = own.copy()
+    unstable[1 + 4] = 1 << int(own[6])  # section 0's a2 = 1
+    assert runtime.switch(0, unstable) == 2
+    assert np.array_equal(runtime.state(), before) and runtime.lib.h_check() == 0
+    assert runtime.switch(1, filter_block(())) == 0
+    runtime.lib.h_reset()
+
+
+@needs_cc
 def test_closed_loop_c_equals_the_python_tick(loop: dict[str, object]) -> None:
     c, py = loop["c"], loop["py"]
     assert c.shape == (N_LOOP, 2, 5)
@@ -525,6 +623,7 @@ def test_closed_loop_c_equals_the_python_tick(loop: dict[str, object]) -> None:
         bad = np.argwhere(c[:, :, i] != py[:, :, i])
         assert bad.size == 0, f"{name} differs first at (tick, axis) {tuple(bad[0])}"
     assert loop["states"] == [] and loop["final_equal"]  # the filters' words too
+    assert loop["n_filters"] == [4, 2]  # switched back to their own after the last switch
     # what the scenario must exercise
     code, flags, mode = py[:, :, 0], py[:, :, 1], py[:, :, 4]
     for a in range(2):
@@ -698,7 +797,24 @@ def hal_inputs(n: int = N_HAL) -> dict[str, np.ndarray]:
     reset = np.zeros(n, dtype=np.int64)
     reset[[5_000, 13_000, 16_000]] = 1
     u_add = np.where(rng.random(n) < 0.05, rng.integers(-5000, 5001, n), 0)
-    return {"counts": counts, "command": command, "mode": mode, "reset": reset, "u_add": u_add}
+    off = np.zeros(n, dtype=np.int64)  # the filters switched out and back in, four times
+    for t0, t1 in ((2_100, 3_900), (7_000, 7_001), (12_500, 14_200), (17_777, 19_000)):
+        off[t0:t1] = 1
+    return {
+        "counts": counts,
+        "command": command,
+        "mode": mode,
+        "reset": reset,
+        "u_add": u_add,
+        "filters_off": off,
+    }
+
+
+def off_switches(off: np.ndarray, own: np.ndarray) -> dict[int, list[tuple[int, np.ndarray]]]:
+    """The component's switches of axis 0 for a ``filters-off-0`` signal: out when it rises,
+    back in when it falls, before that period's tick."""
+    prev = np.concatenate([[0], off[:-1]])
+    return {int(k): [(0, filter_block(()) if off[k] else own)] for k in np.flatnonzero(off != prev)}
 
 
 def test_hal_runtime_component_runs_the_filters_bit_for_bit(tuning: Tuning, tmp_path) -> None:
@@ -720,6 +836,7 @@ def test_hal_runtime_component_runs_the_filters_bit_for_bit(tuning: Tuning, tmp_
             "mode-0": ("s", ins["mode"].tolist()),
             "reset-0": ("b", ins["reset"].tolist()),
             "u-add-0": ("s", ins["u_add"].tolist()),
+            "filters-off-0": ("b", ins["filters_off"].tolist()),
         },
         {"code-0": "s", "flags-0": "s", "error-0": "s", "position-0": "s"},
         period_ns=250_000,
@@ -729,7 +846,11 @@ def test_hal_runtime_component_runs_the_filters_bit_for_bit(tuning: Tuning, tmp_
     py = PythonTick(one, data, [-1])
     cols = [ins[k][:, None] for k in ("counts", "command", "mode", "reset", "u_add")]
     cols[0] = cols[0] & 0xFFFFFF  # the 24-bit register the card latches
-    want = py.run(*cols)[:, 0, :4]
+    switches = off_switches(ins["filters_off"], filter_block(master.filters))
+    assert len(switches) == 8
+    want = py.run(*cols, switches=switches)[:, 0, :4]
+    kept = PythonTick(one, data, [-1]).run(*cols)[:, 0, :4]  # the filters never switched
+    assert np.sum(np.any(kept != want, axis=1)) > 500  # so a component ignoring the pin fails
     assert got.shape == (N_HAL, 4)
     bad = np.argwhere(got != want)
     assert bad.size == 0, f"first difference at (period, column) {tuple(bad[0])}"

@@ -189,3 +189,96 @@ def test_without_filters_the_output_is_the_plain_rounding() -> None:
     for u in (-7, 0, 3, 1999, -2048):
         _, code, _, _ = _tick(st, c, 0, mode=MODE_OPEN, u_add=u)
         assert code == min(max(u + 2048, 0), 4095)
+
+
+# --- switching filters while running (docs/runtime.md#switching-filters-while-running) --------
+
+
+def _chains():
+    """Chains of sections realised at 4 ms for the 12-bit D/A: none, one notch, a re-tuned
+    notch with a low-pass, four sections."""
+    from servotune.laws.filters import lowpass2, notch, realize
+
+    def q(*designs):
+        return tuple(realize(d, 0.004) for d in designs)
+
+    return (
+        (),
+        q(notch(15.0, 4.0, -25.0)),
+        q(notch(13.5, 6.0, -20.0), lowpass2(60.0, 0.6)),
+        q(
+            notch(9.0, 3.0, -30.0),
+            notch(22.0, 5.0, -15.0),
+            lowpass2(45.0, 0.3),
+            lowpass2(90.0, 0.7),
+        ),
+    )
+
+
+def test_switching_filters_at_a_steady_output_moves_the_code_by_at_most_one_lsb() -> None:
+    """Lock held off its target (a steady, fractional law output), every chain switched to every
+    other, at 40 output levels across the D/A range: the code after each switch stays within
+    1 LSB of the code before, for 300 ticks. Writing the constants without the bumpless state
+    (the sections' state zeroed) moves it by hundreds of codes: the test can fail."""
+    from servotune.laws.axis import filter_block, switch_filters
+
+    chains = _chains()
+    rng = np.random.default_rng(5)
+    worst, worst_naive = 0, 0
+    for level in rng.uniform(-2040.0, 2040.0, 40):
+        raw = round(-level / 0.4) & 0xFFFFFF  # lock gain 0.4 codes/count: u = −0.4·y
+        i, j = rng.choice(len(chains), 2, replace=False)
+        for naive in (False, True):
+            st, c = _axis()
+            _tick(st, c, 0)  # home
+            switch_filters(st, c, 0, filter_block(chains[i]))
+            codes = [_tick(st, c, raw)[1] for _ in range(400)]  # settled on chain i
+            if naive:
+                c[0, 24:49] = filter_block(chains[j])  # C_NF … C_TAB, state left as it is
+                st[0, 12:36] = 0
+            else:
+                switch_filters(st, c, 0, filter_block(chains[j]))
+            after = [_tick(st, c, raw)[1] for _ in range(300)]
+            bump = max(abs(a - codes[-1]) for a in after)
+            if naive:
+                worst_naive = max(worst_naive, bump if chains[j] else 0)
+            else:
+                worst = max(worst, bump)
+            assert codes[-1] == codes[-2]  # steady before the switch
+    assert worst <= 1
+    assert worst_naive > 100
+
+
+def test_switching_a_filter_in_during_a_move_follows_the_new_chain() -> None:
+    """After a switch the law runs the new chain: from the switch on, the codes equal an axis
+    that had the new chain all along once both have settled on the same steady input, and the
+    switched-out chain's constants are gone (its slots are zero)."""
+    from servotune.laws.axis import C_FILT, C_NF, N_CONST, filter_block, switch_filters
+
+    chains = _chains()
+    st, c = _axis()
+    _tick(st, c, 0)
+    switch_filters(st, c, 0, filter_block(chains[3]))
+    for k in range(200):
+        _tick(st, c, 0, mode=MODE_OPEN, u_add=int(800 * np.sin(k / 9.0)))
+    switch_filters(st, c, 0, filter_block(chains[1]))
+    assert c[0, C_NF] == 1 and not np.any(c[0, C_FILT + 6 : N_CONST])
+    ref_st, ref_c = _axis()
+    _tick(ref_st, ref_c, 0)
+    switch_filters(ref_st, ref_c, 0, filter_block(chains[1]))
+    a = [_tick(st, c, 0, mode=MODE_OPEN, u_add=-700)[1] for _ in range(600)]
+    b = [_tick(ref_st, ref_c, 0, mode=MODE_OPEN, u_add=-700)[1] for _ in range(600)]
+    assert a[-100:] == b[-100:] == [2048 - 700] * 100
+    assert a[:50] != b[:50]  # the switched axis started from its own past
+
+
+def test_filter_block_refuses_more_than_four_sections() -> None:
+    import pytest
+
+    from servotune.laws.axis import filter_block
+
+    secs = _chains()[3]
+    with pytest.raises(ValueError, match="at most 4"):
+        filter_block(secs + secs[:1])
+    with pytest.raises(ValueError, match="SectionQ"):
+        filter_block(("notch",))

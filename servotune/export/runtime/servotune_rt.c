@@ -654,6 +654,58 @@ int st_check_consts(const st_consts_t *c)
     return 0;
 }
 
+/* axis.switch_filters: the axis's output filters become sec[0 .. n-1] between two ticks,
+ * without a bump. The new sections' state is the chain's steady state at its last input x
+ * and output y (filters.bumpless_state): section 0 x1 = x2 = x, y1 = y2 = y; every later one
+ * x1 = x2 = y1 = y2 = y; remainders zero. x is section 0's last (held) input and y the last
+ * section's last output; without filters before, both are u_last rounded to ST_FILTER_F
+ * fraction bits and held to the D/A range. 1 if n is out of range, 2 + k if section k fails
+ * the checks of st_check_consts (nothing changed then); 0 when switched. */
+int st_axis_switch_filters(st_axis_consts_t *c, st_axis_state_t *s, int32_t n,
+                           const st_section_t *sec)
+{
+    const int64_t zero = c->dac_zero;
+    const int64_t lo = -zero * ((int64_t)1 << ST_FILTER_F);
+    const int64_t hi = ((int64_t)c->dac_max - zero) * ((int64_t)1 << ST_FILTER_F);
+    const int32_t nf = c->n_filters;
+    int64_t x;
+    int64_t y;
+    int32_t k;
+    int j;
+    if (n < 0 || n > ST_MAX_FILTERS) {
+        return 1;
+    }
+    for (k = 0; k < n; k++) {
+        if (!section_ok(&sec[k])) {
+            return 2 + k;
+        }
+    }
+    if (nf > 0) {
+        x = s->filt[0][0];
+        y = s->filt[nf - 1][2];
+    } else {
+        x = st_shift_round(s->u_last, ST_F_U - ST_FILTER_F);
+        x = x < lo ? lo : x;
+        x = x > hi ? hi : x; /* min(max(x, lo), hi) */
+        y = x;
+    }
+    c->n_filters = n;
+    for (k = 0; k < ST_MAX_FILTERS; k++) {
+        const st_section_t none = {0, 0, 0, 0, 0, 0};
+        const int64_t held = k == 0 ? x : y;
+        const int on = k < n;
+        c->filter[k] = on ? sec[k] : none;
+        s->filt[k][0] = on ? held : 0;
+        s->filt[k][1] = on ? held : 0;
+        s->filt[k][2] = on ? y : 0;
+        s->filt[k][3] = on ? y : 0;
+        for (j = 4; j < ST_FILTER_STATE; j++) {
+            s->filt[k][j] = 0;
+        }
+    }
+    return 0;
+}
+
 /* st_check_sync_consts: 1 + the index of the first bad field (header), 0 if valid. */
 static int q_ok(int64_t q)
 {

@@ -203,6 +203,16 @@ int64_t st_axis_control(st_axis_state_t *s, const st_axis_consts_t *c, int64_t r
                         int64_t mode_cmd, int reset, int64_t u_add, int32_t *code,
                         int32_t *flags);
 
+/* Switch an axis's output filters to sec[0 .. n-1] between two ticks, while it runs
+ * (laws/axis.py switch_filters; docs/runtime.md#switching-filters-while-running): a filter
+ * switched in, re-tuned or switched out without a bump (at a steady input the next code is
+ * the last within 1 LSB). It writes c's filter constants, so the firmware keeps a writable
+ * copy of the checked constants and ticks with it; the sections come from an exported (and
+ * checked) tables document, realised for the axis's D/A range. 0 if switched; 1 if n is out
+ * of 0 .. ST_MAX_FILTERS, 2 + k if section k fails st_check_consts' checks (nothing changed). */
+int st_axis_switch_filters(st_axis_consts_t *c, st_axis_state_t *s, int32_t n,
+                           const st_section_t *sec);
+
 /* --- the sync compensator (servotune/laws/sync.py) -------------------------------------- */
 
 /* Sync compensator constants (laws/sync.py SyncConstants) and monitor thresholds. Gains are
