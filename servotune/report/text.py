@@ -186,6 +186,7 @@ def format_comparison(cmp: SyncComparison) -> str:
             mark = " TRIP" if r.tripped else ""
             cells += f"{r.max_sync_error_counts:>13.1f}{r.rms_sync_error_counts:>13.1f}{mark}"
         lines.append(f"{topo:<11}{cells}")
+    lines += [f"move shaping: {line}" for line in cmp.shaper]
     if cmp.predicted is not None:
         p = cmp.predicted
         lines.append(

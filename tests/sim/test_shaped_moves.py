@@ -11,8 +11,9 @@ Offset, friction and encoder noise are off so that after the move the loop is li
 
 The vibration is measured independently of the design code: after the reference has stopped,
 the measured position (the engine's ``true_pos_counts``) is a sum of the closed loop's free
-modes; a matrix-pencil fit written here (Hua and Sarkar's method: SVD of a Hankel matrix, then
-the amplitudes by least squares) recovers them, and the one nearest the mode is the vibration.
+modes; a matrix-pencil fit (tests/sim/vibration.py: Hua and Sarkar's method, SVD of a
+Hankel matrix, then the amplitudes by least squares) recovers them, and the one nearest the
+mode is the vibration.
 The move is a triangle of 10 ms acceleration and deceleration: its spectrum has no zero between
 25 and 50 Hz (zeros at 100 Hz and its multiples), so the unshaped move excites the mode wherever
 it lies within ±15 %.
@@ -25,6 +26,7 @@ import math
 
 import numpy as np
 import pytest
+from vibration import vibration_near
 
 import servotune as st
 from servotune.analysis.shaping import axis_shaper, closed_loop_modes
@@ -73,27 +75,12 @@ def _move(rig: st.Rig) -> np.ndarray:
     return trapezoid_ref(N_TICKS, rig.period_s, v * ACCEL_S, v, v / ACCEL_S, start_tick=START)
 
 
-def _pencil(x: np.ndarray, order: int) -> tuple[np.ndarray, np.ndarray]:
-    """Poles ``z`` and amplitudes ``c`` of ``x[k] ≈ Σ c z^k`` (matrix pencil)."""
-    n = x.size
-    rows = n // 2
-    hankel = np.array([x[k : k + rows + 1] for k in range(n - rows)])
-    v = np.linalg.svd(hankel, full_matrices=False)[2][:order].T
-    z = np.linalg.eigvals(np.linalg.pinv(v[:-1]) @ v[1:])
-    c = np.linalg.lstsq(z[None, :] ** np.arange(n)[:, None], x.astype(complex), rcond=None)[0]
-    return z, c
-
-
 def _vibration(rig: st.Rig, gains: list, ref: np.ndarray, near_hz: float) -> float:
     """Amplitude [counts] of the free oscillation nearest ``near_hz`` once the reference stops."""
     inp = Inputs.hold(N_TICKS, 2).replace_axis(0, ref_counts=ref, mode=np.full(N_TICKS, MODE_TASK))
     y = simulate(Loop.from_rig(rig, gains), inp, seed=0).true_pos_counts[:, 0]
     end = int(np.flatnonzero(np.diff(ref))[-1]) + 1
-    z, c = _pencil(y[end : end + WINDOW] - ref[end], 10)
-    s = np.log(z) / rig.period_s
-    up = s.imag > 0
-    k = np.flatnonzero(up)[np.argmin(np.abs(s[up].imag / (2 * math.pi) - near_hz))]
-    return float(2 * abs(c[k]))
+    return vibration_near(y[end : end + WINDOW] - ref[end], rig.period_s, near_hz)
 
 
 @pytest.fixture(scope="module")

@@ -18,7 +18,9 @@ Submodules, each importing only those above it:
 - :mod:`~servotune.arch.gantry.result`: the result (:class:`GantryTrace` and its
   :class:`GantryMetrics`, :class:`SyncComparison`; its text table is
   :func:`servotune.report.text.format_comparison`);
-- :mod:`~servotune.arch.gantry.run`: the CNC's move (:func:`move_profile`), the numba kernel
+- :mod:`~servotune.arch.gantry.shaping`: the move's input shaper (``gantry_shaper``);
+- :mod:`~servotune.arch.gantry.run`: the CNC's move (:func:`move_profile`, shaped by
+  :func:`gantry_command`), the numba kernel
   of one run (:func:`simulate_gantry`) and the comparison (:func:`compare_topologies`);
 - :mod:`~servotune.arch.gantry.load`: the config reader (``load_gantry``: it only loads; the
   gains a file leaves out are resolved by the caller, ``resolve_gains(load_gantry(path))``);
@@ -88,10 +90,12 @@ from servotune.arch.gantry.result import (
 )
 from servotune.arch.gantry.run import (
     compare_topologies,
+    gantry_command,
     gantry_montecarlo,
     move_profile,
     simulate_gantry,
 )
+from servotune.arch.gantry.shaping import gantry_shaper
 
 __all__ = [
     "CASES",
@@ -114,9 +118,11 @@ __all__ = [
     "SyncSettings",
     "compare_topologies",
     "gantry_cases",
+    "gantry_command",
     "gantry_from_dict",
     "gantry_margins",
     "gantry_montecarlo",
+    "gantry_shaper",
     "move_profile",
     "predicted_load_reduction",
     "simulate_gantry",

@@ -21,6 +21,7 @@ from servotune.errors import ConfigError, RigError, SpecError
 from servotune.io.sections import build_section
 from servotune.laws.axis import AxisController
 from servotune.laws.pi import PIGains
+from servotune.laws.shaping import KINDS as SHAPER_KINDS
 from servotune.laws.sync import SYNC_LAWS, SyncConstants, SyncGains
 from servotune.plant import Plant
 from servotune.rig import Rig, load_rig, plant_from_table
@@ -38,6 +39,7 @@ __all__ = [
     "MAX_SECONDS",
     "MAX_SPEED_CPS",
     "MIN_CYCLE_S",
+    "SHAPER_CHOICES",
     "TOPOLOGIES",
     "T_CROSS",
     "T_FOLLOWING",
@@ -62,6 +64,9 @@ CASES = ("load", "mismatch")
 during the move; ``mismatch`` — each side with its own plant, no load."""
 
 T_PARALLEL, T_FOLLOWING, T_LISTENING, T_CROSS = range(4)
+
+SHAPER_CHOICES = ("none", "auto", *SHAPER_KINDS)
+"""What ``[move] shaper`` takes (:mod:`servotune.arch.gantry.shaping`)."""
 
 
 # Bounds of the configuration's fields (a typo must not size the simulation's arrays)
@@ -422,12 +427,16 @@ class GantryMove:
         Cruise speed [counts/s] and acceleration [counts/s²].
     start_s : float
         Time of the move's start [s].
+    shaper : str
+        Input shaping of the command (:mod:`servotune.arch.gantry.shaping`): ``none``,
+        ``auto``, ``zv``, ``zvd`` or ``ei``.
     """
 
     distance_counts: int = 200_000
     speed_cps: float = 60_000.0
     accel_cps2: float = 600_000.0
     start_s: float = 0.05
+    shaper: str = "none"
 
     def __post_init__(self) -> None:
         check_integer(
@@ -457,6 +466,11 @@ class GantryMove:
             error=ConfigError,
         )
         check_number("start_s", self.start_s, "s", hi=MAX_SECONDS, error=ConfigError)
+        if self.shaper not in SHAPER_CHOICES:
+            raise ConfigError(
+                f"move.shaper must be one of {', '.join(SHAPER_CHOICES)}, "
+                f"got {show_value(self.shaper)}"
+            )
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

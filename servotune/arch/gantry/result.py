@@ -225,6 +225,9 @@ class SyncComparison:
     montecarlo : GantryMonteCarlo or None
         The deployed topology over drawn plant pairs (:func:`~servotune.arch.gantry.run.
         gantry_montecarlo`), where it was run.
+    shaper : tuple of str
+        The move's shaper: what it is designed for and what it adds to the move
+        (:func:`~servotune.arch.gantry.shaping.gantry_shaper`); empty without one.
     """
 
     config: GantryConfig
@@ -234,6 +237,7 @@ class SyncComparison:
     failed: tuple[str, ...]
     margins: tuple[LoopMargins, ...] = ()
     montecarlo: GantryMonteCarlo | None = None
+    shaper: tuple[str, ...] = ()
 
     def worst_margins(self) -> dict[str, LoopMargins]:
         """Per loop (``master``, ``slave``, ``sync``), its case with the least phase margin."""

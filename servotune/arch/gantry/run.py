@@ -55,11 +55,13 @@ from servotune.arch.gantry.result import (
     GantryVariant,
     SyncComparison,
 )
+from servotune.arch.gantry.shaping import gantry_shaper
 from servotune.budget import check_memory
 from servotune.errors import ConfigError
 from servotune.executor import Executor, InProcessExecutor, chunk_bounds
 from servotune.fixed import shift_round
 from servotune.laws.axis import FLAG_SYNC_TRIP, MODE_TASK, N_STATE, S_FAULT
+from servotune.laws.shaping import shape_reference
 from servotune.laws.sync import SYNC_TRIP, sync_enter, sync_monitor, sync_step
 from servotune.plant import (
     NROW,
@@ -92,6 +94,7 @@ from servotune.validate import check_seed, show_value
 
 __all__ = [
     "compare_topologies",
+    "gantry_command",
     "gantry_montecarlo",
     "move_profile",
     "run_gantry",
@@ -118,6 +121,15 @@ def move_profile(move: GantryMove, cycle_s: float, n_cycles: int) -> np.ndarray:
         move.accel_cps2,
         start_tick=round(move.start_s / cycle_s),
     )
+
+
+def gantry_command(cfg: GantryConfig, n_cycles: int) -> np.ndarray:
+    """The CNC's command as the drives get it: :func:`move_profile`, shaped by the move's
+    shaper where it has one (:func:`~servotune.arch.gantry.shaping.gantry_shaper`, designed
+    for ``cfg``'s drives)."""
+    cmd = move_profile(cfg.move, cfg.bus.cycle_s, n_cycles)
+    shaper, _ = gantry_shaper(cfg)
+    return cmd if shaper is None else shape_reference(cmd, shaper)
 
 
 def _substeps(cfg: GantryConfig, plants: tuple[Plant, Plant]) -> int:
@@ -363,14 +375,19 @@ def _gantry_kernel(
 
 
 def simulate_gantry(
-    cfg: GantryConfig, topology: str | None = None, *, case: str = "load", seed: int = 0
+    cfg: GantryConfig,
+    topology: str | None = None,
+    *,
+    case: str = "load",
+    seed: int = 0,
+    command: np.ndarray | None = None,
 ) -> GantryTrace:
     """Run the gantry for ``cfg.seconds`` in one topology and one case (:data:`CASES`).
 
     In the ``load`` case both sides are copies of the master's drive (plant and gains), so only
     the load makes a sync error; in ``mismatch`` each side has its own plant and gains. The
-    CNC's command is :func:`move_profile`; no reset (:func:`run_gantry` takes any command,
-    load and resets).
+    CNC's command is :func:`gantry_command` (the move, shaped where ``[move] shaper`` asks); no
+    reset (:func:`run_gantry` takes any command, load and resets).
 
     Parameters
     ----------
@@ -382,6 +399,9 @@ def simulate_gantry(
     seed : int
         Seeds the encoder noise (the splitmix64 stream of :mod:`servotune.sim.tick`, as
         ``simulate(..., seed=seed)``) and the sync jitter (``numpy.random.default_rng``).
+    command : ndarray of int64, shape (cfg.n_cycles,), optional
+        The command, already made (:func:`gantry_command` of the nominal config: a Monte
+        Carlo's drawn plants keep the nominal design's shaper); default made here.
 
     Returns
     -------
@@ -393,8 +413,8 @@ def simulate_gantry(
         f"a gantry run of {cfg.seconds:g} s",
         f"{n:,} cycles × {_TRACE_BYTES_PER_CYCLE} bytes",
     )
+    cmd = gantry_command(cfg, n) if command is None else command
     cfg, load = case_config(cfg, case)
-    cmd = move_profile(cfg.move, cfg.bus.cycle_s, n)
     return run_gantry(cfg, cmd, load, topology=topology, seed=seed, case=case)
 
 
@@ -612,9 +632,11 @@ def compare_topologies(cfg: GantryConfig, *, seed: int = 0, montecarlo: int = 0)
         f"{n_runs} runs × {cfg.n_cycles:,} cycles × {_TRACE_BYTES_PER_CYCLE} bytes",
     )
     rows, traces, failed = [], [], []
+    _, shaper_notes = gantry_shaper(cfg)
+    cmd = gantry_command(cfg, cfg.n_cycles)
     for case in CASES:
         for topo in TOPOLOGIES:
-            tr = simulate_gantry(cfg, topo, case=case, seed=seed)
+            tr = simulate_gantry(cfg, topo, case=case, seed=seed, command=cmd)
             traces.append(tr)
             m = tr.metrics()
             rows.append(m)
@@ -642,6 +664,7 @@ def compare_topologies(cfg: GantryConfig, *, seed: int = 0, montecarlo: int = 0)
         failed=tuple(failed),
         margins=margins,
         montecarlo=mc,
+        shaper=tuple(shaper_notes),
     )
 
 
@@ -697,6 +720,7 @@ def _montecarlo_chunk(
     factors (an executor's task): each depends only on the config, the seed and its index."""
     start, factors = chunk
     cfg, seed = shared
+    cmd = gantry_command(cfg, cfg.n_cycles)  # the nominal design's shaper for every pair
     out = []
     for j, (fmg, fmt, fsg, fst) in enumerate(factors.tolist()):
         i = start + j
@@ -710,7 +734,7 @@ def _montecarlo_chunk(
         c = replace(cfg, **plants)
         worst, tripped = 0.0, False
         for case in CASES:
-            r = simulate_gantry(c, case=case, seed=seed + 1 + i).metrics()
+            r = simulate_gantry(c, case=case, seed=seed + 1 + i, command=cmd).metrics()
             worst = max(worst, r.max_sync_error_counts)
             tripped |= r.tripped
         out.append(

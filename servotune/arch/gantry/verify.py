@@ -42,8 +42,8 @@ from servotune.arch.gantry.margins import LOOP_NAMES, gantry_margins, margin_fai
 from servotune.arch.gantry.result import GantryMonteCarlo
 from servotune.arch.gantry.run import (
     MC_CLUSTER_MIN_PAIRS,
+    gantry_command,
     gantry_montecarlo,
-    move_profile,
     run_gantry,
     simulate_gantry,
 )
@@ -265,7 +265,7 @@ def _fault_rows(run: GantryConfig, spec: GantrySpec, seed: int) -> list[GantryCh
     n = run.n_cycles
     load = np.zeros((n, 2))
     load[min(n, round(lim.fault_time_s / run.bus.cycle_s)) :, 1] = lim.fault_volts
-    tr = run_gantry(run, move_profile(run.move, run.bus.cycle_s, n), load, seed=seed, case="fault")
+    tr = run_gantry(run, gantry_command(run, n), load, seed=seed, case="fault")
     k = tr.trip_cycle
     stop = k + run.stop_bound_cycles
     if k < 0 or stop >= n:
