@@ -209,11 +209,14 @@ def shift_round(x: int, f: int) -> int:
     """``x * 2**-f`` rounded half away from zero, for f >= 1 and x > INT64_MIN.
 
     Never right-shifts a negative value: the magnitude is rounded and the sign restored.
+    Written without a branch (``s`` is 0 or −1, ``(x ^ s) − s`` the magnitude): the sign of a
+    filter's rounding remainder is as good as random, and a mispredicted branch cost more than
+    the whole rounding (docs/runtime.md#rounding; the C runtime's st_shift_round gives the same
+    integers).
     """
-    if x >= 0:
-        return (x >> f) + ((x >> (f - 1)) & 1)
-    m = -x
-    return -((m >> f) + ((m >> (f - 1)) & 1))
+    s = -np.int64(x < 0)
+    m = (x ^ s) - s
+    return (((m >> f) + ((m >> (f - 1)) & 1)) ^ s) - s
 
 
 @jit

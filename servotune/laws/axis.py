@@ -508,20 +508,22 @@ def filter_chain(
     lo = -zero * (np.int64(1) << FILTER_F)
     hi = (cmax - zero) * (np.int64(1) << FILTER_F)
     held = False
+    row = st[a]
+    crow = c[a]
     for k in range(nf):
         if x < lo or x > hi:
             held = True
             x = min(max(x, lo), hi)
         p = C_FILT + k * FILTER_WORDS
-        o = S_FILT + k * N_FILTER_STATE
         x = biquad_step(
-            c[a, p],
-            c[a, p + 1],
-            c[a, p + 2],
-            c[a, p + 3],
-            c[a, p + 4],
-            c[a, p + 5],
-            st[a, o : o + N_FILTER_STATE],
+            crow[p],
+            crow[p + 1],
+            crow[p + 2],
+            crow[p + 3],
+            crow[p + 4],
+            crow[p + 5],
+            row,
+            S_FILT + k * N_FILTER_STATE,
             x,
         )
     return shift_round(x, FILTER_F), held

@@ -13,11 +13,12 @@ exactly 1. :func:`choose_frac_bits` picks the smallest ``frac_bits`` that meets 
 tolerances, the limit-cycle criterion and the accumulator margin.
 
 The tick, :func:`biquad_step`: Direct Form I in int64 with second-order error feedback
-(the rounding remainders ``r`` are fed back through the denominator), so that the quantity
-``w = acc · 2^−f`` follows the quantised filter's exact linear recursion up to an injected error
-of at most ``2^−(f+1)`` LSB per tick; the output is ``y = round(w)``. With zero input ``w``
-decays to at most ``‖1/A_q‖₁ · 2^−(f+1)`` LSB, which :func:`choose_frac_bits` keeps at or below
-1/4 LSB: the output then reaches 0 and stays there (no zero-input limit cycle).
+(the rounding remainders ``r`` are fed back through the denominator; both roundings are
+:func:`round_acc`, ``shift_round``'s integers in fewer steps within the sums' bound), so that
+the quantity ``w = acc · 2^−f`` follows the quantised filter's exact linear recursion up to an
+injected error of at most ``2^−(f+1)`` LSB per tick; the output is ``y = round(w)``. With zero
+input ``w`` decays to at most ``‖1/A_q‖₁ · 2^−(f+1)`` LSB, which :func:`choose_frac_bits` keeps
+at or below 1/4 LSB: the output then reaches 0 and stays there (no zero-input limit cycle).
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ import numpy as np
 
 from servotune._numba_cache import jit
 from servotune.errors import SpecError
-from servotune.fixed import quantize, shift_round
+from servotune.fixed import quantize
 from servotune.validate import check_keys, check_number, is_finite, is_number, show_value
 
 __all__ = [
@@ -54,6 +55,7 @@ __all__ = [
     "quantize_section",
     "realize",
     "realized_features",
+    "round_acc",
     "section_from_dict",
     "state_bound",
 ]
@@ -652,11 +654,23 @@ def bumpless_state(section_q: SectionQ, x_now: int, y_now: int) -> np.ndarray:
 
 
 @jit(inline="always")
-def biquad_step(b0: int, b1: int, b2: int, a1: int, a2: int, f: int, st: np.ndarray, x: int) -> int:
+def round_acc(x: int, f: int) -> int:
+    """``x · 2^−f`` rounded half away from zero for ``|x| <= 2^62`` (a section's sums; the
+    same integers as ``servotune.fixed.shift_round``): ``(x + 2^(f−1) − [x < 0]) >> f`` with
+    an arithmetic shift, four operations in a row on the chain's critical path instead of the
+    magnitude's round trip (``x + 2^(f−1)`` cannot overflow within the bound)."""
+    return (x + (np.int64(1) << (f - 1)) - np.int64(x < 0)) >> f
+
+
+@jit(inline="always")
+def biquad_step(
+    b0: int, b1: int, b2: int, a1: int, a2: int, f: int, st: np.ndarray, o: int, x: int
+) -> int:
     """One tick of a quantised section (Direct Form I, second-order error feedback).
 
-    ``st`` is the section's int64 state ``[x1, x2, y1, y2, r1, r2]`` (an array or a slice of
-    one), updated in place; ``r`` are the rounding remainders in 2^−f LSB, |r| <= 2^(f−1).
+    ``st[o : o + 6]`` is the section's int64 state ``[x1, x2, y1, y2, r1, r2]`` (``o`` its
+    offset in ``st``, so a chain's sections share one row without a view each), updated in
+    place; ``r`` are the rounding remainders in 2^−f LSB, |r| <= 2^(f−1).
 
         acc = b0·x + b1·x1 + b2·x2 − a1·y1 − a2·y2 − shift_round(a1·r1 + a2·r2, f)
         y   = shift_round(acc, f)            r = acc − y·2^f
@@ -664,16 +678,16 @@ def biquad_step(b0: int, b1: int, b2: int, a1: int, a2: int, f: int, st: np.ndar
     The caller keeps ``|x| <= input_bound`` of :func:`state_bound`, which keeps every partial
     sum inside ±2^62; all arithmetic is int64, no shift of a negative value.
     """
-    ef = shift_round(a1 * st[4] + a2 * st[5], f)
-    acc = b0 * x + b1 * st[0] + b2 * st[1] - a1 * st[2] - a2 * st[3] - ef
-    y = shift_round(acc, f)
-    r = acc - y * (np.int64(1) << f)
-    st[1] = st[0]
-    st[0] = x
-    st[3] = st[2]
-    st[2] = y
-    st[5] = st[4]
-    st[4] = r
+    x1, x2, y1, y2, r1 = st[o], st[o + 1], st[o + 2], st[o + 3], st[o + 4]
+    ef = round_acc(a1 * r1 + a2 * st[o + 5], f)
+    acc = b0 * x + b1 * x1 + b2 * x2 - a1 * y1 - a2 * y2 - ef
+    y = round_acc(acc, f)
+    st[o] = x
+    st[o + 1] = x1
+    st[o + 2] = y
+    st[o + 3] = y1
+    st[o + 4] = acc - y * (np.int64(1) << f)
+    st[o + 5] = r1
     return y
 
 
@@ -693,7 +707,7 @@ def filter_run(
     |accumulator| seen (``(|y| + 1/2)·2^f`` bounds it; for tests and bounds)."""
     acc_max = 0
     for k in range(xs.size):
-        y = biquad_step(b0, b1, b2, a1, a2, f, st, xs[k])
+        y = biquad_step(b0, b1, b2, a1, a2, f, st, 0, xs[k])
         ys[k] = y
         acc = y * (np.int64(1) << f) + st[4]
         acc = -acc if acc < 0 else acc

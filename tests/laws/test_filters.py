@@ -237,7 +237,7 @@ def test_tick_on_a_slice_of_a_state_array() -> None:
     q = _quantized(notch(60.0, 12.0, -20.0), 0.004)
     big = np.full((2, 3 * N_FILTER_STATE), 7, dtype=np.int64)
     big[1, 6:12] = 0
-    ys = [biquad_step(*q.step_args(), big[1, 6:12], x) for x in (1000, -5, 300_000)]
+    ys = [biquad_step(*q.step_args(), big[1], 6, x) for x in (1000, -5, 300_000)]
     want, st = _model(q, [0] * 6, [1000, -5, 300_000])
     assert ys == want
     assert big[1, 6:12].tolist() == st
@@ -428,3 +428,17 @@ def test_bumpless_switch_in_and_retune(period_s: float, kind: str) -> None:
 def test_bad_inputs_raise_spec_error(make, message: str) -> None:
     with pytest.raises(SpecError, match=message):
         make()
+
+
+def test_the_sections_rounding_is_the_runtimes_within_the_accumulator_bound() -> None:
+    """``round_acc`` (the section's shorter rounding) gives ``fixed.shift_round``'s integers
+    for every |x| <= 2^62 tried, ties and the bound itself included, at every word length."""
+    from servotune.fixed import shift_round
+    from servotune.laws.filters import round_acc
+
+    rng = np.random.default_rng(21)
+    for f in range(1, 31):
+        half = 1 << (f - 1)
+        xs = [int(v) for v in rng.integers(-(2**62), 2**62, 400, endpoint=True)]
+        xs += [0, 1, -1, half, -half, 3 * half, -3 * half, 2**62, -(2**62), half - 1, 1 - half]
+        assert [round_acc(x, f) for x in xs] == [shift_round(x, f) for x in xs], f
