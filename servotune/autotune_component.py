@@ -28,7 +28,7 @@ from __future__ import annotations
 import shutil
 import subprocess
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -42,6 +42,7 @@ from servotune.io.halcmd import Halcmd, parse_thread_functions
 __all__ = [
     "ComponentSwitch",
     "Predict",
+    "attempt_each",
     "component_prediction",
     "install_component",
     "predicted_move",
@@ -49,6 +50,18 @@ __all__ = [
 
 SETTLE_PERIODS = 8
 """Periods the loaded component runs in lock before its origin is read and it is switched in."""
+
+
+def attempt_each(hal: Halcmd, steps: Iterable[tuple[str, ...]]) -> list[str]:
+    """Each halcmd step of ``steps`` run in ``hal``, every one tried whatever the others did
+    (an undo does the rest regardless); the messages of the ones that failed, in order."""
+    failed: list[str] = []
+    for args in steps:
+        try:
+            hal(*args)
+        except Exception as exc:  # undo the rest regardless; reported together
+            failed.append(str(exc))
+    return failed
 
 
 def install_component(source: Path, timeout_s: float = 600.0) -> None:
@@ -211,25 +224,17 @@ class ComponentSwitch:
         }
 
     def remove(self) -> list[str]:
-        """Step 4, removed: every step tried; the ones that failed."""
-        hal, failed = self.hal, []
-
-        def attempt(*args: str) -> None:
-            try:
-                hal(*args)
-            except Exception as exc:  # undo the rest regardless; reported together
-                failed.append(str(exc))
-
+        """Step 4, removed: every step tried (:func:`attempt_each`); the ones that failed."""
+        steps: list[tuple[str, ...]] = []
         if self.switched:
-            attempt("unlinkp", f"{self.guard}.volts-in")
+            steps.append(("unlinkp", f"{self.guard}.volts-in"))
             if self.pid_signal is not None:
-                attempt("net", self.pid_signal, f"{self.guard}.volts-in")
+                steps.append(("net", self.pid_signal, f"{self.guard}.volts-in"))
         if self.loaded:
-            attempt("delf", self.hal_name, self.cfg.hal.thread)
-            attempt("unloadrt", self.cfg.component)
-        for sig in self.signals:
-            attempt("delsig", sig)
-        return failed
+            steps.append(("delf", self.hal_name, self.cfg.hal.thread))
+            steps.append(("unloadrt", self.cfg.component))
+        steps += [("delsig", sig) for sig in self.signals]
+        return attempt_each(self.hal, steps)
 
     def _new_signal(self, what: str) -> str:
         sig = f"{self.hal_name}-{what}"

@@ -62,6 +62,7 @@ from servotune.autotune import (
 from servotune.autotune_component import (
     ComponentSwitch,
     Predict,
+    attempt_each,
     component_prediction,
     install_component,
 )
@@ -241,28 +242,18 @@ class _Takeover:
             self.hal("setp", pin, value)
 
     def undo(self) -> list[str]:
-        """Every change undone that can be (each step tried); the steps that failed."""
-        hal, failed = self.hal, []
+        """Every change undone that can be (each step tried, :func:`attempt_each`); the steps
+        that failed."""
+        failed: list[str] = []
         if self.component is not None and not self.kept:
             failed += self.component.remove()
-
-        def attempt(*args: str) -> None:
-            try:
-                hal(*args)
-            except Exception as exc:  # undo the rest regardless; reported together
-                failed.append(str(exc))
-
-        for pin in (*self.links, *(SAMPLER_PIN[n] for n in ("feedback", "volts", "overruns"))):
-            attempt("unlinkp", pin)
-        for pin, sig in self.links.items():
-            if sig is not None:
-                attempt("net", sig, pin)
+        pins = (*self.links, *(SAMPLER_PIN[n] for n in ("feedback", "volts", "overruns")))
+        steps: list[tuple[str, ...]] = [("unlinkp", pin) for pin in pins]
+        steps += [("net", sig, pin) for pin, sig in self.links.items() if sig is not None]
         for mod in reversed(self.loaded):
-            attempt("delf", f"{mod}.0", self.cfg.hal.thread)
-            attempt("unloadrt", mod)
-        for sig in self.signals:
-            attempt("delsig", sig)
-        return failed
+            steps += [("delf", f"{mod}.0", self.cfg.hal.thread), ("unloadrt", mod)]
+        steps += [("delsig", sig) for sig in self.signals]
+        return failed + attempt_each(self.hal, steps)
 
     def _play_rows(self, command: np.ndarray, excitation: np.ndarray) -> None:
         rows = "".join(

@@ -83,8 +83,12 @@ def cmd_tune(args: argparse.Namespace) -> int:
             f"{args.rig} is a linkage config: plan it with `servotune plan {args.rig}`"
         )
     if kind == "gantry":
-        if args.frf:
-            raise ServotuneError("--frf is for a rig file: a gantry config's tune does not take it")
+        for flag in ("frf", "shaper"):
+            if getattr(args, flag):
+                raise ServotuneError(
+                    f"--{flag} is for a rig file: a gantry config's tune does not take it "
+                    "(a gantry's move is shaped by its [move] shaper)"
+                )
         return _tune_gantry(args, current)
     from servotune.rig import load_rig
 
@@ -123,6 +127,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
         rule_base=args.rule_base,
         progress=progress_line,
         frf=frf,
+        shaper=args.shaper,
     )
     summary = tuning_summary(tuning)
     print_summary(args.json, summary, lambda: format_tuning_summary(summary))

@@ -420,6 +420,13 @@ def _add_tune(sub: Any) -> None:
         "for more axes)",
     )
     s.add_argument(
+        "--shaper",
+        choices=("auto", *SHAPER_KINDS),
+        help="also design the input shaper of the master's task reference for its closed-loop "
+        "modes (auto: the shortest that holds 5 %% over each mode's range); it is exported "
+        "with the tables and run by verify's moves",
+    )
+    s.add_argument(
         "--json",
         action="store_true",
         help="the summary (gains, margins) as JSON on stdout (needs -o)",

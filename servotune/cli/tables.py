@@ -148,7 +148,7 @@ def _check_gantry_table(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-_CHECKED_SCHEMAS = ("servotune.tables/3", "servotune.gantry-tables/1",
+_CHECKED_SCHEMAS = ("servotune.tables/4", "servotune.gantry-tables/1",
                     "servotune.linkage-export/1")  # fmt: skip
 """The JSON exports ``check-table`` checks (besides the HAL file and the HAL component)."""
 

@@ -111,7 +111,27 @@ def axis_lines(ax: Mapping[str, Any], ident: str) -> tuple[list[str], list[str]]
         filter_lines, filter_init = _filter_lines(ax["filters"], up)
         lines.extend(filter_lines)
         init.extend(filter_init)
+    if ax.get("shaper"):  # a tables document's axis with a reference shaper
+        lines += _shaper_lines(ax["shaper"], ident, up)
+        init += [f".shaper_n = {up}_SHAPER_N", f".shaper_q = st_{ident}_shaper_q"]
     return lines, init
+
+
+def _shaper_lines(taps: Sequence[int], ident: str, up: str) -> list[str]:
+    """An axis's reference shaper (docs/runtime.md#shapers-in-the-tables): ``<UP>_SHAPER_N``
+    and the ``static const int32_t st_<ident>_shaper_q[]`` of its Q15 amplitudes, eight to a
+    line (an ``st_shaper_t`` for ``servotune_shaper.h`` is filled from them)."""
+    lines = [
+        "",
+        "/* input shaper of the task reference (the firmware shapes the reference it hands",
+        " * st_tick: servotune_shaper.h): Q15 amplitudes, tick 0 first, summing to 2^15 */",
+        f"#define {up}_SHAPER_N {len(taps)}",
+        f"static const int32_t st_{ident}_shaper_q[{up}_SHAPER_N] = {{",
+    ]
+    for i in range(0, len(taps), 8):
+        lines.append("    " + ", ".join(str(int(a)) for a in taps[i : i + 8]) + ",")
+    lines.append("};")
+    return lines
 
 
 _SECTION_WORDS = ("b0", "b1", "b2", "a1", "a2", "frac_bits")

@@ -58,6 +58,7 @@ from servotune.tuning import Tuning
 __all__ = [
     "MAX_FILTER_SECTIONS",
     "PLANT_HEADER",
+    "SHAPER_HEADER",
     "check_component_source",
     "filter_component",
     "guard_component",
@@ -68,6 +69,7 @@ __all__ = [
 ]
 
 PLANT_HEADER = PLANT_RUNTIME_FILES[0]
+SHAPER_HEADER = SHAPER_RUNTIME_FILES[0]
 MAX_FILTER_SECTIONS = 4
 """Most filter sections in series in one component (the runtime's law allows as many)."""
 _NAME = re.compile(r"[a-z][a-z0-9_]{0,40}")
@@ -129,6 +131,9 @@ def to_string(
     - ``code-N`` (s32 out): the D/A code; ``volts-N`` (float out): its voltage [V];
     - ``flags-N`` (s32 out, ST_FLAG_*), ``error-N`` (s32 out, the law's error [counts]),
       ``position-N`` (s32 out, the extended position [counts], modulo 2^32);
+    - with a reference shaper in an axis's controller (docs/runtime.md#shapers-in-the-tables)
+      the component shapes that axis's reference each period before the tick, as the
+      firmware would (``st_shaper_step``);
     - ``filters-off-N`` (bit in, only when an axis has output filters): the axis runs without
       them while it is true; each change switches them out or back in before the period's
       tick, without a bump (``st_axis_switch_filters``;
@@ -147,6 +152,7 @@ def to_string(
     assert digest is not None  # the header always defines it
     dac = rig.dac if rig is not None else Dac()  # the export's default hardware
     rt_c, rt_h, filter_h = (runtime_source(f) for f in RUNTIME_FILES)
+    shaper = _shaper_text(tuning)
     axes = zip(tuning.axis_names, tuning.roles, strict=True)
     text = _template(
         "hal_runtime.comp.in",
@@ -155,13 +161,51 @@ def to_string(
         digest=digest.group(1),
         axes=", ".join(f"{i} = {a} ({r})" for i, (a, r) in enumerate(axes)),
         n=len(tuning.controllers),
-        runtime=_inline(filter_h, rt_h, header, rt_c),
+        runtime=_inline(filter_h, rt_h, header, rt_c, shaper.pop("shaper_h")),
         dac_lo=_c_double(dac.range_v[0]),
         dac_lsb=_c_double(dac.lsb_v),
         **command,
         **_filter_text(tuning),
+        **shaper,
     )
     return with_digest_line(text, "//", line=1)
+
+
+def _shaper_text(tuning: Tuning) -> dict[str, str]:
+    """The runtime component's reference shapers (:func:`to_string`): for each axis whose
+    controller has a shaper, an ``st_shaper_t`` filled at load from the compiled-in constants
+    (which ``st_check_digest`` and ``st_check_consts`` have just accepted, the amplitudes
+    included), and each period the axis's reference shaped (``st_shaper_step``) before the
+    tick; nothing without a shaper."""
+    shaped = [a for a, c in enumerate(tuning.controllers) if c.shaper]
+    if not shaped:
+        return dict.fromkeys(("shaper_h", "shaper_state", "shaper_setup", "shaper_step"), "")
+    taps = max(len(tuning.controllers[a].shaper) for a in shaped)
+    setup, step = [], []
+    for a in shaped:
+        setup += [
+            "    {",
+            f"        const st_axis_consts_t *x = &st_hal_consts.axis[{a}];",
+            "        int32_t k;",
+            f"        st_hal_shaper[{a}].n = x->shaper_n;",
+            "        for (k = 0; k < x->shaper_n; k++) {",
+            f"            st_hal_shaper[{a}].a_q[k] = x->shaper_q[k];",
+            "        }",
+            "    }",
+        ]
+        step.append(
+            f"    in[{a}].ref = st_shaper_step(&st_hal_shaper[{a}], &st_hal_shaper_state[{a}], "
+            f"in[{a}].ref);"
+        )
+    return {
+        "shaper_h": f"#define ST_SHAPER_MAX_TAPS {taps}\n" + runtime_source(SHAPER_HEADER),
+        "shaper_state": (
+            "static st_shaper_t st_hal_shaper[ST_MAX_AXES]; /* the task references' shapers */\n"
+            "static st_shaper_state_t st_hal_shaper_state[ST_MAX_AXES];\n"
+        ),
+        "shaper_setup": "\n".join(setup) + "\n",
+        "shaper_step": "\n".join(step) + "\n",
+    }
 
 
 def _filter_text(tuning: Tuning) -> dict[str, str]:
@@ -346,7 +390,7 @@ def shaper_component(shaper: Shaper, *, name: str) -> str:
         modes=modes,
         taps=shaper.n_taps,
         added_ticks=shaper.n_taps - 1,
-        shaper_h=_inline(runtime_source(SHAPER_RUNTIME_FILES[0])),
+        shaper_h=_inline(runtime_source(SHAPER_HEADER)),
         amplitudes=", ".join(str(a) for a in shaper.amplitudes_q),
     )
 

@@ -1,6 +1,6 @@
 """The tables export (JSON): a tuning's runtime constants, with CRCs, for the target.
 
-The document (``"schema": "servotune.tables/3"``) holds exactly the constants of the tuning
+The document (``"schema": "servotune.tables/4"``) holds exactly the constants of the tuning
 file, as the runtime runs them: nothing is re-quantised (verified = exported:
 docs/runtime.md#fixed-point-constants). It is
 JSON with sorted keys, two-space indent (the rows of a table and other lists of numbers on one
@@ -21,7 +21,10 @@ There is no timestamp anywhere::
                     "tables": {"kp"|"ki"|"kd"|"k1": {"n", "f", "q": rows, "crc32"}}},
            "filters": [                0 to 4 output filter sections, in series order
              {"b0", "b1", "b2", "a1", "a2": int32, "frac_bits": 1..30}, …
-           ]}                          ([] without filters; docs/runtime.md#filters-in-the-law)
+           ],                          ([] without filters; docs/runtime.md#filters-in-the-law)
+           "shaper": [int, …]}         the task reference's input shaper: Q15 amplitudes, tick
+                                       0 first, summing to 2^15 ([] without one;
+                                       docs/runtime.md#shapers-in-the-tables)
         ],
         "c_layout_sha256": str,        SHA-256 of the bytes the C runtime compiles in
                                        (servotune.export.layout; the C header carries it)
@@ -35,7 +38,7 @@ There is no timestamp anywhere::
       },
       "provenance": {"rig": {"name", "path", "sha256"}, "spec_sha256", "tool",
                      "tool_version", "tuning", "tuning_sha256", "verification"},
-      "schema": "servotune.tables/3",
+      "schema": "servotune.tables/4",
       "sha256": str,                   the document's digest (below)
       "verified": true | false
     }
@@ -74,9 +77,10 @@ and ``provenance``): it is the SHA-256 of the document's canonical JSON without 
 (:mod:`servotune.digest`). :func:`load_tables` (and ``servotune check-table``) refuse a document
 whose digest, C-layout digest or any CRC does not match, so editing any field, or one table
 with its own CRC recomputed, is detected. ``/2`` added the digests, ``/3`` the filters (and
-their pairs in the constants CRC and the C layout); a ``/1`` or ``/2`` file is refused with a
-request to export again. ``"verified": false`` marks an export made without a passing
-verification (``unverified=True``, the CLI's ``--unverified``).
+their pairs in the constants CRC and the C layout), ``/4`` the shapers (in the C layout, after
+the tables, and under the document's digest; not in the constants CRC); a ``/1``, ``/2`` or
+``/3`` file is refused with a request to export again. ``"verified": false`` marks an export
+made without a passing verification (``unverified=True``, the CLI's ``--unverified``).
 """
 
 from __future__ import annotations
@@ -119,6 +123,7 @@ from servotune.laws.axis import (
 )
 from servotune.laws.filters import ACC_LIMIT, SectionQ, state_bound
 from servotune.laws.fuzzy_pid import int_rows
+from servotune.laws.shaping import check_taps
 from servotune.rig import Counter, Dac, Rig
 from servotune.tuning import Tuning, tuning_to_string
 from servotune.validate import check_keys, show_value
@@ -140,8 +145,8 @@ __all__ = [
     "to_string",
 ]
 
-SCHEMA = "servotune.tables/3"
-_OLD_SCHEMAS = ("servotune.tables/1", "servotune.tables/2")
+SCHEMA = "servotune.tables/4"
+_OLD_SCHEMAS = ("servotune.tables/1", "servotune.tables/2", "servotune.tables/3")
 
 
 class Summary(Protocol):
@@ -291,6 +296,7 @@ def _axis_doc(
         "name": name,
         "ref_source": src,
         "role": role,
+        "shaper": list(ctl.shaper),
         "task": task,
     }
 
@@ -546,6 +552,7 @@ def _controller(ax: Any, where: str) -> AxisController:
             "name",
             "ref_source",
             "role",
+            "shaper",
             "task",
         ),
         error=ExportError,
@@ -572,6 +579,12 @@ def _controller(ax: Any, where: str) -> AxisController:
     }
     if filters := _filters(ax, where):
         d["filters"] = filters
+    shaper = _need(ax, "shaper", where)
+    if shaper != []:
+        try:
+            d["shaper"] = list(check_taps(shaper, f"{where}.shaper"))
+        except ValueError as exc:
+            raise ExportError(str(exc)) from None
     try:
         return AxisController.from_dict(d)
     except (ValueError, KeyError, TypeError) as exc:

@@ -6,14 +6,14 @@ tables into an ``st_consts_t`` (``SERVOTUNE_TABLES_INIT``). The header carries t
 those constants serialised in the *C layout* below (``ST_TABLES_SHA256``); the runtime's
 ``st_check_digest`` serialises its compiled-in ``st_consts_t`` the same way at start-up and
 compares. This module computes the same bytes from a tables document's ``data`` section
-(``servotune.tables/3``, :func:`servotune.export.json.tables_document`), so the JSON export,
+(``servotune.tables/4``, :func:`servotune.export.json.tables_document`), so the JSON export,
 the header and the runtime agree on one digest. It is an integrity check against accidental
 edits, stale files and mix-ups, not against an attacker.
 
 Layout
 ------
-Little-endian two's complement, no padding, no header or length prefix; two parts, each
-exactly the byte stream one of the export's CRCs covers:
+Little-endian two's complement, no padding, no header or length prefix; three parts, the first
+two each exactly the byte stream one of the export's CRCs covers:
 
 1. **Constants** — ``2 + 35·n_axes`` pairs of (int32 ``q``, int16 ``f``), 6 bytes each; an
    integer is the pair ``(value, 0)``, a constant the axis's law does not use ``(0, 0)``::
@@ -36,15 +36,21 @@ exactly the byte stream one of the export's CRCs covers:
    table's block is the bytes of its ``crc32`` (``st_table_crc32``). Other axes contribute
    nothing.
 
-Its length is ``6·(2 + 35·n_axes) + Σ over fuzzy-PID axes of 4·(4 + 2·(2n+1)²)`` bytes. The
-layout is unambiguous: part 1 has a fixed size given ``n_axes`` and gives each axis's law and
-``n``, which fix the size of part 2.
+3. **Shapers** — then, for each axis in order, int32 ``shaper_n`` (0 without a shaper, else
+   its number of taps, 1 … 1024) followed by its ``shaper_n`` int32 Q15 amplitudes, tick 0
+   first (docs/runtime.md#shapers-in-the-tables).
+
+Its length is ``6·(2 + 35·n_axes) + Σ over fuzzy-PID axes of 4·(4 + 2·(2n+1)²) +
+4·(n_axes + Σ shaper_n)`` bytes. The layout is unambiguous: part 1 has a fixed size given
+``n_axes`` and gives each axis's law and ``n``, which fix the size of part 2; each axis's
+``shaper_n`` fixes the size of its part 3.
 
 Where the numbers come from in ``data``: ``n_axes = len(axes)``, ``timer_divisor``;
 ``counter_bits``; ``dac.zero_code`` and ``dac.code_max`` (which must be ``2**dac.bits − 1``);
 per axis ``law``, ``lock_gain``, ``following_error_limit_counts``, ``ref_source``, the
 ``task`` constants (``kp``, ``ki_t``, ``kd_t``, ``k1_t``, ``ke``, ``kec``, ``n``, ``tables``) and
-``filters`` (each section's ``b0``, ``b1``, ``b2``, ``a1``, ``a2``, ``frac_bits``).
+``filters`` (each section's ``b0``, ``b1``, ``b2``, ``a1``, ``a2``, ``frac_bits``) and
+``shaper``.
 Nothing else is part of it: not the axis names, roles or indices, the stored CRCs, the period
 in seconds, the rig name, the D/A voltage range, ``f_u``, the provenance or ``verified``,
 since none of them is compiled into ``st_consts_t``.
@@ -81,6 +87,7 @@ __all__ = [
     "constants_bytes",
     "constants_pairs",
     "pairs_bytes",
+    "shaper_bytes",
     "table_bytes",
 ]
 
@@ -232,6 +239,8 @@ def _controllers(axes: Sequence[Any]) -> list[AxisController]:
             }
             if ax["filters"] != []:  # always present in a tables document, [] without any
                 d["filters"] = ax["filters"]
+            if ax["shaper"] != []:  # the same
+                d["shaper"] = ax["shaper"]
             ctls.append(AxisController.from_dict(d))
         except KeyError as exc:
             raise ExportError(f"{where} is missing the field {exc.args[0]!r}") from None
@@ -251,7 +260,7 @@ def c_layout_bytes(data: Mapping[str, Any]) -> bytes:
     Returns
     -------
     bytes
-        Part 1 (the constants) then part 2 (the fuzzy-PID axes' tables).
+        Part 1 (the constants), part 2 (the fuzzy-PID axes' tables), part 3 (the shapers).
 
     Raises
     ------
@@ -264,7 +273,13 @@ def c_layout_bytes(data: Mapping[str, Any]) -> bytes:
     for ctl in ctls:
         if ctl.task is not None and task_law(ctl.task).tables:
             parts.extend(table_bytes(q, f_t) for q, f_t in ctl.task.tables)  # type: ignore[union-attr]
+    parts.extend(shaper_bytes(ctl.shaper) for ctl in ctls)
     return b"".join(parts)
+
+
+def shaper_bytes(taps: Sequence[int]) -> bytes:
+    """One axis's part 3 (module docstring): int32 ``len(taps)``, then the int32 taps."""
+    return struct.pack(f"<i{len(taps)}i", len(taps), *taps)
 
 
 def constants_bytes(data: Mapping[str, Any]) -> bytes:

@@ -35,6 +35,7 @@ from servotune.laws.fuzzy_pid import (
 )
 from servotune.laws.lock import lock_step
 from servotune.laws.pi import PIConstants, pi_enter, pi_step
+from servotune.laws.shaping import check_taps
 from servotune.validate import check_keys, show_value
 
 __all__ = [
@@ -298,12 +299,18 @@ class AxisController:
     filters : tuple of SectionQ
         Up to :data:`MAX_FILTERS` quantised sections in series on the output before the D/A
         (:mod:`servotune.laws.filters`), in the order they run; empty: no filter.
+    shaper : tuple of int
+        Q15 amplitudes of the input shaper of the axis's task reference
+        (:mod:`servotune.laws.shaping`; docs/runtime.md#shapers-in-the-tables), tick 0 first;
+        empty: none. The law does not run it: the firmware (``servotune_shaper.h``) or the HAL
+        component shapes the reference it hands the tick.
     """
 
     lock_gain: Fixed
     task: PIConstants | FuzzyPIDConstants | None = None
     following_error_limit_counts: int = 0
     filters: tuple[SectionQ, ...] = ()
+    shaper: tuple[int, ...] = ()
 
     def __post_init__(self) -> None:
         if self.following_error_limit_counts < 0:
@@ -312,6 +319,8 @@ class AxisController:
                 f"got {self.following_error_limit_counts}"
             )
         filter_block(self.filters)  # at most MAX_FILTERS quantised sections
+        if self.shaper:
+            object.__setattr__(self, "shaper", check_taps(self.shaper, "shaper"))
 
     @classmethod
     def from_gains(
@@ -338,8 +347,8 @@ class AxisController:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict: the law's name and every constant as its (q, f) pair; ``filters`` (each
-        section's integers) only when there are any, so an unfiltered controller's document is
-        as before."""
+        section's integers) and ``shaper`` (its Q15 amplitudes) only when there are any, so a
+        controller without them has the document it had before they existed."""
         d: dict[str, Any] = {
             "following_error_limit_counts": self.following_error_limit_counts,
             "law": "none" if self.task is None else task_law(self.task).name,
@@ -348,6 +357,8 @@ class AxisController:
         }
         if self.filters:
             d["filters"] = [s.to_dict() for s in self.filters]
+        if self.shaper:
+            d["shaper"] = list(self.shaper)
         return d
 
     @classmethod
@@ -363,7 +374,7 @@ class AxisController:
             d,
             "controller",
             ("following_error_limit_counts", "law", "lock_gain", "task"),
-            ("filters",),
+            ("filters", "shaper"),
         )
         try:
             law = d["law"]
@@ -387,6 +398,7 @@ class AxisController:
                 task=task,
                 following_error_limit_counts=fe,
                 filters=() if "filters" not in d else _sections(d["filters"]),
+                shaper=() if "shaper" not in d else check_taps(d["shaper"], "controller.shaper"),
             )
         except KeyError as exc:
             raise ValueError(f"controller is missing the field {show_value(exc.args[0])}") from None

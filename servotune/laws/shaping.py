@@ -43,7 +43,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.optimize import lsq_linear
 
 from servotune._numba_cache import jit
 from servotune.errors import SpecError
@@ -59,6 +58,7 @@ __all__ = [
     "RESIDUAL_GOAL",
     "SHAPER_FRAC_BITS",
     "Shaper",
+    "check_taps",
     "choose_shaper",
     "design_shaper",
     "residual_vibration",
@@ -236,6 +236,8 @@ def _solve(kind: str, freq_hz: float, damping: float, period_s: float) -> np.nda
         rhs += [0.0, 0.0]
     c_mat, d = np.array(rows), np.array(rhs)
     big = 1e4
+    from scipy.optimize import lsq_linear  # here: the law's constants import this module
+
     sol = lsq_linear(
         np.vstack([big * c_mat, np.diag(1 / np.sqrt(w))]),
         np.concatenate([big * d, a0 / np.sqrt(w)]),
@@ -314,6 +316,32 @@ def shaper_for_modes(
     )
 
 
+def check_taps(taps: object, where: str = "shaper") -> tuple[int, ...]:
+    """A shaper's Q15 amplitudes as the runtime takes them (``servotune_shaper.h``'s
+    ``st_shaper_check``): 1 … :data:`MAX_SHAPER_TAPS` integers, each in 0 … 2^15, summing to
+    exactly 2^15.
+
+    Raises
+    ------
+    ValueError
+        Naming ``where`` and what is wrong.
+    """
+    one = 1 << SHAPER_FRAC_BITS
+    if not isinstance(taps, list | tuple) or not 1 <= len(taps) <= MAX_SHAPER_TAPS:
+        raise ValueError(
+            f"{where} must be a list of 1..{MAX_SHAPER_TAPS} Q15 amplitudes, got {show_value(taps)}"
+        )
+    for i, a in enumerate(taps):
+        if type(a) not in (int, np.int64) or not 0 <= a <= one:
+            raise ValueError(f"{where}[{i}] must be an integer in 0..{one}, got {show_value(a)}")
+    if sum(int(a) for a in taps) != one:
+        raise ValueError(
+            f"{where}: the amplitudes must sum to exactly {one} (2^{SHAPER_FRAC_BITS}, so a "
+            f"constant reference passes to the count), got {sum(int(a) for a in taps)}"
+        )
+    return tuple(int(a) for a in taps)
+
+
 def shaper_state(n_taps: int) -> np.ndarray:
     """A fresh state for :func:`shaper_step`: the delay line (``n_taps`` references), then the
     write position and a primed flag (0: the next reference fills the whole line)."""
@@ -353,10 +381,11 @@ def _shape_run(taps_q: np.ndarray, ref: np.ndarray) -> np.ndarray:
     return out
 
 
-def shape_reference(ref_counts: np.ndarray, shaper: Shaper) -> np.ndarray:
+def shape_reference(ref_counts: np.ndarray, shaper: Shaper | Sequence[int]) -> np.ndarray:
     """A reference [counts] shaped tick by tick as the runtime shapes it (:func:`shaper_step`
-    from a fresh state). The result has the same length: extend the move by
-    ``shaper.n_taps − 1`` ticks of its last value to see all of it.
+    from a fresh state), by a :class:`Shaper` or its Q15 amplitudes (an
+    ``AxisController.shaper``). The result has the same length: extend the move by
+    ``n_taps − 1`` ticks of its last value to see all of it.
 
     Raises
     ------
@@ -366,7 +395,8 @@ def shape_reference(ref_counts: np.ndarray, shaper: Shaper) -> np.ndarray:
     ref = np.ascontiguousarray(ref_counts, dtype=np.int64)
     if ref.size and int(np.abs(ref).max()) >= MAX_REFERENCE:
         raise SpecError(f"shaper: the reference exceeds ±2^47 counts ({int(np.abs(ref).max())})")
-    return _shape_run(np.asarray(shaper.amplitudes_q, dtype=np.int64), ref)
+    taps = shaper.amplitudes_q if isinstance(shaper, Shaper) else shaper
+    return _shape_run(np.asarray(taps, dtype=np.int64), ref)
 
 
 def choose_shaper(modes: Sequence[Any], period_s: float) -> tuple[Shaper, list[str]]:

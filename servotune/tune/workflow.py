@@ -23,6 +23,7 @@ from servotune._version import __version__
 from servotune.analysis.frf import Frf
 from servotune.analysis.frf_margins import frf_loops
 from servotune.analysis.margins import tuning_margins
+from servotune.analysis.shaping import axis_shaper
 from servotune.errors import InfeasibleError, SpecError
 from servotune.laws.fuzzy_pid import FuzzyPIDConstants
 from servotune.rig import Rig, load_rig
@@ -143,9 +144,16 @@ def tune_rig(
     rule_base: str = "default",
     progress: Callable[[str], None] | None = None,
     frf: Mapping[str, Frf] | None = None,
+    shaper: str | None = None,
 ) -> Tuning:
     """Tune a rig: lock gains, master PI, slave composite law; the result as the runtime will
     run it, every loop of it keeping ``spec``'s margin limits over the plant set.
+
+    ``shaper`` (``auto``, ``zv``, ``zvd``, ``ei``) also designs the input shaper of the
+    master's task reference for its closed-loop modes with the tuned PI and filters
+    (:func:`~servotune.analysis.shaping.axis_shaper`): its Q15 amplitudes become the
+    controller's ``shaper`` (exported with the tables, docs/runtime.md#shapers-in-the-tables)
+    and ``design.shapers`` records the design and why.
 
     ``frf`` maps axis names to their measured responses (``servotune frf``): an axis's filters
     are then chosen to keep the limits on it too (:func:`~servotune.tune.filters.
@@ -187,6 +195,12 @@ def tune_rig(
     spec = spec or SlaveTuneSpec()
     say = progress or (lambda _msg: None)
     i_m, i_s = master_slave(rig)
+    if shaper is not None and not rig.axes[i_m].plant.modes:
+        raise SpecError(
+            f"--shaper: the master {rig.axes[i_m].name!r} has no modes to shape for; give its "
+            "plant [[axis.X.plant.modes]] (docs/formats.md#modes) or fit them (servotune fit "
+            "--modes)"
+        )
     say(f"tune: PI for {rig.axes[i_m].name} and the start point of {rig.axes[i_s].name}")
     frf = dict(frf or {})
     for name in frf:
@@ -258,7 +272,30 @@ def tune_rig(
     if frf:
         say("tune: margins of every loop on the measured responses (python-control)")
         design["frf_margins"] = _frf_verdict(tuning, rig, frf, spec)
+    if shaper is not None:
+        tuning, design["shapers"] = _with_shaper(tuning, rig, i_m, master_pi.gains, shaper, say)
     return dataclasses.replace(tuning, design=design)
+
+
+def _with_shaper(
+    tuning: Tuning, rig: Rig, axis: int, gains: Any, kind: str, say: Callable[[str], None]
+) -> tuple[Tuning, dict[str, Any]]:
+    """The tuning with the master's reference shaper (:func:`tune_rig`'s ``shaper``), and its
+    ``design.shapers`` record."""
+    name = rig.axis_names[axis]
+    ctl = tuning.controllers[axis]
+    sh, _, why = axis_shaper(rig, name, gains, kind, ctl.filters)
+    for line in why:
+        say(f"tune: shaper for {name}: {line}")
+    say(
+        f"tune: shaper for {name}: {sh.kind}, {sh.n_taps} taps, moves end "
+        f"{1000 * sh.added_time_s:.1f} ms later"
+    )
+    ctls = list(tuning.controllers)
+    ctls[axis] = dataclasses.replace(ctl, shaper=sh.amplitudes_q)
+    return dataclasses.replace(tuning, controllers=tuple(ctls)), {
+        name: {**sh.to_dict(), "why": why}
+    }
 
 
 def _frf_verdict(

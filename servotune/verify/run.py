@@ -26,6 +26,7 @@ from servotune.errors import SpecError
 from servotune.executor import Executor, InProcessExecutor, chunk_bounds, guided_chunk_bounds
 from servotune.kernels import warm_up
 from servotune.laws.axis import MODE_TASK
+from servotune.laws.shaping import shape_reference
 from servotune.rig import Rig
 from servotune.scenarios import Inputs
 from servotune.sim.engine import (
@@ -562,15 +563,29 @@ def _check_sync_limits(rig: Rig, spec: Spec) -> None:
                     )
 
 
-def _scenario_runs(rig: Rig, spec: Spec) -> list[tuple[ScenarioSpec, Inputs]]:
+def _scenario_runs(
+    rig: Rig, spec: Spec, tuning: Tuning, say: Callable[[str], None]
+) -> list[tuple[ScenarioSpec, Inputs]]:
     """Each scenario with its inputs; a scenario that cannot be built or measured fails here,
-    before any run."""
+    before any run. A master whose controller has a reference shaper gets its moves shaped
+    as the runtime shapes them (docs/runtime.md#shapers-in-the-tables), which ``say`` tells."""
+    for a, ctl in enumerate(tuning.controllers):
+        if ctl.shaper and rig.axes[a].role == "master":
+            added = (len(ctl.shaper) - 1) * rig.period_s
+            say(
+                f"verify: {rig.axis_names[a]}'s moves shaped by its {len(ctl.shaper)}-tap "
+                f"reference shaper (+{1000 * added:.1f} ms)"
+            )
     runs = []
     for sc in spec.scenarios:
         try:
             inputs = scenario_inputs(rig, sc)
         except SpecError as exc:
             raise SpecError(f"scenario.{sc.name}: {exc}") from None
+        for a, ctl in enumerate(tuning.controllers):
+            if ctl.shaper and rig.axes[a].role == "master" and sc.kind != "lock":
+                shaped = shape_reference(inputs.ref_counts[:, a], ctl.shaper)
+                inputs = inputs.replace_axis(a, ref_counts=shaped)
         if sc.kind == "lock":
             hold_from(rig, sc, inputs)
         else:
@@ -699,7 +714,7 @@ def verify(
             checks=tuple(checks),
             variants=_listed_variants(rig, dist, used_seed, count, set()),
         )
-    runs = _scenario_runs(rig, spec)
+    runs = _scenario_runs(rig, spec, tuning, say)
     ex = InProcessExecutor() if executor is None else executor
     n_sets = count + 1
     chunks = _chunks(rig, runs, n_sets, ex, chunk_size, used_seed)

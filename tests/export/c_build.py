@@ -24,6 +24,33 @@ STRICT = ("-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic")
 UBSAN = ("-O1", "-g", "-fsanitize=undefined", "-fno-sanitize-recover=all")
 _HARNESS = ("harness.c", "servotune_rt.c")
 
+HARNESS_HEAD = r"""
+/* test harness: the exported tables and the reference runtime, driven from Python (ctypes)
+ * or from a file (main, for the sanitizer runs) */
+#include <stdio.h>
+#include <stdlib.h>
+
+#include "servotune_tables.h"
+
+static const st_consts_t compiled = SERVOTUNE_TABLES_INIT;
+static st_consts_t consts = SERVOTUNE_TABLES_INIT; /* the ticks' copy: filters switched */
+static st_state_t state;
+
+int h_n_axes(void) { return consts.n_axes; }
+int h_check(void) { return st_check_consts(&consts); }
+int h_check_digest(void) { return st_check_digest(&compiled, st_tables_sha256); }
+uint32_t h_consts_crc32(void) { return st_consts_crc32(&compiled); }
+void h_reset(void)
+{
+    consts = compiled;
+    st_init(&state);
+}
+"""
+"""The harnesses' head (C): the includes, the exported constants as compiled (``compiled``) and
+the writable copy the ticks use (``consts``, so filters can be switched while running), the
+runtime's ``state``, and ``h_n_axes``, ``h_check``, ``h_check_digest``, ``h_consts_crc32`` and
+``h_reset`` (the copy restored, the state initialised)."""
+
 TICK_C = r"""/* one tick; raw[a] is the register, handed to the runtime as its bytes, low first */
 void h_tick(const int64_t *raw, const int64_t *ref, const int64_t *mode, const int64_t *reset,
             const int64_t *u_add, int64_t *out5)

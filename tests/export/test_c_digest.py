@@ -270,6 +270,8 @@ FILTERS = (
     (),
     ((3835, -6694, 3804, -6695, 3544, 12), (-5, 123456, 77, 0, -536870912, 30)),
 )
+SHAPERS = ((5000, 22768, 5000), (), (32768,))
+"""Reference shapers' Q15 amplitudes per axis (docs/runtime.md#shapers-in-the-tables)."""
 
 
 def _fx(qf: tuple[int, int]) -> Fixed:
@@ -279,7 +281,7 @@ def _fx(qf: tuple[int, int]) -> Fixed:
 def small_case() -> tuple[Tuning, Rig]:
     """Three axes on a 16-bit counter and a 16-bit D/A: a PI master, a fuzzy-PID slave with
     3 x 3 tables, a lock-only slave (every unused constant (0, 0)); output filters on the first
-    and the last (:data:`FILTERS`)."""
+    and the last (:data:`FILTERS`), reference shapers too (:data:`SHAPERS`)."""
     fuzzy = FuzzyPIDConstants(
         kp=_fx(FZ["kp"]),
         ki_t=_fx(FZ["ki_t"]),
@@ -297,8 +299,9 @@ def small_case() -> tuple[Tuning, Rig]:
             task=task,
             following_error_limit_counts=fe,
             filters=tuple(SectionQ(**dict(zip(SECTION_KEYS, s, strict=True))) for s in filt),
+            shaper=shaper,
         )
-        for lock, task, fe, filt in zip(LOCK, tasks, FE, FILTERS, strict=True)
+        for lock, task, fe, filt, shaper in zip(LOCK, tasks, FE, FILTERS, SHAPERS, strict=True)
     )
     plant = Plant(gain_cps_per_v=1000.0, tau_s=0.01)
     rig = Rig(
@@ -575,10 +578,15 @@ def test_layout_bytes_built_by_hand() -> None:
         struct.pack("<hh", 1, f) + struct.pack("<9h", *(v for row in rows for v in row))
         for rows, f in TABLES
     ]
-    expected = constants + b"".join(tables)
+    # part 3, per axis: int32 shaper_n, then its int32 amplitudes
+    shapers = struct.pack("<4i", 3, 5000, 22768, 5000) + struct.pack("<i", 0)
+    shapers += struct.pack("<2i", 1, 32768)
+    expected = constants + b"".join(tables) + shapers
     # 35 pairs per axis: 14, then (n_filters, 0) and 4 filter slots of 5 (docs/runtime.md)
-    assert len(constants) == 6 * (2 + 35 * 3) and len(expected) == 642 + 4 * (4 + 2 * 9)
+    assert len(constants) == 6 * (2 + 35 * 3)
+    assert len(expected) == 642 + 4 * (4 + 2 * 9) + 4 * (3 + 3 + 1)
     assert [len(ax["filters"]) for ax in data["axes"]] == [1, 0, 2]
+    assert [ax["shaper"] for ax in data["axes"]] == [list(s) for s in SHAPERS]
     assert c_layout_bytes(data) == expected
     assert c_layout_sha256(data) == hashlib.sha256(expected).hexdigest()
     # each part is the byte stream of its CRC

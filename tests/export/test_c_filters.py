@@ -46,6 +46,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from c_build import (
+    HARNESS_HEAD,
     STRICT,
     TICK_C,
     cc,
@@ -112,28 +113,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "hal"))
 import halrun
 
 HARNESS = (
-    r"""
-/* test harness: the exported tables and the reference runtime, driven from Python (ctypes)
- * or from a file (main, for the sanitizer runs) */
-#include <stdio.h>
-#include <stdlib.h>
-
-#include "servotune_tables.h"
-
-static const st_consts_t compiled = SERVOTUNE_TABLES_INIT;
-static st_consts_t consts = SERVOTUNE_TABLES_INIT; /* the ticks' copy: filters switched */
-static st_state_t state;
-
-int h_n_axes(void) { return consts.n_axes; }
-int h_check(void) { return st_check_consts(&consts); }
-int h_check_digest(void) { return st_check_digest(&compiled, st_tables_sha256); }
-uint32_t h_consts_crc32(void) { return st_consts_crc32(&compiled); }
-void h_reset(void)
-{
-    consts = compiled;
-    st_init(&state);
-}
-
+    HARNESS_HEAD
+    + r"""
 /* st_axis_switch_filters with n sections from int64 words b0 b1 b2 a1 a2 frac_bits each */
 int h_switch(int a, int n, const int64_t *w)
 {
@@ -1005,7 +986,7 @@ def test_a_tables_2_document_gets_the_old_schema_line(tuning: Tuning, tmp_path, 
 
 
 def test_the_tables_document_holds_the_filters_exactly(tuning: Tuning, doc: dict) -> None:
-    assert SCHEMA == "servotune.tables/3" and doc["schema"] == SCHEMA
+    assert SCHEMA == "servotune.tables/4" and doc["schema"] == SCHEMA
     assert controllers_from_tables(load_tables(tables_to_string(tuning, unverified=True))) == (
         tuning.controllers
     )

@@ -123,6 +123,8 @@ static void load(const int64_t *h, st_gantry_consts_t *c)
             x->filter[i].b0 = x->filter[i].b1 = x->filter[i].b2 = 0;
             x->filter[i].a1 = x->filter[i].a2 = x->filter[i].frac_bits = 0;
         }
+        x->shaper_n = 0; /* nor a reference shaper */
+        x->shaper_q = NULL;
     }
     c->sync.kp_q = h[24];
     c->sync.kp_f = h[25];

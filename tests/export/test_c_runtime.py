@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from c_build import (
+    HARNESS_HEAD,
     STRICT,
     TICK_C,
     cc,
@@ -99,26 +100,13 @@ pytestmark = needs_cc
 INT64_MAX = 2**63 - 1
 
 HARNESS = (
-    r"""
-/* test harness: the exported tables and the reference runtime, driven from Python (ctypes)
- * or from a file (main, for the sanitizer runs) */
-#include <stdio.h>
-#include <stdlib.h>
-
-#include "servotune_tables.h"
-
-static const st_consts_t consts = SERVOTUNE_TABLES_INIT;
-static st_state_t state;
-
-int h_n_axes(void) { return consts.n_axes; }
-int h_check(void) { return st_check_consts(&consts); }
-uint32_t h_consts_crc32(void) { return st_consts_crc32(&consts); }
+    HARNESS_HEAD
+    + r"""
 uint32_t h_table_crc32(int a, int i)
 {
     const st_axis_consts_t *x = &consts.axis[a];
     return x->tab[i] != NULL ? st_table_crc32(x->n, x->tf[i], x->tab[i]) : 0;
 }
-void h_reset(void) { st_init(&state); }
 
 /* st_check_consts on a copy with one field broken */
 int h_check_broken(int what)

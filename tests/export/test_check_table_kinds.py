@@ -1,5 +1,5 @@
 """``servotune check-table`` on every export kind ``export-table`` writes but the C files:
-the single rig's tables (``servotune.tables/3``), the gantry tables
+the single rig's tables (``servotune.tables/4``), the gantry tables
 (``servotune.gantry-tables/1``), the linkage export (``servotune.linkage-export/1``), the
 LinuxCNC HAL file and the HAL component. Each real export passes (exit 0); one number changed
 in it is refused (exit 1, one ``refused:`` line); a schema check-table does not know is one line
@@ -95,7 +95,7 @@ def test_an_unknown_schema_is_one_line_naming_the_known_ones(exports, tmp_path, 
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "'servotune.linkage-export/9'" in err
     for known in (
-        "servotune.tables/3",
+        "servotune.tables/4",
         "servotune.gantry-tables/1",
         "servotune.linkage-export/1",
         "HAL file",

@@ -255,9 +255,10 @@ def test_an_entry_outside_int16_is_rejected(tuning: Tuning) -> None:
 
 def test_wrong_schema_and_malformed_documents_are_rejected(tuning: Tuning, tmp_path) -> None:
     doc = _doc(tuning)
-    doc["schema"] = "servotune.tables/4"
-    _reject(doc, "schema must be 'servotune.tables/3'", "servotune.tables/4")
-    for old in ("servotune.tables/1", "servotune.tables/2"):  # docs/decisions.md#17-file-versions
+    doc["schema"] = "servotune.tables/5"
+    _reject(doc, "schema must be 'servotune.tables/4'", "servotune.tables/5")
+    # docs/decisions.md#17-file-versions
+    for old in ("servotune.tables/1", "servotune.tables/2", "servotune.tables/3"):
         doc["schema"] = old
         _reject(doc, old, "written by an older servotune", "export the tuning again")
     doc = _doc(tuning)
@@ -408,7 +409,7 @@ def _changed(v: object) -> object:
 
 def test_the_digest_matches_canonical_json_computed_independently(tuning: Tuning) -> None:
     doc = _doc(tuning)
-    assert doc["schema"] == "servotune.tables/3"
+    assert doc["schema"] == "servotune.tables/4"
     assert _redigest(doc)["sha256"] == doc["sha256"]
 
 

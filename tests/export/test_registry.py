@@ -166,7 +166,7 @@ def test_to_file_writes_what_to_string_gives(
         for kind, (obj, kw) in objects.items()
     }
     assert schemas == {
-        "rig": "servotune.tables/3",
+        "rig": "servotune.tables/4",
         "gantry": "servotune.gantry-tables/1",
         "linkage": "servotune.linkage-export/1",
     }

@@ -23,8 +23,10 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import halrun
+import pytest
 
 import servotune as st
+from servotune.cli import main
 from servotune.examples import EXAMPLES_DIR
 from servotune.export.hal_component import guard_component, plant_component
 from servotune.laws.linuxcnc_pid import thread_period_ns
@@ -119,6 +121,38 @@ def workspace(workdir: Path, config: str, rig_name: str = "pc-dual-servo") -> No
     for name in (f"{rig_name}.toml", f"{rig_name}.spec.toml"):
         shutil.copyfile(EXAMPLES_DIR / name, workdir / name)
     (workdir / "at.toml").write_text(config)
+
+
+def by_hand(
+    workdir: Path,
+    out: Path,
+    capsys: pytest.CaptureFixture,
+    export: tuple[str, ...],
+    output: str,
+    *,
+    rig_name: str = "pc-dual-servo",
+    fit_args: tuple[str, ...] = (),
+) -> Path:
+    """fit → tune → verify → export-table run by hand on the run's capture (in ``out``), the
+    rig ``rig_name`` of the run's files in ``workdir`` as the fit's template and its spec the
+    spec, in the directory ``hand`` of ``workdir``; ``fit_args`` more of the fit's arguments,
+    ``export`` the export's (its ``--format`` and options), ``output`` the file it writes in
+    ``hand``. Fails the test with the messages of a command that fails; returns the file."""
+    hand = workdir / "hand"
+    hand.mkdir()
+    spec = str(workdir / f"{rig_name}.spec.toml")
+    fitted = str(hand / f"{rig_name}.toml")
+    capture = [str(out / "capture.txt"), "--map", str(out / "capture.map.toml")]
+    template = ["--rig", str(workdir / f"{rig_name}.toml"), "--axis", "master"]
+    for argv in (
+        ["fit", *capture, *template, *fit_args, "-o", fitted],
+        ["tune", fitted, "--spec", spec, "-o", str(hand / "t.json"), "-q"],
+        ["verify", str(hand / "t.json"), "--spec", spec],
+        ["export-table", str(hand / "t.json"), *export, "-o", str(hand / output)],
+    ):
+        assert main(argv) == 0, (argv, capsys.readouterr().err)
+    capsys.readouterr()
+    return hand / output
 
 
 def script(

@@ -23,7 +23,7 @@ import pwd
 import shutil
 import subprocess
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 
 import pytest
@@ -207,6 +207,54 @@ def installed_component(so: Path) -> Iterator[str]:
         target.unlink(missing_ok=True)
 
 
+def run_streamed(
+    workdir: Path,
+    *,
+    load: Sequence[str],
+    functs: Sequence[str],
+    stream: Iterable[Sequence],
+    stream_cfg: str,
+    sample_cfg: str,
+    wiring: Sequence[str],
+    n: int,
+    period_ns: int,
+    modules: Sequence[Path] = (),
+    after: Sequence[str] = (),
+) -> list[list[str]]:
+    """One thread of ``period_ns`` running ``n`` periods: a ``streamer`` (its ``stream_cfg``)
+    feeds the rows of ``stream`` (written to ``stream.txt``, one per period), the functions
+    ``functs`` run after it and a ``sampler`` (its ``sample_cfg``) after them records every
+    period. ``load`` are the ``loadrt`` arguments of the components under test, ``wiring``
+    the ``net`` and ``setp`` lines, ``after`` halcmd lines once the thread is stopped (their
+    output after the samples); the built ``modules`` are installed for the session. Returns
+    the sampled rows (one per period, as text fields); fails the test if the sampler
+    overran."""
+    (workdir / "stream.txt").write_text("".join(" ".join(map(str, r)) + "\n" for r in stream))
+    script = [
+        f"loadrt threads name1=servo period1={period_ns}",
+        *(f"loadrt {x}" for x in load),
+        f"loadrt streamer depth={n + 16} cfg={stream_cfg}",
+        f"loadrt sampler depth={n + 16} cfg={sample_cfg}",
+        "addf streamer.0 servo",
+        *(f"addf {f} servo" for f in functs),
+        "addf sampler.0 servo",
+        *wiring,
+        "loadusr -w halstreamer stream.txt",
+        "start",
+        f"loadusr -w halsampler -n {n}",
+        "stop",
+        *after,
+        "getp sampler.0.overruns",
+    ]
+    with contextlib.ExitStack() as stack:
+        for so in modules:
+            stack.enter_context(installed_component(so))
+        res = run_hal("\n".join(script) + "\n", workdir, timeout=300.0)
+    lines = [ln.split() for ln in res.stdout.splitlines() if ln.strip()]
+    assert lines[-1] == ["0"], res.stdout[-400:]  # no overrun
+    return lines[:n]
+
+
 def run_component(
     so: Path,
     workdir: Path,
@@ -214,34 +262,24 @@ def run_component(
     outputs: dict[str, str],
     period_ns: int = 1_000_000,
 ) -> list[list[str]]:
-    """Run the built component ``so`` alone in a thread of ``period_ns``: a ``streamer`` feeds
-    its ``inputs`` (pin suffix → (streamer type letter, values per period)), a ``sampler``
-    records its ``outputs`` (pin suffix → sampler type letter) every period, in that order
-    after the component. Returns the sampled rows (one per period, as text fields); fails the
-    test if the sampler overran."""
-    n = len(next(iter(inputs.values()))[1])
-    name = so.stem
-    hal = name.replace("_", "-")
-    rows = zip(*(values for _, values in inputs.values()), strict=True)
-    (workdir / "stream.txt").write_text("".join(" ".join(map(str, r)) + "\n" for r in rows))
-    script = [
-        f"loadrt threads name1=servo period1={period_ns}",
-        f"loadrt {name}",
-        f"loadrt streamer depth={n + 16} cfg={''.join(t for t, _ in inputs.values())}",
-        f"loadrt sampler depth={n + 16} cfg={''.join(outputs.values())}",
-        "addf streamer.0 servo",
-        f"addf {hal} servo",
-        "addf sampler.0 servo",
-        *(f"net in{k} streamer.0.pin.{k} {hal}.{pin}" for k, pin in enumerate(inputs)),
-        *(f"net out{k} {hal}.{pin} sampler.0.pin.{k}" for k, pin in enumerate(outputs)),
-        "loadusr -w halstreamer stream.txt",
-        "start",
-        f"loadusr -w halsampler -n {n}",
-        "stop",
-        "getp sampler.0.overruns",
-    ]
-    with installed_component(so):
-        res = run_hal("\n".join(script) + "\n", workdir, timeout=300.0)
-    lines = [ln.split() for ln in res.stdout.splitlines() if ln.strip()]
-    assert lines[-1] == ["0"], res.stdout[-400:]  # no overrun
-    return lines[:n]
+    """Run the built component ``so`` alone in a thread of ``period_ns``
+    (:func:`run_streamed`): a ``streamer`` feeds its ``inputs`` (pin suffix → (streamer type
+    letter, values per period)), a ``sampler`` records its ``outputs`` (pin suffix → sampler
+    type letter) every period, in that order after the component. Returns the sampled rows
+    (one per period, as text fields); fails the test if the sampler overran."""
+    hal = so.stem.replace("_", "-")
+    return run_streamed(
+        workdir,
+        load=[so.stem],
+        functs=[hal],
+        stream=zip(*(values for _, values in inputs.values()), strict=True),
+        stream_cfg="".join(t for t, _ in inputs.values()),
+        sample_cfg="".join(outputs.values()),
+        wiring=[
+            *(f"net in{k} streamer.0.pin.{k} {hal}.{pin}" for k, pin in enumerate(inputs)),
+            *(f"net out{k} {hal}.{pin} sampler.0.pin.{k}" for k, pin in enumerate(outputs)),
+        ],
+        n=len(next(iter(inputs.values()))[1]),
+        period_ns=period_ns,
+        modules=[so],
+    )

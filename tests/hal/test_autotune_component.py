@@ -86,22 +86,8 @@ def _pid_as_before(pins: dict[str, str]) -> None:
 
 def _by_hand(tmp_path: Path, out: Path, capsys) -> str:
     """fit → tune → verify → export-table --format linuxcnc-comp by hand on the run's capture."""
-    hand = tmp_path / "hand"
-    hand.mkdir()
-    spec = str(tmp_path / "pc-dual-servo.spec.toml")
-    fitted = str(hand / "pc-dual-servo.toml")
-    capture = [str(out / "capture.txt"), "--map", str(out / "capture.map.toml")]
-    template = ["--rig", str(tmp_path / "pc-dual-servo.toml"), "--axis", "master"]
-    comp = ["--name", RT, "--position-scale", str(m.SCALE), "-o", str(hand / f"{RT}.comp")]
-    for argv in (
-        ["fit", *capture, *template, "-o", fitted],
-        ["tune", fitted, "--spec", spec, "-o", str(hand / "t.json"), "-q"],
-        ["verify", str(hand / "t.json"), "--spec", spec],
-        ["export-table", str(hand / "t.json"), "--format", "linuxcnc-comp", *comp],
-    ):
-        assert main(argv) == 0, (argv, capsys.readouterr().err)
-    capsys.readouterr()
-    return (hand / f"{RT}.comp").read_text()
+    comp = ("--format", "linuxcnc-comp", "--name", RT, "--position-scale", str(m.SCALE))
+    return m.by_hand(tmp_path, out, capsys, comp, f"{RT}.comp").read_text()
 
 
 def _law(src: str) -> list[str]:

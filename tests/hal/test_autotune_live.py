@@ -100,22 +100,9 @@ def _wiring_as_before(stdout: str) -> None:
 def _by_hand_equals_loaded(tmp_path, out, rec, capsys, rig_name="pc-dual-servo", fit_args=()):
     """fit → tune → verify → export run by hand on the run's own capture: the HAL file's
     setp lines are the pins the run loaded, bit for bit."""
-    hand = tmp_path / "hand"
-    hand.mkdir()
-    spec = str(tmp_path / f"{rig_name}.spec.toml")
-    fitted = hand / f"{rig_name}.toml"
-    capture = [str(out / "capture.txt"), "--map", str(out / "capture.map.toml")]
-    template = ["--rig", str(tmp_path / f"{rig_name}.toml"), "--axis", "master"]
-    pid = ["--position-scale", str(m.SCALE), "--pid", "pid.0", "-o", str(hand / "pid.hal")]
-    for argv in (
-        ["fit", *capture, *template, *fit_args, "-o", str(fitted)],
-        ["tune", str(fitted), "--spec", spec, "-o", str(hand / "t.json"), "-q"],
-        ["verify", str(hand / "t.json"), "--spec", spec],
-        ["export-table", str(hand / "t.json"), "--format", "linuxcnc-hal", *pid],
-    ):
-        assert main(argv) == 0, (argv, capsys.readouterr().err)
-    capsys.readouterr()
-    setp = [ln.split() for ln in (hand / "pid.hal").read_text().splitlines()]
+    pid = ("--format", "linuxcnc-hal", "--position-scale", str(m.SCALE), "--pid", "pid.0")
+    hal = m.by_hand(tmp_path, out, capsys, pid, "pid.hal", rig_name=rig_name, fit_args=fit_args)
+    setp = [ln.split() for ln in hal.read_text().splitlines()]
     by_hand = {f[1].split(".", 2)[2]: f[2] for f in setp if f[:1] == ["setp"]}
     loaded = rec["loaded"]
     assert by_hand.keys() == loaded.keys()

@@ -87,42 +87,26 @@ def test_each_limit_zeroes_the_output_in_the_period_of_the_breach(tmp_path: Path
         sos.append(halrun.halcompile(tmp_path / f"{name}.comp"))
     sigs = [_signals(k, rng) for k in kinds]
     stream = np.concatenate(sigs, axis=1)
-    (tmp_path / "stream.txt").write_text(
-        "".join(" ".join(repr(float(x)) for x in row) + "\n" for row in stream.tolist())
-    )
     hal = [n.replace("_", "-") for n in names]
-    lines = [
-        f"loadrt threads name1=servo period1={round(PERIOD_S * 1e9)}",
-        *(f"loadrt {n}" for n in names),
-        f"loadrt streamer depth={N + 16} cfg={'fff' * len(names)}",
-        f"loadrt sampler depth={N + 16} cfg={'fbss' * len(names)}",
-        "addf streamer.0 servo",
-        *(f"addf {h} servo" for h in hal),
-        "addf sampler.0 servo",
-    ]
+    wiring = []
     for i, h in enumerate(hal):
         for j, pin in enumerate(("position", "command", "volts-in")):
-            lines.append(f"net in{i}{j} streamer.0.pin.{3 * i + j} {h}.{pin}")
+            wiring.append(f"net in{i}{j} streamer.0.pin.{3 * i + j} {h}.{pin}")
         for j, pin in enumerate(("volts-out", "fault", "reason", "trip-period")):
-            lines.append(f"net out{i}{j} {h}.{pin} sampler.0.pin.{4 * i + j}")
-    lines += [
-        "loadusr -w halstreamer stream.txt",
-        "start",
-        f"loadusr -w halsampler -n {N}",
-        "stop",
-        "getp sampler.0.overruns",
-    ]
-    with (
-        halrun.installed_component(sos[0]),
-        halrun.installed_component(sos[1]),
-        halrun.installed_component(sos[2]),
-        halrun.installed_component(sos[3]),
-    ):
-        res = halrun.run_hal("\n".join(lines) + "\n", tmp_path, timeout=300.0)
-    rows = [ln.split() for ln in res.stdout.splitlines() if ln.strip()]
-    got = [r for r in rows if len(r) == 16]
-    assert len(got) == N, res.stdout[-400:]
-    assert rows[-1] == ["0"], res.stdout[-400:]  # no overrun
+            wiring.append(f"net out{i}{j} {h}.{pin} sampler.0.pin.{4 * i + j}")
+    got = halrun.run_streamed(
+        tmp_path,
+        load=names,
+        functs=hal,
+        stream=stream.tolist(),
+        stream_cfg="fff" * len(names),
+        sample_cfg="fbss" * len(names),
+        wiring=wiring,
+        n=N,
+        period_ns=round(PERIOD_S * 1e9),
+        modules=sos,
+    )
+    assert len(got) == N and all(len(r) == 16 for r in got), got[-3:]
     for i, kind in enumerate(kinds):
         period, reason = _first_breach(sigs[i])
         assert reason == REASONS[kind], (kind, period, reason)  # the signals breach that limit

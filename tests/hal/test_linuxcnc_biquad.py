@@ -65,32 +65,24 @@ def test_linuxcnc_biquad_runs_the_exported_sections(tmp_path: Path) -> None:
     text = biquad_hal_text(sections, names=NAMES, period_s=PERIOD_S)
     assert text_digest_problem(text, "#") is None
     x = _input(3000)
-    n = x.size
-    (tmp_path / "stream.txt").write_text("".join(f"{v}\n" for v in x))
-    script = [
-        f"loadrt threads name1=servo period1={round(PERIOD_S * 1e9)}",
-        f"loadrt biquad names={','.join(NAMES)}",
-        f"loadrt streamer depth={n + 16} cfg=f",
-        f"loadrt sampler depth={n + 16} cfg=ff",
-        "addf streamer.0 servo",
-        *(f"addf {name} servo" for name in NAMES),
-        "addf sampler.0 servo",
-        *(ln for ln in text.splitlines() if not ln.startswith("#")),  # the export, as written
-        f"net in streamer.0.pin.0 {NAMES[0]}.in sampler.0.pin.0",
-        f"net mid {NAMES[0]}.out {NAMES[1]}.in",
-        f"net out {NAMES[1]}.out sampler.0.pin.1",
-        "loadusr -w halstreamer stream.txt",
-        "start",
-        f"loadusr -w halsampler -n {n}",
-        "stop",
-        f"getp {NAMES[0]}.valid",
-        "getp sampler.0.overruns",
-    ]
-    halrun.share(tmp_path)
-    res = halrun.run_hal("\n".join(script) + "\n", tmp_path, timeout=300.0)
-    lines = [ln.split() for ln in res.stdout.splitlines() if ln.strip()]
-    assert lines[-1] == ["0"], res.stdout[-400:]  # no overrun
-    rows = np.array([[float(v) for v in r] for r in lines[:n]])
+    lines = halrun.run_streamed(
+        tmp_path,
+        load=[f"biquad names={','.join(NAMES)}"],
+        functs=NAMES,
+        stream=[[v] for v in x.tolist()],
+        stream_cfg="f",
+        sample_cfg="ff",
+        wiring=[
+            *(ln for ln in text.splitlines() if not ln.startswith("#")),  # the export, as written
+            f"net in streamer.0.pin.0 {NAMES[0]}.in sampler.0.pin.0",
+            f"net mid {NAMES[0]}.out {NAMES[1]}.in",
+            f"net out {NAMES[1]}.out sampler.0.pin.1",
+        ],
+        n=x.size,
+        period_ns=round(PERIOD_S * 1e9),
+        after=[f"getp {NAMES[0]}.valid"],
+    )
+    rows = np.array([[float(v) for v in r] for r in lines])
     fed, linuxcnc = rows[:, 0], rows[:, 1]
     assert np.array_equal(fed, x)  # the sampler saw the stream from its first row
     # an independent float implementation of the same coefficients

@@ -85,3 +85,13 @@ def test_tuned_tables_keep_the_default_properties(tmp_path) -> None:
     tables = {name: q for name, (q, _) in zip(TABLE_NAMES, k.tables, strict=True)}
     assert check_default_properties(tables) == []
     assert np.all(tables["k1"] == 0)  # K1 = its base (the feedforward) over the whole table
+
+
+def test_a_shaper_for_a_master_without_modes_is_one_line(tmp_path, capsys) -> None:
+    """``tune --shaper`` on a rig whose master has no modes: refused before any work, one line
+    naming the option and the axis, no file."""
+    out = tmp_path / "t.json"
+    assert main(["tune", str(RIG), "--shaper", "zvd", "-o", str(out), "--no-current"]) == 3
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) <= 2 and "--shaper" in err[-1] and "'master' has no modes" in err[-1]
+    assert "Traceback" not in "\n".join(err) and not out.exists()

@@ -547,8 +547,31 @@ enum {
     CHK_SCHEDULED = 15,
     CHK_REF_SOURCE = 16,
     CHK_N_FILTERS = 17,
-    CHK_FILTER = 18
+    CHK_FILTER = 18,
+    CHK_SHAPER_N = 19,
+    CHK_SHAPER = 20
 };
+
+/* a reference shaper: 0 .. ST_MAX_SHAPER_N taps (a table when there are any), each amplitude
+ * 0 .. 2^15, summing to exactly 2^15 (shaping.check_taps; servotune_shaper.h st_shaper_check) */
+static int shaper_ok(const st_axis_consts_t *x)
+{
+    int64_t sum = 0;
+    int32_t i;
+    if (x->shaper_n == 0) {
+        return 1;
+    }
+    if (x->shaper_q == NULL) {
+        return 0;
+    }
+    for (i = 0; i < x->shaper_n; i++) {
+        if (x->shaper_q[i] < 0 || x->shaper_q[i] > ST_SHAPER_ONE) {
+            return 0;
+        }
+        sum += x->shaper_q[i];
+    }
+    return sum == ST_SHAPER_ONE;
+}
 
 /* a filter section in use: frac_bits 1 .. 30 and a stable quantised denominator, as
  * filters.SectionQ.from_dict checks it (|a2| < 2^f, |a1| < 2^f + a2) */
@@ -622,6 +645,12 @@ int st_check_consts(const st_consts_t *c)
             if (!section_ok(&x->filter[k])) {
                 return err + CHK_FILTER;
             }
+        }
+        if (x->shaper_n < 0 || x->shaper_n > ST_MAX_SHAPER_N) {
+            return err + CHK_SHAPER_N;
+        }
+        if (!shaper_ok(x)) {
+            return err + CHK_SHAPER;
         }
         if (x->law == ST_LAW_FUZZY_PID) {
             const int32_t base_q[ST_N_TABLES] = {x->kp_q, x->kit_q, x->kdt_q, x->k1t_q};
@@ -762,15 +791,20 @@ static void put_i16(st_sink_fn put, void *ctx, int64_t v)
     put(ctx, b, 2);
 }
 
-static void put_pair(st_sink_fn put, void *ctx, int64_t q, int64_t f)
+static void put_i32(st_sink_fn put, void *ctx, int64_t v)
 {
-    const uint32_t u = (uint32_t)q; /* modulo 2^32 */
+    const uint32_t u = (uint32_t)v; /* modulo 2^32 */
     uint8_t b[4];
     b[0] = (uint8_t)(u & 0xFFu);
     b[1] = (uint8_t)((u >> 8) & 0xFFu);
     b[2] = (uint8_t)((u >> 16) & 0xFFu);
     b[3] = (uint8_t)((u >> 24) & 0xFFu);
     put(ctx, b, 4);
+}
+
+static void put_pair(st_sink_fn put, void *ctx, int64_t q, int64_t f)
+{
+    put_i32(put, ctx, q);
     put_i16(put, ctx, f);
 }
 
@@ -1058,12 +1092,17 @@ int st_consts_sha256(const st_consts_t *c, uint8_t out[32])
     st_sha256_ctx_t s;
     int a;
     int i;
-    /* only what can be walked safely: the axes present and, for fuzzy-PID, n and the tables */
+    /* only what can be walked safely: the axes present, for fuzzy-PID n and the tables, and
+     * a shaper's count and table */
     if (c->n_axes < 1 || c->n_axes > ST_MAX_AXES) {
         return ST_DIGEST_MALFORMED;
     }
     for (a = 0; a < c->n_axes; a++) {
         const st_axis_consts_t *x = &c->axis[a];
+        if (x->shaper_n < 0 || x->shaper_n > ST_MAX_SHAPER_N
+            || (x->shaper_n > 0 && x->shaper_q == NULL)) {
+            return ST_DIGEST_MALFORMED;
+        }
         if (x->law == ST_LAW_FUZZY_PID) {
             if (x->n < 1 || x->n > ST_MAX_LEVELS) {
                 return ST_DIGEST_MALFORMED;
@@ -1083,6 +1122,13 @@ int st_consts_sha256(const st_consts_t *c, uint8_t out[32])
             for (i = 0; i < ST_N_TABLES; i++) {
                 put_table(sha_sink, &s, x->n, x->tf[i], x->tab[i]);
             }
+        }
+    }
+    for (a = 0; a < c->n_axes; a++) {
+        const st_axis_consts_t *x = &c->axis[a];
+        put_i32(sha_sink, &s, x->shaper_n);
+        for (i = 0; i < x->shaper_n; i++) {
+            put_i32(sha_sink, &s, x->shaper_q[i]);
         }
     }
     st_sha256_final(&s, out);

@@ -46,7 +46,9 @@
  * C layout (SHA-256, st_consts_sha256 / st_check_digest; servotune/export/layout.py): the
  * constants CRC's bytes as above, then for each axis a = 0 .. n_axes-1 whose law is
  * ST_LAW_FUZZY_PID, for each table i = ST_TAB_KP, ST_TAB_KI, ST_TAB_KD, ST_TAB_K1, that
- * table CRC's bytes (int16 n, int16 tf[i], the entries). No padding, no length prefix.
+ * table CRC's bytes (int16 n, int16 tf[i], the entries), then for each axis a = 0 ..
+ * n_axes-1 its shaper: int32 shaper_n, then its shaper_n int32 amplitudes (little-endian).
+ * No padding, no length prefix.
  */
 #ifndef SERVOTUNE_RT_H
 #define SERVOTUNE_RT_H
@@ -60,7 +62,7 @@
 extern "C" {
 #endif
 
-#define ST_RT_VERSION 2 /* servotune.tables/3 */
+#define ST_RT_VERSION 3 /* servotune.tables/4 */
 
 #ifndef ST_MAX_AXES
 #define ST_MAX_AXES 4 /* a slave CPU drives 2 to 4 axes (multi-CPU linkage) */
@@ -71,6 +73,8 @@ extern "C" {
 #define ST_N_TABLES 4     /* kp, ki, kd, k1 (fuzzy_pid.TABLE_NAMES order) */
 #define ST_MAX_FILTERS 4  /* output filter sections per axis (axis.MAX_FILTERS) */
 #define ST_FILTER_F 16    /* fraction bits of the filters' signal [D/A codes] (axis.FILTER_F) */
+#define ST_MAX_SHAPER_N 1024 /* taps of a reference shaper (shaping.MAX_SHAPER_TAPS) */
+#define ST_SHAPER_ONE 32768  /* the Q15 amplitudes' sum (2^15, shaping.SHAPER_FRAC_BITS) */
 
 /* modes (laws/axis.py MODE_*) */
 #define ST_MODE_LOCK 0
@@ -132,6 +136,12 @@ typedef struct st_axis_consts {
     int32_t n_filters;       /* C_NF: output filter sections in use, 0 .. ST_MAX_FILTERS */
     st_section_t filter[ST_MAX_FILTERS]; /* C_FILT + 6*k: section k (b0 b1 b2 a1 a2
                                             frac_bits), in series order; all zero when unused */
+    int32_t shaper_n;        /* AxisController.shaper: taps of the task reference's input
+                                shaper, 0 = none (docs/runtime.md#shapers-in-the-tables); the
+                                tick does not run it: the firmware shapes the reference it
+                                hands st_tick (servotune_shaper.h) */
+    const int32_t *shaper_q; /* its Q15 amplitudes, tick 0 first, summing to ST_SHAPER_ONE;
+                                NULL when shaper_n is 0 */
 } st_axis_consts_t;
 
 /* All axes of one runtime. */
@@ -191,7 +201,8 @@ void st_axis_init(st_axis_state_t *x);
  * 1 + 100 * axis + field code (see servotune_rt.c) for the first bad field. Of an output
  * filter it checks n_filters and each section in use (frac_bits 1 .. 30, a stable quantised
  * denominator); the bound on its sums for inputs within the D/A range is checked at export
- * (servotune/export/json.py). */
+ * (servotune/export/json.py). Of a reference shaper: shaper_n 0 .. ST_MAX_SHAPER_N (field
+ * code 19) and its table (non-NULL, amplitudes 0 .. 2^15 summing to 2^15; code 20). */
 int st_check_consts(const st_consts_t *c);
 
 /* One tick of every axis: in[a], out[a] for a < c->n_axes. */
