@@ -4,9 +4,9 @@ CNC's move, unshaped and shaped, in the gantry's own engine (the numba kernel bo
 the sync loop run in).
 
 The gantry: plants/gantry.toml with a lightly damped mode on each side (the master 13 Hz, the
-slave 13 Hz or 21 Hz; damping 0.02, gain 0.3; the drive loops tuned with 13 Hz on both), a move of 6,000
-counts with 15 ms ramps (its spectrum's zeros lie at multiples of 10 Hz and of 67 Hz: it
-excites 13 Hz well and 21 Hz less), and
+slave 13 Hz or 21 Hz; damping 0.02, gain 0.3; the drive loops tuned with 13 Hz on both), a
+move of 6,000 counts with 15 ms ramps (its spectrum's zeros lie at multiples of 10 Hz and of
+67 Hz: it excites 13 Hz well and 21 Hz less), and
 offset, friction and encoder noise off so that after the move the loops are linear. The
 vibration is measured by a matrix-pencil fit of each side's true position after the command
 has stopped (tests/sim/vibration.py), not by the design code's residual formula.
