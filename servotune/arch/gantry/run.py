@@ -61,7 +61,7 @@ from servotune.errors import ConfigError
 from servotune.executor import Executor, InProcessExecutor, chunk_bounds
 from servotune.fixed import shift_round
 from servotune.laws.axis import FLAG_SYNC_TRIP, MODE_TASK, N_STATE, S_FAULT
-from servotune.laws.shaping import shape_reference
+from servotune.laws.shaping import Shaper, shape_reference
 from servotune.laws.sync import SYNC_TRIP, sync_enter, sync_monitor, sync_step
 from servotune.plant import (
     NROW,
@@ -123,12 +123,14 @@ def move_profile(move: GantryMove, cycle_s: float, n_cycles: int) -> np.ndarray:
     )
 
 
-def gantry_command(cfg: GantryConfig, n_cycles: int) -> np.ndarray:
+def gantry_command(
+    cfg: GantryConfig, n_cycles: int, design: tuple[Shaper | None, list[str]] | None = None
+) -> np.ndarray:
     """The CNC's command as the drives get it: :func:`move_profile`, shaped by the move's
     shaper where it has one (:func:`~servotune.arch.gantry.shaping.gantry_shaper`, designed
-    for ``cfg``'s drives)."""
+    for ``cfg``'s drives; ``design``: that design when the caller has already made it)."""
     cmd = move_profile(cfg.move, cfg.bus.cycle_s, n_cycles)
-    shaper, _ = gantry_shaper(cfg)
+    shaper, _ = gantry_shaper(cfg) if design is None else design
     return cmd if shaper is None else shape_reference(cmd, shaper)
 
 
@@ -632,8 +634,8 @@ def compare_topologies(cfg: GantryConfig, *, seed: int = 0, montecarlo: int = 0)
         f"{n_runs} runs × {cfg.n_cycles:,} cycles × {_TRACE_BYTES_PER_CYCLE} bytes",
     )
     rows, traces, failed = [], [], []
-    _, shaper_notes = gantry_shaper(cfg)
-    cmd = gantry_command(cfg, cfg.n_cycles)
+    design = gantry_shaper(cfg)
+    cmd = gantry_command(cfg, cfg.n_cycles, design)
     for case in CASES:
         for topo in TOPOLOGIES:
             tr = simulate_gantry(cfg, topo, case=case, seed=seed, command=cmd)
@@ -664,7 +666,7 @@ def compare_topologies(cfg: GantryConfig, *, seed: int = 0, montecarlo: int = 0)
         failed=tuple(failed),
         margins=margins,
         montecarlo=mc,
-        shaper=tuple(shaper_notes),
+        shaper=tuple(design[1]),
     )
 
 
