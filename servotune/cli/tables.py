@@ -148,7 +148,7 @@ def _check_gantry_table(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-_CHECKED_SCHEMAS = ("servotune.tables/4", "servotune.gantry-tables/1",
+_CHECKED_SCHEMAS = ("servotune.tables/4", "servotune.gantry-tables/2",
                     "servotune.linkage-export/1")  # fmt: skip
 """The JSON exports ``check-table`` checks (besides the HAL file and the HAL component)."""
 
@@ -224,7 +224,7 @@ def cmd_check_table(args: argparse.Namespace) -> int:
             schema = json.loads(text).get("schema")
         except (ValueError, AttributeError, RecursionError):
             schema = None  # load_tables names what is wrong
-        if schema == "servotune.gantry-tables/1":
+        if isinstance(schema, str) and schema.startswith("servotune.gantry-tables/"):
             return _check_gantry_table(args)
         if schema == "servotune.linkage-export/1":
             return _check_linkage_export(args, text)

@@ -4,7 +4,7 @@ export format, all of one shape: ``to_string(obj, **options)`` and ``to_file(obj
 ``export-table --format`` reads (:mod:`servotune.export.formats`):
 
 - ``json``, :mod:`servotune.export.json`: the ``servotune.tables/4`` document of a rig's tuning
-  (also ``load_tables``, which checks every CRC), the ``servotune.gantry-tables/1`` and
+  (also ``load_tables``, which checks every CRC), the ``servotune.gantry-tables/2`` and
   ``servotune.linkage-export/1`` documents (:mod:`servotune.export.gantry`,
   :mod:`servotune.export.linkage`);
 - ``c``, :mod:`servotune.export.c`: a directory of the generated header (``servotune_tables.h``

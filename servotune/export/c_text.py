@@ -12,6 +12,7 @@ from typing import Any
 
 from servotune.errors import ExportError
 from servotune.laws.axis import TASK_LAWS
+from servotune.laws.filters import SECTION_WORDS
 
 __all__ = ["axis_lines", "c_identifiers", "comment_text", "digest_bytes_lines", "int32_literal"]
 
@@ -107,7 +108,7 @@ def axis_lines(ax: Mapping[str, Any], ident: str) -> tuple[list[str], list[str]]
         tab = ", ".join(f"st_{ident}_tab_{t}" for t in tables)
         init.append(f".tf = {{{tf}}}")
         init.append(f".tab = {{{tab}}}")
-    if "filters" in ax:  # a tables document's axis (a gantry drive has none)
+    if "filters" in ax:  # a tables document's axis, or a gantry drive with filters
         filter_lines, filter_init = _filter_lines(ax["filters"], up)
         lines.extend(filter_lines)
         init.extend(filter_init)
@@ -134,9 +135,6 @@ def _shaper_lines(taps: Sequence[int], ident: str, up: str) -> list[str]:
     return lines
 
 
-_SECTION_WORDS = ("b0", "b1", "b2", "a1", "a2", "frac_bits")
-
-
 def _filter_lines(filters: Sequence[Mapping[str, int]], up: str) -> tuple[list[str], list[str]]:
     """An axis's output filters (docs/runtime.md#filters-in-the-law): ``<UP>_N_FILTERS`` and,
     per section ``k``, ``<UP>_FILT<k>_B0`` … ``_A2`` and ``_FRAC_BITS``; the initialiser's
@@ -151,10 +149,10 @@ def _filter_lines(filters: Sequence[Mapping[str, int]], up: str) -> tuple[list[s
             " * codes with 16 fraction bits): H(z) = (b0 + b1 z^-1 + b2 z^-2) / (1 + a1 z^-1 +",
             " * a2 z^-2), each coefficient q * 2^-frac_bits */",
         ]
-        for word in _SECTION_WORDS[:-1]:
+        for word in SECTION_WORDS[:-1]:
             lines.append(f"#define {mac}_{word.upper()} {int32_literal(sec[word])}")
         lines.append(f"#define {mac}_FRAC_BITS {sec['frac_bits']}")
-        words = ", ".join(f"{mac}_{w.upper()}" for w in _SECTION_WORDS)
+        words = ", ".join(f"{mac}_{w.upper()}" for w in SECTION_WORDS)
         init.append(f".filter[{k}] = {{{words}}}")
     return lines, init
 

@@ -1,18 +1,19 @@
 """The gantry export: a verified gantry tuning's runtime constants as JSON, and as C for the
 gantry runtime (``servotune_gantry.c``).
 
-The JSON document (``"schema": "servotune.gantry-tables/1"``) holds exactly the tuning's
+The JSON document (``"schema": "servotune.gantry-tables/2"``) holds exactly the tuning's
 integers (nothing re-quantised)::
 
     {
       "data": {
-        "c_layout_sha256": str,       SHA-256 of the 272-byte C layout
+        "c_layout_sha256": str,       SHA-256 of the 672-byte C layout
                                       (servotune.export.gantry_layout; the C header carries it)
         "counter_bits": int,
         "cycle_s": float,             bus cycle [s] (folded into the constants)
         "dac": {"bits", "code_max", "range_v", "zero_code"},
         "drives": [{"name": "master"|"slave", "controller": {law, lock_gain, task: {kp, ki_t},
-                    following_error_limit_counts}}],
+                    following_error_limit_counts, filters?}}],   filters: the drive's output
+                                      filters (each section's integers), only where it has any
         "gantry_name": str,
         "latency_cycles": int,        the master's feedback reaches the slave this late
         "sync": {"law", "constants": {kp, ki_t, kd_t, dead_zone_counts, limit_counts},
@@ -21,7 +22,7 @@ integers (nothing re-quantised)::
       },
       "provenance": {"gantry": {"name", "sha256"}, "rig": {"name", "sha256"}, "spec_sha256",
                      "tool", "tool_version", "tuning_sha256", "verification"},
-      "schema": "servotune.gantry-tables/1",
+      "schema": "servotune.gantry-tables/2",
       "sha256": str,                  the document's digest (servotune.digest)
       "verified": true | false
     }
@@ -47,17 +48,21 @@ from servotune.errors import DigestError, ExportError
 from servotune.export.c_text import axis_lines, comment_text, digest_bytes_lines, int32_literal
 from servotune.export.gantry_layout import gantry_layout_sha256
 from servotune.io.files import json_safe, parse_json
+from servotune.laws.axis import filter_overflow_problem
 from servotune.rig import Rig
 
 __all__ = [
     "GANTRY_HEADER_NAME",
     "GANTRY_TABLES_SCHEMA",
+    "OLD_GANTRY_TABLES_SCHEMAS",
     "check_gantry_tables",
     "gantry_c_header",
     "gantry_document",
 ]
 
-GANTRY_TABLES_SCHEMA = "servotune.gantry-tables/1"
+GANTRY_TABLES_SCHEMA = "servotune.gantry-tables/2"
+OLD_GANTRY_TABLES_SCHEMAS = ("servotune.gantry-tables/1",)
+"""Gantry exports of an older servotune (/1: no output filters in the C layout)."""
 GANTRY_HEADER_NAME = "servotune_gantry_consts.h"
 
 
@@ -84,9 +89,8 @@ def gantry_document(
     Raises
     ------
     ExportError
-        No record (and not ``unverified``) or a failed one, or a drive with output filters
-        (docs/runtime.md#filters-in-the-law: the single rig's runtime runs them, the gantry's
-        layout has no place for them).
+        No record (and not ``unverified``) or a failed one, or a drive's filter section whose
+        sums could leave ±2^62 for inputs within the D/A's range.
     """
     if not unverified:
         if record is None:
@@ -96,14 +100,12 @@ def gantry_document(
             )
         if record.get("passed") is not True:
             raise ExportError("the verification failed: fix the tuning and verify it again")
-    for name, drive in zip(DRIVES, tuning.drives, strict=True):
-        if drive.filters:  # not in the gantry's C layout (gantry_layout), so not exported
-            raise ExportError(
-                f"the {name} drive has output filters, which the gantry runtime does not run "
-                "(servotune_gantry.c's constants carry none)"
-            )
     files = record.get("files", {}) if record is not None else {}
     dac = rig.dac
+    for name, drive in zip(DRIVES, tuning.drives, strict=True):
+        problem = filter_overflow_problem(drive.filters, dac.zero_code, dac.code_max)
+        if problem is not None:
+            raise ExportError(f"the {name} drive's {problem}")
     data: dict[str, Any] = {
         "counter_bits": rig.counter.bits,
         "cycle_s": float(tuning.cycle_s),
@@ -166,6 +168,11 @@ def check_gantry_tables(text: str, src: str = "<text>") -> dict[str, Any]:
         Not a gantry tables export.
     """
     doc = parse_json(text, src, ExportError)
+    if isinstance(doc, dict) and doc.get("schema") in OLD_GANTRY_TABLES_SCHEMAS:
+        raise ExportError(
+            f"{src}: {doc['schema']} was written by an older servotune; export the gantry "
+            "tuning again"
+        )
     if not isinstance(doc, dict) or doc.get("schema") != GANTRY_TABLES_SCHEMA:
         raise ExportError(f"{src}: not a gantry tables export ({GANTRY_TABLES_SCHEMA})")
     if doc.get(DIGEST_FIELD) != document_sha256(doc):

@@ -98,7 +98,7 @@ from servotune._version import __version__
 from servotune.arch.gantry.tuning import GantryTuning
 from servotune.arch.linkage.plan import LinkagePlan
 from servotune.digest import DIGEST_FIELD, document_sha256
-from servotune.errors import DigestError, ExportError, SpecError
+from servotune.errors import DigestError, ExportError
 from servotune.export.document import document_text, recorded_sha, write_export
 from servotune.export.gantry import gantry_document
 from servotune.export.layout import (
@@ -114,14 +114,14 @@ from servotune.export.linkage import linkage_plan_document
 from servotune.fixed import F_U
 from servotune.io.files import json_safe, parse_json, read_json
 from servotune.laws.axis import (
-    FILTER_F,
     MAX_FILTERS,
     TASK_LAWS,
     AxisController,
+    filter_overflow_problem,
     law_names,
     task_law,
 )
-from servotune.laws.filters import ACC_LIMIT, SectionQ, state_bound
+from servotune.laws.filters import SectionQ
 from servotune.laws.fuzzy_pid import int_rows
 from servotune.laws.shaping import check_taps
 from servotune.rig import Counter, Dac, Rig
@@ -245,28 +245,6 @@ def _plain(x: Any, where: str) -> Any:
         raise ExportError(f"{where}: {exc} in the export") from None
 
 
-def _filter_problem(sections: Sequence[SectionQ], zero: int, code_max: int) -> str | None:
-    """Why the runtime's sums could overflow in one of an axis's filter sections, or ``None``.
-
-    The law holds each section's input to the D/A's range (``−zero … code_max − zero`` codes,
-    ``FILTER_F`` fraction bits: docs/runtime.md#filters-in-the-law); every partial sum of its
-    accumulator must then stay within ±2^62 (:func:`servotune.laws.filters.state_bound`), the
-    bound behind the C runtime's promise of no undefined behaviour.
-    """
-    bound = max(zero, code_max - zero, 1) << FILTER_F
-    for k, sec in enumerate(sections):
-        try:
-            acc = state_bound(sec, bound).acc_max
-        except SpecError as exc:
-            return f"filters[{k}]: {exc}"
-        if acc > ACC_LIMIT:
-            return (
-                f"filters[{k}]: for inputs within the D/A range (±{bound} at 2^-{FILTER_F} "
-                f"codes) its sums could reach 2^{acc.bit_length() - 1}, beyond ±2^62"
-            )
-    return None
-
-
 def _axis_doc(
     i: int, name: str, role: str, ctl: AxisController, src: int, dac: Mapping[str, Any]
 ) -> dict[str, Any]:
@@ -275,7 +253,7 @@ def _axis_doc(
         raise ExportError(
             f"axis {name!r}: following_error_limit_counts {fe} does not fit int32 [counts]"
         )
-    problem = _filter_problem(ctl.filters, dac["zero_code"], dac["code_max"])
+    problem = filter_overflow_problem(ctl.filters, dac["zero_code"], dac["code_max"])
     if problem is not None:
         raise ExportError(f"axis {name!r}: {problem}")
     d = ctl.to_dict()
@@ -681,7 +659,7 @@ def _check_document(doc: Any) -> tuple[AxisController, ...]:
             raise ExportError(f"{where}.ref_source must be -1 or another axis's index, got {src}")
         refs.append(src)
         ctls.append(_controller(ax, where))
-        problem = _filter_problem(ctls[-1].filters, dac["zero_code"], dac["code_max"])
+        problem = filter_overflow_problem(ctls[-1].filters, dac["zero_code"], dac["code_max"])
         if problem is not None:
             raise ExportError(f"{where}.{problem}")
     computed = zlib.crc32(constants_bytes(data))  # from the fields checked above

@@ -23,9 +23,10 @@ from typing import Any
 import numpy as np
 
 from servotune._numba_cache import jit
+from servotune.errors import SpecError
 from servotune.fixed import F_U, Fixed, align, quantize, sat_add, shift_round
 from servotune.hw.counter import unwrap_step
-from servotune.laws.filters import N_FILTER_STATE, SectionQ, biquad_step
+from servotune.laws.filters import ACC_LIMIT, N_FILTER_STATE, SectionQ, biquad_step, state_bound
 from servotune.laws.fuzzy_pid import (
     TABLE_NAMES,
     FuzzyPIDConstants,
@@ -61,6 +62,7 @@ __all__ = [
     "axis_read",
     "filter_block",
     "filter_chain",
+    "filter_overflow_problem",
     "law_names",
     "switch_filters",
     "task_law",
@@ -456,6 +458,28 @@ def filter_block(sections: Sequence[SectionQ]) -> np.ndarray:
     for k, sec in enumerate(sections):
         block[1 + k * FILTER_WORDS : 1 + (k + 1) * FILTER_WORDS] = sec.step_args()
     return block
+
+
+def filter_overflow_problem(sections: Sequence[SectionQ], zero: int, code_max: int) -> str | None:
+    """Why the runtime's sums could overflow in one of an axis's filter sections, or ``None``.
+
+    The law holds each section's input to the D/A's range (``−zero … code_max − zero`` codes,
+    ``FILTER_F`` fraction bits: docs/runtime.md#filters-in-the-law); every partial sum of its
+    accumulator must then stay within ±2^62 (:func:`~servotune.laws.filters.state_bound`), the
+    bound behind the C runtime's promise of no undefined behaviour.
+    """
+    bound = max(zero, code_max - zero, 1) << FILTER_F
+    for k, sec in enumerate(sections):
+        try:
+            acc = state_bound(sec, bound).acc_max
+        except SpecError as exc:
+            return f"filters[{k}]: {exc}"
+        if acc > ACC_LIMIT:
+            return (
+                f"filters[{k}]: for inputs within the D/A range (±{bound} at 2^-{FILTER_F} "
+                f"codes) its sums could reach 2^{acc.bit_length() - 1}, beyond ±2^62"
+            )
+    return None
 
 
 @jit(inline="always")

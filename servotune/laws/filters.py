@@ -40,6 +40,7 @@ __all__ = [
     "INPUT_BOUND_CODES",
     "INPUT_BOUND_WIDE",
     "N_FILTER_STATE",
+    "SECTION_WORDS",
     "Section",
     "SectionQ",
     "StateBound",
@@ -312,7 +313,9 @@ def discretize(section: Section, period_s: float) -> tuple[float, float, float, 
 
 
 _INT32 = 2**31 - 1
-_Q_KEYS = ("b0", "b1", "b2", "a1", "a2", "frac_bits")
+SECTION_WORDS = ("b0", "b1", "b2", "a1", "a2", "frac_bits")
+"""A realised section's integers in the order the runtime holds them (:meth:`SectionQ.step_args`,
+the constants slots of :func:`servotune.laws.axis.filter_block`, the C ``st_section_t``)."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -342,7 +345,7 @@ class SectionQ:
 
     def to_dict(self) -> dict[str, int]:
         """Plain dict of integers."""
-        return {k: int(getattr(self, k)) for k in _Q_KEYS}
+        return {k: int(getattr(self, k)) for k in SECTION_WORDS}
 
     @classmethod
     def from_dict(cls, d: object, where: str = "filter") -> SectionQ:
@@ -354,8 +357,8 @@ class SectionQ:
         ValueError
             One line naming ``where`` and the field.
         """
-        d = check_keys(d, where, _Q_KEYS)
-        for k in _Q_KEYS:
+        d = check_keys(d, where, SECTION_WORDS)
+        for k in SECTION_WORDS:
             v = d[k]
             lo, hi = (1, 30) if k == "frac_bits" else (-_INT32, _INT32)
             if type(v) is not int or not lo <= v <= hi:

@@ -187,6 +187,12 @@ def format_comparison(cmp: SyncComparison) -> str:
             cells += f"{r.max_sync_error_counts:>13.1f}{r.rms_sync_error_counts:>13.1f}{mark}"
         lines.append(f"{topo:<11}{cells}")
     lines += [f"move shaping: {line}" for line in cmp.shaper]
+    for side in ("master", "slave"):
+        filters = getattr(c, side).filters
+        if filters:
+            lines.append(
+                f"{side} drive's output filters: {'; '.join(f.describe() for f in filters)}"
+            )
     if cmp.predicted is not None:
         p = cmp.predicted
         lines.append(

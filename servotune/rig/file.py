@@ -23,7 +23,7 @@ from servotune.examples import EXAMPLES_DIR
 from servotune.hw import counter as hw_counter
 from servotune.io.files import atomic_write_bytes, parse_toml_as, read_bytes
 from servotune.io.sections import build_section
-from servotune.laws.axis import FILTER_F, MAX_FILTERS
+from servotune.laws.axis import MAX_FILTERS
 from servotune.laws.filters import INPUT_BOUND_WIDE, Section, realize, section_from_dict
 from servotune.laws.lock import lock_holding_band
 from servotune.plant import Plant
@@ -308,7 +308,7 @@ def rig_from_dict(data: Mapping[str, Any], default_name: str = "rig") -> Rig:
             at.pop("filters", []),
             f"axis.{name}.filters",
             timer_period_s,
-            max(dac.zero_code, dac.code_max - dac.zero_code) << FILTER_F,
+            dac.filter_input_bound,
         )
         plant_fit = None
         if fit_t is not None:

@@ -12,7 +12,7 @@ model from there.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from typing import Any
 
@@ -207,6 +207,13 @@ class Dac:
     def code_max(self) -> int:
         """Largest code."""
         return 2**self.bits - 1
+
+    @property
+    def filter_input_bound(self) -> int:
+        """The largest magnitude an output filter's input takes: the law holds it to the D/A's
+        range, ``−zero … code_max − zero`` codes, with ``FILTER_F`` fraction bits
+        (:func:`servotune.laws.filters.realize`)."""
+        return max(self.zero_code, self.code_max - self.zero_code) << FILTER_F
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -535,6 +542,11 @@ class Rig:
 
     def runtime_filters(self, index: int) -> tuple[SectionQ, ...]:
         """Axis ``index``'s output filters as the runtime runs them: quantised at the achieved
-        period for inputs within the D/A's range (:func:`servotune.laws.filters.realize`)."""
-        bound = max(self.dac.zero_code, self.dac.code_max - self.dac.zero_code) << FILTER_F
-        return tuple(realize(f, self.period_s, bound) for f in self.axes[index].filters)
+        period for inputs within the D/A's range (:meth:`realize_filters`)."""
+        return self.realize_filters(self.axes[index].filters, self.period_s)
+
+    def realize_filters(self, sections: Sequence[Section], period_s: float) -> tuple[SectionQ, ...]:
+        """Output filters designed in continuous time, quantised at ``period_s`` for inputs
+        within this rig's D/A range (:func:`servotune.laws.filters.realize`)."""
+        bound = self.dac.filter_input_bound
+        return tuple(realize(f, period_s, bound) for f in sections)

@@ -1173,6 +1173,17 @@ text_case(
     lambda t: sub(t, "tau_s = 0.025", "tau_s = 1e300"),
     hint="tau_s",
 )
+text_case(
+    G,
+    "filter-above-nyquist",
+    "a slave notch at 600 Hz, above the 1 ms bus cycle's 500 Hz Nyquist frequency",
+    lambda t: (
+        t
+        + '\n[[axis.slave.filters]]\nkind = "notch"\ncenter_hz = 600.0\nwidth_hz = 20.0\n'
+        + "depth_db = -20.0\n"
+    ),
+    hint="axis.slave.filters[0]",
+)
 
 # --- linkage ---------------------------------------------------------------------------------
 

@@ -26,8 +26,9 @@ every export of a filtered tuning, against the Python law.
   and the C layout carry them in the documented order (built here with :mod:`struct`).
 - (f) ``--format linuxcnc-hal`` writes the master's sections as LinuxCNC ``biquad`` lines when
   it has filters, and nothing more when it has none.
-- The gantry's and the linkage's C exports, whose runtimes carry no filters, refuse a filtered
-  drive or axis; an export whose filter sums could leave ±2^62 is refused.
+- The gantry's export carries a filtered drive's sections (its C runtime runs them:
+  ``test_c_gantry_filters.py``); the linkage's C export, whose runtime carries no filters,
+  refuses a filtered axis; an export whose filter sums could leave ±2^62 is refused.
 """
 
 from __future__ import annotations
@@ -1014,6 +1015,15 @@ def test_an_export_whose_filter_sums_could_overflow_is_refused(tuning: Tuning) -
     bad = dataclasses.replace(tuning, controllers=(master, tuning.controllers[1]))
     with pytest.raises(ExportError, match=r"axis 'master': filters\[0\]: .*beyond ±2\^62"):
         tables_document(bad, unverified=True)
+    # the gantry's export checks its drives' sections the same way
+    gantry = _gantry_tuning(tuning.controllers[0])
+    hot_drive = dataclasses.replace(gantry.slave, filters=(hot,))
+    with pytest.raises(ExportError, match=r"the slave drive's filters\[0\]: .*beyond ±2\^62"):
+        gantry_document(
+            dataclasses.replace(gantry, slave=hot_drive),
+            load_rig(EXAMPLE_RIG_PATH),
+            unverified=True,
+        )
 
 
 # --- (f) the LinuxCNC HAL file ----------------------------------------------------------------
@@ -1050,17 +1060,14 @@ def test_linuxcnc_hal_writes_the_masters_filters_as_biquads(tuning: Tuning) -> N
     assert all(ln.startswith(("#", "setp pid.x-filter")) for ln in lines[len(skeleton(plain)) :])
 
 
-# --- the gantry's and the linkage's C have no place for filters -------------------------------
+# --- the gantry's export carries them; the linkage's C has no place for filters ---------------
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def test_gantry_and_linkage_exports_refuse_a_filtered_controller(tuning: Tuning) -> None:
-    """Their runtimes' constants carry no filters: a filtered drive or axis is refused (one
-    line), not exported without them."""
-    filters = tuning.controllers[0].filters[:2]
-    drive = tuning.controllers[0]  # a PI law
-    gantry = GantryTuning(
+def _gantry_tuning(drive) -> GantryTuning:
+    """A gantry tuning whose two drives are ``drive`` without its filters."""
+    return GantryTuning(
         gantry_name="g",
         gantry_path="g.toml",
         gantry_sha256="0" * 64,
@@ -1082,11 +1089,21 @@ def test_gantry_and_linkage_exports_refuse_a_filtered_controller(tuning: Tuning)
         warn_counts=0,
         trip_counts=0,
     )
+
+
+def test_gantry_export_carries_filters_and_the_linkage_refuses_them(tuning: Tuning) -> None:
+    """A filtered gantry drive is exported with its sections, under the C-layout digest; the
+    linkage runtime's constants carry no filters: a filtered axis is refused (one line), not
+    exported without them."""
+    filters = tuning.controllers[0].filters[:2]
+    drive = tuning.controllers[0]  # a PI law
+    gantry = _gantry_tuning(drive)
     rig = load_rig(EXAMPLE_RIG_PATH)
-    gantry_document(gantry, rig, unverified=True)  # without filters: exported
-    bad = dataclasses.replace(gantry, slave=drive)
-    with pytest.raises(ExportError, match="the slave drive has output filters"):
-        gantry_document(bad, rig, unverified=True)
+    plain = gantry_document(gantry, rig, unverified=True)["data"]
+    data = gantry_document(dataclasses.replace(gantry, slave=drive), rig, unverified=True)["data"]
+    assert "filters" not in plain["drives"][1]["controller"]
+    assert data["drives"][1]["controller"]["filters"] == [s.to_dict() for s in drive.filters]
+    assert data["c_layout_sha256"] != plain["c_layout_sha256"]
     plan = plan_linkage(ROOT / "plants" / "linkage-6axis.toml")
     linkage_c_header(plan, None, unverified=True)
     ctls = (dataclasses.replace(plan.controllers[0], filters=filters), *plan.controllers[1:])

@@ -58,6 +58,8 @@ from servotune.laws.axis import (
     C_LAW,
     C_LOCK_F,
     C_LOCK_Q,
+    C_NF,
+    C_TAB,
     FLAG_FOLLOWING_ERROR,
     FLAG_SYNC_TRIP,
 )
@@ -68,7 +70,7 @@ pytestmark = needs_cc
 
 ROOT = Path(__file__).resolve().parents[2]
 GANTRY_FILES = ("servotune_gantry.c", "servotune_gantry.h")
-N_CONSTS = len(GANTRY_LAYOUT_FIELDS)  # 34
+N_CONSTS = len(GANTRY_LAYOUT_FIELDS)  # 84
 # per cycle, the C harness writes these (st_gantry_out_t), in this order
 OUT_FIELDS = ("code_m", "code_s", "flags_m", "flags_s", "y_m", "y_s", "ref_m", "ref_s",
               "sync_op", "sync_input", "sync_comp", "sync_level", "tripped")  # fmt: skip
@@ -82,7 +84,7 @@ HARNESS = r"""
 
 #include "servotune_gantry.h"
 
-/* the 34 numbers of the digest layout, in its order, into the constants (the fields the PI
+/* the 84 numbers of the digest layout, in its order, into the constants (the fields the PI
  * law does not use zero, ref_source -1) */
 static void load(const int64_t *h, st_gantry_consts_t *c)
 {
@@ -90,7 +92,7 @@ static void load(const int64_t *h, st_gantry_consts_t *c)
     c->topology = (int32_t)h[0];
     c->latency = (int32_t)h[1];
     for (a = 0; a < 2; a++) {
-        const int64_t *d = h + 2 + 11 * a;
+        const int64_t *d = h + 2 + 36 * a;
         st_axis_consts_t *x = &c->drive[a];
         int i;
         x->law = (int32_t)d[0];
@@ -118,24 +120,29 @@ static void load(const int64_t *h, st_gantry_consts_t *c)
             x->tab[i] = NULL;
         }
         x->ref_source = -1;
-        x->n_filters = 0; /* a gantry drive runs no output filter */
+        x->n_filters = (int32_t)d[11]; /* the drive's output filters, every slot */
         for (i = 0; i < ST_MAX_FILTERS; i++) {
-            x->filter[i].b0 = x->filter[i].b1 = x->filter[i].b2 = 0;
-            x->filter[i].a1 = x->filter[i].a2 = x->filter[i].frac_bits = 0;
+            const int64_t *q = d + 12 + 6 * i;
+            x->filter[i].b0 = (int32_t)q[0];
+            x->filter[i].b1 = (int32_t)q[1];
+            x->filter[i].b2 = (int32_t)q[2];
+            x->filter[i].a1 = (int32_t)q[3];
+            x->filter[i].a2 = (int32_t)q[4];
+            x->filter[i].frac_bits = (int32_t)q[5];
         }
         x->shaper_n = 0; /* nor a reference shaper */
         x->shaper_q = NULL;
     }
-    c->sync.kp_q = h[24];
-    c->sync.kp_f = h[25];
-    c->sync.kit_q = h[26];
-    c->sync.kit_f = h[27];
-    c->sync.kdt_q = h[28];
-    c->sync.kdt_f = h[29];
-    c->sync.dead_zone = h[30];
-    c->sync.limit = h[31];
-    c->sync.warn = h[32];
-    c->sync.trip = h[33];
+    c->sync.kp_q = h[74];
+    c->sync.kp_f = h[75];
+    c->sync.kit_q = h[76];
+    c->sync.kit_f = h[77];
+    c->sync.kdt_q = h[78];
+    c->sync.kdt_f = h[79];
+    c->sync.dead_zone = h[80];
+    c->sync.limit = h[81];
+    c->sync.warn = h[82];
+    c->sync.trip = h[83];
 }
 
 int h_check(const int64_t *h)
@@ -212,10 +219,10 @@ void h_run(const int64_t *h, int64_t n, const int64_t *counter, const int64_t *c
 }
 
 #ifdef H_MAIN
-/* file replay: in = 34 constants, n, counter (2n), command (n), reset (n); out = 13n */
+/* file replay: in = 84 constants, n, counter (2n), command (n), reset (n); out = 13n */
 int main(int argc, char **argv)
 {
-    int64_t head[35];
+    int64_t head[85];
     int64_t *buf;
     int64_t *out;
     size_t n;
@@ -224,10 +231,10 @@ int main(int argc, char **argv)
         return 2;
     }
     f = fopen(argv[1], "rb");
-    if (f == NULL || fread(head, sizeof head[0], 35, f) != 35 || head[34] < 1) {
+    if (f == NULL || fread(head, sizeof head[0], 85, f) != 85 || head[84] < 1) {
         return 3;
     }
-    n = (size_t)head[34];
+    n = (size_t)head[84];
     buf = malloc(4 * n * sizeof *buf);
     out = malloc(13 * n * sizeof *out);
     if (buf == NULL || out == NULL || fread(buf, sizeof *buf, 4 * n, f) != 4 * n) {
@@ -318,7 +325,7 @@ def _layout_data(cfg: GantryConfig, topology: str) -> dict:
 
 
 def _consts(cfg: GantryConfig, topology: str) -> np.ndarray:
-    """The 34 constants the C runtime gets (the export's layout values), checked against the
+    """The 84 constants the C runtime gets (the export's layout values), checked against the
     constants the simulation's kernel runs (``run_gantry``'s rows and sync vector)."""
     values = np.array(gantry_layout_values(_layout_data(cfg, topology)), dtype=np.int64)
     rig = cfg.rig
@@ -343,6 +350,7 @@ def _consts(cfg: GantryConfig, topology: str) -> np.ndarray:
                 C_DAC_MAX,
             )
         ]
+        kernel += [int(v) for v in row[C_NF:C_TAB]]  # the output filters, every slot
     k = cfg.sync_constants
     kernel += [
         k.kp.q,
@@ -666,11 +674,11 @@ def test_golden_long_run_under_the_undefined_behaviour_sanitizer(src, long_run) 
 def test_digest_is_the_layout_sha256_and_changes_with_every_field(lib, gantry) -> None:
     """``st_gantry_check_digest`` accepts the SHA-256 that ``gantry_layout_sha256`` gives for
     the export's data (and ``st_gantry_sha256`` hashes exactly ``gantry_layout_bytes``), and
-    rejects it when any one of the 34 constants is changed by one."""
+    rejects it when any one of the 84 constants is changed by one."""
     data = _layout_data(gantry, "listening")
     consts = _consts(gantry, "listening")
     sha = bytes.fromhex(gantry_layout_sha256(data))
-    assert len(gantry_layout_bytes(data)) == 272
+    assert len(gantry_layout_bytes(data)) == 672
     assert sha == hashlib.sha256(consts.astype("<i8").tobytes()).digest()
     out = ctypes.create_string_buffer(32)
     lib.h_sha(consts.ctypes.data, out)

@@ -1,6 +1,6 @@
 """``servotune check-table`` on every export kind ``export-table`` writes but the C files:
 the single rig's tables (``servotune.tables/4``), the gantry tables
-(``servotune.gantry-tables/1``), the linkage export (``servotune.linkage-export/1``), the
+(``servotune.gantry-tables/2``), the linkage export (``servotune.linkage-export/1``), the
 LinuxCNC HAL file and the HAL component. Each real export passes (exit 0); one number changed
 in it is refused (exit 1, one ``refused:`` line); a schema check-table does not know is one line
 naming the ones it knows (exit 3)."""
@@ -96,7 +96,7 @@ def test_an_unknown_schema_is_one_line_naming_the_known_ones(exports, tmp_path, 
     assert err.count("\n") == 1 and "'servotune.linkage-export/9'" in err
     for known in (
         "servotune.tables/4",
-        "servotune.gantry-tables/1",
+        "servotune.gantry-tables/2",
         "servotune.linkage-export/1",
         "HAL file",
         "HAL component",

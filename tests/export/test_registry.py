@@ -167,7 +167,7 @@ def test_to_file_writes_what_to_string_gives(
     }
     assert schemas == {
         "rig": "servotune.tables/4",
-        "gantry": "servotune.gantry-tables/1",
+        "gantry": "servotune.gantry-tables/2",
         "linkage": "servotune.linkage-export/1",
     }
 

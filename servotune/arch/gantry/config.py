@@ -19,12 +19,13 @@ from servotune.analysis.margins import MarginLimits
 from servotune.arch.bounds import MAX_ACCEL_CPS2, MAX_GAIN, MAX_SECONDS, MAX_SPEED_CPS
 from servotune.errors import ConfigError, RigError, SpecError
 from servotune.io.sections import build_section
-from servotune.laws.axis import AxisController
+from servotune.laws.axis import MAX_FILTERS, AxisController
+from servotune.laws.filters import Section, SectionQ
 from servotune.laws.pi import PIGains
 from servotune.laws.shaping import KINDS as SHAPER_KINDS
 from servotune.laws.sync import SYNC_LAWS, SyncConstants, SyncGains
 from servotune.plant import Plant
-from servotune.rig import Rig, load_rig, plant_from_table
+from servotune.rig import Rig, filters_from_array, load_rig, plant_from_table
 from servotune.validate import check_integer, check_keys, check_number, check_table, show_value
 
 __all__ = [
@@ -238,6 +239,10 @@ class GantryAxis:
     gain_spread, tau_spread : float or None
         This drive's relative spread of gain and time constant in the robustness checks [1],
         0..0.9 (e.g. from its own identification); None: the ``[margins]`` table's.
+    filters : tuple of Section
+        The drive's output filters as designed (``[[axis.<side>.filters]]``, up to
+        :data:`~servotune.laws.axis.MAX_FILTERS`: docs/formats.md#filters), in the order they
+        run; the drive runs them realised at the bus cycle (:meth:`GantryConfig.drive_filters`).
     controller : AxisController or None
         The runtime constants a gantry tuning holds (not a config-file key): when set, the
         drive runs exactly these (:meth:`GantryConfig.controllers`), and ``kp``/``ki`` are
@@ -251,9 +256,12 @@ class GantryAxis:
     counter_init: int = 0
     gain_spread: float | None = None
     tau_spread: float | None = None
+    filters: tuple[Section, ...] = ()
     controller: AxisController | None = None
 
     def __post_init__(self) -> None:
+        if len(self.filters) > MAX_FILTERS or not all(isinstance(f, Section) for f in self.filters):
+            raise ConfigError(f"filters must be at most {MAX_FILTERS} filter sections")
         for name, unit in (("kp", "codes/count"), ("ki", "codes/(count·s)")):
             if getattr(self, name) is not None:
                 check_number(name, getattr(self, name), unit, hi=MAX_GAIN, error=ConfigError)
@@ -569,9 +577,19 @@ class GantryConfig:
         """Cycles from the measured sync error crossing the trip threshold to both axes at 0 V."""
         return self.bus.latency_cycles + 1
 
+    def drive_filters(self, side: str) -> tuple[SectionQ, ...]:
+        """Drive ``side``'s (``"master"``/``"slave"``) output filters as it runs them: a
+        tuning's (``controller``), else the config's realised at the bus cycle for inputs within
+        the rig's D/A range (:meth:`servotune.rig.Rig.realize_filters`)."""
+        ax = getattr(self, side)
+        if ax.controller is not None:
+            return ax.controller.filters
+        return self.rig.realize_filters(ax.filters, self.bus.cycle_s)
+
     def controllers(self) -> tuple[AxisController, AxisController]:
         """The two drives' runtime controllers: a tuning's (``controller``), else PI at the
-        bus cycle quantised from the gains (lock gain :data:`DRIVE_LOCK_GAIN`)."""
+        bus cycle quantised from the gains (lock gain :data:`DRIVE_LOCK_GAIN`) with the drive's
+        output filters (:meth:`drive_filters`)."""
         return tuple(
             ax.controller
             if ax.controller is not None
@@ -580,8 +598,9 @@ class GantryConfig:
                 task_gains=ax.gains,
                 period_s=self.bus.cycle_s,
                 following_error_limit_counts=ax.following_error_limit_counts,
+                filters=self.drive_filters(side),
             )
-            for ax in (self.master, self.slave)
+            for side, ax in (("master", self.master), ("slave", self.slave))
         )  # type: ignore[return-value]
 
 
@@ -620,6 +639,16 @@ def gantry_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".") -> Gan
     except (RigError, OSError) as exc:  # one line naming the file
         raise ConfigError(f"gantry.rig: {exc}") from None
     axes_t = table("axis", required=True)
+    parts = {
+        k: build_section(cls, table(k), k, ConfigError)
+        for k, cls in (
+            ("bus", GantryBus),
+            ("beam", Beam),
+            ("move", GantryMove),
+            ("load", GantryLoad),
+            ("margins", GantryMargins),
+        )
+    }
     drives = {}
     for name in ("master", "slave"):
         at = axes_t.get(name)
@@ -631,22 +660,27 @@ def gantry_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".") -> Gan
         plant = plant_from_table(
             at.pop("plant"), f"axis.{name}.plant", rig.dac.range_v, error=ConfigError
         )
+        try:  # realisable at the bus cycle, for inputs within the D/A's range
+            filters = filters_from_array(
+                at.pop("filters", []),
+                f"axis.{name}.filters",
+                parts["bus"].cycle_s,
+                rig.dac.filter_input_bound,
+            )
+        except RigError as exc:
+            raise ConfigError(str(exc)) from None
         drives[name] = build_section(
-            GantryAxis, at, f"axis.{name}", ConfigError, plant=plant, controller=None
+            GantryAxis,
+            at,
+            f"axis.{name}",
+            ConfigError,
+            plant=plant,
+            filters=filters,
+            controller=None,
         )
     extra = sorted(set(axes_t) - {"master", "slave"})
     if extra:
         raise ConfigError(f"unknown axis [axis.{extra[0]}] (a gantry has master and slave)")
-    parts = {
-        k: build_section(cls, table(k), k, ConfigError)
-        for k, cls in (
-            ("bus", GantryBus),
-            ("beam", Beam),
-            ("move", GantryMove),
-            ("load", GantryLoad),
-            ("margins", GantryMargins),
-        )
-    }
     parts["sync"] = build_section(SyncSettings, table("sync"), "sync", ConfigError, constants=None)
     return build_section(
         GantryConfig,

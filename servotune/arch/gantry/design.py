@@ -15,6 +15,7 @@ import control
 import numpy as np
 
 from servotune._control import scipy_paths
+from servotune.analysis.margins import filters_tf
 from servotune.arch.gantry.config import (
     GantryConfig,
     case_config,
@@ -115,7 +116,8 @@ def sync_open_loop(
 
 @scipy_paths
 def sync_loop_models(cfg: GantryConfig) -> SyncLoopModels:
-    """Linear discrete models of the sync loop (friction, quantisation and beam left out).
+    """Linear discrete models of the sync loop (friction, quantisation and beam left out; each
+    drive's output filters in its loop).
 
     Returns
     -------
@@ -129,6 +131,9 @@ def sync_loop_models(cfg: GantryConfig) -> SyncLoopModels:
     for key, ax in (("master", cfg.master), ("slave", cfg.slave)):
         p_u = control.ss(discretize(ax.plant, dt, cfg.bus.compute_s + ax.plant.delay_s))
         c = control.ss(_pi_tf(ax.gains.kp, ax.gains.ki * dt, dt))
+        f = filters_tf(cfg.drive_filters(key), dt)  # the drive's output filters, if any
+        if f is not None:
+            c = c * control.ss(f)
         out[f"t_{key}"] = control.feedback(c * lsb * p_u, 1)
         # a load d adds to the drive input without the compute/delay lag:
         # y = P_d·d + P_u·lsb·u with u = −C·y, so y = P_d·d / (1 + C·lsb·P_u)

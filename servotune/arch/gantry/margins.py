@@ -1,7 +1,8 @@
 """Margins of the gantry's loops over what is not known.
 
 The loops the gantry runs: each drive's position PI, closed in the drive at the bus cycle
-(ZOH, the drive's compute time and the plant's delay, the D/A LSB), and, where the deployed
+(ZOH, the drive's compute time and the plant's delay, the drive's output filters, the D/A LSB),
+and, where the deployed
 topology has one (``listening``, ``cross``), the sync loop ``C(z)·z^-L·T_s(z)`` through the
 compensator, the bus latency and the slave's closed drive loop. Each is taken on the plant set
 of :func:`gantry_cases`: the nominal drives and the corners of gain ± ``gain_spread`` and tau ±
@@ -132,7 +133,12 @@ def gantry_margins(
                 continue
             g = GainSet(ax.gains.kp, ax.gains.ki * dt)
             model = loop_model(
-                plant, g, period_s=dt, lag_s=cfg.bus.compute_s + plant.delay_s + late, lsb_volts=lsb
+                plant,
+                g,
+                period_s=dt,
+                lag_s=cfg.bus.compute_s + plant.delay_s + late,
+                lsb_volts=lsb,
+                filters=cfg.drive_filters(name),
             )
             figures = loop_margins(model, margin_grid(plant, dt))
             out.append(

@@ -106,7 +106,12 @@ def _with_drive_pi(
     """``cfg`` with drive ``name``'s missing PI gains designed on ``plant``."""
     ax = getattr(cfg, name)
     r = tune_pi(
-        plant, period_s=cfg.bus.cycle_s, compute_s=compute_s, lsb_v=cfg.rig.dac.lsb_v, **targets
+        plant,
+        period_s=cfg.bus.cycle_s,
+        compute_s=compute_s,
+        lsb_v=cfg.rig.dac.lsb_v,
+        filters=cfg.drive_filters(name),
+        **targets,
     )
     return replace(
         cfg,

@@ -34,8 +34,9 @@ void st_gantry_init(st_gantry_state_t *s)
 /* one drive: 0 or the field code f of the header (100 * (drive + 1) is added by the caller).
  * The drive is checked as servotune_rt checks a one-axis runtime (st_check_consts), whose
  * codes 1 + (2..7) name the same fields as codes 2..7 here (lock_f, kp_f, kit_f, fe_limit,
- * counter_bits, the D/A range); a gantry drive must also run the PI law (1) and have no
- * reference axis (8); any other field st_check_consts refuses is 9. */
+ * counter_bits, the D/A range) and codes 1 + (17, 18) its output filters (10 here); a gantry
+ * drive must also run the PI law (1) and have no reference axis (8); any other field
+ * st_check_consts refuses is 9. */
 static int check_drive(const st_axis_consts_t *x)
 {
     st_consts_t one;
@@ -52,6 +53,9 @@ static int check_drive(const st_axis_consts_t *x)
     }
     if (r - 1 >= 2 && r - 1 <= 7) {
         return r - 1;
+    }
+    if (r - 1 == 17 || r - 1 == 18) { /* CHK_N_FILTERS, CHK_FILTER */
+        return 10;
     }
     return x->ref_source != -1 ? 8 : 9;
 }
@@ -97,6 +101,7 @@ void st_gantry_sha256(const st_gantry_consts_t *c, uint8_t out[32])
 {
     st_sha256_ctx_t h;
     int a;
+    int k;
     st_sha256_init(&h);
     put_i64(&h, c->topology);
     put_i64(&h, c->latency);
@@ -113,6 +118,17 @@ void st_gantry_sha256(const st_gantry_consts_t *c, uint8_t out[32])
         put_i64(&h, x->counter_bits);
         put_i64(&h, x->dac_zero);
         put_i64(&h, x->dac_max);
+        put_i64(&h, x->n_filters);
+        for (k = 0; k < ST_MAX_FILTERS; k++) {
+            /* every slot as compiled in: one past n_filters is zero in an exported header */
+            const st_section_t *q = &x->filter[k];
+            put_i64(&h, q->b0);
+            put_i64(&h, q->b1);
+            put_i64(&h, q->b2);
+            put_i64(&h, q->a1);
+            put_i64(&h, q->a2);
+            put_i64(&h, q->frac_bits);
+        }
     }
     put_i64(&h, c->sync.kp_q);
     put_i64(&h, c->sync.kp_f);

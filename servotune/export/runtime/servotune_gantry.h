@@ -58,11 +58,16 @@
  * as the simulation's int64 arithmetic does, so no input value is undefined behaviour; they
  * only wrap for positions or commands beyond +-2^62 counts, never on a real machine.
  *
- * Digest layout (st_gantry_check_digest): 34 numbers, each a little-endian two's-complement
- * int64, 272 bytes, no padding, in this order:
+ * Output filters: a drive with n_filters > 0 runs its sections in series on its law's output
+ * before the D/A (st_axis_control, as in the one-rig runtime).
+ *
+ * Digest layout (st_gantry_check_digest): 84 numbers, each a little-endian two's-complement
+ * int64, 672 bytes, no padding, in this order:
  *   topology, latency,
  *   for the master, then the slave: law, lock_q, lock_f, kp_q, kp_f, kit_q, kit_f, fe_limit,
- *     counter_bits, dac_zero, dac_max,
+ *     counter_bits, dac_zero, dac_max, n_filters, then every one of the ST_MAX_FILTERS
+ *     filter slots (those past n_filters as compiled in, zero in an exported header):
+ *     b0, b1, b2, a1, a2, frac_bits,
  *   sync: kp_q, kp_f, kit_q, kit_f, kdt_q, kdt_f, dead_zone, limit, warn, trip.
  * (A drive's other st_axis_consts_t fields are not used by the PI law and are not hashed.)
  */
@@ -77,7 +82,7 @@
 extern "C" {
 #endif
 
-#define ST_GANTRY_VERSION 1 /* version of this interface */
+#define ST_GANTRY_VERSION 2 /* version of this interface (2: output filters hashed) */
 
 /* topologies (st_gantry_consts_t.topology) */
 #define ST_TOPO_PARALLEL 0  /* the CNC commands both drives; no compensator */
@@ -171,7 +176,9 @@ void st_gantry_init(st_gantry_state_t *s);
  *     7  dac_zero < 0, dac_max < dac_zero or dac_max > 65535
  *     8  ref_source is not -1 (the gantry routes the references itself)
  *     9  a field the PI law does not use that st_check_consts rejects (kdt_f, k1t_f, ke_f,
- *        kec_f outside 0 .. ST_F_U)
+ *        kec_f outside 0 .. ST_F_U, a reference shaper)
+ *    10  n_filters outside 0 .. ST_MAX_FILTERS, or a filter section in use with frac_bits
+ *        outside 1 .. 30 or an unstable denominator (st_check_consts' codes 18, 19)
  *   300 + s  the sync constants, s = st_check_sync_consts' code: 1 kp_q, 2 kp_f, 3 kit_q,
  *        4 kit_f, 5 kdt_q, 6 kdt_f, 7 dead_zone, 8 limit, 9 warn, 10 trip */
 int st_gantry_check(const st_gantry_consts_t *c);
@@ -180,7 +187,7 @@ int st_gantry_check(const st_gantry_consts_t *c);
 #define ST_GANTRY_DIGEST_OK 0       /* the constants are the exported ones */
 #define ST_GANTRY_DIGEST_MISMATCH 1 /* they are not (or sha256 is NULL) */
 
-/* SHA-256 of the constants in the digest layout (header comment), 272 bytes. */
+/* SHA-256 of the constants in the digest layout (header comment), 672 bytes. */
 void st_gantry_sha256(const st_gantry_consts_t *c, uint8_t out[32]);
 
 /* Start-up check of the compiled-in constants against the exported SHA-256 of their layout:
