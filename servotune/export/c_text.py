@@ -14,7 +14,14 @@ from servotune.errors import ExportError
 from servotune.laws.axis import TASK_LAWS
 from servotune.laws.filters import SECTION_WORDS
 
-__all__ = ["axis_lines", "c_identifiers", "comment_text", "digest_bytes_lines", "int32_literal"]
+__all__ = [
+    "axis_lines",
+    "c_identifiers",
+    "comment_text",
+    "digest_bytes_lines",
+    "filter_lines",
+    "int32_literal",
+]
 
 
 def c_identifiers(
@@ -109,8 +116,8 @@ def axis_lines(ax: Mapping[str, Any], ident: str) -> tuple[list[str], list[str]]
         init.append(f".tf = {{{tf}}}")
         init.append(f".tab = {{{tab}}}")
     if "filters" in ax:  # a tables document's axis, or a gantry drive with filters
-        filter_lines, filter_init = _filter_lines(ax["filters"], up)
-        lines.extend(filter_lines)
+        filter_lines_, filter_init = filter_lines(ax["filters"], up)
+        lines.extend(filter_lines_)
         init.extend(filter_init)
     if ax.get("shaper"):  # a tables document's axis with a reference shaper
         lines += _shaper_lines(ax["shaper"], ident, up)
@@ -135,7 +142,7 @@ def _shaper_lines(taps: Sequence[int], ident: str, up: str) -> list[str]:
     return lines
 
 
-def _filter_lines(filters: Sequence[Mapping[str, int]], up: str) -> tuple[list[str], list[str]]:
+def filter_lines(filters: Sequence[Mapping[str, int]], up: str) -> tuple[list[str], list[str]]:
     """An axis's output filters (docs/runtime.md#filters-in-the-law): ``<UP>_N_FILTERS`` and,
     per section ``k``, ``<UP>_FILT<k>_B0`` … ``_A2`` and ``_FRAC_BITS``; the initialiser's
     ``.n_filters`` and ``.filter[k]`` (the slots past the last section are left zero)."""

@@ -39,7 +39,7 @@ from servotune._version import __version__
 from servotune.arch.linkage.plan import PLAN_SCHEMA, LinkagePlan, plan_to_string
 from servotune.digest import DIGEST_FIELD, document_sha256
 from servotune.errors import DigestError, ExportError
-from servotune.export.c_text import c_identifiers, comment_text
+from servotune.export.c_text import c_identifiers, comment_text, filter_lines
 from servotune.export.document import recorded_sha
 from servotune.io.files import json_safe, parse_json
 from servotune.laws.pi import PIConstants
@@ -173,8 +173,7 @@ def linkage_c_header(
     ------
     ExportError
         No record (and not ``unverified``), a failed one, names that give clashing C
-        identifiers, commands that do not fit int32, or an axis with output filters (the
-        header has no place for them).
+        identifiers, or commands that do not fit int32.
     """
     _check_record(record, unverified)
     _check_fits(plan)
@@ -215,7 +214,9 @@ def _header_top(plan: LinkagePlan, record: Mapping[str, Any] | None, verified: b
         " * queues its own columns (STL_CPU_<CPU>_COLUMNS, in its axis order) with stl_push.",
         " * PI constants are (q, f) pairs, value q * 2^-f: Kp [D/A LSB per count], Ki*T [LSB per",
         " * count per tick], the lock gain [LSB per count]: the st_axis_consts_t fields of the",
-        " * same names (servotune_rt.h, task mode).",
+        " * same names (servotune_rt.h, task mode). An axis's output filters: <AXIS>_N_FILTERS",
+        " * and per section k <AXIS>_FILT<k>_B0 .. _A2, _FRAC_BITS (st_axis_consts_t's n_filters",
+        " * and filter[k]; the slots past the last section zero).",
         " */",
         "#ifndef SERVOTUNE_LINK_PLAN_H",
         "#define SERVOTUNE_LINK_PLAN_H",
@@ -270,10 +271,6 @@ def _axis_lines(plan: LinkagePlan, axis_ids: Sequence[str], cpu_ids: Sequence[st
         task = ctl.task
         if not isinstance(task, PIConstants):  # LinkagePlan holds PI controllers only
             raise ExportError(f"axis {name!r}: a linkage axis runs PI")
-        if ctl.filters:  # the header carries the PI and lock constants only
-            raise ExportError(
-                f"axis {name!r} has output filters, which servotune_link_plan.h does not carry"
-            )
         cpu = plan.cpu_of(name)
         up = f"STL_AXIS_{ident}"
         out += [
@@ -287,6 +284,7 @@ def _axis_lines(plan: LinkagePlan, axis_ids: Sequence[str], cpu_ids: Sequence[st
             f"#define {up}_KIT_Q INT32_C({task.ki_t.q})",
             f"#define {up}_KIT_F {task.ki_t.f}",
             f"#define {up}_FE_LIMIT {ctl.following_error_limit_counts} /* [counts], 0 = off */",
+            *filter_lines([s.to_dict() for s in ctl.filters], up)[0],
         ]
     return out
 

@@ -26,9 +26,9 @@ every export of a filtered tuning, against the Python law.
   and the C layout carry them in the documented order (built here with :mod:`struct`).
 - (f) ``--format linuxcnc-hal`` writes the master's sections as LinuxCNC ``biquad`` lines when
   it has filters, and nothing more when it has none.
-- The gantry's export carries a filtered drive's sections (its C runtime runs them:
-  ``test_c_gantry_filters.py``); the linkage's C export, whose runtime carries no filters,
-  refuses a filtered axis; an export whose filter sums could leave ±2^62 is refused.
+- The gantry's and the linkage's exports carry a filtered drive's or axis's sections (their C
+  runs them: ``test_c_gantry_filters.py``, ``test_c_linkage_filters.py``); an export whose
+  filter sums could leave ±2^62 is refused.
 """
 
 from __future__ import annotations
@@ -1060,7 +1060,7 @@ def test_linuxcnc_hal_writes_the_masters_filters_as_biquads(tuning: Tuning) -> N
     assert all(ln.startswith(("#", "setp pid.x-filter")) for ln in lines[len(skeleton(plain)) :])
 
 
-# --- the gantry's export carries them; the linkage's C has no place for filters ---------------
+# --- the gantry's and the linkage's exports carry them ----------------------------------------
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -1091,10 +1091,10 @@ def _gantry_tuning(drive) -> GantryTuning:
     )
 
 
-def test_gantry_export_carries_filters_and_the_linkage_refuses_them(tuning: Tuning) -> None:
-    """A filtered gantry drive is exported with its sections, under the C-layout digest; the
-    linkage runtime's constants carry no filters: a filtered axis is refused (one line), not
-    exported without them."""
+def test_gantry_and_linkage_exports_carry_filters(tuning: Tuning) -> None:
+    """A filtered gantry drive is exported with its sections, under the C-layout digest; a
+    filtered linkage axis's sections are macros of the plan header (the C runs them:
+    ``test_c_gantry_filters.py``, ``test_c_linkage_filters.py``)."""
     filters = tuning.controllers[0].filters[:2]
     drive = tuning.controllers[0]  # a PI law
     gantry = _gantry_tuning(drive)
@@ -1105,7 +1105,9 @@ def test_gantry_export_carries_filters_and_the_linkage_refuses_them(tuning: Tuni
     assert data["drives"][1]["controller"]["filters"] == [s.to_dict() for s in drive.filters]
     assert data["c_layout_sha256"] != plain["c_layout_sha256"]
     plan = plan_linkage(ROOT / "plants" / "linkage-6axis.toml")
-    linkage_c_header(plan, None, unverified=True)
+    assert "_N_FILTERS 0" in linkage_c_header(plan, None, unverified=True)
     ctls = (dataclasses.replace(plan.controllers[0], filters=filters), *plan.controllers[1:])
-    with pytest.raises(ExportError, match="has output filters"):
-        linkage_c_header(dataclasses.replace(plan, controllers=ctls), None, unverified=True)
+    header = linkage_c_header(dataclasses.replace(plan, controllers=ctls), None, unverified=True)
+    first = plan.axis_names[0].upper()
+    assert f"#define STL_AXIS_{first}_N_FILTERS 2 " in header
+    assert f"#define STL_AXIS_{first}_FILT1_FRAC_BITS {filters[1].frac_bits}" in header

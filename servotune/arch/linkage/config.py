@@ -8,7 +8,7 @@ resolved by the caller (:func:`servotune.arch.linkage.synthesis.resolve_gains`).
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -17,9 +17,11 @@ from servotune.arch.linkage.bus import Bus, Clock, SlaveCpu
 from servotune.errors import ConfigError, RigError
 from servotune.io.files import parse_toml_as, read_bytes
 from servotune.io.sections import build_section
+from servotune.laws.axis import MAX_FILTERS
+from servotune.laws.filters import Section, SectionQ
 from servotune.laws.pi import PIGains
 from servotune.plant import Plant
-from servotune.rig import MAX_LOCK_GAIN, Rig, load_rig, plant_from_table
+from servotune.rig import MAX_LOCK_GAIN, Rig, filters_from_array, load_rig, plant_from_table
 from servotune.validate import (
     check_integer,
     check_keys,
@@ -71,6 +73,10 @@ class LinkageAxis:
         Following-error trip threshold [counts]; 0 disables the trip.
     counter_init : int
         Counter register value at the start [counts].
+    filters : tuple of Section
+        The axis's output filters as designed (``[[axis.<name>.filters]]``, up to
+        :data:`~servotune.laws.axis.MAX_FILTERS`: docs/formats.md#filters), in the order they
+        run; the slave runs them realised at ``period_s`` (:meth:`LinkageConfig.axis_filters`).
     gains_tuned : bool
         True if ``kp`` and ``ki`` were tuned by
         :func:`~servotune.arch.linkage.synthesis.resolve_gains` (the file gave none), as a run
@@ -84,9 +90,12 @@ class LinkageAxis:
     lock_gain_codes_per_count: float = 0.4
     following_error_limit_counts: int = 0
     counter_init: int = 0
+    filters: tuple[Section, ...] = ()
     gains_tuned: bool = False
 
     def __post_init__(self) -> None:
+        if len(self.filters) > MAX_FILTERS or not all(isinstance(f, Section) for f in self.filters):
+            raise ConfigError(f"filters must be at most {MAX_FILTERS} filter sections")
         if (self.kp is None) != (self.ki is None):
             raise ConfigError(
                 f"kp and ki must be given together (or neither, to tune them), got "
@@ -383,6 +392,11 @@ class LinkageConfig:
         """Number of axes."""
         return len(self.axes)
 
+    def axis_filters(self, name: str) -> tuple[SectionQ, ...]:
+        """Axis ``name``'s output filters as its slave runs them: realised at ``period_s`` for
+        inputs within the rig's D/A range (:meth:`servotune.rig.Rig.realize_filters`)."""
+        return self.rig.realize_filters(self.axis(name).filters, self.period_s)
+
     def axis(self, name: str) -> LinkageAxis:
         """The axis called ``name``."""
         for a in self.axes:
@@ -463,10 +477,12 @@ def linkage_from_dict(
     clock = build_section(Clock, _table(data, "clock", required=False), "clock", ConfigError)
     cpus = _sections(SlaveCpu, data.get("cpu"), "cpu")
     axes = []
+    raw_filters = {}
     for name, at in _table(data, "axis").items():
         if not isinstance(at, Mapping):
             raise ConfigError(f"[axis.{name}] must be a table")
         at = dict(at)
+        raw_filters[name] = at.pop("filters", [])
         pt = at.pop("plant", None)
         if not isinstance(pt, Mapping):
             raise ConfigError(f"missing table [axis.{name}.plant]")
@@ -492,7 +508,7 @@ def linkage_from_dict(
             top[key] = data[key]
     if "period_s" not in top:
         raise ConfigError("missing key period_s (the nominal sampling period [s])")
-    return LinkageConfig(
+    config = LinkageConfig(
         **name_and_description(data, "", default_name, error=ConfigError),
         path=path,
         axes=tuple(axes),
@@ -503,6 +519,24 @@ def linkage_from_dict(
         clock=clock,
         **top,
     )
+    if not any(raw_filters.values()):
+        return config
+    try:  # realisable at the period (checked above), for inputs within the D/A's range
+        filtered = tuple(
+            replace(
+                a,
+                filters=filters_from_array(
+                    raw_filters[a.name],
+                    f"axis.{a.name}.filters",
+                    config.period_s,
+                    rig.dac.filter_input_bound,
+                ),
+            )
+            for a in config.axes
+        )
+    except RigError as exc:
+        raise ConfigError(str(exc)) from None
+    return replace(config, axes=filtered)
 
 
 def load_linkage(path: str | Path) -> LinkageConfig:
@@ -540,6 +574,7 @@ def load_linkage(path: str | Path) -> LinkageConfig:
         lock_gain_codes_per_count = 0.4   # optional
         counter_init = 0                  # optional
         [axis.x.plant]                    # the axis model's names: gain_cps_per_v, ...
+        [[axis.x.filters]]                # optional, up to 4 (docs/formats.md#filters)
 
         [path]
         max_feed_cps = 60000              # [counts/s]

@@ -79,7 +79,8 @@ __all__ = ["axis_controllers", "run_linkage"]
 
 def axis_controllers(config: LinkageConfig) -> dict[str, AxisController]:
     """The quantised constants each axis's slave runs: its lock gain, its PI gains at the
-    linkage's nominal ``period_s`` (``Ki·T`` folded in) and its following-error limit.
+    linkage's nominal ``period_s`` (``Ki·T`` folded in), its following-error limit and its
+    output filters (:meth:`~servotune.arch.linkage.config.LinkageConfig.axis_filters`).
 
     Parameters
     ----------
@@ -110,6 +111,7 @@ def axis_controllers(config: LinkageConfig) -> dict[str, AxisController]:
             task_gains=gains,
             period_s=config.period_s,
             following_error_limit_counts=a.following_error_limit_counts,
+            filters=config.axis_filters(a.name),
         )
     return out
 

@@ -52,8 +52,9 @@ def axis_gains(
     """PI gains of every axis: ``given``, else the config's, else tuned.
 
     An axis without gains is tuned with :func:`~servotune.tune.pi.tune_pi` at the linkage's
-    ``period_s``, the rig's ``compute_s`` and D/A step, for :data:`TUNE_TARGETS` (phase margin
-    50°, gain margin 8 dB, max sensitivity 1.6); about a second per axis. Nothing is cached.
+    ``period_s``, the rig's ``compute_s`` and D/A step, with its output filters in the loop,
+    for :data:`TUNE_TARGETS` (phase margin 50°, gain margin 8 dB, max sensitivity 1.6); about a
+    second per axis. Nothing is cached.
     The config's gains count as tuned if :func:`resolve_gains` tuned them
     (:attr:`~servotune.arch.linkage.config.LinkageAxis.gains_tuned`).
 
@@ -92,6 +93,7 @@ def axis_gains(
             period_s=config.period_s,
             compute_s=config.rig.timer.compute_s,
             lsb_v=config.rig.dac.lsb_v,
+            filters=config.axis_filters(a.name),
             **TUNE_TARGETS,
         )
         out[a.name] = AxisGains(gains=r.gains, tuned=True)

@@ -261,7 +261,14 @@ def _margin_rows(
         assert isinstance(task, PIConstants)  # LinkagePlan holds PI controllers only
         g = GainSet(kp=task.kp.value, ki_t=task.ki_t.value)
         lag = rig.timer.compute_s + plant.delay_s
-        loop = loop_model(plant, g, period_s=plan.period_s, lag_s=lag, lsb_volts=rig.dac.lsb_v)
+        loop = loop_model(
+            plant,
+            g,
+            period_s=plan.period_s,
+            lag_s=lag,
+            lsb_volts=rig.dac.lsb_v,
+            filters=ctl.filters,
+        )
         lo = min(1.0 / plant.tau_s, nyq) * 10.0**-GRID_DECADES_BELOW
         w = np.logspace(math.log10(lo), math.log10(nyq * (1.0 - 1e-9)), GRID_POINTS)
         m = loop_margins(loop, w)
