@@ -1213,9 +1213,11 @@ text_case(
     K,
     "filter-above-nyquist",
     "a notch on y at 300 Hz, above the 2 ms period's 250 Hz Nyquist frequency",
-    lambda t: t
-    + '\n[[axis.y.filters]]\nkind = "notch"\ncenter_hz = 300.0\nwidth_hz = 20.0\n'
-    + "depth_db = -20.0\n",
+    lambda t: (
+        t
+        + '\n[[axis.y.filters]]\nkind = "notch"\ncenter_hz = 300.0\nwidth_hz = 20.0\n'
+        + "depth_db = -20.0\n"
+    ),
     hint="axis.y.filters[0]",
 )
 text_case(
