@@ -1442,7 +1442,8 @@ def bench_tune(opts: Options) -> list[Figure]:
 @register("tune_filters")
 def bench_tune_filters(opts: Options) -> list[Figure]:
     """``servotune tune`` on the resonant example rig (plants/belt-scale.toml), where it also
-    chooses the master's filters (four robust PI designs) before the slave's law.
+    chooses the master's filters (eight robust PI designs: four candidates, then the best of
+    them with four leads) before the slave's law.
 
     Returns
     -------

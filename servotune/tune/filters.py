@@ -14,7 +14,17 @@ Candidates, for the modes ``f_i`` (their frequency range ``[lo_i, hi_i]``):
   ends of its range;
 - **low-pass**: one second-order low-pass, corner :data:`LOWPASS_CORNER` times the lowest
   mode's low end, damping :data:`LOWPASS_DAMPING`: it attenuates every mode, at the price of
-  phase at the crossover.
+  phase at the crossover;
+- **notch with a lead** (:func:`lead_candidates`): where a notch is the best of those (it
+  beats the plain PI), the notch with one more section, a phase lead (:func:`lead_section`, a
+  general biquad) centred at :data:`LEAD_CENTRES` times that candidate's crossover, ratio
+  :data:`LEAD_RATIOS`. Behind its notch the mode no longer limits the loop; the phase margin
+  at the crossover does (the plant's lag, the tick's delay and one more tick). The lead buys
+  phase there, at the price of more gain above the crossover: every loop's margins over the
+  plant set judge it, and since the filters also run in lock mode, a lead is kept only if the
+  robust lock gain it leaves
+  (:func:`~servotune.tune.robust.robust_lock_gain`) is at least :data:`LEAD_LOCK_KEEP` of the
+  notch's alone (the lock's stiffness against the drive's offset).
 
 Each candidate's sections are realised as the runtime runs them (quantised at the rig's achieved
 period, :func:`servotune.laws.filters.realize`) and enter every loop of the axis, the lock loop
@@ -41,12 +51,16 @@ from servotune.analysis.margins import (
 )
 from servotune.analysis.plant_cases import PlantCase, mode_factors
 from servotune.errors import InfeasibleError
-from servotune.laws.filters import Section, lowpass2, notch
+from servotune.laws.axis import MAX_FILTERS
+from servotune.laws.filters import Section, biquad, lowpass2, notch
 from servotune.rig import Rig
 from servotune.tune.pi import PITuning
-from servotune.tune.robust import robust_pi
+from servotune.tune.robust import robust_lock_gain, robust_pi
 
 __all__ = [
+    "LEAD_CENTRES",
+    "LEAD_LOCK_KEEP",
+    "LEAD_RATIOS",
     "LOWPASS_CORNER",
     "LOWPASS_DAMPING",
     "MIN_GAIN",
@@ -56,6 +70,8 @@ __all__ = [
     "FilterChoice",
     "choose_filters",
     "filter_candidates",
+    "lead_candidates",
+    "lead_section",
     "nominal_figures",
 ]
 
@@ -72,6 +88,12 @@ LOWPASS_DAMPING = 0.5
 MIN_GAIN = 1.05
 """A filter is placed only if its PI's bandwidth is at least this factor above the plain
 PI's."""
+LEAD_CENTRES = (1.3, 1.7)
+"""Lead centres tried, relative to the crossover of the candidate it is added to."""
+LEAD_RATIOS = (1.1, 1.15)
+"""Lead ratios tried (:func:`lead_section`'s ``ratio``: its gain rises by ``ratio²``)."""
+LEAD_LOCK_KEEP = 0.8
+"""The smallest share of the notch's robust lock gain a lead may leave."""
 
 
 @dataclasses.dataclass(frozen=True, slots=True, kw_only=True)
@@ -82,7 +104,10 @@ class FilterChoice:
     ----------
     axis : str
     chosen : str
-        ``"none"``, ``"notch"`` or ``"lowpass2"``.
+        ``"none"``, ``"notch"``, ``"notch+lead"`` or ``"lowpass2"``.
+    name : str
+        The chosen candidate's full name (``"notch x1.5+lead 1.25@20.1"``: the notch width in
+        units of the mode's range, the lead's ratio and centre [rad/s]).
     sections : tuple of Section
         The chosen sections (empty for ``"none"``).
     pi : PITuning
@@ -97,6 +122,7 @@ class FilterChoice:
 
     axis: str
     chosen: str
+    name: str
     sections: tuple[Section, ...]
     pi: PITuning
     why: str
@@ -108,6 +134,7 @@ class FilterChoice:
             "axis": self.axis,
             "candidates": list(self.candidates),
             "chosen": self.chosen,
+            "name": self.name,
             "sections": [s.to_dict() for s in self.sections],
             "why": self.why,
         }
@@ -131,6 +158,39 @@ def filter_candidates(rig: Rig, axis_name: str) -> list[tuple[str, tuple[Section
             out.append((f"notch x{k:g}", tuple(secs[:4])))
     low = min(m.freq_hz * mode_factors(m)[0] for m in modes)
     out.append(("lowpass2", (lowpass2(LOWPASS_CORNER * low, LOWPASS_DAMPING),)))
+    return out
+
+
+def lead_section(center_rad_s: float, ratio: float) -> Section:
+    """A phase lead as one second-order section: two equal first-order leads, each with its
+    zero at ``center/ratio^½`` and its pole at ``center·ratio^½``. Unit gain at DC, ``ratio²``
+    at high frequency, the most phase, ``2·asin((ratio − 1)/(ratio + 1))``, at ``center``
+    (pre-warped there): ``F(s) = (s/ω_z + 1)² / (s/ω_p + 1)²``.
+    """
+    wz = center_rad_s / math.sqrt(ratio)
+    wp = center_rad_s * math.sqrt(ratio)
+    k = (wp / wz) ** 2
+    return biquad(
+        [k, 2.0 * k * wz, k * wz**2], [1.0, 2.0 * wp, wp**2], warp_hz=center_rad_s / (2 * math.pi)
+    )
+
+
+def lead_candidates(
+    name: str, sections: tuple[Section, ...], crossover_rad_s: float, nyquist_hz: float
+) -> list[tuple[str, tuple[Section, ...]]]:
+    """Candidate ``name`` (its ``sections``, its loop crossing over at ``crossover_rad_s``)
+    with a lead (:func:`lead_section`) at each of :data:`LEAD_CENTRES` times the crossover and
+    each of :data:`LEAD_RATIOS`; none where the chain is full or the crossover unknown, and a
+    lead whose pole is at or above half of ``nyquist_hz`` is left out."""
+    if len(sections) >= MAX_FILTERS or not math.isfinite(crossover_rad_s):
+        return []
+    out = []
+    for r in LEAD_CENTRES:
+        wc = r * crossover_rad_s
+        for ratio in LEAD_RATIOS:
+            if wc * math.sqrt(ratio) / (2 * math.pi) < 0.5 * nyquist_hz:
+                label = f"{name}+lead {ratio:g}@{wc:.3g}"
+                out.append((label, (*sections, lead_section(wc, ratio))))
     return out
 
 
@@ -175,27 +235,41 @@ def choose_filters(
     """
     a = rig.axis_names.index(axis_name)
     where = ", ".join(f"{m.freq_hz:g} Hz (damping {m.damping:g})" for m in rig.axes[a].plant.modes)
-    tried: list[_Tried] = []
-    for name, secs in filter_candidates(rig, axis_name):
+
+    def attempt(name: str, kind: str, secs: tuple[Section, ...]) -> _Tried:
         trial = _with_filters(rig, a, secs)
         try:
             pi = robust_pi(trial, axis_name, cases, limits, screen_cases)
         except InfeasibleError as exc:
-            tried.append(_Tried(name, secs, None, None, str(exc).rsplit(": ", 1)[-1]))
-            continue
+            return _Tried(name, kind, secs, None, None, str(exc).rsplit(": ", 1)[-1])
         broken = "" if frf is None else _frf_broken(trial, a, pi, frf, limits, extra_ticks)
-        tried.append(_Tried(name, secs, pi, nominal_figures(trial, a, pi), broken))
-    feasible = [t for t in tried if t.pi is not None and not t.why]
-    if not feasible:
+        return _Tried(name, kind, secs, pi, nominal_figures(trial, a, pi), broken)
+
+    tried = [attempt(n, n.split(" ")[0], s) for n, s in filter_candidates(rig, axis_name)]
+    base = _best(tried)
+    if base is not None and base.kind == "notch":  # the notch with a lead (module docstring)
+        crossover = base.figures.crossover_rad_s  # type: ignore[union-attr]
+        screen = cases if screen_cases is None else screen_cases
+        lock = robust_lock_gain(_with_filters(rig, a, base.sections), axis_name, screen, limits)
+        for n, s in lead_candidates(base.name, base.sections, crossover, 0.5 / rig.period_s):
+            t = attempt(n, "notch+lead", s)
+            if t.feasible:
+                try:
+                    k = robust_lock_gain(_with_filters(rig, a, s), axis_name, screen, limits)
+                except InfeasibleError:
+                    k = 0.0
+                if k < LEAD_LOCK_KEEP * lock:
+                    why = f"lock gain {k:.3g} < {LEAD_LOCK_KEEP:g} of the notch's {lock:.3g}"
+                    t = dataclasses.replace(t, why=why)
+            tried.append(t)
+    best = _best(tried)
+    if best is None:
         broken = "; ".join(f"{t.name}: {t.why}" for t in tried)
         raise InfeasibleError(
             f"no PI for axis {axis_name!r} keeps the margin limits with the mode at {where}, "
             f"with or without a filter ({broken})"
         )
-    plain = tried[0] if tried[0] in feasible else None
-    best = max(feasible, key=lambda t: t.bandwidth)
-    if plain is not None and best.bandwidth < MIN_GAIN * plain.bandwidth:
-        best = plain
+    plain = tried[0] if tried[0].feasible else None
     if best is plain:
         why = f"no filter: none beats the plain PI's bandwidth by {100 * (MIN_GAIN - 1):g} %"
     elif plain is None:
@@ -205,7 +279,8 @@ def choose_filters(
     summary = "; ".join(t.summary() for t in tried)
     return FilterChoice(
         axis=axis_name,
-        chosen=best.name.split(" ")[0],
+        chosen=best.kind,
+        name=best.name,
         sections=best.sections,
         pi=best.pi,  # type: ignore[arg-type]
         why=f"modes at {where}; {why} ({summary})",
@@ -218,10 +293,15 @@ class _Tried:
     """One candidate: its PI and nominal figures, or why it is out."""
 
     name: str
+    kind: str  # FilterChoice.chosen
     sections: tuple[Section, ...]
     pi: PITuning | None
     figures: LoopFigures | None
     why: str  # empty: feasible
+
+    @property
+    def feasible(self) -> bool:
+        return self.pi is not None and not self.why
 
     @property
     def bandwidth(self) -> float:
@@ -240,6 +320,19 @@ class _Tried:
         if self.why:
             out["infeasible"] = self.why
         return out
+
+
+def _best(tried: Sequence[_Tried]) -> _Tried | None:
+    """The feasible candidate with the highest bandwidth, the plain PI (``tried[0]``) unless
+    it is beaten by :data:`MIN_GAIN`; None if none is feasible."""
+    feasible = [t for t in tried if t.feasible]
+    if not feasible:
+        return None
+    best = max(feasible, key=lambda t: t.bandwidth)
+    plain = tried[0] if tried[0].feasible else None
+    if plain is not None and best.bandwidth < MIN_GAIN * plain.bandwidth:
+        return plain
+    return best
 
 
 def _with_filters(rig: Rig, a: int, secs: tuple[Section, ...]) -> Rig:

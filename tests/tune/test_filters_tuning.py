@@ -24,13 +24,13 @@ import control
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
-from scipy.signal import lfilter
+from scipy.signal import freqz, lfilter
 
 from servotune.analysis.plant_cases import mode_factors
 from servotune.examples import example_path
 from servotune.laws.filters import realize, section_from_dict
 from servotune.rig import load_rig
-from servotune.tune.filters import MIN_GAIN, choose_filters
+from servotune.tune.filters import choose_filters
 from servotune.tune.pi import tune_pi
 from servotune.tune.slave import SlaveTuneSpec
 
@@ -201,13 +201,27 @@ def test_a_plain_pi_tuned_on_the_rigid_model_fails_the_margins(design) -> None:
     ), (pm, gm, ms)
 
 
-def test_the_tuner_places_a_notch_on_the_mode(design) -> None:
+def test_the_tuner_places_a_notch_on_the_mode_and_a_lead(design) -> None:
+    """A notch at the mode, then a lead (a biquad whose gain rises from 1 at DC to its
+    ``ratio²`` well above its centre and whose phase peaks there), checked on the realised
+    integers with scipy's ``freqz``."""
     rig, _, choice, _ = design
-    (sec,) = choice.sections
+    sec, lead = choice.sections
     (mode,) = rig.axes[0].plant.modes
-    assert choice.chosen == "notch"
+    assert choice.chosen == "notch+lead" and choice.name.startswith("notch x")
     assert sec.kind == "notch" and dict(sec.params)["center_hz"] == mode.freq_hz
-    assert "notch" in choice.why and "bandwidth" in choice.why
+    assert "notch" in choice.why and "lead" in choice.why and "bandwidth" in choice.why
+    q = realize(lead, rig.period_s)
+    b, a = q.ba()
+    centre = dict(lead.params)["warp_hz"]
+    w = 2 * math.pi * np.array([0.01, centre, 0.45 / rig.period_s]) * rig.period_s
+    h = freqz(b, a, worN=w)[1]
+    ratio = float(choice.name.split("lead ")[1].split("@")[0])
+    assert abs(h[0]) == pytest.approx(1.0, rel=0.01)
+    assert np.angle(h[1], deg=True) == pytest.approx(
+        2 * math.degrees(math.asin((ratio - 1) / (ratio + 1))), abs=1.0
+    )
+    assert 1.0 < abs(h[2]) < ratio**2 * 1.01
 
 
 def _filtered_loop(design, frd, extra_ticks: int = 0):
@@ -245,19 +259,20 @@ def _bandwidth(loop: control.FrequencyResponseData) -> float:
 
 
 def test_the_filter_buys_bandwidth_over_the_best_plain_pi(design) -> None:
-    """The goal is ≥ 1.5× the bandwidth of the best plain PI at the same margins. On this rig
-    it is 1.19× when written (20.7 against 17.4 rad/s on the model): the robust PI is held by
-    its phase margin at the slow, late corner of the plant set as much as by the mode. The
-    test holds the tuner's reported ratio to the measured response's."""
+    """The goal is ≥ 1.5× the bandwidth of the best plain PI at the same margins, measured on
+    the integrated plant's response. The notch alone gives 1.19× on this rig (20.7 against
+    17.4 rad/s on the model: behind the notch the phase margin at the crossover binds); the
+    lead on top of it 1.50× when written (26.2 rad/s). The tuner's reported ratio is held to
+    the measured one."""
     rig, _, choice, frds = design
     plain = next(c for c in choice.candidates if c["name"] == "none")
-    chosen = next(c for c in choice.candidates if c["name"].startswith(choice.chosen))
+    chosen = next(c for c in choice.candidates if c["name"] == choice.name)
     c = _controller(plain["kp"], plain["ki"] * rig.period_s, rig.period_s)
     bw_plain = _bandwidth(_times(frds["nominal"], c))
     bw_filtered = _bandwidth(_filtered_loop(design, frds["nominal"]))
     measured = bw_filtered / bw_plain
     reported = chosen["bandwidth_rad_s"] / plain["bandwidth_rad_s"]
-    assert measured >= MIN_GAIN, measured
+    assert measured >= 1.5, measured
     assert measured == pytest.approx(reported, rel=0.03), (measured, reported)
     assert f"{reported:.2f}x" in choice.why
 
@@ -298,7 +313,7 @@ def _ringing(y: np.ndarray, f_hz: float, period: float) -> float:
 
 
 def test_a_step_settles_without_ringing(design) -> None:
-    """A 400-count step through the notch and the tuned PI on the integrated plant: after 2 s
+    """A 400-count step through the filters and the tuned PI on the integrated plant: after 2 s
     the mode's frequency is below one count and the position within 2 counts."""
     rig, _, choice, _ = design
     (mode,) = rig.axes[0].plant.modes
@@ -441,3 +456,30 @@ def test_a_candidate_the_measured_response_refuses_is_not_chosen(design) -> None
     refused = [c for c in on_frf.candidates if "measured response" in str(c.get("infeasible", ""))]
     assert refused, on_frf.candidates
     assert on_frf.sections != choice.sections
+
+
+def test_a_lead_that_softens_the_lock_is_not_kept(design, monkeypatch) -> None:
+    """With a larger lead ratio (1.25: more bandwidth, more gain above the crossover) the lock
+    loop's robust gain falls below 0.8 of the notch's: the candidate is recorded with that
+    reason and not chosen (the lock holds the axis against the drive's offset). The lock gains
+    are rebuilt here with ``robust_lock_gain`` on the candidates' own sections."""
+    from servotune.tune import filters as tf
+    from servotune.tune.robust import robust_lock_gain
+
+    rig, spec, _, _ = design
+    monkeypatch.setattr(tf, "LEAD_RATIOS", (1.25,))
+    monkeypatch.setattr(tf, "LEAD_CENTRES", (1.7,))
+    cases = spec.plant_cases(rig)
+    screen = spec.plant_cases(rig, sampled=True)
+    choice = choose_filters(rig, "master", cases, spec.limits, screen)
+    (lead,) = [c for c in choice.candidates if "+lead" in c["name"]]
+    assert "lock gain" in lead.get("infeasible", ""), lead
+    assert choice.chosen == "notch"
+
+    def lock(c: dict) -> float:
+        secs = tuple(section_from_dict(s) for s in c["sections"])
+        axes = (dataclasses.replace(rig.axes[0], filters=secs), *rig.axes[1:])
+        return robust_lock_gain(dataclasses.replace(rig, axes=axes), "master", screen, spec.limits)
+
+    notch = next(c for c in choice.candidates if c["name"] == choice.name)
+    assert lock(lead) < tf.LEAD_LOCK_KEEP * lock(notch)
