@@ -265,9 +265,8 @@ def _gantry_source(name: str) -> str:
     return resources.files("servotune.export").joinpath("runtime", name).read_text("utf-8")
 
 
-@pytest.fixture(scope="module")
-def src(tmp_path_factory) -> Path:
-    d = tmp_path_factory.mktemp("c_gantry")
+def write_sources(d: Path) -> Path:
+    """The runtime's and the gantry runtime's sources and the harness, in ``d``."""
     for name in RUNTIME_FILES:
         (d / name).write_text(runtime_source(name))
     for name in GANTRY_FILES:
@@ -276,8 +275,8 @@ def src(tmp_path_factory) -> Path:
     return d
 
 
-@pytest.fixture(scope="module")
-def lib(src: Path) -> ctypes.CDLL:
+def build_lib(src: Path) -> ctypes.CDLL:
+    """The harness built strictly as a shared library, its functions typed."""
     cc(src, *STRICT, "-O2", "-shared", "-fPIC", *_SOURCES, "-o", "libgantry.so")
     lib = ctypes.CDLL(str(src / "libgantry.so"))
     i64, p, i = ctypes.c_int64, ctypes.c_void_p, ctypes.c_int
@@ -293,6 +292,16 @@ def lib(src: Path) -> ctypes.CDLL:
         fn.restype = restype
         fn.argtypes = argtypes
     return lib
+
+
+@pytest.fixture(scope="module")
+def src(tmp_path_factory) -> Path:
+    return write_sources(tmp_path_factory.mktemp("c_gantry"))
+
+
+@pytest.fixture(scope="module")
+def lib(src: Path) -> ctypes.CDLL:
+    return build_lib(src)
 
 
 # --- the gantry, its constants and scenarios --------------------------------------------------
@@ -697,10 +706,9 @@ def test_digest_is_the_layout_sha256_and_changes_with_every_field(lib, gantry) -
         assert (topo == "listening") == (lib.h_digest(c.ctypes.data, sha) == 0)
 
 
-def test_check_accepts_the_example_and_names_the_bad_field(lib, gantry) -> None:
-    """``st_gantry_check`` returns 0 for the example in every topology and at the latency
-    bounds, and the documented code (servotune_gantry.h) for one bad field at a time."""
-    good = _consts(gantry, "listening")
+def checker(lib: ctypes.CDLL, good: np.ndarray):
+    """``check(**changes)``: ``st_gantry_check``'s code for ``good`` with the layout fields
+    changed (``master__kp_f=40`` is ``master.kp_f``)."""
     at = {name: i for i, name in enumerate(GANTRY_LAYOUT_FIELDS)}
 
     def check(**changes: int) -> int:
@@ -709,6 +717,14 @@ def test_check_accepts_the_example_and_names_the_bad_field(lib, gantry) -> None:
             c[at[name.replace("__", ".")]] = v
         return lib.h_check(c.ctypes.data)
 
+    return check
+
+
+def test_check_accepts_the_example_and_names_the_bad_field(lib, gantry) -> None:
+    """``st_gantry_check`` returns 0 for the example in every topology and at the latency
+    bounds, and the documented code (servotune_gantry.h) for one bad field at a time."""
+    good = _consts(gantry, "listening")
+    check = checker(lib, good)
     assert check() == 0
     for t in range(4):
         assert check(topology=t) == 0

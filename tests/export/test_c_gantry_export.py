@@ -81,6 +81,18 @@ def exported(tmp_path_factory):
     return d, v.config
 
 
+BUILD_FILES = (
+    "harness.c",
+    "servotune_rt.c",
+    "servotune_rt.h",
+    "servotune_filter.h",
+    "servotune_gantry.c",
+    "servotune_gantry.h",
+    GANTRY_HEADER_NAME,
+)
+"""The files a harness of the exported header is built from (:func:`_build`)."""
+
+
 def _build(d: Path, name: str) -> ctypes.CDLL:
     cc(
         d,
@@ -156,15 +168,7 @@ def test_the_exported_header_replays_the_simulation_bit_for_bit(exported) -> Non
 
 def test_a_constant_edited_in_the_header_fails_the_digest(exported, tmp_path: Path) -> None:
     d, _ = exported
-    for name in (
-        "harness.c",
-        "servotune_rt.c",
-        "servotune_rt.h",
-        "servotune_filter.h",
-        "servotune_gantry.c",
-        "servotune_gantry.h",
-        GANTRY_HEADER_NAME,
-    ):
+    for name in BUILD_FILES:
         shutil.copy(d / name, tmp_path / name)
     header = tmp_path / GANTRY_HEADER_NAME
     text = header.read_text()

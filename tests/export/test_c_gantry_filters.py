@@ -19,7 +19,6 @@ drive and sync loops' margins, and carried in the gantry's C layout and digest
 
 from __future__ import annotations
 
-import ctypes
 import json
 import re
 import shutil
@@ -32,7 +31,8 @@ import control
 import numpy as np
 import pytest
 import scipy.signal
-from c_build import STRICT, cc, needs_cc
+from c_build import needs_cc
+from filtered_configs import ROOT, filter_tables, with_filters
 from test_c_gantry import (
     _assert_same,
     _c_run,
@@ -41,7 +41,11 @@ from test_c_gantry import (
     _long_scenario,
     _short_scenario,
     _trip_events,
+    build_lib,
+    checker,
+    write_sources,
 )
+from test_c_gantry_export import BUILD_FILES, _build
 
 from servotune.analysis.margins import GainSet, loop_model, margin_grid
 from servotune.arch.gantry.config import TOPOLOGIES, GantryConfig
@@ -58,40 +62,20 @@ from servotune.export.gantry import check_gantry_tables
 from servotune.export.gantry_layout import GANTRY_LAYOUT_FIELDS
 from servotune.report.text import format_comparison
 
-ROOT = Path(__file__).resolve().parents[2]
-
 # the example gantry's drives with output filters: a notch and a low-pass on the master, a
 # notch on the slave (well inside the 500 Hz Nyquist frequency of the 1 ms bus cycle)
-FILTERS_TOML = """
-[[axis.master.filters]]
-kind = "notch"
-center_hz = 40.0
-width_hz = 12.0
-depth_db = -20.0
-
-[[axis.master.filters]]
-kind = "lowpass2"
-corner_hz = 150.0
-damping = 0.7
-
-[[axis.slave.filters]]
-kind = "notch"
-center_hz = 55.0
-width_hz = 15.0
-depth_db = -15.0
-"""
+FILTERS = {
+    "master": [
+        {"kind": "notch", "center_hz": 40.0, "width_hz": 12.0, "depth_db": -20.0},
+        {"kind": "lowpass2", "corner_hz": 150.0, "damping": 0.7},
+    ],
+    "slave": [{"kind": "notch", "center_hz": 55.0, "width_hz": 15.0, "depth_db": -15.0}],
+}
 
 
-def write_filtered_gantry(d: Path, filters: str = FILTERS_TOML) -> Path:
-    """``plants/gantry.toml`` with ``filters`` appended (its rig named by absolute path), in
-    ``d``."""
-    text = (ROOT / "plants" / "gantry.toml").read_text()
-    rig = (ROOT / "plants" / "pc-dual-servo.toml").as_posix()
-    text = text.replace('rig = "pc-dual-servo.toml"', f'rig = "{rig}"')
-    assert rig in text
-    path = d / "gantry-filtered.toml"
-    path.write_text(text + filters)
-    return path
+def write_filtered_gantry(d: Path, tables: str | None = None) -> Path:
+    """``plants/gantry.toml`` with the filter tables (:data:`FILTERS`, or ``tables``) in ``d``."""
+    return with_filters("gantry.toml", d, filter_tables(FILTERS) if tables is None else tables)
 
 
 @pytest.fixture(scope="module")
@@ -118,11 +102,11 @@ def test_the_config_realises_each_drives_filters_at_the_bus_cycle(filtered) -> N
 
 
 def test_a_filter_the_bus_cycle_cannot_realise_is_one_config_error(tmp_path: Path) -> None:
-    bad = FILTERS_TOML.replace("center_hz = 55.0", "center_hz = 600.0")  # above 500 Hz
+    bad = filter_tables(FILTERS).replace("center_hz = 55.0", "center_hz = 600.0")  # > 500 Hz
     with pytest.raises(ConfigError, match=r"axis\.slave\.filters\[0\].*center_hz") as exc:
         load_gantry(write_filtered_gantry(tmp_path, bad))
     assert "\n" not in str(exc.value)
-    five = FILTERS_TOML + FILTERS_TOML.split("[[axis.slave.filters]]")[0] * 2  # 2 + 4 sections
+    five = filter_tables({"master": FILTERS["master"] * 2 + FILTERS["master"][:1]})  # 5
     with pytest.raises(ConfigError, match=r"axis\.master\.filters must be an array of at most 4"):
         load_gantry(write_filtered_gantry(tmp_path, five))
 
@@ -164,22 +148,7 @@ def test_drive_margins_take_the_filters_rebuilt_independently(filtered) -> None:
 @pytest.fixture(scope="module")
 def lib(tmp_path_factory):
     """The harness of ``test_c_gantry.py`` built again (its fixture is module-scoped there)."""
-    from test_c_gantry import _SOURCES, GANTRY_FILES, HARNESS, _gantry_source
-
-    from servotune.export.c import RUNTIME_FILES, runtime_source
-
-    d = tmp_path_factory.mktemp("c_gantry_filters")
-    for name in RUNTIME_FILES:
-        (d / name).write_text(runtime_source(name))
-    for name in GANTRY_FILES:
-        (d / name).write_text(_gantry_source(name))
-    (d / "harness.c").write_text(HARNESS)
-    cc(d, *STRICT, "-O2", "-shared", "-fPIC", *_SOURCES, "-o", "libgantry.so")
-    lib = ctypes.CDLL(str(d / "libgantry.so"))
-    p = ctypes.c_void_p
-    lib.h_check.restype, lib.h_check.argtypes = ctypes.c_int, [p]
-    lib.h_run.restype, lib.h_run.argtypes = None, [p, ctypes.c_int64, p, p, p, p]
-    return lib
+    return build_lib(write_sources(tmp_path_factory.mktemp("c_gantry_filters")))
 
 
 @needs_cc
@@ -232,16 +201,9 @@ def test_check_names_a_bad_filter_of_either_drive(lib, filtered) -> None:
     """``st_gantry_check`` code 10 for a drive's ``n_filters`` outside 0..4 or a section in use
     with a bad ``frac_bits`` or an unstable denominator (servotune_gantry.h)."""
     good = _consts(filtered, "listening")
-    at = {name: i for i, name in enumerate(GANTRY_LAYOUT_FIELDS)}
-
-    def check(**changes: int) -> int:
-        c = good.copy()
-        for name, v in changes.items():
-            c[at[name.replace("__", ".")]] = v
-        return lib.h_check(c.ctypes.data)
-
+    check = checker(lib, good)
     assert check() == 0
-    f = good[at["master.filter0.frac_bits"]]
+    f = good[GANTRY_LAYOUT_FIELDS.index("master.filter0.frac_bits")]
     for changes, code in (
         ({"master.n_filters": 5}, 110),
         ({"slave.n_filters": -1}, 210),
@@ -298,33 +260,9 @@ def test_the_exported_filtered_gantry_passes_its_checks_and_an_edit_fails(
     drives = doc["data"]["drives"]
     assert [len(x["controller"]["filters"]) for x in drives] == [2, 1]
     (exported / "harness.c").write_text(HARNESS)
-    for name in (
-        "harness.c",
-        "servotune_rt.c",
-        "servotune_rt.h",
-        "servotune_filter.h",
-        "servotune_gantry.c",
-        "servotune_gantry.h",
-        "servotune_gantry_consts.h",
-    ):
+    for name in BUILD_FILES:
         shutil.copy(exported / name, tmp_path / name)
-
-    def build(d: Path) -> ctypes.CDLL:
-        cc(
-            d,
-            *STRICT,
-            "-O2",
-            "-shared",
-            "-fPIC",
-            "harness.c",
-            "servotune_rt.c",
-            "servotune_gantry.c",
-            "-o",
-            "lib.so",
-        )
-        return ctypes.CDLL(str(d / "lib.so"))
-
-    lib = build(exported)
+    lib = _build(exported, "lib.so")
     assert [lib.h_n_filters(a) for a in (0, 1)] == [2, 1]
     assert lib.h_check() == 0 and lib.h_check_digest() == 0
     header = tmp_path / "servotune_gantry_consts.h"
@@ -332,7 +270,7 @@ def test_the_exported_filtered_gantry_passes_its_checks_and_an_edit_fails(
     line = next(x for x in text.splitlines() if x.startswith("#define ST_SLAVE_FILT0_B1 "))
     value = int(re.search(r"-?\d+", line.split(maxsplit=2)[2]).group())  # 12 or INT32_C(-12)
     header.write_text(text.replace(line, f"#define ST_SLAVE_FILT0_B1 ({value + 1})"))
-    edited = build(tmp_path)
+    edited = _build(tmp_path, "lib.so")
     assert edited.h_check() == 0  # still a stable section: only the digest tells
     assert edited.h_check_digest() != 0
 

@@ -26,6 +26,7 @@ import numpy as np
 import pytest
 import scipy.signal
 from c_build import STRICT, cc, needs_cc
+from filtered_configs import ROOT, filter_tables, with_filters
 
 from servotune.analysis.margins import GainSet, loop_model
 from servotune.arch.linkage import load_linkage, plan_linkage
@@ -38,39 +39,21 @@ from servotune.errors import ConfigError
 from servotune.export import c as c_export
 from servotune.export.linkage import LINK_HEADER_NAME
 
-ROOT = Path(__file__).resolve().parents[2]
-
 # a notch and a low-pass on x, a notch on y (inside the 250 Hz Nyquist frequency of 2 ms)
-FILTERS_TOML = """
-[[axis.x.filters]]
-kind = "notch"
-center_hz = 30.0
-width_hz = 10.0
-depth_db = -20.0
-
-[[axis.x.filters]]
-kind = "lowpass2"
-corner_hz = 80.0
-damping = 0.7
-
-[[axis.y.filters]]
-kind = "notch"
-center_hz = 45.0
-width_hz = 12.0
-depth_db = -15.0
-"""
+FILTERS = {
+    "x": [
+        {"kind": "notch", "center_hz": 30.0, "width_hz": 10.0, "depth_db": -20.0},
+        {"kind": "lowpass2", "corner_hz": 80.0, "damping": 0.7},
+    ],
+    "y": [{"kind": "notch", "center_hz": 45.0, "width_hz": 12.0, "depth_db": -15.0}],
+}
 
 
-def write_filtered_linkage(d: Path, filters: str = FILTERS_TOML) -> Path:
-    """``plants/linkage-6axis.toml`` with ``filters`` appended (its rig named by absolute
-    path), in ``d``."""
-    text = (ROOT / "plants" / "linkage-6axis.toml").read_text()
-    rig = (ROOT / "plants" / "pc-dual-servo.toml").as_posix()
-    text = text.replace('rig = "pc-dual-servo.toml"', f'rig = "{rig}"', 1)
-    assert rig in text
-    path = d / "linkage-filtered.toml"
-    path.write_text(text + filters)
-    return path
+def write_filtered_linkage(d: Path, tables: str | None = None) -> Path:
+    """``plants/linkage-6axis.toml`` with the filter tables (:data:`FILTERS`, or ``tables``)
+    in ``d``."""
+    tables = filter_tables(FILTERS) if tables is None else tables
+    return with_filters("linkage-6axis.toml", d, tables)
 
 
 @pytest.fixture(scope="module")
@@ -100,7 +83,7 @@ def test_the_config_realises_each_axis_filters_and_the_plan_keeps_them(filtered)
 
 
 def test_a_filter_the_period_cannot_realise_is_one_config_error(tmp_path: Path) -> None:
-    bad = FILTERS_TOML.replace("center_hz = 45.0", "center_hz = 300.0")  # above 250 Hz
+    bad = filter_tables(FILTERS).replace("center_hz = 45.0", "center_hz = 300.0")  # > 250 Hz
     with pytest.raises(ConfigError, match=r"axis\.y\.filters\[0\].*center_hz") as exc:
         load_linkage(write_filtered_linkage(tmp_path, bad))
     assert "\n" not in str(exc.value)
@@ -153,15 +136,30 @@ HARNESS = r"""
 
 #define FILT(A, K) {A##_FILT##K##_B0, A##_FILT##K##_B1, A##_FILT##K##_B2, A##_FILT##K##_A1, \
                     A##_FILT##K##_A2, A##_FILT##K##_FRAC_BITS}
+/* one axis's PI, lock gain, following-error limit and output filters from its macros */
+#define FROM_MACROS(c, A, SEC)                       \
+    do {                                             \
+        int k_;                                      \
+        (c)->lock_q = A##_LOCK_Q;                    \
+        (c)->lock_f = A##_LOCK_F;                    \
+        (c)->kp_q = A##_KP_Q;                        \
+        (c)->kp_f = A##_KP_F;                        \
+        (c)->kit_q = A##_KIT_Q;                      \
+        (c)->kit_f = A##_KIT_F;                      \
+        (c)->fe_limit = A##_FE_LIMIT;                \
+        (c)->n_filters = A##_N_FILTERS;              \
+        for (k_ = 0; k_ < A##_N_FILTERS; k_++) {     \
+            (c)->filter[k_] = SEC[k_];               \
+        }                                            \
+    } while (0)
 
 /* axis X or Y's constants from the plan header's macros alone (the rig's counter and D/A
- * passed in): the PI law, lock gain, following-error limit and output filters */
+ * passed in) */
 static void consts_of(int axis, int counter_bits, int dac_zero, int dac_max, st_axis_consts_t *c)
 {
     static const st_section_t x_sec[] = {FILT(STL_AXIS_X, 0), FILT(STL_AXIS_X, 1)};
     static const st_section_t y_sec[] = {FILT(STL_AXIS_Y, 0)};
     const st_axis_consts_t zero = {0};
-    int k;
     *c = zero;
     c->law = ST_LAW_PI;
     c->counter_bits = (int16_t)counter_bits;
@@ -169,29 +167,9 @@ static void consts_of(int axis, int counter_bits, int dac_zero, int dac_max, st_
     c->dac_max = dac_max;
     c->ref_source = -1;
     if (axis == 0) {
-        c->lock_q = STL_AXIS_X_LOCK_Q;
-        c->lock_f = STL_AXIS_X_LOCK_F;
-        c->kp_q = STL_AXIS_X_KP_Q;
-        c->kp_f = STL_AXIS_X_KP_F;
-        c->kit_q = STL_AXIS_X_KIT_Q;
-        c->kit_f = STL_AXIS_X_KIT_F;
-        c->fe_limit = STL_AXIS_X_FE_LIMIT;
-        c->n_filters = STL_AXIS_X_N_FILTERS;
-        for (k = 0; k < STL_AXIS_X_N_FILTERS; k++) {
-            c->filter[k] = x_sec[k];
-        }
+        FROM_MACROS(c, STL_AXIS_X, x_sec);
     } else {
-        c->lock_q = STL_AXIS_Y_LOCK_Q;
-        c->lock_f = STL_AXIS_Y_LOCK_F;
-        c->kp_q = STL_AXIS_Y_KP_Q;
-        c->kp_f = STL_AXIS_Y_KP_F;
-        c->kit_q = STL_AXIS_Y_KIT_Q;
-        c->kit_f = STL_AXIS_Y_KIT_F;
-        c->fe_limit = STL_AXIS_Y_FE_LIMIT;
-        c->n_filters = STL_AXIS_Y_N_FILTERS;
-        for (k = 0; k < STL_AXIS_Y_N_FILTERS; k++) {
-            c->filter[k] = y_sec[k];
-        }
+        FROM_MACROS(c, STL_AXIS_Y, y_sec);
     }
 }
 
