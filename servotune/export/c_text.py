@@ -116,9 +116,9 @@ def axis_lines(ax: Mapping[str, Any], ident: str) -> tuple[list[str], list[str]]
         init.append(f".tf = {{{tf}}}")
         init.append(f".tab = {{{tab}}}")
     if "filters" in ax:  # a tables document's axis, or a gantry drive with filters
-        filter_lines_, filter_init = filter_lines(ax["filters"], up)
-        lines.extend(filter_lines_)
-        init.extend(filter_init)
+        macros, members = filter_lines(ax["filters"], up)
+        lines.extend(macros)
+        init.extend(members)
     if ax.get("shaper"):  # a tables document's axis with a reference shaper
         lines += _shaper_lines(ax["shaper"], ident, up)
         init += [f".shaper_n = {up}_SHAPER_N", f".shaper_q = st_{ident}_shaper_q"]

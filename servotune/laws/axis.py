@@ -26,7 +26,14 @@ from servotune._numba_cache import jit
 from servotune.errors import SpecError
 from servotune.fixed import F_U, Fixed, align, quantize, sat_add, shift_round
 from servotune.hw.counter import unwrap_step
-from servotune.laws.filters import ACC_LIMIT, N_FILTER_STATE, SectionQ, biquad_step, state_bound
+from servotune.laws.filters import (
+    ACC_LIMIT,
+    N_FILTER_STATE,
+    Section,
+    SectionQ,
+    biquad_step,
+    state_bound,
+)
 from servotune.laws.fuzzy_pid import (
     TABLE_NAMES,
     FuzzyPIDConstants,
@@ -60,8 +67,10 @@ __all__ = [
     "TaskLaw",
     "axis_control",
     "axis_read",
+    "check_filter_designs",
     "filter_block",
     "filter_chain",
+    "filter_input_bound",
     "filter_overflow_problem",
     "law_names",
     "switch_filters",
@@ -460,6 +469,24 @@ def filter_block(sections: Sequence[SectionQ]) -> np.ndarray:
     return block
 
 
+def filter_input_bound(zero: int, code_max: int) -> int:
+    """The largest magnitude an output filter's input takes: the law holds it to the D/A's
+    range, ``−zero … code_max − zero`` codes, with ``FILTER_F`` fraction bits (at least one
+    code)."""
+    return max(zero, code_max - zero, 1) << FILTER_F
+
+
+def check_filter_designs(
+    filters: Sequence[Section], name: str = "filters", error: type[Exception] = ValueError
+) -> None:
+    """An axis's output filters as designed: at most :data:`MAX_FILTERS`
+    :class:`~servotune.laws.filters.Section` (``error`` naming ``name`` otherwise)."""
+    if len(filters) > MAX_FILTERS or not all(isinstance(f, Section) for f in filters):
+        raise error(
+            f"{name} must be at most {MAX_FILTERS} filter sections, got {show_value(filters)}"
+        )
+
+
 def filter_overflow_problem(sections: Sequence[SectionQ], zero: int, code_max: int) -> str | None:
     """Why the runtime's sums could overflow in one of an axis's filter sections, or ``None``.
 
@@ -468,7 +495,7 @@ def filter_overflow_problem(sections: Sequence[SectionQ], zero: int, code_max: i
     accumulator must then stay within ±2^62 (:func:`~servotune.laws.filters.state_bound`), the
     bound behind the C runtime's promise of no undefined behaviour.
     """
-    bound = max(zero, code_max - zero, 1) << FILTER_F
+    bound = filter_input_bound(zero, code_max)
     for k, sec in enumerate(sections):
         try:
             acc = state_bound(sec, bound).acc_max

@@ -20,7 +20,7 @@ from servotune.errors import RigError
 from servotune.hw import counter as hw_counter
 from servotune.hw import dac as hw_dac
 from servotune.hw import timer as hw_timer
-from servotune.laws.axis import FILTER_F, MAX_FILTERS
+from servotune.laws.axis import check_filter_designs, filter_input_bound
 from servotune.laws.filters import Section, SectionQ, realize
 from servotune.plant import Plant
 from servotune.validate import check_integer, check_number, is_finite, is_number, show_value
@@ -213,7 +213,7 @@ class Dac:
         """The largest magnitude an output filter's input takes: the law holds it to the D/A's
         range, ``−zero … code_max − zero`` codes, with ``FILTER_F`` fraction bits
         (:func:`servotune.laws.filters.realize`)."""
-        return max(self.zero_code, self.code_max - self.zero_code) << FILTER_F
+        return filter_input_bound(self.zero_code, self.code_max)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -414,11 +414,7 @@ class Axis:
 
     def __post_init__(self) -> None:
         p = f"axis.{self.name}"
-        if len(self.filters) > MAX_FILTERS or not all(isinstance(f, Section) for f in self.filters):
-            raise RigError(
-                f"{p}.filters must be at most {MAX_FILTERS} filter sections, "
-                f"got {show_value(self.filters)}"
-            )
+        check_filter_designs(self.filters, f"{p}.filters", RigError)
         if self.role not in ROLES:
             raise RigError(f"{p}.role must be 'master' or 'slave', got {show_value(self.role)}")
         _positive(

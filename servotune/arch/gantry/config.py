@@ -19,7 +19,7 @@ from servotune.analysis.margins import MarginLimits
 from servotune.arch.bounds import MAX_ACCEL_CPS2, MAX_GAIN, MAX_SECONDS, MAX_SPEED_CPS
 from servotune.errors import ConfigError, RigError, SpecError
 from servotune.io.sections import build_section
-from servotune.laws.axis import MAX_FILTERS, AxisController
+from servotune.laws.axis import AxisController, check_filter_designs
 from servotune.laws.filters import Section, SectionQ
 from servotune.laws.pi import PIGains
 from servotune.laws.shaping import KINDS as SHAPER_KINDS
@@ -260,8 +260,7 @@ class GantryAxis:
     controller: AxisController | None = None
 
     def __post_init__(self) -> None:
-        if len(self.filters) > MAX_FILTERS or not all(isinstance(f, Section) for f in self.filters):
-            raise ConfigError(f"filters must be at most {MAX_FILTERS} filter sections")
+        check_filter_designs(self.filters, error=ConfigError)
         for name, unit in (("kp", "codes/count"), ("ki", "codes/(count·s)")):
             if getattr(self, name) is not None:
                 check_number(name, getattr(self, name), unit, hi=MAX_GAIN, error=ConfigError)

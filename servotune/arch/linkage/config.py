@@ -17,7 +17,7 @@ from servotune.arch.linkage.bus import Bus, Clock, SlaveCpu
 from servotune.errors import ConfigError, RigError
 from servotune.io.files import parse_toml_as, read_bytes
 from servotune.io.sections import build_section
-from servotune.laws.axis import MAX_FILTERS
+from servotune.laws.axis import check_filter_designs
 from servotune.laws.filters import Section, SectionQ
 from servotune.laws.pi import PIGains
 from servotune.plant import Plant
@@ -94,8 +94,7 @@ class LinkageAxis:
     gains_tuned: bool = False
 
     def __post_init__(self) -> None:
-        if len(self.filters) > MAX_FILTERS or not all(isinstance(f, Section) for f in self.filters):
-            raise ConfigError(f"filters must be at most {MAX_FILTERS} filter sections")
+        check_filter_designs(self.filters, error=ConfigError)
         if (self.kp is None) != (self.ki is None):
             raise ConfigError(
                 f"kp and ki must be given together (or neither, to tune them), got "
